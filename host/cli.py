@@ -1,0 +1,55 @@
+"""The ``ghostshell`` command: a thin dispatcher over :mod:`host.commands`.
+
+Each subcommand lives in its own module under ``host/commands`` exposing
+``configure(parser: argparse.ArgumentParser) -> None`` and
+``main(args: argparse.Namespace) -> int``. Modules are imported only when their
+subcommand runs, so ``ghostshell --help`` stays fast and one broken optional
+dependency cannot take down every command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+#: subcommand -> (module under host.commands, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "board": ("board", "run the emulated CoCo board (firmware_sim) on a pty, a port or a URL"),
+    "pose": ("pose", "drive the board to a named pose and report the largest error"),
+    "demo": ("demo", "start a board on a pty and run the showcase end to end"),
+    "log": ("log", "decode a frame log written with --log"),
+    "prompt": ("prompt", "print the system prompt for the mounted functions"),
+    "dsbc": ("dsbc", "score a generated function-token program against a ground truth"),
+    "run": ("run", "run a task or a program on the robot"),
+}
+
+
+def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
+    """Build the top-level parser; only the chosen subcommand's module is imported."""
+    parser = argparse.ArgumentParser(prog="ghostshell", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    chosen = next((a for a in argv if not a.startswith("-")), None)
+    for name, (module, help_text) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        if name == chosen:
+            mod = importlib.import_module(f"host.commands.{module}")
+            mod.configure(p)
+            p.set_defaults(_main=mod.main)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``ghostshell`` console script."""
+    args_list = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(args_list)
+    args = parser.parse_args(args_list)
+    try:
+        return int(args._main(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,178 @@
+"""Frame-log records shared by both ends of the serial link (pure functions, no I/O).
+
+Serial frames have no standard capture format or tool (pcap has no link type for a
+custom UART protocol), so the log is JSON Lines: one object per frame, written by
+whoever owns the file. CAN frames will use python-can's writers (``can.Logger``,
+e.g. ASC/BLF) instead. A record is::
+
+    {"dir": "tx"|"rx", "t": seconds, "raw": "<wire bytes as hex, delimiter included>",
+     "seq": 42, "type": "SERVO_FRAME", "fields": {...}}          # decoded frame
+    {"dir": ..., "t": ..., "raw": ..., "error": "CRC", "detail": "..."}   # discarded bytes
+
+``fields`` holds the decoded message: enums by name, flags as ``"A|B"``, tuples as
+lists, bytes as hex, NaN as ``null``. The raw bytes alone are enough to re-decode
+a record (:func:`decode_raw`), so a log stays useful if the field rendering changes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Iterable, Iterator
+from enum import Enum, IntFlag
+from typing import Any
+
+from protocol.framing import DecodeError, DecodeErrorKind, Frame, FrameDecoder
+
+__all__ = [
+    "FrameLogError",
+    "decode_raw",
+    "format_record",
+    "from_line",
+    "iter_records",
+    "message_fields",
+    "record",
+    "to_line",
+]
+
+DIRECTIONS = ("tx", "rx")
+
+
+class FrameLogError(ValueError):
+    """A log line or raw hex string that cannot be read."""
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, IntFlag):
+        return "|".join(e.name for e in type(value) if e.value and (value & e) == e) or "NONE"
+    if isinstance(value, Enum):
+        return value.name
+    if isinstance(value, bool) or value is None or isinstance(value, (int, str)):
+        return value
+    if isinstance(value, float):
+        return None if not math.isfinite(value) else value
+    if isinstance(value, (bytes, bytearray, memoryview)):
+        return bytes(value).hex()
+    if isinstance(value, (tuple, list)):
+        return [_jsonable(v) for v in value]
+    return str(value)
+
+
+def message_fields(msg: Any) -> dict[str, Any]:
+    """A message dataclass as a JSON-ready dict (enums by name, bytes as hex, NaN as None)."""
+    return {f.name: _jsonable(getattr(msg, f.name)) for f in dataclasses.fields(msg)}
+
+
+def decode_raw(raw: str | bytes) -> Frame | DecodeError:
+    """Decode one frame from its wire bytes (hex string or bytes; the delimiter may be missing).
+
+    Raises :class:`FrameLogError` only when ``raw`` is not valid hex.
+    """
+    if isinstance(raw, str):
+        try:
+            data = bytes.fromhex(raw)
+        except ValueError as e:
+            raise FrameLogError(f"raw is not a hex string: {e}") from None
+    else:
+        data = bytes(raw)
+    if not data.endswith(b"\x00"):
+        data += b"\x00"
+    items = FrameDecoder(max_frame_bytes=max(512, len(data))).feed(data)
+    if len(items) == 1:
+        return items[0]
+    if not items:
+        return DecodeError(DecodeErrorKind.LENGTH, "no frame in the raw bytes (empty)", data)
+    kinds = ", ".join(type(i).__name__ if isinstance(i, Frame) else i.kind.value for i in items)
+    return DecodeError(DecodeErrorKind.COBS, f"raw bytes hold {len(items)} frames/errors ({kinds}), expected one", data)
+
+
+def record(direction: str, t: float, raw: bytes, item: Frame | DecodeError | None = None) -> dict[str, Any]:
+    """Build one log record; when ``item`` is None the raw bytes are decoded here."""
+    if direction not in DIRECTIONS:
+        raise ValueError(f"direction must be 'tx' or 'rx', got {direction!r}")
+    if item is None:
+        item = decode_raw(bytes(raw))
+    rec: dict[str, Any] = {"dir": direction, "t": float(t), "raw": bytes(raw).hex()}
+    if isinstance(item, Frame):
+        rec["seq"] = item.seq
+        rec["type"] = item.msg_type.name
+        rec["fields"] = message_fields(item.msg)
+    else:
+        rec["error"] = item.kind.value
+        rec["detail"] = item.detail
+    return rec
+
+
+def to_line(rec: dict[str, Any]) -> str:
+    """One compact JSON line (no trailing newline)."""
+    return json.dumps(rec, separators=(",", ":"), allow_nan=False)
+
+
+def from_line(line: str) -> dict[str, Any]:
+    """Parse and check one log line; :class:`FrameLogError` with the reason if it is not a record."""
+    text = line.strip()
+    if not text:
+        raise FrameLogError("empty line")
+    try:
+        rec = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise FrameLogError(f"not JSON: {e.msg} at column {e.colno}") from None
+    if not isinstance(rec, dict):
+        raise FrameLogError(f"expected a JSON object, got {type(rec).__name__}")
+    if rec.get("dir") not in DIRECTIONS:
+        raise FrameLogError(f"'dir' must be 'tx' or 'rx', got {rec.get('dir')!r}")
+    t = rec.get("t")
+    if isinstance(t, bool) or not isinstance(t, (int, float)):
+        raise FrameLogError(f"'t' must be a number, got {t!r}")
+    raw = rec.get("raw")
+    if not isinstance(raw, str):
+        raise FrameLogError(f"'raw' must be a hex string, got {raw!r}")
+    try:
+        bytes.fromhex(raw)
+    except ValueError:
+        raise FrameLogError(f"'raw' is not valid hex: {raw[:40]!r}") from None
+    if "error" in rec:
+        if not isinstance(rec["error"], str):
+            raise FrameLogError("'error' must be a string")
+    elif not (isinstance(rec.get("type"), str) and isinstance(rec.get("fields"), dict)):
+        raise FrameLogError("a record needs either 'type' and 'fields' or 'error'")
+    return rec
+
+
+def iter_records(lines: Iterable[str]) -> Iterator[dict[str, Any]]:
+    """Parse lines of a log (blank lines skipped); errors name the 1-based line number."""
+    for lineno, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            yield from_line(line)
+        except FrameLogError as e:
+            raise FrameLogError(f"line {lineno}: {e}") from None
+
+
+def _fmt_value(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, list):
+        return "[" + " ".join(_fmt_value(x) for x in v) + "]"
+    if v is None:
+        return "nan"
+    return str(v)
+
+
+def format_record(rec: dict[str, Any]) -> str:
+    """One readable line, e.g. ``  12.345678 tx #   42 SERVO_FRAME      39 B  apply_at_us=... mask=0x0fff ...``."""
+    n = len(rec.get("raw", "")) // 2
+    head = f"{float(rec['t']):12.6f} {rec['dir']}"
+    if "error" in rec:
+        return f"{head} ERROR {rec['error']:<12} {n:4d} B  {rec.get('detail', '')}  raw={rec.get('raw', '')[:64]}"
+    parts = []
+    for key, value in rec.get("fields", {}).items():
+        if key == "mask" and isinstance(value, int):
+            parts.append(f"mask={value:#06x}")
+        elif key == "data" and isinstance(value, str):
+            parts.append(f"data=<{len(value) // 2} B>")
+        else:
+            parts.append(f"{key}={_fmt_value(value)}")
+    return f"{head} #{rec.get('seq', 0):5d} {rec['type']:<17} {n:4d} B  " + " ".join(parts)

@@ -1,0 +1,301 @@
+"""CoCo wire protocol, version 1: the message set as plain dataclasses.
+
+This module is the contract shared by the host and the board. It has no I/O and
+no encoding: :mod:`protocol.codec` packs these into payloads and
+:mod:`protocol.framing` puts payloads on the wire.
+
+Units: times are integer microseconds (board clock unless the field says host),
+positions radians, velocities rad/s, efforts N*m. Servo ``i`` (0-based) is the
+servo with id ``i + 1`` in the robot's servo table; a ``mask`` has bit ``i`` set
+for every servo a message covers, and per-servo tuples list only the masked
+servos in ascending index order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import IntEnum, IntFlag
+
+PROTOCOL_VERSION = 1
+MAX_SERVOS = 16
+
+
+class MsgType(IntEnum):
+    """Message type byte carried in every frame header."""
+
+    HELLO = 0x01
+    CAPS = 0x02
+    TIME_SYNC_REQUEST = 0x03
+    TIME_SYNC_REPLY = 0x04
+    CONFIG = 0x05
+    HEARTBEAT = 0x06
+    ADVANCE = 0x07
+    SERVO_FRAME = 0x10
+    FLUSH = 0x11
+    ESTOP = 0x12
+    ESTOP_CLEAR = 0x13
+    TELEMETRY = 0x20
+    SIM_STATE = 0x21
+    ACK = 0x22
+    NACK = 0x23
+    SCREEN = 0x30
+    SPEAKER = 0x31
+    CAMERA_CAPTURE = 0x32
+    CAMERA_CHUNK = 0x33
+
+
+class NackReason(IntEnum):
+    """Why the board refused a message."""
+
+    UNSPECIFIED = 0
+    VERSION_MISMATCH = 1
+    SCHEMA_MISMATCH = 2
+    LATE = 3  # apply-at time already past beyond tolerance
+    TOO_FAR_FUTURE = 4
+    BUFFER_FULL = 5
+    ESTOPPED = 6
+    FAULT_LATCHED = 7
+    BAD_VALUE = 8
+    UNSUPPORTED = 9
+    NO_RENDERER = 10
+    BUSY = 11
+    NOT_LOCKSTEP = 12
+
+
+class FaultFlags(IntFlag):
+    """Fault and state bits reported in telemetry."""
+
+    NONE = 0
+    ESTOP = 0x01  # emergency stop active
+    WATCHDOG_HOLD = 0x02  # link silent: holding position
+    WATCHDOG_FAULT = 0x04  # latched: crouched after a long silence, needs ESTOP_CLEAR
+    CLAMPED = 0x08  # a target was clamped to a joint or speed limit since last report
+    TICK_OVERRUN = 0x10  # realtime loop missed a deadline since last report
+    LINK_ERRORS = 0x20  # bad frames were received since last report
+
+
+class ConfigKey(IntEnum):
+    """Board settings the host may change at run time (value is an int)."""
+
+    TELEMETRY_RATE_HZ = 1
+    WATCHDOG_MS = 2
+    MAX_LATE_US = 3
+    MAX_FUTURE_US = 4
+    CROUCH_AFTER_MS = 5
+
+
+class SpeakerAction(IntEnum):
+    PLAY = 0
+    STOP = 1
+
+
+class SoundKind(IntEnum):
+    SPEECH = 0
+    CLIP = 1  # background music or a sound effect
+
+
+class ScreenTarget(IntEnum):
+    FACE = 0  # whole-face expression
+    EYES = 1  # eye animation
+    EARS = 2  # ear light animation
+
+
+# --- handshake and clock -------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Hello:
+    """Host -> board: first message of a session."""
+
+    protocol_version: int
+    schema_hash: int  # u32, see protocol.codec.SCHEMA_HASH
+    host_time_us: int
+
+
+@dataclass(frozen=True)
+class Caps:
+    """Board -> host: answer to HELLO."""
+
+    protocol_version: int
+    schema_hash: int
+    servo_count: int
+    control_rate_hz: int
+    buffer_depth: int  # servo frames the jitter buffer holds
+    telemetry_rate_hz: int
+    board_time_us: int
+    lockstep: bool
+
+
+@dataclass(frozen=True)
+class TimeSyncRequest:
+    """Host -> board: NTP-style probe; t1 is the host clock at send."""
+
+    t1_host_us: int
+
+
+@dataclass(frozen=True)
+class TimeSyncReply:
+    """Board -> host: t2 board clock at receive, t3 board clock at send."""
+
+    t1_host_us: int
+    t2_board_us: int
+    t3_board_us: int
+
+
+@dataclass(frozen=True)
+class Config:
+    key: ConfigKey
+    value: int
+
+
+@dataclass(frozen=True)
+class Heartbeat:
+    """Either direction; keeps the watchdog fed when nothing else is sent."""
+
+    sender_time_us: int
+
+
+@dataclass(frozen=True)
+class Advance:
+    """Host -> board, lockstep only: let the board clock run up to ``until_us``."""
+
+    until_us: int
+
+
+# --- motion --------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ServoFrame:
+    """Targets to reach at ``apply_at_us`` on the board clock (board interpolates between frames)."""
+
+    apply_at_us: int
+    mask: int
+    targets: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class Flush:
+    """Drop buffered frames due at or after ``from_us`` for the masked servos."""
+
+    from_us: int
+    mask: int
+
+
+@dataclass(frozen=True)
+class Estop:
+    pass
+
+
+@dataclass(frozen=True)
+class EstopClear:
+    pass
+
+
+# --- board -> host -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Telemetry:
+    board_time_us: int
+    positions: tuple[float, ...]  # all servos, index order
+    velocities: tuple[float, ...]
+    efforts: tuple[float, ...]
+    imu_rpy: tuple[float, float, float]  # body roll, pitch, yaw in radians
+    faults: FaultFlags
+    buffer_fill: int
+    last_applied_seq: int  # host sequence number of the last servo frame applied
+    late_count: int  # frames rejected as late, since boot
+    dropped_count: int  # frames rejected otherwise (future, full, estop), since boot
+    link_errors: int  # undecodable frames received, since boot
+
+
+@dataclass(frozen=True)
+class SimState:
+    """Emulator only: ground truth of the floating base (no real board can send this)."""
+
+    board_time_us: int
+    base_pos: tuple[float, float, float]  # metres, world frame
+    base_quat: tuple[float, float, float, float]  # w, x, y, z
+
+
+@dataclass(frozen=True)
+class Ack:
+    ack_seq: int  # sequence number of the acknowledged host message
+    msg_type: MsgType
+
+
+@dataclass(frozen=True)
+class Nack:
+    ack_seq: int
+    msg_type: MsgType
+    reason: NackReason
+    detail: str = ""  # short ASCII explanation, at most 64 bytes on the wire
+
+
+# --- peripherals ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ScreenCommand:
+    """Show an expression or animation from ``start_at_us`` for ``duration_ms`` (0 = until replaced)."""
+
+    target: ScreenTarget
+    name: str  # ASCII, at most 24 bytes
+    start_at_us: int
+    duration_ms: int
+
+
+@dataclass(frozen=True)
+class SpeakerCommand:
+    """Play or stop speech or a clip on the board clock."""
+
+    action: SpeakerAction
+    kind: SoundKind
+    start_at_us: int
+    duration_ms: int
+    volume: int  # 0..100
+    name: str = ""  # clip name, ASCII, at most 24 bytes
+    text: str = ""  # speech text, UTF-8, at most 200 bytes
+
+
+@dataclass(frozen=True)
+class CameraCapture:
+    """Ask the head camera for one image."""
+
+    request_id: int
+    width: int
+    height: int
+
+
+@dataclass(frozen=True)
+class CameraChunk:
+    """One piece of an encoded image (PNG); ``index`` counts from 0 to ``total - 1``."""
+
+    request_id: int
+    index: int
+    total: int
+    data: bytes = field(repr=False)
+
+
+Message = (
+    Hello
+    | Caps
+    | TimeSyncRequest
+    | TimeSyncReply
+    | Config
+    | Heartbeat
+    | Advance
+    | ServoFrame
+    | Flush
+    | Estop
+    | EstopClear
+    | Telemetry
+    | SimState
+    | Ack
+    | Nack
+    | ScreenCommand
+    | SpeakerCommand
+    | CameraCapture
+    | CameraChunk
+)
