@@ -1,0 +1,218 @@
+"""The mapper: element -> (function, typed arguments), and text -> speech segments.
+
+:func:`map_element` is the paper's M(E) = (F, theta): it resolves the element
+name on the registry and converts every attribute string with T(v)
+(:func:`convert_value`) to the declared parameter type. Errors are
+:class:`MappingError` subclasses whose messages are meant for the LLM's next
+turn. :class:`SentenceBuffer` turns streamed character data into speech segments
+flushed at sentence boundaries, so speech starts before the text is complete.
+"""
+
+from __future__ import annotations
+
+import difflib
+import enum
+import math
+import re
+import types
+import typing
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal, Union
+
+from host.shell.registry import Registry, UnknownFunction
+from host.shell.types import SYNC_ATTR, FunctionSpec, Param, Range
+
+
+class MappingError(ValueError):
+    """An element that cannot be mapped to a call."""
+
+
+class UnknownFunctionError(MappingError):
+    """The element names no mounted function."""
+
+
+class UnknownParameter(MappingError):
+    """An attribute names no parameter of the function."""
+
+
+class MissingParameter(MappingError):
+    """A required parameter has no attribute."""
+
+
+class BadValue(MappingError):
+    """An attribute value cannot be converted to the declared type."""
+
+
+class OutOfRange(BadValue):
+    """A numeric value outside the declared :class:`Range`."""
+
+
+_TRUE = {"true", "1", "yes", "on"}
+_FALSE = {"false", "0", "no", "off"}
+_NONE = {"none", "null"}
+
+
+def convert_value(value: str, annotation: Any, *, where: str = "value") -> Any:
+    """T(v): convert the attribute string ``value`` to ``annotation``; raises :class:`BadValue`."""
+    origin = typing.get_origin(annotation)
+    if origin is Annotated:
+        base, *meta = typing.get_args(annotation)
+        out = convert_value(value, base, where=where)
+        for m in meta:
+            if isinstance(m, Range) and out is not None and not (m.lo <= out <= m.hi):
+                raise OutOfRange(f"{where}={value!r} is out of range [{m.lo:g}, {m.hi:g}]")
+        return out
+    if origin is Literal:
+        options = typing.get_args(annotation)
+        for opt in options:
+            if str(opt) == value or (isinstance(opt, bool) and value.lower() == str(opt).lower()):
+                return opt
+        valid = ", ".join(repr(str(o)) for o in options)
+        raise BadValue(f"{where}={value!r} is not one of {valid}")
+    if origin in (Union, types.UnionType):
+        args = typing.get_args(annotation)
+        if type(None) in args and value.strip().lower() in _NONE:
+            return None
+        errors = []
+        for a in args:
+            if a is type(None):
+                continue
+            try:
+                return convert_value(value, a, where=where)
+            except BadValue as exc:
+                errors.append(str(exc))
+        raise BadValue("; ".join(errors) or f"{where}={value!r} has no valid type")
+    if annotation is Any or annotation is str:
+        return value
+    if annotation is bool:
+        v = value.strip().lower()
+        if v in _TRUE:
+            return True
+        if v in _FALSE:
+            return False
+        raise BadValue(f"{where}={value!r} is not a boolean (use true or false)")
+    if annotation is int:
+        try:
+            return int(value.strip())
+        except ValueError:
+            try:
+                f = float(value)
+            except ValueError:
+                f = math.nan
+            if math.isfinite(f) and f.is_integer():
+                return int(f)
+            raise BadValue(f"{where}={value!r} is not an integer") from None
+    if annotation is float:
+        try:
+            f = float(value.strip())
+        except ValueError:
+            raise BadValue(f"{where}={value!r} is not a number") from None
+        if not math.isfinite(f):
+            raise BadValue(f"{where}={value!r} is not a finite number")
+        return f
+    if isinstance(annotation, type) and issubclass(annotation, enum.Enum):
+        for member in annotation:
+            if value == member.name or value == str(member.value):
+                return member
+        valid = ", ".join(repr(m.name) for m in annotation)
+        raise BadValue(f"{where}={value!r} is not one of {valid}")
+    raise BadValue(f"{where}: unsupported parameter type {annotation!r}")
+
+
+@dataclass(frozen=True)
+class MappedCall:
+    """M(E): the resolved function, its typed arguments and the ``sync`` flag."""
+
+    spec: FunctionSpec
+    args: dict[str, Any]
+    sync: bool = False
+
+
+def split_sync(name: str, attrs: dict[str, str]) -> tuple[dict[str, str], bool]:
+    """Remove the reserved ``sync`` attribute; return the rest and its boolean value."""
+    if SYNC_ATTR not in attrs:
+        return attrs, False
+    rest = {k: v for k, v in attrs.items() if k != SYNC_ATTR}
+    return rest, convert_value(attrs[SYNC_ATTR], bool, where=f"<{name}> {SYNC_ATTR}")
+
+
+def map_args(spec: FunctionSpec, attrs: dict[str, str]) -> dict[str, Any]:
+    """Convert ``attrs`` to keyword arguments of ``spec`` (defaults left to the function)."""
+    out: dict[str, Any] = {}
+    known = {p.name: p for p in spec.params}
+    for key, raw in attrs.items():
+        p: Param | None = known.get(key)
+        if p is None:
+            close = difflib.get_close_matches(key, list(known), n=3, cutoff=0.5)
+            hint = f"; did you mean {', '.join(close)}?" if close else ""
+            params = ", ".join(known) or "none"
+            raise UnknownParameter(f"<{spec.name}> has no parameter {key!r} (parameters: {params}){hint}")
+        out[key] = convert_value(raw, p.annotation, where=f"<{spec.name}> {key}")
+    missing = [p.name for p in spec.params if p.required and p.name not in out]
+    if missing:
+        raise MissingParameter(f"<{spec.name}> is missing required parameter(s): {', '.join(missing)}")
+    return out
+
+
+def map_element(registry: Registry, name: str, attrs: dict[str, str]) -> MappedCall:
+    """Resolve ``name`` and convert ``attrs``; raises a :class:`MappingError`."""
+    try:
+        spec = registry.resolve(name)
+    except UnknownFunction as exc:
+        raise UnknownFunctionError(str(exc)) from None
+    rest, sync = split_sync(name, attrs)
+    return MappedCall(spec, map_args(spec, rest), sync)
+
+
+# ASCII terminators count only once the next character shows they end a sentence
+# ("3.5" is not a boundary); CJK terminators and newlines are boundaries at once.
+_BOUNDARY = re.compile(r"(?:[.!?]+[\"')\]\u201d\u2019]*(?=\s)|[\u3002\uff01\uff1f\uff1b\u2026]+[\u300d\u300f\u201d\u2019)]*|\n)")
+
+
+class SentenceBuffer:
+    """Buffers contiguous text; yields speech segments at sentence boundaries.
+
+    ``feed`` returns the complete sentences so far, ``flush`` the rest (called
+    when a tag arrives or the stream closes). Whitespace-only segments are
+    dropped. The buffer never holds more than one unfinished sentence plus
+    ``max_chars`` characters: a longer run without a boundary is flushed whole.
+    """
+
+    def __init__(self, max_chars: int = 2000) -> None:
+        self._buf = ""
+        self._max = max_chars
+
+    def feed(self, text: str) -> list[str]:
+        """Append ``text``; return the segments that are now complete."""
+        self._buf += text
+        last = None
+        for m in _BOUNDARY.finditer(self._buf):
+            last = m
+        out: list[str] = []
+        if last is not None:
+            head, self._buf = self._buf[: last.end()], self._buf[last.end() :]
+            out = [s for s in _split(head) if s]
+        if len(self._buf) > self._max:
+            out.append(self._buf.strip())
+            self._buf = ""
+        return [s for s in out if s]
+
+    def flush(self) -> list[str]:
+        """Return what is buffered (if not just whitespace) and empty the buffer."""
+        rest, self._buf = self._buf.strip(), ""
+        return [rest] if rest else []
+
+    @property
+    def pending(self) -> str:
+        """Text buffered but not yet flushed."""
+        return self._buf
+
+
+def _split(text: str) -> list[str]:
+    parts: list[str] = []
+    pos = 0
+    for m in _BOUNDARY.finditer(text):
+        parts.append(text[pos : m.end()].strip())
+        pos = m.end()
+    parts.append(text[pos:].strip())
+    return parts

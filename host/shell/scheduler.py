@@ -1,0 +1,572 @@
+"""The multi-channel scheduler: parser events in, timed function calls out.
+
+One :class:`ProgramRun` consumes the events of one LLM output stream while it is
+still arriving and dispatches every call as soon as its element is complete
+enough (a start-tag activates, a self-closing tag calls, text is spoken at
+sentence boundaries). Built on AnyIO structured concurrency: every call is a
+task in the run's task group with its own cancel scope (the element's
+lifecycle), and a persistent element's function runs in a nested scope that its
+reset cancels.
+
+Scheduling rules (paper, Appendix A.4), with call ``j`` dispatched after ``i``:
+
+* same channel: ``j`` starts after ``i`` completed (FIFO, one at a time);
+* different channels: no ordering;
+* main channel C0: if ``i`` is on C0, ``j`` waits for ``i`` (global blocking).
+  Interpretation: if ``j`` is on C0 it also waits for *every* earlier call
+  (a barrier), so ``<a/><wait><b/></wait>`` runs ``b`` after ``a``.
+* ancestors are exempt: ``j`` never waits for an element that encloses it (it
+  waits for that element's *activation* instead). Without this a child of
+  ``<wait>`` or of a persistent parent on the same channel would deadlock. A
+  descendant on its active ancestor's channel therefore runs at once and the
+  ancestor's :class:`~host.shell.context.CallContext` reports ``overridden``
+  while it runs.
+* "completed" for a non-empty element means: its end-tag arrived, all its
+  children completed, its persistent run was cancelled and its reset hook
+  returned. So on one channel a reset always finishes before the next call
+  starts.
+
+Failures are local: a call whose function raises (or whose element cannot be
+mapped) is recorded ``failed`` with the error, and its children and siblings
+still run (a failed start-tag still scopes its children and is reset).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+from collections.abc import AsyncIterable, Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import anyio
+
+from host.shell.context import CallContext, _current
+from host.shell.mapper import MappingError, SentenceBuffer, map_element, split_sync
+from host.shell.parser import EmptyTag, EndTag, FunctionTokenParser, ParseError, ParseWarning, StartTag, Text
+from host.shell.registry import Registry
+from host.shell.skills import SkillError, SkillStore, end_tag, start_tag, text
+from host.shell.timeline import CallRecord, Observation, RunResult, Timeline
+from host.shell.types import MAIN_CHANNEL, FunctionSpec
+
+MODES = ("async-first", "sync-first")
+
+#: Longest a reset hook may take before it is abandoned (seconds on the run's clock).
+RESET_TIMEOUT = 5.0
+
+#: Deepest nesting of ``<RUN>`` expansions.
+MAX_SKILL_DEPTH = 16
+
+
+@dataclass(eq=False)
+class _Call:
+    id: int
+    record: CallRecord
+    kind: str  # "fn" | "builtin" | "group"
+    spec: FunctionSpec | None
+    args: dict[str, Any]
+    channel: str | None
+    home: str | None
+    parent: _Call | None
+    persistent: bool
+    scope: anyio.CancelScope = field(default_factory=anyio.CancelScope)
+    run_scope: anyio.CancelScope | None = None
+    deps: list[_Call] = field(default_factory=list)
+    activated: anyio.Event = field(default_factory=anyio.Event)
+    completed: anyio.Event = field(default_factory=anyio.Event)
+    subtree_done: anyio.Event = field(default_factory=anyio.Event)
+    open_children: int = 0
+    closed: bool = False
+    started: bool = False
+    ok: bool = False
+    reason: str | None = None
+    error: str | None = None
+    ctx: CallContext | None = None
+
+    def ancestors(self) -> list[_Call]:
+        out, p = [], self.parent
+        while p is not None:
+            out.append(p)
+            p = p.parent
+        return out
+
+
+@dataclass(eq=False)
+class _Frame:
+    name: str
+    call: _Call | None  # None for the root and for transparent frames (<RUN>...</RUN>)
+    path: str
+    async_ctx: bool
+    counts: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass(eq=False)
+class _Recording:
+    name: str
+    description: str
+    depth: int = 1
+    parts: list[str] = field(default_factory=list)
+
+
+class ProgramRun:
+    """The state of one run; created by :class:`~host.shell.shell.Shell`."""
+
+    def __init__(
+        self,
+        registry: Registry,
+        *,
+        mode: str = "async-first",
+        strict: bool = True,
+        text_first_class: bool = False,
+        clock: Callable[[], float] | None = None,
+        skills: SkillStore | None = None,
+    ) -> None:
+        if mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, not {mode!r}")
+        self.registry = registry
+        self.mode = mode
+        self.strict = strict
+        self.text_first_class = text_first_class
+        self.clock = clock or anyio.current_time
+        self.skills = skills if skills is not None else SkillStore()
+        self.timeline = Timeline()
+        self.observations: list[Observation] = []
+        self.error: Exception | None = None
+        self.interrupted = False
+        self.t0 = 0.0
+        self._ids = itertools.count()
+        self._pending: dict[int, _Call] = {}
+        self._stack: list[_Frame] = [_Frame("", None, "", mode == "async-first")]
+        self._text = SentenceBuffer()
+        self._recording: _Recording | None = None
+        self._skill_stack: list[str] = []
+        self._tg: anyio.abc.TaskGroup | None = None
+        self._consumer = anyio.CancelScope()
+        self._stopped = False
+        self._warned_no_speech = False
+
+    # ------------------------------------------------------------------ API
+    async def run(self, chunks: AsyncIterable[str]) -> RunResult:
+        """Consume ``chunks``, dispatching calls as events complete; return when every call ended."""
+        self.t0 = self.clock()
+        parser = FunctionTokenParser(strict=self.strict)
+        async with anyio.create_task_group() as tg:
+            self._tg = tg
+            with self._consumer:
+                try:
+                    aiter_ = chunks.__aiter__()
+                    async with _aclosing(aiter_):
+                        async for chunk in aiter_:
+                            self._feed(parser.feed(chunk))
+                            if self._stopped:
+                                break
+                    if not self._stopped:
+                        self._feed(parser.close())
+                        self._end_of_stream()
+                except ParseError as exc:
+                    self._abort(exc)
+        self._tg = None
+        return RunResult(self.timeline, self.observations, self.t0, self.error, self.interrupted)
+
+    def interrupt(self, channels: list[str] | tuple[str, ...] | set[str] | None = None) -> int:
+        """Cancel running and queued calls (all, or those on ``channels``); return how many.
+
+        With ``channels=None`` the rest of the stream is not dispatched either
+        and every open element is closed. Active parents hit by the interrupt
+        are reset (their reset hook runs, shielded).
+        """
+        if channels is None:
+            self.interrupted = True
+            self._stop("interrupted")
+            return self._cancel(lambda c: True, "interrupted")
+        chans = set(channels)
+        return self._cancel(lambda c: c.channel in chans, "interrupted")
+
+    # ------------------------------------------------------------ internals
+    def now(self) -> float:
+        """Seconds since the run started, on the run's clock (rounded to 1 ns)."""
+        return round(self.clock() - self.t0, 9)
+
+    def _observe(self, kind: str, message: str, path: str | None = None) -> None:
+        self.observations.append(Observation(kind, message, path, self.now()))  # type: ignore[arg-type]
+
+    def _stop(self, reason: str) -> None:
+        self._stopped = True
+        self._consumer.cancel()
+        self._text = SentenceBuffer()
+        self._recording = None
+        while len(self._stack) > 1:
+            f = self._stack.pop()
+            if f.call is not None:
+                self._close(f.call)
+
+    def _cancel(self, pred: Callable[[_Call], bool], reason: str) -> int:
+        hit = [c for c in self._pending.values() if pred(c)]
+        for c in hit:
+            c.reason = c.reason or reason
+            c.scope.cancel()
+        return len(hit)
+
+    def _abort(self, exc: Exception) -> None:
+        self.error = exc
+        self._observe("error", f"parse error: {exc}; dispatch stopped")
+        self._stop("cancelled")
+        self._cancel(lambda c: True, "cancelled")
+
+    def _end_of_stream(self) -> None:
+        self._flush_text()
+        if self._recording is not None:
+            self._observe("error", f"<SAVE name={self._recording.name!r}> was never closed; skill not saved")
+            self._recording = None
+        while len(self._stack) > 1:  # lenient parsers close these; be safe anyway
+            f = self._stack.pop()
+            if f.call is not None:
+                self._close(f.call)
+
+    # -- events --------------------------------------------------------------
+    def _feed(self, events: list[Any]) -> None:
+        for ev in events:
+            if self._stopped:
+                return
+            self._event(ev)
+
+    def _event(self, ev: Any) -> None:
+        if self._recording is not None:
+            self._record_event(ev)
+            return
+        if isinstance(ev, Text):
+            self._text_in(ev.text)
+        elif isinstance(ev, StartTag):
+            self._flush_text()
+            self._start(ev.name, dict(ev.attrs), empty=False)
+        elif isinstance(ev, EmptyTag):
+            self._flush_text()
+            self._start(ev.name, dict(ev.attrs), empty=True)
+        elif isinstance(ev, EndTag):
+            self._flush_text()
+            self._end(ev.name)
+        elif isinstance(ev, ParseWarning):
+            self._observe("warning", f"parse warning at {getattr(ev, 'pos', '?')}: {ev.message}")
+
+    def _record_event(self, ev: Any) -> None:
+        rec = self._recording
+        assert rec is not None
+        if isinstance(ev, Text):
+            rec.parts.append(text(ev.text))
+        elif isinstance(ev, EmptyTag):
+            rec.parts.append(start_tag(ev.name, dict(ev.attrs), empty=True))
+        elif isinstance(ev, StartTag):
+            rec.depth += 1
+            rec.parts.append(start_tag(ev.name, dict(ev.attrs)))
+        elif isinstance(ev, EndTag):
+            rec.depth -= 1
+            if rec.depth == 0:
+                self._recording = None
+                self._save(rec)
+            else:
+                rec.parts.append(end_tag(ev.name))
+        elif isinstance(ev, ParseWarning):
+            self._observe("warning", f"parse warning at {getattr(ev, 'pos', '?')}: {ev.message}")
+
+    def _save(self, rec: _Recording) -> None:
+        try:
+            self.skills.save(rec.name, rec.description, "".join(rec.parts))
+        except (SkillError, OSError) as exc:
+            self._observe("error", f"skill not saved: {exc}")
+        else:
+            self._observe("info", f"skill {rec.name!r} saved")
+
+    # -- text -------------------------------------------------------------------
+    def _text_in(self, data: str) -> None:
+        for seg in self._text.feed(data):
+            self._speak(seg)
+
+    def _flush_text(self) -> None:
+        for seg in self._text.flush():
+            self._speak(seg)
+
+    def _speak(self, segment: str) -> None:
+        spec = self.registry.speech
+        frame = self._stack[-1]
+        if spec is None:
+            if not self._warned_no_speech:
+                self._warned_no_speech = True
+                self._observe("warning", "text is not spoken: no speech function is mounted")
+            return
+        if self.text_first_class or not frame.async_ctx:
+            channel = MAIN_CHANNEL
+        else:
+            channel = spec.channel
+        self._new_call(spec.name, "fn", spec, {"text": segment}, channel, spec.channel, persistent=False)
+
+    # -- elements ------------------------------------------------------------
+    def _start(self, name: str, attrs: dict[str, str], *, empty: bool) -> None:
+        frame = self._stack[-1]
+        if name == "SAVE":
+            self._start_save(attrs, empty)
+            return
+        if name == "RUN":
+            self._run_skill(attrs)
+            if not empty:
+                self._stack.append(_Frame(name, None, frame.path, frame.async_ctx, frame.counts))
+            return
+        if name in ("wait", "async"):
+            if attrs:
+                self._observe("warning", f"<{name}> takes no attributes; ignored {sorted(attrs)}")
+            call = self._new_call(name, "builtin", None, {}, MAIN_CHANNEL, None, persistent=not empty)
+            if not empty:
+                self._stack.append(_Frame(name, call, call.record.path, name == "async" or frame.async_ctx))
+            return
+        try:
+            mapped = map_element(self.registry, name, attrs)
+        except MappingError as exc:
+            self._mapping_failed(name, attrs, str(exc), empty)
+            return
+        spec = mapped.spec
+        channel = MAIN_CHANNEL if (mapped.sync or not frame.async_ctx) else spec.channel
+        call = self._new_call(name, "fn", spec, mapped.args, channel, spec.channel, persistent=not empty)
+        if not empty:
+            self._stack.append(_Frame(name, call, call.record.path, frame.async_ctx))
+
+    def _mapping_failed(self, name: str, attrs: dict[str, str], message: str, empty: bool) -> None:
+        frame = self._stack[-1]
+        path = self._path(frame, name)
+        rec = CallRecord(next(self._ids), name, None, dict(attrs), path, not empty, self.now())
+        rec.outcome, rec.error, rec.end = "failed", message, rec.dispatch
+        self.timeline.records.append(rec)
+        self._observe("error", message, path)
+        if not empty:  # still scope the children, as a plain group
+            try:
+                _, sync = split_sync(name, attrs)
+            except MappingError:
+                sync = False
+            call = self._spawn(rec, "group", None, {}, MAIN_CHANNEL if sync else None, None, frame, persistent=True)
+            call.error = message
+            self._stack.append(_Frame(name, call, path, frame.async_ctx))
+
+    def _end(self, name: str) -> None:
+        if len(self._stack) == 1:
+            self._observe("warning", f"end-tag </{name}> closes nothing; ignored")
+            return
+        frame = self._stack.pop()
+        if frame.call is not None:
+            self._close(frame.call)
+
+    def _start_save(self, attrs: dict[str, str], empty: bool) -> None:
+        name = attrs.get("name", "")
+        if empty:
+            self._observe("error", f"<SAVE name={name!r}/> encloses no program; nothing saved")
+            return
+        self._recording = _Recording(name, attrs.get("description", ""))
+
+    def _run_skill(self, attrs: dict[str, str]) -> None:
+        frame = self._stack[-1]
+        sid = attrs.get("id", attrs.get("name", ""))
+        path = self._path(frame, "RUN")
+        rec = CallRecord(next(self._ids), "RUN", None, {"id": sid}, path, False, self.now())
+        rec.start = rec.end = rec.dispatch
+        self.timeline.records.append(rec)
+        try:
+            if sid in self._skill_stack:
+                raise SkillError(f"recursive skill: {' -> '.join([*self._skill_stack, sid])}")
+            if len(self._skill_stack) >= MAX_SKILL_DEPTH:
+                raise SkillError(f"skills nested deeper than {MAX_SKILL_DEPTH}")
+            skill = self.skills.get(sid)
+            p = FunctionTokenParser(strict=True)
+            events = p.feed(skill.program) + p.close()
+        except (SkillError, ParseError) as exc:
+            rec.outcome, rec.error = "failed", str(exc)
+            self._observe("error", f"<RUN id={sid!r}/>: {exc}", path)
+            return
+        rec.outcome = "done"
+        self._skill_stack.append(sid)
+        depth = len(self._stack)
+        try:
+            for ev in events:
+                if self._stopped:
+                    break
+                self._event(ev)
+            self._flush_text()
+        finally:
+            self._skill_stack.pop()
+        while len(self._stack) > depth:  # cannot happen for a strict-parsed program
+            self._end(self._stack[-1].name)
+
+    # -- dispatch ---------------------------------------------------------------
+    def _path(self, frame: _Frame, name: str) -> str:
+        i = frame.counts.get(name, 0)
+        frame.counts[name] = i + 1
+        return f"{frame.path}/{name}[{i}]" if frame.path else f"{name}[{i}]"
+
+    def _new_call(
+        self,
+        name: str,
+        kind: str,
+        spec: FunctionSpec | None,
+        args: dict[str, Any],
+        channel: str,
+        home: str | None,
+        *,
+        persistent: bool,
+    ) -> _Call:
+        frame = self._stack[-1]
+        rec = CallRecord(next(self._ids), name, channel, args, self._path(frame, name), persistent, self.now())
+        self.timeline.records.append(rec)
+        return self._spawn(rec, kind, spec, args, channel, home, frame, persistent=persistent)
+
+    def _spawn(
+        self,
+        rec: CallRecord,
+        kind: str,
+        spec: FunctionSpec | None,
+        args: dict[str, Any],
+        channel: str | None,
+        home: str | None,
+        frame: _Frame,
+        *,
+        persistent: bool,
+    ) -> _Call:
+        parent = next((f.call for f in reversed(self._stack) if f.call is not None), None)
+        call = _Call(rec.id, rec, kind, spec, args, channel, home, parent, persistent)
+        ancestors = {id(a) for a in call.ancestors()}
+        for p in self._pending.values():
+            if id(p) in ancestors:
+                continue
+            if channel == MAIN_CHANNEL or p.channel == MAIN_CHANNEL or (channel is not None and p.channel == channel):
+                call.deps.append(p)
+        self._pending[call.id] = call
+        if parent is not None:
+            parent.open_children += 1
+        assert self._tg is not None
+        self._tg.start_soon(self._run_element if persistent else self._run_leaf, call)
+        return call
+
+    async def _await_deps(self, c: _Call) -> None:
+        if c.parent is not None:
+            await c.parent.activated.wait()
+        for d in c.deps:
+            await d.completed.wait()
+        c.deps.clear()
+
+    def _mark_start(self, c: _Call) -> None:
+        c.started = True
+        c.record.start = self.now()
+        if c.spec is not None:  # created before children can start, so they can mark it overridden
+            c.ctx = CallContext(
+                c.spec.name, c.channel or "", c.home or "", c.args, c.record.path, c.id, c.persistent
+            )
+
+    async def _invoke(self, c: _Call) -> None:
+        assert c.spec is not None and c.ctx is not None
+        ctx = c.ctx
+        overridden = [a for a in c.ancestors() if a.ctx is not None and a.home is not None and a.home == c.home and not a.completed.is_set()]
+        for a in overridden:
+            a.ctx._enter_override()  # type: ignore[union-attr]
+        token = _current.set(ctx)
+        try:
+            result = await c.spec.impl(**c.args)
+        except Exception as exc:  # a failing function fails its call only
+            c.error = f"{type(exc).__name__}: {exc}"
+        else:
+            c.record.result = result
+            if result is not None:
+                self._observe("result", f"{c.spec.name} returned {result!r}", c.record.path)
+        finally:
+            _current.reset(token)
+            for a in overridden:
+                a.ctx._exit_override()  # type: ignore[union-attr]
+
+    async def _run_leaf(self, c: _Call) -> None:
+        try:
+            with c.scope:
+                await self._await_deps(c)
+                self._mark_start(c)
+                if c.spec is not None:
+                    await self._invoke(c)
+                c.ok = True
+        finally:
+            self._finish(c)
+
+    async def _persistent(self, c: _Call) -> None:
+        assert c.run_scope is not None
+        with c.run_scope:
+            await self._invoke(c)
+
+    async def _run_element(self, c: _Call) -> None:
+        try:
+            with c.scope:
+                await self._await_deps(c)
+                self._mark_start(c)
+                c.activated.set()
+                if c.spec is not None:
+                    c.run_scope = anyio.CancelScope()
+                    async with anyio.create_task_group() as tg:
+                        tg.start_soon(self._persistent, c)
+                        await c.subtree_done.wait()
+                        c.run_scope.cancel()
+                else:
+                    await c.subtree_done.wait()
+                c.ok = True
+        finally:
+            c.activated.set()  # children of an element cancelled before activation may proceed
+            try:
+                if c.started and c.spec is not None and c.spec.reset is not None:
+                    await self._reset(c)
+                if not c.subtree_done.is_set():  # channel interrupt: children elsewhere still run
+                    await c.subtree_done.wait()
+            finally:
+                self._finish(c)
+
+    async def _reset(self, c: _Call) -> None:
+        assert c.spec is not None and c.spec.reset is not None
+        ctx = c.ctx
+        assert ctx is not None
+        ctx.phase = "reset"
+        token = _current.set(ctx)
+        try:
+            with anyio.CancelScope(shield=True), anyio.move_on_after(RESET_TIMEOUT) as timeout:
+                try:
+                    await c.spec.reset()
+                except Exception as exc:
+                    c.error = c.error or f"reset failed: {type(exc).__name__}: {exc}"
+            if timeout.cancelled_caught:
+                c.error = c.error or f"reset timed out after {RESET_TIMEOUT:g}s"
+        finally:
+            _current.reset(token)
+
+    def _close(self, c: _Call) -> None:
+        c.closed = True
+        if c.open_children == 0:
+            c.subtree_done.set()
+
+    def _finish(self, c: _Call) -> None:
+        rec = c.record
+        rec.end = self.now()
+        if c.error is not None:
+            rec.outcome, rec.error = "failed", c.error
+            if c.kind != "group":
+                self._observe("error", f"{rec.function} failed: {c.error}", rec.path)
+        elif c.ok:
+            rec.outcome = "done"
+        else:
+            rec.outcome = c.reason or "cancelled"  # type: ignore[assignment]
+        if not c.started and rec.outcome != "failed":
+            rec.end = None
+        self._pending.pop(c.id, None)
+        c.activated.set()
+        c.completed.set()
+        if c.parent is not None:
+            c.parent.open_children -= 1
+            if c.parent.closed and c.parent.open_children == 0:
+                c.parent.subtree_done.set()
+
+
+@contextlib.asynccontextmanager
+async def _aclosing(it: Any) -> Any:
+    try:
+        yield it
+    finally:
+        aclose = getattr(it, "aclose", None)
+        if aclose is not None:
+            with anyio.CancelScope(shield=True):
+                await aclose()

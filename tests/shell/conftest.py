@@ -1,0 +1,26 @@
+"""Shell tests run on Trio's virtual clock through AnyIO: fake functions that
+``await anyio.sleep(d)`` take exactly ``d`` virtual seconds."""
+
+from __future__ import annotations
+
+import pytest
+from trio.testing import MockClock
+
+
+@pytest.fixture
+def anyio_backend():
+    return ("trio", {"clock": MockClock(autojump_threshold=0)})
+
+
+@pytest.fixture
+def coco():
+    """Factory: ``coco(**shell_kwargs) -> (Shell, SimulatedCoCo)`` with the example CoCo-like modules."""
+    from host.shell.example import SimulatedCoCo, modules
+    from host.shell.registry import Registry
+    from host.shell.shell import Shell
+
+    def make(reset_seconds: float = 0.0, **kw):
+        impl = SimulatedCoCo(reset_seconds=reset_seconds)
+        return Shell(Registry(modules(impl)), **kw), impl
+
+    return make

@@ -1,0 +1,288 @@
+"""Scheduler semantics on the virtual clock: the paper's four execution patterns
+(exact start/end times), streaming dispatch, interruption, lifecycles, failures."""
+
+from __future__ import annotations
+
+import anyio
+import pytest
+
+from host.shell.context import current_call
+from host.shell.registry import Registry
+from host.shell.shell import Shell
+from host.shell.types import Module, shell_function
+
+pytestmark = pytest.mark.anyio
+
+LOG: list[tuple[float, str]] = []
+
+
+def fake(name: str, seconds: float, *, reset_seconds: float | None = None):
+    """An async function that takes ``seconds`` (forever when persistent) and logs."""
+
+    async def reset() -> None:
+        await anyio.sleep(reset_seconds or 0)
+        LOG.append((anyio.current_time(), f"{name}:reset"))
+
+    @shell_function(name=name, reset=reset if reset_seconds is not None else None)
+    async def fn(d: float = seconds) -> None:
+        ctx = current_call()
+        LOG.append((anyio.current_time(), f"{name}:start"))
+        if ctx is not None and ctx.persistent:
+            await anyio.sleep_forever()
+        await anyio.sleep(d)
+
+    return fn
+
+
+def shell_with(channels: dict[str, list], **kw) -> Shell:
+    return Shell(Registry([Module.from_functions(ch, *fns) for ch, fns in channels.items()]), **kw)
+
+
+async def timed_stream(parts: list[tuple[float, str]]):
+    """Yield each text at its absolute virtual time (relative to the stream's start)."""
+    t0 = anyio.current_time()
+    for at, text in parts:
+        await anyio.sleep(max(0.0, t0 + at - anyio.current_time()))
+        yield text
+
+
+def spans(result):
+    return {r.function: (r.start, r.end) for r in result.timeline}
+
+
+async def test_pattern_sequential():
+    sh = shell_with({"C1": [fake("F1", 2), fake("F2", 1.5), fake("F3", 1.5)]})
+    r = await sh.run_text("<F1/><F2/><F3/>")
+    assert spans(r) == {"F1": (0, 2), "F2": (2, 3.5), "F3": (3.5, 5)}
+
+
+async def test_pattern_parallel_with_streaming_dispatch():
+    sh = shell_with({"C1": [fake("F1", 4)], "C2": [fake("F2", 5)], "C3": [fake("F3", 3)]})
+    r = await sh.run(timed_stream([(0.5, "<F2/>"), (1.0, "<F1/>"), (2.0, "<F3/>")]))
+    assert spans(r) == {"F1": (1, 5), "F2": (0.5, 5.5), "F3": (2, 5)}
+    assert [rec.dispatch for rec in r.timeline] == [0.5, 1.0, 2.0]
+
+
+async def test_pattern_lifecycle_scoped_termination():
+    sh = shell_with({"C1": [fake("F1", 1)], "C2": [fake("F2", 2.5), fake("F4", 1)], "C3": [fake("F3", 4)]})
+    r = await sh.run(timed_stream([(0.5, "<F1><F2/>"), (1.5, "<F3/>"), (2.0, "<F4/></F1>")]))
+    assert spans(r) == {"F1": (0.5, 5.5), "F2": (0.5, 3), "F4": (3, 4), "F3": (1.5, 5.5)}
+    assert r.timeline.one("F1").persistent
+
+
+async def test_pattern_external_interruption():
+    sh = shell_with({"C1": [fake("F1", 100)], "C2": [fake("F2", 100)]})
+
+    async def stream():
+        yield "<F1/>"
+        await anyio.sleep(0.5)
+        yield "<F2/>"
+        await anyio.sleep(100)  # the LLM is still "generating"
+        yield "<F1/>"
+
+    async with anyio.create_task_group() as tg:
+        out = {}
+
+        async def run():
+            out["r"] = await sh.run(stream())
+
+        tg.start_soon(run)
+        await anyio.sleep(5.5)
+        assert sh.interrupt() == 2
+    r = out["r"]
+    assert spans(r) == {"F1": (0, 5.5), "F2": (0.5, 5.5)}
+    assert {rec.outcome for rec in r.timeline} == {"interrupted"} and r.interrupted
+    assert len(r.timeline) == 2  # the rest of the stream was not dispatched
+
+
+async def test_interrupt_reaches_queued_calls_and_resets_parents():
+    LOG.clear()
+    sh = shell_with({"C1": [fake("P", 1, reset_seconds=0.25), fake("A", 3), fake("B", 3)], "C2": [fake("Q", 10)]})
+    async with anyio.create_task_group() as tg:
+        out = {}
+
+        async def run():
+            out["r"] = await sh.run_text("<Q/><P><A/></P><B/>")
+
+        tg.start_soon(run)
+        await anyio.sleep(1)
+        assert sh.interrupt(["C1"]) == 3  # P (active parent), A (running, same channel), B (queued)
+    tl = out["r"].timeline
+    assert tl.one("Q").outcome == "done" and tl.one("Q").end == 10
+    assert tl.one("A").outcome == "interrupted" and tl.one("A").end == 1
+    assert tl.one("B").outcome == "interrupted" and tl.one("B").start is None
+    p = tl.one("P")
+    assert p.outcome == "interrupted" and p.end == 1.25  # reset hook (0.25 s) ran, shielded
+    assert any(e == "P:reset" and t == pytest.approx(1.25) for t, e in LOG)
+
+
+async def test_interrupt_while_waiting_for_stream_and_before_deps():
+    """Cancellation reaches calls waiting on dependencies, independent of arrival order."""
+    sh = shell_with({"C1": [fake("A", 5)], "C2": [fake("B", 1)]})
+
+    async def stream():
+        yield "<wait><A/></wait><B/>"  # B is dispatched but waits for the barrier
+        await anyio.sleep_forever()
+
+    async with anyio.create_task_group() as tg:
+        out = {}
+
+        async def run():
+            out["r"] = await sh.run(stream())
+
+        tg.start_soon(run)
+        await anyio.sleep(2)
+        sh.interrupt()
+    tl = out["r"].timeline
+    assert tl.one("B").outcome == "interrupted" and tl.one("B").start is None
+    assert tl.one("A").end == 2 and tl.one("wait").end == 2
+
+
+async def test_reset_finishes_before_next_activation_on_same_channel():
+    LOG.clear()
+    sh = shell_with({"C1": [fake("P", 1, reset_seconds=0.5), fake("A", 1)], "C2": [fake("X", 2)]})
+    r = await sh.run_text("<P><X/></P><P><X/></P><A/>")
+    p1, p2 = r.timeline.find("P")
+    assert (p1.start, p1.end) == (0, 2.5)  # children done at 2, reset takes 0.5
+    assert p2.start == 2.5 and p2.end == 5.0
+    assert r.timeline.one("A").start == 5.0
+
+
+async def test_same_channel_descendant_runs_at_once_and_overrides():
+    seen = []
+
+    @shell_function
+    async def hold() -> None:
+        ctx = current_call()
+        while True:
+            seen.append((anyio.current_time(), ctx.overridden))
+            await anyio.sleep(1)
+
+    @shell_function
+    async def step() -> None:
+        await anyio.sleep(2.5)
+
+    sh = Shell(Registry([Module.from_functions("body", hold, step)]))
+    t0 = anyio.current_time()
+    r = await sh.run_text("<hold><step/></hold>")
+    assert spans(r) == {"hold": (0, 2.5), "step": (0, 2.5)}
+    # at t=0 both start in the same scheduler batch (order unspecified); afterwards hold is overridden
+    assert [(t - t0, o) for t, o in seen][1:] == [(1, True), (2, True)]
+
+
+async def test_wait_is_a_barrier_for_earlier_calls_but_not_ancestors():
+    sh = shell_with({"C1": [fake("A", 3), fake("P", 1)], "C2": [fake("B", 1)]})
+    r = await sh.run_text("<A/><wait><B/></wait><P><wait><B/></wait></P>")
+    b1, b2 = r.timeline.find("B")
+    assert b1.start == 3  # barrier: after A
+    p = r.timeline.one("P")
+    assert p.start == 4 and b2.start == 4 and p.end == 5  # inner wait does not wait for its ancestor P
+
+
+async def test_sync_attribute_puts_call_on_main_channel():
+    sh = shell_with({"C1": [fake("A", 2)], "C2": [fake("B", 1)]})
+    r = await sh.run_text('<A sync="true"/><B/>')
+    a, b = r.timeline.one("A"), r.timeline.one("B")
+    assert a.channel == "main" and b.start == 2
+    r = await sh.run_text("<A/><B/>")
+    assert r.timeline.one("B").start == 0
+
+
+async def test_failure_is_local():
+    @shell_function
+    async def boom(x: int = 1) -> None:
+        await anyio.sleep(1)
+        raise RuntimeError("servo stalled")
+
+    sh = Shell(Registry([Module.from_functions("C1", boom, fake("A", 1)), Module.from_functions("C2", fake("B", 1))]))
+    r = await sh.run_text("<boom><B/></boom><A/><nope/><B/>")
+    tl = r.timeline
+    assert tl.one("boom").outcome == "failed" and "servo stalled" in tl.one("boom").error
+    assert tl.one("boom").end == 1  # its child B still ran to completion
+    assert [x.outcome for x in tl.find("B")] == ["done", "done"]
+    assert tl.one("A").start == 1  # after boom's lifecycle on C1
+    assert tl.one("nope").outcome == "failed"
+    assert any("servo stalled" in o.message for o in r.observations)
+    assert any("unknown function <nope>" in o.message for o in r.observations)
+
+
+async def test_speech_is_flushed_at_sentence_boundaries_while_streaming():
+    spoken = []
+
+    @shell_function(speech=True)
+    async def speak(text: str) -> None:
+        spoken.append((anyio.current_time(), text))
+        await anyio.sleep(0.1 * len(text))
+
+    sh = Shell(Registry([Module.from_functions("speech", speak)]))
+    t0 = anyio.current_time()
+    r = await sh.run(timed_stream([(0, "Hello there. How a"), (5, "re you? 价格是3.5元。"), (9, "  \n"), (10, "Bye")]))
+    assert [(t - t0, s) for t, s in spoken] == [
+        (0, "Hello there."), (5, "How are you?"), (6.2, "价格是3.5元。"), (10, "Bye")]
+    assert len(r.timeline) == 4
+
+
+async def test_text_first_class_blocks_on_main_channel():
+    @shell_function(speech=True)
+    async def speak(text: str) -> None:
+        await anyio.sleep(1)
+
+    reg = Registry([Module.from_functions("speech", speak), Module.from_functions("C1", fake("A", 1))])
+    r = await Shell(reg, text_first_class=True).run_text("Hi.<A/>")
+    assert r.timeline.one("speak").channel == "main" and r.timeline.one("A").start == 1
+    r = await Shell(reg).run_text("Hi.<A/>")
+    assert r.timeline.one("A").start == 0
+
+
+async def test_results_become_observations_and_clock_is_injectable():
+    @shell_function
+    async def look() -> str:
+        await anyio.sleep(1)
+        return "a red ball"
+
+    ticks = iter(range(100))
+    sh = Shell(Registry([Module.from_functions("camera", look)]), clock=lambda: float(next(ticks)))
+    r = await sh.run_text("<look/>")
+    assert "a red ball" in r.observation_text()
+    rec = r.timeline.one("look")
+    assert rec.result == "a red ball" and rec.start < rec.end  # times come from the injected clock
+
+
+async def test_outer_cancellation_cancels_everything():
+    sh = shell_with({"C1": [fake("A", 10)]})
+    with anyio.move_on_after(2):
+        await sh.run_text("<A/>")
+    assert not sh.running
+
+
+async def test_strict_parse_error_stops_dispatch_and_cancels():
+    sh = shell_with({"C1": [fake("A", 10), fake("B", 1)]})
+    r = await sh.run(timed_stream([(0, "<A/>"), (1, "<B></C>"), (2, "<B/>")]))
+    assert r.error is not None and r.error.line == 1
+    assert r.timeline.one("A").outcome == "cancelled" and r.timeline.one("A").end == 1
+    assert not r.timeline.find("B") or all(x.outcome == "cancelled" for x in r.timeline.find("B"))
+    assert any("parse error" in o.message for o in r.observations)
+
+
+async def test_strict_unclosed_element_at_close_is_an_error():
+    sh = shell_with({"C1": [fake("A", 1)]})
+    r = await sh.run_text("<A>")
+    assert r.error is not None and r.timeline.one("A").outcome == "cancelled"
+
+
+async def test_lenient_mode_recovers_with_warnings():
+    sh = shell_with({"C1": [fake("A", 1)], "C2": [fake("B", 1)]}, strict=False)
+    r = await sh.run_text("<A><B/></X></A> 1 < 2 <B/><A>")
+    assert r.error is None
+    assert [x.outcome for x in r.timeline] == ["done"] * len(r.timeline)
+    assert len(r.timeline.find("A")) == 2 and len(r.timeline.find("B")) == 2
+    assert sum(o.kind == "warning" for o in r.observations) >= 2
+
+
+async def test_run_is_not_reentrant():
+    sh = shell_with({"C1": [fake("A", 1)]})
+    async with anyio.create_task_group() as tg:
+        tg.start_soon(sh.run_text, "<A/>")
+        await anyio.sleep(0.5)
+        with pytest.raises(RuntimeError):
+            await sh.run_text("<A/>")
