@@ -1,0 +1,28 @@
+"""LLM clients ("ghosts") that stream a reply as text chunks.
+
+``make_ghost("scripted", program=...)`` replays a program as an LLM would;
+``make_ghost("openai:MODEL")`` streams from any OpenAI-compatible endpoint.
+The OpenAI client is imported lazily so the scripted ghost needs no SDK.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from host.ghost.base import Ghost, GhostError, Message
+from host.ghost.factory import SPECS, make_ghost
+from host.ghost.scripted import ScriptedGhost
+from host.ghost.tokenize import tokenize
+
+if TYPE_CHECKING:
+    from host.ghost.openai_client import OpenAIGhost
+
+__all__ = ["SPECS", "Ghost", "GhostError", "Message", "OpenAIGhost", "ScriptedGhost", "make_ghost", "tokenize"]
+
+
+def __getattr__(name: str) -> Any:
+    if name == "OpenAIGhost":
+        from host.ghost.openai_client import OpenAIGhost
+
+        return OpenAIGhost
+    raise AttributeError(name)
