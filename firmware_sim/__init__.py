@@ -1,1 +1,5 @@
-"""firmware_sim."""
+"""firmware_sim: CoCo's emulated board (control loop, jitter buffer, servo model, safety, peripherals, link server).
+
+Run it with ``python -m firmware_sim --link pty``; the core (:class:`firmware_sim.board.Board`)
+works without any I/O for tests.
+"""

@@ -1,0 +1,384 @@
+"""The board core: message handling and the control tick, with no I/O.
+
+``Board.handle(msg, seq)`` consumes one decoded host message and returns the
+replies; ``Board.tick()`` runs one control period (frames due -> interpolation ->
+servo model -> MuJoCo ctrl -> physics) and returns what the board sends
+unprompted (TELEMETRY + SIM_STATE at the telemetry rate). In lockstep the caller
+ticks only while :meth:`Board.can_tick` is true; in realtime a pacer calls
+:meth:`Board.tick` at the control rate. Board time is ``now_us``: the time of the
+next tick to run (tick ``k`` runs at ``k * tick_us``).
+
+Reply policy: HELLO -> CAPS (or NACK VERSION_MISMATCH / SCHEMA_MISMATCH);
+TIME_SYNC_REQUEST -> TIME_SYNC_REPLY; SERVO_FRAME -> nothing when accepted (telemetry's
+``last_applied_seq`` confirms it), NACK with the reason when refused; HEARTBEAT ->
+nothing; CONFIG, ADVANCE, FLUSH, ESTOP, ESTOP_CLEAR, SCREEN, SPEAKER -> ACK (or NACK);
+CAMERA_CAPTURE -> CAMERA_CHUNKs (or NACK NO_RENDERER / BAD_VALUE); anything else -> NACK UNSUPPORTED.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import mujoco
+import numpy as np
+
+from firmware_sim.config import BoardConfig
+from firmware_sim.jitter_buffer import JitterBuffer
+from firmware_sim.peripherals import MAX_IMAGE_SIDE, Camera, CameraUnavailable, Screen, Speaker
+from firmware_sim.safety import Mode, Safety
+from firmware_sim.servo_model import ServoModel
+from protocol.codec import SCHEMA_HASH, msg_type_of, quantize_apply_at, unwrap_time_us
+from protocol.messages import (
+    PROTOCOL_VERSION,
+    Ack,
+    Advance,
+    CameraCapture,
+    Caps,
+    Config,
+    ConfigKey,
+    Estop,
+    EstopClear,
+    FaultFlags,
+    Flush,
+    Heartbeat,
+    Hello,
+    Message,
+    MsgType,
+    Nack,
+    NackReason,
+    ScreenCommand,
+    ServoFrame,
+    SimState,
+    SpeakerCommand,
+    Telemetry,
+    TimeSyncReply,
+    TimeSyncRequest,
+)
+from robots.coco import load_poses, load_servo_table
+from robots.coco.model import load_model
+
+__all__ = ["Board", "quat_to_rpy"]
+
+_ALL_SERVOS = (1 << 12) - 1
+
+
+def quat_to_rpy(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """Roll, pitch, yaw (rad, ZYX convention) of a unit quaternion."""
+    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return roll, pitch, yaw
+
+
+class Board:
+    """CoCo's emulated controller board (12 servos, MuJoCo physics)."""
+
+    def __init__(self, cfg: BoardConfig | None = None, clock_us: Callable[[], int] | None = None) -> None:
+        self.cfg = (cfg or BoardConfig()).validate()
+        self.table = load_servo_table()
+        self.poses = load_poses()
+        self.cm = load_model(self.table)
+        self.model = self.cm.model
+        self.model.opt.timestep = self.cfg.dt
+        self.data = self.cm.new_data()
+        self.n = len(self.table)
+        neutral = np.array(self.table.neutral)
+        self.cm.place_on_floor(self.data, neutral)
+        self.servo = ServoModel(
+            self.table.mins,
+            self.table.maxs,
+            self.table.max_speeds,
+            self.table.model.resolution,
+            self.table.model.deadband,
+            self.cfg.tick_us / 1e6,
+        )
+        self.servo.reset(neutral)
+        self.crouch = np.array(self.poses["crouch"])
+        self.buffer = JitterBuffer(self.cfg.buffer_depth, self.n)
+        self.safety = Safety(self.cfg.watchdog_ms * 1000, self.cfg.crouch_after_ms * 1000)
+        self.screen = Screen()
+        self.speaker = Speaker()
+        self.camera = Camera(self.model)
+        self._clock_us = clock_us
+        # per-servo interpolation anchor: the last applied keyframe (or where a resumed servo was)
+        self.anchor_t = np.zeros(self.n, dtype=np.int64)
+        self.anchor_v = neutral.copy()
+        self.hold_q = neutral.copy()
+        self.desired = neutral.copy()
+        self.ctrl = self.data.ctrl[self.cm.act_id].copy()
+        self.now_us = 0
+        self.ticks = 0
+        self.advance_until = 0  # lockstep: ADVANCE lets ticks run while now_us < this
+        self.covered_until = -1  # lockstep: latest accepted frame apply-at (tick at it may run)
+        self.last_applied_seq = 0
+        self.late_count = 0
+        self.dropped_count = 0
+        self.link_errors = 0
+        self.clamped_ticks = 0
+        self._flags_since = FaultFlags.NONE
+
+    # --- time ------------------------------------------------------------------------------
+
+    @property
+    def tick_us(self) -> int:
+        return self.cfg.tick_us
+
+    def board_time_us(self) -> int:
+        """Fine-grained board clock (realtime) or virtual time (lockstep)."""
+        return self._clock_us() if self._clock_us is not None and not self.cfg.lockstep else self.now_us
+
+    def can_tick(self) -> bool:
+        """Lockstep: may the next tick run (covered by a frame or an ADVANCE)? Realtime: always."""
+        if not self.cfg.lockstep:
+            return True
+        return self.now_us < self.advance_until or self.now_us <= self.covered_until
+
+    def skip(self, n_ticks: int) -> None:
+        """Realtime resync after falling far behind: the clock jumps, physics does not run."""
+        self.now_us += n_ticks * self.tick_us
+        self.ticks += n_ticks
+
+    def note_overrun(self) -> None:
+        self._flags_since |= FaultFlags.TICK_OVERRUN
+
+    def on_link_error(self) -> None:
+        """A received frame failed to decode (counted; never fed to the watchdog)."""
+        self.link_errors += 1
+        self._flags_since |= FaultFlags.LINK_ERRORS
+
+    # --- messages --------------------------------------------------------------------------
+
+    def handle(self, msg: Message, seq: int = 0, rx_time_us: int | None = None) -> list[Message]:
+        """Consume one decoded host message (``seq`` = its frame sequence); return the replies."""
+        rx = self.board_time_us() if rx_time_us is None else rx_time_us
+        if isinstance(msg, (Telemetry, SimState, Caps, TimeSyncReply, Ack, Nack)) or not hasattr(msg, "__dataclass_fields__"):
+            return [self._nack(msg, seq, NackReason.UNSUPPORTED, f"board does not accept {type(msg).__name__}")]
+        if self.safety.feed(self.now_us):
+            self._resume()
+        if isinstance(msg, ServoFrame):
+            return self._servo_frame(msg, seq)
+        if isinstance(msg, Heartbeat):
+            return []
+        if isinstance(msg, TimeSyncRequest):
+            return [TimeSyncReply(msg.t1_host_us, rx, self.board_time_us())]
+        if isinstance(msg, Hello):
+            return [self._hello(msg, seq)]
+        if isinstance(msg, Advance):
+            if not self.cfg.lockstep:
+                return [self._nack(msg, seq, NackReason.NOT_LOCKSTEP, "ADVANCE needs a --lockstep board")]
+            self.advance_until = max(self.advance_until, int(msg.until_us))
+            return [Ack(seq, MsgType.ADVANCE)]
+        if isinstance(msg, Flush):
+            for i in self.buffer.flush(int(msg.from_us), int(msg.mask)):
+                self.anchor_t[i], self.anchor_v[i] = self.now_us, self.servo.cmd[i]
+            self._recompute_cover()
+            return [Ack(seq, MsgType.FLUSH)]
+        if isinstance(msg, Estop):
+            self.safety.estop()
+            self.buffer.clear()
+            self.hold_q = self.data.qpos[self.cm.qpos_adr].copy()
+            self.servo.reset(self.hold_q)
+            return [Ack(seq, MsgType.ESTOP)]
+        if isinstance(msg, EstopClear):
+            self.safety.clear(self.now_us)
+            self._resume()
+            return [Ack(seq, MsgType.ESTOP_CLEAR)]
+        if isinstance(msg, Config):
+            return [self._config(msg, seq)]
+        if isinstance(msg, ScreenCommand):
+            self.screen.command(msg)
+            return [Ack(seq, MsgType.SCREEN)]
+        if isinstance(msg, SpeakerCommand):
+            self.speaker.command(msg)
+            return [Ack(seq, MsgType.SPEAKER)]
+        if isinstance(msg, CameraCapture):
+            return self._capture(msg, seq)
+        return [self._nack(msg, seq, NackReason.UNSUPPORTED, f"board does not accept {type(msg).__name__}")]
+
+    def _nack(self, msg: object, seq: int, reason: NackReason, detail: str) -> Nack:
+        try:
+            mt = msg_type_of(msg)  # type: ignore[arg-type]
+        except Exception:
+            mt = MsgType.HELLO
+        return Nack(seq, mt, reason, detail.encode("ascii", "replace").decode("ascii")[:64])
+
+    def _hello(self, msg: Hello, seq: int) -> Message:
+        if msg.protocol_version != PROTOCOL_VERSION:
+            return self._nack(
+                msg, seq, NackReason.VERSION_MISMATCH,
+                f"host protocol v{msg.protocol_version}, board speaks v{PROTOCOL_VERSION}",
+            )
+        if msg.schema_hash != SCHEMA_HASH:
+            return self._nack(
+                msg, seq, NackReason.SCHEMA_MISMATCH,
+                f"host schema {msg.schema_hash:#010x} != board {SCHEMA_HASH:#010x}",
+            )
+        return Caps(
+            protocol_version=PROTOCOL_VERSION,
+            schema_hash=SCHEMA_HASH,
+            servo_count=self.n,
+            control_rate_hz=self.cfg.rate_hz,
+            buffer_depth=self.cfg.buffer_depth,
+            telemetry_rate_hz=self.cfg.telemetry_rate_hz,
+            board_time_us=self.board_time_us(),
+            lockstep=self.cfg.lockstep,
+        )
+
+    def _servo_frame(self, msg: ServoFrame, seq: int) -> list[Message]:
+        mask = int(msg.mask)
+        idx = [i for i in range(16) if mask >> i & 1]
+        if not mask or mask & ~_ALL_SERVOS:
+            self.dropped_count += 1
+            return [self._nack(msg, seq, NackReason.BAD_VALUE, f"mask {mask:#06x} must cover servos 1..12 only")]
+        if len(msg.targets) != len(idx) or not all(math.isfinite(v) for v in msg.targets):
+            self.dropped_count += 1
+            return [self._nack(msg, seq, NackReason.BAD_VALUE, "targets must be finite, one per mask bit")]
+        if self.safety.estopped:
+            self.dropped_count += 1
+            return [self._nack(msg, seq, NackReason.ESTOPPED, "estop active; send ESTOP_CLEAR")]
+        if self.safety.fault_latched:
+            self.dropped_count += 1
+            return [self._nack(msg, seq, NackReason.FAULT_LATCHED, "watchdog fault latched; send ESTOP_CLEAR")]
+        now = self.now_us
+        t = unwrap_time_us(quantize_apply_at(int(msg.apply_at_us)), now)
+        if t < now - self.cfg.max_late_us:
+            self.late_count += 1
+            return [self._nack(msg, seq, NackReason.LATE, f"due {t} us, board at {now} us ({now - t} us late)")]
+        if t > now + self.cfg.max_future_us:
+            self.dropped_count += 1
+            return [self._nack(msg, seq, NackReason.TOO_FAR_FUTURE, f"due {t} us, board at {now} us (> {self.cfg.max_future_us} us ahead)")]
+        values = {i: float(v) for i, v in zip(idx, msg.targets)}
+        resume = [i for i in idx if not self.buffer.pending_for(i) and now - self.anchor_t[i] > self.cfg.resume_gap_us]
+        if not self.buffer.push(t, seq, values):
+            self.dropped_count += 1
+            return [self._nack(msg, seq, NackReason.BUFFER_FULL, f"jitter buffer full ({self.cfg.buffer_depth} frames)")]
+        for i in resume:  # an idle servo starts the new stream from where it is now
+            self.anchor_t[i], self.anchor_v[i] = now, self.servo.cmd[i]
+        self.covered_until = max(self.covered_until, t)
+        return []
+
+    def _config(self, msg: Config, seq: int) -> Message:
+        v = int(msg.value)
+        key = msg.key
+        if key is ConfigKey.TELEMETRY_RATE_HZ and 1 <= v <= self.cfg.rate_hz:
+            self.cfg.telemetry_rate_hz = v
+        elif key is ConfigKey.WATCHDOG_MS and v > 0:
+            self.cfg.watchdog_ms = v
+            self.safety.watchdog_us = v * 1000
+        elif key is ConfigKey.CROUCH_AFTER_MS and v >= 0:
+            self.cfg.crouch_after_ms = v
+            self.safety.crouch_after_us = v * 1000
+        elif key is ConfigKey.MAX_LATE_US and v >= 0:
+            self.cfg.max_late_us = v
+        elif key is ConfigKey.MAX_FUTURE_US and v > 0:
+            self.cfg.max_future_us = v
+        else:
+            return self._nack(msg, seq, NackReason.BAD_VALUE, f"{getattr(key, 'name', key)}={v} out of range")
+        return Ack(seq, MsgType.CONFIG)
+
+    def _capture(self, msg: CameraCapture, seq: int) -> list[Message]:
+        if not (1 <= msg.width <= MAX_IMAGE_SIDE and 1 <= msg.height <= MAX_IMAGE_SIDE):
+            return [self._nack(msg, seq, NackReason.BAD_VALUE, f"image size must be 1..{MAX_IMAGE_SIDE} per side")]
+        try:
+            png = self.camera.capture_png(self.data, int(msg.width), int(msg.height))
+        except CameraUnavailable as e:
+            return [self._nack(msg, seq, NackReason.NO_RENDERER, str(e))]
+        return list(Camera.chunks(msg.request_id, png))
+
+    def _resume(self) -> None:
+        """Leaving a hold: buffered frames are gone, every servo continues from its command."""
+        self.anchor_t[:] = self.now_us
+        self.anchor_v = self.servo.cmd.copy()
+        self._recompute_cover()
+
+    def _recompute_cover(self) -> None:
+        latest = self.buffer.latest_apply_at
+        self.covered_until = min(self.covered_until, latest if latest is not None else self.now_us - self.tick_us)
+
+    # --- control tick ----------------------------------------------------------------------
+
+    def _interpolate(self, t: int) -> np.ndarray:
+        out = self.anchor_v.copy()
+        for i in range(self.n):
+            nxt = self.buffer.next_for(i)
+            if nxt is not None:
+                t1, v1 = nxt
+                t0 = int(self.anchor_t[i])
+                if t1 > t0:
+                    out[i] += (v1 - out[i]) * (t - t0) / (t1 - t0)
+        return out
+
+    def tick(self) -> list[Message]:
+        """Run one control period at board time ``now_us``; return telemetry when due."""
+        t = self.now_us
+        mode, entered = self.safety.update(t)
+        speed_cap: float | None = None
+        if entered and mode in (Mode.HOLD, Mode.CROUCH):
+            self.buffer.clear()
+            self.hold_q = self.servo.cmd.copy()
+        if mode is Mode.RUN:
+            for f in self.buffer.pop_due(t):
+                for i, v in f.values.items():
+                    self.anchor_t[i], self.anchor_v[i] = f.apply_at_us, v
+                self.last_applied_seq = f.seq
+                if self.cfg.lockstep:
+                    self.safety.feed(f.apply_at_us)
+            desired = self._interpolate(t)
+        elif mode is Mode.CROUCH:
+            desired, speed_cap = self.crouch, self.cfg.crouch_speed
+        else:
+            desired = self.hold_q
+        measured = self.data.qpos[self.cm.qpos_adr]
+        ctrl, clamped = self.servo.step(desired, measured, speed_cap)
+        if mode is Mode.RUN and clamped.any():
+            self._flags_since |= FaultFlags.CLAMPED
+            self.clamped_ticks += 1
+        self.desired, self.ctrl = desired, ctrl
+        self.data.ctrl[self.cm.act_id] = ctrl
+        for _ in range(self.cfg.substeps):
+            mujoco.mj_step(self.model, self.data)
+        self.now_us += self.tick_us
+        self.ticks += 1
+        if self.ticks % self.cfg.telemetry_every == 0:
+            return [self.telemetry(), self.sim_state()]
+        return []
+
+    # --- reports ---------------------------------------------------------------------------
+
+    def telemetry(self) -> Telemetry:
+        """TELEMETRY for the current state (clears the since-last-report flags)."""
+        d, cm = self.data, self.cm
+        w, x, y, z = (float(v) for v in d.qpos[3:7])
+        faults = self.safety.flags | self._flags_since
+        self._flags_since = FaultFlags.NONE
+        return Telemetry(
+            board_time_us=self.now_us,
+            positions=tuple(float(v) for v in d.qpos[cm.qpos_adr]),
+            velocities=tuple(float(v) for v in d.qvel[cm.dof_adr]),
+            efforts=tuple(float(v) for v in d.actuator_force[cm.act_id]),
+            imu_rpy=quat_to_rpy(w, x, y, z),
+            faults=faults,
+            buffer_fill=len(self.buffer),
+            last_applied_seq=self.last_applied_seq & 0xFFFF,
+            late_count=self.late_count,
+            dropped_count=self.dropped_count,
+            link_errors=self.link_errors,
+        )
+
+    def sim_state(self) -> SimState:
+        """Ground truth of the floating base (emulator only)."""
+        q = self.data.qpos
+        return SimState(
+            self.now_us,
+            (float(q[0]), float(q[1]), float(q[2])),
+            (float(q[3]), float(q[4]), float(q[5]), float(q[6])),
+        )
+
+    @property
+    def mode(self) -> Mode:
+        return self.safety.mode
+
+    def positions(self) -> np.ndarray:
+        """Measured joint angles (rad), servo order."""
+        return self.data.qpos[self.cm.qpos_adr].copy()

@@ -1,0 +1,146 @@
+"""``python -m firmware_sim``: the board's command line (contract in DEVELOPERS.md)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+from collections.abc import Sequence
+
+__all__ = ["build_parser", "configure", "main"]
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {v}")
+    return v
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {v}")
+    return v
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the board's options to ``parser``."""
+    parser.add_argument("--link", required=True, metavar="pty|PATH|URL",
+                        help="'pty' creates a pty pair and prints its name; else a serial port or pyserial URL")
+    parser.add_argument("--baud", type=_positive_int, default=None,
+                        help="model wire time at this baud rate (10 bits/byte, both directions)")
+    parser.add_argument("--rate", type=_positive_int, default=500, metavar="HZ", help="control loop rate (default 500)")
+    parser.add_argument("--dt", type=_positive_float, default=0.002, metavar="S", help="physics step (default 0.002)")
+    clock = parser.add_mutually_exclusive_group()
+    clock.add_argument("--realtime", dest="lockstep", action="store_false",
+                       help="pace to the wall clock (default)")
+    clock.add_argument("--lockstep", dest="lockstep", action="store_true",
+                       help="virtual time: advance only as far as the host's frames or ADVANCE")
+    parser.set_defaults(lockstep=False)
+    parser.add_argument("--telemetry-rate", type=_positive_int, default=50, metavar="HZ",
+                        help="TELEMETRY and SIM_STATE rate (default 50)")
+    parser.add_argument("--watchdog-ms", type=_positive_int, default=200, metavar="MS",
+                        help="link silence before holding position (default 200)")
+    parser.add_argument("--log", default=None, metavar="FILE", help="write every frame in/out as JSON lines")
+    parser.add_argument("--viewer", action="store_true", help="open MuJoCo's viewer (needs a display)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m firmware_sim", description="CoCo's emulated board (MuJoCo).")
+    configure(p)
+    return p
+
+
+class _Stop(Exception):
+    pass
+
+
+def _raise_stop(signum: int, frame: object) -> None:
+    raise _Stop()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    has_display = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    if args.viewer and not has_display:
+        parser.error("--viewer needs a display (DISPLAY/WAYLAND_DISPLAY is not set); run without --viewer")
+    if not has_display:
+        os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen camera rendering must not need X
+
+    from firmware_sim.board import Board
+    from firmware_sim.config import BoardConfig, ConfigError
+    from firmware_sim.link import open_link
+    from firmware_sim.server import BoardServer
+
+    cfg = BoardConfig(
+        rate_hz=args.rate, dt=args.dt, lockstep=args.lockstep,
+        telemetry_rate_hz=args.telemetry_rate, watchdog_ms=args.watchdog_ms,
+    )
+    try:
+        cfg.validate()
+    except ConfigError as e:
+        parser.error(str(e))
+    try:
+        link = open_link(args.link, args.baud)
+    except Exception as e:
+        print(f"board: cannot open link {args.link!r}: {e}", file=sys.stderr)
+        return 2
+    log = None
+    if args.log:
+        try:
+            log = open(args.log, "w", buffering=1, encoding="utf-8")
+        except OSError as e:
+            link.close()
+            print(f"board: cannot open log file: {e}", file=sys.stderr)
+            return 2
+    board = Board(cfg)
+    viewer = None
+    if args.viewer:
+        import mujoco.viewer
+
+        try:
+            viewer = mujoco.viewer.launch_passive(board.model, board.data)
+        except Exception as e:
+            print(f"board: cannot open the viewer: {e}", file=sys.stderr)
+            return 2
+    server = BoardServer(board, link, baud=args.baud, log=log, viewer=viewer)
+    signal.signal(signal.SIGTERM, _raise_stop)
+    signal.signal(signal.SIGINT, _raise_stop)
+    print(f"board: listening on {link.name}", flush=True)
+    mode = "lockstep" if cfg.lockstep else "realtime"
+    print(f"board: {mode}, {cfg.rate_hz} Hz, dt {cfg.dt} s, telemetry {cfg.telemetry_rate_hz} Hz"
+          + (f", {args.baud} baud" if args.baud else ""), file=sys.stderr, flush=True)
+    if args.baud:
+        from protocol.framing import frame_size
+        from protocol.samples import telemetry_12
+
+        need = cfg.telemetry_rate_hz * (frame_size(telemetry_12()) + frame_size(board.sim_state())) * 10
+        if need > 0.8 * args.baud:
+            print(f"board: warning: telemetry needs ~{need} bit/s, more than 80% of {args.baud} baud; "
+                  "some reports will be dropped (lower --telemetry-rate)", file=sys.stderr, flush=True)
+    try:
+        server.serve()
+    except (_Stop, KeyboardInterrupt):
+        pass
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        if server.clock is not None:
+            print(f"board: {server.clock.stats.summary()}", file=sys.stderr, flush=True)
+        if server.tx_dropped:
+            print(f"board: {server.tx_dropped} outgoing report(s) dropped (link too slow)", file=sys.stderr, flush=True)
+        if viewer is not None:
+            viewer.close()
+        if log is not None:
+            log.close()
+        link.close()
+    return 0

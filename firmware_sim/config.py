@@ -1,0 +1,60 @@
+"""Board settings (rates, safety limits) with validation that gives clear errors."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+class ConfigError(ValueError):
+    """An inconsistent board setting (message says which and why)."""
+
+
+@dataclass
+class BoardConfig:
+    """Everything the board core needs to know; times in microseconds unless named otherwise."""
+
+    rate_hz: int = 500  # control loop rate
+    dt: float = 0.002  # physics step (s); the tick period must be a whole number of steps
+    lockstep: bool = False
+    telemetry_rate_hz: int = 50  # TELEMETRY and SIM_STATE rate
+    watchdog_ms: int = 200  # link silence before holding position
+    crouch_after_ms: int = 1000  # further silence before the safe crouch and the latched fault
+    max_late_us: int = 20_000  # frames due earlier than now - this are rejected as LATE
+    max_future_us: int = 5_000_000  # frames due later than now + this are rejected as TOO_FAR_FUTURE
+    buffer_depth: int = 256  # jitter buffer capacity in frames
+    resume_gap_us: int = 50_000  # idle servo: a new stream starts from where it is after this gap
+    crouch_speed: float = 1.0  # rad/s while crouching on a watchdog fault
+
+    @property
+    def tick_us(self) -> int:
+        return 1_000_000 // self.rate_hz
+
+    @property
+    def substeps(self) -> int:
+        return round(1.0 / (self.rate_hz * self.dt))
+
+    @property
+    def telemetry_every(self) -> int:
+        """Ticks between telemetry reports (at least 1)."""
+        return max(1, round(self.rate_hz / self.telemetry_rate_hz))
+
+    def validate(self) -> BoardConfig:
+        """Raise :class:`ConfigError` unless the settings are consistent; returns self."""
+        if not 1 <= self.rate_hz <= 10_000:
+            raise ConfigError(f"rate must be 1..10000 Hz, got {self.rate_hz}")
+        if 1_000_000 % self.rate_hz:
+            raise ConfigError(f"rate {self.rate_hz} Hz does not give a whole-microsecond tick period")
+        if not 1e-5 <= self.dt <= 0.02:
+            raise ConfigError(f"dt must be 1e-5..0.02 s, got {self.dt}")
+        ratio = 1.0 / (self.rate_hz * self.dt)
+        if ratio < 0.999 or abs(ratio - round(ratio)) > 1e-6:
+            raise ConfigError(
+                f"tick period 1/{self.rate_hz} s must be a whole multiple of dt={self.dt} s (ratio is {ratio:.4f})"
+            )
+        if not 1 <= self.telemetry_rate_hz <= self.rate_hz:
+            raise ConfigError(f"telemetry rate must be 1..{self.rate_hz} Hz, got {self.telemetry_rate_hz}")
+        if self.watchdog_ms <= 0 or self.crouch_after_ms < 0:
+            raise ConfigError("watchdog must be > 0 ms and the crouch delay >= 0 ms")
+        if self.max_late_us < 0 or self.max_future_us <= 0 or self.buffer_depth < 2:
+            raise ConfigError("max_late_us >= 0, max_future_us > 0 and buffer_depth >= 2 are required")
+        return self
