@@ -1,0 +1,60 @@
+"""``ghostshell log decode FILE``: print a frame log (JSON lines, :mod:`protocol.framelog`) readably."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+__all__ = ["configure", "decode_file", "main"]
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    p = sub.add_parser("decode", help="print every record of a frame log, one line each")
+    p.add_argument("file", metavar="FILE", help="a log written with --log (by the board or the host)")
+    p.add_argument("--type", action="append", default=None, metavar="NAME",
+                   help="only records of this message type (repeatable), e.g. --type TELEMETRY")
+
+
+def decode_file(path: str, out=sys.stdout, err=sys.stderr, types: list[str] | None = None) -> int:
+    """Print ``path``'s records; bad lines are reported with their number and skipped. Returns an exit code."""
+    from protocol.framelog import FrameLogError, format_record, from_line
+
+    wanted = {t.upper() for t in types} if types else None
+    try:
+        f = open(path, encoding="utf-8")
+    except OSError as e:
+        print(f"ghostshell log: cannot read {path}: {e.strerror or e}", file=err)
+        return 2
+    bad = good = 0
+    with f:
+        for lineno, line in enumerate(f, 1):
+            if not line.strip():
+                continue
+            try:
+                rec = from_line(line)
+            except (FrameLogError, UnicodeDecodeError) as e:
+                bad += 1
+                print(f"{path}:{lineno}: not a frame-log record: {e}", file=err)
+                continue
+            good += 1
+            if wanted and rec.get("type", "ERROR" if "error" in rec else "") not in wanted:
+                continue
+            out.write(format_record(rec) + "\n")
+    if bad:
+        print(f"ghostshell log: {bad} bad line(s) skipped, {good} record(s) decoded", file=err)
+        return 1
+    if not good:
+        print(f"ghostshell log: {path} holds no records", file=err)
+        return 1
+    return 0
+
+
+def main(args: argparse.Namespace) -> int:
+    try:
+        return decode_file(args.file, types=args.type)
+    except BrokenPipeError:  # e.g. piped into head
+        return 0
+    except UnicodeDecodeError as e:
+        print(f"ghostshell log: {args.file} is not a text frame log: {e}", file=sys.stderr)
+        return 2

@@ -1,0 +1,37 @@
+"""Exceptions raised by the link client (all are :class:`LinkError`)."""
+
+from __future__ import annotations
+
+from protocol.messages import MsgType, Nack, NackReason
+
+__all__ = ["HandshakeError", "LinkDown", "LinkError", "LinkTimeout", "NackError"]
+
+
+class LinkError(Exception):
+    """Anything that went wrong on the link; the message says what and what to do."""
+
+
+class LinkDown(LinkError):
+    """The port is closed or vanished (the client may be reconnecting)."""
+
+
+class LinkTimeout(LinkError):
+    """No reply within the time allowed."""
+
+
+class HandshakeError(LinkError):
+    """HELLO/CAPS failed: wrong protocol version or schema, or no board answering."""
+
+
+class NackError(LinkError):
+    """The board refused a message; ``nack`` holds its reason and detail."""
+
+    def __init__(self, nack: Nack) -> None:
+        self.nack = nack
+        mt = nack.msg_type.name if isinstance(nack.msg_type, MsgType) else str(nack.msg_type)
+        reason = nack.reason.name if isinstance(nack.reason, NackReason) else str(nack.reason)
+        super().__init__(f"board refused {mt} (seq {nack.ack_seq}): {reason}" + (f": {nack.detail}" if nack.detail else ""))
+
+    @property
+    def reason(self) -> NackReason:
+        return self.nack.reason

@@ -1,0 +1,125 @@
+"""Host <-> board clock estimation from NTP-style four-timestamp exchanges.
+
+Each TIME_SYNC exchange gives ``t1`` (host send), ``t2`` (board receive), ``t3``
+(board send) and ``t4`` (host receive). Its offset (board - host) is
+``((t2 - t1) + (t3 - t4)) / 2`` and its round trip ``(t4 - t1) - (t3 - t2)``; the
+offset's error is at most half the round trip (the path asymmetry). Queued
+samples (long round trips) are the noisy ones, so the estimator keeps a window
+of recent samples, picks those with the smallest round trips and fits
+``offset(t) = offset0 + drift * (t - t_ref)`` by least squares (numpy). The drift is
+kept only when it stands out of the noise (|drift| > 3 standard errors) and is
+plausible (< ``max_drift_ppm``); otherwise, and with fewer than three samples or a
+short span, the estimate is the offset alone (drift 0).
+
+Written by hand (about 60 lines) because the usual NTP/PTP libraries are daemons
+that discipline the system clock, not estimators one can feed samples.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["ClockEstimate", "ClockSync", "SyncSample"]
+
+
+@dataclass(frozen=True)
+class SyncSample:
+    """One exchange reduced to its midpoint host time, offset and round trip (all us)."""
+
+    host_mid_us: float
+    offset_us: float
+    rtt_us: float
+
+    @classmethod
+    def from_timestamps(cls, t1: int, t2: int, t3: int, t4: int) -> SyncSample:
+        """Reduce the four timestamps (t1, t4 host clock; t2, t3 board clock)."""
+        return cls((t1 + t4) / 2.0, ((t2 - t1) + (t3 - t4)) / 2.0, float((t4 - t1) - (t3 - t2)))
+
+
+@dataclass(frozen=True)
+class ClockEstimate:
+    """board_us = host_us + offset_us + drift * (host_us - ref_host_us), +- uncertainty_us."""
+
+    offset_us: float
+    drift: float  # dimensionless (1e-6 = 1 ppm): board seconds gained per host second
+    ref_host_us: float
+    uncertainty_us: float
+    samples_used: int
+    min_rtt_us: float
+
+    @property
+    def drift_ppm(self) -> float:
+        return self.drift * 1e6
+
+    def host_to_board(self, t_host_us: float) -> int:
+        return int(round(t_host_us + self.offset_us + self.drift * (t_host_us - self.ref_host_us)))
+
+    def board_to_host(self, t_board_us: float) -> int:
+        # invert board = host*(1+d) + offset - d*ref
+        return int(round((t_board_us - self.offset_us + self.drift * self.ref_host_us) / (1.0 + self.drift)))
+
+
+class ClockSync:
+    """Windowed offset + drift estimator (least squares over the lowest-round-trip samples)."""
+
+    def __init__(
+        self, window: int = 64, best_fraction: float = 0.5, min_span_us: float = 200_000.0, max_drift_ppm: float = 1000.0
+    ) -> None:
+        self._samples: deque[SyncSample] = deque(maxlen=window)
+        self.max_drift = max_drift_ppm * 1e-6
+        self.best_fraction = best_fraction
+        self.min_span_us = min_span_us  # below this host-time span the drift is not fitted
+        self._estimate: ClockEstimate | None = None
+
+    def __len__(self) -> int:
+        return len(self._samples)
+
+    def clear(self) -> None:
+        """Forget every sample (after a reconnect the board clock may have restarted)."""
+        self._samples.clear()
+        self._estimate = None
+
+    def add(self, t1: int, t2: int, t3: int, t4: int) -> ClockEstimate | None:
+        """Add one exchange and refit; samples with a negative round trip are ignored."""
+        s = SyncSample.from_timestamps(t1, t2, t3, t4)
+        if s.rtt_us < 0:
+            return self._estimate
+        self._samples.append(s)
+        self._estimate = self._fit()
+        return self._estimate
+
+    @property
+    def estimate(self) -> ClockEstimate | None:
+        return self._estimate
+
+    def _fit(self) -> ClockEstimate:
+        samples = sorted(self._samples, key=lambda s: s.rtt_us)
+        keep = samples[: max(1, int(np.ceil(len(samples) * self.best_fraction)))]
+        t = np.array([s.host_mid_us for s in keep])
+        y = np.array([s.offset_us for s in keep])
+        min_rtt = float(keep[0].rtt_us)
+        ref = float(t.mean())
+        span = float(t.max() - t.min()) if len(keep) > 1 else 0.0
+        if len(keep) >= 3 and span >= self.min_span_us:
+            a = np.vstack([np.ones_like(t), t - ref]).T
+            (off, drift), *_ = np.linalg.lstsq(a, y, rcond=None)
+            resid = y - (off + drift * (t - ref))
+            dof = max(1, len(keep) - 2)
+            sxx = float(np.sum((t - ref) ** 2))
+            se = float(np.sqrt(np.sum(resid**2) / dof / sxx)) if sxx > 0 else float("inf")
+            if abs(drift) < 3.0 * se or abs(drift) > self.max_drift:
+                # not distinguishable from noise (or implausible for a crystal): offset only
+                off, drift = float(np.mean(y)), 0.0
+                resid = y - off
+                dof = max(1, len(keep) - 1)
+        else:
+            off, drift = float(np.mean(y)), 0.0
+            resid = y - off
+            dof = max(1, len(keep) - 1)
+        sigma = float(np.sqrt(np.sum(resid**2) / dof)) if len(keep) > 1 else 0.0
+        # path asymmetry bound (half the best round trip) plus the scatter around the fit
+        unc = min_rtt / 2.0 + 2.0 * sigma
+        return ClockEstimate(float(off), float(drift), ref, unc, len(keep), min_rtt)

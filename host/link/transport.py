@@ -1,0 +1,176 @@
+"""Byte transport for the link client: a pyserial port driven by the asyncio loop.
+
+Reading: where the port has a selectable file descriptor (POSIX serial ports and
+ptys) the loop watches it with ``loop.add_reader`` and reads with
+``serial.read(in_waiting or 1)`` at ``timeout=0`` (what pyserial-asyncio does on
+POSIX); otherwise (Windows, some ``serial_for_url`` handlers) a daemon thread reads
+with a short timeout and hands bytes to the loop with ``call_soon_threadsafe``
+(pyserial's own answer in pyserial#37).
+
+Writing: with a file descriptor the bytes go out with ``os.write`` on the
+non-blocking fd, and what does not fit waits for ``loop.add_writer``. pyserial's
+``write`` is not used there because with ``write_timeout=0`` it retries EAGAIN in a
+busy loop and with any other timeout it blocks the event loop. The thread
+transport writes with pyserial and a bounded ``write_timeout``.
+
+A vanished port (pty master closed, USB unplugged) shows up as a read error or a
+"readiness to read but returned no data" ``SerialException``; either way
+``on_lost(reason)`` is called once and the transport closes.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import errno
+import os
+import threading
+from collections.abc import Callable
+
+import serial
+
+__all__ = ["MAX_TX_BACKLOG", "SerialTransport"]
+
+MAX_TX_BACKLOG = 256 * 1024  # bytes waiting for the port before writes are refused
+
+
+class SerialTransport:
+    """One open port; ``on_data(bytes)`` and ``on_lost(str)`` are called on the loop thread."""
+
+    def __init__(
+        self,
+        url: str,
+        baud: int,
+        on_data: Callable[[bytes], None],
+        on_lost: Callable[[str], None],
+        *,
+        force_thread: bool = False,
+    ) -> None:
+        self.url = url
+        self._loop = asyncio.get_running_loop()
+        self._on_data = on_data
+        self._on_lost = on_lost
+        self._closed = False
+        self._tx = bytearray()
+        self._thread: threading.Thread | None = None
+        self._writer_added = False
+        self.ser = serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0)
+        fd: int | None = None
+        if not force_thread:
+            try:
+                fd = self.ser.fileno()
+            except Exception:
+                fd = None
+        self.fd = fd
+        if fd is not None:
+            self._loop.add_reader(fd, self._read_ready)
+        else:
+            self.ser.timeout = 0.05
+            self.ser.write_timeout = 1.0
+            self._thread = threading.Thread(target=self._reader_thread, name=f"serial-rx {url}", daemon=True)
+            self._thread.start()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    @property
+    def backlog(self) -> int:
+        """Bytes accepted by :meth:`write` but not yet handed to the OS."""
+        return len(self._tx)
+
+    # --- reading ---------------------------------------------------------------------------
+
+    def _read_ready(self) -> None:
+        if self._closed:
+            return
+        try:
+            data = self.ser.read(max(1, self.ser.in_waiting))
+        except (serial.SerialException, OSError) as e:
+            self._lose(f"read failed: {e}")
+            return
+        if data:
+            self._on_data(bytes(data))
+
+    def _reader_thread(self) -> None:
+        while not self._closed:
+            try:
+                data = self.ser.read(max(1, self.ser.in_waiting))
+            except Exception as e:  # the port vanished
+                if not self._closed:
+                    self._loop.call_soon_threadsafe(self._lose, f"read failed: {e}")
+                return
+            if data:
+                self._loop.call_soon_threadsafe(self._deliver, bytes(data))
+
+    def _deliver(self, data: bytes) -> None:
+        if not self._closed:
+            self._on_data(data)
+
+    # --- writing ---------------------------------------------------------------------------
+
+    def write(self, data: bytes) -> None:
+        """Queue ``data`` for the port; raises ``BufferError`` if the port has stopped taking bytes."""
+        if self._closed:
+            raise ConnectionError("port is closed")
+        if len(self._tx) + len(data) > MAX_TX_BACKLOG:
+            raise BufferError(f"transmit backlog over {MAX_TX_BACKLOG} bytes: the board is not reading")
+        if self.fd is None:
+            try:
+                self.ser.write(data)
+            except (serial.SerialException, OSError) as e:
+                self._lose(f"write failed: {e}")
+                raise ConnectionError(str(e)) from None
+            return
+        self._tx += data
+        self._write_ready()
+
+    def _write_ready(self) -> None:
+        if self._closed or self.fd is None:
+            return
+        while self._tx:
+            try:
+                n = os.write(self.fd, self._tx)
+            except BlockingIOError:
+                break
+            except InterruptedError:
+                continue
+            except OSError as e:
+                self._lose(f"write failed: {e}")
+                return
+            del self._tx[:n]
+        if self._tx and not self._writer_added:
+            self._loop.add_writer(self.fd, self._write_ready)
+            self._writer_added = True
+        elif not self._tx and self._writer_added:
+            self._loop.remove_writer(self.fd)
+            self._writer_added = False
+
+    # --- closing ---------------------------------------------------------------------------
+
+    def _lose(self, reason: str) -> None:
+        if self._closed:
+            return
+        self.close()
+        self._on_lost(reason)
+
+    def close(self) -> None:
+        """Stop watching the port and close it (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        if self.fd is not None:
+            try:
+                self._loop.remove_reader(self.fd)
+                if self._writer_added:
+                    self._loop.remove_writer(self.fd)
+            except Exception:
+                pass
+        try:
+            self.ser.close()
+        except Exception:
+            pass
+
+
+def is_vanished_error(e: BaseException) -> bool:
+    """True for errors meaning the device is gone rather than misconfigured."""
+    return isinstance(e, OSError) and e.errno in (errno.ENOENT, errno.EIO, errno.ENXIO, errno.ENODEV)

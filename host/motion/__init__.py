@@ -1,0 +1,1 @@
+"""host/motion: turning targets into timed servo frames (trajectories, mixing)."""

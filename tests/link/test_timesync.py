@@ -1,0 +1,81 @@
+"""The clock estimator recovers a known offset and drift from synthetic NTP samples."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from host.link.timesync import ClockSync, SyncSample
+
+
+def _exchange(rng: np.random.Generator, t1: float, offset: float, drift: float, queued: bool) -> tuple[int, int, int, int]:
+    """One exchange against a board clock board(h) = h + offset + drift * h, with random path delays."""
+    up = rng.uniform(80, 120) + (rng.uniform(2_000, 20_000) if queued else 0.0)
+    down = rng.uniform(80, 120) + (rng.uniform(2_000, 20_000) if queued and rng.random() < 0.5 else 0.0)
+    turn = rng.uniform(5, 50)
+    h2 = t1 + up
+    h3 = h2 + turn
+    t4 = h3 + down
+
+    def board(h: float) -> float:
+        return h + offset + drift * h
+
+    return int(t1), int(round(board(h2))), int(round(board(h3))), int(t4)
+
+
+def test_sample_reduction_matches_ntp_formulas() -> None:
+    s = SyncSample.from_timestamps(1000, 6100, 6150, 1300)
+    assert s.rtt_us == 250
+    assert s.offset_us == ((6100 - 1000) + (6150 - 1300)) / 2
+
+
+def test_recovers_offset_and_drift_despite_queued_samples() -> None:
+    rng = np.random.default_rng(7)
+    offset, drift = 5_000_000.0, 80e-6  # 5 s apart, board runs 80 ppm fast
+    sync = ClockSync(window=64)
+    for k in range(64):
+        sync.add(*_exchange(rng, 1e6 + k * 50_000.0, offset, drift, queued=rng.random() < 0.4))
+    est = sync.estimate
+    assert est is not None
+    assert est.drift_ppm == pytest.approx(80.0, abs=5.0)
+    for h in (1e6, 2.5e6, 4e6):
+        truth = h + offset + drift * h
+        assert abs(est.host_to_board(h) - truth) <= max(est.uncertainty_us, 1.0)
+        assert abs(est.board_to_host(truth) - h) <= max(est.uncertainty_us, 1.0) + 1
+    assert est.uncertainty_us < 200  # best samples have ~200 us round trips
+    assert est.min_rtt_us < 300
+
+
+def test_a_single_sample_gives_offset_only_and_bounds_it_by_half_the_rtt() -> None:
+    sync = ClockSync()
+    est = sync.add(1_000, 10_100, 10_120, 1_300)
+    assert est is not None and est.drift == 0.0 and est.samples_used == 1
+    assert est.uncertainty_us == pytest.approx(est.min_rtt_us / 2)
+    assert abs(est.host_to_board(1_150) - 10_110) <= est.uncertainty_us
+
+
+def test_window_is_bounded_and_clear_forgets() -> None:
+    sync = ClockSync(window=8)
+    for k in range(100):
+        sync.add(k * 1000, k * 1000 + 50, k * 1000 + 60, k * 1000 + 110)
+    assert len(sync) == 8
+    sync.clear()
+    assert len(sync) == 0 and sync.estimate is None
+
+
+def test_negative_round_trip_is_ignored() -> None:
+    sync = ClockSync()
+    assert sync.add(1000, 5000, 9000, 1100) is None  # board claims 4 ms turnaround inside a 0.1 ms round trip
+    assert len(sync) == 0
+
+
+def test_noisy_samples_without_drift_do_not_invent_one() -> None:
+    rng = np.random.default_rng(3)
+    sync = ClockSync(window=32)
+    for k in range(32):  # 2 s of exchanges whose down path queues 0..8 ms behind other traffic
+        t1 = 1e6 + k * 60_000.0
+        down = 4_000 + rng.uniform(0, 8_000)
+        sync.add(int(t1), int(t1 + 2_100 + 1_000_000), int(t1 + 2_110 + 1_000_000), int(t1 + 2_110 + down))
+    est = sync.estimate
+    assert est is not None and est.drift == 0.0
+    assert abs(est.host_to_board(2e6) - (2e6 + 1_000_000)) <= est.uncertainty_us
