@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import Annotated, Any, Literal, Union
 
 from host.shell.registry import Registry, UnknownFunction
-from host.shell.types import SYNC_ATTR, FunctionSpec, Param, Range
+from host.shell.types import SYNC_ATTR, FunctionSpec, Param, as_range
 
 
 class MappingError(ValueError):
@@ -59,8 +59,9 @@ def convert_value(value: str, annotation: Any, *, where: str = "value") -> Any:
         base, *meta = typing.get_args(annotation)
         out = convert_value(value, base, where=where)
         for m in meta:
-            if isinstance(m, Range) and out is not None and not (m.lo <= out <= m.hi):
-                raise OutOfRange(f"{where}={value!r} is out of range [{m.lo:g}, {m.hi:g}]")
+            rng = as_range(m)
+            if rng is not None and out is not None and not (rng.lo <= out <= rng.hi):
+                raise OutOfRange(f"{where}={value!r} is out of range [{rng.lo:g}, {rng.hi:g}]")
         return out
     if origin is Literal:
         options = typing.get_args(annotation)

@@ -18,7 +18,7 @@ from typing import Annotated, Any, Literal, Union
 
 from host.shell.registry import Registry
 from host.shell.skills import SkillStore
-from host.shell.types import FunctionSpec, Param, Range
+from host.shell.types import FunctionSpec, Param, as_range
 
 FORMATS = ("code", "xml")
 
@@ -86,7 +86,7 @@ def _value_hint(ann: Any) -> str:
     origin = typing.get_origin(ann)
     if origin is Annotated:
         base, *meta = typing.get_args(ann)
-        rng = next((m for m in meta if isinstance(m, Range)), None)
+        rng = next((r for r in map(as_range, meta) if r is not None), None)
         hint = _value_hint(base)
         return f"{hint} in [{rng.lo:g}, {rng.hi:g}]" if rng else hint
     if origin is Literal:
@@ -146,6 +146,8 @@ def render_interface(registry: Registry, format: str = "code") -> str:
         raise ValueError(f"format must be one of {FORMATS}, not {format!r}")
     blocks = []
     for m in registry.modules():
+        if m.hidden:
+            continue
         head = f"module {m.name} (channel {m.channel})" + (f": {m.doc}" if m.doc else "")
         items = [
             (render_stub if format == "code" else render_xml)(s, registry.aliases_of(s)) for s in m.functions

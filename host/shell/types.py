@@ -39,6 +39,22 @@ class Range:
         return f"Range({_num(self.lo)}, {_num(self.hi)})"
 
 
+def as_range(meta: Any) -> Range | None:
+    """``meta`` as a :class:`Range`: a Range itself, or an ``annotated_types`` bound.
+
+    Interfaces that may not import the shell (robot descriptions) declare ranges
+    with the neutral ``annotated_types`` package (``Interval(ge=0, le=10)``,
+    ``Ge``/``Le``); both spellings mean the same to the mapper and the prompt.
+    """
+    if isinstance(meta, Range):
+        return meta
+    lo = getattr(meta, "ge", None)
+    hi = getattr(meta, "le", None)
+    if lo is None and hi is None:
+        return None
+    return Range(float("-inf") if lo is None else lo, float("inf") if hi is None else hi)
+
+
 def _num(x: float) -> str:
     return str(int(x)) if float(x).is_integer() else repr(float(x))
 
@@ -152,6 +168,7 @@ class Module:
     functions: list[FunctionSpec] = field(default_factory=list)
     channel: str = ""
     doc: str = ""
+    hidden: bool = False  # callable, but left out of the prompt (e.g. a second vocabulary)
 
     def __post_init__(self) -> None:
         if not self.channel:

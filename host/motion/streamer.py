@@ -1,0 +1,194 @@
+"""Stream mixed frames to the board a little ahead of its clock; confirm them from telemetry.
+
+The streamer owns the frame grid: every ``period_us`` of board time there is
+one full-body SERVO_FRAME, sent while it is still at most ``lookahead_us``
+ahead of the board. It tops up whenever telemetry arrives (and, on a realtime
+board, on its own every period). In lockstep the board only runs as far as the
+frames reach, so topping up on telemetry is what moves board time forward, and
+the host can never fall behind it.
+
+A segment counts as started (ended) once telemetry reports that the frame it
+first (last) appeared in was applied: ``last_applied_seq`` has passed that
+frame's sequence number and the board clock has reached its apply time. Those
+board times are what the run's timeline records.
+
+:meth:`FrameStreamer.cut` implements reset and interruption: it FLUSHes the
+affected servos' buffered frames from a cut time on, releases their segments
+there, starts the replacement motion (a smooth return or a stop) at the cut
+and re-sends the affected servos' frames for the part of the grid already sent.
+"""
+
+from __future__ import annotations
+
+import weakref
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import anyio
+import numpy as np
+
+from host.motion.mixer import MixedFrame, Mixer, MotionLike, Segment
+from protocol.messages import ServoFrame, Telemetry
+
+
+class FrameLink(Protocol):
+    """What the streamer needs from the link."""
+
+    lockstep: bool
+
+    def board_now_us(self) -> int: ...
+
+    async def send_frame(self, frame: ServoFrame) -> int: ...
+
+    async def flush(self, from_us: int, mask: int) -> None: ...
+
+
+def mask_of(servos: Sequence[int]) -> int:
+    m = 0
+    for i in servos:
+        m |= 1 << int(i)
+    return m
+
+
+@dataclass
+class _Sent:
+    seq: int
+    frame: MixedFrame
+
+
+@dataclass
+class SegmentTimes:
+    """Board-confirmed times of a segment (seconds), with events to wait on."""
+
+    start: float | None = None
+    end: float | None = None
+    started: anyio.Event = field(default_factory=anyio.Event)
+    ended: anyio.Event = field(default_factory=anyio.Event)
+
+
+class FrameStreamer:
+    """Keeps the board fed with frames from a :class:`Mixer`."""
+
+    def __init__(self, link: FrameLink, mixer: Mixer, *, period_us: int = 10_000, lookahead_us: int = 60_000,
+                 start_us: int | None = None) -> None:
+        self.link = link
+        self.mixer = mixer
+        self.period_us = period_us
+        self.lookahead_us = lookahead_us
+        now = link.board_now_us() if start_us is None else start_us
+        self.next_us = self._grid(now + period_us)
+        self._in_flight: deque[_Sent] = deque()
+        self._times: weakref.WeakKeyDictionary[Segment, SegmentTimes] = weakref.WeakKeyDictionary()
+        self._last_telemetry: Telemetry | None = None
+        self._lock = anyio.Lock()
+        self.frames_sent = 0
+
+    def _grid(self, t_us: int) -> int:
+        p = self.period_us
+        return -(-int(t_us) // p) * p
+
+    # -- planning ----------------------------------------------------------------------------
+    @property
+    def first_free_us(self) -> int:
+        """Board time of the next frame not yet sent: where a new motion can start."""
+        return self.next_us
+
+    def planned_targets(self, t_us: int | None = None) -> np.ndarray:
+        """Targets the mix gives at ``t_us`` (default: the first unsent frame)."""
+        return self.mixer.sample_servo_targets(self.next_us if t_us is None else t_us)
+
+    def add(self, motion: MotionLike, label: str = "", start_us: int | None = None) -> Segment:
+        """Start ``motion`` at the first unsent frame (or later)."""
+        start = self.next_us if start_us is None else max(self._grid(start_us), self.next_us)
+        seg = self.mixer.add(motion, start, label)
+        self._times[seg] = SegmentTimes()
+        return seg
+
+    def times(self, seg: Segment) -> SegmentTimes:
+        return self._times.setdefault(seg, SegmentTimes())
+
+    async def wait_started(self, seg: Segment) -> float:
+        t = self.times(seg)
+        await t.started.wait()
+        assert t.start is not None
+        return t.start
+
+    async def wait_ended(self, seg: Segment) -> float:
+        t = self.times(seg)
+        await t.ended.wait()
+        assert t.end is not None
+        return t.end
+
+    # -- sending -------------------------------------------------------------------------------
+    async def top_up(self) -> None:
+        """Send frames up to the board clock plus the lookahead."""
+        async with self._lock:
+            horizon = self.link.board_now_us() + self.lookahead_us
+            while self.next_us <= horizon:
+                await self._send(self.mixer.frame(self.next_us))
+                self.next_us += self.period_us
+
+    async def _send(self, mixed: MixedFrame) -> None:
+        n = self.mixer.n_servos
+        seq = await self.link.send_frame(ServoFrame(mixed.t_us, (1 << n) - 1, tuple(float(x) for x in mixed.targets)))
+        self.frames_sent += 1
+        if mixed.started or mixed.ended:
+            self._in_flight.append(_Sent(seq, mixed))
+
+    async def cut(self, segments: Sequence[Segment], servos: Sequence[int],
+                  make_replacement: Callable[[np.ndarray], MotionLike | None], label: str = "",
+                  margin_us: int | None = None) -> Segment | None:
+        """Stop ``segments`` on ``servos`` as soon as the link allows; start a replacement there.
+
+        ``make_replacement`` gets all servo targets at the cut and returns the
+        motion to run from there (a smooth return or stop), or None to hold.
+        """
+        async with self._lock:
+            if self.link.lockstep:
+                # A lockstep board handles the FLUSH only after simulating every frame already
+                # sent, so the earliest cut that is not retroactive is the first unsent frame.
+                cut_us = self.next_us
+            else:
+                margin = 2 * self.period_us if margin_us is None else margin_us
+                cut_us = min(self._grid(self.link.board_now_us() + margin), self.next_us)
+            q_cut = self.mixer.sample_servo_targets(cut_us)
+            for seg in segments:
+                self.mixer.release(seg, cut_us)
+            replacement = make_replacement(q_cut)
+            new = None
+            if replacement is not None:
+                new = self.mixer.add(replacement, cut_us, label)
+                self._times[new] = SegmentTimes()
+            if cut_us < self.next_us:
+                mask = mask_of(servos)
+                await self.link.flush(cut_us, mask)
+                idx = np.asarray(sorted(servos), dtype=int)
+                for t in range(cut_us, self.next_us, self.period_us):
+                    q = self.mixer.sample_servo_targets(t)[idx]
+                    await self.link.send_frame(ServoFrame(t, mask, tuple(float(x) for x in q)))
+            return new
+
+    # -- confirming ----------------------------------------------------------------------------
+    def on_telemetry(self, tel: Telemetry) -> None:
+        """Confirm frames the board reports applied."""
+        self._last_telemetry = tel
+        while self._in_flight:
+            sent = self._in_flight[0]
+            applied = ((tel.last_applied_seq - sent.seq) & 0xFFFF) < 0x8000
+            if not (applied and tel.board_time_us >= sent.frame.t_us):
+                break
+            self._in_flight.popleft()
+            t_s = sent.frame.t_us * 1e-6
+            for seg in sent.frame.started:
+                st = self.times(seg)
+                st.start = t_s
+                st.started.set()
+            for seg in sent.frame.ended:
+                st = self.times(seg)
+                if st.start is None:
+                    st.start = t_s
+                    st.started.set()
+                st.end = t_s
+                st.ended.set()
