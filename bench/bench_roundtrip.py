@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from host.commands.demo import start_board
+from host.link.board_process import start_board
 from host.link import BoardClient, host_now_us
 from protocol.messages import ServoFrame
 from robots.coco import load_poses

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from host.commands.demo import BoardProcess, start_board
+from host.link.board_process import BoardProcess, start_board
 
 
 @pytest.fixture
