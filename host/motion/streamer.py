@@ -72,7 +72,7 @@ class FrameStreamer:
     """Keeps the board fed with frames from a :class:`Mixer`."""
 
     def __init__(self, link: FrameLink, mixer: Mixer, *, period_us: int = 10_000, lookahead_us: int = 60_000,
-                 start_us: int | None = None) -> None:
+                 start_us: int | None = None, history: int = 720_000) -> None:
         self.link = link
         self.mixer = mixer
         self.period_us = period_us
@@ -84,6 +84,7 @@ class FrameStreamer:
         self._last_telemetry: Telemetry | None = None
         self._lock = anyio.Lock()
         self.frames_sent = 0
+        self.history: deque[tuple[int, np.ndarray]] = deque(maxlen=history)  # (t_us, targets) sent
 
     def _grid(self, t_us: int) -> int:
         p = self.period_us
@@ -134,6 +135,7 @@ class FrameStreamer:
         n = self.mixer.n_servos
         seq = await self.link.send_frame(ServoFrame(mixed.t_us, (1 << n) - 1, tuple(float(x) for x in mixed.targets)))
         self.frames_sent += 1
+        self.history.append((mixed.t_us, mixed.targets))
         if mixed.started or mixed.ended:
             self._in_flight.append(_Sent(seq, mixed))
 

@@ -1,0 +1,105 @@
+"""Bind CoCo's interface stubs (``robots.coco.interface``) to behaviours: shell modules.
+
+Both vocabularies are mounted so the mapper accepts either; the one chosen for
+the prompt is visible, the other is mounted hidden (callable, not shown). A name
+both vocabularies declare is taken from the visible one. Each stub becomes an
+async function that fills the stub's defaults, renames parameters, pins fixed
+arguments and hands the behaviour call to a :class:`Performer` (the runtime that
+really moves the robot, or a fake one in tests).
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable
+from types import SimpleNamespace
+from typing import Any, Protocol
+
+from host.shell.registry import Registry
+from host.shell.types import Module, shell_function
+from robots.coco import interface as coco_interface
+from robots.coco.interface import StubInfo
+
+VOCABULARY_NAMES = tuple(coco_interface.VOCABULARIES)
+
+
+class Performer(Protocol):
+    """What the binding needs from a runtime."""
+
+    async def perform(self, behaviour: str, channel: str, args: dict[str, Any]) -> Any: ...
+
+    async def reset(self, behaviour: str, channel: str) -> None: ...
+
+    async def speak(self, text: str) -> Any: ...
+
+
+def _bound_call(stub: Callable[..., Any], info: StubInfo, performer: Performer) -> Callable[..., Any]:
+    sig = inspect.signature(stub)
+
+    async def call(**kwargs: Any) -> Any:
+        bound = sig.bind_partial(None, **kwargs)  # None stands for the stub's self
+        bound.apply_defaults()
+        args = {info.rename.get(k, k): v for k, v in bound.arguments.items() if k != "self"}
+        args.update(info.fixed)
+        return await performer.perform(info.behaviour, info.channel, args)
+
+    call.__name__ = stub.__name__
+    return call
+
+
+def _bound_reset(info: StubInfo, performer: Performer) -> Callable[..., Any]:
+    async def reset() -> None:
+        await performer.reset(info.behaviour, info.channel)
+
+    return reset
+
+
+def vocabulary_modules(vocabulary: str, performer: Performer, *, hidden: bool = False,
+                       skip: frozenset[str] = frozenset()) -> list[Module]:
+    """Shell modules for one vocabulary, bound to ``performer``."""
+    if vocabulary not in coco_interface.VOCABULARIES:
+        raise ValueError(f"unknown vocabulary {vocabulary!r}; choose one of {sorted(coco_interface.VOCABULARIES)}")
+    out: list[Module] = []
+    for module_name, iface in coco_interface.VOCABULARIES[vocabulary].items():
+        stubs = {n: f for n, f in vars(iface).items() if hasattr(f, "__coco_stub__") and n not in skip}
+        if not stubs:
+            continue
+        impl = SimpleNamespace()
+        channel = ""
+        for name, fn in stubs.items():
+            info: StubInfo = fn.__coco_stub__
+            channel = info.channel
+            setattr(impl, name, _bound_call(fn, info, performer))
+            setattr(impl, f"reset_{name}", _bound_reset(info, performer))
+        view = type(iface.__name__, (), {"__doc__": iface.__doc__, **stubs})
+        mod = Module.bind(module_name if not hidden else f"{vocabulary}:{module_name}", view, impl, channel=channel)
+        mod.hidden = hidden
+        out.append(mod)
+    return out
+
+
+def speech_module(performer: Performer) -> Module:
+    """The speech channel: plain text in the stream is spoken by ``speak``."""
+
+    @shell_function(speech=True)
+    async def speak(text: str) -> Any:
+        """Say `text` aloud (you do not call this: plain text outside tags is spoken)."""
+        return await performer.speak(text)
+
+    return Module.from_functions("speak", speak, channel="speech", doc="the speaker")
+
+
+def coco_registry(performer: Performer, vocabulary: str = "paper") -> Registry:
+    """A registry with CoCo mounted: ``vocabulary`` visible, the other one hidden."""
+    visible = vocabulary_modules(vocabulary, performer)
+    registry = Registry([speech_module(performer)])
+    names = set()
+    for m in visible:
+        registry.mount(m)
+        names.update(s.name for s in m.functions)
+    for other in VOCABULARY_NAMES:
+        if other != vocabulary:
+            for m in vocabulary_modules(other, performer, hidden=True, skip=frozenset(names)):
+                registry.mount(m)
+                names.update(s.name for s in m.functions)
+    return registry

@@ -1,0 +1,242 @@
+"""CoCo's behaviours executed over the link: the shell's executor for the real (emulated) robot.
+
+One implementation per behaviour. Motion behaviours (body, head, ears) ask
+``robots.coco.motions`` for a trajectory that starts where the channel's servos
+are planned to be, place it on the frame grid and complete when telemetry shows
+its last frame applied. As a parent element (persistent) they loop until reset;
+reset and interruption FLUSH the channel's buffered frames and start a smooth
+return (reset) or a smooth stop (interruption of a finite call) at the cut.
+Face, speech, music and camera go over the same link as peripheral messages
+timed on the board clock; they complete when the board clock passes their end.
+
+Every call's board-measured start and end are kept by element path in
+:attr:`CocoRuntime.board_times` for the run's timeline.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import anyio
+import numpy as np
+
+from host.motion.mixer import Mixer, Segment
+from host.motion.streamer import FrameLink, FrameStreamer
+from host.shell.context import current_call
+from protocol.messages import (
+    ScreenCommand,
+    ScreenTarget,
+    SoundKind,
+    SpeakerAction,
+    SpeakerCommand,
+)
+from robots.coco import load_servo_table
+from robots.coco import motions as coco_motions
+
+MOTION_CHANNELS = ("body", "head", "ears")
+
+
+class CocoLink(FrameLink, Protocol):
+    """The link operations the runtime uses (see :class:`host.coco.link_adapter.ClientLink`)."""
+
+    async def send_peripheral(self, msg: ScreenCommand | SpeakerCommand) -> None: ...
+
+    async def wait_board_time(self, t_us: int) -> None: ...
+
+    async def capture(self, width: int, height: int) -> bytes: ...
+
+
+@dataclass
+class Voice:
+    """Settings from ``speech_role``."""
+
+    role: str = "robot"
+    emotion: str = "neutral"
+    speech_rate: float = 1.0
+    loudness_rate: float = 1.0
+
+
+class CocoRuntime:
+    """Implements every behaviour of ``robots.coco.interface`` on a board behind ``link``."""
+
+    def __init__(self, link: CocoLink, run_dir: Path, *, initial: np.ndarray,
+                 speech_synth: Callable[..., Any] | None = None, period_us: int = 10_000,
+                 lookahead_us: int = 60_000) -> None:
+        self.link = link
+        self.run_dir = run_dir
+        self.table = load_servo_table()
+        self.mixer = Mixer(initial)
+        self.streamer = FrameStreamer(link, self.mixer, period_us=period_us, lookahead_us=lookahead_us)
+        self.voice = Voice()
+        self.board_times: dict[str, list[float | None]] = {}
+        self.captures: list[Path] = []
+        self._active: dict[int, tuple[str, Segment]] = {}  # element id -> (channel, looping segment)
+        self._channel_servos = {ch: np.asarray(coco_motions.channel_servos(ch), dtype=int) for ch in MOTION_CHANNELS}
+        self._speech_synth = speech_synth
+        self._playing_bgm: dict[int, str] = {}
+
+    # -- helpers -------------------------------------------------------------------------------
+    def _mark(self, start: float | None = None, end: float | None = None) -> None:
+        ctx = current_call()
+        if ctx is None:
+            return
+        rec = self.board_times.setdefault(ctx.path, [None, None])
+        if start is not None and rec[0] is None:
+            rec[0] = start
+        if end is not None:
+            rec[1] = end
+
+    def board_now_s(self) -> float:
+        """The board clock in seconds (the shell's timeline clock)."""
+        return self.link.board_now_us() * 1e-6
+
+    async def sleep(self, seconds: float) -> None:
+        """Sleep on the board clock (works in lockstep, where wall time means nothing)."""
+        await self.link.wait_board_time(self.link.board_now_us() + int(seconds * 1e6))
+
+    # -- the Performer protocol used by host.coco.binding ------------------------------------
+    async def perform(self, behaviour: str, channel: str, args: dict[str, Any]) -> Any:
+        """Run one behaviour call (the shell calls this with typed arguments)."""
+        if channel in MOTION_CHANNELS:
+            return await self._motion(behaviour, channel, args)
+        if channel == "face":
+            return await self._face(args)
+        if channel == "bgm":
+            return await self._bgm(args)
+        if channel == "camera":
+            return await self._capture()
+        if channel == "speech" and behaviour == "speech_role":
+            self.voice = Voice(**args)
+            t = self.board_now_s()
+            self._mark(t, t)
+            return f"voice set to {args}"
+        raise ValueError(f"no implementation for behaviour {behaviour!r} on channel {channel!r}")
+
+    async def reset(self, behaviour: str, channel: str) -> None:
+        """End a persistent call: smooth return (motion), neutral face, music stop."""
+        ctx = current_call()
+        if ctx is None:
+            return
+        if channel in MOTION_CHANNELS:
+            entry = self._active.pop(ctx.element_id, None)
+            if entry is None:
+                return
+            _, seg = entry
+            servos = self._channel_servos[channel]
+            rest = coco_motions.rest_pose(channel)
+            new = await self.streamer.cut([seg], servos, lambda q: coco_motions.transition(q, rest, servos),
+                                          label=f"{ctx.path}:reset")
+            if new is not None:
+                self._mark(end=await self.streamer.wait_ended(new))
+        elif channel == "face":
+            t = self.streamer.first_free_us
+            await self.link.send_peripheral(ScreenCommand(ScreenTarget.FACE, "neutral", t, 0))
+            await self.link.wait_board_time(t)
+            self._mark(end=t * 1e-6)
+        elif channel == "bgm":
+            t = self.streamer.first_free_us
+            await self.link.send_peripheral(SpeakerCommand(SpeakerAction.STOP, SoundKind.CLIP, t, 0, 0,
+                                                           name=self._playing_bgm.pop(ctx.element_id, "")))
+            await self.link.wait_board_time(t)
+            self._mark(end=t * 1e-6)
+
+    async def speak(self, text: str) -> str:
+        """Say one sentence: synthesise for its duration, play it on the board clock."""
+        duration = await self._speech_duration(text)
+        start = self.streamer.first_free_us
+        payload = text.encode("utf-8")[:200].decode("utf-8", "ignore")
+        volume = int(max(0, min(100, 70 * self.voice.loudness_rate)))
+        await self.link.send_peripheral(SpeakerCommand(SpeakerAction.PLAY, SoundKind.SPEECH, start,
+                                                       int(duration * 1000), volume, text=payload))
+        end = start + int(duration * 1e6)
+        await self.link.wait_board_time(start)
+        self._mark(start=start * 1e-6)
+        await self.link.wait_board_time(end)
+        self._mark(end=end * 1e-6)
+        return f"said {text!r} ({duration:.2f} s)"
+
+    # -- behaviours ----------------------------------------------------------------------------
+    async def _speech_duration(self, text: str) -> float:
+        if self._speech_synth is None:
+            from host.speech import synthesize_async
+
+            self._speech_synth = synthesize_async
+        rate = int(175 * self.voice.speech_rate)
+        utt = await self._speech_synth(text, self.run_dir / "speech", rate_wpm=rate)
+        return float(utt.duration_s)
+
+    async def _motion(self, behaviour: str, channel: str, args: dict[str, Any]) -> str:
+        ctx = current_call()
+        persistent = bool(ctx and ctx.persistent)
+        start = self.streamer.planned_targets()
+        motion = coco_motions.BEHAVIOURS[behaviour](start, persistent=persistent, **args)
+        seg = self.streamer.add(motion, label=ctx.path if ctx else behaviour)
+        if persistent and ctx is not None:
+            self._active[ctx.element_id] = (channel, seg)
+            self._mark(start=await self.streamer.wait_started(seg))
+            await anyio.sleep_forever()
+        try:
+            self._mark(start=await self.streamer.wait_started(seg))
+            end = await self.streamer.wait_ended(seg)
+        except anyio.get_cancelled_exc_class():
+            with anyio.CancelScope(shield=True):
+                await self._stop(seg, channel)
+            raise
+        self._mark(end=end)
+        return f"{behaviour} done"
+
+    async def _stop(self, seg: Segment, channel: str) -> None:
+        """Interrupted finite motion: flush and settle smoothly where it is."""
+        servos = self._channel_servos[channel]
+        new = await self.streamer.cut([seg], servos, lambda q: coco_motions.transition(q, q, servos),
+                                      label="stop")
+        if new is not None:
+            with anyio.move_on_after(5):
+                self._mark(end=await self.streamer.wait_ended(new))
+
+    async def _face(self, args: dict[str, Any]) -> str:
+        ctx = current_call()
+        persistent = bool(ctx and ctx.persistent)
+        duration = 0.0 if persistent else float(args.get("duration", 2.0))
+        start = self.streamer.first_free_us
+        await self.link.send_peripheral(ScreenCommand(ScreenTarget.FACE, str(args["emo"]), start, int(duration * 1000)))
+        await self.link.wait_board_time(start)
+        self._mark(start=start * 1e-6)
+        if persistent:
+            await anyio.sleep_forever()
+        end = start + int(duration * 1e6)
+        await self.link.wait_board_time(end)
+        self._mark(end=end * 1e-6)
+        return f"face {args['emo']} shown for {duration:g} s"
+
+    async def _bgm(self, args: dict[str, Any]) -> str:
+        ctx = current_call()
+        persistent = bool(ctx and ctx.persistent)
+        duration = 0.0 if persistent else float(args.get("duration") or 5.0)
+        start = self.streamer.first_free_us
+        name = str(args.get("name", "happy"))[:24]
+        await self.link.send_peripheral(SpeakerCommand(SpeakerAction.PLAY, SoundKind.CLIP, start,
+                                                       int(duration * 1000), int(args.get("volume", 60)), name=name))
+        await self.link.wait_board_time(start)
+        self._mark(start=start * 1e-6)
+        if persistent and ctx is not None:
+            self._playing_bgm[ctx.element_id] = name
+            await anyio.sleep_forever()
+        end = start + int(duration * 1e6)
+        await self.link.wait_board_time(end)
+        self._mark(end=end * 1e-6)
+        return f"music {name!r} played for {duration:g} s"
+
+    async def _capture(self) -> str:
+        t0 = self.board_now_s()
+        self._mark(start=t0)
+        png = await self.link.capture(160, 120)
+        path = self.run_dir / f"capture_{len(self.captures) + 1}.png"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(png)
+        self.captures.append(path)
+        self._mark(end=self.board_now_s())
+        return f"photo saved to {path.name} ({len(png)} bytes)"

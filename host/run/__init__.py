@@ -1,0 +1,1 @@
+"""Running a task end to end: board process, link, shell, artefacts."""

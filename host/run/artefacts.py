@@ -1,0 +1,147 @@
+"""Files a run leaves behind: timeline.json/png, joints.png and summary.json.
+
+Plots use matplotlib's Agg backend (no display needed).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+OUTCOMES = ("done", "failed", "cancelled", "interrupted", "pending")
+
+
+@dataclass
+class BoardCall:
+    """One call on the board clock (seconds), as ``timeline.json`` lists it."""
+
+    function: str
+    channel: str | None
+    args: dict[str, Any]
+    path: str
+    start: float | None
+    end: float | None
+    outcome: str
+    error: str | None = None
+    persistent: bool = False
+
+
+@dataclass
+class Summary:
+    """``summary.json``: how the run went, in numbers."""
+
+    task: str
+    outcome: str
+    fell: bool
+    base_start: list[float]
+    base_end: list[float]
+    max_tilt_deg: float
+    first_action_latency_ms: float | None
+    outcomes: dict[str, int] = field(default_factory=dict)
+    duration_s: float = 0.0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, (str, int, float, bool)) or v is None:
+        return v
+    if hasattr(v, "value") and hasattr(v, "name"):  # Enum
+        return v.value
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    return str(v)
+
+
+def write_timeline_json(path: Path, calls: Sequence[BoardCall], t0: float = 0.0) -> None:
+    """Write ``{"clock": "board", "t0": run start, "calls": [...]}`` (times in board seconds)."""
+    doc = {"clock": "board", "t0": t0, "calls": [{k: _jsonable(v) for k, v in asdict(c).items()} for c in calls]}
+    path.write_text(json.dumps(doc, indent=1, ensure_ascii=False) + "\n", encoding="utf-8")
+
+
+def write_summary_json(path: Path, summary: Summary) -> None:
+    path.write_text(json.dumps(_jsonable(asdict(summary)), indent=1) + "\n", encoding="utf-8")
+
+
+_COLOURS = {"done": "#4c9be8", "failed": "#e05050", "cancelled": "#aaaaaa", "interrupted": "#f0a030",
+            "pending": "#dddddd"}
+
+
+def plot_timeline(path: Path, calls: Sequence[BoardCall], title: str = "") -> None:
+    """A Gantt chart of the calls, one row per channel."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    shown = [c for c in calls if c.start is not None]
+    channels = list(dict.fromkeys(c.channel or "?" for c in shown)) or ["-"]
+    fig, ax = plt.subplots(figsize=(10, 0.6 * len(channels) + 1.4))
+    t_max = max((c.end or c.start or 0.0) for c in shown) if shown else 1.0
+    for c in shown:
+        y = channels.index(c.channel or "?")
+        end = c.end if c.end is not None else t_max
+        h = 0.35 if c.persistent else 0.7
+        ax.barh(y, max(end - c.start, 0.02), left=c.start, height=h, color=_COLOURS.get(c.outcome, "#888"),
+                edgecolor="black", linewidth=0.5, alpha=0.6 if c.persistent else 0.9)
+        ax.text(c.start + 0.02, y, c.function, va="center", fontsize=7, clip_on=True)
+    ax.set_yticks(range(len(channels)), channels)
+    ax.invert_yaxis()
+    ax.set_xlabel("board time (s)")
+    ax.set_title(title or "timeline")
+    ax.grid(axis="x", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_joints(path: Path, times: np.ndarray, positions: np.ndarray, names: Sequence[str],
+                targets: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+    """Joint angles (degrees) against board time, one panel per servo group."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    groups = [("legs (hips)", [i for i, n in enumerate(names) if n.endswith("hip")]),
+              ("legs (knees)", [i for i, n in enumerate(names) if n.endswith("knee")]),
+              ("head and ears", [i for i, n in enumerate(names) if not n.endswith(("hip", "knee"))])]
+    fig, axes = plt.subplots(len(groups), 1, figsize=(10, 7), sharex=True)
+    for ax, (label, idx) in zip(axes, groups):
+        for i in idx:
+            line, = ax.plot(times, np.degrees(positions[:, i]), lw=1, label=names[i])
+            if targets is not None and len(targets[0]):
+                ax.plot(targets[0], np.degrees(targets[1][:, i]), lw=0.6, ls="--", color=line.get_color())
+        ax.set_ylabel(f"{label}\n(deg)")
+        ax.legend(fontsize=6, ncol=4, loc="upper right")
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("board time (s)  (solid: measured, dashed: commanded)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def tilt_deg(quat_wxyz: Sequence[float]) -> float:
+    """Angle between the body's up axis and the world's up axis."""
+    w, x, y, z = quat_wxyz
+    up_z = 1.0 - 2.0 * (x * x + y * y)
+    return math.degrees(math.acos(max(-1.0, min(1.0, up_z))))
+
+
+def yaw_deg(quat_wxyz: Sequence[float]) -> float:
+    w, x, y, z = quat_wxyz
+    return math.degrees(math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
+
+
+def count_outcomes(calls: Sequence[BoardCall]) -> dict[str, int]:
+    out = {k: 0 for k in OUTCOMES}
+    for c in calls:
+        out[c.outcome] = out.get(c.outcome, 0) + 1
+    return out
