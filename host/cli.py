@@ -18,7 +18,8 @@ from collections.abc import Sequence
 COMMANDS: dict[str, tuple[str, str]] = {
     "board": ("board", "run the emulated CoCo board (firmware_sim) on a pty, a port or a URL"),
     "pose": ("pose", "drive the board to a named pose and report the largest error"),
-    "demo": ("demo", "start a board on a pty and run the showcase end to end"),
+    "demo": ("demo", "the showcase: a paper task end to end on an emulated board (pty, MuJoCo, scripted LLM)"),
+    "tour": ("tour", "start a board on a pty and drive it through the named poses"),
     "log": ("log", "decode a frame log written with --log"),
     "prompt": ("prompt", "print the system prompt for the mounted functions"),
     "dsbc": ("dsbc", "score a generated function-token program against a ground truth"),

@@ -1,140 +1,31 @@
-"""``ghostshell demo``: start a board on a pty, drive it through a pose sequence, print telemetry, shut down.
+"""``ghostshell demo``: the showcase, a paper task end to end on the embedded default.
 
-(The behaviours issue replaces this with a task run.) The board is a real
-subprocess (``python -m firmware_sim --link pty``); the host talks to it with
-:class:`host.link.BoardClient` exactly as it would to hardware.
+The emulated board on a pty, MuJoCo headless, the scripted LLM streaming the
+task's ground-truth function tokens at 30 tokens/s; prints where the artefacts are.
 """
 
 from __future__ import annotations
 
 import argparse
-import asyncio
-import json
-import math
-import signal
-import sys
-import time
-from pathlib import Path
-from typing import Any
 
-from host.link.board_process import start_board
+from host.commands.run import add_run_options, run_with
 
-__all__ = ["SEQUENCE", "configure", "main"]
-
-SEQUENCE = ("neutral", "stand", "sit", "stand", "crouch", "neutral")
+DEFAULT_TASK = 26
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    mode = parser.add_mutually_exclusive_group()
-    mode.add_argument("--realtime", dest="lockstep", action="store_false", help="board paced to the wall clock (default)")
-    mode.add_argument("--lockstep", dest="lockstep", action="store_true", help="board on virtual time, as fast as it goes")
-    parser.set_defaults(lockstep=False)
-    parser.add_argument("--out", default=None, metavar="DIR",
-                        help="write the frame logs (board.jsonl, host.jsonl), board stderr and summary.json here")
-    parser.add_argument("--duration", type=float, default=1.0, metavar="S", help="seconds per pose move (default 1.0)")
-
-
-def _deg(v: float) -> str:
-    return f"{math.degrees(v):6.1f}" if math.isfinite(v) else "   nan"
-
-
-async def _printer(client: Any, names: tuple[str, ...], state: dict[str, Any], live: Any) -> None:
-    from rich.table import Table
-
-    last = 0.0
-    async for t in client.telemetry(maxsize=4):
-        now = time.monotonic()
-        if now - last < 0.2:
-            continue
-        last = now
-        if live is None:
-            print(f"t={t.board_time_us / 1e6:7.3f}s pose={state['pose']:<8} faults={int(t.faults):#04x} "
-                  f"buf={t.buffer_fill:3d} q(deg)=[" + " ".join(_deg(v) for v in t.positions) + "]", flush=True)
-            continue
-        table = Table(title=f"CoCo  board time {t.board_time_us / 1e6:7.3f} s   pose -> {state['pose']}")
-        table.add_column("servo")
-        table.add_column("pos deg", justify="right")
-        table.add_column("vel rad/s", justify="right")
-        table.add_column("effort N*m", justify="right")
-        for i, name in enumerate(names):
-            table.add_row(name, _deg(t.positions[i]), f"{t.velocities[i]:7.2f}", f"{t.efforts[i]:7.3f}")
-        table.caption = (f"faults {int(t.faults):#04x}  buffer {t.buffer_fill}  last seq {t.last_applied_seq}  "
-                         f"late {t.late_count}  dropped {t.dropped_count}  link errors {t.link_errors}")
-        live.update(table)
-
-
-async def _drive(port: str, args: argparse.Namespace, out: Path | None) -> dict[str, Any]:
-    from host.link import BoardClient
-    from host.link.moves import move_to
-    from robots.coco import load_poses, load_servo_table
-
-    poses = load_poses()
-    names = load_servo_table().names
-    state: dict[str, Any] = {"pose": "-"}
-    results: list[dict[str, Any]] = []
-    live = None
-    if sys.stdout.isatty():
-        from rich.live import Live
-
-        live = Live(refresh_per_second=8)
-        live.start()
-    try:
-        async with await BoardClient.connect(port, log_path=out / "host.jsonl" if out else None, reconnect=False) as client:
-            printer = asyncio.create_task(_printer(client, names, state, live))
-            try:
-                for name in SEQUENCE:
-                    state["pose"] = name
-                    res = await move_to(client, poses[name], duration_s=args.duration)
-                    results.append({"pose": name, "max_error_deg": round(res.max_error_deg, 3),
-                                    "worst": names[res.worst_index], "board_time_s": res.board_time_us / 1e6})
-                    msg = f"reached {name:<8} largest error {res.max_error_deg:.2f} deg ({names[res.worst_index]})"
-                    (live.console.print if live else print)(msg)
-            finally:
-                printer.cancel()
-            est = client.clock_estimate
-            return {
-                "mode": "lockstep" if client.lockstep else "realtime",
-                "poses": results,
-                "stats": vars(client.stats),
-                "clock": None if est is None else {"offset_us": est.offset_us, "drift_ppm": est.drift_ppm,
-                                                   "uncertainty_us": est.uncertainty_us},
-            }
-    finally:
-        if live is not None:
-            live.stop()
+    parser.add_argument("--task", type=int, default=DEFAULT_TASK,
+                        help=f"paper task to show (default {DEFAULT_TASK}: ears, nods and strides under music)")
+    add_run_options(parser)
 
 
 def main(args: argparse.Namespace) -> int:
-    from host.link import LinkError
+    from robots.coco.tasks import get_task
 
-    out = Path(args.out) if args.out else None
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-    board_args = ["--lockstep" if args.lockstep else "--realtime"]
-    if out is not None:
-        board_args += ["--log", str(out / "board.jsonl")]
     try:
-        board = start_board(board_args, out / "board.stderr" if out else None)
-    except (RuntimeError, OSError) as e:
-        print(f"ghostshell demo: {e}", file=sys.stderr)
+        task = get_task(args.task)
+    except ValueError as e:
+        print(f"ghostshell demo: {e}")
         return 2
-    print(f"board running on {board.port} ({'lockstep' if args.lockstep else 'realtime'})", flush=True)
-    code = 0
-    try:
-        summary = asyncio.run(_drive(board.port, args, out))
-    except LinkError as e:
-        print(f"ghostshell demo: {e}", file=sys.stderr)
-        code = 1
-        summary = None
-    finally:
-        rc = board.stop()
-    if rc not in (0, -signal.SIGTERM):
-        print(f"ghostshell demo: board exited with status {rc}", file=sys.stderr)
-        code = code or 1
-    if summary is not None:
-        if out is not None:
-            (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-            print(f"logs and summary in {out}")
-        print(f"demo done: {len(summary['poses'])} poses, worst error "
-              f"{max(p['max_error_deg'] for p in summary['poses']):.2f} deg")
-    return code
+    print(f"task {task.id} ({task.category}): {task.instruction}\n  {task.ground_truth}\n")
+    return run_with(args, program=task.ground_truth, prompt=None, label=f"demo task {task.id}")

@@ -60,6 +60,7 @@ class RunOptions:
     settle_s: float = 0.5
     buffer_response: bool = False  # wait for the whole LLM response before executing (the non-streaming baseline)
     start_pose: str = "stand"
+    live: bool = False  # draw the live channel view (on a terminal)
 
 
 @dataclass
@@ -167,6 +168,10 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, CocoRuntime],
                 board_t0 = runtime.board_now_s()
                 if on_start is not None:
                     on_start(shell, runtime)
+                if opts.live:
+                    from host.run.live import live_view
+
+                    tg.start_soon(live_view, shell, runtime, opts.task_label)
                 if opts.interrupt_at is not None:
                     tg.start_soon(_interrupter, shell, runtime, board_t0 + opts.interrupt_at)
                 chunks = _timed_chunks(ghost.stream(messages), runtime.board_now_s, token_times)

@@ -14,7 +14,7 @@ from collections.abc import AsyncIterable, AsyncIterator, Callable, Iterable
 from host.shell.registry import Registry
 from host.shell.scheduler import MODES, ProgramRun
 from host.shell.skills import SkillStore
-from host.shell.timeline import RunResult
+from host.shell.timeline import RunResult, Timeline
 
 
 class Shell:
@@ -47,6 +47,11 @@ class Shell:
         self.clock = clock
         self.skills = skills if skills is not None else SkillStore()
         self._run: ProgramRun | None = None
+
+    @property
+    def timeline(self) -> Timeline | None:
+        """The live timeline of the run in progress (times relative to its start), or None."""
+        return None if self._run is None else self._run.timeline
 
     @property
     def running(self) -> bool:

@@ -10,14 +10,9 @@ import pytest
 from host.cli import main as cli_main
 from host.eval import dsbc, dsbc_breakdown
 
-TASKS_PATH = Path(__file__).resolve().parents[3] / "shared" / "data" / "ghostshell_tasks.json"
-if not TASKS_PATH.exists():  # the documented location of the task data
-    TASKS_PATH = Path("/work/shared/data/ghostshell_tasks.json")
-GROUND_TRUTHS = (
-    [t["ground_truth"] for t in json.loads(TASKS_PATH.read_text())["hri_tasks"] if "ground_truth" in t]
-    if TASKS_PATH.exists()
-    else []
-)
+from robots.coco.tasks import load_tasks
+
+GROUND_TRUTHS = [t.ground_truth for t in load_tasks().values() if t.ground_truth]
 
 
 def test_identical_single_element_is_one() -> None:
@@ -123,14 +118,12 @@ def test_references_are_resolved_before_comparing_attributes() -> None:
     assert dsbc('<say t="a&amp;b"/>', "<say t='a&#38;b'/>") == 1.0
 
 
-@pytest.mark.skipif(not GROUND_TRUTHS, reason=f"task data not found at {TASKS_PATH}")
 def test_all_thirty_ground_truths_score_one_against_themselves() -> None:
     assert len(GROUND_TRUTHS) == 30
     for gt in GROUND_TRUTHS:
         assert dsbc(gt, gt) == 1.0, gt
 
 
-@pytest.mark.skipif(not GROUND_TRUTHS, reason=f"task data not found at {TASKS_PATH}")
 def test_perturbed_ground_truths() -> None:
     gts = {i + 1: g for i, g in enumerate(GROUND_TRUTHS)}
     # task 4: <wait>Hello</wait><face_emo emo="smile"/> with the wait dropped:

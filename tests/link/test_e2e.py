@@ -217,10 +217,10 @@ def test_pose_command(board_factory) -> None:
     assert r.returncode == 2 and "no board" in r.stderr
 
 
-def test_demo_command_runs_end_to_end(tmp_path: Path) -> None:
-    r = _ghostshell("demo", "--lockstep", "--duration", "0.3", "--out", str(tmp_path))
+def test_tour_command_runs_end_to_end(tmp_path: Path) -> None:
+    r = _ghostshell("tour", "--lockstep", "--duration", "0.3", "--out", str(tmp_path))
     assert r.returncode == 0, r.stderr
-    assert "demo done: 6 poses" in r.stdout and "reached crouch" in r.stdout
+    assert "tour done: 6 poses" in r.stdout and "reached crouch" in r.stdout
     assert (tmp_path / "host.jsonl").stat().st_size > 0 and (tmp_path / "summary.json").exists()
     r = _ghostshell("log", "decode", str(tmp_path / "host.jsonl"), "--type", "HELLO")
     assert r.returncode == 0 and "HELLO" in r.stdout and "TELEMETRY" not in r.stdout

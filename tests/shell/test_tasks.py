@@ -6,13 +6,12 @@ speech 0.1 s/char ...). Each check asserts the ordering the instruction demands.
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
 
 import pytest
 
-TASKS = {t["id"]: t for t in json.loads(Path("/work/shared/data/ghostshell_tasks.json").read_text())["hri_tasks"]
-         if "ground_truth" in t} if Path("/work/shared/data/ghostshell_tasks.json").exists() else {}
+from robots.coco.tasks import load_tasks
+
+TASKS = {i: {"id": i, "ground_truth": t.ground_truth} for i, t in load_tasks().items() if t.ground_truth}
 
 pytestmark = pytest.mark.anyio
 
@@ -158,8 +157,7 @@ def check(tid, tl):
         raise AssertionError(f"no check for task {tid}")
 
 
-@pytest.mark.skipif(not TASKS, reason="task data not available")
-@pytest.mark.parametrize("tid", sorted(TASKS) or [0])
+@pytest.mark.parametrize("tid", sorted(TASKS))
 async def test_ground_truth_task(tid, coco):
     shell, impl = coco()
     result = await shell.run_text(TASKS[tid]["ground_truth"])
@@ -168,8 +166,7 @@ async def test_ground_truth_task(tid, coco):
     check(tid, result.timeline)
 
 
-@pytest.mark.skipif(not TASKS, reason="task data not available")
-@pytest.mark.parametrize("tid", sorted(TASKS) or [0])
+@pytest.mark.parametrize("tid", sorted(TASKS))
 async def test_ground_truth_task_streamed_in_small_chunks(tid, coco):
     """The same programs fed 3 characters at a time: identical timelines."""
     shell, _ = coco()
@@ -194,7 +191,6 @@ SYNC_FIRST = {
 }
 
 
-@pytest.mark.skipif(not TASKS, reason="task data not available")
 @pytest.mark.parametrize("tid", sorted(SYNC_FIRST))
 async def test_sync_first_equivalent(tid, coco):
     shell, _ = coco(mode="sync-first")

@@ -1,0 +1,120 @@
+"""``ghostshell run``: a task, a program or an LLM prompt on the robot, end to end.
+
+With ``--link pty`` (default) it starts the emulated board itself. It shows the
+channels live (on a terminal) and leaves timeline.json/png, joints.png,
+summary.json and both frame logs in ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from host.coco.binding import VOCABULARY_NAMES
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    src = parser.add_mutually_exclusive_group(required=True)
+    src.add_argument("--task", type=int, metavar="N", help="a paper task (1-30): replay its ground-truth tokens")
+    src.add_argument("--xml", metavar="TEXT", help="function tokens to replay, e.g. '<head_act action=\"nod\"/>'")
+    src.add_argument("--xml-file", metavar="F", help="a file of function tokens to replay")
+    src.add_argument("--prompt", metavar="TEXT", help="an instruction for a real LLM (needs --llm openai:MODEL)")
+    add_run_options(parser)
+    parser.add_argument("--llm", default="scripted", metavar="SPEC",
+                        help="scripted (replay, default) or openai:MODEL (any OpenAI-compatible endpoint)")
+    parser.add_argument("--base-url", default=None, help="LLM endpoint (else GHOSTSHELL_LLM_BASE_URL/OPENAI_BASE_URL)")
+    parser.add_argument("--api-key", default=None, help="LLM key (else GHOSTSHELL_LLM_API_KEY/OPENAI_API_KEY)")
+    parser.add_argument("--interrupt-at", type=float, default=None, metavar="S",
+                        help="interrupt the run S board seconds after the stream starts (external event)")
+
+
+def add_run_options(parser: argparse.ArgumentParser) -> None:
+    """Options shared by ``run`` and ``demo``."""
+    parser.add_argument("--vocabulary", choices=VOCABULARY_NAMES, default="paper",
+                        help="vocabulary shown in the prompt (the mapper accepts both)")
+    parser.add_argument("--link", default="pty", metavar="pty|PATH|URL",
+                        help="pty (default: start the emulated board) or an existing port / pyserial URL")
+    clock = parser.add_mutually_exclusive_group()
+    clock.add_argument("--lockstep", dest="lockstep", action="store_true",
+                       help="virtual board clock, as fast as the host streams (reproducible)")
+    clock.add_argument("--realtime", dest="lockstep", action="store_false", help="wall-clock board (default)")
+    parser.set_defaults(lockstep=False)
+    parser.add_argument("--mode", choices=("async-first", "sync-first"), default="async-first")
+    parser.add_argument("--lenient", action="store_true", help="recover from malformed LLM output instead of stopping")
+    parser.add_argument("--tokens-per-s", type=_positive, default=30.0, help="scripted LLM speed (default 30)")
+    parser.add_argument("--seed", type=int, default=0, help="scripted LLM jitter seed")
+    parser.add_argument("--baud", type=int, default=115200, help="baud rate for a real serial port")
+    parser.add_argument("--out", default=None, metavar="DIR", help="artefact folder (default runs/<label>)")
+    parser.add_argument("--no-live", action="store_true", help="no live channel view")
+
+
+def _positive(text: str) -> float:
+    v = float(text)
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return v
+
+
+def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | None, label: str) -> int:
+    """Build :class:`RunOptions` from ``args``, run, print where the artefacts are."""
+    import anyio
+
+    from host.ghost import GhostError
+    from host.link import LinkError
+    from host.run.runner import RunOptions, run_program
+
+    slug = label.replace(" ", "-")
+    out = Path(args.out) if args.out else Path("runs") / slug
+    opts = RunOptions(
+        program=program, prompt=prompt, llm=getattr(args, "llm", "scripted"), task_label=label,
+        vocabulary=args.vocabulary, mode=args.mode, strict=not args.lenient, lockstep=args.lockstep,
+        link=args.link, baud=args.baud, out=out, tokens_per_s=args.tokens_per_s, seed=args.seed,
+        llm_base_url=getattr(args, "base_url", None), llm_api_key=getattr(args, "api_key", None),
+        interrupt_at=getattr(args, "interrupt_at", None), live=not args.no_live and sys.stdout.isatty(),
+    )
+    try:
+        report = anyio.run(run_program, opts, backend="asyncio")
+    except (LinkError, GhostError, RuntimeError, OSError) as e:
+        print(f"ghostshell: {e}", file=sys.stderr)
+        return 1
+    s = report.summary
+    print(report.result.timeline.table())
+    for o in report.result.observations:
+        if o.kind != "result":
+            print(o)
+    print(f"\n{label}: {s.outcome}; {sum(s.outcomes.values())} calls {dict((k, v) for k, v in s.outcomes.items() if v)}; "
+          f"board time {s.duration_s:.2f} s; first action after {s.first_action_latency_ms} ms; "
+          f"max tilt {s.max_tilt_deg:.1f} deg{'; FELL' if s.fell else ''}")
+    print(f"base moved from {s.base_start} to {s.base_end} [x m, y m, yaw deg]")
+    print(f"artefacts in {out}/: timeline.json timeline.png joints.png summary.json host_frames.jsonl board_frames.jsonl")
+    return 0 if s.outcome in ("done", "interrupted") else 1
+
+
+def main(args: argparse.Namespace) -> int:
+    program, prompt = None, args.prompt
+    if args.task is not None:
+        from robots.coco.tasks import get_task
+
+        try:
+            task = get_task(args.task)
+        except ValueError as e:
+            print(f"ghostshell run: {e}", file=sys.stderr)
+            return 2
+        program, label = task.ground_truth, f"task {task.id}"
+        print(f"task {task.id} ({task.category}): {task.instruction}\n  {task.ground_truth}")
+    elif args.xml is not None:
+        program, label = args.xml, "program"
+    elif args.xml_file is not None:
+        try:
+            program = Path(args.xml_file).read_text(encoding="utf-8")
+        except OSError as e:
+            print(f"ghostshell run: cannot read {args.xml_file}: {e.strerror}", file=sys.stderr)
+            return 2
+        label = Path(args.xml_file).stem
+    else:
+        label = "prompt"
+        if args.llm == "scripted":
+            print("ghostshell run: --prompt needs a real LLM, e.g. --llm openai:gpt-4o-mini", file=sys.stderr)
+            return 2
+    return run_with(args, program=program, prompt=prompt, label=label)

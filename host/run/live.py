@@ -1,0 +1,53 @@
+"""A live view of a run: what each channel is doing, on the board clock (rich)."""
+
+from __future__ import annotations
+
+import sys
+
+import anyio
+from rich.console import Console
+from rich.live import Live
+from rich.table import Table
+
+from host.coco.runtime import CocoRuntime
+from host.shell import Shell
+
+CHANNELS = ("main", "speech", "face", "head", "ears", "body", "bgm", "camera")
+
+
+def _table(shell: Shell, runtime: CocoRuntime, label: str) -> Table:
+    now = runtime.board_now_s()
+    table = Table(title=f"{label}   board time {now:7.2f} s", title_justify="left", expand=False)
+    table.add_column("channel", style="bold")
+    table.add_column("running now")
+    table.add_column("done", justify="right")
+    table.add_column("last finished")
+    tl = shell.timeline
+    records = list(tl) if tl is not None else []
+    for ch in CHANNELS:
+        mine = [r for r in records if r.channel == ch]
+        running = [r for r in mine if r.start is not None and r.end is None]
+        finished = [r for r in mine if r.end is not None]
+        now_txt = ", ".join(f"{r.function}{_args(r.args)}{' (held)' if r.persistent else ''}" for r in running)
+        last = finished[-1] if finished else None
+        table.add_row(ch, now_txt or "[dim]-[/dim]", str(len(finished)),
+                      f"{last.function} [{last.outcome}]" if last else "")
+    return table
+
+
+def _args(args: dict) -> str:
+    if not args:
+        return ""
+    text = " ".join(f"{k}={v!r}" if isinstance(v, str) else f"{k}={v}" for k, v in args.items())
+    return f"({text[:40]})"
+
+
+async def live_view(shell: Shell, runtime: CocoRuntime, label: str, period_s: float = 0.25) -> None:
+    """Redraw the channel table until cancelled (only on a terminal)."""
+    if not sys.stdout.isatty():
+        await anyio.sleep_forever()
+    console = Console()
+    with Live(_table(shell, runtime, label), console=console, refresh_per_second=8, transient=False) as live:
+        while True:
+            await anyio.sleep(period_s)
+            live.update(_table(shell, runtime, label))
