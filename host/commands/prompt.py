@@ -8,10 +8,8 @@ import sys
 from collections.abc import Iterable
 from typing import Any
 
-#: Where CoCo's interface will live (written by a later issue).
-DEFAULT_INTERFACE = "robots.coco.interface:modules"
-#: Shipped stand-in used until the CoCo interface exists.
-FALLBACK_INTERFACE = "host.shell.example:modules"
+#: The default interface: CoCo, both vocabularies mounted, one shown (see host.coco.binding).
+DEFAULT_INTERFACE = "coco"
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -23,10 +21,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--interface",
         default=None,
         metavar="MODULE:ATTR",
-        help=f"callable returning a Registry, a list of Modules or a dict {{module: interface class}} "
-        f"(default {DEFAULT_INTERFACE}, "
-        f"falling back to {FALLBACK_INTERFACE})",
+        help="callable returning a Registry, a list of Modules or a dict {module: interface class} "
+        "(default: CoCo; e.g. host.shell.example:modules)",
     )
+    parser.add_argument("--vocabulary", choices=("paper", "coco"), default="paper",
+                        help="which of CoCo's two vocabularies the prompt shows (the mapper accepts both)")
     parser.add_argument("--skills", default=None, metavar="FILE", help="skill memory JSON file to list")
 
 
@@ -37,19 +36,28 @@ def load_interface(spec: str) -> Any:
     return obj() if callable(obj) else obj
 
 
-def build_registry(spec: str | None) -> tuple[Any, str]:
+class _NoRobot:
+    """A performer for prompt rendering only: the prompt never calls anything."""
+
+    async def perform(self, behaviour: str, channel: str, args: dict[str, Any]) -> Any:
+        raise RuntimeError("prompt rendering does not execute calls")
+
+    async def reset(self, behaviour: str, channel: str) -> None:
+        return None
+
+    async def speak(self, text: str) -> Any:
+        raise RuntimeError("prompt rendering does not execute calls")
+
+
+def build_registry(spec: str | None, vocabulary: str = "paper") -> tuple[Any, str]:
     """A registry with the interface mounted, and the interface spec actually used."""
     from host.shell.registry import Registry
 
     if spec is None:
-        try:
-            obj = load_interface(DEFAULT_INTERFACE)
-            spec = DEFAULT_INTERFACE
-        except (ImportError, AttributeError):
-            obj = load_interface(FALLBACK_INTERFACE)
-            spec = FALLBACK_INTERFACE
-    else:
-        obj = load_interface(spec)
+        from host.coco.binding import coco_registry
+
+        return coco_registry(_NoRobot(), vocabulary), f"{DEFAULT_INTERFACE} ({vocabulary} vocabulary)"
+    obj = load_interface(spec)
     if isinstance(obj, Registry):
         return obj, spec
     if isinstance(obj, dict):  # {module name: interface class}, e.g. from robots/ (which cannot import host)
@@ -65,13 +73,10 @@ def main(args: argparse.Namespace) -> int:
     from host.shell.skills import SkillStore
 
     try:
-        registry, used = build_registry(args.interface)
+        registry, _used = build_registry(args.interface, args.vocabulary)
     except (ImportError, AttributeError, ValueError, TypeError) as exc:
         print(f"ghostshell prompt: cannot load interface {args.interface!r}: {exc}", file=sys.stderr)
         return 2
-    if used == FALLBACK_INTERFACE and args.interface is None:
-        print(f"ghostshell prompt: {DEFAULT_INTERFACE} not available; using the example interface "
-              f"{FALLBACK_INTERFACE}", file=sys.stderr)
     skills = SkillStore(args.skills) if args.skills else None
     sys.stdout.write(render_prompt(registry, format=args.format, mode=args.mode,
                                    text_first_class=args.text_first_class, skills=skills))
