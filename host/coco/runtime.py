@@ -15,7 +15,9 @@ Every call's board-measured start and end are kept by element path in
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+import dataclasses
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -152,11 +154,24 @@ class CocoRuntime:
         await self.link.send_peripheral(SpeakerCommand(SpeakerAction.PLAY, SoundKind.SPEECH, start,
                                                        int(duration * 1000), volume, text=payload))
         end = start + int(duration * 1e6)
-        await self.link.wait_board_time(start)
-        self._mark(start=start * 1e-6)
-        await self.link.wait_board_time(end)
+        async with self._stop_on_cancel(SpeakerCommand(SpeakerAction.STOP, SoundKind.SPEECH, 0, 0, 0)):
+            await self.link.wait_board_time(start)
+            self._mark(start=start * 1e-6)
+            await self.link.wait_board_time(end)
         self._mark(end=end * 1e-6)
         return f"said {text!r} ({duration:.2f} s)"
+
+    @contextlib.asynccontextmanager
+    async def _stop_on_cancel(self, stop: ScreenCommand | SpeakerCommand) -> AsyncIterator[None]:
+        """If the call is cancelled (interrupted), stop its peripheral at the next frame time."""
+        try:
+            yield
+        except anyio.get_cancelled_exc_class():
+            with anyio.CancelScope(shield=True), anyio.move_on_after(5):
+                now = self.streamer.first_free_us
+                await self.link.send_peripheral(dataclasses.replace(stop, start_at_us=now))
+                self._mark(end=now * 1e-6)
+            raise
 
     # -- behaviours ----------------------------------------------------------------------------
     async def _speech_duration(self, text: str) -> float:
@@ -208,7 +223,8 @@ class CocoRuntime:
         if persistent:
             await anyio.sleep_forever()
         end = start + int(duration * 1e6)
-        await self.link.wait_board_time(end)
+        async with self._stop_on_cancel(ScreenCommand(ScreenTarget.FACE, "neutral", 0, 0)):
+            await self.link.wait_board_time(end)
         self._mark(end=end * 1e-6)
         return f"face {args['emo']} shown for {duration:g} s"
 
@@ -226,7 +242,8 @@ class CocoRuntime:
             self._playing_bgm[ctx.element_id] = name
             await anyio.sleep_forever()
         end = start + int(duration * 1e6)
-        await self.link.wait_board_time(end)
+        async with self._stop_on_cancel(SpeakerCommand(SpeakerAction.STOP, SoundKind.CLIP, 0, 0, 0, name=name)):
+            await self.link.wait_board_time(end)
         self._mark(end=end * 1e-6)
         return f"music {name!r} played for {duration:g} s"
 

@@ -163,9 +163,9 @@ class FrameStreamer:
             if replacement is not None:
                 new = self.mixer.add(replacement, cut_us, label)
                 self._times[new] = SegmentTimes()
+            mask = mask_of(servos)
+            await self.link.flush(cut_us, mask)  # nothing buffered for these servos survives the cut
             if cut_us < self.next_us:
-                mask = mask_of(servos)
-                await self.link.flush(cut_us, mask)
                 idx = np.asarray(sorted(servos), dtype=int)
                 for t in range(cut_us, self.next_us, self.period_us):
                     q = self.mixer.sample_servo_targets(t)[idx]
