@@ -114,6 +114,7 @@ class CocoRuntime:
             self.voice = Voice(**args)
             t = self.board_now_s()
             self._mark(t, t)
+            await self._hold_if_persistent()
             return f"voice set to {args}"
         raise ValueError(f"no implementation for behaviour {behaviour!r} on channel {channel!r}")
 
@@ -256,4 +257,11 @@ class CocoRuntime:
         path.write_bytes(png)
         self.captures.append(path)
         self._mark(end=self.board_now_s())
+        await self._hold_if_persistent()
         return f"photo saved to {path.name} ({len(png)} bytes)"
+
+    async def _hold_if_persistent(self) -> None:
+        """An instantaneous behaviour used as a parent element stays active until it is reset."""
+        ctx = current_call()
+        if ctx is not None and ctx.persistent:
+            await anyio.sleep_forever()
