@@ -46,8 +46,6 @@ class CocoLink(FrameLink, Protocol):
 
     async def send_peripheral(self, msg: ScreenCommand | SpeakerCommand) -> None: ...
 
-    async def wait_board_time(self, t_us: int) -> None: ...
-
     async def capture(self, width: int, height: int) -> bytes: ...
 
 
@@ -93,11 +91,11 @@ class CocoRuntime:
 
     def board_now_s(self) -> float:
         """The board clock in seconds (the shell's timeline clock)."""
-        return self.link.board_now_us() * 1e-6
+        return self.streamer.board_now_us() * 1e-6
 
     async def sleep(self, seconds: float) -> None:
         """Sleep on the board clock (works in lockstep, where wall time means nothing)."""
-        await self.link.wait_board_time(self.link.board_now_us() + int(seconds * 1e6))
+        await self.streamer.wait_board_time(self.streamer.board_now_us() + int(seconds * 1e6))
 
     # -- the Performer protocol used by host.coco.binding ------------------------------------
     async def perform(self, behaviour: str, channel: str, args: dict[str, Any]) -> Any:
@@ -137,13 +135,13 @@ class CocoRuntime:
         elif channel == "face":
             t = self.streamer.first_free_us
             await self.link.send_peripheral(ScreenCommand(ScreenTarget.FACE, "neutral", t, 0))
-            await self.link.wait_board_time(t)
+            await self.streamer.wait_board_time(t)
             self._mark(end=t * 1e-6)
         elif channel == "bgm":
             t = self.streamer.first_free_us
             await self.link.send_peripheral(SpeakerCommand(SpeakerAction.STOP, SoundKind.CLIP, t, 0, 0,
                                                            name=self._playing_bgm.pop(ctx.element_id, "")))
-            await self.link.wait_board_time(t)
+            await self.streamer.wait_board_time(t)
             self._mark(end=t * 1e-6)
 
     async def speak(self, text: str) -> str:
@@ -156,9 +154,9 @@ class CocoRuntime:
                                                        int(duration * 1000), volume, text=payload))
         end = start + int(duration * 1e6)
         async with self._stop_on_cancel(SpeakerCommand(SpeakerAction.STOP, SoundKind.SPEECH, 0, 0, 0)):
-            await self.link.wait_board_time(start)
+            await self.streamer.wait_board_time(start)
             self._mark(start=start * 1e-6)
-            await self.link.wait_board_time(end)
+            await self.streamer.wait_board_time(end)
         self._mark(end=end * 1e-6)
         return f"said {text!r} ({duration:.2f} s)"
 
@@ -181,7 +179,8 @@ class CocoRuntime:
 
             self._speech_synth = synthesize_async
         rate = int(175 * self.voice.speech_rate)
-        utt = await self._speech_synth(text, self.run_dir / "speech", rate_wpm=rate)
+        async with self.streamer.hold():  # synthesis takes wall time; a lockstep board waits for it
+            utt = await self._speech_synth(text, self.run_dir / "speech", rate_wpm=rate)
         return float(utt.duration_s)
 
     async def _motion(self, behaviour: str, channel: str, args: dict[str, Any]) -> str:
@@ -219,13 +218,13 @@ class CocoRuntime:
         duration = 0.0 if persistent else float(args.get("duration", 2.0))
         start = self.streamer.first_free_us
         await self.link.send_peripheral(ScreenCommand(ScreenTarget.FACE, str(args["emo"]), start, int(duration * 1000)))
-        await self.link.wait_board_time(start)
+        await self.streamer.wait_board_time(start)
         self._mark(start=start * 1e-6)
         if persistent:
             await anyio.sleep_forever()
         end = start + int(duration * 1e6)
         async with self._stop_on_cancel(ScreenCommand(ScreenTarget.FACE, "neutral", 0, 0)):
-            await self.link.wait_board_time(end)
+            await self.streamer.wait_board_time(end)
         self._mark(end=end * 1e-6)
         return f"face {args['emo']} shown for {duration:g} s"
 
@@ -237,14 +236,14 @@ class CocoRuntime:
         name = str(args.get("name", "happy"))[:24]
         await self.link.send_peripheral(SpeakerCommand(SpeakerAction.PLAY, SoundKind.CLIP, start,
                                                        int(duration * 1000), int(args.get("volume", 60)), name=name))
-        await self.link.wait_board_time(start)
+        await self.streamer.wait_board_time(start)
         self._mark(start=start * 1e-6)
         if persistent and ctx is not None:
             self._playing_bgm[ctx.element_id] = name
             await anyio.sleep_forever()
         end = start + int(duration * 1e6)
         async with self._stop_on_cancel(SpeakerCommand(SpeakerAction.STOP, SoundKind.CLIP, 0, 0, 0, name=name)):
-            await self.link.wait_board_time(end)
+            await self.streamer.wait_board_time(end)
         self._mark(end=end * 1e-6)
         return f"music {name!r} played for {duration:g} s"
 

@@ -20,9 +20,12 @@ and re-sends the affected servos' frames for the part of the grid already sent.
 
 from __future__ import annotations
 
+import contextlib
+import heapq
+import itertools
 import weakref
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import AsyncIterator, Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -84,6 +87,9 @@ class FrameStreamer:
         self._last_telemetry: Telemetry | None = None
         self._lock = anyio.Lock()
         self.frames_sent = 0
+        self._holds = 0
+        self._time_waiters: list[tuple[int, int, anyio.Event]] = []
+        self._waiter_ids = itertools.count()
         self.history: deque[tuple[int, np.ndarray]] = deque(maxlen=history)  # (t_us, targets) sent
 
     def _grid(self, t_us: int) -> int:
@@ -123,10 +129,32 @@ class FrameStreamer:
         return t.end
 
     # -- sending -------------------------------------------------------------------------------
-    async def top_up(self) -> None:
-        """Send frames up to the board clock plus the lookahead."""
+    @contextlib.asynccontextmanager
+    async def hold(self) -> AsyncIterator[None]:
+        """Keep a lockstep board where it is while the host does wall-clock work (e.g. speech synthesis).
+
+        A lockstep board runs only as far as frames reach, so not topping up
+        freezes board time; on a realtime board holding would starve it, so it is
+        a no-op there.
+        """
+        if not self.link.lockstep:
+            yield
+            return
+        self._holds += 1
+        try:
+            yield
+        finally:
+            self._holds -= 1
+        if self._holds == 0:
+            await self.top_up()
+
+    async def top_up(self, board_now_us: int | None = None) -> None:
+        """Send frames up to the board clock (or ``board_now_us``) plus the lookahead."""
+        if self._holds:
+            return
         async with self._lock:
-            horizon = self.link.board_now_us() + self.lookahead_us
+            now = self.link.board_now_us() if board_now_us is None else board_now_us
+            horizon = now + self.lookahead_us
             while self.next_us <= horizon:
                 await self._send(self.mixer.frame(self.next_us))
                 self.next_us += self.period_us
@@ -172,10 +200,31 @@ class FrameStreamer:
                     await self.link.send_frame(ServoFrame(t, mask, tuple(float(x) for x in q)))
             return new
 
+    # -- board time ----------------------------------------------------------------------------
+    @property
+    def board_time_us(self) -> int:
+        """Board time of the last telemetry report handled (None before the first: the link's)."""
+        return self._last_telemetry.board_time_us if self._last_telemetry else self.link.board_now_us()
+
+    def board_now_us(self) -> int:
+        """The board clock as the host should see it: in lockstep the last report handled (so
+        everything waiting on board time wakes in report order); in realtime the link's estimate."""
+        return self.board_time_us if self.link.lockstep else self.link.board_now_us()
+
+    async def wait_board_time(self, t_us: int) -> None:
+        """Return once a handled telemetry report shows board time ``t_us`` or later."""
+        if self._last_telemetry is not None and self._last_telemetry.board_time_us >= t_us:
+            return
+        event = anyio.Event()
+        heapq.heappush(self._time_waiters, (int(t_us), next(self._waiter_ids), event))
+        await event.wait()
+
     # -- confirming ----------------------------------------------------------------------------
     def on_telemetry(self, tel: Telemetry) -> None:
-        """Confirm frames the board reports applied."""
+        """Confirm frames the board reports applied; wake board-time waiters that are due."""
         self._last_telemetry = tel
+        while self._time_waiters and self._time_waiters[0][0] <= tel.board_time_us:
+            heapq.heappop(self._time_waiters)[2].set()
         while self._in_flight:
             sent = self._in_flight[0]
             applied = ((tel.last_applied_seq - sent.seq) & 0xFFFF) < 0x8000

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import anyio
+import anyio.lowlevel
 import numpy as np
 
 from host.coco.binding import coco_registry
@@ -25,6 +26,7 @@ from host.coco.runtime import CocoRuntime
 from host.ghost import make_ghost
 from host.link.board_process import BoardProcess, start_board
 from host.link.client import BoardClient
+from host.link.errors import LinkError
 from host.run import artefacts
 from host.shell import Shell
 from host.shell.prompt import render_prompt
@@ -93,12 +95,36 @@ class _Recorder:
             self.max_tilt = max(self.max_tilt, artefacts.tilt_deg(s.base_quat))
 
 
+#: checkpoints the lockstep pump yields before topping up, so that everything the last
+#: telemetry woke (token pacing, dispatch, new segments) is placed before board time moves on
+SETTLE_CHECKPOINTS = 32
+#: wall seconds without telemetry after which a run fails (the board died or the link hung)
+TELEMETRY_SILENCE_S = 10.0
+
+
 async def _pump(client: BoardClient, runtime: CocoRuntime, rec: _Recorder) -> None:
-    """Telemetry -> confirmations, top-ups and the history."""
-    async for tel in client.telemetry(maxsize=256):
+    """Telemetry -> confirmations, top-ups and the history.
+
+    In lockstep each report is handled in order and the board is advanced only
+    from that report's time, after the host has reacted to it, so board time
+    steps with the host instead of running ahead of it.
+    """
+    lockstep = client.lockstep
+    reports = client.telemetry(maxsize=1024)
+    while True:
+        try:
+            with anyio.fail_after(TELEMETRY_SILENCE_S):
+                tel = await anext(reports)
+        except TimeoutError:
+            raise LinkError(f"no telemetry from the board for {TELEMETRY_SILENCE_S:g} s; giving up the run") from None
         runtime.streamer.on_telemetry(tel)
         rec.add(client, tel)
-        await runtime.streamer.top_up()
+        if lockstep:
+            for _ in range(SETTLE_CHECKPOINTS):
+                await anyio.lowlevel.checkpoint()
+            await runtime.streamer.top_up(tel.board_time_us)
+        else:
+            await runtime.streamer.top_up()
 
 
 async def _realtime_topper(runtime: CocoRuntime) -> None:
@@ -190,7 +216,7 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, CocoRuntime],
 
 
 async def _interrupter(shell: Shell, runtime: CocoRuntime, at_s: float) -> None:
-    await runtime.link.wait_board_time(int(at_s * 1e6))
+    await runtime.streamer.wait_board_time(int(at_s * 1e6))
     shell.interrupt()
 
 
