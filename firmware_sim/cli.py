@@ -103,6 +103,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"board: cannot open log file: {e}", file=sys.stderr)
             return 2
     board = Board(cfg)
+    why = board.camera.warm_up()
+    if why is not None:
+        print(f"board: camera captures will be refused: {why}", file=sys.stderr)
     viewer = None
     if args.viewer:
         import mujoco.viewer

@@ -119,6 +119,16 @@ class Camera:
                 raise CameraUnavailable(self._error) from None
         return self._renderers[key]
 
+    def warm_up(self, width: int = 160, height: int = 120) -> str | None:
+        """Create the renderer for the usual image size now (GL setup takes hundreds of ms, which
+        would otherwise stall the control loop at the first capture); returns why not, if it can't."""
+        try:
+            self._renderer(width, height)
+            import PIL.Image  # noqa: F401  (first import is slow too)
+        except CameraUnavailable as e:
+            return str(e)
+        return None
+
     def capture_png(self, data: mujoco.MjData, width: int, height: int) -> bytes:
         """Render ``head_cam`` and encode it as PNG."""
         from PIL import Image

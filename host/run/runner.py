@@ -146,6 +146,26 @@ async def _buffered(stream: AsyncIterator[str]) -> AsyncIterator[str]:
     yield "".join([chunk async for chunk in stream])
 
 
+class _BoardPacer:
+    """A sleep for the scripted LLM on the board clock, against absolute deadlines.
+
+    Board time is observed in telemetry steps (20 ms at 50 Hz); sleeping each gap
+    from "now" would round every gap up and slow the token rate, so the gaps are
+    summed from the first call and each wait targets the running deadline.
+    """
+
+    def __init__(self, runtime: CocoRuntime) -> None:
+        self.runtime = runtime
+        self.deadline_us: int | None = None
+
+    async def __call__(self, seconds: float) -> None:
+        streamer = self.runtime.streamer
+        if self.deadline_us is None:
+            self.deadline_us = streamer.board_now_us()
+        self.deadline_us += int(round(seconds * 1e6))
+        await streamer.wait_board_time(self.deadline_us)
+
+
 async def _go_to_pose(runtime: CocoRuntime, pose: str) -> None:
     """Move every servo smoothly to a named pose before the program starts."""
     target = np.asarray(load_poses()[pose])
@@ -188,7 +208,7 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, CocoRuntime],
                             {"role": "user", "content": opts.prompt or ""}]
                 if opts.llm == "scripted":  # paced on the board clock, so lockstep runs are reproducible
                     ghost = make_ghost("scripted", program=opts.program, tokens_per_s=opts.tokens_per_s,
-                                       seed=opts.seed, sleep=runtime.sleep)
+                                       seed=opts.seed, sleep=_BoardPacer(runtime))
                 else:
                     ghost = make_ghost(opts.llm, base_url=opts.llm_base_url, api_key=opts.llm_api_key)
                 board_t0 = runtime.board_now_s()

@@ -1,0 +1,93 @@
+"""Shared helpers for the task benchmarks: task selection, one run per task, percentiles, tables.
+
+Each run is a real end-to-end ``host.run.runner.run_program``: a board subprocess
+on a pty (lockstep or realtime), the link client, the CoCo runtime and the shell
+fed by the scripted LLM replaying the task's ground-truth program.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import anyio
+import numpy as np
+
+from host.coco.binding import coco_registry
+from host.run.runner import RunOptions, RunReport, run_program
+from host.shell.registry import Registry
+from robots.coco.tasks import load_tasks
+
+
+def task_programs(ids: Sequence[int] | None = None) -> list[tuple[int, str]]:
+    """``(id, ground-truth program)`` of the selected tasks (default: every task with ground truth)."""
+    tasks = load_tasks()
+    runnable = sorted(i for i, t in tasks.items() if t.ground_truth)
+    if not ids:
+        return [(i, str(tasks[i].ground_truth)) for i in runnable]
+    bad = [i for i in ids if i not in runnable]
+    if bad:
+        raise SystemExit(f"no ground truth for task(s) {bad}; runnable: {runnable[0]}-{runnable[-1]}")
+    return [(i, str(tasks[i].ground_truth)) for i in ids]
+
+
+def parse_ids(text: str | None) -> list[int] | None:
+    """``"1,5,23"`` or ``"1-10,23"`` -> ``[1, 5, 23]``; None or empty -> None (all tasks)."""
+    if not text:
+        return None
+    out: list[int] = []
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        try:
+            if "-" in part:
+                a, b = part.split("-", 1)
+                out.extend(range(int(a), int(b) + 1))
+            else:
+                out.append(int(part))
+        except ValueError:
+            raise SystemExit(f"--tasks: expected ids like 1,5,23 or 1-10, got {text!r}") from None
+    return out
+
+
+def run_task(task_id: int, program: str, *, lockstep: bool, out_root: Path, buffer_response: bool = False,
+             tokens_per_s: float = 30.0, seed: int = 0) -> RunReport:
+    """Run one task end to end (board subprocess on a pty) and return its report."""
+    suffix = "buffered" if buffer_response else "streaming"
+    opts = RunOptions(program=program, task_label=f"task {task_id}", lockstep=lockstep,
+                      out=out_root / f"task{task_id:02d}_{suffix}", tokens_per_s=tokens_per_s, seed=seed,
+                      buffer_response=buffer_response)
+    return anyio.run(run_program, opts, backend="asyncio")
+
+
+def out_root(arg: str | None, prefix: str) -> Path:
+    """The folder the runs' artefacts go to (a fresh temporary one unless given)."""
+    if arg:
+        p = Path(arg)
+        p.mkdir(parents=True, exist_ok=True)
+        return p
+    return Path(tempfile.mkdtemp(prefix=prefix))
+
+
+def home_channels(vocabulary: str = "paper") -> Registry:
+    """A CoCo registry (never called) to look up each function's home channel."""
+    return coco_registry(SimpleNamespace(), vocabulary)  # type: ignore[arg-type]
+
+
+def stats_ms(xs: Sequence[float]) -> dict[str, Any]:
+    """n, min, mean, p50, p99 and max of ``xs`` (milliseconds), rounded; Nones when empty."""
+    if not xs:
+        return {"n": 0, "min": None, "mean": None, "p50": None, "p99": None, "max": None}
+    a = np.asarray(xs, dtype=float)
+    return {"n": int(a.size), "min": round(float(a.min()), 1), "mean": round(float(a.mean()), 1),
+            "p50": round(float(np.percentile(a, 50)), 1), "p99": round(float(np.percentile(a, 99)), 1),
+            "max": round(float(a.max()), 1)}
+
+
+def fmt(x: float | None, width: int = 7) -> str:
+    """A number right-aligned in ``width`` with one decimal, or a dash."""
+    return f"{'-':>{width}}" if x is None else f"{x:{width}.1f}"

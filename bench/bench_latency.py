@@ -1,0 +1,285 @@
+"""Token -> servo latency over the 30 paper tasks, on a real board subprocess over a pty.
+
+For every function token of every task's ground-truth program, replayed by the
+scripted LLM at 30 tokens/s:
+
+    latency = (board time of the first board tick that applies the call's first frame)
+              - (board time at which the chunk that completes the function token reached the shell)
+
+The completing chunk is found by re-feeding the recorded chunks to a fresh
+``FunctionTokenParser`` (a tag completes in the chunk holding its closing ``>``)
+and numbering the elements exactly as the scheduler does (``wait[0]/head_act[0]``).
+Speech has no tag: a ``speak`` call completes in the chunk that ends its sentence
+(or the next tag / the end of the stream); it is reported with the peripherals.
+The board start comes from telemetry (``RunReport.calls``): for motion, the grid
+time of the segment's first frame once telemetry shows that frame applied (the
+board applies a frame at the first 2 ms control tick at or after its time; frames
+are on a 10 ms grid, so that tick is the frame time); for face / music / speech
+the board time the peripheral command was scheduled at (and the board reached);
+for the camera the board time the capture was requested.
+
+Calls that the scheduler holds back (same channel busy, ``<wait>`` barriers) do
+not start when their token completes; their token -> servo time is mostly the
+program's own ordering. They are counted as *queued* and reported apart, with
+``ready -> servo`` = board start - max(chunk arrival, the moment the scheduler
+released the call). The headline p50/p99 is over *immediate* motion calls.
+
+What dominates (host/motion/streamer.py, host/coco/runtime.py, firmware_sim):
+
+* the streamer lookahead (60 ms): frames already sent cover the next 50-70 ms
+  of board time, and a new motion starts at the first *unsent* frame
+  (``FrameStreamer.first_free_us``), so on a realtime board it starts about
+  one lookahead after the call, never earlier;
+* the 10 ms frame grid: the start is rounded up to the next frame (0-10 ms),
+  and in realtime the top-up loop runs every 10 ms, so ``first_free_us`` is
+  now + 50..70 ms;
+* host work between the chunk and the ``streamer.add`` (parse, map, plan the
+  trajectory in numpy; usually < 1-2 ms) and the board's 2 ms tick;
+* telemetry (50 Hz, every 20 ms) does *not* add to this latency - it only
+  delays when the host *learns* the frame was applied (the call's confirmed
+  start event), not the board time recorded;
+* the scripted LLM sleeps on the board clock (``CocoRuntime.sleep`` waits for a
+  telemetry report), so chunks arrive just after a telemetry report, right after
+  a top-up: most motion latencies are 60 or 70 ms rather than spread over 50-70;
+* speech is synthesised (espeak-ng, in a worker thread) before it is scheduled,
+  so its latency adds the synthesis time (~10-40 ms in realtime);
+* in lockstep the board clock only advances as frames are sent, the chunk times
+  are quantised to telemetry reports (20 ms), and the first unsent frame is the
+  lookahead ahead of the last reported board time: every motion latency is
+  exactly 70 ms, while host wall time (TTS synthesis) turns into several times
+  as much board time (the lockstep board runs faster than real time), so
+  lockstep speech latencies are not meaningful.
+
+Sequential calls on one channel additionally leave a 70-90 ms gap between the
+last frame of one and the first of the next (telemetry confirmation 0-20 ms +
+the lookahead); that is scheduling, reported by ``ready -> servo``.
+
+Run (realtime is the real measurement; ~4-5 min for all 30 tasks):
+
+    python bench/bench_latency.py                       # all 30 tasks, realtime over a pty
+    python bench/bench_latency.py --tasks 1,5,23        # a few tasks
+    python bench/bench_latency.py --lockstep            # the same on a lockstep board
+    python bench/bench_latency.py --json lat.json --out runs/bench_latency
+
+Numbers depend on the machine and its load; they are printed, never asserted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from _tasks_common import fmt, home_channels, out_root, parse_ids, run_task, stats_ms, task_programs
+from host.run.runner import RunReport
+from host.shell.mapper import SentenceBuffer
+from host.shell.parser import EmptyTag, EndTag, FunctionTokenParser, StartTag, Text
+from host.shell.registry import Registry
+
+MOTION = ("body", "head", "ears")
+NOT_CALLS = ("wait", "async", "RUN", "SAVE")
+
+
+@dataclass
+class CallLatency:
+    """One function token's timing (board seconds, latencies in ms)."""
+
+    task: int
+    path: str
+    function: str
+    channel: str  # home channel
+    kind: str  # "motion" | "peripheral"
+    chunk: int  # index of the chunk that completed the token
+    t_chunk: float
+    t_board: float
+    queued: bool  # the scheduler held it back behind earlier calls (or a queued ancestor)
+    host_ms: float  # scheduler release - t_chunk (event-loop and queueing delay on the host)
+    token_ms: float  # t_board - t_chunk
+    ready_ms: float  # t_board - max(t_chunk, scheduler release)
+    dispatch_skew_ms: float  # scheduler dispatch time - t_chunk (consistency check, ~0)
+
+
+def completing_chunks(chunks: list[str], speech_name: str = "speak") -> dict[str, int]:
+    """Element path -> index of the chunk that completed it, numbering as the scheduler does.
+
+    ``<RUN>``/``<SAVE>`` (skills) are not expanded; the ground-truth programs do not use them.
+    """
+    parser = FunctionTokenParser(strict=True)
+    stack: list[tuple[str, dict[str, int]]] = [("", {})]
+    text = SentenceBuffer()
+    done: dict[str, int] = {}
+
+    def path(name: str) -> str:
+        base, counts = stack[-1]
+        i = counts.get(name, 0)
+        counts[name] = i + 1
+        return f"{base}/{name}[{i}]" if base else f"{name}[{i}]"
+
+    def speak(segments: list[str], k: int) -> None:
+        for _ in segments:
+            done[path(speech_name)] = k
+
+    def events(evs: list[Any], k: int) -> None:
+        for ev in evs:
+            if isinstance(ev, Text):
+                speak(text.feed(ev.text), k)
+            elif isinstance(ev, (StartTag, EmptyTag)):
+                speak(text.flush(), k)
+                if ev.name in ("RUN", "SAVE"):
+                    raise ValueError(f"<{ev.name}> (skills) is not supported by this benchmark")
+                p = path(ev.name)
+                done[p] = k
+                if isinstance(ev, StartTag):
+                    stack.append((p, {}))
+            elif isinstance(ev, EndTag):
+                speak(text.flush(), k)
+                if len(stack) > 1:
+                    stack.pop()
+
+    for k, chunk in enumerate(chunks):
+        events(parser.feed(chunk), k)
+    last = max(len(chunks) - 1, 0)
+    events(parser.close(), last)
+    speak(text.flush(), last)
+    return done
+
+
+def queued_paths(records: list[Any]) -> set[str]:
+    """Paths of calls the scheduler held back, rebuilt from the timeline with its rules.
+
+    Call ``j`` depends on every call still pending when ``j`` was dispatched that is on its
+    channel, or when either is on the main channel, except ``j``'s ancestors; a call under a
+    queued ancestor waits for that ancestor's activation, so it is queued too.
+    """
+    from host.shell.types import MAIN_CHANNEL
+
+    queued: set[str] = set()
+    for j, r in enumerate(records):
+        ancestors = {r.path.rsplit("/", i)[0] for i in range(1, r.path.count("/") + 1)}
+        if ancestors & queued:
+            queued.add(r.path)
+            continue
+        for p in records[:j]:
+            pending = p.end is None or p.end > r.dispatch
+            if (pending and p.function != "RUN" and p.path not in ancestors
+                    and (MAIN_CHANNEL in (p.channel, r.channel) or (r.channel is not None and p.channel == r.channel))):
+                queued.add(r.path)
+                break
+    return queued
+
+
+def task_latencies(task: int, rep: RunReport, registry: Registry) -> tuple[list[CallLatency], list[str]]:
+    """The latency of every function token of one run, and notes about calls left out."""
+    speech = registry.speech
+    done = completing_chunks([c for _, c in rep.token_times], speech.name if speech else "speak")
+    board = {c.path: c for c in rep.calls}
+    out: list[CallLatency] = []
+    notes: list[str] = []
+    queued = queued_paths(list(rep.result.timeline))
+    for r in rep.result.timeline:
+        if r.function in NOT_CALLS:
+            continue
+        k = done.get(r.path)
+        call = board.get(r.path)
+        if k is None:
+            notes.append(f"task {task} {r.path}: no completing chunk found")
+            continue
+        if r.start is None or call is None or call.start is None:
+            notes.append(f"task {task} {r.path}: never started ({r.outcome}{': ' + r.error if r.error else ''})")
+            continue
+        try:
+            channel = registry.resolve(r.function).channel
+        except LookupError:
+            channel = r.channel or "?"
+        t_chunk = rep.token_times[k][0]
+        t_ready = rep.result.t0 + r.start
+        out.append(CallLatency(
+            task=task, path=r.path, function=r.function, channel=channel,
+            kind="motion" if channel in MOTION else "peripheral", chunk=k, t_chunk=t_chunk, t_board=call.start,
+            queued=r.path in queued, host_ms=(t_ready - t_chunk) * 1e3, token_ms=(call.start - t_chunk) * 1e3,
+            ready_ms=(call.start - max(t_chunk, t_ready)) * 1e3,
+            dispatch_skew_ms=(rep.result.t0 + r.dispatch - t_chunk) * 1e3))
+    return out, notes
+
+
+def _summary(rows: list[CallLatency]) -> dict[str, Any]:
+    def pick(kind: str, queued: bool | None) -> list[CallLatency]:
+        return [c for c in rows if c.kind == kind and (queued is None or c.queued == queued)]
+
+    return {
+        "motion_immediate_token_ms": stats_ms([c.token_ms for c in pick("motion", False)]),
+        "motion_queued_token_ms": stats_ms([c.token_ms for c in pick("motion", True)]),
+        "motion_all_ready_ms": stats_ms([c.ready_ms for c in pick("motion", None)]),
+        "peripheral_immediate_token_ms": stats_ms([c.token_ms for c in pick("peripheral", False)]),
+        "peripheral_all_ready_ms": stats_ms([c.ready_ms for c in pick("peripheral", None)]),
+        "by_channel_ready_ms": {ch: stats_ms([c.ready_ms for c in rows if c.channel == ch])
+                                for ch in sorted({c.channel for c in rows})},
+        "max_abs_dispatch_skew_ms": round(max((abs(c.dispatch_skew_ms) for c in rows), default=0.0), 3),
+    }
+
+
+def _line(name: str, s: dict[str, Any]) -> str:
+    return (f"{name:<36} n={s['n']:4d}  p50={fmt(s['p50'])}  p99={fmt(s['p99'])}  max={fmt(s['max'])}"
+            f"  min={fmt(s['min'])}  mean={fmt(s['mean'])}  ms")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--tasks", default=None, help="task ids, e.g. 1,5,23 or 1-10 (default: all 30)")
+    ap.add_argument("--lockstep", action="store_true", help="lockstep board instead of realtime")
+    ap.add_argument("--tokens-per-s", type=float, default=30.0)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", default=None, help="folder for the runs' artefacts (default: a temporary folder)")
+    ap.add_argument("--json", default=None, metavar="FILE", help="also write every call and the summary as JSON")
+    args = ap.parse_args(argv)
+
+    programs = task_programs(parse_ids(args.tasks))
+    root = out_root(args.out, "bench_latency_")
+    registry = home_channels()
+    mode = "lockstep" if args.lockstep else "realtime"
+    print(f"token -> servo latency, {mode} board over a pty, {args.tokens_per_s:g} tokens/s, "
+          f"{len(programs)} task(s); artefacts in {root}", flush=True)
+    print(f"{'task':>4} {'calls':>5} {'queued':>6}  {'motion imm. p50':>15} {'max':>7}  "
+          f"{'periph imm. p50':>15} {'max':>7}  {'ready max':>9}  {'wall s':>6}  outcome", flush=True)
+    rows: list[CallLatency] = []
+    notes: list[str] = []
+    for tid, program in programs:
+        w0 = time.monotonic()
+        rep = run_task(tid, program, lockstep=args.lockstep, out_root=root, tokens_per_s=args.tokens_per_s,
+                       seed=args.seed)
+        got, why = task_latencies(tid, rep, registry)
+        rows += got
+        notes += why
+        mi = stats_ms([c.token_ms for c in got if c.kind == "motion" and not c.queued])
+        pi = stats_ms([c.token_ms for c in got if c.kind == "peripheral" and not c.queued])
+        ready = max((c.ready_ms for c in got), default=None)
+        print(f"{tid:>4} {len(got):>5} {sum(c.queued for c in got):>6}  {fmt(mi['p50'], 15)} {fmt(mi['max'])}  "
+              f"{fmt(pi['p50'], 15)} {fmt(pi['max'])}  {fmt(ready, 9)}  {time.monotonic() - w0:6.1f}  "
+              f"{rep.summary.outcome}{' FELL' if rep.summary.fell else ''}", flush=True)
+
+    summary = _summary(rows)
+    print()
+    print(_line("motion, immediate: token -> servo", summary["motion_immediate_token_ms"]))
+    print(_line("motion, queued: token -> servo", summary["motion_queued_token_ms"]))
+    print(_line("motion, all: ready -> servo", summary["motion_all_ready_ms"]))
+    print(_line("peripheral, immediate: token -> start", summary["peripheral_immediate_token_ms"]))
+    print(_line("peripheral, all: ready -> start", summary["peripheral_all_ready_ms"]))
+    for ch, s in summary["by_channel_ready_ms"].items():
+        print(_line(f"  {ch}: ready -> start", s))
+    print(f"max |scheduler dispatch - chunk arrival| = {summary['max_abs_dispatch_skew_ms']} ms (consistency check)")
+    for n in notes:
+        print("note:", n)
+    if args.json:
+        Path(args.json).write_text(json.dumps({"mode": mode, "tokens_per_s": args.tokens_per_s,
+                                               "summary": summary, "notes": notes,
+                                               "calls": [asdict(c) for c in rows]}, indent=1), encoding="utf-8")
+        print(f"wrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
