@@ -25,7 +25,7 @@ import numpy as np
 
 from firmware_sim.config import BoardConfig
 from firmware_sim.jitter_buffer import JitterBuffer
-from firmware_sim.peripherals import MAX_IMAGE_SIDE, Camera, CameraUnavailable, Screen, Speaker
+from firmware_sim.peripherals import MAX_IMAGE_SIDE, Camera, CameraUnavailable, CameraWorker, Screen, Speaker
 from firmware_sim.safety import Mode, Safety
 from firmware_sim.servo_model import ServoModel
 from protocol.codec import SCHEMA_HASH, msg_type_of, quantize_apply_at, unwrap_time_us
@@ -100,6 +100,8 @@ class Board:
         self.screen = Screen()
         self.speaker = Speaker()
         self.camera = Camera(self.model)
+        self.camera_worker: CameraWorker | None = None
+        self._capture_seqs: dict[int, int] = {}
         self._clock_us = clock_us
         # per-servo interpolation anchor: the last applied keyframe (or where a resumed servo was)
         self.anchor_t = np.zeros(self.n, dtype=np.int64)
@@ -280,11 +282,33 @@ class Board:
     def _capture(self, msg: CameraCapture, seq: int) -> list[Message]:
         if not (1 <= msg.width <= MAX_IMAGE_SIDE and 1 <= msg.height <= MAX_IMAGE_SIDE):
             return [self._nack(msg, seq, NackReason.BAD_VALUE, f"image size must be 1..{MAX_IMAGE_SIDE} per side")]
+        if self.camera_worker is not None:  # realtime: render off the control loop
+            if self.camera_worker.error is not None:
+                return [self._nack(msg, seq, NackReason.NO_RENDERER, self.camera_worker.error)]
+            if not self.camera_worker.submit(msg.request_id, int(msg.width), int(msg.height), self.data):
+                return [self._nack(msg, seq, NackReason.BUSY, "camera busy: too many captures in flight")]
+            self._capture_seqs[msg.request_id] = seq
+            return []
         try:
             png = self.camera.capture_png(self.data, int(msg.width), int(msg.height))
         except CameraUnavailable as e:
             return [self._nack(msg, seq, NackReason.NO_RENDERER, str(e))]
         return list(Camera.chunks(msg.request_id, png))
+
+    def start_camera_worker(self) -> str | None:
+        """Render captures in a background thread from now on; returns why not, if it can't."""
+        self.camera_worker = CameraWorker(self.model)
+        return self.camera_worker.error
+
+    def _camera_results(self) -> list[Message]:
+        out: list[Message] = []
+        for request_id, result in self.camera_worker.results() if self.camera_worker else ():
+            seq = self._capture_seqs.pop(request_id, 0)
+            if isinstance(result, str):
+                out.append(Nack(seq, MsgType.CAMERA_CAPTURE, NackReason.NO_RENDERER, result[:64]))
+            else:
+                out.extend(result)
+        return out
 
     def _resume(self) -> None:
         """Leaving a hold: buffered frames are gone, every servo continues from its command."""
@@ -340,9 +364,10 @@ class Board:
             mujoco.mj_step(self.model, self.data)
         self.now_us += self.tick_us
         self.ticks += 1
+        out = self._camera_results() if self.camera_worker is not None else []
         if self.ticks % self.cfg.telemetry_every == 0:
-            return [self.telemetry(), self.sim_state()]
-        return []
+            out += [self.telemetry(), self.sim_state()]
+        return out
 
     # --- reports ---------------------------------------------------------------------------
 

@@ -103,7 +103,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"board: cannot open log file: {e}", file=sys.stderr)
             return 2
     board = Board(cfg)
-    why = board.camera.warm_up()
+    # Lockstep renders in the loop (deterministic and free: virtual time waits); realtime in a thread.
+    why = board.camera.warm_up() if cfg.lockstep else board.start_camera_worker()
     if why is not None:
         print(f"board: camera captures will be refused: {why}", file=sys.stderr)
     viewer = None

@@ -8,7 +8,10 @@ and returns PNG bytes (Pillow) split into CAMERA_CHUNK messages.
 
 from __future__ import annotations
 
+import copy
 import io
+import queue
+import threading
 from collections import deque
 from dataclasses import dataclass
 
@@ -24,7 +27,7 @@ from protocol.messages import (
     SpeakerCommand,
 )
 
-__all__ = ["Camera", "CameraUnavailable", "Screen", "Speaker"]
+__all__ = ["Camera", "CameraUnavailable", "CameraWorker", "Screen", "Speaker"]
 
 MAX_IMAGE_SIDE = 640
 
@@ -123,8 +126,7 @@ class Camera:
         """Create the renderer for the usual image size now (GL setup takes hundreds of ms, which
         would otherwise stall the control loop at the first capture); returns why not, if it can't."""
         try:
-            self._renderer(width, height)
-            import PIL.Image  # noqa: F401  (first import is slow too)
+            self.capture_png(mujoco.MjData(self.model), width, height)  # first render and PNG encode are slow too
         except CameraUnavailable as e:
             return str(e)
         return None
@@ -150,3 +152,57 @@ class Camera:
         for r in self._renderers.values():
             r.close()
         self._renderers.clear()
+
+
+class CameraWorker:
+    """Renders captures off the control loop (a realtime board must not stall ~100 ms per image).
+
+    The worker thread owns its :class:`Camera` (an OpenGL context belongs to the
+    thread that made it). :meth:`submit` hands over a snapshot of the simulation
+    state; :meth:`results` returns the finished CAMERA_CHUNKs or the error, for
+    the control loop to send on its next tick. Both queues are bounded.
+    """
+
+    def __init__(self, model: mujoco.MjModel, camera: str = "head_cam", width: int = 160, height: int = 120) -> None:
+        self._jobs: queue.Queue[tuple[int, int, int, mujoco.MjData] | None] = queue.Queue(maxsize=4)
+        self._done: queue.Queue[tuple[int, list[CameraChunk] | str]] = queue.Queue(maxsize=16)
+        self._ready = threading.Event()
+        self.error: str | None = None
+        self._thread = threading.Thread(target=self._run, args=(model, camera, width, height),
+                                        name="camera", daemon=True)
+        self._thread.start()
+        self._ready.wait(30)
+
+    def _run(self, model: mujoco.MjModel, camera: str, width: int, height: int) -> None:
+        cam = Camera(model, camera)
+        self.error = cam.warm_up(width, height)
+        self._ready.set()
+        while (job := self._jobs.get()) is not None:
+            request_id, w, h, data = job
+            try:
+                out: list[CameraChunk] | str = Camera.chunks(request_id, cam.capture_png(data, w, h))
+            except CameraUnavailable as e:
+                out = str(e)
+            self._done.put((request_id, out))
+        cam.close()
+
+    def submit(self, request_id: int, width: int, height: int, data: mujoco.MjData) -> bool:
+        """Queue a capture of a copy of ``data``; False when the worker is busy (queue full)."""
+        try:
+            self._jobs.put_nowait((request_id, width, height, copy.copy(data)))
+        except queue.Full:
+            return False
+        return True
+
+    def results(self) -> list[tuple[int, list[CameraChunk] | str]]:
+        """Finished captures since the last call (non-blocking)."""
+        out = []
+        while True:
+            try:
+                out.append(self._done.get_nowait())
+            except queue.Empty:
+                return out
+
+    def close(self) -> None:
+        self._jobs.put(None)
+        self._thread.join(5)
