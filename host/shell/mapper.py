@@ -1,11 +1,11 @@
-"""The mapper: element -> (function, typed arguments), and text -> speech segments.
+"""The mapper: element -> (function, typed arguments).
 
 :func:`map_element` is the paper's M(E) = (F, theta): it resolves the element
 name on the registry and converts every attribute string with T(v)
 (:func:`convert_value`) to the declared parameter type. Errors are
 :class:`MappingError` subclasses whose messages are meant for the LLM's next
-turn. :class:`SentenceBuffer` turns streamed character data into speech segments
-flushed at sentence boundaries, so speech starts before the text is complete.
+turn. (Streamed text becomes speech segments through
+:class:`host.speech.sentences.SentenceSplitter`, used by the scheduler.)
 """
 
 from __future__ import annotations
@@ -13,7 +13,6 @@ from __future__ import annotations
 import difflib
 import enum
 import math
-import re
 import types
 import typing
 from dataclasses import dataclass
@@ -163,57 +162,3 @@ def map_element(registry: Registry, name: str, attrs: dict[str, str]) -> MappedC
         raise UnknownFunctionError(str(exc)) from None
     rest, sync = split_sync(name, attrs)
     return MappedCall(spec, map_args(spec, rest), sync)
-
-
-# ASCII terminators count only once the next character shows they end a sentence
-# ("3.5" is not a boundary); CJK terminators and newlines are boundaries at once.
-_BOUNDARY = re.compile(r"(?:[.!?]+[\"')\]\u201d\u2019]*(?=\s)|[\u3002\uff01\uff1f\uff1b\u2026]+[\u300d\u300f\u201d\u2019)]*|\n)")
-
-
-class SentenceBuffer:
-    """Buffers contiguous text; yields speech segments at sentence boundaries.
-
-    ``feed`` returns the complete sentences so far, ``flush`` the rest (called
-    when a tag arrives or the stream closes). Whitespace-only segments are
-    dropped. The buffer never holds more than one unfinished sentence plus
-    ``max_chars`` characters: a longer run without a boundary is flushed whole.
-    """
-
-    def __init__(self, max_chars: int = 2000) -> None:
-        self._buf = ""
-        self._max = max_chars
-
-    def feed(self, text: str) -> list[str]:
-        """Append ``text``; return the segments that are now complete."""
-        self._buf += text
-        last = None
-        for m in _BOUNDARY.finditer(self._buf):
-            last = m
-        out: list[str] = []
-        if last is not None:
-            head, self._buf = self._buf[: last.end()], self._buf[last.end() :]
-            out = [s for s in _split(head) if s]
-        if len(self._buf) > self._max:
-            out.append(self._buf.strip())
-            self._buf = ""
-        return [s for s in out if s]
-
-    def flush(self) -> list[str]:
-        """Return what is buffered (if not just whitespace) and empty the buffer."""
-        rest, self._buf = self._buf.strip(), ""
-        return [rest] if rest else []
-
-    @property
-    def pending(self) -> str:
-        """Text buffered but not yet flushed."""
-        return self._buf
-
-
-def _split(text: str) -> list[str]:
-    parts: list[str] = []
-    pos = 0
-    for m in _BOUNDARY.finditer(text):
-        parts.append(text[pos : m.end()].strip())
-        pos = m.end()
-    parts.append(text[pos:].strip())
-    return parts

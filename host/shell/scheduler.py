@@ -42,7 +42,8 @@ from typing import Any
 import anyio
 
 from host.shell.context import CallContext, _current
-from host.shell.mapper import MappingError, SentenceBuffer, map_element, split_sync
+from host.shell.mapper import MappingError, map_element, split_sync
+from host.speech.sentences import SentenceSplitter
 from host.shell.parser import EmptyTag, EndTag, FunctionTokenParser, ParseError, ParseWarning, StartTag, Text
 from host.shell.registry import Registry
 from host.shell.skills import SkillError, SkillStore, end_tag, start_tag, text
@@ -137,7 +138,7 @@ class ProgramRun:
         self._ids = itertools.count()
         self._pending: dict[int, _Call] = {}
         self._stack: list[_Frame] = [_Frame("", None, "", mode == "async-first")]
-        self._text = SentenceBuffer()
+        self._text = SentenceSplitter()
         self._recording: _Recording | None = None
         self._skill_stack: list[str] = []
         self._tg: anyio.abc.TaskGroup | None = None
@@ -193,7 +194,7 @@ class ProgramRun:
     def _stop(self, reason: str) -> None:
         self._stopped = True
         self._consumer.cancel()
-        self._text = SentenceBuffer()
+        self._text = SentenceSplitter()
         self._recording = None
         while len(self._stack) > 1:
             f = self._stack.pop()

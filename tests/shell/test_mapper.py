@@ -12,13 +12,14 @@ import anyio
 import pytest
 
 from host.shell.mapper import (
-    BadValue, MissingParameter, OutOfRange, SentenceBuffer, UnknownFunctionError, UnknownParameter, map_element,
+    BadValue, MissingParameter, OutOfRange, UnknownFunctionError, UnknownParameter, map_element,
 )
 from host.shell.prompt import render_prompt
 from host.shell.registry import Registry, RegistryError
 from host.shell.shell import Shell
 from host.shell.skills import SkillStore
 from host.shell.types import Module, Range, shell_function
+from host.speech.sentences import SentenceSplitter
 
 
 class Mood(enum.Enum):
@@ -104,8 +105,8 @@ def test_bind_requires_async_implementation():
         Module.bind("head", HeadIface, Impl())
 
 
-def test_sentence_buffer():
-    b = SentenceBuffer()
+def test_sentence_splitter_the_shell_uses():
+    b = SentenceSplitter()
     assert b.feed("Pi is 3.") == [] and b.feed("14. Nice") == ["Pi is 3.14."]
     assert b.feed("!") == [] and b.feed(" 好的。再见") == ["Nice!", "好的。"]
     assert b.flush() == ["再见"] and b.flush() == []
