@@ -7,6 +7,7 @@ fed by the scripted LLM replaying the task's ground-truth program.
 
 from __future__ import annotations
 
+import argparse
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -20,6 +21,17 @@ from host.coco.binding import coco_registry
 from host.run.runner import RunOptions, RunReport, run_program
 from host.shell.registry import Registry
 from robots.coco.tasks import load_tasks
+
+
+def task_arguments(description: str, json_help: str) -> argparse.ArgumentParser:
+    """The options every task benchmark takes (the clock switch is added by each script)."""
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--tasks", default=None, help="task ids, e.g. 1,5,23 or 1-10 (default: all 30)")
+    ap.add_argument("--tokens-per-s", type=float, default=30.0)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", default=None, help="folder for the runs' artefacts (default: a temporary folder)")
+    ap.add_argument("--json", default=None, metavar="FILE", help=json_help)
+    return ap
 
 
 def task_programs(ids: Sequence[int] | None = None) -> list[tuple[int, str]]:

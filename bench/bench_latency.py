@@ -66,7 +66,6 @@ Numbers depend on the machine and its load; they are printed, never asserted.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -74,9 +73,9 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from _tasks_common import fmt, home_channels, out_root, parse_ids, run_task, stats_ms, task_programs
+from _tasks_common import fmt, home_channels, out_root, parse_ids, run_task, stats_ms, task_arguments, task_programs
 from host.run.runner import RunReport
-from host.shell.mapper import SentenceBuffer
+from host.speech.sentences import SentenceSplitter
 from host.shell.parser import EmptyTag, EndTag, FunctionTokenParser, StartTag, Text
 from host.shell.registry import Registry
 
@@ -110,7 +109,7 @@ def completing_chunks(chunks: list[str], speech_name: str = "speak") -> dict[str
     """
     parser = FunctionTokenParser(strict=True)
     stack: list[tuple[str, dict[str, int]]] = [("", {})]
-    text = SentenceBuffer()
+    text = SentenceSplitter()
     done: dict[str, int] = {}
 
     def path(name: str) -> str:
@@ -228,13 +227,8 @@ def _line(name: str, s: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--tasks", default=None, help="task ids, e.g. 1,5,23 or 1-10 (default: all 30)")
+    ap = task_arguments(__doc__.splitlines()[0], "also write every call and the summary as JSON")
     ap.add_argument("--lockstep", action="store_true", help="lockstep board instead of realtime")
-    ap.add_argument("--tokens-per-s", type=float, default=30.0)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", default=None, help="folder for the runs' artefacts (default: a temporary folder)")
-    ap.add_argument("--json", default=None, metavar="FILE", help="also write every call and the summary as JSON")
     args = ap.parse_args(argv)
 
     programs = task_programs(parse_ids(args.tasks))

@@ -30,14 +30,13 @@ Numbers are printed, never asserted.
 
 from __future__ import annotations
 
-import argparse
 import json
 import statistics
 import sys
 from pathlib import Path
 from typing import Any
 
-from _tasks_common import fmt, out_root, parse_ids, run_task, task_programs
+from _tasks_common import fmt, out_root, parse_ids, run_task, task_arguments, task_programs
 from host.run.runner import RunReport
 
 NOT_ACTIONS = ("wait", "async", "RUN")
@@ -55,13 +54,8 @@ def reply_ms(rep: RunReport) -> float | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--tasks", default=None, help="task ids, e.g. 1,5,23 or 1-10 (default: all 30)")
+    ap = task_arguments(__doc__.splitlines()[0], "also write the per-task rows as JSON")
     ap.add_argument("--realtime", action="store_true", help="realtime board instead of lockstep")
-    ap.add_argument("--tokens-per-s", type=float, default=30.0)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", default=None, help="folder for the runs' artefacts (default: a temporary folder)")
-    ap.add_argument("--json", default=None, metavar="FILE", help="also write the per-task rows as JSON")
     args = ap.parse_args(argv)
 
     programs = task_programs(parse_ids(args.tasks))
