@@ -1,0 +1,36 @@
+"""Every benchmark still runs (tiny sizes); their numbers are printed, never asserted."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCH = Path(__file__).resolve().parents[2] / "bench"
+
+CASES = {
+    "bench_codec.py": ["--seconds", "0.05"],
+    "bench_parser.py": ["--mb", "0.05"],
+    "bench_board.py": ["--seconds", "0.5"],
+    "bench_roundtrip.py": ["--n", "20"],
+    "bench_streaming.py": ["--tasks", "5"],
+    "bench_latency.py": ["--tasks", "5", "--lockstep"],
+    "calibrate_gaits.py": ["--check"],
+}
+
+
+@pytest.mark.parametrize("script", sorted(CASES))
+def test_benchmark_runs(script: str, tmp_path: Path) -> None:
+    env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
+    r = subprocess.run([sys.executable, str(BENCH / script), *CASES[script]], cwd=tmp_path, env=env,
+                       capture_output=True, text=True, timeout=240)
+    assert r.returncode == 0, f"{script} failed:\n{r.stdout[-2000:]}\n{r.stderr[-2000:]}"
+    assert r.stdout.strip(), f"{script} printed nothing"
+
+
+def test_every_benchmark_has_a_smoke_case() -> None:
+    scripts = {p.name for p in BENCH.glob("*.py") if not p.name.startswith("_")}
+    assert scripts == set(CASES)
