@@ -99,6 +99,8 @@ def _rhythm(duration: float, period: float, min_period: float = 0.0) -> tuple[in
     if duration <= 0:
         return 1, period
     n = max(1, round(duration / period))
+    if min_period > 0:  # never so many cycles that the speed limit stretches them past ``duration``
+        n = max(1, min(n, int(duration / min_period + 1e-9)))
     p = min(max(duration / n, 0.7 * period, min_period), 1.5 * period)
     return n, p
 
