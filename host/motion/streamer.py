@@ -145,8 +145,14 @@ class FrameStreamer:
             yield
         finally:
             self._holds -= 1
-        if self._holds == 0:
-            await self.top_up()
+            if self._holds == 0:  # resume the board however the held work ended
+                with anyio.CancelScope(shield=True):
+                    await self.top_up()
+
+    @property
+    def held(self) -> bool:
+        """True while a lockstep board is held still (see :meth:`hold`)."""
+        return self._holds > 0
 
     async def top_up(self, board_now_us: int | None = None) -> None:
         """Send frames up to the board clock (or ``board_now_us``) plus the lookahead."""

@@ -9,7 +9,9 @@ the board clock; in realtime both follow the wall clock.
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import time
 from collections import deque
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
@@ -23,7 +25,7 @@ import numpy as np
 from host.coco.binding import coco_registry
 from host.coco.link import ClientLink
 from host.coco.runtime import CocoRuntime
-from host.ghost import make_ghost
+from host.ghost import GhostError, make_ghost
 from host.link.board_process import BoardProcess, start_board
 from host.link.client import BoardClient
 from host.link.errors import LinkError
@@ -85,6 +87,7 @@ class _Recorder:
         self.q: deque[tuple[float, ...]] = deque(maxlen=HISTORY)
         self.base: deque[tuple[float, tuple[float, float, float], tuple[float, float, float, float]]] = deque(maxlen=HISTORY)
         self.max_tilt = 0.0
+        self.last_rx = time.monotonic()  # wall time of the last report (for the silence watchdog)
 
     def add(self, client: BoardClient, tel: Any) -> None:
         self.t.append(tel.board_time_us * 1e-6)
@@ -110,13 +113,8 @@ async def _pump(client: BoardClient, runtime: CocoRuntime, rec: _Recorder) -> No
     steps with the host instead of running ahead of it.
     """
     lockstep = client.lockstep
-    reports = client.telemetry(maxsize=1024)
-    while True:
-        try:
-            with anyio.fail_after(TELEMETRY_SILENCE_S):
-                tel = await anext(reports)
-        except TimeoutError:
-            raise LinkError(f"no telemetry from the board for {TELEMETRY_SILENCE_S:g} s; giving up the run") from None
+    async for tel in client.telemetry(maxsize=1024):
+        rec.last_rx = time.monotonic()
         runtime.streamer.on_telemetry(tel)
         rec.add(client, tel)
         if lockstep:
@@ -127,6 +125,16 @@ async def _pump(client: BoardClient, runtime: CocoRuntime, rec: _Recorder) -> No
             await runtime.streamer.top_up()
 
 
+async def _silence_watchdog(runtime: CocoRuntime, rec: _Recorder) -> None:
+    """Fail the run when the board stops reporting (it died, or the link hung)."""
+    while True:
+        await anyio.sleep(1.0)
+        if runtime.streamer.held:  # a held lockstep board is silent on purpose (waiting for the LLM)
+            rec.last_rx = time.monotonic()
+        elif time.monotonic() - rec.last_rx > TELEMETRY_SILENCE_S:
+            raise LinkError(f"no telemetry from the board for {TELEMETRY_SILENCE_S:g} s; giving up the run")
+
+
 async def _realtime_topper(runtime: CocoRuntime) -> None:
     period = runtime.streamer.period_us * 1e-6
     while True:
@@ -134,9 +142,24 @@ async def _realtime_topper(runtime: CocoRuntime) -> None:
         await anyio.sleep(period)
 
 
-async def _timed_chunks(stream: AsyncIterator[str], clock: Callable[[], float],
-                        log_to: list[tuple[float, str]]) -> AsyncIterator[str]:
-    async for chunk in stream:
+async def _timed_chunks(stream: AsyncIterator[str], clock: Callable[[], float], log_to: list[tuple[float, str]],
+                        hold: Callable[[], contextlib.AbstractAsyncContextManager[None]] | None = None,
+                        ) -> AsyncIterator[str]:
+    """The LLM's chunks, each logged with its board arrival time.
+
+    With ``hold`` (a real LLM on a lockstep board) the board clock stands still
+    while the host waits for the next chunk, so network latency does not turn
+    into board time.
+    """
+    while True:
+        try:
+            if hold is None:
+                chunk = await anext(stream)
+            else:
+                async with hold():
+                    chunk = await anext(stream)
+        except StopAsyncIteration:
+            return
         log_to.append((clock(), chunk))
         yield chunk
 
@@ -199,6 +222,7 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, CocoRuntime],
             result: RunResult | None = None
             async with anyio.create_task_group() as tg:
                 tg.start_soon(_pump, client, runtime, rec)
+                tg.start_soon(_silence_watchdog, runtime, rec)
                 if not client.lockstep:
                     tg.start_soon(_realtime_topper, runtime)
                 await runtime.streamer.top_up()
@@ -220,7 +244,8 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, CocoRuntime],
                     tg.start_soon(live_view, shell, runtime, opts.task_label)
                 if opts.interrupt_at is not None:
                     tg.start_soon(_interrupter, shell, runtime, board_t0 + opts.interrupt_at)
-                chunks = _timed_chunks(ghost.stream(messages), runtime.board_now_s, token_times)
+                hold = runtime.streamer.hold if opts.llm != "scripted" else None
+                chunks = _timed_chunks(ghost.stream(messages), runtime.board_now_s, token_times, hold)
                 result = await shell.run(_buffered(chunks) if opts.buffer_response else chunks)
                 await runtime.sleep(opts.settle_s)
                 tg.cancel_scope.cancel()
@@ -229,10 +254,27 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, CocoRuntime],
                      if client.latest_telemetry else None,
                      "dropped": client.latest_telemetry.dropped_count if client.latest_telemetry else None,
                      "frame_nacks": client.stats.frame_nacks, "decode_errors": client.stats.decode_errors}
+    except BaseExceptionGroup as group:  # one task's failure cancels the rest: report the cause
+        cause = _first_cause(group)
+        if cause is None:
+            raise
+        raise cause from group
     finally:
         if board is not None:
             board.stop()
     return _write(opts, result, runtime, rec, token_times, board_t0, base_start, stats)
+
+
+def _first_cause(group: BaseExceptionGroup) -> Exception | None:
+    """The link or LLM error behind a task group's failure, if that is what it was."""
+    for exc in group.exceptions:
+        if isinstance(exc, BaseExceptionGroup):
+            found = _first_cause(exc)
+            if found is not None:
+                return found
+        elif isinstance(exc, (LinkError, GhostError)):
+            return exc
+    return None
 
 
 async def _interrupter(shell: Shell, runtime: CocoRuntime, at_s: float) -> None:

@@ -165,7 +165,9 @@ class ProgramRun:
                         self._feed(parser.close())
                         self._end_of_stream()
                 except ParseError as exc:
-                    self._abort(exc)
+                    self._abort(exc, "parse error")
+                except Exception as exc:  # the LLM stream itself failed (network, provider error)
+                    self._abort(exc, "the output stream failed")
         self._tg = None
         return RunResult(self.timeline, self.observations, self.t0, self.error, self.interrupted)
 
@@ -208,9 +210,10 @@ class ProgramRun:
             c.scope.cancel()
         return len(hit)
 
-    def _abort(self, exc: Exception) -> None:
+    def _abort(self, exc: Exception, what: str) -> None:
+        """End the run: nothing more is dispatched, pending calls are cancelled, parents reset."""
         self.error = exc
-        self._observe("error", f"parse error: {exc}; dispatch stopped")
+        self._observe("error", f"{what}: {exc}; dispatch stopped")
         self._stop("cancelled")
         self._cancel(lambda c: True, "cancelled")
 
