@@ -35,7 +35,6 @@ from protocol.messages import (
     SpeakerAction,
     SpeakerCommand,
 )
-from robots.coco import load_servo_table
 from robots.coco import motions as coco_motions
 
 MOTION_CHANNELS = ("body", "head", "ears")
@@ -67,13 +66,12 @@ class CocoRuntime:
                  lookahead_us: int = 60_000) -> None:
         self.link = link
         self.run_dir = run_dir
-        self.table = load_servo_table()
         self.mixer = Mixer(initial)
         self.streamer = FrameStreamer(link, self.mixer, period_us=period_us, lookahead_us=lookahead_us)
         self.voice = Voice()
         self.board_times: dict[str, list[float | None]] = {}
         self.captures: list[Path] = []
-        self._active: dict[int, tuple[str, Segment]] = {}  # element id -> (channel, looping segment)
+        self._active: dict[int, Segment] = {}  # element id -> the looping segment of a persistent call
         self._channel_servos = {ch: np.asarray(coco_motions.channel_servos(ch), dtype=int) for ch in MOTION_CHANNELS}
         self._speech_synth = speech_synth
         self._playing_bgm: dict[int, str] = {}
@@ -122,10 +120,9 @@ class CocoRuntime:
         if ctx is None:
             return
         if channel in MOTION_CHANNELS:
-            entry = self._active.pop(ctx.element_id, None)
-            if entry is None:
+            seg = self._active.pop(ctx.element_id, None)
+            if seg is None:
                 return
-            _, seg = entry
             servos = self._channel_servos[channel]
             rest = coco_motions.rest_pose(channel)
             new = await self.streamer.cut([seg], servos, lambda q: coco_motions.transition(q, rest, servos),
@@ -190,7 +187,7 @@ class CocoRuntime:
         motion = coco_motions.BEHAVIOURS[behaviour](start, persistent=persistent, **args)
         seg = self.streamer.add(motion, label=ctx.path if ctx else behaviour)
         if persistent and ctx is not None:
-            self._active[ctx.element_id] = (channel, seg)
+            self._active[ctx.element_id] = seg
             self._mark(start=await self.streamer.wait_started(seg))
             await anyio.sleep_forever()
         try:
