@@ -93,7 +93,7 @@ def coco_registry(performer: Performer, vocabulary: str = "paper") -> Registry:
     """A registry with CoCo mounted: ``vocabulary`` visible, the other one hidden."""
     visible = vocabulary_modules(vocabulary, performer)
     registry = Registry([speech_module(performer)])
-    names = set()
+    names: set[str] = set()
     for m in visible:
         registry.mount(m)
         names.update(s.name for s in m.functions)

@@ -72,7 +72,7 @@ class CocoRuntime:
         self.board_times: dict[str, list[float | None]] = {}
         self.captures: list[Path] = []
         self._active: dict[int, Segment] = {}  # element id -> the looping segment of a persistent call
-        self._channel_servos = {ch: np.asarray(coco_motions.channel_servos(ch), dtype=int) for ch in MOTION_CHANNELS}
+        self._channel_servos = {ch: tuple(coco_motions.channel_servos(ch)) for ch in MOTION_CHANNELS}
         self._speech_synth = speech_synth
         self._playing_bgm: dict[int, str] = {}
 

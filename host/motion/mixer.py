@@ -28,10 +28,17 @@ import numpy as np
 class MotionLike(Protocol):
     """What the mixer needs of a motion (``robots.coco.motions.Motion`` fits)."""
 
-    servos: tuple[int, ...]
-    t: np.ndarray
-    q: np.ndarray
-    loop_from: float | None
+    @property
+    def servos(self) -> tuple[int, ...]: ...
+
+    @property
+    def t(self) -> np.ndarray: ...
+
+    @property
+    def q(self) -> np.ndarray: ...
+
+    @property
+    def loop_from(self) -> float | None: ...
 
 
 @dataclass(eq=False)

@@ -39,7 +39,8 @@ from protocol.messages import ServoFrame, Telemetry
 class FrameLink(Protocol):
     """What the streamer needs from the link."""
 
-    lockstep: bool
+    @property
+    def lockstep(self) -> bool: ...
 
     def board_now_us(self) -> int: ...
 

@@ -86,12 +86,13 @@ def plot_timeline(path: Path, calls: Sequence[BoardCall], title: str = "") -> No
     fig, ax = plt.subplots(figsize=(10, 0.6 * len(channels) + 1.4))
     t_max = max((c.end or c.start or 0.0) for c in shown) if shown else 1.0
     for c in shown:
+        start = c.start if c.start is not None else 0.0  # (shown calls all started)
         y = channels.index(c.channel or "?")
         end = c.end if c.end is not None else t_max
         h = 0.35 if c.persistent else 0.7
-        ax.barh(y, max(end - c.start, 0.02), left=c.start, height=h, color=_COLOURS.get(c.outcome, "#888"),
+        ax.barh(y, max(end - start, 0.02), left=start, height=h, color=_COLOURS.get(c.outcome, "#888"),
                 edgecolor="black", linewidth=0.5, alpha=0.6 if c.persistent else 0.9)
-        ax.text(c.start + 0.02, y, c.function, va="center", fontsize=7, clip_on=True)
+        ax.text(start + 0.02, y, c.function, va="center", fontsize=7, clip_on=True)
     ax.set_yticks(range(len(channels)), channels)
     ax.invert_yaxis()
     ax.set_xlabel("board time (s)")
