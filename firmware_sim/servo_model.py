@@ -40,7 +40,7 @@ class ServoModel:
         self.limit_clamps = 0  # servo-ticks clamped to a joint limit, since boot
         self.speed_clamps = 0  # servo-ticks clamped to the speed limit, since boot
 
-    def reset(self, q: Sequence[float]) -> None:
+    def reset(self, q: Sequence[float] | np.ndarray) -> None:
         """Set the command to ``q`` (clamped to limits) without speed limiting."""
         self.cmd = np.clip(np.asarray(q, dtype=float), self.mins, self.maxs)
 

@@ -45,7 +45,7 @@ class FrameLogError(ValueError):
 
 def _jsonable(value: Any) -> Any:
     if isinstance(value, IntFlag):
-        return "|".join(e.name for e in type(value) if e.value and (value & e) == e) or "NONE"
+        return "|".join(e.name for e in type(value) if e.name is not None and e.value and (value & e) == e) or "NONE"
     if isinstance(value, Enum):
         return value.name
     if isinstance(value, bool) or value is None or isinstance(value, (int, str)):

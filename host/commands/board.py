@@ -28,7 +28,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         ns.board_args = list(args or [])
         return ns, []
 
-    parser.parse_known_args = parse_known_args  # type: ignore[method-assign]
+    # setattr: an instance attribute shadows the (overloaded) method, which a plain
+    # assignment cannot express to the type checker.
+    setattr(parser, "parse_known_args", parse_known_args)
 
 
 def main(args: argparse.Namespace) -> int:

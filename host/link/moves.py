@@ -93,7 +93,10 @@ async def stream_trajectory(
             horizon = at - lead_us
             if client.lockstep:
                 if client.board_now_estimate() < horizon:
-                    await client.wait_for(lambda t, h=horizon: t.board_time_us >= h, wall_timeout_s)
+                    def reached(t: Telemetry, h: int = horizon) -> bool:
+                        return t.board_time_us >= h
+
+                    await client.wait_for(reached, wall_timeout_s)
             else:
                 ahead = horizon - client.board_now_estimate()
                 if ahead > 0:

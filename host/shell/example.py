@@ -138,7 +138,7 @@ class Camera:
 
     async def capture(self) -> str:
         """Take a photo; returns its file name."""
-        ...
+        raise NotImplementedError("interface stub: Module.bind routes calls to the implementation")
 
 
 class SimulatedCoCo:

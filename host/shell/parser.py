@@ -366,7 +366,8 @@ class FunctionTokenParser:
             self._base = self._off
         self._buf = text
         self._lc_i = 0
-        self._events = events = []
+        events: list[Event] = []
+        self._events = events
         try:
             self._scan()
             if final:
@@ -668,7 +669,9 @@ class FunctionTokenParser:
             elif mode == _TAG:
                 ts = self._ts
                 if ts == _NAME_ST or ts == _ANAME or ts == _ENAME:
-                    e = _NAMECHARS.match(buf, pos).end()
+                    m = _NAMECHARS.match(buf, pos)
+                    assert m is not None  # a starred pattern always matches
+                    e = m.end()
                     (self._aname if ts == _ANAME else self._tname).append(buf[pos:e])
                     pos = e
                     if e < n:
@@ -680,7 +683,9 @@ class FunctionTokenParser:
                         else:
                             self._ts = _EAFTER
                 elif ts == _AFTER:
-                    e = _WS.match(buf, pos).end()
+                    m = _WS.match(buf, pos)
+                    assert m is not None  # a starred pattern always matches
+                    e = m.end()
                     if e > pos:
                         self._had_space = True
                         pos = e
@@ -729,7 +734,9 @@ class FunctionTokenParser:
                             self._ts = _AFTER
                             self._had_space = False
                 elif ts == _EQ or ts == _PREQ:
-                    e = _WS.match(buf, pos).end()
+                    m = _WS.match(buf, pos)
+                    assert m is not None  # a starred pattern always matches
+                    e = m.end()
                     pos = e
                     if e == n:
                         break
@@ -812,7 +819,9 @@ class FunctionTokenParser:
                             f"'</' must be followed by a name, got {buf[pos]!r}", pos
                         )
                 else:  # _EAFTER
-                    e = _WS.match(buf, pos).end()
+                    m = _WS.match(buf, pos)
+                    assert m is not None  # a starred pattern always matches
+                    e = m.end()
                     pos = e
                     if e == n:
                         break
@@ -830,7 +839,9 @@ class FunctionTokenParser:
                             f"unexpected {buf[e]!r} in end-tag </{name}>", e
                         )
             elif mode == _REF:
-                e = _REFCHARS.match(buf, pos).end()
+                m = _REFCHARS.match(buf, pos)
+                assert m is not None  # a starred pattern always matches
+                e = m.end()
                 self._tname.append(buf[pos:e])
                 pos = e
                 if e < n:

@@ -10,6 +10,7 @@ skills, RUNs itself) is refused at SAVE time and, defensively, at RUN time.
 
 from __future__ import annotations
 
+import builtins
 import json
 import os
 import re
@@ -92,7 +93,7 @@ class SkillStore:
         del self._skills[name]
         self._write()
 
-    def _reaches(self, target: str, program: str) -> list[str] | None:
+    def _reaches(self, target: str, program: str) -> builtins.list[str] | None:
         """A RUN chain from ``program`` back to ``target``, or None."""
         seen: set[str] = set()
 

@@ -21,6 +21,7 @@ import tomllib
 from dataclasses import dataclass, replace
 from functools import cache
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -175,9 +176,12 @@ _DEFAULT = {
 def load_calibration(path: Path | None = None) -> Calibration:
     """Read ``gait.toml`` (falls back to rough defaults if it is missing)."""
     p = Path(path) if path is not None else CALIBRATION_PATH
-    data = tomllib.loads(p.read_text()) if p.exists() else _DEFAULT
+    data: dict[str, Any] = tomllib.loads(p.read_text()) if p.exists() else _DEFAULT
     w, r = data["walk"], data["turn"]
-    arr = lambda k: np.array(w[k], dtype=float)  # noqa: E731
+
+    def arr(k: str) -> np.ndarray:
+        return np.array(w[k], dtype=float)
+
     return Calibration(
         arr("speeds"), arr("amplitudes"), arr("forward_per_cycle"), arr("forward_offset"),
         arr("backward_per_cycle"), arr("backward_offset"), float(w["forward_trim"]),

@@ -30,7 +30,9 @@ class CocoModel:
     def new_data(self) -> mujoco.MjData:
         return mujoco.MjData(self.model)
 
-    def place_on_floor(self, data: mujoco.MjData, q: Sequence[float], clearance: float = 0.0005) -> None:
+    def place_on_floor(
+        self, data: mujoco.MjData, q: Sequence[float] | np.ndarray, clearance: float = 0.0005
+    ) -> None:
         """Reset ``data`` to joint angles ``q`` (servo order), ctrl = q, base upright with feet on the floor."""
         mujoco.mj_resetData(self.model, data)
         data.qpos[self.qpos_adr] = q

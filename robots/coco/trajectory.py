@@ -158,8 +158,8 @@ class Track:
     def move(self, target: Sequence[float] | np.ndarray, duration: float = 0.0,
              speed: float | np.ndarray | None = None) -> Track:
         """Min-jerk move to ``target`` taking ``duration`` s or longer if the speed limit needs it."""
-        target = np.clip(np.asarray(target, dtype=float), self.lo, self.hi)
-        dur = max(duration, self.min_time(target, speed))
+        goal = np.clip(np.asarray(target, dtype=float), self.lo, self.hi)
+        dur = max(duration, self.min_time(goal, speed))
         if dur <= 1e-9:
             return self
         q0, t0 = self.q, self.now
@@ -167,8 +167,8 @@ class Track:
         blend = min_jerk(s)[:, None]
         for si, b in zip(s, blend):
             self._t.append(t0 + si * dur)
-            self._q.append(q0 + (target - q0) * b)
-        self._q[-1] = target.copy()
+            self._q.append(q0 + (goal - q0) * b)
+        self._q[-1] = goal.copy()
         return self
 
     def hold(self, duration: float) -> Track:
