@@ -154,6 +154,12 @@ async def move_to(
         remaining = wall_end - loop.time()
         if remaining <= 0:
             raise LinkTimeout(f"move did not finish within {wall_timeout_s} s of wall time")
+        seen = t.board_time_us if t is not None else -1
         if client.lockstep:
             await client.advance(max(client.board_now_estimate(), t_end) + step_us)
-        await client.next_telemetry(min(remaining, 5.0))
+
+        def newer(x: Telemetry, after: int = seen) -> bool:
+            return x.board_time_us > after
+
+        # wait_for also looks at the latest report, so one that arrived with the ACK is not missed
+        await client.wait_for(newer, min(remaining, 5.0))
