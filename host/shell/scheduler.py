@@ -37,7 +37,7 @@ import contextlib
 import itertools
 from collections.abc import AsyncIterable, Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import anyio
 
@@ -45,10 +45,12 @@ from host.shell.context import CallContext, _current
 from host.shell.mapper import MappingError, map_element, split_sync
 from host.speech.sentences import SentenceSplitter
 from host.shell.parser import EmptyTag, EndTag, FunctionTokenParser, ParseError, ParseWarning, StartTag, Text
-from host.shell.registry import Registry
-from host.shell.skills import SkillError, SkillStore, end_tag, start_tag, text
+from host.shell.skills import SkillError, end_tag, start_tag, text
 from host.shell.timeline import CallRecord, Observation, RunResult, Timeline
 from host.shell.types import MAIN_CHANNEL, FunctionSpec
+
+if TYPE_CHECKING:
+    from host.shell.shell import Shell
 
 MODES = ("async-first", "sync-first")
 
@@ -112,24 +114,13 @@ class _Recording:
 class ProgramRun:
     """The state of one run; created by :class:`~host.shell.shell.Shell`."""
 
-    def __init__(
-        self,
-        registry: Registry,
-        *,
-        mode: str = "async-first",
-        strict: bool = True,
-        text_first_class: bool = False,
-        clock: Callable[[], float] | None = None,
-        skills: SkillStore | None = None,
-    ) -> None:
-        if mode not in MODES:
-            raise ValueError(f"mode must be one of {MODES}, not {mode!r}")
-        self.registry = registry
-        self.mode = mode
-        self.strict = strict
-        self.text_first_class = text_first_class
-        self.clock = clock or anyio.current_time
-        self.skills = skills if skills is not None else SkillStore()
+    def __init__(self, shell: Shell) -> None:
+        self.registry = shell.registry
+        self.mode = shell.mode
+        self.strict = shell.strict
+        self.text_first_class = shell.text_first_class
+        self.clock: Callable[[], float] = shell.clock or anyio.current_time
+        self.skills = shell.skills
         self.timeline = Timeline()
         self.observations: list[Observation] = []
         self.error: Exception | None = None
@@ -137,7 +128,7 @@ class ProgramRun:
         self.t0 = 0.0
         self._ids = itertools.count()
         self._pending: dict[int, _Call] = {}
-        self._stack: list[_Frame] = [_Frame("", None, "", mode == "async-first")]
+        self._stack: list[_Frame] = [_Frame("", None, "", self.mode == "async-first")]
         self._text = SentenceSplitter()
         self._recording: _Recording | None = None
         self._skill_stack: list[str] = []

@@ -62,14 +62,7 @@ class Shell:
         """Run one output stream; returns when every dispatched call has ended."""
         if self._run is not None:
             raise RuntimeError("a run is already in progress on this shell")
-        self._run = ProgramRun(
-            self.registry,
-            mode=self.mode,
-            strict=self.strict,
-            text_first_class=self.text_first_class,
-            clock=self.clock,
-            skills=self.skills,
-        )
+        self._run = ProgramRun(self)
         try:
             return await self._run.run(chunks)
         finally:
