@@ -43,11 +43,19 @@ import anyio
 
 from host.shell.context import CallContext, _current
 from host.shell.mapper import MappingError, map_element, split_sync
-from host.speech.sentences import SentenceSplitter
-from host.shell.parser import EmptyTag, EndTag, FunctionTokenParser, ParseError, ParseWarning, StartTag, Text
+from host.shell.parser import (
+    EmptyTag,
+    EndTag,
+    FunctionTokenParser,
+    ParseError,
+    ParseWarning,
+    StartTag,
+    Text,
+)
 from host.shell.skills import SkillError, end_tag, start_tag, text
 from host.shell.timeline import CallRecord, Observation, RunResult, Timeline
 from host.shell.types import MAIN_CHANNEL, FunctionSpec
+from host.speech.sentences import SentenceSplitter
 
 if TYPE_CHECKING:
     from host.shell.shell import Shell
