@@ -61,6 +61,8 @@ if TYPE_CHECKING:
     from host.shell.shell import Shell
 
 MODES = ("async-first", "sync-first")
+#: deepest element nesting the shell runs (deeper elements fail; their children attach above)
+MAX_DEPTH = 64
 
 #: Longest a reset hook may take before it is abandoned (seconds on the run's clock).
 RESET_TIMEOUT = 5.0
@@ -136,6 +138,7 @@ class ProgramRun:
         self.t0 = 0.0
         self._ids = itertools.count()
         self._pending: dict[int, _Call] = {}
+        self._by_channel: dict[str | None, dict[int, _Call]] = {}  # pending calls per channel, in order
         self._stack: list[_Frame] = [_Frame("", None, "", self.mode == "async-first")]
         self._text = SentenceSplitter()
         self._recording: _Recording | None = None
@@ -305,6 +308,11 @@ class ProgramRun:
     # -- elements ------------------------------------------------------------
     def _start(self, name: str, attrs: dict[str, str], *, empty: bool) -> None:
         frame = self._stack[-1]
+        if len(self._stack) > MAX_DEPTH:  # hostile or runaway output: refuse, keep the stream in step
+            self._record_failure(name, attrs, f"<{name}> is nested deeper than {MAX_DEPTH} elements; refused", empty)
+            if not empty:
+                self._stack.append(_Frame(name, None, frame.path, frame.async_ctx, frame.counts))
+            return
         if name == "SAVE":
             self._start_save(attrs, empty)
             return
@@ -331,13 +339,19 @@ class ProgramRun:
         if not empty:
             self._stack.append(_Frame(name, call, call.record.path, frame.async_ctx))
 
-    def _mapping_failed(self, name: str, attrs: dict[str, str], message: str, empty: bool) -> None:
-        frame = self._stack[-1]
-        path = self._path(frame, name)
+    def _record_failure(self, name: str, attrs: dict[str, str], message: str, empty: bool) -> CallRecord:
+        """A failed element on the timeline, with the error as an observation."""
+        path = self._path(self._stack[-1], name)
         rec = CallRecord(next(self._ids), name, None, dict(attrs), path, not empty, self.now())
         rec.outcome, rec.error, rec.end = "failed", message, rec.dispatch
         self.timeline.records.append(rec)
         self._observe("error", message, path)
+        return rec
+
+    def _mapping_failed(self, name: str, attrs: dict[str, str], message: str, empty: bool) -> None:
+        frame = self._stack[-1]
+        rec = self._record_failure(name, attrs, message, empty)
+        path = rec.path
         if not empty:  # still scope the children, as a plain group
             try:
                 _, sync = split_sync(name, attrs)
@@ -431,18 +445,37 @@ class ProgramRun:
     ) -> _Call:
         parent = next((f.call for f in reversed(self._stack) if f.call is not None), None)
         call = _Call(rec.id, rec, kind, spec, args, channel, home, parent, persistent)
-        ancestors = {id(a) for a in call.ancestors()}
-        for p in self._pending.values():
-            if id(p) in ancestors:
-                continue
-            if channel == MAIN_CHANNEL or p.channel == MAIN_CHANNEL or (channel is not None and p.channel == channel):
-                call.deps.append(p)
+        call.deps = self._dependencies(call, channel)
         self._pending[call.id] = call
+        self._by_channel.setdefault(channel, {})[call.id] = call
         if parent is not None:
             parent.open_children += 1
         assert self._tg is not None
         self._tg.start_soon(self._run_element if persistent else self._run_leaf, call)
         return call
+
+    def _dependencies(self, call: _Call, channel: str | None) -> list[_Call]:
+        """The pending calls ``call`` must wait for (never its own ancestors).
+
+        A main-channel call waits for every pending call (the barrier); any call
+        waits for pending main-channel calls. On its own channel a call waits
+        for the latest pending call there, plus that call's pending same-channel
+        ancestors (which it does not wait for itself): the latest call already
+        waits for everything earlier, so this is the whole channel, found in
+        time bounded by the nesting depth instead of the queue length.
+        """
+        ancestors = {id(a) for a in call.ancestors()}
+        if channel == MAIN_CHANNEL:
+            return [p for p in self._pending.values() if id(p) not in ancestors]
+        deps = [p for p in self._by_channel.get(MAIN_CHANNEL, {}).values() if id(p) not in ancestors]
+        if channel is None:
+            return deps
+        tail = next((p for p in reversed(self._by_channel.get(channel, {}).values()) if id(p) not in ancestors), None)
+        if tail is not None:
+            deps.append(tail)
+            deps += [a for a in tail.ancestors()
+                     if a.channel == channel and a.id in self._pending and id(a) not in ancestors]
+        return deps
 
     async def _await_deps(self, c: _Call) -> None:
         if c.parent is not None:
@@ -556,6 +589,7 @@ class ProgramRun:
         if not c.started and rec.outcome != "failed":
             rec.end = None
         self._pending.pop(c.id, None)
+        self._by_channel.get(c.channel, {}).pop(c.id, None)
         c.activated.set()
         c.completed.set()
         if c.parent is not None:
