@@ -195,7 +195,9 @@ class CameraWorker:
         return True
 
     def results(self) -> list[tuple[int, list[CameraChunk] | str]]:
-        """Finished captures since the last call (non-blocking)."""
+        """Finished captures since the last call (non-blocking; called every control tick)."""
+        if self._done.empty():
+            return []
         out = []
         while True:
             try:
