@@ -21,6 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("demo", "the showcase: a paper task end to end on an emulated board (pty, MuJoCo, scripted LLM)"),
     "tour": ("tour", "start a board on a pty and drive it through the named poses"),
     "log": ("log", "decode a frame log written with --log"),
+    "replay": ("replay", "feed a recorded run's host-to-board traffic into a fresh lockstep board"),
     "prompt": ("prompt", "print the system prompt for the mounted functions"),
     "dsbc": ("dsbc", "score a generated function-token program against a ground truth"),
     "run": ("run", "run a task or a program on the robot"),
