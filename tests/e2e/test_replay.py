@@ -49,7 +49,7 @@ def test_replay_refuses_what_it_cannot_read(tmp_path: Path) -> None:
     with pytest.raises(ReplayError, match="no host frame log"):
         replay(tmp_path, tmp_path / "out")
     (tmp_path / "x.pcap").write_bytes(b"")
-    with pytest.raises(ReplayError, match="unknown log format .\.pcap."):
+    with pytest.raises(ReplayError, match=r"unknown log format .\.pcap."):
         list(read_host_to_board(tmp_path / "x.pcap"))
     empty = tmp_path / "host_frames.jsonl"
     empty.write_text("")
