@@ -110,6 +110,9 @@ class OpenAIGhost(Ghost):
         self.extra_headers = dict(extra_headers or {})
         self.options = options
         self._client = client
+        #: tool calls of the last reply (``tools=`` in ``options``), in the order given:
+        #: ``[{"id", "name", "arguments"}]`` with ``arguments`` the raw JSON text
+        self.last_tool_calls: list[dict[str, Any]] = []
 
     def __repr__(self) -> str:
         return f"OpenAIGhost(model={self.model!r}, base_url={self.base_url!r})"
@@ -149,6 +152,7 @@ class OpenAIGhost(Ghost):
 
     async def stream(self, messages: list[Message]) -> AsyncIterator[str]:
         """Yield the reply's content pieces as the server streams them."""
+        self.last_tool_calls = []
         client = self._client
         if client is None:
             client = openai.AsyncOpenAI(
@@ -163,6 +167,7 @@ class OpenAIGhost(Ghost):
             except openai.OpenAIError as err:
                 raise self._wrap(err) from err
             finish_reason: str | None = None
+            tools: dict[int, dict[str, Any]] = {}
             try:
                 async for chunk in response:
                     for choice in chunk.choices or ():
@@ -171,6 +176,12 @@ class OpenAIGhost(Ghost):
                         content = choice.delta.content if choice.delta is not None else None
                         if content:
                             yield content
+                        for tc in (choice.delta.tool_calls or ()) if choice.delta is not None else ():
+                            slot = tools.setdefault(tc.index, {"id": None, "name": "", "arguments": ""})
+                            slot["id"] = tc.id or slot["id"]
+                            if tc.function is not None:
+                                slot["name"] += tc.function.name or ""
+                                slot["arguments"] += tc.function.arguments or ""
                         if choice.finish_reason:
                             finish_reason = choice.finish_reason
             except openai.OpenAIError as err:
@@ -180,6 +191,7 @@ class OpenAIGhost(Ghost):
             finally:
                 with anyio.move_on_after(5, shield=True):
                     await response.close()
+            self.last_tool_calls = [tools[i] for i in sorted(tools)]
             if finish_reason is None:
                 raise GhostError(
                     f"{self.name} at {self.base_url}: the stream ended before the model finished "
