@@ -16,7 +16,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--base-url", default=None, help="the provider's API root (e.g. http://127.0.0.1:8000/v1)")
     parser.add_argument("--api-key", default=None, help="default: GHOSTSHELL_LLM_API_KEY, then the provider's variable")
     parser.add_argument("--tasks", default=None,
-                        help="task ids, e.g. 1-30 or 1,4,7-9 (default 1-30), or 'ablation' for the 15 ablation tasks")
+                        help="task ids, e.g. 1-30 or 1,4,7-9 (default 1-30), or 'ablation' for the 15 ablation tasks (or e.g. ablation:6,9)")
     parser.add_argument("--trials", type=int, default=5, help="rounds per task (the paper: 5)")
     parser.add_argument("--workers", type=int, default=1, help="jobs at once, each with its own lockstep board")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default runs/eval-<model>)")
@@ -36,9 +36,10 @@ def build_config(args: argparse.Namespace) -> Any:
     from host.eval.paper import ablation_tasks, hri_tasks, parse_task_spec
     from host.eval.sweep import SweepConfig
 
-    suite = "ablation" if (args.tasks or "").strip().lower() == "ablation" else "hri"
-    if suite == "ablation":
-        tasks = sorted(ablation_tasks())
+    spec = (args.tasks or "").strip()
+    suite = "ablation" if spec.lower().startswith("ablation") else "hri"
+    if suite == "ablation":  # "ablation" or "ablation:6,9"
+        tasks = parse_task_spec(spec.partition(":")[2] or "all", sorted(ablation_tasks()))
     else:
         tasks = parse_task_spec(args.tasks or "1-30", sorted(hri_tasks()))
     if args.native_tools and suite != "ablation":
