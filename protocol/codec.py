@@ -548,7 +548,8 @@ LAYOUTS: dict[MsgType, Layout] = {
         ("dropped_count", _U32),
         ("link_errors", _U32),
     ],
-    MsgType.SIM_STATE: [("board_time_us", _U64), ("base_pos", F32Array(3)), ("base_quat", F32Array(4))],
+    MsgType.SIM_STATE: [("board_time_us", _U64), ("base_pos", F32Array(3)), ("base_quat", F32Array(4)),
+                        ("objects", _U8), ("toppled", _U8)],
     MsgType.ACK: [("ack_seq", _SEQ16), ("msg_type", EnumU8(MsgType))],
     MsgType.NACK: [
         ("ack_seq", _SEQ16),

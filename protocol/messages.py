@@ -217,6 +217,8 @@ class SimState:
     board_time_us: int
     base_pos: tuple[float, float, float]  # metres, world frame
     base_quat: tuple[float, float, float, float]  # w, x, y, z
+    objects: int = 0  # movable scene objects (e.g. --scene bottles: 3)
+    toppled: int = 0  # how many of them lean more than 45 deg from vertical
 
 
 @dataclass(frozen=True)

@@ -47,6 +47,8 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--baud", type=int, default=115200, help="baud rate for a real serial port")
     parser.add_argument("--out", default=None, metavar="DIR", help="artefact folder (default runs/<label>)")
     parser.add_argument("--no-live", action="store_true", help="no live channel view")
+    parser.add_argument("--scene", choices=("empty", "bottles"), default="empty",
+                        help="objects in the board's world; summary.json reports how many toppled")
 
 
 def _positive(text: str) -> float:
@@ -72,6 +74,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         link=args.link, baud=args.baud, out=out, tokens_per_s=args.tokens_per_s, seed=args.seed,
         llm_base_url=getattr(args, "base_url", None), llm_api_key=getattr(args, "api_key", None),
         interrupt_at=getattr(args, "interrupt_at", None), live=not args.no_live and sys.stdout.isatty(),
+        scene=getattr(args, "scene", "empty"),
     )
     try:
         report = anyio.run(run_program, opts, backend="asyncio")
@@ -87,6 +90,9 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
           f"board time {s.duration_s:.2f} s; first action after {s.first_action_latency_ms} ms; "
           f"max tilt {s.max_tilt_deg:.1f} deg{'; FELL' if s.fell else ''}")
     print(f"base moved from {s.base_start} to {s.base_end} [x m, y m, yaw deg]")
+    scene = s.extra.get("scene") or {}
+    if scene.get("objects"):
+        print(f"scene {scene['name']}: {scene['toppled']} of {scene['objects']} toppled")
     names = ("timeline.json", "timeline.png", "joints.png", "summary.json", "host_frames.jsonl", "board_frames.jsonl")
     print(f"artefacts in {out}/: " + " ".join(n for n in names if (out / n).exists()))
     return 0 if s.outcome in ("done", "interrupted") else 1

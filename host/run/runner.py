@@ -65,6 +65,7 @@ class RunOptions:
     buffer_response: bool = False  # wait for the whole LLM response before executing (the non-streaming baseline)
     start_pose: str = "stand"
     live: bool = False  # draw the live channel view (on a terminal)
+    scene: str = "empty"  # objects in the board's world (python -m firmware_sim --scene)
 
 
 @dataclass
@@ -205,7 +206,8 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, CocoRuntime],
     board: BoardProcess | None = None
     port = opts.link
     if opts.link == "pty":
-        board_args = ["--lockstep" if opts.lockstep else "--realtime", "--log", str(out / "board_frames.jsonl")]
+        board_args = ["--lockstep" if opts.lockstep else "--realtime", "--log", str(out / "board_frames.jsonl"),
+                      "--scene", opts.scene]
         board = start_board(board_args, out / "board.stderr")
         port = board.port
     rec = _Recorder()
@@ -293,6 +295,13 @@ def _board_calls(result: RunResult, runtime: CocoRuntime) -> list[artefacts.Boar
     return calls
 
 
+def _scene_report(opts: RunOptions, runtime: CocoRuntime) -> dict[str, Any]:
+    """The scene's ground truth at the end of the run (the board's SIM_STATE objects/toppled)."""
+    client = getattr(runtime.link, "client", None)
+    s = client.latest_sim_state if client is not None else None
+    return {"name": opts.scene, "objects": s.objects if s else 0, "toppled": s.toppled if s else 0}
+
+
 def _write(opts: RunOptions, result: RunResult, runtime: CocoRuntime, rec: _Recorder,
            token_times: list[tuple[float, str]], board_t0: float, base_start: Any, stats: dict[str, Any]) -> RunReport:
     out = opts.out
@@ -321,7 +330,7 @@ def _write(opts: RunOptions, result: RunResult, runtime: CocoRuntime, rec: _Reco
         extra={"clock": "lockstep" if opts.lockstep else "realtime", "vocabulary": opts.vocabulary,
                "mode": opts.mode, "error": None if result.error is None else str(result.error),
                "observations": [str(o) for o in result.observations], "link": stats,
-               "captures": [p.name for p in runtime.captures]})
+               "captures": [p.name for p in runtime.captures], "scene": _scene_report(opts, runtime)})
     artefacts.write_summary_json(out / "summary.json", summary)
     return RunReport(result, calls, summary, out, token_times, board_t0)
 
