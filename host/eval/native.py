@@ -43,7 +43,8 @@ SCOPE_S = 1.5
 # -- tool definitions ----------------------------------------------------------------------
 def json_schema(annotation: Any) -> dict[str, Any]:
     """JSON Schema for one parameter annotation (see the module docstring)."""
-    base, metas = annotation, ()
+    base: Any = annotation
+    metas: tuple[Any, ...] = ()
     if typing.get_origin(annotation) is typing.Annotated:
         base, *rest = typing.get_args(annotation)
         metas = tuple(rest)

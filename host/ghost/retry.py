@@ -18,7 +18,7 @@ so both layers back off alike; a ``retry_after_s`` carried by the error wins.
 from __future__ import annotations
 
 import random
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass
 
 import anyio
@@ -58,7 +58,7 @@ async def retrying_stream(
     limits: StreamLimits,
     *,
     name: str,
-    sleep: Callable[[float], object] | None = None,
+    sleep: Callable[[float], Awaitable[None]] | None = None,
     clock: Callable[[], float] | None = None,
 ) -> AsyncIterator[str]:
     """Yield the chunks of ``open_stream()``, with the timeouts and retries of ``limits``.

@@ -123,3 +123,19 @@ def test_bad_arguments_are_clear(tmp_path: Path, capsys: pytest.CaptureFixture[s
     assert cli(["eval", "--llm", "openai:m", "--tasks", "0-40", "--out", str(tmp_path)]) == 2
     assert "no task(s)" in capsys.readouterr().err
     assert cli(["eval", "--llm", "openai:m", "--native-tools", "--tasks", "1", "--out", str(tmp_path)]) == 2
+
+
+def test_eval_with_anthropic_streaming(fake_llm: FakeLLM, tmp_path: Path) -> None:
+    from support.fake_anthropic import stream as anthropic_stream
+
+    reply = "Sure! " + TASKS[2].ground_truth
+    fake_llm.responder = replay(anthropic_stream([reply[:7], reply[7:]]), split=6)
+    out = tmp_path / "ev"
+    assert cli(["eval", "--llm", "anthropic:claude-sonnet-4-20250514", "--base-url", f"http://127.0.0.1:{fake_llm.port}",
+                "--api-key", "k", "--tasks", "2", "--trials", "1", "--no-run", "--out", str(out)]) == 0
+    doc = json.loads((out / "eval.json").read_text())
+    (rec,) = doc["records"]
+    assert rec["reply"] == reply and rec["dsbc"] == pytest.approx(dsbc(TASKS[2].ground_truth, reply))
+    assert doc["paper_model"] == "Claude-Sonnet-4"
+    req = fake_llm.requests[0]
+    assert req["path"] == "/v1/messages" and req["json"]["system"] and req["json"]["messages"][0]["role"] == "user"
