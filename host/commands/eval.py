@@ -22,6 +22,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=None, help="output folder (default runs/eval-<model>)")
     parser.add_argument("--native-tools", action="store_true",
                         help="expose the functions as provider tool definitions (native function calling)")
+    parser.add_argument("--native-exec", choices=("parallel", "sequential"), default="parallel",
+                        help="native tool calls of one response: dispatched together after the speech (parallel "
+                        "tool calls; one module's calls queue in order) or each to completion in turn")
     parser.add_argument("--no-run", action="store_true", help="score only; do not execute replies on the board")
     parser.add_argument("--vocabulary", choices=("paper", "coco"), default="paper")
     parser.add_argument("--mode", choices=("async-first", "sync-first"), default="async-first")
@@ -52,7 +55,7 @@ def build_config(args: argparse.Namespace) -> Any:
     return SweepConfig(llm=args.llm, tasks=tasks, trials=args.trials, suite=suite, native_tools=args.native_tools,
                        base_url=args.base_url, api_key=args.api_key, workers=args.workers, out=out,
                        vocabulary=args.vocabulary, mode=args.mode, prompt_format=args.format,
-                       execute=not args.no_run, temperature=args.temperature)
+                       execute=not args.no_run, temperature=args.temperature, native_exec=args.native_exec)
 
 
 def main(args: argparse.Namespace) -> int:

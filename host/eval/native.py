@@ -7,10 +7,13 @@
   ``minimum``/``maximum``, defaults -> ``default``, parameters without one ->
   ``required``. The speech function is not a tool: speech is the text part.
 * :func:`native_program` is how native function calling executes a reply: after
-  the response, the text part is spoken, then the tool calls run in the order
-  given, each one to completion before the next (``<wait>`` per call, so the
-  shell's barrier rule orders them after the speech). No nesting, no overlap
-  of speech and motion: exactly the structure a flat ``tool_calls`` array has.
+  the response, the text part is spoken, then the tool calls are dispatched in
+  the order given. ``parallel`` (default, like parallel tool calls): all at once
+  after the speech, calls for different modules run together and calls for one
+  module queue in order (``TEXT<wait>calls</wait>``); ``sequential``: each call
+  to completion before the next (a ``<wait>`` per call). Either way there is no
+  nesting and no overlap of speech and motion: the structure a flat
+  ``tool_calls`` array beside a separate text field has.
 * :func:`judge` checks a board-measured timeline against an expected pattern
   (the task data's ``expected``): ``A -> B`` (B starts after A ended, no overlap),
   ``A || B`` (their intervals overlap), parentheses, and ``outer{a, b}`` for
@@ -144,13 +147,22 @@ def _attr(v: Any) -> str:
     return str(v)
 
 
-def native_program(text: str, calls: Iterable[ToolCall]) -> str:
-    """The function-token program that executes a native reply the native way:
-    the text spoken first, then each call to completion, in the order given."""
+#: how the native tool calls of one response run (see the module docstring)
+NATIVE_EXEC = ("parallel", "sequential")
+
+
+def native_program(text: str, calls: Iterable[ToolCall], execution: str = "parallel") -> str:
+    """The function-token program that executes a native reply the native way: the text
+    spoken first, then the calls in the order given (``execution``: parallel or sequential)."""
+    if execution not in NATIVE_EXEC:
+        raise ValueError(f"native execution {execution!r}; valid: {', '.join(NATIVE_EXEC)}")
     out = [escape(text.strip())] if text.strip() else []
-    for c in calls:
-        attrs = "".join(f" {k}={quoteattr(_attr(v))}" for k, v in c.arguments.items())
-        out.append(f"<wait><{c.name}{attrs}/></wait>")
+    tags = [f"<{c.name}" + "".join(f" {k}={quoteattr(_attr(v))}" for k, v in c.arguments.items()) + "/>"
+            for c in calls]
+    if execution == "sequential":
+        out += [f"<wait>{t}</wait>" for t in tags]
+    elif tags:
+        out.append("<wait>" + "".join(tags) + "</wait>")
     return "".join(out)
 
 

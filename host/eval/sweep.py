@@ -60,10 +60,11 @@ class SweepConfig:
     tokens_per_s: float = 30.0
     temperature: float | None = None
     max_retries: int = 2
+    native_exec: str = "parallel"  # how one response's tool calls run (host.eval.native.NATIVE_EXEC)
 
     def identity(self) -> dict[str, Any]:
         """What must match for a resumed sweep to continue this one."""
-        return {"llm": self.llm, "suite": self.suite, "native_tools": self.native_tools,
+        return {"llm": self.llm, "suite": self.suite, "native_tools": self.native_tools, "native_exec": self.native_exec,
                 "vocabulary": self.vocabulary, "mode": self.mode, "prompt_format": self.prompt_format,
                 "base_url": self.base_url}
 
@@ -123,8 +124,8 @@ async def ask(cfg: SweepConfig, task: int, system: str) -> dict[str, Any]:
             except ValueError as err:
                 error = f"malformed arguments: {err}"
             calls.append({"name": raw.get("name", ""), "arguments": args, "error": error})
-    reply = native_program(text, [ToolCall(c["name"], c["arguments"]) for c in calls if not c["error"]]) \
-        if cfg.native_tools else text
+    reply = native_program(text, [ToolCall(c["name"], c["arguments"]) for c in calls if not c["error"]],
+                           cfg.native_exec) if cfg.native_tools else text
     return {"reply": reply, "text": text, "tool_calls": calls, "first_token_s": first,
             "llm_s": time.monotonic() - t0}
 

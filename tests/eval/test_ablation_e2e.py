@@ -55,7 +55,7 @@ def test_native_tool_calls_cannot_overlap_speech_and_motion(fake_llm: FakeLLM, t
     tools = {t["function"]["name"] for t in fake_llm.requests[0]["json"]["tools"]}
     assert "run_distance" in tools and "speak" not in tools
     assert rec["tool_calls"] == [{"name": "run_distance", "arguments": {"distance": 10}, "error": None}]
-    assert rec["reply"] == 'Hello there!<wait><run_distance distance="10"/></wait>'
+    assert rec["reply"] == 'Hello there!<wait><run_distance distance="10"/></wait>'  # speech, then the calls
     calls = {c["function"]: c for c in rec["run"]["calls"]}
     assert calls["run_distance"]["start"] >= calls["speak"]["end"] - 0.05  # measured on the board: one after the other
     assert not rec["passed"] and "do not overlap" in rec["verdict"]

@@ -85,9 +85,14 @@ def test_json_schema_of_plain_types() -> None:
 
 
 def test_native_program_speaks_first_then_calls_in_order() -> None:
-    prog = native_program("Hello & bye", [ToolCall("run_distance", {"distance": 10}),
-                                          ToolCall("head_act", {"action": "shake"})])
-    assert prog == 'Hello &amp; bye<wait><run_distance distance="10"/></wait><wait><head_act action="shake"/></wait>'
+    calls = [ToolCall("run_distance", {"distance": 10}), ToolCall("head_act", {"action": "shake"})]
+    seq = native_program("Hello & bye", calls, "sequential")
+    assert seq == 'Hello &amp; bye<wait><run_distance distance="10"/></wait><wait><head_act action="shake"/></wait>'
+    par = native_program("Hello & bye", calls)
+    assert par == 'Hello &amp; bye<wait><run_distance distance="10"/><head_act action="shake"/></wait>'
+    assert native_program("", []) == ""
+    with pytest.raises(ValueError):
+        native_program("", calls, "whenever")
     assert parse_arguments('{"a": 1}') == {"a": 1} and parse_arguments(None) == {}
     with pytest.raises(ValueError):
         parse_arguments("[1]")
