@@ -306,12 +306,13 @@ class ProgramRun:
             self._observe("warning", f"parse warning at {getattr(ev, 'pos', '?')}: {ev.message}")
 
     def _save(self, rec: _Recording) -> None:
+        existed = rec.name in self.skills
         try:
             self.skills.save(rec.name, rec.description, "".join(rec.parts))
         except (SkillError, OSError) as exc:
             self._observe("error", f"skill not saved: {exc}")
         else:
-            self._observe("info", f"skill {rec.name!r} saved")
+            self._observe("info", f"skill {rec.name!r} {'replaced (a skill of that name existed)' if existed else 'saved'}")
 
     # -- text -------------------------------------------------------------------
     def _text_in(self, data: str) -> None:
@@ -335,8 +336,9 @@ class ProgramRun:
         else:
             channel = spec.channel
         call = self._new_call(spec.name, "fn", spec, {"text": segment}, channel, spec.channel, persistent=False)
-        if not self._skill_stack:
-            self._executed.append((text(segment) + " ", call))
+        if not self._skill_stack:  # sentences of one text run are joined by a space (the splitter drops it)
+            sep = " " if self._executed and self._executed[-1][1] is not None else ""
+            self._executed.append((sep + text(segment), call))
 
     # -- elements ------------------------------------------------------------
     def _start(self, name: str, attrs: dict[str, str], *, empty: bool) -> None:
