@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import re
 from collections.abc import AsyncIterable, Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -66,6 +67,12 @@ MAX_DEPTH = 64
 
 #: Longest a reset hook may take before it is abandoned (seconds on the run's clock).
 RESET_TIMEOUT = 5.0
+
+#: Tag-like markup that must never reach speech in lenient mode: ``<name ...>``, ``</name>``,
+#: ``<!...>``, ``<?...>`` (a ``<`` directly followed by a name start, ``/``, ``!`` or ``?`` and closed
+#: by ``>``, or a ``<`` glued to a word), ``I <3 you`` and ``a < b`` stay text, and the residue of a
+#: broken tag (``"/>``).
+_MARKUP = re.compile(r"<\s*[/!?]?\s*[^\W\d][^<>]*>|<[/!?]?[^\W\d][^\s<>]*|[\"']?[ \t]*/>")
 
 #: Deepest nesting of ``<RUN>`` expansions.
 MAX_SKILL_DEPTH = 16
@@ -262,6 +269,10 @@ class ProgramRun:
             return
         if isinstance(ev, Text):
             self._text_in(ev.text)
+        elif isinstance(ev, (StartTag, EmptyTag)) and ev.refused is not None:
+            self._flush_text()  # a malformed call (duplicated attribute): refused, its children still scoped
+            self._mapping_failed(ev.name, dict(ev.attrs), f"<{ev.name}> refused: {ev.refused}",
+                                 isinstance(ev, EmptyTag))
         elif isinstance(ev, StartTag):
             self._flush_text()
             self._start(ev.name, dict(ev.attrs), empty=False)
@@ -324,6 +335,12 @@ class ProgramRun:
             self._speak(seg)
 
     def _speak(self, segment: str) -> None:
+        if not self.strict and _MARKUP.search(segment):  # lenient: markup is never spoken
+            cleaned = " ".join(_MARKUP.sub(" ", segment).split())
+            self._observe("warning", f"markup in text not spoken: {segment[:80]!r}")
+            if not cleaned.strip(" \t\n\"'/<>"):
+                return
+            segment = cleaned
         spec = self.registry.speech
         frame = self._stack[-1]
         if spec is None:
