@@ -41,7 +41,14 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
     clock.add_argument("--realtime", dest="lockstep", action="store_false", help="wall-clock board (default)")
     parser.set_defaults(lockstep=False)
     parser.add_argument("--mode", choices=("async-first", "sync-first"), default="async-first")
-    parser.add_argument("--lenient", action="store_true", help="recover from malformed LLM output instead of stopping")
+    parsing = parser.add_mutually_exclusive_group()
+    parsing.add_argument("--lenient", dest="strict", action="store_false",
+                         help="recover from malformed output with warnings (default with a real --llm)")
+    parsing.add_argument("--strict", dest="strict", action="store_true",
+                         help="stop at the first malformed tag (the paper's parser; default for scripted replay)")
+    parser.set_defaults(strict=None)
+    parser.add_argument("--skills", default=None, metavar="FILE",
+                        help="skill library file (else $GHOSTSHELL_SKILLS, else the user data directory)")
     parser.add_argument("--tokens-per-s", type=_positive, default=30.0, help="scripted LLM speed (default 30)")
     parser.add_argument("--seed", type=int, default=0, help="scripted LLM jitter seed")
     parser.add_argument("--baud", type=int, default=115200, help="baud rate for a real serial port")
@@ -58,6 +65,13 @@ def _positive(text: str) -> float:
     return v
 
 
+def resolve_strict(args: argparse.Namespace) -> bool:
+    """``--strict``/``--lenient`` if given; else strict for scripted replay, lenient for a real LLM."""
+    if getattr(args, "strict", None) is not None:
+        return bool(args.strict)
+    return getattr(args, "llm", "scripted") == "scripted"
+
+
 def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | None, label: str) -> int:
     """Build :class:`RunOptions` from ``args``, run, print where the artefacts are."""
     import anyio
@@ -66,15 +80,23 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     from host.link import LinkError
     from host.run.runner import RunOptions, run_program
 
+    from host.shell.skills import SkillError, SkillStore, skills_path
+
+    try:
+        skills = SkillStore(skills_path(getattr(args, "skills", None)))
+    except SkillError as e:
+        print(f"ghostshell: {e}", file=sys.stderr)
+        return 1
     slug = label.replace(" ", "-")
     out = Path(args.out) if args.out else Path("runs") / slug
     opts = RunOptions(
         program=program, prompt=prompt, llm=getattr(args, "llm", "scripted"), task_label=label,
-        vocabulary=args.vocabulary, mode=args.mode, strict=not args.lenient, lockstep=args.lockstep,
+        vocabulary=args.vocabulary, mode=args.mode, strict=resolve_strict(args), lockstep=args.lockstep,
         link=args.link, baud=args.baud, out=out, tokens_per_s=args.tokens_per_s, seed=args.seed,
         llm_base_url=getattr(args, "base_url", None), llm_api_key=getattr(args, "api_key", None),
         interrupt_at=getattr(args, "interrupt_at", None), live=not args.no_live and sys.stdout.isatty(),
         scene=getattr(args, "scene", "empty"),
+        skills=skills,
     )
     try:
         report = anyio.run(run_program, opts, backend="asyncio")

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import re
 from collections.abc import AsyncIterable, Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -66,6 +67,12 @@ MAX_DEPTH = 64
 
 #: Longest a reset hook may take before it is abandoned (seconds on the run's clock).
 RESET_TIMEOUT = 5.0
+
+#: Tag-like markup that must never reach speech in lenient mode: ``<name ...>``, ``</name>``,
+#: ``<!...>``, ``<?...>`` (a ``<`` directly followed by a name start, ``/``, ``!`` or ``?`` and closed
+#: by ``>``, or a ``<`` glued to a word), ``I <3 you`` and ``a < b`` stay text, and the residue of a
+#: broken tag (``"/>``).
+_MARKUP = re.compile(r"<\s*[/!?]?\s*[^\W\d][^<>]*>|<[/!?]?[^\W\d][^\s<>]*|[\"']?[ \t]*/>")
 
 #: Deepest nesting of ``<RUN>`` expansions.
 MAX_SKILL_DEPTH = 16
@@ -262,6 +269,10 @@ class ProgramRun:
             return
         if isinstance(ev, Text):
             self._text_in(ev.text)
+        elif isinstance(ev, (StartTag, EmptyTag)) and ev.refused is not None:
+            self._flush_text()  # a malformed call (duplicated attribute): refused, its children still scoped
+            self._mapping_failed(ev.name, dict(ev.attrs), f"<{ev.name}> refused: {ev.refused}",
+                                 isinstance(ev, EmptyTag))
         elif isinstance(ev, StartTag):
             self._flush_text()
             self._start(ev.name, dict(ev.attrs), empty=False)
@@ -306,12 +317,13 @@ class ProgramRun:
             self._observe("warning", f"parse warning at {getattr(ev, 'pos', '?')}: {ev.message}")
 
     def _save(self, rec: _Recording) -> None:
+        existed = rec.name in self.skills
         try:
             self.skills.save(rec.name, rec.description, "".join(rec.parts))
         except (SkillError, OSError) as exc:
             self._observe("error", f"skill not saved: {exc}")
         else:
-            self._observe("info", f"skill {rec.name!r} saved")
+            self._observe("info", f"skill {rec.name!r} {'replaced (a skill of that name existed)' if existed else 'saved'}")
 
     # -- text -------------------------------------------------------------------
     def _text_in(self, data: str) -> None:
@@ -323,6 +335,12 @@ class ProgramRun:
             self._speak(seg)
 
     def _speak(self, segment: str) -> None:
+        if not self.strict and _MARKUP.search(segment):  # lenient: markup is never spoken
+            cleaned = " ".join(_MARKUP.sub(" ", segment).split())
+            self._observe("warning", f"markup in text not spoken: {segment[:80]!r}")
+            if not cleaned.strip(" \t\n\"'/<>"):
+                return
+            segment = cleaned
         spec = self.registry.speech
         frame = self._stack[-1]
         if spec is None:
@@ -335,8 +353,9 @@ class ProgramRun:
         else:
             channel = spec.channel
         call = self._new_call(spec.name, "fn", spec, {"text": segment}, channel, spec.channel, persistent=False)
-        if not self._skill_stack:
-            self._executed.append((text(segment) + " ", call))
+        if not self._skill_stack:  # sentences of one text run are joined by a space (the splitter drops it)
+            sep = " " if self._executed and self._executed[-1][1] is not None else ""
+            self._executed.append((sep + text(segment), call))
 
     # -- elements ------------------------------------------------------------
     def _start(self, name: str, attrs: dict[str, str], *, empty: bool) -> None:
