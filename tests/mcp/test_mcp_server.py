@@ -65,3 +65,35 @@ def test_mcp_stdio_session(tmp_path: Path) -> None:
 
     anyio.run(main, backend="asyncio")
     assert (tmp_path / "mcp" / "board_frames.jsonl").exists()
+
+
+@pytest.mark.slow
+def test_mcp_streamable_http_on_localhost(tmp_path: Path) -> None:
+    import socket
+    import subprocess
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen([sys.executable, "-m", "host", "mcp", "--http", str(port), "--lockstep",
+                             "--out", str(tmp_path / "mcp")], stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stderr is not None
+        for line in proc.stderr:  # uvicorn announces the bound socket once the app (and the board) is up
+            if "Uvicorn running on" in line:
+                assert f"127.0.0.1:{port}" in line
+                break
+        else:
+            pytest.fail(f"the server exited ({proc.wait()}) before listening")
+
+        async def main() -> dict[str, Any]:
+            async with Client(f"http://127.0.0.1:{port}/mcp", read_timeout_seconds=60) as client:
+                ran = _json(await client.call_tool("run_program", {"xml": '<head_act action="nod" duration="1"/>'}))
+                assert ran["outcome"] == "done"
+                return _json(await client.call_tool("state", {}))
+
+        st = anyio.run(main, backend="asyncio")
+        assert st["busy"] is False and st["fell"] is False and st["board_time_s"] > 1.0
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
