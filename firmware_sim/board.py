@@ -57,6 +57,7 @@ from protocol.messages import (
 )
 from robots.coco import load_poses, load_servo_table
 from robots.coco.model import load_model
+from robots.coco.scenes import scene_objects, toppled
 
 __all__ = ["Board", "quat_to_rpy"]
 
@@ -78,7 +79,8 @@ class Board:
         self.cfg = (cfg or BoardConfig()).validate()
         self.table = load_servo_table()
         self.poses = load_poses()
-        self.cm = load_model(self.table)
+        self.cm = load_model(self.table, scene=self.cfg.scene)
+        self.scene_objects = scene_objects(self.cm.model)
         self.model = self.cm.model
         self.model.opt.timestep = self.cfg.dt
         self.data = self.cm.new_data()
@@ -398,6 +400,8 @@ class Board:
             self.now_us,
             (float(q[0]), float(q[1]), float(q[2])),
             (float(q[3]), float(q[4]), float(q[5]), float(q[6])),
+            objects=len(self.scene_objects),
+            toppled=toppled(q, self.scene_objects) if self.scene_objects else 0,
         )
 
     @property

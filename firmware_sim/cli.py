@@ -61,6 +61,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="link silence before holding position (default 200)")
     parser.add_argument("--log", default=None, metavar="FILE", help="write every frame in/out as JSON lines")
     parser.add_argument("--viewer", action="store_true", help="open MuJoCo's viewer (needs a display)")
+    parser.add_argument("--scene", choices=("empty", "bottles"), default="empty",
+                        help="objects in the world: 'bottles' = three light bottles in front of CoCo")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -93,7 +95,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     cfg = BoardConfig(
         rate_hz=args.rate, dt=args.dt, lockstep=args.lockstep,
-        telemetry_rate_hz=args.telemetry_rate, watchdog_ms=args.watchdog_ms,
+        telemetry_rate_hz=args.telemetry_rate, watchdog_ms=args.watchdog_ms, scene=args.scene,
     )
     try:
         cfg.validate()

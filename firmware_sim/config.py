@@ -24,6 +24,7 @@ class BoardConfig:
     buffer_depth: int = 256  # jitter buffer capacity in frames
     resume_gap_us: int = 50_000  # idle servo: a new stream starts from where it is after this gap
     crouch_speed: float = 1.0  # rad/s while crouching on a watchdog fault
+    scene: str = "empty"  # objects in the world (robots.coco.scenes.SCENES)
 
     @property
     def tick_us(self) -> int:

@@ -25,6 +25,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "prompt": ("prompt", "print the system prompt for the mounted functions"),
     "dsbc": ("dsbc", "score a generated function-token program against a ground truth"),
     "run": ("run", "run a task or a program on the robot"),
+    "chat": ("chat", "a multi-turn conversation with the robot (interactive, or batch from files)"),
+    "skills": ("skills", "list, show or delete the saved skills (the persistent skill library)"),
+    "mcp": ("mcp", "serve the shell as an MCP server (stdio, or streamable HTTP with --http PORT)"),
+    "eval": ("eval", "evaluate an LLM the paper's way: DSBC over the tasks, runs on the board, the native-call ablation"),
 }
 
 

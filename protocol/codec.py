@@ -90,7 +90,7 @@ EFFORT_SCALE = 1e-3  # N*m per count
 _Q16_MAX = 32767
 _Q16_NAN = -32768  # reserved code: value unknown (NaN)
 
-MAX_NAME_BYTES = 24
+MAX_NAME_BYTES = 32
 MAX_NACK_DETAIL_BYTES = 64
 MAX_SPEECH_TEXT_BYTES = 200
 
@@ -427,9 +427,14 @@ class F32Array(Field):
 
 
 class Str8(Field):
-    """u8 length + text (ASCII or UTF-8), at most ``max_bytes`` bytes; too long raises."""
+    """u8 length + UTF-8 text, at most ``max_bytes`` bytes (bytes, not characters); too long raises.
 
-    def __init__(self, max_bytes: int, encoding: str = "ascii") -> None:
+    Every string on the wire is UTF-8 (names of faces and music clips in any
+    language); the host checks the byte bound before sending (the mapper refuses
+    a too-long value as a parameter error), so this check is the last line.
+    """
+
+    def __init__(self, max_bytes: int, encoding: str = "utf-8") -> None:
         self.max_bytes = max_bytes
         self.encoding = encoding
         self.wire = f"str8[{encoding},max={max_bytes}]"
@@ -548,7 +553,8 @@ LAYOUTS: dict[MsgType, Layout] = {
         ("dropped_count", _U32),
         ("link_errors", _U32),
     ],
-    MsgType.SIM_STATE: [("board_time_us", _U64), ("base_pos", F32Array(3)), ("base_quat", F32Array(4))],
+    MsgType.SIM_STATE: [("board_time_us", _U64), ("base_pos", F32Array(3)), ("base_quat", F32Array(4)),
+                        ("objects", _U8), ("toppled", _U8)],
     MsgType.ACK: [("ack_seq", _SEQ16), ("msg_type", EnumU8(MsgType))],
     MsgType.NACK: [
         ("ack_seq", _SEQ16),

@@ -217,6 +217,8 @@ class SimState:
     board_time_us: int
     base_pos: tuple[float, float, float]  # metres, world frame
     base_quat: tuple[float, float, float, float]  # w, x, y, z
+    objects: int = 0  # movable scene objects (e.g. --scene bottles: 3)
+    toppled: int = 0  # how many of them lean more than 45 deg from vertical
 
 
 @dataclass(frozen=True)
@@ -241,7 +243,7 @@ class ScreenCommand:
     """Show an expression or animation from ``start_at_us`` for ``duration_ms`` (0 = until replaced)."""
 
     target: ScreenTarget
-    name: str  # ASCII, at most 24 bytes
+    name: str  # UTF-8, at most 32 bytes (codec.MAX_NAME_BYTES)
     start_at_us: int
     duration_ms: int
 
@@ -255,7 +257,7 @@ class SpeakerCommand:
     start_at_us: int
     duration_ms: int
     volume: int  # 0..100
-    name: str = ""  # clip name, ASCII, at most 24 bytes
+    name: str = ""  # clip name, UTF-8, at most 32 bytes (codec.MAX_NAME_BYTES)
     text: str = ""  # speech text, UTF-8, at most 200 bytes
 
 

@@ -3,3 +3,11 @@
 import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture(autouse=True)
+def _private_skill_library(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Never read or write the user's real skill library (subprocesses inherit the variable)."""
+    monkeypatch.setenv("GHOSTSHELL_SKILLS", str(tmp_path_factory.mktemp("skills") / "skills.json"))

@@ -36,6 +36,7 @@ from protocol.messages import (
     SpeakerCommand,
 )
 from robots.coco import motions as coco_motions
+from robots.coco.interface import VOICES
 
 MOTION_CHANNELS = ("body", "head", "ears")
 
@@ -54,8 +55,18 @@ class Voice:
 
     role: str = "robot"
     emotion: str = "neutral"
-    speech_rate: float = 1.0
-    loudness_rate: float = 1.0
+    speech_rate: float = 0.0  # signed percentage offset from normal (-50..100)
+    loudness_rate: float = 0.0  # signed percentage offset from normal (-50..100)
+
+    @property
+    def rate_factor(self) -> float:
+        """Speaking rate as a factor of normal (``1 + speech_rate / 100``)."""
+        return max(0.1, 1.0 + self.speech_rate / 100.0)
+
+    @property
+    def loudness_factor(self) -> float:
+        """Loudness as a factor of normal (``1 + loudness_rate / 100``)."""
+        return max(0.0, 1.0 + self.loudness_rate / 100.0)
 
 
 class CocoRuntime:
@@ -63,12 +74,15 @@ class CocoRuntime:
 
     def __init__(self, link: CocoLink, run_dir: Path, *, initial: np.ndarray,
                  speech_synth: Callable[..., Any] | None = None, period_us: int = 10_000,
-                 lookahead_us: int = 60_000) -> None:
+                 lookahead_us: int = 60_000, voices: tuple[str, ...] = VOICES,
+                 clips: tuple[str, ...] | None = None) -> None:
         self.link = link
         self.run_dir = run_dir
         self.mixer = Mixer(initial)
         self.streamer = FrameStreamer(link, self.mixer, period_us=period_us, lookahead_us=lookahead_us)
         self.voice = Voice()
+        self.voices = voices  # the speech engine's voices; another role falls back to "robot" with a note
+        self.clips = clips  # the music clips on the robot (None: the board plays any name)
         self.board_times: dict[str, list[float | None]] = {}
         self.captures: list[Path] = []
         self._active: dict[int, Segment] = {}  # element id -> the looping segment of a persistent call
@@ -107,11 +121,7 @@ class CocoRuntime:
         if channel == "camera":
             return await self._capture()
         if channel == "speech" and behaviour == "speech_role":
-            self.voice = Voice(**args)
-            t = self.board_now_s()
-            self._mark(t, t)
-            await self._hold_if_persistent()
-            return f"voice set to {args}"
+            return await self._speech_role(args)
         raise ValueError(f"no implementation for behaviour {behaviour!r} on channel {channel!r}")
 
     async def reset(self, behaviour: str, channel: str) -> None:
@@ -146,7 +156,7 @@ class CocoRuntime:
         duration = await self._speech_duration(text)
         start = self.streamer.first_free_us
         payload = text.encode("utf-8")[:200].decode("utf-8", "ignore")
-        volume = int(max(0, min(100, 70 * self.voice.loudness_rate)))
+        volume = int(max(0, min(100, 70 * self.voice.loudness_factor)))
         await self.link.send_peripheral(SpeakerCommand(SpeakerAction.PLAY, SoundKind.SPEECH, start,
                                                        int(duration * 1000), volume, text=payload))
         end = start + int(duration * 1e6)
@@ -175,7 +185,7 @@ class CocoRuntime:
             from host.speech import synthesize_async
 
             self._speech_synth = synthesize_async
-        rate = int(175 * self.voice.speech_rate)
+        rate = int(175 * self.voice.rate_factor)
         async with self.streamer.hold():  # synthesis takes wall time; a lockstep board waits for it
             utt = await self._speech_synth(text, self.run_dir / "speech", rate_wpm=rate)
         return float(utt.duration_s)
@@ -209,6 +219,20 @@ class CocoRuntime:
             with anyio.move_on_after(5):
                 self._mark(end=await self.streamer.wait_ended(new))
 
+    async def _speech_role(self, args: dict[str, Any]) -> str:
+        role = str(args.get("role", "robot"))
+        note = ""
+        if role not in self.voices:
+            note = f"; note: this robot has no voice {role!r}, using 'robot' (voices: {', '.join(self.voices)})"
+            role = "robot"
+        self.voice = Voice(**{**args, "role": role})
+        t = self.board_now_s()
+        self._mark(t, t)
+        await self._hold_if_persistent()
+        v = self.voice
+        return (f"voice {v.role!r}, emotion {v.emotion!r}, rate {v.speech_rate:+g}%, loudness "
+                f"{v.loudness_rate:+g}%{note}")
+
     async def _face(self, args: dict[str, Any]) -> str:
         ctx = current_call()
         persistent = bool(ctx and ctx.persistent)
@@ -230,7 +254,11 @@ class CocoRuntime:
         persistent = bool(ctx and ctx.persistent)
         duration = 0.0 if persistent else float(args.get("duration") or 5.0)
         start = self.streamer.first_free_us
-        name = str(args.get("name", "happy"))[:24]
+        name = str(args.get("name", "happy"))  # UTF-8 byte bound checked by the mapper
+        note = ""
+        if self.clips is not None and name not in self.clips:
+            note = f"; note: this robot has no clip {name!r}, played 'happy' instead (clips: {', '.join(self.clips)})"
+            name = "happy"
         await self.link.send_peripheral(SpeakerCommand(SpeakerAction.PLAY, SoundKind.CLIP, start,
                                                        int(duration * 1000), int(args.get("volume", 60)), name=name))
         await self.streamer.wait_board_time(start)
@@ -242,7 +270,7 @@ class CocoRuntime:
         async with self._stop_on_cancel(SpeakerCommand(SpeakerAction.STOP, SoundKind.CLIP, 0, 0, 0, name=name)):
             await self.streamer.wait_board_time(end)
         self._mark(end=end * 1e-6)
-        return f"music {name!r} played for {duration:g} s"
+        return f"music {name!r} played for {duration:g} s{note}"
 
     async def _capture(self) -> str:
         t0 = self.board_now_s()

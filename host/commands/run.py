@@ -43,12 +43,21 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
     clock.add_argument("--realtime", dest="lockstep", action="store_false", help="wall-clock board (default)")
     parser.set_defaults(lockstep=False)
     parser.add_argument("--mode", choices=("async-first", "sync-first"), default="async-first")
-    parser.add_argument("--lenient", action="store_true", help="recover from malformed LLM output instead of stopping")
+    parsing = parser.add_mutually_exclusive_group()
+    parsing.add_argument("--lenient", dest="strict", action="store_false",
+                         help="recover from malformed output with warnings (default with a real --llm)")
+    parsing.add_argument("--strict", dest="strict", action="store_true",
+                         help="stop at the first malformed tag (the paper's parser; default for scripted replay)")
+    parser.set_defaults(strict=None)
+    parser.add_argument("--skills", default=None, metavar="FILE",
+                        help="skill library file (else $GHOSTSHELL_SKILLS, else the user data directory)")
     parser.add_argument("--tokens-per-s", type=_positive, default=30.0, help="scripted LLM speed (default 30)")
     parser.add_argument("--seed", type=int, default=0, help="scripted LLM jitter seed")
     parser.add_argument("--baud", type=int, default=115200, help="baud rate for a real serial port")
     parser.add_argument("--out", default=None, metavar="DIR", help="artefact folder (default runs/<label>)")
     parser.add_argument("--no-live", action="store_true", help="no live channel view")
+    parser.add_argument("--scene", choices=("empty", "bottles"), default="empty",
+                        help="objects in the board's world; summary.json reports how many toppled")
 
 
 def _positive(text: str) -> float:
@@ -56,6 +65,13 @@ def _positive(text: str) -> float:
     if not v > 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
     return v
+
+
+def resolve_strict(args: argparse.Namespace) -> bool:
+    """``--strict``/``--lenient`` if given; else strict for scripted replay, lenient for a real LLM."""
+    if getattr(args, "strict", None) is not None:
+        return bool(args.strict)
+    return getattr(args, "llm", "scripted") == "scripted"
 
 
 def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | None, label: str) -> int:
@@ -66,14 +82,24 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     from host.link import LinkError
     from host.run.runner import RunOptions, run_program
 
+    from host.shell.skills import SkillError, SkillStore, skills_path
+
+    try:
+        skills = SkillStore(skills_path(getattr(args, "skills", None)))
+    except SkillError as e:
+        print(f"ghostshell: {e}", file=sys.stderr)
+        return 1
     slug = label.replace(" ", "-")
     out = Path(args.out) if args.out else Path("runs") / slug
     opts = RunOptions(
         program=program, prompt=prompt, llm=getattr(args, "llm", "scripted"), task_label=label,
-        vocabulary=args.vocabulary, mode=args.mode, strict=not args.lenient, lockstep=args.lockstep,
-        link=args.link, emulate_board=args.emulate_board or None, baud=args.baud, out=out, tokens_per_s=args.tokens_per_s, seed=args.seed,
+        vocabulary=args.vocabulary, mode=args.mode, strict=resolve_strict(args), lockstep=args.lockstep,
+        link=args.link, emulate_board=args.emulate_board or None, baud=args.baud, out=out,
+        tokens_per_s=args.tokens_per_s, seed=args.seed,
         llm_base_url=getattr(args, "base_url", None), llm_api_key=getattr(args, "api_key", None),
         interrupt_at=getattr(args, "interrupt_at", None), live=not args.no_live and sys.stdout.isatty(),
+        scene=getattr(args, "scene", "empty"),
+        skills=skills,
     )
     try:
         report = anyio.run(run_program, opts, backend="asyncio")
@@ -89,6 +115,9 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
           f"board time {s.duration_s:.2f} s; first action after {s.first_action_latency_ms} ms; "
           f"max tilt {s.max_tilt_deg:.1f} deg{'; FELL' if s.fell else ''}")
     print(f"base moved from {s.base_start} to {s.base_end} [x m, y m, yaw deg]")
+    scene = s.extra.get("scene") or {}
+    if scene.get("objects"):
+        print(f"scene {scene['name']}: {scene['toppled']} of {scene['objects']} toppled")
     names = ("timeline.json", "timeline.png", "joints.png", "summary.json", "host_frames.jsonl", "board_frames.jsonl")
     print(f"artefacts in {out}/: " + " ".join(n for n in names if (out / n).exists()))
     return 0 if s.outcome in ("done", "interrupted") else 1

@@ -8,7 +8,7 @@ from typing import Any
 from host.ghost.base import Ghost, GhostError
 
 #: the accepted spec forms, for help texts and error messages
-SPECS = ("scripted", "openai:MODEL")
+SPECS = ("scripted", "openai:MODEL", "anthropic:MODEL")
 
 
 def make_ghost(spec: str, **kw: Any) -> Ghost:
@@ -18,7 +18,9 @@ def make_ghost(spec: str, **kw: Any) -> Ghost:
       ``tokens_per_s``, ``jitter``, ``seed``, ``sleep``.
     * ``"openai:MODEL"`` (or ``"openai"`` with ``GHOSTSHELL_LLM_MODEL`` set):
       :class:`OpenAIGhost`; accepts ``base_url``, ``api_key``, ``temperature`` and
-      the other :class:`OpenAIGhost` options. Keyword arguments that are ``None``
+      the other :class:`OpenAIGhost` options.
+    * ``"anthropic:MODEL"``: :class:`AnthropicGhost` (same keywords, plus
+      ``max_tokens``, ``first_token_s``, ``total_s``, ``stream_retries``). Keyword arguments that are ``None``
       are dropped, so CLI flags can be passed through unconditionally.
     """
     kw = {k: v for k, v in kw.items() if v is not None}
@@ -42,4 +44,13 @@ def make_ghost(spec: str, **kw: Any) -> Ghost:
         if not model:
             raise GhostError(f"ghost spec {spec!r}: no model; use openai:MODEL (e.g. openai:gpt-4o-mini)")
         return OpenAIGhost(model, **kw)
+    if kind == "anthropic":
+        from host.ghost.anthropic_client import AnthropicGhost
+
+        model = rest.strip() or kw.pop("model", None) or os.environ.get("GHOSTSHELL_LLM_MODEL")
+        for scripted_only in ("model", "program", "tokens_per_s", "jitter", "sleep", "extra_body"):
+            kw.pop(scripted_only, None)
+        if not model:
+            raise GhostError(f"ghost spec {spec!r}: no model; use anthropic:MODEL (e.g. anthropic:claude-sonnet-4-0)")
+        return AnthropicGhost(model, **kw)
     raise GhostError(f"unknown LLM spec {spec!r}; expected one of: {', '.join(SPECS)}")

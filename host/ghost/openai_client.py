@@ -19,6 +19,7 @@ import anyio
 import openai
 
 from host.ghost.base import Ghost, GhostError, Message
+from host.ghost.retry import StreamLimits, retrying_stream
 
 #: default endpoint when neither an argument nor the environment names one
 DEFAULT_BASE_URL = "https://api.openai.com/v1"
@@ -82,6 +83,9 @@ class OpenAIGhost(Ghost):
         temperature: float | None = None,
         timeout_s: float = 60.0,
         max_retries: int = 2,
+        first_token_s: float | None = 60.0,
+        total_s: float | None = 600.0,
+        stream_retries: int = 2,
         extra_body: Mapping[str, Any] | None = None,
         extra_headers: Mapping[str, str] | None = None,
         client: openai.AsyncOpenAI | None = None,
@@ -106,10 +110,14 @@ class OpenAIGhost(Ghost):
         self.temperature = temperature
         self.timeout_s = timeout_s
         self.max_retries = max_retries
+        self.limits = StreamLimits(first_token_s=first_token_s, total_s=total_s, stream_retries=stream_retries)
         self.extra_body = dict(extra_body or {})
         self.extra_headers = dict(extra_headers or {})
         self.options = options
         self._client = client
+        #: tool calls of the last reply (``tools=`` in ``options``), in the order given:
+        #: ``[{"id", "name", "arguments"}]`` with ``arguments`` the raw JSON text
+        self.last_tool_calls: list[dict[str, Any]] = []
 
     def __repr__(self) -> str:
         return f"OpenAIGhost(model={self.model!r}, base_url={self.base_url!r})"
@@ -147,8 +155,13 @@ class OpenAIGhost(Ghost):
             return GhostError(f"{where}: error in the stream: {msg}", provider_message=msg)
         return GhostError(f"{where}: {type(err).__name__}: {err}", provider_message=str(err))
 
-    async def stream(self, messages: list[Message]) -> AsyncIterator[str]:
-        """Yield the reply's content pieces as the server streams them."""
+    def stream(self, messages: list[Message]) -> AsyncIterator[str]:
+        """Yield the reply's content pieces as the server streams them (the first-token and
+        overall timeouts and the stream-level retries of :mod:`host.ghost.retry` applied)."""
+        return retrying_stream(lambda: self._attempt(messages), self.limits, name=f"{self.name} at {self.base_url}")
+
+    async def _attempt(self, messages: list[Message]) -> AsyncIterator[str]:
+        self.last_tool_calls = []
         client = self._client
         if client is None:
             client = openai.AsyncOpenAI(
@@ -161,8 +174,11 @@ class OpenAIGhost(Ghost):
             try:
                 response = await client.chat.completions.create(**self._request(messages))
             except openai.OpenAIError as err:
-                raise self._wrap(err) from err
+                wrapped = self._wrap(err)
+                wrapped.sdk_retried = True  # type: ignore[attr-defined]  # the SDK's max_retries were the retries
+                raise wrapped from err
             finish_reason: str | None = None
+            tools: dict[int, dict[str, Any]] = {}
             try:
                 async for chunk in response:
                     for choice in chunk.choices or ():
@@ -171,6 +187,12 @@ class OpenAIGhost(Ghost):
                         content = choice.delta.content if choice.delta is not None else None
                         if content:
                             yield content
+                        for tc in (choice.delta.tool_calls or ()) if choice.delta is not None else ():
+                            slot = tools.setdefault(tc.index, {"id": None, "name": "", "arguments": ""})
+                            slot["id"] = tc.id or slot["id"]
+                            if tc.function is not None:
+                                slot["name"] += tc.function.name or ""
+                                slot["arguments"] += tc.function.arguments or ""
                         if choice.finish_reason:
                             finish_reason = choice.finish_reason
             except openai.OpenAIError as err:
@@ -180,6 +202,7 @@ class OpenAIGhost(Ghost):
             finally:
                 with anyio.move_on_after(5, shield=True):
                     await response.close()
+            self.last_tool_calls = [tools[i] for i in sorted(tools)]
             if finish_reason is None:
                 raise GhostError(
                     f"{self.name} at {self.base_url}: the stream ended before the model finished "

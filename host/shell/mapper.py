@@ -61,14 +61,21 @@ def convert_value(value: str, annotation: Any, *, where: str = "value") -> Any:
             rng = as_range(m)
             if rng is not None and out is not None and not (rng.lo <= out <= rng.hi):
                 raise OutOfRange(f"{where}={value!r} is out of range [{rng.lo:g}, {rng.hi:g}]")
+            _check_length(m, out, where)
         return out
     if origin is Literal:
         options = typing.get_args(annotation)
         for opt in options:
             if str(opt) == value or (isinstance(opt, bool) and value.lower() == str(opt).lower()):
                 return opt
+        key = _normal(value)  # "Flattened back", "flattened-back" -> "flattened_back"
+        for opt in options:
+            if isinstance(opt, str) and _normal(opt) == key:
+                return opt
         valid = ", ".join(repr(str(o)) for o in options)
-        raise BadValue(f"{where}={value!r} is not one of {valid}")
+        close = difflib.get_close_matches(key, [str(o) for o in options], n=3, cutoff=0.6)
+        hint = f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else ""
+        raise BadValue(f"{where}={value!r} is not one of {valid}{hint}")
     if origin in (Union, types.UnionType):
         args = typing.get_args(annotation)
         if type(None) in args and value.strip().lower() in _NONE:
@@ -117,6 +124,23 @@ def convert_value(value: str, annotation: Any, *, where: str = "value") -> Any:
         valid = ", ".join(repr(m.name) for m in annotation)
         raise BadValue(f"{where}={value!r} is not one of {valid}")
     raise BadValue(f"{where}: unsupported parameter type {annotation!r}")
+
+
+def _normal(value: str) -> str:
+    return "_".join(value.strip().casefold().replace("-", " ").split())
+
+
+def _check_length(meta: Any, value: Any, where: str) -> None:
+    """String bounds: ``max_bytes`` (UTF-8 bytes, e.g. ``MaxUtf8Bytes``) and ``annotated_types`` MaxLen/Len."""
+    if not isinstance(value, str):
+        return
+    max_bytes = getattr(meta, "max_bytes", None)
+    if isinstance(max_bytes, int) and len(value.encode("utf-8")) > max_bytes:
+        raise BadValue(f"{where}={value[:40]!r} is {len(value.encode('utf-8'))} bytes of UTF-8; at most "
+                       f"{max_bytes} allowed (use a shorter name)")
+    max_len = getattr(meta, "max_length", None)
+    if isinstance(max_len, int) and len(value) > max_len:
+        raise BadValue(f"{where}={value[:40]!r} is {len(value)} characters; at most {max_len} allowed")
 
 
 @dataclass(frozen=True)

@@ -22,12 +22,17 @@ DTD or an unclosed element at ``close()`` raises :class:`ParseError`; the parser
 every further ``feed``/``close`` raises too. Lenient mode recovers and reports each recovery with a
 :class:`ParseWarning` event:
 
-* a ``<`` or ``&`` that cannot start markup becomes text (``a < b``, ``AT&T``, ``&foo;``);
+* a ``<`` or ``&`` that cannot start markup becomes text (``a < b``, ``I <3 you``, ``AT&T``, ``&foo;``);
+* markup is never spoken: a malformed tag (``<`` followed by a name, ``/``, ``!`` or ``?``) that
+  cannot be recovered is dropped up to its ``>`` (or up to the next ``<``, where scanning resumes),
+  and a stray residue of it right after (``"/>``, ``/>``, ``>``) is dropped too;
+* attributes not separated by whitespace (``<nod a="1"b="2"/>``) are recovered as separate
+  attributes (unambiguous once the value's closing quote was seen);
 * an end-tag that closes nothing is dropped; one naming an open ancestor first closes the inner
   elements (an ``EndTag`` for each);
 * a processing instruction (``<?...?>``) or ``<!DOCTYPE ...>`` is skipped;
-* a duplicate attribute keeps its first value; an invalid XML character is dropped; ``]]>`` in text
-  is kept as text;
+* a duplicate attribute marks the tag ``refused`` (the shell fails that call, in both modes: strict
+  raises); an invalid XML character is dropped; ``]]>`` in text is kept as text;
 * at ``close()``: unclosed elements get their ``EndTag``; an incomplete reference becomes text; an
   incomplete tag, comment or declaration (a truncated function token) is dropped.
 
@@ -78,11 +83,15 @@ _NOPOS = Position()
 
 @dataclass(frozen=True, slots=True)
 class StartTag:
-    """An AFToken ``<name a="v">``; ``attrs`` values have references resolved."""
+    """An AFToken ``<name a="v">``; ``attrs`` values have references resolved.
+
+    ``refused`` (lenient mode) says why the call must not run (a duplicated attribute), or is None.
+    """
 
     name: str
     attrs: dict[str, str]
     pos: Position = field(default=_NOPOS, compare=False)
+    refused: str | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True, slots=True)
@@ -95,11 +104,12 @@ class EndTag:
 
 @dataclass(frozen=True, slots=True)
 class EmptyTag:
-    """An SCFToken ``<name a="v"/>``."""
+    """An SCFToken ``<name a="v"/>``; ``refused`` as for :class:`StartTag`."""
 
     name: str
     attrs: dict[str, str]
     pos: Position = field(default=_NOPOS, compare=False)
+    refused: str | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True, slots=True)
@@ -174,9 +184,16 @@ _PREDEFINED = {"lt": "<", "gt": ">", "amp": "&", "apos": "'", "quot": '"'}
 _DECL_PREFIXES = ("<!--", "<![CDATA[", "<!DOCTYPE")
 
 # --------------------------------------------------------------------------------------- modes
-_TEXT, _TAG, _REF, _COMMENT, _CDATA, _SKIP_PI, _SKIP_DECL = range(7)
+_TEXT, _TAG, _REF, _COMMENT, _CDATA, _SKIP_PI, _SKIP_DECL, _SKIP_TAG = range(8)
+#: what ends the skipping of a dropped malformed tag (lenient): its '>' or the next '<'
+_SKIP_TAG_END = re.compile("[<>]")
+#: residue of a dropped tag right after it (lenient): '"/>', "'>", '/>', '>'
+_RESIDUE = re.compile("[ \t]*[\"']?[ \t]*/?[ \t]*>")
+_RESIDUE_PREFIX = re.compile("[ \t]*[\"']?[ \t]*/?[ \t]*")
 # tag sub-states
-(_LT, _NAME_ST, _AFTER, _ANAME, _EQ, _PREQ, _VALUE, _SLASH, _ENAME0, _ENAME, _EAFTER) = range(11)
+(_LT, _NAME_ST, _AFTER, _ANAME, _EQ, _PREQ, _VALUE, _SLASH, _ENAME0, _ENAME, _EAFTER, _UVALUE) = range(12)
+#: an unquoted attribute value (lenient recovery, as HTML reads ``a=1``)
+_UNQUOTED = re.compile("[^ \t\n<>/\"'=`]*")
 
 
 _DECL_SCAN = re.compile(r"[\[\]>]")
@@ -257,6 +274,8 @@ class FunctionTokenParser:
         self._had_space = False
         self._attrs: dict[str, str] = {}
         self._depth = 0
+        self._refusal: str | None = None  # lenient: why the tag being parsed must not run
+        self._residue = False  # lenient: a malformed tag was just dropped; drop its '"/>' residue
         # per-call working state
         self._buf = ""
         self._base = 0
@@ -291,6 +310,7 @@ class FunctionTokenParser:
                 _CDATA: "cdata",
                 _SKIP_PI: "processing-instruction",
                 _SKIP_DECL: "declaration",
+                _SKIP_TAG: "malformed-tag",
             }[mode]
         if self._carry.startswith("<"):
             return "markup"
@@ -314,6 +334,7 @@ class FunctionTokenParser:
             self._mode == _TEXT
             and not self._carry
             and not self._cr
+            and not self._residue
             and text
             and _PLAIN_TEXT.fullmatch(text) is not None
         ):
@@ -469,10 +490,11 @@ class FunctionTokenParser:
 
     def _start(self, name: str, attrs: dict[str, str], empty: bool, pos: Position) -> None:
         self._flush_text()
+        refused, self._refusal = self._refusal, None
         if empty:
-            self._events.append(EmptyTag(name, attrs, pos))
+            self._events.append(EmptyTag(name, attrs, pos, refused))
         else:
-            self._events.append(StartTag(name, attrs, pos))
+            self._events.append(StartTag(name, attrs, pos, refused))
             self._stack.append((name, pos))
 
     def _end(self, name: str, pos: Position) -> None:
@@ -551,21 +573,31 @@ class FunctionTokenParser:
         self._ts = _LT
         self._tname = []
         self._attrs = {}
+        self._refusal = None
 
     def _done_token(self) -> None:
         self._mode = _TEXT
         self._tok_raw = []
 
-    def _bad_token(self, message: str, i: int) -> tuple[str, int, int]:
+    def _bad_token(self, message: str, i: int, as_text: bool = False) -> tuple[str, int, int]:
         """Malformed tag or reference at buffer index ``i``.
 
-        Strict: raise. Lenient: warn, emit the opening ``<``/``&`` as text and resume scanning just
-        after it (each character is re-scanned at most once, so work stays linear). Returns the
-        (possibly rebuilt) buffer, its length and the position to resume at.
+        Strict: raise. Lenient, a tag-like token (``<`` + name, ``/``, ``!``): warn and drop it,
+        skipping from ``i`` to its ``>`` or to the next ``<`` (:data:`_SKIP_TAG`). Lenient, a
+        reference or a ``<`` that cannot start markup (``as_text``): warn, emit the opening
+        ``<``/``&`` as text and resume scanning just after it (each character is re-scanned at most
+        once, so work stays linear). Returns the (possibly rebuilt) buffer, its length and the
+        position to resume at.
         """
         if self.strict:
             raise _Malformed(message, i)
         pos = self._tok_pos
+        if self._mode == _TAG and not as_text:  # a tag-like token: drop it, never speak it
+            self._warn(f"{message}; malformed tag dropped", pos)
+            self._tok_raw = []
+            self._refusal = None
+            self._mode = _SKIP_TAG
+            return self._buf, len(self._buf), i
         opener = "&" if self._mode == _REF else "<"
         self._warn(f"{message}; '{opener}' treated as text", pos)
         self._text_at(opener, pos)
@@ -601,6 +633,19 @@ class FunctionTokenParser:
         while pos < n:
             mode = self._mode
             if mode == _TEXT:
+                if self._residue:
+                    rm = _RESIDUE.match(buf, pos)
+                    if rm is not None:
+                        self._warn(f"residue {buf[pos:rm.end()].strip()!r} of a dropped tag; dropped", self._pos(pos))
+                        pos = rm.end()
+                        self._residue = False
+                        continue
+                    pm = _RESIDUE_PREFIX.match(buf, pos)
+                    if pm is not None and pm.end() == n and n - pos <= 8 and pm.end() > pos:
+                        self._carry = buf[pos:]  # maybe the start of a residue: decide with more input
+                        return
+                    if buf[pos] != "<":
+                        self._residue = False
                 m = _TEXT_SPECIAL.search(buf, pos)
                 end = m.start() if m is not None else n
                 if end > pos:
@@ -699,7 +744,10 @@ class FunctionTokenParser:
                     elif c == "/":
                         self._ts = _SLASH
                         pos = e + 1
-                    elif self._had_space and _NAMESTART.match(c):
+                    elif _NAMESTART.match(c) and (self._had_space or not strict):
+                        if not self._had_space:  # '<nod a="1"b="2"/>': unambiguous after the quote
+                            self._warn(f"attributes of <{''.join(self._tname)}> must be separated by "
+                                       "whitespace; recovered", self._pos(e))
                         self._aname = []
                         self._ts = _ANAME
                     else:
@@ -711,6 +759,21 @@ class FunctionTokenParser:
                         else:
                             msg = f"unexpected {c!r} in tag <{name}>"
                         buf, n, pos = self._bad_token(msg, e)
+                elif ts == _UVALUE:
+                    m = _UNQUOTED.match(buf, pos)
+                    assert m is not None  # a starred pattern always matches
+                    e = m.end()
+                    self._vparts.append(buf[pos:e])
+                    pos = e
+                    if e < n:
+                        an = "".join(self._aname)
+                        v = self._attr_value("".join(self._vparts), self._tok_pos)
+                        if an in self._attrs:
+                            self._dup_attr(an, self._tok_pos)
+                        else:
+                            self._attrs[an] = v
+                        self._ts = _AFTER
+                        self._had_space = False
                 elif ts == _VALUE:
                     m = _VALUE_END[self._quote].search(buf, pos)
                     if m is None:
@@ -749,6 +812,11 @@ class FunctionTokenParser:
                         self._vparts = []
                         self._ts = _VALUE
                         pos = e + 1
+                    elif ts == _PREQ and not strict and _UNQUOTED.match(buf, e).end() > e:  # type: ignore[union-attr]
+                        self._warn(f"value of attribute '{''.join(self._aname)}' is not quoted; recovered",
+                                   self._pos(e))
+                        self._vparts = []
+                        self._ts = _UVALUE
                     else:
                         an = "".join(self._aname)
                         what = "'='" if ts == _EQ else "a quoted value"
@@ -801,6 +869,7 @@ class FunctionTokenParser:
                         buf, n, pos = self._bad_token(
                             f"'<' must be followed by a name, '/', '!--' or '![CDATA[', got {c!r}",
                             pos,
+                            as_text=True,
                         )
                 elif ts == _SLASH:
                     if buf[pos] == ">":
@@ -900,6 +969,13 @@ class FunctionTokenParser:
                         raise _Malformed("'--' is not allowed inside a comment", i)
                     self._warn("'--' inside a comment; ignored", self._pos(i))
                     pos = i + 2
+            elif mode == _SKIP_TAG:
+                m = _SKIP_TAG_END.search(buf, pos)
+                if m is None:
+                    return
+                self._mode = _TEXT
+                self._residue = True
+                pos = m.end() if m.group() == ">" else m.start()
             elif mode == _SKIP_PI:
                 i = buf.find("?>", pos)
                 if i >= 0:
@@ -933,7 +1009,8 @@ class FunctionTokenParser:
         msg = f"duplicate attribute '{name}'"
         if self.strict:
             raise _Malformed(msg, pos=pos)
-        self._warn(msg + "; first value kept", pos)
+        self._warn(msg + "; the call is refused", pos)
+        self._refusal = f"{msg} (which value was meant is ambiguous)"
 
     def _finish_stag(self, empty: bool, gt: int) -> bool:
         """Complete the pending start/empty tag whose '>' is at buffer index ``gt``."""
@@ -980,6 +1057,7 @@ class FunctionTokenParser:
                 _CDATA: "CDATA section",
                 _SKIP_PI: "processing instruction",
                 _SKIP_DECL: "declaration",
+                _SKIP_TAG: "dropped malformed tag",
             }[mode]
             msg = f"stream ended inside a {what}"
             if strict:

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import re
 from collections.abc import AsyncIterable, Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -66,6 +67,12 @@ MAX_DEPTH = 64
 
 #: Longest a reset hook may take before it is abandoned (seconds on the run's clock).
 RESET_TIMEOUT = 5.0
+
+#: Tag-like markup that must never reach speech in lenient mode: ``<name ...>``, ``</name>``,
+#: ``<!...>``, ``<?...>`` (a ``<`` directly followed by a name start, ``/``, ``!`` or ``?`` and closed
+#: by ``>``, or a ``<`` glued to a word), ``I <3 you`` and ``a < b`` stay text, and the residue of a
+#: broken tag (``"/>``).
+_MARKUP = re.compile(r"<\s*[/!?]?\s*[^\W\d][^<>]*>|<[/!?]?[^\W\d][^\s<>]*|[\"']?[ \t]*/>")
 
 #: Deepest nesting of ``<RUN>`` expansions.
 MAX_SKILL_DEPTH = 16
@@ -147,6 +154,8 @@ class ProgramRun:
         self._consumer = anyio.CancelScope()
         self._stopped = False
         self._warned_no_speech = False
+        self._executed: list[tuple[str, _Call | None]] = []  # the reply as executed (see executed_text)
+        self._save_mark = 0
 
     # ------------------------------------------------------------------ API
     async def run(self, chunks: AsyncIterable[str]) -> RunResult:
@@ -171,7 +180,16 @@ class ProgramRun:
                 except Exception as exc:  # the LLM stream itself failed (network, provider error)
                     self._abort(exc, "the output stream failed")
         self._tg = None
-        return RunResult(self.timeline, self.observations, self.t0, self.error, self.interrupted)
+        return RunResult(self.timeline, self.observations, self.t0, self.error, self.interrupted,
+                         self.executed_text())
+
+    def executed_text(self) -> str:
+        """The reply as it was executed: dispatched elements (reconstructed) and the sentences
+        whose speech started; elements still open at an interruption are closed. Sentences that
+        were cut before they were spoken and text after the cut are left out (only what the
+        user saw and heard belongs in the conversation history)."""
+        parts = [p for p, call in self._executed if call is None or call.record.start is not None]
+        return "".join(parts).strip()
 
     def interrupt(self, channels: list[str] | tuple[str, ...] | set[str] | None = None) -> int:
         """Cancel running and queued calls (all, or those on ``channels``); return how many.
@@ -199,9 +217,12 @@ class ProgramRun:
         self._stopped = True
         self._consumer.cancel()
         self._text = SentenceSplitter()
+        if self._recording is not None:  # an unfinished SAVE is not part of what was executed
+            del self._executed[self._save_mark:]
         self._recording = None
         while len(self._stack) > 1:
             f = self._stack.pop()
+            self._executed.append((end_tag(f.name), None))
             if f.call is not None:
                 self._close(f.call)
 
@@ -223,9 +244,11 @@ class ProgramRun:
         self._flush_text()
         if self._recording is not None:
             self._observe("error", f"<SAVE name={self._recording.name!r}> was never closed; skill not saved")
+            del self._executed[self._save_mark:]
             self._recording = None
         while len(self._stack) > 1:  # lenient parsers close these; be safe anyway
             f = self._stack.pop()
+            self._executed.append((end_tag(f.name), None))
             if f.call is not None:
                 self._close(f.call)
 
@@ -237,11 +260,19 @@ class ProgramRun:
             self._event(ev)
 
     def _event(self, ev: Any) -> None:
+        if not self._skill_stack and isinstance(ev, (StartTag, EmptyTag, EndTag)):
+            if self._recording is None:
+                self._flush_text()  # sentences before the tag come first
+            self._keep(ev)
         if self._recording is not None:
             self._record_event(ev)
             return
         if isinstance(ev, Text):
             self._text_in(ev.text)
+        elif isinstance(ev, (StartTag, EmptyTag)) and ev.refused is not None:
+            self._flush_text()  # a malformed call (duplicated attribute): refused, its children still scoped
+            self._mapping_failed(ev.name, dict(ev.attrs), f"<{ev.name}> refused: {ev.refused}",
+                                 isinstance(ev, EmptyTag))
         elif isinstance(ev, StartTag):
             self._flush_text()
             self._start(ev.name, dict(ev.attrs), empty=False)
@@ -254,11 +285,22 @@ class ProgramRun:
         elif isinstance(ev, ParseWarning):
             self._observe("warning", f"parse warning at {getattr(ev, 'pos', '?')}: {ev.message}")
 
+    def _keep(self, ev: Any) -> None:
+        if isinstance(ev, EmptyTag):
+            self._executed.append((start_tag(ev.name, dict(ev.attrs), empty=True), None))
+        elif isinstance(ev, StartTag):
+            self._executed.append((start_tag(ev.name, dict(ev.attrs)), None))
+        elif isinstance(ev, EndTag):
+            if self._recording is not None or len(self._stack) > 1:
+                self._executed.append((end_tag(ev.name), None))
+
     def _record_event(self, ev: Any) -> None:
         rec = self._recording
         assert rec is not None
         if isinstance(ev, Text):
             rec.parts.append(text(ev.text))
+            if not self._skill_stack:
+                self._executed.append((text(ev.text), None))
         elif isinstance(ev, EmptyTag):
             rec.parts.append(start_tag(ev.name, dict(ev.attrs), empty=True))
         elif isinstance(ev, StartTag):
@@ -275,12 +317,13 @@ class ProgramRun:
             self._observe("warning", f"parse warning at {getattr(ev, 'pos', '?')}: {ev.message}")
 
     def _save(self, rec: _Recording) -> None:
+        existed = rec.name in self.skills
         try:
             self.skills.save(rec.name, rec.description, "".join(rec.parts))
         except (SkillError, OSError) as exc:
             self._observe("error", f"skill not saved: {exc}")
         else:
-            self._observe("info", f"skill {rec.name!r} saved")
+            self._observe("info", f"skill {rec.name!r} {'replaced (a skill of that name existed)' if existed else 'saved'}")
 
     # -- text -------------------------------------------------------------------
     def _text_in(self, data: str) -> None:
@@ -292,6 +335,12 @@ class ProgramRun:
             self._speak(seg)
 
     def _speak(self, segment: str) -> None:
+        if not self.strict and _MARKUP.search(segment):  # lenient: markup is never spoken
+            cleaned = " ".join(_MARKUP.sub(" ", segment).split())
+            self._observe("warning", f"markup in text not spoken: {segment[:80]!r}")
+            if not cleaned.strip(" \t\n\"'/<>"):
+                return
+            segment = cleaned
         spec = self.registry.speech
         frame = self._stack[-1]
         if spec is None:
@@ -303,7 +352,10 @@ class ProgramRun:
             channel = MAIN_CHANNEL
         else:
             channel = spec.channel
-        self._new_call(spec.name, "fn", spec, {"text": segment}, channel, spec.channel, persistent=False)
+        call = self._new_call(spec.name, "fn", spec, {"text": segment}, channel, spec.channel, persistent=False)
+        if not self._skill_stack:  # sentences of one text run are joined by a space (the splitter drops it)
+            sep = " " if self._executed and self._executed[-1][1] is not None else ""
+            self._executed.append((sep + text(segment), call))
 
     # -- elements ------------------------------------------------------------
     def _start(self, name: str, attrs: dict[str, str], *, empty: bool) -> None:
@@ -375,6 +427,7 @@ class ProgramRun:
             self._observe("error", f"<SAVE name={name!r}/> encloses no program; nothing saved")
             return
         self._recording = _Recording(name, attrs.get("description", ""))
+        self._save_mark = max(0, len(self._executed) - 1)  # the <SAVE> start tag
 
     def _run_skill(self, attrs: dict[str, str]) -> None:
         frame = self._stack[-1]

@@ -1,5 +1,11 @@
 """Skill memory: programs saved with ``<SAVE>`` and replayed with ``<RUN id=.../>``.
 
+The skill library persists across runs in a JSON file: ``--skills FILE``, else
+the ``GHOSTSHELL_SKILLS`` environment variable, else ``skills.json`` in the
+user's data directory (platformdirs: ``~/.local/share/ghostshell`` on Linux);
+see :func:`skills_path`. Names may hold spaces and any Unicode (at most
+:data:`MAX_NAME` characters); a SAVE with an existing name replaces that skill.
+
 A skill is the original function-token text of the program enclosed by
 ``<SAVE name="..." description="...">...</SAVE>`` (reconstructed from parser
 events, so it is well-formed). The store is a JSON object
@@ -19,11 +25,31 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from xml.sax.saxutils import escape, quoteattr
 
+#: longest skill name (characters)
+MAX_NAME = 100
+#: environment variable naming the skill library file
+ENV = "GHOSTSHELL_SKILLS"
+
 _RUN_RE = re.compile(r"<RUN\b[^>]*?\bid\s*=\s*(\"[^\"]*\"|'[^']*')")
 
 
 class SkillError(ValueError):
-    """An invalid SAVE or RUN (missing name, unknown skill, recursion)."""
+    """An invalid SAVE or RUN (missing name, unknown skill, recursion) or an unreadable library file."""
+
+
+def default_skills_path() -> Path:
+    """``skills.json`` in the user's data directory (platformdirs)."""
+    import platformdirs
+
+    return Path(platformdirs.user_data_dir("ghostshell", appauthor=False)) / "skills.json"
+
+
+def skills_path(arg: str | Path | None = None) -> Path:
+    """The library file: ``arg``, else ``$GHOSTSHELL_SKILLS``, else :func:`default_skills_path`."""
+    if arg:
+        return Path(arg).expanduser()
+    env = os.environ.get(ENV)
+    return Path(env).expanduser() if env else default_skills_path()
 
 
 @dataclass(frozen=True)
@@ -51,9 +77,15 @@ class SkillStore:
         self.path = Path(path) if path is not None else None
         self._skills: dict[str, Skill] = {}
         if self.path is not None and self.path.exists():
-            data = json.loads(self.path.read_text(encoding="utf-8") or "{}")
-            for name, d in data.items():
-                self._skills[name] = Skill(name, str(d.get("description", "")), str(d["program"]))
+            try:
+                data = json.loads(self.path.read_text(encoding="utf-8") or "{}")
+                if not isinstance(data, dict):
+                    raise ValueError("not a JSON object")
+                for name, d in data.items():
+                    self._skills[name] = Skill(name, str(d.get("description", "")), str(d["program"]))
+            except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+                raise SkillError(f"cannot read the skill library {self.path}: {exc} (fix or move the file; "
+                                 "it was left untouched)") from None
 
     def __contains__(self, name: object) -> bool:
         return name in self._skills
@@ -75,8 +107,10 @@ class SkillStore:
 
     def save(self, name: str, description: str, program: str) -> Skill:
         """Save (or replace) a skill; refuses one that would RUN itself."""
-        if not name:
+        if not name.strip():
             raise SkillError("<SAVE> needs a non-empty name attribute")
+        if len(name) > MAX_NAME:
+            raise SkillError(f"skill name is {len(name)} characters long; at most {MAX_NAME}")
         if not program.strip():
             raise SkillError(f"<SAVE name={name!r}> encloses an empty program")
         chain = self._reaches(name, program)

@@ -100,6 +100,7 @@ class RunResult:
     t0: float
     error: Exception | None = None
     interrupted: bool = False
+    executed_text: str = ""  # the reply as executed (ProgramRun.executed_text)
 
     def observation_text(self) -> str:
         """Observations rendered one a line, for the LLM's next turn."""

@@ -26,7 +26,14 @@ Emotion = Literal[
     "very_frustrated", "calm", "surprise", "fear", "very_fear", "pitiable", "wink", "wink_left",
     "wink_right", "sleepy", "shy", "love",
 ]
-EarState = Literal["up", "down", "inquisitive", "relaxed", "alert", "back", "droop"]
+EarState = Literal[
+    "up", "down", "inquisitive", "relaxed", "alert", "back", "droop",
+    # postures real outputs ask for (see robots.coco.motions.EAR_STATES for the angles)
+    "flattened", "flat", "flattened_back", "pinned_back", "opponent", "aggressive", "angry",
+    "perked", "perked_up", "perk", "raised", "attentive", "listening", "forward",
+    "shy", "timid", "curious", "tilted", "sad", "droopy", "sleepy", "tired", "scared", "fear",
+    "happy", "neutral", "normal",
+]
 Direction4 = Literal["forward", "backward", "left", "right"]
 Seconds = Annotated[float, Interval(ge=0.0, le=120.0)]
 Speed = Annotated[int, Interval(ge=0, le=100)]
@@ -34,6 +41,26 @@ Amplitude = Annotated[int, Interval(ge=0, le=100)]
 Times = Annotated[int, Interval(ge=1, le=30)]
 Volume = Annotated[int, Interval(ge=0, le=100)]
 Degrees = Annotated[float, Interval(ge=-720.0, le=720.0)]
+
+
+@dataclass(frozen=True)
+class MaxUtf8Bytes:
+    """A string bound in bytes of UTF-8 (the wire limit of the board's name fields)."""
+
+    max_bytes: int
+
+
+#: longest voice or music name, in UTF-8 bytes (``protocol.codec.MAX_NAME_BYTES``)
+NAME_BYTES = 32
+#: an open set of names in any language: voices, music clips
+Name = Annotated[str, MaxUtf8Bytes(NAME_BYTES)]
+#: signed percentage offset from the normal rate (-50: half, 0: normal, 100: double), as cloud TTS APIs take it
+RatePercent = Annotated[float, Interval(ge=-50.0, le=100.0)]
+#: the voices CoCo's speech engine has; another name falls back to "robot" with a note
+VOICES = ("robot", "child", "girl", "boy", "woman", "man", "elder", "narrator")
+#: voice emotions of the speech engine
+VoiceEmotion = Literal["neutral", "happy", "sad", "angry", "surprise", "fear", "disgust", "excited", "calm",
+                       "gentle", "cheerful", "serious", "shy", "tender", "affectionate", "fearful", "surprised"]
 
 CHANNELS: dict[str, str] = {
     "body": "the 8 leg servos (hip swing, knee lift); locomotion and whole-body skills",
@@ -177,7 +204,7 @@ class PaperAudio:
     """Background music."""
 
     @stub("bgm")
-    def play_bgm(self, duration: Seconds = 5.0, name: str = "happy", volume: Volume = 60) -> None:
+    def play_bgm(self, duration: Seconds = 5.0, name: Name = "happy", volume: Volume = 60) -> None:
         """Play background music `name` for `duration` seconds (as a parent: until its children finish)."""
 
 
@@ -233,11 +260,11 @@ class CocoSpeech:
     """Voice settings."""
 
     @stub("speech")
-    def speech_role(self, role: Literal["child", "girl", "boy", "robot"] = "robot",
-                    emotion: Literal["neutral", "happy", "sad", "angry", "surprise"] = "neutral",
-                    speech_rate: Annotated[float, Interval(ge=0.5, le=2.0)] = 1.0,
-                    loudness_rate: Annotated[float, Interval(ge=0.5, le=2.0)] = 1.0) -> None:
-        """Set the voice used for the following speech."""
+    def speech_role(self, role: Name = "robot", emotion: VoiceEmotion = "neutral",
+                    speech_rate: RatePercent = 0.0, loudness_rate: RatePercent = 0.0) -> None:
+        """Set the voice for the following speech: a voice name (robot, child, girl, boy, woman, man, elder,
+        narrator; another name falls back to robot), an emotion, and speech rate and loudness as signed
+        percentage offsets from normal (-50 = half, 0 = normal, 100 = double)."""
 
 
 class CocoHead:
@@ -251,8 +278,8 @@ class CocoAudio:
     """Background music."""
 
     @stub("bgm", "play_bgm")
-    def play_bgm(self, name: str = "happy", volume: Volume = 60) -> None:
-        """Play background music (as a parent: until its children finish)."""
+    def play_bgm(self, name: Name = "happy", volume: Volume = 60) -> None:
+        """Play background music `name` (any language) (as a parent: until its children finish)."""
 
 
 class CocoBody:
@@ -293,9 +320,10 @@ class CocoBody:
         """Wiggle the rear of the body."""
 
     @stub("body", "arm_pull")
-    def spider_arm_pull(self, direction: Literal["left", "right", "both"] = "both", speed: Speed = 50,
-                        times: Times = 2) -> None:
-        """Pull the front legs towards the body like pulling a rope."""
+    def spider_arm_pull(self, direction: Literal["left", "right", "both", "forward", "backward"] = "both",
+                        speed: Speed = 50, times: Times = 2) -> None:
+        """Pull the front legs towards the body like pulling a rope (left, right or both legs); "forward" pulls
+        with both legs towards the body, "backward" pushes both away."""
 
     @stub("body", "arm_knock")
     def spider_arm_knock(self, speed: Speed = 50, times: Times = 2) -> None:

@@ -45,10 +45,13 @@ class CocoModel:
         mujoco.mj_forward(self.model, data)
 
 
-def load_model(table: ServoTable | None = None) -> CocoModel:
-    """Compile ``MJCF_PATH`` and resolve every servo's joint and actuator by name."""
+def load_model(table: ServoTable | None = None, scene: str = "empty") -> CocoModel:
+    """Compile ``MJCF_PATH`` (plus the objects of ``scene``, see :mod:`robots.coco.scenes`)
+    and resolve every servo's joint and actuator by name."""
+    from robots.coco.scenes import build_model
+
     table = table or load_servo_table()
-    model = mujoco.MjModel.from_xml_path(str(MJCF_PATH))
+    model = build_model(scene)
     qpos, dof, act = [], [], []
     for s in table:
         j = model.joint(s.joint)

@@ -359,17 +359,23 @@ def single_leg_knock(start: np.ndarray, *, persistent: bool = False, leg: int = 
     return track.build()
 
 
-def _pull_cycle(track: Track, leg: int, period: float) -> None:
-    """Reach forward, grab the floor, pull back, lift (one rope pull with ``leg``)."""
+def _pull_cycle(track: Track, leg: int, period: float, push: bool = False) -> None:
+    """Reach forward, grab the floor, pull back, lift (one rope pull with ``leg``; ``push``: the reverse)."""
     lifted = lambda hip, knee: _body(hips={leg: hip}, knees={leg: knee}, base=_shifted(leg))  # noqa: E731
-    for hip, knee in ((35.0, 75.0), (35.0, 15.0), (-15.0, 15.0), (-15.0, 75.0)):
+    cycle = ((35.0, 75.0), (35.0, 15.0), (-15.0, 15.0), (-15.0, 75.0))
+    if push:
+        cycle = ((-15.0, 75.0), (-15.0, 15.0), (35.0, 15.0), (35.0, 75.0))
+    for hip, knee in cycle:
         track.move(lifted(hip, knee), period / 4)
 
 
 def arm_pull(start: np.ndarray, *, persistent: bool = False, direction: str = "both", speed: float = 50,
              times: int = 2) -> Motion:
-    """Pull the front legs towards the body like pulling a rope ("both": hand over hand)."""
-    legs = check_choice(direction, {"left": (2,), "right": (1,), "both": (1, 2)}, "direction")
+    """Pull the front legs towards the body like pulling a rope ("both"/"forward": hand over hand;
+    "backward": push both away from the body)."""
+    legs = check_choice(direction, {"left": (2,), "right": (1,), "both": (1, 2), "forward": (1, 2),
+                                    "backward": (1, 2)}, "direction")
+    push = direction == "backward"
     times, s = check_count(times), _unit(speed, "speed")
     period = 1.6 - 0.8 * s
     track = Track(BODY, check_start(start))
@@ -379,9 +385,9 @@ def arm_pull(start: np.ndarray, *, persistent: bool = False, direction: str = "b
         _raise(track, leg, knee=75.0, hip=-15.0)
         if persistent:
             track.mark_loop()
-            _pull_cycle(track, leg, period)
+            _pull_cycle(track, leg, period, push)
             return track.build()
-        _pull_cycle(track, leg, period)
+        _pull_cycle(track, leg, period, push)
         _lower(track, leg)
     return track.build()
 
@@ -448,6 +454,17 @@ EAR_STATES: dict[str, tuple[float, float]] = {
     "down": (65.0, 65.0),
     "droop": (80.0, 80.0),
     "back": (-30.0, -30.0),
+    # flattened back, as if facing an opponent
+    "flattened": (-55.0, -55.0), "flat": (-55.0, -55.0), "flattened_back": (-55.0, -55.0),
+    "pinned_back": (-55.0, -55.0), "opponent": (-55.0, -55.0), "aggressive": (-50.0, -50.0),
+    "angry": (-45.0, -45.0), "scared": (-45.0, -45.0), "fear": (-45.0, -45.0),
+    # perked up and forward
+    "perked": (-20.0, -20.0), "perked_up": (-20.0, -20.0), "perk": (-20.0, -20.0), "raised": (-20.0, -20.0),
+    "attentive": (-15.0, -15.0), "listening": (-20.0, 10.0), "forward": (-5.0, -5.0),
+    # lowered, turned out
+    "shy": (50.0, 35.0), "timid": (50.0, 50.0), "curious": (-10.0, 45.0), "tilted": (0.0, 40.0),
+    "sad": (75.0, 75.0), "droopy": (80.0, 80.0), "sleepy": (70.0, 70.0), "tired": (70.0, 70.0),
+    "happy": (10.0, 10.0), "neutral": (0.0, 0.0), "normal": (0.0, 0.0),
 }
 
 

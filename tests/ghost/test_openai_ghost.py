@@ -218,3 +218,22 @@ def test_missing_key_is_an_error_except_for_local_servers(monkeypatch: pytest.Mo
 
 def test_sdk_version_supports_streaming() -> None:
     assert hasattr(openai, "AsyncOpenAI")
+
+
+def test_first_token_timeout_is_shared_with_anthropic(fake_llm: FakeLLM) -> None:
+    def respond(h: Handler, fake: FakeLLM) -> None:
+        h.start_sse()
+        h.write_piece(sse(chunk("", role="assistant")))  # headers and a role chunk, then nothing
+        fake.wait_gate()
+
+    fake_llm.responder = respond
+    got, err = anyio.run(collect_until_error, ghost(fake_llm, first_token_s=0.3, stream_retries=2))
+    assert got == [] and err is not None and "no first token within 0.3 s" in str(err)
+    assert len(fake_llm.requests) == 1  # a spent budget is not retried
+
+
+def test_request_errors_are_not_retried_twice(fake_llm: FakeLLM) -> None:
+    fake_llm.responder = lambda h, f: h.send_json_error(503, b'{"error": {"message": "busy"}}')
+    _, err = anyio.run(collect_until_error, ghost(fake_llm, max_retries=1, stream_retries=3))
+    assert err is not None and err.status == 503 and err.retryable
+    assert len(fake_llm.requests) == 2  # 1 + the SDK's max_retries; stream_retries add nothing

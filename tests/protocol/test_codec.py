@@ -287,8 +287,8 @@ def test_unwrap_across_the_wrap() -> None:
         (m.Telemetry(0, (0.0,) * 17, (), (), (0.0, 0.0, 0.0), m.FaultFlags.NONE, 0, 0, 0, 0, 0), "at most 16"),
         (m.Telemetry(0, (), (), (), (0.0, 0.0), m.FaultFlags.NONE, 0, 0, 0, 0, 0), "fixed"),
         (m.Nack(0, MsgType.ACK, m.NackReason.BUSY, "x" * 65), "at most 64"),
-        (m.ScreenCommand(m.ScreenTarget.FACE, "smile" * 5, 0, 0), "at most 24"),
-        (m.ScreenCommand(m.ScreenTarget.FACE, "café", 0, 0), "not ascii"),
+        (m.ScreenCommand(m.ScreenTarget.FACE, "smile" * 7, 0, 0), "at most 32"),
+        (m.ScreenCommand(m.ScreenTarget.FACE, "生日快乐歌生日快乐歌生", 0, 0), "33 bytes, at most 32"),
         (m.SpeakerCommand(m.SpeakerAction.PLAY, m.SoundKind.SPEECH, 0, 0, 50, text="é" * 101), "at most 200"),
         (m.Config(99, 1), "not a ConfigKey"),  # type: ignore[arg-type]
         (m.Ack(0, 0x7F), "not a MsgType"),  # type: ignore[arg-type]
@@ -333,7 +333,7 @@ def test_truncated_and_padded_payloads_raise_payload_error(t: MsgType) -> None:
         (MsgType.ACK, b"\x00\x00\x7f", "unknown MsgType"),
         (MsgType.CAPS, bytes(20) + b"\x02", "0 or 1"),
         (MsgType.NACK, b"\x00\x00\x10\x01\x41" + b"x" * 65, "exceeds 64"),
-        (MsgType.SCREEN, b"\x00\x01\xff" + bytes(12), "not valid ascii"),
+        (MsgType.SCREEN, b"\x00\x01\xff" + bytes(12), "not valid utf-8"),
         (MsgType.CAMERA_CHUNK, bytes(4) + b"\x02\x00\x02\x00", "not below total"),
         (MsgType.TELEMETRY, bytes(8) + b"\x11", "exceeds 16"),
     ],
@@ -361,7 +361,7 @@ def test_unknown_type_value() -> None:
 
 #: Pinned so that a schema change is a conscious act: update this value together with
 #: protocol/messages.py or protocol/codec.py (old boards will then refuse the new host).
-PINNED_SCHEMA_HASH = 0xFFF3C88E
+PINNED_SCHEMA_HASH = 0x47FCD82B  # SIM_STATE gained objects + toppled (u8 each), on top of chat's UTF-8 names
 
 
 def test_schema_hash_is_u32_and_pinned() -> None:
@@ -433,3 +433,10 @@ def test_numpy_values_are_accepted() -> None:
 def test_non_numbers_in_integer_fields_are_clear_errors(bad) -> None:
     with pytest.raises(PayloadError, match="HEARTBEAT: sender_time_us"):
         encode_payload(m.Heartbeat(sender_time_us=bad))
+
+
+def test_names_on_the_wire_are_utf8_in_any_language() -> None:
+    for name in ("café", "生日快乐", "Ünïcödé ☀"):
+        for msg in (m.ScreenCommand(m.ScreenTarget.FACE, name, 5, 6),
+                    m.SpeakerCommand(m.SpeakerAction.PLAY, m.SoundKind.CLIP, 0, 1000, 60, name=name)):
+            assert decode_payload(msg_type_of(msg), encode_payload(msg)) == msg

@@ -1,0 +1,1 @@
+"""Multi-turn chat with the robot: conversation loop, observation messages, batch chat files."""

@@ -1,0 +1,193 @@
+"""``ghostshell chat``: a conversation with the robot, interactive or batch, on one board and one shell.
+
+* interactive (no ``--turns``/``--replies``): type a message and press Enter;
+  the live channel view runs meanwhile. A message typed while the robot acts
+  interrupts the turn (LLM stream cancelled, calls stopped smoothly) and starts
+  the next. With ``--llm scripted`` what you type is executed as the reply.
+* batch: ``--turns FILE`` (user turns for a real LLM) and/or ``--replies FILE``
+  (assistant replies replayed one per LLM request with ``--llm scripted``);
+  blocks separated by a line ``---``; ``--- interrupt-after S`` interrupts the
+  next block's turn S board seconds after it starts.
+
+Artefacts: ``<out>/turn_NN/step_K/`` per LLM request (timeline, joints,
+summary), ``<out>/transcript.json`` (history and per-step records), the frame
+logs of the session in ``<out>``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from host.commands.run import add_run_options, resolve_strict
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--llm", default="scripted", metavar="SPEC",
+                        help="openai:MODEL (any OpenAI-compatible endpoint) or scripted (replay --replies)")
+    parser.add_argument("--base-url", default=None, help="LLM endpoint (else GHOSTSHELL_LLM_BASE_URL/OPENAI_BASE_URL)")
+    parser.add_argument("--api-key", default=None, help="LLM key (else GHOSTSHELL_LLM_API_KEY/OPENAI_API_KEY)")
+    parser.add_argument("--turns", metavar="FILE", help="user turns, separated by lines '---' (batch mode)")
+    parser.add_argument("--replies", metavar="FILE", help="assistant replies for --llm scripted, separated by '---'")
+    parser.add_argument("--max-steps", type=int, default=4, metavar="N",
+                        help="LLM requests per user turn when replies look (capture, <observe/>) (default 4)")
+    parser.add_argument("--vision", action="store_true", help="send camera photos to the model as image parts")
+    add_run_options(parser)
+
+
+def _read(path: str) -> str:
+    return Path(path).read_text(encoding="utf-8")
+
+
+def main(args: argparse.Namespace) -> int:
+    import anyio
+
+    from host.chat.script import ScriptError, parse_blocks
+    from host.ghost import GhostError
+    from host.link import LinkError
+    from host.shell.skills import SkillError, SkillStore, skills_path
+
+    if args.max_steps < 1:
+        print("ghostshell chat: --max-steps must be >= 1", file=sys.stderr)
+        return 2
+    scripted = args.llm == "scripted"
+    try:
+        turns = parse_blocks(_read(args.turns)) if args.turns else None
+        replies = parse_blocks(_read(args.replies)) if args.replies else None
+        skills = SkillStore(skills_path(args.skills))
+    except (OSError, ScriptError, SkillError) as e:
+        print(f"ghostshell chat: {e}", file=sys.stderr)
+        return 2
+    if replies is not None and not scripted:
+        print("ghostshell chat: --replies needs --llm scripted", file=sys.stderr)
+        return 2
+    if scripted and turns is not None and replies is None:
+        print("ghostshell chat: --llm scripted replays --replies FILE; for --turns use --llm openai:MODEL", file=sys.stderr)
+        return 2
+    out = Path(args.out) if args.out else Path("runs") / "chat"
+    try:
+        return anyio.run(_chat, args, turns, replies, skills, out, backend="asyncio")
+    except (LinkError, GhostError, SkillError, RuntimeError, OSError) as e:
+        print(f"ghostshell chat: {e}", file=sys.stderr)
+        return 1
+
+
+async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any, out: Path) -> int:
+    from host.chat.conversation import Conversation
+    from host.ghost import make_ghost
+    from host.ghost.base import Ghost
+    from host.run.session import RobotSession, SessionOptions
+
+    scripted = args.llm == "scripted"
+    opts = SessionOptions(vocabulary=args.vocabulary, mode=args.mode, strict=resolve_strict(args),
+                          lockstep=args.lockstep, link=args.link, baud=args.baud, out=out, skills=skills, label="chat")
+    pending = list(replies or [])
+    interactive = turns is None and replies is None
+    async with RobotSession(opts) as session:
+        typed: list[str] = []  # interactive scripted: the typed line is the reply
+
+        def ghost() -> Ghost | None:
+            if scripted:
+                if interactive:
+                    program = typed.pop(0) if typed else None
+                    if program is None:
+                        return None
+                    g = make_ghost("scripted", program=program, tokens_per_s=args.tokens_per_s, seed=args.seed,
+                                   sleep=session.pacer())
+                    return g
+                if not pending:
+                    return None
+                block = pending.pop(0)
+                g = make_ghost("scripted", program=block.text, tokens_per_s=args.tokens_per_s, seed=args.seed,
+                               sleep=session.pacer())
+                g.interrupt_after = block.interrupt_after  # type: ignore[attr-defined]
+                return g
+            return make_ghost(args.llm, base_url=args.base_url, api_key=args.api_key)
+
+        conv = Conversation(session, ghost, max_steps=args.max_steps, vision=args.vision, real_llm=not scripted)
+        live = not args.no_live and sys.stdout.isatty()
+        if live:
+            from host.run.live import live_view
+
+            session.background().start_soon(live_view, session.shell, session.runtime, "chat")
+        transcript = out / "transcript.json"
+        if interactive:
+            await _interactive(conv, typed if scripted else None)
+        elif turns is not None:
+            for block in turns:
+                rec = await conv.turn(block.text, interrupt_after=block.interrupt_after)
+                _print_turn(rec)
+                conv.write_transcript(transcript)
+        else:
+            n = 0
+            while pending:
+                n += 1
+                rec = await conv.turn(f"(turn {n})")
+                _print_turn(rec)
+                conv.write_transcript(transcript)
+        conv.write_transcript(transcript)
+    print(f"transcript and artefacts in {out}/")
+    return 0
+
+
+def _print_turn(rec: Any) -> None:
+    print(f"--- turn {rec.index}{' (interrupted)' if rec.interrupted else ''}: {rec.user[:70]}")
+    for s in rec.steps:
+        print(f"  step {s.step} [{s.outcome}] executed: {s.executed[:200]}")
+        for line in s.observation.splitlines()[1:-1]:
+            print(f"    {line}")
+
+
+async def _interactive(conv: Any, typed: list[str] | None) -> None:
+    """Read lines from stdin; a line that arrives while the robot acts interrupts the turn."""
+    import anyio
+    import anyio.to_thread
+
+    send, recv = anyio.create_memory_object_stream[str | None](16)
+
+    async def reader() -> None:
+        while True:
+            line = await anyio.to_thread.run_sync(sys.stdin.readline, abandon_on_cancel=True)
+            if not line:
+                await send.send(None)
+                return
+            if line.strip():
+                await send.send(line.rstrip("\n"))
+
+    async with anyio.create_task_group() as tg:
+        tg.start_soon(reader)
+        print("chat: type a message (Ctrl-D to end); typing while the robot acts interrupts it", flush=True)
+        nxt: str | None = await recv.receive()
+        while nxt is not None:
+            line, nxt = nxt, None
+            if typed is not None:
+                typed.append(line)
+            done = anyio.Event()
+            got: list[str | None] = []
+
+            async def run_turn(text: str) -> None:
+                rec = await conv.turn(text if typed is None else f"(typed reply) {text[:60]}")
+                _print_turn(rec)
+                done.set()
+
+            async with anyio.create_task_group() as turn_tg:
+                turn_tg.start_soon(run_turn, line)
+
+                async def watch() -> None:
+                    with anyio.CancelScope() as scope:
+                        watching.append(scope)
+                        got.append(await recv.receive())
+                        conv.interrupt()
+
+                watching: list[anyio.CancelScope] = []
+                turn_tg.start_soon(watch)
+                await done.wait()
+                for scope in watching:
+                    scope.cancel()
+            if got:
+                nxt = got[0]
+            else:
+                nxt = await recv.receive()
+        tg.cancel_scope.cancel()

@@ -1,0 +1,104 @@
+"""``ghostshell eval``: evaluate an LLM the paper's way (DSBC, runs on the board, the native-call ablation)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the eval options."""
+    parser.add_argument("--llm", required=True, metavar="PROVIDER:MODEL",
+                        help="openai:MODEL (any OpenAI-compatible endpoint) or anthropic:MODEL")
+    parser.add_argument("--base-url", default=None, help="the provider's API root (e.g. http://127.0.0.1:8000/v1)")
+    parser.add_argument("--api-key", default=None, help="default: GHOSTSHELL_LLM_API_KEY, then the provider's variable")
+    parser.add_argument("--tasks", default=None,
+                        help="task ids, e.g. 1-30 or 1,4,7-9 (default 1-30), or 'ablation' for the 15 ablation tasks (or e.g. ablation:6,9)")
+    parser.add_argument("--trials", type=int, default=5, help="rounds per task (the paper: 5)")
+    parser.add_argument("--workers", type=int, default=1, help="jobs at once, each with its own lockstep board")
+    parser.add_argument("--out", type=Path, default=None, help="output folder (default runs/eval-<model>)")
+    parser.add_argument("--native-tools", action="store_true",
+                        help="expose the functions as provider tool definitions (native function calling)")
+    parser.add_argument("--native-exec", choices=("parallel", "sequential"), default="parallel",
+                        help="native tool calls of one response: dispatched together after the speech (parallel "
+                        "tool calls; one module's calls queue in order) or each to completion in turn")
+    parser.add_argument("--no-run", action="store_true", help="score only; do not execute replies on the board")
+    parser.add_argument("--vocabulary", choices=("paper", "coco"), default="paper")
+    parser.add_argument("--mode", choices=("async-first", "sync-first"), default="async-first")
+    parser.add_argument("--format", choices=("code", "xml"), default="code", help="the prompt format (as ghostshell prompt)")
+    parser.add_argument("--temperature", type=float, default=None)
+    parser.add_argument("--paper-model", default=None, help="the paper's column to compare with (default: matched from --llm)")
+    parser.add_argument("--ray", default=None, metavar="ADDRESS",
+                        help="run the jobs on a Ray cluster (needs ghostshell[ray]); 'local' starts one here")
+
+
+def build_config(args: argparse.Namespace) -> Any:
+    from host.eval.paper import ablation_tasks, hri_tasks, parse_task_spec
+    from host.eval.sweep import SweepConfig
+
+    spec = (args.tasks or "").strip()
+    suite = "ablation" if spec.lower().startswith("ablation") else "hri"
+    if suite == "ablation":  # "ablation" or "ablation:6,9"
+        tasks = parse_task_spec(spec.partition(":")[2] or "all", sorted(ablation_tasks()))
+    else:
+        tasks = parse_task_spec(args.tasks or "1-30", sorted(hri_tasks()))
+    if args.native_tools and suite != "ablation":
+        raise ValueError("--native-tools is the ablation: use it with --tasks ablation")
+    if args.trials < 1 or args.workers < 1:
+        raise ValueError("--trials and --workers must be at least 1")
+    model = args.llm.split(":", 1)[-1].replace("/", "_") or "model"
+    suffix = "-ablation-native" if args.native_tools else ("-ablation" if suite == "ablation" else "")
+    out = args.out or Path("runs") / f"eval-{model}{suffix}"
+    return SweepConfig(llm=args.llm, tasks=tasks, trials=args.trials, suite=suite, native_tools=args.native_tools,
+                       base_url=args.base_url, api_key=args.api_key, workers=args.workers, out=out,
+                       vocabulary=args.vocabulary, mode=args.mode, prompt_format=args.format,
+                       execute=not args.no_run, temperature=args.temperature, native_exec=args.native_exec)
+
+
+def main(args: argparse.Namespace) -> int:
+    """Run the sweep and write the reports; 2 on bad arguments, 1 when every job failed."""
+    import anyio
+
+    from host.eval.report import write_reports
+    from host.eval.sweep import run_sweep
+    from host.ghost import GhostError
+
+    try:
+        cfg = build_config(args)
+    except ValueError as err:
+        print(f"ghostshell eval: {err}", file=sys.stderr)
+        return 2
+
+    def progress(rec: dict[str, Any], p: Any) -> None:
+        what = (f"DSBC {rec['dsbc']:.2f}" if "dsbc" in rec else
+                (f"{'pass' if rec.get('passed') else 'FAIL'}" if "passed" in rec else rec.get("error", "")))
+        run = rec.get("run")
+        ran = "" if run is None else f", run {run['outcome']}{' (fell)' if run.get('fell') else ''}"
+        print(f"[{p.skipped + p.finished}/{p.total}] task {rec['task']} trial {rec['trial']}: {what}{ran}", flush=True)
+
+    try:
+        if args.ray:
+            from host.eval.ray_backend import run_sweep_on_ray
+
+            records = run_sweep_on_ray(cfg, args.ray, on_result=progress)
+        else:
+            records = anyio.run(run_sweep, cfg, progress, backend="asyncio")
+    except (ValueError, GhostError, ImportError) as err:
+        print(f"ghostshell eval: {err}", file=sys.stderr)
+        return 2
+    config = {**asdict(cfg), "out": str(cfg.out), "api_key": None, "paper_model": args.paper_model}
+    summary = write_reports(cfg.out, config, records)
+    if cfg.suite == "ablation":
+        print(f"completed {summary['completed']}/{summary['tasks']} (paper: {summary['paper']})")
+    elif "micro" in summary:
+        print(f"micro {summary['micro']:.2f} ± {summary['micro_std']:.2f}, macro {summary['macro']:.2f} ± "
+              f"{summary['macro_std']:.2f}; ran clean {summary['ran_clean']}/{summary['runs']}")
+    print(f"wrote {cfg.out / 'eval.json'}, eval.md, eval.png")
+    expected = len(cfg.tasks) * cfg.trials
+    if len(records) < expected:
+        print(f"ghostshell eval: {expected - len(records)} job(s) failed; run again to retry them", file=sys.stderr)
+        return 1 if not records else 3
+    return 0

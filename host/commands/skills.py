@@ -1,0 +1,48 @@
+"""``ghostshell skills list|show NAME|rm NAME``: the persistent skill library.
+
+The library is the file given with ``--skills``, else ``$GHOSTSHELL_SKILLS``,
+else ``skills.json`` in the user's data directory (see :func:`host.shell.skills.skills_path`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--skills", default=None, metavar="FILE", help="skill library file (else $GHOSTSHELL_SKILLS, "
+                        "else the user data directory)")
+    sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    sub.add_parser("list", help="list the saved skills")
+    show = sub.add_parser("show", help="print a skill's program")
+    show.add_argument("name")
+    rm = sub.add_parser("rm", help="delete a skill")
+    rm.add_argument("name")
+    sub.add_parser("path", help="print the library file's path")
+
+
+def main(args: argparse.Namespace) -> int:
+    from host.shell.skills import SkillError, SkillStore, skills_path
+
+    path = skills_path(args.skills)
+    if args.action == "path":
+        print(path)
+        return 0
+    try:
+        store = SkillStore(path)
+        if args.action == "list":
+            if not len(store):
+                print(f"no skills saved in {path}")
+            for s in store.list():
+                print(f"{s.name}\t{s.description or '-'}")
+        elif args.action == "show":
+            s = store.get(args.name)
+            print(f"# {s.name}: {s.description or '(no description)'}\n{s.program}")
+        elif args.action == "rm":
+            store.delete(args.name)
+            print(f"deleted skill {args.name!r} from {path}")
+    except (SkillError, OSError) as e:
+        print(f"ghostshell skills: {e}", file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,256 @@
+"""``ghostshell eval``: the paper's evaluation of an LLM, resumable and parallel.
+
+For every (task, trial): the system prompt exactly as ``ghostshell prompt``
+builds it, the task's instruction as the user message, the streamed reply; DSBC
+against the ground truth (:func:`host.eval.dsbc.dsbc_breakdown`); the reply
+executed on an emulated board in lockstep (:func:`host.run.runner.run_program`
+replaying the reply through the shell, one board subprocess per job) to record
+whether it ran clean. With ``native_tools`` the functions go to the provider as
+tool definitions and the reply runs the native way (:mod:`host.eval.native`).
+
+Every finished job is appended to ``results.jsonl`` in the output folder (one
+JSON object per line, flushed), so an interrupted sweep continues where it
+stopped; a job whose LLM call failed is retried on the next start. Jobs run
+``workers`` at a time in one AnyIO task group (each with its own board), or on
+a Ray cluster (:mod:`host.eval.ray_backend`).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import anyio
+
+from host.eval.dsbc import dsbc_breakdown
+from host.eval.native import (ToolCall, expected_pattern, intervals_from_timeline, judge, native_program,
+                              parse_arguments, tool_schemas)
+from host.eval.paper import ablation_tasks, hri_tasks
+from host.ghost import GhostError, make_ghost
+
+log = logging.getLogger("host.eval")
+
+RESULTS = "results.jsonl"
+CONFIG = "config.json"
+
+
+@dataclass
+class SweepConfig:
+    """One sweep (the ``ghostshell eval`` flags). ``suite`` is ``"hri"`` (tasks 1-30,
+    DSBC) or ``"ablation"`` (the 15 native-call tasks, judged from the timeline)."""
+
+    llm: str
+    tasks: list[int]
+    trials: int = 5
+    suite: str = "hri"
+    native_tools: bool = False
+    base_url: str | None = None
+    api_key: str | None = None
+    workers: int = 1
+    out: Path = Path("runs/eval")
+    vocabulary: str = "paper"
+    mode: str = "async-first"
+    prompt_format: str = "code"
+    execute: bool = True
+    tokens_per_s: float = 30.0
+    temperature: float | None = None
+    max_retries: int = 2
+    native_exec: str = "parallel"  # how one response's tool calls run (host.eval.native.NATIVE_EXEC)
+
+    def identity(self) -> dict[str, Any]:
+        """What must match for a resumed sweep to continue this one."""
+        return {"llm": self.llm, "suite": self.suite, "native_tools": self.native_tools, "native_exec": self.native_exec,
+                "vocabulary": self.vocabulary, "mode": self.mode, "prompt_format": self.prompt_format,
+                "base_url": self.base_url}
+
+
+def job_key(task: int, trial: int) -> str:
+    return f"{task}:{trial}"
+
+
+def system_prompt(cfg: SweepConfig) -> str:
+    """The system prompt exactly as ``ghostshell prompt --format F --mode M --vocabulary V`` prints it."""
+    from host.commands.prompt import build_registry
+    from host.shell.prompt import render_prompt
+
+    registry, _ = build_registry(None, cfg.vocabulary)
+    return render_prompt(registry, format=cfg.prompt_format, mode=cfg.mode)
+
+
+def provider_of(llm: str) -> str:
+    return llm.split(":", 1)[0].lower()
+
+
+def _instruction(cfg: SweepConfig, task: int) -> str:
+    return (ablation_tasks()[task].instruction if cfg.suite == "ablation" else hri_tasks()[task].instruction)
+
+
+async def ask(cfg: SweepConfig, task: int, system: str) -> dict[str, Any]:
+    """The LLM's reply to one task: ``{"reply", "text", "tool_calls", "first_token_s", "llm_s"}``.
+    Raises GhostError when the provider fails (after its retries)."""
+    kw: dict[str, Any] = {"base_url": cfg.base_url, "api_key": cfg.api_key, "temperature": cfg.temperature,
+                          "max_retries": cfg.max_retries}
+    if cfg.native_tools:
+        from host.commands.prompt import build_registry
+
+        registry, _ = build_registry(None, cfg.vocabulary)
+        kw["tools"] = tool_schemas(registry, "anthropic" if provider_of(cfg.llm) == "anthropic" else "openai")
+    ghost = make_ghost(cfg.llm, **kw)
+    messages = [{"role": "system", "content": system}, {"role": "user", "content": _instruction(cfg, task)}]
+    t0 = time.monotonic()
+    first: float | None = None
+    parts: list[str] = []
+    gen = ghost.stream(messages)
+    try:
+        async for chunk in gen:
+            if first is None:
+                first = time.monotonic() - t0
+            parts.append(chunk)
+    finally:
+        await gen.aclose()  # type: ignore[attr-defined]
+    text = "".join(parts)
+    calls: list[dict[str, Any]] = []
+    if cfg.native_tools:
+        for raw in getattr(ghost, "last_tool_calls", []):
+            args: dict[str, Any] = {}
+            error = raw.get("error")
+            try:
+                args = parse_arguments(raw.get("arguments", raw.get("input")))
+            except ValueError as err:
+                error = f"malformed arguments: {err}"
+            calls.append({"name": raw.get("name", ""), "arguments": args, "error": error})
+    reply = native_program(text, [ToolCall(c["name"], c["arguments"]) for c in calls if not c["error"]],
+                           cfg.native_exec) if cfg.native_tools else text
+    return {"reply": reply, "text": text, "tool_calls": calls, "first_token_s": first,
+            "llm_s": time.monotonic() - t0}
+
+
+async def execute(cfg: SweepConfig, program: str, out: Path, label: str) -> dict[str, Any]:
+    """Run ``program`` on a fresh lockstep board; the run's outcome and board-measured calls."""
+    from host.run.runner import RunOptions, run_program
+
+    opts = RunOptions(program=program, llm="scripted", task_label=label, vocabulary=cfg.vocabulary,
+                      mode=cfg.mode, strict=True, lockstep=True, out=out, tokens_per_s=cfg.tokens_per_s)
+    try:
+        report = await run_program(opts)
+    except Exception as err:  # a board or link failure is this job's result, not the sweep's end
+        return {"outcome": "error", "clean": False, "fell": None, "failed_calls": None,
+                "error": f"{type(err).__name__}: {err}", "calls": []}
+    s = report.summary
+    failed = s.outcomes.get("failed", 0)
+    return {"outcome": s.outcome, "fell": s.fell, "failed_calls": failed,
+            "clean": s.outcome == "done" and not s.fell and failed == 0,
+            "error": s.extra.get("error"), "max_tilt_deg": s.max_tilt_deg, "duration_s": s.duration_s,
+            "calls": [asdict(c) for c in report.calls]}
+
+
+async def run_job(cfg: SweepConfig, task: int, trial: int, system: str) -> dict[str, Any]:
+    """One (task, trial): ask, score, execute. Returns the results.jsonl record."""
+    rec: dict[str, Any] = {"task": task, "trial": trial, "status": "done"}
+    try:
+        rec.update(await ask(cfg, task, system))
+    except GhostError as err:
+        return {**rec, "status": "llm_error", "error": str(err)}
+    if cfg.suite == "hri":
+        t = hri_tasks()[task]
+        res = dsbc_breakdown(t.ground_truth, rec["reply"])
+        rec["category"] = t.category
+        rec["dsbc"] = res.score
+        rec["layers"] = [asdict(layer) for layer in res.layers]
+        rec["parse_warnings"] = list(res.warnings)
+    else:
+        rec["category"] = ablation_tasks()[task].category
+    if cfg.execute:
+        run_dir = cfg.out / "runs" / f"task-{task:02d}-trial-{trial}"
+        rec["run"] = await execute(cfg, rec["reply"], run_dir, f"task {task} trial {trial}")
+        if cfg.suite == "ablation":
+            a = ablation_tasks()[task]
+            pattern = expected_pattern(task, a.expected)
+            v = judge(pattern, intervals_from_timeline(rec["run"]["calls"]))
+            rec["pattern"], rec["passed"], rec["verdict"] = pattern, v.passed, v.reason
+    return rec
+
+
+def load_results(out: Path) -> dict[str, dict[str, Any]]:
+    """Finished jobs of an earlier (interrupted) sweep, by job key; a torn last line is ignored."""
+    done: dict[str, dict[str, Any]] = {}
+    path = out / RESULTS
+    if not path.exists():
+        return done
+    for line in path.read_text(encoding="utf-8").splitlines():
+        try:
+            rec = json.loads(line)
+        except json.JSONDecodeError:
+            continue  # the line being written when the sweep was killed
+        if rec.get("status") == "done":
+            done[job_key(rec["task"], rec["trial"])] = rec
+    return done
+
+
+def _check_config(cfg: SweepConfig) -> None:
+    path = cfg.out / CONFIG
+    ident = cfg.identity()
+    if path.exists():
+        old = json.loads(path.read_text(encoding="utf-8"))
+        if old != ident:
+            diff = {k: (old.get(k), v) for k, v in ident.items() if old.get(k) != v}
+            raise ValueError(f"{cfg.out} holds a different sweep ({diff}); use another --out or delete it")
+    else:
+        path.write_text(json.dumps(ident, indent=1) + "\n", encoding="utf-8")
+
+
+@dataclass
+class SweepProgress:
+    """Counts while the sweep runs (for the CLI's progress line)."""
+
+    total: int
+    skipped: int
+    finished: int = 0
+    errors: list[str] = field(default_factory=list)
+
+
+def pending_jobs(cfg: SweepConfig, done: dict[str, dict[str, Any]]) -> list[tuple[int, int]]:
+    return [(t, r) for r in range(cfg.trials) for t in cfg.tasks if job_key(t, r) not in done]
+
+
+async def run_sweep(cfg: SweepConfig, on_result: Callable[[dict[str, Any], SweepProgress], None] | None = None,
+                    ) -> list[dict[str, Any]]:
+    """Run every pending job, ``cfg.workers`` at a time; returns all records of this sweep
+    (earlier ones included) in (trial, task) order."""
+    cfg.out.mkdir(parents=True, exist_ok=True)
+    _check_config(cfg)
+    done = load_results(cfg.out)
+    jobs = pending_jobs(cfg, done)
+    progress = SweepProgress(total=len(cfg.tasks) * cfg.trials, skipped=len(done))
+    system = system_prompt(cfg)
+    limiter = anyio.CapacityLimiter(max(1, cfg.workers))
+    with (cfg.out / RESULTS).open("a", encoding="utf-8") as sink:
+
+        def record(rec: dict[str, Any]) -> None:
+            sink.write(json.dumps(rec, ensure_ascii=False) + "\n")
+            sink.flush()
+            if rec["status"] == "done":
+                done[job_key(rec["task"], rec["trial"])] = rec
+            else:
+                progress.errors.append(f"task {rec['task']} trial {rec['trial']}: {rec.get('error')}")
+            progress.finished += 1
+            if on_result is not None:
+                on_result(rec, progress)
+
+        async def one(task: int, trial: int) -> None:
+            async with limiter:
+                record(await run_job(cfg, task, trial, system))
+
+        async with anyio.create_task_group() as tg:
+            for task, trial in jobs:
+                tg.start_soon(one, task, trial)
+    return ordered(cfg, done)
+
+
+def ordered(cfg: SweepConfig, done: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
+    return [done[job_key(t, r)] for r in range(cfg.trials) for t in cfg.tasks if job_key(t, r) in done]

@@ -1,0 +1,152 @@
+"""The session's background work: telemetry pump, silence watchdog, realtime top-up, LLM chunk timing.
+
+Everything here runs inside a :class:`~host.run.session.RobotSession`'s task group
+(or wraps the chunk stream of one turn).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections import deque
+from collections.abc import AsyncIterable, AsyncIterator, Callable
+from typing import Any
+
+import anyio
+import anyio.lowlevel
+import numpy as np
+
+from host.coco.runtime import CocoRuntime
+from host.link.client import BoardClient
+from host.link.errors import LinkError
+from host.run import artefacts
+from robots.coco import load_poses
+from robots.coco.motions import transition
+
+HISTORY = 360_000  # telemetry samples kept for the plots (2 h at 50 Hz); older ones are dropped
+
+
+class Recorder:
+    """Bounded telemetry/ground-truth history for plots and the summary."""
+
+    def __init__(self) -> None:
+        self.t: deque[float] = deque(maxlen=HISTORY)
+        self.q: deque[tuple[float, ...]] = deque(maxlen=HISTORY)
+        self.base: deque[tuple[float, tuple[float, float, float], tuple[float, float, float, float]]] = deque(maxlen=HISTORY)
+        self.max_tilt = 0.0
+        self.last_rx = time.monotonic()  # wall time of the last report (for the silence watchdog)
+
+    def add(self, client: BoardClient, tel: Any) -> None:
+        self.t.append(tel.board_time_us * 1e-6)
+        self.q.append(tel.positions)
+        s = client.latest_sim_state
+        if s is not None:
+            self.base.append((s.board_time_us * 1e-6, s.base_pos, s.base_quat))
+            self.max_tilt = max(self.max_tilt, artefacts.tilt_deg(s.base_quat))
+
+
+#: checkpoints the lockstep pump yields before topping up, so that everything the last
+#: telemetry woke (token pacing, dispatch, new segments) is placed before board time moves on
+SETTLE_CHECKPOINTS = 32
+#: wall seconds without telemetry after which a run fails (the board died or the link hung)
+TELEMETRY_SILENCE_S = 10.0
+
+
+async def pump(client: BoardClient, runtime: CocoRuntime, rec: Recorder) -> None:
+    """Telemetry -> confirmations, top-ups and the history.
+
+    In lockstep each report is handled in order and the board is advanced only
+    from that report's time, after the host has reacted to it, so board time
+    steps with the host instead of running ahead of it.
+    """
+    lockstep = client.lockstep
+    async for tel in client.telemetry(maxsize=1024):
+        rec.last_rx = time.monotonic()
+        runtime.streamer.on_telemetry(tel)
+        rec.add(client, tel)
+        if lockstep:
+            for _ in range(SETTLE_CHECKPOINTS):
+                await anyio.lowlevel.checkpoint()
+            await runtime.streamer.top_up(tel.board_time_us)
+        else:
+            await runtime.streamer.top_up()
+
+
+async def silence_watchdog(runtime: CocoRuntime, rec: Recorder) -> None:
+    """Fail the run when the board stops reporting (it died, or the link hung)."""
+    while True:
+        await anyio.sleep(1.0)
+        if runtime.streamer.held:  # a held lockstep board is silent on purpose (waiting for the LLM)
+            rec.last_rx = time.monotonic()
+        elif time.monotonic() - rec.last_rx > TELEMETRY_SILENCE_S:
+            raise LinkError(f"no telemetry from the board for {TELEMETRY_SILENCE_S:g} s; giving up the run")
+
+
+async def realtime_topper(runtime: CocoRuntime) -> None:
+    period = runtime.streamer.period_us * 1e-6
+    while True:
+        await runtime.streamer.top_up()
+        await anyio.sleep(period)
+
+
+async def timed_chunks(stream: AsyncIterable[str], clock: Callable[[], float], log_to: list[tuple[float, str]],
+                        hold: Callable[[], contextlib.AbstractAsyncContextManager[None]] | None = None,
+                        ) -> AsyncIterator[str]:
+    """The LLM's chunks, each logged with its board arrival time.
+
+    With ``hold`` (a real LLM on a lockstep board) the board clock stands still
+    while the host waits for the next chunk, so network latency does not turn
+    into board time.
+    """
+    it = stream.__aiter__()
+    try:
+        while True:
+            try:
+                if hold is None:
+                    chunk = await anext(it)
+                else:
+                    async with hold():
+                        chunk = await anext(it)
+            except StopAsyncIteration:
+                return
+            log_to.append((clock(), chunk))
+            yield chunk
+    finally:  # an interrupted turn cancels the LLM stream at once (the backend drops the connection)
+        aclose = getattr(it, "aclose", None)
+        if aclose is not None:
+            with anyio.CancelScope(shield=True):
+                await aclose()
+
+
+async def buffered(stream: AsyncIterable[str]) -> AsyncIterator[str]:
+    """The whole response at once, after the last chunk arrived (no streaming execution)."""
+    yield "".join([chunk async for chunk in stream])
+
+
+class BoardPacer:
+    """A sleep for the scripted LLM on the board clock, against absolute deadlines.
+
+    Board time is observed in telemetry steps (20 ms at 50 Hz); sleeping each gap
+    from "now" would round every gap up and slow the token rate, so the gaps are
+    summed from the first call and each wait targets the running deadline.
+    """
+
+    def __init__(self, runtime: CocoRuntime) -> None:
+        self.runtime = runtime
+        self.deadline_us: int | None = None
+
+    async def __call__(self, seconds: float) -> None:
+        streamer = self.runtime.streamer
+        if self.deadline_us is None:
+            self.deadline_us = streamer.board_now_us()
+        self.deadline_us += int(round(seconds * 1e6))
+        await streamer.wait_board_time(self.deadline_us)
+
+
+async def go_to_pose(runtime: CocoRuntime, pose: str) -> None:
+    """Move every servo smoothly to a named pose before the program starts."""
+    target = np.asarray(load_poses()[pose])
+    start = runtime.streamer.planned_targets()
+    servos = tuple(range(len(target)))
+    seg = runtime.streamer.add(transition(start, target, servos), label=f"prepare:{pose}")
+    await runtime.streamer.wait_ended(seg)

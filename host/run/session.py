@@ -1,0 +1,382 @@
+"""A persistent robot session: one board, one link, one CoCo runtime, one :class:`Shell`, many turns.
+
+``RobotSession`` is an async context manager. Entering it starts the emulated
+board (``python -m firmware_sim`` on a pty, or connects to ``link``), the link
+client, the CoCo runtime, the registry and one shell, and runs the telemetry
+pump, the silence watchdog and (in realtime) the top-up task in a task group
+that lives as long as the session. Each :meth:`RobotSession.run_turn` runs one
+LLM output stream (or a complete program) on that shell and writes the turn's
+artefacts (timeline.json/png, joints.png, summary.json) to its own folder;
+the frame logs of the whole session stay in the session folder.
+
+Example::
+
+    async with RobotSession(SessionOptions(out=Path("runs/chat"), lockstep=True)) as s:
+        turn = await s.run_turn('<head_act action="nod"/>Hello.')
+        print(turn.result.timeline.table(), turn.executed_text)
+
+Failures: a link or LLM failure inside the session's tasks surfaces from the
+``async with`` as that :class:`~host.link.errors.LinkError` /
+:class:`~host.ghost.GhostError` (not an exception group).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from collections.abc import AsyncIterable, AsyncIterator, Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import anyio
+import anyio.abc
+import anyio.to_thread
+import numpy as np
+
+from host.coco.binding import coco_registry
+from host.coco.link import ClientLink
+from host.coco.runtime import CocoRuntime
+from host.ghost import GhostError
+from host.link.board_process import BoardProcess, start_board
+from host.link.client import BoardClient
+from host.link.errors import LinkError
+from host.run import artefacts
+from host.run.pump import (
+    BoardPacer,
+    Recorder,
+    buffered,
+    go_to_pose,
+    pump,
+    realtime_topper,
+    silence_watchdog,
+    timed_chunks,
+)
+from host.shell import Shell
+from host.shell.skills import SkillStore
+from host.shell.timeline import RunResult
+from protocol.linkspec import LinkSpec, parse_link_spec
+from robots.coco import load_servo_table
+
+log = logging.getLogger("host.run")
+
+
+@dataclass
+class SessionOptions:
+    """How to bring the robot up (the board/link/shell part of the ``run``/``chat`` flags)."""
+
+    vocabulary: str = "paper"
+    mode: str = "async-first"
+    strict: bool = True
+    lockstep: bool = False
+    link: str | LinkSpec = "pty"  # a link spec (protocol.linkspec)
+    emulate_board: bool | None = None  # start the emulated board on `link` first; None: only where implied (pty, can:slcan:pty)
+    baud: int = 115200
+    out: Path = Path("runs/latest")
+    start_pose: str = "stand"
+    skills: SkillStore | None = None  # None: an in-memory store (skills end with the session)
+    label: str = "session"
+    scene: str = "empty"  # objects in the board's world (python -m firmware_sim --scene)
+
+
+@dataclass
+class TurnResult:
+    """What one turn did (also written to its folder).
+
+    ``executed_text`` is the reply as it was actually executed: the function
+    tokens dispatched and the sentences whose speech started, closed
+    well-formed; for an interrupted turn, nothing after the cut.
+    ``pose_start``/``pose_end`` are ``[x m, y m, yaw deg]`` of the base.
+    """
+
+    result: RunResult
+    calls: list[artefacts.BoardCall]
+    summary: artefacts.Summary
+    out: Path
+    token_times: list[tuple[float, str]] = field(default_factory=list)
+    board_t0: float = 0.0
+    executed_text: str = ""
+    received_text: str = ""
+
+    @property
+    def interrupted(self) -> bool:
+        """True when the turn was cut by :meth:`RobotSession.interrupt`."""
+        return self.result.interrupted
+
+    @property
+    def observations(self) -> list[Any]:
+        """The shell's observations of this turn."""
+        return list(self.result.observations)
+
+
+def _first_cause(group: BaseExceptionGroup) -> Exception | None:
+    """The link or LLM error behind a task group's failure, if that is what it was."""
+    for exc in group.exceptions:
+        if isinstance(exc, BaseExceptionGroup):
+            found = _first_cause(exc)
+            if found is not None:
+                return found
+        elif isinstance(exc, (LinkError, GhostError)):
+            return exc
+    return None
+
+
+class RobotSession:
+    """One robot, one shell, many turns (see the module docstring)."""
+
+    def __init__(self, opts: SessionOptions) -> None:
+        self.opts = opts
+        self.out = opts.out
+        self.rec = Recorder()
+        self.turns = 0
+        self._board: BoardProcess | None = None
+        self._stack = contextlib.AsyncExitStack()
+        self._tg: anyio.abc.TaskGroup | None = None
+        self.client: BoardClient | None = None
+        self._runtime: CocoRuntime | None = None
+        self._shell: Shell | None = None
+
+    # -- life cycle ------------------------------------------------------------------------------
+    @property
+    def runtime(self) -> CocoRuntime:
+        """The CoCo runtime (only inside the session)."""
+        if self._runtime is None:
+            raise RuntimeError("the robot session is not started")
+        return self._runtime
+
+    @property
+    def shell(self) -> Shell:
+        """The session's one shell (only inside the session)."""
+        if self._shell is None:
+            raise RuntimeError("the robot session is not started")
+        return self._shell
+
+    async def __aenter__(self) -> RobotSession:
+        opts = self.opts
+        self.out.mkdir(parents=True, exist_ok=True)
+        spec = parse_link_spec(opts.link) if isinstance(opts.link, str) else opts.link
+        target = spec
+        emulate = opts.emulate_board if opts.emulate_board is not None else spec.implies_emulated_board
+        try:
+            if spec.implies_emulated_board and not emulate:
+                raise LinkError(f"{spec} is a link the emulated board creates: it cannot be used without starting the board")
+            if emulate:
+                board_args = ["--lockstep" if opts.lockstep else "--realtime", "--log", str(self.out / "board_frames.jsonl"),
+                              "--scene", opts.scene]
+                self._board = start_board(board_args, self.out / "board.stderr", link=spec)
+                target = self._board.spec
+            client = await BoardClient.connect(target, baud=opts.baud, log_path=self.out / "host_frames.jsonl")
+            self.client = await self._stack.enter_async_context(client)
+            if client.latest_telemetry is None and client.lockstep:
+                await client.advance(client.board_now_estimate() + 20_000)  # let a lockstep board report once
+            tel = await client.wait_for(lambda t: True, timeout=10)
+            runtime = CocoRuntime(ClientLink(client), self.out, initial=np.asarray(tel.positions))
+            self._runtime = runtime
+            registry = coco_registry(runtime, opts.vocabulary)
+            self._shell = Shell(registry, mode=opts.mode, strict=opts.strict, clock=runtime.board_now_s,
+                                skills=opts.skills)
+            tg = anyio.create_task_group()
+            self._tg = await self._stack.enter_async_context(tg)
+            tg.start_soon(pump, client, runtime, self.rec)
+            tg.start_soon(silence_watchdog, runtime, self.rec)
+            if not client.lockstep:
+                tg.start_soon(realtime_topper, runtime)
+            await runtime.streamer.top_up()
+            await go_to_pose(runtime, opts.start_pose)
+        except BaseException as exc:
+            await self.__aexit__(type(exc), exc, exc.__traceback__)
+            raise
+        return self
+
+    async def __aexit__(self, et: type[BaseException] | None, exc: BaseException | None,
+                        tb: TracebackType | None) -> bool | None:
+        if self._tg is not None:
+            self._tg.cancel_scope.cancel()
+        try:
+            await self._stack.__aexit__(et, exc, tb)
+        except BaseExceptionGroup as group:  # one task's failure cancels the rest: report the cause
+            cause = _first_cause(group)
+            if cause is None:
+                raise
+            raise cause from group
+        finally:
+            self._tg = None
+            if self._board is not None:
+                self._board.stop()
+                self._board = None
+        return None
+
+    # -- turns -----------------------------------------------------------------------------------
+    def pacer(self) -> BoardPacer:
+        """A sleep on the board clock for a scripted LLM (absolute deadlines; fresh per turn)."""
+        return BoardPacer(self.runtime)
+
+    def background(self) -> anyio.abc.TaskGroup:
+        """The session's task group (for a live view or other session-long tasks)."""
+        if self._tg is None:
+            raise RuntimeError("the robot session is not started")
+        return self._tg
+
+    async def run_turn(self, source: str | AsyncIterable[str], *, label: str | None = None, out: Path | None = None,
+                       hold: bool = False, buffer: bool = False, interrupt_after: float | None = None,
+                       settle_s: float = 0.5, write: bool = True) -> TurnResult:
+        """Run one reply (a complete program, or a stream of chunks) and write its artefacts.
+
+        ``hold``: keep a lockstep board still while waiting for each chunk (a real
+        LLM); ``buffer``: execute only after the whole reply arrived;
+        ``interrupt_after``: interrupt the turn that many board seconds after it
+        started; ``settle_s``: board seconds to let motion settle afterwards;
+        ``out``: the turn's folder (default ``<session out>/turn_<n>``); ``write=False``
+        leaves the writing to the caller (:meth:`write_now` / :meth:`write`).
+        """
+        runtime, shell = self.runtime, self.shell
+        self.turns += 1
+        label = label or f"turn {self.turns}"
+        out = out if out is not None else self.out / f"turn_{self.turns:02d}"
+        token_times: list[tuple[float, str]] = []
+        n_captures = len(runtime.captures)
+        runtime.board_times.clear()
+        runtime.run_dir = out
+        base_start = self.rec.base[-1] if self.rec.base else None
+        tilt_from = len(self.rec.base)
+        board_t0 = runtime.board_now_s()
+        stream: AsyncIterable[str] = _one(source) if isinstance(source, str) else source
+        chunks = timed_chunks(stream, runtime.board_now_s, token_times, runtime.streamer.hold if hold else None)
+        async with anyio.create_task_group() as tg:
+            if interrupt_after is not None:
+                tg.start_soon(self._interrupt_at, board_t0 + interrupt_after)
+            result = await shell.run(buffered(chunks) if buffer else chunks)
+            tg.cancel_scope.cancel()
+        if settle_s > 0:
+            await runtime.sleep(settle_s)
+        turn = TurnResult(result, [], None, out, token_times, board_t0,  # type: ignore[arg-type]
+                          executed_text=result.executed_text, received_text="".join(c for _, c in token_times))
+        turn.calls = _board_calls(result, runtime)
+        turn.summary = self._summary(turn, label, base_start, tilt_from, runtime.captures[n_captures:])
+        if write:
+            await self.write(turn, label)
+        return turn
+
+    async def _interrupt_at(self, at_s: float) -> None:
+        await self.runtime.streamer.wait_board_time(int(at_s * 1e6))
+        self.shell.interrupt()
+
+    def interrupt(self, channels: Iterable[str] | None = None) -> int:
+        """Interrupt the running turn (all channels, or only ``channels``); returns calls cancelled."""
+        return self.shell.interrupt(channels)
+
+    def state(self) -> dict[str, Any]:
+        """A snapshot: board time, base pose ``[x, y, yaw deg]``, tilt, fell, running calls per channel."""
+        runtime = self.runtime
+        b = self.rec.base[-1] if self.rec.base else None
+        tilt = artefacts.tilt_deg(b[2]) if b else 0.0
+        tl = self.shell.timeline
+        running = {} if tl is None else {r.channel or "-": f"{r.function}{r.args}" for r in tl
+                                         if r.start is not None and r.end is None}
+        return {"board_time_s": round(runtime.board_now_s(), 3), "base": _pose(b), "tilt_deg": round(tilt, 2),
+                "fell": _fell(tilt, b), "running": running, "busy": self.shell.running,
+                "skills": [s.name for s in self.shell.skills.list()], "scene": self.scene_report()}
+
+    async def capture(self) -> Path:
+        """Take a camera picture now (outside any turn) and return the PNG's path."""
+        runtime = self.runtime
+        png = await runtime.link.capture(160, 120)
+        path = self.out / f"capture_session_{len(runtime.captures) + 1}.png"
+        path.write_bytes(png)
+        runtime.captures.append(path)
+        return path
+
+    def scene_report(self) -> dict[str, Any]:
+        """The scene's ground truth now: ``{"name", "objects", "toppled"}`` (the board's SIM_STATE)."""
+        s = self.client.latest_sim_state if self.client is not None else None
+        return {"name": self.opts.scene, "objects": s.objects if s else 0, "toppled": s.toppled if s else 0}
+
+    def prompt(self, format: str = "xml") -> str:
+        """The system prompt (code-as-prompt) of the mounted vocabulary and the saved skills."""
+        return self.shell.prompt(format=format)
+
+    # -- artefacts -------------------------------------------------------------------------------
+    def _summary(self, turn: TurnResult, label: str, base_start: Any, tilt_from: int,
+                 captures: list[Path]) -> artefacts.Summary:
+        opts, rec, result, calls = self.opts, self.rec, turn.result, turn.calls
+        base = list(rec.base)[tilt_from:] if tilt_from < len(rec.base) else list(rec.base)[-1:]
+        max_tilt = max((artefacts.tilt_deg(b[2]) for b in base), default=0.0)
+        b0 = base_start or (base[0] if base else None)
+        b1 = base[-1] if base else None
+        starts = [c.start for c in calls if c.start is not None and c.function not in ("wait", "async")]
+        first = (min(starts) - turn.board_t0) * 1000 if starts else None
+        counts = artefacts.count_outcomes(calls)
+        failed = counts.get("failed", 0) or result.error is not None
+        outcome = "interrupted" if result.interrupted else ("failed" if failed else "done")
+        fell = max_tilt > 45.0 or bool(base and min(b[1][2] for b in base) < 0.03)
+        client = self.client
+        tel = client.latest_telemetry if client is not None else None
+        stats = {"frames_sent": self.runtime.streamer.frames_sent, "late": tel.late_count if tel else None,
+                 "dropped": tel.dropped_count if tel else None,
+                 "frame_nacks": client.stats.frame_nacks if client else None,
+                 "decode_errors": client.stats.decode_errors if client else None}
+        end_t = rec.t[-1] if rec.t else turn.board_t0
+        return artefacts.Summary(
+            task=label, outcome=outcome, fell=fell, base_start=_pose(b0), base_end=_pose(b1),
+            max_tilt_deg=round(max_tilt, 2), first_action_latency_ms=None if first is None else round(first, 1),
+            outcomes=counts, duration_s=round(end_t - turn.board_t0, 3),
+            extra={"clock": "lockstep" if opts.lockstep else "realtime", "vocabulary": opts.vocabulary,
+                   "mode": opts.mode, "error": None if result.error is None else str(result.error),
+                   "observations": [str(o) for o in result.observations], "link": stats,
+                   "captures": [p.name for p in captures], "scene": self.scene_report()})
+
+    def writer(self, turn: TurnResult, label: str) -> Callable[[], None]:
+        """Snapshot what the turn's artefacts need (on the loop) and return the writer (thread-safe)."""
+        rec, runtime = self.rec, self.runtime
+        times = np.asarray(rec.t)
+        q = np.asarray(rec.q)
+        keep = times >= turn.board_t0 - 1e-9
+        sent = [(t, q_) for t, q_ in list(runtime.streamer.history) if t * 1e-6 >= turn.board_t0 - 1e-9]
+        names = load_servo_table().names
+        out, calls, summary, t0 = turn.out, list(turn.calls), turn.summary, turn.board_t0
+
+        def write() -> None:
+            out.mkdir(parents=True, exist_ok=True)
+            artefacts.write_timeline_json(out / "timeline.json", calls, t0=t0)
+            artefacts.plot_timeline(out / "timeline.png", calls, title=f"{label}: calls on the board clock")
+            if len(times) and keep.any():
+                targets = (np.asarray([t for t, _ in sent]) * 1e-6, np.asarray([q_ for _, q_ in sent])) if sent else None
+                artefacts.plot_joints(out / "joints.png", times[keep], q[keep], names, targets)
+            artefacts.write_summary_json(out / "summary.json", summary)
+
+        return write
+
+    def write_now(self, turn: TurnResult, label: str | None = None) -> None:
+        """Write a turn's artefacts in this thread (e.g. after the session ended)."""
+        self.writer(turn, label or turn.summary.task)()
+
+    async def write(self, turn: TurnResult, label: str | None = None) -> None:
+        """Write a turn's artefacts; the plotting runs in a worker thread so the board keeps its frames."""
+        await anyio.to_thread.run_sync(self.writer(turn, label or turn.summary.task))
+
+
+def _pose(b: Any) -> list[float]:
+    return [round(b[1][0], 4), round(b[1][1], 4), round(artefacts.yaw_deg(b[2]), 2)] if b else [0.0, 0.0, 0.0]
+
+
+def _fell(tilt: float, b: Any) -> bool:
+    return tilt > 45.0 or bool(b and b[1][2] < 0.03)
+
+
+async def _one(text: str) -> AsyncIterator[str]:
+    yield text
+
+
+def _board_calls(result: RunResult, runtime: CocoRuntime) -> list[artefacts.BoardCall]:
+    calls = []
+    for r in result.timeline:
+        measured = runtime.board_times.get(r.path, [None, None])
+        start = measured[0] if measured[0] is not None else (None if r.start is None else result.t0 + r.start)
+        end = measured[1] if measured[1] is not None else (None if r.end is None else result.t0 + r.end)
+        calls.append(artefacts.BoardCall(r.function, r.channel, dict(r.args), r.path, start, end, r.outcome,
+                                         r.error, r.persistent))
+    return calls
+
+
+__all__ = ["RobotSession", "SessionOptions", "TurnResult"]

@@ -1,0 +1,49 @@
+"""RobotSession: one lockstep board and one shell across several turns; executed text; interruption."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import anyio
+
+from host.run.session import RobotSession, SessionOptions, TurnResult
+from host.shell.skills import SkillStore
+
+
+def _session(tmp_path: Path, **kw: object) -> RobotSession:
+    return RobotSession(SessionOptions(out=tmp_path, lockstep=True, **kw))  # type: ignore[arg-type]
+
+
+def test_turns_share_board_shell_and_skills(tmp_path: Path) -> None:
+    async def main() -> tuple[list[TurnResult], dict]:
+        async with _session(tmp_path, skills=SkillStore(tmp_path / "skills.json")) as s:
+            t1 = await s.run_turn('<SAVE name="greet"><head_act action="nod"/></SAVE>Hi.', settle_s=0.1)
+            t2 = await s.run_turn('<RUN id="greet"/>', settle_s=0.1)
+            return [t1, t2], s.state()
+
+    (t1, t2), state = anyio.run(main, backend="asyncio")
+    assert t1.summary.outcome == "done" and t2.summary.outcome == "done", t2.result.timeline.table()
+    assert t2.result.timeline.one("head_act").outcome == "done"
+    assert t2.board_t0 > t1.board_t0  # one board clock across turns
+    assert "greet" in state["skills"] and not state["fell"]
+    for t in (t1, t2):
+        assert (t.out / "timeline.json").exists() and (t.out / "summary.json").exists()
+    assert t1.out != t2.out
+    assert t1.executed_text.startswith('<SAVE name="greet">') and t1.executed_text.endswith("Hi.")
+    assert t2.executed_text == '<RUN id="greet"/>'  # the skill's body is not repeated
+
+
+def test_interrupted_turn_keeps_only_what_ran(tmp_path: Path) -> None:
+    program = ('<head_act action="nod"><move_strides direction="forward" times="6"/></head_act>'
+               '<wait><wave/></wait>Never said.')
+
+    async def main() -> TurnResult:
+        async with _session(tmp_path) as s:
+            return await s.run_turn(program, interrupt_after=1.0, settle_s=0.1)
+
+    turn = anyio.run(main, backend="asyncio")
+    assert turn.interrupted and turn.summary.outcome == "interrupted"
+    text = turn.executed_text
+    assert text.startswith('<head_act action="nod"><move_strides')
+    assert "Never said" not in text
+    assert turn.received_text == program
