@@ -214,7 +214,10 @@ class BusBoardTransport(CanBoardTransport):
         super().__init__(spec, log_path)
         if bus is None:
             kw = spec.bus_kwargs()
-            kw.setdefault("can_filters", [{"can_id": self.node, "can_mask": 0x7F, "extended": False}])
+            kw.setdefault("can_filters", [
+                {"can_id": self.node, "can_mask": 0x7F, "extended": False},  # this node's identifiers
+                {"can_id": 0x000, "can_mask": 0x7FF, "extended": False},  # the broadcast ESTOP
+            ])
             bus = can.Bus(**kw)  # type: ignore[arg-type]
         self.bus = bus
         self.name = f"{spec}"
