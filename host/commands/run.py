@@ -89,7 +89,8 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
           f"board time {s.duration_s:.2f} s; first action after {s.first_action_latency_ms} ms; "
           f"max tilt {s.max_tilt_deg:.1f} deg{'; FELL' if s.fell else ''}")
     print(f"base moved from {s.base_start} to {s.base_end} [x m, y m, yaw deg]")
-    names = ("timeline.json", "timeline.png", "joints.png", "summary.json", "host_frames.jsonl", "board_frames.jsonl")
+    names = ("timeline.json", "timeline.png", "joints.png", "summary.json", "host_frames.jsonl", "board_frames.jsonl",
+             "host_frames.log", "board_frames.log")
     print(f"artefacts in {out}/: " + " ".join(n for n in names if (out / n).exists()))
     return 0 if s.outcome in ("done", "interrupted") else 1
 

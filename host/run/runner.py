@@ -210,14 +210,20 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, CocoRuntime],
     emulate = opts.emulate_board if opts.emulate_board is not None else spec.implies_emulated_board
     if spec.implies_emulated_board and not emulate:
         raise LinkError(f"{spec} is a link the emulated board creates: it cannot be used without starting the board")
+    # frame logs: JSON Lines on serial; python-can's candump format (.log) on CAN
+    log_suffix = ".log" if spec.kind == "can" else ".jsonl"
+    if emulate and spec.kind == "can" and spec.interface == "virtual":
+        raise LinkError(f"{spec}: python-can's virtual bus exists inside one process, so an emulated board "
+                        "started as a subprocess cannot join it; use can:slcan:pty, or can:socketcan:vcan0 "
+                        "with --emulate-board (the virtual bus is for in-process tests)")
     if emulate:
-        board_args = ["--lockstep" if opts.lockstep else "--realtime", "--log", str(out / "board_frames.jsonl")]
+        board_args = ["--lockstep" if opts.lockstep else "--realtime", "--log", str(out / f"board_frames{log_suffix}")]
         board = start_board(board_args, out / "board.stderr", link=spec)
         target = board.spec
     rec = _Recorder()
     token_times: list[tuple[float, str]] = []
     try:
-        async with await BoardClient.connect(target, baud=opts.baud, log_path=out / "host_frames.jsonl") as client:
+        async with await BoardClient.connect(target, baud=opts.baud, log_path=out / f"host_frames{log_suffix}") as client:
             link = ClientLink(client)
             if client.latest_telemetry is None and client.lockstep:
                 await client.advance(client.board_now_estimate() + 20_000)  # let a lockstep board report once
