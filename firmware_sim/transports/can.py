@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import errno
 import os
+import sys
 import time
 import tty
 from collections import deque
@@ -36,7 +37,7 @@ from protocol.can.ids import bulk_ids
 from protocol.codec import PayloadError
 from protocol.framing import DecodeError, DecodeErrorKind, Frame
 from protocol.linkspec import LinkSpec
-from protocol.messages import Message
+from protocol.messages import Message, SimState
 
 __all__ = [
     "BusBoardTransport",
@@ -117,6 +118,8 @@ class CanBoardTransport(BoardTransport):
         self._backoff = BACKOFF_MIN_S
         self.tx_retries = 0
         self.tx_frames = 0
+        self._periodic: bytes | None = None  # the newest SIM_STATE not yet handed to ISO-TP
+        self.periodic_replaced = 0
         self.error_frames = 0
         self.logger: Any = can.Logger(log_path) if log_path else None  # type: ignore[no-untyped-call]
 
@@ -163,15 +166,28 @@ class CanBoardTransport(BoardTransport):
         try:
             if is_fixed(msg):
                 self._txq.extend(encode_fixed(msg, seq, self.node, self.fd, Sender.BOARD))
+            elif isinstance(msg, SimState):
+                # periodic bulk: the newest report wins; it waits until the ISO-TP link is idle
+                if self._periodic is not None:
+                    self.periodic_replaced += 1
+                self._periodic = encode_bulk(msg, seq)
+                self._start_periodic()
             else:
                 self.isotp.send(encode_bulk(msg, seq))
                 self.isotp.poll()
         except (PayloadError, BufferError) as e:
-            print(f"board: cannot send {type(msg).__name__} on CAN: {e}", flush=True)
+            print(f"board: cannot send {type(msg).__name__} on CAN: {e}", file=sys.stderr, flush=True)
+
+    def _start_periodic(self) -> None:
+        if self._periodic is not None and not self.isotp.layer.transmitting() and self.isotp.layer.tx_queue.empty():
+            sdu, self._periodic = self._periodic, None
+            self.isotp.send(sdu)
+            self.isotp.poll()
 
     def flush(self, now: float) -> None:
         if self.isotp.busy:
             self.isotp.poll()
+        self._start_periodic()
         if self._retry_at is not None and now < self._retry_at:
             return
         self._retry_at = None
@@ -189,12 +205,14 @@ class CanBoardTransport(BoardTransport):
 
     @property
     def backlog(self) -> int:
-        return FRAME_COST * len(self._txq)
+        # queued frames plus bulk messages still waiting in the ISO-TP layer (~one frame per 7 bytes)
+        pending_bulk = self.isotp.layer.tx_queue.qsize() + (1 if self.isotp.layer.transmitting() else 0)
+        return FRAME_COST * (len(self._txq) + 8 * pending_bulk)
 
     def next_io_time(self) -> float | None:
         if self._retry_at is not None:
             return self._retry_at
-        if self.isotp.busy:
+        if self.isotp.busy or self._periodic is not None:
             return time.monotonic() + 0.002
         return None
 
@@ -238,7 +256,7 @@ class BusBoardTransport(CanBoardTransport):
             try:
                 msg = self.bus.recv(timeout=0)
             except can.CanError as e:
-                print(f"board: CAN receive error: {e}", flush=True)
+                print(f"board: CAN receive error: {e}", file=sys.stderr, flush=True)
                 break
             if msg is None:
                 break
@@ -255,7 +273,7 @@ class BusBoardTransport(CanBoardTransport):
             code = getattr(e, "error_code", None)
             if code in (errno.ENOBUFS, errno.EAGAIN) or "buffer" in str(e).lower():
                 return False
-            print(f"board: CAN send failed ({e}); retrying", flush=True)
+            print(f"board: CAN send failed ({e}); retrying", file=sys.stderr, flush=True)
             return False
         return True
 
