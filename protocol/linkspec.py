@@ -50,9 +50,9 @@ MAX_NODE = 15  # 4 node bits in the 11-bit identifier
 #: python-can bus arguments that may be given as spec options (value text -> int/bool/str in bus_kwargs)
 CAN_PASSTHROUGH_OPTIONS: frozenset[str] = frozenset({
     "receive_own_messages", "local_loopback", "ignore_rx_error_frames", "tty_baudrate",
-    "sleep_after_open", "rtscts", "timing", "sjw_abr", "tseg1_abr", "tseg2_abr",
+    "sleep_after_open", "rtscts", "sjw_abr", "tseg1_abr", "tseg2_abr",
     "sjw_dbr", "tseg1_dbr", "tseg2_dbr", "preserve_timestamps", "rx_queue_size",
-    "serial_number", "app_name", "poll_interval", "can_filters",
+    "serial_number", "app_name", "poll_interval",
 })
 _OWN_OPTIONS = ("node", "fd", "bitrate", "data_bitrate")
 

@@ -25,10 +25,11 @@ def link_spec_arg(text: str) -> LinkSpec:
         raise argparse.ArgumentTypeError(str(e)) from None
 
 
-def add_link_argument(parser: argparse.ArgumentParser, *, default: str | None = "pty", help: str = LINK_HELP) -> None:
-    """Add ``--link SPEC`` (required when ``default`` is None)."""
+def add_link_argument(parser: argparse.ArgumentParser, *, default: str | None = "pty", help: str = LINK_HELP,
+                      required: bool = True) -> None:
+    """Add ``--link SPEC`` parsed to a :class:`LinkSpec` (``default`` None: required, or None when not ``required``)."""
     if default is None:
-        parser.add_argument("--link", required=True, type=link_spec_arg, metavar="SPEC", help=help)
+        parser.add_argument("--link", required=required, type=link_spec_arg, metavar="SPEC", help=help)
     else:
         parser.add_argument("--link", default=parse_link_spec(default), type=link_spec_arg, metavar="SPEC",
                             help=help + f" (default {default})")

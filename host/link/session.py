@@ -141,7 +141,8 @@ class BoardClient:
     ``link`` is a link spec (``"/dev/pts/3"``, ``"can:socketcan:vcan0?node=2"``, a
     :class:`LinkSpec`) or a callable returning one; ``transport`` (optional) is an already
     built transport to use instead (e.g. one wrapped for fault injection). ``baud`` and
-    ``force_thread`` are for serial links; ``log_path`` is the transport's frame log.
+    ``force_thread`` are for serial links; ``log_path`` is the transport's frame log;
+    ``transport_options`` go to :func:`host.link.transports.open_transport` (CAN settings).
     """
 
     def __init__(
@@ -162,6 +163,7 @@ class BoardClient:
         protocol_version: int = PROTOCOL_VERSION,
         schema_hash: int = SCHEMA_HASH,
         force_thread: bool = False,
+        transport_options: dict[str, Any] | None = None,
     ) -> None:
         self._port = link
         self.baud = baud
@@ -177,6 +179,7 @@ class BoardClient:
         self.schema_hash = schema_hash
         self.force_thread = force_thread
         self.log_path = log_path
+        self.transport_options = dict(transport_options or {})
         self.spec: LinkSpec | None = None if callable(link) else parse_link_spec(link)
 
         self.port_name: str = str(self.spec) if self.spec is not None else ""
@@ -311,7 +314,7 @@ class BoardClient:
         if self._transport is None:
             try:
                 self._transport = open_transport(self._port, baud=self.baud, log_path=self.log_path,
-                                                 force_thread=self.force_thread)
+                                                 force_thread=self.force_thread, **self.transport_options)
             except OSError as e:
                 raise LinkDown(f"cannot open {self._port}: {e}") from None
         return self._transport
