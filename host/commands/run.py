@@ -118,7 +118,8 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     scene = s.extra.get("scene") or {}
     if scene.get("objects"):
         print(f"scene {scene['name']}: {scene['toppled']} of {scene['objects']} toppled")
-    names = ("timeline.json", "timeline.png", "joints.png", "summary.json", "host_frames.jsonl", "board_frames.jsonl")
+    names = ("timeline.json", "timeline.png", "joints.png", "summary.json", "host_frames.jsonl", "board_frames.jsonl",
+             "host_frames.log", "board_frames.log")
     print(f"artefacts in {out}/: " + " ".join(n for n in names if (out / n).exists()))
     return 0 if s.outcome in ("done", "interrupted") else 1
 

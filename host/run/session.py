@@ -161,12 +161,18 @@ class RobotSession:
         try:
             if spec.implies_emulated_board and not emulate:
                 raise LinkError(f"{spec} is a link the emulated board creates: it cannot be used without starting the board")
+            if emulate and spec.kind == "can" and spec.interface == "virtual":
+                raise LinkError(f"{spec}: python-can's virtual bus exists inside one process, so an emulated board "
+                                "started as a subprocess cannot join it; use can:slcan:pty, or can:socketcan:vcan0 "
+                                "with --emulate-board (the virtual bus is for in-process tests)")
+            # frame logs: JSON Lines on serial; python-can's candump format (.log) on CAN
+            log_suffix = ".log" if spec.kind == "can" else ".jsonl"
             if emulate:
-                board_args = ["--lockstep" if opts.lockstep else "--realtime", "--log", str(self.out / "board_frames.jsonl"),
-                              "--scene", opts.scene]
+                board_args = ["--lockstep" if opts.lockstep else "--realtime",
+                              "--log", str(self.out / f"board_frames{log_suffix}"), "--scene", opts.scene]
                 self._board = start_board(board_args, self.out / "board.stderr", link=spec)
                 target = self._board.spec
-            client = await BoardClient.connect(target, baud=opts.baud, log_path=self.out / "host_frames.jsonl")
+            client = await BoardClient.connect(target, baud=opts.baud, log_path=self.out / f"host_frames{log_suffix}")
             self.client = await self._stack.enter_async_context(client)
             if client.latest_telemetry is None and client.lockstep:
                 await client.advance(client.board_now_estimate() + 20_000)  # let a lockstep board report once

@@ -41,8 +41,13 @@ def test_replay_ends_where_the_original_run_ended(tmp_path: Path) -> None:
     assert abs(end[2] - original[2]) < 0.5
     assert summary["base_end_error_mm"] is not None and summary["base_end_error_mm"] <= 1.0
     assert (out / "joints.png").stat().st_size > 10_000
-    # the replayed board received byte-identical servo frames, in the same order
-    assert _servo_frames_received(out / "board_frames.jsonl") == _servo_frames_received(tmp_path / "run" / "board_frames.jsonl")
+    # the replayed board received byte-identical servo frames, in the same order (the original board
+    # was stopped with the host's last frames possibly still in flight: its log may end a few frames early)
+    replayed = _servo_frames_received(out / "board_frames.jsonl")
+    received = _servo_frames_received(tmp_path / "run" / "board_frames.jsonl")
+    assert replayed[:len(received)] == received
+    assert len(replayed) - len(received) <= 10
+    assert len(replayed) == sum(isinstance(m, ServoFrame) for _, _, m in sent)
 
 
 def test_replay_refuses_what_it_cannot_read(tmp_path: Path) -> None:
