@@ -9,6 +9,15 @@ return (reset) or a smooth stop (interruption of a finite call) at the cut.
 Face, speech, music and camera go over the same link as peripheral messages
 timed on the board clock; they complete when the board clock passes their end.
 
+Calls on one motion channel flow into each other: a finite motion is planned
+to start at the previous one's planned end (on the frame grid, so the gap is
+below one frame period and nothing stops in between). To make that possible a
+finite motion hands its channel over to the shell (``CallContext.hand_over``)
+once board time is within :data:`HANDOVER_LEAD_US` plus the lookahead of its
+planned end; its own ``done`` still waits for telemetry to confirm its last
+frame. An interruption cancels the calls queued on the channel, and each
+cancelled motion cuts its own segment (planned-ahead ones included).
+
 Every call's board-measured start and end are kept by element path in
 :attr:`CocoRuntime.board_times` for the run's timeline.
 """
@@ -38,6 +47,9 @@ from protocol.messages import (
 from robots.coco import motions as coco_motions
 
 MOTION_CHANNELS = ("body", "head", "ears")
+#: How long (board µs) before the streamer's horizon reaches a motion's planned end the next
+#: call on its channel is let in, so that it is planned before that frame is sent.
+HANDOVER_LEAD_US = 200_000
 
 
 class CocoLink(FrameLink, Protocol):
@@ -72,6 +84,7 @@ class CocoRuntime:
         self.board_times: dict[str, list[float | None]] = {}
         self.captures: list[Path] = []
         self._active: dict[int, Segment] = {}  # element id -> the looping segment of a persistent call
+        self._last: dict[str, Segment] = {}  # channel -> its last finite segment (where the next one starts)
         self._channel_servos = {ch: tuple(coco_motions.channel_servos(ch)) for ch in MOTION_CHANNELS}
         self._speech_synth = speech_synth
         self._playing_bgm: dict[int, str] = {}
@@ -183,15 +196,22 @@ class CocoRuntime:
     async def _motion(self, behaviour: str, channel: str, args: dict[str, Any]) -> str:
         ctx = current_call()
         persistent = bool(ctx and ctx.persistent)
-        start = self.streamer.planned_targets()
+        at_us, from_us = self._plan_start(channel)
+        start = self.streamer.planned_targets(from_us)
         motion = coco_motions.BEHAVIOURS[behaviour](start, persistent=persistent, **args)
-        seg = self.streamer.add(motion, label=ctx.path if ctx else behaviour)
+        seg = self.streamer.add(motion, label=ctx.path if ctx else behaviour, start_us=at_us)
         if persistent and ctx is not None:
+            self._last.pop(channel, None)
             self._active[ctx.element_id] = seg
             self._mark(start=await self.streamer.wait_started(seg))
             await anyio.sleep_forever()
+        self._last[channel] = seg
         try:
             self._mark(start=await self.streamer.wait_started(seg))
+            planned_end = seg.end_us
+            if ctx is not None and planned_end is not None:
+                await self.streamer.wait_board_time(planned_end - self.streamer.lookahead_us - HANDOVER_LEAD_US)
+                ctx.hand_over()
             end = await self.streamer.wait_ended(seg)
         except anyio.get_cancelled_exc_class():
             with anyio.CancelScope(shield=True):
@@ -200,8 +220,20 @@ class CocoRuntime:
         self._mark(end=end)
         return f"{behaviour} done"
 
+    def _plan_start(self, channel: str) -> tuple[int | None, int | None]:
+        """Where a new finite motion on ``channel`` starts: (start on the frame grid, time whose
+        targets it starts from), the previous segment's planned end while that is still ahead."""
+        last = self._last.get(channel)
+        end = None if last is None or last.release_us is not None else last.end_us
+        if end is None or self.streamer.grid(end) < self.streamer.first_free_us:
+            return None, None
+        return self.streamer.grid(end), end
+
     async def _stop(self, seg: Segment, channel: str) -> None:
         """Interrupted finite motion: flush and settle smoothly where it is."""
+        if seg.first_frame_us is None:  # planned ahead and not sent yet: just drop it
+            self.mixer.cancel(seg)
+            return
         servos = self._channel_servos[channel]
         new = await self.streamer.cut([seg], servos, lambda q: coco_motions.transition(q, q, servos),
                                       label="stop")

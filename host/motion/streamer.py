@@ -93,9 +93,12 @@ class FrameStreamer:
         self._waiter_ids = itertools.count()
         self.history: deque[tuple[int, np.ndarray]] = deque(maxlen=history)  # (t_us, targets) sent
 
-    def _grid(self, t_us: int) -> int:
+    def grid(self, t_us: int) -> int:
+        """The first frame time on the grid at or after ``t_us``."""
         p = self.period_us
         return -(-int(t_us) // p) * p
+
+    _grid = grid
 
     # -- planning ----------------------------------------------------------------------------
     @property
