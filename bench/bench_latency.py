@@ -67,6 +67,7 @@ Numbers depend on the machine and its load; they are printed, never asserted.
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
 from dataclasses import asdict, dataclass
@@ -171,6 +172,15 @@ def queued_paths(records: list[Any]) -> set[str]:
     return queued
 
 
+#: the board's control tick (s): a frame or peripheral command due at t takes effect at the first tick >= t
+TICK_S = 0.002
+
+
+def tick_of(t: float) -> float:
+    """The first control tick at or after board time ``t`` (s)."""
+    return math.ceil(round(t / TICK_S, 6)) * TICK_S
+
+
 def task_latencies(task: int, rep: RunReport, registry: Registry) -> tuple[list[CallLatency], list[str]]:
     """The latency of every function token of one run, and notes about calls left out."""
     speech = registry.speech
@@ -198,9 +208,9 @@ def task_latencies(task: int, rep: RunReport, registry: Registry) -> tuple[list[
         t_ready = rep.result.t0 + r.start
         out.append(CallLatency(
             task=task, path=r.path, function=r.function, channel=channel,
-            kind="motion" if channel in MOTION else "peripheral", chunk=k, t_chunk=t_chunk, t_board=call.start,
-            queued=r.path in queued, host_ms=(t_ready - t_chunk) * 1e3, token_ms=(call.start - t_chunk) * 1e3,
-            ready_ms=(call.start - max(t_chunk, t_ready)) * 1e3,
+            kind="motion" if channel in MOTION else "peripheral", chunk=k, t_chunk=t_chunk, t_board=tick_of(call.start),
+            queued=r.path in queued, host_ms=(t_ready - t_chunk) * 1e3, token_ms=(tick_of(call.start) - t_chunk) * 1e3,
+            ready_ms=(tick_of(call.start) - max(t_chunk, t_ready)) * 1e3,
             dispatch_skew_ms=(rep.result.t0 + r.dispatch - t_chunk) * 1e3))
     return out, notes
 
@@ -229,12 +239,13 @@ def _line(name: str, s: dict[str, Any]) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = task_arguments(__doc__.splitlines()[0], "also write every call and the summary as JSON")
     ap.add_argument("--lockstep", action="store_true", help="lockstep board instead of realtime")
+    ap.add_argument("--baud", type=int, default=None, help="the board models wire time at this baud rate")
     args = ap.parse_args(argv)
 
     programs = task_programs(parse_ids(args.tasks))
     root = out_root(args.out, "bench_latency_")
     registry = home_channels()
-    mode = "lockstep" if args.lockstep else "realtime"
+    mode = ("lockstep" if args.lockstep else "realtime") + (f", {args.baud} baud wire" if args.baud else "")
     print(f"token -> servo latency, {mode} board over a pty, {args.tokens_per_s:g} tokens/s, "
           f"{len(programs)} task(s); artefacts in {root}", flush=True)
     print(f"{'task':>4} {'calls':>5} {'queued':>6}  {'motion imm. p50':>15} {'max':>7}  "
@@ -244,7 +255,7 @@ def main(argv: list[str] | None = None) -> int:
     for tid, program in programs:
         w0 = time.monotonic()
         rep = run_task(tid, program, lockstep=args.lockstep, out_root=root, tokens_per_s=args.tokens_per_s,
-                       seed=args.seed)
+                       seed=args.seed, wire_baud=args.baud)
         got, why = task_latencies(tid, rep, registry)
         rows += got
         notes += why

@@ -44,7 +44,9 @@ from protocol.messages import (
     SpeakerAction,
     SpeakerCommand,
 )
+from protocol.framing import encode_frame
 from robots.coco import motions as coco_motions
+from robots.coco.trajectory import ease_in
 
 MOTION_CHANNELS = ("body", "head", "ears")
 #: How long (board µs) before the streamer's horizon reaches a motion's planned end the next
@@ -90,6 +92,10 @@ class CocoRuntime:
         self._playing_bgm: dict[int, str] = {}
 
     # -- helpers -------------------------------------------------------------------------------
+    def _soonest(self, msg: ScreenCommand | SpeakerCommand) -> int:
+        """Board time a peripheral command sent now can start at (see ``FrameStreamer.soonest_us``)."""
+        return self.streamer.soonest_us(len(encode_frame(msg, 0)) + 4)  # + 4: a larger start time's varint
+
     def _mark(self, start: float | None = None, end: float | None = None) -> None:
         ctx = current_call()
         if ctx is None:
@@ -143,25 +149,25 @@ class CocoRuntime:
             if new is not None:
                 self._mark(end=await self.streamer.wait_ended(new))
         elif channel == "face":
-            t = self.streamer.first_free_us
+            t = self._soonest(ScreenCommand(ScreenTarget.FACE, "neutral", 0, 0))
             await self.link.send_peripheral(ScreenCommand(ScreenTarget.FACE, "neutral", t, 0))
             await self.streamer.wait_board_time(t)
             self._mark(end=t * 1e-6)
         elif channel == "bgm":
-            t = self.streamer.first_free_us
-            await self.link.send_peripheral(SpeakerCommand(SpeakerAction.STOP, SoundKind.CLIP, t, 0, 0,
-                                                           name=self._playing_bgm.pop(ctx.element_id, "")))
+            stop = SpeakerCommand(SpeakerAction.STOP, SoundKind.CLIP, 0, 0, 0, name=self._playing_bgm.pop(ctx.element_id, ""))
+            t = self._soonest(stop)
+            await self.link.send_peripheral(dataclasses.replace(stop, start_at_us=t))
             await self.streamer.wait_board_time(t)
             self._mark(end=t * 1e-6)
 
     async def speak(self, text: str) -> str:
         """Say one sentence: synthesise for its duration, play it on the board clock."""
         duration = await self._speech_duration(text)
-        start = self.streamer.first_free_us
         payload = text.encode("utf-8")[:200].decode("utf-8", "ignore")
         volume = int(max(0, min(100, 70 * self.voice.loudness_rate)))
-        await self.link.send_peripheral(SpeakerCommand(SpeakerAction.PLAY, SoundKind.SPEECH, start,
-                                                       int(duration * 1000), volume, text=payload))
+        play = SpeakerCommand(SpeakerAction.PLAY, SoundKind.SPEECH, 0, int(duration * 1000), volume, text=payload)
+        start = self._soonest(play)
+        await self.link.send_peripheral(dataclasses.replace(play, start_at_us=start))
         end = start + int(duration * 1e6)
         async with self._stop_on_cancel(SpeakerCommand(SpeakerAction.STOP, SoundKind.SPEECH, 0, 0, 0)):
             await self.streamer.wait_board_time(start)
@@ -177,7 +183,7 @@ class CocoRuntime:
             yield
         except anyio.get_cancelled_exc_class():
             with anyio.CancelScope(shield=True), anyio.move_on_after(5):
-                now = self.streamer.first_free_us
+                now = self._soonest(stop)
                 await self.link.send_peripheral(dataclasses.replace(stop, start_at_us=now))
                 self._mark(end=now * 1e-6)
             raise
@@ -197,9 +203,15 @@ class CocoRuntime:
         ctx = current_call()
         persistent = bool(ctx and ctx.persistent)
         at_us, from_us = self._plan_start(channel)
-        start = self.streamer.planned_targets(from_us)
-        motion = coco_motions.BEHAVIOURS[behaviour](start, persistent=persistent, **args)
-        seg = self.streamer.add(motion, label=ctx.path if ctx else behaviour, start_us=at_us)
+        label = ctx.path if ctx else behaviour
+        if at_us is None:  # a fresh start: as soon as the link allows, from rest (minimum-jerk start)
+            start = self.streamer.planned_targets(self.streamer.soonest_us())
+            motion = ease_in(coco_motions.BEHAVIOURS[behaviour](start, persistent=persistent, **args))
+            seg = await self.streamer.start_now(motion, label=label)
+        else:  # flowing on from the previous call on this channel
+            start = self.streamer.planned_targets(from_us)
+            motion = coco_motions.BEHAVIOURS[behaviour](start, persistent=persistent, **args)
+            seg = self.streamer.add(motion, label=label, start_us=at_us)
         if persistent and ctx is not None:
             self._last.pop(channel, None)
             self._active[ctx.element_id] = seg
@@ -245,8 +257,9 @@ class CocoRuntime:
         ctx = current_call()
         persistent = bool(ctx and ctx.persistent)
         duration = 0.0 if persistent else float(args.get("duration", 2.0))
-        start = self.streamer.first_free_us
-        await self.link.send_peripheral(ScreenCommand(ScreenTarget.FACE, str(args["emo"]), start, int(duration * 1000)))
+        show = ScreenCommand(ScreenTarget.FACE, str(args["emo"]), 0, int(duration * 1000))
+        start = self._soonest(show)
+        await self.link.send_peripheral(dataclasses.replace(show, start_at_us=start))
         await self.streamer.wait_board_time(start)
         self._mark(start=start * 1e-6)
         if persistent:
@@ -261,10 +274,11 @@ class CocoRuntime:
         ctx = current_call()
         persistent = bool(ctx and ctx.persistent)
         duration = 0.0 if persistent else float(args.get("duration") or 5.0)
-        start = self.streamer.first_free_us
         name = str(args.get("name", "happy"))[:24]
-        await self.link.send_peripheral(SpeakerCommand(SpeakerAction.PLAY, SoundKind.CLIP, start,
-                                                       int(duration * 1000), int(args.get("volume", 60)), name=name))
+        play = SpeakerCommand(SpeakerAction.PLAY, SoundKind.CLIP, 0, int(duration * 1000), int(args.get("volume", 60)),
+                              name=name)
+        start = self._soonest(play)
+        await self.link.send_peripheral(dataclasses.replace(play, start_at_us=start))
         await self.streamer.wait_board_time(start)
         self._mark(start=start * 1e-6)
         if persistent and ctx is not None:

@@ -95,6 +95,12 @@ class ClockSync:
     def estimate(self) -> ClockEstimate | None:
         return self._estimate
 
+    def rtt_quantile(self, q: float) -> float | None:
+        """The ``q`` quantile (0..1) of the round trips in the window (µs), None without samples."""
+        if not self._samples:
+            return None
+        return float(np.quantile([s.rtt_us for s in self._samples], q))
+
     def _fit(self) -> ClockEstimate:
         samples = sorted(self._samples, key=lambda s: s.rtt_us)
         keep = samples[: max(1, int(np.ceil(len(samples) * self.best_fraction)))]

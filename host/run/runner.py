@@ -55,6 +55,7 @@ class RunOptions:
     lockstep: bool = False
     link: str = "pty"
     baud: int = 115200
+    wire_baud: int | None = None  # the board models wire time at this baud rate (its --baud)
     out: Path = Path("runs/latest")
     tokens_per_s: float = 30.0
     seed: int = 0
@@ -206,13 +207,15 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, CocoRuntime],
     port = opts.link
     if opts.link == "pty":
         board_args = ["--lockstep" if opts.lockstep else "--realtime", "--log", str(out / "board_frames.jsonl")]
+        if opts.wire_baud:
+            board_args += ["--baud", str(opts.wire_baud)]
         board = start_board(board_args, out / "board.stderr")
         port = board.port
     rec = _Recorder()
     token_times: list[tuple[float, str]] = []
     try:
         async with await BoardClient.connect(port, baud=opts.baud, log_path=out / "host_frames.jsonl") as client:
-            link = ClientLink(client)
+            link = ClientLink(client, wire_baud=opts.wire_baud)
             if client.latest_telemetry is None and client.lockstep:
                 await client.advance(client.board_now_estimate() + 20_000)  # let a lockstep board report once
             tel = await client.wait_for(lambda t: True, timeout=10)
