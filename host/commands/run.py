@@ -92,8 +92,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     names = ("timeline.json", "timeline.png", "joints.png", "summary.json", "host_frames.jsonl", "board_frames.jsonl")
     if getattr(args, "video", False):
         render_into(out)
-    names = (*names, "run.mp4")
-    print(f"artefacts in {out}/: " + " ".join(n for n in names if (out / n).exists()))
+    print(f"artefacts in {out}/: " + " ".join(n for n in (*names, "run.mp4") if (out / n).exists()))
     return 0 if s.outcome in ("done", "interrupted") else 1
 
 
