@@ -24,41 +24,31 @@ program's own ordering. They are counted as *queued* and reported apart, with
 ``ready -> servo`` = board start - max(chunk arrival, the moment the scheduler
 released the call). The headline p50/p99 is over *immediate* motion calls.
 
-What dominates (host/motion/streamer.py, host/coco/runtime.py, firmware_sim):
+What it is made of (host/motion/streamer.py, host/coco/runtime.py, firmware_sim):
 
-* the streamer lookahead (60 ms): frames already sent cover the next 50-70 ms
-  of board time, and a new motion starts at the first *unsent* frame
-  (``FrameStreamer.first_free_us``), so on a realtime board it starts about
-  one lookahead after the call, never earlier;
-* the 10 ms frame grid: the start is rounded up to the next frame (0-10 ms),
-  and in realtime the top-up loop runs every 10 ms, so ``first_free_us`` is
-  now + 50..70 ms;
-* host work between the chunk and the ``streamer.add`` (parse, map, plan the
-  trajectory in numpy; usually < 1-2 ms) and the board's 2 ms tick;
-* telemetry (50 Hz, every 20 ms) does *not* add to this latency - it only
-  delays when the host *learns* the frame was applied (the call's confirmed
-  start event), not the board time recorded;
-* the scripted LLM sleeps on the board clock (``CocoRuntime.sleep`` waits for a
-  telemetry report), so chunks arrive just after a telemetry report, right after
-  a top-up: most motion latencies are 60 or 70 ms rather than spread over 50-70;
-* speech is synthesised (espeak-ng, in a worker thread) before it is scheduled,
-  so its latency adds the synthesis time (~10-40 ms in realtime);
-* in lockstep the board clock only advances as frames are sent, the chunk times
-  are quantised to telemetry reports (20 ms), and the first unsent frame is the
-  lookahead ahead of the last reported board time: every motion latency is
-  exactly 70 ms, while host wall time (TTS synthesis) turns into several times
-  as much board time (the lockstep board runs faster than real time), so
-  lockstep speech latencies are not meaningful.
+* a new call's first frame is due at the board's now + the link's measured latency p99 (TIME_SYNC
+  round trips; with ``--baud`` the frame's wire time too) + one 2 ms control tick: the frames
+  already sent for its servos (the 60 ms lookahead) are FLUSHed and re-sent, not waited out; the
+  board applies it at the first tick at or after that time (``tick_of``);
+* host work between the chunk and the first frame (parse, map, plan the trajectory in numpy; about
+  a millisecond on a quiet machine, several when the cores are shared);
+* face / music / speech commands start at the same "soonest" time; speech is synthesised (espeak-ng,
+  in a worker thread) before it is scheduled, so its latency adds the synthesis time;
+* telemetry (50 Hz) does *not* add to this latency - it only delays when the host *learns* the
+  frame was applied;
+* in lockstep the board clock only advances as frames are sent and chunk times are quantised to
+  telemetry reports, so a new call starts at the first unsent frame (60-70 ms after the chunk in
+  board time); lockstep latencies measure scheduling, not the link.
 
-Sequential calls on one channel additionally leave a 70-90 ms gap between the
-last frame of one and the first of the next (telemetry confirmation 0-20 ms +
-the lookahead); that is scheduling, reported by ``ready -> servo``.
+Calls on one channel are planned back to back (the next starts at the previous one's planned end;
+the shell releases it ~0.26 s before that end), so their ``ready -> servo`` is that planning lead.
 
 Run (realtime is the real measurement; ~4-5 min for all 30 tasks):
 
     python bench/bench_latency.py                       # all 30 tasks, realtime over a pty
     python bench/bench_latency.py --tasks 1,5,23        # a few tasks
     python bench/bench_latency.py --lockstep            # the same on a lockstep board
+    python bench/bench_latency.py --baud 115200         # the board models 115200-baud wire time
     python bench/bench_latency.py --json lat.json --out runs/bench_latency
 
 Numbers depend on the machine and its load; they are printed, never asserted.
