@@ -33,11 +33,11 @@ class BoardFrameLink:
         return self.client.board_now_estimate()
 
     def latency_us(self, nbytes: int = 0) -> int:
-        """Link latency p99 (µs) for a message of ``nbytes``: half the p99 TIME_SYNC round trip plus
-        the clock estimate's uncertainty, plus the message's own wire time at ``wire_baud``."""
-        rtt = self.client.clock.rtt_quantile(0.99)
-        est = self.client.clock_estimate
-        one_way = DEFAULT_LATENCY_US if rtt is None else rtt / 2 + (est.uncertainty_us if est else 0.0)
+        """Host -> board latency p99 (µs) for a message of ``nbytes``: the p99 of the TIME_SYNC
+        requests' measured uplink (``ClockSync.uplink_quantile``: it includes queueing behind other
+        frames on a modelled wire) plus the message's own wire time at ``wire_baud``."""
+        up = self.client.clock.uplink_quantile(0.99)
+        one_way = DEFAULT_LATENCY_US if up is None else up
         wire = 10e6 * nbytes / self.wire_baud if self.wire_baud else 0.0
         return int(one_way + wire)
 
