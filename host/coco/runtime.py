@@ -161,15 +161,20 @@ class CocoRuntime:
             self._mark(end=t * 1e-6)
 
     async def speak(self, text: str) -> str:
-        """Say one sentence: synthesise for its duration, play it on the board clock."""
-        duration = await self._speech_duration(text)
+        """Say one sentence at once: PLAY at the soonest board time (with a generous bound on its
+        length), synthesise meanwhile, then a STOP timed at start + the synthesised duration."""
+        from host.speech.tts import estimate_duration_s
+
         payload = text.encode("utf-8")[:200].decode("utf-8", "ignore")
         volume = int(max(0, min(100, 70 * self.voice.loudness_rate)))
-        play = SpeakerCommand(SpeakerAction.PLAY, SoundKind.SPEECH, 0, int(duration * 1000), volume, text=payload)
+        bound_s = 2.0 * estimate_duration_s(text, self._rate_wpm()) + 2.0
+        play = SpeakerCommand(SpeakerAction.PLAY, SoundKind.SPEECH, 0, int(bound_s * 1000), volume, text=payload)
         start = self._soonest(play)
         await self.link.send_peripheral(dataclasses.replace(play, start_at_us=start))
-        end = start + int(duration * 1e6)
         async with self._stop_on_cancel(SpeakerCommand(SpeakerAction.STOP, SoundKind.SPEECH, 0, 0, 0)):
+            duration = min(await self._speech_duration(text), bound_s)
+            end = start + int(duration * 1e6)
+            await self.link.send_peripheral(SpeakerCommand(SpeakerAction.STOP, SoundKind.SPEECH, end, 0, 0))
             await self.streamer.wait_board_time(start)
             self._mark(start=start * 1e-6)
             await self.streamer.wait_board_time(end)
@@ -189,12 +194,15 @@ class CocoRuntime:
             raise
 
     # -- behaviours ----------------------------------------------------------------------------
+    def _rate_wpm(self) -> int:
+        return int(175 * self.voice.speech_rate)
+
     async def _speech_duration(self, text: str) -> float:
         if self._speech_synth is None:
             from host.speech import synthesize_async
 
             self._speech_synth = synthesize_async
-        rate = int(175 * self.voice.speech_rate)
+        rate = self._rate_wpm()
         async with self.streamer.hold():  # synthesis takes wall time; a lockstep board waits for it
             utt = await self._speech_synth(text, self.run_dir / "speech", rate_wpm=rate)
         return float(utt.duration_s)
