@@ -256,3 +256,25 @@ def test_gesture_counts_follow_duration(name: str, kw: dict, col: int, lo: bool)
     three_s = BEHAVIOURS[name](STAND, duration=3.0, **kw)
     assert three_s.t[-1] == pytest.approx(3.0, abs=0.6)
     assert _extrema(three_s.q[:, col], lo) == pytest.approx(3.0 / one.t[-1], abs=1.5)
+
+
+@pytest.mark.parametrize("name,kw", [("head_act", {"action": "nod"}), ("shake_ear", {}), ("move_strides", {})])
+def test_ease_in_starts_from_rest_without_speeding_up(name: str, kw: dict) -> None:
+    from robots.coco.trajectory import EASE_IN_S, ease_in
+
+    m = BEHAVIOURS[name](STAND, **kw)
+    e = ease_in(m)
+    assert e.t[-1] == pytest.approx(m.t[-1] + EASE_IN_S / 2) and np.all(np.diff(e.t) > 0)
+    np.testing.assert_allclose(e.q[0], m.q[0])
+    np.testing.assert_allclose(e.q[-1], m.q[-1])
+    first = np.abs(e.at(0.01) - m.q[0]).max()
+    assert first <= 0.03 * np.abs(m.at(0.01) - m.q[0]).max() + 1e-12  # almost the current pose
+    speed = lambda x: np.max(np.abs(np.diff(x.q, axis=0)) / np.diff(x.t)[:, None])  # noqa: E731
+    assert speed(e) <= speed(m) * (1 + 1e-9)
+
+
+def test_ease_in_keeps_a_loop_that_starts_inside_the_ramp() -> None:
+    from robots.coco.trajectory import ease_in
+
+    m = Motion((9,), np.array([0.0, 0.01, 0.02]), np.array([[0.0], [0.1], [0.0]]), loop_from=0.0)
+    assert ease_in(m) is m
