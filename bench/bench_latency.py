@@ -24,41 +24,31 @@ program's own ordering. They are counted as *queued* and reported apart, with
 ``ready -> servo`` = board start - max(chunk arrival, the moment the scheduler
 released the call). The headline p50/p99 is over *immediate* motion calls.
 
-What dominates (host/motion/streamer.py, host/coco/runtime.py, firmware_sim):
+What it is made of (host/motion/streamer.py, host/coco/runtime.py, firmware_sim):
 
-* the streamer lookahead (60 ms): frames already sent cover the next 50-70 ms
-  of board time, and a new motion starts at the first *unsent* frame
-  (``FrameStreamer.first_free_us``), so on a realtime board it starts about
-  one lookahead after the call, never earlier;
-* the 10 ms frame grid: the start is rounded up to the next frame (0-10 ms),
-  and in realtime the top-up loop runs every 10 ms, so ``first_free_us`` is
-  now + 50..70 ms;
-* host work between the chunk and the ``streamer.add`` (parse, map, plan the
-  trajectory in numpy; usually < 1-2 ms) and the board's 2 ms tick;
-* telemetry (50 Hz, every 20 ms) does *not* add to this latency - it only
-  delays when the host *learns* the frame was applied (the call's confirmed
-  start event), not the board time recorded;
-* the scripted LLM sleeps on the board clock (``CocoRuntime.sleep`` waits for a
-  telemetry report), so chunks arrive just after a telemetry report, right after
-  a top-up: most motion latencies are 60 or 70 ms rather than spread over 50-70;
-* speech is synthesised (espeak-ng, in a worker thread) before it is scheduled,
-  so its latency adds the synthesis time (~10-40 ms in realtime);
-* in lockstep the board clock only advances as frames are sent, the chunk times
-  are quantised to telemetry reports (20 ms), and the first unsent frame is the
-  lookahead ahead of the last reported board time: every motion latency is
-  exactly 70 ms, while host wall time (TTS synthesis) turns into several times
-  as much board time (the lockstep board runs faster than real time), so
-  lockstep speech latencies are not meaningful.
+* a new call's first frame is due at the board's now + the link's measured latency p99 (TIME_SYNC
+  round trips; with ``--baud`` the frame's wire time too) + one 2 ms control tick: the frames
+  already sent for its servos (the 60 ms lookahead) are FLUSHed and re-sent, not waited out; the
+  board applies it at the first tick at or after that time (``tick_of``);
+* host work between the chunk and the first frame (parse, map, plan the trajectory in numpy; about
+  a millisecond on a quiet machine, several when the cores are shared);
+* face / music / speech commands start at the same "soonest" time; speech is synthesised (espeak-ng,
+  in a worker thread) before it is scheduled, so its latency adds the synthesis time;
+* telemetry (50 Hz) does *not* add to this latency - it only delays when the host *learns* the
+  frame was applied;
+* in lockstep the board clock only advances as frames are sent and chunk times are quantised to
+  telemetry reports, so a new call starts at the first unsent frame (60-70 ms after the chunk in
+  board time); lockstep latencies measure scheduling, not the link.
 
-Sequential calls on one channel additionally leave a 70-90 ms gap between the
-last frame of one and the first of the next (telemetry confirmation 0-20 ms +
-the lookahead); that is scheduling, reported by ``ready -> servo``.
+Calls on one channel are planned back to back (the next starts at the previous one's planned end;
+the shell releases it ~0.26 s before that end), so their ``ready -> servo`` is that planning lead.
 
 Run (realtime is the real measurement; ~4-5 min for all 30 tasks):
 
     python bench/bench_latency.py                       # all 30 tasks, realtime over a pty
     python bench/bench_latency.py --tasks 1,5,23        # a few tasks
     python bench/bench_latency.py --lockstep            # the same on a lockstep board
+    python bench/bench_latency.py --baud 115200         # the board models 115200-baud wire time
     python bench/bench_latency.py --json lat.json --out runs/bench_latency
 
 Numbers depend on the machine and its load; they are printed, never asserted.
@@ -67,6 +57,7 @@ Numbers depend on the machine and its load; they are printed, never asserted.
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
 from dataclasses import asdict, dataclass
@@ -171,6 +162,15 @@ def queued_paths(records: list[Any]) -> set[str]:
     return queued
 
 
+#: the board's control tick (s): a frame or peripheral command due at t takes effect at the first tick >= t
+TICK_S = 0.002
+
+
+def tick_of(t: float) -> float:
+    """The first control tick at or after board time ``t`` (s)."""
+    return math.ceil(round(t / TICK_S, 6)) * TICK_S
+
+
 def task_latencies(task: int, rep: RunReport, registry: Registry) -> tuple[list[CallLatency], list[str]]:
     """The latency of every function token of one run, and notes about calls left out."""
     speech = registry.speech
@@ -198,9 +198,9 @@ def task_latencies(task: int, rep: RunReport, registry: Registry) -> tuple[list[
         t_ready = rep.result.t0 + r.start
         out.append(CallLatency(
             task=task, path=r.path, function=r.function, channel=channel,
-            kind="motion" if channel in MOTION else "peripheral", chunk=k, t_chunk=t_chunk, t_board=call.start,
-            queued=r.path in queued, host_ms=(t_ready - t_chunk) * 1e3, token_ms=(call.start - t_chunk) * 1e3,
-            ready_ms=(call.start - max(t_chunk, t_ready)) * 1e3,
+            kind="motion" if channel in MOTION else "peripheral", chunk=k, t_chunk=t_chunk, t_board=tick_of(call.start),
+            queued=r.path in queued, host_ms=(t_ready - t_chunk) * 1e3, token_ms=(tick_of(call.start) - t_chunk) * 1e3,
+            ready_ms=(tick_of(call.start) - max(t_chunk, t_ready)) * 1e3,
             dispatch_skew_ms=(rep.result.t0 + r.dispatch - t_chunk) * 1e3))
     return out, notes
 
@@ -229,12 +229,13 @@ def _line(name: str, s: dict[str, Any]) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = task_arguments(__doc__.splitlines()[0], "also write every call and the summary as JSON")
     ap.add_argument("--lockstep", action="store_true", help="lockstep board instead of realtime")
+    ap.add_argument("--baud", type=int, default=None, help="the board models wire time at this baud rate")
     args = ap.parse_args(argv)
 
     programs = task_programs(parse_ids(args.tasks))
     root = out_root(args.out, "bench_latency_")
     registry = home_channels()
-    mode = "lockstep" if args.lockstep else "realtime"
+    mode = ("lockstep" if args.lockstep else "realtime") + (f", {args.baud} baud wire" if args.baud else "")
     print(f"token -> servo latency, {mode} board over a pty, {args.tokens_per_s:g} tokens/s, "
           f"{len(programs)} task(s); artefacts in {root}", flush=True)
     print(f"{'task':>4} {'calls':>5} {'queued':>6}  {'motion imm. p50':>15} {'max':>7}  "
@@ -244,7 +245,7 @@ def main(argv: list[str] | None = None) -> int:
     for tid, program in programs:
         w0 = time.monotonic()
         rep = run_task(tid, program, lockstep=args.lockstep, out_root=root, tokens_per_s=args.tokens_per_s,
-                       seed=args.seed)
+                       seed=args.seed, wire_baud=args.baud)
         got, why = task_latencies(tid, rep, registry)
         rows += got
         notes += why

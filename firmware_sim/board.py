@@ -64,6 +64,13 @@ __all__ = ["Board", "quat_to_rpy"]
 _ALL_SERVOS = (1 << 12) - 1
 
 
+def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
+    """``idx`` as an equivalent slice when it is a contiguous ascending run, else unchanged."""
+    if len(idx) and np.array_equal(idx, np.arange(idx[0], idx[0] + len(idx))):
+        return slice(int(idx[0]), int(idx[0]) + len(idx))
+    return idx
+
+
 def quat_to_rpy(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
     """Roll, pitch, yaw (rad, ZYX convention) of a unit quaternion."""
     roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
@@ -106,11 +113,17 @@ class Board:
         self._capture_seqs: dict[int, int] = {}
         self._clock_us = clock_us
         # per-servo interpolation anchor: the last applied keyframe (or where a resumed servo was)
-        self.anchor_t = np.zeros(self.n, dtype=np.int64)
-        self.anchor_v = neutral.copy()
+        # (plain lists: the per-tick loop is faster on 12 Python floats than on numpy, see servo_model)
+        self.anchor_t: list[int] = [0] * self.n
+        self.anchor_v: list[float] = neutral.tolist()
         self.hold_q = neutral.copy()
-        self.desired = neutral.copy()
-        self.ctrl = self.data.ctrl[self.cm.act_id].copy()
+        self._desired: list[float] = neutral.tolist()
+        self._ctrl: list[float] = self.data.ctrl[self.cm.act_id].tolist()
+        # the servos' joints and actuators as slices when contiguous (cheaper than index arrays per tick)
+        self._qpos_at = _as_slice(self.cm.qpos_adr)
+        self._ctrl_at = _as_slice(self.cm.act_id)
+        self._tick_us = self.cfg.tick_us  # rate and dt are fixed for a board's life (CONFIG cannot change them)
+        self._substeps = self.cfg.substeps
         self.now_us = 0
         self.ticks = 0
         self.advance_until = 0  # lockstep: ADVANCE lets ticks run while now_us < this
@@ -175,7 +188,7 @@ class Board:
             return [Ack(seq, MsgType.ADVANCE)]
         if isinstance(msg, Flush):
             for i in self.buffer.flush(int(msg.from_us), int(msg.mask)):
-                self.anchor_t[i], self.anchor_v[i] = self.now_us, self.servo.cmd[i]
+                self.anchor_t[i], self.anchor_v[i] = self.now_us, self.servo.cmd_of(i)
             self._recompute_cover()
             return [Ack(seq, MsgType.FLUSH)]
         if isinstance(msg, Estop):
@@ -258,7 +271,7 @@ class Board:
             self.dropped_count += 1
             return [self._nack(msg, seq, NackReason.BUFFER_FULL, f"jitter buffer full ({self.cfg.buffer_depth} frames)")]
         for i in resume:  # an idle servo starts the new stream from where it is now
-            self.anchor_t[i], self.anchor_v[i] = now, self.servo.cmd[i]
+            self.anchor_t[i], self.anchor_v[i] = now, self.servo.cmd_of(i)
         self.covered_until = max(self.covered_until, t)
         return []
 
@@ -314,8 +327,8 @@ class Board:
 
     def _resume(self) -> None:
         """Leaving a hold: buffered frames are gone, every servo continues from its command."""
-        self.anchor_t[:] = self.now_us
-        self.anchor_v = self.servo.cmd.copy()
+        self.anchor_t = [self.now_us] * self.n
+        self.anchor_v = self.servo.cmd.tolist()
         self._recompute_cover()
 
     def _recompute_cover(self) -> None:
@@ -324,47 +337,70 @@ class Board:
 
     # --- control tick ----------------------------------------------------------------------
 
-    def _interpolate(self, t: int) -> np.ndarray:
-        out = self.anchor_v.copy()
-        for i in range(self.n):
-            nxt = self.buffer.next_for(i)
+    def _interpolate(self, t: int) -> list[float]:
+        """Per servo: linear from its anchor (last applied keyframe) to its next buffered keyframe."""
+        at, av = self.anchor_t, self.anchor_v
+        out = av[:]
+        for i, nxt in enumerate(self.buffer.next_all()):
             if nxt is not None:
                 t1, v1 = nxt
-                t0 = int(self.anchor_t[i])
+                t0 = at[i]
                 if t1 > t0:
-                    out[i] += (v1 - out[i]) * (t - t0) / (t1 - t0)
+                    a = av[i]
+                    out[i] = a + (v1 - a) * (t - t0) / (t1 - t0)
         return out
 
+    @property
+    def desired(self) -> np.ndarray:
+        """The interpolated targets of the last tick (rad, servo order), before the servo model."""
+        return np.array(self._desired)
+
+    @property
+    def ctrl(self) -> np.ndarray:
+        """The actuator commands of the last tick (rad, servo order)."""
+        return np.array(self._ctrl)
+
     def tick(self) -> list[Message]:
-        """Run one control period at board time ``now_us``; return telemetry when due."""
+        """Run one control period at board time ``now_us``; return telemetry when due.
+
+        The hot path of lockstep runs: per-tick work is plain Python on the 12 servos' floats
+        (see :mod:`firmware_sim.servo_model`) plus MuJoCo; reports are built only when due.
+        """
         t = self.now_us
         mode, entered = self.safety.update(t)
         speed_cap: float | None = None
         if entered and mode in (Mode.HOLD, Mode.CROUCH):
             self.buffer.clear()
-            self.hold_q = self.servo.cmd.copy()
+            self.hold_q = self.servo.cmd
+        desired: list[float]
         if mode is Mode.RUN:
-            for f in self.buffer.pop_due(t):
-                for i, v in f.values.items():
-                    self.anchor_t[i], self.anchor_v[i] = f.apply_at_us, v
-                self.last_applied_seq = f.seq
-                if self.cfg.lockstep:
-                    self.safety.feed(f.apply_at_us)
+            due = self.buffer.pop_due(t)
+            if due:
+                at, av = self.anchor_t, self.anchor_v
+                for f in due:
+                    for i, v in f.values.items():
+                        at[i], av[i] = f.apply_at_us, v
+                    self.last_applied_seq = f.seq
+                    if self.cfg.lockstep:
+                        self.safety.feed(f.apply_at_us)
             desired = self._interpolate(t)
         elif mode is Mode.CROUCH:
-            desired, speed_cap = self.crouch, self.cfg.crouch_speed
+            desired, speed_cap = self.crouch.tolist(), self.cfg.crouch_speed
         else:
-            desired = self.hold_q
-        measured = self.data.qpos[self.cm.qpos_adr]
-        ctrl, clamped = self.servo.step(desired, measured, speed_cap)
-        if mode is Mode.RUN and clamped.any():
+            desired = self.hold_q.tolist()
+        data = self.data
+        ctrl, clamped = self.servo.step_list(desired, data.qpos[self._qpos_at].tolist(), speed_cap)
+        if clamped and mode is Mode.RUN:
             self._flags_since |= FaultFlags.CLAMPED
             self.clamped_ticks += 1
-        self.desired, self.ctrl = desired, ctrl
-        self.data.ctrl[self.cm.act_id] = ctrl
-        for _ in range(self.cfg.substeps):
-            mujoco.mj_step(self.model, self.data)
-        self.now_us += self.tick_us
+        self._desired, self._ctrl = desired, ctrl
+        data.ctrl[self._ctrl_at] = ctrl
+        substeps = self._substeps
+        if substeps == 1:
+            mujoco.mj_step(self.model, data)
+        else:
+            mujoco.mj_step(self.model, data, nstep=substeps)
+        self.now_us = t + self._tick_us
         self.ticks += 1
         out = self._camera_results() if self.camera_worker is not None else []
         if self.ticks % self.cfg.telemetry_every == 0:

@@ -55,6 +55,8 @@ class JitterBuffer:
 
     def pop_due(self, t_us: int) -> list[BufferedFrame]:
         """Remove and return every frame with ``apply_at_us <= t_us``, in order."""
+        if not self._frames or self._frames[0].apply_at_us > t_us:
+            return []
         n = 0
         while n < len(self._frames) and self._frames[n].apply_at_us <= t_us:
             n += 1
@@ -94,6 +96,13 @@ class JitterBuffer:
         self._frames = kept
         self._next_cache = None
         return touched
+
+    def next_all(self) -> list[tuple[int, float] | None]:
+        """:meth:`next_for` of every servo at once (cached until the buffer changes; do not modify)."""
+        if self._next_cache is None:
+            self.next_for(0)
+        assert self._next_cache is not None
+        return self._next_cache
 
     def clear(self) -> None:
         self._frames.clear()

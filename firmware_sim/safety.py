@@ -56,6 +56,9 @@ class Safety:
 
     def update(self, t_us: int) -> tuple[Mode, bool]:
         """Advance the watchdog to board time ``t_us``; returns (mode, entered a new mode now)."""
+        if (self.hold_since_us is None and not self.estopped and not self.fault_latched
+                and (not self.armed or t_us - self.last_feed_us <= self.watchdog_us)):
+            return Mode.RUN, False  # the per-tick common case: running, fed in time
         before = self.mode
         if self.armed and not self.estopped and not self.fault_latched:
             if self.hold_since_us is None and t_us - self.last_feed_us > self.watchdog_us:

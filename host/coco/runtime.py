@@ -9,6 +9,15 @@ return (reset) or a smooth stop (interruption of a finite call) at the cut.
 Face, speech, music and camera go over the same link as peripheral messages
 timed on the board clock; they complete when the board clock passes their end.
 
+Calls on one motion channel flow into each other: a finite motion is planned
+to start at the previous one's planned end (on the frame grid, so the gap is
+below one frame period and nothing stops in between). To make that possible a
+finite motion hands its channel over to the shell (``CallContext.hand_over``)
+once board time is within :data:`HANDOVER_LEAD_US` plus the lookahead of its
+planned end; its own ``done`` still waits for telemetry to confirm its last
+frame. An interruption cancels the calls queued on the channel, and each
+cancelled motion cuts its own segment (planned-ahead ones included).
+
 Every call's board-measured start and end are kept by element path in
 :attr:`CocoRuntime.board_times` for the run's timeline.
 """
@@ -35,10 +44,15 @@ from protocol.messages import (
     SpeakerAction,
     SpeakerCommand,
 )
+from protocol.framing import encode_frame
 from robots.coco import motions as coco_motions
 from robots.coco.interface import VOICES
+from robots.coco.trajectory import ease_in
 
 MOTION_CHANNELS = ("body", "head", "ears")
+#: How long (board µs) before the streamer's horizon reaches a motion's planned end the next
+#: call on its channel is let in, so that it is planned before that frame is sent.
+HANDOVER_LEAD_US = 200_000
 
 
 class CocoLink(FrameLink, Protocol):
@@ -86,11 +100,16 @@ class CocoRuntime:
         self.board_times: dict[str, list[float | None]] = {}
         self.captures: list[Path] = []
         self._active: dict[int, Segment] = {}  # element id -> the looping segment of a persistent call
+        self._last: dict[str, Segment] = {}  # channel -> its last finite segment (where the next one starts)
         self._channel_servos = {ch: tuple(coco_motions.channel_servos(ch)) for ch in MOTION_CHANNELS}
         self._speech_synth = speech_synth
         self._playing_bgm: dict[int, str] = {}
 
     # -- helpers -------------------------------------------------------------------------------
+    def _soonest(self, msg: ScreenCommand | SpeakerCommand) -> int:
+        """Board time a peripheral command sent now can start at (see ``FrameStreamer.soonest_us``)."""
+        return self.streamer.soonest_us(len(encode_frame(msg, 0)) + 4)  # + 4: a larger start time's varint
+
     def _mark(self, start: float | None = None, end: float | None = None) -> None:
         ctx = current_call()
         if ctx is None:
@@ -140,27 +159,32 @@ class CocoRuntime:
             if new is not None:
                 self._mark(end=await self.streamer.wait_ended(new))
         elif channel == "face":
-            t = self.streamer.first_free_us
+            t = self._soonest(ScreenCommand(ScreenTarget.FACE, "neutral", 0, 0))
             await self.link.send_peripheral(ScreenCommand(ScreenTarget.FACE, "neutral", t, 0))
             await self.streamer.wait_board_time(t)
             self._mark(end=t * 1e-6)
         elif channel == "bgm":
-            t = self.streamer.first_free_us
-            await self.link.send_peripheral(SpeakerCommand(SpeakerAction.STOP, SoundKind.CLIP, t, 0, 0,
-                                                           name=self._playing_bgm.pop(ctx.element_id, "")))
+            stop = SpeakerCommand(SpeakerAction.STOP, SoundKind.CLIP, 0, 0, 0, name=self._playing_bgm.pop(ctx.element_id, ""))
+            t = self._soonest(stop)
+            await self.link.send_peripheral(dataclasses.replace(stop, start_at_us=t))
             await self.streamer.wait_board_time(t)
             self._mark(end=t * 1e-6)
 
     async def speak(self, text: str) -> str:
-        """Say one sentence: synthesise for its duration, play it on the board clock."""
-        duration = await self._speech_duration(text)
-        start = self.streamer.first_free_us
+        """Say one sentence at once: PLAY at the soonest board time (with a generous bound on its
+        length), synthesise meanwhile, then a STOP timed at start + the synthesised duration."""
+        from host.speech.tts import estimate_duration_s
+
         payload = text.encode("utf-8")[:200].decode("utf-8", "ignore")
         volume = int(max(0, min(100, 70 * self.voice.loudness_factor)))
-        await self.link.send_peripheral(SpeakerCommand(SpeakerAction.PLAY, SoundKind.SPEECH, start,
-                                                       int(duration * 1000), volume, text=payload))
-        end = start + int(duration * 1e6)
+        bound_s = 2.0 * estimate_duration_s(text, self._rate_wpm()) + 2.0
+        play = SpeakerCommand(SpeakerAction.PLAY, SoundKind.SPEECH, 0, int(bound_s * 1000), volume, text=payload)
+        start = self._soonest(play)
+        await self.link.send_peripheral(dataclasses.replace(play, start_at_us=start))
         async with self._stop_on_cancel(SpeakerCommand(SpeakerAction.STOP, SoundKind.SPEECH, 0, 0, 0)):
+            duration = min(await self._speech_duration(text), bound_s)
+            end = start + int(duration * 1e6)
+            await self.link.send_peripheral(SpeakerCommand(SpeakerAction.STOP, SoundKind.SPEECH, end, 0, 0))
             await self.streamer.wait_board_time(start)
             self._mark(start=start * 1e-6)
             await self.streamer.wait_board_time(end)
@@ -174,18 +198,21 @@ class CocoRuntime:
             yield
         except anyio.get_cancelled_exc_class():
             with anyio.CancelScope(shield=True), anyio.move_on_after(5):
-                now = self.streamer.first_free_us
+                now = self._soonest(stop)
                 await self.link.send_peripheral(dataclasses.replace(stop, start_at_us=now))
                 self._mark(end=now * 1e-6)
             raise
 
     # -- behaviours ----------------------------------------------------------------------------
+    def _rate_wpm(self) -> int:
+        return int(175 * self.voice.rate_factor)
+
     async def _speech_duration(self, text: str) -> float:
         if self._speech_synth is None:
             from host.speech import synthesize_async
 
             self._speech_synth = synthesize_async
-        rate = int(175 * self.voice.rate_factor)
+        rate = self._rate_wpm()
         async with self.streamer.hold():  # synthesis takes wall time; a lockstep board waits for it
             utt = await self._speech_synth(text, self.run_dir / "speech", rate_wpm=rate)
         return float(utt.duration_s)
@@ -193,15 +220,28 @@ class CocoRuntime:
     async def _motion(self, behaviour: str, channel: str, args: dict[str, Any]) -> str:
         ctx = current_call()
         persistent = bool(ctx and ctx.persistent)
-        start = self.streamer.planned_targets()
-        motion = coco_motions.BEHAVIOURS[behaviour](start, persistent=persistent, **args)
-        seg = self.streamer.add(motion, label=ctx.path if ctx else behaviour)
+        at_us, from_us = self._plan_start(channel)
+        label = ctx.path if ctx else behaviour
+        if at_us is None:  # a fresh start: as soon as the link allows, from rest (minimum-jerk start)
+            start = self.streamer.planned_targets(self.streamer.soonest_us())
+            motion = ease_in(coco_motions.BEHAVIOURS[behaviour](start, persistent=persistent, **args))
+            seg = await self.streamer.start_now(motion, label=label)
+        else:  # flowing on from the previous call on this channel
+            start = self.streamer.planned_targets(from_us)
+            motion = coco_motions.BEHAVIOURS[behaviour](start, persistent=persistent, **args)
+            seg = self.streamer.add(motion, label=label, start_us=at_us)
         if persistent and ctx is not None:
+            self._last.pop(channel, None)
             self._active[ctx.element_id] = seg
             self._mark(start=await self.streamer.wait_started(seg))
             await anyio.sleep_forever()
+        self._last[channel] = seg
         try:
             self._mark(start=await self.streamer.wait_started(seg))
+            planned_end = seg.end_us
+            if ctx is not None and planned_end is not None:
+                await self.streamer.wait_board_time(planned_end - self.streamer.lookahead_us - HANDOVER_LEAD_US)
+                ctx.hand_over()
             end = await self.streamer.wait_ended(seg)
         except anyio.get_cancelled_exc_class():
             with anyio.CancelScope(shield=True):
@@ -210,8 +250,20 @@ class CocoRuntime:
         self._mark(end=end)
         return f"{behaviour} done"
 
+    def _plan_start(self, channel: str) -> tuple[int | None, int | None]:
+        """Where a new finite motion on ``channel`` starts: (start on the frame grid, time whose
+        targets it starts from), the previous segment's planned end while that is still ahead."""
+        last = self._last.get(channel)
+        end = None if last is None or last.release_us is not None else last.end_us
+        if end is None or self.streamer.grid(end) < self.streamer.first_free_us:
+            return None, None
+        return self.streamer.grid(end), end
+
     async def _stop(self, seg: Segment, channel: str) -> None:
         """Interrupted finite motion: flush and settle smoothly where it is."""
+        if seg.first_frame_us is None:  # planned ahead and not sent yet: just drop it
+            self.mixer.cancel(seg)
+            return
         servos = self._channel_servos[channel]
         new = await self.streamer.cut([seg], servos, lambda q: coco_motions.transition(q, q, servos),
                                       label="stop")
@@ -237,8 +289,9 @@ class CocoRuntime:
         ctx = current_call()
         persistent = bool(ctx and ctx.persistent)
         duration = 0.0 if persistent else float(args.get("duration", 2.0))
-        start = self.streamer.first_free_us
-        await self.link.send_peripheral(ScreenCommand(ScreenTarget.FACE, str(args["emo"]), start, int(duration * 1000)))
+        show = ScreenCommand(ScreenTarget.FACE, str(args["emo"]), 0, int(duration * 1000))
+        start = self._soonest(show)
+        await self.link.send_peripheral(dataclasses.replace(show, start_at_us=start))
         await self.streamer.wait_board_time(start)
         self._mark(start=start * 1e-6)
         if persistent:
@@ -253,14 +306,15 @@ class CocoRuntime:
         ctx = current_call()
         persistent = bool(ctx and ctx.persistent)
         duration = 0.0 if persistent else float(args.get("duration") or 5.0)
-        start = self.streamer.first_free_us
         name = str(args.get("name", "happy"))  # UTF-8 byte bound checked by the mapper
         note = ""
         if self.clips is not None and name not in self.clips:
             note = f"; note: this robot has no clip {name!r}, played 'happy' instead (clips: {', '.join(self.clips)})"
             name = "happy"
-        await self.link.send_peripheral(SpeakerCommand(SpeakerAction.PLAY, SoundKind.CLIP, start,
-                                                       int(duration * 1000), int(args.get("volume", 60)), name=name))
+        play = SpeakerCommand(SpeakerAction.PLAY, SoundKind.CLIP, 0, int(duration * 1000), int(args.get("volume", 60)),
+                              name=name)
+        start = self._soonest(play)
+        await self.link.send_peripheral(dataclasses.replace(play, start_at_us=start))
         await self.streamer.wait_board_time(start)
         self._mark(start=start * 1e-6)
         if persistent and ctx is not None:

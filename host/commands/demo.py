@@ -1,7 +1,8 @@
 """``ghostshell demo``: the showcase, a paper task end to end on the embedded default.
 
 The emulated board on a pty, MuJoCo headless, the scripted LLM streaming the
-task's ground-truth function tokens at 30 tokens/s; prints where the artefacts are.
+task's ground-truth function tokens at 30 tokens/s; prints where the artefacts are
+and leaves a video of the run (run.mp4) unless ``--no-video``.
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ DEFAULT_TASK = 26
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--task", type=int, default=DEFAULT_TASK,
                         help=f"paper task to show (default {DEFAULT_TASK}: ears, nods and strides under music)")
+    parser.add_argument("--no-video", dest="video", action="store_false",
+                        help="skip run.mp4 (rendered after the run by default)")
     add_run_options(parser)
 
 

@@ -28,7 +28,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 async def _run(args: argparse.Namespace, target: tuple[float, ...]) -> int:
     from host.link import BoardClient, LinkError
-    from host.link.moves import move_to
+    from host.motion.moves import move_to
     from robots.coco import load_servo_table
 
     names = load_servo_table().names

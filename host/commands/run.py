@@ -2,7 +2,8 @@
 
 With ``--link pty`` (default) it starts the emulated board itself. It shows the
 channels live (on a terminal) and leaves timeline.json/png, joints.png,
-summary.json and both frame logs in ``--out``.
+summary.json and both frame logs in ``--out``; with ``--video`` also run.mp4
+(rendered after the run, see :mod:`host.run.video`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     src.add_argument("--xml", metavar="TEXT", help="function tokens to replay, e.g. '<head_act action=\"nod\"/>'")
     src.add_argument("--xml-file", metavar="F", help="a file of function tokens to replay")
     src.add_argument("--prompt", metavar="TEXT", help="an instruction for a real LLM (needs --llm openai:MODEL)")
+    parser.add_argument("--video", action="store_true", help="also render run.mp4 after the run (MuJoCo offscreen, ffmpeg)")
     add_run_options(parser)
     parser.add_argument("--llm", default="scripted", metavar="SPEC",
                         help="scripted (replay, default) or openai:MODEL (any OpenAI-compatible endpoint)")
@@ -120,8 +122,26 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         print(f"scene {scene['name']}: {scene['toppled']} of {scene['objects']} toppled")
     names = ("timeline.json", "timeline.png", "joints.png", "summary.json", "host_frames.jsonl", "board_frames.jsonl",
              "host_frames.log", "board_frames.log")
-    print(f"artefacts in {out}/: " + " ".join(n for n in names if (out / n).exists()))
+    if getattr(args, "video", False):
+        render_into(out)
+    print(f"artefacts in {out}/: " + " ".join(n for n in (*names, "run.mp4") if (out / n).exists()))
     return 0 if s.outcome in ("done", "interrupted") else 1
+
+
+def render_into(out: Path) -> bool:
+    """Render ``out/run.mp4`` from the run's recorded state; print progress or why not."""
+    import time
+
+    from host.run.video import VideoError, render_video
+
+    t = time.monotonic()
+    try:
+        path = render_video(out)
+    except VideoError as e:
+        print(f"ghostshell: no video: {e}", file=sys.stderr)
+        return False
+    print(f"video: {path} (rendered in {time.monotonic() - t:.1f} s)")
+    return True
 
 
 def main(args: argparse.Namespace) -> int:

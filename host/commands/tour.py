@@ -73,7 +73,7 @@ async def _printer(client: Any, names: tuple[str, ...], state: dict[str, Any], l
 
 async def _drive(port: LinkSpec, args: argparse.Namespace, out: Path | None) -> dict[str, Any]:
     from host.link import BoardClient
-    from host.link.moves import move_to
+    from host.motion.moves import move_to
     from robots.coco import load_poses, load_servo_table
 
     poses = load_poses()

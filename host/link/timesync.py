@@ -27,16 +27,18 @@ __all__ = ["ClockEstimate", "ClockSync", "SyncSample"]
 
 @dataclass(frozen=True)
 class SyncSample:
-    """One exchange reduced to its midpoint host time, offset and round trip (all us)."""
+    """One exchange reduced to its midpoint host time, offset and round trip (all us); ``up_us`` is
+    ``t2 - t1`` (the host -> board leg plus the clock offset)."""
 
     host_mid_us: float
     offset_us: float
     rtt_us: float
+    up_us: float = 0.0
 
     @classmethod
     def from_timestamps(cls, t1: int, t2: int, t3: int, t4: int) -> SyncSample:
         """Reduce the four timestamps (t1, t4 host clock; t2, t3 board clock)."""
-        return cls((t1 + t4) / 2.0, ((t2 - t1) + (t3 - t4)) / 2.0, float((t4 - t1) - (t3 - t2)))
+        return cls((t1 + t4) / 2.0, ((t2 - t1) + (t3 - t4)) / 2.0, float((t4 - t1) - (t3 - t2)), float(t2 - t1))
 
 
 @dataclass(frozen=True)
@@ -94,6 +96,23 @@ class ClockSync:
     @property
     def estimate(self) -> ClockEstimate | None:
         return self._estimate
+
+    def uplink_quantile(self, q: float) -> float | None:
+        """The ``q`` quantile of the host -> board latency (µs) over the window: ``t2 - t1`` minus the
+        estimated offset, None before an estimate. Measured against the same offset that maps host
+        time to board time, so ``host_to_board(now) + uplink_quantile(q)`` is when a message sent
+        now reaches the board, even when the path is asymmetric (the offset's bias cancels)."""
+        est = self._estimate
+        if est is None or not self._samples:
+            return None
+        up = [s.up_us - (est.offset_us + est.drift * (s.host_mid_us - est.ref_host_us)) for s in self._samples]
+        return max(0.0, float(np.quantile(up, q)))
+
+    def rtt_quantile(self, q: float) -> float | None:
+        """The ``q`` quantile (0..1) of the round trips in the window (µs), None without samples."""
+        if not self._samples:
+            return None
+        return float(np.quantile([s.rtt_us for s in self._samples], q))
 
     def _fit(self) -> ClockEstimate:
         samples = sorted(self._samples, key=lambda s: s.rtt_us)

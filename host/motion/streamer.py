@@ -12,6 +12,15 @@ first (last) appeared in was applied: ``last_applied_seq`` has passed that
 frame's sequence number and the board clock has reached its apply time. Those
 board times are what the run's timeline records.
 
+:meth:`FrameStreamer.start_now` starts a motion on a realtime board as soon as the link allows
+(token to servo within a few ms): its first frame is due at :meth:`FrameStreamer.soonest_us`
+(board now + the link's measured latency p99 + one control tick) instead of at the first unsent
+frame, and the frames already sent for its servos from that time on (the hold, or what the
+segment it overrides planned) are replaced: FLUSH of those servos from the first frame's time,
+then the first frame, then the servos' frames re-sent for the part of the grid already sent.
+Later frames keep the full lookahead. On a lockstep board nothing of the grid has been simulated
+beyond the first unsent frame's predecessor, so that frame is the soonest.
+
 :meth:`FrameStreamer.cut` implements reset and interruption: it FLUSHes the
 affected servos' buffered frames from a cut time on, releases their segments
 there, starts the replacement motion (a smooth return or a stop) at the cut
@@ -33,7 +42,8 @@ import anyio
 import numpy as np
 
 from host.motion.mixer import MixedFrame, Mixer, MotionLike, Segment
-from protocol.messages import ServoFrame, Telemetry
+from protocol.framing import encode_frame
+from protocol.messages import Flush, ServoFrame, Telemetry
 
 
 class FrameLink(Protocol):
@@ -47,6 +57,28 @@ class FrameLink(Protocol):
     async def send_frame(self, frame: ServoFrame) -> int: ...
 
     async def flush(self, from_us: int, mask: int) -> None: ...
+
+    def send_flush(self, from_us: int, mask: int) -> None:
+        """FLUSH without waiting for the board's ACK (what precedes a frame may not cost a round trip)."""
+        ...
+
+    def latency_us(self, nbytes: int) -> int:
+        """How long after it is sent a message of ``nbytes`` wire bytes is surely on the board (p99, µs)."""
+        ...
+
+    @property
+    def tick_us(self) -> int:
+        """The board's control period (µs)."""
+        ...
+
+
+#: Wire bytes of a FLUSH and of a SERVO_FRAME for ``n`` servos (framing and COBS overhead included),
+#: from :func:`protocol.framing.encode_frame`.
+FLUSH_WIRE_BYTES = len(encode_frame(Flush(0, 0xFFF), 0))
+
+
+def frame_wire_bytes(n_servos: int) -> int:
+    return len(encode_frame(ServoFrame(0, (1 << n_servos) - 1, (0.0,) * n_servos), 0))
 
 
 def mask_of(servos: Sequence[int]) -> int:
@@ -93,9 +125,12 @@ class FrameStreamer:
         self._waiter_ids = itertools.count()
         self.history: deque[tuple[int, np.ndarray]] = deque(maxlen=history)  # (t_us, targets) sent
 
-    def _grid(self, t_us: int) -> int:
+    def grid(self, t_us: int) -> int:
+        """The first frame time on the grid at or after ``t_us``."""
         p = self.period_us
         return -(-int(t_us) // p) * p
+
+    _grid = grid
 
     # -- planning ----------------------------------------------------------------------------
     @property
@@ -128,6 +163,41 @@ class FrameStreamer:
         await t.ended.wait()
         assert t.end is not None
         return t.end
+
+    def soonest_us(self, nbytes: int = 0) -> int:
+        """Earliest board time (µs) a message of ``nbytes`` sent now can be due at without being late.
+
+        Realtime: the board clock estimate + the link's measured latency p99 (wire time of
+        ``nbytes`` included) + one control tick; never later than the first unsent frame.
+        Lockstep: the first unsent frame.
+        """
+        if self.link.lockstep:
+            return self.next_us
+        t = self.link.board_now_us() + self.link.latency_us(nbytes) + self.link.tick_us
+        return min(t, self.next_us)
+
+    async def start_now(self, motion: MotionLike, label: str = "") -> Segment:
+        """Start ``motion`` at :meth:`soonest_us`, replacing the frames already sent for its servos."""
+        async with self._lock:
+            servos = sorted(int(i) for i in motion.servos)
+            mask = mask_of(servos)
+            t0 = self.soonest_us(FLUSH_WIRE_BYTES + frame_wire_bytes(len(servos)))
+            if t0 >= self.next_us:
+                seg = self.mixer.add(motion, self.next_us, label)
+                self._times[seg] = SegmentTimes()
+                return seg
+            seg = self.mixer.add(motion, t0, label)
+            self._times[seg] = SegmentTimes()
+            idx = np.asarray(servos, dtype=int)
+            self.link.send_flush(t0, mask)  # nothing buffered for these servos survives from t0 on
+            first = self.mixer.sample_servo_targets(t0)
+            seq = await self.link.send_frame(ServoFrame(t0, mask, tuple(float(x) for x in first[idx])))
+            seg.first_frame_us = t0
+            self._in_flight.append(_Sent(seq, MixedFrame(t0, first, (seg,), ())))
+            for t in range(self.grid(t0 + 1), self.next_us, self.period_us):
+                q = self.mixer.sample_servo_targets(t)[idx]
+                await self.link.send_frame(ServoFrame(t, mask, tuple(float(x) for x in q)))
+            return seg
 
     # -- sending -------------------------------------------------------------------------------
     @contextlib.asynccontextmanager

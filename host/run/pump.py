@@ -73,13 +73,22 @@ async def pump(client: BoardClient, runtime: CocoRuntime, rec: Recorder) -> None
 
 
 async def silence_watchdog(runtime: CocoRuntime, rec: Recorder) -> None:
-    """Fail the run when the board stops reporting (it died, or the link hung)."""
+    """Fail the run when the board stops reporting (it died, or the link hung), or when the host
+    stops streaming frames to it (a stalled streamer must end the run, not hang it)."""
+    sent, since = runtime.streamer.frames_sent, time.monotonic()
     while True:
         await anyio.sleep(1.0)
+        now = time.monotonic()
+        if runtime.streamer.frames_sent != sent or runtime.streamer.held:
+            sent, since = runtime.streamer.frames_sent, now
         if runtime.streamer.held:  # a held lockstep board is silent on purpose (waiting for the LLM)
-            rec.last_rx = time.monotonic()
-        elif time.monotonic() - rec.last_rx > TELEMETRY_SILENCE_S:
+            rec.last_rx = now
+        elif now - rec.last_rx > TELEMETRY_SILENCE_S:
             raise LinkError(f"no telemetry from the board for {TELEMETRY_SILENCE_S:g} s; giving up the run")
+        elif now - since > TELEMETRY_SILENCE_S:
+            raise LinkError(f"the host sent no servo frame for {TELEMETRY_SILENCE_S:g} s "
+                            f"(board clock estimate {runtime.streamer.board_now_us()} us, next frame "
+                            f"{runtime.streamer.first_free_us} us); giving up the run")
 
 
 async def realtime_topper(runtime: CocoRuntime) -> None:

@@ -47,6 +47,7 @@ class RunOptions:
     link: str | LinkSpec = "pty"  # a link spec (protocol.linkspec)
     emulate_board: bool | None = None  # start the emulated board on `link` first; None: only where implied (pty, can:slcan:pty)
     baud: int = 115200
+    wire_baud: int | None = None  # the board models wire time at this baud rate (its --baud)
     out: Path = Path("runs/latest")
     tokens_per_s: float = 30.0
     seed: int = 0
@@ -76,7 +77,7 @@ class RunReport:
 def session_options(opts: RunOptions) -> SessionOptions:
     """The board/link/shell part of ``opts``."""
     return SessionOptions(vocabulary=opts.vocabulary, mode=opts.mode, strict=opts.strict, lockstep=opts.lockstep,
-                          link=opts.link, emulate_board=opts.emulate_board, baud=opts.baud, out=opts.out, start_pose=opts.start_pose,
+                          link=opts.link, emulate_board=opts.emulate_board, baud=opts.baud, wire_baud=opts.wire_baud, out=opts.out, start_pose=opts.start_pose,
                           skills=opts.skills, label=opts.task_label, scene=opts.scene)
 
 

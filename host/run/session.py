@@ -73,6 +73,7 @@ class SessionOptions:
     link: str | LinkSpec = "pty"  # a link spec (protocol.linkspec)
     emulate_board: bool | None = None  # start the emulated board on `link` first; None: only where implied (pty, can:slcan:pty)
     baud: int = 115200
+    wire_baud: int | None = None  # the board models wire time at this baud rate (its --baud)
     out: Path = Path("runs/latest")
     start_pose: str = "stand"
     skills: SkillStore | None = None  # None: an in-memory store (skills end with the session)
@@ -170,6 +171,8 @@ class RobotSession:
             if emulate:
                 board_args = ["--lockstep" if opts.lockstep else "--realtime",
                               "--log", str(self.out / f"board_frames{log_suffix}"), "--scene", opts.scene]
+                if opts.wire_baud:
+                    board_args += ["--baud", str(opts.wire_baud)]
                 self._board = start_board(board_args, self.out / "board.stderr", link=spec)
                 target = self._board.spec
             client = await BoardClient.connect(target, baud=opts.baud, log_path=self.out / f"host_frames{log_suffix}")
@@ -177,7 +180,7 @@ class RobotSession:
             if client.latest_telemetry is None and client.lockstep:
                 await client.advance(client.board_now_estimate() + 20_000)  # let a lockstep board report once
             tel = await client.wait_for(lambda t: True, timeout=10)
-            runtime = CocoRuntime(ClientLink(client), self.out, initial=np.asarray(tel.positions))
+            runtime = CocoRuntime(ClientLink(client, wire_baud=opts.wire_baud), self.out, initial=np.asarray(tel.positions))
             self._runtime = runtime
             registry = coco_registry(runtime, opts.vocabulary)
             self._shell = Shell(registry, mode=opts.mode, strict=opts.strict, clock=runtime.board_now_s,

@@ -7,6 +7,11 @@ finite (self-closing), its element path and id, and whether a descendant on the
 same channel currently overrides it (e.g. ``<stand posture="forward"><stand
 posture="backward"/></stand>``: the inner call runs at once; a persistent
 function that drives the same actuator should yield while ``overridden``).
+
+A finite call may :meth:`CallContext.hand_over` its channel before it completes:
+the next call queued on the same channel then starts (so a motion runtime can
+plan it to begin exactly where this one is planned to end), while this call's
+own completion still comes when it really ends.
 """
 
 from __future__ import annotations
@@ -32,6 +37,12 @@ class CallContext:
     phase: str = "run"  # "run" or "reset"
     _overrides: int = 0
     _resumed: anyio.Event | None = field(default=None, repr=False)
+    _hand_over: anyio.Event | None = field(default=None, repr=False)
+
+    def hand_over(self) -> None:
+        """Let the next call queued on this channel start now (this call keeps running)."""
+        if self._hand_over is not None:
+            self._hand_over.set()
 
     @property
     def overridden(self) -> bool:

@@ -10,7 +10,8 @@ reset cancels.
 
 Scheduling rules (paper, Appendix A.4), with call ``j`` dispatched after ``i``:
 
-* same channel: ``j`` starts after ``i`` completed (FIFO, one at a time);
+* same channel: ``j`` starts after ``i`` completed (FIFO, one at a time), or once a finite
+  ``i`` hands the channel over (``CallContext.hand_over``: planned ahead, still running);
 * different channels: no ordering;
 * main channel C0: if ``i`` is on C0, ``j`` waits for ``i`` (global blocking).
   Interpretation: if ``j`` is on C0 it also waits for *every* earlier call
@@ -94,6 +95,7 @@ class _Call:
     deps: list[_Call] = field(default_factory=list)
     activated: anyio.Event = field(default_factory=anyio.Event)
     completed: anyio.Event = field(default_factory=anyio.Event)
+    handed_over: anyio.Event = field(default_factory=anyio.Event)  # the channel's next call may start
     subtree_done: anyio.Event = field(default_factory=anyio.Event)
     open_children: int = 0
     closed: bool = False
@@ -533,8 +535,9 @@ class ProgramRun:
     async def _await_deps(self, c: _Call) -> None:
         if c.parent is not None:
             await c.parent.activated.wait()
-        for d in c.deps:
-            await d.completed.wait()
+        for d in c.deps:  # a finite call on the same channel may hand over before it completes
+            handover = d.channel == c.channel and c.channel != MAIN_CHANNEL and not d.persistent
+            await (d.handed_over if handover else d.completed).wait()
         c.deps.clear()
 
     def _mark_start(self, c: _Call) -> None:
@@ -544,6 +547,7 @@ class ProgramRun:
             c.ctx = CallContext(
                 c.spec.name, c.channel or "", c.home or "", c.args, c.record.path, c.id, c.persistent
             )
+            c.ctx._hand_over = c.handed_over
 
     async def _invoke(self, c: _Call) -> None:
         assert c.spec is not None and c.ctx is not None
@@ -644,6 +648,7 @@ class ProgramRun:
         self._pending.pop(c.id, None)
         self._by_channel.get(c.channel, {}).pop(c.id, None)
         c.activated.set()
+        c.handed_over.set()
         c.completed.set()
         if c.parent is not None:
             c.parent.open_children -= 1

@@ -273,8 +273,8 @@ CREEP_KNEE_DEG = 45.0
 
 
 def creep(start: np.ndarray, *, persistent: bool = False, direction: str = "forward", speed: float = 50,
-          duration: float = 3.0) -> Motion:
-    """Creep low (bent knees, small steps) in ``direction`` for about ``duration`` s."""
+          duration: float = 0.0) -> Motion:
+    """Creep low (bent knees, small steps) in ``direction``: one step cycle, or about ``duration`` s when > 0."""
     pattern = check_choice(direction, {"forward": FORWARD, "backward": -FORWARD, "left": -RIGHT, "right": RIGHT},
                       "direction")
     check_finite(speed=speed, duration=duration)

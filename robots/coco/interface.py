@@ -9,6 +9,10 @@ the host) and how its parameters translate: renamed parameters and fixed
 arguments. The host binds behaviours to stubs at mount time.
 
 Parameters a stub does not expose take the behaviour's defaults.
+
+One call = one gesture: a repeating behaviour called without ``duration``/``times``
+performs one gesture at its natural tempo ("nod three times" is three calls);
+``duration`` > 0 repeats it to fill that many seconds, ``times`` repeats it that often.
 """
 
 from __future__ import annotations
@@ -111,8 +115,8 @@ class PaperHead:
     """Head yaw/pitch."""
 
     @stub("head")
-    def head_act(self, action: Literal["nod", "shake"] = "nod", duration: Seconds = 2.0) -> None:
-        """Nod (pitch) or shake (yaw) the head repeatedly for `duration` seconds."""
+    def head_act(self, action: Literal["nod", "shake"] = "nod", duration: Seconds = 0.0) -> None:
+        """Nod (pitch) or shake (yaw) the head once; with `duration` > 0, repeatedly for that many seconds."""
 
     @stub("head")
     def head_pose(self, yaw: Annotated[float, Interval(ge=-90.0, le=90.0)] = 0.0,
@@ -124,8 +128,8 @@ class PaperEars:
     """Ears."""
 
     @stub("ears")
-    def shake_ear(self, duration: Seconds = 2.0) -> None:
-        """Flap both ears for `duration` seconds."""
+    def shake_ear(self, duration: Seconds = 0.0) -> None:
+        """Flap both ears once; with `duration` > 0, repeatedly for that many seconds."""
 
     @stub("ears")
     def ear_state(self, state: EarState = "up", duration: Seconds = 1.0) -> None:
@@ -144,20 +148,20 @@ class PaperBody:
         """Sit down; "dog" squats on the hind legs like a dog."""
 
     @stub("body")
-    def push_up(self, duration: Seconds = 0.0, times: Times = 2) -> None:
+    def push_up(self, duration: Seconds = 0.0, times: Times = 1) -> None:
         """Do push-ups: `times` repetitions, or as many as fit in `duration` seconds when it is > 0."""
 
     @stub("body")
-    def wave(self, times: Times = 2) -> None:
-        """Wave the front-right leg like a hand."""
+    def wave(self, times: Times = 1) -> None:
+        """Wave the front-right leg like a hand, `times` times."""
 
     @stub("body")
-    def chest_expansion_exercise(self, times: Times = 2) -> None:
-        """Open and close both front legs like a chest-expansion exercise."""
+    def chest_expansion_exercise(self, times: Times = 1) -> None:
+        """Open and close both front legs like a chest-expansion exercise, `times` times."""
 
     @stub("body")
-    def fly_rub_hands(self, times: Times = 3) -> None:
-        """Rub the two front legs together like a fly rubbing its hands."""
+    def fly_rub_hands(self, times: Times = 1) -> None:
+        """Rub the two front legs together like a fly rubbing its hands, `times` times."""
 
     @stub("body")
     def body_lean(self, direction: Direction4 = "left", duration: Seconds = 1.0) -> None:
@@ -176,28 +180,28 @@ class PaperBody:
         """Take `times` full walking strides forward or backward."""
 
     @stub("body", "move_strides", fixed={"direction": "forward"})
-    def move_forward(self, times: Times = 2) -> None:
-        """Walk forward a few strides."""
+    def move_forward(self, times: Times = 1) -> None:
+        """Walk forward `times` strides."""
 
     @stub("body")
-    def creep(self, direction: Direction4 = "forward", speed: Speed = 50, duration: Seconds = 3.0) -> None:
-        """Creep low to the ground in `direction` for `duration` seconds at `speed` (0-100)."""
+    def creep(self, direction: Direction4 = "forward", speed: Speed = 50, duration: Seconds = 0.0) -> None:
+        """Creep low to the ground in `direction` at `speed` (0-100): one creeping step cycle, or for `duration` seconds when > 0."""
 
     @stub("body")
-    def wriggle(self, duration: Seconds = 3.0) -> None:
-        """Wriggle the whole body for `duration` seconds."""
+    def wriggle(self, duration: Seconds = 0.0) -> None:
+        """Wriggle the whole body once; with `duration` > 0, for that many seconds."""
 
     @stub("body")
     def single_leg_knock(self, leg: Annotated[int, Interval(ge=1, le=4)] = 1, times: Times = 1) -> None:
         """Tap the ground with one leg: 1 front-right, 2 front-left, 3 back-left, 4 back-right."""
 
     @stub("body")
-    def shake_ass(self, speed: Speed = 50, times: Times = 3) -> None:
+    def shake_ass(self, speed: Speed = 50, times: Times = 1) -> None:
         """Wiggle the rear of the body side to side `times` times at `speed` (0-100)."""
 
     @stub("body")
-    def shake_like_dog(self, duration: Seconds = 2.0) -> None:
-        """Shake the whole body like a wet dog."""
+    def shake_like_dog(self, duration: Seconds = 0.0) -> None:
+        """Shake the whole body like a wet dog (one shake; with `duration` > 0, for that many seconds)."""
 
 
 class PaperAudio:
@@ -248,12 +252,12 @@ class CocoEars:
     def ear_swing(self, side: Literal["left", "right"] = "left",
                   start_angle: Annotated[float, Interval(ge=-60.0, le=60.0)] = -30.0,
                   end_angle: Annotated[float, Interval(ge=-60.0, le=60.0)] = 30.0,
-                  speed: Speed = 50, duration: Seconds = 2.0) -> None:
-        """Swing one ear between two angles (degrees) for `duration` seconds."""
+                  speed: Speed = 50, duration: Seconds = 0.0) -> None:
+        """Swing one ear between two angles (degrees) once; with `duration` > 0, for that many seconds."""
 
     @stub("ears", "shake_ear")
-    def shake_ears(self, duration: Seconds = 2.0) -> None:
-        """Flap both ears."""
+    def shake_ears(self, duration: Seconds = 0.0) -> None:
+        """Flap both ears once; with `duration` > 0, repeatedly for that many seconds."""
 
 
 class CocoSpeech:
@@ -295,8 +299,8 @@ class CocoBody:
         """Sit down."""
 
     @stub("body", "push_up")
-    def spider_push_up(self, duration: Seconds = 3.0) -> None:
-        """Do push-ups for `duration` seconds."""
+    def spider_push_up(self, duration: Seconds = 0.0) -> None:
+        """Do one push-up; with `duration` > 0, push-ups for that many seconds."""
 
     @stub("body", "run_distance")
     def spider_run_distance(self, speed: Speed = 50, amplitude: Amplitude = 50,
@@ -312,21 +316,21 @@ class CocoBody:
         """Lean the body."""
 
     @stub("body", "wave")
-    def spider_wave_move(self, speed: Speed = 50, amplitude: Amplitude = 50, times: Times = 2) -> None:
+    def spider_wave_move(self, speed: Speed = 50, amplitude: Amplitude = 50, times: Times = 1) -> None:
         """Wave a front leg."""
 
     @stub("body", "shake_ass")
-    def spider_shake_ass(self, speed: Speed = 50, amplitude: Amplitude = 50, times: Times = 3) -> None:
+    def spider_shake_ass(self, speed: Speed = 50, amplitude: Amplitude = 50, times: Times = 1) -> None:
         """Wiggle the rear of the body."""
 
     @stub("body", "arm_pull")
     def spider_arm_pull(self, direction: Literal["left", "right", "both", "forward", "backward"] = "both",
-                        speed: Speed = 50, times: Times = 2) -> None:
-        """Pull the front legs towards the body like pulling a rope (left, right or both legs); "forward" pulls
-        with both legs towards the body, "backward" pushes both away."""
+                        speed: Speed = 50, times: Times = 1) -> None:
+        """Pull the front legs towards the body like pulling a rope (left, right or both legs), `times` times;
+        "forward" pulls with both legs towards the body, "backward" pushes both away."""
 
     @stub("body", "arm_knock")
-    def spider_arm_knock(self, speed: Speed = 50, times: Times = 2) -> None:
+    def spider_arm_knock(self, speed: Speed = 50, times: Times = 1) -> None:
         """Knock the ground with both front legs in turn."""
 
     @stub("body", "single_leg_knock")

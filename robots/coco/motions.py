@@ -6,8 +6,10 @@ behaviour's parameters with the units and defaults of ``robots/coco/interface.py
 seconds, speed/amplitude 0-100). The motion drives one channel's servos (:data:`CHANNEL_SERVOS`),
 begins exactly at ``start``, stays inside the joint and speed limits, and
 
-- finite form: plays ``times`` repetitions or fills about ``duration`` seconds, then settles
-  (gestures return to where they began, body skills to the stand pose);
+- finite form: one call = one gesture. Without ``duration``/``times`` (``duration`` 0, ``times``
+  1) a repeating behaviour plays one gesture at its natural tempo; ``times`` plays that many
+  repetitions and ``duration`` > 0 repeats the gesture to fill about that many seconds; then it
+  settles (gestures return to where they began, body skills to the stand pose);
 - persistent form: rhythmic behaviours end with one seamless cycle from ``loop_from`` (the mixer
   repeats it until released); postures end at the pose with ``loop_from == t[-1]`` (a hold).
 
@@ -195,6 +197,9 @@ def body_lean(start: np.ndarray, *, persistent: bool = False, direction: str = "
 
 # --- body: rhythmic whole-body skills ---------------------------------------------------------
 
+#: Rolls in one wet-dog shake (the gesture ``shake_like_dog`` plays without a duration).
+DOG_SHAKE_ROLLS = 3
+
 
 def _wave_fn(base: np.ndarray, offsets: np.ndarray, shape: Callable[[np.ndarray], np.ndarray]
              ) -> Callable[[np.ndarray], np.ndarray]:
@@ -211,7 +216,7 @@ def _sine(ph: np.ndarray) -> np.ndarray:
     return np.sin(2.0 * np.pi * ph)
 
 
-def push_up(start: np.ndarray, *, persistent: bool = False, duration: float = 0.0, times: int = 2) -> Motion:
+def push_up(start: np.ndarray, *, persistent: bool = False, duration: float = 0.0, times: int = 1) -> Motion:
     """Push-ups: ``times`` repetitions, or as many as fit in ``duration`` s when it is > 0."""
     duration, times = _seconds(duration), check_count(times)
     base = stand_body()
@@ -224,7 +229,7 @@ def push_up(start: np.ndarray, *, persistent: bool = False, duration: float = 0.
     return _finish(track, persistent, fn, period, n, base)
 
 
-def wriggle(start: np.ndarray, *, persistent: bool = False, duration: float = 3.0) -> Motion:
+def wriggle(start: np.ndarray, *, persistent: bool = False, duration: float = 0.0) -> Motion:
     """Wriggle: the body twists (yaw) and rolls side to side."""
     duration = _seconds(duration)
     base = stand_body()
@@ -241,7 +246,7 @@ def wriggle(start: np.ndarray, *, persistent: bool = False, duration: float = 3.
     return _finish(track, persistent, fn, period, n, base)
 
 
-def shake_like_dog(start: np.ndarray, *, persistent: bool = False, duration: float = 2.0) -> Motion:
+def shake_like_dog(start: np.ndarray, *, persistent: bool = False, duration: float = 0.0) -> Motion:
     """Shake the body like a wet dog: a fast roll from side to side."""
     duration = _seconds(duration)
     base = _body(knees=_all(20.0))
@@ -251,11 +256,13 @@ def shake_like_dog(start: np.ndarray, *, persistent: bool = False, duration: flo
     twist[HIP_COLS] = rad(6.0) * gaits.TURN_LEFT
     fn = lambda ph: base + _sine(ph)[:, None] * (roll + twist)  # noqa: E731
     n, period = _rhythm(duration, 0.3, min_period=0.28)
+    if duration <= 0:
+        n = DOG_SHAKE_ROLLS  # one shake of a wet dog is a short burst of rolls
     track = Track(BODY, check_start(start)).move(base, speed=BODY_SPEED)
     return _finish(track, persistent, fn, period, n, stand_body())
 
 
-def shake_ass(start: np.ndarray, *, persistent: bool = False, speed: float = 50, times: int = 3,
+def shake_ass(start: np.ndarray, *, persistent: bool = False, speed: float = 50, times: int = 1,
               amplitude: float = 50) -> Motion:
     """Wiggle the rear of the body side to side ``times`` times."""
     s, a, times = _unit(speed, "speed"), _unit(amplitude, "amplitude"), check_count(times)
@@ -268,7 +275,7 @@ def shake_ass(start: np.ndarray, *, persistent: bool = False, speed: float = 50,
     return _finish(track, persistent, _wave_fn(base, off, _sine), period, times, stand_body())
 
 
-def chest_expansion_exercise(start: np.ndarray, *, persistent: bool = False, times: int = 2) -> Motion:
+def chest_expansion_exercise(start: np.ndarray, *, persistent: bool = False, times: int = 1) -> Motion:
     """Open and close both front legs like a chest-expansion exercise (weight shifted back)."""
     times = check_count(times)
     base = _body(knees={1: 30, 2: 30, 3: 20, 4: 20})
@@ -279,7 +286,7 @@ def chest_expansion_exercise(start: np.ndarray, *, persistent: bool = False, tim
     return _finish(track, persistent, _wave_fn(base, off, _bump), 1.4, times, stand_body())
 
 
-def fly_rub_hands(start: np.ndarray, *, persistent: bool = False, times: int = 3) -> Motion:
+def fly_rub_hands(start: np.ndarray, *, persistent: bool = False, times: int = 1) -> Motion:
     """Rub the two front legs together like a fly: front feet slide against each other in turn."""
     times = check_count(times)
     base = _body(hips={1: 15, 2: 15}, knees={1: 35, 2: 35, 3: 25, 4: 25})
@@ -324,7 +331,7 @@ def _lower(track: Track, leg: int) -> None:
     track.move(_shifted(leg), 0.35).move(stand_body(), 0.5, BODY_SPEED)
 
 
-def wave(start: np.ndarray, *, persistent: bool = False, times: int = 2, speed: float = 50,
+def wave(start: np.ndarray, *, persistent: bool = False, times: int = 1, speed: float = 50,
          amplitude: float = 50) -> Motion:
     """Wave the front-right leg like a hand ``times`` times."""
     times, s, a = check_count(times), _unit(speed, "speed"), _unit(amplitude, "amplitude")
@@ -370,7 +377,7 @@ def _pull_cycle(track: Track, leg: int, period: float, push: bool = False) -> No
 
 
 def arm_pull(start: np.ndarray, *, persistent: bool = False, direction: str = "both", speed: float = 50,
-             times: int = 2) -> Motion:
+             times: int = 1) -> Motion:
     """Pull the front legs towards the body like pulling a rope ("both"/"forward": hand over hand;
     "backward": push both away from the body)."""
     legs = check_choice(direction, {"left": (2,), "right": (1,), "both": (1, 2), "forward": (1, 2),
@@ -392,7 +399,7 @@ def arm_pull(start: np.ndarray, *, persistent: bool = False, direction: str = "b
     return track.build()
 
 
-def arm_knock(start: np.ndarray, *, persistent: bool = False, speed: float = 50, times: int = 2) -> Motion:
+def arm_knock(start: np.ndarray, *, persistent: bool = False, speed: float = 50, times: int = 1) -> Motion:
     """Knock the ground with both front legs in turn (``times`` rounds)."""
     times, s = check_count(times), _unit(speed, "speed")
     period = 0.8 - 0.45 * s
@@ -428,8 +435,8 @@ def head_pose(start: np.ndarray, *, persistent: bool = False, yaw: float = 0.0, 
     return track.build(hold_end=persistent)
 
 
-def head_act(start: np.ndarray, *, persistent: bool = False, action: str = "nod", duration: float = 2.0) -> Motion:
-    """Nod (pitch) or shake (yaw) the head around where it points, for ``duration`` s."""
+def head_act(start: np.ndarray, *, persistent: bool = False, action: str = "nod", duration: float = 0.0) -> Motion:
+    """Nod (pitch) or shake (yaw) the head around where it points: once, or for ``duration`` s when > 0."""
     col, amp, period = check_choice(action, {"nod": (1, rad(15.0), 0.6), "shake": (0, rad(25.0), 0.7)}, "action")
     duration = _seconds(duration)
     start = check_start(start)
@@ -474,8 +481,8 @@ def ear_state(start: np.ndarray, *, persistent: bool = False, state: str = "up",
     return _posture("ears", start, pose, EAR_SPEED, _seconds(duration), persistent, min_time=0.2)
 
 
-def shake_ear(start: np.ndarray, *, persistent: bool = False, duration: float = 2.0) -> Motion:
-    """Flap both ears for ``duration`` s, then return them where they were."""
+def shake_ear(start: np.ndarray, *, persistent: bool = False, duration: float = 0.0) -> Motion:
+    """Flap both ears once (or for ``duration`` s when > 0), then return them where they were."""
     duration = _seconds(duration)
     track = Track(EARS, check_start(start))
     home = track.q
@@ -487,8 +494,8 @@ def shake_ear(start: np.ndarray, *, persistent: bool = False, duration: float = 
 
 
 def ear_swing(start: np.ndarray, *, persistent: bool = False, side: str = "left", start_angle: float = -30.0,
-              end_angle: float = 30.0, speed: float = 50, duration: float = 2.0) -> Motion:
-    """Swing one ear between two angles (degrees, clipped to the ear's range) for ``duration`` s."""
+              end_angle: float = 30.0, speed: float = 50, duration: float = 0.0) -> Motion:
+    """Swing one ear between two angles (degrees, clipped to the ear's range) once, or for ``duration`` s."""
     col = check_choice(side, {"left": 0, "right": 1}, "side")
     check_finite(start_angle=start_angle, end_angle=end_angle)
     s, duration = _unit(speed, "speed"), _seconds(duration)

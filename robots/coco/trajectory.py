@@ -33,6 +33,7 @@ __all__ = [
     "SPEED_MARGIN",
     "Track",
     "check_start",
+    "ease_in",
     "limits",
     "min_jerk",
     "transition",
@@ -277,3 +278,30 @@ def check_choice(value: str, options: dict[str, T], what: str) -> T:
         return options[value]
     except (KeyError, TypeError):
         raise ValueError(f"unknown {what} {value!r}; valid: {', '.join(options)}") from None
+
+
+#: Length (s) of the minimum-jerk start :func:`ease_in` gives a motion that starts from rest.
+EASE_IN_S = 0.04
+
+
+def ease_in(motion: Motion, ramp: float = EASE_IN_S) -> Motion:
+    """``motion`` started from rest: its clock accelerates with a minimum-jerk profile over ``ramp`` s.
+
+    The time warp ``w`` has ``w'(t) = min_jerk(t / ramp)`` for ``t < ramp`` and ``1`` after, so the
+    motion is played ``ramp / 2`` s later overall, never faster than planned (speed limits hold), and
+    its first targets stay almost at the start pose (the first 10 ms move less than 3 % of what the
+    original's first 10 ms did): a first frame that reaches the board late cannot jerk. Looping
+    motions whose loop begins inside the ramp are returned unchanged (the loop must stay seamless).
+    """
+    if ramp <= 0 or (motion.loop_from is not None and motion.loop_from < ramp):
+        return motion
+    shift = ramp / 2.0  # integral of min_jerk over [0, 1] is 1/2
+    n = max(2, math.ceil(ramp / DT - 1e-9) + 1)
+    tr = np.linspace(0.0, ramp, n)
+    u = tr / ramp  # w(t) = ramp * integral_0^u min_jerk = ramp * (2.5u^4 - 3u^5 + u^6)
+    warped = ramp * (2.5 * u**4 - 3.0 * u**5 + u**6)
+    rest_t = motion.t[motion.t > ramp - shift]
+    t_new = np.concatenate([tr, rest_t + shift])
+    q_new = np.concatenate([motion.at(warped), motion.q[motion.t > ramp - shift]])
+    loop = None if motion.loop_from is None else motion.loop_from + shift
+    return Motion(motion.servos, t_new, q_new, loop)

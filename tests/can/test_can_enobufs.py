@@ -20,7 +20,7 @@ from firmware_sim.config import BoardConfig
 from firmware_sim.server import BoardServer
 from firmware_sim.transports.can import BusBoardTransport
 from host.link import BoardClient
-from host.link.moves import move_to
+from host.motion.moves import move_to
 from host.link.transports.can import CanLinkTransport
 from protocol.linkspec import parse_link_spec
 from robots.coco import load_poses

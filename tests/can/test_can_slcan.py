@@ -17,7 +17,7 @@ from host.commands.canlog_decode import decode_can_file
 from host.link import BoardClient
 from host.link.board_process import start_board
 from host.link.canlog import iter_can_log
-from host.link.moves import move_to
+from host.motion.moves import move_to
 from host.run.replay import replay
 from host.run.runner import RunOptions, run_program
 from protocol.can import CanItem

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from host.link import BoardClient, NackError
-from host.link.moves import move_to
+from host.motion.moves import move_to
 from protocol.messages import FaultFlags, NackReason, ServoFrame
 from robots.coco import load_poses
 

@@ -47,7 +47,7 @@ async def test_both_vocabularies_are_accepted_whichever_is_shown(vocabulary: str
     assert ("face_emo", "face", {"emo": "sad", "duration": 2.0}) in rec.calls  # renamed face -> emo
     assert ("face_emo", "face", {"emo": "wink_right", "duration": 1.0}) in rec.calls  # pinned argument
     assert ("rotate", "body", {"angle": 45.0}) in rec.calls
-    assert ("move_strides", "body", {"times": 2, "direction": "forward"}) in rec.calls
+    assert ("move_strides", "body", {"times": 1, "direction": "forward"}) in rec.calls  # one call = one stride
     assert ("speak", "speech", {"text": "Hi."}) in rec.calls
 
 

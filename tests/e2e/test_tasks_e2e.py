@@ -5,7 +5,8 @@ first applied frame and ends with its last; peripherals start/end on the board
 clock). Where the virtual-clock shell tests (tests/shell/test_tasks.py) had
 exact equalities, these allow a frame period or two (``SAME_S``); a call that a
 previous one releases starts on the 10 ms frame grid after the streamer's
-lookahead, so "b follows a" means ``a.end <= b.start <= a.end + PROMPT_S``.
+lookahead, so "b follows a" means ``a.end <= b.start <= a.end + PROMPT_S``; calls on one
+motion channel flow into each other (Task 26: no gap beyond a frame period).
 Task 23's "stops within 0.2 s" is measured at the END of the nod's smooth
 return (its last applied frame), the strictest reading; the cut itself (the
 FLUSH of the head servos in the host's frame log) is checked too, within 0.15 s.
@@ -22,7 +23,7 @@ import pytest
 from host.run.artefacts import BoardCall
 from robots.coco.motions import channel_servos
 
-from .conftest import PROMPT_S, SAME_S, SPEECH_PROMPT_S, TASKS, E2ERun, mask_of, run_e2e
+from .conftest import FRAME_S, PROMPT_S, SAME_S, SPEECH_PROMPT_S, TASKS, E2ERun, mask_of, run_e2e
 
 
 def before(a: BoardCall, b: BoardCall) -> None:
@@ -51,6 +52,20 @@ def lasts(c: BoardCall, seconds: float, tol: float | None = None) -> None:
     if tol is None:
         tol = SAME_S if c.channel in ("face", "bgm", "speech", "camera") else 0.15
     assert abs((c.end - c.start) - seconds) <= tol, f"{c.function} lasted {c.end - c.start:.3f} s, not {seconds} s"
+
+
+def count_swings(x: np.ndarray, *, below: bool, depth_deg: float = 8.0) -> int:
+    """Excursions of a measured joint angle more than ``depth_deg`` below (or above) where it started:
+    one per nod (pitch dips) or ear flap (the ear lifts); hysteresis at half the depth."""
+    d = (x[0] - x) if below else (x - x[0])
+    hi, lo = math.radians(depth_deg), math.radians(depth_deg / 2)
+    n, out = 0, False
+    for v in d:
+        if not out and v > hi:
+            n, out = n + 1, True
+        elif out and v < lo:
+            out = False
+    return n
 
 
 def wrap180(deg: float) -> float:
@@ -96,8 +111,13 @@ def check_task(tid: int, run: E2ERun) -> None:
         assert len(run.calls) == 1
         c = run.calls[0]
         assert c.channel == {1: "face", 2: "body", 3: "head"}[tid]
-        if tid in (1, 3):  # default 2 s
+        if tid == 1:  # default 2 s
             lasts(c, 2.0)
+        if tid == 3:  # one call = one gesture: a single nod at a natural tempo
+            assert 0.3 <= c.end - c.start <= 1.0, c
+            t, q, _ = run.telemetry
+            pitch = q[(t >= c.start) & (t <= c.end + 0.2), list(channel_servos("head"))[1]]
+            assert count_swings(pitch, below=True) == 1
     elif tid == 4:
         follows(one("speak", text="Hello"), one("face_emo", emo="smile"))
     elif tid == 5:
@@ -241,10 +261,18 @@ def check_task(tid: int, run: E2ERun) -> None:
         bgm = one("play_bgm")
         ears, nods, strides = f("shake_ear"), f("head_act", action="nod"), one("move_strides", times=2)
         assert len(ears) == 3 and len(nods) == 3 and bgm.persistent
-        seq = [*ears, *nods, strides]
-        for a, b in itertools.pairwise(seq):
-            follows(a, b)
+        for group in (ears, nods):  # calls on one channel flow into each other: no gap, no stop
+            for a, b in itertools.pairwise(group):
+                follows(a, b, within=FRAME_S + 1e-9)
+        follows(ears[-1], nods[0])
+        follows(nods[-1], strides)
         assert bgm.start <= ears[0].start and 0 <= bgm.end - strides.end <= 0.3
+        # one call = one gesture, counted in the measured joint angles
+        t, q, _ = run.telemetry
+        pitch = q[(t >= nods[0].start) & (t <= nods[-1].end + 0.2), list(channel_servos("head"))[1]]
+        ear = q[(t >= ears[0].start) & (t <= ears[-1].end + 0.2), list(channel_servos("ears"))[0]]
+        assert count_swings(pitch, below=True) == 3, "the head did not nod exactly three times"
+        assert count_swings(ear, below=False) == 3, "the ears did not flap exactly three times"
     elif tid == 27:
         dog, head, sur = one("shake_like_dog"), one("head_pose", yaw=-90.0), one("face_emo", emo="surprise")
         assert dog.persistent

@@ -17,7 +17,7 @@ import serial
 
 from host.commands.log import decode_file
 from host.link import BoardClient, FaultEvent, HandshakeError, LinkDown, NackError
-from host.link.moves import max_error_deg, move_to
+from host.motion.moves import max_error_deg, move_to
 from protocol.codec import SCHEMA_HASH
 from protocol.messages import ConfigKey, FaultFlags, NackReason, ServoFrame
 from robots.coco import load_poses

@@ -79,3 +79,23 @@ def test_noisy_samples_without_drift_do_not_invent_one() -> None:
     est = sync.estimate
     assert est is not None and est.drift == 0.0
     assert abs(est.host_to_board(2e6) - (2e6 + 1_000_000)) <= est.uncertainty_us
+
+
+def test_uplink_quantile_cancels_the_offset_bias_of_an_asymmetric_path() -> None:
+    """Up leg 1 ms (+0..0.5 ms), down leg 6 ms: the offset estimate is biased by the asymmetry, but
+    host_to_board(t) + uplink p99 is when a message sent at t reaches the board."""
+    true_offset = 5_000_000.0
+    sync = ClockSync()
+    assert sync.uplink_quantile(0.99) is None
+    for k in range(64):
+        t1 = 1_000_000 + k * 50_000
+        up = 1_000 + (k % 11) * 50
+        t2 = int(t1 + true_offset + up)
+        t3 = t2 + 20
+        t4 = int(t3 - true_offset + 6_000)
+        sync.add(t1, t2, t3, t4)
+    est = sync.estimate
+    assert est is not None and abs(est.offset_us - true_offset) > 2_000  # biased by the asymmetry
+    send = 5_000_000
+    arrival = est.host_to_board(send) + sync.uplink_quantile(0.99)
+    assert abs(arrival - (send + true_offset + 1_500)) < 100

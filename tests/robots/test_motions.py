@@ -220,3 +220,61 @@ def test_motion_at_loops() -> None:
     m = BEHAVIOURS["head_act"](STAND, persistent=True, action="nod")
     period = m.t[-1] - m.loop_from
     np.testing.assert_allclose(m.at(m.t[-1] + 0.3 * period), m.at(m.loop_from + 0.3 * period), atol=1e-12)
+
+
+#: Behaviours whose ``duration`` repeats a gesture (postures' and peripherals' durations are holds).
+REPEATING_DURATION = {"head_act", "shake_ear", "ear_swing", "push_up", "wriggle", "shake_like_dog", "creep"}
+
+
+@pytest.mark.parametrize("vocabulary", ["paper", "coco"])
+def test_one_call_is_one_gesture_by_default_in_both_vocabularies(vocabulary: str) -> None:
+    for name, (fn, info) in stubs(vocabulary).items():
+        params = inspect.signature(fn).parameters
+        if "times" in params:
+            assert params["times"].default == 1, f"{vocabulary}:{name}: times must default to one gesture"
+        if "duration" in params and info.behaviour in REPEATING_DURATION:
+            assert params["duration"].default == 0.0, f"{vocabulary}:{name}: no duration must mean one gesture"
+
+
+def _extrema(x: np.ndarray, lo: bool) -> int:
+    """Strict local minima (``lo``) or maxima of a sampled joint trajectory deeper than 5 degrees."""
+    d = np.diff(np.sign(np.diff(x)))
+    idx = np.flatnonzero(d > 0 if lo else d < 0) + 1
+    ref = x[0]
+    return int(sum(abs(x[i] - ref) > math.radians(5.0) for i in idx))
+
+
+@pytest.mark.parametrize("name,kw,col,lo", [
+    ("head_act", {"action": "nod"}, 1, True),     # a nod dips the pitch once
+    ("head_act", {"action": "shake"}, 0, False),  # a shake turns the yaw out once
+    ("shake_ear", {}, 0, False),                  # a flap lifts the ear once
+])
+def test_gesture_counts_follow_duration(name: str, kw: dict, col: int, lo: bool) -> None:
+    one = BEHAVIOURS[name](STAND, **kw)
+    assert _extrema(one.q[:, col], lo) == 1
+    assert one.t[-1] < 1.5
+    three_s = BEHAVIOURS[name](STAND, duration=3.0, **kw)
+    assert three_s.t[-1] == pytest.approx(3.0, abs=0.6)
+    assert _extrema(three_s.q[:, col], lo) == pytest.approx(3.0 / one.t[-1], abs=1.5)
+
+
+@pytest.mark.parametrize("name,kw", [("head_act", {"action": "nod"}), ("shake_ear", {}), ("move_strides", {})])
+def test_ease_in_starts_from_rest_without_speeding_up(name: str, kw: dict) -> None:
+    from robots.coco.trajectory import EASE_IN_S, ease_in
+
+    m = BEHAVIOURS[name](STAND, **kw)
+    e = ease_in(m)
+    assert e.t[-1] == pytest.approx(m.t[-1] + EASE_IN_S / 2) and np.all(np.diff(e.t) > 0)
+    np.testing.assert_allclose(e.q[0], m.q[0])
+    np.testing.assert_allclose(e.q[-1], m.q[-1])
+    first = np.abs(e.at(0.01) - m.q[0]).max()
+    assert first <= 0.03 * np.abs(m.at(0.01) - m.q[0]).max() + 1e-12  # almost the current pose
+    speed = lambda x: np.max(np.abs(np.diff(x.q, axis=0)) / np.diff(x.t)[:, None])  # noqa: E731
+    assert speed(e) <= speed(m) * (1 + 1e-9)
+
+
+def test_ease_in_keeps_a_loop_that_starts_inside_the_ramp() -> None:
+    from robots.coco.trajectory import ease_in
+
+    m = Motion((9,), np.array([0.0, 0.01, 0.02]), np.array([[0.0], [0.1], [0.0]]), loop_from=0.0)
+    assert ease_in(m) is m

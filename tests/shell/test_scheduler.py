@@ -288,3 +288,39 @@ async def test_run_is_not_reentrant():
         await anyio.sleep(0.5)
         with pytest.raises(RuntimeError):
             await sh.run_text("<A/>")
+
+
+def handing_over(name: str, seconds: float, lead: float):
+    """A call that hands its channel over ``lead`` s before it ends (as the motion runtime does)."""
+
+    @shell_function(name=name)
+    async def fn() -> None:
+        LOG.append((anyio.current_time(), f"{name}:start"))
+        await anyio.sleep(seconds - lead)
+        ctx = current_call()
+        assert ctx is not None
+        ctx.hand_over()
+        await anyio.sleep(lead)
+
+    return fn
+
+
+async def test_hand_over_lets_the_next_call_on_the_channel_start_early():
+    sh = shell_with({"C1": [handing_over("F1", 2, 0.5), handing_over("F2", 1, 0.25), fake("F3", 1)],
+                     "C2": [fake("G", 1)]})
+    r = await sh.run_text("<F1/><F2/><F3/><wait><G/></wait>")
+    s = spans(r)
+    assert s["F1"] == (0, 2) and s["F2"] == (1.5, 2.5) and s["F3"] == (2.25, 3.25)  # done still at the real end
+    assert s["G"] == (3.25, 4.25)  # the main channel still waits for completion, not hand-over
+
+
+async def test_interrupt_cancels_a_call_started_by_hand_over():
+    sh = shell_with({"C1": [handing_over("F1", 2, 0.5), fake("F2", 1)]})
+
+    async def stream():
+        yield "<F1/><F2/>"
+        await anyio.sleep(1.7)
+        sh.interrupt(["C1"])
+
+    r = await sh.run(stream())
+    assert r.timeline.one("F2").start == 1.5 and r.timeline.one("F2").outcome == "interrupted"

@@ -1,0 +1,33 @@
+"""``ghostshell render RUN_DIR``: make run.mp4 for a finished run from its recorded state.
+
+Reads the board's frame log and the timeline in RUN_DIR (see :mod:`host.run.video`).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run_dir", metavar="RUN_DIR", help="a run's artefact folder (ghostshell run/demo --out)")
+    parser.add_argument("--out", default=None, metavar="FILE", help="video file (default RUN_DIR/run.mp4)")
+    parser.add_argument("--fps", type=int, default=25, choices=range(10, 61), metavar="FPS", help="frames per second (default 25)")
+    parser.add_argument("--workers", type=int, default=2, help="render processes (default 2: both cores)")
+
+
+def main(args: argparse.Namespace) -> int:
+    import sys
+    import time
+
+    from host.run.video import VideoError, VideoSettings, render_video
+
+    t = time.monotonic()
+    try:
+        path = render_video(Path(args.run_dir), Path(args.out) if args.out else None,
+                            VideoSettings(fps=args.fps, workers=max(1, args.workers)))
+    except VideoError as e:
+        print(f"ghostshell render: {e}", file=sys.stderr)
+        return 1
+    print(f"video: {path} (rendered in {time.monotonic() - t:.1f} s)")
+    return 0

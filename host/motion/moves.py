@@ -1,0 +1,145 @@
+"""Whole-body moves outside a program run: "go to this pose and confirm" (``ghostshell pose``/``tour``).
+
+The same road to the servos as a run: a minimum-jerk :func:`robots.coco.trajectory.transition`
+placed on a :class:`~host.motion.mixer.Mixer` and streamed by a
+:class:`~host.motion.streamer.FrameStreamer` over a :class:`~host.motion.board_link.BoardFrameLink`
+(one frame every ``1 / rate_hz`` s, ``lookahead`` ahead of the board). Telemetry confirms the
+frames and, on a lockstep board, moves board time on; after the last frame the streamer keeps
+sending hold frames while the servos settle.
+"""
+
+from __future__ import annotations
+
+import math
+import weakref
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import anyio
+import numpy as np
+
+from host.link.client import FAULT_BITS, BoardClient
+from host.link.errors import LinkError, LinkTimeout, NackError
+from host.motion.board_link import BoardFrameLink
+from host.motion.mixer import Mixer
+from host.motion.streamer import FrameStreamer
+from protocol.messages import FaultFlags, Nack, Telemetry
+from robots.coco.trajectory import transition
+
+__all__ = ["MoveResult", "current_positions", "max_error_deg", "move_to"]
+
+#: lockstep boards: the board time the last move's frames reached (the board runs on to there, so
+#: the next move's frames start after it instead of arriving late)
+_SENT_UNTIL: weakref.WeakKeyDictionary[BoardClient, int] = weakref.WeakKeyDictionary()
+
+
+@dataclass(frozen=True)
+class MoveResult:
+    """Outcome of :func:`move_to`: largest error (deg) and which servo index had it."""
+
+    max_error_deg: float
+    worst_index: int
+    frames_sent: int
+    duration_s: float
+    board_time_us: int
+
+
+def max_error_deg(t: Telemetry, target: Sequence[float] | np.ndarray) -> tuple[float, int]:
+    """Largest |position - target| over the servos, in degrees, and its servo index."""
+    err = np.abs(np.asarray(t.positions[: len(target)], dtype=float) - np.asarray(target, dtype=float))
+    err = np.where(np.isfinite(err), err, np.inf)
+    i = int(np.argmax(err))
+    return math.degrees(float(err[i])), i
+
+
+async def _first_telemetry(client: BoardClient, timeout: float) -> Telemetry:
+    if client.latest_telemetry is not None:
+        return client.latest_telemetry
+    if client.lockstep:
+        tick = 1_000_000 // max(1, client.caps.control_rate_hz if client.caps else 500)
+        rate = client.caps.telemetry_rate_hz if client.caps else 50
+        await client.advance(client.board_now_estimate() + max(tick, 1_000_000 // max(1, rate)))
+    return await client.wait_for(lambda _t: True, timeout)
+
+
+async def current_positions(client: BoardClient, timeout: float = 2.0) -> tuple[float, ...]:
+    """Measured servo positions from telemetry (advancing a lockstep board a little if needed)."""
+    return (await _first_telemetry(client, timeout)).positions
+
+
+async def move_to(
+    client: BoardClient,
+    target: Sequence[float],
+    *,
+    duration_s: float = 1.0,
+    rate_hz: float = 100.0,
+    tolerance_deg: float = 3.0,
+    settle_timeout_s: float = 5.0,
+    wall_timeout_s: float = 30.0,
+    max_speed: float | None = None,
+) -> MoveResult:
+    """Min-jerk move of all servos to ``target`` (rad); returns once telemetry shows every servo
+    within ``tolerance_deg``. The move lasts at least ``duration_s`` and never asks a servo for
+    more than its table speed (times a margin) or ``max_speed`` (rad/s).
+
+    Raises :class:`LinkTimeout` when the servos do not get there within ``settle_timeout_s`` of
+    board time after the trajectory ends (the message names the worst servo) or the whole move
+    exceeds ``wall_timeout_s``, :class:`NackError` if the board refuses frames, :class:`LinkError`
+    on a fault (estop, watchdog).
+    """
+    if not rate_hz > 0:
+        raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+    start = await _first_telemetry(client, wall_timeout_s)
+    if start.faults & (FaultFlags.ESTOP | FaultFlags.WATCHDOG_FAULT):
+        raise LinkError(f"board is faulted ({FaultFlags(start.faults & FAULT_BITS)!r}); clear it first (estop_clear)")
+    q0 = np.asarray(start.positions, dtype=float)
+    goal = np.asarray(target, dtype=float)
+    servos = tuple(range(len(goal)))
+    motion = transition(q0, goal, servos, max_speed=max_speed, min_duration=duration_s)
+    link = BoardFrameLink(client)
+    period_us = max(1, int(round(1e6 / rate_hz)))
+    streamer = FrameStreamer(link, Mixer(q0), period_us=period_us, lookahead_us=max(60_000, 3 * period_us),
+                             start_us=max(start.board_time_us, _SENT_UNTIL.get(client, 0)) if client.lockstep else None)
+    seg = streamer.add(motion, label="move_to")
+    nacks: list[Nack] = []
+    client.on_nack.append(nacks.append)
+    result: MoveResult | None = None
+    try:
+        with anyio.fail_after(wall_timeout_s):
+            async with anyio.create_task_group() as tg:
+                if not client.lockstep:
+                    tg.start_soon(_topper, streamer)
+                await streamer.top_up(start.board_time_us if client.lockstep else None)
+                async for tel in client.telemetry(maxsize=256):
+                    streamer.on_telemetry(tel)
+                    if nacks:
+                        raise NackError(nacks[0])
+                    if tel.faults & (FaultFlags.ESTOP | FaultFlags.WATCHDOG_FAULT):
+                        raise LinkError(f"board faulted during the move: {FaultFlags(tel.faults & FAULT_BITS)!r}")
+                    end = streamer.times(seg).end
+                    if end is not None:
+                        err, idx = max_error_deg(tel, goal)
+                        if err <= tolerance_deg:
+                            result = MoveResult(err, idx, streamer.frames_sent, motion.duration, tel.board_time_us)
+                            break
+                        if tel.board_time_us >= int((end + settle_timeout_s) * 1e6):
+                            raise LinkTimeout(
+                                f"servos not within {tolerance_deg} deg of the target {settle_timeout_s} s after the "
+                                f"move: largest error {err:.2f} deg on servo index {idx}")
+                    await streamer.top_up(tel.board_time_us if client.lockstep else None)
+                tg.cancel_scope.cancel()
+    except TimeoutError:
+        raise LinkTimeout(f"move did not finish within {wall_timeout_s} s of wall time") from None
+    finally:
+        client.on_nack.remove(nacks.append)
+        _SENT_UNTIL[client] = streamer.first_free_us
+    if result is None:
+        raise LinkError("telemetry stopped before the move was confirmed")
+    return result
+
+
+async def _topper(streamer: FrameStreamer) -> None:
+    """Realtime: keep the frames flowing every period, whatever telemetry does."""
+    while True:
+        await streamer.top_up()
+        await anyio.sleep(streamer.period_us * 1e-6)

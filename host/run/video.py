@@ -1,0 +1,245 @@
+"""A run's video: ``run.mp4`` rendered after the run from the board's recorded state.
+
+Nothing is rendered inside the control loop. The board's frame log
+(``board_frames.jsonl``, written with ``--log``) already records, at the
+telemetry rate (50 Hz), every joint angle (TELEMETRY ``positions``) and the
+floating base's pose (SIM_STATE ``base_pos``/``base_quat``) at the same board
+time: together that is the model's whole ``qpos``. Each video frame takes the
+latest recorded state at its time (25 fps reads every other 50 Hz sample).
+
+A frame (640x480) is a third-person view that follows CoCo (a free MuJoCo camera
+looking at the base), the head camera (``head_cam``) as an inset, and a caption
+strip: the board time, the calls active on each channel (``timeline.json``) and
+the sentence being spoken. Frames are rendered offscreen (``MUJOCO_GL=egl`` unless
+set) by a pool of worker processes (both cores by default; ``spawn``, so each
+worker opens its own GL context) and encoded to H.264 by the ffmpeg binary that
+the ``imageio-ffmpeg`` wheel ships.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from protocol.framelog import iter_records
+
+__all__ = ["VideoError", "VideoSettings", "load_states", "render_video"]
+
+WIDTH, HEIGHT = 640, 480  # multiples of 16: H.264 macroblocks, no rescaling by ffmpeg
+CAPTION_H = 72
+INSET_W, INSET_H = 192, 144
+#: channels shown in the caption, in this order
+CAPTION_CHANNELS = ("body", "head", "ears", "face", "bgm", "camera")
+
+
+class VideoError(RuntimeError):
+    """The video cannot be made (no frame log, no GL renderer, ffmpeg failed); the message says why."""
+
+
+@dataclass(frozen=True)
+class VideoSettings:
+    fps: int = 25
+    workers: int = 2
+    distance_m: float = 0.75  # follow camera: distance from the base (m)
+    azimuth_deg: float = 140.0
+    elevation_deg: float = -22.0
+
+
+@dataclass(frozen=True)
+class States:
+    """Recorded simulation state: ``t`` (n,) board seconds, ``base`` (n, 7) pos + quat (w, x, y, z),
+    ``joints`` (n, 12) servo angles (rad, servo order)."""
+
+    t: np.ndarray
+    base: np.ndarray
+    joints: np.ndarray
+
+
+def load_states(run_dir: Path) -> States:
+    """TELEMETRY + SIM_STATE pairs from ``run_dir/board_frames.jsonl`` (the board's own log)."""
+    path = run_dir / "board_frames.jsonl"
+    if not path.exists():
+        raise VideoError(f"{path} not found: the video is made from the board's frame log (board --log)")
+    joints: dict[int, list[float]] = {}
+    base: dict[int, list[float]] = {}
+    with open(path, encoding="utf-8") as f:
+        for rec in iter_records(f):
+            if rec.get("dir") != "tx":
+                continue
+            kind, fields = rec.get("type"), rec.get("fields") or {}
+            if kind == "TELEMETRY":
+                joints[int(fields["board_time_us"])] = list(fields["positions"])
+            elif kind == "SIM_STATE":
+                base[int(fields["board_time_us"])] = [*fields["base_pos"], *fields["base_quat"]]
+    times = sorted(set(joints) & set(base))
+    if not times:
+        raise VideoError(f"{path} holds no TELEMETRY/SIM_STATE pairs to render")
+    return States(np.asarray(times, dtype=float) * 1e-6, np.asarray([base[t] for t in times]),
+                  np.asarray([joints[t] for t in times]))
+
+
+@dataclass(frozen=True)
+class _Call:
+    channel: str
+    label: str
+    start: float
+    end: float
+    text: str | None
+
+
+def _calls(run_dir: Path) -> list[_Call]:
+    path = run_dir / "timeline.json"
+    if not path.exists():
+        return []
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    out = []
+    for c in doc.get("calls", []):
+        if c.get("start") is None or c.get("end") is None or c.get("channel") in (None, "main"):
+            continue
+        args = c.get("args") or {}
+        shown = ", ".join(f"{k}={v}" for k, v in args.items() if k != "text")
+        label = f"{c['function']}({shown})" if shown else str(c["function"])
+        out.append(_Call(str(c["channel"]), label, float(c["start"]), float(c["end"]),
+                         str(args["text"]) if c["function"] == "speak" and "text" in args else None))
+    return out
+
+
+def caption_at(calls: Sequence[_Call], t: float) -> tuple[str, str]:
+    """(active calls per channel, the sentence being spoken) at board time ``t``."""
+    active: dict[str, list[str]] = {}
+    spoken = ""
+    for c in calls:
+        if c.start <= t <= c.end:
+            if c.text is not None:
+                spoken = c.text
+            else:
+                active.setdefault(c.channel, []).append(c.label)
+    line = "   ".join(f"{ch}: {' + '.join(active[ch])}" for ch in CAPTION_CHANNELS if ch in active)
+    return line or "(idle)", spoken
+
+
+# --- worker side (one GL context per process) -------------------------------------------------
+
+_W: dict[str, Any] = {}
+
+
+def _init_worker(settings: VideoSettings) -> None:
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    import mujoco
+
+    from robots.coco.model import load_model
+
+    cm = load_model()
+    model = cm.model
+    # software GL (EGL on llvmpipe here) spends most of a frame on the 4096² shadow map and 4x MSAA:
+    # a 1024² map and no MSAA render a 640x408 view ~4x faster (visual settings only, no physics)
+    model.vis.quality.shadowsize = 1024
+    model.vis.quality.offsamples = 0
+    data = mujoco.MjData(model)
+    try:
+        main = mujoco.Renderer(model, height=HEIGHT - CAPTION_H, width=WIDTH)
+        head = mujoco.Renderer(model, height=INSET_H, width=INSET_W)
+    except Exception as e:  # no GL backend
+        raise VideoError(f"no OpenGL renderer ({type(e).__name__}: {e}); try MUJOCO_GL=egl") from e
+    cam = mujoco.MjvCamera()
+    cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+    cam.distance, cam.azimuth, cam.elevation = settings.distance_m, settings.azimuth_deg, settings.elevation_deg
+    head_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, "head_cam")
+    _W.update(mujoco=mujoco, model=model, data=data, main=main, head=head, cam=cam, head_id=head_id,
+              qpos_adr=np.asarray(cm.qpos_adr))
+
+
+def _render(job: tuple[float, np.ndarray, np.ndarray, str, str]) -> bytes:
+    from PIL import Image, ImageDraw, ImageFont
+
+    t, base, joints, line, spoken = job
+    mujoco, model, data = _W["mujoco"], _W["model"], _W["data"]
+    data.qpos[:7] = base
+    data.qpos[_W["qpos_adr"]] = joints
+    mujoco.mj_forward(model, data)
+    cam = _W["cam"]
+    cam.lookat[:] = [base[0], base[1], max(0.05, base[2])]
+    _W["main"].update_scene(data, cam)
+    view = _W["main"].render()
+    _W["head"].update_scene(data, _W["head_id"])
+    inset = _W["head"].render()
+    img = Image.new("RGB", (WIDTH, HEIGHT), (18, 18, 24))
+    img.paste(Image.fromarray(view), (0, 0))
+    x0, y0 = WIDTH - INSET_W - 8, 8
+    img.paste((235, 235, 235), (x0 - 2, y0 - 2, x0 + INSET_W + 2, y0 + INSET_H + 2))
+    img.paste(Image.fromarray(inset), (x0, y0))
+    draw = ImageDraw.Draw(img)
+    font = ImageFont.load_default(size=15)
+    small = ImageFont.load_default(size=13)
+    draw.text((x0 + 4, y0 + INSET_H - 18), "head camera", fill=(255, 255, 255), font=small)
+    top = HEIGHT - CAPTION_H
+    draw.text((10, top + 8), f"t = {t:6.2f} s", fill=(160, 200, 255), font=font)
+    draw.text((110, top + 8), _fit(draw, line, font, WIDTH - 120), fill=(240, 240, 240), font=font)
+    if spoken:
+        draw.text((10, top + 38), _fit(draw, f"\u201c{spoken}\u201d", font, WIDTH - 20), fill=(255, 220, 120),
+                  font=font)
+    return img.tobytes()
+
+
+def _fit(draw: Any, text: str, font: Any, width: int) -> str:
+    """``text`` cut (with an ellipsis) to ``width`` pixels."""
+    if draw.textlength(text, font=font) <= width:
+        return text
+    while text and draw.textlength(text + "\u2026", font=font) > width:
+        text = text[:-1]
+    return text + "\u2026"
+
+
+# --- driver -------------------------------------------------------------------------------------
+
+
+def _jobs(states: States, calls: Sequence[_Call], fps: int, t0: float | None
+          ) -> Iterator[tuple[float, np.ndarray, np.ndarray, str, str]]:
+    start = states.t[0] if t0 is None else max(states.t[0], t0)
+    times = np.arange(start, states.t[-1] + 1e-9, 1.0 / fps)
+    idx = np.clip(np.searchsorted(states.t, times, side="right") - 1, 0, len(states.t) - 1)
+    for t, i in zip(times, idx):
+        line, spoken = caption_at(calls, float(t))
+        yield float(t - (t0 or 0.0)), states.base[i], states.joints[i], line, spoken
+
+
+def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings | None = None) -> Path:
+    """Render ``run_dir``'s recorded run to ``out`` (default ``run_dir/run.mp4``); returns the path.
+
+    Raises :class:`VideoError` with the reason when it cannot.
+    """
+    import imageio_ffmpeg
+
+    settings = settings or VideoSettings()
+    run_dir = Path(run_dir)
+    out = run_dir / "run.mp4" if out is None else Path(out)
+    states = load_states(run_dir)
+    calls = _calls(run_dir)
+    t0 = None
+    tl = run_dir / "timeline.json"
+    if tl.exists():
+        t0 = json.loads(tl.read_text(encoding="utf-8")).get("t0")
+    jobs = list(_jobs(states, calls, settings.fps, t0))
+    writer = imageio_ffmpeg.write_frames(str(out), (WIDTH, HEIGHT), fps=settings.fps, codec="libx264",
+                                         pix_fmt_out="yuv420p", quality=7, macro_block_size=16,
+                                         output_params=["-preset", "veryfast"])
+    writer.send(None)
+    ctx = multiprocessing.get_context("spawn")
+    try:
+        with ctx.Pool(max(1, settings.workers), initializer=_init_worker, initargs=(settings,)) as pool:
+            for frame in pool.imap(_render, jobs, chunksize=4):
+                writer.send(frame)
+    except VideoError:
+        raise
+    except Exception as e:
+        raise VideoError(f"rendering failed: {type(e).__name__}: {e}") from e
+    finally:
+        writer.close()
+    return out
