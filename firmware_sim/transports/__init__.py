@@ -2,23 +2,18 @@
 
 ``open_board_transport(spec, ...)`` dispatches on :attr:`protocol.linkspec.LinkSpec.kind`:
 ``"serial"`` -> :class:`firmware_sim.transports.serial.SerialBoardTransport` (``pty``
-creates a pty pair); ``"can"`` -> ``firmware_sim.transports.can.open_can_board_transport(spec, *, log_path, **options)``
-(the hook for the CAN transport: while that module does not exist, a CAN spec raises
-``ValueError("CAN transport not available ...")``).
+creates a pty pair); ``"can"`` -> :func:`firmware_sim.transports.can.open_can_board_transport`
+(SocketCAN or virtual through python-can, or the SLCAN adapter on a pty).
 """
 
 from __future__ import annotations
 
-import importlib
 from typing import Any
 
 from firmware_sim.transports.base import BoardTransport
 from protocol.linkspec import LinkSpec, parse_link_spec
 
-__all__ = ["CAN_MODULE", "BoardTransport", "open_board_transport"]
-
-#: the module providing ``open_can_board_transport(spec, *, log_path, **options) -> BoardTransport``
-CAN_MODULE = "firmware_sim.transports.can"
+__all__ = ["BoardTransport", "open_board_transport"]
 
 
 def open_board_transport(
@@ -39,12 +34,7 @@ def open_board_transport(
 
         return SerialBoardTransport(spec.port, baud=baud, log_path=log_path)
     if spec.kind == "can":
-        try:
-            mod = importlib.import_module(CAN_MODULE)
-        except ModuleNotFoundError as e:
-            if e.name != CAN_MODULE:
-                raise
-            raise ValueError(f"CAN transport not available: cannot serve {spec}") from None
-        transport: BoardTransport = mod.open_can_board_transport(spec, log_path=log_path, **options)
-        return transport
+        from firmware_sim.transports.can import open_can_board_transport  # python-can loads only for CAN links
+
+        return open_can_board_transport(spec, log_path=log_path, **options)
     raise ValueError(f"no transport for link kind {spec.kind!r}")

@@ -81,13 +81,3 @@ def test_wire_model_holds_bytes_for_their_wire_time() -> None:
     finally:
         os.close(host)
         t.close()
-
-
-def test_can_is_refused_until_a_can_transport_exists() -> None:
-    try:
-        import firmware_sim.transports.can  # noqa: F401
-    except ModuleNotFoundError:
-        with pytest.raises(ValueError, match="CAN transport not available"):
-            open_board_transport("can:virtual:bus0")
-    else:
-        pytest.skip("a CAN transport is installed")

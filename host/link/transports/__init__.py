@@ -2,14 +2,12 @@
 
 ``open_transport(spec, ...)`` dispatches on :attr:`protocol.linkspec.LinkSpec.kind`:
 ``"serial"`` -> :class:`host.link.transports.serial.SerialLinkTransport`;
-``"can"`` -> ``host.link.transports.can.open_can_transport(spec, *, log_path, **options)``
-(the hook for the CAN transport: while that module does not exist, opening a CAN spec
-raises :class:`LinkError` "CAN transport not available").
+``"can"`` -> :func:`host.link.transports.can.open_can_transport` (python-can is imported
+only for CAN links).
 """
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -18,10 +16,7 @@ from host.link.errors import LinkError
 from host.link.transports.base import LossHandler, ReceiveHandler, Transport
 from protocol.linkspec import LinkSpec, parse_link_spec
 
-__all__ = ["CAN_MODULE", "LossHandler", "ReceiveHandler", "Transport", "open_transport"]
-
-#: the module providing ``open_can_transport(spec, *, log_path, **options) -> Transport``
-CAN_MODULE = "host.link.transports.can"
+__all__ = ["LossHandler", "ReceiveHandler", "Transport", "open_transport"]
 
 
 def open_transport(
@@ -54,12 +49,7 @@ def open_transport(
             port = lambda: parse_link_spec(r()).port  # noqa: E731
         return SerialLinkTransport(port, baud=baud, log_path=log_path, force_thread=force_thread)
     if spec.kind == "can":
-        try:
-            mod = importlib.import_module(CAN_MODULE)
-        except ModuleNotFoundError as e:
-            if e.name != CAN_MODULE:
-                raise
-            raise LinkError(f"CAN transport not available: cannot open {spec}") from None
-        transport: Transport = mod.open_can_transport(spec, log_path=log_path, **options)
-        return transport
+        from host.link.transports.can import open_can_transport  # python-can loads only for CAN links
+
+        return open_can_transport(spec, log_path=log_path, **options)
     raise LinkError(f"no transport for link kind {spec.kind!r}")
