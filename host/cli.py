@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "prompt": ("prompt", "print the system prompt for the mounted functions"),
     "dsbc": ("dsbc", "score a generated function-token program against a ground truth"),
     "run": ("run", "run a task or a program on the robot"),
+    "fuzz": ("fuzz", "coverage-guided fuzzing (atheris) of the decoder, board, shell and link client"),
 }
 
 

@@ -646,10 +646,10 @@ class BoardClient:
         if parts is None or seq is None:
             return
         parts[msg.index] = msg.data
-        if len(parts) >= msg.total:
+        if len(parts) >= msg.total and all(i in parts for i in range(msg.total)):  # never a partial image
             fut = self._pending.get(seq)
             if fut is not None and not fut.done():
-                fut.set_result(b"".join(parts[i] for i in range(msg.total) if i in parts))
+                fut.set_result(b"".join(parts[i] for i in range(msg.total)))
 
     def _on_telemetry(self, t: Telemetry) -> None:
         self.latest_telemetry = t
