@@ -47,6 +47,8 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--baud", type=int, default=115200, help="baud rate for a real serial port")
     parser.add_argument("--out", default=None, metavar="DIR", help="artefact folder (default runs/<label>)")
     parser.add_argument("--no-live", action="store_true", help="no live channel view")
+    parser.add_argument("--policy", default=None, metavar="FILE",
+                        help="safety policy (TOML): allowed functions, tighter parameter bounds, motion budget")
 
 
 def _positive(text: str) -> float:
@@ -64,6 +66,15 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     from host.link import LinkError
     from host.run.runner import RunOptions, run_program
 
+    from host.shell.policy import Policy, PolicyError
+
+    policy = None
+    if getattr(args, "policy", None):
+        try:
+            policy = Policy.load(args.policy)
+        except PolicyError as e:
+            print(f"ghostshell: {e}", file=sys.stderr)
+            return 2
     slug = label.replace(" ", "-")
     out = Path(args.out) if args.out else Path("runs") / slug
     opts = RunOptions(
@@ -72,6 +83,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         link=args.link, baud=args.baud, out=out, tokens_per_s=args.tokens_per_s, seed=args.seed,
         llm_base_url=getattr(args, "base_url", None), llm_api_key=getattr(args, "api_key", None),
         interrupt_at=getattr(args, "interrupt_at", None), live=not args.no_live and sys.stdout.isatty(),
+        policy=policy,
     )
     try:
         report = anyio.run(run_program, opts, backend="asyncio")

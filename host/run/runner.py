@@ -32,6 +32,7 @@ from host.link.errors import LinkError
 from host.run import artefacts
 from host.shell import Shell
 from host.shell.prompt import render_prompt
+from host.shell.policy import Policy
 from host.shell.timeline import RunResult
 from robots.coco import load_poses, load_servo_table
 from robots.coco.motions import transition
@@ -65,6 +66,7 @@ class RunOptions:
     buffer_response: bool = False  # wait for the whole LLM response before executing (the non-streaming baseline)
     start_pose: str = "stand"
     live: bool = False  # draw the live channel view (on a terminal)
+    policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
 
 
 @dataclass
@@ -218,7 +220,7 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, CocoRuntime],
             tel = await client.wait_for(lambda t: True, timeout=10)
             runtime = CocoRuntime(link, out, initial=np.asarray(tel.positions))
             registry = coco_registry(runtime, opts.vocabulary)
-            shell = Shell(registry, mode=opts.mode, strict=opts.strict, clock=runtime.board_now_s)
+            shell = Shell(registry, mode=opts.mode, strict=opts.strict, clock=runtime.board_now_s, policy=opts.policy)
             result: RunResult | None = None
             async with anyio.create_task_group() as tg:
                 tg.start_soon(_pump, client, runtime, rec)
