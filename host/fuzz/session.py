@@ -1,7 +1,8 @@
 """Fuzz target ``session``: fuzzed board replies into the host link client's receive path.
 
-The entry point is :meth:`host.link.client.BoardClient._on_data` (what the serial transport calls
-with every chunk it reads; no port is opened). Before the input, the client is given what a live
+The entry point is :meth:`host.link.session.BoardClient._on_items`, the session's receive handler:
+a serial transport feeds every chunk it reads through a :class:`protocol.framing.FrameDecoder` and
+hands the items to it; this target does the same with fuzzed bytes (no port is opened). Before the input, the client is given what a live
 session has in flight: a pending ACK wait (seq 7), a time-sync probe (t1 = 1000) and a camera
 capture (request 1, seq 9), so replies to them are matched too.
 
@@ -10,7 +11,7 @@ bytes "from the board"; a seed file is ``wire bytes + 4 bytes`` (see ``host.fuzz
 
 Invariants: nothing is logged as an error (the client swallows handler exceptions with a log, so a
 log record at ERROR is a crash here); the NACK map holds at most 1024 entries and the fault-event
-history 256; the client's frame/error counters equal its decoder's; the board time seen never goes
+history 256; the session's frame/error counters equal the decoder's; the board time seen never goes
 back; the fault state equals the latest telemetry's fault bits; a completed capture is exactly the
 chunks 0 .. total-1 of the last chunk's ``total``
 (no partial image surfaces).
@@ -47,10 +48,11 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
         import atheris  # type: ignore[import-not-found,unused-ignore]
 
         with atheris.instrument_imports(include=["host.link", "protocol"]):
-            import host.link.client  # noqa: F401
+            import host.link.session  # noqa: F401
     import atheris  # type: ignore[import-not-found,unused-ignore]
 
-    from host.link.client import FAULT_BITS, BoardClient
+    from host.link.session import FAULT_BITS, BoardClient
+    from protocol.framing import FrameDecoder
     from protocol.messages import CameraChunk, FaultFlags
 
     errors = _Errors()
@@ -62,7 +64,8 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
         seed = fdp.ConsumeIntInRange(0, 2**32 - 1)
         stream = fdp.ConsumeBytes(fdp.remaining_bytes())
         errors.records.clear()
-        client = BoardClient("fuzz://board", reconnect=False)
+        client = BoardClient("/dev/fuzz-board", reconnect=False)
+        dec = FrameDecoder()
         ack: asyncio.Future[object] = loop.create_future()
         cap: asyncio.Future[object] = loop.create_future()
         sync: asyncio.Future[object] = loop.create_future()
@@ -84,13 +87,13 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
         client._on_chunk = observed_chunk  # type: ignore[method-assign]
         seen = 0
         for piece in chunks(stream, seed):
-            client._on_data(piece)
+            client._on_items(dec.feed(piece))
             assert not errors.records, f"receive path failed: {_describe(errors.records[0])}"
             assert client._board_time_seen >= seen, "board time went back"
             seen = client._board_time_seen
             assert len(client._frame_nacks) <= 1024 and len(client.fault_events) <= 256
-            assert client.stats.rx_frames == client._decoder.frames_ok
-            assert client.stats.decode_errors == client._decoder.error_count
+            assert client.stats.rx_frames == dec.frames_ok
+            assert client.stats.decode_errors == dec.error_count
             if client.latest_telemetry is not None:
                 assert client.faults == FaultFlags(client.latest_telemetry.faults & FAULT_BITS)
         for f in (ack, cap, sync):

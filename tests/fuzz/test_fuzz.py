@@ -35,7 +35,7 @@ def test_corpus_and_regressions_replay(target: str) -> None:
 def test_regressions_fail_without_the_fix() -> None:
     """The partial-camera-image regression input really breaks an invariant when the fix is undone."""
     from host.fuzz.session import load
-    from host.link.client import BoardClient
+    from host.link.session import BoardClient
 
     fixed = BoardClient._on_chunk
 
