@@ -46,6 +46,12 @@ TARGETS: dict[str, FuzzTarget] = {
             "no stray exception, every mapped call satisfies its declared types and ranges, bounded state",
         ),
         FuzzTarget(
+            "can-decoder",
+            "host.fuzz.can_decoder",
+            "arbitrary CAN frames (ids, DLCs, FD, 29-bit, remote) into the CAN reassembly/decoder and ISO-TP: "
+            "no partial message surfaces, surfaced messages re-encode to their frames, bounded state",
+        ),
+        FuzzTarget(
             "session",
             "host.fuzz.session",
             "fuzzed board replies into the link client's receive path: no exception, bounded maps, "

@@ -8,6 +8,8 @@ and writes small seed files in each target's input layout:
 * ``session``: windows of board -> host frames + 4 bytes;
 * ``board``: the host -> board frames as RAW operations, each ADVANCE followed by a TICKS operation
   (a lockstep run's board also starts at time 0, so apply-at times line up);
+* ``can-decoder``: the same messages re-encoded as node 5's fixed-layout CAN frames (classic and FD,
+  both receivers), as raw-id frame records;
 * ``shell``: every paper task's ground-truth program, strict (``0x00``) and lenient (``0x01``) + 4 bytes.
 """
 
@@ -79,6 +81,44 @@ def board_ops(frames: Iterable[bytes], limit: int = 1500) -> list[bytes]:
     return out
 
 
+def can_records(frames: Iterable[tuple[str, bytes]], receiver: str, node: int = 5, fd: bool = False,
+                limit: int = 1500) -> list[bytes]:
+    """Serial frame-log frames re-encoded as this node's fixed-layout CAN frames, as ``can-decoder`` inputs.
+
+    ``receiver`` ``board`` takes the host -> board (``tx``) frames, ``host`` the board -> host ones;
+    messages without a fixed layout (they travel as ISO-TP bulk) are skipped.
+    """
+    from protocol.can.codec import Sender, encode_fixed
+    from protocol.codec import PayloadError
+    from protocol.framing import Frame, FrameDecoder
+
+    want = "tx" if receiver == "board" else "rx"
+    sender = Sender.HOST if receiver == "board" else Sender.BOARD
+    out: list[bytes] = []
+    cur = bytes([0 if receiver == "board" else 1])
+    dec = FrameDecoder()
+    for direction, raw in frames:
+        if direction != want:
+            continue
+        for item in dec.feed(raw):
+            if not isinstance(item, Frame):
+                continue
+            try:
+                can_frames = encode_fixed(item.msg, item.seq, node, fd, sender)
+            except (PayloadError, KeyError, ValueError):
+                continue
+            rec = b"".join(
+                struct.pack("<BHB", int(f.is_fd), f.arbitration_id, len(f.data)) + f.data for f in can_frames
+            )
+            if len(cur) + len(rec) > limit:
+                out.append(cur)
+                cur = bytes([0 if receiver == "board" else 1])
+            cur += rec
+    if len(cur) > 1:
+        out.append(cur)
+    return out
+
+
 def write_seeds(target_dir: Path, seeds: Iterable[bytes], max_files: int = 24) -> int:
     """Write seeds named by content hash into ``target_dir``; returns how many were written."""
     target_dir.mkdir(parents=True, exist_ok=True)
@@ -97,15 +137,20 @@ def main(argv: list[str] | None = None) -> int:
     serial: list[bytes] = []
     session: list[bytes] = []
     board: list[bytes] = []
+    can: list[bytes] = []
     for run in a.runs:
         frames = list(_frames(run / "host_frames.jsonl"))
         serial += wire_windows((raw for _, raw in frames), count=6)
         session += wire_windows((raw for d, raw in frames if d == "rx"), count=6)
         board += board_ops(raw for d, raw in frames if d == "tx")[:6]
+        for receiver in ("board", "host"):
+            for fd in (False, True):
+                can += can_records(frames, receiver, fd=fd)[:2]
     from robots.coco.tasks import load_tasks
 
     shell = [flag + t.ground_truth.encode() + _TAIL for t in load_tasks().values() if t.ground_truth for flag in (b"\0", b"\1")]
-    for name, seeds in (("serial-decoder", serial), ("session", session), ("board", board), ("shell", shell)):
+    for name, seeds in (("serial-decoder", serial), ("session", session), ("board", board), ("shell", shell),
+                        ("can-decoder", can)):
         print(f"{name}: {write_seeds(a.out / name / 'corpus', seeds, 60 if name == 'shell' else 24)} seed(s)")
     return 0
 
