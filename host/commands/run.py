@@ -49,6 +49,10 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--baud", type=int, default=115200, help="baud rate for a real serial port")
     parser.add_argument("--out", default=None, metavar="DIR", help="artefact folder (default runs/<label>)")
     parser.add_argument("--no-live", action="store_true", help="no live channel view")
+    parser.add_argument("--faults", default=None, metavar="SPEC",
+                        help="emulated board: inject link faults both ways, e.g. drop=0.01,corrupt=0.01,dup=0.005,"
+                             "reorder=0.005 (also truncate=P, delay=MS[±MS], cut=START+LEN)")
+    parser.add_argument("--fault-seed", type=int, default=0, metavar="N", help="seed of the fault injection (default 0)")
     parser.add_argument("--policy", default=None, metavar="FILE",
                         help="safety policy (TOML): allowed functions, tighter parameter bounds, motion budget")
 
@@ -77,6 +81,14 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         except PolicyError as e:
             print(f"ghostshell: {e}", file=sys.stderr)
             return 2
+    if getattr(args, "faults", None):
+        from protocol.faults import FaultSpec, FaultSpecError
+
+        try:
+            FaultSpec.parse(args.faults)
+        except FaultSpecError as e:
+            print(f"ghostshell: --faults: {e}", file=sys.stderr)
+            return 2
     slug = label.replace(" ", "-")
     out = Path(args.out) if args.out else Path("runs") / slug
     opts = RunOptions(
@@ -85,7 +97,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         link=args.link, emulate_board=args.emulate_board or None, baud=args.baud, out=out, tokens_per_s=args.tokens_per_s, seed=args.seed,
         llm_base_url=getattr(args, "base_url", None), llm_api_key=getattr(args, "api_key", None),
         interrupt_at=getattr(args, "interrupt_at", None), live=not args.no_live and sys.stdout.isatty(),
-        policy=policy,
+        policy=policy, faults=getattr(args, "faults", None), fault_seed=getattr(args, "fault_seed", 0),
     )
     try:
         report = anyio.run(run_program, opts, backend="asyncio")

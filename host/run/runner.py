@@ -10,6 +10,7 @@ the board clock; in realtime both follow the wall clock.
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import time
 from collections import deque
@@ -69,6 +70,8 @@ class RunOptions:
     start_pose: str = "stand"
     live: bool = False  # draw the live channel view (on a terminal)
     policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
+    faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
+    fault_seed: int = 0
 
 
 @dataclass
@@ -220,6 +223,8 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, CocoRuntime],
                         "with --emulate-board (the virtual bus is for in-process tests)")
     if emulate:
         board_args = ["--lockstep" if opts.lockstep else "--realtime", "--log", str(out / f"board_frames{log_suffix}")]
+        if opts.faults:
+            board_args += ["--faults", opts.faults, "--fault-seed", str(opts.fault_seed)]
         board = start_board(board_args, out / "board.stderr", link=spec)
         target = board.spec
     rec = _Recorder()
@@ -267,7 +272,8 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, CocoRuntime],
             stats = {"frames_sent": runtime.streamer.frames_sent, "late": client.latest_telemetry.late_count
                      if client.latest_telemetry else None,
                      "dropped": client.latest_telemetry.dropped_count if client.latest_telemetry else None,
-                     "frame_nacks": client.stats.frame_nacks, "decode_errors": client.stats.decode_errors}
+                     "frame_nacks": client.stats.frame_nacks, "decode_errors": client.stats.decode_errors,
+                     "retries": client.stats.retries}
     except BaseExceptionGroup as group:  # one task's failure cancels the rest: report the cause
         cause = _first_cause(group)
         if cause is None:
@@ -277,6 +283,20 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, CocoRuntime],
         if board is not None:
             board.stop()
     return _write(opts, result, runtime, rec, token_times, board_t0, base_start, stats)
+
+
+def _fault_report(stderr_path: Path, stats: dict[str, Any]) -> dict[str, Any]:
+    """What the board injected and detected (its ``board: faults {...}`` line) and what the host detected."""
+    board: Any = None
+    try:
+        for line in stderr_path.read_text(encoding="utf-8", errors="replace").splitlines():
+            if line.startswith("board: faults "):
+                board = json.loads(line[len("board: faults "):])
+    except (OSError, ValueError):
+        pass
+    return {"board": board, "host_detected": {"decode_errors": stats.get("decode_errors"),
+                                              "frame_nacks": stats.get("frame_nacks"),
+                                              "request_retries": stats.get("retries")}}
 
 
 def _first_cause(group: BaseExceptionGroup) -> Exception | None:
@@ -335,7 +355,8 @@ def _write(opts: RunOptions, result: RunResult, runtime: CocoRuntime, rec: _Reco
         extra={"clock": "lockstep" if opts.lockstep else "realtime", "vocabulary": opts.vocabulary,
                "mode": opts.mode, "error": None if result.error is None else str(result.error),
                "observations": [str(o) for o in result.observations], "link": stats,
-               "captures": [p.name for p in runtime.captures]})
+               "captures": [p.name for p in runtime.captures],
+               **({"faults": _fault_report(out / "board.stderr", stats)} if opts.faults else {})})
     artefacts.write_summary_json(out / "summary.json", summary)
     return RunReport(result, calls, summary, out, token_times, board_t0)
 
