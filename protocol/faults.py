@@ -270,9 +270,10 @@ class GapDetector:
     is bounded: only the last ``window`` missing numbers are remembered.
     """
 
-    def __init__(self, window: int = 1024) -> None:
+    def __init__(self, window: int = 1024, first: int | None = None) -> None:
         self.window = window
-        self.highest: int | None = None
+        #: with ``first`` (the sequence a sender starts at, e.g. 0) a loss of the very first units counts too
+        self.highest: int | None = None if first is None else (first - 1) & 0xFFFF
         self.lost = 0
         self.late = 0
         self.received = 0

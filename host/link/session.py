@@ -348,10 +348,20 @@ class BoardClient:
         fut: asyncio.Future[Caps] = loop.create_future()
         self._hello_fut = fut
         try:
-            self._send(Hello(self.protocol_version, self.schema_hash, host_now_us()))
-            try:
-                caps = await asyncio.wait_for(fut, self.handshake_timeout)
-            except TimeoutError:
+            # HELLO is re-sent a few times within the timeout: one lost frame (either way) must not
+            # fail the handshake
+            tries = 4
+            caps = None
+            for _ in range(tries):
+                self._send(Hello(self.protocol_version, self.schema_hash, host_now_us()))
+                try:
+                    caps = await asyncio.wait_for(asyncio.shield(fut), self.handshake_timeout / tries)
+                    break
+                except TimeoutError:
+                    continue
+            if caps is None:
+                if not fut.done():
+                    fut.cancel()
                 raise HandshakeError(
                     f"no CAPS from {self.port_name!r} within {self.handshake_timeout} s: "
                     "is a CoCo board (python -m firmware_sim) serving this port?"
@@ -599,7 +609,14 @@ class BoardClient:
 
     async def _sync_burst(self) -> None:
         for _ in range(self.sync_burst if not self.lockstep else 1):
-            await self.sync_once()
+            for attempt in range(3):  # a lost probe or reply costs a retry, not the connection
+                try:
+                    await self.sync_once()
+                    break
+                except LinkTimeout:
+                    if attempt == 2:
+                        raise
+                    self.stats.retries += 1
 
     @property
     def clock_estimate(self) -> ClockEstimate | None:

@@ -110,6 +110,7 @@ class _Recorder:
 SETTLE_CHECKPOINTS = 32
 #: wall seconds without telemetry after which a run fails (the board died or the link hung)
 TELEMETRY_SILENCE_S = 10.0
+LOCKSTEP_NUDGE_S = 0.5  # lockstep: wall seconds without telemetry before the host ADVANCEs the board
 
 
 async def _pump(client: BoardClient, runtime: CocoRuntime, rec: _Recorder) -> None:
@@ -132,14 +133,31 @@ async def _pump(client: BoardClient, runtime: CocoRuntime, rec: _Recorder) -> No
             await runtime.streamer.top_up()
 
 
-async def _silence_watchdog(runtime: CocoRuntime, rec: _Recorder) -> None:
-    """Fail the run when the board stops reporting (it died, or the link hung)."""
+async def _silence_watchdog(runtime: CocoRuntime, rec: _Recorder, client: BoardClient | None = None) -> None:
+    """Fail the run when the board stops reporting (it died, or the link hung).
+
+    Lockstep over a lossy link: when the frame that would have let the board reach its next report
+    (or that report itself) was lost, both ends wait for each other. After ``LOCKSTEP_NUDGE_S`` of
+    silence the host ADVANCEs the board by one report period so the stream resumes (frames due in
+    that gap are late or missing, as they would be after any loss).
+    """
+    nudged_at = 0.0
+    target = 0
     while True:
-        await anyio.sleep(1.0)
+        await anyio.sleep(0.25)
+        silent = time.monotonic() - rec.last_rx
         if runtime.streamer.held:  # a held lockstep board is silent on purpose (waiting for the LLM)
             rec.last_rx = time.monotonic()
-        elif time.monotonic() - rec.last_rx > TELEMETRY_SILENCE_S:
+        elif silent > TELEMETRY_SILENCE_S:
             raise LinkError(f"no telemetry from the board for {TELEMETRY_SILENCE_S:g} s; giving up the run")
+        elif (client is not None and client.lockstep and silent > LOCKSTEP_NUDGE_S
+              and time.monotonic() - nudged_at > LOCKSTEP_NUDGE_S):
+            nudged_at = time.monotonic()
+            # the board may be up to one lookahead past its last report that reached us: each nudge
+            # reaches 20 ms further than the previous one until a report comes back
+            target = max(client.board_now_estimate(), target) + 20_000
+            with contextlib.suppress(LinkError):
+                await client.advance(target)
 
 
 async def _realtime_topper(runtime: CocoRuntime) -> None:
@@ -241,7 +259,7 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, CocoRuntime],
             result: RunResult | None = None
             async with anyio.create_task_group() as tg:
                 tg.start_soon(_pump, client, runtime, rec)
-                tg.start_soon(_silence_watchdog, runtime, rec)
+                tg.start_soon(_silence_watchdog, runtime, rec, client)
                 if not client.lockstep:
                     tg.start_soon(_realtime_topper, runtime)
                 await runtime.streamer.top_up()

@@ -100,6 +100,9 @@ def test_gap_detector_across_the_wrap() -> None:
     for s in (65533, 65534, 1, 0, 2, 2):  # 65535 lost, 0 late (reordered), 2 duplicated
         g.feed(s)
     assert (g.lost, g.late, g.highest) == (1, 2, 2)
+    g0 = GapDetector(first=0)
+    g0.feed(2)  # 0 and 1 never came
+    assert g0.lost == 2
 
 
 def test_cut_silences_exactly_its_window() -> None:
