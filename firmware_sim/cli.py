@@ -73,7 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-class _Stop(Exception):
+class _Stop(BaseException):  # not Exception: a handler that guards against bugs must not swallow it
     pass
 
 
