@@ -47,6 +47,20 @@ def test_hold_then_crouch_after_a_cut_and_the_fault_latches() -> None:
     assert isinstance(board.handle(EstopClear(), 3)[0], Ack)
     assert board.mode is Mode.RUN
     assert board.handle(ServoFrame(board.now_us + 20_000, 1, (0.1,)), 4) == []
+    # tracking recovers: the host streams the stand pose again (a frame every 10 ms, 60 ms ahead)
+    stand = np.array(board.table.neutral)
+    cleared_at, seq, recovered_at = board.now_us, 5, None
+    while board.now_us < cleared_at + 3_000_000:
+        if board.now_us % 10_000 == 0:
+            board.handle(ServoFrame(board.now_us + 60_000, 0x0FFF, tuple(float(v) for v in stand)), seq)
+            seq += 1
+        board.tick()
+        if np.degrees(np.abs(board.positions() - stand)).max() < 3.0:
+            recovered_at = board.now_us
+            break
+    assert recovered_at is not None, "servos never came back within 3 deg of the commanded pose"
+    print(f"tracking within 3 deg {(recovered_at - cleared_at) / 1e6:.3f} s after ESTOP_CLEAR")
+    assert recovered_at - cleared_at < 1_500_000
 
 
 def test_a_message_during_hold_resumes_without_latching() -> None:
