@@ -60,6 +60,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--watchdog-ms", type=_positive_int, default=200, metavar="MS",
                         help="link silence before holding position (default 200)")
     parser.add_argument("--log", default=None, metavar="FILE", help="write every frame in/out as JSON lines")
+    parser.add_argument("--faults", default=None, metavar="SPEC",
+                        help="inject link faults both ways (serial), e.g. drop=0.01,corrupt=0.01,dup=0.005,"
+                             "reorder=0.005,truncate=P,delay=MS[±MS],cut=START+LEN (see protocol.faults)")
+    parser.add_argument("--fault-seed", type=int, default=0, metavar="N", help="seed of the fault injectors (default 0)")
     parser.add_argument("--viewer", action="store_true", help="open MuJoCo's viewer (needs a display)")
     parser.add_argument("--scene", choices=("empty", "bottles"), default="empty",
                         help="objects in the world: 'bottles' = three light bottles in front of CoCo")
@@ -71,7 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-class _Stop(Exception):
+class _Stop(BaseException):  # not Exception: a handler that guards against bugs must not swallow it
     pass
 
 
@@ -112,6 +116,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as e:
         print(f"board: cannot open link {str(args.link)!r}: {e}", file=sys.stderr)
         return 2
+    fault_spec = None
+    if args.faults:
+        from protocol.faults import FaultSpec, FaultSpecError
+
+        try:
+            fault_spec = FaultSpec.parse(args.faults)
+        except FaultSpecError as e:
+            link.close()
+            parser.error(f"--faults: {e}")
+    injectors = []
+    if fault_spec is not None and fault_spec.active:
+        from firmware_sim.transports.faulty import install_faults
+
+        try:
+            injectors = install_faults(link, fault_spec, args.fault_seed)
+        except ValueError as e:
+            link.close()
+            print(f"board: {e}", file=sys.stderr)
+            return 2
     board = Board(cfg)
     # Lockstep renders in the loop (deterministic and free: virtual time waits); realtime in a thread.
     why = board.camera.warm_up() if cfg.lockstep else board.start_camera_worker()
@@ -147,6 +170,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (_Stop, KeyboardInterrupt):
         pass
     finally:
+        if injectors and fault_spec is not None:
+            from firmware_sim.transports.faulty import report_line
+
+            print(report_line(fault_spec, args.fault_seed, injectors, board), file=sys.stderr, flush=True)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
         signal.signal(signal.SIGINT, signal.SIG_DFL)
         if server.clock is not None:

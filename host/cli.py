@@ -30,6 +30,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "mcp": ("mcp", "serve the shell as an MCP server (stdio, or streamable HTTP with --http PORT)"),
     "eval": ("eval", "evaluate an LLM the paper's way: DSBC over the tasks, runs on the board, the native-call ablation"),
     "render": ("render", "render run.mp4 for a finished run from its recorded state"),
+    "fuzz": ("fuzz", "coverage-guided fuzzing (atheris) of the decoder, board, shell and link client"),
 }
 
 

@@ -60,6 +60,12 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-live", action="store_true", help="no live channel view")
     parser.add_argument("--scene", choices=("empty", "bottles"), default="empty",
                         help="objects in the board's world; summary.json reports how many toppled")
+    parser.add_argument("--faults", default=None, metavar="SPEC",
+                        help="emulated board: inject link faults both ways, e.g. drop=0.01,corrupt=0.01,dup=0.005,"
+                             "reorder=0.005 (also truncate=P, delay=MS[±MS], cut=START+LEN)")
+    parser.add_argument("--fault-seed", type=int, default=0, metavar="N", help="seed of the fault injection (default 0)")
+    parser.add_argument("--policy", default=None, metavar="FILE",
+                        help="safety policy (TOML): allowed functions, tighter parameter bounds, motion budget")
 
 
 def _positive(text: str) -> float:
@@ -91,6 +97,23 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     except SkillError as e:
         print(f"ghostshell: {e}", file=sys.stderr)
         return 1
+    from host.shell.policy import Policy, PolicyError
+
+    policy = None
+    if getattr(args, "policy", None):
+        try:
+            policy = Policy.load(args.policy)
+        except PolicyError as e:
+            print(f"ghostshell: {e}", file=sys.stderr)
+            return 2
+    if getattr(args, "faults", None):
+        from protocol.faults import FaultSpec, FaultSpecError
+
+        try:
+            FaultSpec.parse(args.faults)
+        except FaultSpecError as e:
+            print(f"ghostshell: --faults: {e}", file=sys.stderr)
+            return 2
     slug = label.replace(" ", "-")
     out = Path(args.out) if args.out else Path("runs") / slug
     opts = RunOptions(
@@ -102,6 +125,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         interrupt_at=getattr(args, "interrupt_at", None), live=not args.no_live and sys.stdout.isatty(),
         scene=getattr(args, "scene", "empty"),
         skills=skills,
+        policy=policy, faults=getattr(args, "faults", None), fault_seed=getattr(args, "fault_seed", 0),
     )
     try:
         report = anyio.run(run_program, opts, backend="asyncio")

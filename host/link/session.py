@@ -129,6 +129,7 @@ class LinkStats:
     frame_nacks: int = 0
     telemetry: int = 0
     reconnects: int = 0
+    retries: int = 0  # requests re-sent because no ACK/NACK came in time (a lost frame either way)
 
 
 def _flag_names(f: FaultFlags) -> str:
@@ -346,10 +347,20 @@ class BoardClient:
         fut: asyncio.Future[Caps] = loop.create_future()
         self._hello_fut = fut
         try:
-            self._send(Hello(self.protocol_version, self.schema_hash, host_now_us()))
-            try:
-                caps = await asyncio.wait_for(fut, self.handshake_timeout)
-            except TimeoutError:
+            # HELLO is re-sent a few times within the timeout: one lost frame (either way) must not
+            # fail the handshake
+            tries = 4
+            caps = None
+            for _ in range(tries):
+                self._send(Hello(self.protocol_version, self.schema_hash, host_now_us()))
+                try:
+                    caps = await asyncio.wait_for(asyncio.shield(fut), self.handshake_timeout / tries)
+                    break
+                except TimeoutError:
+                    continue
+            if caps is None:
+                if not fut.done():
+                    fut.cancel()
                 raise HandshakeError(
                     f"no CAPS from {self.port_name!r} within {self.handshake_timeout} s: "
                     "is a CoCo board (python -m firmware_sim) serving this port?"
@@ -456,24 +467,44 @@ class BoardClient:
                 + (f" (last error: {self.last_disconnect_reason})" if self.last_disconnect_reason else "")
             )
 
-    async def request(self, msg: Message, timeout: float | None = None) -> Ack:
-        """Send ``msg`` and await its ACK (within ``timeout`` s, default ``reply_timeout``).
+    #: sends of one request before :class:`LinkTimeout` (a frame lost either way costs a retry)
+    request_attempts = 3
+
+    async def request(self, msg: Message, timeout: float | None = None, attempts: int | None = None) -> Ack:
+        """Send ``msg`` and await its ACK, re-sending it (new sequence number) after each
+        ``timeout`` s (default ``reply_timeout``) without a reply, ``attempts`` times in all
+        (default :attr:`request_attempts`); the first ACK/NACK to any copy answers.
 
         Raises :class:`NackError` (the board's reason) on a NACK, :class:`LinkTimeout` without
         a reply, :class:`LinkDown` when the link is not up. For messages the board answers
-        with ACK/NACK: FLUSH, ESTOP, ESTOP_CLEAR, ADVANCE, CONFIG, SCREEN, SPEAKER.
+        with ACK/NACK: FLUSH, ESTOP, ESTOP_CLEAR, ADVANCE, CONFIG, SCREEN, SPEAKER (all of
+        which the board may apply twice with the same effect, so a lost ACK is harmless).
         """
         self._require_ready()
         fut: asyncio.Future[Ack] = asyncio.get_running_loop().create_future()
-        seq = self._send(msg)
-        self._pending[seq] = fut
+        per_try = timeout or self.reply_timeout
+        n = max(1, attempts or self.request_attempts)
+        seqs: list[int] = []
         try:
-            return await asyncio.wait_for(fut, timeout or self.reply_timeout)
-        except TimeoutError:
-            raise LinkTimeout(f"no ACK for {type(msg).__name__} (seq {seq}) within {timeout or self.reply_timeout} s") from None
+            for k in range(n):
+                seq = self._send(msg)
+                seqs.append(seq)
+                self._pending[seq] = fut
+                try:
+                    return await asyncio.wait_for(asyncio.shield(fut), per_try)
+                except TimeoutError:
+                    if k + 1 < n:
+                        self.stats.retries += 1
+            raise LinkTimeout(
+                f"no ACK for {type(msg).__name__} (seq {', '.join(map(str, seqs))}) after {n} attempt(s) "
+                f"of {per_try} s"
+            )
         finally:
-            if self._pending.get(seq) is fut:
-                del self._pending[seq]
+            if not fut.done():
+                fut.cancel()
+            for seq in seqs:
+                if self._pending.get(seq) is fut:
+                    del self._pending[seq]
 
     _request = request
 
@@ -495,8 +526,11 @@ class BoardClient:
         return await self.request(Flush(int(from_us), mask))
 
     async def estop(self) -> Ack:
-        """Emergency stop: the board holds where it is and refuses frames until :meth:`estop_clear`."""
-        return await self.request(Estop())
+        """Emergency stop: the board holds where it is and refuses frames until :meth:`estop_clear`.
+
+        Re-sent until acknowledged (up to 20 times, ``reply_timeout`` apart), also under loss.
+        """
+        return await self.request(Estop(), attempts=20)
 
     async def estop_clear(self) -> Ack:
         """Clear an estop or a latched watchdog fault."""
@@ -574,7 +608,14 @@ class BoardClient:
 
     async def _sync_burst(self) -> None:
         for _ in range(self.sync_burst if not self.lockstep else 1):
-            await self.sync_once()
+            for attempt in range(3):  # a lost probe or reply costs a retry, not the connection
+                try:
+                    await self.sync_once()
+                    break
+                except LinkTimeout:
+                    if attempt == 2:
+                        raise
+                    self.stats.retries += 1
 
     @property
     def clock_estimate(self) -> ClockEstimate | None:
@@ -696,10 +737,10 @@ class BoardClient:
         if parts is None or seq is None:
             return
         parts[msg.index] = msg.data
-        if len(parts) >= msg.total:
+        if len(parts) >= msg.total and all(i in parts for i in range(msg.total)):  # never a partial image
             fut = self._pending.get(seq)
             if fut is not None and not fut.done():
-                fut.set_result(b"".join(parts[i] for i in range(msg.total) if i in parts))
+                fut.set_result(b"".join(parts[i] for i in range(msg.total)))
 
     def _on_telemetry(self, t: Telemetry) -> None:
         self.latest_telemetry = t

@@ -50,6 +50,7 @@ class Recorder:
 SETTLE_CHECKPOINTS = 32
 #: wall seconds without telemetry after which a run fails (the board died or the link hung)
 TELEMETRY_SILENCE_S = 10.0
+LOCKSTEP_NUDGE_S = 0.5  # lockstep: wall seconds without telemetry before the host ADVANCEs the board
 
 
 async def pump(client: BoardClient, runtime: CocoRuntime, rec: Recorder) -> None:
@@ -72,23 +73,40 @@ async def pump(client: BoardClient, runtime: CocoRuntime, rec: Recorder) -> None
             await runtime.streamer.top_up()
 
 
-async def silence_watchdog(runtime: CocoRuntime, rec: Recorder) -> None:
+async def silence_watchdog(runtime: CocoRuntime, rec: Recorder, client: BoardClient | None = None) -> None:
     """Fail the run when the board stops reporting (it died, or the link hung), or when the host
-    stops streaming frames to it (a stalled streamer must end the run, not hang it)."""
+    stops streaming frames to it (a stalled streamer must end the run, not hang it).
+
+    Lockstep over a lossy link: when the frame that would have let the board reach its next report
+    (or that report itself) was lost, both ends wait for each other. After ``LOCKSTEP_NUDGE_S`` of
+    silence the host ADVANCEs the board by one report period so the stream resumes (frames due in
+    that gap are late or missing, as they would be after any loss).
+    """
     sent, since = runtime.streamer.frames_sent, time.monotonic()
+    nudged_at = 0.0
+    target = 0
     while True:
-        await anyio.sleep(1.0)
+        await anyio.sleep(0.25)
         now = time.monotonic()
         if runtime.streamer.frames_sent != sent or runtime.streamer.held:
             sent, since = runtime.streamer.frames_sent, now
+        silent = now - rec.last_rx
         if runtime.streamer.held:  # a held lockstep board is silent on purpose (waiting for the LLM)
             rec.last_rx = now
-        elif now - rec.last_rx > TELEMETRY_SILENCE_S:
+        elif silent > TELEMETRY_SILENCE_S:
             raise LinkError(f"no telemetry from the board for {TELEMETRY_SILENCE_S:g} s; giving up the run")
         elif now - since > TELEMETRY_SILENCE_S:
             raise LinkError(f"the host sent no servo frame for {TELEMETRY_SILENCE_S:g} s "
                             f"(board clock estimate {runtime.streamer.board_now_us()} us, next frame "
                             f"{runtime.streamer.first_free_us} us); giving up the run")
+        elif (client is not None and client.lockstep and silent > LOCKSTEP_NUDGE_S
+              and now - nudged_at > LOCKSTEP_NUDGE_S):
+            nudged_at = now
+            # the board may be up to one lookahead past its last report that reached us: each nudge
+            # reaches 20 ms further than the previous one until a report comes back
+            target = max(client.board_now_estimate(), target) + 20_000
+            with contextlib.suppress(LinkError):
+                await client.advance(target)
 
 
 async def realtime_topper(runtime: CocoRuntime) -> None:

@@ -24,6 +24,7 @@ from host.run.pump import HISTORY, SETTLE_CHECKPOINTS, TELEMETRY_SILENCE_S
 from host.run.session import RobotSession, SessionOptions
 from host.shell import Shell
 from host.shell.skills import SkillStore
+from host.shell.policy import Policy
 from host.shell.timeline import RunResult
 from protocol.linkspec import LinkSpec
 
@@ -60,6 +61,9 @@ class RunOptions:
     live: bool = False  # draw the live channel view (on a terminal)
     skills: SkillStore | None = None  # the skill library (None: in memory, gone after the run)
     scene: str = "empty"  # objects in the board's world (python -m firmware_sim --scene)
+    policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
+    faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
+    fault_seed: int = 0
 
 
 @dataclass
@@ -78,7 +82,8 @@ def session_options(opts: RunOptions) -> SessionOptions:
     """The board/link/shell part of ``opts``."""
     return SessionOptions(vocabulary=opts.vocabulary, mode=opts.mode, strict=opts.strict, lockstep=opts.lockstep,
                           link=opts.link, emulate_board=opts.emulate_board, baud=opts.baud, wire_baud=opts.wire_baud, out=opts.out, start_pose=opts.start_pose,
-                          skills=opts.skills, label=opts.task_label, scene=opts.scene)
+                          skills=opts.skills, label=opts.task_label, scene=opts.scene,
+                          policy=opts.policy, faults=opts.faults, fault_seed=opts.fault_seed)
 
 
 async def run_program(opts: RunOptions, on_start: Callable[[Shell, CocoRuntime], None] | None = None) -> RunReport:

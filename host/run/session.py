@@ -23,6 +23,7 @@ Failures: a link or LLM failure inside the session's tasks surfaces from the
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 from collections.abc import AsyncIterable, AsyncIterator, Callable, Iterable
 from dataclasses import dataclass, field
@@ -54,6 +55,7 @@ from host.run.pump import (
     timed_chunks,
 )
 from host.shell import Shell
+from host.shell.policy import Policy
 from host.shell.skills import SkillStore
 from host.shell.timeline import RunResult
 from protocol.linkspec import LinkSpec, parse_link_spec
@@ -79,6 +81,9 @@ class SessionOptions:
     skills: SkillStore | None = None  # None: an in-memory store (skills end with the session)
     label: str = "session"
     scene: str = "empty"  # objects in the board's world (python -m firmware_sim --scene)
+    policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
+    faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
+    fault_seed: int = 0
 
 
 @dataclass
@@ -173,6 +178,8 @@ class RobotSession:
                               "--log", str(self.out / f"board_frames{log_suffix}"), "--scene", opts.scene]
                 if opts.wire_baud:
                     board_args += ["--baud", str(opts.wire_baud)]
+                if opts.faults:
+                    board_args += ["--faults", opts.faults, "--fault-seed", str(opts.fault_seed)]
                 self._board = start_board(board_args, self.out / "board.stderr", link=spec)
                 target = self._board.spec
             client = await BoardClient.connect(target, baud=opts.baud, log_path=self.out / f"host_frames{log_suffix}")
@@ -184,11 +191,11 @@ class RobotSession:
             self._runtime = runtime
             registry = coco_registry(runtime, opts.vocabulary)
             self._shell = Shell(registry, mode=opts.mode, strict=opts.strict, clock=runtime.board_now_s,
-                                skills=opts.skills)
+                                skills=opts.skills, policy=opts.policy)
             tg = anyio.create_task_group()
             self._tg = await self._stack.enter_async_context(tg)
             tg.start_soon(pump, client, runtime, self.rec)
-            tg.start_soon(silence_watchdog, runtime, self.rec)
+            tg.start_soon(silence_watchdog, runtime, self.rec, client)
             if not client.lockstep:
                 tg.start_soon(realtime_topper, runtime)
             await runtime.streamer.top_up()
@@ -324,7 +331,8 @@ class RobotSession:
         stats = {"frames_sent": self.runtime.streamer.frames_sent, "late": tel.late_count if tel else None,
                  "dropped": tel.dropped_count if tel else None,
                  "frame_nacks": client.stats.frame_nacks if client else None,
-                 "decode_errors": client.stats.decode_errors if client else None}
+                 "decode_errors": client.stats.decode_errors if client else None,
+                 "retries": client.stats.retries if client else None}
         end_t = rec.t[-1] if rec.t else turn.board_t0
         return artefacts.Summary(
             task=label, outcome=outcome, fell=fell, base_start=_pose(b0), base_end=_pose(b1),
@@ -333,7 +341,11 @@ class RobotSession:
             extra={"clock": "lockstep" if opts.lockstep else "realtime", "vocabulary": opts.vocabulary,
                    "mode": opts.mode, "error": None if result.error is None else str(result.error),
                    "observations": [str(o) for o in result.observations], "link": stats,
-                   "captures": [p.name for p in captures], "scene": self.scene_report()})
+                   "captures": [p.name for p in captures], "scene": self.scene_report(),
+                   **({"faults": {"host_detected": {"decode_errors": stats["decode_errors"],
+                                                     "frame_nacks": stats["frame_nacks"],
+                                                     "request_retries": stats["retries"]}}}
+                      if opts.faults else {})})
 
     def writer(self, turn: TurnResult, label: str) -> Callable[[], None]:
         """Snapshot what the turn's artefacts need (on the loop) and return the writer (thread-safe)."""
@@ -344,9 +356,13 @@ class RobotSession:
         sent = [(t, q_) for t, q_ in list(runtime.streamer.history) if t * 1e-6 >= turn.board_t0 - 1e-9]
         names = load_servo_table().names
         out, calls, summary, t0 = turn.out, list(turn.calls), turn.summary, turn.board_t0
+        board_stderr = self.out / "board.stderr"
 
         def write() -> None:
             out.mkdir(parents=True, exist_ok=True)
+            faults = summary.extra.get("faults")
+            if isinstance(faults, dict):  # the board reports what it injected and detected when it stops
+                faults["board"] = board_fault_report(board_stderr)
             artefacts.write_timeline_json(out / "timeline.json", calls, t0=t0)
             artefacts.plot_timeline(out / "timeline.png", calls, title=f"{label}: calls on the board clock")
             if len(times) and keep.any():
@@ -363,6 +379,18 @@ class RobotSession:
     async def write(self, turn: TurnResult, label: str | None = None) -> None:
         """Write a turn's artefacts; the plotting runs in a worker thread so the board keeps its frames."""
         await anyio.to_thread.run_sync(self.writer(turn, label or turn.summary.task))
+
+
+def board_fault_report(stderr_path: Path) -> Any:
+    """What the board injected and detected: its ``board: faults {json}`` stderr line (None before it stopped)."""
+    report: Any = None
+    try:
+        for line in stderr_path.read_text(encoding="utf-8", errors="replace").splitlines():
+            if line.startswith("board: faults "):
+                report = json.loads(line[len("board: faults "):])
+    except (OSError, ValueError):
+        pass
+    return report
 
 
 def _pose(b: Any) -> list[float]:

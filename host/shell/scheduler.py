@@ -45,6 +45,7 @@ import anyio
 
 from host.shell.context import CallContext, _current
 from host.shell.mapper import MappingError, map_element, split_sync
+from host.shell.limits import Limits
 from host.shell.parser import (
     EmptyTag,
     EndTag,
@@ -54,6 +55,7 @@ from host.shell.parser import (
     StartTag,
     Text,
 )
+from host.shell.policy import PolicyError
 from host.shell.skills import SkillError, end_tag, start_tag, text
 from host.shell.timeline import CallRecord, Observation, RunResult, Timeline
 from host.shell.types import MAIN_CHANNEL, FunctionSpec
@@ -158,6 +160,12 @@ class ProgramRun:
         self._warned_no_speech = False
         self._executed: list[tuple[str, _Call | None]] = []  # the reply as executed (see executed_text)
         self._save_mark = 0
+        self.limits: Limits = getattr(shell, "limits", None) or Limits()
+        self.policy = getattr(shell, "policy", None)
+        self._text_chars = 0  # characters of text this turn
+        self._calls = 0  # elements this turn
+        self._refused_calls = 0  # elements refused for exceeding max_calls
+        self._full_channels: set[str | None] = set()  # channels whose queue overflowed (reported once)
 
     # ------------------------------------------------------------------ API
     async def run(self, chunks: AsyncIterable[str]) -> RunResult:
@@ -244,6 +252,9 @@ class ProgramRun:
 
     def _end_of_stream(self) -> None:
         self._flush_text()
+        if self._refused_calls:
+            self._observe("error", f"{self._refused_calls} element(s) refused in all: more than "
+                                   f"{self.limits.max_calls} calls in one turn")
         if self._recording is not None:
             self._observe("error", f"<SAVE name={self._recording.name!r}> was never closed; skill not saved")
             del self._executed[self._save_mark:]
@@ -329,6 +340,16 @@ class ProgramRun:
 
     # -- text -------------------------------------------------------------------
     def _text_in(self, data: str) -> None:
+        room = self.limits.max_text_chars - self._text_chars
+        if len(data) > room:
+            if room > 0 or self._text_chars == self.limits.max_text_chars:
+                self._observe("error", f"more than {self.limits.max_text_chars} characters of text in one turn; "
+                                       "the rest is not spoken")
+                self._text_chars += 1  # reported once
+            data = data[: max(0, room)]
+        self._text_chars += len(data)
+        if not data:
+            return
         for seg in self._text.feed(data):
             self._speak(seg)
 
@@ -354,10 +375,22 @@ class ProgramRun:
             channel = MAIN_CHANNEL
         else:
             channel = spec.channel
+        if self._queue_full(channel):
+            return
         call = self._new_call(spec.name, "fn", spec, {"text": segment}, channel, spec.channel, persistent=False)
         if not self._skill_stack:  # sentences of one text run are joined by a space (the splitter drops it)
             sep = " " if self._executed and self._executed[-1][1] is not None else ""
             self._executed.append((sep + text(segment), call))
+
+    def _queue_full(self, channel: str | None) -> bool:
+        """True (and reported once per channel) when ``channel`` already has the maximum of pending calls."""
+        if len(self._by_channel.get(channel, {})) < self.limits.max_queued_per_channel:
+            return False
+        if channel not in self._full_channels:
+            self._full_channels.add(channel)
+            self._observe("error", f"channel {channel!r} already has {self.limits.max_queued_per_channel} queued "
+                                   "calls; further calls there are refused until it drains")
+        return True
 
     # -- elements ------------------------------------------------------------
     def _start(self, name: str, attrs: dict[str, str], *, empty: bool) -> None:
@@ -366,6 +399,21 @@ class ProgramRun:
             self._record_failure(name, attrs, f"<{name}> is nested deeper than {MAX_DEPTH} elements; refused", empty)
             if not empty:
                 self._stack.append(_Frame(name, None, frame.path, frame.async_ctx, frame.counts))
+            return
+        if self._calls >= self.limits.max_calls:  # runaway output: refuse, count, keep the stream in step
+            if not self._refused_calls:
+                self._observe("error", f"more than {self.limits.max_calls} calls in one turn; <{name}> and "
+                                       "every later element are refused")
+            self._refused_calls += 1
+            if not empty:
+                self._stack.append(_Frame(name, None, frame.path, frame.async_ctx, frame.counts))
+            return
+        self._calls += 1
+        big = next((k for k, v in attrs.items() if len(v) > self.limits.max_attr_chars), None)
+        if big is not None:
+            self._mapping_failed(name, {k: v[:64] for k, v in attrs.items()},
+                                 f"<{name}> attribute {big!r} has {len(attrs[big])} characters; the limit is "
+                                 f"{self.limits.max_attr_chars}", empty)
             return
         if name == "SAVE":
             self._start_save(attrs, empty)
@@ -389,6 +437,16 @@ class ProgramRun:
             return
         spec = mapped.spec
         channel = MAIN_CHANNEL if (mapped.sync or not frame.async_ctx) else spec.channel
+        if self.policy is not None:
+            try:
+                self.policy.check(spec, mapped.args, self.clock())  # absolute: the ledger spans turns
+            except PolicyError as exc:  # refused before anything reaches the robot
+                self._mapping_failed(name, attrs, str(exc), empty)
+                return
+        if self._queue_full(channel):
+            self._mapping_failed(name, attrs, f"<{name}> refused: channel {channel!r} already has "
+                                              f"{self.limits.max_queued_per_channel} queued calls", empty)
+            return
         call = self._new_call(name, "fn", spec, mapped.args, channel, spec.channel, persistent=not empty)
         if not empty:
             self._stack.append(_Frame(name, call, call.record.path, frame.async_ctx))

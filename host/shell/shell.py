@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterable, AsyncIterator, Callable, Iterable
 
+from host.shell.limits import Limits
+from host.shell.policy import Policy
 from host.shell.registry import Registry
 from host.shell.scheduler import MODES, ProgramRun
 from host.shell.skills import SkillStore
@@ -26,7 +28,8 @@ class Shell:
     lenient recovery (warnings become observations); ``text_first_class`` puts
     speech on the main channel; ``clock`` is the time source for the timeline
     (default ``anyio.current_time``); ``skills`` is the skill memory (default: an
-    in-memory store).
+    in-memory store); ``limits`` caps what one turn may do (:class:`Limits`); ``policy``
+    refuses calls it does not allow before they are dispatched (:class:`Policy`).
     """
 
     def __init__(
@@ -37,6 +40,8 @@ class Shell:
         text_first_class: bool = False,
         clock: Callable[[], float] | None = None,
         skills: SkillStore | None = None,
+        limits: Limits | None = None,
+        policy: Policy | None = None,
     ) -> None:
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, not {mode!r}")
@@ -46,6 +51,8 @@ class Shell:
         self.text_first_class = text_first_class
         self.clock = clock
         self.skills = skills if skills is not None else SkillStore()
+        self.limits = (limits or Limits()).validate()
+        self.policy = policy
         self._run: ProgramRun | None = None
 
     @property

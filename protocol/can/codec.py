@@ -191,7 +191,10 @@ def raw_to_message(msg_type: MsgType, raw: dict[str, int]) -> Message:
         mask = raw["mask"]
         if mask >> CAN_SERVOS:
             raise PayloadError(f"SERVO_FRAME: mask {mask:#x} has bits outside the {CAN_SERVOS} CAN servos")
-        targets = tuple(_q16_decode(raw[f"target_{i + 1:02d}"], 10_000) for i in range(CAN_SERVOS) if mask >> i & 1)
+        codes = [raw[f"target_{i + 1:02d}"] for i in range(CAN_SERVOS) if mask >> i & 1]
+        if -32768 in codes:  # as protocol.codec: a target has no "unknown" (there is no safe value for it)
+            raise PayloadError("SERVO_FRAME: targets: reserved code -32768 (NaN) is not allowed here")
+        targets = tuple(_q16_decode(c, 10_000) for c in codes)
         return m.ServoFrame(raw["apply_at_us"], mask, targets)
     if msg_type is MsgType.TIME_SYNC_REQUEST:
         return m.TimeSyncRequest(raw["t1_host_us"])

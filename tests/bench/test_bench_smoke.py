@@ -20,6 +20,7 @@ CASES = {
     "bench_latency.py": ["--tasks", "5", "--lockstep"],
     "calibrate_gaits.py": ["--check"],
     "bench_canload.py": ["--no-run"],
+    "bench_hostile.py": ["--mb", "0.01", "--calls", "50"],
 }
 
 

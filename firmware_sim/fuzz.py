@@ -1,0 +1,224 @@
+"""Fuzz target ``board``: assembled host messages with fuzzed fields and order into the lockstep board core.
+
+Like MAVLink's fuzz harnesses, the fuzzer does not spend its effort on CRCs: the input is a stream of
+*operations* whose fields are fuzzed, and every message is framed with a valid CRC
+(``protocol.framing``), decoded again and handed to :meth:`firmware_sim.board.Board.handle`, exactly
+as the serial server does. Ticks run in lockstep as ``firmware_sim.server`` runs them: before each message the board ticks while
+:meth:`Board.can_tick` (frames or an ADVANCE cover the time), at most 400 ticks (0.8 s) per input.
+
+Input layout (little-endian; a short read ends the input)::
+
+    op u8 (mod 8), then
+    0 RAW      type u8, seq u16, len u8, payload[len]   any message type, fuzzed payload bytes
+    1 SERVO    seq u16, dt i16 (x 100 us from board now), mask u16, popcount(mask) x i16 (x 1e-4 rad)
+    2 TICKS    n u8                                      ADVANCE by n ticks
+    3 FLUSH    seq u16, dt i16 (x 100 us), mask u16
+    4 ESTOP    seq u16
+    5 CLEAR    seq u16                                    ESTOP_CLEAR
+    6 CONFIG   seq u16, key u8, value u32
+    7 QUIET    n u8                                      (n mod 16) x ADVANCE by 8 ticks (watchdog)
+
+A hand-written reader (not atheris' ``FuzzedDataProvider``, which takes integers from the end of the
+input) keeps the layout simple enough to write seeds from frame logs (``host.fuzz.seeds``).
+
+Invariants (an ``AssertionError`` names the one that broke):
+
+* ``handle`` and ``tick`` never raise;
+* every tick's servo command stays inside the joint limits, and moves at most one tick's worth of
+  the servo's speed limit (ESTOP and resume re-anchor outside the tick, which is allowed);
+* every applied frame is byte-for-byte one that was accepted, was inside its window
+  ``[now - max_late, now + max_future]`` when accepted, and is applied no earlier than its time;
+* the jitter buffer never exceeds its capacity;
+* ESTOP always wins: from its ACK until ESTOP_CLEAR every SERVO_FRAME is refused, nothing is
+  applied, the buffer stays empty and every tick holds the e-stop pose.
+
+This module carries its own three-line atheris runner because the board never imports the host.
+"""
+
+from __future__ import annotations
+
+import struct
+import sys
+from collections.abc import Callable
+
+__all__ = ["load", "Reader"]
+
+
+class Reader:
+    """Little-endian field reader over the fuzz input; :class:`EOFError` when it runs out."""
+
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+        self.i = 0
+
+    def take(self, fmt: str) -> int:
+        s = struct.Struct("<" + fmt)
+        if self.i + s.size > len(self.data):
+            raise EOFError
+        (v,) = s.unpack_from(self.data, self.i)
+        self.i += s.size
+        return int(v)
+
+    def raw(self, n: int) -> bytes:
+        out = self.data[self.i : self.i + n]
+        self.i += len(out)
+        return out
+
+
+def load(instrument: bool = False) -> Callable[[bytes], None]:
+    """Import the board (instrumented when ``instrument``) and return the one-input function."""
+    if instrument:
+        import atheris  # type: ignore[import-not-found,unused-ignore]
+
+        with atheris.instrument_imports(include=["firmware_sim", "protocol"]):
+            import firmware_sim.board  # noqa: F401
+    import numpy as np
+
+    from firmware_sim.board import Board
+    from firmware_sim.config import BoardConfig
+    from firmware_sim.jitter_buffer import BufferedFrame
+    from firmware_sim.safety import Mode
+    from protocol.framing import Frame, FrameDecoder, encode_frame, encode_raw_frame
+    from protocol.messages import (
+        Ack, Advance, Config, ConfigKey, Estop, EstopClear, Flush, Message, MsgType, Nack, NackReason, ServoFrame,
+    )
+
+    def one_input(data: bytes) -> None:
+        board = Board(BoardConfig(lockstep=True, buffer_depth=16, watchdog_ms=20, crouch_after_ms=40))
+        dec = FrameDecoder()
+        r = Reader(data)
+        period = board.servo.period_s
+        # (seq, apply_at) -> every (board time at acceptance, targets) accepted under that key
+        accepted: dict[tuple[int, int], list[tuple[int, dict[int, float]]]] = {}
+        applied: list[BufferedFrame] = []
+        pop_due = board.buffer.pop_due
+
+        def observed_pop(t: int) -> list[BufferedFrame]:
+            due = pop_due(t)
+            applied.extend(due)
+            return due
+
+        board.buffer.pop_due = observed_pop  # type: ignore[method-assign,assignment]
+
+        budget = [400]  # ticks per input, so one input cannot run for long
+
+        def drain() -> None:
+            """Lockstep as the server runs it: the next message is handled only when no tick may run."""
+            while budget[0] > 0 and board.can_tick():
+                budget[0] -= 1
+                tick()
+
+        def deliver(wire: bytes) -> list[Message]:
+            replies: list[Message] = []
+            for item in dec.feed(wire):
+                drain()
+                if isinstance(item, Frame) and isinstance(item.msg, ServoFrame):
+                    replies += servo_frame(item.msg, item.seq)
+                elif isinstance(item, Frame):
+                    replies += board.handle(item.msg, item.seq)
+                else:
+                    board.on_link_error()
+            return replies
+
+        def servo_frame(msg: ServoFrame, seq: int) -> list[Message]:
+            now, mask = board.now_us, msg.mask
+            estopped, latched = board.safety.estopped, board.safety.fault_latched
+            replies = board.handle(msg, seq)
+            ok = mask and not mask & ~0xFFF
+            if not replies:
+                assert ok and not estopped and not latched, f"frame accepted: mask {mask:#x}, estop {estopped}"
+                t = msg.apply_at_us  # inputs stay far below the 2**32 us wrap
+                assert now - board.cfg.max_late_us <= t <= now + board.cfg.max_future_us, f"frame due {t} accepted at {now}"
+                idx = [i for i in range(16) if mask >> i & 1]
+                accepted.setdefault((seq, t), []).append((now, dict(zip(idx, msg.targets))))
+            else:
+                assert len(replies) == 1 and isinstance(replies[0], Nack), f"SERVO_FRAME replies {replies}"
+                if estopped and ok and len(msg.targets) == len(idx_of(mask)):
+                    assert replies[0].reason is NackReason.ESTOPPED, f"ESTOP did not win: {replies[0]}"
+            return replies
+
+        def idx_of(mask: int) -> list[int]:
+            return [i for i in range(16) if mask >> i & 1]
+
+        def send(msg: Message, seq: int) -> list[Message]:
+            return deliver(encode_frame(msg, seq))
+
+        def tick() -> None:
+            before = board.servo.cmd.copy()
+            estopped = board.safety.estopped
+            mode_before = board.mode
+            applied.clear()
+            board.tick()
+            cmd = board.servo.cmd
+            assert np.all(cmd >= board.servo.mins - 1e-9) and np.all(cmd <= board.servo.maxs + 1e-9), (
+                f"command outside joint limits: {cmd}"
+            )
+            assert np.all(board.ctrl >= board.servo.mins - 1e-9) and np.all(board.ctrl <= board.servo.maxs + 1e-9)
+            step = np.abs(cmd - before)
+            assert np.all(step <= board.servo.max_speeds * period + 1e-9), f"speed limit broken: step {step}"
+            t = board.now_us - board.tick_us
+            for f in applied:
+                key = (f.seq, f.apply_at_us)
+                assert key in accepted, f"applied a frame never accepted: seq {f.seq} at {f.apply_at_us}"
+                # FLUSH may have removed some servos of a frame: what is applied is a subset of what was sent
+                assert any(
+                    f.values == {i: v for i, v in values.items() if i in f.values} for _, values in accepted[key]
+                ), f"applied targets {f.values} differ from every frame sent as seq {f.seq}"
+                assert f.apply_at_us <= t, f"frame due {f.apply_at_us} applied early at {t}"
+            if estopped:
+                assert mode_before is Mode.ESTOP and board.mode is Mode.ESTOP
+                assert not applied, "a frame was applied during ESTOP"
+                assert np.array_equal(board.desired, board.hold_q), "ESTOP pose not held"
+            assert len(board.buffer) <= board.buffer.capacity
+
+        def advance(n: int) -> None:
+            send(Advance(board.now_us + n * board.tick_us), 0xFFFF)
+            drain()
+
+        while True:
+            try:
+                op = r.take("B") % 8
+                if op == 0:
+                    mtype, seq, n = r.take("B"), r.take("H"), r.take("B")
+                    deliver(encode_raw_frame(mtype, seq, r.raw(n)))
+                elif op == 1:
+                    seq, dt, mask = r.take("H"), r.take("h"), r.take("H")
+                    targets = tuple(r.take("h") * 1e-4 for _ in range(bin(mask).count("1")))
+                    send(ServoFrame(max(0, board.now_us + dt * 100), mask, targets), seq)
+                elif op == 2:
+                    advance(r.take("B"))
+                elif op == 3:
+                    seq, dt, mask = r.take("H"), r.take("h"), r.take("H")
+                    send(Flush(max(0, board.now_us + dt * 100), mask), seq)
+                elif op == 4:
+                    replies = send(Estop(), r.take("H"))
+                    assert replies and isinstance(replies[0], Ack), f"ESTOP not acknowledged: {replies}"
+                    assert board.safety.estopped and len(board.buffer) == 0
+                elif op == 5:
+                    send(EstopClear(), r.take("H"))
+                    assert not board.safety.estopped and not board.safety.fault_latched
+                elif op == 6:
+                    seq, key, value = r.take("H"), r.take("B"), r.take("I")
+                    if key in ConfigKey._value2member_map_:
+                        send(Config(ConfigKey(key), value), seq)
+                else:
+                    for _ in range(r.take("B") % 16):
+                        advance(8)
+            except EOFError:
+                break
+        assert dec.pending <= dec.max_frame_bytes
+
+    return one_input
+
+
+def main() -> None:
+    """``python -m firmware_sim.fuzz [libFuzzer flags] [corpus dirs]``."""
+    import atheris  # type: ignore[import-not-found,unused-ignore]
+
+    # argv[0] as a command line: libFuzzer's -fork/-jobs modes re-run it through the shell
+    atheris.Setup([f"{sys.executable} -m firmware_sim.fuzz", *sys.argv[1:]], load(True))
+    atheris.Fuzz()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,111 @@
+"""``ghostshell fuzz``: coverage-guided fuzzing of the protocol, the board, the shell and the link client.
+
+``ghostshell fuzz --list`` names the targets; ``ghostshell fuzz TARGET [--seconds N] [--corpus DIR]
+[--jobs N]`` runs one under atheris/libFuzzer in a subprocess (libFuzzer owns its process and exits on
+the first crash), seeded from ``tests/fuzz/TARGET/{corpus,regressions}`` when the source tree is
+present, and prints executions, exec/s, coverage and any crash with the path of its saved input.
+Needs the ``fuzz`` extra (``pip install -e '.[fuzz]'``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+from host.fuzz import TARGETS
+from host.fuzz.libfuzzer import FuzzStats, parse_output
+
+__all__ = ["configure", "main", "run_target", "seed_dirs"]
+
+SEEDS_ROOT = Path(__file__).resolve().parents[2] / "tests" / "fuzz"
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("target", nargs="?", metavar="TARGET", help=f"one of: {', '.join(TARGETS)}")
+    parser.add_argument("--list", action="store_true", help="list the targets and what each checks")
+    parser.add_argument("--seconds", type=int, default=60, metavar="N", help="fuzz for N seconds (default 60)")
+    parser.add_argument("--corpus", default=None, metavar="DIR",
+                        help="where new interesting inputs are kept (default fuzz-out/TARGET/corpus)")
+    parser.add_argument("--jobs", type=int, default=1, metavar="N", help="parallel fuzzing processes (libFuzzer -fork)")
+    parser.add_argument("--out", default=None, metavar="DIR",
+                        help="crash inputs and the full log (default fuzz-out/TARGET)")
+    parser.add_argument("--max-len", type=int, default=4096, metavar="BYTES", help="longest input (default 4096)")
+    parser.add_argument("--no-seeds", action="store_true", help="do not read tests/fuzz/TARGET")
+
+
+def seed_dirs(target: str) -> list[Path]:
+    """The checked-in seed corpus and regression inputs of ``target`` (those that exist)."""
+    return [d for d in (SEEDS_ROOT / target / "corpus", SEEDS_ROOT / target / "regressions") if d.is_dir()]
+
+
+def run_target(
+    target: str, seconds: int, corpus: Path, out: Path, jobs: int = 1, max_len: int = 4096, seeds: bool = True,
+    echo: bool = False,
+) -> tuple[int, FuzzStats]:
+    """Fuzz ``target`` for ``seconds``; returns (libFuzzer's exit code, parsed stats). Log: ``out/fuzz.log``."""
+    t = TARGETS[target]
+    corpus.mkdir(parents=True, exist_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
+    cmd = [
+        sys.executable, "-m", t.module, str(corpus), *(str(d) for d in (seed_dirs(target) if seeds else [])),
+        f"-max_total_time={seconds}", f"-artifact_prefix={out}/", f"-max_len={max_len}",
+        "-timeout=20", "-rss_limit_mb=2048", "-print_final_stats=1",
+    ]
+    if jobs > 1:
+        cmd.append(f"-fork={jobs}")
+    log_path = out / "fuzz.log"
+    with open(log_path, "w", encoding="utf-8") as log:
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace")
+        assert proc.stdout is not None
+        lines: list[str] = []
+        for line in proc.stdout:
+            log.write(line)
+            lines.append(line)
+            if echo and (line.startswith("#") and ("pulse" in line or "DONE" in line or ": cov:" in line)):
+                print(f"  {line.rstrip()}", flush=True)
+        rc = proc.wait()
+    stats = parse_output("".join(lines))
+    if rc and not stats.crashes and not stats.traceback:
+        stats.traceback = "".join(lines[-30:])
+    return rc, stats
+
+
+def main(args: argparse.Namespace) -> int:
+    if args.list or not args.target:
+        width = max(map(len, TARGETS))
+        for name, t in TARGETS.items():
+            print(f"{name:<{width}}  {t.help}")
+        if not args.list:
+            print("\nghostshell fuzz: name a TARGET (or --list)", file=sys.stderr)
+            return 2
+        return 0
+    if args.target not in TARGETS:
+        print(f"ghostshell fuzz: unknown target {args.target!r}; choose one of {', '.join(TARGETS)}", file=sys.stderr)
+        return 2
+    if importlib.util.find_spec("atheris") is None:
+        print("ghostshell fuzz: atheris is not installed; pip install -e '.[fuzz]'", file=sys.stderr)
+        return 2
+    if args.seconds < 1 or args.jobs < 1:
+        print("ghostshell fuzz: --seconds and --jobs must be at least 1", file=sys.stderr)
+        return 2
+    out = Path(args.out or Path("fuzz-out") / args.target)
+    corpus = Path(args.corpus) if args.corpus else out / "corpus"
+    seeds = [] if args.no_seeds else seed_dirs(args.target)
+    print(f"fuzzing {args.target} for {args.seconds} s ({args.jobs} job(s)); corpus {corpus}"
+          + (f", seeds {', '.join(map(str, seeds))}" if seeds else ""), flush=True)
+    rc, st = run_target(args.target, args.seconds, corpus, out, args.jobs, args.max_len, not args.no_seeds, echo=True)
+    print(f"{args.target}: {st.summary()}")
+    if st.crashes or rc:
+        if st.traceback:
+            print(st.traceback)
+        for c in st.crashes:
+            print(f"crash input saved to {c}")
+            print(f"  replay: {sys.executable} -m {TARGETS[args.target].module} {c}")
+            print(f"  keep it: cp {c} tests/fuzz/{args.target}/regressions/")
+        print(f"{args.target}: FAILED (libFuzzer exit {rc}); full log {out / 'fuzz.log'}")
+        return 1
+    print(f"{args.target}: no crash; full log {out / 'fuzz.log'}")
+    return 0

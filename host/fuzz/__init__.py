@@ -1,0 +1,61 @@
+"""Coverage-guided fuzz targets (atheris / libFuzzer) and the ``ghostshell fuzz`` driver.
+
+Each target is a module with ``load(instrument: bool) -> Callable[[bytes], None]`` (the one-input
+function; it raises ``AssertionError`` when an invariant breaks) and a ``__main__`` that hands it to
+atheris. ``ghostshell fuzz`` starts the module as a subprocess (libFuzzer owns the process: it exits
+on the first crash), so the CLI never imports a target. The board target lives in
+``firmware_sim.fuzz`` because the host never imports the board.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["FuzzTarget", "TARGETS"]
+
+
+@dataclass(frozen=True)
+class FuzzTarget:
+    """A fuzz target: its CLI name, the module run with ``python -m`` and what it checks."""
+
+    name: str
+    module: str
+    help: str
+
+
+TARGETS: dict[str, FuzzTarget] = {
+    t.name: t
+    for t in (
+        FuzzTarget(
+            "serial-decoder",
+            "host.fuzz.serial_decoder",
+            "bytes in arbitrary chunks into protocol.framing.FrameDecoder: bounded buffer, resync at the "
+            "next 0x00, every frame re-encodes to its own bytes, chunking never changes the result",
+        ),
+        FuzzTarget(
+            "board",
+            "firmware_sim.fuzz",
+            "valid-CRC host messages with fuzzed fields and order into the lockstep board core: never "
+            "raises, targets inside joint and speed limits, frames only inside their window, bounded "
+            "buffers, ESTOP always wins",
+        ),
+        FuzzTarget(
+            "shell",
+            "host.fuzz.shell",
+            "fuzzed text in fuzzed chunks into the function-token parser + mapper (strict and lenient): "
+            "no stray exception, every mapped call satisfies its declared types and ranges, bounded state",
+        ),
+        FuzzTarget(
+            "can-decoder",
+            "host.fuzz.can_decoder",
+            "arbitrary CAN frames (ids, DLCs, FD, 29-bit, remote) into the CAN reassembly/decoder and ISO-TP: "
+            "no partial message surfaces, surfaced messages re-encode to their frames, bounded state",
+        ),
+        FuzzTarget(
+            "session",
+            "host.fuzz.session",
+            "fuzzed board replies into the link client's receive path: no exception, bounded maps, "
+            "counters consistent",
+        ),
+    )
+}

@@ -1,0 +1,68 @@
+"""Read libFuzzer's console output (as printed by atheris): progress stats, final totals, crashes.
+
+libFuzzer reports progress lines such as ``#106452 DONE cov: 45 ft: 187 corp: 60/5029b ... exec/s:
+5069 rss: 47Mb``, in ``-fork`` mode ``#17533: cov: 246 ft: 262 corp: 79 exec/s 762 ...``, then
+``Done N runs in S second(s)``; a crash prints ``Test unit written to PATH`` (and atheris the Python
+traceback before it). Formats: https://llvm.org/docs/LibFuzzer.html#output
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+__all__ = ["FuzzStats", "parse_output"]
+
+_PROGRESS = re.compile(r"^#(\d+):?\s+(?:\w+\s+)?cov: (\d+) ft: (\d+) corp: (\d+)\S*.*?exec/s:? (\d+)")
+_DONE = re.compile(r"^Done (\d+) runs in (\d+) second")
+
+
+@dataclass
+class FuzzStats:
+    """Totals of one ``ghostshell fuzz`` run; ``None`` where libFuzzer printed nothing yet."""
+
+    executions: int = 0
+    seconds: int | None = None
+    exec_per_s: int = 0
+    coverage: int = 0  # edges (libFuzzer "cov")
+    features: int = 0  # libFuzzer "ft"
+    corpus: int = 0
+    crashes: list[str] = field(default_factory=list)  # saved inputs
+    traceback: str = ""  # the uncaught exception atheris printed, if any
+
+    def summary(self) -> str:
+        rate = self.exec_per_s if self.exec_per_s else (self.executions // self.seconds if self.seconds else 0)
+        secs = f" in {self.seconds} s" if self.seconds is not None else ""
+        return (
+            f"{self.executions} executions{secs} ({rate} exec/s), coverage {self.coverage} edges / "
+            f"{self.features} features, corpus {self.corpus} inputs"
+        )
+
+
+def parse_output(text: str) -> FuzzStats:
+    """Stats, crash files and the first Python traceback found in libFuzzer/atheris output."""
+    st = FuzzStats()
+    lines = text.splitlines()
+    for i, line in enumerate(lines):
+        m = _PROGRESS.match(line)
+        if m:
+            st.executions = max(st.executions, int(m[1]))
+            st.coverage, st.features, st.corpus = int(m[2]), int(m[3]), int(m[4])
+            st.exec_per_s = int(m[5])
+            continue
+        m = _DONE.match(line)
+        if m:
+            st.executions, st.seconds = max(st.executions, int(m[1])), int(m[2])
+            continue
+        if "Test unit written to" in line or ("crash-" in line and "written" in line):
+            path = line.rsplit(" ", 1)[-1]
+            if path not in st.crashes:
+                st.crashes.append(path)
+        if "Uncaught Python exception" in line and not st.traceback:
+            tb = []
+            for follow in lines[i : i + 60]:
+                tb.append(follow)
+                if follow.startswith(("==", "MS:", "artifact_prefix")) and len(tb) > 1:
+                    break
+            st.traceback = "\n".join(tb)
+    return st

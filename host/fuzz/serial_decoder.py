@@ -1,0 +1,83 @@
+"""Fuzz target ``serial-decoder``: arbitrary bytes, in arbitrary chunks, into the serial frame decoder.
+
+Input layout (atheris ``FuzzedDataProvider``): 4 bytes seed the chunking, the rest is the byte stream,
+so a seed file is ``4 bytes + wire bytes`` (e.g. a frame log's raw frames, see ``host.fuzz.seeds``).
+
+Invariants (an ``AssertionError`` names the one that broke):
+
+* the decoder never raises and never holds more than ``max_frame_bytes`` undelimited bytes;
+* chunking is invisible: the chunked feed yields the same frames and error kinds as one feed;
+* every frame it yields re-encodes (``encode_frame(msg, seq)``) to exactly its own wire bytes;
+* resync: after any input, ``0x00`` + a valid frame decodes to that frame;
+* counters agree with the events (``frames_ok``, ``errors``).
+"""
+
+from __future__ import annotations
+
+import random
+from collections.abc import Callable
+
+__all__ = ["load", "chunks"]
+
+
+def chunks(data: bytes, seed: int, max_chunk: int = 300) -> list[bytes]:
+    """Split ``data`` into pieces of pseudo-random length 0..``max_chunk`` (deterministic in ``seed``)."""
+    rng = random.Random(seed)
+    out: list[bytes] = []
+    i = 0
+    while i < len(data):
+        n = rng.randint(0, max_chunk)
+        out.append(data[i : i + n])
+        i += n
+    return out
+
+
+def load(instrument: bool = False) -> Callable[[bytes], None]:
+    """Import the decoder (instrumented for coverage when ``instrument``) and return the one-input function."""
+    if instrument:
+        import atheris  # type: ignore[import-not-found,unused-ignore]
+
+        with atheris.instrument_imports(include=["protocol"]):
+            from protocol import codec, framing  # noqa: F401
+    import atheris  # type: ignore[import-not-found,unused-ignore]
+
+    from protocol.framing import DecodeError, Frame, FrameDecoder, encode_frame
+    from protocol.messages import Heartbeat
+
+    probe_msg = Heartbeat(123_456)
+    probe = encode_frame(probe_msg, 4242)
+
+    def one_input(data: bytes) -> None:
+        fdp = atheris.FuzzedDataProvider(data)
+        seed = fdp.ConsumeIntInRange(0, 2**32 - 1)
+        stream = fdp.ConsumeBytes(fdp.remaining_bytes())
+
+        dec = FrameDecoder()
+        events: list[Frame | DecodeError] = []
+        for piece in chunks(stream, seed):
+            events += dec.feed(piece)
+            assert dec.pending <= dec.max_frame_bytes, f"decoder holds {dec.pending} bytes"
+        whole = FrameDecoder().feed(stream)
+        key = [(type(e).__name__, e.raw if isinstance(e, Frame) else e.kind) for e in events]
+        key_whole = [(type(e).__name__, e.raw if isinstance(e, Frame) else e.kind) for e in whole]
+        assert key == key_whole, f"chunking changed the result: {key} vs {key_whole}"
+        n_frames = 0
+        for e in events:
+            if isinstance(e, Frame):
+                n_frames += 1
+                again = encode_frame(e.msg, e.seq)
+                assert again == e.raw, f"{e.msg_type.name} seq {e.seq} re-encodes to {again.hex()}, got {e.raw.hex()}"
+        assert dec.frames_ok == n_frames
+        assert dec.error_count == len(events) - n_frames
+        tail = dec.feed(b"\x00" + probe)
+        assert tail and isinstance(tail[-1], Frame) and tail[-1].msg == probe_msg and tail[-1].seq == 4242, (
+            f"no resync at the next delimiter: {tail}"
+        )
+
+    return one_input
+
+
+if __name__ == "__main__":
+    from host.fuzz.harness import run_atheris
+
+    run_atheris(load, "host.fuzz.serial_decoder")

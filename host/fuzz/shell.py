@@ -1,0 +1,145 @@
+"""Fuzz target ``shell``: fuzzed text in fuzzed chunks through the real shell (parser, mapper, scheduler).
+
+Input layout (atheris ``FuzzedDataProvider``): byte 0 picks strict (even) or lenient (odd) parsing, the
+last 4 bytes seed the chunking, the bytes between are the LLM output (UTF-8, errors replaced). A seed
+file is therefore ``b"\\x00" + program + 4 bytes`` (see ``host.fuzz.seeds``).
+
+Each input runs twice:
+
+1. through :class:`host.shell.parser.FunctionTokenParser` and :func:`host.shell.mapper.map_element`
+   directly: only :class:`ParseError` (strict) escapes the parser, and it stays dead afterwards; tags
+   nest properly; held-back input stays under ``MAX_TOKEN``; the mapper raises only
+   :class:`MappingError`; every mapped argument satisfies its annotation
+   (:func:`host.fuzz.validate.conforms`);
+2. through :class:`host.shell.shell.Shell` on Trio's ``MockClock`` (virtual time) with CoCo's paper
+   vocabulary bound to a recorder: no exception escapes the run, and every call that reaches an
+   implementation has exactly the declared parameters, each one conforming.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable
+from types import SimpleNamespace
+from typing import Any
+
+from host.fuzz.serial_decoder import chunks as byte_chunks
+
+__all__ = ["load"]
+
+
+def load(instrument: bool = False) -> Callable[[bytes], None]:
+    """Import the shell (instrumented when ``instrument``) and return the one-input function."""
+    if instrument:
+        import atheris  # type: ignore[import-not-found,unused-ignore]
+
+        with atheris.instrument_imports(include=["host.shell", "host.speech"]):
+            import host.shell.shell  # noqa: F401
+    import atheris  # type: ignore[import-not-found,unused-ignore]
+    import trio
+    from trio.testing import MockClock
+
+    from host.fuzz.validate import conforms
+    from host.shell.mapper import MappingError, map_element
+    from host.shell.parser import MAX_TOKEN, EmptyTag, EndTag, FunctionTokenParser, ParseError, StartTag
+    from host.shell.registry import Registry
+    from host.shell.shell import Shell
+    from host.shell.types import Module, params_of, shell_function
+    from robots.coco import interface as coco_interface
+
+    calls: list[tuple[str, dict[str, Any]]] = []
+    params: dict[str, dict[str, Any]] = {}
+
+    def recorder(name: str) -> Callable[..., Any]:
+        async def call(**kwargs: Any) -> None:
+            calls.append((name, kwargs))
+
+        return call
+
+    @shell_function(speech=True)
+    async def speak(text: str) -> None:
+        """Say ``text``."""
+        calls.append(("speak", {"text": text}))
+
+    modules = [Module.from_functions("speak", speak, channel="speech")]
+    for module_name, iface in coco_interface.VOCABULARIES["paper"].items():
+        stubs = {n: f for n, f in vars(iface).items() if hasattr(f, "__coco_stub__")}
+        impl = SimpleNamespace(**{n: recorder(n) for n in stubs})
+        channel = next(iter(stubs.values())).__coco_stub__.channel
+        view = type(iface.__name__, (), {"__doc__": iface.__doc__, **stubs})
+        modules.append(Module.bind(module_name, view, impl, channel=channel))
+        for n, f in stubs.items():
+            params[n] = {p.name: p.annotation for p in params_of(f)}
+    registry = Registry(modules)
+
+    def check_parser(pieces: list[str], strict: bool) -> None:
+        p = FunctionTokenParser(strict=strict)
+        stack: list[str] = []
+        events = []
+        try:
+            for piece in pieces:
+                events += p.feed(piece)
+                assert len(p.pending) <= MAX_TOKEN + 16, f"parser holds {len(p.pending)} characters"
+            events += p.close()
+        except ParseError as e:
+            assert strict, f"lenient parser raised {e}"
+            events += e.events
+            try:
+                p.feed("x")
+            except ParseError:
+                pass
+            else:
+                raise AssertionError("a dead strict parser accepted more input")
+        for ev in events:
+            if isinstance(ev, StartTag):
+                stack.append(ev.name)
+            elif isinstance(ev, EndTag):
+                assert stack and stack[-1] == ev.name, f"end-tag {ev.name} does not close {stack}"
+                stack.pop()
+            if isinstance(ev, (StartTag, EmptyTag)):
+                try:
+                    mapped = map_element(registry, ev.name, dict(ev.attrs))
+                except MappingError:
+                    continue
+                for k, v in mapped.args.items():
+                    ann = mapped.spec.param(k)
+                    assert ann is not None and conforms(v, ann.annotation), f"<{ev.name}> {k}={v!r} mapped"
+
+    def one_input(data: bytes) -> None:
+        fdp = atheris.FuzzedDataProvider(data)
+        strict = not fdp.ConsumeBool()  # byte 0 even -> strict
+        seed = fdp.ConsumeIntInRange(0, 2**32 - 1) if fdp.remaining_bytes() >= 4 else 0
+        text = fdp.ConsumeBytes(fdp.remaining_bytes()).decode("utf-8", "replace")
+        pieces = [b.decode("utf-8", "replace") for b in byte_chunks(text.encode(), seed, 64)]
+        pieces = [p for p in pieces if p]
+        check_parser(pieces, strict)
+        calls.clear()
+        shell = Shell(registry, strict=strict)
+        trio.run(shell.run_text, pieces, clock=MockClock(autojump_threshold=0))
+        for name, kwargs in calls:
+            if name == "speak":
+                assert isinstance(kwargs["text"], str)
+                continue
+            declared = params[name]
+            assert set(kwargs) <= set(declared), f"{name} got undeclared {set(kwargs) - set(declared)}"
+            for k, v in kwargs.items():
+                assert conforms(v, declared[k]), f"{name}({k}={v!r}) reached the implementation"
+            assert all(k in kwargs for k, a in declared.items() if _required(name, k)), f"{name} missing args"
+
+    required: dict[tuple[str, str], bool] = {}
+    for module_name, iface in coco_interface.VOCABULARIES["paper"].items():
+        for n, f in vars(iface).items():
+            if hasattr(f, "__coco_stub__"):
+                for p in inspect.signature(f).parameters.values():
+                    required[(n, p.name)] = p.default is inspect.Parameter.empty and p.name != "self"
+
+    def _required(name: str, param: str) -> bool:
+        return required.get((name, param), False)
+
+    return one_input
+
+
+if __name__ == "__main__":
+    from host.fuzz.harness import run_atheris
+
+    run_atheris(load, "host.fuzz.shell")

@@ -1,0 +1,156 @@
+"""A safety policy the shell enforces before any call is dispatched (``--policy FILE``, TOML).
+
+Example (every table optional)::
+
+    [functions]
+    allow = ["head_act", "face_emo", "run_distance", "rotate", "speak"]   # absent: all allowed
+    deny = ["push_up"]
+
+    [params.run_distance]                 # bounds tighter than the robot's
+    distance = { min = -50, max = 50 }
+
+    [budget.run_distance]                 # a motion budget over a sliding window
+    param = "distance"                    # sum of |distance| (defaults count when omitted) ...
+    max = 100                             # ... at most 100 per window
+    max_calls = 5                         # and at most 5 calls per window
+    window_s = 60                         # seconds on the run clock (default 60)
+
+A refused call fails with ``refused by policy: ...``: the scheduler records it on the timeline and
+reports it as an error observation for the LLM's next turn; nothing reaches the link. The budget
+ledger lives in the :class:`Policy` object, so it spans turns of one session. Errors in the file
+raise :class:`PolicyError` naming the file and the key.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+import tomllib
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from host.shell.types import FunctionSpec
+
+__all__ = ["Budget", "Policy", "PolicyError"]
+
+
+class PolicyError(ValueError):
+    """A policy file that cannot be used, or a call the policy refuses (message says why)."""
+
+
+@dataclass
+class Budget:
+    """At most ``max`` summed |param| and ``max_calls`` calls of one function per ``window_s`` seconds."""
+
+    param: str | None = None
+    max: float | None = None
+    max_calls: int | None = None
+    window_s: float = 60.0
+    ledger: deque[tuple[float, float]] = field(default_factory=deque)  # (time, amount)
+
+
+@dataclass
+class Policy:
+    """Allowed functions, parameter bounds and motion budgets; see the module docstring."""
+
+    allow: frozenset[str] | None = None
+    deny: frozenset[str] = frozenset()
+    bounds: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
+    budgets: dict[str, Budget] = field(default_factory=dict)
+    refused: int = 0
+
+    @classmethod
+    def load(cls, path: str | Path) -> Policy:
+        """Read a TOML policy; :class:`PolicyError` with the file and key on any problem."""
+        try:
+            doc = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        except OSError as e:
+            raise PolicyError(f"cannot read policy {path}: {e.strerror or e}") from None
+        except tomllib.TOMLDecodeError as e:
+            raise PolicyError(f"policy {path} is not valid TOML: {e}") from None
+        try:
+            return cls.from_dict(doc)
+        except PolicyError as e:
+            raise PolicyError(f"policy {path}: {e}") from None
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> Policy:
+        unknown = set(doc) - {"functions", "params", "budget"}
+        if unknown:
+            raise PolicyError(f"unknown table(s) {sorted(unknown)}; expected functions, params, budget")
+        fns = doc.get("functions", {})
+        allow = fns.get("allow")
+        deny = fns.get("deny", [])
+        for key, v in (("functions.allow", allow), ("functions.deny", deny)):
+            if v is not None and not (isinstance(v, list) and all(isinstance(x, str) for x in v)):
+                raise PolicyError(f"{key} must be a list of function names")
+        bounds: dict[str, dict[str, tuple[float, float]]] = {}
+        for fn, params in doc.get("params", {}).items():
+            for p, b in params.items():
+                if not isinstance(b, dict) or set(b) - {"min", "max"} or not b:
+                    raise PolicyError(f"params.{fn}.{p} must be a table with min and/or max")
+                lo, hi = float(b.get("min", -math.inf)), float(b.get("max", math.inf))
+                if lo > hi:
+                    raise PolicyError(f"params.{fn}.{p}: min {lo:g} > max {hi:g}")
+                bounds.setdefault(fn, {})[p] = (lo, hi)
+        budgets: dict[str, Budget] = {}
+        for fn, b in doc.get("budget", {}).items():
+            extra = set(b) - {"param", "max", "max_calls", "window_s"}
+            if extra:
+                raise PolicyError(f"budget.{fn}: unknown key(s) {sorted(extra)}")
+            bud = Budget(b.get("param"), b.get("max"), b.get("max_calls"), float(b.get("window_s", 60.0)))
+            if (bud.param is None) != (bud.max is None):
+                raise PolicyError(f"budget.{fn}: param and max go together")
+            if bud.max is None and bud.max_calls is None:
+                raise PolicyError(f"budget.{fn}: give max (with param) and/or max_calls")
+            if bud.window_s <= 0:
+                raise PolicyError(f"budget.{fn}.window_s must be > 0")
+            budgets[fn] = bud
+        return cls(frozenset(allow) if allow is not None else None, frozenset(deny), bounds, budgets)
+
+    def check(self, spec: FunctionSpec, args: dict[str, Any], now_s: float) -> None:
+        """Raise :class:`PolicyError` if the call is refused; otherwise charge its budget at ``now_s``."""
+        names = {spec.name, *spec.aliases}
+        if spec.speech and self.allow is None and not (names & self.deny):
+            return
+        if names & self.deny or (self.allow is not None and not names & self.allow):
+            self.refused += 1
+            raise PolicyError(f"refused by policy: <{spec.name}> is not allowed")
+        full = self._with_defaults(spec, args)
+        for fn in names:
+            for p, (lo, hi) in self.bounds.get(fn, {}).items():
+                v = full.get(p)
+                if isinstance(v, (int, float)) and not isinstance(v, bool) and not lo <= v <= hi:
+                    self.refused += 1
+                    raise PolicyError(f"refused by policy: <{spec.name}> {p}={v:g} is outside [{lo:g}, {hi:g}]")
+        bud = next((self.budgets[n] for n in names if n in self.budgets), None)
+        if bud is None:
+            return
+        while bud.ledger and bud.ledger[0][0] <= now_s - bud.window_s:
+            bud.ledger.popleft()
+        amount = 0.0
+        if bud.param is not None:
+            v = full.get(bud.param, 0.0)
+            amount = abs(float(v)) if isinstance(v, (int, float)) else 0.0
+        if bud.max_calls is not None and len(bud.ledger) + 1 > bud.max_calls:
+            self.refused += 1
+            raise PolicyError(
+                f"refused by policy: <{spec.name}> budget of {bud.max_calls} call(s) per {bud.window_s:g} s is used up"
+            )
+        if bud.max is not None:
+            used = sum(a for _, a in bud.ledger)
+            if used + amount > bud.max:
+                self.refused += 1
+                raise PolicyError(
+                    f"refused by policy: <{spec.name}> {bud.param}={amount:g} would exceed the budget of "
+                    f"{bud.max:g} per {bud.window_s:g} s ({used:g} used)"
+                )
+        bud.ledger.append((now_s, amount))
+
+    @staticmethod
+    def _with_defaults(spec: FunctionSpec, args: dict[str, Any]) -> dict[str, Any]:
+        full = {p.name: p.default for p in spec.params if p.default is not inspect.Parameter.empty}
+        full.update(args)
+        return full

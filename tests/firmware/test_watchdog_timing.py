@@ -1,0 +1,71 @@
+"""Cut link, measured on the lockstep board core: when the board holds, when it crouches, what latches.
+
+The link goes silent right after an ADVANCE (the last message feeds the watchdog); the board keeps
+ticking on its own clock. Default settings: watchdog 200 ms, crouch after 1000 ms more, 500 Hz.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from firmware_sim.board import Board
+from firmware_sim.config import BoardConfig
+from firmware_sim.safety import Mode
+from protocol.messages import Ack, Advance, EstopClear, FaultFlags, Nack, NackReason, ServoFrame
+
+
+def silent_until(board: Board, mode: Mode, limit_s: float = 5.0) -> int:
+    """Tick without messages until ``mode``; returns the board time (us) of the tick that entered it."""
+    while board.now_us < limit_s * 1e6:
+        t = board.now_us
+        board.tick()
+        if board.mode is mode:
+            return t
+    raise AssertionError(f"never reached {mode}")
+
+
+def test_hold_then_crouch_after_a_cut_and_the_fault_latches() -> None:
+    cfg = BoardConfig(lockstep=True)
+    board = Board(cfg)
+    tick = board.tick_us
+    assert isinstance(board.handle(Advance(10_000_000), 1)[0], Ack)  # last message at t = 0
+    hold_at = silent_until(board, Mode.HOLD)
+    crouch_at = silent_until(board, Mode.CROUCH)
+    # HOLD on the first tick after the watchdog period; CROUCH crouch_after later: never later than one tick
+    assert cfg.watchdog_ms * 1000 < hold_at <= cfg.watchdog_ms * 1000 + tick
+    assert crouch_at - hold_at == cfg.crouch_after_ms * 1000
+    for _ in range(600):  # 1.2 s of crouching: the legs reach the crouch pose at the crouch speed
+        board.tick()
+    err = np.degrees(np.abs(board.positions() - board.crouch)).max()
+    assert err < 3.0, f"not crouched after 1.2 s: {err:.1f} deg off"
+    tele = board.telemetry()
+    assert tele.faults & FaultFlags.WATCHDOG_FAULT
+    # latched: the link comes back, frames are still refused until ESTOP_CLEAR
+    reply = board.handle(ServoFrame(board.now_us + 20_000, 1, (0.1,)), 2)
+    assert isinstance(reply[0], Nack) and reply[0].reason is NackReason.FAULT_LATCHED
+    assert board.mode is Mode.CROUCH
+    assert isinstance(board.handle(EstopClear(), 3)[0], Ack)
+    assert board.mode is Mode.RUN
+    assert board.handle(ServoFrame(board.now_us + 20_000, 1, (0.1,)), 4) == []
+    # tracking recovers: the host streams the stand pose again (a frame every 10 ms, 60 ms ahead)
+    stand = np.array(board.table.neutral)
+    cleared_at, seq, recovered_at = board.now_us, 5, None
+    while board.now_us < cleared_at + 3_000_000:
+        if board.now_us % 10_000 == 0:
+            board.handle(ServoFrame(board.now_us + 60_000, 0x0FFF, tuple(float(v) for v in stand)), seq)
+            seq += 1
+        board.tick()
+        if np.degrees(np.abs(board.positions() - stand)).max() < 3.0:
+            recovered_at = board.now_us
+            break
+    assert recovered_at is not None, "servos never came back within 3 deg of the commanded pose"
+    print(f"tracking within 3 deg {(recovered_at - cleared_at) / 1e6:.3f} s after ESTOP_CLEAR")
+    assert recovered_at - cleared_at < 1_500_000
+
+
+def test_a_message_during_hold_resumes_without_latching() -> None:
+    board = Board(BoardConfig(lockstep=True))
+    board.handle(Advance(10_000_000), 1)
+    silent_until(board, Mode.HOLD)
+    board.handle(ServoFrame(board.now_us + 20_000, 1, (0.1,)), 2)
+    assert board.mode is Mode.RUN and not board.safety.fault_latched
