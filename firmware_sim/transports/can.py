@@ -2,7 +2,7 @@
 
 Both share :class:`CanBoardTransport`: fixed-layout frames are encoded and reassembled with
 :mod:`protocol.can` (the board's node id selects its identifiers; the broadcast ESTOP 0x000 is
-honoured too), bulk messages travel over ISO-TP (:mod:`firmware_sim.transports.isotp_link`), and
+honoured too), bulk messages travel over ISO-TP (:mod:`protocol.can.isotp_link`), and
 every frame sent and received is logged with python-can's writers (``can.Logger``: format by
 suffix, ``.log`` candump, ``.asc``, ``.blf``; timestamps are wall-clock seconds).
 
@@ -23,19 +23,26 @@ import os
 import sys
 import time
 import tty
-from collections import deque
 from pathlib import Path
 from typing import Any
 
 import can
 
 from firmware_sim.transports.base import BoardTransport
-from firmware_sim.transports.isotp_link import IsoTpLink
 from firmware_sim.transports.slcan import SlcanDevice, format_frame
-from protocol.can import CanDecoder, CanDecodeError, CanFrame, CanItem, encode_bulk, encode_fixed, is_fixed
+from protocol.can import (
+    CanDecodeError,
+    CanDecoder,
+    CanFrame,
+    CanItem,
+    encode_bulk,
+    encode_fixed,
+    is_fixed,
+)
 from protocol.can.codec import Sender
-from protocol.can.decoder import CanErrorKind
+from protocol.can.decoder import CanErrorKind, as_frame_items
 from protocol.can.ids import bulk_ids
+from protocol.can.isotp_link import IsoTpLink
 from protocol.codec import PayloadError
 from protocol.framing import DecodeError, DecodeErrorKind, Frame
 from protocol.linkspec import LinkSpec
@@ -47,37 +54,12 @@ __all__ = [
     "SlcanBoardTransport",
     "open_can_board_transport",
     "to_can_message",
-    "to_frame_items",
 ]
 
 FRAME_COST = 16  # backlog bytes per queued frame (a SocketCAN struct can_frame)
 SLCAN_WINDOW = 512  # SLCAN text bytes handed to the pty at a time; the rest waits in priority order
 BACKOFF_MIN_S = 0.001
 BACKOFF_MAX_S = 0.02
-
-_KIND = {
-    CanErrorKind.LENGTH: DecodeErrorKind.LENGTH,
-    CanErrorKind.PART: DecodeErrorKind.LENGTH,
-    CanErrorKind.INCOMPLETE: DecodeErrorKind.LENGTH,
-    CanErrorKind.MIXED: DecodeErrorKind.LENGTH,
-    CanErrorKind.PAYLOAD: DecodeErrorKind.PAYLOAD,
-    CanErrorKind.BULK: DecodeErrorKind.PAYLOAD,
-    CanErrorKind.REMOTE: DecodeErrorKind.UNKNOWN_TYPE,
-    CanErrorKind.EXTENDED_ID: DecodeErrorKind.UNKNOWN_TYPE,
-}
-
-
-def to_frame_items(items: list[CanItem | CanDecodeError]) -> list[Frame | DecodeError]:
-    """CAN decoder output as the session's items (``raw`` = the frames' data concatenated)."""
-    out: list[Frame | DecodeError] = []
-    for it in items:
-        if isinstance(it, CanItem):
-            out.append(Frame(it.seq, it.msg_type, it.msg, b"".join(f.data for f in it.frames)))
-        else:
-            raw = it.frame.data if it.frame is not None else b""
-            out.append(DecodeError(_KIND[it.kind], f"CAN {it.kind.value}: {it.detail}", raw))
-    return out
-
 
 def to_can_message(frame: CanFrame, channel: str | None = None, is_rx: bool = False) -> can.Message:
     return can.Message(
@@ -180,7 +162,7 @@ class CanBoardTransport(BoardTransport):
             items.append(self.decoder.feed_bulk(sdu))
         if self.isotp.errors > errs_before:
             items.append(CanDecodeError(CanErrorKind.BULK, f"ISO-TP: {self.isotp.last_error}"))
-        return to_frame_items(items)
+        return as_frame_items(items)
 
     def _poll(self) -> None:
         """Advance ISO-TP; bulk messages it completes wait in ``_sdus`` for :meth:`receive` (never dropped)."""

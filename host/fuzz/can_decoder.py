@@ -2,7 +2,7 @@
 
 Each input is a stream of frames for node 5, decoded by :class:`protocol.can.decoder.CanDecoder`
 (receiver ``board`` or ``host``, chosen by the first byte) while frames on the receiver's bulk
-identifier also go through :class:`host.link.transports.isotp_link.IsoTpLink` (can-isotp, listen
+identifier also go through :class:`protocol.can.isotp_link.IsoTpLink` (can-isotp, listen
 mode) and every completed ISO-TP unit through :meth:`CanDecoder.feed_bulk`. Frame record::
 
     flags u8   bit0 FD, bit1 29-bit id, bit2 remote, bit3/bit4 pick the id (see below)
@@ -32,10 +32,10 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
     if instrument:
         import atheris  # type: ignore[import-not-found,unused-ignore]
 
-        with atheris.instrument_imports(include=["protocol.can", "host.link.transports.isotp_link"]):
-            import host.link.transports.isotp_link  # noqa: F401
+        with atheris.instrument_imports(include=["protocol.can", "protocol.can.isotp_link"]):
+            import protocol.can.isotp_link  # noqa: F401
             import protocol.can.decoder  # noqa: F401
-    from host.link.transports.isotp_link import IsoTpLink
+    from protocol.can.isotp_link import IsoTpLink
     from protocol.can.codec import Sender, encode_fixed
     from protocol.can.decoder import CanDecodeError, CanDecoder, CanItem
     from protocol.can.frame import FD_LENGTHS, CanFrame

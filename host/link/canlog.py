@@ -20,9 +20,9 @@ from typing import Any
 import can
 import cantools
 
-from host.link.transports.isotp_link import IsoTpLink
 from protocol.can import CanDecodeError, CanDecoder, CanFrame, CanItem
 from protocol.can.ids import BROADCAST_NODE, HOST_TO_BOARD, FunctionCode, bulk_ids, split_id
+from protocol.can.isotp_link import IsoTpLink
 from protocol.messages import Message, SimState
 
 __all__ = ["CAN_LOG_SUFFIXES", "CanLogEntry", "can_last_sim_state", "iter_can_log", "read_can_host_to_board"]

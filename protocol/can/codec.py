@@ -27,7 +27,7 @@ from protocol.codec import (
 )
 from protocol.can.frame import CanFrame
 from protocol.can.ids import FunctionCode, cob_id
-from protocol.can.layouts import CAN_SERVOS, FIXED_LAYOUTS, HEADER_BITS, SEQ_MASK, FixedLayout
+from protocol.can.layouts import CAN_SERVOS, FIXED_LAYOUTS, SEQ_MASK, FixedLayout
 from protocol.messages import Message, MsgType
 
 __all__ = [

@@ -17,14 +17,22 @@ from collections import Counter
 from dataclasses import dataclass, field
 from enum import Enum
 
-from protocol.codec import PayloadError, msg_type_of
 from protocol.can.codec import decode_bulk, raw_to_message, unpack_part
 from protocol.can.frame import CanFrame
-from protocol.can.ids import BOARD_TO_HOST, BROADCAST_NODE, HOST_TO_BOARD, FunctionCode, check_node, split_id
+from protocol.can.ids import (
+    BOARD_TO_HOST,
+    BROADCAST_NODE,
+    HOST_TO_BOARD,
+    FunctionCode,
+    check_node,
+    split_id,
+)
 from protocol.can.layouts import FIXED_LAYOUTS, SEQ_MASK, FixedLayout, unwrap_seq
+from protocol.codec import PayloadError, msg_type_of
+from protocol.framing import DecodeError, DecodeErrorKind, Frame
 from protocol.messages import Message, MsgType
 
-__all__ = ["CanDecodeError", "CanDecoder", "CanErrorKind", "CanItem"]
+__all__ = ["CanDecodeError", "CanDecoder", "CanErrorKind", "CanItem", "as_frame_items"]
 
 _BULK = (FunctionCode.BULK_TO_BOARD, FunctionCode.BULK_TO_HOST)
 
@@ -213,3 +221,28 @@ class CanDecoder:
         """Parts held in incomplete assemblies (bounded by the layouts)."""
         return sum(len(a.parts) for a in self._assemblies.values())
 
+
+#: how each CAN decode error is reported on the link seam (the serial decoder's error kinds)
+_SEAM_KIND = {
+    CanErrorKind.LENGTH: DecodeErrorKind.LENGTH,
+    CanErrorKind.PART: DecodeErrorKind.LENGTH,
+    CanErrorKind.INCOMPLETE: DecodeErrorKind.LENGTH,
+    CanErrorKind.MIXED: DecodeErrorKind.LENGTH,
+    CanErrorKind.PAYLOAD: DecodeErrorKind.PAYLOAD,
+    CanErrorKind.BULK: DecodeErrorKind.PAYLOAD,
+    CanErrorKind.REMOTE: DecodeErrorKind.UNKNOWN_TYPE,
+    CanErrorKind.EXTENDED_ID: DecodeErrorKind.UNKNOWN_TYPE,
+}
+
+
+def as_frame_items(items: list[CanItem | CanDecodeError]) -> list[Frame | DecodeError]:
+    """CAN decoder output as the link seam's items: :class:`protocol.framing.Frame` (``raw`` = the
+    frames' data concatenated) and :class:`protocol.framing.DecodeError` (the CAN error kind in ``detail``)."""
+    out: list[Frame | DecodeError] = []
+    for it in items:
+        if isinstance(it, CanItem):
+            out.append(Frame(it.seq, it.msg_type, it.msg, b"".join(f.data for f in it.frames)))
+        else:
+            raw = it.frame.data if it.frame is not None else b""
+            out.append(DecodeError(_SEAM_KIND[it.kind], f"CAN {it.kind.value}: {it.detail}", raw))
+    return out

@@ -9,7 +9,7 @@ python-can's ``can.Notifier`` thread (the virtual bus), handed over with ``call_
 python-can waits for real adapters defaults to 0 (a spec option overrides it).
 
 Fixed-layout messages become frames (:func:`protocol.can.encode_fixed`), the rest goes over
-ISO-TP (can-isotp, :mod:`host.link.transports.isotp_link`). Sending never blocks: frames queue
+ISO-TP (can-isotp, :mod:`protocol.can.isotp_link`). Sending never blocks: frames queue
 and are written in order; a refused write (SocketCAN's ENOBUFS on a full tx queue, python-can
 issue #2004; a full SLCAN pty) keeps the frame at the head and retries after 1 ms doubling to
 20 ms (``tx_retries``); more than ``MAX_TX_FRAMES`` waiting raises ``LinkError`` (the bus is not
@@ -30,13 +30,20 @@ import can
 
 from host.link.errors import LinkDown, LinkError
 from host.link.transports.base import LossHandler, ReceiveHandler, Transport
-from host.link.transports.isotp_link import IsoTpLink
-from protocol.can import CanDecoder, CanDecodeError, CanFrame, CanItem, encode_bulk, encode_fixed, is_fixed
+from protocol.can import (
+    CanDecodeError,
+    CanDecoder,
+    CanFrame,
+    CanItem,
+    encode_bulk,
+    encode_fixed,
+    is_fixed,
+)
 from protocol.can.codec import Sender
-from protocol.can.decoder import CanErrorKind
+from protocol.can.decoder import CanErrorKind, as_frame_items
 from protocol.can.ids import bulk_ids
+from protocol.can.isotp_link import IsoTpLink
 from protocol.codec import PayloadError
-from protocol.framing import DecodeError, DecodeErrorKind, Frame
 from protocol.linkspec import LinkSpec
 from protocol.messages import Message
 
@@ -47,30 +54,6 @@ BACKOFF_MIN_S = 0.001
 BACKOFF_MAX_S = 0.02
 ISOTP_TICK_S = 0.002
 FRAME_COST = 16
-
-_KIND = {
-    CanErrorKind.LENGTH: DecodeErrorKind.LENGTH,
-    CanErrorKind.PART: DecodeErrorKind.LENGTH,
-    CanErrorKind.INCOMPLETE: DecodeErrorKind.LENGTH,
-    CanErrorKind.MIXED: DecodeErrorKind.LENGTH,
-    CanErrorKind.PAYLOAD: DecodeErrorKind.PAYLOAD,
-    CanErrorKind.BULK: DecodeErrorKind.PAYLOAD,
-    CanErrorKind.REMOTE: DecodeErrorKind.UNKNOWN_TYPE,
-    CanErrorKind.EXTENDED_ID: DecodeErrorKind.UNKNOWN_TYPE,
-}
-
-
-def _items(items: list[CanItem | CanDecodeError]) -> list[Frame | DecodeError]:
-    out: list[Frame | DecodeError] = []
-    for it in items:
-        if isinstance(it, CanItem):
-            out.append(Frame(it.seq, it.msg_type, it.msg, b"".join(f.data for f in it.frames)))
-        else:
-            raw = it.frame.data if it.frame is not None else b""
-            out.append(DecodeError(_KIND[it.kind], f"CAN {it.kind.value}: {it.detail}", raw))
-    return out
-
-
 
 def open_can_logger(path: str | Path) -> Any:
     """python-can's writer for ``path`` (format by suffix). A serial-style ``.jsonl`` name (what the
@@ -215,7 +198,7 @@ class CanLinkTransport(Transport):
         else:
             items += self.decoder.feed(frame)
         if items and self._on_receive is not None:
-            self._on_receive(_items(items))
+            self._on_receive(as_frame_items(items))
 
     def _poll_isotp(self) -> list[CanItem | CanDecodeError]:
         before = self.isotp.errors
@@ -234,7 +217,7 @@ class CanLinkTransport(Transport):
         self._tick = None
         items = self._poll_isotp()
         if items and self._on_receive is not None:
-            self._on_receive(_items(items))
+            self._on_receive(as_frame_items(items))
 
     # --- sending --------------------------------------------------------------------------
 
@@ -251,7 +234,7 @@ class CanLinkTransport(Transport):
                 self.isotp.send(encode_bulk(msg, seq))
                 items = self._poll_isotp()
                 if items and self._on_receive is not None:
-                    self._on_receive(_items(items))
+                    self._on_receive(as_frame_items(items))
         except PayloadError as e:
             raise LinkError(f"cannot send {type(msg).__name__} on CAN: {e}") from None
         except BufferError as e:

@@ -1,10 +1,12 @@
 """One ISO-TP (ISO 15765-2) link over CAN frames, driven by polling (can-isotp's TransportLayerLogic).
 
-The board's select loop owns all I/O, so the can-isotp state machine runs without threads:
-frames for the link are pushed in with :meth:`IsoTpLink.feed`, frames it emits go to ``send``,
+Shared by both ends: the host drives it from its asyncio loop, the board from its select loop, and
+the fuzzer and the log decoder in listen mode. It does no I/O and starts no thread: frames for the
+link are pushed in with :meth:`IsoTpLink.feed`, frames it emits go to ``send``,
 and :meth:`poll` advances it (call it whenever something arrived and every few ms while
 :attr:`busy`). Block size 0 and STmin 0: one flow control per message, no pacing; frames padded to 8 (FD: 64) bytes.
-(The host keeps its own copy of this small wrapper: host and board never import each other.)
+The one clocked piece of ``protocol/``: ISO-TP's flow-control and consecutive-frame timeouts are
+can-isotp's own timers (it reads the monotonic clock inside ``process``).
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ MAX_PENDING_SENDS = 256  # bulk messages queued before send() refuses
 class IsoTpLink:
     """ISO-TP with normal 11-bit addressing: receive on ``rxid``, transmit on ``txid``."""
 
-    def __init__(self, rxid: int, txid: int, fd: bool, send: Callable[[CanFrame], None]) -> None:
+    def __init__(self, rxid: int, txid: int, fd: bool, send: Callable[[CanFrame], None], *, listen: bool = False) -> None:
         self.rxid, self.txid = rxid, txid
         self._send = send
         self._rx: deque[isotp.CanMessage] = deque()
@@ -43,6 +45,7 @@ class IsoTpLink:
             # link then has one length, which the DBC describes (protocol/coco*.dbc, BULK_* messages)
             "tx_padding": 0xCC,
             "tx_data_min_length": 64 if fd else 8,
+            "listen_mode": listen,  # True: reassemble only, never answer (reading a capture)
         }
         self.layer = isotp.TransportLayerLogic(
             rxfn=self._rxfn,
