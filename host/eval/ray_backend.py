@@ -11,13 +11,12 @@ Run outputs (``runs/``) land on the worker's filesystem under the same path.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from dataclasses import asdict
 from typing import Any
 
-from host.eval.sweep import (RESULTS, SweepConfig, SweepProgress, _check_config, job_key, load_results, ordered,
-                             pending_jobs, run_job, system_prompt)
+from host.eval.sweep import (RESULTS, SweepConfig, SweepProgress, _check_config, load_results, ordered, pending_jobs,
+                             recorder, run_job, system_prompt)
 
 
 def _job(cfg_dict: dict[str, Any], task: int, trial: int, system: str) -> dict[str, Any]:
@@ -54,22 +53,14 @@ def run_sweep_on_ray(cfg: SweepConfig, address: str,
         queue = list(jobs)
         in_flight: list[Any] = []
         with (cfg.out / RESULTS).open("a", encoding="utf-8") as sink:
+            record = recorder(sink, done, progress, on_result)
             while queue or in_flight:
                 while queue and len(in_flight) < max(1, cfg.workers):
                     task, trial = queue.pop(0)
                     in_flight.append(remote.remote(cfg_dict, task, trial, system))
                 ready, in_flight = ray.wait(in_flight, num_returns=1)
                 for ref in ready:
-                    rec = ray.get(ref)
-                    sink.write(json.dumps(rec, ensure_ascii=False) + "\n")
-                    sink.flush()
-                    if rec["status"] == "done":
-                        done[job_key(rec["task"], rec["trial"])] = rec
-                    else:
-                        progress.errors.append(f"task {rec['task']} trial {rec['trial']}: {rec.get('error')}")
-                    progress.finished += 1
-                    if on_result is not None:
-                        on_result(rec, progress)
+                    record(ray.get(ref))
     finally:
         if started_here:
             ray.shutdown()

@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import anyio
 
@@ -218,6 +218,25 @@ def pending_jobs(cfg: SweepConfig, done: dict[str, dict[str, Any]]) -> list[tupl
     return [(t, r) for r in range(cfg.trials) for t in cfg.tasks if job_key(t, r) not in done]
 
 
+def recorder(sink: IO[str], done: dict[str, dict[str, Any]], progress: SweepProgress,
+             on_result: Callable[[dict[str, Any], SweepProgress], None] | None) -> Callable[[dict[str, Any]], None]:
+    """What happens to each finished job's record (any backend): appended to the resume log
+    ``sink``, kept in ``done`` when it succeeded, counted in ``progress``, then ``on_result``."""
+
+    def record(rec: dict[str, Any]) -> None:
+        sink.write(json.dumps(rec, ensure_ascii=False) + "\n")
+        sink.flush()
+        if rec["status"] == "done":
+            done[job_key(rec["task"], rec["trial"])] = rec
+        else:
+            progress.errors.append(f"task {rec['task']} trial {rec['trial']}: {rec.get('error')}")
+        progress.finished += 1
+        if on_result is not None:
+            on_result(rec, progress)
+
+    return record
+
+
 async def run_sweep(cfg: SweepConfig, on_result: Callable[[dict[str, Any], SweepProgress], None] | None = None,
                     ) -> list[dict[str, Any]]:
     """Run every pending job, ``cfg.workers`` at a time; returns all records of this sweep
@@ -230,17 +249,7 @@ async def run_sweep(cfg: SweepConfig, on_result: Callable[[dict[str, Any], Sweep
     system = system_prompt(cfg)
     limiter = anyio.CapacityLimiter(max(1, cfg.workers))
     with (cfg.out / RESULTS).open("a", encoding="utf-8") as sink:
-
-        def record(rec: dict[str, Any]) -> None:
-            sink.write(json.dumps(rec, ensure_ascii=False) + "\n")
-            sink.flush()
-            if rec["status"] == "done":
-                done[job_key(rec["task"], rec["trial"])] = rec
-            else:
-                progress.errors.append(f"task {rec['task']} trial {rec['trial']}: {rec.get('error')}")
-            progress.finished += 1
-            if on_result is not None:
-                on_result(rec, progress)
+        record = recorder(sink, done, progress, on_result)
 
         async def one(task: int, trial: int) -> None:
             async with limiter:
