@@ -8,6 +8,8 @@ import signal
 import sys
 from collections.abc import Sequence
 
+from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
+
 __all__ = ["build_parser", "configure", "main"]
 
 
@@ -31,10 +33,18 @@ def _positive_float(text: str) -> float:
     return v
 
 
+def _link_spec(text: str) -> LinkSpec:
+    try:
+        return parse_link_spec(text)
+    except LinkSpecError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the board's options to ``parser``."""
-    parser.add_argument("--link", required=True, metavar="pty|PATH|URL",
-                        help="'pty' creates a pty pair and prints its name; else a serial port or pyserial URL")
+    parser.add_argument("--link", required=True, type=_link_spec, metavar="SPEC",
+                        help="'pty' creates a pty pair and prints its name; a serial port or pyserial URL; "
+                             "or can:INTERFACE:CHANNEL[?node=N&fd=1...] (see DEVELOPERS.md)")
     parser.add_argument("--baud", type=_positive_int, default=None,
                         help="model wire time at this baud rate (10 bits/byte, both directions)")
     parser.add_argument("--rate", type=_positive_int, default=500, metavar="HZ", help="control loop rate (default 500)")
@@ -78,8 +88,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     from firmware_sim.board import Board
     from firmware_sim.config import BoardConfig, ConfigError
-    from firmware_sim.link import open_link
     from firmware_sim.server import BoardServer
+    from firmware_sim.transports import open_board_transport
 
     cfg = BoardConfig(
         rate_hz=args.rate, dt=args.dt, lockstep=args.lockstep,
@@ -90,18 +100,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as e:
         parser.error(str(e))
     try:
-        link = open_link(args.link, args.baud)
+        link = open_board_transport(args.link, baud=args.baud, log_path=args.log)
     except Exception as e:
-        print(f"board: cannot open link {args.link!r}: {e}", file=sys.stderr)
+        print(f"board: cannot open link {str(args.link)!r}: {e}", file=sys.stderr)
         return 2
-    log = None
-    if args.log:
-        try:
-            log = open(args.log, "w", buffering=1, encoding="utf-8")
-        except OSError as e:
-            link.close()
-            print(f"board: cannot open log file: {e}", file=sys.stderr)
-            return 2
     board = Board(cfg)
     # Lockstep renders in the loop (deterministic and free: virtual time waits); realtime in a thread.
     why = board.camera.warm_up() if cfg.lockstep else board.start_camera_worker()
@@ -114,9 +116,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             viewer = mujoco.viewer.launch_passive(board.model, board.data)
         except Exception as e:
+            link.close()
             print(f"board: cannot open the viewer: {e}", file=sys.stderr)
             return 2
-    server = BoardServer(board, link, baud=args.baud, log=log, viewer=viewer)
+    server = BoardServer(board, link, viewer=viewer)
     signal.signal(signal.SIGTERM, _raise_stop)
     signal.signal(signal.SIGINT, _raise_stop)
     print(f"board: listening on {link.name}", flush=True)
@@ -144,7 +147,5 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"board: {server.tx_dropped} outgoing report(s) dropped (link too slow)", file=sys.stderr, flush=True)
         if viewer is not None:
             viewer.close()
-        if log is not None:
-            log.close()
         link.close()
     return 0

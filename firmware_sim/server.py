@@ -1,4 +1,7 @@
-"""Link I/O around the board core: decode received bytes, run the clock, send replies and telemetry.
+"""Link I/O around the board core: receive messages, run the clock, send replies and telemetry.
+
+The server works only against :class:`firmware_sim.transports.base.BoardTransport`
+(serial, CAN, ...): the transport owns framing, the wire model and the frame log.
 
 One thread, one ``select`` loop. Realtime: ticks are paced by
 :class:`firmware_sim.clock.RealtimeClock`; received frames are handled between
@@ -6,7 +9,7 @@ ticks. Lockstep: the board ticks as fast as it can while the host has covered
 the next tick, and waits on the link otherwise; it also waits while the
 outgoing backlog is large, so a slow reader never loses telemetry.
 Outgoing bytes are bounded: telemetry is dropped (counted in ``tx_dropped``) when the
-backlog passes ``TELEMETRY_BACKLOG`` or, with a modelled baud rate, when the wire is
+backlog passes ``TELEMETRY_BACKLOG`` or, with a modelled wire rate, when the wire is
 already busy for more than 20 ms (so replies never queue behind telemetry the line
 cannot carry); replies are dropped only past ``MAX_BACKLOG``.
 """
@@ -14,17 +17,15 @@ cannot carry); replies are dropped only past ``MAX_BACKLOG``.
 from __future__ import annotations
 
 import select
-from collections import deque
 import sys
 import time
+from collections import deque
 from typing import IO
 
 from firmware_sim.board import Board
 from firmware_sim.clock import RealtimeClock
-from firmware_sim.link import Link, WireModel
-from protocol import framelog
-from protocol.framing import DecodeError, Frame, FrameDecoder, encode_frame
-from protocol.codec import msg_type_of
+from firmware_sim.transports.base import BoardTransport
+from protocol.framing import DecodeError, Frame
 from protocol.messages import Message, SimState, Telemetry
 
 __all__ = ["BoardServer"]
@@ -37,26 +38,20 @@ INBOX_LIMIT = 4096  # lockstep: stop reading (the pty buffers, the host blocks) 
 
 
 class BoardServer:
-    """Serves one :class:`Board` over one :class:`Link` until :meth:`stop` or a signal."""
+    """Serves one :class:`Board` over one :class:`BoardTransport` until :meth:`stop` or a signal."""
 
     def __init__(
         self,
         board: Board,
-        link: Link,
-        baud: int | None = None,
-        log: IO[str] | None = None,
+        transport: BoardTransport,
         viewer: object | None = None,
         err: IO[str] = sys.stderr,
     ) -> None:
         self.board = board
-        self.link = link
-        self.decoder = FrameDecoder()
-        self.rx_wire = WireModel(baud)
-        self.tx_wire = WireModel(baud)
-        self.tx_pending = bytearray()
+        self.transport = transport
+        transport.log_time = self._t
         self.tx_seq = 0
         self.tx_dropped = 0
-        self.log = log
         self.viewer = viewer
         self.err = err
         self.running = True
@@ -69,44 +64,34 @@ class BoardServer:
 
     @property
     def backlog(self) -> int:
-        return self.tx_wire.bytes_queued + len(self.tx_pending)
+        return self.transport.backlog
 
     def send(self, msgs: list[Message]) -> None:
         now = time.monotonic()
+        tr = self.transport
         for m in msgs:
             periodic = isinstance(m, (Telemetry, SimState))
-            wire_busy = self.tx_wire.byte_time and self.tx_wire.free_at - now > TELEMETRY_WIRE_BACKLOG_S
-            if self.backlog > (TELEMETRY_BACKLOG if periodic else MAX_BACKLOG) or (periodic and wire_busy):
+            if periodic and tr.tx_busy_s(now) > TELEMETRY_WIRE_BACKLOG_S:
                 self.tx_dropped += 1
                 continue
-            raw = encode_frame(m, self.tx_seq)
-            if self.log is not None:
-                item = Frame(self.tx_seq & 0xFFFF, msg_type_of(m), m, raw)
-                self.log.write(framelog.to_line(framelog.record("tx", self._t(), raw, item)) + "\n")
+            if tr.backlog > (TELEMETRY_BACKLOG if periodic else MAX_BACKLOG):
+                self.tx_dropped += 1
+                continue
+            tr.queue(m, self.tx_seq, now)
             self.tx_seq = (self.tx_seq + 1) & 0xFFFF
-            self.tx_wire.push(now, raw)
 
     def _flush_tx(self) -> None:
-        self.tx_pending += self.tx_wire.pop_ready(time.monotonic())
-        if self.tx_pending:
-            n = self.link.write(bytes(self.tx_pending))
-            del self.tx_pending[:n]
+        self.transport.flush(time.monotonic())
 
     # --- input -----------------------------------------------------------------------------
 
     def _t(self) -> float:
         return self.board.board_time_us() / 1e6
 
-    def _read(self) -> None:
-        data = self.link.read()
-        if data:
-            self.rx_wire.push(time.monotonic(), data)
-
-    def _deliver(self) -> None:
-        data = self.rx_wire.pop_ready(time.monotonic())
-        if not data:
+    def _deliver(self, read: bool = False) -> None:
+        items = self.transport.receive(time.monotonic(), read=read)
+        if not items:
             return
-        items = self.decoder.feed(data)
         if self.clock is None:  # lockstep: messages take effect in stream order, see _serve_lockstep
             self.inbox.extend(items)
             return
@@ -114,9 +99,7 @@ class BoardServer:
             self._process(item)
 
     def _process(self, item: Frame | DecodeError) -> None:
-        """Log one received item, count it if bad, else hand it to the board and send the replies."""
-        if self.log is not None:
-            self.log.write(framelog.to_line(framelog.record("rx", self._t(), item.raw, item)) + "\n")
+        """Count one received item if bad, else hand it to the board and send the replies."""
         if isinstance(item, DecodeError):
             self.board.on_link_error()
             print(f"board: link error {item.kind.value}: {item.detail}", file=self.err, flush=True)
@@ -130,23 +113,20 @@ class BoardServer:
 
     # --- loops -----------------------------------------------------------------------------
 
-    def _wait(self, timeout: float | None) -> None:
-        fd = self.link.fileno()
-        wants_write = bool(self.tx_pending)
+    def _wait(self, timeout: float | None) -> bool:
+        """Wait up to ``timeout`` s for input (or writability while bytes wait); True if there may be input."""
+        fd = self.transport.fileno()
         if fd is None:  # no selectable fd (some pyserial URLs): poll
             time.sleep(0.0005 if timeout is None else max(0.0, min(timeout, 0.0005)))
-            self._read()
-            return
+            return True
         try:
-            r, _, _ = select.select([fd], [fd] if wants_write else [], [], timeout)
+            r, _, _ = select.select([fd], [fd] if self.transport.wants_write else [], [], timeout)
         except InterruptedError:
-            return
-        if r:
-            self._read()
+            return False
+        return bool(r)
 
     def _next_io_time(self) -> float | None:
-        times = [t for t in (self.rx_wire.next_release(), self.tx_wire.next_release()) if t is not None]
-        return min(times) if times else None
+        return self.transport.next_io_time()
 
     def stop(self) -> None:
         self.running = False
@@ -168,10 +148,9 @@ class BoardServer:
             io_t = self._next_io_time()
             if io_t is not None:
                 timeout = min(timeout, io_t - now)
-            if self.tx_pending:
+            if self.transport.wants_write:
                 timeout = min(timeout, 0.001)
-            self._wait(max(0.0, timeout))
-            self._deliver()
+            self._deliver(read=self._wait(max(0.0, timeout)))
             while clock.deadline() <= time.monotonic():
                 before = clock.next_tick
                 _, overran = clock.begin_tick()
@@ -207,13 +186,14 @@ class BoardServer:
             io_t = self._next_io_time()
             if io_t is not None:
                 timeout = min(timeout, max(0.0, io_t - time.monotonic()))
-            if self.tx_pending:
+            if self.transport.wants_write:
                 timeout = min(timeout, 0.001)
+            readable = False
             if len(self.inbox) < INBOX_LIMIT:
-                self._wait(timeout)
+                readable = self._wait(timeout)
             elif timeout:
                 time.sleep(min(timeout, 0.001))
-            self._deliver()
+            self._deliver(read=readable)
 
     def _sync_viewer(self) -> None:
         v = self.viewer

@@ -16,11 +16,12 @@ from collections.abc import Sequence
 
 #: subcommand -> (module under host.commands, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
-    "board": ("board", "run the emulated CoCo board (firmware_sim) on a pty, a port or a URL"),
+    "board": ("board", "run the emulated CoCo board (firmware_sim) on a link: pty, a serial port/URL or CAN"),
     "pose": ("pose", "drive the board to a named pose and report the largest error"),
     "demo": ("demo", "the showcase: a paper task end to end on an emulated board (pty, MuJoCo, scripted LLM)"),
-    "tour": ("tour", "start a board on a pty and drive it through the named poses"),
+    "tour": ("tour", "start a board (default on a pty) and drive it through the named poses"),
     "log": ("log", "decode a frame log written with --log"),
+    "replay": ("replay", "feed a recorded run's host-to-board traffic into a fresh lockstep board"),
     "prompt": ("prompt", "print the system prompt for the mounted functions"),
     "dsbc": ("dsbc", "score a generated function-token program against a ground truth"),
     "run": ("run", "run a task or a program on the robot"),

@@ -26,11 +26,7 @@ class ClientLink:
         await self.client.flush(from_us, mask)
 
     async def send_peripheral(self, msg: ScreenCommand | SpeakerCommand) -> None:
-        if isinstance(msg, ScreenCommand):
-            await self.client.screen(msg.target, msg.name, msg.start_at_us, msg.duration_ms)
-        else:
-            await self.client.speaker(msg.action, msg.kind, start_at_us=msg.start_at_us,
-                                      duration_ms=msg.duration_ms, volume=msg.volume, name=msg.name, text=msg.text)
+        await self.client.request(msg)
 
     async def capture(self, width: int, height: int) -> bytes:
         return await self.client.capture(width, height)

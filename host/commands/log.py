@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from host.commands.linkarg import add_link_argument
+
 __all__ = ["configure", "decode_file", "main"]
 
 
@@ -14,6 +16,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     p.add_argument("file", metavar="FILE", help="a log written with --log (by the board or the host)")
     p.add_argument("--type", action="append", default=None, metavar="NAME",
                    help="only records of this message type (repeatable), e.g. --type TELEMETRY")
+    add_link_argument(p, default=None, required=False, help="the link the log was recorded on (default: by the file's suffix; "
+                      ".jsonl = serial JSON Lines); for CAN logs ?node=N picks the board")
 
 
 def decode_file(path: str, out=sys.stdout, err=sys.stderr, types: list[str] | None = None) -> int:
@@ -51,6 +55,10 @@ def decode_file(path: str, out=sys.stdout, err=sys.stderr, types: list[str] | No
 
 
 def main(args: argparse.Namespace) -> int:
+    if args.link is not None and args.link.kind != "serial":
+        print(f"ghostshell log: decoding logs of {args.link} needs the CAN log reader, which is not available",
+              file=sys.stderr)
+        return 2
     try:
         return decode_file(args.file, types=args.type)
     except BrokenPipeError:  # e.g. piped into head

@@ -7,11 +7,15 @@ import asyncio
 import math
 import sys
 
+from host.commands.linkarg import add_link_argument
+
 __all__ = ["configure", "main"]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--link", required=True, metavar="PATH", help="serial port, pty or pyserial URL of the board")
+    add_link_argument(parser, default=None,
+                      help="the running board's link: a serial port / pty path / pyserial URL or "
+                           "can:INTERFACE:CHANNEL[?node=N] (see DEVELOPERS.md)")
     parser.add_argument("--pose", required=True, metavar="NAME", help="named pose (robots/coco/poses.toml)")
     parser.add_argument("--duration", type=float, default=1.0, metavar="S",
                         help="move time (stretched to respect servo speed limits; default 1.0)")
@@ -48,6 +52,11 @@ async def _run(args: argparse.Namespace, target: tuple[float, ...]) -> int:
 
 def main(args: argparse.Namespace) -> int:
     from robots.coco import load_poses
+
+    if args.link.implies_emulated_board:
+        print(f"ghostshell pose: --link {args.link} names a link the emulated board creates; give the port a "
+              "running board announced (ghostshell board --link pty prints it)", file=sys.stderr)
+        return 2
 
     poses = load_poses()
     if args.pose not in poses:

@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from host.coco.binding import VOCABULARY_NAMES
+from host.commands.linkarg import add_link_argument
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -33,8 +34,9 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
     """Options shared by ``run`` and ``demo``."""
     parser.add_argument("--vocabulary", choices=VOCABULARY_NAMES, default="paper",
                         help="vocabulary shown in the prompt (the mapper accepts both)")
-    parser.add_argument("--link", default="pty", metavar="pty|PATH|URL",
-                        help="pty (default: start the emulated board) or an existing port / pyserial URL")
+    add_link_argument(parser)
+    parser.add_argument("--emulate-board", action="store_true",
+                        help="start the emulated board on --link first (implied for pty and can:slcan:pty)")
     clock = parser.add_mutually_exclusive_group()
     clock.add_argument("--lockstep", dest="lockstep", action="store_true",
                        help="virtual board clock, as fast as the host streams (reproducible)")
@@ -69,7 +71,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     opts = RunOptions(
         program=program, prompt=prompt, llm=getattr(args, "llm", "scripted"), task_label=label,
         vocabulary=args.vocabulary, mode=args.mode, strict=not args.lenient, lockstep=args.lockstep,
-        link=args.link, baud=args.baud, out=out, tokens_per_s=args.tokens_per_s, seed=args.seed,
+        link=args.link, emulate_board=args.emulate_board or None, baud=args.baud, out=out, tokens_per_s=args.tokens_per_s, seed=args.seed,
         llm_base_url=getattr(args, "base_url", None), llm_api_key=getattr(args, "api_key", None),
         interrupt_at=getattr(args, "interrupt_at", None), live=not args.no_live and sys.stdout.isatty(),
     )
@@ -87,7 +89,8 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
           f"board time {s.duration_s:.2f} s; first action after {s.first_action_latency_ms} ms; "
           f"max tilt {s.max_tilt_deg:.1f} deg{'; FELL' if s.fell else ''}")
     print(f"base moved from {s.base_start} to {s.base_end} [x m, y m, yaw deg]")
-    names = ("timeline.json", "timeline.png", "joints.png", "summary.json", "host_frames.jsonl", "board_frames.jsonl")
+    names = ("timeline.json", "timeline.png", "joints.png", "summary.json", "host_frames.jsonl", "board_frames.jsonl",
+             "host_frames.log", "board_frames.log")
     print(f"artefacts in {out}/: " + " ".join(n for n in names if (out / n).exists()))
     return 0 if s.outcome in ("done", "interrupted") else 1
 

@@ -1,4 +1,7 @@
-"""``ghostshell tour``: start a board on a pty, drive it through the named poses, print telemetry, shut down.
+"""``ghostshell tour``: start a board (on ``--link``, default a pty), drive it through the named poses, print telemetry, shut down.
+
+With ``--link`` naming a link the emulated board does not create (a serial port, a CAN bus)
+the tour drives the board already there, unless ``--emulate-board`` starts one on it first.
 
 The bridge's own end-to-end check (``ghostshell demo`` runs a whole task). The board is a real
 subprocess (``python -m firmware_sim --link pty``); the host talks to it with
@@ -17,7 +20,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from host.link.board_process import start_board
+from host.commands.linkarg import add_link_argument
+from host.link.board_process import BoardProcess, start_board
+from protocol.linkspec import LinkSpec
 
 __all__ = ["SEQUENCE", "configure", "main"]
 
@@ -32,6 +37,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="write the frame logs (board.jsonl, host.jsonl), board stderr and summary.json here")
     parser.add_argument("--duration", type=float, default=1.0, metavar="S", help="seconds per pose move (default 1.0)")
+    add_link_argument(parser)
+    parser.add_argument("--emulate-board", action="store_true",
+                        help="start the emulated board on --link first (implied for pty and can:slcan:pty)")
 
 
 def _deg(v: float) -> str:
@@ -63,7 +71,7 @@ async def _printer(client: Any, names: tuple[str, ...], state: dict[str, Any], l
         live.update(table)
 
 
-async def _drive(port: str, args: argparse.Namespace, out: Path | None) -> dict[str, Any]:
+async def _drive(port: LinkSpec, args: argparse.Namespace, out: Path | None) -> dict[str, Any]:
     from host.link import BoardClient
     from host.link.moves import move_to
     from robots.coco import load_poses, load_servo_table
@@ -110,24 +118,30 @@ def main(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
-    board_args = ["--lockstep" if args.lockstep else "--realtime"]
-    if out is not None:
-        board_args += ["--log", str(out / "board.jsonl")]
-    try:
-        board = start_board(board_args, out / "board.stderr" if out else None)
-    except (RuntimeError, OSError) as e:
-        print(f"ghostshell tour: {e}", file=sys.stderr)
-        return 2
-    print(f"board running on {board.port} ({'lockstep' if args.lockstep else 'realtime'})", flush=True)
+    spec: LinkSpec = args.link
+    board: BoardProcess | None = None
+    if args.emulate_board or spec.implies_emulated_board:
+        board_args = ["--lockstep" if args.lockstep else "--realtime"]
+        if out is not None:
+            board_args += ["--log", str(out / "board.jsonl")]
+        try:
+            board = start_board(board_args, out / "board.stderr" if out else None, link=spec)
+        except (RuntimeError, OSError) as e:
+            print(f"ghostshell tour: {e}", file=sys.stderr)
+            return 2
+        print(f"board running on {board.port} ({'lockstep' if args.lockstep else 'realtime'})", flush=True)
+        spec = board.spec
     code = 0
+    rc = 0
     try:
-        summary = asyncio.run(_drive(board.port, args, out))
+        summary = asyncio.run(_drive(spec, args, out))
     except LinkError as e:
         print(f"ghostshell tour: {e}", file=sys.stderr)
         code = 1
         summary = None
     finally:
-        rc = board.stop()
+        if board is not None:
+            rc = board.stop()
     if rc not in (0, -signal.SIGTERM):
         print(f"ghostshell tour: board exited with status {rc}", file=sys.stderr)
         code = code or 1

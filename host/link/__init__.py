@@ -1,6 +1,11 @@
-"""host/link: the host end of the serial link to CoCo's board (asyncio client over pyserial)."""
+"""host/link: the host end of the link to CoCo's board.
 
-from host.link.client import ALL_SERVOS, FAULT_BITS, BoardClient, FaultEvent, LinkStats, host_now_us
+The session (:mod:`host.link.session`, :class:`BoardClient`) runs over a transport
+(:mod:`host.link.transports`: serial; CAN plugs in) built from a link spec
+(:mod:`protocol.linkspec`).
+"""
+
+from host.link.session import ALL_SERVOS, FAULT_BITS, BoardClient, FaultEvent, LinkStats, host_now_us
 from host.link.errors import HandshakeError, LinkDown, LinkError, LinkTimeout, NackError
 from host.link.timesync import ClockEstimate, ClockSync
 

@@ -1,7 +1,10 @@
-"""The emulated board as a subprocess on a pty: how the host starts a board, as a user would.
+"""The emulated board as a subprocess: how the host starts a board, as a user would.
 
-The host never imports ``firmware_sim``; it runs ``python -m firmware_sim --link pty``
-and reads the pty path from the board's first stdout line.
+The host never imports ``firmware_sim``; it runs ``python -m firmware_sim --link SPEC ...``
+and reads the first stdout line, ``board: listening on X``. For links the board creates
+(``pty``, ``can:slcan:pty``) X is the new pty and the host connects to the spec with that
+port (:meth:`protocol.linkspec.LinkSpec.with_port`); for every other link the host connects
+to the spec as given.
 """
 
 from __future__ import annotations
@@ -14,14 +17,17 @@ import sys
 from pathlib import Path
 from typing import IO
 
+from protocol.linkspec import LinkSpec, parse_link_spec
+
 __all__ = ["BoardProcess", "start_board"]
 
 
 class BoardProcess:
-    """A board subprocess on a pty; ``port`` is the pty it announced."""
+    """A board subprocess; ``port`` is what it announced, ``spec`` the link spec to connect to."""
 
-    def __init__(self, proc: subprocess.Popen[str], port: str, stderr: IO[str]) -> None:
+    def __init__(self, proc: subprocess.Popen[str], port: str, stderr: IO[str], spec: LinkSpec | None = None) -> None:
         self.proc, self.port, self._stderr = proc, port, stderr
+        self.spec: LinkSpec = spec if spec is not None else parse_link_spec(port)
 
     def stop(self, timeout: float = 5.0) -> int:
         """SIGTERM, wait (then SIGKILL); returns the exit code."""
@@ -38,11 +44,22 @@ class BoardProcess:
         return int(self.proc.returncode)
 
 
-def start_board(args: list[str], stderr_path: Path | None = None, timeout: float = 30.0) -> BoardProcess:
-    """Start ``python -m firmware_sim --link pty ARGS`` and parse ``board: listening on PATH``."""
+def start_board(
+    args: list[str],
+    stderr_path: Path | None = None,
+    timeout: float = 30.0,
+    *,
+    link: LinkSpec | str = "pty",
+) -> BoardProcess:
+    """Start ``python -m firmware_sim --link LINK ARGS`` and parse ``board: listening on X``.
+
+    Raises :class:`protocol.linkspec.LinkSpecError` for a bad ``link`` and ``RuntimeError``
+    (with the board's stderr file named) when the board does not announce itself in ``timeout`` s.
+    """
+    spec = parse_link_spec(link)
     err: IO[str] = open(stderr_path, "w") if stderr_path else open(os.devnull, "w")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "firmware_sim", "--link", "pty", *args],
+        [sys.executable, "-m", "firmware_sim", "--link", str(spec), *args],
         stdout=subprocess.PIPE, stderr=err, text=True, env=dict(os.environ, PYTHONUNBUFFERED="1"),
     )
     assert proc.stdout is not None
@@ -54,5 +71,7 @@ def start_board(args: list[str], stderr_path: Path | None = None, timeout: float
         proc.wait()
         err.close()
         hint = f" (see {stderr_path})" if stderr_path else ""
-        raise RuntimeError(f"the board did not start: expected {prefix!r}..., got {line!r}{hint}")
-    return BoardProcess(proc, line[len(prefix):], err)
+        raise RuntimeError(f"the board did not start on {spec}: expected {prefix!r}..., got {line!r}{hint}")
+    port = line[len(prefix):]
+    connect = spec.with_port(port) if spec.implies_emulated_board else spec
+    return BoardProcess(proc, port, err, connect)

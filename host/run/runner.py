@@ -33,6 +33,7 @@ from host.run import artefacts
 from host.shell import Shell
 from host.shell.prompt import render_prompt
 from host.shell.timeline import RunResult
+from protocol.linkspec import LinkSpec, parse_link_spec
 from robots.coco import load_poses, load_servo_table
 from robots.coco.motions import transition
 
@@ -53,7 +54,8 @@ class RunOptions:
     mode: str = "async-first"
     strict: bool = True
     lockstep: bool = False
-    link: str = "pty"
+    link: str | LinkSpec = "pty"  # a link spec (protocol.linkspec)
+    emulate_board: bool | None = None  # start the emulated board on `link` first; None: only where implied (pty, can:slcan:pty)
     baud: int = 115200
     out: Path = Path("runs/latest")
     tokens_per_s: float = 30.0
@@ -203,15 +205,25 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, CocoRuntime],
     out = opts.out
     out.mkdir(parents=True, exist_ok=True)
     board: BoardProcess | None = None
-    port = opts.link
-    if opts.link == "pty":
-        board_args = ["--lockstep" if opts.lockstep else "--realtime", "--log", str(out / "board_frames.jsonl")]
-        board = start_board(board_args, out / "board.stderr")
-        port = board.port
+    spec = parse_link_spec(opts.link)
+    target = spec
+    emulate = opts.emulate_board if opts.emulate_board is not None else spec.implies_emulated_board
+    if spec.implies_emulated_board and not emulate:
+        raise LinkError(f"{spec} is a link the emulated board creates: it cannot be used without starting the board")
+    # frame logs: JSON Lines on serial; python-can's candump format (.log) on CAN
+    log_suffix = ".log" if spec.kind == "can" else ".jsonl"
+    if emulate and spec.kind == "can" and spec.interface == "virtual":
+        raise LinkError(f"{spec}: python-can's virtual bus exists inside one process, so an emulated board "
+                        "started as a subprocess cannot join it; use can:slcan:pty, or can:socketcan:vcan0 "
+                        "with --emulate-board (the virtual bus is for in-process tests)")
+    if emulate:
+        board_args = ["--lockstep" if opts.lockstep else "--realtime", "--log", str(out / f"board_frames{log_suffix}")]
+        board = start_board(board_args, out / "board.stderr", link=spec)
+        target = board.spec
     rec = _Recorder()
     token_times: list[tuple[float, str]] = []
     try:
-        async with await BoardClient.connect(port, baud=opts.baud, log_path=out / "host_frames.jsonl") as client:
+        async with await BoardClient.connect(target, baud=opts.baud, log_path=out / f"host_frames{log_suffix}") as client:
             link = ClientLink(client)
             if client.latest_telemetry is None and client.lockstep:
                 await client.advance(client.board_now_estimate() + 20_000)  # let a lockstep board report once

@@ -1,4 +1,4 @@
-"""Frame-log file writer for the host: JSON lines via :mod:`protocol.framelog`, host monotonic time."""
+"""Frame-log file writer for the host's serial transport: JSON lines via :mod:`protocol.framelog`, host monotonic time."""
 
 from __future__ import annotations
 

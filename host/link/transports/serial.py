@@ -1,4 +1,8 @@
-"""Byte transport for the link client: a pyserial port driven by the asyncio loop.
+"""The serial transport: protocol v1 over a pyserial port (COBS + CRC framing, JSON-Lines frame log).
+
+:class:`SerialLinkTransport` is the :class:`host.link.transports.base.Transport` for
+serial links; :class:`SerialPort` is the byte pipe under it, a pyserial port driven
+by the asyncio loop.
 
 Reading: where the port has a selectable file descriptor (POSIX serial ports and
 ptys) the loop watches it with ``loop.add_reader`` and reads with
@@ -26,14 +30,23 @@ import os
 import threading
 from collections.abc import Callable
 
+from pathlib import Path
+
 import serial
 
-__all__ = ["MAX_TX_BACKLOG", "SerialTransport"]
+from host.link.errors import LinkDown, LinkError
+from host.link.transports.base import LossHandler, ReceiveHandler, Transport
+from host.link.transports.framelog_file import FrameLogFile
+from protocol.codec import msg_type_of
+from protocol.framing import Frame, FrameDecoder, encode_frame
+from protocol.messages import Message
+
+__all__ = ["MAX_TX_BACKLOG", "SerialLinkTransport", "SerialPort"]
 
 MAX_TX_BACKLOG = 256 * 1024  # bytes waiting for the port before writes are refused
 
 
-class SerialTransport:
+class SerialPort:
     """One open port; ``on_data(bytes)`` and ``on_lost(str)`` are called on the loop thread."""
 
     def __init__(
@@ -174,3 +187,90 @@ class SerialTransport:
 def is_vanished_error(e: BaseException) -> bool:
     """True for errors meaning the device is gone rather than misconfigured."""
     return isinstance(e, OSError) and e.errno in (errno.ENOENT, errno.EIO, errno.ENXIO, errno.ENODEV)
+
+
+class SerialLinkTransport(Transport):
+    """Protocol v1 frames over one serial port / pty / pyserial URL (see the module docstring).
+
+    ``baud`` is the port's rate (ignored by ptys); ``log_path`` gets one JSON-Lines record
+    per frame both ways (:mod:`protocol.framelog`, ``t`` = host ``time.monotonic()``);
+    ``force_thread`` reads in a thread even where the port has a file descriptor. ``url`` may
+    be a callable, resolved again on every :meth:`connect`.
+    """
+
+    def __init__(self, url: str | Callable[[], str], *, baud: int = 115200, log_path: str | Path | None = None,
+                 force_thread: bool = False) -> None:
+        self._url = url
+        self.url = url if isinstance(url, str) else ""
+        self.baud = baud
+        self.force_thread = force_thread
+        self.framelog = FrameLogFile(log_path) if log_path else None
+        self._decoder = FrameDecoder()
+        self._port: SerialPort | None = None
+        self._on_receive: ReceiveHandler | None = None
+
+    @property
+    def name(self) -> str:
+        return self.url
+
+    @property
+    def connected(self) -> bool:
+        return self._port is not None and not self._port.closed
+
+    @property
+    def backlog(self) -> int:
+        return self._port.backlog if self._port is not None else 0
+
+    async def connect(self, on_receive: ReceiveHandler, on_lost: LossHandler) -> None:
+        self.disconnect()
+        if not isinstance(self._url, str):
+            self.url = self._url()
+        self._decoder.reset()
+        self._on_receive = on_receive
+
+        def lost(reason: str) -> None:
+            self._port = None
+            on_lost(reason)
+
+        try:
+            port = SerialPort(self.url, self.baud, self._on_data, lost, force_thread=self.force_thread)
+        except (serial.SerialException, OSError, ValueError) as e:
+            raise LinkDown(f"cannot open {self.url!r}: {e} (is a board running? e.g. `ghostshell board --link pty`)") from None
+        self._port = port
+        try:
+            port.write(b"\x00")  # end any partial frame the board may hold
+        except (BufferError, ConnectionError) as e:
+            self.disconnect()
+            raise LinkDown(f"cannot write to {self.url!r}: {e}") from None
+
+    def _on_data(self, data: bytes) -> None:
+        items = self._decoder.feed(data)
+        if self.framelog is not None:
+            for item in items:
+                self.framelog.write("rx", item.raw, item)
+        if items and self._on_receive is not None:
+            self._on_receive(items)
+
+    def send(self, msg: Message, seq: int) -> None:
+        port = self._port
+        if port is None or port.closed:
+            raise LinkDown(f"link to {self.url!r} is down")
+        raw = encode_frame(msg, seq)
+        try:
+            port.write(raw)
+        except BufferError as e:
+            raise LinkError(str(e)) from None
+        except ConnectionError as e:
+            raise LinkDown(f"link to {self.url!r} is down: {e}") from None
+        if self.framelog is not None:
+            self.framelog.write("tx", raw, Frame(seq, msg_type_of(msg), msg, raw))
+
+    def disconnect(self) -> None:
+        if self._port is not None:
+            self._port.close()
+            self._port = None
+
+    def close(self) -> None:
+        self.disconnect()
+        if self.framelog is not None:
+            self.framelog.close()

@@ -1,0 +1,357 @@
+"""The board's CAN transports: a python-can bus (SocketCAN, virtual, ...) or an SLCAN adapter on a pty.
+
+Both share :class:`CanBoardTransport`: fixed-layout frames are encoded and reassembled with
+:mod:`protocol.can` (the board's node id selects its identifiers; the broadcast ESTOP 0x000 is
+honoured too), bulk messages travel over ISO-TP (:mod:`firmware_sim.transports.isotp_link`), and
+every frame sent and received is logged with python-can's writers (``can.Logger``: format by
+suffix, ``.log`` candump, ``.asc``, ``.blf``; timestamps are wall-clock seconds).
+
+* :class:`BusBoardTransport` opens ``can.Bus(**spec.bus_kwargs())`` (python-can's configuration
+  fills in what the spec leaves out) with a filter on the node id. A refused send (SocketCAN
+  returns ENOBUFS when the interface's tx queue is full, python-can issue #2004) keeps the frame
+  at the head of the queue and retries after a backoff of 1 ms doubling to 20 ms (counted in
+  ``tx_retries``): nothing is lost and frame order is kept.
+* :class:`SlcanBoardTransport` creates a pty and behaves as a USB-CAN adapter speaking SLCAN
+  (:mod:`firmware_sim.transports.slcan`), so the host uses python-can's own ``slcan`` interface.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import sys
+import time
+import tty
+from collections import deque
+from typing import Any
+
+import can
+
+from firmware_sim.transports.base import BoardTransport
+from firmware_sim.transports.isotp_link import IsoTpLink
+from firmware_sim.transports.slcan import SlcanDevice, format_frame
+from protocol.can import CanDecoder, CanDecodeError, CanFrame, CanItem, encode_bulk, encode_fixed, is_fixed
+from protocol.can.codec import Sender
+from protocol.can.decoder import CanErrorKind
+from protocol.can.ids import bulk_ids
+from protocol.codec import PayloadError
+from protocol.framing import DecodeError, DecodeErrorKind, Frame
+from protocol.linkspec import LinkSpec
+from protocol.messages import Message, SimState
+
+__all__ = [
+    "BusBoardTransport",
+    "CanBoardTransport",
+    "SlcanBoardTransport",
+    "open_can_board_transport",
+    "to_can_message",
+    "to_frame_items",
+]
+
+FRAME_COST = 16  # backlog bytes per queued frame (a SocketCAN struct can_frame)
+BACKOFF_MIN_S = 0.001
+BACKOFF_MAX_S = 0.02
+
+_KIND = {
+    CanErrorKind.LENGTH: DecodeErrorKind.LENGTH,
+    CanErrorKind.PART: DecodeErrorKind.LENGTH,
+    CanErrorKind.INCOMPLETE: DecodeErrorKind.LENGTH,
+    CanErrorKind.MIXED: DecodeErrorKind.LENGTH,
+    CanErrorKind.PAYLOAD: DecodeErrorKind.PAYLOAD,
+    CanErrorKind.BULK: DecodeErrorKind.PAYLOAD,
+    CanErrorKind.REMOTE: DecodeErrorKind.UNKNOWN_TYPE,
+    CanErrorKind.EXTENDED_ID: DecodeErrorKind.UNKNOWN_TYPE,
+}
+
+
+def to_frame_items(items: list[CanItem | CanDecodeError]) -> list[Frame | DecodeError]:
+    """CAN decoder output as the session's items (``raw`` = the frames' data concatenated)."""
+    out: list[Frame | DecodeError] = []
+    for it in items:
+        if isinstance(it, CanItem):
+            out.append(Frame(it.seq, it.msg_type, it.msg, b"".join(f.data for f in it.frames)))
+        else:
+            raw = it.frame.data if it.frame is not None else b""
+            out.append(DecodeError(_KIND[it.kind], f"CAN {it.kind.value}: {it.detail}", raw))
+    return out
+
+
+def to_can_message(frame: CanFrame, channel: str | None = None, is_rx: bool = False) -> can.Message:
+    return can.Message(
+        timestamp=time.time(),
+        arbitration_id=frame.arbitration_id,
+        data=frame.data,
+        is_fd=frame.is_fd,
+        is_extended_id=frame.is_extended_id,
+        is_remote_frame=frame.is_remote,
+        channel=channel,
+        is_rx=is_rx,
+        dlc=len(frame.data),
+    )
+
+
+def from_can_message(msg: can.Message) -> CanFrame:
+    return CanFrame(
+        int(msg.arbitration_id),
+        bytes(msg.data or b""),
+        is_fd=bool(msg.is_fd),
+        is_extended_id=bool(msg.is_extended_id),
+        is_remote=bool(msg.is_remote_frame),
+    )
+
+
+class CanBoardTransport(BoardTransport):
+    """Shared CAN logic; subclasses read and write frames."""
+
+    def __init__(self, spec: LinkSpec, log_path: str | None = None) -> None:
+        super().__init__()
+        self.spec = spec
+        self.node = spec.node
+        self.fd = spec.fd
+        self.channel_name = spec.channel or "can0"
+        self.decoder = CanDecoder(self.node, "board")
+        to_board, to_host = bulk_ids(self.node)
+        self.bulk_rx_id = to_board
+        self.isotp = IsoTpLink(rxid=to_board, txid=to_host, fd=self.fd, send=self._enqueue)
+        self._txq: deque[CanFrame] = deque()
+        self._retry_at: float | None = None
+        self._backoff = BACKOFF_MIN_S
+        self.tx_retries = 0
+        self.tx_frames = 0
+        self._periodic: bytes | None = None  # the newest SIM_STATE not yet handed to ISO-TP
+        self.periodic_replaced = 0
+        self.error_frames = 0
+        self.logger: Any = can.Logger(log_path) if log_path else None  # type: ignore[no-untyped-call]
+
+    # subclass hooks ------------------------------------------------------------------------
+
+    def _read_frames(self) -> list[CanFrame]:
+        raise NotImplementedError
+
+    def _write_frame(self, frame: CanFrame) -> bool:
+        """Hand one frame to the wire; False if it must be retried later (nothing sent)."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------------------------------
+
+    def _enqueue(self, frame: CanFrame) -> None:
+        self._txq.append(frame)
+
+    def _log(self, frame: CanFrame, is_rx: bool) -> None:
+        if self.logger is not None:
+            self.logger.on_message_received(to_can_message(frame, self.channel_name, is_rx))
+
+    def _handle_frames(self, frames: list[CanFrame]) -> list[Frame | DecodeError]:
+        items: list[CanItem | CanDecodeError] = []
+        for f in frames:
+            self._log(f, True)
+            if f.arbitration_id == self.bulk_rx_id and not f.is_extended_id:
+                self.isotp.feed(f)
+                continue
+            items += self.decoder.feed(f)
+        errs_before = self.isotp.errors
+        for sdu in self.isotp.poll():
+            items.append(self.decoder.feed_bulk(sdu))
+        if self.isotp.errors > errs_before:
+            items.append(CanDecodeError(CanErrorKind.BULK, f"ISO-TP: {self.isotp.last_error}"))
+        return to_frame_items(items)
+
+    def receive(self, now: float, *, read: bool = True) -> list[Frame | DecodeError]:
+        frames = self._read_frames() if read else []
+        if not frames and not self.isotp.busy:
+            return []
+        return self._handle_frames(frames)
+
+    def queue(self, msg: Message, seq: int, now: float) -> None:
+        try:
+            if is_fixed(msg):
+                self._txq.extend(encode_fixed(msg, seq, self.node, self.fd, Sender.BOARD))
+            elif isinstance(msg, SimState):
+                # periodic bulk: the newest report wins; it waits until the ISO-TP link is idle
+                if self._periodic is not None:
+                    self.periodic_replaced += 1
+                self._periodic = encode_bulk(msg, seq)
+                self._start_periodic()
+            else:
+                self.isotp.send(encode_bulk(msg, seq))
+                self.isotp.poll()
+        except (PayloadError, BufferError) as e:
+            print(f"board: cannot send {type(msg).__name__} on CAN: {e}", file=sys.stderr, flush=True)
+
+    def _start_periodic(self) -> None:
+        if self._periodic is not None and not self.isotp.layer.transmitting() and self.isotp.layer.tx_queue.empty():
+            sdu, self._periodic = self._periodic, None
+            self.isotp.send(sdu)
+            self.isotp.poll()
+
+    def flush(self, now: float) -> None:
+        if self.isotp.busy:
+            self.isotp.poll()
+        self._start_periodic()
+        if self._retry_at is not None and now < self._retry_at:
+            return
+        self._retry_at = None
+        while self._txq:
+            f = self._txq[0]
+            if not self._write_frame(f):
+                self.tx_retries += 1
+                self._retry_at = now + self._backoff
+                self._backoff = min(self._backoff * 2, BACKOFF_MAX_S)
+                return
+            self._txq.popleft()
+            self.tx_frames += 1
+            self._backoff = BACKOFF_MIN_S
+            self._log(f, False)
+
+    @property
+    def backlog(self) -> int:
+        # queued frames plus bulk messages still waiting in the ISO-TP layer (~one frame per 7 bytes)
+        pending_bulk = self.isotp.layer.tx_queue.qsize() + (1 if self.isotp.layer.transmitting() else 0)
+        return FRAME_COST * (len(self._txq) + 8 * pending_bulk)
+
+    def next_io_time(self) -> float | None:
+        if self._retry_at is not None:
+            return self._retry_at
+        if self.isotp.busy or self._periodic is not None:
+            return time.monotonic() + 0.002
+        return None
+
+    def close(self) -> None:
+        if self.logger is not None:
+            try:
+                self.logger.stop()
+            except Exception:
+                pass
+            self.logger = None
+
+
+class BusBoardTransport(CanBoardTransport):
+    """The board on a python-can bus: ``can.Bus(**spec.bus_kwargs())`` filtered on its node id."""
+
+    def __init__(self, spec: LinkSpec, log_path: str | None = None, bus: can.BusABC | None = None) -> None:
+        super().__init__(spec, log_path)
+        if bus is None:
+            kw = spec.bus_kwargs()
+            kw.setdefault("can_filters", [
+                {"can_id": self.node, "can_mask": 0x7F, "extended": False},  # this node's identifiers
+                {"can_id": 0x000, "can_mask": 0x7FF, "extended": False},  # the broadcast ESTOP
+            ])
+            bus = can.Bus(**kw)  # type: ignore[arg-type]
+        self.bus = bus
+        self.name = f"{spec}"
+        self.channel_name = str(getattr(bus, "channel_info", "") or spec.channel or "can0")
+        if spec.channel:
+            self.channel_name = spec.channel
+        try:
+            self._fd: int | None = int(bus.fileno())
+        except (NotImplementedError, OSError, AttributeError, ValueError):
+            self._fd = None
+
+    def fileno(self) -> int | None:
+        return self._fd
+
+    def _read_frames(self) -> list[CanFrame]:
+        out: list[CanFrame] = []
+        for _ in range(512):
+            try:
+                msg = self.bus.recv(timeout=0)
+            except can.CanError as e:
+                print(f"board: CAN receive error: {e}", file=sys.stderr, flush=True)
+                break
+            if msg is None:
+                break
+            if msg.is_error_frame:
+                self.error_frames += 1
+                continue
+            out.append(from_can_message(msg))
+        return out
+
+    def _write_frame(self, frame: CanFrame) -> bool:
+        try:
+            self.bus.send(to_can_message(frame, None), timeout=0)
+        except can.CanOperationError as e:
+            code = getattr(e, "error_code", None)
+            if code in (errno.ENOBUFS, errno.EAGAIN) or "buffer" in str(e).lower():
+                return False
+            print(f"board: CAN send failed ({e}); retrying", file=sys.stderr, flush=True)
+            return False
+        return True
+
+    def close(self) -> None:
+        try:
+            self.bus.shutdown()
+        except Exception:
+            pass
+        super().close()
+
+
+class SlcanBoardTransport(CanBoardTransport):
+    """The board as an SLCAN USB-CAN adapter on a new pty (``can:slcan:pty``)."""
+
+    def __init__(self, spec: LinkSpec, log_path: str | None = None) -> None:
+        super().__init__(spec, log_path)
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        os.set_blocking(self.master, False)
+        self.name = os.ttyname(self.slave)
+        self.channel_name = "slcan0"
+        self.device = SlcanDevice()
+        self._out = bytearray()
+        self.dropped_closed = 0
+
+    def fileno(self) -> int:
+        return self.master
+
+    def _read_frames(self) -> list[CanFrame]:
+        try:
+            data = os.read(self.master, 65536)
+        except (BlockingIOError, InterruptedError):
+            return []
+        except OSError as e:
+            if e.errno == errno.EIO:
+                return []
+            raise
+        events, reply = self.device.feed(data)
+        self._out += reply
+        return [ev.frame for ev in events if ev.frame is not None]
+
+    def _write_frame(self, frame: CanFrame) -> bool:
+        if not self.device.is_open:
+            self.dropped_closed += 1  # a closed adapter is not on the bus: the frame is lost
+            return True
+        self._out += format_frame(frame)
+        return True
+
+    def flush(self, now: float) -> None:
+        super().flush(now)
+        while self._out:
+            try:
+                n = os.write(self.master, self._out)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:
+                break
+            del self._out[:n]
+
+    @property
+    def backlog(self) -> int:
+        return super().backlog + len(self._out)
+
+    @property
+    def wants_write(self) -> bool:
+        return bool(self._out)
+
+    def close(self) -> None:
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        super().close()
+
+
+def open_can_board_transport(spec: LinkSpec, *, log_path: str | None = None, **options: Any) -> CanBoardTransport:
+    """``can:slcan:pty`` -> :class:`SlcanBoardTransport`; any other CAN spec -> :class:`BusBoardTransport`."""
+    if spec.interface == "slcan" and spec.channel == "pty":
+        return SlcanBoardTransport(spec, log_path)
+    return BusBoardTransport(spec, log_path, bus=options.get("bus"))

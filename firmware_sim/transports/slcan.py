@@ -1,0 +1,170 @@
+"""SLCAN (Lawicel ASCII) device side: the board answers like a USB-CAN adapter on a pty.
+
+Hand-written because python-can (and every maintained package we know of) implements only the
+*host* side of SLCAN (``can.interfaces.slcan``); an adapter's firmware side is exactly what the
+emulated board has to be here. The dialect is the one python-can's ``slcan`` interface speaks
+(Lawicel CANUSB manual + the common FD extension): commands end with ``\\r``; an accepted command
+is answered ``\\r``, a refused one with BEL (``\\a``).
+
+=========  =====================================================  ===================
+command    meaning                                                answer
+=========  =====================================================  ===================
+``O``      open the channel (``L``: listen only)                  ``\\r``
+``C``      close the channel                                      ``\\r``
+``Sn``     bitrate code 0..8 (10 k .. 1 M), ``Yn`` FD data rate   ``\\r`` (closed only)
+``sXXYY``  BTR0/BTR1 registers                                    ``\\r`` (closed only)
+``V``      version                                                ``V1013\\r``
+``N``      serial number                                          ``NCOCO\\r``
+``F``      status flags                                           ``F00\\r``
+``tIIIL..`` standard frame, ``T`` extended, ``r``/``R`` remote    ``z\\r`` / ``Z\\r``
+``dIIIL..`` FD frame (L = FD DLC hex), ``D`` ext., ``b``/``B`` BRS  ``z\\r`` / ``Z\\r``
+=========  =====================================================  ===================
+
+Frames to the host go out as the same ``t``/``d`` lines. Lines are bounded (``MAX_LINE``): a
+longer run without ``\\r`` is dropped and counted; a malformed line is counted and answered BEL.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from protocol.can.frame import FD_LENGTHS, CanFrame
+
+__all__ = ["MAX_LINE", "SlcanDevice", "SlcanEvent", "format_frame"]
+
+MAX_LINE = 1 + 8 + 1 + 2 * 64 + 8  # longest valid line (extended FD frame) plus slack
+OK = b"\r"
+BELL = b"\a"
+_HEX = frozenset("0123456789abcdefABCDEF")
+
+
+@dataclass(frozen=True)
+class SlcanEvent:
+    """A parsed line: ``frame`` set for a frame, else ``command`` (the letter); ``error`` if refused."""
+
+    frame: CanFrame | None = None
+    command: str = ""
+    error: str = ""
+
+
+def format_frame(frame: CanFrame) -> bytes:
+    """The SLCAN line (``\\r`` included) announcing ``frame`` to the host."""
+    n = len(frame.data)
+    if frame.is_fd:
+        dlc = FD_LENGTHS.index(n)
+        head = f"D{frame.arbitration_id:08X}" if frame.is_extended_id else f"d{frame.arbitration_id:03X}"
+        return f"{head}{dlc:X}{frame.data.hex().upper()}\r".encode()
+    if frame.is_remote:
+        head = f"R{frame.arbitration_id:08X}" if frame.is_extended_id else f"r{frame.arbitration_id:03X}"
+        return f"{head}{n:d}\r".encode()
+    head = f"T{frame.arbitration_id:08X}" if frame.is_extended_id else f"t{frame.arbitration_id:03X}"
+    return f"{head}{n:d}{frame.data.hex().upper()}\r".encode()
+
+
+class SlcanDevice:
+    """The adapter's state machine: ``feed(bytes) -> (events, reply bytes)``; never raises."""
+
+    def __init__(self) -> None:
+        self.is_open = False
+        self.bitrate_code = "S8"
+        self._line = bytearray()
+        self._overlong = False
+        self.errors = 0
+        self.frames_in = 0
+
+    def feed(self, data: bytes) -> tuple[list[SlcanEvent], bytes]:
+        events: list[SlcanEvent] = []
+        reply = bytearray()
+        for b in data:
+            if b in (0x0D, 0x0A):  # \r ends a line (\n tolerated)
+                if self._overlong:
+                    self._overlong = False
+                    self.errors += 1
+                    events.append(SlcanEvent(error=f"line longer than {MAX_LINE} characters"))
+                    reply += BELL
+                elif self._line or b == 0x0D:
+                    ev, ans = self._line_done(bytes(self._line))
+                    events.append(ev)
+                    reply += ans
+                self._line.clear()
+                continue
+            if self._overlong:
+                continue
+            if len(self._line) >= MAX_LINE:
+                self._overlong = True
+                self._line.clear()
+                continue
+            self._line.append(b)
+        return events, bytes(reply)
+
+    def _bad(self, why: str) -> tuple[SlcanEvent, bytes]:
+        self.errors += 1
+        return SlcanEvent(error=why), BELL
+
+    def _line_done(self, raw: bytes) -> tuple[SlcanEvent, bytes]:
+        try:
+            line = raw.decode("ascii")
+        except UnicodeDecodeError:
+            return self._bad("non-ASCII line")
+        if not line:
+            return SlcanEvent(command=""), OK  # empty command (python-can sends one): accepted
+        c = line[0]
+        if c in "OL":
+            self.is_open = True
+            return SlcanEvent(command=c), OK
+        if c == "C":
+            self.is_open = False
+            return SlcanEvent(command=c), OK
+        if c == "S" and len(line) == 2 and line[1] in "012345678":
+            if self.is_open:
+                return self._bad("bitrate change while open")
+            self.bitrate_code = line
+            return SlcanEvent(command=c), OK
+        if c == "Y" and len(line) == 2 and line[1] in "25":
+            return SlcanEvent(command=c), OK
+        if c == "s" and len(line) == 5 and set(line[1:]) <= _HEX:
+            return SlcanEvent(command=c), OK
+        if c == "V" and len(line) == 1:
+            return SlcanEvent(command=c), b"V1013\r"
+        if c == "N" and len(line) == 1:
+            return SlcanEvent(command=c), b"NCOCO\r"
+        if c == "F" and len(line) == 1:
+            return SlcanEvent(command=c), b"F00\r"
+        if c in "tTrRdDbB":
+            return self._frame(line)
+        return self._bad(f"unknown command {line[:12]!r}")
+
+    def _frame(self, line: str) -> tuple[SlcanEvent, bytes]:
+        c = line[0]
+        ext = c in "TRDB"
+        fd = c in "dDbB"
+        remote = c in "rR"
+        id_len = 8 if ext else 3
+        if len(line) < 1 + id_len + 1:
+            return self._bad(f"frame line too short: {line!r}")
+        id_text, dlc_text, data_text = line[1 : 1 + id_len], line[1 + id_len], line[2 + id_len :]
+        if not (set(id_text) <= _HEX and dlc_text in _HEX and set(data_text) <= _HEX):
+            return self._bad(f"frame line is not hex: {line[:24]!r}")
+        aid = int(id_text, 16)
+        if aid > (0x1FFFFFFF if ext else 0x7FF):
+            return self._bad(f"identifier {id_text} out of range")
+        dlc = int(dlc_text, 16)
+        if fd:
+            n = FD_LENGTHS[dlc]
+        elif dlc > 8:
+            return self._bad(f"classic DLC {dlc} > 8")
+        else:
+            n = dlc
+        if remote:
+            if data_text:
+                return self._bad("remote frame with data")
+            data = b""
+        else:
+            if len(data_text) != 2 * n:
+                return self._bad(f"DLC {dlc} needs {n} data bytes, line has {len(data_text) // 2}")
+            data = bytes.fromhex(data_text)
+        if not self.is_open:
+            return self._bad("frame while the channel is closed (send O first)")
+        self.frames_in += 1
+        frame = CanFrame(aid, data, is_fd=fd, is_extended_id=ext, is_remote=remote)
+        return SlcanEvent(frame=frame, command=c), (b"Z\r" if ext else b"z\r")

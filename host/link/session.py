@@ -1,0 +1,770 @@
+"""The link session: an asyncio client for CoCo's board, written once above every transport.
+
+``BoardClient`` owns one :class:`host.link.transports.base.Transport` (serial, CAN; built
+from a link spec by :func:`host.link.transports.open_transport`), speaks protocol v1 over
+it and keeps the session alive:
+
+* handshake: HELLO -> CAPS; a protocol-version or schema-hash mismatch (either
+  side noticing) raises :class:`HandshakeError` with both values and what to do;
+* time sync: NTP-style TIME_SYNC exchanges feed :class:`host.link.timesync.ClockSync`
+  (offset + drift + uncertainty); :meth:`BoardClient.host_to_board` and
+  :meth:`BoardClient.board_now_estimate` turn host time into board time. A
+  lockstep board's clock is virtual: there the estimate is the latest board time
+  reported, and the host moves it on with :meth:`BoardClient.advance`;
+* sending: timed servo frames (no reply when accepted; a NACK is recorded and
+  reported), and control messages that await their ACK (a NACK raises
+  :class:`NackError` with the board's reason);
+* receiving: telemetry (``latest_telemetry``, ``async for t in client.telemetry()``
+  with a bounded drop-oldest queue, ``await client.wait_for(pred, timeout)``), fault
+  edges (estop / watchdog bits -> ``on_fault`` callbacks and a log line), camera
+  images reassembled from chunks. Undecodable frames are counted, never raised;
+* keep-alive: a heartbeat whenever nothing else was sent for ``heartbeat_s``;
+* reconnect: when the wire goes away the client retries with exponential backoff
+  (a serial port may be a callable re-resolved on every attempt), then re-handshakes
+  and re-syncs; calls made meanwhile raise :class:`LinkDown`.
+
+Background tasks (supervisor, heartbeat, sync) run in an ``asyncio.TaskGroup`` the
+session enters in :meth:`BoardClient.open` and leaves in :meth:`BoardClient.close`
+(call both from the same task, e.g. ``async with``); they never raise.
+
+Sequence numbers are 16-bit and wrap, one counter per direction. Every map keyed by
+a sequence number (pending ACKs, frame NACKs, NACK waiters, camera captures) forgets
+a sequence number's old entry when that number is sent again, so answers from one
+lap are never taken for the next. With ``log_path`` the transport logs every frame
+both ways in its own format (JSON Lines for serial, :mod:`protocol.framelog`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections import OrderedDict, deque
+from collections.abc import AsyncIterator, Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from host.link.errors import HandshakeError, LinkDown, LinkError, LinkTimeout, NackError
+from host.link.timesync import ClockEstimate, ClockSync
+from host.link.transports import Transport, open_transport
+from protocol.codec import SCHEMA_HASH
+from protocol.framing import DecodeError, Frame
+from protocol.linkspec import LinkSpec, parse_link_spec
+from protocol.messages import (
+    PROTOCOL_VERSION,
+    Ack,
+    Advance,
+    CameraCapture,
+    CameraChunk,
+    Caps,
+    Config,
+    ConfigKey,
+    Estop,
+    EstopClear,
+    FaultFlags,
+    Flush,
+    Heartbeat,
+    Hello,
+    Message,
+    MsgType,
+    Nack,
+    ScreenCommand,
+    ScreenTarget,
+    ServoFrame,
+    SimState,
+    SoundKind,
+    SpeakerAction,
+    SpeakerCommand,
+    Telemetry,
+    TimeSyncReply,
+    TimeSyncRequest,
+)
+
+__all__ = ["ALL_SERVOS", "FAULT_BITS", "BoardClient", "FaultEvent", "LinkStats", "LinkTarget", "host_now_us"]
+
+log = logging.getLogger("host.link")
+
+ALL_SERVOS = (1 << 12) - 1
+#: telemetry bits that are reported as fault edges
+FAULT_BITS = FaultFlags.ESTOP | FaultFlags.WATCHDOG_HOLD | FaultFlags.WATCHDOG_FAULT
+
+#: what a client connects to: a link spec (text or parsed), or a callable giving one, re-resolved on
+#: every reconnect attempt (serial links: a board that comes back on another pty)
+LinkTarget = LinkSpec | str | Callable[[], LinkSpec | str]
+PortSpec = LinkTarget  # old name
+
+
+def host_now_us() -> int:
+    """The host clock used for time sync: ``time.monotonic`` in integer microseconds."""
+    return time.monotonic_ns() // 1000
+
+
+@dataclass(frozen=True)
+class FaultEvent:
+    """A change of the telemetry fault bits in :data:`FAULT_BITS`."""
+
+    board_time_us: int
+    host_time: float
+    before: FaultFlags
+    after: FaultFlags
+
+    @property
+    def raised(self) -> FaultFlags:
+        return FaultFlags(self.after & ~self.before)
+
+    @property
+    def cleared(self) -> FaultFlags:
+        return FaultFlags(self.before & ~self.after)
+
+
+@dataclass
+class LinkStats:
+    """Counters since the client was created."""
+
+    tx_frames: int = 0
+    rx_frames: int = 0
+    decode_errors: int = 0
+    frame_nacks: int = 0
+    telemetry: int = 0
+    reconnects: int = 0
+
+
+def _flag_names(f: FaultFlags) -> str:
+    return "|".join(e.name or "" for e in FaultFlags if e.value and f & e) or "NONE"
+
+
+class BoardClient:
+    """Asyncio client for one board; create with ``await BoardClient.connect(spec)`` or ``async with``.
+
+    ``link`` is a link spec (``"/dev/pts/3"``, ``"can:socketcan:vcan0?node=2"``, a
+    :class:`LinkSpec`) or a callable returning one; ``transport`` (optional) is an already
+    built transport to use instead (e.g. one wrapped for fault injection). ``baud`` and
+    ``force_thread`` are for serial links; ``log_path`` is the transport's frame log;
+    ``transport_options`` go to :func:`host.link.transports.open_transport` (CAN settings).
+    """
+
+    def __init__(
+        self,
+        link: LinkTarget,
+        *,
+        transport: Transport | None = None,
+        baud: int = 115200,
+        log_path: str | Path | None = None,
+        reply_timeout: float = 1.0,
+        handshake_timeout: float = 3.0,
+        heartbeat_s: float = 0.05,
+        sync_interval_s: float = 0.5,
+        sync_burst: int = 8,
+        reconnect: bool = True,
+        reconnect_max_s: float = 1.0,
+        telemetry_queue: int = 64,
+        protocol_version: int = PROTOCOL_VERSION,
+        schema_hash: int = SCHEMA_HASH,
+        force_thread: bool = False,
+        transport_options: dict[str, Any] | None = None,
+    ) -> None:
+        self._port = link
+        self.baud = baud
+        self.reply_timeout = reply_timeout
+        self.handshake_timeout = handshake_timeout
+        self.heartbeat_s = heartbeat_s
+        self.sync_interval_s = sync_interval_s
+        self.sync_burst = sync_burst
+        self.reconnect = reconnect
+        self.reconnect_max_s = reconnect_max_s
+        self.telemetry_queue = telemetry_queue
+        self.protocol_version = protocol_version
+        self.schema_hash = schema_hash
+        self.force_thread = force_thread
+        self.log_path = log_path
+        self.transport_options = dict(transport_options or {})
+        self.spec: LinkSpec | None = None if callable(link) else parse_link_spec(link)
+
+        self.port_name: str = str(self.spec) if self.spec is not None else ""
+        self.caps: Caps | None = None
+        self.clock = ClockSync()
+        self.stats = LinkStats()
+        self.latest_telemetry: Telemetry | None = None
+        self.latest_sim_state: SimState | None = None
+        self.faults = FaultFlags.NONE
+        self.fault_events: deque[FaultEvent] = deque(maxlen=256)
+        self.on_fault: list[Callable[[FaultEvent], None]] = []
+        self.on_nack: list[Callable[[Nack], None]] = []
+        self.on_reconnect: list[Callable[[BoardClient], None]] = []
+        self.keepalive = True  # heartbeat + periodic sync; turn off to let the watchdog fire
+
+        self._transport: Transport | None = transport
+        self._tx_seq = 0
+        self._ready = False
+        self._closing = False
+        self._last_tx = 0.0
+        self._board_time_seen = 0
+        self._hello_fut: asyncio.Future[Caps] | None = None
+        self._pending: dict[int, asyncio.Future[Any]] = {}  # wire seq -> ACK (or image) future
+        self._sync_pending: dict[int, asyncio.Future[tuple[TimeSyncReply, int]]] = {}
+        self._frame_nacks: OrderedDict[int, Nack] = OrderedDict()
+        self._nack_waiters: list[tuple[int, asyncio.Future[Nack | None]]] = []
+        self._tele_waiters: list[tuple[Callable[[Telemetry], bool], asyncio.Future[Telemetry]]] = []
+        self._subs: set[asyncio.Queue[Telemetry]] = set()
+        self._captures: dict[int, dict[int, bytes]] = {}
+        self._capture_seq: dict[int, int] = {}
+        self._next_request_id = 1
+        self._connected = asyncio.Event()
+        self._lost = asyncio.Event()
+        self._tg: asyncio.TaskGroup | None = None
+        self._tasks: list[asyncio.Task[None]] = []
+        self.last_disconnect_reason = ""
+
+    # --- lifecycle -------------------------------------------------------------------------
+
+    @classmethod
+    async def connect(cls, link: LinkTarget, **kw: Any) -> BoardClient:
+        """Open ``link``, handshake and sync; raises :class:`LinkError` (with the reason) on failure
+        and :class:`protocol.linkspec.LinkSpecError` (a ``ValueError``) for a malformed spec."""
+        client = cls(link, **kw)
+        try:
+            await client.open()
+        except BaseException:
+            await client.close()
+            raise
+        return client
+
+    async def open(self) -> None:
+        """First connection (no retries: a wrong port should fail fast), then the background tasks."""
+        await self._connect_once()
+        tg = asyncio.TaskGroup()
+        await tg.__aenter__()
+        self._tg = tg
+        self._tasks = [
+            tg.create_task(self._guarded(self._supervise), name="link-supervisor"),
+            tg.create_task(self._guarded(self._heartbeat_loop), name="link-heartbeat"),
+            tg.create_task(self._guarded(self._sync_loop), name="link-sync"),
+        ]
+
+    async def _guarded(self, loop: Callable[[], Any]) -> None:
+        """Run a background loop; a bug in it is logged, never raised into the task group."""
+        try:
+            await loop()
+        except Exception:
+            log.exception("link: background task failed")
+
+    async def close(self) -> None:
+        """Stop the background tasks, close the transport and its frame log (idempotent)."""
+        self._closing = True
+        for t in self._tasks:
+            t.cancel()
+        tg, self._tg = self._tg, None
+        if tg is not None:
+            with contextlib.suppress(Exception):
+                await tg.__aexit__(None, None, None)
+        self._tasks = []
+        if self._transport is not None:
+            self._transport.close()
+        self._ready = False
+        self._fail_pending(LinkDown("client closed"))
+
+    async def __aenter__(self) -> BoardClient:
+        if self._tg is None:
+            try:
+                await self.open()
+            except BaseException:
+                await self.close()
+                raise
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    @property
+    def connected(self) -> bool:
+        """True between a completed handshake and the port going away."""
+        return self._ready
+
+    @property
+    def lockstep(self) -> bool:
+        return bool(self.caps and self.caps.lockstep)
+
+    async def wait_connected(self, timeout: float) -> None:
+        """Wait until the link is up (e.g. after a reconnect); :class:`LinkTimeout` otherwise."""
+        try:
+            await asyncio.wait_for(self._connected.wait(), timeout)
+        except TimeoutError:
+            raise LinkTimeout(
+                f"link to {self.port_name or self._port!r} not up within {timeout} s"
+                + (f" (last error: {self.last_disconnect_reason})" if self.last_disconnect_reason else "")
+            ) from None
+
+    async def wait_disconnected(self, timeout: float) -> str:
+        """Wait until the port goes away; returns the reason. :class:`LinkTimeout` otherwise."""
+        try:
+            await asyncio.wait_for(self._lost.wait(), timeout)
+        except TimeoutError:
+            raise LinkTimeout(f"link to {self.port_name!r} still up after {timeout} s") from None
+        return self.last_disconnect_reason
+
+    @property
+    def transport(self) -> Transport | None:
+        """The transport (None before the first connection attempt)."""
+        return self._transport
+
+    def _get_transport(self) -> Transport:
+        """The transport, built from the spec on first use (it then lives across reconnects)."""
+        if self._transport is None:
+            try:
+                self._transport = open_transport(self._port, baud=self.baud, log_path=self.log_path,
+                                                 force_thread=self.force_thread, **self.transport_options)
+            except OSError as e:
+                raise LinkDown(f"cannot open {self._port}: {e}") from None
+        return self._transport
+
+    async def _connect_once(self) -> None:
+        transport = self._get_transport()
+        self.port_name = transport.name
+        port = self.port_name
+        self._lost.clear()
+        await transport.connect(self._on_items, self._on_lost)
+        try:
+            caps = await self._handshake()
+            self.caps = caps
+            self._board_time_seen = caps.board_time_us
+            self.clock.clear()
+            self._ready = True
+            await self._sync_burst()
+        except BaseException:
+            self._ready = False
+            transport.disconnect()
+            raise
+        self._connected.set()
+        log.info(
+            "link up on %s: protocol v%d, %d servos, %d Hz, %s", port, caps.protocol_version,
+            caps.servo_count, caps.control_rate_hz, "lockstep" if caps.lockstep else "realtime",
+        )
+
+    async def _handshake(self) -> Caps:
+        loop = asyncio.get_running_loop()
+        fut: asyncio.Future[Caps] = loop.create_future()
+        self._hello_fut = fut
+        try:
+            self._send(Hello(self.protocol_version, self.schema_hash, host_now_us()))
+            try:
+                caps = await asyncio.wait_for(fut, self.handshake_timeout)
+            except TimeoutError:
+                raise HandshakeError(
+                    f"no CAPS from {self.port_name!r} within {self.handshake_timeout} s: "
+                    "is a CoCo board (python -m firmware_sim) serving this port?"
+                ) from None
+        finally:
+            self._hello_fut = None
+        if caps.protocol_version != self.protocol_version:
+            raise HandshakeError(
+                f"board speaks protocol v{caps.protocol_version}, host v{self.protocol_version}: "
+                "update the host or the board firmware so both match"
+            )
+        if caps.schema_hash != self.schema_hash:
+            raise HandshakeError(
+                f"schema mismatch: board {caps.schema_hash:#010x}, host {self.schema_hash:#010x}: "
+                "host and board were built from different protocol definitions; update one side"
+            )
+        return caps
+
+    def _on_lost(self, reason: str) -> None:
+        was_ready = self._ready
+        self._ready = False
+        self._connected.clear()
+        self.last_disconnect_reason = reason
+        self._fail_pending(LinkDown(f"link to {self.port_name!r} lost: {reason}"))
+        if was_ready and not self._closing:
+            log.warning("link to %s lost: %s%s", self.port_name, reason, "; reconnecting" if self.reconnect else "")
+        self._lost.set()
+
+    def _fail_pending(self, exc: LinkError) -> None:
+        futs = [*self._pending.values(), *self._sync_pending.values(), *(f for _, f in self._nack_waiters)]
+        if self._hello_fut is not None:
+            futs.append(self._hello_fut)
+        for fut in futs:
+            if not fut.done():
+                fut.set_exception(exc)
+                fut.exception()  # mark retrieved: nobody may be awaiting it
+        self._pending.clear()
+        self._sync_pending.clear()
+        self._nack_waiters.clear()
+        self._captures.clear()
+        self._capture_seq.clear()
+
+    async def _supervise(self) -> None:
+        while not self._closing:
+            await self._lost.wait()
+            if self._closing or not self.reconnect:
+                return
+            delay = 0.05
+            while not self._closing:
+                await asyncio.sleep(delay)  # backoff between attempts (not synchronisation)
+                try:
+                    await self._connect_once()
+                except LinkError as e:
+                    log.debug("reconnect to %s failed: %s", self.port_name, e)
+                    self.last_disconnect_reason = str(e)
+                    delay = min(self.reconnect_max_s, delay * 2)
+                    continue
+                self.stats.reconnects += 1
+                log.warning("link to %s re-established (reconnect #%d)", self.port_name, self.stats.reconnects)
+                for cb in list(self.on_reconnect):
+                    cb(self)
+                break
+
+    # --- sending ---------------------------------------------------------------------------
+
+    def _send(self, msg: Message) -> int:
+        t = self._transport
+        if t is None or not t.connected:
+            raise LinkDown(f"link to {self.port_name!r} is down" + (" (reconnecting)" if self.reconnect else ""))
+        seq = self._tx_seq
+        self._forget_seq(seq)
+        t.send(msg, seq)
+        self._tx_seq = (seq + 1) & 0xFFFF
+        self._last_tx = time.monotonic()
+        self.stats.tx_frames += 1
+        return seq
+
+    def _forget_seq(self, seq: int) -> None:
+        """``seq`` is about to be reused (16-bit wrap): drop everything keyed by its previous use.
+
+        An old NACK no longer describes the frame that will carry ``seq``; a waiter for the old
+        frame's NACK gets None (no NACK came in a whole lap); a request still awaiting the old
+        ACK fails, since an ACK from now on would be for the new message.
+        """
+        self._frame_nacks.pop(seq, None)
+        if self._nack_waiters:
+            for s, wfut in self._nack_waiters:
+                if s == seq and not wfut.done():
+                    wfut.set_result(None)
+            self._nack_waiters = [(s, f) for s, f in self._nack_waiters if not f.done()]
+        old = self._pending.pop(seq, None)
+        if old is not None and not old.done():
+            old.set_exception(LinkTimeout(f"no reply for seq {seq} before the sequence number came round again"))
+            old.exception()
+        for rid, cseq in list(self._capture_seq.items()):
+            if cseq == seq:
+                del self._capture_seq[rid]
+                self._captures.pop(rid, None)
+
+    def _require_ready(self) -> None:
+        if not self._ready:
+            raise LinkDown(
+                f"link to {self.port_name!r} is not up"
+                + (f" (last error: {self.last_disconnect_reason})" if self.last_disconnect_reason else "")
+            )
+
+    async def request(self, msg: Message, timeout: float | None = None) -> Ack:
+        """Send ``msg`` and await its ACK (within ``timeout`` s, default ``reply_timeout``).
+
+        Raises :class:`NackError` (the board's reason) on a NACK, :class:`LinkTimeout` without
+        a reply, :class:`LinkDown` when the link is not up. For messages the board answers
+        with ACK/NACK: FLUSH, ESTOP, ESTOP_CLEAR, ADVANCE, CONFIG, SCREEN, SPEAKER.
+        """
+        self._require_ready()
+        fut: asyncio.Future[Ack] = asyncio.get_running_loop().create_future()
+        seq = self._send(msg)
+        self._pending[seq] = fut
+        try:
+            return await asyncio.wait_for(fut, timeout or self.reply_timeout)
+        except TimeoutError:
+            raise LinkTimeout(f"no ACK for {type(msg).__name__} (seq {seq}) within {timeout or self.reply_timeout} s") from None
+        finally:
+            if self._pending.get(seq) is fut:
+                del self._pending[seq]
+
+    _request = request
+
+    def send(self, msg: Message) -> int:
+        """Send any message without waiting for a reply; returns its sequence number."""
+        self._require_ready()
+        return self._send(msg)
+
+    def send_frame(self, frame: ServoFrame) -> int:
+        """Queue a timed servo frame; returns its sequence number (a NACK is recorded, see :meth:`frame_nack`)."""
+        return self.send(frame)
+
+    def send_targets(self, apply_at_us: int, targets: Sequence[float], mask: int = ALL_SERVOS) -> int:
+        """Convenience: a :class:`ServoFrame` for ``targets`` (one per mask bit) at ``apply_at_us``."""
+        return self.send_frame(ServoFrame(int(apply_at_us), mask, tuple(float(v) for v in targets)))
+
+    async def flush(self, from_us: int, mask: int = ALL_SERVOS) -> Ack:
+        """Drop buffered frames due at or after ``from_us`` (board time) for the masked servos."""
+        return await self.request(Flush(int(from_us), mask))
+
+    async def estop(self) -> Ack:
+        """Emergency stop: the board holds where it is and refuses frames until :meth:`estop_clear`."""
+        return await self.request(Estop())
+
+    async def estop_clear(self) -> Ack:
+        """Clear an estop or a latched watchdog fault."""
+        return await self.request(EstopClear())
+
+    async def advance(self, until_us: int) -> Ack:
+        """Lockstep only: let the board clock run up to ``until_us``."""
+        return await self.request(Advance(int(until_us)))
+
+    async def configure(self, key: ConfigKey, value: int) -> Ack:
+        """Change a board setting at run time (NACK BAD_VALUE when out of range)."""
+        return await self.request(Config(ConfigKey(key), int(value)))
+
+    async def screen(self, target: ScreenTarget, name: str, start_at_us: int = 0, duration_ms: int = 0) -> Ack:
+        """Show an expression/animation on the face screen."""
+        return await self.request(ScreenCommand(ScreenTarget(target), name, int(start_at_us), int(duration_ms)))
+
+    async def speaker(
+        self,
+        action: SpeakerAction,
+        kind: SoundKind = SoundKind.SPEECH,
+        *,
+        start_at_us: int = 0,
+        duration_ms: int = 0,
+        volume: int = 80,
+        name: str = "",
+        text: str = "",
+    ) -> Ack:
+        """Play or stop speech or a clip on the board clock."""
+        return await self.request(
+            SpeakerCommand(SpeakerAction(action), SoundKind(kind), int(start_at_us), int(duration_ms), int(volume), name, text)
+        )
+
+    async def capture(self, width: int, height: int, timeout: float = 10.0) -> bytes:
+        """One head-camera image as PNG bytes (reassembled from CAMERA_CHUNKs)."""
+        self._require_ready()
+        rid = self._next_request_id
+        self._next_request_id = (rid + 1) & 0xFFFFFFFF or 1
+        fut: asyncio.Future[bytes] = asyncio.get_running_loop().create_future()
+        seq = self._send(CameraCapture(rid, int(width), int(height)))
+        self._pending[seq] = fut
+        self._captures[rid] = {}
+        self._capture_seq[rid] = seq
+        try:
+            return await asyncio.wait_for(fut, timeout)
+        except TimeoutError:
+            raise LinkTimeout(f"camera image {rid} incomplete after {timeout} s") from None
+        finally:
+            if self._pending.get(seq) is fut:
+                del self._pending[seq]
+            self._captures.pop(rid, None)
+            self._capture_seq.pop(rid, None)
+
+    # --- time ------------------------------------------------------------------------------
+
+    async def sync_once(self, timeout: float = 0.5) -> tuple[int, int, int, int]:
+        """One TIME_SYNC exchange; returns ``(t1, t2, t3, t4)`` and feeds the estimator (realtime)."""
+        loop = asyncio.get_running_loop()
+        t1 = host_now_us()
+        while t1 in self._sync_pending:
+            t1 += 1
+        fut: asyncio.Future[tuple[TimeSyncReply, int]] = loop.create_future()
+        self._sync_pending[t1] = fut
+        try:
+            self._send(TimeSyncRequest(t1))
+            reply, t4 = await asyncio.wait_for(fut, timeout)
+        except TimeoutError:
+            raise LinkTimeout(f"no TIME_SYNC reply within {timeout} s") from None
+        finally:
+            self._sync_pending.pop(t1, None)
+        self._board_time_seen = max(self._board_time_seen, reply.t3_board_us)
+        if not self.lockstep:
+            self.clock.add(t1, reply.t2_board_us, reply.t3_board_us, t4)
+        return t1, reply.t2_board_us, reply.t3_board_us, t4
+
+    async def _sync_burst(self) -> None:
+        for _ in range(self.sync_burst if not self.lockstep else 1):
+            await self.sync_once()
+
+    @property
+    def clock_estimate(self) -> ClockEstimate | None:
+        """Current offset/drift estimate (None before the first sync or in lockstep)."""
+        return self.clock.estimate
+
+    def host_to_board(self, t_host_us: int) -> int:
+        """Board time at host time ``t_host_us`` (realtime boards; see :meth:`board_now_estimate`)."""
+        if self.lockstep:
+            raise LinkError("the board runs in lockstep: its clock is virtual; use board_now_estimate() and advance()")
+        est = self.clock.estimate
+        if est is None:
+            raise LinkError("no time sync yet")
+        return est.host_to_board(t_host_us)
+
+    def board_now_estimate(self) -> int:
+        """Board time now: the synced estimate (realtime) or the latest board time reported (lockstep)."""
+        if self.lockstep:
+            return self._board_time_seen
+        return self.host_to_board(host_now_us())
+
+    # --- background loops -----------------------------------------------------------------
+
+    async def _heartbeat_loop(self) -> None:
+        while True:
+            await asyncio.sleep(self.heartbeat_s / 2)
+            if self._ready and self.keepalive and time.monotonic() - self._last_tx >= self.heartbeat_s:
+                with contextlib.suppress(LinkError):
+                    self._send(Heartbeat(host_now_us()))
+
+    async def _sync_loop(self) -> None:
+        while True:
+            await asyncio.sleep(self.sync_interval_s)
+            if self._ready and self.keepalive and not self.lockstep:
+                with contextlib.suppress(LinkError):
+                    await self.sync_once()
+
+    # --- receiving -------------------------------------------------------------------------
+
+    def _on_items(self, items: Sequence[Frame | DecodeError]) -> None:
+        t4 = host_now_us()
+        for item in items:
+            if isinstance(item, DecodeError):
+                self.stats.decode_errors += 1
+                log.debug("link: discarded %d bytes (%s: %s)", len(item.raw), item.kind.value, item.detail)
+                continue
+            self.stats.rx_frames += 1
+            try:
+                self._dispatch(item.msg, t4)
+            except Exception:  # a bug in a callback must not kill the reader
+                log.exception("link: error handling %s", item.msg_type.name)
+
+    def _dispatch(self, msg: Message, t4: int) -> None:
+        if isinstance(msg, Telemetry):
+            self._on_telemetry(msg)
+        elif isinstance(msg, SimState):
+            self.latest_sim_state = msg
+        elif isinstance(msg, Ack):
+            fut = self._pending.get(msg.ack_seq)
+            if fut is not None and not fut.done():
+                fut.set_result(msg)
+        elif isinstance(msg, Nack):
+            self._on_nack(msg)
+        elif isinstance(msg, TimeSyncReply):
+            sfut = self._sync_pending.get(msg.t1_host_us)
+            if sfut is not None and not sfut.done():
+                sfut.set_result((msg, t4))
+        elif isinstance(msg, Caps):
+            if self._hello_fut is not None and not self._hello_fut.done():
+                self._hello_fut.set_result(msg)
+        elif isinstance(msg, CameraChunk):
+            self._on_chunk(msg)
+
+    def _on_nack(self, msg: Nack) -> None:
+        if msg.msg_type == MsgType.HELLO and self._hello_fut is not None and not self._hello_fut.done():
+            reason = msg.reason.name if hasattr(msg.reason, "name") else str(msg.reason)
+            self._hello_fut.set_exception(HandshakeError(
+                f"board refused the handshake: {reason}: {msg.detail or 'no detail'}; "
+                "host and board must run the same protocol version and message schema"
+            ))
+            return
+        fut = self._pending.get(msg.ack_seq)
+        if fut is not None and not fut.done():
+            fut.set_exception(NackError(msg))
+            return
+        self.stats.frame_nacks += 1
+        self._frame_nacks[msg.ack_seq] = msg
+        while len(self._frame_nacks) > 1024:
+            self._frame_nacks.popitem(last=False)
+        log.debug("link: %s", NackError(msg))
+        for seq, wfut in list(self._nack_waiters):
+            if seq == msg.ack_seq and not wfut.done():
+                wfut.set_result(msg)
+        self._nack_waiters = [(s, f) for s, f in self._nack_waiters if not f.done()]
+        for cb in list(self.on_nack):
+            cb(msg)
+
+    def frame_nack(self, seq: int) -> Nack | None:
+        """The NACK the board sent for the latest frame sent with sequence ``seq``, if any (last 1024 kept)."""
+        return self._frame_nacks.get(seq & 0xFFFF)
+
+    async def wait_frame_nack(self, seq: int, timeout: float) -> Nack | None:
+        """The NACK for frame ``seq``, waiting up to ``timeout`` s; None if none came (or ``seq`` was reused)."""
+        seq &= 0xFFFF
+        if seq in self._frame_nacks:
+            return self._frame_nacks[seq]
+        fut: asyncio.Future[Nack | None] = asyncio.get_running_loop().create_future()
+        self._nack_waiters.append((seq, fut))
+        try:
+            return await asyncio.wait_for(fut, timeout)
+        except TimeoutError:
+            return None
+        finally:
+            self._nack_waiters = [(s, f) for s, f in self._nack_waiters if f is not fut]
+
+    def _on_chunk(self, msg: CameraChunk) -> None:
+        parts = self._captures.get(msg.request_id)
+        seq = self._capture_seq.get(msg.request_id)
+        if parts is None or seq is None:
+            return
+        parts[msg.index] = msg.data
+        if len(parts) >= msg.total:
+            fut = self._pending.get(seq)
+            if fut is not None and not fut.done():
+                fut.set_result(b"".join(parts[i] for i in range(msg.total) if i in parts))
+
+    def _on_telemetry(self, t: Telemetry) -> None:
+        self.latest_telemetry = t
+        self.stats.telemetry += 1
+        self._board_time_seen = max(self._board_time_seen, t.board_time_us)
+        now_faults = FaultFlags(t.faults & FAULT_BITS)
+        if now_faults != self.faults:
+            ev = FaultEvent(t.board_time_us, time.monotonic(), self.faults, now_faults)
+            self.faults = now_faults
+            self.fault_events.append(ev)
+            if ev.raised:
+                log.warning("board fault raised: %s (board time %.3f s)", _flag_names(ev.raised), t.board_time_us / 1e6)
+            if ev.cleared:
+                log.info("board fault cleared: %s (board time %.3f s)", _flag_names(ev.cleared), t.board_time_us / 1e6)
+            for cb in list(self.on_fault):
+                cb(ev)
+        for q in self._subs:
+            if q.full():
+                q.get_nowait()
+            q.put_nowait(t)
+        if self._tele_waiters:
+            keep = []
+            for pred, fut in self._tele_waiters:
+                if fut.done():
+                    continue
+                if pred(t):
+                    fut.set_result(t)
+                else:
+                    keep.append((pred, fut))
+            self._tele_waiters = keep
+
+    async def telemetry(self, maxsize: int | None = None) -> AsyncIterator[Telemetry]:
+        """Every telemetry report from now on; a slow consumer loses the oldest (bounded queue)."""
+        q: asyncio.Queue[Telemetry] = asyncio.Queue(maxsize or self.telemetry_queue)
+        self._subs.add(q)
+        try:
+            while True:
+                yield await q.get()
+        finally:
+            self._subs.discard(q)
+
+    async def wait_for(self, predicate: Callable[[Telemetry], bool], timeout: float) -> Telemetry:
+        """The first telemetry (latest included) satisfying ``predicate``; :class:`LinkTimeout` after ``timeout`` s."""
+        t = self.latest_telemetry
+        if t is not None and predicate(t):
+            return t
+        fut: asyncio.Future[Telemetry] = asyncio.get_running_loop().create_future()
+        self._tele_waiters.append((predicate, fut))
+        try:
+            return await asyncio.wait_for(fut, timeout)
+        except TimeoutError:
+            last = self.latest_telemetry
+            where = f"; last telemetry at board time {last.board_time_us / 1e6:.3f} s, faults {_flag_names(last.faults)}" if last else "; no telemetry received"
+            raise LinkTimeout(f"telemetry condition not met within {timeout} s{where}") from None
+        finally:
+            self._tele_waiters = [(p, f) for p, f in self._tele_waiters if f is not fut]
+
+    async def next_telemetry(self, timeout: float) -> Telemetry:
+        """The next telemetry report received after this call."""
+        fut: asyncio.Future[Telemetry] = asyncio.get_running_loop().create_future()
+        self._tele_waiters.append((lambda _t: True, fut))
+        try:
+            return await asyncio.wait_for(fut, timeout)
+        except TimeoutError:
+            raise LinkTimeout(f"no telemetry within {timeout} s") from None
+        finally:
+            self._tele_waiters = [(p, f) for p, f in self._tele_waiters if f is not fut]

@@ -1,0 +1,299 @@
+"""The host's CAN transport: protocol v1 over a python-can bus (SocketCAN, SLCAN, virtual, ...).
+
+``open_can_transport(spec, log_path=...)`` -> :class:`CanLinkTransport`. On :meth:`connect` it
+opens ``can.Bus(**spec.bus_kwargs())`` (python-can's own configuration, env vars and ``can.rc``,
+fills in the interface/channel the spec leaves empty) with a filter on the board's node id, and
+a ``can.Notifier`` delivers frames into the asyncio loop (python-can watches the bus's fd with
+``add_reader`` where it has one, e.g. SocketCAN and SLCAN, else reads in its thread and the
+frames are handed over with ``call_soon_threadsafe``). For ``slcan`` the 2 s ``sleep_after_open``
+python-can waits for real adapters defaults to 0 (a spec option overrides it).
+
+Fixed-layout messages become frames (:func:`protocol.can.encode_fixed`), the rest goes over
+ISO-TP (can-isotp, :mod:`host.link.transports.isotp_link`). Sending never blocks: frames queue
+and are written in order; a refused write (SocketCAN's ENOBUFS on a full tx queue, python-can
+issue #2004; a full SLCAN pty) keeps the frame at the head and retries after 1 ms doubling to
+20 ms (``tx_retries``); more than ``MAX_TX_FRAMES`` waiting raises ``LinkError`` (the bus is not
+draining). Every frame both ways is logged with python-can's writers (``can.Logger``: ``.log``
+candump, ``.asc``, ``.blf`` ... by suffix; wall-clock timestamps).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import errno
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import can
+
+from host.link.errors import LinkDown, LinkError
+from host.link.transports.base import LossHandler, ReceiveHandler, Transport
+from host.link.transports.isotp_link import IsoTpLink
+from protocol.can import CanDecoder, CanDecodeError, CanFrame, CanItem, encode_bulk, encode_fixed, is_fixed
+from protocol.can.codec import Sender
+from protocol.can.decoder import CanErrorKind
+from protocol.can.ids import bulk_ids
+from protocol.codec import PayloadError
+from protocol.framing import DecodeError, DecodeErrorKind, Frame
+from protocol.linkspec import LinkSpec
+from protocol.messages import Message
+
+__all__ = ["MAX_TX_FRAMES", "CanLinkTransport", "open_can_transport"]
+
+MAX_TX_FRAMES = 4096
+BACKOFF_MIN_S = 0.001
+BACKOFF_MAX_S = 0.02
+ISOTP_TICK_S = 0.002
+FRAME_COST = 16
+
+_KIND = {
+    CanErrorKind.LENGTH: DecodeErrorKind.LENGTH,
+    CanErrorKind.PART: DecodeErrorKind.LENGTH,
+    CanErrorKind.INCOMPLETE: DecodeErrorKind.LENGTH,
+    CanErrorKind.MIXED: DecodeErrorKind.LENGTH,
+    CanErrorKind.PAYLOAD: DecodeErrorKind.PAYLOAD,
+    CanErrorKind.BULK: DecodeErrorKind.PAYLOAD,
+    CanErrorKind.REMOTE: DecodeErrorKind.UNKNOWN_TYPE,
+    CanErrorKind.EXTENDED_ID: DecodeErrorKind.UNKNOWN_TYPE,
+}
+
+
+def _items(items: list[CanItem | CanDecodeError]) -> list[Frame | DecodeError]:
+    out: list[Frame | DecodeError] = []
+    for it in items:
+        if isinstance(it, CanItem):
+            out.append(Frame(it.seq, it.msg_type, it.msg, b"".join(f.data for f in it.frames)))
+        else:
+            raw = it.frame.data if it.frame is not None else b""
+            out.append(DecodeError(_KIND[it.kind], f"CAN {it.kind.value}: {it.detail}", raw))
+    return out
+
+
+class _Listener(can.Listener):
+    """Hands every received message (or the bus error) to the loop thread."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, owner: CanLinkTransport, generation: int) -> None:
+        self.loop, self.owner, self.generation = loop, owner, generation
+
+    def on_message_received(self, msg: can.Message) -> None:
+        try:
+            self.loop.call_soon_threadsafe(self.owner._on_can, msg, self.generation)
+        except RuntimeError:  # loop closed
+            pass
+
+    def on_error(self, exc: Exception) -> None:
+        try:
+            self.loop.call_soon_threadsafe(self.owner._lose, f"CAN receive failed: {exc}", self.generation)
+        except RuntimeError:
+            pass
+
+
+class CanLinkTransport(Transport):
+    """Protocol v1 over CAN to board ``spec.node`` (see the module docstring)."""
+
+    def __init__(self, spec: LinkSpec, *, log_path: str | Path | None = None, bus: can.BusABC | None = None) -> None:
+        self.spec = spec
+        self.node = spec.node
+        self.fd = spec.fd
+        self._given_bus = bus
+        self.bus: can.BusABC | None = None
+        self._notifier: can.Notifier | None = None
+        self._generation = 0
+        self._on_receive: ReceiveHandler | None = None
+        self._on_lost: LossHandler | None = None
+        self._txq: deque[can.Message] = deque()
+        self._retry: asyncio.TimerHandle | None = None
+        self._tick: asyncio.TimerHandle | None = None
+        self._backoff = BACKOFF_MIN_S
+        self.tx_retries = 0
+        self.tx_frames = 0
+        self.rx_frames = 0
+        self.error_frames = 0
+        self.decoder = CanDecoder(self.node, "host")
+        to_board, to_host = bulk_ids(self.node)
+        self._bulk_rx = to_host
+        self.isotp = IsoTpLink(rxid=to_host, txid=to_board, fd=self.fd, send=self._enqueue)
+        self.logger: Any = can.Logger(str(log_path)) if log_path else None  # type: ignore[no-untyped-call]
+        self._channel_name = spec.channel or "can0"
+
+    @property
+    def name(self) -> str:
+        return f"{self.spec} (node {self.node})"
+
+    @property
+    def connected(self) -> bool:
+        return self.bus is not None
+
+    @property
+    def backlog(self) -> int:
+        return FRAME_COST * len(self._txq)
+
+    async def connect(self, on_receive: ReceiveHandler, on_lost: LossHandler) -> None:
+        self.disconnect()
+        loop = asyncio.get_running_loop()
+        self._on_receive, self._on_lost = on_receive, on_lost
+        if self._given_bus is not None:
+            bus = self._given_bus
+        else:
+            kw = self.spec.bus_kwargs()
+            kw.setdefault("can_filters", [{"can_id": self.node, "can_mask": 0x7F, "extended": False}])
+            if kw.get("interface") == "slcan":
+                kw.setdefault("sleep_after_open", 0)
+            try:
+                bus = await asyncio.to_thread(lambda: can.Bus(**kw))  # type: ignore[arg-type]
+            except (can.CanError, OSError, ValueError, ImportError) as e:
+                raise LinkDown(f"cannot open CAN bus {self.spec}: {e}") from None
+        self.bus = bus
+        self._generation += 1
+        self.decoder = CanDecoder(self.node, "host")
+        self.isotp = IsoTpLink(rxid=self._bulk_rx, txid=bulk_ids(self.node)[0], fd=self.fd, send=self._enqueue)
+        self._txq.clear()
+        self._notifier = can.Notifier(bus, [_Listener(loop, self, self._generation)], timeout=0.05, loop=loop)
+
+    # --- receiving ------------------------------------------------------------------------
+
+    def _on_can(self, msg: can.Message, generation: int) -> None:
+        if generation != self._generation or self.bus is None:
+            return
+        self.rx_frames += 1
+        if self.logger is not None:
+            self.logger.on_message_received(msg)
+        if msg.is_error_frame:
+            self.error_frames += 1
+            return
+        frame = CanFrame(int(msg.arbitration_id), bytes(msg.data or b""), bool(msg.is_fd),
+                         bool(msg.is_extended_id), bool(msg.is_remote_frame))
+        items: list[CanItem | CanDecodeError] = []
+        if frame.arbitration_id == self._bulk_rx and not frame.is_extended_id:
+            self.isotp.feed(frame)
+            items += self._poll_isotp()
+        else:
+            items += self.decoder.feed(frame)
+        if items and self._on_receive is not None:
+            self._on_receive(_items(items))
+
+    def _poll_isotp(self) -> list[CanItem | CanDecodeError]:
+        before = self.isotp.errors
+        items: list[CanItem | CanDecodeError] = [self.decoder.feed_bulk(sdu) for sdu in self.isotp.poll()]
+        if self.isotp.errors > before:
+            items.append(CanDecodeError(CanErrorKind.BULK, f"ISO-TP: {self.isotp.last_error}"))
+        self._pump()
+        self._arm_tick()
+        return items
+
+    def _arm_tick(self) -> None:
+        if self._tick is None and self.isotp.busy and self.bus is not None:
+            self._tick = asyncio.get_running_loop().call_later(ISOTP_TICK_S, self._on_tick)
+
+    def _on_tick(self) -> None:
+        self._tick = None
+        items = self._poll_isotp()
+        if items and self._on_receive is not None:
+            self._on_receive(_items(items))
+
+    # --- sending --------------------------------------------------------------------------
+
+    def send(self, msg: Message, seq: int) -> None:
+        if self.bus is None:
+            raise LinkDown(f"CAN link {self.spec} is not connected")
+        if len(self._txq) >= MAX_TX_FRAMES:
+            raise LinkError(f"CAN transmit queue over {MAX_TX_FRAMES} frames: the bus is not draining")
+        try:
+            if is_fixed(msg):
+                for f in encode_fixed(msg, seq, self.node, self.fd, Sender.HOST):
+                    self._enqueue(f)
+            else:
+                self.isotp.send(encode_bulk(msg, seq))
+                items = self._poll_isotp()
+                if items and self._on_receive is not None:
+                    self._on_receive(_items(items))
+        except PayloadError as e:
+            raise LinkError(f"cannot send {type(msg).__name__} on CAN: {e}") from None
+        except BufferError as e:
+            raise LinkError(str(e)) from None
+        self._pump()
+
+    def _enqueue(self, frame: CanFrame) -> None:
+        self._txq.append(
+            can.Message(
+                arbitration_id=frame.arbitration_id, data=frame.data, is_fd=frame.is_fd,
+                is_extended_id=False, dlc=len(frame.data), is_rx=False,
+            )
+        )
+
+    def _pump(self) -> None:
+        bus = self.bus
+        if bus is None or self._retry is not None:
+            return
+        while self._txq:
+            msg = self._txq[0]
+            try:
+                bus.send(msg, timeout=0.0)
+            except can.CanOperationError as e:
+                # ENOBUFS (python-can #2004) or a full serial port: keep it, retry with backoff
+                self.tx_retries += 1
+                code = getattr(e, "error_code", None)
+                if code not in (None, errno.ENOBUFS, errno.EAGAIN) and code in (errno.ENODEV, errno.ENXIO, errno.ENETDOWN):
+                    self._lose(f"CAN send failed: {e}", self._generation)
+                    return
+                self._retry = asyncio.get_running_loop().call_later(self._backoff, self._retry_now)
+                self._backoff = min(self._backoff * 2, BACKOFF_MAX_S)
+                return
+            except can.CanError as e:
+                self._lose(f"CAN send failed: {e}", self._generation)
+                return
+            self._txq.popleft()
+            self.tx_frames += 1
+            self._backoff = BACKOFF_MIN_S
+            if self.logger is not None:
+                msg.timestamp = time.time()
+                msg.channel = self._channel_name
+                self.logger.on_message_received(msg)
+
+    def _retry_now(self) -> None:
+        self._retry = None
+        self._pump()
+
+    # --- closing --------------------------------------------------------------------------
+
+    def _lose(self, reason: str, generation: int) -> None:
+        if generation != self._generation or self.bus is None:
+            return
+        self.disconnect()
+        if self._on_lost is not None:
+            self._on_lost(reason)
+
+    def disconnect(self) -> None:
+        self._generation += 1
+        for h in (self._retry, self._tick):
+            if h is not None:
+                h.cancel()
+        self._retry = self._tick = None
+        if self._notifier is not None:
+            try:
+                self._notifier.stop(timeout=0.2)
+            except Exception:
+                pass
+            self._notifier = None
+        if self.bus is not None and self.bus is not self._given_bus:
+            try:
+                self.bus.shutdown()
+            except Exception:
+                pass
+        self.bus = None
+
+    def close(self) -> None:
+        self.disconnect()
+        if self.logger is not None:
+            try:
+                self.logger.stop()
+            except Exception:
+                pass
+            self.logger = None
+
+
+def open_can_transport(spec: LinkSpec, *, log_path: str | Path | None = None, **options: Any) -> CanLinkTransport:
+    """The host's CAN transport for ``spec`` (``bus=`` may pass an already open python-can bus)."""
+    return CanLinkTransport(spec, log_path=log_path, bus=options.get("bus"))

@@ -1,0 +1,90 @@
+"""One ISO-TP (ISO 15765-2) link over CAN frames, driven by polling (can-isotp's TransportLayerLogic).
+
+Driven from the asyncio loop (no extra thread), like the board drives its copy from its select loop:
+frames for the link are pushed in with :meth:`IsoTpLink.feed`, frames it emits go to ``send``,
+and :meth:`poll` advances it (call it whenever something arrived and every few ms while
+:attr:`busy`). Block size 0 and STmin 0: one flow control per message, no pacing.
+(The board keeps its own copy of this small wrapper: host and board never import each other.)
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+
+import isotp
+
+from protocol.can.frame import CanFrame
+
+__all__ = ["IsoTpLink", "MAX_PENDING_SENDS"]
+
+MAX_PENDING_SENDS = 256  # bulk messages queued before send() refuses
+
+
+class IsoTpLink:
+    """ISO-TP with normal 11-bit addressing: receive on ``rxid``, transmit on ``txid``."""
+
+    def __init__(self, rxid: int, txid: int, fd: bool, send: Callable[[CanFrame], None]) -> None:
+        self.rxid, self.txid = rxid, txid
+        self._send = send
+        self._rx: deque[isotp.CanMessage] = deque()
+        self.errors = 0
+        self.last_error = ""
+        params = {
+            "stmin": 0,
+            "blocksize": 0,
+            "tx_data_length": 64 if fd else 8,
+            "can_fd": bool(fd),
+            "max_frame_size": 4095,
+            "rx_flowcontrol_timeout": 1000,
+            "rx_consecutive_frame_timeout": 1000,
+            "wftmax": 0,
+        }
+        self.layer = isotp.TransportLayerLogic(
+            rxfn=self._rxfn,
+            txfn=self._txfn,
+            address=isotp.Address(isotp.AddressingMode.Normal_11bits, rxid=rxid, txid=txid),
+            error_handler=self._on_error,
+            params=params,
+        )
+
+    def _rxfn(self, timeout: float) -> isotp.CanMessage | None:
+        return self._rx.popleft() if self._rx else None
+
+    def _txfn(self, msg: isotp.CanMessage) -> None:
+        self._send(CanFrame(msg.arbitration_id, bytes(msg.data), is_fd=bool(msg.is_fd)))
+
+    def _on_error(self, error: Exception) -> None:
+        self.errors += 1
+        self.last_error = f"{type(error).__name__}: {error}"
+
+    def feed(self, frame: CanFrame) -> None:
+        """A received frame with identifier ``rxid`` (bounded: a flood beyond 4096 frames is dropped)."""
+        if len(self._rx) < 4096:
+            self._rx.append(isotp.CanMessage(frame.arbitration_id, len(frame.data), bytes(frame.data), False, frame.is_fd))
+        else:
+            self.errors += 1
+
+    def send(self, sdu: bytes) -> None:
+        """Queue one service data unit (``BufferError`` when ``MAX_PENDING_SENDS`` are waiting)."""
+        if self.layer.tx_queue.qsize() >= MAX_PENDING_SENDS:
+            raise BufferError(f"ISO-TP: {MAX_PENDING_SENDS} bulk messages already waiting")
+        self.layer.send(sdu)
+
+    def poll(self) -> list[bytes]:
+        """Advance the state machine; the service data units completed since the last poll."""
+        try:
+            self.layer.process()
+        except Exception as e:  # never let a malformed frame take the loop down
+            self._on_error(e)
+        out: list[bytes] = []
+        while self.layer.available():
+            data = self.layer.recv()
+            if data is not None:
+                out.append(bytes(data))
+        return out
+
+    @property
+    def busy(self) -> bool:
+        """True while a transfer is in progress either way (poll again soon for its timers)."""
+        return bool(self.layer.transmitting() or self.layer.is_rx_active() or self._rx)

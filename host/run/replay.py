@@ -1,0 +1,223 @@
+"""Replay a recorded run: feed its host-to-board traffic into a fresh lockstep board.
+
+``read_host_to_board(path)`` yields ``(t, seq, message)`` for every message the host sent,
+in send order, from a frame log; the reader is chosen by the file's suffix in
+:data:`LOG_READERS` (``.jsonl``: the serial JSON-Lines log, :mod:`protocol.framelog`;
+the CAN transport adds its python-can formats there). ``replay(log, out)`` starts
+``python -m firmware_sim --lockstep`` on a pty, sends every recorded message with its
+original sequence number through the serial transport, and writes ``summary.json``
+(``base_end`` as ``[x m, y m, yaw deg]``, and the original's for comparison) and
+``joints.png`` to ``out``.
+
+Why the result matches: a lockstep board handles each message at the board time the
+messages before it have covered, so the same message stream gives the same physics
+however it was paced (see :mod:`firmware_sim.server`). Pacing: after every ADVANCE the
+replay waits for its ACK (as the recording host did), so nothing piles up. The replay
+waits for the board to report ground truth at the board time of the last SIM_STATE the
+original host received (found in the log), which is what the original ``base_end`` was.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from host.link.board_process import start_board
+from host.link.errors import LinkDown, LinkError, LinkTimeout
+from host.link.transports import open_transport
+from host.run import artefacts
+from protocol import framelog
+from protocol.framing import DecodeError, Frame
+from protocol.messages import Ack, Advance, Message, Nack, ServoFrame, SimState, Telemetry
+from robots.coco import load_servo_table
+
+__all__ = ["LOG_READERS", "ReplayError", "ReplayResult", "find_host_log", "read_host_to_board",
+           "read_serial_log", "replay"]
+
+#: host log file names looked for in a run folder, in order
+HOST_LOG_NAMES = ("host_frames.jsonl", "host.jsonl")
+
+
+class ReplayError(LinkError):
+    """The log cannot be replayed (unreadable, nothing sent, or the board did not follow)."""
+
+
+def read_serial_log(path: Path) -> Iterator[tuple[float, int, Message]]:
+    """Host-to-board messages (``tx`` records) of a serial JSON-Lines frame log, re-decoded from raw bytes."""
+    with open(path, encoding="utf-8") as f:
+        for rec in framelog.iter_records(f):
+            if rec["dir"] != "tx" or "error" in rec:
+                continue
+            item = framelog.decode_raw(rec["raw"])
+            if isinstance(item, Frame):
+                yield float(rec["t"]), item.seq, item.msg
+
+
+def _serial_last_sim_state(path: Path) -> SimState | None:
+    last: SimState | None = None
+    with open(path, encoding="utf-8") as f:
+        for rec in framelog.iter_records(f):
+            if rec["dir"] == "rx" and rec.get("type") == "SIM_STATE":
+                item = framelog.decode_raw(rec["raw"])
+                if isinstance(item, Frame) and isinstance(item.msg, SimState):
+                    last = item.msg
+    return last
+
+
+#: suffix -> reader of host-to-board messages ``(t, seq, message)``; CAN adds ``.blf``, ``.asc``, ``.log``
+LOG_READERS: dict[str, Callable[[Path], Iterator[tuple[float, int, Message]]]] = {".jsonl": read_serial_log}
+#: suffix -> the last ground truth the recording host received (None if the format cannot say)
+LAST_SIM_STATE: dict[str, Callable[[Path], SimState | None]] = {".jsonl": _serial_last_sim_state}
+
+
+def find_host_log(path: Path) -> Path:
+    """``path`` itself, or the host log inside a run folder; :class:`ReplayError` if there is none."""
+    if path.is_dir():
+        for name in HOST_LOG_NAMES:
+            if (path / name).is_file():
+                return path / name
+        found = sorted(p for p in path.iterdir() if p.name.startswith("host") and p.suffix in LOG_READERS)
+        if found:
+            return found[0]
+        raise ReplayError(f"no host frame log in {path} (looked for {', '.join(HOST_LOG_NAMES)})")
+    if not path.is_file():
+        raise ReplayError(f"no such log: {path}")
+    return path
+
+
+def read_host_to_board(path: Path) -> Iterator[tuple[float, int, Message]]:
+    """``(t, seq, message)`` the host sent, in order, from the log at ``path`` (reader by suffix)."""
+    reader = LOG_READERS.get(path.suffix.lower())
+    if reader is None:
+        raise ReplayError(f"cannot replay {path.name}: unknown log format {path.suffix!r} "
+                          f"(known: {', '.join(sorted(LOG_READERS))})")
+    return reader(path)
+
+
+def _pose(s: SimState | None) -> list[float] | None:
+    if s is None:
+        return None
+    return [round(s.base_pos[0], 4), round(s.base_pos[1], 4), round(artefacts.yaw_deg(s.base_quat), 2)]
+
+
+@dataclass
+class ReplayResult:
+    """What a replay produced (also in ``out/summary.json``)."""
+
+    base_end: list[float] | None
+    original_base_end: list[float] | None
+    base_end_error_mm: float | None
+    messages: int
+    board_time_s: float
+    out: Path
+    sim_states: list[SimState] = field(default_factory=list, repr=False)
+
+
+async def _replay(log_path: Path, out: Path, timeout_s: float) -> ReplayResult:
+    msgs = list(read_host_to_board(log_path))
+    if not msgs:
+        raise ReplayError(f"{log_path} holds no host-to-board messages")
+    last_fn = LAST_SIM_STATE.get(log_path.suffix.lower())
+    original = last_fn(log_path) if last_fn is not None else None
+    board = start_board(["--lockstep", "--log", str(out / "board_frames.jsonl")], out / "board.stderr")
+    transport = open_transport(board.spec, log_path=out / "host_frames.jsonl")
+    acks: dict[int, asyncio.Future[Message]] = {}
+    tel_t: list[float] = []
+    tel_q: list[tuple[float, ...]] = []
+    sims: list[SimState] = []
+    progress = asyncio.Event()
+    lost: list[str] = []
+
+    def on_receive(items: object) -> None:
+        for item in items:  # type: ignore[attr-defined]
+            if isinstance(item, DecodeError):
+                continue
+            m = item.msg
+            if isinstance(m, Telemetry):
+                if len(tel_t) < 200_000:
+                    tel_t.append(m.board_time_us * 1e-6)
+                    tel_q.append(m.positions)
+            elif isinstance(m, SimState):
+                sims.append(m)
+                del sims[:-2]
+                progress.set()
+            elif isinstance(m, (Ack, Nack)):
+                fut = acks.pop(m.ack_seq, None)
+                if fut is not None and not fut.done():
+                    fut.set_result(m)
+
+    def on_lost(reason: str) -> None:
+        lost.append(reason)
+        progress.set()
+        for fut in acks.values():
+            if not fut.done():
+                fut.set_exception(LinkDown(f"board link lost during the replay: {reason}"))
+
+    targets: list[tuple[float, tuple[float, ...]]] = []
+    end_us = 0
+    try:
+        await transport.connect(on_receive, on_lost)
+        loop = asyncio.get_running_loop()
+        for _, seq, msg in msgs:
+            fut: asyncio.Future[Message] | None = None
+            if isinstance(msg, Advance):
+                fut = loop.create_future()
+                acks[seq] = fut
+                end_us = max(end_us, msg.until_us)
+            if isinstance(msg, ServoFrame):
+                end_us = max(end_us, msg.apply_at_us)
+                if msg.mask == (1 << len(msg.targets)) - 1 and len(msg.targets) == 12:
+                    targets.append((msg.apply_at_us * 1e-6, msg.targets))
+            transport.send(msg, seq)
+            if fut is not None:
+                try:
+                    await asyncio.wait_for(fut, timeout_s)
+                except TimeoutError:
+                    raise ReplayError(f"the board did not acknowledge ADVANCE (seq {seq}) within {timeout_s} s") from None
+        want_us = original.board_time_us if original is not None else end_us - 40_000
+        while not (sims and sims[-1].board_time_us >= want_us):
+            if lost:
+                raise ReplayError(f"board link lost during the replay: {lost[0]}")
+            progress.clear()
+            try:
+                await asyncio.wait_for(progress.wait(), timeout_s)
+            except TimeoutError:
+                raise LinkTimeout(f"the board did not reach board time {want_us / 1e6:.3f} s "
+                                  f"(last report {sims[-1].board_time_us / 1e6 if sims else 0:.3f} s)") from None
+        final = sims[-1]
+        if original is not None:
+            final = next((s for s in sims if s.board_time_us == original.board_time_us), final)
+    finally:
+        transport.close()
+        board.stop()
+    base_end, orig_end = _pose(final), _pose(original)
+    err_mm = None
+    if original is not None:
+        err_mm = round(1000 * math.dist(final.base_pos[:2], original.base_pos[:2]), 3)
+    if tel_t:
+        names = load_servo_table().names
+        tgt = (np.asarray([t for t, _ in targets]), np.asarray([q for _, q in targets])) if targets else None
+        artefacts.plot_joints(out / "joints.png", np.asarray(tel_t), np.asarray(tel_q), names, tgt)
+    summary = {"replay_of": str(log_path), "messages": len(msgs), "base_end": base_end,
+               "original_base_end": orig_end, "base_end_error_mm": err_mm,
+               "board_time_s": round(final.board_time_us / 1e6, 6)}
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    return ReplayResult(base_end, orig_end, err_mm, len(msgs), final.board_time_us / 1e6, out, sims)
+
+
+def replay(log: str | Path, out: str | Path, *, timeout_s: float = 30.0) -> ReplayResult:
+    """Replay the host log ``log`` (a file or a run folder) into a fresh lockstep board; artefacts in ``out``.
+
+    Raises :class:`ReplayError` / :class:`LinkError` with the reason, ``RuntimeError`` if the
+    board does not start, :class:`protocol.framelog.FrameLogError` for an unreadable log.
+    """
+    log_path = find_host_log(Path(log))
+    out_dir = Path(out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return asyncio.run(_replay(log_path, out_dir, timeout_s))

@@ -1,0 +1,213 @@
+"""Receiver side of the CAN protocol: frames in, whole messages out; never raises.
+
+``CanDecoder(node, receiver="board"|"host").feed(frame) -> list[CanItem | CanDecodeError]``
+takes any frame a bus delivers (any identifier, length, FD flag, remote or extended). Frames
+that are not addressed to this receiver (another node, the other direction, bulk identifiers
+that the ISO-TP layer consumes) are ignored and counted in ``foreign``. Fixed-layout messages are
+reassembled from their parts (:mod:`protocol.can.layouts`): a message is surfaced only when
+every part with the same sequence has arrived; a partial message (a new sequence starts before it
+completes) or a mixed one (a part repeated, FD and classic parts mixed) is **never** surfaced: it
+is dropped and counted (``errors[INCOMPLETE]`` / ``errors[MIXED]``). State is bounded: at most one
+assembly per function code. ``feed_bulk(sdu)`` decodes a reassembled ISO-TP unit.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from enum import Enum
+
+from protocol.codec import PayloadError, msg_type_of
+from protocol.can.codec import decode_bulk, raw_to_message, unpack_part
+from protocol.can.frame import CanFrame
+from protocol.can.ids import BOARD_TO_HOST, BROADCAST_NODE, HOST_TO_BOARD, FunctionCode, check_node, split_id
+from protocol.can.layouts import FIXED_LAYOUTS, SEQ_MASK, FixedLayout, unwrap_seq
+from protocol.messages import Message, MsgType
+
+__all__ = ["CanDecodeError", "CanDecoder", "CanErrorKind", "CanItem"]
+
+_BULK = (FunctionCode.BULK_TO_BOARD, FunctionCode.BULK_TO_HOST)
+
+
+class CanErrorKind(Enum):
+    EXTENDED_ID = "EXTENDED_ID"  # a 29-bit identifier (the protocol uses 11-bit ones)
+    REMOTE = "REMOTE"  # a remote (RTR) frame
+    LENGTH = "LENGTH"  # data shorter than the part's layout
+    PART = "PART"  # part index beyond the message's parts
+    PAYLOAD = "PAYLOAD"  # signal values the message cannot hold
+    INCOMPLETE = "INCOMPLETE"  # a multi-part message dropped before all parts arrived
+    MIXED = "MIXED"  # a part seen twice or parts of different frame kinds: dropped
+    BULK = "BULK"  # an ISO-TP unit that does not decode
+
+
+@dataclass(frozen=True)
+class CanItem:
+    """One whole message: the 16-bit sequence (unwrapped for fixed frames), type, message."""
+
+    seq: int
+    msg_type: MsgType
+    msg: Message
+    frames: tuple[CanFrame, ...] = field(default=(), repr=False)
+    bulk: bool = False
+
+
+@dataclass(frozen=True)
+class CanDecodeError:
+    kind: CanErrorKind
+    detail: str
+    frame: CanFrame | None = None
+
+
+@dataclass
+class _Assembly:
+    seq11: int
+    fd: bool
+    layout: FixedLayout
+    raw: dict[str, int]
+    parts: dict[int, CanFrame]
+
+
+class CanDecoder:
+    """Reassembles fixed-layout messages for one receiver of one node; counts every problem."""
+
+    def __init__(self, node: int, receiver: str = "board") -> None:
+        if receiver not in ("board", "host"):
+            raise ValueError(f"receiver must be 'board' or 'host', got {receiver!r}")
+        self.node = check_node(node)
+        self.receiver = receiver
+        self._accept = HOST_TO_BOARD if receiver == "board" else BOARD_TO_HOST
+        self._assemblies: dict[FunctionCode, _Assembly] = {}
+        self.last_seq = 0  # 16-bit reference for unwrapping 11-bit sequences
+        self.errors: Counter[CanErrorKind] = Counter()
+        self.foreign = 0  # frames for other nodes / the other direction / bulk ids
+        self.frames = 0
+
+    @property
+    def error_count(self) -> int:
+        return sum(self.errors.values())
+
+    def is_mine(self, frame: CanFrame) -> bool:
+        """True when ``frame`` is a fixed-layout frame this receiver consumes."""
+        if frame.is_extended_id:
+            return False
+        fn, node = split_id(frame.arbitration_id)
+        if fn is None or fn not in self._accept or fn in _BULK:
+            return False
+        if node == self.node:
+            return True
+        return node == BROADCAST_NODE and fn is FunctionCode.ESTOP
+
+    def _error(self, kind: CanErrorKind, detail: str, frame: CanFrame | None) -> CanDecodeError:
+        self.errors[kind] += 1
+        return CanDecodeError(kind, detail, frame)
+
+    def feed(self, frame: CanFrame) -> list[CanItem | CanDecodeError]:
+        """Consume one frame; returns the messages it completes and the errors it causes."""
+        try:
+            return self._feed(frame)
+        except Exception as e:  # defensive: a decoder bug must not take a receiver down
+            return [self._error(CanErrorKind.PAYLOAD, f"internal decode error: {e!r}", frame)]
+
+    def _feed(self, frame: CanFrame) -> list[CanItem | CanDecodeError]:
+        self.frames += 1
+        aid = int(frame.arbitration_id)
+        fn, node = split_id(aid)
+        if frame.is_extended_id or aid > 0x7FF or aid < 0:
+            # another protocol's frame may share the bus: only count it as an error if it would
+            # have been ours as a standard frame
+            if fn is not None and node == self.node and fn in self._accept and 0 <= aid <= 0x7FF:
+                return [self._error(CanErrorKind.EXTENDED_ID, f"29-bit identifier {aid:#x}", frame)]
+            self.foreign += 1
+            return []
+        if not self.is_mine(frame):
+            self.foreign += 1
+            return []
+        assert fn is not None
+        if frame.is_remote:
+            return [self._error(CanErrorKind.REMOTE, f"remote frame on {aid:#05x}", frame)]
+        data = bytes(frame.data)
+        if fn is FunctionCode.ESTOP and len(data) < 2:
+            # an ESTOP is honoured whatever its length (e.g. ``cansend vcan0 001#``)
+            return [CanItem(self.last_seq, MsgType.ESTOP, raw_to_message(MsgType.ESTOP, {}), (frame,))]
+        if len(data) < 2:
+            return [self._error(CanErrorKind.LENGTH, f"{fn.name}: {len(data)} byte(s), no header", frame)]
+        fd = bool(frame.is_fd)
+        layout = FIXED_LAYOUTS[(fn, fd)]
+        header = int.from_bytes(data[:2], "little")
+        part, seq11 = header & 0x1F, (header >> 5) & SEQ_MASK
+        if part >= layout.parts:
+            return [self._error(CanErrorKind.PART, f"{fn.name}: part {part} of {layout.parts}", frame)]
+        if len(data) < layout.part_bytes[part]:
+            return [
+                self._error(
+                    CanErrorKind.LENGTH,
+                    f"{fn.name} part {part}: {len(data)} byte(s), needs {layout.part_bytes[part]}",
+                    frame,
+                )
+            ]
+        values = unpack_part(layout, part, data[: layout.part_bytes[part]])
+        out: list[CanItem | CanDecodeError] = []
+        asm = self._assemblies.get(fn)
+        if asm is not None and (asm.seq11 != seq11 or asm.fd != fd or layout.parts == 1):
+            del self._assemblies[fn]
+            if asm.fd != fd and asm.seq11 == seq11:
+                out.append(self._error(CanErrorKind.MIXED, f"{fn.name} seq {seq11}: classic and FD parts mixed", frame))
+            else:
+                out.append(
+                    self._error(
+                        CanErrorKind.INCOMPLETE,
+                        f"{fn.name} seq {asm.seq11}: parts {sorted(asm.parts)} of {layout.parts} (dropped)",
+                        frame,
+                    )
+                )
+            asm = None
+        if layout.parts == 1:
+            return self._surface(layout, seq11, values, (frame,), out)
+        if asm is None:
+            asm = _Assembly(seq11, fd, layout, {}, {})
+            self._assemblies[fn] = asm
+        if part in asm.parts:
+            del self._assemblies[fn]
+            out.append(self._error(CanErrorKind.MIXED, f"{fn.name} seq {seq11}: part {part} twice (dropped)", frame))
+            return out
+        asm.parts[part] = frame
+        asm.raw.update(values)
+        if len(asm.parts) == layout.parts:
+            del self._assemblies[fn]
+            frames = tuple(asm.parts[k] for k in range(layout.parts))
+            return self._surface(layout, seq11, asm.raw, frames, out)
+        return out
+
+    def _surface(
+        self,
+        layout: FixedLayout,
+        seq11: int,
+        raw: dict[str, int],
+        frames: tuple[CanFrame, ...],
+        out: list[CanItem | CanDecodeError],
+    ) -> list[CanItem | CanDecodeError]:
+        try:
+            msg = raw_to_message(layout.msg_type, raw)
+        except PayloadError as e:
+            out.append(self._error(CanErrorKind.PAYLOAD, str(e), frames[-1]))
+            return out
+        seq = unwrap_seq(seq11, self.last_seq)
+        self.last_seq = seq
+        out.append(CanItem(seq, layout.msg_type, msg, frames))
+        return out
+
+    def feed_bulk(self, sdu: bytes) -> CanItem | CanDecodeError:
+        """Decode one reassembled ISO-TP unit (its full sequence re-anchors the unwrapping)."""
+        try:
+            seq, msg = decode_bulk(sdu)
+        except PayloadError as e:
+            return self._error(CanErrorKind.BULK, str(e), None)
+        except Exception as e:  # defensive, as in feed()
+            return self._error(CanErrorKind.BULK, f"internal decode error: {e!r}", None)
+        self.last_seq = seq
+        return CanItem(seq, msg_type_of(msg), msg, (), bulk=True)
+
+    def pending_parts(self) -> int:
+        """Parts held in incomplete assemblies (bounded by the layouts)."""
+        return sum(len(a.parts) for a in self._assemblies.values())
+

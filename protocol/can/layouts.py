@@ -1,0 +1,197 @@
+"""Fixed CAN layouts of the real-time messages: signals, their placement in frames, raw values.
+
+Every fixed-layout frame starts with a 16-bit little-endian header::
+
+    bits 0..4   part   index of this frame within the message (0..31), the DBC multiplexer
+    bits 5..15  seq    the protocol's 16-bit sequence number modulo 2**11
+
+The rest of the frame carries signals, little-endian, never straddling a frame. A message whose
+signals do not fit one frame is split into a fixed set of *parts* (classic CAN: 6 data bytes per
+part; CAN FD: 62); all parts carry the same ``seq`` and a receiver surfaces the message only when
+every part with that ``seq`` has arrived (:mod:`protocol.can.decoder`). Signals are placed in
+declaration order, greedily: a signal that does not fit the rest of a part starts the next part.
+
+The 11-bit ``seq`` maps to the 16-bit protocol sequence consistently: the receiver takes the
+16-bit value nearest to the last sequence it saw from that sender whose low 11 bits match
+(:func:`unwrap_seq`). Bulk (ISO-TP) messages carry the full 16 bits and re-anchor it. This is
+exact while fewer than 1024 messages separate two received ones, far beyond what a sender has in
+flight (the host sends a full-sequence TIME_SYNC every 0.5 s and a HEARTBEAT when idle).
+
+Scales are the serial codec's (:mod:`protocol.codec`): positions and IMU angles 1e-4 rad,
+velocities 1e-3 rad/s, efforts 1e-3 N*m, all int16 with -32768 = unknown (NaN). Times that are
+u64 in the serial codec travel as u48 microseconds (8.9 years; larger values clamp), except
+SERVO_FRAME's apply-at, which is u32 modulo 2**32 as on serial. Telemetry counters travel as
+u24 (clamped at 16 777 215). The layouts are for ``CAN_SERVOS`` = 12 servos (CoCo).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from protocol.can.frame import fd_length
+from protocol.can.ids import FunctionCode
+from protocol.messages import MsgType
+
+__all__ = [
+    "CAN_SERVOS",
+    "HEADER_BITS",
+    "PART_BITS",
+    "SEQ_BITS",
+    "FIXED_LAYOUTS",
+    "FixedLayout",
+    "Placed",
+    "SignalSpec",
+    "unwrap_seq",
+]
+
+CAN_SERVOS = 12
+PART_BITS = 5
+SEQ_BITS = 11
+HEADER_BITS = PART_BITS + SEQ_BITS
+SEQ_MASK = (1 << SEQ_BITS) - 1
+MAX_PARTS = 1 << PART_BITS
+CLASSIC_PART_BITS = 64 - HEADER_BITS  # 6 data bytes
+FD_PART_BITS = 512 - HEADER_BITS  # 62 data bytes
+
+
+@dataclass(frozen=True)
+class SignalSpec:
+    """One signal: raw integer of ``bits`` bits; physical = raw * ``scale`` in ``unit``."""
+
+    name: str
+    bits: int
+    signed: bool = False
+    scale: float = 1.0
+    unit: str = ""
+    comment: str = ""
+
+
+@dataclass(frozen=True)
+class Placed:
+    """A signal placed in part ``part`` at little-endian start bit ``start`` of the frame."""
+
+    spec: SignalSpec
+    part: int
+    start: int
+
+
+@dataclass(frozen=True)
+class FixedLayout:
+    """The CAN form of one message type for one frame kind (classic or FD)."""
+
+    msg_type: MsgType
+    fn: FunctionCode
+    fd: bool
+    signals: tuple[Placed, ...]
+    parts: int
+    length: int  # bytes of every frame of this message (classic: <= 8; FD: a valid FD length)
+    part_bytes: tuple[int, ...]  # bytes each part needs (header included)
+
+    @property
+    def name(self) -> str:
+        return self.msg_type.name
+
+
+def unwrap_seq(seq11: int, reference: int) -> int:
+    """16-bit sequence nearest to ``reference`` (mod 2**16) whose low 11 bits are ``seq11``."""
+    span = 1 << SEQ_BITS
+    delta = (int(seq11) - int(reference)) % span
+    if delta >= span // 2:
+        delta -= span
+    return (int(reference) + delta) & 0xFFFF
+
+
+def _place(signals: list[SignalSpec], part_bits: int) -> tuple[list[Placed], int, list[int]]:
+    placed: list[Placed] = []
+    part, used = 0, 0
+    used_by_part = [0]
+    for s in signals:
+        if s.bits > part_bits:
+            raise AssertionError(f"signal {s.name} ({s.bits} bits) cannot fit a part")
+        if used + s.bits > part_bits:
+            part, used = part + 1, 0
+            used_by_part.append(0)
+        placed.append(Placed(s, part, HEADER_BITS + used))
+        used += s.bits
+        used_by_part[part] = used
+    nparts = part + 1
+    if nparts > MAX_PARTS:
+        raise AssertionError(f"{nparts} parts do not fit the {PART_BITS}-bit part index")
+    return placed, nparts, [(HEADER_BITS + u + 7) // 8 for u in used_by_part]
+
+
+def _q16(name: str, scale: float, unit: str) -> SignalSpec:
+    return SignalSpec(name, 16, True, scale, unit, "int16; -32768 = unknown (NaN)")
+
+
+def _servo_names(prefix: str) -> list[str]:
+    return [f"{prefix}_{i + 1:02d}" for i in range(CAN_SERVOS)]
+
+
+U48_TIME = "u48 microseconds (clamped)"
+
+_SIGNALS: dict[MsgType, tuple[FunctionCode, list[SignalSpec]]] = {
+    MsgType.ESTOP: (FunctionCode.ESTOP, []),
+    MsgType.ESTOP_CLEAR: (FunctionCode.ESTOP_CLEAR, []),
+    MsgType.SERVO_FRAME: (
+        FunctionCode.SERVO_FRAME,
+        [
+            SignalSpec("apply_at_us", 32, unit="us", comment="board clock modulo 2**32"),
+            SignalSpec("mask", 16, comment="bit i = servo i+1 present"),
+            *[_q16(n, 1e-4, "rad") for n in _servo_names("target")],
+        ],
+    ),
+    MsgType.TIME_SYNC_REQUEST: (FunctionCode.TIME_SYNC_REQUEST, [SignalSpec("t1_host_us", 48, unit="us", comment=U48_TIME)]),
+    MsgType.TIME_SYNC_REPLY: (
+        FunctionCode.TIME_SYNC_REPLY,
+        [SignalSpec(n, 48, unit="us", comment=U48_TIME) for n in ("t1_host_us", "t2_board_us", "t3_board_us")],
+    ),
+    MsgType.FLUSH: (
+        FunctionCode.FLUSH,
+        [SignalSpec("from_us", 48, unit="us", comment=U48_TIME), SignalSpec("mask", 16, comment="bit i = servo i+1")],
+    ),
+    MsgType.ADVANCE: (FunctionCode.ADVANCE, [SignalSpec("until_us", 48, unit="us", comment=U48_TIME)]),
+    MsgType.ACK: (FunctionCode.ACK, [SignalSpec("ack_seq", 16), SignalSpec("msg_type", 8)]),
+    MsgType.NACK: (FunctionCode.NACK, [SignalSpec("ack_seq", 16), SignalSpec("msg_type", 8), SignalSpec("reason", 8)]),
+    MsgType.TELEMETRY: (
+        FunctionCode.TELEMETRY,
+        [
+            SignalSpec("board_time_us", 48, unit="us", comment=U48_TIME),
+            *[_q16(n, 1e-4, "rad") for n in _servo_names("position")],
+            *[_q16(n, 1e-3, "rad/s") for n in _servo_names("velocity")],
+            *[_q16(n, 1e-3, "N*m") for n in _servo_names("effort")],
+            _q16("imu_roll", 1e-4, "rad"),
+            _q16("imu_pitch", 1e-4, "rad"),
+            _q16("imu_yaw", 1e-4, "rad"),
+            SignalSpec("faults", 16, comment="FaultFlags"),
+            SignalSpec("buffer_fill", 16),
+            SignalSpec("last_applied_seq", 16),
+            SignalSpec("late_count", 24, comment="clamped"),
+            SignalSpec("dropped_count", 24, comment="clamped"),
+            SignalSpec("link_errors", 24, comment="clamped"),
+        ],
+    ),
+}
+# Heartbeats exist in both directions with their own identifiers (one transmitter per id).
+HEARTBEAT_SIGNALS = [SignalSpec("sender_time_us", 48, unit="us", comment=U48_TIME)]
+
+
+def _build(msg_type: MsgType, fn: FunctionCode, signals: list[SignalSpec], fd: bool) -> FixedLayout:
+    placed, nparts, part_bytes = _place(signals, FD_PART_BITS if fd else CLASSIC_PART_BITS)
+    longest = max(part_bytes)
+    length = fd_length(longest) if fd else (8 if nparts > 1 else longest)
+    return FixedLayout(msg_type, fn, fd, tuple(placed), nparts, length, tuple(part_bytes))
+
+
+def _all_layouts() -> dict[tuple[FunctionCode, bool], FixedLayout]:
+    out: dict[tuple[FunctionCode, bool], FixedLayout] = {}
+    for fd in (False, True):
+        for t, (fn, sigs) in _SIGNALS.items():
+            out[(fn, fd)] = _build(t, fn, sigs, fd)
+        for fn in (FunctionCode.HEARTBEAT_HOST, FunctionCode.HEARTBEAT_BOARD):
+            out[(fn, fd)] = _build(MsgType.HEARTBEAT, fn, HEARTBEAT_SIGNALS, fd)
+    return out
+
+
+#: (function code, is_fd) -> layout, for every fixed-layout function code.
+FIXED_LAYOUTS: dict[tuple[FunctionCode, bool], FixedLayout] = _all_layouts()

@@ -1,0 +1,168 @@
+"""Write ``protocol/coco.dbc`` (classic CAN) and ``protocol/coco_fd.dbc`` (CAN FD) from the layouts.
+
+``python -m protocol.can.make_dbc [--nodes 1,2] [--out-dir protocol] [--check]`` builds a cantools
+database from :data:`protocol.can.layouts.FIXED_LAYOUTS`: one DBC message per fixed-layout
+function code and node (``SERVO_FRAME_N1`` = 0x081 ...), plus the broadcast ``ESTOP_ALL`` (0x000).
+A multi-part message is a multiplexed DBC message: the 5-bit ``part`` signal is the multiplexer
+and every other signal belongs to the part it is placed in. ISO-TP (bulk) identifiers are not in
+the DBC (their content is the serial payload codec, not a fixed layout). ``--check`` exits 1 when
+the checked-in files differ from what would be generated.
+
+This is the only module of ``protocol`` that imports cantools (it is a build tool, not runtime).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import cantools
+from cantools.database.can import Database, Message, Node, Signal
+from cantools.database.conversion import BaseConversion
+
+from protocol.can.ids import BROADCAST_NODE, BOARD_TO_HOST, FunctionCode, cob_id
+from protocol.can.layouts import FIXED_LAYOUTS, PART_BITS, SEQ_BITS, FixedLayout
+
+__all__ = ["CYCLE_MS", "build_database", "dbc_text", "main"]
+
+DEFAULT_NODES = (1, 2)
+#: Nominal periods (ms) at the default rates: servo frames 100 Hz, telemetry 50 Hz, heartbeats 50 ms.
+CYCLE_MS = {
+    FunctionCode.SERVO_FRAME: 10,
+    FunctionCode.TELEMETRY: 20,
+    FunctionCode.HEARTBEAT_HOST: 50,
+    FunctionCode.TIME_SYNC_REQUEST: 500,
+    FunctionCode.TIME_SYNC_REPLY: 500,
+}
+HOST = "HOST"
+
+
+def _board(node: int) -> str:
+    return f"BOARD_{node}"
+
+
+def _signals(layout: FixedLayout, receiver: str) -> list[Signal]:
+    multi = layout.parts > 1
+    sigs = [
+        Signal(
+            "part",
+            0,
+            PART_BITS,
+            is_multiplexer=multi,
+            comment="index of this frame among the message's parts",
+            receivers=[receiver],
+        ),
+        Signal("seq", PART_BITS, SEQ_BITS, comment="protocol sequence number modulo 2**11", receivers=[receiver]),
+    ]
+    for p in layout.signals:
+        s = p.spec
+        lo, hi = (-(1 << (s.bits - 1)), (1 << (s.bits - 1)) - 1) if s.signed else (0, (1 << s.bits) - 1)
+        sigs.append(
+            Signal(
+                s.name,
+                p.start,
+                s.bits,
+                is_signed=s.signed,
+                conversion=BaseConversion.factory(scale=s.scale, offset=0, is_float=False),
+                minimum=lo * s.scale,
+                maximum=hi * s.scale,
+                unit=s.unit or None,
+                comment=s.comment or None,
+                multiplexer_ids=[p.part] if multi else None,
+                multiplexer_signal="part" if multi else None,
+                receivers=[receiver],
+            )
+        )
+    return sigs
+
+
+def build_database(fd: bool, nodes: tuple[int, ...] = DEFAULT_NODES) -> Database:
+    """A cantools database of every fixed-layout message for ``nodes`` (classic or FD)."""
+    messages: list[Message] = []
+    for node in nodes:
+        for (fn, is_fd), layout in sorted(FIXED_LAYOUTS.items(), key=lambda kv: int(kv[0][0])):
+            if is_fd != fd:
+                continue
+            to_host = fn in BOARD_TO_HOST
+            sender, receiver = (_board(node), HOST) if to_host else (HOST, _board(node))
+            messages.append(
+                Message(
+                    cob_id(fn, node),
+                    f"{fn.name}_N{node}",
+                    layout.length,
+                    _signals(layout, receiver),
+                    senders=[sender],
+                    cycle_time=CYCLE_MS.get(fn),
+                    comment=f"{layout.msg_type.name}, {layout.parts} part(s) tied by seq",
+                    is_fd=fd,
+                )
+            )
+    estop = FIXED_LAYOUTS[(FunctionCode.ESTOP, fd)]
+    messages.insert(
+        0,
+        Message(
+            cob_id(FunctionCode.ESTOP, BROADCAST_NODE),
+            "ESTOP_ALL",
+            estop.length,
+            _signals(estop, _board(nodes[0])),
+            senders=[HOST],
+            comment="broadcast emergency stop: every board holds",
+            is_fd=fd,
+        ),
+    )
+    node_list = [Node(HOST, comment="GhostShell host")] + [Node(_board(n), comment=f"CoCo board, node id {n}") for n in nodes]
+    # start from a skeleton that carries the BusType attribute: cantools marks FD frames
+    # (VFrameFormat StandardCAN_FD) only on a bus declared "CAN FD"
+    db = cantools.database.load_string(_SKELETON.format(bus="CAN FD" if fd else "CAN"), database_format="dbc")
+    assert isinstance(db, Database)
+    db.version = "coco-1"
+    db.messages.extend(messages)
+    db.nodes.extend(node_list)
+    db.refresh()
+    return db
+
+
+_SKELETON = '''VERSION ""
+
+NS_ :
+
+BS_:
+
+BU_:
+
+BA_DEF_  "BusType" STRING ;
+BA_DEF_DEF_  "BusType" "";
+BA_ "BusType" "{bus}";
+'''
+
+
+def dbc_text(fd: bool, nodes: tuple[int, ...] = DEFAULT_NODES) -> str:
+    """The DBC file text (deterministic)."""
+    return build_database(fd, nodes).as_dbc_string().replace("\r\n", "\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m protocol.can.make_dbc", description=__doc__.splitlines()[0])
+    ap.add_argument("--nodes", default=",".join(map(str, DEFAULT_NODES)), help="node ids, comma-separated")
+    ap.add_argument("--out-dir", type=Path, default=Path(__file__).resolve().parent.parent)
+    ap.add_argument("--check", action="store_true", help="compare with the files instead of writing")
+    args = ap.parse_args(argv)
+    nodes = tuple(int(n) for n in args.nodes.split(","))
+    status = 0
+    for fd, name in ((False, "coco.dbc"), (True, "coco_fd.dbc")):
+        text = dbc_text(fd, nodes)
+        path = args.out_dir / name
+        if args.check:
+            if not path.exists() or path.read_text() != text:
+                print(f"{path}: differs from the generated DBC (run python -m protocol.can.make_dbc)")
+                status = 1
+        else:
+            path.write_text(text)
+            cantools.database.load_file(str(path))  # it must load back
+            print(f"wrote {path}")
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())
