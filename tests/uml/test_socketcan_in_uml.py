@@ -1,6 +1,7 @@
 """Run ``tests/socketcan`` on a real Linux kernel with vcan, inside one User-Mode Linux boot.
 
-One boot for the whole directory (python start-up over hostfs is the cost, not the boot). The
+One boot for the whole directory (python start-up over hostfs is the cost, not the boot; the
+whole directory takes about a minute inside, three paper-task runs included). The
 inner pytest writes JUnit XML into the run dir; this test fails with the inner failures' text
 if anything failed, errored or was skipped (inside UML every prerequisite exists, so a skip
 there is a bug, not noise).
@@ -36,6 +37,8 @@ def _junit_summary(path: Path) -> tuple[dict[str, int], list[str]]:
     return totals, problems
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(900)
 def test_socketcan_suite_passes_inside_uml(tmp_path: Path) -> None:
     junit = tmp_path / "junit.xml"
     result = run_in_uml(
