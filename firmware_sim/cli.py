@@ -99,6 +99,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         cfg.validate()
     except ConfigError as e:
         parser.error(str(e))
+    if args.link.kind == "can" and args.link.interface == "virtual":
+        print(f"board: {args.link} is python-can's in-process virtual bus: a board process serving it could "
+              "never be reached by a host in another process; use can:slcan:pty or can:socketcan:vcan0 "
+              "(tests serve the virtual bus in-process with firmware_sim.transports.open_board_transport)",
+              file=sys.stderr)
+        return 2
     try:
         link = open_board_transport(args.link, baud=args.baud, log_path=args.log)
     except Exception as e:

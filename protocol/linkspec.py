@@ -16,7 +16,7 @@ Accepted forms (``parse_link_spec``)::
                                           CAN_BITRATE, ``~/.canrc`` / ``can.ini``); an empty field
                                           means "python-can's configured default".
 
-CAN options: ``node=N`` (the board's node id, 1..15, default 1), ``fd=0|1``,
+CAN options: ``node=N`` (the board's node id, 1..127, default 1), ``fd=0|1``,
 ``bitrate=BIT/S``, ``data_bitrate=BIT/S`` (CAN FD data phase) and the python-can bus
 arguments in :data:`CAN_PASSTHROUGH_OPTIONS` (kept as text in ``LinkSpec.options``;
 :meth:`LinkSpec.bus_kwargs` converts them). Anything else, a repeated option or a
@@ -45,7 +45,7 @@ __all__ = [
 ]
 
 DEFAULT_NODE = 1
-MAX_NODE = 15  # 4 node bits in the 11-bit identifier
+MAX_NODE = 127  # 7 node bits in the 11-bit identifier (CANopen COB-ID layout, protocol.can.ids)
 
 #: python-can bus arguments that may be given as spec options (value text -> int/bool/str in bus_kwargs)
 CAN_PASSTHROUGH_OPTIONS: frozenset[str] = frozenset({
@@ -82,7 +82,7 @@ class LinkSpec:
 
     ``kind`` is ``"serial"`` (``port`` set: ``"pty"``, a device path or a pyserial URL) or
     ``"can"`` (``interface``/``channel``: python-can names, ``""`` = python-can's configured
-    default; ``node``: the board's node id 1..15; ``fd``: CAN FD; ``bitrate`` /
+    default; ``node``: the board's node id 1..127; ``fd``: CAN FD; ``bitrate`` /
     ``data_bitrate`` in bit/s or None; ``options``: further python-can bus arguments as text).
     """
 

@@ -3,7 +3,7 @@
 The board's select loop owns all I/O, so the can-isotp state machine runs without threads:
 frames for the link are pushed in with :meth:`IsoTpLink.feed`, frames it emits go to ``send``,
 and :meth:`poll` advances it (call it whenever something arrived and every few ms while
-:attr:`busy`). Block size 0 and STmin 0: one flow control per message, no pacing.
+:attr:`busy`). Block size 0 and STmin 0: one flow control per message, no pacing; classic frames padded to 8 bytes.
 (The host keeps its own copy of this small wrapper: host and board never import each other.)
 """
 
@@ -39,6 +39,9 @@ class IsoTpLink:
             "rx_flowcontrol_timeout": 1000,
             "rx_consecutive_frame_timeout": 1000,
             "wftmax": 0,
+            # classic frames padded to 8 bytes (ISO 15765-2 padding): every frame of a link then has
+            # one length, which the DBC describes (protocol/coco.dbc, BULK_* messages)
+            "tx_padding": None if fd else 0xCC,
         }
         self.layer = isotp.TransportLayerLogic(
             rxfn=self._rxfn,

@@ -1,4 +1,6 @@
-"""``ghostshell log decode FILE``: print a frame log (JSON lines, :mod:`protocol.framelog`) readably."""
+"""``ghostshell log decode FILE``: print a frame log readably: serial JSON Lines (:mod:`protocol.framelog`),
+or a CAN log in a python-can format (``.log`` candump, ``.asc``, ``.blf``: through the DBC, see
+:mod:`host.commands.canlog_decode`)."""
 
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ __all__ = ["configure", "decode_file", "main"]
 def configure(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     p = sub.add_parser("decode", help="print every record of a frame log, one line each")
-    p.add_argument("file", metavar="FILE", help="a log written with --log (by the board or the host)")
+    p.add_argument("file", metavar="FILE", help="a log written with --log (by the board or the host): .jsonl serial; .log/.asc/.blf CAN")
     p.add_argument("--type", action="append", default=None, metavar="NAME",
                    help="only records of this message type (repeatable), e.g. --type TELEMETRY")
     add_link_argument(p, default=None, required=False, help="the link the log was recorded on (default: by the file's suffix; "
@@ -55,11 +57,16 @@ def decode_file(path: str, out=sys.stdout, err=sys.stderr, types: list[str] | No
 
 
 def main(args: argparse.Namespace) -> int:
-    if args.link is not None and args.link.kind != "serial":
-        print(f"ghostshell log: decoding logs of {args.link} needs the CAN log reader, which is not available",
-              file=sys.stderr)
-        return 2
+    from host.link.canlog import CAN_LOG_SUFFIXES
+
+    is_can = (args.link is not None and args.link.kind == "can") or (
+        args.link is None and args.file.lower().endswith(CAN_LOG_SUFFIXES))
     try:
+        if is_can:
+            from host.commands.canlog_decode import decode_can_file
+
+            node = args.link.node if args.link is not None and args.link.kind == "can" else None
+            return decode_can_file(args.file, sys.stdout, sys.stderr, types=args.type, node=node)
         return decode_file(args.file, types=args.type)
     except BrokenPipeError:  # e.g. piped into head
         return 0

@@ -321,10 +321,9 @@ class BoardClient:
 
     async def _connect_once(self) -> None:
         transport = self._get_transport()
-        self.port_name = transport.name
-        port = self.port_name
         self._lost.clear()
         await transport.connect(self._on_items, self._on_lost)
+        self.port_name = port = transport.name  # a callable spec resolves on connect
         try:
             caps = await self._handshake()
             self.caps = caps

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from host.link.board_process import start_board
+from host.link.canlog import CAN_LOG_SUFFIXES, can_last_sim_state, read_can_host_to_board
 from host.link.errors import LinkDown, LinkError, LinkTimeout
 from host.link.transports import open_transport
 from host.run import artefacts
@@ -41,7 +42,7 @@ __all__ = ["LOG_READERS", "ReplayError", "ReplayResult", "find_host_log", "read_
            "read_serial_log", "replay"]
 
 #: host log file names looked for in a run folder, in order
-HOST_LOG_NAMES = ("host_frames.jsonl", "host.jsonl")
+HOST_LOG_NAMES = ("host_frames.jsonl", "host.jsonl", "host_frames.log", "host_frames.asc", "host_frames.blf")
 
 
 class ReplayError(LinkError):
@@ -70,10 +71,16 @@ def _serial_last_sim_state(path: Path) -> SimState | None:
     return last
 
 
-#: suffix -> reader of host-to-board messages ``(t, seq, message)``; CAN adds ``.blf``, ``.asc``, ``.log``
-LOG_READERS: dict[str, Callable[[Path], Iterator[tuple[float, int, Message]]]] = {".jsonl": read_serial_log}
+#: suffix -> reader of host-to-board messages ``(t, seq, message)``; CAN: python-can's formats
+LOG_READERS: dict[str, Callable[[Path], Iterator[tuple[float, int, Message]]]] = {
+    ".jsonl": read_serial_log,
+    **{suffix: read_can_host_to_board for suffix in CAN_LOG_SUFFIXES},
+}
 #: suffix -> the last ground truth the recording host received (None if the format cannot say)
-LAST_SIM_STATE: dict[str, Callable[[Path], SimState | None]] = {".jsonl": _serial_last_sim_state}
+LAST_SIM_STATE: dict[str, Callable[[Path], SimState | None]] = {
+    ".jsonl": _serial_last_sim_state,
+    **{suffix: can_last_sim_state for suffix in CAN_LOG_SUFFIXES},
+}
 
 
 def find_host_log(path: Path) -> Path:

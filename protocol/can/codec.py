@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import struct
+from functools import lru_cache
 from typing import Any
 
 from protocol import messages as m
@@ -238,14 +239,19 @@ def raw_to_message(msg_type: MsgType, raw: dict[str, int]) -> Message:
 # --- frames ------------------------------------------------------------------------------------
 
 
+@lru_cache(maxsize=None)
+def _part_signals(layout: FixedLayout, part: int) -> tuple[tuple[str, int, int, bool, int], ...]:
+    """(name, start bit, bits, signed, bit mask) of the signals in one part (cached per layout)."""
+    return tuple(
+        (p.spec.name, p.start, p.spec.bits, p.spec.signed, (1 << p.spec.bits) - 1) for p in layout.signals if p.part == part
+    )
+
+
 def pack_part(layout: FixedLayout, part: int, seq: int, raw: dict[str, int]) -> bytes:
     """Data bytes of part ``part`` of a message (``layout.length`` bytes, unused bits zero)."""
     word = (part & 0x1F) | ((seq & SEQ_MASK) << 5)
-    for p in layout.signals:
-        if p.part != part:
-            continue
-        v = int(raw[p.spec.name])
-        word |= (v & ((1 << p.spec.bits) - 1)) << p.start
+    for name, start, _bits, _signed, mask in _part_signals(layout, part):
+        word |= (int(raw[name]) & mask) << start
     return word.to_bytes(layout.length, "little")
 
 
@@ -253,13 +259,11 @@ def unpack_part(layout: FixedLayout, part: int, data: bytes) -> dict[str, int]:
     """Raw signal values of one part's data (the caller checked the length)."""
     word = int.from_bytes(data, "little")
     out: dict[str, int] = {}
-    for p in layout.signals:
-        if p.part != part:
-            continue
-        v = (word >> p.start) & ((1 << p.spec.bits) - 1)
-        if p.spec.signed and v >> (p.spec.bits - 1):
-            v -= 1 << p.spec.bits
-        out[p.spec.name] = v
+    for name, start, bits, signed, mask in _part_signals(layout, part):
+        v = (word >> start) & mask
+        if signed and v >> (bits - 1):
+            v -= 1 << bits
+        out[name] = v
     return out
 
 

@@ -4,8 +4,9 @@
 database from :data:`protocol.can.layouts.FIXED_LAYOUTS`: one DBC message per fixed-layout
 function code and node (``SERVO_FRAME_N1`` = 0x081 ...), plus the broadcast ``ESTOP_ALL`` (0x000).
 A multi-part message is a multiplexed DBC message: the 5-bit ``part`` signal is the multiplexer
-and every other signal belongs to the part it is placed in. ISO-TP (bulk) identifiers are not in
-the DBC (their content is the serial payload codec, not a fixed layout). ``--check`` exits 1 when
+and every other signal belongs to the part it is placed in. The ISO-TP (bulk) identifiers are in the DBC as opaque frames
+(PCI nibbles + bytes: their content is the serial payload codec, reassembled by ISO-TP), so a
+capture has no unknown frames. ``--check`` exits 1 when
 the checked-in files differ from what would be generated.
 
 This is the only module of ``protocol`` that imports cantools (it is a build tool, not runtime).
@@ -77,6 +78,29 @@ def _signals(layout: FixedLayout, receiver: str) -> list[Signal]:
     return sigs
 
 
+def _bulk_message(fn: FunctionCode, node: int, fd: bool, sender: str, receiver: str) -> Message:
+    """An ISO-TP frame: the protocol control information (PCI) nibble, then opaque bytes."""
+    length = 64 if fd else 8
+    sigs = [
+        Signal("isotp_pci_type", 4, 4, comment="ISO 15765-2 PCI: 0 single, 1 first, 2 consecutive, 3 flow control",
+               receivers=[receiver]),
+        Signal("isotp_pci_low", 0, 4, comment="SF length / FF length high nibble / CF index / FC status",
+               receivers=[receiver]),
+    ]
+    for i in range(1, min(length, 8)):
+        sigs.append(Signal(f"isotp_byte_{i}", 8 * i, 8, receivers=[receiver]))
+    return Message(
+        cob_id(fn, node),
+        f"{fn.name}_N{node}",
+        length,
+        sigs,
+        senders=[sender],
+        comment="ISO-TP (ISO 15765-2) segment of a bulk message: type u8, seq u16, protocol.codec payload"
+        + (" (FD frames are as long as their data needs)" if fd else " (padded to 8 bytes)"),
+        is_fd=fd,
+    )
+
+
 def build_database(fd: bool, nodes: tuple[int, ...] = DEFAULT_NODES) -> Database:
     """A cantools database of every fixed-layout message for ``nodes`` (classic or FD)."""
     messages: list[Message] = []
@@ -98,6 +122,11 @@ def build_database(fd: bool, nodes: tuple[int, ...] = DEFAULT_NODES) -> Database
                     is_fd=fd,
                 )
             )
+    for node in nodes:
+        for fn in (FunctionCode.BULK_TO_BOARD, FunctionCode.BULK_TO_HOST):
+            to_host = fn is FunctionCode.BULK_TO_HOST
+            sender, receiver = (_board(node), HOST) if to_host else (HOST, _board(node))
+            messages.append(_bulk_message(fn, node, fd, sender, receiver))
     estop = FIXED_LAYOUTS[(FunctionCode.ESTOP, fd)]
     messages.insert(
         0,

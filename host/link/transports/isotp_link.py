@@ -3,7 +3,7 @@
 Driven from the asyncio loop (no extra thread), like the board drives its copy from its select loop:
 frames for the link are pushed in with :meth:`IsoTpLink.feed`, frames it emits go to ``send``,
 and :meth:`poll` advances it (call it whenever something arrived and every few ms while
-:attr:`busy`). Block size 0 and STmin 0: one flow control per message, no pacing.
+:attr:`busy`). Block size 0 and STmin 0: one flow control per message, no pacing; classic frames padded to 8 bytes.
 (The board keeps its own copy of this small wrapper: host and board never import each other.)
 """
 
@@ -24,7 +24,7 @@ MAX_PENDING_SENDS = 256  # bulk messages queued before send() refuses
 class IsoTpLink:
     """ISO-TP with normal 11-bit addressing: receive on ``rxid``, transmit on ``txid``."""
 
-    def __init__(self, rxid: int, txid: int, fd: bool, send: Callable[[CanFrame], None]) -> None:
+    def __init__(self, rxid: int, txid: int, fd: bool, send: Callable[[CanFrame], None], *, listen: bool = False) -> None:
         self.rxid, self.txid = rxid, txid
         self._send = send
         self._rx: deque[isotp.CanMessage] = deque()
@@ -39,6 +39,10 @@ class IsoTpLink:
             "rx_flowcontrol_timeout": 1000,
             "rx_consecutive_frame_timeout": 1000,
             "wftmax": 0,
+            # classic frames padded to 8 bytes (ISO 15765-2 padding): every frame of a link then has
+            # one length, which the DBC describes (protocol/coco.dbc, BULK_* messages)
+            "tx_padding": None if fd else 0xCC,
+            "listen_mode": listen,  # True: reassemble only, never answer (reading a capture)
         }
         self.layer = isotp.TransportLayerLogic(
             rxfn=self._rxfn,

@@ -1,0 +1,162 @@
+"""CAN bus load of CoCo's real-time traffic: computed from the layouts, and measured from a capture.
+
+Computed: SERVO_FRAME at 100 Hz plus TELEMETRY at 50 Hz for 12 servos (the hot path; TIME_SYNC at
+2 Hz included; heartbeats are not sent while frames stream; SIM_STATE is emulator-only ground truth
+and listed apart), on classic CAN at 1 Mbit/s and on CAN FD (1 Mbit/s arbitration, 2 or 5 Mbit/s
+data phase), nominal and with worst-case bit stuffing.
+
+Frame lengths (11-bit identifier, n data bytes):
+
+* classic CAN (ISO 11898-1; worst-case stuffing after Davis, Burns, Bril, Lukkien, "Controller Area
+  Network (CAN) schedulability analysis: Refuted, revisited and revised", Real-Time Systems 35, 2007,
+  eq. 2): ``bits = 47 + 8n + floor((34 + 8n - 1) / 4)``; 47 + 8n without stuffing.
+* CAN FD (ISO 11898-1:2015, Bosch CAN FD specification 1.0): at the nominal rate SOF..BRS (17 bits,
+  worst case + floor(16/4) dynamic stuff bits) and CRC delimiter, ACK slot + delimiter, EOF, IFS
+  (13 bits); at the data rate ESI, DLC, the data (worst case + floor((5 + 8n - 1)/4) dynamic stuff
+  bits), the stuff count (4) and CRC (17 bits up to 16 data bytes, else 21) with one fixed stuff bit
+  per 4 bits: ``ceil((4 + crc) / 4)``. Time = nominal bits / nominal rate + data bits / data rate.
+
+Measured: ``--log FILE`` (a python-can log of a run: ``host_frames.log``) sums the same worst-case
+bit times of every frame in the capture and divides by the board time the capture spans (from its
+TELEMETRY reports, so a lockstep run measures the load it would put on a real bus). Without
+``--log`` a short run is made first (``ghostshell run --task 26 --link can:slcan:pty --lockstep``).
+
+Run: ``python bench/bench_canload.py [--log FILE] [--fd-log FILE] [--no-run]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import subprocess
+import sys
+import tempfile
+from collections import Counter
+from pathlib import Path
+
+from protocol.can.codec import Sender, encode_fixed, encode_bulk
+from protocol.messages import MsgType, TimeSyncRequest, TimeSyncReply
+from protocol.samples import SAMPLES, servo_frame_12, telemetry_12
+
+NOMINAL = 1_000_000
+
+
+def classic_bits(n: int, stuffing: bool = True) -> int:
+    return 47 + 8 * n + ((34 + 8 * n - 1) // 4 if stuffing else 0)
+
+
+def fd_time_s(n: int, data_rate: int, stuffing: bool = True, nominal: int = NOMINAL) -> float:
+    arb = 17 + (16 // 4 if stuffing else 0) + 13
+    crc = 17 if n <= 16 else 21
+    data = 1 + 4 + 8 * n + ((5 + 8 * n - 1) // 4 if stuffing else 0) + 4 + crc + math.ceil((4 + crc) / 4)
+    return arb / nominal + data / data_rate
+
+
+def frame_time_s(n: int, fd: bool, data_rate: int, stuffing: bool = True) -> float:
+    return fd_time_s(n, data_rate, stuffing) if fd else classic_bits(n, stuffing) / NOMINAL
+
+
+def _isotp_frames(sdu_len: int, fd: bool) -> list[int]:
+    """Frame data lengths of one ISO-TP transfer (padded classic frames; FD frames as long as needed)."""
+    if fd:
+        if sdu_len <= 62:
+            return [min(x for x in (8, 12, 16, 20, 24, 32, 48, 64) if x >= sdu_len + 2)]
+        out, rest = [64], sdu_len - 62
+        while rest > 0:
+            chunk = min(rest, 63)
+            out.append(min(x for x in (8, 12, 16, 20, 24, 32, 48, 64) if x >= chunk + 1))
+            rest -= chunk
+        return out + [8]  # + flow control
+    if sdu_len <= 7:
+        return [8]
+    cf = math.ceil((sdu_len - 6) / 7)
+    return [8] * (1 + cf) + [8]  # first frame, consecutive frames, flow control
+
+
+def computed(fd: bool, data_rate: int) -> list[tuple[str, float, int, float, float]]:
+    """(what, Hz, frames per message, nominal load, worst-case load) rows (load as a fraction of the bus)."""
+    rows = []
+    traffic = [
+        ("SERVO_FRAME (host)", 100.0, encode_fixed(servo_frame_12(), 1, 1, fd, Sender.HOST)),
+        ("TELEMETRY (board)", 50.0, encode_fixed(telemetry_12(), 1, 1, fd, Sender.BOARD)),
+        ("TIME_SYNC req+reply", 2.0, encode_fixed(TimeSyncRequest(1), 1, 1, fd, Sender.HOST)
+         + encode_fixed(TimeSyncReply(1, 2, 3), 1, 1, fd, Sender.BOARD)),
+    ]
+    for what, hz, frames in traffic:
+        nom = sum(frame_time_s(len(f.data), fd, data_rate, False) for f in frames) * hz
+        worst = sum(frame_time_s(len(f.data), fd, data_rate, True) for f in frames) * hz
+        rows.append((what, hz, len(frames), nom, worst))
+    sim = _isotp_frames(len(encode_bulk(SAMPLES[MsgType.SIM_STATE], 1)), fd)
+    rows.append(("SIM_STATE (emulator, ISO-TP)", 50.0, len(sim),
+                 sum(frame_time_s(n, fd, data_rate, False) for n in sim) * 50,
+                 sum(frame_time_s(n, fd, data_rate, True) for n in sim) * 50))
+    return rows
+
+
+def print_computed() -> None:
+    for fd, rate, label in ((False, NOMINAL, "classic CAN, 1 Mbit/s"),
+                            (True, 2_000_000, "CAN FD, 1 Mbit/s arbitration / 2 Mbit/s data"),
+                            (True, 5_000_000, "CAN FD, 1 Mbit/s arbitration / 5 Mbit/s data")):
+        print(f"\ncomputed: {label}")
+        print(f"  {'traffic':<30} {'Hz':>5} {'frames':>6} {'nominal':>9} {'worst':>9}")
+        tot_n = tot_w = 0.0
+        for what, hz, nf, nom, worst in computed(fd, rate):
+            print(f"  {what:<30} {hz:5.0f} {nf:6d} {100 * nom:8.2f}% {100 * worst:8.2f}%")
+            if "SIM_STATE" not in what:
+                tot_n, tot_w = tot_n + nom, tot_w + worst
+        print(f"  {'total (without SIM_STATE)':<30} {'':5} {'':6} {100 * tot_n:8.2f}% {100 * tot_w:8.2f}%")
+
+
+def measure(path: Path, data_rate: int = 2_000_000) -> None:
+    from host.link.canlog import iter_can_log
+    from protocol.can import CanItem
+    from protocol.messages import Telemetry
+
+    busy = 0.0
+    by_kind: Counter[str] = Counter()
+    frames = 0
+    t_min = t_max = None
+    for e in iter_can_log(path):
+        frames += 1
+        dt = frame_time_s(len(e.frame.data), e.frame.is_fd, data_rate, True)
+        busy += dt
+        by_kind[(e.dbc_name or "UNKNOWN").rsplit("_N", 1)[0]] += dt  # type: ignore[assignment]
+        for it in e.items:
+            if isinstance(it, CanItem) and isinstance(it.msg, Telemetry):
+                t = it.msg.board_time_us * 1e-6
+                t_min = t if t_min is None else min(t_min, t)
+                t_max = t if t_max is None else max(t_max, t)
+    if t_min is None or t_max is None or t_max <= t_min:
+        print(f"\nmeasured: {path}: no telemetry to time the capture by")
+        return
+    span = t_max - t_min
+    print(f"\nmeasured from {path}: {frames} frames over {span:.2f} s of board time (FD data phase at {data_rate // 1_000_000} Mbit/s)")
+    for k, v in sorted(by_kind.items(), key=lambda kv: -kv[1]):
+        print(f"  {k:<28} {100 * v / span:8.2f}%")
+    print(f"  {'total (worst-case stuffing)':<28} {100 * busy / span:8.2f}%")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--log", type=Path, help="a python-can log of a run (host_frames.log)")
+    ap.add_argument("--no-run", action="store_true", help="only the computed numbers unless --log is given")
+    ap.add_argument("--fd", action="store_true", help="make the capture run on CAN FD (can:slcan:pty?fd=1)")
+    args = ap.parse_args()
+    print_computed()
+    log = args.log
+    if log is None and not args.no_run:
+        out = Path(tempfile.mkdtemp(prefix="canload-"))
+        link = "can:slcan:pty?fd=1" if args.fd else "can:slcan:pty"
+        cmd = [sys.executable, "-m", "host.cli", "run", "--task", "26", "--link", link, "--lockstep", "--out", str(out)]
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+        if r.returncode != 0:
+            print(f"the capture run failed:\n{r.stdout[-1000:]}\n{r.stderr[-1000:]}")
+            return 1
+        log = out / "host_frames.log"
+    if log is not None:
+        measure(log)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

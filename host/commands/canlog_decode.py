@@ -1,0 +1,69 @@
+"""``ghostshell log decode`` for CAN logs: every frame through the DBC (cantools), messages reassembled.
+
+One line per frame: time, direction, identifier, the DBC message name and raw signal values (or
+``UNKNOWN`` for a frame the DBC does not describe), then, indented, the protocol message the frame
+completed (fixed layouts from their parts, bulk from ISO-TP) or the decode error.
+"""
+
+from __future__ import annotations
+
+from typing import IO
+
+from protocol import framelog
+
+__all__ = ["decode_can_file"]
+
+
+def _fmt(v: object) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    return str(v)
+
+
+def decode_can_file(path: str, out: IO[str], err: IO[str], types: list[str] | None = None,
+                    node: int | None = None, frames: bool = True) -> int:
+    """Print a python-can log; exit code 0, 1 (no frames or unknown frames) or 2 (unreadable)."""
+    from host.link.canlog import iter_can_log
+    from protocol.can import CanItem
+    from protocol.can.ids import split_id
+
+    wanted = {t.upper() for t in types} if types else None
+    n = unknown = errors = 0
+    try:
+        for e in iter_can_log(path):
+            n += 1
+            if node is not None and split_id(e.frame.arbitration_id)[1] not in (node, 0):
+                continue
+            if e.dbc_name is None:
+                unknown += 1
+            if frames and wanted is None:
+                sig = " ".join(f"{k}={_fmt(v)}" for k, v in e.signals.items())
+                name = e.dbc_name or "UNKNOWN"
+                fd = " FD" if e.frame.is_fd else ""
+                out.write(f"{e.t:17.6f} {e.direction} {e.frame.arbitration_id:03X}{fd} [{len(e.frame.data):2d}] "
+                          f"{name:<22} {sig if e.dbc_name else e.frame.data.hex()}\n")
+            for it in e.items:
+                if isinstance(it, CanItem):
+                    if wanted and it.msg_type.name not in wanted:
+                        continue
+                    fields = framelog.message_fields(it.msg)
+                    text = " ".join(f"{k}={_fmt(v)}" if k != "data" else f"data=<{len(str(v)) // 2} B>"
+                                    for k, v in fields.items())
+                    via = "ISO-TP" if it.bulk else f"{len(it.frames)} frame(s)"
+                    out.write(f"{'':17} {e.direction} #{it.seq:5d} {it.msg_type.name:<17} ({via}) {text}\n")
+                else:
+                    errors += 1
+                    if wanted is None or "ERROR" in wanted:
+                        out.write(f"{'':17} {e.direction} ERROR {it.kind.value}: {it.detail}\n")
+    except BrokenPipeError:  # piped into head
+        return 0
+    except (OSError, ValueError) as ex:
+        print(f"ghostshell log: cannot read {path} as a CAN log: {ex}", file=err)
+        return 2
+    if not n:
+        print(f"ghostshell log: {path} holds no CAN frames", file=err)
+        return 1
+    if unknown or errors:
+        print(f"ghostshell log: {n} frame(s), {unknown} not in the DBC, {errors} decode error(s)", file=err)
+        return 1
+    return 0

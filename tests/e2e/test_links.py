@@ -1,0 +1,35 @@
+"""``run --link``: a run on a board that is already serving a link, and links only the emulated board can create."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import anyio
+import pytest
+
+from host.link.board_process import start_board
+from host.link.errors import LinkError
+from host.run.runner import RunOptions, run_program
+from protocol.linkspec import parse_link_spec
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def test_run_on_a_running_board_given_by_its_link_spec(tmp_path: Path) -> None:
+    board = start_board(["--lockstep"], tmp_path / "board.stderr")
+    try:
+        opts = RunOptions(program='<face_emo emo="happy"/>', out=tmp_path / "run", lockstep=True, link=board.port)
+        report = anyio.run(run_program, opts, backend="asyncio")
+    finally:
+        board.stop()
+    assert report.summary.outcome == "done"
+    assert [c.function for c in report.calls] == ["face_emo"]
+    assert (tmp_path / "run" / "host_frames.jsonl").stat().st_size > 0
+    assert not (tmp_path / "run" / "board_frames.jsonl").exists()  # the run did not start a board of its own
+
+
+def test_pty_without_the_emulated_board_is_refused(tmp_path: Path) -> None:
+    opts = RunOptions(program="<face_emo emo=\"happy\"/>", out=tmp_path, link=parse_link_spec("pty"),
+                      emulate_board=False)
+    with pytest.raises(LinkError, match="emulated board creates"):
+        anyio.run(run_program, opts, backend="asyncio")
