@@ -11,12 +11,25 @@ Sections (each printed as p50/p99/max in microseconds):
 * ``raw``: one 8-byte frame to an echo process and back — python-can ``socketcan`` on vcan0
   (send + recv through the kernel's CAN stack, CAN_RAW sockets) beside 8 bytes over a pty pair
   (the serial transport's bottom layer, no COBS);
+* ``session``: the whole link stack (BoardClient, transport, board subprocess) for ``pty``,
+  ``can:socketcan:vcan0`` (classic: TIME_SYNC request 1 frame, reply 3 parts; TELEMETRY 17) and
+  ``can:socketcan:vcan0?fd=1``: TIME_SYNC round trip (host t4 - t1), and a SERVO_FRAME due at the
+  next tick + ADVANCE by one tick -> the telemetry that reports it applied (telemetry 500 Hz:
+  one report per tick). The board runs in lockstep: a realtime board (500 Hz MuJoCo) inside a
+  UML guest pinned to one shared CPU overruns its ticks and the CAN handshake's ISO-TP transfers
+  time out, so realtime numbers inside UML would measure the starved CPU, not the link. Then
+  2 s of board time of 100 Hz servo frames + 50 Hz telemetry are captured with candump and the
+  bus load is computed from the capture (``bench/bench_canload.py --log``: worst-case bit times
+  over the board time the capture spans; exact stuffing for classic frames here);
+* ``latency``: ``bench/bench_latency.py`` (token -> servo over paper tasks, realtime board) for
+  ``pty`` and ``can:socketcan:vcan0`` on ``--tasks`` (default 3,5,12);
 * ``load``: a ``candump -L`` capture of a 100 Hz x 12-servo frame stream plus 50 Hz telemetry-sized
   frames, read back with ``can.CanutilsLogReader``; the bus load on 1 Mbit/s classic CAN is the sum
   of each captured frame's exact on-wire length (bit stuffing computed on the frame's real bits,
   see :func:`classic_frame_bits`) over the capture's duration.
 
-Run: ``python bench/bench_can.py [--n 500] [--seconds 2] [--where auto|native|uml]``.
+Run: ``python bench/bench_can.py [--n 500] [--seconds 2] [--tasks 3,5,12] [--skip latency,...]
+[--where auto|native|uml]``.
 Numbers are printed, never asserted.
 """
 
@@ -39,6 +52,7 @@ sys.path.insert(0, str(ROOT))
 from support.uml import default_env, native_vcan, run_in_uml, socketcan_skip_reason  # noqa: E402
 
 CHANNEL = "vcan0"
+TICK_US = 2_000  # the board's 500 Hz control tick
 
 _CAN_ECHO = r"""
 import can, sys
@@ -67,7 +81,7 @@ while True:
 
 def _pct(name: str, xs: list[float]) -> str:
     a = np.asarray(xs)
-    return (f"{name:<46} n={len(a):4d}  p50={np.percentile(a, 50):7.0f} us  p99={np.percentile(a, 99):7.0f} us"
+    return (f"{name:<62} n={len(a):4d}  p50={np.percentile(a, 50):7.0f} us  p99={np.percentile(a, 99):7.0f} us"
             f"  max={a.max():7.0f} us")
 
 
@@ -211,14 +225,118 @@ def _worst_case_bits(dlc: int) -> int:
     return 47 + 8 * dlc + (34 + 8 * dlc - 1) // 4
 
 
+async def _session(link: str, n: int, capture: Path | None) -> None:
+    from host.link import BoardClient
+    from host.link.board_process import start_board
+    from protocol.messages import ServoFrame
+    from robots.coco import load_poses
+
+    from support.candump import CandumpCapture
+
+    neutral = load_poses()["neutral"]
+    board = start_board(["--lockstep", "--telemetry-rate", "500"], link=link)
+    try:
+        async with await BoardClient.connect(board.spec, handshake_timeout=20.0, reply_timeout=5.0) as c:
+            rtt = []
+            for _ in range(n):
+                t1, _t2, _t3, t4 = await c.sync_once(timeout=5.0)
+                rtt.append(t4 - t1)
+            lat = []
+            for _ in range(n):
+                t_send = time.monotonic()
+                due = c.board_now_estimate() + TICK_US
+                seq = c.send_frame(ServoFrame(due, 0xFFF, neutral))
+                await c.advance(due)
+                await c.wait_for(lambda t, s=seq: t.last_applied_seq == s, 5.0)
+                lat.append((time.monotonic() - t_send) * 1e6)
+            print(_pct(f"TIME_SYNC round trip, {link}", rtt), flush=True)
+            print(_pct(f"frame + ADVANCE -> telemetry shows it applied, {link}", lat), flush=True)
+    finally:
+        board.stop()
+    if capture is None:
+        return
+    board = start_board(["--lockstep"], link=link)  # default 50 Hz telemetry
+    try:
+        async with await BoardClient.connect(board.spec, handshake_timeout=20.0, reply_timeout=5.0) as c:
+            if True:  # 2 s of board time: 100 Hz servo frames + 50 Hz telemetry
+                start = c.board_now_estimate()
+                with CandumpCapture(CHANNEL, capture):
+                    for k in range(1, 201):
+                        c.send_frame(ServoFrame(start + 10_000 * k, 0xFFF, neutral))
+                        if k % 10 == 0:
+                            await c.advance(start + 10_000 * k)
+                            await c.wait_for(lambda t, u=start + 10_000 * k: t.board_time_us >= u, 5.0)
+    finally:
+        board.stop()
+
+
+def _board_span_s(path: Path) -> float:
+    """Board time (s) a capture spans, from the TELEMETRY reports in it (protocol's CAN decoder)."""
+    import can
+
+    from protocol.can import CanDecoder, CanFrame, CanItem
+    from protocol.messages import Telemetry
+
+    dec = CanDecoder(1, receiver="host")
+    times = []
+    for m in can.CanutilsLogReader(path):
+        for item in dec.feed(CanFrame(m.arbitration_id, bytes(m.data), m.is_fd, m.is_extended_id, m.is_remote_frame)):
+            if isinstance(item, CanItem) and isinstance(item.msg, Telemetry):
+                times.append(item.msg.board_time_us)
+    return (max(times) - min(times)) / 1e6 if len(times) > 1 else float("nan")
+
+
+def session_round_trips(n: int, out: Path) -> None:
+    """TIME_SYNC RTT and frame -> applied over pty, classic SocketCAN and CAN FD; the board-traffic capture."""
+    import asyncio
+
+    for link, cap in (("pty", None), (f"can:socketcan:{CHANNEL}", out / "board_run.log"),
+                      (f"can:socketcan:{CHANNEL}?fd=1", out / "board_run_fd.log")):
+        asyncio.run(_session(link, n, cap))
+    for cap in (out / "board_run.log", out / "board_run_fd.log"):
+        msgs = list(__import__("can").CanutilsLogReader(cap))
+        span = _board_span_s(cap)
+        classic = [m for m in msgs if not m.is_fd]
+        exact = sum(classic_frame_bits(m.arbitration_id, bytes(m.data)) for m in classic)
+        note = (f"; classic frames at their exact stuffed length: {exact / span / 1e4:.2f} % of 1 Mbit/s"
+                if len(classic) == len(msgs) else "")
+        print(f"capture {cap.name}: {len(msgs)} frames over {span:.2f} s of board time{note}; worst case "
+              f"(python bench/bench_canload.py --log {cap} --no-run):", flush=True)
+        proc = subprocess.run([sys.executable, str(ROOT / "bench" / "bench_canload.py"), "--log", str(cap), "--no-run"],
+                              capture_output=True, text=True, check=False)
+        lines = proc.stdout.splitlines()
+        start = next((i for i, ln in enumerate(lines) if "measured" in ln.lower()), len(lines))
+        for line in lines[start:] or proc.stderr.splitlines()[-3:]:
+            print("  bench_canload:", line.rstrip(), flush=True)
+
+
+def token_latency(tasks: str, out: Path) -> None:
+    """bench_latency.py over pty and SocketCAN, realtime, on ``tasks``: its summary lines."""
+    for link in ("pty", f"can:socketcan:{CHANNEL}"):
+        proc = subprocess.run([sys.executable, str(ROOT / "bench" / "bench_latency.py"), "--tasks", tasks, "--link", link,
+                               "--out", str(out / f"latency_{link.split(':')[0]}")],
+                              capture_output=True, text=True, check=False)
+        keep = [ln for ln in proc.stdout.splitlines() if "token -> servo" in ln or "ready -> servo" in ln]
+        print(f"token -> servo over {link} (tasks {tasks}, realtime):", flush=True)
+        for ln in keep or proc.stderr.splitlines()[-5:]:
+            print("  " + ln.strip(), flush=True)
+
+
 def inside(args: argparse.Namespace) -> None:
     print(f"kernel {os.uname().release}, {'UML' if os.environ.get('GHOSTSHELL_IN_UML') else 'native'}", flush=True)
-    print(_pct("raw 8-byte frame round trip, SocketCAN vcan0", raw_can_round_trip(args.n)), flush=True)
-    print(_pct("raw 8-byte round trip, pty pair", raw_pty_round_trip(args.n)), flush=True)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    print("bus load (100 Hz x 3 servo frames + 50 Hz x 2 telemetry frames):", measure_bus_load(args.seconds, out / "load.log"),
-          flush=True)
+    skip = set(args.skip.split(",")) if args.skip else set()
+    if "raw" not in skip:
+        print(_pct("raw 8-byte frame round trip, SocketCAN vcan0", raw_can_round_trip(args.n)), flush=True)
+        print(_pct("raw 8-byte round trip, pty pair", raw_pty_round_trip(args.n)), flush=True)
+    if "load" not in skip:
+        print("synthetic bus load (100 Hz x 3 + 50 Hz x 2 classic frames):",
+              measure_bus_load(args.seconds, out / "load.log"), flush=True)
+    if "session" not in skip:
+        session_round_trips(max(args.n // 5, 30), out)
+    if "latency" not in skip:
+        token_latency(args.tasks, out)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -226,6 +344,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--n", type=int, default=500, help="round trips per measurement")
     ap.add_argument("--seconds", type=float, default=2.0, help="length of the bus-load capture")
     ap.add_argument("--where", choices=("auto", "native", "uml"), default="auto")
+    ap.add_argument("--tasks", default="3,5,12", help="paper tasks for the token -> servo section")
+    ap.add_argument("--skip", default="", help="comma-separated sections to skip: raw,load,session,latency")
     ap.add_argument("--out", default=None, help="folder for captures (default: a temporary folder)")
     ap.add_argument("--inside", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -244,7 +364,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.monotonic()
     result = run_in_uml(
         [sys.executable, str(Path(__file__).resolve()), "--inside", "--n", str(args.n), "--seconds", str(args.seconds),
-         "--out", str(args.out)],
+         "--out", str(args.out), "--tasks", args.tasks, "--skip", args.skip],
         run_dir=run_dir,
         keep=[Path(args.out)],
         env=default_env({"GHOSTSHELL_IN_UML": "1"}),
