@@ -57,20 +57,13 @@ def frame_time_s(n: int, fd: bool, data_rate: int, stuffing: bool = True) -> flo
 
 
 def _isotp_frames(sdu_len: int, fd: bool) -> list[int]:
-    """Frame data lengths of one ISO-TP transfer (padded classic frames; FD frames as long as needed)."""
-    if fd:
-        if sdu_len <= 62:
-            return [min(x for x in (8, 12, 16, 20, 24, 32, 48, 64) if x >= sdu_len + 2)]
-        out, rest = [64], sdu_len - 62
-        while rest > 0:
-            chunk = min(rest, 63)
-            out.append(min(x for x in (8, 12, 16, 20, 24, 32, 48, 64) if x >= chunk + 1))
-            rest -= chunk
-        return out + [8]  # + flow control
-    if sdu_len <= 7:
-        return [8]
-    cf = math.ceil((sdu_len - 6) / 7)
-    return [8] * (1 + cf) + [8]  # first frame, consecutive frames, flow control
+    """Frame data lengths of one ISO-TP transfer (frames padded to 8 bytes, FD to 64), flow control included."""
+    size = 64 if fd else 8
+    if sdu_len <= size - (2 if fd else 1):
+        return [size]
+    first = size - (2 if sdu_len > 4095 else 2)  # FF: 2 PCI bytes
+    cf = math.ceil((sdu_len - first) / (size - 1))
+    return [size] * (1 + cf) + [size]  # first frame, consecutive frames, flow control
 
 
 def computed(fd: bool, data_rate: int) -> list[tuple[str, float, int, float, float]]:

@@ -18,11 +18,13 @@ suffix, ``.log`` candump, ``.asc``, ``.blf``; timestamps are wall-clock seconds)
 from __future__ import annotations
 
 import errno
+import heapq
 import os
 import sys
 import time
 import tty
 from collections import deque
+from pathlib import Path
 from typing import Any
 
 import can
@@ -49,6 +51,7 @@ __all__ = [
 ]
 
 FRAME_COST = 16  # backlog bytes per queued frame (a SocketCAN struct can_frame)
+SLCAN_WINDOW = 512  # SLCAN text bytes handed to the pty at a time; the rest waits in priority order
 BACKOFF_MIN_S = 0.001
 BACKOFF_MAX_S = 0.02
 
@@ -100,6 +103,18 @@ def from_can_message(msg: can.Message) -> CanFrame:
     )
 
 
+
+def open_can_logger(path: str | Path) -> Any:
+    """python-can's writer for ``path`` (format by suffix). A serial-style ``.jsonl`` name (what the
+    serial link would log) becomes the same name with ``.log`` (candump format)."""
+    p = Path(path)
+    if p.suffix.lower() == ".jsonl":
+        p = p.with_suffix(".log")
+    try:
+        return can.Logger(str(p))  # type: ignore[no-untyped-call]
+    except ValueError as e:
+        raise ValueError(f"cannot log CAN frames to {p}: {e} (use .log, .asc or .blf)") from None
+
 class CanBoardTransport(BoardTransport):
     """Shared CAN logic; subclasses read and write frames."""
 
@@ -113,7 +128,8 @@ class CanBoardTransport(BoardTransport):
         to_board, to_host = bulk_ids(self.node)
         self.bulk_rx_id = to_board
         self.isotp = IsoTpLink(rxid=to_board, txid=to_host, fd=self.fd, send=self._enqueue)
-        self._txq: deque[CanFrame] = deque()
+        self._txq: list[tuple[int, int, CanFrame]] = []  # heap: (identifier, order, frame)
+        self._order = 0
         self._retry_at: float | None = None
         self._backoff = BACKOFF_MIN_S
         self.tx_retries = 0
@@ -121,7 +137,7 @@ class CanBoardTransport(BoardTransport):
         self._periodic: bytes | None = None  # the newest SIM_STATE not yet handed to ISO-TP
         self.periodic_replaced = 0
         self.error_frames = 0
-        self.logger: Any = can.Logger(log_path) if log_path else None  # type: ignore[no-untyped-call]
+        self.logger: Any = open_can_logger(log_path) if log_path else None
 
     # subclass hooks ------------------------------------------------------------------------
 
@@ -132,10 +148,17 @@ class CanBoardTransport(BoardTransport):
         """Hand one frame to the wire; False if it must be retried later (nothing sent)."""
         raise NotImplementedError
 
+    def _wire_has_room(self) -> bool:
+        """False while the wire below still holds enough to keep it busy (frames then wait, by priority)."""
+        return True
+
     # ------------------------------------------------------------------------------------------
 
     def _enqueue(self, frame: CanFrame) -> None:
-        self._txq.append(frame)
+        # a CAN controller's transmit buffers go out lowest identifier first (bus priority);
+        # frames of one identifier (the parts of a message) keep their order
+        heapq.heappush(self._txq, (frame.arbitration_id, self._order, frame))
+        self._order += 1
 
     def _log(self, frame: CanFrame, is_rx: bool) -> None:
         if self.logger is not None:
@@ -156,16 +179,21 @@ class CanBoardTransport(BoardTransport):
             items.append(CanDecodeError(CanErrorKind.BULK, f"ISO-TP: {self.isotp.last_error}"))
         return to_frame_items(items)
 
+    def _take_line_errors(self) -> list[Frame | DecodeError]:
+        return []
+
     def receive(self, now: float, *, read: bool = True) -> list[Frame | DecodeError]:
         frames = self._read_frames() if read else []
+        errors = self._take_line_errors()
         if not frames and not self.isotp.busy:
-            return []
-        return self._handle_frames(frames)
+            return errors
+        return errors + self._handle_frames(frames)
 
     def queue(self, msg: Message, seq: int, now: float) -> None:
         try:
             if is_fixed(msg):
-                self._txq.extend(encode_fixed(msg, seq, self.node, self.fd, Sender.BOARD))
+                for f in encode_fixed(msg, seq, self.node, self.fd, Sender.BOARD):
+                    self._enqueue(f)
             elif isinstance(msg, SimState):
                 # periodic bulk: the newest report wins; it waits until the ISO-TP link is idle
                 if self._periodic is not None:
@@ -191,14 +219,14 @@ class CanBoardTransport(BoardTransport):
         if self._retry_at is not None and now < self._retry_at:
             return
         self._retry_at = None
-        while self._txq:
-            f = self._txq[0]
+        while self._txq and self._wire_has_room():
+            f = self._txq[0][2]
             if not self._write_frame(f):
                 self.tx_retries += 1
                 self._retry_at = now + self._backoff
                 self._backoff = min(self._backoff * 2, BACKOFF_MAX_S)
                 return
-            self._txq.popleft()
+            heapq.heappop(self._txq)
             self.tx_frames += 1
             self._backoff = BACKOFF_MIN_S
             self._log(f, False)
@@ -297,6 +325,7 @@ class SlcanBoardTransport(CanBoardTransport):
         self.channel_name = "slcan0"
         self.device = SlcanDevice()
         self._out = bytearray()
+        self._line_errors: list[str] = []
         self.dropped_closed = 0
 
     def fileno(self) -> int:
@@ -313,7 +342,15 @@ class SlcanBoardTransport(CanBoardTransport):
             raise
         events, reply = self.device.feed(data)
         self._out += reply
+        self._line_errors += [ev.error for ev in events if ev.error]
         return [ev.frame for ev in events if ev.frame is not None]
+
+    def _wire_has_room(self) -> bool:
+        return len(self._out) < SLCAN_WINDOW
+
+    def _take_line_errors(self) -> list[Frame | DecodeError]:
+        errs, self._line_errors = self._line_errors, []
+        return [DecodeError(DecodeErrorKind.LENGTH, f"SLCAN: {e}", b"") for e in errs]
 
     def _write_frame(self, frame: CanFrame) -> bool:
         if not self.device.is_open:
@@ -324,6 +361,13 @@ class SlcanBoardTransport(CanBoardTransport):
 
     def flush(self, now: float) -> None:
         super().flush(now)
+        while self._out:
+            self._write_out()
+            if self._out or not self._txq:
+                break
+            super().flush(now)  # the window drained: move the next frames (by priority) into it
+
+    def _write_out(self) -> None:
         while self._out:
             try:
                 n = os.write(self.master, self._out)

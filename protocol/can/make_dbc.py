@@ -96,7 +96,7 @@ def _bulk_message(fn: FunctionCode, node: int, fd: bool, sender: str, receiver: 
         sigs,
         senders=[sender],
         comment="ISO-TP (ISO 15765-2) segment of a bulk message: type u8, seq u16, protocol.codec payload"
-        + (" (FD frames are as long as their data needs)" if fd else " (padded to 8 bytes)"),
+        + (" (padded to 64 bytes)" if fd else " (padded to 8 bytes)"),
         is_fd=fd,
     )
 

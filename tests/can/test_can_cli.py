@@ -21,11 +21,13 @@ def test_task_26_over_slcan_lockstep(tmp_path: Path) -> None:
     r = _run("run", "--task", "26", "--link", "can:slcan:pty", "--lockstep", "--out", str(tmp_path))
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
     s = json.loads((tmp_path / "summary.json").read_text())
-    assert s["outcome"] == "done" and s["outcomes"]["done"] == 11
-    assert s["link"]["decode_errors"] == 0 if "link" in s else s["extra"]["link"]["decode_errors"] == 0
-    assert s["base_end"][0] - s["base_start"][0] > 0.05  # the two strides happened (8 cm over the pty too)
+    why = json.dumps(s)[:3000] + r.stdout[-1500:]
+    assert s["outcome"] == "done" and s["outcomes"]["done"] == 11, why
+    assert s["extra"]["link"]["decode_errors"] == 0, why
+    assert s["base_end"][0] - s["base_start"][0] > 0.05, why  # the two strides happened (8 cm over the pty too)
     d = _run("log", "decode", str(tmp_path / "board_frames.log"), "--type", "SERVO_FRAME", timeout=60)
-    assert d.returncode == 0 and d.stdout.count("SERVO_FRAME") == 1488, d.stderr[-500:]
+    assert d.returncode == 0, d.stderr[-500:]
+    assert d.stdout.count("SERVO_FRAME") == s["extra"]["link"]["frames_sent"], d.stderr[-500:]
 
 
 def test_virtual_bus_is_refused_for_a_board_process(tmp_path: Path) -> None:

@@ -3,9 +3,9 @@
 ``open_can_transport(spec, log_path=...)`` -> :class:`CanLinkTransport`. On :meth:`connect` it
 opens ``can.Bus(**spec.bus_kwargs())`` (python-can's own configuration, env vars and ``can.rc``,
 fills in the interface/channel the spec leaves empty) with a filter on the board's node id, and
-a ``can.Notifier`` delivers frames into the asyncio loop (python-can watches the bus's fd with
-``add_reader`` where it has one, e.g. SocketCAN and SLCAN, else reads in its thread and the
-frames are handed over with ``call_soon_threadsafe``). For ``slcan`` the 2 s ``sleep_after_open``
+frames reach the asyncio loop through ``loop.add_reader`` on the bus's fd where it has one
+(SocketCAN, SLCAN: every ready frame is drained with ``bus.recv(0)`` per wake-up), else through
+python-can's ``can.Notifier`` thread (the virtual bus), handed over with ``call_soon_threadsafe``. For ``slcan`` the 2 s ``sleep_after_open``
 python-can waits for real adapters defaults to 0 (a spec option overrides it).
 
 Fixed-layout messages become frames (:func:`protocol.can.encode_fixed`), the rest goes over
@@ -71,6 +71,18 @@ def _items(items: list[CanItem | CanDecodeError]) -> list[Frame | DecodeError]:
     return out
 
 
+
+def open_can_logger(path: str | Path) -> Any:
+    """python-can's writer for ``path`` (format by suffix). A serial-style ``.jsonl`` name (what the
+    serial link would log) becomes the same name with ``.log`` (candump format)."""
+    p = Path(path)
+    if p.suffix.lower() == ".jsonl":
+        p = p.with_suffix(".log")
+    try:
+        return can.Logger(str(p))  # type: ignore[no-untyped-call]
+    except ValueError as e:
+        raise ValueError(f"cannot log CAN frames to {p}: {e} (use .log, .asc or .blf)") from None
+
 class _Listener(can.Listener):
     """Hands every received message (or the bus error) to the loop thread."""
 
@@ -100,6 +112,7 @@ class CanLinkTransport(Transport):
         self._given_bus = bus
         self.bus: can.BusABC | None = None
         self._notifier: can.Notifier | None = None
+        self._reader_fd: int | None = None
         self._generation = 0
         self._on_receive: ReceiveHandler | None = None
         self._on_lost: LossHandler | None = None
@@ -115,7 +128,7 @@ class CanLinkTransport(Transport):
         to_board, to_host = bulk_ids(self.node)
         self._bulk_rx = to_host
         self.isotp = IsoTpLink(rxid=to_host, txid=to_board, fd=self.fd, send=self._enqueue)
-        self.logger: Any = can.Logger(str(log_path)) if log_path else None  # type: ignore[no-untyped-call]
+        self.logger: Any = open_can_logger(log_path) if log_path else None
         self._channel_name = spec.channel or "can0"
 
     @property
@@ -150,7 +163,32 @@ class CanLinkTransport(Transport):
         self.decoder = CanDecoder(self.node, "host")
         self.isotp = IsoTpLink(rxid=self._bulk_rx, txid=bulk_ids(self.node)[0], fd=self.fd, send=self._enqueue)
         self._txq.clear()
-        self._notifier = can.Notifier(bus, [_Listener(loop, self, self._generation)], timeout=0.05, loop=loop)
+        self._reader_fd = None
+        try:
+            fd = int(bus.fileno())
+        except (NotImplementedError, OSError, AttributeError, ValueError, TypeError):
+            fd = -1
+        if fd >= 0:
+            # the loop watches the bus's fd and drains every frame that is ready (python-can's Notifier
+            # would take one frame per readiness callback, too slow for a lockstep board's bursts)
+            loop.add_reader(fd, self._drain, self._generation)
+            self._reader_fd = fd
+        else:  # no fd (e.g. the virtual bus): python-can's Notifier reads in its thread
+            self._notifier = can.Notifier(bus, [_Listener(loop, self, self._generation)], timeout=0.05, loop=loop)
+
+    def _drain(self, generation: int) -> None:
+        bus = self.bus
+        for _ in range(1024):
+            if bus is None or generation != self._generation:
+                return
+            try:
+                msg = bus.recv(timeout=0)
+            except (can.CanError, OSError, ValueError) as e:
+                self._lose(f"CAN receive failed: {e}", generation)
+                return
+            if msg is None:
+                return
+            self._on_can(msg, generation)
 
     # --- receiving ------------------------------------------------------------------------
 
@@ -271,6 +309,12 @@ class CanLinkTransport(Transport):
             if h is not None:
                 h.cancel()
         self._retry = self._tick = None
+        if self._reader_fd is not None:
+            try:
+                asyncio.get_running_loop().remove_reader(self._reader_fd)
+            except (RuntimeError, ValueError, OSError):
+                pass
+            self._reader_fd = None
         if self._notifier is not None:
             try:
                 self._notifier.stop(timeout=0.2)

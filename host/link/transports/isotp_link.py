@@ -3,7 +3,7 @@
 Driven from the asyncio loop (no extra thread), like the board drives its copy from its select loop:
 frames for the link are pushed in with :meth:`IsoTpLink.feed`, frames it emits go to ``send``,
 and :meth:`poll` advances it (call it whenever something arrived and every few ms while
-:attr:`busy`). Block size 0 and STmin 0: one flow control per message, no pacing; classic frames padded to 8 bytes.
+:attr:`busy`). Block size 0 and STmin 0: one flow control per message, no pacing; frames padded to 8 (FD: 64) bytes.
 (The board keeps its own copy of this small wrapper: host and board never import each other.)
 """
 
@@ -39,9 +39,10 @@ class IsoTpLink:
             "rx_flowcontrol_timeout": 1000,
             "rx_consecutive_frame_timeout": 1000,
             "wftmax": 0,
-            # classic frames padded to 8 bytes (ISO 15765-2 padding): every frame of a link then has
-            # one length, which the DBC describes (protocol/coco.dbc, BULK_* messages)
-            "tx_padding": None if fd else 0xCC,
+            # frames padded to 8 bytes (classic) or 64 (FD) (ISO 15765-2 padding): every frame of a
+            # link then has one length, which the DBC describes (protocol/coco*.dbc, BULK_* messages)
+            "tx_padding": 0xCC,
+            "tx_data_min_length": 64 if fd else 8,
             "listen_mode": listen,  # True: reassemble only, never answer (reading a capture)
         }
         self.layer = isotp.TransportLayerLogic(
