@@ -23,6 +23,7 @@ import errno
 import os
 import re
 import shutil
+import socket
 import subprocess
 from typing import Any
 
@@ -57,10 +58,8 @@ def _qdisc_dropped(channel: str) -> int:
 
 def _receiver(open_bus: Any, channel: str) -> can.BusABC:
     rx = open_bus(channel)
-    # Room for the whole burst: SO_RCVBUFFORCE (root) past net.core.rmem_max.
-    import socket
-
-    rx.socket.setsockopt(socket.SOL_SOCKET, 33, 8 << 20)  # SO_RCVBUFFORCE
+    # room for the whole burst: SO_RCVBUFFORCE (root may pass net.core.rmem_max)
+    rx.socket.setsockopt(socket.SOL_SOCKET, getattr(socket, "SO_RCVBUFFORCE", 33), 8 << 20)
     return rx
 
 

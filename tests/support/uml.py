@@ -332,3 +332,37 @@ def _kill_leftovers(pgid: int) -> None:
         os.killpg(pgid, signal.SIGKILL)
     except ProcessLookupError:
         pass
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python tests/support/uml.py [--vcan vcan0,vcan1] [--timeout S] [--keep DIR] -- COMMAND ...``:
+    run COMMAND inside a UML guest with the vcans up; print its output; exit with its status."""
+    import argparse
+
+    ap = argparse.ArgumentParser(description="run a command on a UML kernel with SocketCAN vcan interfaces")
+    ap.add_argument("--vcan", default="vcan0", help="comma-separated interfaces to create (default vcan0)")
+    ap.add_argument("--classic", action="store_true", help="classic MTU 16 instead of CAN FD's 72")
+    ap.add_argument("--timeout", type=float, default=300.0)
+    ap.add_argument("--keep", action="append", default=[], help="a host folder under /tmp the command needs")
+    ap.add_argument("--run-dir", default=None, help="where the run's files go (default: a temporary folder)")
+    ap.add_argument("command", nargs=argparse.REMAINDER)
+    args = ap.parse_args(argv)
+    command = args.command[1:] if args.command[:1] == ["--"] else args.command
+    if not command:
+        ap.error("no command given (put it after --)")
+    run_dir = Path(args.run_dir) if args.run_dir else Path(tempfile.mkdtemp(prefix="uml_run_"))
+    try:
+        result = run_in_uml(command, run_dir=run_dir, vcans=tuple(v for v in args.vcan.split(",") if v),
+                            fd=not args.classic, keep=[Path(k) for k in args.keep], timeout=args.timeout,
+                            cwd=Path.cwd())
+    except UmlError as e:
+        print(f"uml: {e}", file=sys.stderr)
+        return 125
+    sys.stdout.write(result.stdout)
+    sys.stderr.write(result.stderr)
+    print(f"uml: exit status {result.returncode} after {result.seconds:.1f} s (files in {run_dir})", file=sys.stderr)
+    return result.returncode
+
+
+if __name__ == "__main__":
+    sys.exit(main())
