@@ -358,8 +358,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     reason = socketcan_skip_reason()
     if reason is not None:
-        print(f"bench_can: {reason}", file=sys.stderr)
-        return 2
+        print(f"bench_can: nothing measured: {reason}")
+        return 0
     run_dir = Path(args.out) / "uml"
     t0 = time.monotonic()
     result = run_in_uml(

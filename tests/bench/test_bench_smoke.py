@@ -20,6 +20,7 @@ CASES = {
     "bench_latency.py": ["--tasks", "5", "--lockstep"],
     "calibrate_gaits.py": ["--check"],
     "bench_canload.py": ["--no-run"],
+    "bench_can.py": ["--n", "20", "--seconds", "0.3", "--skip", "session,latency"],  # one short UML boot
 }
 
 
