@@ -135,6 +135,7 @@ class CanBoardTransport(BoardTransport):
         self.tx_retries = 0
         self.tx_frames = 0
         self._periodic: bytes | None = None  # the newest SIM_STATE not yet handed to ISO-TP
+        self._sdus: list[bytes] = []  # bulk messages ISO-TP completed, not yet delivered
         self.periodic_replaced = 0
         self.error_frames = 0
         self.logger: Any = open_can_logger(log_path) if log_path else None
@@ -173,11 +174,17 @@ class CanBoardTransport(BoardTransport):
                 continue
             items += self.decoder.feed(f)
         errs_before = self.isotp.errors
-        for sdu in self.isotp.poll():
+        self._poll()
+        sdus, self._sdus = self._sdus, []
+        for sdu in sdus:
             items.append(self.decoder.feed_bulk(sdu))
         if self.isotp.errors > errs_before:
             items.append(CanDecodeError(CanErrorKind.BULK, f"ISO-TP: {self.isotp.last_error}"))
         return to_frame_items(items)
+
+    def _poll(self) -> None:
+        """Advance ISO-TP; bulk messages it completes wait in ``_sdus`` for :meth:`receive` (never dropped)."""
+        self._sdus += self.isotp.poll()
 
     def _take_line_errors(self) -> list[Frame | DecodeError]:
         return []
@@ -185,7 +192,7 @@ class CanBoardTransport(BoardTransport):
     def receive(self, now: float, *, read: bool = True) -> list[Frame | DecodeError]:
         frames = self._read_frames() if read else []
         errors = self._take_line_errors()
-        if not frames and not self.isotp.busy:
+        if not frames and not self.isotp.busy and not self._sdus:
             return errors
         return errors + self._handle_frames(frames)
 
@@ -202,7 +209,7 @@ class CanBoardTransport(BoardTransport):
                 self._start_periodic()
             else:
                 self.isotp.send(encode_bulk(msg, seq))
-                self.isotp.poll()
+                self._poll()
         except (PayloadError, BufferError) as e:
             print(f"board: cannot send {type(msg).__name__} on CAN: {e}", file=sys.stderr, flush=True)
 
@@ -210,11 +217,11 @@ class CanBoardTransport(BoardTransport):
         if self._periodic is not None and not self.isotp.layer.transmitting() and self.isotp.layer.tx_queue.empty():
             sdu, self._periodic = self._periodic, None
             self.isotp.send(sdu)
-            self.isotp.poll()
+            self._poll()
 
     def flush(self, now: float) -> None:
         if self.isotp.busy:
-            self.isotp.poll()
+            self._poll()
         self._start_periodic()
         if self._retry_at is not None and now < self._retry_at:
             return

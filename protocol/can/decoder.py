@@ -127,8 +127,10 @@ class CanDecoder:
             return [self._error(CanErrorKind.REMOTE, f"remote frame on {aid:#05x}", frame)]
         data = bytes(frame.data)
         if fn is FunctionCode.ESTOP and len(data) < 2:
-            # an ESTOP is honoured whatever its length (e.g. ``cansend vcan0 001#``)
-            return [CanItem(self.last_seq, MsgType.ESTOP, raw_to_message(MsgType.ESTOP, {}), (frame,))]
+            # an ESTOP is honoured whatever its length (e.g. ``cansend vcan0 001#``); without a header
+            # it gets a sequence 1024 behind the last one seen, which no request in flight can have
+            seq = (self.last_seq - 1024) & 0xFFFF
+            return [CanItem(seq, MsgType.ESTOP, raw_to_message(MsgType.ESTOP, {}), (frame,))]
         if len(data) < 2:
             return [self._error(CanErrorKind.LENGTH, f"{fn.name}: {len(data)} byte(s), no header", frame)]
         fd = bool(frame.is_fd)

@@ -25,7 +25,7 @@ def test_task_26_over_slcan_lockstep(tmp_path: Path) -> None:
     assert s["outcome"] == "done" and s["outcomes"]["done"] == 11, why
     assert s["extra"]["link"]["decode_errors"] == 0, why
     assert s["base_end"][0] - s["base_start"][0] > 0.05, why  # the two strides happened (8 cm over the pty too)
-    d = _run("log", "decode", str(tmp_path / "board_frames.log"), "--type", "SERVO_FRAME", timeout=60)
+    d = _run("log", "decode", str(tmp_path / "host_frames.log"), "--type", "SERVO_FRAME", timeout=60)
     assert d.returncode == 0, d.stderr[-500:]
     assert d.stdout.count("SERVO_FRAME") == s["extra"]["link"]["frames_sent"], d.stderr[-500:]
 

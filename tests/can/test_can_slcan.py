@@ -123,3 +123,18 @@ def test_interruption_over_slcan(tmp_path: Path) -> None:
     flushes = [it.msg for e in iter_can_log(out / "host_frames.log") for it in e.items
                if isinstance(it, CanItem) and it.msg_type is MsgType.FLUSH]
     assert len(flushes) >= 2  # head and body channels
+
+
+def test_fd_over_slcan(tmp_path: Path) -> None:
+    board = start_board(["--lockstep"], tmp_path / "board.stderr", link="can:slcan:pty?fd=1")
+    try:
+        async def main() -> None:
+            async with await BoardClient.connect(board.spec, log_path=tmp_path / "host_frames.log") as c:
+                res = await move_to(c, POSES["sit"], duration_s=0.3)
+                assert res.max_error_deg < 3.0 and c.stats.decode_errors == 0
+
+        asyncio.run(main())
+    finally:
+        board.stop()
+    servo = [e for e in iter_can_log(tmp_path / "host_frames.log") if e.dbc_name == "SERVO_FRAME_N1"]
+    assert servo and all(e.frame.is_fd and len(e.frame.data) == 32 for e in servo)  # one FD frame each
