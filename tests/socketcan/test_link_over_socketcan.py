@@ -148,7 +148,7 @@ def test_cansend_estop_stops_the_board_within_one_tick(boards: Any) -> None:
     asyncio.run(main())
 
 
-def test_two_boards_on_vcan0_only_the_addressed_node_moves(boards: Any, tmp_path: Path) -> None:
+def test_two_boards_on_vcan0_only_the_addressed_node_moves_and_both_can_run(boards: Any, tmp_path: Path) -> None:
     b1 = boards(f"can:socketcan:{CHANNEL}?node=1", "--lockstep")
     b2 = boards(f"can:socketcan:{CHANNEL}?node=2", "--lockstep")
     log = tmp_path / "capture.log"
@@ -168,6 +168,10 @@ def test_two_boards_on_vcan0_only_the_addressed_node_moves(boards: Any, tmp_path
             moved = max(abs(a - b) for a, b in zip(start1.positions, end1.positions))
             assert moved < 0.01, f"node 1 moved by {moved} rad while node 2 was addressed"
             assert end1.last_applied_seq == start1.last_applied_seq
+            async with await BoardClient.connect(b2.spec) as c2:  # and both at once
+                r1, r2 = await asyncio.gather(move_to(c1, POSES["crouch"], duration_s=0.3),
+                                              move_to(c2, POSES["stand"], duration_s=0.3))
+                assert r1.max_error_deg < 3.0 and r2.max_error_deg < 3.0
 
     asyncio.run(main())
     counts = _check_capture(log, nodes=(1, 2))
