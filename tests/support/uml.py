@@ -22,6 +22,7 @@ pytest session in one boot rather than one boot per test.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -78,10 +79,20 @@ class UmlResult:
         )
 
 
+@functools.cache
 def uml_modules_dir() -> Path | None:
-    """The module tree matching ``linux.uml`` (the newest version installed), or None."""
+    """The module tree of the installed ``linux.uml`` (``linux.uml --version`` names it; else the
+    newest version holding ``vcan.ko``), or None."""
     if not UML_MODULES_ROOT.is_dir():
         return None
+    try:
+        version = subprocess.run([str(UML_KERNEL), "--version"], capture_output=True, text=True, timeout=10,
+                                 check=False).stdout.strip()
+    except (OSError, subprocess.TimeoutExpired):
+        version = ""
+    exact = UML_MODULES_ROOT / version if version else None
+    if exact is not None and (exact / "kernel/drivers/net/can/vcan.ko").is_file():
+        return exact
     versions = sorted(p for p in UML_MODULES_ROOT.iterdir() if (p / "kernel/drivers/net/can/vcan.ko").is_file())
     return versions[-1] if versions else None
 
