@@ -157,7 +157,12 @@ class CanLinkTransport(Transport):
             try:
                 bus = await asyncio.to_thread(lambda: can.Bus(**kw))  # type: ignore[arg-type]
             except (can.CanError, OSError, ValueError, ImportError) as e:
-                raise LinkDown(f"cannot open CAN bus {self.spec}: {e}") from None
+                hint = ""
+                if isinstance(e, OSError) and e.errno == errno.EAFNOSUPPORT:
+                    hint = " (this kernel has no SocketCAN; try can:slcan:pty, or a machine/UML with vcan)"
+                elif isinstance(e, OSError) and e.errno == errno.ENODEV:
+                    hint = " (no such CAN interface: e.g. `ip link add dev vcan0 type vcan && ip link set up vcan0`)"
+                raise LinkDown(f"cannot open CAN bus {self.spec}: {e}{hint}") from None
         self.bus = bus
         self._generation += 1
         self.decoder = CanDecoder(self.node, "host")
