@@ -230,13 +230,15 @@ def main(argv: list[str] | None = None) -> int:
     ap = task_arguments(__doc__.splitlines()[0], "also write every call and the summary as JSON")
     ap.add_argument("--lockstep", action="store_true", help="lockstep board instead of realtime")
     ap.add_argument("--baud", type=int, default=None, help="the board models wire time at this baud rate")
+    ap.add_argument("--link", default="pty", metavar="SPEC",
+                    help="link spec the board is started on (default pty; e.g. can:socketcan:vcan0, can:slcan:pty)")
     args = ap.parse_args(argv)
 
     programs = task_programs(parse_ids(args.tasks))
     root = out_root(args.out, "bench_latency_")
     registry = home_channels()
     mode = ("lockstep" if args.lockstep else "realtime") + (f", {args.baud} baud wire" if args.baud else "")
-    print(f"token -> servo latency, {mode} board over a pty, {args.tokens_per_s:g} tokens/s, "
+    print(f"token -> servo latency, {mode} board over {args.link}, {args.tokens_per_s:g} tokens/s, "
           f"{len(programs)} task(s); artefacts in {root}", flush=True)
     print(f"{'task':>4} {'calls':>5} {'queued':>6}  {'motion imm. p50':>15} {'max':>7}  "
           f"{'periph imm. p50':>15} {'max':>7}  {'ready max':>9}  {'wall s':>6}  outcome", flush=True)
@@ -245,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
     for tid, program in programs:
         w0 = time.monotonic()
         rep = run_task(tid, program, lockstep=args.lockstep, out_root=root, tokens_per_s=args.tokens_per_s,
-                       seed=args.seed, wire_baud=args.baud)
+                       seed=args.seed, wire_baud=args.baud, link=args.link)
         got, why = task_latencies(tid, rep, registry)
         rows += got
         notes += why
