@@ -130,6 +130,7 @@ class LinkStats:
     telemetry: int = 0
     reconnects: int = 0
     retries: int = 0  # requests re-sent because no ACK/NACK came in time (a lost frame either way)
+    last_decode_error: str = ""  # kind and detail of the latest undecodable item, for reports
 
 
 def _flag_names(f: FaultFlags) -> str:
@@ -660,6 +661,7 @@ class BoardClient:
         for item in items:
             if isinstance(item, DecodeError):
                 self.stats.decode_errors += 1
+                self.stats.last_decode_error = f"{item.kind.value}: {item.detail} ({len(item.raw)} bytes)"
                 log.debug("link: discarded %d bytes (%s: %s)", len(item.raw), item.kind.value, item.detail)
                 continue
             self.stats.rx_frames += 1

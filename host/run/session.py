@@ -332,7 +332,9 @@ class RobotSession:
                  "dropped": tel.dropped_count if tel else None,
                  "frame_nacks": client.stats.frame_nacks if client else None,
                  "decode_errors": client.stats.decode_errors if client else None,
-                 "retries": client.stats.retries if client else None}
+                 "retries": client.stats.retries if client else None,
+                 **({"last_decode_error": client.stats.last_decode_error}
+                    if client and client.stats.last_decode_error else {})}
         end_t = rec.t[-1] if rec.t else turn.board_t0
         return artefacts.Summary(
             task=label, outcome=outcome, fell=fell, base_start=_pose(b0), base_end=_pose(b1),
