@@ -67,12 +67,12 @@ def parse_ids(text: str | None) -> list[int] | None:
 
 
 def run_task(task_id: int, program: str, *, lockstep: bool, out_root: Path, buffer_response: bool = False,
-             tokens_per_s: float = 30.0, seed: int = 0, wire_baud: int | None = None) -> RunReport:
-    """Run one task end to end (board subprocess on a pty) and return its report."""
+             tokens_per_s: float = 30.0, seed: int = 0, wire_baud: int | None = None, link: str = "pty") -> RunReport:
+    """Run one task end to end (board subprocess on ``link``: a pty, or ``can:slcan:pty``) and return its report."""
     suffix = "buffered" if buffer_response else "streaming"
     opts = RunOptions(program=program, task_label=f"task {task_id}", lockstep=lockstep,
                       out=out_root / f"task{task_id:02d}_{suffix}", tokens_per_s=tokens_per_s, seed=seed,
-                      buffer_response=buffer_response, wire_baud=wire_baud)
+                      buffer_response=buffer_response, wire_baud=wire_baud, link=link)
     return anyio.run(run_program, opts, backend="asyncio")
 
 

@@ -49,6 +49,7 @@ Run (realtime is the real measurement; ~4-5 min for all 30 tasks):
     python bench/bench_latency.py --tasks 1,5,23        # a few tasks
     python bench/bench_latency.py --lockstep            # the same on a lockstep board
     python bench/bench_latency.py --baud 115200         # the board models 115200-baud wire time
+    python bench/bench_latency.py --link can:slcan:pty  # over CAN: the board is a SLCAN adapter on a pty
     python bench/bench_latency.py --json lat.json --out runs/bench_latency
 
 Numbers depend on the machine and its load; they are printed, never asserted.
@@ -230,13 +231,22 @@ def main(argv: list[str] | None = None) -> int:
     ap = task_arguments(__doc__.splitlines()[0], "also write every call and the summary as JSON")
     ap.add_argument("--lockstep", action="store_true", help="lockstep board instead of realtime")
     ap.add_argument("--baud", type=int, default=None, help="the board models wire time at this baud rate")
+    ap.add_argument("--link", default="pty", metavar="SPEC",
+                    help="link spec the emulated board is started on (default pty; e.g. can:slcan:pty, 'can:slcan:pty?fd=1')")
     args = ap.parse_args(argv)
+    from protocol.linkspec import LinkSpecError, parse_link_spec
+
+    try:
+        if not parse_link_spec(args.link).implies_emulated_board:
+            ap.error(f"--link {args.link}: the benchmark starts its own board; use pty or can:slcan:pty")
+    except LinkSpecError as e:
+        ap.error(f"--link: {e}")
 
     programs = task_programs(parse_ids(args.tasks))
     root = out_root(args.out, "bench_latency_")
     registry = home_channels()
     mode = ("lockstep" if args.lockstep else "realtime") + (f", {args.baud} baud wire" if args.baud else "")
-    print(f"token -> servo latency, {mode} board over a pty, {args.tokens_per_s:g} tokens/s, "
+    print(f"token -> servo latency, {mode} board over {'a pty' if args.link == 'pty' else args.link}, {args.tokens_per_s:g} tokens/s, "
           f"{len(programs)} task(s); artefacts in {root}", flush=True)
     print(f"{'task':>4} {'calls':>5} {'queued':>6}  {'motion imm. p50':>15} {'max':>7}  "
           f"{'periph imm. p50':>15} {'max':>7}  {'ready max':>9}  {'wall s':>6}  outcome", flush=True)
@@ -245,7 +255,7 @@ def main(argv: list[str] | None = None) -> int:
     for tid, program in programs:
         w0 = time.monotonic()
         rep = run_task(tid, program, lockstep=args.lockstep, out_root=root, tokens_per_s=args.tokens_per_s,
-                       seed=args.seed, wire_baud=args.baud)
+                       seed=args.seed, wire_baud=args.baud, link=args.link)
         got, why = task_latencies(tid, rep, registry)
         rows += got
         notes += why
@@ -269,7 +279,7 @@ def main(argv: list[str] | None = None) -> int:
     for n in notes:
         print("note:", n)
     if args.json:
-        Path(args.json).write_text(json.dumps({"mode": mode, "tokens_per_s": args.tokens_per_s,
+        Path(args.json).write_text(json.dumps({"mode": mode, "link": args.link, "tokens_per_s": args.tokens_per_s,
                                                "summary": summary, "notes": notes,
                                                "calls": [asdict(c) for c in rows]}, indent=1), encoding="utf-8")
         print(f"wrote {args.json}")
