@@ -46,10 +46,12 @@ def test_lost_slcan_board_is_reported_once_and_a_new_one_is_found(tmp_path: Path
             with pytest.raises(LinkDown):  # a request while down fails at once, it does not wait
                 await c.sync_once()
             # the reconnect attempts against the vanished pty fail (quietly); the loss was said once
-            failed_before = c.last_disconnect_reason
             with pytest.raises(Exception):
                 await c.wait_connected(0.5)
-            assert "cannot open CAN bus" in c.last_disconnect_reason or c.last_disconnect_reason == failed_before
+            assert c.last_disconnect_reason == reason  # the loss's cause is kept ...
+            assert "cannot open CAN bus" in c.last_reconnect_error  # ... beside why reconnecting fails
+            with pytest.raises(LinkDown, match="CAN receive failed.*reconnecting fails: cannot open CAN bus"):
+                await c.sync_once()
             assert sum("lost" in r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING) == 1
             # the board comes back on another pty: the callable spec finds it
             boards.append(start_board(["--realtime"], tmp_path / "board1.stderr", link="can:slcan:pty"))
