@@ -21,7 +21,7 @@ import pytest
 from host.link import BoardClient, LinkDown
 from host.link.board_process import BoardProcess, start_board
 from host.motion.moves import move_to
-from protocol.linkspec import LinkSpec
+from protocol.linkspec import LinkSpec, parse_link_spec
 from protocol.messages import ServoFrame
 from robots.coco import load_poses
 
@@ -39,6 +39,8 @@ def test_lost_slcan_board_is_reported_once_and_a_new_one_is_found(tmp_path: Path
             await c.next_telemetry(2)
             first_name = c.port_name
             boards[0].proc.send_signal(signal.SIGKILL)  # the adapter (and the bus) vanish under the client
+            # ... and stay gone (the kernel may soon hand the dead pty's name to another program's pty)
+            current["spec"] = parse_link_spec(f"can:slcan:{tmp_path / 'gone'}")
             reason = await c.wait_disconnected(5)
             assert "CAN receive failed" in reason or "CAN send failed" in reason, reason
             with pytest.raises(LinkDown):
