@@ -49,6 +49,7 @@ Run (realtime is the real measurement; ~4-5 min for all 30 tasks):
     python bench/bench_latency.py --tasks 1,5,23        # a few tasks
     python bench/bench_latency.py --lockstep            # the same on a lockstep board
     python bench/bench_latency.py --baud 115200         # the board models 115200-baud wire time
+    python bench/bench_latency.py --link can:slcan:pty  # over CAN: the board is a SLCAN adapter on a pty
     python bench/bench_latency.py --json lat.json --out runs/bench_latency
 
 Numbers depend on the machine and its load; they are printed, never asserted.
@@ -231,8 +232,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--lockstep", action="store_true", help="lockstep board instead of realtime")
     ap.add_argument("--baud", type=int, default=None, help="the board models wire time at this baud rate")
     ap.add_argument("--link", default="pty", metavar="SPEC",
-                    help="link spec the board is started on (default pty; e.g. can:socketcan:vcan0, can:slcan:pty)")
+                    help="link spec the board is started on (default pty; e.g. can:slcan:pty, 'can:slcan:pty?fd=1', "
+                         "can:socketcan:vcan0 inside UML)")
     args = ap.parse_args(argv)
+    from protocol.linkspec import LinkSpecError, parse_link_spec
+
+    try:
+        parse_link_spec(args.link)
+    except LinkSpecError as e:
+        ap.error(f"--link: {e}")
 
     programs = task_programs(parse_ids(args.tasks))
     root = out_root(args.out, "bench_latency_")
@@ -271,7 +279,7 @@ def main(argv: list[str] | None = None) -> int:
     for n in notes:
         print("note:", n)
     if args.json:
-        Path(args.json).write_text(json.dumps({"mode": mode, "tokens_per_s": args.tokens_per_s,
+        Path(args.json).write_text(json.dumps({"mode": mode, "link": args.link, "tokens_per_s": args.tokens_per_s,
                                                "summary": summary, "notes": notes,
                                                "calls": [asdict(c) for c in rows]}, indent=1), encoding="utf-8")
         print(f"wrote {args.json}")

@@ -1,4 +1,4 @@
-"""Host -> board -> host round trips over a real pty (board subprocess, host BoardClient).
+"""Host -> board -> host round trips over a real pty or SLCAN (board subprocess, host BoardClient).
 
 Prints p50/p99/max of:
 * TIME_SYNC round trip (t4 - t1 on the host clock) and the board's turnaround (t3 - t2);
@@ -6,8 +6,14 @@ Prints p50/p99/max of:
   the host waits for the telemetry that reports its sequence as applied (host wall time),
   which bounds send -> jitter buffer -> tick -> telemetry -> host (telemetry period included).
 
-Run: ``python bench/bench_roundtrip.py [--n 300] [--telemetry-rate 500] [--baud N]``. Numbers
-depend on the machine's load; they are printed, never asserted.
+Over CAN (``--link can:slcan:pty``) the board is a SLCAN adapter on a pty and the host is python-can's
+own ``slcan`` interface: a TIME_SYNC request is one classic frame, its reply three (one on FD); a
+SERVO_FRAME is five classic frames (one FD frame); a 12-servo TELEMETRY report is 17 classic frames,
+so the board reports at 100 Hz there (500 Hz, one report per tick, on the pty).
+
+Run: ``python bench/bench_roundtrip.py [--n 300] [--telemetry-rate 500] [--baud N] [--link SPEC]``
+(``--link pty``, the default, ``can:slcan:pty`` or ``'can:slcan:pty?fd=1'``). Numbers depend on the
+machine's load; they are printed, never asserted.
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ import numpy as np
 
 from host.link.board_process import start_board
 from host.link import BoardClient, host_now_us
+from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
 from protocol.messages import ServoFrame
 from robots.coco import load_poses
 
@@ -29,7 +36,7 @@ def _pct(name: str, xs: list[float]) -> str:
     return f"{name:<44} n={len(a):4d}  p50={np.percentile(a, 50):8.0f} us  p99={np.percentile(a, 99):8.0f} us  max={a.max():8.0f} us"
 
 
-async def _run(port: str, n: int, baud: int) -> None:
+async def _run(port: str | LinkSpec, n: int, baud: int) -> None:
     neutral = load_poses()["neutral"]
     async with await BoardClient.connect(port, baud=baud) as c:
         rtt, turn = [], []
@@ -57,14 +64,26 @@ async def _run(port: str, n: int, baud: int) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=300)
-    ap.add_argument("--telemetry-rate", type=int, default=500, help="board telemetry rate (default 500 Hz: one report per tick)")
+    ap.add_argument("--telemetry-rate", type=int, default=None,
+                    help="board telemetry rate (default 500 Hz on the pty: one report per tick; 100 Hz on CAN)")
     ap.add_argument("--baud", type=int, default=0, help="let the board model wire time at this baud (0 = raw pty)")
+    ap.add_argument("--link", default="pty", metavar="SPEC", help="pty (default), can:slcan:pty or 'can:slcan:pty?fd=1'")
     a = ap.parse_args()
-    args = ["--realtime", "--telemetry-rate", str(a.telemetry_rate)] + (["--baud", str(a.baud)] if a.baud else [])
-    board = start_board(args)
-    print(f"board on {board.port}: {' '.join(args)}")
     try:
-        asyncio.run(_run(board.port, a.n, a.baud or 115200))
+        spec = parse_link_spec(a.link)
+    except LinkSpecError as e:
+        ap.error(f"--link: {e}")
+    if not spec.implies_emulated_board:
+        ap.error(f"--link {a.link}: the benchmark starts its own board; use pty or can:slcan:pty")
+    if a.telemetry_rate is None:
+        # a 12-servo report is 17 classic CAN frames: 500 Hz would need ~115 % of a 1 Mbit/s bus, and the
+        # lowest-priority ISO-TP flow control would starve behind it (the handshake fails); 100 Hz is ~23 %
+        a.telemetry_rate = 100 if spec.kind == "can" else 500
+    args = ["--realtime", "--telemetry-rate", str(a.telemetry_rate)] + (["--baud", str(a.baud)] if a.baud else [])
+    board = start_board(args, link=spec)
+    print(f"board on {board.port} (link {spec}): {' '.join(args)}")
+    try:
+        asyncio.run(_run(board.spec, a.n, a.baud or 115200))
     finally:
         board.stop()
 

@@ -218,6 +218,7 @@ class BoardClient:
         self._tg: asyncio.TaskGroup | None = None
         self._tasks: list[asyncio.Task[None]] = []
         self.last_disconnect_reason = ""
+        self.last_reconnect_error = ""  # why the latest reconnect attempt failed ("" once it succeeded)
 
     # --- lifecycle -------------------------------------------------------------------------
 
@@ -296,6 +297,7 @@ class BoardClient:
             raise LinkTimeout(
                 f"link to {self.port_name or self._port!r} not up within {timeout} s"
                 + (f" (last error: {self.last_disconnect_reason})" if self.last_disconnect_reason else "")
+                + (f"; reconnecting fails: {self.last_reconnect_error}" if self.last_reconnect_error else "")
             ) from None
 
     async def wait_disconnected(self, timeout: float) -> str:
@@ -416,10 +418,11 @@ class BoardClient:
                     await self._connect_once()
                 except LinkError as e:
                     log.debug("reconnect to %s failed: %s", self.port_name, e)
-                    self.last_disconnect_reason = str(e)
+                    self.last_reconnect_error = str(e)  # the loss's own cause stays in last_disconnect_reason
                     delay = min(self.reconnect_max_s, delay * 2)
                     continue
                 self.stats.reconnects += 1
+                self.last_reconnect_error = ""
                 log.warning("link to %s re-established (reconnect #%d)", self.port_name, self.stats.reconnects)
                 for cb in list(self.on_reconnect):
                     cb(self)
@@ -430,7 +433,8 @@ class BoardClient:
     def _send(self, msg: Message) -> int:
         t = self._transport
         if t is None or not t.connected:
-            raise LinkDown(f"link to {self.port_name!r} is down" + (" (reconnecting)" if self.reconnect else ""))
+            raise LinkDown(f"link to {self.port_name!r} is down" + (" (reconnecting)" if self.reconnect else "")
+                           + self._down_detail())
         seq = self._tx_seq
         self._forget_seq(seq)
         t.send(msg, seq)
@@ -463,10 +467,12 @@ class BoardClient:
 
     def _require_ready(self) -> None:
         if not self._ready:
-            raise LinkDown(
-                f"link to {self.port_name!r} is not up"
-                + (f" (last error: {self.last_disconnect_reason})" if self.last_disconnect_reason else "")
-            )
+            raise LinkDown(f"link to {self.port_name!r} is not up" + self._down_detail())
+
+    def _down_detail(self) -> str:
+        """Why the link is down: the loss's cause and, while reconnecting fails, why."""
+        return ((f" (last error: {self.last_disconnect_reason})" if self.last_disconnect_reason else "")
+                + (f"; reconnecting fails: {self.last_reconnect_error}" if self.last_reconnect_error else ""))
 
     #: sends of one request before :class:`LinkTimeout` (a frame lost either way costs a retry)
     request_attempts = 3

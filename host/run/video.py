@@ -1,7 +1,8 @@
 """A run's video: ``run.mp4`` rendered after the run from the board's recorded state.
 
 Nothing is rendered inside the control loop. The board's frame log
-(``board_frames.jsonl``, written with ``--log``) already records, at the
+(``board_frames.jsonl``, written with ``--log``; on CAN the candump capture ``board_frames.log``,
+read through :mod:`host.link.canlog`) already records, at the
 telemetry rate (50 Hz), every joint angle (TELEMETRY ``positions``) and the
 floating base's pose (SIM_STATE ``base_pos``/``base_quat``) at the same board
 time: together that is the model's whole ``qpos``. Each video frame takes the
@@ -63,10 +64,41 @@ class States:
 
 
 def load_states(run_dir: Path) -> States:
-    """TELEMETRY + SIM_STATE pairs from ``run_dir/board_frames.jsonl`` (the board's own log)."""
+    """TELEMETRY + SIM_STATE pairs from the run's frame log.
+
+    Serial runs: ``run_dir/board_frames.jsonl`` (the board's own log, its ``tx`` records). CAN runs:
+    ``board_frames.log`` (candump; any suffix :data:`host.link.canlog.CAN_LOG_SUFFIXES` names), else the
+    host's own capture ``host_frames.<suffix>`` (a CAN capture holds both directions, so a run against a
+    board it did not start still has the board's reports), read through :func:`host.link.canlog.iter_can_log`
+    (fixed layouts reassembled, SIM_STATE by ISO-TP). Raises :class:`VideoError` when none holds a pair.
+    """
     path = run_dir / "board_frames.jsonl"
-    if not path.exists():
-        raise VideoError(f"{path} not found: the video is made from the board's frame log (board --log)")
+    if path.exists():
+        joints, base = _states_from_jsonl(path)
+    else:
+        from host.link.canlog import CAN_LOG_SUFFIXES
+
+        found = [run_dir / f"{stem}{suffix}" for stem in ("board_frames", "host_frames") for suffix in CAN_LOG_SUFFIXES]
+        found = [p for p in found if p.exists()]
+        if not found:
+            raise VideoError(f"{path} not found (nor a CAN log board_frames.log): the video is made from the "
+                             "board's frame log (board --log)")
+        path = found[0]
+        joints, base = _states_from_can(path)
+    # every TELEMETRY sample from the first SIM_STATE on, each with the latest SIM_STATE at or before
+    # it (the same pairs where both come at every report; over CAN a newer SIM_STATE may replace one
+    # still queued for ISO-TP, so some TELEMETRY samples have none of their own)
+    base_t = sorted(base)
+    times = [t for t in sorted(joints) if base_t and t >= base_t[0]]
+    if not times:
+        raise VideoError(f"{path} holds no TELEMETRY/SIM_STATE pairs to render")
+    bt = np.asarray(base_t)
+    which = np.searchsorted(bt, np.asarray(times), side="right") - 1
+    return States(np.asarray(times, dtype=float) * 1e-6, np.asarray([base[base_t[i]] for i in which]),
+                  np.asarray([joints[t] for t in times]))
+
+
+def _states_from_jsonl(path: Path) -> tuple[dict[int, list[float]], dict[int, list[float]]]:
     joints: dict[int, list[float]] = {}
     base: dict[int, list[float]] = {}
     with open(path, encoding="utf-8") as f:
@@ -78,11 +110,37 @@ def load_states(run_dir: Path) -> States:
                 joints[int(fields["board_time_us"])] = list(fields["positions"])
             elif kind == "SIM_STATE":
                 base[int(fields["board_time_us"])] = [*fields["base_pos"], *fields["base_quat"]]
-    times = sorted(set(joints) & set(base))
-    if not times:
-        raise VideoError(f"{path} holds no TELEMETRY/SIM_STATE pairs to render")
-    return States(np.asarray(times, dtype=float) * 1e-6, np.asarray([base[t] for t in times]),
-                  np.asarray([joints[t] for t in times]))
+    return joints, base
+
+
+def _states_from_can(path: Path) -> tuple[dict[int, list[float]], dict[int, list[float]]]:
+    """Board-to-host TELEMETRY and SIM_STATE of the first node that reports in a CAN capture."""
+    from host.link.canlog import iter_can_log
+    from protocol.can import CanItem
+    from protocol.can.ids import split_id
+    from protocol.messages import SimState, Telemetry
+
+    joints: dict[int, list[float]] = {}
+    base: dict[int, list[float]] = {}
+    node: int | None = None
+    try:
+        for e in iter_can_log(path):
+            if e.direction != "b>h":
+                continue
+            for it in e.items:
+                if not isinstance(it, CanItem) or not isinstance(it.msg, (Telemetry, SimState)):
+                    continue
+                n = split_id(e.frame.arbitration_id)[1]
+                node = n if node is None else node
+                if n != node:
+                    continue
+                if isinstance(it.msg, Telemetry):
+                    joints[it.msg.board_time_us] = list(it.msg.positions)
+                else:
+                    base[it.msg.board_time_us] = [*it.msg.base_pos, *it.msg.base_quat]
+    except ValueError as e:  # python-can cannot read the format
+        raise VideoError(f"{path}: {e}") from e
+    return joints, base
 
 
 @dataclass(frozen=True)

@@ -37,3 +37,18 @@ def test_benchmark_runs(script: str, tmp_path: Path) -> None:
 def test_every_benchmark_has_a_smoke_case() -> None:
     scripts = {p.name for p in BENCH.glob("*.py") if not p.name.startswith("_")}
     assert scripts == set(CASES)
+
+
+#: the benchmarks that take ``--link``, over SLCAN (the board is a USB-CAN adapter on a pty)
+SLCAN_CASES = {
+    "bench_roundtrip.py": ["--n", "20", "--link", "can:slcan:pty"],
+    "bench_latency.py": ["--tasks", "5", "--lockstep", "--link", "can:slcan:pty"],
+}
+
+
+@pytest.mark.parametrize("script", sorted(SLCAN_CASES))
+def test_benchmark_runs_over_slcan(script: str, tmp_path: Path) -> None:
+    r = subprocess.run([sys.executable, str(BENCH / script), *SLCAN_CASES[script]], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=240)
+    assert r.returncode == 0, f"{script} failed:\n{r.stdout[-2000:]}\n{r.stderr[-2000:]}"
+    assert "can:slcan:pty" in r.stdout and "p50=" in r.stdout, r.stdout[-2000:]

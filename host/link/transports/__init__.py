@@ -32,7 +32,7 @@ def open_transport(
     ``baud`` and ``force_thread`` apply to serial links; ``log_path`` is the frame log
     (its format is the transport's: JSON Lines for serial). Further keyword ``options``
     go to the CAN transport. ``spec`` may be a callable: a serial transport then re-resolves
-    its port on every ``connect`` (a board that came back on another pty). Raises :class:`protocol.linkspec.LinkSpecError` for a bad
+    its port on every ``connect`` (a board that came back on another pty), a CAN transport its spec. Raises :class:`protocol.linkspec.LinkSpecError` for a bad
     spec and :class:`LinkError` for a kind no transport serves.
     """
     resolve = spec if callable(spec) else None
@@ -51,5 +51,7 @@ def open_transport(
     if spec.kind == "can":
         from host.link.transports.can import open_can_transport  # python-can loads only for CAN links
 
+        if resolve is not None:
+            options.setdefault("resolve", resolve)
         return open_can_transport(spec, log_path=log_path, **options)
     raise LinkError(f"no transport for link kind {spec.kind!r}")

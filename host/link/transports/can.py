@@ -6,7 +6,10 @@ fills in the interface/channel the spec leaves empty) with a filter on the board
 frames reach the asyncio loop through ``loop.add_reader`` on the bus's fd where it has one
 (SocketCAN, SLCAN: every ready frame is drained with ``bus.recv(0)`` per wake-up), else through
 python-can's ``can.Notifier`` thread (the virtual bus), handed over with ``call_soon_threadsafe``. For ``slcan`` the 2 s ``sleep_after_open``
-python-can waits for real adapters defaults to 0 (a spec option overrides it).
+python-can waits for real adapters defaults to 0 (a spec option overrides it). Given a callable
+``resolve`` (as the serial transport takes a callable port), every :meth:`connect` re-resolves the
+spec: a SLCAN board that came back on another pty is found again (its node id and FD mode must
+stay the same).
 
 Fixed-layout messages become frames (:func:`protocol.can.encode_fixed`), the rest goes over
 ISO-TP (can-isotp, :mod:`protocol.can.isotp_link`). Sending never blocks: frames queue
@@ -23,6 +26,7 @@ import asyncio
 import errno
 import time
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -44,7 +48,7 @@ from protocol.can.decoder import CanErrorKind, as_frame_items
 from protocol.can.ids import bulk_ids
 from protocol.can.isotp_link import IsoTpLink
 from protocol.codec import PayloadError
-from protocol.linkspec import LinkSpec
+from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
 from protocol.messages import Message
 
 __all__ = ["MAX_TX_FRAMES", "CanLinkTransport", "open_can_transport"]
@@ -88,8 +92,10 @@ class _Listener(can.Listener):
 class CanLinkTransport(Transport):
     """Protocol v1 over CAN to board ``spec.node`` (see the module docstring)."""
 
-    def __init__(self, spec: LinkSpec, *, log_path: str | Path | None = None, bus: can.BusABC | None = None) -> None:
+    def __init__(self, spec: LinkSpec, *, log_path: str | Path | None = None, bus: can.BusABC | None = None,
+                 resolve: Callable[[], LinkSpec | str] | None = None) -> None:
         self.spec = spec
+        self._resolve = resolve
         self.node = spec.node
         self.fd = spec.fd
         self._given_bus = bus
@@ -130,6 +136,8 @@ class CanLinkTransport(Transport):
         self.disconnect()
         loop = asyncio.get_running_loop()
         self._on_receive, self._on_lost = on_receive, on_lost
+        if self._resolve is not None:
+            self.spec = self._resolved()
         if self._given_bus is not None:
             bus = self._given_bus
         else:
@@ -163,6 +171,17 @@ class CanLinkTransport(Transport):
             self._reader_fd = fd
         else:  # no fd (e.g. the virtual bus): python-can's Notifier reads in its thread
             self._notifier = can.Notifier(bus, [_Listener(loop, self, self._generation)], timeout=0.05, loop=loop)
+
+    def _resolved(self) -> LinkSpec:
+        assert self._resolve is not None
+        try:
+            spec = parse_link_spec(self._resolve())
+        except (LinkSpecError, OSError) as e:
+            raise LinkDown(f"cannot resolve the CAN link: {e}") from None
+        if spec.kind != "can" or spec.node != self.node or spec.fd != self.fd:
+            raise LinkDown(f"the link now resolves to {spec}, not a CAN link to node {self.node} "
+                           f"({'FD' if self.fd else 'classic'}) as before")
+        return spec
 
     def _drain(self, generation: int) -> None:
         bus = self.bus
@@ -327,5 +346,6 @@ class CanLinkTransport(Transport):
 
 
 def open_can_transport(spec: LinkSpec, *, log_path: str | Path | None = None, **options: Any) -> CanLinkTransport:
-    """The host's CAN transport for ``spec`` (``bus=`` may pass an already open python-can bus)."""
-    return CanLinkTransport(spec, log_path=log_path, bus=options.get("bus"))
+    """The host's CAN transport for ``spec`` (``bus=`` may pass an already open python-can bus,
+    ``resolve=`` a callable that gives the spec anew on every connect)."""
+    return CanLinkTransport(spec, log_path=log_path, bus=options.get("bus"), resolve=options.get("resolve"))
