@@ -62,6 +62,7 @@ _KIND = {
     CanErrorKind.MIXED: DecodeErrorKind.LENGTH,
     CanErrorKind.PAYLOAD: DecodeErrorKind.PAYLOAD,
     CanErrorKind.BULK: DecodeErrorKind.PAYLOAD,
+    CanErrorKind.CRC: DecodeErrorKind.CRC,
     CanErrorKind.REMOTE: DecodeErrorKind.UNKNOWN_TYPE,
     CanErrorKind.EXTENDED_ID: DecodeErrorKind.UNKNOWN_TYPE,
 }

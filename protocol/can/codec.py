@@ -27,7 +27,8 @@ from protocol.codec import (
 )
 from protocol.can.frame import CanFrame
 from protocol.can.ids import FunctionCode, cob_id
-from protocol.can.layouts import CAN_SERVOS, FIXED_LAYOUTS, HEADER_BITS, SEQ_MASK, FixedLayout
+from protocol.can.layouts import CAN_SERVOS, CRC_SIGNAL, FIXED_LAYOUTS, HEADER_BITS, SEQ_MASK, FixedLayout
+from protocol.framing import crc16
 from protocol.messages import Message, MsgType
 
 __all__ = [
@@ -36,6 +37,7 @@ __all__ = [
     "decode_bulk",
     "encode_bulk",
     "encode_fixed",
+    "fixed_crc",
     "fixed_layout_for",
     "is_fixed",
     "message_to_raw",
@@ -270,6 +272,13 @@ def unpack_part(layout: FixedLayout, part: int, data: bytes) -> dict[str, int]:
     return out
 
 
+def fixed_crc(layout: FixedLayout, seq: int, raw: dict[str, int]) -> int:
+    """CRC-16/X-25 of a message with a ``crc16`` signal: over the data bytes of all its parts (in
+    part order, headers included) packed with ``crc16`` = 0 (layout in :mod:`protocol.can.layouts`)."""
+    zeroed = {**raw, CRC_SIGNAL: 0}
+    return int(crc16(b"".join(pack_part(layout, k, seq, zeroed) for k in range(layout.parts))))
+
+
 def encode_fixed(msg: Message, seq: int, node: int, fd: bool = False, sender: str = Sender.HOST) -> list[CanFrame]:
     """The frames (in part order) carrying ``msg`` with sequence ``seq`` to/from board ``node``.
 
@@ -281,6 +290,8 @@ def encode_fixed(msg: Message, seq: int, node: int, fd: bool = False, sender: st
         raise PayloadError("a NACK with a detail text goes as bulk (encode_bulk)")
     layout = fixed_layout_for(t, fd, sender)
     raw = message_to_raw(msg)
+    if layout.has_crc:
+        raw[CRC_SIGNAL] = fixed_crc(layout, seq, raw)
     aid = cob_id(layout.fn, node)
     return [CanFrame(aid, pack_part(layout, k, seq, raw), is_fd=bool(fd)) for k in range(layout.parts)]
 

@@ -17,6 +17,16 @@ The 11-bit ``seq`` maps to the 16-bit protocol sequence consistently: the receiv
 exact while fewer than 1024 messages separate two received ones, far beyond what a sender has in
 flight (the host sends a full-sequence TIME_SYNC every 0.5 s and a HEARTBEAT when idle).
 
+SERVO_FRAME (the only message that moves servos) ends with ``crc16``: CRC-16/X-25 (the serial
+framing's CRC, :data:`protocol.framing.CRC_NAME`) over the data bytes of all its parts packed with
+this field zero, in part order, headers included; a receiver drops a message whose CRC does not
+match (``CanErrorKind.CRC``). Why, when a CAN controller already checks a 15-bit CRC per frame: that
+CRC protects each frame on the wire only. An SLCAN adapter's serial line, a software (virtual) bus,
+a gateway or a driver bug can change data after it, and fault injection (``--faults corrupt=P``)
+flips bits exactly there. Without it a single flipped target bit would be applied as a wrong
+setpoint; the header (part index, 11-bit sequence) alone cannot catch it. On classic CAN it costs
+a sixth part (the five data parts are full); on CAN FD the single frame grows from 32 to 48 bytes.
+
 Scales are the serial codec's (:mod:`protocol.codec`): positions and IMU angles 1e-4 rad,
 velocities 1e-3 rad/s, efforts 1e-3 N*m, all int16 with -32768 = unknown (NaN). Times that are
 u64 in the serial codec travel as u48 microseconds (8.9 years; larger values clamp), except
@@ -34,6 +44,7 @@ from protocol.messages import MsgType
 
 __all__ = [
     "CAN_SERVOS",
+    "CRC_SIGNAL",
     "HEADER_BITS",
     "PART_BITS",
     "SEQ_BITS",
@@ -45,6 +56,8 @@ __all__ = [
 ]
 
 CAN_SERVOS = 12
+#: name of the integrity signal a layout may end with (see the module docstring)
+CRC_SIGNAL = "crc16"
 PART_BITS = 5
 SEQ_BITS = 11
 HEADER_BITS = PART_BITS + SEQ_BITS
@@ -90,6 +103,11 @@ class FixedLayout:
     @property
     def name(self) -> str:
         return self.msg_type.name
+
+    @property
+    def has_crc(self) -> bool:
+        """True when the message ends with the ``crc16`` integrity signal (SERVO_FRAME)."""
+        return any(p.spec.name == CRC_SIGNAL for p in self.signals)
 
 
 def unwrap_seq(seq11: int, reference: int) -> int:
@@ -139,6 +157,7 @@ _SIGNALS: dict[MsgType, tuple[FunctionCode, list[SignalSpec]]] = {
             SignalSpec("apply_at_us", 32, unit="us", comment="board clock modulo 2**32"),
             SignalSpec("mask", 16, comment="bit i = servo i+1 present"),
             *[_q16(n, 1e-4, "rad") for n in _servo_names("target")],
+            SignalSpec(CRC_SIGNAL, 16, comment="CRC-16/X-25 over every part with this field zero"),
         ],
     ),
     MsgType.TIME_SYNC_REQUEST: (FunctionCode.TIME_SYNC_REQUEST, [SignalSpec("t1_host_us", 48, unit="us", comment=U48_TIME)]),
