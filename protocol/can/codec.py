@@ -2,7 +2,7 @@
 
 ``encode_fixed(msg, seq, node, fd=False, sender=...)`` -> the frames of one fixed-layout message
 (``PayloadError`` if it has none or is invalid); ``encode_bulk(msg, seq)`` -> the ISO-TP service
-data unit ``type u8 | seq u16 LE | protocol.codec payload`` for any message; ``decode_bulk`` is its
+data unit ``type u8 | seq u16 LE | protocol.codec payload | CRC-16/X-25 u16 LE`` for any message; ``decode_bulk`` is its
 inverse. ``is_fixed(msg)`` says which path a message takes: HELLO/CAPS, CONFIG, SCREEN, SPEAKER,
 CAMERA_*, SIM_STATE and a NACK with a detail text go as bulk, everything else as fixed frames.
 Raw signal values (``message_to_raw`` / ``raw_to_message``) are what the DBC describes.
@@ -297,16 +297,21 @@ def encode_fixed(msg: Message, seq: int, node: int, fd: bool = False, sender: st
 
 
 def encode_bulk(msg: Message, seq: int) -> bytes:
-    """ISO-TP service data unit: ``type u8 | seq u16 LE | protocol.codec payload``."""
+    """ISO-TP service data unit: ``type u8 | seq u16 LE | protocol.codec payload | crc u16 LE``
+    (CRC-16/X-25 over everything before it, as the fixed layouts' ``crc16``)."""
     payload = encode_payload(msg)
-    return BULK_HEADER.pack(int(msg_type_of(msg)), int(seq) & 0xFFFF) + payload
+    body = BULK_HEADER.pack(int(msg_type_of(msg)), int(seq) & 0xFFFF) + payload
+    return body + int(crc16(body)).to_bytes(2, "little")
 
 
 def decode_bulk(sdu: bytes) -> tuple[int, Message]:
     """(seq, message) of an ISO-TP service data unit (``PayloadError`` on anything malformed)."""
     data = bytes(sdu)
-    if len(data) < BULK_HEADER.size:
-        raise PayloadError(f"bulk message of {len(data)} byte(s) is shorter than its 3-byte header")
+    if len(data) < BULK_HEADER.size + 2:
+        raise PayloadError(f"bulk message of {len(data)} byte(s) is shorter than its 3-byte header and 2-byte CRC")
+    data, crc = data[:-2], int.from_bytes(data[-2:], "little")
+    if crc16(data) != crc:
+        raise PayloadError(f"bulk message: CRC {crc:#06x}, content gives {crc16(data):#06x}")
     t, seq = BULK_HEADER.unpack_from(data)
     try:
         mt = MsgType(t)

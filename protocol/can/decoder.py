@@ -8,7 +8,7 @@ reassembled from their parts (:mod:`protocol.can.layouts`): a message is surface
 every part with the same sequence has arrived; a partial message (a new sequence starts before it
 completes) or a mixed one (a part repeated, FD and classic parts mixed) is **never** surfaced: it
 is dropped and counted (``errors[INCOMPLETE]`` / ``errors[MIXED]``); so is a whole message whose
-``crc16`` signal does not match its parts (``errors[CRC]``, SERVO_FRAME). State is bounded: at most one
+``crc16`` signal does not match its parts (``errors[CRC]``). State is bounded: at most one
 assembly per function code. ``feed_bulk(sdu)`` decodes a reassembled ISO-TP unit.
 """
 

@@ -17,15 +17,18 @@ The 11-bit ``seq`` maps to the 16-bit protocol sequence consistently: the receiv
 exact while fewer than 1024 messages separate two received ones, far beyond what a sender has in
 flight (the host sends a full-sequence TIME_SYNC every 0.5 s and a HEARTBEAT when idle).
 
-SERVO_FRAME (the only message that moves servos) ends with ``crc16``: CRC-16/X-25 (the serial
-framing's CRC, :data:`protocol.framing.CRC_NAME`) over the data bytes of all its parts packed with
-this field zero, in part order, headers included; a receiver drops a message whose CRC does not
-match (``CanErrorKind.CRC``). Why, when a CAN controller already checks a 15-bit CRC per frame: that
-CRC protects each frame on the wire only. An SLCAN adapter's serial line, a software (virtual) bus,
-a gateway or a driver bug can change data after it, and fault injection (``--faults corrupt=P``)
-flips bits exactly there. Without it a single flipped target bit would be applied as a wrong
-setpoint; the header (part index, 11-bit sequence) alone cannot catch it. On classic CAN it costs
-a sixth part (the five data parts are full); on CAN FD the single frame grows from 32 to 48 bytes.
+Every message with signals (all but ESTOP and ESTOP_CLEAR, whose only content is the header) ends
+with ``crc16``: CRC-16/X-25 (the serial framing's CRC, :data:`protocol.framing.CRC_NAME`) over the
+data bytes of all its parts packed with this field zero, in part order, headers included; a
+receiver drops a message whose CRC does not match (``CanErrorKind.CRC``). Why, when a CAN
+controller already checks a 15-bit CRC per frame: that CRC protects each frame on the wire only. An
+SLCAN adapter's serial line, a software (virtual) bus, a gateway or a driver bug can change data
+after it, and fault injection (``--faults corrupt=P``) flips bits exactly there. Without it a single
+flipped target bit would be applied as a wrong setpoint, and a flipped time bit (ADVANCE,
+TIME_SYNC, TELEMETRY's board time) would throw the host's clock estimate or a lockstep board
+seconds off; the header (part index, 11-bit sequence) alone cannot catch either. Cost on classic
+CAN: one more part where the last one is full (SERVO_FRAME 6 parts, TIME_SYNC_REPLY 4, ADVANCE,
+TIME_SYNC_REQUEST and HEARTBEAT 2); on CAN FD a few bytes (SERVO_FRAME 48 bytes).
 
 Scales are the serial codec's (:mod:`protocol.codec`): positions and IMU angles 1e-4 rad,
 velocities 1e-3 rad/s, efforts 1e-3 N*m, all int16 with -32768 = unknown (NaN). Times that are
@@ -106,7 +109,7 @@ class FixedLayout:
 
     @property
     def has_crc(self) -> bool:
-        """True when the message ends with the ``crc16`` integrity signal (SERVO_FRAME)."""
+        """True when the message ends with the ``crc16`` integrity signal (every one with signals)."""
         return any(p.spec.name == CRC_SIGNAL for p in self.signals)
 
 
@@ -157,7 +160,6 @@ _SIGNALS: dict[MsgType, tuple[FunctionCode, list[SignalSpec]]] = {
             SignalSpec("apply_at_us", 32, unit="us", comment="board clock modulo 2**32"),
             SignalSpec("mask", 16, comment="bit i = servo i+1 present"),
             *[_q16(n, 1e-4, "rad") for n in _servo_names("target")],
-            SignalSpec(CRC_SIGNAL, 16, comment="CRC-16/X-25 over every part with this field zero"),
         ],
     ),
     MsgType.TIME_SYNC_REQUEST: (FunctionCode.TIME_SYNC_REQUEST, [SignalSpec("t1_host_us", 48, unit="us", comment=U48_TIME)]),
@@ -195,7 +197,12 @@ _SIGNALS: dict[MsgType, tuple[FunctionCode, list[SignalSpec]]] = {
 HEARTBEAT_SIGNALS = [SignalSpec("sender_time_us", 48, unit="us", comment=U48_TIME)]
 
 
+CRC_SPEC = SignalSpec(CRC_SIGNAL, 16, comment="CRC-16/X-25 over every part of the message with this field zero")
+
+
 def _build(msg_type: MsgType, fn: FunctionCode, signals: list[SignalSpec], fd: bool) -> FixedLayout:
+    if signals:  # every message with content ends with the integrity CRC (module docstring)
+        signals = [*signals, CRC_SPEC]
     placed, nparts, part_bytes = _place(signals, FD_PART_BITS if fd else CLASSIC_PART_BITS)
     longest = max(part_bytes)
     length = fd_length(longest) if fd else (8 if nparts > 1 else longest)
