@@ -18,6 +18,7 @@ CAMERA_CAPTURE -> CAMERA_CHUNKs (or NACK NO_RENDERER / BAD_VALUE); anything else
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable
 
 import mujoco
@@ -129,6 +130,8 @@ class Board:
         self.advance_until = 0  # lockstep: ADVANCE lets ticks run while now_us < this
         self.covered_until = -1  # lockstep: latest accepted frame apply-at (tick at it may run)
         self.last_applied_seq = 0
+        #: watchdog transitions not yet reported: (board time us, "hold"|"crouch", last feed us)
+        self.watchdog_events: deque[tuple[int, str, int]] = deque(maxlen=16)
         self.late_count = 0
         self.dropped_count = 0
         self.link_errors = 0
@@ -372,6 +375,7 @@ class Board:
         if entered and mode in (Mode.HOLD, Mode.CROUCH):
             self.buffer.clear()
             self.hold_q = self.servo.cmd
+            self.watchdog_events.append((t, mode.value, self.safety.last_feed_us))
         desired: list[float]
         if mode is Mode.RUN:
             due = self.buffer.pop_due(t)
