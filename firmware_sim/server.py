@@ -200,9 +200,13 @@ class BoardServer:
             self._deliver(read=readable)
 
     def _report_watchdog(self) -> None:
-        """One stderr line per watchdog transition (the runner and the cut-link tests read them)."""
+        """One stderr line per watchdog transition and ESTOP (the runner and the fault tests read them)."""
         while self.board.watchdog_events:
             t, mode, fed = self.board.watchdog_events.popleft()
+            if mode == "estop":
+                print(f"board: estop in effect at board time {t / 1e6:.6f} s, {(t - fed) / 1e6:.6f} s after it arrived",
+                      file=self.err, flush=True)
+                continue
             print(f"board: watchdog {mode} at board time {t / 1e6:.6f} s, {(t - fed) / 1e6:.6f} s after the last "
                   f"valid message" + ("; fault latched until ESTOP_CLEAR" if mode == "crouch" else ""),
                   file=self.err, flush=True)
