@@ -18,6 +18,7 @@ CAMERA_CAPTURE -> CAMERA_CHUNKs (or NACK NO_RENDERER / BAD_VALUE); anything else
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable
 
 import mujoco
@@ -129,6 +130,10 @@ class Board:
         self.advance_until = 0  # lockstep: ADVANCE lets ticks run while now_us < this
         self.covered_until = -1  # lockstep: latest accepted frame apply-at (tick at it may run)
         self.last_applied_seq = 0
+        #: safety transitions not yet reported: (board time us of the first tick in the new mode,
+        #: "hold"|"crouch"|"estop", board time us of the last valid message / of the ESTOP's arrival)
+        self.watchdog_events: deque[tuple[int, str, int]] = deque(maxlen=16)
+        self._estop_rx_us: int | None = None
         self.late_count = 0
         self.dropped_count = 0
         self.link_errors = 0
@@ -192,6 +197,8 @@ class Board:
             self._recompute_cover()
             return [Ack(seq, MsgType.FLUSH)]
         if isinstance(msg, Estop):
+            if self._estop_rx_us is None and not self.safety.estopped:
+                self._estop_rx_us = rx  # reported by the first tick that holds (watchdog_events)
             self.safety.estop()
             self.buffer.clear()
             self.hold_q = self.data.qpos[self.cm.qpos_adr].copy()
@@ -369,9 +376,13 @@ class Board:
         t = self.now_us
         mode, entered = self.safety.update(t)
         speed_cap: float | None = None
+        if self._estop_rx_us is not None and mode is Mode.ESTOP:
+            self.watchdog_events.append((t, "estop", self._estop_rx_us))
+            self._estop_rx_us = None
         if entered and mode in (Mode.HOLD, Mode.CROUCH):
             self.buffer.clear()
             self.hold_q = self.servo.cmd
+            self.watchdog_events.append((t, mode.value, self.safety.last_feed_us))
         desired: list[float]
         if mode is Mode.RUN:
             due = self.buffer.pop_due(t)

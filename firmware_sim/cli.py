@@ -61,7 +61,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="link silence before holding position (default 200)")
     parser.add_argument("--log", default=None, metavar="FILE", help="write every frame in/out as JSON lines")
     parser.add_argument("--faults", default=None, metavar="SPEC",
-                        help="inject link faults both ways (serial), e.g. drop=0.01,corrupt=0.01,dup=0.005,"
+                        help="inject link faults both ways (serial and CAN), e.g. drop=0.01,corrupt=0.01,dup=0.005,"
                              "reorder=0.005,truncate=P,delay=MS[±MS],cut=START+LEN (see protocol.faults)")
     parser.add_argument("--fault-seed", type=int, default=0, metavar="N", help="seed of the fault injectors (default 0)")
     parser.add_argument("--viewer", action="store_true", help="open MuJoCo's viewer (needs a display)")

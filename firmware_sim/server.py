@@ -156,6 +156,8 @@ class BoardServer:
                 _, overran = clock.begin_tick()
                 skipped = clock.next_tick - before - 1
                 self.send(self.board.tick())
+                if self.board.watchdog_events:
+                    self._report_watchdog()
                 if skipped:
                     self.board.skip(skipped)
                 if overran:
@@ -172,6 +174,8 @@ class BoardServer:
             ran = 0
             while self.running and self.board.can_tick() and self.backlog < LOCKSTEP_BACKLOG and ran < 256:
                 self.send(self.board.tick())
+                if self.board.watchdog_events:
+                    self._report_watchdog()
                 ran += 1
                 if ran % 16 == 0:
                     self._flush_tx()
@@ -194,6 +198,18 @@ class BoardServer:
             elif timeout:
                 time.sleep(min(timeout, 0.001))
             self._deliver(read=readable)
+
+    def _report_watchdog(self) -> None:
+        """One stderr line per watchdog transition and ESTOP (the runner and the fault tests read them)."""
+        while self.board.watchdog_events:
+            t, mode, fed = self.board.watchdog_events.popleft()
+            if mode == "estop":
+                print(f"board: estop in effect at board time {t / 1e6:.6f} s, {(t - fed) / 1e6:.6f} s after it arrived",
+                      file=self.err, flush=True)
+                continue
+            print(f"board: watchdog {mode} at board time {t / 1e6:.6f} s, {(t - fed) / 1e6:.6f} s after the last "
+                  f"valid message" + ("; fault latched until ESTOP_CLEAR" if mode == "crouch" else ""),
+                  file=self.err, flush=True)
 
     def _sync_viewer(self) -> None:
         v = self.viewer

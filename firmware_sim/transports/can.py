@@ -23,6 +23,7 @@ import os
 import sys
 import time
 import tty
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +44,7 @@ from protocol.can.codec import Sender
 from protocol.can.decoder import CanErrorKind, as_frame_items
 from protocol.can.ids import bulk_ids
 from protocol.can.isotp_link import IsoTpLink
+from protocol.faults import FaultInjector
 from protocol.codec import PayloadError
 from protocol.framing import DecodeError, DecodeErrorKind, Frame
 from protocol.linkspec import LinkSpec
@@ -58,6 +60,7 @@ __all__ = [
 
 FRAME_COST = 16  # backlog bytes per queued frame (a SocketCAN struct can_frame)
 SLCAN_WINDOW = 512  # SLCAN text bytes handed to the pty at a time; the rest waits in priority order
+FAULTY_WINDOW = 32  # frames the tx fault injector released that may wait for the wire (then the queue waits)
 BACKOFF_MIN_S = 0.001
 BACKOFF_MAX_S = 0.02
 
@@ -121,6 +124,10 @@ class CanBoardTransport(BoardTransport):
         self.periodic_replaced = 0
         self.error_frames = 0
         self.logger: Any = open_can_logger(log_path) if log_path else None
+        # link fault injection (``--faults``, firmware_sim.transports.faulty.install_faults)
+        self.rx_faults: FaultInjector[CanFrame] | None = None
+        self.tx_faults: FaultInjector[CanFrame] | None = None
+        self._faulty_out: deque[CanFrame] = deque()  # frames the tx injector released, not yet written
 
     # subclass hooks ------------------------------------------------------------------------
 
@@ -173,6 +180,10 @@ class CanBoardTransport(BoardTransport):
 
     def receive(self, now: float, *, read: bool = True) -> list[Frame | DecodeError]:
         frames = self._read_frames() if read else []
+        if self.rx_faults is not None:  # what reaches the controller: after the injected faults
+            for f in frames:
+                self.rx_faults.push(f, now)
+            frames = self.rx_faults.pop_due(now)
         errors = self._take_line_errors()
         if not frames and not self.isotp.busy and not self._sdus:
             return errors
@@ -208,9 +219,9 @@ class CanBoardTransport(BoardTransport):
         if self._retry_at is not None and now < self._retry_at:
             return
         self._retry_at = None
-        while self._txq and self._wire_has_room():
+        while self._txq and self._wire_has_room() and len(self._faulty_out) < FAULTY_WINDOW:
             f = self._txq[0][2]
-            if not self._write_frame(f):
+            if not self._emit(f, now):
                 self.tx_retries += 1
                 self._retry_at = now + self._backoff
                 self._backoff = min(self._backoff * 2, BACKOFF_MAX_S)
@@ -219,19 +230,39 @@ class CanBoardTransport(BoardTransport):
             self.tx_frames += 1
             self._backoff = BACKOFF_MIN_S
             self._log(f, False)
+        self._drain_faulty(now)
+
+    def _emit(self, frame: CanFrame, now: float) -> bool:
+        """Send one frame, through the tx fault injector when one is installed."""
+        if self.tx_faults is None:
+            return self._write_frame(frame)
+        self.tx_faults.push(frame, now)
+        return True
+
+    def _drain_faulty(self, now: float) -> None:
+        """Write the frames the tx injector has released by ``now`` (a refused one waits, in order)."""
+        if self.tx_faults is None:
+            return
+        self._faulty_out.extend(self.tx_faults.pop_due(now))
+        while self._faulty_out and self._wire_has_room() and self._write_frame(self._faulty_out[0]):
+            self._faulty_out.popleft()
 
     @property
     def backlog(self) -> int:
         # queued frames plus bulk messages still waiting in the ISO-TP layer (~one frame per 7 bytes)
         pending_bulk = self.isotp.layer.tx_queue.qsize() + (1 if self.isotp.layer.transmitting() else 0)
-        return FRAME_COST * (len(self._txq) + 8 * pending_bulk)
+        return FRAME_COST * (len(self._txq) + len(self._faulty_out) + 8 * pending_bulk)
 
     def next_io_time(self) -> float | None:
+        due = [t for inj in (self.rx_faults, self.tx_faults) if inj is not None
+               for t in (inj.next_due(),) if t is not None]
+        if self._faulty_out:
+            due.append(time.monotonic() + BACKOFF_MIN_S)
         if self._retry_at is not None:
-            return self._retry_at
+            due.append(self._retry_at)
         if self.isotp.busy or self._periodic is not None:
-            return time.monotonic() + 0.002
-        return None
+            due.append(time.monotonic() + 0.002)
+        return min(due) if due else None
 
     def close(self) -> None:
         if self.logger is not None:

@@ -7,7 +7,12 @@ reorder, truncate, delay, cut). Installed on both the receive and the transmit w
 :class:`SerialBoardTransport`, it covers host -> board and board -> host with one process and two
 independent injectors (``rx`` and ``tx``, seeded from ``--fault-seed``). Times are the wire model's
 ``time.monotonic()`` seconds; ``cut=START+LEN`` counts from the first frame on each direction.
-CAN links are not covered yet (their transport has no byte wire model to wrap).
+
+On CAN (:class:`firmware_sim.transports.can.CanBoardTransport`, SLCAN on a pty or any python-can
+bus) the wire unit is one CAN frame: the ``rx`` injector sits between the frames read from the bus
+and the decoder/ISO-TP layer, the ``tx`` one between the priority queue and the bus write; corrupt
+flips a bit of the data field, truncate shortens the DLC, the others act per frame. The frame logs
+show what the board sent (before ``tx`` faults) and what it received (after ``rx`` faults).
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import json
 from typing import Any
 
 from firmware_sim.transports.base import BoardTransport
+from protocol.can.frame import CanFrame
 from protocol.faults import FaultInjector, FaultSpec
 
 __all__ = ["FaultyWire", "install_faults"]
@@ -59,13 +65,20 @@ class FaultyWire:
         return b"".join(self.injector.pop_due(now))
 
 
-def install_faults(link: BoardTransport, spec: FaultSpec, seed: int) -> list[FaultInjector[bytes]]:
-    """Wrap ``link``'s receive and transmit wires; returns the (rx, tx) injectors.
+def install_faults(link: BoardTransport, spec: FaultSpec, seed: int) -> list[FaultInjector[Any]]:
+    """Wrap ``link``'s receive and transmit paths; returns the (rx, tx) injectors.
 
-    Raises ``ValueError`` for a transport without a serial wire model (CAN, for now).
+    Raises ``ValueError`` for a transport that is neither serial (a wire model) nor CAN.
     """
+    from firmware_sim.transports.can import CanBoardTransport
+
+    if isinstance(link, CanBoardTransport):
+        crx: FaultInjector[CanFrame] = FaultInjector(spec, seed, "host->board")
+        ctx: FaultInjector[CanFrame] = FaultInjector(spec, seed, "board->host")
+        link.rx_faults, link.tx_faults = crx, ctx
+        return [crx, ctx]
     if not (hasattr(link, "rx_wire") and hasattr(link, "tx_wire")):
-        raise ValueError(f"--faults works on serial links only for now (not {type(link).__name__})")
+        raise ValueError(f"--faults needs a serial or CAN link (not {type(link).__name__})")
     rx: FaultInjector[bytes] = FaultInjector(spec, seed, "host->board")
     tx: FaultInjector[bytes] = FaultInjector(spec, seed, "board->host")
     link.rx_wire = FaultyWire(link.rx_wire, rx)  # type: ignore[attr-defined]
@@ -73,7 +86,7 @@ def install_faults(link: BoardTransport, spec: FaultSpec, seed: int) -> list[Fau
     return [rx, tx]
 
 
-def report_line(spec: FaultSpec, seed: int, injectors: list[FaultInjector[bytes]], board: Any) -> str:
+def report_line(spec: FaultSpec, seed: int, injectors: list[FaultInjector[Any]], board: Any) -> str:
     """The ``board: faults {...}`` stderr line the host's runner copies into ``summary.json``."""
     detected = {"link_errors": int(board.link_errors), "late_frames": int(board.late_count),
                 "dropped_frames": int(board.dropped_count), "watchdog_trips": int(board.safety.watchdog_trips)}

@@ -20,6 +20,7 @@ from host.coco.runtime import CocoRuntime
 from host.link.client import BoardClient
 from host.link.errors import LinkError
 from host.run import artefacts
+from protocol.messages import FaultFlags
 from robots.coco import load_poses
 from robots.coco.motions import transition
 
@@ -53,8 +54,23 @@ TELEMETRY_SILENCE_S = 10.0
 LOCKSTEP_NUDGE_S = 0.5  # lockstep: wall seconds without telemetry before the host ADVANCEs the board
 
 
+def watchdog_fault_message(client: BoardClient, board_time_us: int) -> str:
+    """The one message a run ends with when the board latched its watchdog fault."""
+    hold = next((e.board_time_us for e in reversed(client.fault_events)
+                 if e.raised & FaultFlags.WATCHDOG_HOLD), None)
+    held = f"held from board time {hold / 1e6:.3f} s, " if hold is not None else ""
+    return (f"link lost: the board heard nothing for longer than its watchdog, {held}crouched and latched its "
+            f"watchdog fault (reported at board time {board_time_us / 1e6:.3f} s); the run ends here. "
+            "A board that outlives the run keeps the fault latched until ESTOP_CLEAR (BoardClient.estop_clear)")
+
+
 async def pump(client: BoardClient, runtime: CocoRuntime, rec: Recorder) -> None:
     """Telemetry -> confirmations, top-ups and the history.
+
+    A latched watchdog fault (the link was cut for longer than watchdog + crouch delay) ends the
+    run with :class:`LinkError` and one message (:func:`watchdog_fault_message`): the board
+    crouched on its own, and resuming motion after that is the user's decision, not the host's.
+    A shorter cut (the board only held) resumes by itself: the next frame ends the hold.
 
     In lockstep each report is handled in order and the board is advanced only
     from that report's time, after the host has reacted to it, so board time
@@ -65,6 +81,8 @@ async def pump(client: BoardClient, runtime: CocoRuntime, rec: Recorder) -> None
         rec.last_rx = time.monotonic()
         runtime.streamer.on_telemetry(tel)
         rec.add(client, tel)
+        if tel.faults & FaultFlags.WATCHDOG_FAULT:
+            raise LinkError(watchdog_fault_message(client, tel.board_time_us))
         if lockstep:
             for _ in range(SETTLE_CHECKPOINTS):
                 await anyio.lowlevel.checkpoint()

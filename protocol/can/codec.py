@@ -2,7 +2,7 @@
 
 ``encode_fixed(msg, seq, node, fd=False, sender=...)`` -> the frames of one fixed-layout message
 (``PayloadError`` if it has none or is invalid); ``encode_bulk(msg, seq)`` -> the ISO-TP service
-data unit ``type u8 | seq u16 LE | protocol.codec payload`` for any message; ``decode_bulk`` is its
+data unit ``type u8 | seq u16 LE | protocol.codec payload | CRC-16/X-25 u16 LE`` for any message; ``decode_bulk`` is its
 inverse. ``is_fixed(msg)`` says which path a message takes: HELLO/CAPS, CONFIG, SCREEN, SPEAKER,
 CAMERA_*, SIM_STATE and a NACK with a detail text go as bulk, everything else as fixed frames.
 Raw signal values (``message_to_raw`` / ``raw_to_message``) are what the DBC describes.
@@ -27,7 +27,8 @@ from protocol.codec import (
 )
 from protocol.can.frame import CanFrame
 from protocol.can.ids import FunctionCode, cob_id
-from protocol.can.layouts import CAN_SERVOS, FIXED_LAYOUTS, SEQ_MASK, FixedLayout
+from protocol.can.layouts import CAN_SERVOS, CRC_SIGNAL, FIXED_LAYOUTS, SEQ_MASK, FixedLayout
+from protocol.framing import crc16
 from protocol.messages import Message, MsgType
 
 __all__ = [
@@ -36,6 +37,7 @@ __all__ = [
     "decode_bulk",
     "encode_bulk",
     "encode_fixed",
+    "fixed_crc",
     "fixed_layout_for",
     "is_fixed",
     "message_to_raw",
@@ -270,6 +272,13 @@ def unpack_part(layout: FixedLayout, part: int, data: bytes) -> dict[str, int]:
     return out
 
 
+def fixed_crc(layout: FixedLayout, seq: int, raw: dict[str, int]) -> int:
+    """CRC-16/X-25 of a message with a ``crc16`` signal: over the data bytes of all its parts (in
+    part order, headers included) packed with ``crc16`` = 0 (layout in :mod:`protocol.can.layouts`)."""
+    zeroed = {**raw, CRC_SIGNAL: 0}
+    return int(crc16(b"".join(pack_part(layout, k, seq, zeroed) for k in range(layout.parts))))
+
+
 def encode_fixed(msg: Message, seq: int, node: int, fd: bool = False, sender: str = Sender.HOST) -> list[CanFrame]:
     """The frames (in part order) carrying ``msg`` with sequence ``seq`` to/from board ``node``.
 
@@ -281,21 +290,28 @@ def encode_fixed(msg: Message, seq: int, node: int, fd: bool = False, sender: st
         raise PayloadError("a NACK with a detail text goes as bulk (encode_bulk)")
     layout = fixed_layout_for(t, fd, sender)
     raw = message_to_raw(msg)
+    if layout.has_crc:
+        raw[CRC_SIGNAL] = fixed_crc(layout, seq, raw)
     aid = cob_id(layout.fn, node)
     return [CanFrame(aid, pack_part(layout, k, seq, raw), is_fd=bool(fd)) for k in range(layout.parts)]
 
 
 def encode_bulk(msg: Message, seq: int) -> bytes:
-    """ISO-TP service data unit: ``type u8 | seq u16 LE | protocol.codec payload``."""
+    """ISO-TP service data unit: ``type u8 | seq u16 LE | protocol.codec payload | crc u16 LE``
+    (CRC-16/X-25 over everything before it, as the fixed layouts' ``crc16``)."""
     payload = encode_payload(msg)
-    return BULK_HEADER.pack(int(msg_type_of(msg)), int(seq) & 0xFFFF) + payload
+    body = BULK_HEADER.pack(int(msg_type_of(msg)), int(seq) & 0xFFFF) + payload
+    return body + int(crc16(body)).to_bytes(2, "little")
 
 
 def decode_bulk(sdu: bytes) -> tuple[int, Message]:
     """(seq, message) of an ISO-TP service data unit (``PayloadError`` on anything malformed)."""
     data = bytes(sdu)
-    if len(data) < BULK_HEADER.size:
-        raise PayloadError(f"bulk message of {len(data)} byte(s) is shorter than its 3-byte header")
+    if len(data) < BULK_HEADER.size + 2:
+        raise PayloadError(f"bulk message of {len(data)} byte(s) is shorter than its 3-byte header and 2-byte CRC")
+    data, crc = data[:-2], int.from_bytes(data[-2:], "little")
+    if crc16(data) != crc:
+        raise PayloadError(f"bulk message: CRC {crc:#06x}, content gives {crc16(data):#06x}")
     t, seq = BULK_HEADER.unpack_from(data)
     try:
         mt = MsgType(t)

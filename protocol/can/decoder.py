@@ -7,7 +7,8 @@ that the ISO-TP layer consumes) are ignored and counted in ``foreign``. Fixed-la
 reassembled from their parts (:mod:`protocol.can.layouts`): a message is surfaced only when
 every part with the same sequence has arrived; a partial message (a new sequence starts before it
 completes) or a mixed one (a part repeated, FD and classic parts mixed) is **never** surfaced: it
-is dropped and counted (``errors[INCOMPLETE]`` / ``errors[MIXED]``). State is bounded: at most one
+is dropped and counted (``errors[INCOMPLETE]`` / ``errors[MIXED]``); so is a whole message whose
+``crc16`` signal does not match its parts (``errors[CRC]``). State is bounded: at most one
 assembly per function code. ``feed_bulk(sdu)`` decodes a reassembled ISO-TP unit.
 """
 
@@ -17,17 +18,10 @@ from collections import Counter
 from dataclasses import dataclass, field
 from enum import Enum
 
-from protocol.can.codec import decode_bulk, raw_to_message, unpack_part
+from protocol.can.codec import decode_bulk, fixed_crc, raw_to_message, unpack_part
 from protocol.can.frame import CanFrame
-from protocol.can.ids import (
-    BOARD_TO_HOST,
-    BROADCAST_NODE,
-    HOST_TO_BOARD,
-    FunctionCode,
-    check_node,
-    split_id,
-)
-from protocol.can.layouts import FIXED_LAYOUTS, SEQ_MASK, FixedLayout, unwrap_seq
+from protocol.can.ids import BOARD_TO_HOST, BROADCAST_NODE, HOST_TO_BOARD, FunctionCode, check_node, split_id
+from protocol.can.layouts import CRC_SIGNAL, FIXED_LAYOUTS, SEQ_MASK, FixedLayout, unwrap_seq
 from protocol.codec import PayloadError, msg_type_of
 from protocol.framing import DecodeError, DecodeErrorKind, Frame
 from protocol.messages import Message, MsgType
@@ -46,6 +40,7 @@ class CanErrorKind(Enum):
     INCOMPLETE = "INCOMPLETE"  # a multi-part message dropped before all parts arrived
     MIXED = "MIXED"  # a part seen twice or parts of different frame kinds: dropped
     BULK = "BULK"  # an ISO-TP unit that does not decode
+    CRC = "CRC"  # a whole message whose crc16 signal does not match its parts: dropped
 
 
 @dataclass(frozen=True)
@@ -196,6 +191,12 @@ class CanDecoder:
         frames: tuple[CanFrame, ...],
         out: list[CanItem | CanDecodeError],
     ) -> list[CanItem | CanDecodeError]:
+        if layout.has_crc:
+            want = fixed_crc(layout, seq11, raw)
+            if raw.get(CRC_SIGNAL) != want:
+                out.append(self._error(CanErrorKind.CRC, f"{layout.name} seq {seq11}: CRC {raw.get(CRC_SIGNAL, 0):#06x}, "
+                                       f"parts give {want:#06x} (dropped)", frames[-1]))
+                return out
         try:
             msg = raw_to_message(layout.msg_type, raw)
         except PayloadError as e:
@@ -230,6 +231,7 @@ _SEAM_KIND = {
     CanErrorKind.MIXED: DecodeErrorKind.LENGTH,
     CanErrorKind.PAYLOAD: DecodeErrorKind.PAYLOAD,
     CanErrorKind.BULK: DecodeErrorKind.PAYLOAD,
+    CanErrorKind.CRC: DecodeErrorKind.CRC,
     CanErrorKind.REMOTE: DecodeErrorKind.UNKNOWN_TYPE,
     CanErrorKind.EXTENDED_ID: DecodeErrorKind.UNKNOWN_TYPE,
 }

@@ -11,7 +11,7 @@ node, then servo frames and time sync, then control replies, telemetry and heart
 code  function            direction    notes
 ====  ==================  ===========  ======================================================
 0x0   ESTOP               host->board  0x000 = broadcast (every node); 0x001..0x07F one node
-0x1   SERVO_FRAME         host->board  classic: 5 parts tied by sequence; FD: one frame
+0x1   SERVO_FRAME         host->board  classic: 6 parts tied by sequence (the last ends with a CRC-16); FD: one frame
 0x2   TIME_SYNC_REQUEST   host->board
 0x3   TIME_SYNC_REPLY     board->host  classic: 3 parts; FD: one frame
 0x4   FLUSH               host->board  classic: 2 parts

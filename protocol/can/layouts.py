@@ -17,6 +17,19 @@ The 11-bit ``seq`` maps to the 16-bit protocol sequence consistently: the receiv
 exact while fewer than 1024 messages separate two received ones, far beyond what a sender has in
 flight (the host sends a full-sequence TIME_SYNC every 0.5 s and a HEARTBEAT when idle).
 
+Every message with signals (all but ESTOP and ESTOP_CLEAR, whose only content is the header) ends
+with ``crc16``: CRC-16/X-25 (the serial framing's CRC, :data:`protocol.framing.CRC_NAME`) over the
+data bytes of all its parts packed with this field zero, in part order, headers included; a
+receiver drops a message whose CRC does not match (``CanErrorKind.CRC``). Why, when a CAN
+controller already checks a 15-bit CRC per frame: that CRC protects each frame on the wire only. An
+SLCAN adapter's serial line, a software (virtual) bus, a gateway or a driver bug can change data
+after it, and fault injection (``--faults corrupt=P``) flips bits exactly there. Without it a single
+flipped target bit would be applied as a wrong setpoint, and a flipped time bit (ADVANCE,
+TIME_SYNC, TELEMETRY's board time) would throw the host's clock estimate or a lockstep board
+seconds off; the header (part index, 11-bit sequence) alone cannot catch either. Cost on classic
+CAN: one more part where the last one is full (SERVO_FRAME 6 parts, TIME_SYNC_REPLY 4, ADVANCE,
+TIME_SYNC_REQUEST and HEARTBEAT 2); on CAN FD a few bytes (SERVO_FRAME 48 bytes).
+
 Scales are the serial codec's (:mod:`protocol.codec`): positions and IMU angles 1e-4 rad,
 velocities 1e-3 rad/s, efforts 1e-3 N*m, all int16 with -32768 = unknown (NaN). Times that are
 u64 in the serial codec travel as u48 microseconds (8.9 years; larger values clamp), except
@@ -34,6 +47,7 @@ from protocol.messages import MsgType
 
 __all__ = [
     "CAN_SERVOS",
+    "CRC_SIGNAL",
     "HEADER_BITS",
     "PART_BITS",
     "SEQ_BITS",
@@ -45,6 +59,8 @@ __all__ = [
 ]
 
 CAN_SERVOS = 12
+#: name of the integrity signal a layout may end with (see the module docstring)
+CRC_SIGNAL = "crc16"
 PART_BITS = 5
 SEQ_BITS = 11
 HEADER_BITS = PART_BITS + SEQ_BITS
@@ -90,6 +106,11 @@ class FixedLayout:
     @property
     def name(self) -> str:
         return self.msg_type.name
+
+    @property
+    def has_crc(self) -> bool:
+        """True when the message ends with the ``crc16`` integrity signal (every one with signals)."""
+        return any(p.spec.name == CRC_SIGNAL for p in self.signals)
 
 
 def unwrap_seq(seq11: int, reference: int) -> int:
@@ -176,7 +197,12 @@ _SIGNALS: dict[MsgType, tuple[FunctionCode, list[SignalSpec]]] = {
 HEARTBEAT_SIGNALS = [SignalSpec("sender_time_us", 48, unit="us", comment=U48_TIME)]
 
 
+CRC_SPEC = SignalSpec(CRC_SIGNAL, 16, comment="CRC-16/X-25 over every part of the message with this field zero")
+
+
 def _build(msg_type: MsgType, fn: FunctionCode, signals: list[SignalSpec], fd: bool) -> FixedLayout:
+    if signals:  # every message with content ends with the integrity CRC (module docstring)
+        signals = [*signals, CRC_SPEC]
     placed, nparts, part_bytes = _place(signals, FD_PART_BITS if fd else CLASSIC_PART_BITS)
     longest = max(part_bytes)
     length = fd_length(longest) if fd else (8 if nparts > 1 else longest)

@@ -137,4 +137,4 @@ def test_fd_over_slcan(tmp_path: Path) -> None:
     finally:
         board.stop()
     servo = [e for e in iter_can_log(tmp_path / "host_frames.log") if e.dbc_name == "SERVO_FRAME_N1"]
-    assert servo and all(e.frame.is_fd and len(e.frame.data) == 32 for e in servo)  # one FD frame each
+    assert servo and all(e.frame.is_fd and len(e.frame.data) == 48 for e in servo)  # one FD frame each

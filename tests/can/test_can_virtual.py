@@ -44,7 +44,7 @@ def test_fd_handshake_pose_and_logs(virtual_board_factory, virtual_channel: str,
     vb.thread.join(5)
     vb.transport.close()
     msgs = list(can.LogReader(str(tmp_path / "host_frames.blf")))
-    assert any(m.is_fd and m.arbitration_id == 0x081 and len(m.data) == 32 for m in msgs)  # one FD servo frame
+    assert any(m.is_fd and m.arbitration_id == 0x081 and len(m.data) == 48 for m in msgs)  # one FD servo frame
     assert any(m.arbitration_id == 0x481 for m in msgs)  # telemetry
     board_msgs = list(can.LogReader(str(tmp_path / "board_frames.asc")))
     assert any(m.arbitration_id == 0x601 for m in board_msgs)  # bulk (ISO-TP) to the board: HELLO

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -12,9 +13,9 @@ from hypothesis import strategies as st
 
 from protocol import messages as m
 from protocol.can import CanDecoder, CanErrorKind, CanFrame, CanItem, encode_bulk, encode_fixed, is_fixed
-from protocol.can.codec import Sender, fixed_layout_for, message_to_raw
+from protocol.can.codec import Sender, fixed_crc, fixed_layout_for, message_to_raw
 from protocol.can.ids import FunctionCode, cob_id, split_id
-from protocol.can.layouts import FIXED_LAYOUTS, unwrap_seq
+from protocol.can.layouts import CRC_SIGNAL, FIXED_LAYOUTS, unwrap_seq
 from protocol.can.make_dbc import dbc_text
 from protocol.codec import PayloadError, msg_type_of, quantize_message
 from protocol.messages import MsgType
@@ -68,9 +69,9 @@ def test_host_bound_roundtrip(t: MsgType, fd: bool) -> None:
 
 def test_classic_frame_counts_and_ids() -> None:
     frames = encode_fixed(SAMPLES[MsgType.SERVO_FRAME], 7, 2)
-    assert len(frames) == 5 and all(f.arbitration_id == 0x082 and len(f.data) == 8 for f in frames)
+    assert len(frames) == 6 and all(f.arbitration_id == 0x082 and len(f.data) == 8 for f in frames)
     fd_frames = encode_fixed(SAMPLES[MsgType.SERVO_FRAME], 7, 2, fd=True)
-    assert len(fd_frames) == 1 and fd_frames[0].is_fd and len(fd_frames[0].data) == 32
+    assert len(fd_frames) == 1 and fd_frames[0].is_fd and len(fd_frames[0].data) == 48
     assert len(encode_fixed(SAMPLES[MsgType.TELEMETRY], 7, 2, sender=Sender.BOARD)) == 17
     assert len(encode_fixed(SAMPLES[MsgType.TELEMETRY], 7, 2, fd=True, sender=Sender.BOARD)) == 2
 
@@ -141,7 +142,7 @@ def test_other_nodes_and_directions_are_ignored() -> None:
         assert dec.feed(f) == []
     for f in encode_fixed(SAMPLES[MsgType.TELEMETRY], 1, 1, sender=Sender.BOARD):
         assert dec.feed(f) == []
-    assert dec.foreign == 22 and dec.error_count == 0
+    assert dec.foreign == 23 and dec.error_count == 0  # 6 servo parts + 17 telemetry parts
     # broadcast ESTOP reaches every node, also with no data at all (cansend vcan0 000#)
     for node in (1, 2):
         items = CanDecoder(node, "board").feed(CanFrame(0x000, b""))
@@ -194,6 +195,8 @@ def test_our_frames_decode_with_cantools(fd: bool) -> None:
     for msg, sender in _fixed_samples():
         layout = fixed_layout_for(msg_type_of(msg), fd, sender)
         raw = message_to_raw(msg)
+        if layout.has_crc:
+            raw[CRC_SIGNAL] = fixed_crc(layout, 1234, raw)
         for k, f in enumerate(encode_fixed(msg, 1234, 1, fd, sender)):
             dm = db.get_message_by_frame_id(f.arbitration_id)
             assert dm.is_fd == fd and dm.length == len(f.data)
@@ -213,6 +216,8 @@ def test_cantools_frames_decode_with_ours(fd: bool) -> None:
     for msg, sender in _fixed_samples():
         layout = fixed_layout_for(msg_type_of(msg), fd, sender)
         raw = message_to_raw(msg)
+        if layout.has_crc:  # a DBC user computes the CRC as the DBC comment says (fixed_crc)
+            raw[CRC_SIGNAL] = fixed_crc(layout, 77, raw)
         dm = db.get_message_by_frame_id(cob_id(layout.fn, 1))
         dec = CanDecoder(1, "host" if sender == Sender.BOARD else "board")
         items = []
@@ -230,3 +235,26 @@ def test_every_fixed_layout_in_dbc() -> None:
     for (fn, fd), layout in FIXED_LAYOUTS.items():
         dm = DBC[fd].get_message_by_frame_id(cob_id(fn, 2))
         assert dm.length == layout.length
+
+
+@pytest.mark.parametrize("fd", [False, True])
+def test_servo_frame_crc_catches_every_single_bit_flip(fd: bool) -> None:
+    """No single flipped data bit of a SERVO_FRAME (header, signals, CRC) surfaces a message other
+    than the one sent: the 16-bit header alone cannot catch a flipped target bit, the CRC does."""
+    sent = m.ServoFrame(123_456, 0xFFF, tuple(0.01 * (i + 1) for i in range(12)))
+    frames = encode_fixed(sent, 300, 1, fd=fd)
+    layout_bits = [(k, b) for k, f in enumerate(frames) for b in range(len(f.data) * 8)]
+    crc_caught = 0
+    for k, bit in layout_bits:
+        data = bytearray(frames[k].data)
+        data[bit // 8] ^= 1 << (bit % 8)
+        bad = list(frames)
+        bad[k] = dataclasses.replace(frames[k], data=bytes(data))
+        dec = CanDecoder(1, "board")
+        dec.last_seq = 300
+        items = [i for f in bad for i in dec.feed(f)]
+        msgs = [i for i in items if isinstance(i, CanItem)]
+        # a flip in unused padding bits changes nothing the receiver reads; anything else is dropped
+        assert all(i.seq == 300 and i.msg == quantize_message(sent) for i in msgs), (k, bit)
+        crc_caught += dec.errors[CanErrorKind.CRC]
+    assert crc_caught > 12 * 16  # every target bit at least

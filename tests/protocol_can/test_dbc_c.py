@@ -28,9 +28,20 @@ MAIN_C = r"""
 /* cantools' generated *_encode() truncates toward zero; the protocol rounds to nearest. */
 static int16_t q(double rad) { return (int16_t)lround(rad / 0.0001); }
 
+/* CRC-16/X-25 (poly 0x1021 reflected, init and xorout 0xFFFF), as protocol.can.codec.fixed_crc */
+static uint16_t x25(uint16_t crc, const uint8_t *p, int n) {
+    while (n--) {
+        crc ^= *p++;
+        for (int b = 0; b < 8; b++) crc = (crc & 1) ? (uint16_t)((crc >> 1) ^ 0x8408) : (uint16_t)(crc >> 1);
+    }
+    return crc;
+}
+
 int main(void) {
     static const double targets[12] = {%(targets)s};
-    for (int part = 0; part < 5; part++) {
+    uint16_t crc = 0xFFFF;
+    for (int pass = 0; pass < 2; pass++)  /* pass 0: CRC over the parts with crc16 = 0; pass 1: print */
+    for (int part = 0; part < 6; part++) {
         struct coco_servo_frame_n1_t msg;
         uint8_t buf[8];
         coco_servo_frame_n1_init(&msg);
@@ -50,8 +61,10 @@ int main(void) {
         msg.target_10 = q(targets[9]);
         msg.target_11 = q(targets[10]);
         msg.target_12 = q(targets[11]);
+        msg.crc16 = pass ? (uint16_t)(crc ^ 0xFFFF) : 0;
         int n = coco_servo_frame_n1_pack(buf, &msg, sizeof buf);
         if (n != 8) return 1;
+        if (!pass) { crc = x25(crc, buf, n); continue; }
         for (int i = 0; i < n; i++) printf("%%02x", buf[i]);
         printf("\n");
     }
@@ -75,7 +88,7 @@ def test_generated_c_packs_a_servo_frame_we_decode(tmp_path: Path) -> None:
     )
     assert build.returncode == 0, build.stderr
     out = subprocess.run([str(tmp_path / "pack")], capture_output=True, text=True, check=True).stdout.split()
-    assert len(out) == 5
+    assert len(out) == 6
     dec = CanDecoder(1, "board")
     dec.last_seq = 1230
     items = [i for line in out for i in dec.feed(CanFrame(0x081, bytes.fromhex(line)))]
