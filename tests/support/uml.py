@@ -264,7 +264,8 @@ def run_in_uml(
         "cwd": str(cwd or REPO_ROOT),
         "env": dict(env if env is not None else default_env()),
         "run_dir": str(run_dir),
-        "keep": [str(Path(k).resolve()) for k in keep],
+        # the checkout and its venv are always reachable, also when they live under /tmp (a CI clone)
+        "keep": sorted({str(Path(k).resolve()) for k in (*keep, REPO_ROOT, sys.prefix, cwd or REPO_ROOT)}),
         "modules": [str(p) for p in module_paths([*BASE_MODULES, *extra_modules], modules)],
         "vcans": list(vcans),
         "mtu": CANFD_MTU if fd else CAN_MTU,
