@@ -38,7 +38,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def _read(path: str) -> str:
-    return Path(path).read_text(encoding="utf-8")
+    """The text of ``path``; OSError with the file name when it is unreadable or not UTF-8."""
+    try:
+        return Path(path).read_text(encoding="utf-8")
+    except UnicodeDecodeError as e:
+        raise OSError(f"{path} is not UTF-8 text ({e.reason} at byte {e.start})") from None
 
 
 def main(args: argparse.Namespace) -> int:

@@ -188,6 +188,9 @@ def main(args: argparse.Namespace) -> int:
         except OSError as e:
             print(f"ghostshell run: cannot read {args.xml_file}: {e.strerror}", file=sys.stderr)
             return 2
+        except UnicodeDecodeError as e:
+            print(f"ghostshell run: {args.xml_file} is not UTF-8 text ({e.reason} at byte {e.start})", file=sys.stderr)
+            return 2
         label = Path(args.xml_file).stem
     else:
         label = "prompt"
