@@ -17,7 +17,8 @@ from host.commands.linkarg import add_link_argument
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    src = parser.add_mutually_exclusive_group(required=True)
+    # not required=True: argparse would then report a missing source before an unknown flag (checked in main)
+    src = parser.add_mutually_exclusive_group()
     src.add_argument("--task", type=int, metavar="N", help="a paper task (1-30): replay its ground-truth tokens")
     src.add_argument("--xml", metavar="TEXT", help="function tokens to replay, e.g. '<head_act action=\"nod\"/>'")
     src.add_argument("--xml-file", metavar="F", help="a file of function tokens to replay")
@@ -183,6 +184,9 @@ def render_into(out: Path) -> bool:
 
 def main(args: argparse.Namespace) -> int:
     program, prompt = None, args.prompt
+    if args.task is None and args.xml is None and args.xml_file is None and args.prompt is None:
+        print("ghostshell run: one of the arguments --task --xml --xml-file --prompt is required", file=sys.stderr)
+        return 2
     if args.task is not None:
         from robots.coco.tasks import get_task
 

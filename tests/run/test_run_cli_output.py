@@ -65,3 +65,11 @@ def test_out_of_range_numbers_are_refused(argv: list[str], capsys: pytest.Captur
     with pytest.raises(SystemExit) as e:
         cli(argv)
     assert e.value.code == 2 and "must be >=" in capsys.readouterr().err
+
+
+def test_an_unknown_flag_is_named(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as e:
+        cli(["run", "--bogus"])
+    assert e.value.code == 2 and "unrecognized arguments: --bogus" in capsys.readouterr().err
+    assert cli(["run", "--lockstep"]) == 2
+    assert "one of the arguments --task" in capsys.readouterr().err
