@@ -214,4 +214,11 @@ def main(args: argparse.Namespace) -> int:
         if args.llm == "scripted":
             print("ghostshell run: --prompt needs a real LLM, e.g. --llm openai:gpt-4o-mini", file=sys.stderr)
             return 2
+        from host.ghost import GhostError, make_ghost
+
+        try:
+            make_ghost(args.llm, base_url=args.base_url, api_key=args.api_key)  # bad spec/no key: before the board
+        except GhostError as e:
+            print(f"ghostshell run: {e}", file=sys.stderr)
+            return 2
     return run_with(args, program=program, prompt=prompt, label=label)

@@ -73,3 +73,8 @@ def test_an_unknown_flag_is_named(capsys: pytest.CaptureFixture[str]) -> None:
     assert e.value.code == 2 and "unrecognized arguments: --bogus" in capsys.readouterr().err
     assert cli(["run", "--lockstep"]) == 2
     assert "one of the arguments --task" in capsys.readouterr().err
+
+
+def test_a_bad_llm_spec_is_refused_before_the_board_starts(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli(["run", "--prompt", "nod", "--llm", "bogus", "--out", str(tmp_path / "r")]) == 2
+    assert "unknown LLM spec" in capsys.readouterr().err and not (tmp_path / "r").exists()
