@@ -57,6 +57,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args._main(args) or 0)
     except KeyboardInterrupt:
         return 130
+    except UnicodeDecodeError as e:  # a file the command read is not UTF-8: one clear line, not a traceback
+        print(f"ghostshell {args.command}: an input file is not UTF-8 text ({e.reason} at byte {e.start})",
+              file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -33,6 +33,7 @@ import anyio
 from host.chat.observations import observation_message
 from host.ghost.base import Ghost
 from host.run.session import RobotSession, TurnResult
+from host.shell.parser import ParseError
 from host.shell.registry import RegistryError
 from host.shell.types import Module
 
@@ -66,6 +67,7 @@ class StepRecord:
     out: str
     observation: str
     looked: bool
+    stream_error: str | None = None  # the LLM stream failed (provider/network error), else None
 
 
 @dataclass
@@ -175,8 +177,10 @@ class Conversation:
         obs = observation_message(turn, step=step, max_steps=self.max_steps, vision=self.vision)
         self._user(obs)
         text = obs["content"] if isinstance(obs["content"], str) else obs["content"][0]["text"]
+        err = turn.result.error
+        stream_error = None if err is None or isinstance(err, ParseError) else str(err)
         record.steps.append(StepRecord(step, turn.received_text, turn.executed_text, turn.interrupted,
-                                       turn.summary.outcome, str(turn.out), text, looked))
+                                       turn.summary.outcome, str(turn.out), text, looked, stream_error))
         return self.messages[-1]
 
     async def _interrupt_at(self, at_s: float) -> None:

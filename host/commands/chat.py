@@ -38,7 +38,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def _read(path: str) -> str:
-    return Path(path).read_text(encoding="utf-8")
+    """The text of ``path``; OSError with the file name when it is unreadable or not UTF-8."""
+    try:
+        return Path(path).read_text(encoding="utf-8")
+    except UnicodeDecodeError as e:
+        raise OSError(f"{path} is not UTF-8 text ({e.reason} at byte {e.start})") from None
 
 
 def main(args: argparse.Namespace) -> int:
@@ -66,6 +70,24 @@ def main(args: argparse.Namespace) -> int:
     if scripted and turns is not None and replies is None:
         print("ghostshell chat: --llm scripted replays --replies FILE; for --turns use --llm openai:MODEL", file=sys.stderr)
         return 2
+    if replies is not None and not replies:
+        print(f"ghostshell chat: {args.replies} holds no reply (blocks are separated by lines '---')", file=sys.stderr)
+        return 2
+    if turns is not None and not turns:
+        print(f"ghostshell chat: {args.turns} holds no turn (blocks are separated by lines '---')", file=sys.stderr)
+        return 2
+    if turns is not None and replies is not None and len(turns) > len(replies):
+        print(f"ghostshell chat: {len(turns)} turns in {args.turns} but only {len(replies)} replies in {args.replies}; "
+              "every turn needs at least one reply", file=sys.stderr)
+        return 2
+    if not scripted:
+        from host.ghost import make_ghost
+
+        try:
+            make_ghost(args.llm, base_url=args.base_url, api_key=args.api_key)  # bad spec/no key: once, up front
+        except GhostError as e:
+            print(f"ghostshell chat: {e}", file=sys.stderr)
+            return 2
     out = Path(args.out) if args.out else Path("runs") / "chat"
     try:
         return anyio.run(_chat, args, turns, replies, skills, out, backend="asyncio")
@@ -129,6 +151,10 @@ async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any,
                 conv.write_transcript(transcript)
         conv.write_transcript(transcript)
     print(f"transcript and artefacts in {out}/")
+    steps = [s for t in conv.turns for s in t.steps]
+    if steps and all(s.stream_error for s in steps):
+        print(f"ghostshell chat: every LLM request failed ({steps[-1].stream_error})", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -179,7 +205,8 @@ async def _interactive(conv: Any, typed: list[str] | None) -> None:
                     with anyio.CancelScope() as scope:
                         watching.append(scope)
                         got.append(await recv.receive())
-                        conv.interrupt()
+                        if got[-1] is not None:  # a new line interrupts; end of input lets the turn finish
+                            conv.interrupt()
 
                 watching: list[anyio.CancelScope] = []
                 turn_tg.start_soon(watch)

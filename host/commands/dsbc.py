@@ -19,7 +19,10 @@ def _load(arg: str) -> str:
     if arg == "-":
         return sys.stdin.read()
     if arg.startswith("@"):
-        return Path(arg[1:]).read_text(encoding="utf-8")
+        try:
+            return Path(arg[1:]).read_text(encoding="utf-8")
+        except UnicodeDecodeError as e:
+            raise ValueError(f"{arg[1:]} is not UTF-8 text ({e.reason} at byte {e.start})") from None
     return arg
 
 

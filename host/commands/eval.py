@@ -68,7 +68,12 @@ def main(args: argparse.Namespace) -> int:
 
     try:
         cfg = build_config(args)
-    except ValueError as err:
+        if args.llm == "scripted":
+            raise ValueError("eval needs a real LLM: --llm openai:MODEL or anthropic:MODEL")
+        from host.ghost import make_ghost
+
+        make_ghost(cfg.llm, base_url=cfg.base_url, api_key=cfg.api_key)  # bad spec/no key: once, up front
+    except (ValueError, GhostError) as err:
         print(f"ghostshell eval: {err}", file=sys.stderr)
         return 2
 

@@ -13,7 +13,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run_dir", metavar="RUN_DIR", help="a run's artefact folder (ghostshell run/demo --out)")
     parser.add_argument("--out", default=None, metavar="FILE", help="video file (default RUN_DIR/run.mp4)")
     parser.add_argument("--fps", type=int, default=25, choices=range(10, 61), metavar="FPS", help="frames per second (default 25)")
-    parser.add_argument("--workers", type=int, default=2, help="render processes (default 2: both cores)")
+    parser.add_argument("--workers", type=_positive_int, default=2, help="render processes (default 2: both cores)")
+
+
+def _positive_int(text: str) -> int:
+    v = int(text)
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {text}")
+    return v
 
 
 def main(args: argparse.Namespace) -> int:

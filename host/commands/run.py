@@ -17,7 +17,8 @@ from host.commands.linkarg import add_link_argument
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    src = parser.add_mutually_exclusive_group(required=True)
+    # not required=True: argparse would then report a missing source before an unknown flag (checked in main)
+    src = parser.add_mutually_exclusive_group()
     src.add_argument("--task", type=int, metavar="N", help="a paper task (1-30): replay its ground-truth tokens")
     src.add_argument("--xml", metavar="TEXT", help="function tokens to replay, e.g. '<head_act action=\"nod\"/>'")
     src.add_argument("--xml-file", metavar="F", help="a file of function tokens to replay")
@@ -28,7 +29,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="scripted (replay, default) or openai:MODEL (any OpenAI-compatible endpoint)")
     parser.add_argument("--base-url", default=None, help="LLM endpoint (else GHOSTSHELL_LLM_BASE_URL/OPENAI_BASE_URL)")
     parser.add_argument("--api-key", default=None, help="LLM key (else GHOSTSHELL_LLM_API_KEY/OPENAI_API_KEY)")
-    parser.add_argument("--interrupt-at", type=float, default=None, metavar="S",
+    parser.add_argument("--interrupt-at", type=_non_negative, default=None, metavar="S",
                         help="interrupt the run S board seconds after the stream starts (external event)")
 
 
@@ -72,6 +73,13 @@ def _positive(text: str) -> float:
     v = float(text)
     if not v > 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return v
+
+
+def _non_negative(text: str) -> float:
+    v = float(text)
+    if not v >= 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
     return v
 
 
@@ -132,13 +140,15 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     except (LinkError, GhostError, RuntimeError, OSError) as e:
         print(f"ghostshell: {e}", file=sys.stderr)
         return 1
+    from host.run.artefacts import calls_table
+
     s = report.summary
-    print(report.result.timeline.table())
+    print(calls_table(report.calls, report.board_t0))  # board-measured, as timeline.json
     for o in report.result.observations:
         if o.kind != "result":
             print(o)
     print(f"\n{label}: {s.outcome}; {sum(s.outcomes.values())} calls {dict((k, v) for k, v in s.outcomes.items() if v)}; "
-          f"board time {s.duration_s:.2f} s; first action after {s.first_action_latency_ms} ms; "
+          f"board time {s.duration_s:.2f} s; {_first_action(s.first_action_latency_ms)}; "
           f"max tilt {s.max_tilt_deg:.1f} deg{'; FELL' if s.fell else ''}")
     print(f"base moved from {s.base_start} to {s.base_end} [x m, y m, yaw deg]")
     scene = s.extra.get("scene") or {}
@@ -150,6 +160,10 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         render_into(out)
     print(f"artefacts in {out}/: " + " ".join(n for n in (*names, "run.mp4") if (out / n).exists()))
     return 0 if s.outcome in ("done", "interrupted") else 1
+
+
+def _first_action(ms: float | None) -> str:
+    return "no action" if ms is None else f"first action after {ms} ms"
 
 
 def render_into(out: Path) -> bool:
@@ -170,6 +184,9 @@ def render_into(out: Path) -> bool:
 
 def main(args: argparse.Namespace) -> int:
     program, prompt = None, args.prompt
+    if args.task is None and args.xml is None and args.xml_file is None and args.prompt is None:
+        print("ghostshell run: one of the arguments --task --xml --xml-file --prompt is required", file=sys.stderr)
+        return 2
     if args.task is not None:
         from robots.coco.tasks import get_task
 
@@ -188,10 +205,20 @@ def main(args: argparse.Namespace) -> int:
         except OSError as e:
             print(f"ghostshell run: cannot read {args.xml_file}: {e.strerror}", file=sys.stderr)
             return 2
+        except UnicodeDecodeError as e:
+            print(f"ghostshell run: {args.xml_file} is not UTF-8 text ({e.reason} at byte {e.start})", file=sys.stderr)
+            return 2
         label = Path(args.xml_file).stem
     else:
         label = "prompt"
         if args.llm == "scripted":
             print("ghostshell run: --prompt needs a real LLM, e.g. --llm openai:gpt-4o-mini", file=sys.stderr)
+            return 2
+        from host.ghost import GhostError, make_ghost
+
+        try:
+            make_ghost(args.llm, base_url=args.base_url, api_key=args.api_key)  # bad spec/no key: before the board
+        except GhostError as e:
+            print(f"ghostshell run: {e}", file=sys.stderr)
             return 2
     return run_with(args, program=program, prompt=prompt, label=label)

@@ -111,10 +111,14 @@ def parse_task_spec(spec: str, valid: list[int]) -> list[int]:
         try:
             if "-" in part:
                 a, b = (int(x) for x in part.split("-", 1))
+                if a > b:
+                    raise ValueError(f"bad task range {part!r}: start after end (did you mean {b}-{a}?)")
                 out.update(range(a, b + 1))
             else:
                 out.add(int(part))
-        except ValueError:
+        except ValueError as e:
+            if "start after end" in str(e):
+                raise
             raise ValueError(f"bad task list {spec!r}; expected e.g. 1-30 or 1,4,7-9") from None
     bad = sorted(out - set(valid))
     if bad:

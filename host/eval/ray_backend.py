@@ -39,7 +39,7 @@ def run_sweep_on_ray(cfg: SweepConfig, address: str,
     _check_config(cfg)
     done = load_results(cfg.out)
     jobs = pending_jobs(cfg, done)
-    progress = SweepProgress(total=len(cfg.tasks) * cfg.trials, skipped=len(done))
+    progress = SweepProgress(total=len(cfg.tasks) * cfg.trials, skipped=len(ordered(cfg, done)))
     system = system_prompt(cfg)
     started_here = not ray.is_initialized()
     if started_here:

@@ -66,7 +66,7 @@ class SweepConfig:
         """What must match for a resumed sweep to continue this one."""
         return {"llm": self.llm, "suite": self.suite, "native_tools": self.native_tools, "native_exec": self.native_exec,
                 "vocabulary": self.vocabulary, "mode": self.mode, "prompt_format": self.prompt_format,
-                "base_url": self.base_url}
+                "base_url": self.base_url, "tasks": list(self.tasks), "trials": self.trials}
 
 
 def job_key(task: int, trial: int) -> str:
@@ -193,13 +193,22 @@ def load_results(out: Path) -> dict[str, dict[str, Any]]:
 
 
 def _check_config(cfg: SweepConfig) -> None:
+    """Refuse to continue a different sweep in ``cfg.out``: same identity and task set, and at least
+    as many trials (more trials extends it; the config file then records the new count)."""
     path = cfg.out / CONFIG
     ident = cfg.identity()
     if path.exists():
         old = json.loads(path.read_text(encoding="utf-8"))
+        old.setdefault("tasks", ident["tasks"])  # written by versions that did not record them
+        old.setdefault("trials", ident["trials"])
+        diff = {k: (old.get(k), v) for k, v in ident.items() if k != "trials" and old.get(k) != v}
+        if old["trials"] > cfg.trials:
+            diff["trials"] = (old["trials"], cfg.trials)
+        if diff:
+            raise ValueError(f"{cfg.out} holds a different sweep ({diff}); run it with the same --llm/--tasks "
+                             f"(and at least --trials {old['trials']}), or use another --out, or delete it")
         if old != ident:
-            diff = {k: (old.get(k), v) for k, v in ident.items() if old.get(k) != v}
-            raise ValueError(f"{cfg.out} holds a different sweep ({diff}); use another --out or delete it")
+            path.write_text(json.dumps(ident, indent=1) + "\n", encoding="utf-8")
     else:
         path.write_text(json.dumps(ident, indent=1) + "\n", encoding="utf-8")
 
@@ -245,7 +254,7 @@ async def run_sweep(cfg: SweepConfig, on_result: Callable[[dict[str, Any], Sweep
     _check_config(cfg)
     done = load_results(cfg.out)
     jobs = pending_jobs(cfg, done)
-    progress = SweepProgress(total=len(cfg.tasks) * cfg.trials, skipped=len(done))
+    progress = SweepProgress(total=len(cfg.tasks) * cfg.trials, skipped=len(ordered(cfg, done)))
     system = system_prompt(cfg)
     limiter = anyio.CapacityLimiter(max(1, cfg.workers))
     with (cfg.out / RESULTS).open("a", encoding="utf-8") as sink:

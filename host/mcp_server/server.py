@@ -27,6 +27,7 @@ from typing import Any
 
 import anyio
 from mcp.server.mcpserver import MCPServer
+from mcp.server.mcpserver.exceptions import ToolError
 from mcp.server.mcpserver.utilities.types import Image
 
 from host.run.session import RobotSession, SessionOptions
@@ -52,7 +53,7 @@ def build_server(opts: SessionOptions) -> MCPServer[Any]:
     def session() -> RobotSession:
         s = holder.get("session")
         if s is None:
-            raise RuntimeError("the robot session is not running")
+            raise ToolError("the robot session is not running")
         return s
 
     server = MCPServer(
@@ -69,7 +70,8 @@ def build_server(opts: SessionOptions) -> MCPServer[Any]:
         run it on the robot. Returns the outcome, the timeline (board seconds) and the observations."""
         s = session()
         if turn_lock.locked():
-            raise RuntimeError("a program is already running; call interrupt() first or wait for it")
+            # ToolError: the client gets this message as an is_error result (no server traceback)
+            raise ToolError("a program is already running; call interrupt() first or wait for it")
         async with turn_lock:
             turn = await s.run_turn(xml)
         summary = turn.summary

@@ -60,6 +60,17 @@ def _jsonable(v: Any) -> Any:
     return str(v)
 
 
+def calls_table(calls: Sequence[BoardCall], t0: float = 0.0) -> str:
+    """A plain-text table of ``calls`` with board-measured times in seconds after ``t0`` (what
+    ``timeline.json`` holds), in the layout of :meth:`host.shell.timeline.Timeline.table`."""
+    rows = ["  start     end  channel  outcome      path  args"]
+    for c in calls:
+        s = "   -  " if c.start is None else f"{c.start - t0:6.2f}"
+        e = "   -  " if c.end is None else f"{c.end - t0:6.2f}"
+        rows.append(f"{s}  {e}  {c.channel or '-':7}  {c.outcome:11}  {c.path}  {c.args}{'  ' + c.error if c.error else ''}")
+    return "\n".join(rows)
+
+
 def write_timeline_json(path: Path, calls: Sequence[BoardCall], t0: float = 0.0) -> None:
     """Write ``{"clock": "board", "t0": run start, "calls": [...]}`` (times in board seconds)."""
     doc = {"clock": "board", "t0": t0, "calls": [{k: _jsonable(v) for k, v in asdict(c).items()} for c in calls]}

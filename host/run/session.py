@@ -323,7 +323,7 @@ class RobotSession:
         starts = [c.start for c in calls if c.start is not None and c.function not in ("wait", "async")]
         first = (min(starts) - turn.board_t0) * 1000 if starts else None
         counts = artefacts.count_outcomes(calls)
-        failed = counts.get("failed", 0) or result.error is not None
+        failed = counts.get("failed", 0) or result.error is not None or result.save_failures
         outcome = "interrupted" if result.interrupted else ("failed" if failed else "done")
         fell = max_tilt > 45.0 or bool(base and min(b[1][2] for b in base) < 0.03)
         client = self.client

@@ -188,13 +188,27 @@ def caption_at(calls: Sequence[_Call], t: float) -> tuple[str, str]:
 _W: dict[str, Any] = {}
 
 
-def _init_worker(settings: VideoSettings) -> None:
+def run_scene(run_dir: Path) -> str:
+    """The scene the run's board simulated (``summary.json`` extra.scene.name; "empty" if not recorded)."""
+    try:
+        doc = json.loads((Path(run_dir) / "summary.json").read_text(encoding="utf-8"))
+        scene = (doc.get("extra") or {}).get("scene") or {}
+        name = scene.get("name") if isinstance(scene, dict) else scene
+    except (OSError, ValueError, AttributeError):
+        return "empty"
+    return name if isinstance(name, str) and name else "empty"
+
+
+def _init_worker(settings: VideoSettings, scene: str = "empty") -> None:
     os.environ.setdefault("MUJOCO_GL", "egl")
     import mujoco
 
     from robots.coco.model import load_model
 
-    cm = load_model()
+    try:
+        cm = load_model(scene=scene)  # the run's objects (e.g. bottles) at their start poses
+    except ValueError as e:
+        raise VideoError(f"cannot build the run's scene: {e}") from e
     model = cm.model
     # software GL (EGL on llvmpipe here) spends most of a frame on the 4096² shadow map and 4x MSAA:
     # a 1024² map and no MSAA render a 640x408 view ~4x faster (visual settings only, no physics)
@@ -291,7 +305,8 @@ def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings
     writer.send(None)
     ctx = multiprocessing.get_context("spawn")
     try:
-        with ctx.Pool(max(1, settings.workers), initializer=_init_worker, initargs=(settings,)) as pool:
+        with ctx.Pool(max(1, settings.workers), initializer=_init_worker,
+                      initargs=(settings, run_scene(run_dir))) as pool:
             for frame in pool.imap(_render, jobs, chunksize=4):
                 writer.send(frame)
     except VideoError:

@@ -68,6 +68,8 @@ class Policy:
             doc = tomllib.loads(Path(path).read_text(encoding="utf-8"))
         except OSError as e:
             raise PolicyError(f"cannot read policy {path}: {e.strerror or e}") from None
+        except UnicodeDecodeError as e:
+            raise PolicyError(f"policy {path} is not UTF-8 text: {e.reason} at byte {e.start}") from None
         except tomllib.TOMLDecodeError as e:
             raise PolicyError(f"policy {path} is not valid TOML: {e}") from None
         try:

@@ -160,6 +160,7 @@ class ProgramRun:
         self._warned_no_speech = False
         self._executed: list[tuple[str, _Call | None]] = []  # the reply as executed (see executed_text)
         self._save_mark = 0
+        self.save_failures = 0  # <SAVE> elements that saved nothing (the run's outcome is then failed)
         self.limits: Limits = getattr(shell, "limits", None) or Limits()
         self.policy = getattr(shell, "policy", None)
         self._text_chars = 0  # characters of text this turn
@@ -191,7 +192,7 @@ class ProgramRun:
                     self._abort(exc, "the output stream failed")
         self._tg = None
         return RunResult(self.timeline, self.observations, self.t0, self.error, self.interrupted,
-                         self.executed_text())
+                         self.executed_text(), self.save_failures)
 
     def executed_text(self) -> str:
         """The reply as it was executed: dispatched elements (reconstructed) and the sentences
@@ -257,6 +258,7 @@ class ProgramRun:
                                    f"{self.limits.max_calls} calls in one turn")
         if self._recording is not None:
             self._observe("error", f"<SAVE name={self._recording.name!r}> was never closed; skill not saved")
+            self.save_failures += 1
             del self._executed[self._save_mark:]
             self._recording = None
         while len(self._stack) > 1:  # lenient parsers close these; be safe anyway
@@ -335,6 +337,7 @@ class ProgramRun:
             self.skills.save(rec.name, rec.description, "".join(rec.parts))
         except (SkillError, OSError) as exc:
             self._observe("error", f"skill not saved: {exc}")
+            self.save_failures += 1
         else:
             self._observe("info", f"skill {rec.name!r} {'replaced (a skill of that name existed)' if existed else 'saved'}")
 
@@ -485,6 +488,7 @@ class ProgramRun:
         name = attrs.get("name", "")
         if empty:
             self._observe("error", f"<SAVE name={name!r}/> encloses no program; nothing saved")
+            self.save_failures += 1
             return
         self._recording = _Recording(name, attrs.get("description", ""))
         self._save_mark = max(0, len(self._executed) - 1)  # the <SAVE> start tag

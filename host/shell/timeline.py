@@ -101,6 +101,7 @@ class RunResult:
     error: Exception | None = None
     interrupted: bool = False
     executed_text: str = ""  # the reply as executed (ProgramRun.executed_text)
+    save_failures: int = 0  # <SAVE> elements that saved nothing (empty/invalid name, unwritable library)
 
     def observation_text(self) -> str:
         """Observations rendered one a line, for the LLM's next turn."""

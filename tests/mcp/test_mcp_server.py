@@ -97,3 +97,29 @@ def test_mcp_streamable_http_on_localhost(tmp_path: Path) -> None:
     finally:
         proc.terminate()
         proc.wait(timeout=30)
+
+
+def test_a_second_program_while_one_runs_is_a_clear_tool_error(tmp_path: Path) -> None:
+    """In process (the SDK's in-memory client): the busy refusal reaches the client with its message."""
+    from host.mcp_server.server import build_server
+    from host.run.session import SessionOptions
+
+    server = build_server(SessionOptions(lockstep=True, out=tmp_path / "mcp"))
+
+    async def main() -> None:
+        async with Client(server) as client:
+            async with anyio.create_task_group() as tg:
+                first: list[Any] = []
+
+                async def long_program() -> None:
+                    first.append(await client.call_tool("run_program", {"xml": '<head_act action="nod" duration="60"/>'}))
+
+                tg.start_soon(long_program)
+                while not _json(await client.call_tool("state", {}))["running"]:
+                    await anyio.sleep(0.01)  # poll the server's state (no timing assumption)
+                busy = await client.call_tool("run_program", {"xml": '<head_act action="shake"/>'})
+                assert busy.is_error and "already running" in busy.content[0].text
+                assert _json(await client.call_tool("interrupt", {}))["cancelled"] >= 1
+            assert _json(first[0])["outcome"] == "interrupted"
+
+    anyio.run(main, backend="asyncio")
