@@ -40,8 +40,9 @@ async def _leave_watchdog_fault(port: str) -> None:
 
 async def _faults(port: str) -> FaultFlags:
     async with await BoardClient.connect(port, reconnect=False) as c:
-        await c.advance(c.board_now_estimate() + 20_000)
-        tel = await c.next_telemetry(5)
+        at = c.board_now_estimate()
+        await c.advance(at + 20_000)
+        tel = await c.wait_for(lambda t: t.board_time_us > at, 10)
         return FaultFlags(tel.faults & (FaultFlags.ESTOP | FaultFlags.WATCHDOG_FAULT))
 
 
