@@ -28,6 +28,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 async def _run(args: argparse.Namespace, target: tuple[float, ...]) -> int:
     from host.link import BoardClient, LinkError
+    from host.link.faultcheck import clear_leftover_fault
     from host.motion.moves import move_to
     from robots.coco import load_servo_table
 
@@ -38,6 +39,9 @@ async def _run(args: argparse.Namespace, target: tuple[float, ...]) -> int:
         print(f"ghostshell pose: no board on {args.link}: {e}", file=sys.stderr)
         return 2
     try:
+        note = await clear_leftover_fault(client)
+        if note:
+            print(f"ghostshell pose: {note}", file=sys.stderr)
         res = await move_to(client, target, duration_s=args.duration, tolerance_deg=args.tolerance,
                             settle_timeout_s=args.timeout, wall_timeout_s=max(30.0, 4 * args.timeout))
     except LinkError as e:

@@ -151,6 +151,8 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
           f"board time {s.duration_s:.2f} s; {_first_action(s.first_action_latency_ms)}; "
           f"max tilt {s.max_tilt_deg:.1f} deg{'; FELL' if s.fell else ''}")
     print(f"base moved from {s.base_start} to {s.base_end} [x m, y m, yaw deg]")
+    if s.extra.get("board_fault"):
+        print(f"ghostshell: {s.extra['board_fault']}", file=sys.stderr)
     scene = s.extra.get("scene") or {}
     if scene.get("objects"):
         print(f"scene {scene['name']}: {scene['toppled']} of {scene['objects']} toppled")

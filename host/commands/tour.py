@@ -73,6 +73,7 @@ async def _printer(client: Any, names: tuple[str, ...], state: dict[str, Any], l
 
 async def _drive(port: LinkSpec, args: argparse.Namespace, out: Path | None) -> dict[str, Any]:
     from host.link import BoardClient
+    from host.link.faultcheck import clear_leftover_fault
     from host.motion.moves import move_to
     from robots.coco import load_poses, load_servo_table
 
@@ -88,6 +89,9 @@ async def _drive(port: LinkSpec, args: argparse.Namespace, out: Path | None) -> 
         live.start()
     try:
         async with await BoardClient.connect(port, log_path=out / "host.jsonl" if out else None, reconnect=False) as client:
+            note = await clear_leftover_fault(client)
+            if note:
+                print(f"ghostshell tour: {note}", file=sys.stderr)
             printer = asyncio.create_task(_printer(client, names, state, live))
             try:
                 for name in SEQUENCE:

@@ -6,13 +6,14 @@ The session (:mod:`host.link.session`, :class:`BoardClient`) runs over a transpo
 """
 
 from host.link.session import ALL_SERVOS, FAULT_BITS, BoardClient, FaultEvent, LinkStats, host_now_us
-from host.link.errors import HandshakeError, LinkDown, LinkError, LinkTimeout, NackError
+from host.link.errors import BoardFaulted, HandshakeError, LinkDown, LinkError, LinkTimeout, NackError
 from host.link.timesync import ClockEstimate, ClockSync
 
 __all__ = [
     "ALL_SERVOS",
     "FAULT_BITS",
     "BoardClient",
+    "BoardFaulted",
     "ClockEstimate",
     "ClockSync",
     "FaultEvent",

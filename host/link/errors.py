@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from protocol.messages import MsgType, Nack, NackReason
 
-__all__ = ["HandshakeError", "LinkDown", "LinkError", "LinkTimeout", "NackError"]
+__all__ = ["BoardFaulted", "HandshakeError", "LinkDown", "LinkError", "LinkTimeout", "NackError"]
 
 
 class LinkError(Exception):
@@ -17,6 +17,11 @@ class LinkDown(LinkError):
 
 class LinkTimeout(LinkError):
     """No reply within the time allowed."""
+
+
+class BoardFaulted(LinkError):
+    """The board is in ESTOP or has latched WATCHDOG_FAULT, or refused frames for that reason
+    (NACK ESTOPPED / FAULT_LATCHED): motion cannot run until the fault is cleared."""
 
 
 class HandshakeError(LinkError):

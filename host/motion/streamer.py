@@ -21,6 +21,11 @@ then the first frame, then the servos' frames re-sent for the part of the grid a
 Later frames keep the full lookahead. On a lockstep board nothing of the grid has been simulated
 beyond the first unsent frame's predecessor, so that frame is the soonest.
 
+:meth:`FrameStreamer.fail` records that the board will not apply the frames (it raised ESTOP or
+WATCHDOG_FAULT, or NACKed frames ESTOPPED / FAULT_LATCHED): a refused frame is never confirmed
+by telemetry, so every segment waiter (:meth:`wait_started`, :meth:`wait_ended`) would wait for
+ever. Instead they raise the failure at once, now and until :meth:`clear_failure`.
+
 :meth:`FrameStreamer.cut` implements reset and interruption: it FLUSHes the
 affected servos' buffered frames from a cut time on, releases their segments
 there, starts the replacement motion (a smooth return or a stop) at the cut
@@ -124,6 +129,8 @@ class FrameStreamer:
         self._time_waiters: list[tuple[int, int, anyio.Event]] = []
         self._waiter_ids = itertools.count()
         self.history: deque[tuple[int, np.ndarray]] = deque(maxlen=history)  # (t_us, targets) sent
+        self.failure: Exception | None = None  # why the board will not apply our frames (see fail())
+        self._last_failure: Exception | None = None
 
     def grid(self, t_us: int) -> int:
         """The first frame time on the grid at or after ``t_us``."""
@@ -153,16 +160,47 @@ class FrameStreamer:
         return self._times.setdefault(seg, SegmentTimes())
 
     async def wait_started(self, seg: Segment) -> float:
+        """Board time (s) the segment's first frame was applied; raises :attr:`failure` if the board refuses frames."""
         t = self.times(seg)
-        await t.started.wait()
-        assert t.start is not None
+        if not t.started.is_set():
+            self._raise_failure()
+            await t.started.wait()
+        if t.start is None:
+            raise self._last_failure or RuntimeError("segment woken without a start")
         return t.start
 
     async def wait_ended(self, seg: Segment) -> float:
+        """Board time (s) the segment's last frame was applied; raises :attr:`failure` if the board refuses frames."""
         t = self.times(seg)
-        await t.ended.wait()
-        assert t.end is not None
+        if not t.ended.is_set():
+            self._raise_failure()
+            await t.ended.wait()
+        if t.end is None:
+            raise self._last_failure or RuntimeError("segment woken without an end")
         return t.end
+
+    def _raise_failure(self) -> None:
+        if self.failure is not None:
+            raise self.failure
+
+    def fail(self, error: Exception) -> None:
+        """The board refuses our frames (``error`` says why): wake every segment waiter, which raises
+        ``error``, and make new waits raise it too until :meth:`clear_failure`. The first failure is kept."""
+        if self.failure is not None:
+            return
+        self.failure = self._last_failure = error
+        for st in list(self._times.values()):
+            if st.start is None:
+                st.started.set()
+            if st.end is None:
+                st.ended.set()
+        waiters, self._time_waiters = self._time_waiters, []
+        for _, _, event in waiters:
+            event.set()
+
+    def clear_failure(self) -> None:
+        """Forget a failure (after the board's fault was cleared); segments woken by it stay failed."""
+        self.failure = None
 
     def soonest_us(self, nbytes: int = 0) -> int:
         """Earliest board time (µs) a message of ``nbytes`` sent now can be due at without being late.
@@ -289,12 +327,16 @@ class FrameStreamer:
         return self.board_time_us if self.link.lockstep else self.link.board_now_us()
 
     async def wait_board_time(self, t_us: int) -> None:
-        """Return once a handled telemetry report shows board time ``t_us`` or later."""
+        """Return once a handled telemetry report shows board time ``t_us`` or later; raises
+        :attr:`failure` when the board refuses frames (a lockstep board would not get there)."""
         if self._last_telemetry is not None and self._last_telemetry.board_time_us >= t_us:
             return
+        self._raise_failure()
         event = anyio.Event()
         heapq.heappush(self._time_waiters, (int(t_us), next(self._waiter_ids), event))
         await event.wait()
+        if self._last_telemetry is None or self._last_telemetry.board_time_us < t_us:
+            raise self._last_failure or RuntimeError("board-time waiter woken early")
 
     # -- confirming ----------------------------------------------------------------------------
     def on_telemetry(self, tel: Telemetry) -> None:

@@ -18,6 +18,14 @@ Example::
 Failures: a link or LLM failure inside the session's tasks surfaces from the
 ``async with`` as that :class:`~host.link.errors.LinkError` /
 :class:`~host.ghost.GhostError` (not an exception group).
+
+Board faults: at start a WATCHDOG_FAULT latched by the previous host's missing
+heartbeat is cleared with ESTOP_CLEAR (a logged note); a board in ESTOP is refused
+with :class:`~host.link.errors.BoardFaulted` (see :mod:`host.link.faultcheck`). A
+fault the board raises during a turn (ESTOP, WATCHDOG_FAULT), or servo frames it
+refuses (NACK ESTOPPED / FAULT_LATCHED), fail the streamer
+(:meth:`~host.motion.streamer.FrameStreamer.fail`): the running calls fail with the
+reason and the turn's outcome is ``failed`` (``extra.board_fault`` in summary.json).
 """
 
 from __future__ import annotations
@@ -42,7 +50,9 @@ from host.coco.runtime import CocoRuntime
 from host.ghost import GhostError
 from host.link.board_process import BoardProcess, start_board
 from host.link.client import BoardClient
-from host.link.errors import LinkError
+from host.link.errors import BoardFaulted, LinkError
+from host.link.faultcheck import LATCHED, clear_leftover_fault
+from host.link.session import FaultEvent
 from host.run import artefacts
 from host.run.pump import (
     BoardPacer,
@@ -59,6 +69,7 @@ from host.shell.policy import Policy
 from host.shell.skills import SkillStore
 from host.shell.timeline import RunResult
 from protocol.linkspec import LinkSpec, parse_link_spec
+from protocol.messages import FaultFlags, MsgType, Nack, NackReason
 from robots.coco import load_servo_table
 
 log = logging.getLogger("host.run")
@@ -186,9 +197,14 @@ class RobotSession:
             self.client = await self._stack.enter_async_context(client)
             if client.latest_telemetry is None and client.lockstep:
                 await client.advance(client.board_now_estimate() + 20_000)  # let a lockstep board report once
+            note = await clear_leftover_fault(client)
+            if note:
+                log.warning("%s", note)
             tel = await client.wait_for(lambda t: True, timeout=10)
             runtime = CocoRuntime(ClientLink(client, wire_baud=opts.wire_baud), self.out, initial=np.asarray(tel.positions))
             self._runtime = runtime
+            client.on_fault.append(self._on_fault)
+            client.on_nack.append(self._on_nack)
             registry = coco_registry(runtime, opts.vocabulary)
             self._shell = Shell(registry, mode=opts.mode, strict=opts.strict, clock=runtime.board_now_s,
                                 skills=opts.skills, policy=opts.policy)
@@ -223,6 +239,26 @@ class RobotSession:
                 self._board = None
         return None
 
+    # -- board faults ----------------------------------------------------------------------------
+    def _how_to_clear(self) -> str:
+        link = self.client.port_name if self.client is not None else "SPEC"
+        return f"clear it with `ghostshell estop --link {link} --clear`"
+
+    def _on_fault(self, ev: FaultEvent) -> None:
+        raised = FaultFlags(ev.raised & LATCHED)
+        if raised and self._runtime is not None:
+            what = "ESTOP" if raised & FaultFlags.ESTOP else "WATCHDOG_FAULT (the host's heartbeat was missed)"
+            self._runtime.streamer.fail(BoardFaulted(
+                f"the board raised {what} at board time {ev.board_time_us / 1e6:.3f} s and refuses motion; "
+                + self._how_to_clear()))
+
+    def _on_nack(self, nack: Nack) -> None:
+        if (nack.msg_type == MsgType.SERVO_FRAME and nack.reason in (NackReason.ESTOPPED, NackReason.FAULT_LATCHED)
+                and self._runtime is not None):
+            reason = nack.reason.name if isinstance(nack.reason, NackReason) else str(nack.reason)
+            self._runtime.streamer.fail(BoardFaulted(
+                f"the board refused servo frames ({reason}: {nack.detail}); " + self._how_to_clear()))
+
     # -- turns -----------------------------------------------------------------------------------
     def pacer(self) -> BoardPacer:
         """A sleep on the board clock for a scripted LLM (absolute deadlines; fresh per turn)."""
@@ -248,6 +284,8 @@ class RobotSession:
         """
         runtime, shell = self.runtime, self.shell
         self.turns += 1
+        if self.client is not None and not self.client.faults & LATCHED:
+            runtime.streamer.clear_failure()  # a fault cleared since the last turn no longer fails calls
         label = label or f"turn {self.turns}"
         out = out if out is not None else self.out / f"turn_{self.turns:02d}"
         token_times: list[tuple[float, str]] = []
@@ -264,7 +302,7 @@ class RobotSession:
                 tg.start_soon(self._interrupt_at, board_t0 + interrupt_after)
             result = await shell.run(buffered(chunks) if buffer else chunks)
             tg.cancel_scope.cancel()
-        if settle_s > 0:
+        if settle_s > 0 and runtime.streamer.failure is None:
             await runtime.sleep(settle_s)
         turn = TurnResult(result, [], None, out, token_times, board_t0,  # type: ignore[arg-type]
                           executed_text=result.executed_text, received_text="".join(c for _, c in token_times))
@@ -275,7 +313,10 @@ class RobotSession:
         return turn
 
     async def _interrupt_at(self, at_s: float) -> None:
-        await self.runtime.streamer.wait_board_time(int(at_s * 1e6))
+        try:
+            await self.runtime.streamer.wait_board_time(int(at_s * 1e6))
+        except BoardFaulted:
+            return  # the board refuses motion: the turn fails on its own
         self.shell.interrupt()
 
     def interrupt(self, channels: Iterable[str] | None = None) -> int:
@@ -323,8 +364,10 @@ class RobotSession:
         starts = [c.start for c in calls if c.start is not None and c.function not in ("wait", "async")]
         first = (min(starts) - turn.board_t0) * 1000 if starts else None
         counts = artefacts.count_outcomes(calls)
-        failed = counts.get("failed", 0) or result.error is not None or result.save_failures
-        outcome = "interrupted" if result.interrupted else ("failed" if failed else "done")
+        board_fault = self.runtime.streamer.failure
+        failed = counts.get("failed", 0) or result.error is not None or result.save_failures or board_fault is not None
+        outcome = "failed" if board_fault is not None else ("interrupted" if result.interrupted else
+                                                            ("failed" if failed else "done"))
         fell = max_tilt > 45.0 or bool(base and min(b[1][2] for b in base) < 0.03)
         client = self.client
         tel = client.latest_telemetry if client is not None else None
@@ -342,6 +385,7 @@ class RobotSession:
             outcomes=counts, duration_s=round(end_t - turn.board_t0, 3),
             extra={"clock": "lockstep" if opts.lockstep else "realtime", "vocabulary": opts.vocabulary,
                    "mode": opts.mode, "error": None if result.error is None else str(result.error),
+                   **({"board_fault": str(board_fault)} if board_fault is not None else {}),
                    "observations": [str(o) for o in result.observations], "link": stats,
                    "captures": [p.name for p in captures], "scene": self.scene_report(),
                    **({"faults": {"host_detected": {"decode_errors": stats["decode_errors"],

@@ -1,0 +1,64 @@
+"""What the host does at connect about a fault the board already reports.
+
+A board that lost its previous host latches WATCHDOG_FAULT: the previous host's
+heartbeat stopped when it disconnected, the board held (200 ms) and then crouched
+(1 s) and latched the fault until ESTOP_CLEAR. That fault says nothing about the
+robot or the new host; it is the normal trace of a host going away. A new host
+that did not clear it would have every SERVO_FRAME refused (NACK FAULT_LATCHED).
+So :func:`clear_leftover_fault` clears it explicitly with ESTOP_CLEAR and returns a
+one-line note for the user.
+
+ESTOP is different: someone (or something) asked the robot to stop, and only a
+person may decide it is safe to move again. It is never cleared automatically;
+:func:`clear_leftover_fault` raises :class:`BoardFaulted` telling the user how to
+clear it (``ghostshell estop --link SPEC --clear``).
+"""
+
+from __future__ import annotations
+
+from host.link.errors import BoardFaulted, LinkTimeout
+from host.link.session import BoardClient
+from protocol.messages import FaultFlags, Telemetry
+
+__all__ = ["LATCHED", "clear_leftover_fault", "estop_message"]
+
+#: telemetry bits under which the board refuses every servo frame
+LATCHED = FaultFlags.ESTOP | FaultFlags.WATCHDOG_FAULT
+
+
+def estop_message(link: object) -> str:
+    """The error for a board found in ESTOP (with the command that clears it)."""
+    return (f"the board on {link} is in ESTOP and refuses motion; once it is safe to move, clear it with "
+            f"`ghostshell estop --link {link} --clear`")
+
+
+async def _telemetry(client: BoardClient, timeout: float) -> Telemetry:
+    if client.latest_telemetry is None and client.lockstep:
+        await client.advance(client.board_now_estimate() + 20_000)  # let a lockstep board report once
+    return await client.wait_for(lambda t: True, timeout)
+
+
+async def clear_leftover_fault(client: BoardClient, timeout: float = 10.0) -> str | None:
+    """Clear a latched WATCHDOG_FAULT left by a previous host; refuse a board in ESTOP.
+
+    Waits for the first telemetry report (up to ``timeout`` s). Returns a one-line
+    note when a fault was cleared, None when there was none. Raises
+    :class:`BoardFaulted` when the board is in ESTOP, or still reports the fault after
+    ESTOP_CLEAR was acknowledged; :class:`~host.link.errors.LinkError` on link failures.
+    """
+    tel = await _telemetry(client, timeout)
+    faults = FaultFlags(tel.faults)
+    if faults & FaultFlags.ESTOP:
+        raise BoardFaulted(estop_message(client.port_name))
+    if not faults & FaultFlags.WATCHDOG_FAULT:
+        return None
+    at = tel.board_time_us
+    await client.estop_clear()
+    if client.lockstep:
+        await client.advance(client.board_now_estimate() + 20_000)
+    try:
+        await client.wait_for(lambda t: t.board_time_us > at and not t.faults & LATCHED, timeout)
+    except LinkTimeout as e:
+        raise BoardFaulted(f"the board on {client.port_name} still reports a fault after ESTOP_CLEAR: {e}") from None
+    return (f"cleared the board's latched WATCHDOG_FAULT (left by the previous host's missing heartbeat, "
+            f"board time {at / 1e6:.3f} s) with ESTOP_CLEAR")
