@@ -206,13 +206,17 @@ class FrameStreamer:
         """Earliest board time (µs) a message of ``nbytes`` sent now can be due at without being late.
 
         Realtime: the board clock estimate + the link's measured latency p99 (wire time of
-        ``nbytes`` included) + one control tick; never later than the first unsent frame.
-        Lockstep: the first unsent frame.
+        ``nbytes`` included), rounded up to the board's control-tick grid (ticks run at whole
+        multiples of ``tick_us``), so the message is due exactly at the first tick it can reach in
+        time: a margin of up to one tick beyond the latency p99, and no extra tick of waiting for
+        the board to apply it. Never later than the first unsent frame. Lockstep: the first unsent
+        frame.
         """
         if self.link.lockstep:
             return self.next_us
-        t = self.link.board_now_us() + self.link.latency_us(nbytes) + self.link.tick_us
-        return min(t, self.next_us)
+        tick = self.link.tick_us
+        t = self.link.board_now_us() + self.link.latency_us(nbytes)
+        return min(-(-t // tick) * tick, self.next_us)
 
     async def start_now(self, motion: MotionLike, label: str = "") -> Segment:
         """Start ``motion`` at :meth:`soonest_us`, replacing the frames already sent for its servos."""
