@@ -245,19 +245,23 @@ class RobotSession:
         return f"clear it with `ghostshell estop --link {link} --clear`"
 
     def _on_fault(self, ev: FaultEvent) -> None:
-        raised = FaultFlags(ev.raised & LATCHED)
-        if raised and self._runtime is not None:
-            what = "ESTOP" if raised & FaultFlags.ESTOP else "WATCHDOG_FAULT (the host's heartbeat was missed)"
+        """An ESTOP raised mid-run fails the running calls and the turn (the session stays up).
+
+        A watchdog fault latched mid-run is not handled here: it means the link was silent past
+        the watchdog and the crouch delay, and the telemetry pump ends the run with one message
+        (:func:`host.run.pump.watchdog_fault_message`); one left over from a previous host is
+        cleared at connect (:func:`host.link.faultcheck.clear_leftover_fault`).
+        """
+        if ev.raised & FaultFlags.ESTOP and self._runtime is not None:
             self._runtime.streamer.fail(BoardFaulted(
-                f"the board raised {what} at board time {ev.board_time_us / 1e6:.3f} s and refuses motion; "
+                f"the board raised ESTOP at board time {ev.board_time_us / 1e6:.3f} s and refuses motion; "
                 + self._how_to_clear()))
 
     def _on_nack(self, nack: Nack) -> None:
-        if (nack.msg_type == MsgType.SERVO_FRAME and nack.reason in (NackReason.ESTOPPED, NackReason.FAULT_LATCHED)
-                and self._runtime is not None):
-            reason = nack.reason.name if isinstance(nack.reason, NackReason) else str(nack.reason)
+        """Servo frames refused because of an ESTOP fail the turn at once (before telemetry shows it)."""
+        if nack.msg_type == MsgType.SERVO_FRAME and nack.reason == NackReason.ESTOPPED and self._runtime is not None:
             self._runtime.streamer.fail(BoardFaulted(
-                f"the board refused servo frames ({reason}: {nack.detail}); " + self._how_to_clear()))
+                f"the board refused servo frames (ESTOPPED: {nack.detail}); " + self._how_to_clear()))
 
     # -- turns -----------------------------------------------------------------------------------
     def pacer(self) -> BoardPacer:
