@@ -11,6 +11,7 @@ can-isotp's own timers (it reads the monotonic clock inside ``process``).
 
 from __future__ import annotations
 
+import logging
 from collections import deque
 from collections.abc import Callable
 
@@ -19,6 +20,11 @@ import isotp
 from protocol.can.frame import CanFrame
 
 __all__ = ["IsoTpLink", "MAX_PENDING_SENDS"]
+
+# can-isotp also logs every protocol error it reports to ``error_handler``; those are counted and
+# surfaced as link errors here, so without a logging configuration they must not reach stderr
+# through logging's last-resort handler (an application that configures logging still sees them).
+logging.getLogger("isotp").addHandler(logging.NullHandler())
 
 MAX_PENDING_SENDS = 256  # bulk messages queued before send() refuses
 
