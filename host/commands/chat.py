@@ -179,7 +179,8 @@ async def _interactive(conv: Any, typed: list[str] | None) -> None:
                     with anyio.CancelScope() as scope:
                         watching.append(scope)
                         got.append(await recv.receive())
-                        conv.interrupt()
+                        if got[-1] is not None:  # a new message interrupts; end of input lets the turn finish
+                            conv.interrupt()
 
                 watching: list[anyio.CancelScope] = []
                 turn_tg.start_soon(watch)
