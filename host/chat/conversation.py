@@ -48,8 +48,9 @@ def observe_module() -> Module:
     """``<observe/>``: ask for the observations so far and continue after them."""
 
     async def observe() -> str:
-        """Stop here and look: the results of the calls so far (and any photo) come back to you as the
-        next message, then you continue. Use it when what you do next depends on what happened."""
+        """End your reply with this to look: once everything in the reply has run, its results (and any
+        photo) come back to you as the next message and you continue. Use it when what you do next
+        depends on what happened; `capture` does the same."""
         return "observations will be sent back"
 
     return Module.from_functions("observe", observe, channel="observe", doc="looking at the results")

@@ -11,11 +11,13 @@ from rich.table import Table
 
 from host.coco.runtime import CocoRuntime
 from host.shell import Shell
+from host.shell.timeline import Timeline
 
 CHANNELS = ("main", "speech", "face", "head", "ears", "body", "bgm", "camera")
 
 
-def _table(shell: Shell, runtime: CocoRuntime, label: str) -> Table:
+def _table(shell: Shell, runtime: CocoRuntime, label: str, last: list[Timeline] | None = None) -> Table:
+    """The channel table; ``last`` remembers the latest timeline so it stays shown between turns."""
     now = runtime.board_now_s()
     table = Table(title=f"{label}   board time {now:7.2f} s", title_justify="left", expand=False)
     table.add_column("channel", style="bold")
@@ -23,6 +25,11 @@ def _table(shell: Shell, runtime: CocoRuntime, label: str) -> Table:
     table.add_column("done", justify="right")
     table.add_column("last finished")
     tl = shell.timeline
+    if last is not None:
+        if tl is not None:
+            last[:] = [tl]
+        elif last:
+            tl = last[0]
     records = list(tl) if tl is not None else []
     for ch in CHANNELS:
         mine = [r for r in records if r.channel == ch]
@@ -47,7 +54,8 @@ async def live_view(shell: Shell, runtime: CocoRuntime, label: str, period_s: fl
     if not sys.stdout.isatty():
         await anyio.sleep_forever()
     console = Console()
-    with Live(_table(shell, runtime, label), console=console, refresh_per_second=8, transient=False) as live:
+    last: list[Timeline] = []
+    with Live(_table(shell, runtime, label, last), console=console, refresh_per_second=8, transient=False) as live:
         while True:
             await anyio.sleep(period_s)
-            live.update(_table(shell, runtime, label))
+            live.update(_table(shell, runtime, label, last))

@@ -98,6 +98,8 @@ def convert_value(value: str, annotation: Any, *, where: str = "value") -> Any:
         if v in _FALSE:
             return False
         raise BadValue(f"{where}={value!r} is not a boolean (use true or false)")
+    if annotation in (int, float) and value.strip().endswith("%"):
+        value = value.strip()[:-1]  # "-20%": a percentage given with its sign, as TTS APIs write it
     if annotation is int:
         try:
             return int(value.strip())

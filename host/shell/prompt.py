@@ -88,6 +88,9 @@ def _value_hint(ann: Any) -> str:
         base, *meta = typing.get_args(ann)
         rng = next((r for r in map(as_range, meta) if r is not None), None)
         hint = _value_hint(base)
+        max_bytes = next((m.max_bytes for m in meta if isinstance(getattr(m, "max_bytes", None), int)), None)
+        if max_bytes is not None:
+            hint += f" (any language, at most {max_bytes} bytes of UTF-8)"
         return f"{hint} in [{rng.lo:g}, {rng.hi:g}]" if rng else hint
     if origin is Literal:
         return "one of " + ", ".join(str(a) for a in typing.get_args(ann))

@@ -461,10 +461,10 @@ EAR_STATES: dict[str, tuple[float, float]] = {
     "down": (65.0, 65.0),
     "droop": (80.0, 80.0),
     "back": (-30.0, -30.0),
-    # flattened back, as if facing an opponent
-    "flattened": (-55.0, -55.0), "flat": (-55.0, -55.0), "flattened_back": (-55.0, -55.0),
-    "pinned_back": (-55.0, -55.0), "opponent": (-55.0, -55.0), "aggressive": (-50.0, -50.0),
-    "angry": (-45.0, -45.0), "scared": (-45.0, -45.0), "fear": (-45.0, -45.0),
+    # flattened back as far as the ears go (-30 deg), as if facing an opponent
+    "flattened": (-30.0, -30.0), "flat": (-30.0, -30.0), "flattened_back": (-30.0, -30.0),
+    "pinned_back": (-30.0, -30.0), "opponent": (-30.0, -30.0), "aggressive": (-30.0, -30.0),
+    "angry": (-28.0, -28.0), "scared": (-25.0, -25.0), "fear": (-25.0, -25.0),
     # perked up and forward
     "perked": (-20.0, -20.0), "perked_up": (-20.0, -20.0), "perk": (-20.0, -20.0), "raised": (-20.0, -20.0),
     "attentive": (-15.0, -15.0), "listening": (-20.0, 10.0), "forward": (-5.0, -5.0),

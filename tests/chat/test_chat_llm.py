@@ -11,6 +11,7 @@ observations back, with the photo as an image part, within the same turn.
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 from typing import Any
 
@@ -79,3 +80,35 @@ def test_batch_chat_history_reaches_the_llm(fake_llm: FakeLLM, tmp_path: Path) -
     assert "Never spoken" in doc["turns"][1]["steps"][0]["received"]
     assert (out / "turn_03" / "step_1" / "capture_1.png").exists()
     assert (out / "turn_01" / "step_1" / "timeline.json").exists()
+
+
+def test_interrupt_cancels_the_llm_stream_and_trims_the_reply(fake_llm: FakeLLM, tmp_path: Path) -> None:  # noqa: F811
+    """Realtime board: ``--- interrupt-after 1`` cuts a reply still streaming; the server sees the client go."""
+    from support.fake_llm import chunk, sse
+
+    def respond(h: Handler, fake: FakeLLM) -> None:
+        if len(fake.requests) > 1:
+            replay(stream_body(["Stopped."]))(h, fake)
+            return
+        h.start_sse()
+        h.write_piece(sse(chunk("", role="assistant")))
+        for i in range(200):  # ~10 s of reply at the server's own pace (a slow model)
+            if not h.write_piece(sse(chunk(f"Sentence {i}. "))):
+                return
+            time.sleep(0.05)
+        h.write_piece(sse(chunk(None, finish="stop")))
+        h.write_piece(b"data: [DONE]\n\n")
+        h.end_chunked()
+
+    fake_llm.responder = respond
+    (tmp_path / "turns.txt").write_text("--- interrupt-after 1\nTalk a lot.\n---\nStop.\n", encoding="utf-8")
+    rc = cli_main(["chat", "--llm", "openai:test-model", "--base-url", fake_llm.base_url, "--api-key", "k",
+                   "--turns", str(tmp_path / "turns.txt"), "--realtime", "--no-live", "--out", str(tmp_path / "c")])
+    assert rc == 0
+    assert fake_llm.disconnected.wait(10), "the LLM stream was not cancelled"
+    second = fake_llm.requests[1]["json"]["messages"]
+    executed = second[2]["content"]
+    assert second[2]["role"] == "assistant" and executed.startswith("Sentence 0.")
+    assert "Sentence 150." not in executed  # only what was spoken before the cut
+    doc = json.loads((tmp_path / "c" / "transcript.json").read_text(encoding="utf-8"))
+    assert doc["turns"][0]["interrupted"]

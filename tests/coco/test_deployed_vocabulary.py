@@ -36,6 +36,7 @@ class Recorder:
 @pytest.mark.parametrize("element", [
     '<speech_role role="narrator" speech_rate="-20" loudness_rate="10"/>',
     '<speech_role role="海盗" emotion="excited" speech_rate="100" loudness_rate="-50"/>',
+    '<speech_role role="girl" speech_rate="-20%" loudness_rate="+10%"/>',
     '<spider_arm_pull direction="forward"/>', '<spider_arm_pull direction="backward" times="1"/>',
     '<ear_state state="flattened"/>', '<ear_state state="flattened back"/>', '<ear_state state="Shy"/>',
     '<ear_state state="perked-up"/>', '<ear_state state="opponent"/>',
