@@ -766,14 +766,7 @@ class FunctionTokenParser:
                     self._vparts.append(buf[pos:e])
                     pos = e
                     if e < n:
-                        an = "".join(self._aname)
-                        v = self._attr_value("".join(self._vparts), self._tok_pos)
-                        if an in self._attrs:
-                            self._dup_attr(an, self._tok_pos)
-                        else:
-                            self._attrs[an] = v
-                        self._ts = _AFTER
-                        self._had_space = False
+                        self._end_attr()
                 elif ts == _VALUE:
                     m = _VALUE_END[self._quote].search(buf, pos)
                     if m is None:
@@ -788,14 +781,7 @@ class FunctionTokenParser:
                             )
                         else:
                             pos = e + 1
-                            an = "".join(self._aname)
-                            v = self._attr_value("".join(self._vparts), self._tok_pos)
-                            if an in self._attrs:
-                                self._dup_attr(an, self._tok_pos)
-                            else:
-                                self._attrs[an] = v
-                            self._ts = _AFTER
-                            self._had_space = False
+                            self._end_attr()
                 elif ts == _EQ or ts == _PREQ:
                     m = _WS.match(buf, pos)
                     assert m is not None  # a starred pattern always matches
@@ -1004,6 +990,17 @@ class FunctionTokenParser:
             self._tok_len += len(piece)
             if self._tok_len > MAX_TOKEN:
                 self._too_long(self._tok_len)
+
+    def _end_attr(self) -> None:
+        """An attribute value is complete: store it (a repeated name refuses the tag) and expect whitespace."""
+        an = "".join(self._aname)
+        v = self._attr_value("".join(self._vparts), self._tok_pos)
+        if an in self._attrs:
+            self._dup_attr(an, self._tok_pos)
+        else:
+            self._attrs[an] = v
+        self._ts = _AFTER
+        self._had_space = False
 
     def _dup_attr(self, name: str, pos: Position) -> None:
         msg = f"duplicate attribute '{name}'"
