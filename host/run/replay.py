@@ -104,7 +104,10 @@ def read_host_to_board(path: Path) -> Iterator[tuple[float, int, Message]]:
     if reader is None:
         raise ReplayError(f"cannot replay {path.name}: unknown log format {path.suffix!r} "
                           f"(known: {', '.join(sorted(LOG_READERS))})")
-    return reader(path)
+    try:
+        yield from reader(path)
+    except (ValueError, UnicodeDecodeError) as e:  # a file with a log's name that is not that log
+        raise ReplayError(f"cannot replay {path.name}: not a readable {path.suffix} frame log ({e})") from None
 
 
 def _pose(s: SimState | None) -> list[float] | None:

@@ -61,3 +61,8 @@ def test_replay_refuses_what_it_cannot_read(tmp_path: Path) -> None:
     with pytest.raises(ReplayError, match="no host-to-board messages"):
         replay(empty, tmp_path / "out")
     assert cli_main(["replay", str(tmp_path / "missing.jsonl")]) == 1
+    text = tmp_path / "text.log"  # a CAN log's name, not a CAN log (found by a fresh-user review)
+    text.write_text("hello world\nnot a log\n")
+    with pytest.raises(ReplayError, match=r"not a readable \.log frame log"):
+        list(read_host_to_board(text))
+    assert cli_main(["replay", str(text), "--out", str(tmp_path / "r")]) == 1

@@ -54,3 +54,10 @@ def test_wrong_specs_exit_2_on_every_command(capsys: pytest.CaptureFixture[str])
     proc = subprocess.run([sys.executable, "-m", "firmware_sim", "--link", "can:virtual:bus0?fd=2"],
                           capture_output=True, text=True, timeout=30)
     assert proc.returncode == 2 and "fd must be 0 or 1" in proc.stderr
+
+
+def test_a_can_spec_without_channel_fails_in_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    # found by a fresh-user review: python-can's slcan class raised a TypeError through the CLI
+    assert cli_main(["pose", "--pose", "sit", "--link", "can:slcan"]) == 2
+    err = capsys.readouterr().err
+    assert "no channel given or configured" in err and "Traceback" not in err

@@ -147,9 +147,12 @@ class CanLinkTransport(Transport):
                 kw.setdefault("sleep_after_open", 0)
             try:
                 bus = await asyncio.to_thread(lambda: can.Bus(**kw))  # type: ignore[arg-type]
-            except (can.CanError, OSError, ValueError, ImportError) as e:
+            except (can.CanError, OSError, ValueError, ImportError, TypeError) as e:
                 hint = ""
-                if isinstance(e, OSError) and e.errno == errno.EAFNOSUPPORT:
+                if isinstance(e, TypeError):  # python-can's interface class refused the arguments
+                    hint = (" (no channel given or configured: name one, e.g. can:slcan:/dev/ttyACM0, or set "
+                            "CAN_CHANNEL / ~/.canrc)")
+                elif isinstance(e, OSError) and e.errno == errno.EAFNOSUPPORT:
                     hint = " (this kernel has no SocketCAN; try can:slcan:pty, or a machine/UML with vcan)"
                 elif isinstance(e, OSError) and e.errno == errno.ENODEV:
                     hint = " (no such CAN interface: e.g. `ip link add dev vcan0 type vcan && ip link set up vcan0`)"
