@@ -42,10 +42,8 @@ async def _run(args: argparse.Namespace) -> int:
     try:
         if args.clear:
             await client.estop_clear()
-            if client.lockstep:
-                await client.advance(client.board_now_estimate() + 20_000)
             at = client.board_now_estimate()
-            tel = await client.wait_for(lambda t: t.board_time_us >= at, timeout=5.0)
+            tel = await client.wait_for(lambda t: t.board_time_us > at, timeout=5.0, nudge=True)
             if tel.faults & LATCHED:
                 print(f"ghostshell estop: ESTOP_CLEAR acknowledged but the board still reports "
                       f"{FaultFlags(tel.faults & LATCHED)!r}", file=sys.stderr)

@@ -37,7 +37,7 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
             import protocol.can.decoder  # noqa: F401
     from protocol.can.isotp_link import IsoTpLink
     from protocol.can.codec import Sender, encode_fixed
-    from protocol.can.decoder import CanDecodeError, CanDecoder, CanItem
+    from protocol.can.decoder import MAX_ASSEMBLIES, CanDecodeError, CanDecoder, CanItem
     from protocol.can.frame import FD_LENGTHS, CanFrame
     from protocol.can.ids import FunctionCode, bulk_ids, cob_id
     from protocol.can.layouts import SEQ_MASK
@@ -94,6 +94,7 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
                     items.append(dec.feed_bulk(sdu))
             assert len(iso._rx) <= 4096
             assert len(dec._assemblies) <= len(FunctionCode)
+            assert all(len(p) <= MAX_ASSEMBLIES for p in dec._assemblies.values())
             for it in items:
                 if isinstance(it, CanDecodeError):
                     assert "internal" not in it.detail, f"decoder bug: {it.detail}"

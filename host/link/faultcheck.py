@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from host.link.errors import BoardFaulted, LinkTimeout
 from host.link.session import BoardClient
-from protocol.messages import FaultFlags, Telemetry
+from protocol.messages import FaultFlags
 
 __all__ = ["LATCHED", "clear_leftover_fault", "estop_message"]
 
@@ -32,12 +32,6 @@ def estop_message(link: object) -> str:
             f"`ghostshell estop --link {link} --clear`")
 
 
-async def _telemetry(client: BoardClient, timeout: float) -> Telemetry:
-    if client.latest_telemetry is None and client.lockstep:
-        await client.advance(client.board_now_estimate() + 20_000)  # let a lockstep board report once
-    return await client.wait_for(lambda t: True, timeout)
-
-
 async def clear_leftover_fault(client: BoardClient, timeout: float = 10.0) -> str | None:
     """Clear a latched WATCHDOG_FAULT left by a previous host; refuse a board in ESTOP.
 
@@ -46,7 +40,7 @@ async def clear_leftover_fault(client: BoardClient, timeout: float = 10.0) -> st
     :class:`BoardFaulted` when the board is in ESTOP, or still reports the fault after
     ESTOP_CLEAR was acknowledged; :class:`~host.link.errors.LinkError` on link failures.
     """
-    tel = await _telemetry(client, timeout)
+    tel = await client.wait_for(lambda t: True, timeout, nudge=True)
     faults = FaultFlags(tel.faults)
     if faults & FaultFlags.ESTOP:
         raise BoardFaulted(estop_message(client.port_name))
@@ -54,10 +48,8 @@ async def clear_leftover_fault(client: BoardClient, timeout: float = 10.0) -> st
         return None
     at = tel.board_time_us
     await client.estop_clear()
-    if client.lockstep:
-        await client.advance(client.board_now_estimate() + 20_000)
     try:
-        await client.wait_for(lambda t: t.board_time_us > at and not t.faults & LATCHED, timeout)
+        await client.wait_for(lambda t: t.board_time_us > at and not t.faults & LATCHED, timeout, nudge=True)
     except LinkTimeout as e:
         raise BoardFaulted(f"the board on {client.port_name} still reports a fault after ESTOP_CLEAR: {e}") from None
     return (f"cleared the board's latched WATCHDOG_FAULT (left by the previous host's missing heartbeat, "

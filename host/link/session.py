@@ -790,21 +790,55 @@ class BoardClient:
         finally:
             self._subs.discard(q)
 
-    async def wait_for(self, predicate: Callable[[Telemetry], bool], timeout: float) -> Telemetry:
-        """The first telemetry (latest included) satisfying ``predicate``; :class:`LinkTimeout` after ``timeout`` s."""
+    async def wait_for(self, predicate: Callable[[Telemetry], bool], timeout: float, *, nudge: bool = False) -> Telemetry:
+        """The first telemetry (latest included) satisfying ``predicate``; :class:`LinkTimeout` after ``timeout`` s.
+
+        ``nudge`` (lockstep boards; ignored in realtime): a lockstep board only reports while its
+        clock runs, so ADVANCE it one report period past the latest board time known at once and
+        again every :attr:`NUDGE_S` s while no report satisfies ``predicate``: a lost ADVANCE or
+        a lost report (likely on a lossy CAN link, where a report is 17 frames) cannot stall the
+        wait. The ADVANCEs are not awaited: the report is the acknowledgement that matters.
+        """
         t = self.latest_telemetry
         if t is not None and predicate(t):
             return t
         fut: asyncio.Future[Telemetry] = asyncio.get_running_loop().create_future()
         self._tele_waiters.append((predicate, fut))
+        deadline = time.monotonic() + timeout
+        nudging = nudge and self.lockstep
+        until = 0
         try:
-            return await asyncio.wait_for(fut, timeout)
+            while True:
+                if nudging:
+                    until = max(until, self.board_now_estimate()) + self._report_period_us()
+                    with contextlib.suppress(LinkError):
+                        self._send(Advance(until))
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError
+                try:
+                    return await asyncio.wait_for(asyncio.shield(fut), min(left, self.NUDGE_S) if nudging else left)
+                except TimeoutError:
+                    if not nudging:
+                        raise
         except TimeoutError:
             last = self.latest_telemetry
             where = f"; last telemetry at board time {last.board_time_us / 1e6:.3f} s, faults {_flag_names(last.faults)}" if last else "; no telemetry received"
             raise LinkTimeout(f"telemetry condition not met within {timeout} s{where}") from None
         finally:
+            if not fut.done():
+                fut.cancel()
             self._tele_waiters = [(p, f) for p, f in self._tele_waiters if f is not fut]
+
+    #: wall seconds between the ADVANCEs of :meth:`wait_for` with ``nudge`` (a lockstep board answers in ~1 ms)
+    NUDGE_S = 0.1
+
+    def _report_period_us(self) -> int:
+        """One telemetry period plus one control tick (us): an ADVANCE this far always yields a report."""
+        caps = self.caps
+        rate = caps.telemetry_rate_hz if caps is not None and caps.telemetry_rate_hz > 0 else 50
+        tick = caps.control_rate_hz if caps is not None and caps.control_rate_hz > 0 else 500
+        return 1_000_000 // rate + 1_000_000 // tick
 
     async def next_telemetry(self, timeout: float) -> Telemetry:
         """The next telemetry report received after this call."""

@@ -53,13 +53,7 @@ def max_error_deg(t: Telemetry, target: Sequence[float] | np.ndarray) -> tuple[f
 
 
 async def _first_telemetry(client: BoardClient, timeout: float) -> Telemetry:
-    if client.latest_telemetry is not None:
-        return client.latest_telemetry
-    if client.lockstep:
-        tick = 1_000_000 // max(1, client.caps.control_rate_hz if client.caps else 500)
-        rate = client.caps.telemetry_rate_hz if client.caps else 50
-        await client.advance(client.board_now_estimate() + max(tick, 1_000_000 // max(1, rate)))
-    return await client.wait_for(lambda _t: True, timeout)
+    return await client.wait_for(lambda _t: True, timeout, nudge=True)
 
 
 async def current_positions(client: BoardClient, timeout: float = 2.0) -> tuple[float, ...]:

@@ -52,6 +52,9 @@ SETTLE_CHECKPOINTS = 32
 #: wall seconds without telemetry after which a run fails (the board died or the link hung)
 TELEMETRY_SILENCE_S = 10.0
 LOCKSTEP_NUDGE_S = 0.5  # lockstep: wall seconds without telemetry before the host ADVANCEs the board
+#: the same once the link has shown losses (decode errors, re-sent requests): a lost report, not a
+#: slow board, is then the likely reason for the silence
+LOSSY_NUDGE_S = 0.1
 
 
 def watchdog_fault_message(client: BoardClient, board_time_us: int) -> str:
@@ -97,14 +100,17 @@ async def silence_watchdog(runtime: CocoRuntime, rec: Recorder, client: BoardCli
 
     Lockstep over a lossy link: when the frame that would have let the board reach its next report
     (or that report itself) was lost, both ends wait for each other. After ``LOCKSTEP_NUDGE_S`` of
-    silence the host ADVANCEs the board by one report period so the stream resumes (frames due in
-    that gap are late or missing, as they would be after any loss).
+    silence (``LOSSY_NUDGE_S`` once the link has lost something) the host ADVANCEs the board one
+    report period plus a tick past the end of the frames it has sent, which is where a board whose
+    reports were lost stands, so one nudge brings the next report (frames due in that gap are late
+    or missing, as they would be after any loss). Each further nudge reaches one period further.
     """
     sent, since = runtime.streamer.frames_sent, time.monotonic()
+    lockstep = client is not None and client.lockstep
     nudged_at = 0.0
     target = 0
     while True:
-        await anyio.sleep(0.25)
+        await anyio.sleep(0.05 if lockstep else 0.25)
         now = time.monotonic()
         if runtime.streamer.frames_sent != sent or runtime.streamer.held:
             sent, since = runtime.streamer.frames_sent, now
@@ -117,14 +123,24 @@ async def silence_watchdog(runtime: CocoRuntime, rec: Recorder, client: BoardCli
             raise LinkError(f"the host sent no servo frame for {TELEMETRY_SILENCE_S:g} s "
                             f"(board clock estimate {runtime.streamer.board_now_us()} us, next frame "
                             f"{runtime.streamer.first_free_us} us); giving up the run")
-        elif (client is not None and client.lockstep and silent > LOCKSTEP_NUDGE_S
-              and now - nudged_at > LOCKSTEP_NUDGE_S):
-            nudged_at = now
-            # the board may be up to one lookahead past its last report that reached us: each nudge
-            # reaches 20 ms further than the previous one until a report comes back
-            target = max(client.board_now_estimate(), target) + 20_000
-            with contextlib.suppress(LinkError):
-                await client.advance(target)
+        elif client is not None and lockstep:
+            lossy = client.stats.decode_errors > 0 or client.stats.retries > 0
+            wait = LOSSY_NUDGE_S if lossy else LOCKSTEP_NUDGE_S
+            if silent > wait and now - nudged_at > wait:
+                nudged_at = now
+                target = lockstep_nudge_target(client, runtime, target)
+                with contextlib.suppress(LinkError):
+                    await client.advance(target)
+
+
+def lockstep_nudge_target(client: BoardClient, runtime: CocoRuntime, previous: int) -> int:
+    """Board time (us) a lockstep nudge ADVANCEs to: one report period and one tick past the last
+    frame sent (or past the previous nudge, or the link's estimate, whichever is latest)."""
+    caps = client.caps
+    period = int(1e6 / caps.telemetry_rate_hz) if caps is not None and caps.telemetry_rate_hz > 0 else 20_000
+    tick = int(1e6 / caps.control_rate_hz) if caps is not None and caps.control_rate_hz > 0 else 2_000
+    covered = runtime.streamer.next_us - runtime.streamer.period_us
+    return max(client.board_now_estimate(), covered, previous) + period + tick
 
 
 async def realtime_topper(runtime: CocoRuntime) -> None:

@@ -195,12 +195,10 @@ class RobotSession:
                 target = self._board.spec
             client = await BoardClient.connect(target, baud=opts.baud, log_path=self.out / f"host_frames{log_suffix}")
             self.client = await self._stack.enter_async_context(client)
-            if client.latest_telemetry is None and client.lockstep:
-                await client.advance(client.board_now_estimate() + 20_000)  # let a lockstep board report once
             note = await clear_leftover_fault(client)
             if note:
                 log.warning("%s", note)
-            tel = await client.wait_for(lambda t: True, timeout=10)
+            tel = await client.wait_for(lambda t: True, timeout=10, nudge=True)
             runtime = CocoRuntime(ClientLink(client, wire_baud=opts.wire_baud), self.out, initial=np.asarray(tel.positions))
             self._runtime = runtime
             client.on_fault.append(self._on_fault)

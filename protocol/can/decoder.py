@@ -5,16 +5,22 @@ takes any frame a bus delivers (any identifier, length, FD flag, remote or exten
 that are not addressed to this receiver (another node, the other direction, bulk identifiers
 that the ISO-TP layer consumes) are ignored and counted in ``foreign``. Fixed-layout messages are
 reassembled from their parts (:mod:`protocol.can.layouts`): a message is surfaced only when
-every part with the same sequence has arrived; a partial message (a new sequence starts before it
-completes) or a mixed one (a part repeated, FD and classic parts mixed) is **never** surfaced: it
-is dropped and counted (``errors[INCOMPLETE]`` / ``errors[MIXED]``); so is a whole message whose
-``crc16`` signal does not match its parts (``errors[CRC]``). State is bounded: at most one
-assembly per function code. ``feed_bulk(sdu)`` decodes a reassembled ISO-TP unit.
+every part with the same sequence has arrived, in any order. A part received twice with the same
+data, or a part of one of the last messages surfaced, is ignored and counted in ``duplicates`` (CAN's "double reception": a frame whose
+acknowledgement was disturbed is retransmitted and reaches some receivers twice; ISO 11898-1
+accepts it, so a receiver must be idempotent). A partial message (a later sequence of the same
+function completes first, or a third one starts) or a mixed one (one part with two different
+contents, FD and classic parts mixed) is **never** surfaced: it is dropped and counted
+(``errors[INCOMPLETE]`` / ``errors[MIXED]``); so is a whole message whose ``crc16`` signal does
+not match its parts (``errors[CRC]``). Two sequences per function may be assembled at once, so a
+part that arrives after the first part of the next message (two frames swapped at a message
+boundary) still completes its message. State is bounded: at most two assemblies per function
+code. ``feed_bulk(sdu)`` decodes a reassembled ISO-TP unit.
 """
 
 from __future__ import annotations
 
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from enum import Enum
 
@@ -29,6 +35,7 @@ from protocol.messages import Message, MsgType
 __all__ = ["CanDecodeError", "CanDecoder", "CanErrorKind", "CanItem", "as_frame_items"]
 
 _BULK = (FunctionCode.BULK_TO_BOARD, FunctionCode.BULK_TO_HOST)
+MAX_ASSEMBLIES = 2  # sequences of one function code assembled at once
 
 
 class CanErrorKind(Enum):
@@ -79,11 +86,15 @@ class CanDecoder:
         self.node = check_node(node)
         self.receiver = receiver
         self._accept = HOST_TO_BOARD if receiver == "board" else BOARD_TO_HOST
-        self._assemblies: dict[FunctionCode, _Assembly] = {}
+        #: per function code, the assemblies in progress, oldest first (at most ``MAX_ASSEMBLIES``)
+        self._assemblies: dict[FunctionCode, list[_Assembly]] = {}
         self.last_seq = 0  # 16-bit reference for unwrapping 11-bit sequences
         self.errors: Counter[CanErrorKind] = Counter()
         self.foreign = 0  # frames for other nodes / the other direction / bulk ids
         self.frames = 0
+        self.duplicates = 0  # parts received again (ignored)
+        #: per function code, the sequences surfaced last: a late copy of one of their parts is a duplicate
+        self._done: dict[FunctionCode, deque[int]] = {}
 
     @property
     def error_count(self) -> int:
@@ -152,36 +163,53 @@ class CanDecoder:
             ]
         values = unpack_part(layout, part, data[: layout.part_bytes[part]])
         out: list[CanItem | CanDecodeError] = []
-        asm = self._assemblies.get(fn)
-        if asm is not None and (asm.seq11 != seq11 or asm.fd != fd or layout.parts == 1):
-            del self._assemblies[fn]
-            if asm.fd != fd and asm.seq11 == seq11:
-                out.append(self._error(CanErrorKind.MIXED, f"{fn.name} seq {seq11}: classic and FD parts mixed", frame))
-            else:
-                out.append(
-                    self._error(
-                        CanErrorKind.INCOMPLETE,
-                        f"{fn.name} seq {asm.seq11}: parts {sorted(asm.parts)} of {layout.parts} (dropped)",
-                        frame,
-                    )
-                )
+        done = self._done.setdefault(fn, deque(maxlen=MAX_ASSEMBLIES * 2))
+        if seq11 in done:
+            self.duplicates += 1  # double reception of a message already surfaced
+            return []
+        pending = self._assemblies.setdefault(fn, [])
+        asm = next((x for x in pending if x.seq11 == seq11), None)
+        if asm is not None and asm.fd != fd:
+            pending.remove(asm)
+            out.append(self._error(CanErrorKind.MIXED, f"{fn.name} seq {seq11}: classic and FD parts mixed", frame))
             asm = None
         if layout.parts == 1:
+            self._drop_older(fn, seq11, out, frame)
+            done.append(seq11)
             return self._surface(layout, seq11, values, (frame,), out)
         if asm is None:
+            while len(pending) >= MAX_ASSEMBLIES:  # a third sequence: the oldest cannot complete any more
+                self._incomplete(fn, pending.pop(0), out, frame)
             asm = _Assembly(seq11, fd, layout, {}, {})
-            self._assemblies[fn] = asm
-        if part in asm.parts:
-            del self._assemblies[fn]
-            out.append(self._error(CanErrorKind.MIXED, f"{fn.name} seq {seq11}: part {part} twice (dropped)", frame))
+            pending.append(asm)
+        seen = asm.parts.get(part)
+        if seen is not None:
+            if bytes(seen.data) == data:
+                self.duplicates += 1  # double reception: same part, same content
+                return out
+            pending.remove(asm)
+            out.append(self._error(CanErrorKind.MIXED, f"{fn.name} seq {seq11}: part {part} with two contents (dropped)", frame))
             return out
         asm.parts[part] = frame
         asm.raw.update(values)
         if len(asm.parts) == layout.parts:
-            del self._assemblies[fn]
+            pending.remove(asm)
+            self._drop_older(fn, seq11, out, frame)
+            done.append(seq11)
             frames = tuple(asm.parts[k] for k in range(layout.parts))
             return self._surface(layout, seq11, asm.raw, frames, out)
         return out
+
+    def _incomplete(self, fn: FunctionCode, asm: _Assembly, out: list[CanItem | CanDecodeError], frame: CanFrame) -> None:
+        out.append(self._error(CanErrorKind.INCOMPLETE,
+                               f"{fn.name} seq {asm.seq11}: parts {sorted(asm.parts)} of {asm.layout.parts} (dropped)", frame))
+
+    def _drop_older(self, fn: FunctionCode, seq11: int, out: list[CanItem | CanDecodeError], frame: CanFrame) -> None:
+        """A message of ``fn`` completed: assemblies of earlier sequences will not complete any more."""
+        pending = self._assemblies.get(fn, [])
+        for old in [x for x in pending if 0 < (seq11 - x.seq11) & SEQ_MASK <= SEQ_MASK // 2]:
+            pending.remove(old)
+            self._incomplete(fn, old, out, frame)
 
     def _surface(
         self,
@@ -220,7 +248,7 @@ class CanDecoder:
 
     def pending_parts(self) -> int:
         """Parts held in incomplete assemblies (bounded by the layouts)."""
-        return sum(len(a.parts) for a in self._assemblies.values())
+        return sum(len(a.parts) for p in self._assemblies.values() for a in p)
 
 
 #: how each CAN decode error is reported on the link seam (the serial decoder's error kinds)

@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from protocol import messages as m
-from protocol.can import CanDecoder, CanErrorKind, CanFrame, CanItem, encode_bulk, encode_fixed, is_fixed
+from protocol.can import CanDecodeError, CanDecoder, CanErrorKind, CanFrame, CanItem, encode_bulk, encode_fixed, is_fixed
 from protocol.can.codec import Sender, fixed_crc, fixed_layout_for, message_to_raw
 from protocol.can.ids import FunctionCode, cob_id, split_id
 from protocol.can.layouts import CRC_SIGNAL, FIXED_LAYOUTS, unwrap_seq
@@ -124,8 +124,9 @@ def test_partial_frame_is_never_applied() -> None:
 
 def test_mixed_parts_are_dropped() -> None:
     a = encode_fixed(m.ServoFrame(5, 0xFFF, (0.1,) * 12), 100, 1)
+    other = encode_fixed(m.ServoFrame(5, 0xFFF, (0.2,) * 12), 100, 1)  # same sequence, other content
     dec = CanDecoder(1, "board")
-    out = [i for f in [a[0], a[1], a[1], a[2], a[3], a[4]] for i in dec.feed(f)]
+    out = [i for f in [a[0], a[1], other[1], a[2], a[3], a[4], a[5]] for i in dec.feed(f)]
     assert not any(isinstance(i, CanItem) for i in out)
     assert dec.errors[CanErrorKind.MIXED] == 1
     # a part of the same seq in the other frame format is mixed too
@@ -134,6 +135,39 @@ def test_mixed_parts_are_dropped() -> None:
     assert dec2.feed(a[0]) == [] and dec2.feed(a[1]) == []
     out2 = dec2.feed(b)
     assert dec2.errors[CanErrorKind.MIXED] == 1 and isinstance(out2[-1], CanItem)  # the FD frame itself is whole
+
+
+def test_a_part_received_twice_is_double_reception_not_an_error() -> None:
+    # CAN's double reception: a retransmitted frame reaches a receiver twice (same data)
+    a = encode_fixed(m.ServoFrame(5, 0xFFF, (0.1,) * 12), 100, 1)
+    dec = CanDecoder(1, "board")
+    out = [i for f in [a[0], a[1], a[1], a[2], a[3], a[4], a[5], a[5]] for i in dec.feed(f)]
+    assert [i.seq for i in out if isinstance(i, CanItem)] == [100]
+    assert dec.error_count == 0 and dec.duplicates == 2 and dec.pending_parts() == 0
+    # a single-frame message received twice surfaces once
+    ack = encode_fixed(m.Ack(7, MsgType.FLUSH), 200, 1, sender=Sender.BOARD)
+    assert len(ack) == 1
+    host = CanDecoder(1, "host")
+    assert [len(host.feed(ack[0])), len(host.feed(ack[0]))] == [1, 0] and host.duplicates == 1
+
+
+def test_parts_swapped_at_a_message_boundary_still_complete_both() -> None:
+    a = encode_fixed(m.ServoFrame(5, 0xFFF, (0.1,) * 12), 100, 1)
+    b = encode_fixed(m.ServoFrame(15, 0xFFF, (0.2,) * 12), 101, 1)
+    dec = CanDecoder(1, "board")
+    order = a[:5] + [b[0], a[5]] + b[1:]  # the last part of 100 arrives after the first of 101
+    out = [i for f in order for i in dec.feed(f)]
+    assert [i.seq for i in out if isinstance(i, CanItem)] == [100, 101] and dec.error_count == 0
+
+
+def test_a_third_sequence_or_a_newer_complete_message_drops_the_incomplete_one() -> None:
+    msgs = [encode_fixed(m.ServoFrame(5 + k, 0xFFF, (0.1,) * 12), 100 + k, 1) for k in range(3)]
+    dec = CanDecoder(1, "board")
+    out = [i for f in [msgs[0][0], msgs[1][0], msgs[2][0]] for i in dec.feed(f)]
+    assert [i.kind for i in out if isinstance(i, CanDecodeError)] == [CanErrorKind.INCOMPLETE]  # 100 evicted
+    out = [i for f in msgs[2][1:] for i in dec.feed(f)]  # 102 completes: 101 can no longer
+    assert [i.seq for i in out if isinstance(i, CanItem)] == [102]
+    assert dec.errors[CanErrorKind.INCOMPLETE] == 2 and dec.pending_parts() == 0
 
 
 def test_other_nodes_and_directions_are_ignored() -> None:
