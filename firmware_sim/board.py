@@ -12,13 +12,15 @@ Reply policy: HELLO -> CAPS (or NACK VERSION_MISMATCH / SCHEMA_MISMATCH);
 TIME_SYNC_REQUEST -> TIME_SYNC_REPLY; SERVO_FRAME -> nothing when accepted (telemetry's
 ``last_applied_seq`` confirms it), NACK with the reason when refused; HEARTBEAT ->
 nothing; CONFIG, ADVANCE, FLUSH, ESTOP, ESTOP_CLEAR, SCREEN, SPEAKER -> ACK (or NACK);
-CAMERA_CAPTURE -> CAMERA_CHUNKs (or NACK NO_RENDERER / BAD_VALUE); anything else -> NACK UNSUPPORTED.
+CAMERA_CAPTURE -> CAMERA_CHUNKs (or NACK NO_RENDERER / BAD_VALUE; the same request id again -> the
+same image's chunks again); CAMERA_RESEND -> the wanted chunks of one of the last ``KEPT_IMAGES``
+images (NACK BAD_VALUE when it is no longer kept); anything else -> NACK UNSUPPORTED.
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
+from collections import OrderedDict, deque
 from collections.abc import Callable
 
 import mujoco
@@ -35,6 +37,8 @@ from protocol.messages import (
     Ack,
     Advance,
     CameraCapture,
+    CameraChunk,
+    CameraResend,
     Caps,
     Config,
     ConfigKey,
@@ -60,7 +64,9 @@ from robots.coco import load_poses, load_servo_table
 from robots.coco.model import load_model
 from robots.coco.scenes import scene_objects, toppled
 
-__all__ = ["Board", "quat_to_rpy"]
+__all__ = ["Board", "KEPT_IMAGES", "quat_to_rpy"]
+
+KEPT_IMAGES = 2  # camera images the board keeps for CAMERA_RESEND
 
 _ALL_SERVOS = (1 << 12) - 1
 
@@ -112,6 +118,8 @@ class Board:
         self.camera = Camera(self.model)
         self.camera_worker: CameraWorker | None = None
         self._capture_seqs: dict[int, int] = {}
+        #: the last KEPT_IMAGES images' chunks by request id, for CAMERA_RESEND and a repeated CAMERA_CAPTURE
+        self._kept_images: OrderedDict[int, list[CameraChunk]] = OrderedDict()
         self._clock_us = clock_us
         # per-servo interpolation anchor: the last applied keyframe (or where a resumed servo was)
         # (plain lists: the per-tick loop is faster on 12 Python floats than on numpy, see servo_model)
@@ -218,6 +226,8 @@ class Board:
             return [Ack(seq, MsgType.SPEAKER)]
         if isinstance(msg, CameraCapture):
             return self._capture(msg, seq)
+        if isinstance(msg, CameraResend):
+            return self._resend(msg, seq)
         return [self._nack(msg, seq, NackReason.UNSUPPORTED, f"board does not accept {type(msg).__name__}")]
 
     def _nack(self, msg: object, seq: int, reason: NackReason, detail: str) -> Nack:
@@ -304,7 +314,12 @@ class Board:
     def _capture(self, msg: CameraCapture, seq: int) -> list[Message]:
         if not (1 <= msg.width <= MAX_IMAGE_SIDE and 1 <= msg.height <= MAX_IMAGE_SIDE):
             return [self._nack(msg, seq, NackReason.BAD_VALUE, f"image size must be 1..{MAX_IMAGE_SIDE} per side")]
+        kept = self._kept_images.get(msg.request_id)
+        if kept is not None:  # the host asks again (its request or every chunk was lost): same image
+            return list(kept)
         if self.camera_worker is not None:  # realtime: render off the control loop
+            if msg.request_id in self._capture_seqs:
+                return []  # a repeated request for an image being rendered: it is on its way
             if self.camera_worker.error is not None:
                 return [self._nack(msg, seq, NackReason.NO_RENDERER, self.camera_worker.error)]
             if not self.camera_worker.submit(msg.request_id, int(msg.width), int(msg.height), self.data):
@@ -315,7 +330,26 @@ class Board:
             png = self.camera.capture_png(self.data, int(msg.width), int(msg.height))
         except CameraUnavailable as e:
             return [self._nack(msg, seq, NackReason.NO_RENDERER, str(e))]
-        return list(Camera.chunks(msg.request_id, png))
+        return list(self._keep(msg.request_id, Camera.chunks(msg.request_id, png)))
+
+    def _keep(self, request_id: int, chunks: list[CameraChunk]) -> list[CameraChunk]:
+        """Remember an image's chunks (the last ``KEPT_IMAGES``) so the host can ask for lost ones."""
+        self._kept_images[request_id] = chunks
+        while len(self._kept_images) > KEPT_IMAGES:
+            self._kept_images.popitem(last=False)
+        return chunks
+
+    def _resend(self, msg: CameraResend, seq: int) -> list[Message]:
+        kept = self._kept_images.get(msg.request_id)
+        if kept is None:
+            return [self._nack(msg, seq, NackReason.BAD_VALUE, f"no image {msg.request_id} kept")]
+        if not msg.wanted:
+            return list(kept)
+        out: list[Message] = []
+        for k in range(len(msg.wanted) * 8):
+            if msg.wanted[k // 8] >> (k % 8) & 1 and msg.first + k < len(kept):
+                out.append(kept[msg.first + k])
+        return out
 
     def start_camera_worker(self) -> str | None:
         """Render captures in a background thread from now on; returns why not, if it can't."""
@@ -329,7 +363,7 @@ class Board:
             if isinstance(result, str):
                 out.append(Nack(seq, MsgType.CAMERA_CAPTURE, NackReason.NO_RENDERER, result[:64]))
             else:
-                out.extend(result)
+                out.extend(self._keep(request_id, result))
         return out
 
     def _resume(self) -> None:

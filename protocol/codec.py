@@ -488,6 +488,8 @@ _APPLY_AT = UInt(4, wrap=True)
 
 #: Header fields before CameraChunk.data: request_id u32, index u16, total u16.
 MAX_CHUNK_DATA = MAX_PAYLOAD - 8
+#: CameraResend.wanted: one bit per chunk after request_id u32, first u16 (1 976 chunks per request)
+MAX_RESEND_BITMAP = MAX_PAYLOAD - 6
 
 Layout = list[tuple[str, Field]]
 
@@ -512,6 +514,7 @@ MESSAGE_CLASSES: dict[MsgType, type] = {
     MsgType.SPEAKER: m.SpeakerCommand,
     MsgType.CAMERA_CAPTURE: m.CameraCapture,
     MsgType.CAMERA_CHUNK: m.CameraChunk,
+    MsgType.CAMERA_RESEND: m.CameraResend,
 }
 
 #: Message type -> ordered wire fields (names must match the dataclass fields).
@@ -584,6 +587,7 @@ LAYOUTS: dict[MsgType, Layout] = {
         ("total", _U16),
         ("data", RestBytes(MAX_CHUNK_DATA)),
     ],
+    MsgType.CAMERA_RESEND: [("request_id", _U32), ("first", _U16), ("wanted", RestBytes(MAX_RESEND_BITMAP))],
 }
 
 _TYPE_OF_CLASS: dict[type, MsgType] = {cls: t for t, cls in MESSAGE_CLASSES.items()}

@@ -42,6 +42,7 @@ class MsgType(IntEnum):
     SPEAKER = 0x31
     CAMERA_CAPTURE = 0x32
     CAMERA_CHUNK = 0x33
+    CAMERA_RESEND = 0x34
 
 
 class NackReason(IntEnum):
@@ -280,6 +281,20 @@ class CameraChunk:
     data: bytes = field(repr=False)
 
 
+@dataclass(frozen=True)
+class CameraResend:
+    """Host -> board: send chunks of a kept image again (selective repeat over a lossy link).
+
+    Chunk ``first + k`` is wanted when bit ``k`` of ``wanted`` is set (bit 0 = LSB of byte 0);
+    an empty ``wanted`` asks for every chunk. The board keeps its last two images; it answers
+    with the CAMERA_CHUNKs (no ACK), or NACK BAD_VALUE when it no longer has ``request_id``.
+    """
+
+    request_id: int
+    first: int
+    wanted: bytes = field(default=b"", repr=False)
+
+
 Message = (
     Hello
     | Caps
@@ -300,4 +315,5 @@ Message = (
     | SpeakerCommand
     | CameraCapture
     | CameraChunk
+    | CameraResend
 )

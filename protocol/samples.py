@@ -66,4 +66,5 @@ SAMPLES: dict[MsgType, Message] = {
     ),
     MsgType.CAMERA_CAPTURE: m.CameraCapture(request_id=3, width=160, height=120),
     MsgType.CAMERA_CHUNK: m.CameraChunk(request_id=3, index=0, total=2, data=b"\x89PNG\r\n\x1a\n" + bytes(20)),
+    MsgType.CAMERA_RESEND: m.CameraResend(request_id=3, first=1, wanted=b"\x05"),
 }

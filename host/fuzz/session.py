@@ -13,8 +13,8 @@ Invariants: nothing is logged as an error (the client swallows handler exception
 log record at ERROR is a crash here); the NACK map holds at most 1024 entries and the fault-event
 history 256; the session's frame/error counters equal the decoder's; the board time seen never goes
 back; the fault state equals the latest telemetry's fault bits; a completed capture is exactly the
-chunks 0 .. total-1 of the last chunk's ``total``
-(no partial image surfaces).
+chunks 0 .. total-1 of the first chunk's ``total`` (chunks
+that disagree with it are dropped; no partial image surfaces).
 """
 
 from __future__ import annotations
@@ -80,9 +80,9 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
             was_done = cap.done()
             on_chunk(msg)
             if cap.done() and not was_done and cap.exception() is None:
-                parts = client._captures[1]
-                missing = [i for i in range(msg.total) if i not in parts]
-                assert not missing, f"a partial image surfaced: chunks {missing} of {msg.total} missing"
+                parts, total = client._captures[1], client._capture_total.get(1, msg.total)
+                missing = [i for i in range(total) if i not in parts]
+                assert not missing, f"a partial image surfaced: chunks {missing} of {total} missing"
 
         client._on_chunk = observed_chunk  # type: ignore[method-assign]
         seen = 0

@@ -49,7 +49,7 @@ from typing import Any
 from host.link.errors import HandshakeError, LinkDown, LinkError, LinkTimeout, NackError
 from host.link.timesync import ClockEstimate, ClockSync
 from host.link.transports import Transport, open_transport
-from protocol.codec import SCHEMA_HASH
+from protocol.codec import MAX_RESEND_BITMAP, SCHEMA_HASH
 from protocol.framing import DecodeError, Frame
 from protocol.linkspec import LinkSpec, parse_link_spec
 from protocol.messages import (
@@ -58,6 +58,7 @@ from protocol.messages import (
     Advance,
     CameraCapture,
     CameraChunk,
+    CameraResend,
     Caps,
     Config,
     ConfigKey,
@@ -211,6 +212,7 @@ class BoardClient:
         self._tele_waiters: list[tuple[Callable[[Telemetry], bool], asyncio.Future[Telemetry]]] = []
         self._subs: set[asyncio.Queue[Telemetry]] = set()
         self._captures: dict[int, dict[int, bytes]] = {}
+        self._capture_total: dict[int, int] = {}  # request id -> chunk count (from its first chunk)
         self._capture_seq: dict[int, int] = {}
         self._next_request_id = 1
         self._connected = asyncio.Event()
@@ -404,6 +406,7 @@ class BoardClient:
         self._sync_pending.clear()
         self._nack_waiters.clear()
         self._captures.clear()
+        self._capture_total.clear()
         self._capture_seq.clear()
 
     async def _supervise(self) -> None:
@@ -572,24 +575,66 @@ class BoardClient:
         )
 
     async def capture(self, width: int, height: int, timeout: float = 10.0) -> bytes:
-        """One head-camera image as PNG bytes (reassembled from CAMERA_CHUNKs)."""
+        """One head-camera image as PNG bytes (reassembled from CAMERA_CHUNKs).
+
+        Selective repeat over a lossy link: when no new chunk came for :attr:`CAPTURE_STALL_S`
+        s, the host asks again, with CAMERA_RESEND for the chunks still missing once it knows
+        how many there are, else with the same CAMERA_CAPTURE (the board answers a request id it
+        already rendered with the same image). Raises :class:`LinkTimeout` after ``timeout`` s
+        without the whole image, :class:`NackError` when the board refuses the capture
+        (NO_RENDERER, BAD_VALUE, BUSY).
+        """
         self._require_ready()
         rid = self._next_request_id
         self._next_request_id = (rid + 1) & 0xFFFFFFFF or 1
         fut: asyncio.Future[bytes] = asyncio.get_running_loop().create_future()
-        seq = self._send(CameraCapture(rid, int(width), int(height)))
-        self._pending[seq] = fut
-        self._captures[rid] = {}
-        self._capture_seq[rid] = seq
+        request = CameraCapture(rid, int(width), int(height))
+        parts: dict[int, bytes] = {}
+        self._captures[rid] = parts
+        seqs = [self._send(request)]
+        self._pending[seqs[0]] = fut
+        self._capture_seq[rid] = seqs[0]
+        deadline = time.monotonic() + timeout
         try:
-            return await asyncio.wait_for(fut, timeout)
+            while True:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError
+                have = len(parts)
+                try:
+                    return await asyncio.wait_for(asyncio.shield(fut), min(left, self.CAPTURE_STALL_S))
+                except TimeoutError:
+                    if len(parts) != have:
+                        continue  # chunks are still arriving
+                total = self._capture_total.get(rid)
+                if total is None:  # nothing arrived: the request or every chunk was lost
+                    seq = self._send(request)
+                    seqs.append(seq)
+                    self._pending[seq] = fut
+                else:
+                    missing = [i for i in range(total) if i not in parts]
+                    first = missing[0]
+                    wanted = bytearray((min(missing[-1] - first, MAX_RESEND_BITMAP * 8 - 1) >> 3) + 1)
+                    for i in missing:
+                        if i - first < len(wanted) * 8:
+                            wanted[(i - first) >> 3] |= 1 << ((i - first) & 7)
+                    self._send(CameraResend(rid, first, bytes(wanted)))
+                self.stats.retries += 1
         except TimeoutError:
-            raise LinkTimeout(f"camera image {rid} incomplete after {timeout} s") from None
+            got = f"{len(parts)} of {self._capture_total[rid]} chunks" if rid in self._capture_total else "no chunk"
+            raise LinkTimeout(f"camera image {rid} incomplete after {timeout} s ({got})") from None
         finally:
-            if self._pending.get(seq) is fut:
-                del self._pending[seq]
+            for seq in seqs:
+                if self._pending.get(seq) is fut:
+                    del self._pending[seq]
+            if not fut.done():
+                fut.cancel()
             self._captures.pop(rid, None)
             self._capture_seq.pop(rid, None)
+            self._capture_total.pop(rid, None)
+
+    #: wall seconds without a new camera chunk before the host asks again (a render takes ~0.1 s)
+    CAPTURE_STALL_S = 0.4
 
     # --- time ------------------------------------------------------------------------------
 
@@ -744,11 +789,16 @@ class BoardClient:
         seq = self._capture_seq.get(msg.request_id)
         if parts is None or seq is None:
             return
+        total = self._capture_total.setdefault(msg.request_id, msg.total)
+        if msg.total != total:  # chunks of one image disagree: the first count holds, this one is dropped
+            log.debug("link: camera image %d: chunk %d says %d chunks, the first said %d (dropped)",
+                      msg.request_id, msg.index, msg.total, total)
+            return
         parts[msg.index] = msg.data
-        if len(parts) >= msg.total and all(i in parts for i in range(msg.total)):  # never a partial image
+        if len(parts) >= total and all(i in parts for i in range(total)):  # never a partial image
             fut = self._pending.get(seq)
             if fut is not None and not fut.done():
-                fut.set_result(b"".join(parts[i] for i in range(msg.total)))
+                fut.set_result(b"".join(parts[i] for i in range(total)))
 
     def _on_telemetry(self, t: Telemetry) -> None:
         self.latest_telemetry = t

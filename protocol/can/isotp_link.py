@@ -19,7 +19,7 @@ import isotp
 
 from protocol.can.frame import CanFrame
 
-__all__ = ["IsoTpLink", "MAX_PENDING_SENDS"]
+__all__ = ["ISOTP_TIMEOUT_MS", "IsoTpLink", "MAX_PENDING_SENDS"]
 
 # can-isotp also logs every protocol error it reports to ``error_handler``; those are counted and
 # surfaced as link errors here, so without a logging configuration they must not reach stderr
@@ -27,6 +27,12 @@ __all__ = ["IsoTpLink", "MAX_PENDING_SENDS"]
 logging.getLogger("isotp").addHandler(logging.NullHandler())
 
 MAX_PENDING_SENDS = 256  # bulk messages queued before send() refuses
+#: N_Bs (wait for a flow control) and N_Cr (wait for the next consecutive frame), ms. ISO 15765-2
+#: gives 1000 ms for both, for vehicle networks with gateways in the path; both ends here share one
+#: bus (or a pty) with a round trip of about a millisecond, and while a sender waits for a lost flow
+#: control every later bulk message (SCREEN, SPEAKER, SIM_STATE, camera chunks) waits behind it,
+#: so a lost frame costs 200 ms instead of a second. The requests above ISO-TP are re-sent anyway.
+ISOTP_TIMEOUT_MS = 200
 
 
 class IsoTpLink:
@@ -44,8 +50,8 @@ class IsoTpLink:
             "tx_data_length": 64 if fd else 8,
             "can_fd": bool(fd),
             "max_frame_size": 4095,
-            "rx_flowcontrol_timeout": 1000,
-            "rx_consecutive_frame_timeout": 1000,
+            "rx_flowcontrol_timeout": ISOTP_TIMEOUT_MS,
+            "rx_consecutive_frame_timeout": ISOTP_TIMEOUT_MS,
             "wftmax": 0,
             # frames padded to 8 bytes (classic) or 64 (FD) (ISO 15765-2 padding): every frame of a
             # link then has one length, which the DBC describes (protocol/coco*.dbc, BULK_* messages)

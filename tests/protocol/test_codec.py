@@ -128,6 +128,7 @@ STRATEGIES = {
     ),
     MsgType.CAMERA_CAPTURE: st.builds(m.CameraCapture, ANY_INT, ANY_INT, ANY_INT),
     MsgType.CAMERA_CHUNK: camera_chunks(),
+    MsgType.CAMERA_RESEND: st.builds(m.CameraResend, ANY_INT, ANY_INT, st.binary(max_size=codec.MAX_RESEND_BITMAP)),
 }
 assert set(STRATEGIES) == set(MsgType)
 
@@ -188,6 +189,8 @@ def predict(msg: m.Message) -> m.Message:
             return r(msg, request_id=u32(msg.request_id), width=u16(msg.width), height=u16(msg.height))
         case m.CameraChunk():
             return r(msg, request_id=u32(msg.request_id))
+        case m.CameraResend():
+            return r(msg, request_id=u32(msg.request_id), first=u16(msg.first))
     return msg
 
 
@@ -316,11 +319,11 @@ def test_not_a_message() -> None:
 def test_truncated_and_padded_payloads_raise_payload_error(t: MsgType) -> None:
     payload = encode_payload(SAMPLES[t])
     for cut in range(len(payload)):
-        if t is MsgType.CAMERA_CHUNK and cut >= 8:
-            continue  # the chunk data is "the rest of the payload": shorter data is still valid
+        if (t is MsgType.CAMERA_CHUNK and cut >= 8) or (t is MsgType.CAMERA_RESEND and cut >= 6):
+            continue  # the chunk data / bitmap is "the rest of the payload": shorter is still valid
         with pytest.raises(PayloadError):
             decode_payload(t, payload[:cut])
-    if t is not MsgType.CAMERA_CHUNK:
+    if t not in (MsgType.CAMERA_CHUNK, MsgType.CAMERA_RESEND):
         with pytest.raises(PayloadError, match="trailing"):
             decode_payload(t, payload + b"\x00")
 
@@ -361,7 +364,7 @@ def test_unknown_type_value() -> None:
 
 #: Pinned so that a schema change is a conscious act: update this value together with
 #: protocol/messages.py or protocol/codec.py (old boards will then refuse the new host).
-PINNED_SCHEMA_HASH = 0x47FCD82B  # SIM_STATE gained objects + toppled (u8 each), on top of chat's UTF-8 names
+PINNED_SCHEMA_HASH = 0x5FACFBE3  # CAMERA_RESEND (selective repeat of camera chunks) added
 
 
 def test_schema_hash_is_u32_and_pinned() -> None:
