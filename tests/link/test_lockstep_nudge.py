@@ -1,0 +1,42 @@
+"""Waiting for a lockstep board's report never stalls: ``BoardClient.wait_for(..., nudge=True)``.
+
+A lockstep board reports only while its clock runs, and its clock runs only as far as the host
+lets it. A wait for "the next report" must therefore ADVANCE it, and again when that report (a
+17-frame TELEMETRY on classic CAN) or the ADVANCE itself was lost. Lossy links are real here:
+the emulated board injects drops both ways, seeded.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import anyio
+import pytest
+
+from host.link.board_process import start_board
+from host.link.client import BoardClient
+
+
+@pytest.mark.parametrize(("link", "faults"), [("pty", None), ("can:slcan:pty", "drop=0.05")])
+def test_every_wait_for_the_next_report_returns(link: str, faults: str | None, tmp_path: Path) -> None:
+    args = ["--lockstep"] + (["--faults", faults, "--fault-seed", "3"] if faults else [])
+    board = start_board(args, tmp_path / "board.stderr", link=link)
+
+    async def main() -> list[int]:
+        async with await BoardClient.connect(board.spec, handshake_timeout=8.0) as client:
+            times: list[int] = []
+            for _ in range(10):
+                after = client.board_now_estimate()
+                tel = await client.wait_for(lambda t, a=after: t.board_time_us > a, timeout=10.0, nudge=True)
+                times.append(tel.board_time_us)
+            return times
+
+    try:
+        times = anyio.run(main, backend="asyncio")
+    finally:
+        board.stop()
+    assert times == sorted(set(times)) and times[0] > 0  # ten reports, each later than the last
+    # one nudge moves the board one report period (+ a tick) on: a report never lags far behind
+    assert all(b - a <= 10 * 22_000 for a, b in zip(times, times[1:]))
+    if faults:
+        assert '"drop": 0,' not in (tmp_path / "board.stderr").read_text().split("board: faults ")[-1]
