@@ -14,8 +14,10 @@ contents, FD and classic parts mixed) is **never** surfaced: it is dropped and c
 (``errors[INCOMPLETE]`` / ``errors[MIXED]``); so is a whole message whose ``crc16`` signal does
 not match its parts (``errors[CRC]``). Two sequences per function may be assembled at once, so a
 part that arrives after the first part of the next message (two frames swapped at a message
-boundary) still completes its message. State is bounded: at most two assemblies per function
-code. ``feed_bulk(sdu)`` decodes a reassembled ISO-TP unit.
+boundary) still completes its message. An assembly still unfinished ``STALE_FRAMES`` frames after
+its first part is dropped (INCOMPLETE), and a surfaced sequence is forgotten as long after, so an
+11-bit sequence that comes round again 2 048 messages later is a new message. State is bounded:
+at most two assemblies and four surfaced sequences per function code. ``feed_bulk(sdu)`` decodes a reassembled ISO-TP unit.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ __all__ = ["CanDecodeError", "CanDecoder", "CanErrorKind", "CanItem", "as_frame_
 
 _BULK = (FunctionCode.BULK_TO_BOARD, FunctionCode.BULK_TO_HOST)
 MAX_ASSEMBLIES = 2  # sequences of one function code assembled at once
+STALE_FRAMES = 512  # frames after which an unfinished assembly is dropped and a surfaced sequence forgotten
 
 
 class CanErrorKind(Enum):
@@ -75,6 +78,7 @@ class _Assembly:
     layout: FixedLayout
     raw: dict[str, int]
     parts: dict[int, CanFrame]
+    born: int = 0  # the decoder's frame count when its first part arrived
 
 
 class CanDecoder:
@@ -93,8 +97,9 @@ class CanDecoder:
         self.foreign = 0  # frames for other nodes / the other direction / bulk ids
         self.frames = 0
         self.duplicates = 0  # parts received again (ignored)
-        #: per function code, the sequences surfaced last: a late copy of one of their parts is a duplicate
-        self._done: dict[FunctionCode, deque[int]] = {}
+        #: per function code, the sequences surfaced last and the frame count then: a late copy of one
+        #: of their parts (within ``STALE_FRAMES``) is a duplicate
+        self._done: dict[FunctionCode, deque[tuple[int, int]]] = {}
 
     @property
     def error_count(self) -> int:
@@ -164,10 +169,15 @@ class CanDecoder:
         values = unpack_part(layout, part, data[: layout.part_bytes[part]])
         out: list[CanItem | CanDecodeError] = []
         done = self._done.setdefault(fn, deque(maxlen=MAX_ASSEMBLIES * 2))
-        if seq11 in done:
+        if any(q == seq11 and self.frames - at <= STALE_FRAMES for q, at in done):
             self.duplicates += 1  # double reception of a message already surfaced
             return []
         pending = self._assemblies.setdefault(fn, [])
+        for old in [x for x in pending if self.frames - x.born > STALE_FRAMES]:
+            # parts of one message travel back to back: one this old will not complete, and its
+            # 11-bit sequence may come round again for a later message of this function
+            pending.remove(old)
+            self._incomplete(fn, old, out, frame)
         asm = next((x for x in pending if x.seq11 == seq11), None)
         if asm is not None and asm.fd != fd:
             pending.remove(asm)
@@ -175,12 +185,12 @@ class CanDecoder:
             asm = None
         if layout.parts == 1:
             self._drop_older(fn, seq11, out, frame)
-            done.append(seq11)
+            done.append((seq11, self.frames))
             return self._surface(layout, seq11, values, (frame,), out)
         if asm is None:
             while len(pending) >= MAX_ASSEMBLIES:  # a third sequence: the oldest cannot complete any more
                 self._incomplete(fn, pending.pop(0), out, frame)
-            asm = _Assembly(seq11, fd, layout, {}, {})
+            asm = _Assembly(seq11, fd, layout, {}, {}, self.frames)
             pending.append(asm)
         seen = asm.parts.get(part)
         if seen is not None:
@@ -195,7 +205,7 @@ class CanDecoder:
         if len(asm.parts) == layout.parts:
             pending.remove(asm)
             self._drop_older(fn, seq11, out, frame)
-            done.append(seq11)
+            done.append((seq11, self.frames))
             frames = tuple(asm.parts[k] for k in range(layout.parts))
             return self._surface(layout, seq11, asm.raw, frames, out)
         return out

@@ -292,3 +292,23 @@ def test_servo_frame_crc_catches_every_single_bit_flip(fd: bool) -> None:
         assert all(i.seq == 300 and i.msg == quantize_message(sent) for i in msgs), (k, bit)
         crc_caught += dec.errors[CanErrorKind.CRC]
     assert crc_caught > 12 * 16  # every target bit at least
+
+
+def test_an_11_bit_sequence_coming_round_again_is_a_new_message() -> None:
+    """A rare message (FLUSH) whose 11-bit sequence recurs 2048 messages later is neither taken
+    for a double reception of the old one nor merged into the old one's unfinished parts."""
+    dec = CanDecoder(1, "board")
+    flush = encode_fixed(m.Flush(1_000, 0xFFF), 100, 1)
+    assert len(flush) == 2
+    got = [i for f in flush for i in dec.feed(f)]
+    stale = encode_fixed(m.Flush(2_000, 0xFFF), 101, 1)[0]  # part 0 only: its part 1 was lost
+    got += dec.feed(stale)
+    for seq in range(102, 2148):  # other traffic in between (heartbeats, 2 parts each)
+        got += [i for f in encode_fixed(m.Heartbeat(seq), seq, 1) for i in dec.feed(f)]
+    again = encode_fixed(m.Flush(3_000, 0xFFF), 2148, 1)  # same 11-bit sequence as the first FLUSH
+    later = encode_fixed(m.Flush(4_000, 0xFFF), 2149, 1)  # same 11-bit sequence as the stale one
+    got += [i for f in again + later for i in dec.feed(f)]
+    flushes = [(i.seq, i.msg.from_us) for i in got if isinstance(i, CanItem) and i.msg_type is MsgType.FLUSH]
+    assert flushes == [(100, 1_000), (2148, 3_000), (2149, 4_000)]
+    assert dec.errors[CanErrorKind.INCOMPLETE] == 1 and dec.errors[CanErrorKind.MIXED] == 0
+    assert dec.duplicates == 0
