@@ -54,7 +54,7 @@ TELEMETRY_SILENCE_S = 10.0
 LOCKSTEP_NUDGE_S = 0.5  # lockstep: wall seconds without telemetry before the host ADVANCEs the board
 #: the same once the link has shown losses (decode errors, re-sent requests): a lost report, not a
 #: slow board, is then the likely reason for the silence
-LOSSY_NUDGE_S = 0.1
+LOSSY_NUDGE_S = 0.05
 
 
 def watchdog_fault_message(client: BoardClient, board_time_us: int) -> str:
@@ -110,7 +110,7 @@ async def silence_watchdog(runtime: CocoRuntime, rec: Recorder, client: BoardCli
     nudged_at = 0.0
     target = 0
     while True:
-        await anyio.sleep(0.05 if lockstep else 0.25)
+        await anyio.sleep(0.02 if lockstep else 0.25)
         now = time.monotonic()
         if runtime.streamer.frames_sent != sent or runtime.streamer.held:
             sent, since = runtime.streamer.frames_sent, now

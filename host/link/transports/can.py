@@ -59,6 +59,21 @@ BACKOFF_MAX_S = 0.02
 ISOTP_TICK_S = 0.002
 FRAME_COST = 16
 
+def _open_bus(kw: dict[str, Any]) -> can.BusABC:
+    """``can.Bus(**kw)``, except that a SLCAN bus (named, or from python-can's configuration) is a
+    :class:`~host.link.transports.slcan_rx.BufferedSlcanBus` (python-can 4.6.1 reads SLCAN one byte
+    per system call); the configuration is resolved as ``can.Bus`` resolves it."""
+    cfg = can.util.load_config(config=dict(kw))
+    if cfg.get("interface") != "slcan":
+        return can.Bus(**kw)  # type: ignore[arg-type]
+    from host.link.transports.slcan_rx import BufferedSlcanBus
+
+    del cfg["interface"]
+    channel = cfg.pop("channel", None)
+    bus: can.BusABC = BufferedSlcanBus(channel, **cfg)
+    return bus
+
+
 def open_can_logger(path: str | Path) -> Any:
     """python-can's writer for ``path`` (format by suffix). A serial-style ``.jsonl`` name (what the
     serial link would log) becomes the same name with ``.log`` (candump format)."""
@@ -146,7 +161,7 @@ class CanLinkTransport(Transport):
             if kw.get("interface") == "slcan":
                 kw.setdefault("sleep_after_open", 0)
             try:
-                bus = await asyncio.to_thread(lambda: can.Bus(**kw))  # type: ignore[arg-type]
+                bus = await asyncio.to_thread(lambda: _open_bus(kw))
             except (can.CanError, OSError, ValueError, ImportError, TypeError) as e:
                 hint = ""
                 if isinstance(e, TypeError):  # python-can's interface class refused the arguments
@@ -188,6 +203,7 @@ class CanLinkTransport(Transport):
 
     def _drain(self, generation: int) -> None:
         bus = self.bus
+        buffered = getattr(bus, "has_buffered_line", None)  # BufferedSlcanBus: lines read, not yet parsed
         for _ in range(1024):
             if bus is None or generation != self._generation:
                 return
@@ -197,8 +213,12 @@ class CanLinkTransport(Transport):
                 self._lose(f"CAN receive failed: {e}", generation)
                 return
             if msg is None:
+                if buffered is not None and buffered():
+                    continue  # an adapter response or a filtered frame: more lines wait behind it
                 return
             self._on_can(msg, generation)
+        if buffered is not None and buffered():  # the fd will not wake us for lines already read
+            asyncio.get_running_loop().call_soon(self._drain, generation)
 
     # --- receiving ------------------------------------------------------------------------
 
