@@ -114,7 +114,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         link = open_board_transport(args.link, baud=args.baud, log_path=args.log)
     except Exception as e:
-        print(f"board: cannot open link {str(args.link)!r}: {e}", file=sys.stderr)
+        if args.link.kind == "can":
+            from protocol.can.bus_errors import describe_bus_open_error
+
+            print(f"board: {describe_bus_open_error(args.link, e)}", file=sys.stderr)
+        else:
+            print(f"board: cannot open link {str(args.link)!r}: {e}", file=sys.stderr)
         return 2
     fault_spec = None
     if args.faults:

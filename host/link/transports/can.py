@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import asyncio
 import errno
+import logging
 import time
 from collections import deque
 from collections.abc import Callable
@@ -32,7 +33,7 @@ from typing import Any
 
 import can
 
-from host.link.errors import LinkDown, LinkError
+from host.link.errors import LinkConfigError, LinkDown, LinkError
 from host.link.transports.base import LossHandler, ReceiveHandler, Transport
 from protocol.can import (
     CanDecodeError,
@@ -43,6 +44,7 @@ from protocol.can import (
     encode_fixed,
     is_fixed,
 )
+from protocol.can.bus_errors import describe_bus_open_error
 from protocol.can.codec import Sender
 from protocol.can.decoder import CanErrorKind, as_frame_items
 from protocol.can.ids import bulk_ids
@@ -58,6 +60,7 @@ BACKOFF_MIN_S = 0.001
 BACKOFF_MAX_S = 0.02
 ISOTP_TICK_S = 0.002
 FRAME_COST = 16
+log = logging.getLogger(__name__)
 
 def open_can_logger(path: str | Path) -> Any:
     """python-can's writer for ``path`` (format by suffix). A serial-style ``.jsonl`` name (what the
@@ -69,6 +72,37 @@ def open_can_logger(path: str | Path) -> Any:
         return can.Logger(str(p))  # type: ignore[no-untyped-call]
     except ValueError as e:
         raise ValueError(f"cannot log CAN frames to {p}: {e} (use .log, .asc or .blf)") from None
+
+class _Collect(logging.Handler):
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
+
+
+def _open_bus(spec: LinkSpec, kw: dict[str, Any]) -> can.BusABC:
+    """``can.Bus(**kw)``; any failure becomes one :class:`LinkConfigError` line (the driver's error is the cause).
+
+    python-can's log records of the attempt (e.g. an interface module's import-time warnings) are held
+    back: on failure the one line says what happened, on success they are logged under this module.
+    """
+    held = _Collect()
+    root = logging.getLogger("can")
+    root.addHandler(held)
+    saved, root.propagate = root.propagate, False
+    try:
+        bus = can.Bus(**kw)  # type: ignore[arg-type]
+    except Exception as e:  # python-can's interface classes raise all sorts (CanError, OSError, ValueError, struct.error...)
+        raise LinkConfigError(describe_bus_open_error(spec, e, interfaces=can.VALID_INTERFACES)) from e
+    finally:
+        root.removeHandler(held)
+        root.propagate = saved
+    for r in held.records:
+        log.log(r.levelno, "python-can: %s", r.getMessage())
+    return bus
+
 
 class _Listener(can.Listener):
     """Hands every received message (or the bus error) to the loop thread."""
@@ -145,18 +179,7 @@ class CanLinkTransport(Transport):
             kw.setdefault("can_filters", [{"can_id": self.node, "can_mask": 0x7F, "extended": False}])
             if kw.get("interface") == "slcan":
                 kw.setdefault("sleep_after_open", 0)
-            try:
-                bus = await asyncio.to_thread(lambda: can.Bus(**kw))  # type: ignore[arg-type]
-            except (can.CanError, OSError, ValueError, ImportError, TypeError) as e:
-                hint = ""
-                if isinstance(e, TypeError):  # python-can's interface class refused the arguments
-                    hint = (" (no channel given or configured: name one, e.g. can:slcan:/dev/ttyACM0, or set "
-                            "CAN_CHANNEL / ~/.canrc)")
-                elif isinstance(e, OSError) and e.errno == errno.EAFNOSUPPORT:
-                    hint = " (this kernel has no SocketCAN; try can:slcan:pty, or a machine/UML with vcan)"
-                elif isinstance(e, OSError) and e.errno == errno.ENODEV:
-                    hint = " (no such CAN interface: e.g. `ip link add dev vcan0 type vcan && ip link set up vcan0`)"
-                raise LinkDown(f"cannot open CAN bus {self.spec}: {e}{hint}") from None
+            bus = await asyncio.to_thread(_open_bus, self.spec, kw)
         self.bus = bus
         self._generation += 1
         self.decoder = CanDecoder(self.node, "host")
