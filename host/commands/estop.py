@@ -31,7 +31,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 async def _run(args: argparse.Namespace) -> int:
     from host.link import BoardClient, LinkConfigError, LinkError
-    from host.link.faultcheck import LATCHED
+    from host.link.faultcheck import LATCHED, clear_command
     from protocol.messages import FaultFlags
 
     try:
@@ -57,7 +57,7 @@ async def _run(args: argparse.Namespace) -> int:
         else:
             await client.estop()
             print(f"board on {client.port_name}: ESTOP acknowledged; it holds and refuses motion until "
-                  f"`ghostshell estop --link {args.link} --clear`")
+                  f"`{clear_command(client.link_spec)}`")
     except LinkError as e:
         what = "ESTOP_CLEAR" if args.clear else "ESTOP"
         print(f"ghostshell estop: {what} not acknowledged by the board on {args.link}: {e}", file=sys.stderr)

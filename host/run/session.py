@@ -51,7 +51,7 @@ from host.ghost import GhostError
 from host.link.board_process import BoardProcess, start_board
 from host.link.client import BoardClient
 from host.link.errors import BoardFaulted, LinkConfigError, LinkError
-from host.link.faultcheck import LATCHED, clear_leftover_fault
+from host.link.faultcheck import LATCHED, clear_command, clear_leftover_fault
 from host.link.session import FaultEvent
 from host.run import artefacts
 from host.run.pump import (
@@ -241,8 +241,7 @@ class RobotSession:
 
     # -- board faults ----------------------------------------------------------------------------
     def _how_to_clear(self) -> str:
-        link = self.client.port_name if self.client is not None else "SPEC"
-        return f"clear it with `ghostshell estop --link {link} --clear`"
+        return f"clear it with `{clear_command(self.client.link_spec if self.client is not None else 'SPEC')}`"
 
     def _on_fault(self, ev: FaultEvent) -> None:
         """An ESTOP raised mid-run fails the running calls and the turn (the session stays up).

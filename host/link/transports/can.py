@@ -159,6 +159,10 @@ class CanLinkTransport(Transport):
         return f"{self.spec} (node {self.node})"
 
     @property
+    def link_spec(self) -> str:
+        return str(self.spec)  # the node id is in the spec (?node=N) when it is not the default
+
+    @property
     def connected(self) -> bool:
         return self.bus is not None
 
