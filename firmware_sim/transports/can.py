@@ -342,7 +342,7 @@ class SlcanBoardTransport(CanBoardTransport):
         tty.setraw(self.slave)
         os.set_blocking(self.master, False)
         self.name = os.ttyname(self.slave)
-        self.channel_name = "slcan0"
+        self.channel_name = self.name  # the frame log names the bus as the host's python-can does: the adapter's tty
         self.device = SlcanDevice()
         self._out = bytearray()
         self._line_errors: list[str] = []

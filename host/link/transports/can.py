@@ -17,7 +17,8 @@ and are written in order; a refused write (SocketCAN's ENOBUFS on a full tx queu
 issue #2004; a full SLCAN pty) keeps the frame at the head and retries after 1 ms doubling to
 20 ms (``tx_retries``); more than ``MAX_TX_FRAMES`` waiting raises ``LinkError`` (the bus is not
 draining). Every frame both ways is logged with python-can's writers (``can.Logger``: ``.log``
-candump, ``.asc``, ``.blf`` ... by suffix; wall-clock timestamps).
+candump, ``.asc``, ``.blf`` ... by suffix; wall-clock timestamps; received and sent frames carry the same
+channel, the bus's python-can channel, e.g. the SLCAN adapter's tty, as the board's own log names it).
 """
 
 from __future__ import annotations
@@ -104,6 +105,21 @@ def _open_bus(spec: LinkSpec, kw: dict[str, Any]) -> can.BusABC:
     return bus
 
 
+def _log_channel(spec: LinkSpec, bus: can.BusABC) -> str:
+    """The channel named in the frame log, both directions: the bus's python-can channel (``vcan0``, the SLCAN
+    adapter's tty, ``bus0``), python-can's configured one when the spec leaves it empty, else ``can0``."""
+    if spec.channel:
+        return spec.channel
+    configured = getattr(bus, "channel", None)
+    if isinstance(configured, str) and configured:
+        return configured
+    try:
+        channel = can.util.load_config(config={"interface": spec.interface} if spec.interface else {}).get("channel")
+    except Exception:  # no configuration at all: the log still needs a name
+        channel = None
+    return str(channel) if channel else "can0"
+
+
 class _Listener(can.Listener):
     """Hands every received message (or the bus error) to the loop thread."""
 
@@ -185,6 +201,7 @@ class CanLinkTransport(Transport):
                 kw.setdefault("sleep_after_open", 0)
             bus = await asyncio.to_thread(_open_bus, self.spec, kw)
         self.bus = bus
+        self._channel_name = _log_channel(self.spec, bus)
         self._generation += 1
         self.decoder = CanDecoder(self.node, "host")
         self.isotp = IsoTpLink(rxid=self._bulk_rx, txid=bulk_ids(self.node)[0], fd=self.fd, send=self._enqueue)
@@ -234,6 +251,7 @@ class CanLinkTransport(Transport):
             return
         self.rx_frames += 1
         if self.logger is not None:
+            msg.channel = self._channel_name  # as the frames sent (python-can's slcan leaves it unset)
             self.logger.on_message_received(msg)
         if msg.is_error_frame:
             self.error_frames += 1
