@@ -185,6 +185,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"board: {server.clock.stats.summary()}", file=sys.stderr, flush=True)
         if server.tx_dropped:
             print(f"board: {server.tx_dropped} outgoing report(s) dropped (link too slow)", file=sys.stderr, flush=True)
+        note = link.exit_note()
+        if note:
+            print(f"board: {note}", file=sys.stderr, flush=True)
         if viewer is not None:
             viewer.close()
         link.close()
