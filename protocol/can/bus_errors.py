@@ -57,9 +57,14 @@ def describe_bus_open_error(spec: LinkSpec, exc: BaseException, *, interfaces: C
     names = _class_names(exc)
     options = [f"{k}={v}" for k, v in (("bitrate", spec.bitrate), ("data_bitrate", spec.data_bitrate)) if v is not None]
     options += [f"{k}={v}" for k, v in sorted(spec.options.items())]
-    driver_missing = "library" in str(exc).lower() and ("not found" in str(exc).lower() or "load" in str(exc).lower())
-    if "CanInterfaceNotImplementedError" in names or (driver_missing and code is None):
-        if "unknown interface" in str(exc).lower():
+    text = str(exc).lower()
+    driver_missing = bool(names & {"ImportError", "NameError"}) or (
+        "library" in text and ("not found" in text or "load" in text) and code is None)
+    if not spec.interface and ("CanInterfaceNotImplementedError" in names or "unknown interface" in text):
+        problem = "no interface given and none configured for python-can"
+        todo = "name one (can:socketcan:vcan0, can:slcan:/dev/ttyACM0) or set CAN_INTERFACE / ~/.canrc"
+    elif "CanInterfaceNotImplementedError" in names or driver_missing:
+        if "unknown interface" in text:
             known = f" (python-can knows: {', '.join(sorted(interfaces))})" if interfaces else ""
             problem, todo = f"python-can has no interface {iface!r}{known}", "write can:INTERFACE:CHANNEL with one of them"
         else:
@@ -95,6 +100,9 @@ def describe_bus_open_error(spec: LinkSpec, exc: BaseException, *, interfaces: C
     elif "CanError" in names:
         problem = f"python-can's {iface!r} interface could not start the bus ({_first_line(exc)})"
         todo = "check that the adapter is connected and the channel and options are right"
+    elif "TypeError" in names:
+        problem = f"python-can's {iface!r} interface needs settings a link spec does not carry ({_first_line(exc)})"
+        todo = "give them in python-can's configuration (~/.canrc, can.ini), or use can:socketcan or can:slcan"
     else:
         problem = f"{type(exc).__name__}: {_first_line(exc)}"
         todo = "check the interface, channel and options of the link spec"
