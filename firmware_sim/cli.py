@@ -114,7 +114,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         link = open_board_transport(args.link, baud=args.baud, log_path=args.log)
     except Exception as e:
-        print(f"board: cannot open link {str(args.link)!r}: {e}", file=sys.stderr)
+        if args.link.kind == "can":
+            from protocol.can.bus_errors import describe_bus_open_error
+
+            print(f"board: {describe_bus_open_error(args.link, e)}", file=sys.stderr)
+        else:
+            print(f"board: cannot open link {str(args.link)!r}: {e}", file=sys.stderr)
         return 2
     fault_spec = None
     if args.faults:
@@ -180,6 +185,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"board: {server.clock.stats.summary()}", file=sys.stderr, flush=True)
         if server.tx_dropped:
             print(f"board: {server.tx_dropped} outgoing report(s) dropped (link too slow)", file=sys.stderr, flush=True)
+        note = link.exit_note()
+        if note:
+            print(f"board: {note}", file=sys.stderr, flush=True)
         if viewer is not None:
             viewer.close()
         link.close()

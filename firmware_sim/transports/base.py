@@ -66,6 +66,10 @@ class BoardTransport(ABC):
         """The next ``time.monotonic()`` at which the wire model releases bytes either way, or None."""
         return None
 
+    def exit_note(self) -> str | None:
+        """A statistic worth one line at exit (printed once by the board's command line), or None."""
+        return None
+
     @abstractmethod
     def close(self) -> None:
         """Close the wire and the frame log (idempotent)."""

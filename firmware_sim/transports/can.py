@@ -120,6 +120,11 @@ class CanBoardTransport(BoardTransport):
         self.tx_retries = 0
         self.tx_frames = 0
         self._periodic: bytes | None = None  # the newest SIM_STATE not yet handed to ISO-TP
+        self._periodic_in_flight = False  # the ISO-TP transfer under way is a periodic SIM_STATE
+        self.host_heard = False  # a frame came from a host since the start, or since a periodic report went unanswered
+        self.periodic_unheard = 0  # SIM_STATE reports not sent: no host heard yet (or it went away)
+        self.periodic_unanswered = 0  # SIM_STATE transfers whose First Frame no host answered (flow control timeout)
+        self._isotp_errors_accounted = 0  # ISO-TP errors already reported as link errors, or explained
         self._sdus: list[bytes] = []  # bulk messages ISO-TP completed, not yet delivered
         self.periodic_replaced = 0
         self.error_frames = 0
@@ -158,22 +163,35 @@ class CanBoardTransport(BoardTransport):
         items: list[CanItem | CanDecodeError] = []
         for f in frames:
             self._log(f, True)
+            self.host_heard = True
             if f.arbitration_id == self.bulk_rx_id and not f.is_extended_id:
                 self.isotp.feed(f)
                 continue
             items += self.decoder.feed(f)
-        errs_before = self.isotp.errors
         self._poll()
         sdus, self._sdus = self._sdus, []
         for sdu in sdus:
             items.append(self.decoder.feed_bulk(sdu))
-        if self.isotp.errors > errs_before:
+        if self.isotp.errors > self._isotp_errors_accounted:
+            self._isotp_errors_accounted = self.isotp.errors
             items.append(CanDecodeError(CanErrorKind.BULK, f"ISO-TP: {self.isotp.last_error}"))
         return as_frame_items(items)
 
     def _poll(self) -> None:
-        """Advance ISO-TP; bulk messages it completes wait in ``_sdus`` for :meth:`receive` (never dropped)."""
+        """Advance ISO-TP; bulk messages it completes wait in ``_sdus`` for :meth:`receive` (never dropped).
+
+        A periodic SIM_STATE whose First Frame nobody answers is no link error: no host is listening
+        (it has not connected yet, or it went away mid-transfer). It is counted
+        (``periodic_unanswered``), and reports wait until a host is heard again."""
+        fc_before = self.isotp.flow_control_timeouts
         self._sdus += self.isotp.poll()
+        unanswered = self.isotp.flow_control_timeouts - fc_before
+        if unanswered and self._periodic_in_flight:
+            self.periodic_unanswered += unanswered
+            self._isotp_errors_accounted += unanswered
+            self.host_heard = False
+        if self._periodic_in_flight and not self.isotp.layer.transmitting():
+            self._periodic_in_flight = False
 
     def _take_line_errors(self) -> list[Frame | DecodeError]:
         return []
@@ -207,9 +225,16 @@ class CanBoardTransport(BoardTransport):
             print(f"board: cannot send {type(msg).__name__} on CAN: {e}", file=sys.stderr, flush=True)
 
     def _start_periodic(self) -> None:
+        if self._periodic is not None and not self.host_heard:
+            # a multi-frame ISO-TP transfer needs a receiver's flow control: with no host on the bus it could
+            # only time out, so the report is left out (the next one after a host is heard goes)
+            self._periodic = None
+            self.periodic_unheard += 1
+            return
         if self._periodic is not None and not self.isotp.layer.transmitting() and self.isotp.layer.tx_queue.empty():
             sdu, self._periodic = self._periodic, None
             self.isotp.send(sdu)
+            self._periodic_in_flight = True
             self._poll()
 
     def flush(self, now: float) -> None:
@@ -263,6 +288,12 @@ class CanBoardTransport(BoardTransport):
         if self.isotp.busy or self._periodic is not None:
             due.append(time.monotonic() + 0.002)
         return min(due) if due else None
+
+    def exit_note(self) -> str | None:
+        if not self.periodic_unanswered:
+            return None
+        return (f"{self.periodic_unanswered} SIM_STATE report(s) got no ISO-TP flow control (no host listening: "
+                "it had gone away); later reports waited for a host")
 
     def close(self) -> None:
         if self.logger is not None:
@@ -342,7 +373,7 @@ class SlcanBoardTransport(CanBoardTransport):
         tty.setraw(self.slave)
         os.set_blocking(self.master, False)
         self.name = os.ttyname(self.slave)
-        self.channel_name = "slcan0"
+        self.channel_name = self.name  # the frame log names the bus as the host's python-can does: the adapter's tty
         self.device = SlcanDevice()
         self._out = bytearray()
         self._line_errors: list[str] = []

@@ -88,12 +88,18 @@ def main(args: argparse.Namespace) -> int:
         except GhostError as e:
             print(f"ghostshell chat: {e}", file=sys.stderr)
             return 2
+    from host.commands.linkarg import USAGE_STATUS, link_exit_status, unreachable_link
+
+    why = unreachable_link(args.link)
+    if why:
+        print(f"ghostshell chat: {why}", file=sys.stderr)
+        return USAGE_STATUS
     out = Path(args.out) if args.out else Path("runs") / "chat"
     try:
         return anyio.run(_chat, args, turns, replies, skills, out, backend="asyncio")
     except (LinkError, GhostError, SkillError, RuntimeError, OSError) as e:
         print(f"ghostshell chat: {e}", file=sys.stderr)
-        return 1
+        return link_exit_status(e)
 
 
 async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any, out: Path) -> int:

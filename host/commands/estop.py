@@ -14,7 +14,7 @@ import argparse
 import asyncio
 import sys
 
-from host.commands.linkarg import add_link_argument
+from host.commands.linkarg import USAGE_STATUS, add_link_argument, unreachable_link
 
 __all__ = ["configure", "main"]
 
@@ -30,15 +30,18 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 async def _run(args: argparse.Namespace) -> int:
-    from host.link import BoardClient, LinkError
-    from host.link.faultcheck import LATCHED
+    from host.link import BoardClient, LinkConfigError, LinkError
+    from host.link.faultcheck import LATCHED, clear_command
     from protocol.messages import FaultFlags
 
     try:
         client = await BoardClient.connect(args.link, baud=args.baud, log_path=args.log, reconnect=False)
+    except LinkConfigError as e:  # the link cannot be opened as given
+        print(f"ghostshell estop: {e}", file=sys.stderr)
+        return USAGE_STATUS
     except LinkError as e:
         print(f"ghostshell estop: no board on {args.link}: {e}", file=sys.stderr)
-        return 2
+        return USAGE_STATUS
     try:
         if args.clear:
             await client.estop_clear()
@@ -52,7 +55,7 @@ async def _run(args: argparse.Namespace) -> int:
         else:
             await client.estop()
             print(f"board on {client.port_name}: ESTOP acknowledged; it holds and refuses motion until "
-                  f"`ghostshell estop --link {args.link} --clear`")
+                  f"`{clear_command(client.link_spec)}`")
     except LinkError as e:
         what = "ESTOP_CLEAR" if args.clear else "ESTOP"
         print(f"ghostshell estop: {what} not acknowledged by the board on {args.link}: {e}", file=sys.stderr)
@@ -63,6 +66,10 @@ async def _run(args: argparse.Namespace) -> int:
 
 
 def main(args: argparse.Namespace) -> int:
+    why = unreachable_link(args.link)
+    if why:
+        print(f"ghostshell estop: {why}", file=sys.stderr)
+        return USAGE_STATUS
     if args.link.implies_emulated_board:
         print(f"ghostshell estop: --link {args.link} names a link the emulated board creates; give the port a "
               "running board announced (ghostshell board --link pty prints it)", file=sys.stderr)

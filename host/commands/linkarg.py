@@ -1,7 +1,10 @@
 """The ``--link SPEC`` option shared by ``run``, ``demo``, ``pose``, ``tour`` (``board`` hands it to the board).
 
 Parsing is :func:`protocol.linkspec.parse_link_spec`; a bad spec is an argparse error
-(exit status 2) naming the problem and the valid forms.
+(exit status 2) naming the problem and the valid forms. Problems found only later are usage errors
+too, with the same status in every command: :func:`unreachable_link` (a spec no board process can
+serve, refused before anything starts) and :func:`link_exit_status` (a link that cannot be opened as
+specified, :class:`host.link.errors.LinkConfigError`).
 """
 
 from __future__ import annotations
@@ -10,7 +13,9 @@ import argparse
 
 from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
 
-__all__ = ["LINK_HELP", "add_link_argument", "link_spec_arg"]
+__all__ = ["LINK_HELP", "USAGE_STATUS", "add_link_argument", "link_exit_status", "link_spec_arg", "unreachable_link"]
+
+USAGE_STATUS = 2  # argparse's status for a usage error; also a link spec that cannot be opened or served
 
 LINK_HELP = ("pty (start the emulated board on a new pty), a serial port or pyserial URL, or "
              "can:INTERFACE:CHANNEL[?node=N&fd=1&bitrate=B] (can:socketcan:vcan0, can:slcan:pty, can:virtual:bus0; "
@@ -33,3 +38,25 @@ def add_link_argument(parser: argparse.ArgumentParser, *, default: str | None = 
     else:
         parser.add_argument("--link", default=parse_link_spec(default), type=link_spec_arg, metavar="SPEC",
                             help=help + f" (default {default})")
+
+
+def unreachable_link(spec: LinkSpec) -> str | None:
+    """Why no board process can ever answer on ``spec`` (one line, for the user), or None.
+
+    python-can's ``virtual`` bus exists inside one process: a board in another process (one
+    that is already running, or the one ``--emulate-board`` would start) is never on it. It serves
+    in-process use only (tests put a board on it with ``firmware_sim.transports.open_board_transport``).
+    """
+    if spec.kind == "can" and spec.interface == "virtual":
+        return (f"--link {spec} is python-can's virtual bus, which exists only inside one process: no board "
+                "process can be on it (with or without --emulate-board); use can:slcan:pty (the emulated board as "
+                "an SLCAN adapter) or can:socketcan:vcan0 --emulate-board (the virtual bus is for in-process use)")
+    return None
+
+
+def link_exit_status(error: BaseException) -> int:
+    """Exit status for a link failure: :data:`USAGE_STATUS` (2) when the link cannot be opened or served as
+    specified (:class:`host.link.errors.LinkConfigError`, :class:`protocol.linkspec.LinkSpecError`), else 1."""
+    from host.link.errors import LinkConfigError
+
+    return USAGE_STATUS if isinstance(error, (LinkConfigError, LinkSpecError)) else 1

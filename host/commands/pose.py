@@ -7,7 +7,7 @@ import asyncio
 import math
 import sys
 
-from host.commands.linkarg import add_link_argument
+from host.commands.linkarg import USAGE_STATUS, add_link_argument, unreachable_link
 
 __all__ = ["configure", "main"]
 
@@ -27,7 +27,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 async def _run(args: argparse.Namespace, target: tuple[float, ...]) -> int:
-    from host.link import BoardClient, LinkError
+    from host.link import BoardClient, LinkConfigError, LinkError
     from host.link.faultcheck import clear_leftover_fault
     from host.motion.moves import move_to
     from robots.coco import load_servo_table
@@ -35,9 +35,12 @@ async def _run(args: argparse.Namespace, target: tuple[float, ...]) -> int:
     names = load_servo_table().names
     try:
         client = await BoardClient.connect(args.link, baud=args.baud, log_path=args.log, reconnect=False)
+    except LinkConfigError as e:  # the link cannot be opened as given
+        print(f"ghostshell pose: {e}", file=sys.stderr)
+        return USAGE_STATUS
     except LinkError as e:
         print(f"ghostshell pose: no board on {args.link}: {e}", file=sys.stderr)
-        return 2
+        return USAGE_STATUS
     try:
         note = await clear_leftover_fault(client)
         if note:
@@ -57,6 +60,10 @@ async def _run(args: argparse.Namespace, target: tuple[float, ...]) -> int:
 def main(args: argparse.Namespace) -> int:
     from robots.coco import load_poses
 
+    why = unreachable_link(args.link)
+    if why:
+        print(f"ghostshell pose: {why}", file=sys.stderr)
+        return USAGE_STATUS
     if args.link.implies_emulated_board:
         print(f"ghostshell pose: --link {args.link} names a link the emulated board creates; give the port a "
               "running board announced (ghostshell board --link pty prints it)", file=sys.stderr)

@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 from host.coco.binding import VOCABULARY_NAMES
-from host.commands.linkarg import add_link_argument
+from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, unreachable_link
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -100,6 +100,10 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
 
     from host.shell.skills import SkillError, SkillStore, skills_path
 
+    why = unreachable_link(args.link)
+    if why:
+        print(f"ghostshell: {why}", file=sys.stderr)
+        return USAGE_STATUS
     try:
         skills = SkillStore(skills_path(getattr(args, "skills", None)))
     except SkillError as e:
@@ -139,7 +143,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         report = anyio.run(run_program, opts, backend="asyncio")
     except (LinkError, GhostError, RuntimeError, OSError) as e:
         print(f"ghostshell: {e}", file=sys.stderr)
-        return 1
+        return link_exit_status(e)
     from host.run.artefacts import calls_table
 
     s = report.summary

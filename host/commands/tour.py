@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from host.commands.linkarg import add_link_argument
+from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, unreachable_link
 from host.link.board_process import BoardProcess, start_board
 from protocol.linkspec import LinkSpec
 
@@ -119,10 +119,14 @@ async def _drive(port: LinkSpec, args: argparse.Namespace, out: Path | None) -> 
 def main(args: argparse.Namespace) -> int:
     from host.link import LinkError
 
+    spec: LinkSpec = args.link
+    why = unreachable_link(spec)
+    if why:
+        print(f"ghostshell tour: {why}", file=sys.stderr)
+        return USAGE_STATUS
     out = Path(args.out) if args.out else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
-    spec: LinkSpec = args.link
     board: BoardProcess | None = None
     if args.emulate_board or spec.implies_emulated_board:
         board_args = ["--lockstep" if args.lockstep else "--realtime"]
@@ -130,9 +134,9 @@ def main(args: argparse.Namespace) -> int:
             board_args += ["--log", str(out / "board.jsonl")]
         try:
             board = start_board(board_args, out / "board.stderr" if out else None, link=spec)
-        except (RuntimeError, OSError) as e:
+        except (LinkError, RuntimeError, OSError) as e:
             print(f"ghostshell tour: {e}", file=sys.stderr)
-            return 2
+            return USAGE_STATUS
         print(f"board running on {board.port} ({'lockstep' if args.lockstep else 'realtime'})", flush=True)
         spec = board.spec
     code = 0
@@ -141,7 +145,7 @@ def main(args: argparse.Namespace) -> int:
         summary = asyncio.run(_drive(spec, args, out))
     except LinkError as e:
         print(f"ghostshell tour: {e}", file=sys.stderr)
-        code = 1
+        code = link_exit_status(e)
         summary = None
     finally:
         if board is not None:

@@ -6,7 +6,7 @@ The session (:mod:`host.link.session`, :class:`BoardClient`) runs over a transpo
 """
 
 from host.link.session import ALL_SERVOS, FAULT_BITS, BoardClient, FaultEvent, LinkStats, host_now_us
-from host.link.errors import BoardFaulted, HandshakeError, LinkDown, LinkError, LinkTimeout, NackError
+from host.link.errors import BoardFaulted, HandshakeError, LinkConfigError, LinkDown, LinkError, LinkTimeout, NackError
 from host.link.timesync import ClockEstimate, ClockSync
 
 __all__ = [
@@ -18,6 +18,7 @@ __all__ = [
     "ClockSync",
     "FaultEvent",
     "HandshakeError",
+    "LinkConfigError",
     "LinkDown",
     "LinkError",
     "LinkStats",

@@ -14,12 +14,27 @@ import select
 import signal
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 from typing import IO
 
+from host.link.errors import LinkConfigError
 from protocol.linkspec import LinkSpec, parse_link_spec
 
 __all__ = ["BoardProcess", "start_board"]
+
+USAGE_STATUS = 2  # ``python -m firmware_sim`` exits 2 for a link spec it cannot serve (after one stderr line)
+
+
+def _last_line(err: IO[str]) -> str:
+    """The last non-empty line the board wrote to ``err`` (a file opened for reading too)."""
+    try:
+        err.flush()
+        err.seek(0)
+        lines = [ln.strip() for ln in err.read()[-4000:].splitlines() if ln.strip()]
+    except (OSError, ValueError):
+        return ""
+    return lines[-1] if lines else ""
 
 
 class BoardProcess:
@@ -53,11 +68,14 @@ def start_board(
 ) -> BoardProcess:
     """Start ``python -m firmware_sim --link LINK ARGS`` and parse ``board: listening on X``.
 
-    Raises :class:`protocol.linkspec.LinkSpecError` for a bad ``link`` and ``RuntimeError``
-    (with the board's stderr file named) when the board does not announce itself in ``timeout`` s.
+    Raises :class:`protocol.linkspec.LinkSpecError` for a bad ``link``,
+    :class:`host.link.errors.LinkConfigError` (with the board's own one-line reason) when the board
+    exits with status 2 because it cannot serve the link (no such interface or device, ...), and
+    ``RuntimeError`` (with the board's stderr file named) when it does not announce itself in
+    ``timeout`` s otherwise.
     """
     spec = parse_link_spec(link)
-    err: IO[str] = open(stderr_path, "w") if stderr_path else open(os.devnull, "w")
+    err: IO[str] = open(stderr_path, "w+") if stderr_path else tempfile.TemporaryFile("w+")
     proc = subprocess.Popen(
         [sys.executable, "-m", "firmware_sim", "--link", str(spec), *args],
         stdout=subprocess.PIPE, stderr=err, text=True, env=dict(os.environ, PYTHONUNBUFFERED="1"),
@@ -68,10 +86,14 @@ def start_board(
     prefix = "board: listening on "
     if not line.startswith(prefix):
         proc.kill()
-        proc.wait()
+        status = proc.wait()
+        why = _last_line(err)
         err.close()
+        if status == USAGE_STATUS and why:  # the board refused the link spec (its own one-line reason)
+            raise LinkConfigError(f"the emulated board cannot serve {spec}: {why.removeprefix('board: ')}")
         hint = f" (see {stderr_path})" if stderr_path else ""
-        raise RuntimeError(f"the board did not start on {spec}: expected {prefix!r}..., got {line!r}{hint}")
+        said = f"; it said: {why}" if why else ""
+        raise RuntimeError(f"the board did not start on {spec}: expected {prefix!r}..., got {line!r}{said}{hint}")
     port = line[len(prefix):]
     connect = spec.with_port(port) if spec.implies_emulated_board else spec
     return BoardProcess(proc, port, err, connect)

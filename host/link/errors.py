@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from protocol.messages import MsgType, Nack, NackReason
 
-__all__ = ["BoardFaulted", "HandshakeError", "LinkDown", "LinkError", "LinkTimeout", "NackError"]
+__all__ = ["BoardFaulted", "HandshakeError", "LinkConfigError", "LinkDown", "LinkError", "LinkTimeout", "NackError"]
 
 
 class LinkError(Exception):
@@ -13,6 +13,13 @@ class LinkError(Exception):
 
 class LinkDown(LinkError):
     """The port is closed or vanished (the client may be reconnecting)."""
+
+
+class LinkConfigError(LinkDown):
+    """The link cannot be opened as specified: no such device or interface, a driver missing, an
+    option value the driver refuses, a bus no board process can reach. A usage/configuration error:
+    the commands exit with status 2 (:func:`host.commands.linkarg.link_exit_status`). The message is
+    one line naming the link spec and what to do; the library's own error is the ``__cause__``."""
 
 
 class LinkTimeout(LinkError):

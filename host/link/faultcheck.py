@@ -16,20 +16,28 @@ clear it (``ghostshell estop --link SPEC --clear``).
 
 from __future__ import annotations
 
+import shlex
+
 from host.link.errors import BoardFaulted, LinkTimeout
 from host.link.session import BoardClient
 from protocol.messages import FaultFlags
 
-__all__ = ["LATCHED", "clear_leftover_fault", "estop_message"]
+__all__ = ["LATCHED", "clear_command", "clear_leftover_fault", "estop_message"]
 
 #: telemetry bits under which the board refuses every servo frame
 LATCHED = FaultFlags.ESTOP | FaultFlags.WATCHDOG_FAULT
 
 
+def clear_command(link: object) -> str:
+    """The shell command that clears an estop or latched fault on ``link`` (a link spec, quoted for a POSIX shell:
+    a CAN spec's ``?node=2&fd=1`` must survive copy and paste)."""
+    return f"ghostshell estop --link {shlex.quote(str(link))} --clear"
+
+
 def estop_message(link: object) -> str:
-    """The error for a board found in ESTOP (with the command that clears it)."""
+    """The error for a board found in ESTOP (with the command that clears it); ``link``: its link spec."""
     return (f"the board on {link} is in ESTOP and refuses motion; once it is safe to move, clear it with "
-            f"`ghostshell estop --link {link} --clear`")
+            f"`{clear_command(link)}`")
 
 
 async def clear_leftover_fault(client: BoardClient, timeout: float = 10.0) -> str | None:
@@ -43,7 +51,7 @@ async def clear_leftover_fault(client: BoardClient, timeout: float = 10.0) -> st
     tel = await client.wait_for(lambda t: True, timeout, nudge=True)
     faults = FaultFlags(tel.faults)
     if faults & FaultFlags.ESTOP:
-        raise BoardFaulted(estop_message(client.port_name))
+        raise BoardFaulted(estop_message(client.link_spec))
     if not faults & FaultFlags.WATCHDOG_FAULT:
         return None
     at = tel.board_time_us

@@ -186,6 +186,8 @@ class BoardClient:
         self.spec: LinkSpec | None = None if callable(link) else parse_link_spec(link)
 
         self.port_name: str = str(self.spec) if self.spec is not None else ""
+        #: the spec to give ``--link`` to reach this board again (no decoration; see Transport.link_spec)
+        self.link_spec: str = str(self.spec) if self.spec is not None else ""
         self.caps: Caps | None = None
         self.clock = ClockSync()
         self.stats = LinkStats()
@@ -330,6 +332,7 @@ class BoardClient:
         self._lost.clear()
         await transport.connect(self._on_items, self._on_lost)
         self.port_name = port = transport.name  # a callable spec resolves on connect
+        self.link_spec = transport.link_spec
         try:
             caps = await self._handshake()
             self.caps = caps

@@ -50,8 +50,8 @@ from host.coco.runtime import CocoRuntime
 from host.ghost import GhostError
 from host.link.board_process import BoardProcess, start_board
 from host.link.client import BoardClient
-from host.link.errors import BoardFaulted, LinkError
-from host.link.faultcheck import LATCHED, clear_leftover_fault
+from host.link.errors import BoardFaulted, LinkConfigError, LinkError
+from host.link.faultcheck import LATCHED, clear_command, clear_leftover_fault
 from host.link.session import FaultEvent
 from host.run import artefacts
 from host.run.pump import (
@@ -177,9 +177,9 @@ class RobotSession:
         emulate = opts.emulate_board if opts.emulate_board is not None else spec.implies_emulated_board
         try:
             if spec.implies_emulated_board and not emulate:
-                raise LinkError(f"{spec} is a link the emulated board creates: it cannot be used without starting the board")
+                raise LinkConfigError(f"{spec} is a link the emulated board creates: it cannot be used without starting the board")
             if emulate and spec.kind == "can" and spec.interface == "virtual":
-                raise LinkError(f"{spec}: python-can's virtual bus exists inside one process, so an emulated board "
+                raise LinkConfigError(f"{spec}: python-can's virtual bus exists inside one process, so an emulated board "
                                 "started as a subprocess cannot join it; use can:slcan:pty, or can:socketcan:vcan0 "
                                 "with --emulate-board (the virtual bus is for in-process tests)")
             # frame logs: JSON Lines on serial; python-can's candump format (.log) on CAN
@@ -239,8 +239,7 @@ class RobotSession:
 
     # -- board faults ----------------------------------------------------------------------------
     def _how_to_clear(self) -> str:
-        link = self.client.port_name if self.client is not None else "SPEC"
-        return f"clear it with `ghostshell estop --link {link} --clear`"
+        return f"clear it with `{clear_command(self.client.link_spec if self.client is not None else 'SPEC')}`"
 
     def _on_fault(self, ev: FaultEvent) -> None:
         """An ESTOP raised mid-run fails the running calls and the turn (the session stays up).

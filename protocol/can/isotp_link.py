@@ -43,6 +43,7 @@ class IsoTpLink:
         self._send = send
         self._rx: deque[isotp.CanMessage] = deque()
         self.errors = 0
+        self.flow_control_timeouts = 0  # of ``errors``: a First Frame sent that no receiver answered within 1 s
         self.last_error = ""
         params = {
             "stmin": 0,
@@ -75,6 +76,8 @@ class IsoTpLink:
 
     def _on_error(self, error: Exception) -> None:
         self.errors += 1
+        if isinstance(error, isotp.errors.FlowControlTimeoutError):
+            self.flow_control_timeouts += 1
         self.last_error = f"{type(error).__name__}: {error}"
 
     def feed(self, frame: CanFrame) -> None:

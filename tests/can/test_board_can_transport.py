@@ -38,3 +38,63 @@ def test_a_bulk_message_completed_during_flush_is_delivered(virtual_channel: str
         assert [i.seq for i in items if isinstance(i, Frame)] == [35]
     finally:
         t.close()
+
+
+def _first_frames(bus: can.BusABC, rxid: int) -> list[bytes]:
+    """ISO-TP First Frames on ``rxid`` among the frames waiting on ``bus`` (non-blocking)."""
+    out = []
+    while (m := bus.recv(timeout=0)) is not None:
+        if m.arbitration_id == rxid and m.data and m.data[0] >> 4 == 1:
+            out.append(bytes(m.data))
+    return out
+
+
+def test_periodic_reports_wait_for_a_host_and_an_unanswered_one_is_no_link_error(virtual_channel: str) -> None:
+    """A realtime board on CAN starts its 50 Hz SIM_STATE (multi-frame ISO-TP) before any host is on the bus.
+    Its First Frame then waits for a flow control nobody sends, and the board printed an ISO-TP
+    FlowControl timeout per run although every command succeeded. Reports now wait for a host, and a
+    report that goes unanswered because the host left is counted, not reported as a link error;
+    any other bulk transfer that goes unanswered still is one."""
+    from firmware_sim.transports.can import to_can_message
+    from protocol.can import encode_fixed
+    from protocol.can.codec import Sender
+    from protocol.framing import DecodeError
+    from protocol.messages import Caps, Heartbeat, SimState
+
+    spec = parse_link_spec(f"can:virtual:{virtual_channel}")
+    t = BusBoardTransport(spec, bus=can.Bus(interface="virtual", channel=virtual_channel))
+    host = can.Bus(interface="virtual", channel=virtual_channel)  # sees what the board sends
+    to_host = bulk_ids(1)[1]
+    report = SimState(20_000, (0.0, 0.0, 0.2), (1.0, 0.0, 0.0, 0.0))
+    try:
+        t.queue(report, 0, 0.0)
+        t.flush(0.0)
+        assert _first_frames(host, to_host) == [] and t.periodic_unheard == 1  # no host yet: not started
+
+        for f in encode_fixed(Heartbeat(1), 0, 1, False, Sender.HOST):  # a host speaks
+            host.send(to_can_message(f))
+        assert any(isinstance(i, Frame) and isinstance(i.msg, Heartbeat) for i in t.receive(0.0))
+        t.queue(report, 1, 0.0)
+        t.flush(0.0)
+        assert len(_first_frames(host, to_host)) == 1  # the report goes out once a host was heard
+
+        # ... and the host goes away without answering; can-isotp's own 1 s flow-control timer, run out now
+        t.isotp.layer.timer_rx_fc.set_timeout(0)
+        items = t.receive(0.0, read=False)
+        assert not [i for i in items if isinstance(i, DecodeError)], items
+        assert t.periodic_unanswered == 1 and t.isotp.flow_control_timeouts == 1
+        assert t.exit_note() is not None and t.exit_note().startswith("1 SIM_STATE report(s)")  # type: ignore[union-attr]
+        t.queue(report, 2, 0.0)
+        t.flush(0.0)
+        assert _first_frames(host, to_host) == [] and t.periodic_unheard == 2  # quiet until a host is heard again
+
+        # a reply (CAPS) nobody answers is still a link error
+        t.queue(Caps(1, 0, 12, 500, 64, 50, 20_000, True), 3, 0.0)
+        t.flush(0.0)
+        assert len(_first_frames(host, to_host)) == 1
+        t.isotp.layer.timer_rx_fc.set_timeout(0)
+        errors = [i for i in t.receive(0.0, read=False) if isinstance(i, DecodeError)]
+        assert len(errors) == 1 and "FlowControl" in errors[0].detail, errors
+    finally:
+        host.shutdown()
+        t.close()

@@ -60,3 +60,38 @@ def test_unknown_and_partial_frames_are_reported(tmp_path: Path) -> None:
     assert decode_can_file(str(path), out, err) == 1
     assert "UNKNOWN" in out.text and "ERROR INCOMPLETE" in out.text and "1 not in the DBC" in err.text
     assert out.text.count("SERVO_FRAME  ") + out.text.count("SERVO_FRAME ") >= 1
+
+
+def _channels(path: Path) -> dict[bool, set[str]]:
+    """Channels named in a candump log, by direction (is_rx)."""
+    out: dict[bool, set[str]] = {True: set(), False: set()}
+    for msg in can.LogReader(str(path)):  # type: ignore[no-untyped-call]
+        out[bool(msg.is_rx)].add(str(msg.channel))
+    return out
+
+
+def test_host_and_board_logs_name_the_slcan_channel_alike(tmp_path: Path) -> None:
+    # a real lockstep board as an SLCAN adapter on a pty; the host through python-can's slcan interface
+    import anyio
+
+    from host.link import BoardClient
+    from host.link.board_process import start_board
+
+    board = start_board(["--lockstep", "--log", str(tmp_path / "board.log")], tmp_path / "board.stderr",
+                        link="can:slcan:pty")
+    tty = board.port
+
+    async def talk() -> None:
+        async with await BoardClient.connect(board.spec, log_path=tmp_path / "host.log", reconnect=False) as c:
+            at = c.board_now_estimate()
+            await c.advance(at + 40_000)
+            await c.wait_for(lambda t: t.board_time_us > at, 10)  # telemetry (fixed) and SIM_STATE (ISO-TP) came
+
+    try:
+        anyio.run(talk, backend="asyncio")
+    finally:
+        board.stop()
+    assert tty.startswith("/dev/")
+    host, board_log = _channels(tmp_path / "host.log"), _channels(tmp_path / "board.log")
+    assert host == {True: {tty}, False: {tty}}  # received and sent frames: the adapter's tty, as python-can opened it
+    assert board_log == {True: {tty}, False: {tty}}

@@ -356,24 +356,33 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--classic", action="store_true", help="classic MTU 16 instead of CAN FD's 72")
     ap.add_argument("--timeout", type=float, default=300.0)
     ap.add_argument("--keep", action="append", default=[], help="a host folder under /tmp the command needs")
-    ap.add_argument("--run-dir", default=None, help="where the run's files go (default: a temporary folder)")
+    ap.add_argument("--run-dir", default=None,
+                    help="where the run's files go, kept afterwards (default: a temporary folder, removed at exit)")
     ap.add_argument("command", nargs=argparse.REMAINDER)
     args = ap.parse_args(argv)
     command = args.command[1:] if args.command[:1] == ["--"] else args.command
     if not command:
         ap.error("no command given (put it after --)")
-    run_dir = Path(args.run_dir) if args.run_dir else Path(tempfile.mkdtemp(prefix="uml_run_"))
+    # without --run-dir the run's files go to a temporary folder that is removed on every exit
+    # (success, failure, interruption); --run-dir keeps them
+    temporary = args.run_dir is None
+    run_dir = Path(tempfile.mkdtemp(prefix="uml_run_")) if temporary else Path(args.run_dir)
     try:
-        result = run_in_uml(command, run_dir=run_dir, vcans=tuple(v for v in args.vcan.split(",") if v),
-                            fd=not args.classic, keep=[Path(k) for k in args.keep], timeout=args.timeout,
-                            cwd=Path.cwd())
-    except UmlError as e:
-        print(f"uml: {e}", file=sys.stderr)
-        return 125
-    sys.stdout.write(result.stdout)
-    sys.stderr.write(result.stderr)
-    print(f"uml: exit status {result.returncode} after {result.seconds:.1f} s (files in {run_dir})", file=sys.stderr)
-    return result.returncode
+        try:
+            result = run_in_uml(command, run_dir=run_dir, vcans=tuple(v for v in args.vcan.split(",") if v),
+                                fd=not args.classic, keep=[Path(k) for k in args.keep], timeout=args.timeout,
+                                cwd=Path.cwd())
+        except UmlError as e:
+            print(f"uml: {e}", file=sys.stderr)
+            return 125
+        sys.stdout.write(result.stdout)
+        sys.stderr.write(result.stderr)
+        kept = "give --run-dir DIR to keep the guest's files" if temporary else f"files in {run_dir}"
+        print(f"uml: exit status {result.returncode} after {result.seconds:.1f} s ({kept})", file=sys.stderr)
+        return result.returncode
+    finally:
+        if temporary:
+            shutil.rmtree(run_dir, ignore_errors=True)
 
 
 if __name__ == "__main__":

@@ -77,3 +77,38 @@ def test_skip_reason_names_what_is_missing(monkeypatch: pytest.MonkeyPatch) -> N
     monkeypatch.setattr(uml, "native_vcan", lambda name="vcan0": False)
     reason = socketcan_skip_reason()
     assert reason is not None and "vcan0" in reason and "/nonexistent/linux.uml" in reason
+
+
+def _leftover_run_dirs(root: Path) -> list[str]:
+    return sorted(p.name for p in root.glob("uml_run_*"))
+
+
+@needs_uml
+def test_command_line_removes_its_temporary_run_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    import tempfile
+
+    import support.uml as uml
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # mkdtemp's folder: only this test's files there
+    assert uml.main(["--classic", "--timeout", "30", "--", "sh", "-c", "echo hi; exit 3"]) == 3
+    out, err = capsys.readouterr()
+    assert out == "hi\n" and "exit status 3" in err
+    assert _leftover_run_dirs(tmp_path) == []
+
+
+def test_command_line_removes_its_temporary_run_dir_on_failure(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    import tempfile
+
+    import support.uml as uml
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    monkeypatch.setattr(uml, "UML_KERNEL", Path("/nonexistent/linux.uml"))  # UML cannot start: UmlError
+    assert uml.main(["--", "true"]) == 125
+    assert "/nonexistent/linux.uml" in capsys.readouterr().err
+    assert _leftover_run_dirs(tmp_path) == []
+    kept = tmp_path / "kept"
+    kept.mkdir()
+    assert uml.main(["--run-dir", str(kept), "--", "true"]) == 125
+    assert kept.is_dir()  # a folder the user named is the user's

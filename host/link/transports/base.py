@@ -35,7 +35,13 @@ class Transport(ABC):
     @property
     @abstractmethod
     def name(self) -> str:
-        """Where the link goes, for messages (``"/dev/pts/3"``, ``"can:socketcan:vcan0 node 1"``)."""
+        """Where the link goes, for messages (``"/dev/pts/3"``, ``"can:socketcan:vcan0 (node 1)"``)."""
+
+    @property
+    def link_spec(self) -> str:
+        """The link spec that reaches this board again, as ``--link`` takes it (``"/dev/pts/3"``,
+        ``"can:slcan:/dev/pts/4?node=2"``): :attr:`name` without decoration. Valid after :meth:`connect`."""
+        return self.name
 
     @property
     @abstractmethod

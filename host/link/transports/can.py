@@ -17,13 +17,15 @@ and are written in order; a refused write (SocketCAN's ENOBUFS on a full tx queu
 issue #2004; a full SLCAN pty) keeps the frame at the head and retries after 1 ms doubling to
 20 ms (``tx_retries``); more than ``MAX_TX_FRAMES`` waiting raises ``LinkError`` (the bus is not
 draining). Every frame both ways is logged with python-can's writers (``can.Logger``: ``.log``
-candump, ``.asc``, ``.blf`` ... by suffix; wall-clock timestamps).
+candump, ``.asc``, ``.blf`` ... by suffix; wall-clock timestamps; received and sent frames carry the same
+channel, the bus's python-can channel, e.g. the SLCAN adapter's tty, as the board's own log names it).
 """
 
 from __future__ import annotations
 
 import asyncio
 import errno
+import logging
 import time
 from collections import deque
 from collections.abc import Callable
@@ -32,7 +34,7 @@ from typing import Any
 
 import can
 
-from host.link.errors import LinkDown, LinkError
+from host.link.errors import LinkConfigError, LinkDown, LinkError
 from host.link.transports.base import LossHandler, ReceiveHandler, Transport
 from protocol.can import (
     CanDecodeError,
@@ -43,6 +45,7 @@ from protocol.can import (
     encode_fixed,
     is_fixed,
 )
+from protocol.can.bus_errors import describe_bus_open_error
 from protocol.can.codec import Sender
 from protocol.can.decoder import CanErrorKind, as_frame_items
 from protocol.can.ids import bulk_ids
@@ -58,8 +61,9 @@ BACKOFF_MIN_S = 0.001
 BACKOFF_MAX_S = 0.02
 ISOTP_TICK_S = 0.002
 FRAME_COST = 16
+log = logging.getLogger(__name__)
 
-def _open_bus(kw: dict[str, Any]) -> can.BusABC:
+def _make_bus(kw: dict[str, Any]) -> can.BusABC:
     """``can.Bus(**kw)``, except that a SLCAN bus (named, or from python-can's configuration) is a
     :class:`~host.link.transports.slcan_rx.BufferedSlcanBus` (python-can 4.6.1 reads SLCAN one byte
     per system call); the configuration is resolved as ``can.Bus`` resolves it."""
@@ -84,6 +88,52 @@ def open_can_logger(path: str | Path) -> Any:
         return can.Logger(str(p))  # type: ignore[no-untyped-call]
     except ValueError as e:
         raise ValueError(f"cannot log CAN frames to {p}: {e} (use .log, .asc or .blf)") from None
+
+class _Collect(logging.Handler):
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
+
+
+def _open_bus(spec: LinkSpec, kw: dict[str, Any]) -> can.BusABC:
+    """``can.Bus(**kw)``; any failure becomes one :class:`LinkConfigError` line (the driver's error is the cause).
+
+    python-can's log records of the attempt (e.g. an interface module's import-time warnings) are held
+    back: on failure the one line says what happened, on success they are logged under this module.
+    """
+    held = _Collect()
+    root = logging.getLogger("can")
+    root.addHandler(held)
+    saved, root.propagate = root.propagate, False
+    try:
+        bus = _make_bus(kw)
+    except Exception as e:  # python-can's interface classes raise all sorts (CanError, OSError, ValueError, struct.error...)
+        raise LinkConfigError(describe_bus_open_error(spec, e, interfaces=can.VALID_INTERFACES)) from e
+    finally:
+        root.removeHandler(held)
+        root.propagate = saved
+    for r in held.records:
+        log.log(r.levelno, "python-can: %s", r.getMessage())
+    return bus
+
+
+def _log_channel(spec: LinkSpec, bus: can.BusABC) -> str:
+    """The channel named in the frame log, both directions: the bus's python-can channel (``vcan0``, the SLCAN
+    adapter's tty, ``bus0``), python-can's configured one when the spec leaves it empty, else ``can0``."""
+    if spec.channel:
+        return spec.channel
+    configured = getattr(bus, "channel", None)
+    if isinstance(configured, str) and configured:
+        return configured
+    try:
+        channel = can.util.load_config(config={"interface": spec.interface} if spec.interface else {}).get("channel")
+    except Exception:  # no configuration at all: the log still needs a name
+        channel = None
+    return str(channel) if channel else "can0"
+
 
 class _Listener(can.Listener):
     """Hands every received message (or the bus error) to the loop thread."""
@@ -140,6 +190,10 @@ class CanLinkTransport(Transport):
         return f"{self.spec} (node {self.node})"
 
     @property
+    def link_spec(self) -> str:
+        return str(self.spec)  # the node id is in the spec (?node=N) when it is not the default
+
+    @property
     def connected(self) -> bool:
         return self.bus is not None
 
@@ -160,19 +214,9 @@ class CanLinkTransport(Transport):
             kw.setdefault("can_filters", [{"can_id": self.node, "can_mask": 0x7F, "extended": False}])
             if kw.get("interface") == "slcan":
                 kw.setdefault("sleep_after_open", 0)
-            try:
-                bus = await asyncio.to_thread(lambda: _open_bus(kw))
-            except (can.CanError, OSError, ValueError, ImportError, TypeError) as e:
-                hint = ""
-                if isinstance(e, TypeError):  # python-can's interface class refused the arguments
-                    hint = (" (no channel given or configured: name one, e.g. can:slcan:/dev/ttyACM0, or set "
-                            "CAN_CHANNEL / ~/.canrc)")
-                elif isinstance(e, OSError) and e.errno == errno.EAFNOSUPPORT:
-                    hint = " (this kernel has no SocketCAN; try can:slcan:pty, or a machine/UML with vcan)"
-                elif isinstance(e, OSError) and e.errno == errno.ENODEV:
-                    hint = " (no such CAN interface: e.g. `ip link add dev vcan0 type vcan && ip link set up vcan0`)"
-                raise LinkDown(f"cannot open CAN bus {self.spec}: {e}{hint}") from None
+            bus = await asyncio.to_thread(_open_bus, self.spec, kw)
         self.bus = bus
+        self._channel_name = _log_channel(self.spec, bus)
         self._generation += 1
         self.decoder = CanDecoder(self.node, "host")
         self.isotp = IsoTpLink(rxid=self._bulk_rx, txid=bulk_ids(self.node)[0], fd=self.fd, send=self._enqueue)
@@ -227,6 +271,7 @@ class CanLinkTransport(Transport):
             return
         self.rx_frames += 1
         if self.logger is not None:
+            msg.channel = self._channel_name  # as the frames sent (python-can's slcan leaves it unset)
             self.logger.on_message_received(msg)
         if msg.is_error_frame:
             self.error_frames += 1
