@@ -57,8 +57,11 @@ class _Node:
         self.bulk_host = IsoTpLink(rxid=h, txid=b, fd=fd, send=lambda f: None, listen=True)
 
 
-def iter_can_log(path: str | Path) -> Iterator[CanLogEntry]:
-    """Entries of a python-can log (see the module docstring); ``ValueError`` for an unknown format."""
+def iter_can_log(path: str | Path, *, dbc: bool = True) -> Iterator[CanLogEntry]:
+    """Entries of a python-can log (see the module docstring); ``ValueError`` for an unknown format.
+
+    ``dbc=False`` skips the DBC view (``dbc_name`` None, ``signals`` empty): several times faster
+    for readers that need only the reassembled messages (``items``)."""
     nodes: dict[int, _Node] = {}
     for msg in can.LogReader(str(path)):  # type: ignore[no-untyped-call]
         if msg.is_error_frame:
@@ -68,7 +71,7 @@ def iter_can_log(path: str | Path) -> Iterator[CanLogEntry]:
         fn, node = split_id(frame.arbitration_id)
         direction = "?" if fn is None or frame.is_extended_id else ("h>b" if fn in HOST_TO_BOARD else "b>h")
         entry = CanLogEntry(float(msg.timestamp), direction, frame)
-        if not frame.is_extended_id:
+        if dbc and not frame.is_extended_id:
             try:
                 dm = load_dbc(frame.is_fd).get_message_by_frame_id(frame.arbitration_id)
                 entry.dbc_name = dm.name
@@ -107,7 +110,7 @@ def iter_can_log(path: str | Path) -> Iterator[CanLogEntry]:
 def read_can_host_to_board(path: Path) -> Iterator[tuple[float, int, Message]]:
     """``(t, seq, message)`` the host sent to its board (the first node seen), in order."""
     first: int | None = None
-    for e in iter_can_log(path):
+    for e in iter_can_log(path, dbc=False):
         if e.direction != "h>b":
             continue
         node = split_id(e.frame.arbitration_id)[1]
@@ -123,7 +126,7 @@ def read_can_host_to_board(path: Path) -> Iterator[tuple[float, int, Message]]:
 def can_last_sim_state(path: Path) -> SimState | None:
     """The last SIM_STATE the board sent in the capture (the recording host's final ground truth)."""
     last: SimState | None = None
-    for e in iter_can_log(path):
+    for e in iter_can_log(path, dbc=False):
         if e.direction == "b>h":
             for it in e.items:
                 if isinstance(it, CanItem) and isinstance(it.msg, SimState):

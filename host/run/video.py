@@ -124,7 +124,7 @@ def _states_from_can(path: Path) -> tuple[dict[int, list[float]], dict[int, list
     base: dict[int, list[float]] = {}
     node: int | None = None
     try:
-        for e in iter_can_log(path):
+        for e in iter_can_log(path, dbc=False):
             if e.direction != "b>h":
                 continue
             for it in e.items:

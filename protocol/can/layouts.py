@@ -103,6 +103,11 @@ class FixedLayout:
     length: int  # bytes of every frame of this message (classic: <= 8; FD: a valid FD length)
     part_bytes: tuple[int, ...]  # bytes each part needs (header included)
 
+    def __hash__(self) -> int:
+        # one layout per (message type, frame kind): hashing that pair, not every nested signal,
+        # keeps the per-frame lookups keyed by layout (``codec._part_signals``) cheap
+        return hash((self.msg_type, self.fd))
+
     @property
     def name(self) -> str:
         return self.msg_type.name

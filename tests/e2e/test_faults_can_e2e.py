@@ -58,7 +58,7 @@ def can_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[int, CliRun]:
 def _to_board(path: Path) -> tuple[list[CanItem], int]:
     """Host->board messages a log's frames reassemble to, and the decode errors among them."""
     items, errors = [], 0
-    for e in iter_can_log(path):
+    for e in iter_can_log(path, dbc=False):
         if e.direction != "h>b":
             continue
         for it in e.items:
