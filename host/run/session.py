@@ -167,6 +167,7 @@ class RobotSession:
         self._runtime: CocoRuntime | None = None
         self._shell: Shell | None = None
         self._turn: _TurnStart | None = None  # the turn in progress
+        self._link_tried = False  # a board link was attempted (a failure from then on has a report)
 
     # -- life cycle ------------------------------------------------------------------------------
     @property
@@ -207,6 +208,7 @@ class RobotSession:
                     board_args += ["--faults", opts.faults, "--fault-seed", str(opts.fault_seed)]
                 self._board = start_board(board_args, self.out / "board.stderr", link=spec)
                 target = self._board.spec
+            self._link_tried = True
             client = await BoardClient.connect(target, baud=opts.baud, log_path=self.out / f"host_frames{log_suffix}")
             self.client = await self._stack.enter_async_context(client)
             if client.latest_telemetry is None and client.lockstep:
@@ -356,14 +358,17 @@ class RobotSession:
         Its calls are in the state the loss left them: finished ones as they ended, the rest
         ``cancelled`` with ``error`` naming the loss (``link lost while running`` / ``... while
         queued``); ``summary.outcome`` is ``link_lost`` and ``extra.link_error`` the one-line
-        message. When the link failed before any turn began but after the session was up (e.g.
+        message. When the link failed before any turn began (connecting: no TIME_SYNC reply, or
         while going to the start pose), an empty turn labelled ``label`` in ``out`` (default the
-        session folder). None when the session never came up (nothing ran). Write it with
-        :meth:`write_now` after the session ended: the emulated board has then stopped and
-        printed its fault report (``extra.faults.board``).
+        session folder). None when no link was tried, or the board refused the host at connect
+        (:class:`BoardFaulted`: nothing ran). Write it with :meth:`write_now` after the session
+        ended: the emulated board has then stopped and printed its fault report
+        (``extra.faults.board``).
         """
         if self._runtime is None:
-            return None
+            if not self._link_tried or isinstance(error, BoardFaulted):
+                return None
+            return self._bare_turn(error, label or self.opts.label, out or self.out)
         start, self._turn = self._turn, None
         if start is None or self._shell is None or self._shell.last_result is None:
             start = _TurnStart(label or self.opts.label, out or self.out, [], self._runtime.board_now_s(), None,
@@ -376,6 +381,22 @@ class RobotSession:
             if c.outcome == "cancelled" and c.error is None:
                 c.error = f"link lost while {'running' if c.start is not None else 'queued'}"
         return turn
+
+    def _bare_turn(self, error: BaseException, label: str, out: Path) -> TurnResult:
+        """The report of a session whose link failed before the runtime existed (while connecting)."""
+        client = self.client
+        stats = client.stats if client is not None else None
+        host_detected = {"decode_errors": stats.decode_errors if stats else None,
+                         "frame_nacks": stats.frame_nacks if stats else None,
+                         "request_retries": stats.retries if stats else None, "link_lost": str(error)}
+        summary = artefacts.Summary(
+            task=label, outcome="link_lost", fell=False, base_start=_pose(None), base_end=_pose(None),
+            max_tilt_deg=0.0, first_action_latency_ms=None, outcomes=artefacts.count_outcomes([]),
+            extra={"clock": "lockstep" if self.opts.lockstep else "realtime", "vocabulary": self.opts.vocabulary,
+                   "mode": self.opts.mode, "error": None, "link_error": str(error), "observations": [],
+                   "link": {}, "captures": [], "scene": self.scene_report(),
+                   **({"faults": {"host_detected": host_detected}} if self.opts.faults else {})})
+        return TurnResult(RunResult(Timeline(), [], 0.0), [], summary, out)
 
     async def _interrupt_at(self, at_s: float) -> None:
         try:
@@ -466,11 +487,12 @@ class RobotSession:
 
     def writer(self, turn: TurnResult, label: str) -> Callable[[], None]:
         """Snapshot what the turn's artefacts need (on the loop) and return the writer (thread-safe)."""
-        rec, runtime = self.rec, self.runtime
+        rec, runtime = self.rec, self._runtime
         times = np.asarray(rec.t)
         q = np.asarray(rec.q)
         keep = times >= turn.board_t0 - 1e-9
-        sent = [(t, q_) for t, q_ in list(runtime.streamer.history) if t * 1e-6 >= turn.board_t0 - 1e-9]
+        history = list(runtime.streamer.history) if runtime is not None else []
+        sent = [(t, q_) for t, q_ in history if t * 1e-6 >= turn.board_t0 - 1e-9]
         names = load_servo_table().names
         out, calls, summary, t0 = turn.out, list(turn.calls), turn.summary, turn.board_t0
         board_stderr = self.out / "board.stderr"

@@ -90,3 +90,14 @@ def test_demo_cut_by_the_link_prints_one_message_and_keeps_its_report(tmp_path: 
     cut_short = [c for c in calls if c["outcome"] in ("failed", "cancelled")]
     assert cut_short and all("link lost" in c["error"] for c in cut_short)
     assert any(c["error"] == "link lost while queued" and c["start"] is None for c in cut_short)
+
+
+def test_a_link_cut_from_the_start_still_reports_what_was_injected(tmp_path: Path) -> None:
+    # lockstep: the board clock stays at 0 until the host reaches it, so a cut from 0 holds for good
+    with pytest.raises(LinkError, match="no CAPS") as e:
+        run_e2e(PROGRAM, tmp_path, faults="cut=0+5")
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["outcome"] == "link_lost" and summary["extra"]["link_error"] == str(e.value)
+    assert sum(summary["outcomes"].values()) == 0  # nothing ran
+    (to_board,) = [d for d in summary["extra"]["faults"]["board"]["injected"] if d["direction"] == "host->board"]
+    assert to_board["injected"]["cut"] == to_board["units_in"] > 0  # every HELLO was cut
