@@ -178,6 +178,11 @@ class RobotSession:
         return self._runtime
 
     @property
+    def board(self) -> BoardProcess | None:
+        """The emulated board's process while the session runs (None when connected to a given board)."""
+        return self._board
+
+    @property
     def shell(self) -> Shell:
         """The session's one shell (only inside the session)."""
         if self._shell is None:
