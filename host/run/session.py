@@ -234,7 +234,7 @@ class RobotSession:
             tg.start_soon(self._ends_the_run, pump(client, runtime, self.rec))
             tg.start_soon(self._ends_the_run, silence_watchdog(runtime, self.rec, client))
             if not client.lockstep:
-                tg.start_soon(realtime_topper, runtime)
+                tg.start_soon(self._ends_the_run, realtime_topper(runtime))
             await runtime.streamer.top_up()
             await go_to_pose(runtime, opts.start_pose)
         except BaseException as exc:
@@ -261,7 +261,8 @@ class RobotSession:
         return None
 
     async def _ends_the_run(self, task: Awaitable[None]) -> None:
-        """Run a session task whose :class:`LinkError` ends the run (the pump, the silence watchdog).
+        """Run a session task whose :class:`LinkError` ends the run (the pump, the silence watchdog,
+        the realtime top-up).
 
         Before the error cancels the session, the streamer is failed with it: nothing will confirm
         frames or board time any more, so the shielded resets of the calls being cancelled (a
