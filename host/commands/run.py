@@ -96,7 +96,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
 
     from host.ghost import GhostError
     from host.link import LinkError
-    from host.run.runner import RunOptions, run_program
+    from host.run.runner import RunOptions, ended_report, run_program
 
     from host.shell.skills import SkillError, SkillStore, skills_path
 
@@ -143,6 +143,8 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         report = anyio.run(run_program, opts, backend="asyncio")
     except (LinkError, GhostError, RuntimeError, OSError) as e:
         print(f"ghostshell: {e}", file=sys.stderr)
+        if ended_report(e) is not None:  # a run the link ended still left its report
+            print(f"artefacts in {out}/: " + " ".join(n for n in ARTEFACTS if (out / n).exists()))
         return link_exit_status(e)
     from host.run.artefacts import calls_table
 
@@ -160,12 +162,14 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     scene = s.extra.get("scene") or {}
     if scene.get("objects"):
         print(f"scene {scene['name']}: {scene['toppled']} of {scene['objects']} toppled")
-    names = ("timeline.json", "timeline.png", "joints.png", "summary.json", "host_frames.jsonl", "board_frames.jsonl",
-             "host_frames.log", "board_frames.log")
     if getattr(args, "video", False):
         render_into(out)
-    print(f"artefacts in {out}/: " + " ".join(n for n in (*names, "run.mp4") if (out / n).exists()))
+    print(f"artefacts in {out}/: " + " ".join(n for n in (*ARTEFACTS, "run.mp4") if (out / n).exists()))
     return 0 if s.outcome in ("done", "interrupted") else 1
+
+
+ARTEFACTS = ("timeline.json", "timeline.png", "joints.png", "summary.json", "host_frames.jsonl", "board_frames.jsonl",
+             "host_frames.log", "board_frames.log")
 
 
 def _first_action(ms: float | None) -> str:

@@ -19,6 +19,7 @@ from pathlib import Path
 
 from host.coco.runtime import CocoRuntime
 from host.ghost import make_ghost
+from host.link.errors import LinkError
 from host.run import artefacts
 from host.run.pump import HISTORY, SETTLE_CHECKPOINTS, TELEMETRY_SILENCE_S
 from host.run.session import RobotSession, SessionOptions
@@ -30,7 +31,7 @@ from protocol.linkspec import LinkSpec
 
 log = logging.getLogger("host.run")
 
-__all__ = ["HISTORY", "SETTLE_CHECKPOINTS", "TELEMETRY_SILENCE_S", "RunOptions", "RunReport", "run_program"]
+__all__ = ["HISTORY", "SETTLE_CHECKPOINTS", "TELEMETRY_SILENCE_S", "RunOptions", "RunReport", "ended_report", "run_program"]
 
 
 @dataclass
@@ -87,25 +88,52 @@ def session_options(opts: RunOptions) -> SessionOptions:
 
 
 async def run_program(opts: RunOptions, on_start: Callable[[Shell, CocoRuntime], None] | None = None) -> RunReport:
-    """Run ``opts`` end to end and write the artefacts to ``opts.out``."""
-    session = RobotSession(session_options(opts))
-    async with session:
-        messages = [{"role": "system", "content": session.prompt(format="xml")},
-                    {"role": "user", "content": opts.prompt or ""}]
-        if opts.llm == "scripted":  # paced on the board clock, so lockstep runs are reproducible
-            ghost = make_ghost("scripted", program=opts.program, tokens_per_s=opts.tokens_per_s,
-                               seed=opts.seed, sleep=session.pacer())
-        else:
-            ghost = make_ghost(opts.llm, base_url=opts.llm_base_url, api_key=opts.llm_api_key)
-        if on_start is not None:
-            on_start(session.shell, session.runtime)
-        if opts.live:
-            from host.run.live import live_view
+    """Run ``opts`` end to end and write the artefacts to ``opts.out``.
 
-            session.background().start_soon(live_view, session.shell, session.runtime, opts.task_label)
-        turn = await session.run_turn(ghost.stream(messages), label=opts.task_label, out=opts.out,
-                                      hold=opts.llm != "scripted", buffer=opts.buffer_response,
-                                      interrupt_after=opts.interrupt_at, settle_s=opts.settle_s, write=False)
-        write = session.writer(turn, opts.task_label)  # snapshot now, plot after the board stopped
+    A run that ends on a :class:`LinkError` after the session came up (the board latched its
+    watchdog fault, fell silent, a request timed out) still writes its artefacts
+    (:meth:`RobotSession.ended_turn`: ``summary.json`` with ``outcome`` ``link_lost``, the calls
+    as far as they got, ``extra.faults``) and then raises that same error; :func:`ended_report`
+    gives the :class:`RunReport` it wrote.
+    """
+    session = RobotSession(session_options(opts))
+    try:
+        async with session:
+            messages = [{"role": "system", "content": session.prompt(format="xml")},
+                        {"role": "user", "content": opts.prompt or ""}]
+            if opts.llm == "scripted":  # paced on the board clock, so lockstep runs are reproducible
+                ghost = make_ghost("scripted", program=opts.program, tokens_per_s=opts.tokens_per_s,
+                                   seed=opts.seed, sleep=session.pacer())
+            else:
+                ghost = make_ghost(opts.llm, base_url=opts.llm_base_url, api_key=opts.llm_api_key)
+            if on_start is not None:
+                on_start(session.shell, session.runtime)
+            if opts.live:
+                from host.run.live import live_view
+
+                session.background().start_soon(live_view, session.shell, session.runtime, opts.task_label)
+            turn = await session.run_turn(ghost.stream(messages), label=opts.task_label, out=opts.out,
+                                          hold=opts.llm != "scripted", buffer=opts.buffer_response,
+                                          interrupt_after=opts.interrupt_at, settle_s=opts.settle_s, write=False)
+            write = session.writer(turn, opts.task_label)  # snapshot now, plot after the board stopped
+    except LinkError as exc:
+        ended = session.ended_turn(exc, opts.task_label, opts.out)
+        if ended is None:  # the session never came up: nothing ran, nothing to report
+            raise
+        log.info("the run ended on a link error; writing its artefacts to %s", opts.out)
+        session.write_now(ended, opts.task_label)  # the board has stopped: its fault report is in
+        setattr(exc, _REPORT_ATTR, RunReport(ended.result, ended.calls, ended.summary, ended.out,
+                                             ended.token_times, ended.board_t0))
+        raise
     write()
     return RunReport(turn.result, turn.calls, turn.summary, turn.out, turn.token_times, turn.board_t0)
+
+
+_REPORT_ATTR = "ghostshell_run_report"
+
+
+def ended_report(exc: BaseException) -> RunReport | None:
+    """The report :func:`run_program` wrote before re-raising ``exc`` (a run ended by a link
+    error), or None when it wrote nothing."""
+    report = getattr(exc, _REPORT_ATTR, None)
+    return report if isinstance(report, RunReport) else None

@@ -33,7 +33,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-from collections.abc import AsyncIterable, AsyncIterator, Callable, Iterable
+from collections.abc import AsyncIterable, AsyncIterator, Awaitable, Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -67,7 +67,7 @@ from host.run.pump import (
 from host.shell import Shell
 from host.shell.policy import Policy
 from host.shell.skills import SkillStore
-from host.shell.timeline import RunResult
+from host.shell.timeline import RunResult, Timeline
 from protocol.linkspec import LinkSpec, parse_link_spec
 from protocol.messages import FaultFlags, MsgType, Nack, NackReason
 from robots.coco import load_servo_table
@@ -95,6 +95,19 @@ class SessionOptions:
     policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
     faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
     fault_seed: int = 0
+
+
+@dataclass
+class _TurnStart:
+    """What :meth:`RobotSession.run_turn` knew when its turn began (the turn's artefacts need it)."""
+
+    label: str
+    out: Path
+    token_times: list[tuple[float, str]]
+    board_t0: float
+    base_start: Any
+    tilt_from: int
+    n_captures: int
 
 
 @dataclass
@@ -153,6 +166,8 @@ class RobotSession:
         self.client: BoardClient | None = None
         self._runtime: CocoRuntime | None = None
         self._shell: Shell | None = None
+        self._turn: _TurnStart | None = None  # the turn in progress
+        self._link_tried = False  # a board link was attempted (a failure from then on has a report)
 
     # -- life cycle ------------------------------------------------------------------------------
     @property
@@ -161,6 +176,11 @@ class RobotSession:
         if self._runtime is None:
             raise RuntimeError("the robot session is not started")
         return self._runtime
+
+    @property
+    def board(self) -> BoardProcess | None:
+        """The emulated board's process while the session runs (None when connected to a given board)."""
+        return self._board
 
     @property
     def shell(self) -> Shell:
@@ -193,6 +213,7 @@ class RobotSession:
                     board_args += ["--faults", opts.faults, "--fault-seed", str(opts.fault_seed)]
                 self._board = start_board(board_args, self.out / "board.stderr", link=spec)
                 target = self._board.spec
+            self._link_tried = True
             client = await BoardClient.connect(target, baud=opts.baud, log_path=self.out / f"host_frames{log_suffix}")
             self.client = await self._stack.enter_async_context(client)
             note = await clear_leftover_fault(client)
@@ -208,10 +229,10 @@ class RobotSession:
                                 skills=opts.skills, policy=opts.policy)
             tg = anyio.create_task_group()
             self._tg = await self._stack.enter_async_context(tg)
-            tg.start_soon(pump, client, runtime, self.rec)
-            tg.start_soon(silence_watchdog, runtime, self.rec, client)
+            tg.start_soon(self._ends_the_run, pump(client, runtime, self.rec))
+            tg.start_soon(self._ends_the_run, silence_watchdog(runtime, self.rec, client))
             if not client.lockstep:
-                tg.start_soon(realtime_topper, runtime)
+                tg.start_soon(self._ends_the_run, realtime_topper(runtime))
             await runtime.streamer.top_up()
             await go_to_pose(runtime, opts.start_pose)
         except BaseException as exc:
@@ -236,6 +257,22 @@ class RobotSession:
                 self._board.stop()
                 self._board = None
         return None
+
+    async def _ends_the_run(self, task: Awaitable[None]) -> None:
+        """Run a session task whose :class:`LinkError` ends the run (the pump, the silence watchdog,
+        the realtime top-up).
+
+        Before the error cancels the session, the streamer is failed with it: nothing will confirm
+        frames or board time any more, so the shielded resets of the calls being cancelled (a
+        music stop, a motion's return) fail at once with the reason instead of each waiting out
+        its reset timeout.
+        """
+        try:
+            await task
+        except LinkError as exc:
+            if self._runtime is not None:
+                self._runtime.streamer.fail(exc)
+            raise
 
     # -- board faults ----------------------------------------------------------------------------
     def _how_to_clear(self) -> str:
@@ -289,29 +326,80 @@ class RobotSession:
             runtime.streamer.clear_failure()  # a fault cleared since the last turn no longer fails calls
         label = label or f"turn {self.turns}"
         out = out if out is not None else self.out / f"turn_{self.turns:02d}"
-        token_times: list[tuple[float, str]] = []
         n_captures = len(runtime.captures)
         runtime.board_times.clear()
         runtime.run_dir = out
         base_start = self.rec.base[-1] if self.rec.base else None
-        tilt_from = len(self.rec.base)
-        board_t0 = runtime.board_now_s()
+        start = self._turn = _TurnStart(label, out, [], runtime.board_now_s(), base_start, len(self.rec.base),
+                                        n_captures)
         stream: AsyncIterable[str] = _one(source) if isinstance(source, str) else source
-        chunks = timed_chunks(stream, runtime.board_now_s, token_times, runtime.streamer.hold if hold else None)
+        chunks = timed_chunks(stream, runtime.board_now_s, start.token_times, runtime.streamer.hold if hold else None)
         async with anyio.create_task_group() as tg:
             if interrupt_after is not None:
-                tg.start_soon(self._interrupt_at, board_t0 + interrupt_after)
+                tg.start_soon(self._interrupt_at, start.board_t0 + interrupt_after)
             result = await shell.run(buffered(chunks) if buffer else chunks)
             tg.cancel_scope.cancel()
         if settle_s > 0 and runtime.streamer.failure is None:
             await runtime.sleep(settle_s)
-        turn = TurnResult(result, [], None, out, token_times, board_t0,  # type: ignore[arg-type]
-                          executed_text=result.executed_text, received_text="".join(c for _, c in token_times))
-        turn.calls = _board_calls(result, runtime)
-        turn.summary = self._summary(turn, label, base_start, tilt_from, runtime.captures[n_captures:])
+        turn = self._turn_result(start, result)
+        self._turn = None
         if write:
             await self.write(turn, label)
         return turn
+
+    def _turn_result(self, start: _TurnStart, result: RunResult, link_error: BaseException | None = None) -> TurnResult:
+        turn = TurnResult(result, [], None, start.out, start.token_times, start.board_t0,  # type: ignore[arg-type]
+                          executed_text=result.executed_text, received_text="".join(c for _, c in start.token_times))
+        turn.calls = _board_calls(result, self._runtime)
+        captures = self._runtime.captures[start.n_captures:] if self._runtime is not None else []
+        turn.summary = self._summary(turn, start.label, start.base_start, start.tilt_from, captures, link_error)
+        return turn
+
+    def ended_turn(self, error: BaseException, label: str | None = None, out: Path | None = None) -> TurnResult | None:
+        """The turn a link error ended (the session's ``async with`` raised ``error``), as far as it got.
+
+        Its calls are in the state the loss left them: finished ones as they ended, the rest
+        ``cancelled`` with ``error`` naming the loss (``link lost while running`` / ``... while
+        queued``); ``summary.outcome`` is ``link_lost`` and ``extra.link_error`` the one-line
+        message. When the link failed before any turn began (connecting: no TIME_SYNC reply, or
+        while going to the start pose), an empty turn labelled ``label`` in ``out`` (default the
+        session folder). None when no link was tried, or the board refused the host at connect
+        (:class:`BoardFaulted`: nothing ran). Write it with :meth:`write_now` after the session
+        ended: the emulated board has then stopped and printed its fault report
+        (``extra.faults.board``).
+        """
+        if self._runtime is None:
+            if not self._link_tried or isinstance(error, BoardFaulted):
+                return None
+            return self._bare_turn(error, label or self.opts.label, out or self.out)
+        start, self._turn = self._turn, None
+        if start is None or self._shell is None or self._shell.last_result is None:
+            start = _TurnStart(label or self.opts.label, out or self.out, [], self._runtime.board_now_s(), None,
+                               len(self.rec.base), len(self._runtime.captures))
+            result = RunResult(Timeline(), [], start.board_t0)
+        else:
+            result = self._shell.last_result
+        turn = self._turn_result(start, result, error)
+        for c in turn.calls:
+            if c.outcome == "cancelled" and c.error is None:
+                c.error = f"link lost while {'running' if c.start is not None else 'queued'}"
+        return turn
+
+    def _bare_turn(self, error: BaseException, label: str, out: Path) -> TurnResult:
+        """The report of a session whose link failed before the runtime existed (while connecting)."""
+        client = self.client
+        stats = client.stats if client is not None else None
+        host_detected = {"decode_errors": stats.decode_errors if stats else None,
+                         "frame_nacks": stats.frame_nacks if stats else None,
+                         "request_retries": stats.retries if stats else None, "link_lost": str(error)}
+        summary = artefacts.Summary(
+            task=label, outcome="link_lost", fell=False, base_start=_pose(None), base_end=_pose(None),
+            max_tilt_deg=0.0, first_action_latency_ms=None, outcomes=artefacts.count_outcomes([]),
+            extra={"clock": "lockstep" if self.opts.lockstep else "realtime", "vocabulary": self.opts.vocabulary,
+                   "mode": self.opts.mode, "error": None, "link_error": str(error), "observations": [],
+                   "link": {}, "captures": [], "scene": self.scene_report(),
+                   **({"faults": {"host_detected": host_detected}} if self.opts.faults else {})})
+        return TurnResult(RunResult(Timeline(), [], 0.0), [], summary, out)
 
     async def _interrupt_at(self, at_s: float) -> None:
         try:
@@ -356,7 +444,7 @@ class RobotSession:
 
     # -- artefacts -------------------------------------------------------------------------------
     def _summary(self, turn: TurnResult, label: str, base_start: Any, tilt_from: int,
-                 captures: list[Path]) -> artefacts.Summary:
+                 captures: list[Path], link_error: BaseException | None = None) -> artefacts.Summary:
         opts, rec, result, calls = self.opts, self.rec, turn.result, turn.calls
         base = list(rec.base)[tilt_from:] if tilt_from < len(rec.base) else list(rec.base)[-1:]
         max_tilt = max((artefacts.tilt_deg(b[2]) for b in base), default=0.0)
@@ -365,14 +453,17 @@ class RobotSession:
         starts = [c.start for c in calls if c.start is not None and c.function not in ("wait", "async")]
         first = (min(starts) - turn.board_t0) * 1000 if starts else None
         counts = artefacts.count_outcomes(calls)
-        board_fault = self.runtime.streamer.failure
+        streamer = self.runtime.streamer
+        board_fault = streamer.failure if streamer.failure is not link_error else None
         failed = counts.get("failed", 0) or result.error is not None or result.save_failures or board_fault is not None
         outcome = "failed" if board_fault is not None else ("interrupted" if result.interrupted else
                                                             ("failed" if failed else "done"))
+        if link_error is not None:
+            outcome = "link_lost"
         fell = max_tilt > 45.0 or bool(base and min(b[1][2] for b in base) < 0.03)
         client = self.client
         tel = client.latest_telemetry if client is not None else None
-        stats = {"frames_sent": self.runtime.streamer.frames_sent, "late": tel.late_count if tel else None,
+        stats = {"frames_sent": streamer.frames_sent, "late": tel.late_count if tel else None,
                  "dropped": tel.dropped_count if tel else None,
                  "frame_nacks": client.stats.frame_nacks if client else None,
                  "decode_errors": client.stats.decode_errors if client else None,
@@ -380,27 +471,31 @@ class RobotSession:
                  **({"last_decode_error": client.stats.last_decode_error}
                     if client and client.stats.last_decode_error else {})}
         end_t = rec.t[-1] if rec.t else turn.board_t0
+        host_detected: dict[str, Any] = {"decode_errors": stats["decode_errors"], "frame_nacks": stats["frame_nacks"],
+                                         "request_retries": stats["retries"]}
+        if link_error is not None:
+            host_detected["link_lost"] = str(link_error)
+            host_detected["last_report_board_s"] = rec.t[-1] if rec.t else None
         return artefacts.Summary(
             task=label, outcome=outcome, fell=fell, base_start=_pose(b0), base_end=_pose(b1),
             max_tilt_deg=round(max_tilt, 2), first_action_latency_ms=None if first is None else round(first, 1),
             outcomes=counts, duration_s=round(end_t - turn.board_t0, 3),
             extra={"clock": "lockstep" if opts.lockstep else "realtime", "vocabulary": opts.vocabulary,
                    "mode": opts.mode, "error": None if result.error is None else str(result.error),
+                   **({"link_error": str(link_error)} if link_error is not None else {}),
                    **({"board_fault": str(board_fault)} if board_fault is not None else {}),
                    "observations": [str(o) for o in result.observations], "link": stats,
                    "captures": [p.name for p in captures], "scene": self.scene_report(),
-                   **({"faults": {"host_detected": {"decode_errors": stats["decode_errors"],
-                                                     "frame_nacks": stats["frame_nacks"],
-                                                     "request_retries": stats["retries"]}}}
-                      if opts.faults else {})})
+                   **({"faults": {"host_detected": host_detected}} if opts.faults else {})})
 
     def writer(self, turn: TurnResult, label: str) -> Callable[[], None]:
         """Snapshot what the turn's artefacts need (on the loop) and return the writer (thread-safe)."""
-        rec, runtime = self.rec, self.runtime
+        rec, runtime = self.rec, self._runtime
         times = np.asarray(rec.t)
         q = np.asarray(rec.q)
         keep = times >= turn.board_t0 - 1e-9
-        sent = [(t, q_) for t, q_ in list(runtime.streamer.history) if t * 1e-6 >= turn.board_t0 - 1e-9]
+        history = list(runtime.streamer.history) if runtime is not None else []
+        sent = [(t, q_) for t, q_ in history if t * 1e-6 >= turn.board_t0 - 1e-9]
         names = load_servo_table().names
         out, calls, summary, t0 = turn.out, list(turn.calls), turn.summary, turn.board_t0
         board_stderr = self.out / "board.stderr"
@@ -452,10 +547,11 @@ async def _one(text: str) -> AsyncIterator[str]:
     yield text
 
 
-def _board_calls(result: RunResult, runtime: CocoRuntime) -> list[artefacts.BoardCall]:
+def _board_calls(result: RunResult, runtime: CocoRuntime | None) -> list[artefacts.BoardCall]:
     calls = []
+    board_times = runtime.board_times if runtime is not None else {}
     for r in result.timeline:
-        measured = runtime.board_times.get(r.path, [None, None])
+        measured = board_times.get(r.path, [None, None])
         start = measured[0] if measured[0] is not None else (None if r.start is None else result.t0 + r.start)
         end = measured[1] if measured[1] is not None else (None if r.end is None else result.t0 + r.end)
         calls.append(artefacts.BoardCall(r.function, r.channel, dict(r.args), r.path, start, end, r.outcome,

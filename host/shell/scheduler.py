@@ -191,6 +191,10 @@ class ProgramRun:
                 except Exception as exc:  # the LLM stream itself failed (network, provider error)
                     self._abort(exc, "the output stream failed")
         self._tg = None
+        return self.result()
+
+    def result(self) -> RunResult:
+        """The run's result so far (complete once :meth:`run` returned)."""
         return RunResult(self.timeline, self.observations, self.t0, self.error, self.interrupted,
                          self.executed_text(), self.save_failures)
 

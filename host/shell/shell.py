@@ -54,6 +54,7 @@ class Shell:
         self.limits = (limits or Limits()).validate()
         self.policy = policy
         self._run: ProgramRun | None = None
+        self._last: ProgramRun | None = None
 
     @property
     def timeline(self) -> Timeline | None:
@@ -69,11 +70,18 @@ class Shell:
         """Run one output stream; returns when every dispatched call has ended."""
         if self._run is not None:
             raise RuntimeError("a run is already in progress on this shell")
-        self._run = ProgramRun(self)
+        self._run = self._last = ProgramRun(self)
         try:
             return await self._run.run(chunks)
         finally:
             self._run = None
+
+    @property
+    def last_result(self) -> RunResult | None:
+        """The result of the run in progress or of the last one, as far as it got (None before the
+        first run). A run cancelled from outside (e.g. its session lost the link) never returns
+        its result; this is where its calls, in the state the cancellation left them, are kept."""
+        return None if self._last is None else self._last.result()
 
     async def run_text(self, text: str | Iterable[str]) -> RunResult:
         """Run a complete program (a string, or an iterable of chunks delivered at once)."""

@@ -8,6 +8,7 @@ with one clear message, not a hang or a traceback.
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 import os
 import signal
@@ -132,3 +133,5 @@ def test_run_whose_slcan_board_dies_ends_with_one_clear_message(tmp_path: Path) 
     lines = [ln for ln in err.splitlines() if ln.startswith("ghostshell:")]
     assert len(lines) == 1 and "CAN" in lines[0] and "Traceback" not in err, err[-2000:]
     assert sum("lost" in ln for ln in err.splitlines()) <= 2, err[-2000:]  # the warning and the final message
+    summary = json.loads((tmp_path / "summary.json").read_text())  # the partial run is still reported
+    assert summary["outcome"] == "link_lost" and f"ghostshell: {summary['extra']['link_error']}" == lines[0]

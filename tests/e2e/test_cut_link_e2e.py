@@ -16,6 +16,7 @@ import pytest
 
 from firmware_sim.config import BoardConfig
 from host.link.errors import LinkError
+from host.run.runner import ended_report
 
 from .conftest import run_e2e
 
@@ -45,6 +46,21 @@ def test_long_cut_holds_crouches_latches_and_ends_the_run(tmp_path: Path) -> Non
     flags = [(r["fields"]["board_time_us"], r["fields"]["faults"]) for r in tel if r["dir"] == "rx"]
     after = [f for t, f in flags if t >= crouch_t * 1e6]
     assert after and all("WATCHDOG_FAULT" in f for f in after)
+    # the run the link ended still leaves its report: how it ended, its calls, what was injected and detected
+    report = ended_report(e.value)
+    assert report is not None and report.out == tmp_path
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["outcome"] == "link_lost" and summary["extra"]["link_error"] == str(e.value)
+    faults = summary["extra"]["faults"]
+    assert faults["host_detected"]["link_lost"] == str(e.value)
+    injected = faults["board"]["injected"]  # the board's own report (it printed it when the host stopped it)
+    assert {d["direction"] for d in injected} == {"host->board", "board->host"} and all(d["injected"]["cut"] > 0 for d in injected)
+    assert faults["board"]["board_detected"]["watchdog_trips"] >= 1
+    timeline = json.loads((tmp_path / "timeline.json").read_text())
+    (walk,) = [c for c in timeline["calls"] if c["function"] == "move_strides"]
+    # cut short: failed by the loss (it was waiting for the board) or cancelled with it; either way it names it
+    assert walk["start"] is not None and walk["outcome"] in ("failed", "cancelled") and "link lost" in walk["error"]
+    assert summary["outcomes"]["failed"] + summary["outcomes"]["cancelled"] == 1 and summary["outcomes"]["done"] == 0
 
 
 def test_short_cut_only_holds_and_the_run_resumes(tmp_path: Path) -> None:
@@ -54,3 +70,34 @@ def test_short_cut_only_holds_and_the_run_resumes(tmp_path: Path) -> None:
     ev = _events(tmp_path)
     assert [k for k, _, _ in ev] == ["hold"], ev  # held, never crouched: the next frame ended the hold
     assert summary["extra"]["faults"]["board"]["board_detected"]["watchdog_trips"] == 1
+
+
+def test_demo_cut_by_the_link_prints_one_message_and_keeps_its_report(tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    from host.cli import main as cli
+
+    out = tmp_path / "demo"
+    assert cli(["demo", "--no-video", "--no-live", "--faults", "cut=1.5+1.5", "--out", str(out)]) == 1
+    cap = capsys.readouterr()
+    ours = [line for line in cap.err.splitlines() if line.startswith("ghostshell:")]
+    assert len(ours) == 1 and re.fullmatch(r"ghostshell: link lost: .*latched its watchdog fault.*", ours[0]), cap.err
+    assert f"artefacts in {out}/:" in cap.out and "summary.json" in cap.out
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["outcome"] == "link_lost" and ours[0] == f"ghostshell: {summary['extra']['link_error']}"
+    assert all(d["injected"]["cut"] > 0 for d in summary["extra"]["faults"]["board"]["injected"])
+    calls = json.loads((out / "timeline.json").read_text())["calls"]
+    assert calls and sum(summary["outcomes"].values()) == len(calls)
+    cut_short = [c for c in calls if c["outcome"] in ("failed", "cancelled")]
+    assert cut_short and all("link lost" in c["error"] for c in cut_short)
+    assert any(c["error"] == "link lost while queued" and c["start"] is None for c in cut_short)
+
+
+def test_a_link_cut_from_the_start_still_reports_what_was_injected(tmp_path: Path) -> None:
+    # lockstep: the board clock stays at 0 until the host reaches it, so a cut from 0 holds for good
+    with pytest.raises(LinkError, match="no CAPS") as e:
+        run_e2e(PROGRAM, tmp_path, faults="cut=0+5")
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["outcome"] == "link_lost" and summary["extra"]["link_error"] == str(e.value)
+    assert sum(summary["outcomes"].values()) == 0  # nothing ran
+    (to_board,) = [d for d in summary["extra"]["faults"]["board"]["injected"] if d["direction"] == "host->board"]
+    assert to_board["injected"]["cut"] == to_board["units_in"] > 0  # every HELLO was cut

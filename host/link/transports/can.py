@@ -14,11 +14,17 @@ stay the same).
 Fixed-layout messages become frames (:func:`protocol.can.encode_fixed`), the rest goes over
 ISO-TP (can-isotp, :mod:`protocol.can.isotp_link`). Sending never blocks: frames queue
 and are written in order; a refused write (SocketCAN's ENOBUFS on a full tx queue, python-can
-issue #2004; a full SLCAN pty) keeps the frame at the head and retries after 1 ms doubling to
-20 ms (``tx_retries``); more than ``MAX_TX_FRAMES`` waiting raises ``LinkError`` (the bus is not
-draining). Every frame both ways is logged with python-can's writers (``can.Logger``: ``.log``
-candump, ``.asc``, ``.blf`` ... by suffix; wall-clock timestamps; received and sent frames carry the same
-channel, the bus's python-can channel, e.g. the SLCAN adapter's tty, as the board's own log names it).
+issue #2004) keeps the frame at the head and retries after 1 ms doubling to 20 ms
+(``tx_retries``); more than ``MAX_TX_FRAMES`` waiting raises ``LinkError`` (the bus is not
+draining). On SLCAN the lines go out through :class:`~host.link.transports.slcan_tx.SlcanWriter`
+instead of python-can's ``send`` (which spins in pyserial's write on a full port, freezing the
+event loop, and loses the rest of a line the port took in part): at most ``SLCAN_CHUNK`` bytes
+of whole lines are handed to the port at a time, the loop's writer callback (``add_writer``)
+continues when the port has room again (``tx_retries`` counts the waits); SLCAN is read through
+:class:`~host.link.transports.slcan_rx.BufferedSlcanBus`. Every frame both ways is logged with
+python-can's writers (``can.Logger``: ``.log``, candump, ``.asc``, ``.blf`` ... by suffix;
+wall-clock timestamps; received and sent frames carry the same channel, the bus's python-can
+channel, e.g. the SLCAN adapter's tty, as the board's own log names it).
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ import can
 
 from host.link.errors import LinkConfigError, LinkDown, LinkError
 from host.link.transports.base import LossHandler, ReceiveHandler, Transport
+from host.link.transports.slcan_tx import SlcanWriter, slcan_line
 from protocol.can import (
     CanDecodeError,
     CanDecoder,
@@ -61,6 +68,7 @@ BACKOFF_MIN_S = 0.001
 BACKOFF_MAX_S = 0.02
 ISOTP_TICK_S = 0.002
 FRAME_COST = 16
+SLCAN_CHUNK = 1024  # bytes of SLCAN lines handed to the port at a time (the rest waits as frames)
 log = logging.getLogger(__name__)
 
 def _make_bus(kw: dict[str, Any]) -> can.BusABC:
@@ -167,6 +175,8 @@ class CanLinkTransport(Transport):
         self.bus: can.BusABC | None = None
         self._notifier: can.Notifier | None = None
         self._reader_fd: int | None = None
+        self._slcan: SlcanWriter | None = None  # SLCAN: our own non-blocking line output
+        self._writer_fd: int | None = None  # the fd the loop watches for room (SLCAN)
         self._generation = 0
         self._on_receive: ReceiveHandler | None = None
         self._on_lost: LossHandler | None = None
@@ -199,7 +209,7 @@ class CanLinkTransport(Transport):
 
     @property
     def backlog(self) -> int:
-        return FRAME_COST * len(self._txq)
+        return FRAME_COST * len(self._txq) + (len(self._slcan.pending) if self._slcan is not None else 0)
 
     async def connect(self, on_receive: ReceiveHandler, on_lost: LossHandler) -> None:
         self.disconnect()
@@ -226,6 +236,9 @@ class CanLinkTransport(Transport):
             fd = int(bus.fileno())
         except (NotImplementedError, OSError, AttributeError, ValueError, TypeError):
             fd = -1
+        from can.interfaces.slcan import slcanBus
+
+        self._slcan = SlcanWriter(fd) if isinstance(bus, slcanBus) and fd >= 0 else None
         if fd >= 0:
             # the loop watches the bus's fd and drains every frame that is ready (python-can's Notifier
             # would take one frame per readiness callback, too slow for a lockstep board's bursts)
@@ -340,6 +353,9 @@ class CanLinkTransport(Transport):
         bus = self.bus
         if bus is None or self._retry is not None:
             return
+        if self._slcan is not None:
+            self._pump_slcan(self._slcan)
+            return
         while self._txq:
             msg = self._txq[0]
             try:
@@ -369,6 +385,48 @@ class CanLinkTransport(Transport):
         self._retry = None
         self._pump()
 
+    def _pump_slcan(self, out: SlcanWriter) -> None:
+        """Whole SLCAN lines to the port as far as it takes them; the rest waits for the loop's
+        writer callback (never blocks, never splits a line)."""
+        while True:
+            try:
+                done = out.write()
+            except OSError as e:
+                self._lose(f"CAN send failed: SLCAN port write: {e}", self._generation)
+                return
+            if not done:
+                self.tx_retries += 1
+                self._wait_writable(out.fd)
+                return
+            if not self._txq:
+                self._stop_waiting_writable()
+                return
+            while self._txq and len(out.pending) < SLCAN_CHUNK:
+                msg = self._txq.popleft()
+                out.push(slcan_line(msg))
+                self.tx_frames += 1
+                if self.logger is not None:
+                    msg.timestamp = time.time()
+                    msg.channel = self._channel_name
+                    self.logger.on_message_received(msg)
+
+    def _wait_writable(self, fd: int) -> None:
+        if self._writer_fd is None:
+            asyncio.get_running_loop().add_writer(fd, self._on_writable, self._generation)
+            self._writer_fd = fd
+
+    def _stop_waiting_writable(self) -> None:
+        if self._writer_fd is not None:
+            try:
+                asyncio.get_running_loop().remove_writer(self._writer_fd)
+            except (RuntimeError, ValueError, OSError):
+                pass
+            self._writer_fd = None
+
+    def _on_writable(self, generation: int) -> None:
+        if generation == self._generation:
+            self._pump()
+
     # --- closing --------------------------------------------------------------------------
 
     def _lose(self, reason: str, generation: int) -> None:
@@ -390,6 +448,8 @@ class CanLinkTransport(Transport):
             except (RuntimeError, ValueError, OSError):
                 pass
             self._reader_fd = None
+        self._stop_waiting_writable()
+        self._slcan = None
         if self._notifier is not None:
             try:
                 self._notifier.stop(timeout=0.2)
@@ -397,10 +457,7 @@ class CanLinkTransport(Transport):
                 pass
             self._notifier = None
         if self.bus is not None and self.bus is not self._given_bus:
-            try:
-                self.bus.shutdown()
-            except Exception:
-                pass
+            _shutdown(self.bus)
         self.bus = None
 
     def close(self) -> None:
@@ -411,6 +468,27 @@ class CanLinkTransport(Transport):
             except Exception:
                 pass
             self.logger = None
+
+
+def _shutdown(bus: can.BusABC) -> None:
+    """``bus.shutdown()``, bounded: python-can's slcan bus writes ``C`` (close the channel) first,
+    a blocking write by default, which would hang on a port the other end no longer reads; its
+    pyserial port (``serialPortOrig``) gets a 50 ms write timeout, and is closed even if the
+    ``C`` did not go out."""
+    port = getattr(bus, "serialPortOrig", None)
+    if port is not None:
+        try:
+            port.write_timeout = 0.05
+        except Exception:
+            pass
+    try:
+        bus.shutdown()
+    except Exception:
+        if port is not None:
+            try:
+                port.close()
+            except Exception:
+                pass
 
 
 def open_can_transport(spec: LinkSpec, *, log_path: str | Path | None = None, **options: Any) -> CanLinkTransport:
