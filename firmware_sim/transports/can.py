@@ -17,6 +17,7 @@ suffix, ``.log`` candump, ``.asc``, ``.blf``; timestamps are wall-clock seconds)
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import heapq
 import os
@@ -48,7 +49,7 @@ from protocol.faults import FaultInjector
 from protocol.codec import PayloadError
 from protocol.framing import DecodeError, DecodeErrorKind, Frame
 from protocol.linkspec import LinkSpec
-from protocol.messages import Message, SimState
+from protocol.messages import Message, MsgType, Nack, SimState
 
 __all__ = [
     "BusBoardTransport",
@@ -59,6 +60,7 @@ __all__ = [
 ]
 
 FRAME_COST = 16  # backlog bytes per queued frame (a SocketCAN struct can_frame)
+NACK_BULK_BACKLOG = 8  # bulk messages waiting beyond which a NACK drops its detail text and goes fixed
 SLCAN_WINDOW = 512  # SLCAN text bytes handed to the pty at a time; the rest waits in priority order
 FAULTY_WINDOW = 32  # frames the tx fault injector released that may wait for the wire (then the queue waits)
 BACKOFF_MIN_S = 0.001
@@ -127,6 +129,7 @@ class CanBoardTransport(BoardTransport):
         self._isotp_errors_accounted = 0  # ISO-TP errors already reported as link errors, or explained
         self._sdus: list[bytes] = []  # bulk messages ISO-TP completed, not yet delivered
         self.periodic_replaced = 0
+        self.nack_details_dropped = 0  # NACKs sent as one fixed frame without their detail text
         self.error_frames = 0
         self.logger: Any = open_can_logger(log_path) if log_path else None
         # link fault injection (``--faults``, firmware_sim.transports.faulty.install_faults)
@@ -208,6 +211,10 @@ class CanBoardTransport(BoardTransport):
         return errors + self._handle_frames(frames)
 
     def queue(self, msg: Message, seq: int, now: float) -> None:
+        if isinstance(msg, Nack) and msg.detail and self._nack_fixed(msg):
+            # the reason code says it all; the detail text would take a multi-frame ISO-TP transfer
+            msg = dataclasses.replace(msg, detail="")
+            self.nack_details_dropped += 1
         try:
             if is_fixed(msg):
                 for f in encode_fixed(msg, seq, self.node, self.fd, Sender.BOARD):
@@ -223,6 +230,12 @@ class CanBoardTransport(BoardTransport):
                 self._poll()
         except (PayloadError, BufferError) as e:
             print(f"board: cannot send {type(msg).__name__} on CAN: {e}", file=sys.stderr, flush=True)
+
+    def _nack_fixed(self, msg: Nack) -> bool:
+        """Send this NACK as one fixed frame, without its detail text? Yes for a refused SERVO_FRAME
+        (up to one per frame, 100 Hz: as ISO-TP transfers they queued up behind each other under
+        load, 256 of them, and telemetry waited) and whenever bulk messages are already waiting."""
+        return msg.msg_type == MsgType.SERVO_FRAME or self.isotp.layer.tx_queue.qsize() >= NACK_BULK_BACKLOG
 
     def _start_periodic(self) -> None:
         if self._periodic is not None and not self.host_heard:

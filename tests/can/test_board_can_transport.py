@@ -98,3 +98,37 @@ def test_periodic_reports_wait_for_a_host_and_an_unanswered_one_is_no_link_error
     finally:
         host.shutdown()
         t.close()
+
+
+def test_a_refused_servo_frame_is_nacked_in_one_frame_other_nacks_keep_their_text(virtual_channel: str) -> None:
+    """Under load a board refuses frames as LATE up to 100 times a second; each NACK with its detail
+    text was a multi-frame ISO-TP transfer, and they queued up (256) in front of everything else.
+    A SERVO_FRAME's NACK is now one fixed frame (reason only); other NACKs keep their text over
+    ISO-TP unless bulk messages are already waiting."""
+    from protocol.can import CanDecoder, CanItem
+    from protocol.messages import MsgType, Nack, NackReason
+
+    spec = parse_link_spec(f"can:virtual:{virtual_channel}")
+    t = BusBoardTransport(spec, bus=can.Bus(interface="virtual", channel=virtual_channel))
+    host = can.Bus(interface="virtual", channel=virtual_channel)
+
+    def sent() -> list[can.Message]:
+        t.flush(0.0)
+        out = []
+        while (m := host.recv(timeout=0)) is not None:
+            out.append(m)
+        return out
+
+    try:
+        t.queue(Nack(7, MsgType.SERVO_FRAME, NackReason.LATE, "frame 30 ms late"), 1, 0.0)
+        (frame,) = sent()
+        assert frame.arbitration_id == 0x401  # NACK, node 1: one fixed frame
+        (item,) = CanDecoder(1, "host").feed(CanFrame(frame.arbitration_id, bytes(frame.data)))
+        assert isinstance(item, CanItem) and item.msg == Nack(7, MsgType.SERVO_FRAME, NackReason.LATE, "")
+        t.queue(Nack(8, MsgType.CONFIG, NackReason.BAD_VALUE, "TELEMETRY_HZ=0 out of range"), 2, 0.0)
+        first = sent()
+        assert [m.arbitration_id for m in first] == [bulk_ids(1)[1]] and first[0].data[0] >> 4 == 1  # ISO-TP
+        assert t.nack_details_dropped == 1
+    finally:
+        t.close()
+        host.shutdown()

@@ -60,7 +60,7 @@ def test_estop_then_clear(virtual_board_factory, virtual_channel: str) -> None:
             seq = c.send_frame(ServoFrame(now + 20_000, 0xFFF, POSES["crouch"]))
             nack = await c.wait_frame_nack(seq, 2)
             assert nack is not None and nack.reason is NackReason.ESTOPPED
-            assert nack.detail  # a NACK with detail travels over ISO-TP, whole
+            assert nack.detail == ""  # a refused servo frame's NACK is one fixed frame: the reason only
             await c.advance(now + 60_000)
             await c.wait_for(lambda t: bool(t.faults & FaultFlags.ESTOP), 5)
             await c.estop_clear()
