@@ -663,9 +663,11 @@ class BoardClient:
 
     async def _sync_burst(self) -> None:
         for _ in range(self.sync_burst if not self.lockstep else 1):
-            for attempt in range(3):  # a lost probe or reply costs a retry, not the connection
+            # a lost probe or reply costs a retry, not the connection; a board slow to answer (a loaded
+            # machine, a board still loading its model) gets longer each time: 0.5, 1, 2 s
+            for attempt in range(3):
                 try:
-                    await self.sync_once()
+                    await self.sync_once(timeout=0.5 * 2**attempt)
                     break
                 except LinkTimeout:
                     if attempt == 2:
