@@ -82,7 +82,8 @@ def _make_bus(kw: dict[str, Any]) -> can.BusABC:
 
     del cfg["interface"]
     channel = cfg.pop("channel", None)
-    bus: can.BusABC = BufferedSlcanBus(channel, **cfg)
+    # as can.Bus does: without a channel the class is called without one (and says what is missing)
+    bus: can.BusABC = BufferedSlcanBus(**cfg) if channel is None else BufferedSlcanBus(channel, **cfg)
     return bus
 
 
