@@ -131,7 +131,8 @@ class Board:
         self.covered_until = -1  # lockstep: latest accepted frame apply-at (tick at it may run)
         self.last_applied_seq = 0
         #: safety transitions not yet reported: (board time us of the first tick in the new mode,
-        #: "hold"|"crouch"|"estop", board time us of the last valid message / of the ESTOP's arrival)
+        #: "hold"|"crouch"|"estop"|"resume", board time us of the last valid message / of the ESTOP's
+        #: arrival / of the first held tick ("resume": a valid message ended a HOLD, the board runs again))
         self.watchdog_events: deque[tuple[int, str, int]] = deque(maxlen=16)
         self._estop_rx_us: int | None = None
         self.late_count = 0
@@ -176,8 +177,10 @@ class Board:
         rx = self.board_time_us() if rx_time_us is None else rx_time_us
         if isinstance(msg, (Telemetry, SimState, Caps, TimeSyncReply, Ack, Nack)) or not hasattr(msg, "__dataclass_fields__"):
             return [self._nack(msg, seq, NackReason.UNSUPPORTED, f"board does not accept {type(msg).__name__}")]
+        held_since = self.safety.hold_since_us
         if self.safety.feed(self.now_us):
             self._resume()
+            self.watchdog_events.append((self.now_us, "resume", held_since if held_since is not None else self.now_us))
         if isinstance(msg, ServoFrame):
             return self._servo_frame(msg, seq)
         if isinstance(msg, Heartbeat):
