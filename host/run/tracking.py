@@ -7,7 +7,11 @@ carries the measured joint angles and ``last_applied_seq``, the sequence number 
 frame the board applied. The *commanded target* of a servo at a report is the target of the last
 applied frame that covered it (per mask bit, carried forward); the tracking error is
 ``|measured - commanded|`` in degrees. While the board holds (WATCHDOG_HOLD) it keeps the command
-it had, so the reference stays the last frame applied before the link went silent.
+it had, so the reference stays the last frame applied before the link went silent. Why the applied
+frame and not the board's interpolation towards the next one: a position servo lags its command by
+about one 10 ms frame, so against the interpolated command a steady walk already reads ~3 deg
+(p50 2.9 deg, max 3.6 deg measured) and "back under 3 deg" would mean nothing; against the applied
+frame the same walk reads p50 0.5-1.1 deg, max ~2-2.8 deg.
 
 ``recovery(trace, after_s, bound_deg)`` is the time from ``after_s`` (the board time a valid
 message ended a hold: the board's ``board: watchdog resume at board time T s`` line, see
@@ -27,7 +31,8 @@ import numpy as np
 from protocol.framelog import iter_records
 from protocol.messages import ServoFrame, Telemetry
 
-__all__ = ["Recovery", "TrackingTrace", "find_board_log", "recovery", "resume_times", "tracking_trace"]
+__all__ = ["Recovery", "TrackingTrace", "find_board_log", "recovery", "recovery_after_hold", "resume_times",
+           "tracking_trace"]
 
 #: the board's stderr line when a valid message ends a watchdog HOLD (firmware_sim.server)
 RESUME_LINE = re.compile(r"board: watchdog resume at board time ([0-9.]+) s, a valid message ended the hold "
@@ -156,3 +161,16 @@ def recovery(trace: TrackingTrace, after_s: float, bound_deg: float = 3.0, until
 def resume_times(board_stderr: str) -> list[tuple[float, float]]:
     """``(board time s, held s)`` of every HOLD a valid message ended, from the board's stderr."""
     return [(float(m[1]), float(m[2])) for m in RESUME_LINE.finditer(board_stderr)]
+
+
+def recovery_after_hold(run_dir: Path, bound_deg: float = 3.0) -> tuple[float, Recovery]:
+    """For a run folder (``board.stderr`` + the board's frame log): how long the last watchdog HOLD
+    a message ended lasted (s) and how tracking recovered from that message on.
+
+    Raises ``ValueError`` when the board never resumed from a hold, FileNotFoundError without a log.
+    """
+    resumes = resume_times((run_dir / "board.stderr").read_text(encoding="utf-8", errors="replace"))
+    if not resumes:
+        raise ValueError(f"the board in {run_dir} never resumed from a watchdog hold")
+    resumed_at, held_s = resumes[-1]
+    return held_s, recovery(tracking_trace(find_board_log(run_dir)), resumed_at, bound_deg)

@@ -10,8 +10,8 @@ The cut (0.6 s) is shorter than watchdog + crouch delay: the board HOLDs 0.2 s i
 valid message after it ends the hold (the board's ``board: watchdog resume at board time T s``
 line) and the host's stream, which kept its timeline through the cut, takes over again. Measured
 from the board's own frame log (:mod:`host.run.tracking`): the time from that resume until every
-servo is within 3 deg of the target of the last frame the board applied, and stays there to the end
-of the run. No sleeps: each run ends when the program is done.
+servo is within 3 deg of the target of the last frame the board applied, and stays there (asserted
+for 1.5 s; printed to the end of the run). No sleeps: each run ends when the program is done.
 """
 
 from __future__ import annotations
@@ -33,6 +33,8 @@ BOUND_DEG = 3.0
 #: tracking must be back within BOUND_DEG this soon after the first valid message (measured
 #: 0.02-0.14 s; the 60 ms lookahead ramp from the held pose plus a few 20 ms reports)
 RECOVER_S = 0.5
+#: and it stays within BOUND_DEG for this long after the resume
+STAY_S = 1.5
 
 
 @pytest.mark.parametrize("link", ["pty", "can:slcan:pty"])
@@ -51,10 +53,14 @@ def test_tracking_recovers_after_a_short_cut(tmp_path: Path, link: str) -> None:
     trace = tracking_trace(find_board_log(tmp_path))
     before = (trace.t > resumed_at - held_s - 0.5) & (trace.t < resumed_at - held_s)
     assert before.any() and float(max(trace.worst_deg[before])) < BOUND_DEG  # it tracked before the cut
-    rec = recovery(trace, resumed_at, BOUND_DEG)
+    # back within the bound for good over the next STAY_S (a realtime board on a loaded machine may
+    # overrun ticks later in the walk; that is not this fault's recovery)
+    rec = recovery(trace, resumed_at, BOUND_DEG, until_s=resumed_at + STAY_S)
+    to_end = recovery(trace, resumed_at, BOUND_DEG)
     print(f"\n{link}: hold ended at board time {resumed_at:.3f} s after {held_s:.3f} s; tracking within "
-          f"{BOUND_DEG:g} deg {rec.seconds if rec.seconds is None else round(rec.seconds, 3)} s later (peak {rec.peak_deg:.2f} deg after the cut, "
-          f"worst {rec.after_deg:.2f} deg from then to the end of the run)")
+          f"{BOUND_DEG:g} deg {rec.seconds if rec.seconds is None else round(rec.seconds, 3)} s later "
+          f"(to the end of the run: {to_end.seconds if to_end.seconds is None else round(to_end.seconds, 3)} s); "
+          f"peak {rec.peak_deg:.2f} deg after the cut, worst {to_end.after_deg:.2f} deg after recovery")
     assert rec.seconds is not None, f"tracking never came back within {BOUND_DEG} deg: {rec}"
     assert rec.seconds < RECOVER_S, rec
     # the resume from the held pose stays within the servos' speed limits (no clamped jump)
