@@ -1,6 +1,6 @@
 """Tracking recovery after a short link cut, over serial (pty) and CAN (SLCAN on a pty), realtime.
 
-Each run walks (``move_strides`` x6) on a realtime emulated board with ``--faults cut=START+LENGTH``
+Each run walks (``move_strides`` x8, ~5.5 s) on a realtime emulated board with ``--faults cut=START+LENGTH``
 (wall seconds = board seconds on a realtime board; shorter than watchdog + crouch delay, so the board
 only HOLDs). Several cut starts put the resume at different gait phases. From the board's own log
 (:mod:`host.run.tracking`): how long the board held, the time from the first valid message after
@@ -8,7 +8,7 @@ the cut until every servo is within 3 deg of the target of the last frame it app
 the peak error after the cut ("peak deg") and the largest after recovery to the end of the run
 ("then max"). Realtime: numbers depend on the machine's load (TICK_OVERRUNs).
 
-    python bench/bench_recovery.py [--links pty can:slcan:pty] [--starts 2.0 2.1 2.2 2.3 2.4] [--length 0.6]
+    python bench/bench_recovery.py [--links pty can:slcan:pty] [--starts 3.0 3.1 3.2 3.3 3.4] [--length 0.6]
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import anyio
 from host.run.runner import RunOptions, run_program
 from host.run.tracking import recovery_after_hold
 
-PROGRAM = '<move_strides direction="forward" times="6"/>'
+PROGRAM = '<move_strides direction="forward" times="8"/>'
 
 
 def one(link: str, start: float, length: float, out: Path, bound: float) -> tuple[float, float | None, float, float]:
@@ -31,14 +31,18 @@ def one(link: str, start: float, length: float, out: Path, bound: float) -> tupl
     report = anyio.run(run_program, opts, backend="asyncio")
     if {c.outcome for c in report.calls} != {"done"}:
         raise SystemExit(f"{link} cut={start:g}+{length:g}: the run did not complete: {[c.outcome for c in report.calls]}")
-    held, rec = recovery_after_hold(out, bound)
+    resumed, held, rec = recovery_after_hold(out, bound, not_before_s=start)
+    walk = report.calls[0]
+    if walk.start is None or walk.end is None or not walk.start < resumed - held < resumed < walk.end:
+        raise SystemExit(f"{link} cut={start:g}+{length:g}: the hold ({resumed - held:.3f}-{resumed:.3f} s) "
+                         f"is not inside the walk ({walk.start}-{walk.end} s)")
     return held, rec.seconds, rec.peak_deg, rec.after_deg
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--links", nargs="*", default=["pty", "can:slcan:pty"])
-    ap.add_argument("--starts", type=float, nargs="*", default=[2.0, 2.1, 2.2, 2.3, 2.4])
+    ap.add_argument("--starts", type=float, nargs="*", default=[3.0, 3.1, 3.2, 3.3, 3.4])
     ap.add_argument("--length", type=float, default=0.6, help="cut length, s (default 0.6)")
     ap.add_argument("--bound", type=float, default=3.0, help="tracking bound, deg (default 3)")
     args = ap.parse_args()

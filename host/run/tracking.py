@@ -163,14 +163,16 @@ def resume_times(board_stderr: str) -> list[tuple[float, float]]:
     return [(float(m[1]), float(m[2])) for m in RESUME_LINE.finditer(board_stderr)]
 
 
-def recovery_after_hold(run_dir: Path, bound_deg: float = 3.0) -> tuple[float, Recovery]:
-    """For a run folder (``board.stderr`` + the board's frame log): how long the last watchdog HOLD
-    a message ended lasted (s) and how tracking recovered from that message on.
+def recovery_after_hold(run_dir: Path, bound_deg: float = 3.0, not_before_s: float = 0.0) -> tuple[float, float, Recovery]:
+    """For a run folder (``board.stderr`` + the board's frame log): the first watchdog HOLD a message
+    ended at board time ``not_before_s`` or later: ``(resumed at s, held s, recovery from then on)``.
 
-    Raises ``ValueError`` when the board never resumed from a hold, FileNotFoundError without a log.
+    Raises ``ValueError`` when the board never resumed from a hold then, FileNotFoundError without a log.
     """
     resumes = resume_times((run_dir / "board.stderr").read_text(encoding="utf-8", errors="replace"))
-    if not resumes:
-        raise ValueError(f"the board in {run_dir} never resumed from a watchdog hold")
-    resumed_at, held_s = resumes[-1]
-    return held_s, recovery(tracking_trace(find_board_log(run_dir)), resumed_at, bound_deg)
+    later = [r for r in resumes if r[0] >= not_before_s]
+    if not later:
+        raise ValueError(f"the board in {run_dir} never resumed from a watchdog hold after board time "
+                         f"{not_before_s:g} s (resumes: {resumes})")
+    resumed_at, held_s = later[0]
+    return resumed_at, held_s, recovery(tracking_trace(find_board_log(run_dir)), resumed_at, bound_deg)
