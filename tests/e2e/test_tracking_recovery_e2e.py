@@ -30,9 +30,11 @@ from .conftest import run_e2e
 PROGRAM = '<move_strides direction="forward" times="8"/>'  # ~5.5 s of walking: the cut falls inside it
 CUT_START_S, CUT_LEN_S = 3.0, 0.6
 BOUND_DEG = 3.0
-#: tracking must be back within BOUND_DEG this soon after the first valid message (measured
-#: 0.01-0.21 s with bench/bench_recovery.py; the ~50 ms ramp from the held pose plus a few 20 ms reports)
-RECOVER_S = 0.5
+#: tracking must be back within BOUND_DEG this soon after the first valid message: the board's
+#: resume blend takes <= 0.4 s at every gait phase (tests/firmware/test_resume_after_hold.py asserts
+#: < 0.5 s deterministically); a realtime board on a loaded 2-core machine adds scheduling stalls
+#: (once 0.79 s measured under load before the blend), hence the margin here
+RECOVER_S = 1.0
 #: and it stays within BOUND_DEG for this long after the resume
 STAY_S = 1.0
 
@@ -63,6 +65,6 @@ def test_tracking_recovers_after_a_short_cut(tmp_path: Path, link: str) -> None:
           f"peak {rec.peak_deg:.2f} deg after the cut, worst {to_end.after_deg:.2f} deg after recovery")
     assert rec.seconds is not None, f"tracking never came back within {BOUND_DEG} deg: {rec}"
     assert rec.seconds < RECOVER_S, rec
-    # the resume from the held pose stays within the servos' speed limits (no clamped jump)
+    # the resume from the held pose blends within the servos' speed limits (no clamped jump)
     after = trace.t >= resumed_at
     assert not any(int(f) & FaultFlags.CLAMPED for f in trace.faults[after])
