@@ -3,10 +3,13 @@
 A host streams ``move_strides`` the way :class:`host.motion.streamer.FrameStreamer` does (one
 full-body SERVO_FRAME every 10 ms of board time, 60 ms ahead) and keeps its timeline through a cut:
 the frames due to be sent during the cut are lost. The board HOLDs 200 ms into the silence; the
-first frame after the cut ends the hold and the board ramps from the held pose to that frame (its
-anchor is the hold, ``Board._resume``), then follows the stream. Deterministic (board time only, no
-link, no wall clock), so every gait phase is tried; the realtime e2e runs over serial and SLCAN
-(``tests/e2e/test_tracking_recovery_e2e.py``) sample a few phases under real scheduling.
+first frame after the cut ends the hold and the board blends from the held pose into the stream
+(``Board._resume`` / ``Board._blend``: minimum jerk at ``BoardConfig.resume_speed``). Before the blend
+the board ramped to the first frame within the lookahead, which hit the servo speed limit (CLAMPED)
+at some phases of 0.3 s and 1.1 s cuts: the CLAMPED assertion below is that failing case.
+Deterministic (board time only, no link, no wall clock), so every gait phase is tried; the realtime
+e2e runs over serial and SLCAN (``tests/e2e/test_tracking_recovery_e2e.py``) sample a few phases
+under real scheduling.
 
 Measured as in :mod:`host.run.tracking`: at each 50 Hz TELEMETRY, every servo against the target
 of the last frame the board applied; recovery = from the first frame after the cut until the error
