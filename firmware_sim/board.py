@@ -59,6 +59,7 @@ from protocol.messages import (
 from robots.coco import load_poses, load_servo_table
 from robots.coco.model import load_model
 from robots.coco.scenes import scene_objects, toppled
+from robots.coco.trajectory import min_jerk
 
 __all__ = ["Board", "quat_to_rpy"]
 
@@ -362,7 +363,7 @@ class Board:
 
     def _blend(self, t: int) -> list[float]:
         """Interpolated targets plus, per servo after a resume, the offset from the held command to
-        the stream fading with a minimum-jerk profile 1 - (10s^3 - 15s^4 + 6s^5) (Flash & Hogan 1985)
+        the stream fading with the minimum-jerk profile 1 - :func:`robots.coco.trajectory.min_jerk`
         over ``1.875 |offset| / resume_speed`` (the profile's peak speed is 1.875 offset / length).
 
         A servo waits at its held command until its first keyframe after the resume; from then the
@@ -393,7 +394,7 @@ class Board:
                 if s >= 1.0:
                     self._blend_off[i] = 0.0
                     continue
-                out[i] += off * (1.0 - s * s * s * (10.0 - 15.0 * s + 6.0 * s * s))
+                out[i] += off * (1.0 - float(min_jerk(np.float64(s))))
                 active = True
         if not active:
             self._blending = False

@@ -62,4 +62,6 @@ class BoardConfig:
             raise ConfigError("watchdog must be > 0 ms and the crouch delay >= 0 ms")
         if self.max_late_us < 0 or self.max_future_us <= 0 or self.buffer_depth < 2:
             raise ConfigError("max_late_us >= 0, max_future_us > 0 and buffer_depth >= 2 are required")
+        if not self.resume_speed > 0 or self.resume_blend_min_us <= 0:
+            raise ConfigError("resume_speed must be > 0 rad/s and resume_blend_min_us > 0")
         return self
