@@ -8,7 +8,7 @@ the cut until every servo is within 3 deg of the target of the last frame it app
 the peak error after the cut ("peak deg") and the largest after recovery to the end of the run
 ("then max"). Realtime: numbers depend on the machine's load (TICK_OVERRUNs).
 
-    python bench/bench_recovery.py [--links pty can:slcan:pty] [--starts 3.0 3.1 3.2 3.3 3.4] [--length 0.6]
+    python bench/bench_recovery.py [--links pty can:slcan:pty] [--starts 3.0 3.1 3.2 3.3 3.4] [--length 0.6] [--out DIR]
 """
 
 from __future__ import annotations
@@ -45,9 +45,11 @@ def main() -> None:
     ap.add_argument("--starts", type=float, nargs="*", default=[3.0, 3.1, 3.2, 3.3, 3.4])
     ap.add_argument("--length", type=float, default=0.6, help="cut length, s (default 0.6)")
     ap.add_argument("--bound", type=float, default=3.0, help="tracking bound, deg (default 3)")
+    ap.add_argument("--out", type=Path, help="keep each run's folder (logs, summary) under this directory")
     args = ap.parse_args()
     print(f"{'link':15s} {'cut':9s} {'held s':>7s} {'recover s':>9s} {'peak deg':>8s} {'then max':>8s}")
-    with tempfile.TemporaryDirectory(prefix="bench_recovery_") as tmp:
+    with tempfile.TemporaryDirectory(prefix="bench_recovery_") as scratch:
+        tmp = args.out or Path(scratch)
         for link in args.links:
             times: list[float] = []
             for k, start in enumerate(args.starts):

@@ -375,8 +375,9 @@ class Board:
         for i, held in enumerate(pend):
             if held is None:
                 continue
-            if nxt[i] is not None:
-                v1 = nxt[i][1]
+            first = nxt[i]
+            if first is not None:
+                v1 = first[1]
                 at[i], av[i] = t, v1  # flat at the first target until it is due
             elif at[i] != self._resume_t or av[i] != held:
                 v1 = av[i]  # a frame was applied at once
@@ -394,7 +395,7 @@ class Board:
                 if s >= 1.0:
                     self._blend_off[i] = 0.0
                     continue
-                out[i] += off * (1.0 - float(min_jerk(np.float64(s))))
+                out[i] += off * (1.0 - float(min_jerk(np.asarray(s))))
                 active = True
         if not active:
             self._blending = False
