@@ -63,6 +63,7 @@ from protocol.messages import (
 from robots.coco import load_poses, load_servo_table
 from robots.coco.model import load_model
 from robots.coco.scenes import scene_objects, toppled
+from robots.coco.trajectory import min_jerk
 
 __all__ = ["Board", "KEPT_IMAGES", "quat_to_rpy"]
 
@@ -124,6 +125,14 @@ class Board:
         # per-servo interpolation anchor: the last applied keyframe (or where a resumed servo was)
         # (plain lists: the per-tick loop is faster on 12 Python floats than on numpy, see servo_model)
         self.anchor_t: list[int] = [0] * self.n
+        # leaving a hold (see _resume, _blend): per servo the held command still waiting for its first
+        # keyframe, then a minimum-jerk blend of the offset (held - stream) down to 0: start, length, offset
+        self._resume_t = 0
+        self._resume_from: list[float | None] = [None] * self.n
+        self._blend_t0: list[int] = [0] * self.n
+        self._blend_len: list[int] = [0] * self.n
+        self._blend_off: list[float] = [0.0] * self.n
+        self._blending = False
         self.anchor_v: list[float] = neutral.tolist()
         self.hold_q = neutral.copy()
         self._desired: list[float] = neutral.tolist()
@@ -139,7 +148,8 @@ class Board:
         self.covered_until = -1  # lockstep: latest accepted frame apply-at (tick at it may run)
         self.last_applied_seq = 0
         #: safety transitions not yet reported: (board time us of the first tick in the new mode,
-        #: "hold"|"crouch"|"estop", board time us of the last valid message / of the ESTOP's arrival)
+        #: "hold"|"crouch"|"estop"|"resume", board time us of the last valid message / of the ESTOP's
+        #: arrival / of the first held tick ("resume": a valid message ended a HOLD, the board runs again))
         self.watchdog_events: deque[tuple[int, str, int]] = deque(maxlen=16)
         self._estop_rx_us: int | None = None
         self.late_count = 0
@@ -184,8 +194,10 @@ class Board:
         rx = self.board_time_us() if rx_time_us is None else rx_time_us
         if isinstance(msg, (Telemetry, SimState, Caps, TimeSyncReply, Ack, Nack)) or not hasattr(msg, "__dataclass_fields__"):
             return [self._nack(msg, seq, NackReason.UNSUPPORTED, f"board does not accept {type(msg).__name__}")]
+        held_since = self.safety.hold_since_us
         if self.safety.feed(self.now_us):
             self._resume()
+            self.watchdog_events.append((self.now_us, "resume", held_since if held_since is not None else self.now_us))
         if isinstance(msg, ServoFrame):
             return self._servo_frame(msg, seq)
         if isinstance(msg, Heartbeat):
@@ -202,6 +214,7 @@ class Board:
         if isinstance(msg, Flush):
             for i in self.buffer.flush(int(msg.from_us), int(msg.mask)):
                 self.anchor_t[i], self.anchor_v[i] = self.now_us, self.servo.cmd_of(i)
+                self._resume_from[i], self._blend_off[i] = None, 0.0  # the new stream starts from the command
             self._recompute_cover()
             return [Ack(seq, MsgType.FLUSH)]
         if isinstance(msg, Estop):
@@ -367,10 +380,63 @@ class Board:
         return out
 
     def _resume(self) -> None:
-        """Leaving a hold: buffered frames are gone, every servo continues from its command."""
+        """Leaving a hold: buffered frames are gone, every servo continues from its command.
+
+        The host's stream kept its own timeline through the hold, so its next target may be far from
+        the held command (a gait phase later). Each servo blends from the held command into the
+        stream (:meth:`_blend`) instead of ramping to the first keyframe within the lookahead, which
+        would step to the speed limit.
+        """
         self.anchor_t = [self.now_us] * self.n
         self.anchor_v = self.servo.cmd.tolist()
+        self._resume_t = self.now_us
+        self._resume_from = list(self.anchor_v)
+        self._blend_off = [0.0] * self.n
+        self._blending = True
         self._recompute_cover()
+
+    def _blend(self, t: int) -> list[float]:
+        """Interpolated targets plus, per servo after a resume, the offset from the held command to
+        the stream fading with the minimum-jerk profile 1 - :func:`robots.coco.trajectory.min_jerk`
+        over ``1.875 |offset| / resume_speed`` (the profile's peak speed is 1.875 offset / length).
+
+        A servo waits at its held command until its first keyframe after the resume; from then the
+        stream for it is that keyframe's target until it is due, then the frames as usual.
+        """
+        pend, at, av = self._resume_from, self.anchor_t, self.anchor_v
+        nxt = self.buffer.next_all()
+        speed, min_len = self.cfg.resume_speed, self.cfg.resume_blend_min_us
+        for i, held in enumerate(pend):
+            if held is None:
+                continue
+            first = nxt[i]
+            if first is not None:
+                v1 = first[1]
+                at[i], av[i] = t, v1  # flat at the first target until it is due
+            elif at[i] != self._resume_t or av[i] != held:
+                v1 = av[i]  # a frame was applied at once
+            else:
+                continue
+            pend[i] = None
+            off = held - v1
+            self._blend_t0[i], self._blend_off[i] = t, off
+            self._blend_len[i] = max(min_len, int(1.875 * abs(off) / speed * 1e6))
+        out = self._interpolate(t)
+        active = any(v is not None for v in pend)
+        for i, off in enumerate(self._blend_off):
+            if off:
+                s = (t - self._blend_t0[i]) / self._blend_len[i]
+                if s >= 1.0:
+                    self._blend_off[i] = 0.0
+                    continue
+                out[i] += off * (1.0 - float(min_jerk(np.asarray(s))))
+                active = True
+        if not active:
+            self._blending = False
+        for i, held in enumerate(pend):
+            if held is not None:
+                out[i] = held
+        return out
 
     def _recompute_cover(self) -> None:
         latest = self.buffer.latest_apply_at
@@ -428,7 +494,7 @@ class Board:
                     self.last_applied_seq = f.seq
                     if self.cfg.lockstep:
                         self.safety.feed(f.apply_at_us)
-            desired = self._interpolate(t)
+            desired = self._blend(t) if self._blending else self._interpolate(t)
         elif mode is Mode.CROUCH:
             desired, speed_cap = self.crouch.tolist(), self.cfg.crouch_speed
         else:

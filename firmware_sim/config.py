@@ -24,6 +24,10 @@ class BoardConfig:
     buffer_depth: int = 256  # jitter buffer capacity in frames
     resume_gap_us: int = 50_000  # idle servo: a new stream starts from where it is after this gap
     crouch_speed: float = 1.0  # rad/s while crouching on a watchdog fault
+    #: leaving a HOLD/ESTOP: the gap between the held command and the stream's first target closes with
+    #: a minimum-jerk blend at this peak speed (rad/s, ~150 deg/s), over at least resume_blend_min_us
+    resume_speed: float = 2.6
+    resume_blend_min_us: int = 40_000
     scene: str = "empty"  # objects in the world (robots.coco.scenes.SCENES)
 
     @property
@@ -58,4 +62,6 @@ class BoardConfig:
             raise ConfigError("watchdog must be > 0 ms and the crouch delay >= 0 ms")
         if self.max_late_us < 0 or self.max_future_us <= 0 or self.buffer_depth < 2:
             raise ConfigError("max_late_us >= 0, max_future_us > 0 and buffer_depth >= 2 are required")
+        if not self.resume_speed > 0 or self.resume_blend_min_us <= 0:
+            raise ConfigError("resume_speed must be > 0 rad/s and resume_blend_min_us > 0")
         return self

@@ -207,6 +207,10 @@ class BoardServer:
                 print(f"board: estop in effect at board time {t / 1e6:.6f} s, {(t - fed) / 1e6:.6f} s after it arrived",
                       file=self.err, flush=True)
                 continue
+            if mode == "resume":
+                print(f"board: watchdog resume at board time {t / 1e6:.6f} s, a valid message ended the hold after "
+                      f"{(t - fed) / 1e6:.6f} s", file=self.err, flush=True)
+                continue
             print(f"board: watchdog {mode} at board time {t / 1e6:.6f} s, {(t - fed) / 1e6:.6f} s after the last "
                   f"valid message" + ("; fault latched until ESTOP_CLEAR" if mode == "crouch" else ""),
                   file=self.err, flush=True)

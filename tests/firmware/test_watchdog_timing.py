@@ -66,6 +66,12 @@ def test_hold_then_crouch_after_a_cut_and_the_fault_latches() -> None:
 def test_a_message_during_hold_resumes_without_latching() -> None:
     board = Board(BoardConfig(lockstep=True))
     board.handle(Advance(10_000_000), 1)
-    silent_until(board, Mode.HOLD)
+    held_at = silent_until(board, Mode.HOLD)
+    board.watchdog_events.clear()
+    for _ in range(50):  # 100 ms of HOLD
+        board.tick()
+    resumed_at = board.now_us
     board.handle(ServoFrame(board.now_us + 20_000, 1, (0.1,)), 2)
     assert board.mode is Mode.RUN and not board.safety.fault_latched
+    # reported (board: watchdog resume ... line): when the hold ended and when it began
+    assert list(board.watchdog_events) == [(resumed_at, "resume", held_at)]
