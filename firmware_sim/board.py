@@ -57,7 +57,7 @@ from protocol.messages import (
     TimeSyncRequest,
 )
 from robots.coco import load_poses, load_servo_table
-from robots.coco.model import load_model
+from robots.coco.model import CocoModel, load_model
 from robots.coco.scenes import scene_objects, toppled
 
 __all__ = ["Board", "quat_to_rpy"]
@@ -104,11 +104,11 @@ class Board:
         self.poses = load_poses()
         if reuse is not None and reuse.cfg.scene != self.cfg.scene:
             raise ValueError(f"cannot reuse a {reuse.cfg.scene!r} board's model for scene {self.cfg.scene!r}")
-        self.cm = reuse.cm if reuse is not None else load_model(self.table, scene=self.cfg.scene)
+        self.cm: CocoModel = reuse.cm if reuse is not None else load_model(self.table, scene=self.cfg.scene)
         self.scene_objects = scene_objects(self.cm.model)
         self.model = self.cm.model
         self.model.opt.timestep = self.cfg.dt
-        self.data = reuse.data if reuse is not None else self.cm.new_data()
+        self.data: mujoco.MjData = reuse.data if reuse is not None else self.cm.new_data()
         self.n = len(self.table)
         neutral = np.array(self.table.neutral)
         self.cm.place_on_floor(self.data, neutral)
