@@ -61,7 +61,7 @@ from protocol.messages import (
     TimeSyncRequest,
 )
 from robots.coco import load_poses, load_servo_table
-from robots.coco.model import load_model
+from robots.coco.model import CocoModel, load_model
 from robots.coco.scenes import scene_objects, toppled
 from robots.coco.trajectory import min_jerk
 
@@ -90,15 +90,32 @@ def quat_to_rpy(w: float, x: float, y: float, z: float) -> tuple[float, float, f
 class Board:
     """CoCo's emulated controller board (12 servos, MuJoCo physics)."""
 
-    def __init__(self, cfg: BoardConfig | None = None, clock_us: Callable[[], int] | None = None) -> None:
+    def __init__(
+        self,
+        cfg: BoardConfig | None = None,
+        clock_us: Callable[[], int] | None = None,
+        *,
+        reuse: Board | None = None,
+    ) -> None:
+        """A board at time 0, servos at neutral, robot standing on the floor.
+
+        ``reuse``: a board that is no longer used, of the same scene; the new board takes over its
+        compiled model and its ``MjData`` (reset here, so the new board starts exactly as a fresh
+        one) instead of compiling and allocating again. For harnesses that make a fresh board per
+        input (the ``board`` fuzz target): every ``MjData`` carries MuJoCo's arena (14 MB for CoCo),
+        and one allocated and freed per input, between the fuzzer's own long-lived allocations,
+        fragments the C heap so the process's RSS creeps up. ``ValueError`` if the scenes differ.
+        """
         self.cfg = (cfg or BoardConfig()).validate()
         self.table = load_servo_table()
         self.poses = load_poses()
-        self.cm = load_model(self.table, scene=self.cfg.scene)
+        if reuse is not None and reuse.cfg.scene != self.cfg.scene:
+            raise ValueError(f"cannot reuse a {reuse.cfg.scene!r} board's model for scene {self.cfg.scene!r}")
+        self.cm: CocoModel = reuse.cm if reuse is not None else load_model(self.table, scene=self.cfg.scene)
         self.scene_objects = scene_objects(self.cm.model)
         self.model = self.cm.model
         self.model.opt.timestep = self.cfg.dt
-        self.data = self.cm.new_data()
+        self.data: mujoco.MjData = reuse.data if reuse is not None else self.cm.new_data()
         self.n = len(self.table)
         neutral = np.array(self.table.neutral)
         self.cm.place_on_floor(self.data, neutral)

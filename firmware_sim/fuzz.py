@@ -65,8 +65,15 @@ class Reader:
         return out
 
 
-def load(instrument: bool = False) -> Callable[[bytes], None]:
-    """Import the board (instrumented when ``instrument``) and return the one-input function."""
+def load(instrument: bool = False, *, persistent: bool = False) -> Callable[[bytes], None]:
+    """Import the board (instrumented when ``instrument``) and return the one-input function.
+
+    Each input runs on a fresh board (built on the process's one compiled model and ``MjData``,
+    see :class:`firmware_sim.board.Board`'s ``reuse``). ``persistent``: every input runs on one
+    long-lived board and frame decoder instead, as a board process serves one link for hours; each
+    input then starts with a FLUSH of every servo (so the frames it checks are its own). Used by the
+    memory test (tests/fuzz/test_fuzz_memory.py): whatever a board keeps must stay bounded.
+    """
     if instrument:
         import atheris  # type: ignore[import-not-found,unused-ignore]
 
@@ -83,14 +90,17 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
         Ack, Advance, Config, ConfigKey, Estop, EstopClear, Flush, Message, MsgType, Nack, NackReason, ServoFrame,
     )
 
-    def one_input(data: bytes) -> None:
-        board = Board(BoardConfig(lockstep=True, buffer_depth=16, watchdog_ms=20, crouch_after_ms=40))
-        dec = FrameDecoder()
-        r = Reader(data)
-        period = board.servo.period_s
-        # (seq, apply_at) -> every (board time at acceptance, targets) accepted under that key
-        accepted: dict[tuple[int, int], list[tuple[int, dict[int, float]]]] = {}
-        applied: list[BufferedFrame] = []
+    def config() -> BoardConfig:
+        return BoardConfig(lockstep=True, buffer_depth=16, watchdog_ms=20, crouch_after_ms=40)
+
+    # (seq, apply_at) -> every (board time at acceptance, targets) accepted under that key
+    Accepted = dict[tuple[int, int], list[tuple[int, dict[int, float]]]]
+    # the last board (its model and MjData go to the next input's board) and, when persistent, its
+    # decoder and bookkeeping: a new 14 MB MuJoCo arena per input fragments the C heap (RSS creeps)
+    last: list[tuple[Board, FrameDecoder, Accepted, list[BufferedFrame]]] = []
+
+    def observe_pops(board: Board, applied: list[BufferedFrame]) -> None:
+        """Every frame the tick takes from the jitter buffer is appended to ``applied``."""
         pop_due = board.buffer.pop_due
 
         def observed_pop(t: int) -> list[BufferedFrame]:
@@ -100,6 +110,16 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
 
         board.buffer.pop_due = observed_pop  # type: ignore[method-assign,assignment]
 
+    def one_input(data: bytes) -> None:
+        if persistent and last:
+            board, dec, accepted, applied = last[0]
+        else:
+            board = Board(config(), reuse=last[0][0] if last else None)
+            dec, accepted, applied = FrameDecoder(), {}, []
+            observe_pops(board, applied)
+            last[:] = [(board, dec, accepted, applied)]
+        r = Reader(data)
+        period = board.servo.period_s
         budget = [400]  # ticks per input, so one input cannot run for long
 
         def drain() -> None:
@@ -175,6 +195,9 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
             send(Advance(board.now_us + n * board.tick_us), 0xFFFF)
             drain()
 
+        if persistent:  # frames the previous input left in the buffer are not this input's to check
+            send(Flush(0, 0xFFF), 0xFFFF)
+            accepted.clear()
         while True:
             try:
                 op = r.take("B") % 8

@@ -3,7 +3,9 @@
 libFuzzer reports progress lines such as ``#106452 DONE cov: 45 ft: 187 corp: 60/5029b ... exec/s:
 5069 rss: 47Mb``, in ``-fork`` mode ``#17533: cov: 246 ft: 262 corp: 79 exec/s 762 ...``, then
 ``Done N runs in S second(s)``; a crash prints ``Test unit written to PATH`` (and atheris the Python
-traceback before it). Formats: https://llvm.org/docs/LibFuzzer.html#output
+traceback before it); ``-print_final_stats=1`` adds ``stat::peak_rss_mb: N``. The ``rss:`` of the first
+and last progress line and the peak give the process's resident memory over the run (single-process
+runs only: ``-fork`` progress lines carry no RSS). Formats: https://llvm.org/docs/LibFuzzer.html#output
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ __all__ = ["FuzzStats", "parse_output"]
 
 _PROGRESS = re.compile(r"^#(\d+):?\s+(?:\w+\s+)?cov: (\d+) ft: (\d+) corp: (\d+)\S*.*?exec/s:? (\d+)")
 _DONE = re.compile(r"^Done (\d+) runs in (\d+) second")
+_RSS = re.compile(r"^#\d+.*\srss: (\d+)Mb")
+_PEAK_RSS = re.compile(r"^stat::peak_rss_mb:\s*(\d+)")
 
 
 @dataclass
@@ -27,15 +31,23 @@ class FuzzStats:
     coverage: int = 0  # edges (libFuzzer "cov")
     features: int = 0  # libFuzzer "ft"
     corpus: int = 0
+    rss_start_mb: int | None = None  # resident memory (MB) at the first progress line
+    rss_end_mb: int | None = None  # ... at the last
+    peak_rss_mb: int | None = None  # libFuzzer's final stats (or the largest rss seen)
     crashes: list[str] = field(default_factory=list)  # saved inputs
     traceback: str = ""  # the uncaught exception atheris printed, if any
 
     def summary(self) -> str:
         rate = self.exec_per_s if self.exec_per_s else (self.executions // self.seconds if self.seconds else 0)
         secs = f" in {self.seconds} s" if self.seconds is not None else ""
+        rss = ""
+        if self.rss_start_mb is not None and self.rss_end_mb is not None:
+            rss = f", RSS {self.rss_start_mb} -> {self.rss_end_mb} MB"
+            if self.peak_rss_mb is not None and self.peak_rss_mb > self.rss_end_mb:
+                rss += f" (peak {self.peak_rss_mb} MB)"
         return (
             f"{self.executions} executions{secs} ({rate} exec/s), coverage {self.coverage} edges / "
-            f"{self.features} features, corpus {self.corpus} inputs"
+            f"{self.features} features, corpus {self.corpus} inputs{rss}"
         )
 
 
@@ -44,6 +56,16 @@ def parse_output(text: str) -> FuzzStats:
     st = FuzzStats()
     lines = text.splitlines()
     for i, line in enumerate(lines):
+        m = _RSS.match(line)
+        if m:
+            rss = int(m[1])
+            st.rss_start_mb = rss if st.rss_start_mb is None else st.rss_start_mb
+            st.rss_end_mb = rss
+            st.peak_rss_mb = max(st.peak_rss_mb or 0, rss)
+        m = _PEAK_RSS.match(line)
+        if m:
+            st.peak_rss_mb = int(m[1])
+            continue
         m = _PROGRESS.match(line)
         if m:
             st.executions = max(st.executions, int(m[1]))

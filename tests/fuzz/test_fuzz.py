@@ -74,6 +74,20 @@ def test_cli_fuzzes_each_target_briefly(target: str, tmp_path: Path) -> None:
     stats = parse_output((tmp_path / "out" / "fuzz.log").read_text())
     assert stats.executions > 0 and stats.coverage > 0
     assert f"{stats.executions} executions" in proc.stdout
+    assert stats.peak_rss_mb is not None and stats.peak_rss_mb < 1024  # under the default --rss-limit-mb
+    assert f"RSS {stats.rss_start_mb} -> {stats.rss_end_mb} MB" in proc.stdout
+
+
+def test_cli_rss_limit_reaches_libfuzzer(tmp_path: Path) -> None:
+    """A process above ``--rss-limit-mb`` is libFuzzer's out-of-memory failure (the target itself takes ~45 MB)."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "host.cli", "fuzz", "serial-decoder", "--seconds", "30", "--rss-limit-mb", "10",
+         "--out", str(tmp_path / "out"), "--corpus", str(tmp_path / "corpus")],
+        cwd=tmp_path, capture_output=True, text=True, timeout=120, check=False,
+    )
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert "serial-decoder: FAILED" in proc.stdout
+    assert "out-of-memory" in (tmp_path / "out" / "fuzz.log").read_text()
 
 
 def test_cli_lists_targets() -> None:
@@ -95,3 +109,18 @@ def test_parse_output_reports_a_crash() -> None:
     assert st.crashes == ["/tmp/o/crash-abc123"]
     assert "ESTOP did not win" in st.traceback
     assert st.executions == 7 and st.seconds == 1 and st.coverage == 25
+
+
+def test_parse_output_reports_resident_memory() -> None:
+    log = (
+        "INFO: seed corpus: files: 13 min: 1469b max: 1481b total: 19142b rss: 87Mb\n"
+        "#14\tINITED cov: 304 ft: 521 corp: 9/13251b exec/s: 0 rss: 88Mb\n"
+        "#512\tpulse  cov: 355 ft: 1661 corp: 115/129Kb lim: 1481 exec/s: 21 rss: 95Mb\n"
+        "#1434\tDONE   cov: 371 ft: 1911 corp: 186/195Kb lim: 1481 exec/s: 23 rss: 93Mb\n"
+        "Done 1434 runs in 61 second(s)\n"
+        "stat::peak_rss_mb:              98\n"
+    )
+    st = parse_output(log)
+    assert (st.rss_start_mb, st.rss_end_mb, st.peak_rss_mb) == (88, 93, 98)
+    assert st.summary().endswith("corpus 186 inputs, RSS 88 -> 93 MB (peak 98 MB)")
+    assert "RSS" not in parse_output("#17533: cov: 246 ft: 262 corp: 79 exec/s 762\n").summary()  # -fork lines
