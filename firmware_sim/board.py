@@ -32,6 +32,7 @@ from firmware_sim.peripherals import MAX_IMAGE_SIDE, Camera, CameraUnavailable, 
 from firmware_sim.safety import Mode, Safety
 from firmware_sim.servo_model import ServoModel
 from protocol.codec import SCHEMA_HASH, msg_type_of, quantize_apply_at, unwrap_time_us
+from protocol.faults import GapDetector
 from protocol.messages import (
     PROTOCOL_VERSION,
     Ack,
@@ -136,6 +137,8 @@ class Board:
         self.camera = Camera(self.model)
         self.camera_worker: CameraWorker | None = None
         self._capture_seqs: dict[int, int] = {}
+        #: sequence gaps in what the host sent (lost messages), since the last HELLO
+        self.rx_gaps = GapDetector()
         #: the last KEPT_IMAGES images' chunks by request id, for CAMERA_RESEND and a repeated CAMERA_CAPTURE
         self._kept_images: OrderedDict[int, list[CameraChunk]] = OrderedDict()
         self._clock_us = clock_us
@@ -211,6 +214,9 @@ class Board:
         rx = self.board_time_us() if rx_time_us is None else rx_time_us
         if isinstance(msg, (Telemetry, SimState, Caps, TimeSyncReply, Ack, Nack)) or not hasattr(msg, "__dataclass_fields__"):
             return [self._nack(msg, seq, NackReason.UNSUPPORTED, f"board does not accept {type(msg).__name__}")]
+        if isinstance(msg, Hello):
+            self.rx_gaps = GapDetector()  # a (new) host numbers its messages from 0 again
+        self.rx_gaps.feed(seq)
         held_since = self.safety.hold_since_us
         if self.safety.feed(self.now_us):
             self._resume()

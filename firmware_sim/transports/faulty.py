@@ -89,7 +89,8 @@ def install_faults(link: BoardTransport, spec: FaultSpec, seed: int) -> list[Fau
 def report_line(spec: FaultSpec, seed: int, injectors: list[FaultInjector[Any]], board: Any) -> str:
     """The ``board: faults {...}`` stderr line the host's runner copies into ``summary.json``."""
     detected = {"link_errors": int(board.link_errors), "late_frames": int(board.late_count),
-                "dropped_frames": int(board.dropped_count), "watchdog_trips": int(board.safety.watchdog_trips)}
+                "dropped_frames": int(board.dropped_count), "watchdog_trips": int(board.safety.watchdog_trips),
+                "seq_gaps": int(board.rx_gaps.lost)}
     return "board: faults " + json.dumps({"spec": str(spec), "seed": seed,
                                           "injected": [i.summary() for i in injectors],
                                           "board_detected": detected})

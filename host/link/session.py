@@ -50,6 +50,7 @@ from host.link.errors import HandshakeError, LinkDown, LinkError, LinkTimeout, N
 from host.link.timesync import ClockEstimate, ClockSync
 from host.link.transports import Transport, open_transport
 from protocol.codec import MAX_RESEND_BITMAP, SCHEMA_HASH
+from protocol.faults import GapDetector
 from protocol.framing import DecodeError, Frame
 from protocol.linkspec import LinkSpec, parse_link_spec
 from protocol.messages import (
@@ -131,6 +132,7 @@ class LinkStats:
     telemetry: int = 0
     reconnects: int = 0
     retries: int = 0  # requests re-sent because no ACK/NACK came in time (a lost frame either way)
+    seq_gaps: int = 0  # board messages never received (gaps in the board's sequence numbers), since the handshake
     last_decode_error: str = ""  # kind and detail of the latest undecodable item, for reports
 
 
@@ -189,6 +191,7 @@ class BoardClient:
         #: the spec to give ``--link`` to reach this board again (no decoration; see Transport.link_spec)
         self.link_spec: str = str(self.spec) if self.spec is not None else ""
         self.caps: Caps | None = None
+        self._rx_gaps = GapDetector()
         self.clock = ClockSync()
         self.stats = LinkStats()
         self.latest_telemetry: Telemetry | None = None
@@ -336,6 +339,7 @@ class BoardClient:
         try:
             caps = await self._handshake()
             self.caps = caps
+            self._rx_gaps = GapDetector()  # the board's numbering as from this connection
             self._board_time_seen = caps.board_time_us
             self.clock.clear()
             self._ready = True
@@ -721,6 +725,8 @@ class BoardClient:
                 log.debug("link: discarded %d bytes (%s: %s)", len(item.raw), item.kind.value, item.detail)
                 continue
             self.stats.rx_frames += 1
+            self._rx_gaps.feed(item.seq)
+            self.stats.seq_gaps = self._rx_gaps.lost
             try:
                 self._dispatch(item.msg, t4)
             except Exception:  # a bug in a callback must not kill the reader

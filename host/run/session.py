@@ -391,7 +391,8 @@ class RobotSession:
         stats = client.stats if client is not None else None
         host_detected = {"decode_errors": stats.decode_errors if stats else None,
                          "frame_nacks": stats.frame_nacks if stats else None,
-                         "request_retries": stats.retries if stats else None, "link_lost": str(error)}
+                         "request_retries": stats.retries if stats else None,
+                         "seq_gaps": stats.seq_gaps if stats else None, "link_lost": str(error)}
         summary = artefacts.Summary(
             task=label, outcome="link_lost", fell=False, base_start=_pose(None), base_end=_pose(None),
             max_tilt_deg=0.0, first_action_latency_ms=None, outcomes=artefacts.count_outcomes([]),
@@ -468,11 +469,12 @@ class RobotSession:
                  "frame_nacks": client.stats.frame_nacks if client else None,
                  "decode_errors": client.stats.decode_errors if client else None,
                  "retries": client.stats.retries if client else None,
+                 "seq_gaps": client.stats.seq_gaps if client else None,
                  **({"last_decode_error": client.stats.last_decode_error}
                     if client and client.stats.last_decode_error else {})}
         end_t = rec.t[-1] if rec.t else turn.board_t0
         host_detected: dict[str, Any] = {"decode_errors": stats["decode_errors"], "frame_nacks": stats["frame_nacks"],
-                                         "request_retries": stats["retries"]}
+                                         "request_retries": stats["retries"], "seq_gaps": stats["seq_gaps"]}
         if link_error is not None:
             host_detected["link_lost"] = str(link_error)
             host_detected["last_report_board_s"] = rec.t[-1] if rec.t else None

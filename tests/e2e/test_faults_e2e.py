@@ -50,6 +50,10 @@ def _check(tid: int, out: Path, seed: int) -> dict:
     assert faults["board"]["board_detected"]["link_errors"] >= (1 if h2b["corrupt"] else 0)
     assert faults["host_detected"]["decode_errors"] >= (1 if b2h["corrupt"] else 0)
     assert gaps.lost >= h2b["drop"] - 1  # the very last frame may be dropped unseen
+    # each end counted the gaps live, too (the board from its first message on: a lost HELLO is not a gap)
+    assert 0 <= gaps.lost - faults["board"]["board_detected"]["seq_gaps"] <= min(got)
+    if b2h["drop"] >= 2:
+        assert faults["host_detected"]["seq_gaps"] >= 1
     return faults
 
 
