@@ -23,6 +23,16 @@ def _positive_int(text: str) -> int:
     return v
 
 
+def _seed(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text}")
+    return v
+
+
 def _positive_float(text: str) -> float:
     try:
         v = float(text)
@@ -63,7 +73,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--faults", default=None, metavar="SPEC",
                         help="inject link faults both ways (serial and CAN), e.g. drop=0.01,corrupt=0.01,dup=0.005,"
                              "reorder=0.005,truncate=P,delay=MS[±MS],cut=START+LEN (see protocol.faults)")
-    parser.add_argument("--fault-seed", type=int, default=0, metavar="N", help="seed of the fault injectors (default 0)")
+    parser.add_argument("--fault-seed", type=_seed, default=0, metavar="N", help="seed of the fault injectors (default 0)")
     parser.add_argument("--viewer", action="store_true", help="open MuJoCo's viewer (needs a display)")
     parser.add_argument("--scene", choices=("empty", "bottles"), default="empty",
                         help="objects in the world: 'bottles' = three light bottles in front of CoCo")

@@ -103,3 +103,15 @@ def coco_registry(performer: Performer, vocabulary: str = "paper") -> Registry:
                 registry.mount(m)
                 names.update(s.name for s in m.functions)
     return registry
+
+
+def function_params() -> dict[str, frozenset[str]]:
+    """Every function CoCo's shell accepts (both vocabularies, aliases included) -> its parameter names
+    (for checking a safety policy's names: :meth:`host.shell.policy.Policy.check_names`)."""
+    registry = coco_registry(None, "paper")  # type: ignore[arg-type]  # the signatures only; nothing runs
+    out: dict[str, frozenset[str]] = {}
+    for spec in registry.functions():
+        params = frozenset(p.name for p in spec.params)
+        for name in (spec.name, *spec.aliases, *registry.aliases_of(spec)):
+            out[name] = params
+    return out

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-from host.commands.run import add_run_options, run_with
+from host.commands.run import add_run_options, check_run_args, run_with
 
 DEFAULT_TASK = 26
 
@@ -30,5 +30,8 @@ def main(args: argparse.Namespace) -> int:
     except ValueError as e:
         print(f"ghostshell demo: {e}")
         return 2
+    status = check_run_args(args)
+    if status is not None:
+        return status
     print(f"task {task.id} ({task.category}): {task.instruction}\n  {task.ground_truth}\n")
     return run_with(args, program=task.ground_truth, prompt=None, label=f"demo task {task.id}")

@@ -99,12 +99,18 @@ def main(args: argparse.Namespace) -> int:
     if importlib.util.find_spec("atheris") is None:
         print("ghostshell fuzz: atheris is not installed; pip install -e '.[fuzz]'", file=sys.stderr)
         return 2
-    if args.seconds < 1 or args.jobs < 1 or args.rss_limit_mb < 1:
-        print("ghostshell fuzz: --seconds, --jobs and --rss-limit-mb must be at least 1", file=sys.stderr)
+    if args.seconds < 1 or args.jobs < 1 or args.rss_limit_mb < 1 or args.max_len < 1:
+        print("ghostshell fuzz: --seconds, --jobs, --rss-limit-mb and --max-len must be at least 1", file=sys.stderr)
         return 2
     out = Path(args.out or Path("fuzz-out") / args.target)
     corpus = Path(args.corpus) if args.corpus else out / "corpus"
     seeds = [] if args.no_seeds else seed_dirs(args.target)
+    for what, d in (("--corpus", corpus), ("--out", out)):
+        try:
+            d.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            print(f"ghostshell fuzz: {what}: cannot create {d}: {e.strerror or e}", file=sys.stderr)
+            return 2
     print(f"fuzzing {args.target} for {args.seconds} s ({args.jobs} job(s)); corpus {corpus}"
           + (f", seeds {', '.join(map(str, seeds))}" if seeds else ""), flush=True)
     rc, st = run_target(args.target, args.seconds, corpus, out, args.jobs, args.max_len, not args.no_seeds, echo=True,

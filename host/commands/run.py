@@ -64,7 +64,8 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--faults", default=None, metavar="SPEC",
                         help="emulated board: inject link faults both ways, e.g. drop=0.01,corrupt=0.01,dup=0.005,"
                              "reorder=0.005 (also truncate=P, delay=MS[±MS], cut=START+LEN)")
-    parser.add_argument("--fault-seed", type=int, default=0, metavar="N", help="seed of the fault injection (default 0)")
+    parser.add_argument("--fault-seed", type=fault_seed, default=0, metavar="N",
+                        help="seed of the fault injection (default 0; needs --faults)")
     parser.add_argument("--policy", default=None, metavar="FILE",
                         help="safety policy (TOML): allowed functions, tighter parameter bounds, motion budget")
 
@@ -90,6 +91,61 @@ def resolve_strict(args: argparse.Namespace) -> bool:
     return getattr(args, "llm", "scripted") == "scripted"
 
 
+def check_run_args(args: argparse.Namespace) -> int | None:
+    """The checks of ``run``/``demo`` flags that need no board: an exit status after one printed line, or None.
+
+    Run before anything is printed, so a bad flag never follows the task banner."""
+    why = unreachable_link(args.link)
+    if why:
+        print(f"ghostshell: {why}", file=sys.stderr)
+        return USAGE_STATUS
+    if getattr(args, "policy", None):
+        from host.shell.policy import Policy, PolicyError
+
+        try:
+            from host.coco.binding import function_params
+
+            args.loaded_policy = Policy.load(args.policy, known=function_params())
+        except PolicyError as e:
+            print(f"ghostshell: {e}", file=sys.stderr)
+            return USAGE_STATUS
+    faults, seed = getattr(args, "faults", None), getattr(args, "fault_seed", 0)
+    if faults:
+        from protocol.faults import FaultSpec, FaultSpecError
+        from protocol.linkspec import LinkSpecError, parse_link_spec
+
+        try:
+            FaultSpec.parse(faults)
+        except FaultSpecError as e:
+            print(f"ghostshell: --faults: {e}", file=sys.stderr)
+            return USAGE_STATUS
+        try:
+            emulated = bool(args.emulate_board) or parse_link_spec(args.link).implies_emulated_board
+        except LinkSpecError:
+            emulated = bool(args.emulate_board)  # the link's own error comes when it is opened
+        if not emulated:
+            print(f"ghostshell: --faults is injected by the emulated board a run starts, and {args.link} is a board "
+                  f"you started: give that board the faults (`ghostshell board --link ... --faults {faults}`), "
+                  "or let this run start one (--emulate-board)", file=sys.stderr)
+            return USAGE_STATUS
+    elif seed:
+        print("ghostshell: --fault-seed has no effect without --faults", file=sys.stderr)
+        return USAGE_STATUS
+    args.run_args_checked = True
+    return None
+
+
+def fault_seed(text: str) -> int:
+    """``--fault-seed``: an integer >= 0."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text}")
+    return v
+
+
 def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | None, label: str) -> int:
     """Build :class:`RunOptions` from ``args``, run, print where the artefacts are."""
     import anyio
@@ -100,32 +156,15 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
 
     from host.shell.skills import SkillError, SkillStore, skills_path
 
-    why = unreachable_link(args.link)
-    if why:
-        print(f"ghostshell: {why}", file=sys.stderr)
-        return USAGE_STATUS
+    status = None if getattr(args, "run_args_checked", False) else check_run_args(args)
+    if status is not None:
+        return status
     try:
         skills = SkillStore(skills_path(getattr(args, "skills", None)))
     except SkillError as e:
         print(f"ghostshell: {e}", file=sys.stderr)
         return 1
-    from host.shell.policy import Policy, PolicyError
-
-    policy = None
-    if getattr(args, "policy", None):
-        try:
-            policy = Policy.load(args.policy)
-        except PolicyError as e:
-            print(f"ghostshell: {e}", file=sys.stderr)
-            return 2
-    if getattr(args, "faults", None):
-        from protocol.faults import FaultSpec, FaultSpecError
-
-        try:
-            FaultSpec.parse(args.faults)
-        except FaultSpecError as e:
-            print(f"ghostshell: --faults: {e}", file=sys.stderr)
-            return 2
+    policy = getattr(args, "loaded_policy", None)
     slug = label.replace(" ", "-")
     out = Path(args.out) if args.out else Path("runs") / slug
     opts = RunOptions(
@@ -197,6 +236,9 @@ def main(args: argparse.Namespace) -> int:
     if args.task is None and args.xml is None and args.xml_file is None and args.prompt is None:
         print("ghostshell run: one of the arguments --task --xml --xml-file --prompt is required", file=sys.stderr)
         return 2
+    status = check_run_args(args)
+    if status is not None:
+        return status
     if args.task is not None:
         from robots.coco.tasks import get_task
 

@@ -40,6 +40,13 @@ class PolicyError(ValueError):
     """A policy file that cannot be used, or a call the policy refuses (message says why)."""
 
 
+def _number(v: Any, key: str) -> float:
+    """A TOML number (int or float, not bool) as float; :class:`PolicyError` naming ``key`` otherwise."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v):
+        raise PolicyError(f"{key} must be a number, got {v!r}")
+    return float(v)
+
+
 @dataclass
 class Budget:
     """At most ``max`` summed |param| and ``max_calls`` calls of one function per ``window_s`` seconds."""
@@ -62,8 +69,9 @@ class Policy:
     refused: int = 0
 
     @classmethod
-    def load(cls, path: str | Path) -> Policy:
-        """Read a TOML policy; :class:`PolicyError` with the file and key on any problem."""
+    def load(cls, path: str | Path, known: dict[str, frozenset[str]] | None = None) -> Policy:
+        """Read a TOML policy; :class:`PolicyError` with the file and key on any problem (with ``known``,
+        function name -> parameter names, also a name that matches nothing: :meth:`check_names`)."""
         try:
             doc = tomllib.loads(Path(path).read_text(encoding="utf-8"))
         except OSError as e:
@@ -73,7 +81,10 @@ class Policy:
         except tomllib.TOMLDecodeError as e:
             raise PolicyError(f"policy {path} is not valid TOML: {e}") from None
         try:
-            return cls.from_dict(doc)
+            policy = cls.from_dict(doc)
+            if known is not None:
+                policy.check_names(known)
+            return policy
         except PolicyError as e:
             raise PolicyError(f"policy {path}: {e}") from None
 
@@ -83,6 +94,9 @@ class Policy:
         if unknown:
             raise PolicyError(f"unknown table(s) {sorted(unknown)}; expected functions, params, budget")
         fns = doc.get("functions", {})
+        extra = set(fns) - {"allow", "deny"} if isinstance(fns, dict) else set()
+        if extra:
+            raise PolicyError(f"functions: unknown key(s) {sorted(extra)}; expected allow, deny")
         allow = fns.get("allow")
         deny = fns.get("deny", [])
         for key, v in (("functions.allow", allow), ("functions.deny", deny)):
@@ -90,19 +104,30 @@ class Policy:
                 raise PolicyError(f"{key} must be a list of function names")
         bounds: dict[str, dict[str, tuple[float, float]]] = {}
         for fn, params in doc.get("params", {}).items():
+            if not isinstance(params, dict):
+                raise PolicyError(f"params.{fn} must be a table of parameter bounds")
             for p, b in params.items():
                 if not isinstance(b, dict) or set(b) - {"min", "max"} or not b:
                     raise PolicyError(f"params.{fn}.{p} must be a table with min and/or max")
-                lo, hi = float(b.get("min", -math.inf)), float(b.get("max", math.inf))
+                lo, hi = _number(b.get("min", -math.inf), f"params.{fn}.{p}.min"), _number(b.get("max", math.inf), f"params.{fn}.{p}.max")
                 if lo > hi:
                     raise PolicyError(f"params.{fn}.{p}: min {lo:g} > max {hi:g}")
                 bounds.setdefault(fn, {})[p] = (lo, hi)
         budgets: dict[str, Budget] = {}
         for fn, b in doc.get("budget", {}).items():
+            if not isinstance(b, dict):
+                raise PolicyError(f"budget.{fn} must be a table")
             extra = set(b) - {"param", "max", "max_calls", "window_s"}
             if extra:
                 raise PolicyError(f"budget.{fn}: unknown key(s) {sorted(extra)}")
-            bud = Budget(b.get("param"), b.get("max"), b.get("max_calls"), float(b.get("window_s", 60.0)))
+            param = b.get("param")
+            if param is not None and not isinstance(param, str):
+                raise PolicyError(f"budget.{fn}.param must be a parameter name (a string)")
+            bmax = None if b.get("max") is None else _number(b["max"], f"budget.{fn}.max")
+            calls = b.get("max_calls")
+            if calls is not None and (not isinstance(calls, int) or isinstance(calls, bool) or calls < 1):
+                raise PolicyError(f"budget.{fn}.max_calls must be a whole number >= 1, got {calls!r}")
+            bud = Budget(param, bmax, calls, _number(b.get("window_s", 60.0), f"budget.{fn}.window_s"))
             if (bud.param is None) != (bud.max is None):
                 raise PolicyError(f"budget.{fn}: param and max go together")
             if bud.max is None and bud.max_calls is None:
@@ -111,6 +136,30 @@ class Policy:
                 raise PolicyError(f"budget.{fn}.window_s must be > 0")
             budgets[fn] = bud
         return cls(frozenset(allow) if allow is not None else None, frozenset(deny), bounds, budgets)
+
+    def check_names(self, known: dict[str, frozenset[str]]) -> None:
+        """Refuse names that match nothing: a misspelt function or parameter would silently switch a
+        limit off. ``known`` maps every function name (aliases included) to its parameter names;
+        raises :class:`PolicyError` naming the key and, when one is close, what was meant."""
+        import difflib
+
+        def hint(name: str, pool: Any) -> str:
+            close = difflib.get_close_matches(name, list(pool), n=1)
+            return f"; did you mean {close[0]}?" if close else ""
+
+        where: list[tuple[str, str]] = [("functions.allow", n) for n in sorted(self.allow or ())]
+        where += [("functions.deny", n) for n in sorted(self.deny)]
+        where += [(f"params.{fn}", fn) for fn in self.bounds] + [(f"budget.{fn}", fn) for fn in self.budgets]
+        for key, fn in where:
+            if fn not in known:
+                raise PolicyError(f"{key}: no function {fn!r}{hint(fn, known)}")
+        for fn, params in self.bounds.items():
+            for p in params:
+                if p not in known[fn]:
+                    raise PolicyError(f"params.{fn}.{p}: <{fn}> has no parameter {p!r}{hint(p, known[fn])}")
+        for fn, bud in self.budgets.items():
+            if bud.param is not None and bud.param not in known[fn]:
+                raise PolicyError(f"budget.{fn}.param: <{fn}> has no parameter {bud.param!r}{hint(bud.param, known[fn])}")
 
     def check(self, spec: FunctionSpec, args: dict[str, Any], now_s: float) -> None:
         """Raise :class:`PolicyError` if the call is refused; otherwise charge its budget at ``now_s``."""

@@ -162,3 +162,31 @@ def test_policy_file_errors(tmp_path: Path, text: str, match: str) -> None:
         Policy.load(f)
     with pytest.raises(PolicyError, match="cannot read policy"):
         Policy.load(tmp_path / "missing.toml")
+
+
+@pytest.mark.parametrize(
+    "text, match",
+    [  # found by a fresh-user review: each of these loaded, and its limit silently never applied
+        ("[functions]\ndenny = ['push_up']", r"functions: unknown key\(s\) \['denny'\]"),
+        ("[functions]\ndeny = ['pushup']", "functions.deny: no function 'pushup'; did you mean push_up"),
+        ("[params.run_distance]\ndistanse = { max = 5 }", "has no parameter 'distanse'; did you mean distance"),
+        ("[params.no_such_fn]\nx = { max = 1 }", "params.no_such_fn: no function 'no_such_fn'"),
+        ("[budget.run_distance]\nparam = 'dist'\nmax = 5", "budget.run_distance.param: <run_distance> has no parameter"),
+        # ... and these raised a traceback (or failed only when a call came)
+        ("[params.run_distance]\ndistance = { min = 'a', max = 5 }", "distance.min must be a number"),
+        ("[budget.run_distance]\nparam = 'distance'\nmax = 'x'", "budget.run_distance.max must be a number"),
+        ("[budget.run_distance]\nmax_calls = 0", "max_calls must be a whole number >= 1"),
+        ("[budget.run_distance]\nmax_calls = 2\nwindow_s = 'z'", "window_s must be a number"),
+    ],
+)
+def test_a_policy_name_that_matches_nothing_or_a_non_number_is_refused(tmp_path: Path, text: str, match: str) -> None:
+    from host.coco.binding import function_params
+
+    f = tmp_path / "p.toml"
+    f.write_text(text)
+    with pytest.raises(PolicyError, match=match):
+        Policy.load(f, known=function_params())
+    ok = tmp_path / "ok.toml"
+    ok.write_text("[functions]\ndeny = ['push_up', 'spider_push_up']\n[params.run_distance]\ndistance = { min = -50, max = 50 }\n"
+                  "[budget.move_strides]\nparam = 'times'\nmax = 10\n")
+    Policy.load(ok, known=function_params())
