@@ -305,8 +305,9 @@ class CanBoardTransport(BoardTransport):
     def exit_note(self) -> str | None:
         if not self.periodic_unanswered:
             return None
-        return (f"{self.periodic_unanswered} SIM_STATE report(s) got no ISO-TP flow control (no host listening: "
-                "it had gone away); later reports waited for a host")
+        lossy = " or the link lost the frames" if self.rx_faults is not None or self.tx_faults is not None else ""
+        return (f"{self.periodic_unanswered} SIM_STATE report(s) got no ISO-TP flow control (the host had gone "
+                f"away{lossy}); later reports waited until a host was heard again")
 
     def close(self) -> None:
         if self.logger is not None:

@@ -10,7 +10,8 @@ __all__ = ["configure", "main"]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("log", metavar="LOG", help="a run folder or its host frame log (host_frames.jsonl)")
+    parser.add_argument("log", metavar="LOG", help="a run folder or a frame log of it: serial .jsonl or CAN .log/.asc/.blf, "
+                        "the host's or the board's (after a faulted run the board's: what reached it)")
     parser.add_argument("--out", default=None, metavar="DIR", help="artefact folder (default runs/replay)")
 
 

@@ -821,7 +821,8 @@ class BoardClient:
             self.faults = now_faults
             self.fault_events.append(ev)
             if ev.raised:
-                log.warning("board fault raised: %s (board time %.3f s)", _flag_names(ev.raised), t.board_time_us / 1e6)
+                # info, not warning: the application reports faults (on_fault); a run ends with one message
+                log.info("board fault raised: %s (board time %.3f s)", _flag_names(ev.raised), t.board_time_us / 1e6)
             if ev.cleared:
                 log.info("board fault cleared: %s (board time %.3f s)", _flag_names(ev.cleared), t.board_time_us / 1e6)
             for cb in list(self.on_fault):

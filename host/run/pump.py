@@ -19,6 +19,7 @@ import numpy as np
 from host.coco.runtime import CocoRuntime
 from host.link.client import BoardClient
 from host.link.errors import LinkError
+from host.link.faultcheck import clear_command
 from host.run import artefacts
 from protocol.messages import FaultFlags
 from robots.coco import load_poses
@@ -64,7 +65,7 @@ def watchdog_fault_message(client: BoardClient, board_time_us: int) -> str:
     held = f"held from board time {hold / 1e6:.3f} s, " if hold is not None else ""
     return (f"link lost: the board heard nothing for longer than its watchdog, {held}crouched and latched its "
             f"watchdog fault (reported at board time {board_time_us / 1e6:.3f} s); the run ends here. "
-            "A board that outlives the run keeps the fault latched until ESTOP_CLEAR (BoardClient.estop_clear)")
+            f"A board that outlives the run keeps the fault latched until cleared: `{clear_command(client.link_spec)}`")
 
 
 async def pump(client: BoardClient, runtime: CocoRuntime, rec: Recorder) -> None:

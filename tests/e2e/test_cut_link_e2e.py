@@ -72,16 +72,20 @@ def test_short_cut_only_holds_and_the_run_resumes(tmp_path: Path) -> None:
     assert summary["extra"]["faults"]["board"]["board_detected"]["watchdog_trips"] == 1
 
 
-def test_demo_cut_by_the_link_prints_one_message_and_keeps_its_report(tmp_path: Path,
-                                                                      capsys: pytest.CaptureFixture[str]) -> None:
-    from host.cli import main as cli
+def test_demo_cut_by_the_link_prints_one_message_and_keeps_its_report(tmp_path: Path) -> None:
+    import subprocess
+    import sys
 
     out = tmp_path / "demo"
-    assert cli(["demo", "--no-video", "--no-live", "--faults", "cut=1.5+1.5", "--out", str(out)]) == 1
-    cap = capsys.readouterr()
-    ours = [line for line in cap.err.splitlines() if line.startswith("ghostshell:")]
-    assert len(ours) == 1 and re.fullmatch(r"ghostshell: link lost: .*latched its watchdog fault.*", ours[0]), cap.err
-    assert f"artefacts in {out}/:" in cap.out and "summary.json" in cap.out
+    # a real process: pytest's log capture would hide a stray log line on stderr
+    cap = subprocess.run([sys.executable, "-m", "host.cli", "demo", "--no-video", "--no-live", "--faults", "cut=1.5+1.5",
+                          "--out", str(out)], capture_output=True, text=True, timeout=120)
+    assert cap.returncode == 1, cap.stderr
+    ours = [line for line in cap.stderr.splitlines() if line.startswith("ghostshell:")]
+    assert len(ours) == 1 and re.fullmatch(r"ghostshell: link lost: .*latched its watchdog fault.*", ours[0]), cap.stderr
+    assert cap.stderr.strip().splitlines() == ours, cap.stderr  # nothing else on stderr (a fault log line came first)
+    assert "ghostshell estop --link" in ours[0] and ours[0].endswith("--clear`")
+    assert f"artefacts in {out}/:" in cap.stdout and "summary.json" in cap.stdout
     summary = json.loads((out / "summary.json").read_text())
     assert summary["outcome"] == "link_lost" and ours[0] == f"ghostshell: {summary['extra']['link_error']}"
     assert all(d["injected"]["cut"] > 0 for d in summary["extra"]["faults"]["board"]["injected"])
