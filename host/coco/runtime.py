@@ -329,10 +329,7 @@ class CocoRuntime:
     async def _capture(self) -> str:
         t0 = self.board_now_s()
         self._mark(start=t0)
-        # lockstep: the board clock stands still while the image comes (chunks asked for again after a
-        # wall-clock stall timer on a lossy link must not turn into seconds of robot time); realtime: no-op
-        async with self.streamer.hold():
-            png = await self.link.capture(160, 120)
+        png = await self.link.capture(160, 120)
         path = self.run_dir / f"capture_{len(self.captures) + 1}.png"
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_bytes(png)
