@@ -8,6 +8,7 @@ import signal
 import sys
 from collections.abc import Sequence
 
+from protocol.faults import seed_arg
 from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
 
 __all__ = ["build_parser", "configure", "main"]
@@ -20,16 +21,6 @@ def _positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
     if v <= 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {v}")
-    return v
-
-
-def _seed(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text}")
     return v
 
 
@@ -73,7 +64,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--faults", default=None, metavar="SPEC",
                         help="inject link faults both ways (serial and CAN), e.g. drop=0.01,corrupt=0.01,dup=0.005,"
                              "reorder=0.005,truncate=P,delay=MS[±MS],cut=START+LEN (see protocol.faults)")
-    parser.add_argument("--fault-seed", type=_seed, default=0, metavar="N", help="seed of the fault injectors (default 0)")
+    parser.add_argument("--fault-seed", type=seed_arg, default=0, metavar="N", help="seed of the fault injectors (default 0)")
     parser.add_argument("--viewer", action="store_true", help="open MuJoCo's viewer (needs a display)")
     parser.add_argument("--scene", choices=("empty", "bottles"), default="empty",
                         help="objects in the world: 'bottles' = three light bottles in front of CoCo")

@@ -31,12 +31,13 @@ import difflib
 import heapq
 import itertools
 import math
+import argparse
 import random
 from collections import Counter
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
-__all__ = ["FaultInjector", "FaultSpec", "FaultSpecError", "GapDetector", "REORDER_HOLD_S"]
+__all__ = ["FaultInjector", "FaultSpec", "FaultSpecError", "GapDetector", "REORDER_HOLD_S", "seed_arg"]
 
 #: longest a reordered unit waits for a successor before it is released anyway (seconds)
 REORDER_HOLD_S = 0.05
@@ -300,3 +301,14 @@ class GapDetector:
         self.lost += gap
         self.highest = seq
         return gap
+
+
+def seed_arg(text: str) -> int:
+    """``--fault-seed`` on both ends' command lines: an integer >= 0 (``argparse.ArgumentTypeError`` otherwise)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text}")
+    return v

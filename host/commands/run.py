@@ -14,6 +14,7 @@ from pathlib import Path
 
 from host.coco.binding import VOCABULARY_NAMES
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, unreachable_link
+from protocol.faults import seed_arg
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -64,7 +65,7 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--faults", default=None, metavar="SPEC",
                         help="emulated board: inject link faults both ways, e.g. drop=0.01,corrupt=0.01,dup=0.005,"
                              "reorder=0.005 (also truncate=P, delay=MS[±MS], cut=START+LEN)")
-    parser.add_argument("--fault-seed", type=fault_seed, default=0, metavar="N",
+    parser.add_argument("--fault-seed", type=seed_arg, default=0, metavar="N",
                         help="seed of the fault injection (default 0; needs --faults)")
     parser.add_argument("--policy", default=None, metavar="FILE",
                         help="safety policy (TOML): allowed functions, tighter parameter bounds, motion budget")
@@ -133,17 +134,6 @@ def check_run_args(args: argparse.Namespace) -> int | None:
         return USAGE_STATUS
     args.run_args_checked = True
     return None
-
-
-def fault_seed(text: str) -> int:
-    """``--fault-seed``: an integer >= 0."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text}")
-    return v
 
 
 def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | None, label: str) -> int:
