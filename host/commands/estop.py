@@ -14,7 +14,7 @@ import argparse
 import asyncio
 import sys
 
-from host.commands.linkarg import USAGE_STATUS, add_link_argument, unreachable_link
+from host.commands.linkarg import USAGE_STATUS, add_link_argument, refuse_unserved_link
 
 __all__ = ["configure", "main"]
 
@@ -66,12 +66,7 @@ async def _run(args: argparse.Namespace) -> int:
 
 
 def main(args: argparse.Namespace) -> int:
-    why = unreachable_link(args.link)
-    if why:
-        print(f"ghostshell estop: {why}", file=sys.stderr)
-        return USAGE_STATUS
-    if args.link.implies_emulated_board:
-        print(f"ghostshell estop: --link {args.link} names a link the emulated board creates; give the port a "
-              "running board announced (ghostshell board --link pty prints it)", file=sys.stderr)
-        return 2
+    status = refuse_unserved_link("estop", args.link)
+    if status is not None:
+        return status
     return asyncio.run(_run(args))

@@ -10,6 +10,7 @@ specified, :class:`host.link.errors.LinkConfigError`).
 from __future__ import annotations
 
 import argparse
+import sys
 
 from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
 
@@ -52,6 +53,19 @@ def unreachable_link(spec: LinkSpec) -> str | None:
                 "process can be on it (with or without --emulate-board); use can:slcan:pty (the emulated board as "
                 "an SLCAN adapter) or can:socketcan:vcan0 --emulate-board (the virtual bus is for in-process use)")
     return None
+
+
+def refuse_unserved_link(command: str, spec: LinkSpec) -> int | None:
+    """For commands that talk to a board already running (``pose``, ``estop``): print why ``spec``
+    cannot reach one and return :data:`USAGE_STATUS`, or return None when it can."""
+    why = unreachable_link(spec)
+    if why is None and spec.implies_emulated_board:
+        why = (f"--link {spec} names a link the emulated board creates; give the port a running board "
+               "announced (ghostshell board --link pty prints it)")
+    if why is None:
+        return None
+    print(f"ghostshell {command}: {why}", file=sys.stderr)
+    return USAGE_STATUS
 
 
 def link_exit_status(error: BaseException) -> int:

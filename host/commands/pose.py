@@ -7,7 +7,7 @@ import asyncio
 import math
 import sys
 
-from host.commands.linkarg import USAGE_STATUS, add_link_argument, unreachable_link
+from host.commands.linkarg import USAGE_STATUS, add_link_argument, refuse_unserved_link
 
 __all__ = ["configure", "main"]
 
@@ -60,14 +60,9 @@ async def _run(args: argparse.Namespace, target: tuple[float, ...]) -> int:
 def main(args: argparse.Namespace) -> int:
     from robots.coco import load_poses
 
-    why = unreachable_link(args.link)
-    if why:
-        print(f"ghostshell pose: {why}", file=sys.stderr)
-        return USAGE_STATUS
-    if args.link.implies_emulated_board:
-        print(f"ghostshell pose: --link {args.link} names a link the emulated board creates; give the port a "
-              "running board announced (ghostshell board --link pty prints it)", file=sys.stderr)
-        return 2
+    status = refuse_unserved_link("pose", args.link)
+    if status is not None:
+        return status
 
     poses = load_poses()
     if args.pose not in poses:

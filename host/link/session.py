@@ -872,7 +872,7 @@ class BoardClient:
         try:
             while True:
                 if nudging:
-                    until = max(until, self.board_now_estimate()) + self._report_period_us()
+                    until = max(until, self.board_now_estimate()) + self.report_period_us()
                     with contextlib.suppress(LinkError):
                         self._send(Advance(until))
                 left = deadline - time.monotonic()
@@ -895,7 +895,7 @@ class BoardClient:
     #: wall seconds between the ADVANCEs of :meth:`wait_for` with ``nudge`` (a lockstep board answers in ~1 ms)
     NUDGE_S = 0.1
 
-    def _report_period_us(self) -> int:
+    def report_period_us(self) -> int:
         """One telemetry period plus one control tick (us): an ADVANCE this far always yields a report."""
         caps = self.caps
         rate = caps.telemetry_rate_hz if caps is not None and caps.telemetry_rate_hz > 0 else 50

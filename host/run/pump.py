@@ -137,11 +137,8 @@ async def silence_watchdog(runtime: CocoRuntime, rec: Recorder, client: BoardCli
 def lockstep_nudge_target(client: BoardClient, runtime: CocoRuntime, previous: int) -> int:
     """Board time (us) a lockstep nudge ADVANCEs to: one report period and one tick past the last
     frame sent (or past the previous nudge, or the link's estimate, whichever is latest)."""
-    caps = client.caps
-    period = int(1e6 / caps.telemetry_rate_hz) if caps is not None and caps.telemetry_rate_hz > 0 else 20_000
-    tick = int(1e6 / caps.control_rate_hz) if caps is not None and caps.control_rate_hz > 0 else 2_000
     covered = runtime.streamer.next_us - runtime.streamer.period_us
-    return max(client.board_now_estimate(), covered, previous) + period + tick
+    return max(client.board_now_estimate(), covered, previous) + client.report_period_us()
 
 
 async def realtime_topper(runtime: CocoRuntime) -> None:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from host.coco.runtime import CocoRuntime
@@ -80,11 +80,9 @@ class RunReport:
 
 
 def session_options(opts: RunOptions) -> SessionOptions:
-    """The board/link/shell part of ``opts``."""
-    return SessionOptions(vocabulary=opts.vocabulary, mode=opts.mode, strict=opts.strict, lockstep=opts.lockstep,
-                          link=opts.link, emulate_board=opts.emulate_board, baud=opts.baud, wire_baud=opts.wire_baud, out=opts.out, start_pose=opts.start_pose,
-                          skills=opts.skills, label=opts.task_label, scene=opts.scene,
-                          policy=opts.policy, faults=opts.faults, fault_seed=opts.fault_seed)
+    """The board/link/shell part of ``opts`` (every :class:`SessionOptions` field, ``label`` from ``task_label``)."""
+    shared = {f.name: getattr(opts, f.name) for f in fields(SessionOptions) if f.name != "label"}
+    return SessionOptions(**shared, label=opts.task_label)
 
 
 async def run_program(opts: RunOptions, on_start: Callable[[Shell, CocoRuntime], None] | None = None) -> RunReport:
