@@ -1,8 +1,8 @@
 """Shared helpers for the task benchmarks: task selection, one run per task, percentiles, tables.
 
 Each run is a real end-to-end ``host.run.runner.run_program``: a board subprocess
-on a pty (lockstep or realtime), the link client, the CoCo runtime and the shell
-fed by the scripted LLM replaying the task's ground-truth program.
+on a pty (lockstep or realtime), the link client, the robot runtime and the shell
+fed by the scripted LLM replaying the task's ground-truth program (``--robot``: whose tasks).
 """
 
 from __future__ import annotations
@@ -17,16 +17,18 @@ from typing import Any
 import anyio
 import numpy as np
 
-from host.coco.binding import coco_registry
+from host.robot.binding import robot_registry
 from host.run.runner import RunOptions, RunReport, run_program
 from host.shell.registry import Registry
-from robots.coco.tasks import load_tasks
+from robots.description import Robot
+from robots.registry import DEFAULT_ROBOT, load_robot
 
 
 def task_arguments(description: str, json_help: str) -> argparse.ArgumentParser:
     """The options every task benchmark takes (the clock switch is added by each script)."""
     ap = argparse.ArgumentParser(description=description)
-    ap.add_argument("--tasks", default=None, help="task ids, e.g. 1,5,23 or 1-10 (default: all 30)")
+    ap.add_argument("--tasks", default=None, help="task ids, e.g. 1,5,23 or 1-10 (default: all of the robot's)")
+    ap.add_argument("--robot", default=DEFAULT_ROBOT, help=f"whose tasks run (default {DEFAULT_ROBOT})")
     ap.add_argument("--tokens-per-s", type=float, default=30.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=None, help="folder for the runs' artefacts (default: a temporary folder)")
@@ -34,9 +36,9 @@ def task_arguments(description: str, json_help: str) -> argparse.ArgumentParser:
     return ap
 
 
-def task_programs(ids: Sequence[int] | None = None) -> list[tuple[int, str]]:
-    """``(id, ground-truth program)`` of the selected tasks (default: every task with ground truth)."""
-    tasks = load_tasks()
+def task_programs(ids: Sequence[int] | None = None, robot: Robot | None = None) -> list[tuple[int, str]]:
+    """``(id, ground-truth program)`` of the robot's selected tasks (default: every task with ground truth)."""
+    tasks = (robot or load_robot()).tasks
     runnable = sorted(i for i, t in tasks.items() if t.ground_truth)
     if not ids:
         return [(i, str(tasks[i].ground_truth)) for i in runnable]
@@ -67,13 +69,15 @@ def parse_ids(text: str | None) -> list[int] | None:
 
 
 def run_task(task_id: int, program: str, *, lockstep: bool, out_root: Path, buffer_response: bool = False,
-             tokens_per_s: float = 30.0, seed: int = 0, wire_baud: int | None = None, link: str = "pty") -> RunReport:
+             tokens_per_s: float = 30.0, seed: int = 0, wire_baud: int | None = None, link: str = "pty",
+             robot: str | None = None) -> RunReport:
     """Run one task end to end (board subprocess on ``link``, a link spec: the board is started
     on it; ``wire_baud``: the board models wire time at that baud rate) and return its report."""
     suffix = "buffered" if buffer_response else "streaming"
     opts = RunOptions(program=program, task_label=f"task {task_id}", lockstep=lockstep,
                       out=out_root / f"task{task_id:02d}_{suffix}", tokens_per_s=tokens_per_s, seed=seed,
-                      buffer_response=buffer_response, wire_baud=wire_baud, link=link, emulate_board=True)
+                      buffer_response=buffer_response, wire_baud=wire_baud, link=link, emulate_board=True,
+                      robot=robot or DEFAULT_ROBOT)
     return anyio.run(run_program, opts, backend="asyncio")
 
 
@@ -86,9 +90,9 @@ def out_root(arg: str | None, prefix: str) -> Path:
     return Path(tempfile.mkdtemp(prefix=prefix))
 
 
-def home_channels(vocabulary: str = "paper") -> Registry:
-    """A CoCo registry (never called) to look up each function's home channel."""
-    return coco_registry(SimpleNamespace(), vocabulary)  # type: ignore[arg-type]
+def home_channels(vocabulary: str | None = None, robot: Robot | None = None) -> Registry:
+    """The robot's registry (never called) to look up each function's home channel."""
+    return robot_registry(robot or load_robot(), SimpleNamespace(), vocabulary)  # type: ignore[arg-type]
 
 
 def stats_ms(xs: Sequence[float]) -> dict[str, Any]:

@@ -229,11 +229,11 @@ async def _session(link: str, n: int, capture: Path | None) -> None:
     from host.link import BoardClient
     from host.link.board_process import start_board
     from protocol.messages import ServoFrame
-    from robots.coco import load_poses
+    from robots.registry import load_robot
 
     from support.candump import CandumpCapture
 
-    neutral = load_poses()["neutral"]
+    neutral = load_robot().servos.neutral
     board = start_board(["--lockstep", "--telemetry-rate", "500"], link=link)
     try:
         async with await BoardClient.connect(board.spec, handshake_timeout=20.0, reply_timeout=5.0) as c:

@@ -24,7 +24,7 @@ program's own ordering. They are counted as *queued* and reported apart, with
 ``ready -> servo`` = board start - max(chunk arrival, the moment the scheduler
 released the call). The headline p50/p99 is over *immediate* motion calls.
 
-What it is made of (host/motion/streamer.py, host/coco/runtime.py, firmware_sim):
+What it is made of (host/motion/streamer.py, host/robot/runtime.py, firmware_sim):
 
 * a new call's first frame is due at the board's now + the link's measured latency p99 (TIME_SYNC
   round trips; with ``--baud`` the frame's wire time too) + one 2 ms control tick: the frames
@@ -71,7 +71,6 @@ from host.speech.sentences import SentenceSplitter
 from host.shell.parser import EmptyTag, EndTag, FunctionTokenParser, StartTag, Text
 from host.shell.registry import Registry
 
-MOTION = ("body", "head", "ears")
 NOT_CALLS = ("wait", "async", "RUN", "SAVE")
 
 
@@ -172,7 +171,8 @@ def tick_of(t: float) -> float:
     return math.ceil(round(t / TICK_S, 6)) * TICK_S
 
 
-def task_latencies(task: int, rep: RunReport, registry: Registry) -> tuple[list[CallLatency], list[str]]:
+def task_latencies(task: int, rep: RunReport, registry: Registry,
+                   motion: frozenset[str] = frozenset()) -> tuple[list[CallLatency], list[str]]:
     """The latency of every function token of one run, and notes about calls left out."""
     speech = registry.speech
     done = completing_chunks([c for _, c in rep.token_times], speech.name if speech else "speak")
@@ -199,7 +199,7 @@ def task_latencies(task: int, rep: RunReport, registry: Registry) -> tuple[list[
         t_ready = rep.result.t0 + r.start
         out.append(CallLatency(
             task=task, path=r.path, function=r.function, channel=channel,
-            kind="motion" if channel in MOTION else "peripheral", chunk=k, t_chunk=t_chunk, t_board=tick_of(call.start),
+            kind="motion" if channel in motion else "peripheral", chunk=k, t_chunk=t_chunk, t_board=tick_of(call.start),
             queued=r.path in queued, host_ms=(t_ready - t_chunk) * 1e3, token_ms=(tick_of(call.start) - t_chunk) * 1e3,
             ready_ms=(tick_of(call.start) - max(t_chunk, t_ready)) * 1e3,
             dispatch_skew_ms=(rep.result.t0 + r.dispatch - t_chunk) * 1e3))
@@ -242,9 +242,13 @@ def main(argv: list[str] | None = None) -> int:
     except LinkSpecError as e:
         ap.error(f"--link: {e}")
 
-    programs = task_programs(parse_ids(args.tasks))
+    from robots.registry import load_robot
+
+    robot = load_robot(args.robot)
+    programs = task_programs(parse_ids(args.tasks), robot)
     root = out_root(args.out, "bench_latency_")
-    registry = home_channels()
+    registry = home_channels(robot=robot)
+    motion_channels = frozenset(robot.channels) | {"joints"}  # the generic pose/joint_move channel
     mode = ("lockstep" if args.lockstep else "realtime") + (f", {args.baud} baud wire" if args.baud else "")
     print(f"token -> servo latency, {mode} board over {args.link}, {args.tokens_per_s:g} tokens/s, "
           f"{len(programs)} task(s); artefacts in {root}", flush=True)
@@ -255,8 +259,8 @@ def main(argv: list[str] | None = None) -> int:
     for tid, program in programs:
         w0 = time.monotonic()
         rep = run_task(tid, program, lockstep=args.lockstep, out_root=root, tokens_per_s=args.tokens_per_s,
-                       seed=args.seed, wire_baud=args.baud, link=args.link)
-        got, why = task_latencies(tid, rep, registry)
+                       seed=args.seed, wire_baud=args.baud, link=args.link, robot=str(robot.root))
+        got, why = task_latencies(tid, rep, registry, motion_channels)
         rows += got
         notes += why
         mi = stats_ms([c.token_ms for c in got if c.kind == "motion" and not c.queued])

@@ -28,7 +28,7 @@ from host.link.board_process import start_board
 from host.link import BoardClient, host_now_us
 from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
 from protocol.messages import ServoFrame
-from robots.coco import load_poses
+from robots.registry import load_robot
 
 
 def _pct(name: str, xs: list[float]) -> str:
@@ -37,7 +37,7 @@ def _pct(name: str, xs: list[float]) -> str:
 
 
 async def _run(port: str | LinkSpec, n: int, baud: int) -> None:
-    neutral = load_poses()["neutral"]
+    neutral = load_robot().servos.neutral
     async with await BoardClient.connect(port, baud=baud) as c:
         rtt, turn = [], []
         for _ in range(n):

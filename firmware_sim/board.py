@@ -61,16 +61,15 @@ from protocol.messages import (
     TimeSyncReply,
     TimeSyncRequest,
 )
-from robots.coco import load_poses, load_servo_table
-from robots.coco.model import CocoModel, load_model
-from robots.coco.scenes import scene_objects, toppled
-from robots.coco.trajectory import min_jerk
+from robots.description import Robot
+from robots.model import RobotModel
+from robots.motion import min_jerk
+from robots.registry import load_robot
+from robots.scenes import toppled
 
 __all__ = ["Board", "KEPT_IMAGES", "quat_to_rpy"]
 
 KEPT_IMAGES = 2  # camera images the board keeps for CAMERA_RESEND
-
-_ALL_SERVOS = (1 << 12) - 1
 
 
 def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
@@ -89,7 +88,7 @@ def quat_to_rpy(w: float, x: float, y: float, z: float) -> tuple[float, float, f
 
 
 class Board:
-    """CoCo's emulated controller board (12 servos, MuJoCo physics)."""
+    """A robot's emulated controller board (its N servos, MuJoCo physics)."""
 
     def __init__(
         self,
@@ -97,23 +96,33 @@ class Board:
         clock_us: Callable[[], int] | None = None,
         *,
         reuse: Board | None = None,
+        robot: Robot | None = None,
     ) -> None:
-        """A board at time 0, servos at neutral, robot standing on the floor.
+        """A board at time 0, servos at neutral, robot standing on the floor (or on its fixed base).
+
+        ``robot``: the robot it drives (default: ``cfg.robot`` found on the robot search path,
+        :func:`robots.registry.load_robot`).
 
         ``reuse``: a board that is no longer used, of the same scene; the new board takes over its
         compiled model and its ``MjData`` (reset here, so the new board starts exactly as a fresh
         one) instead of compiling and allocating again. For harnesses that make a fresh board per
-        input (the ``board`` fuzz target): every ``MjData`` carries MuJoCo's arena (14 MB for CoCo),
+        input (the ``board`` fuzz target): every ``MjData`` carries MuJoCo's arena (14 MB for a 12-servo robot),
         and one allocated and freed per input, between the fuzzer's own long-lived allocations,
         fragments the C heap so the process's RSS creeps up. ``ValueError`` if the scenes differ.
         """
         self.cfg = (cfg or BoardConfig()).validate()
-        self.table = load_servo_table()
-        self.poses = load_poses()
-        if reuse is not None and reuse.cfg.scene != self.cfg.scene:
-            raise ValueError(f"cannot reuse a {reuse.cfg.scene!r} board's model for scene {self.cfg.scene!r}")
-        self.cm: CocoModel = reuse.cm if reuse is not None else load_model(self.table, scene=self.cfg.scene)
-        self.scene_objects = scene_objects(self.cm.model)
+        self.robot = robot if robot is not None else load_robot(self.cfg.robot, self.cfg.robots_dir)
+        self.table = self.robot.servos
+        self.poses = self.robot.poses
+        #: the scene of the world (the robot's default unless the config names one)
+        self.scene = self.cfg.scene or self.robot.default_scene
+        if reuse is not None and reuse.robot is not self.robot:
+            raise ValueError(f"cannot reuse a {reuse.robot.name} board's model for {self.robot.name}")
+        if reuse is not None and reuse.scene != self.scene:
+            raise ValueError(f"cannot reuse a {reuse.scene!r} board's model for scene {self.scene!r}")
+        self.cm: RobotModel = reuse.cm if reuse is not None else self.robot.model(self.scene)
+        self.scene_objects = self.cm.objects
+        self._all_mask = self.table.all_mask
         self.model = self.cm.model
         self.model.opt.timestep = self.cfg.dt
         self.data: mujoco.MjData = reuse.data if reuse is not None else self.cm.new_data()
@@ -129,12 +138,12 @@ class Board:
             self.cfg.tick_us / 1e6,
         )
         self.servo.reset(neutral)
-        self.crouch = np.array(self.poses["crouch"])
+        self.crouch = np.array(self.robot.pose(self.robot.safe_pose))  # the latched-watchdog pose
         self.buffer = JitterBuffer(self.cfg.buffer_depth, self.n)
         self.safety = Safety(self.cfg.watchdog_ms * 1000, self.cfg.crouch_after_ms * 1000)
         self.screen = Screen()
         self.speaker = Speaker()
-        self.camera = Camera(self.model)
+        self.camera = Camera(self.model, self.robot.peripherals.camera)
         self.camera_worker: CameraWorker | None = None
         self._capture_seqs: dict[int, int] = {}
         #: sequence gaps in what the host sent (lost messages), since the last HELLO
@@ -293,14 +302,16 @@ class Board:
             telemetry_rate_hz=self.cfg.telemetry_rate_hz,
             board_time_us=self.board_time_us(),
             lockstep=self.cfg.lockstep,
+            robot=self.robot.name,
+            servo_table_hash=self.table.hash,
         )
 
     def _servo_frame(self, msg: ServoFrame, seq: int) -> list[Message]:
         mask = int(msg.mask)
-        idx = [i for i in range(16) if mask >> i & 1]
-        if not mask or mask & ~_ALL_SERVOS:
+        idx = [i for i in range(self.n) if mask >> i & 1]
+        if not mask or mask & ~self._all_mask:
             self.dropped_count += 1
-            return [self._nack(msg, seq, NackReason.BAD_VALUE, f"mask {mask:#06x} must cover servos 1..12 only")]
+            return [self._nack(msg, seq, NackReason.BAD_VALUE, f"mask {mask:#06x} must cover servos 1..{self.n} only")]
         if len(msg.targets) != len(idx) or not all(math.isfinite(v) for v in msg.targets):
             self.dropped_count += 1
             return [self._nack(msg, seq, NackReason.BAD_VALUE, "targets must be finite, one per mask bit")]
@@ -389,7 +400,7 @@ class Board:
 
     def start_camera_worker(self) -> str | None:
         """Render captures in a background thread from now on; returns why not, if it can't."""
-        self.camera_worker = CameraWorker(self.model)
+        self.camera_worker = CameraWorker(self.model, self.robot.peripherals.camera)
         return self.camera_worker.error
 
     def _camera_results(self) -> list[Message]:
@@ -420,7 +431,7 @@ class Board:
 
     def _blend(self, t: int) -> list[float]:
         """Interpolated targets plus, per servo after a resume, the offset from the held command to
-        the stream fading with the minimum-jerk profile 1 - :func:`robots.coco.trajectory.min_jerk`
+        the stream fading with the minimum-jerk profile 1 - :func:`robots.motion.min_jerk`
         over ``1.875 |offset| / resume_speed`` (the profile's peak speed is 1.875 offset / length).
 
         A servo waits at its held command until its first keyframe after the resume; from then the
@@ -493,7 +504,7 @@ class Board:
     def tick(self) -> list[Message]:
         """Run one control period at board time ``now_us``; return telemetry when due.
 
-        The hot path of lockstep runs: per-tick work is plain Python on the 12 servos' floats
+        The hot path of lockstep runs: per-tick work is plain Python on the servos' floats
         (see :mod:`firmware_sim.servo_model`) plus MuJoCo; reports are built only when due.
         """
         t = self.now_us
@@ -546,7 +557,7 @@ class Board:
     def telemetry(self) -> Telemetry:
         """TELEMETRY for the current state (clears the since-last-report flags)."""
         d, cm = self.data, self.cm
-        w, x, y, z = (float(v) for v in d.qpos[3:7])
+        w, x, y, z = cm.base_pose(d)[1]
         faults = self.safety.flags | self._flags_since
         self._flags_since = FaultFlags.NONE
         return Telemetry(
@@ -565,13 +576,11 @@ class Board:
 
     def sim_state(self) -> SimState:
         """Ground truth of the floating base (emulator only)."""
-        q = self.data.qpos
+        pos, quat = self.cm.base_pose(self.data)
         return SimState(
-            self.now_us,
-            (float(q[0]), float(q[1]), float(q[2])),
-            (float(q[3]), float(q[4]), float(q[5]), float(q[6])),
+            self.now_us, pos, quat,
             objects=len(self.scene_objects),
-            toppled=toppled(q, self.scene_objects) if self.scene_objects else 0,
+            toppled=toppled(self.data.qpos, self.scene_objects) if self.scene_objects else 0,
         )
 
     @property

@@ -10,6 +10,7 @@ from collections.abc import Sequence
 
 from protocol.faults import seed_arg
 from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
+from robots.registry import DEFAULT_ROBOT
 
 __all__ = ["build_parser", "configure", "main"]
 
@@ -66,12 +67,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "reorder=0.005,truncate=P,delay=MS[±MS],cut=START+LEN (see protocol.faults)")
     parser.add_argument("--fault-seed", type=seed_arg, default=0, metavar="N", help="seed of the fault injectors (default 0)")
     parser.add_argument("--viewer", action="store_true", help="open MuJoCo's viewer (needs a display)")
-    parser.add_argument("--scene", choices=("empty", "bottles"), default="empty",
-                        help="objects in the world: 'bottles' = three light bottles in front of CoCo")
+    parser.add_argument("--robot", default=DEFAULT_ROBOT, metavar="NAME",
+                        help=f"the robot this board drives: a name (ghostshell robots list) or a robot folder "
+                             f"(default {DEFAULT_ROBOT})")
+    parser.add_argument("--robots-dir", default=None, metavar="DIR", help="search this folder for --robot first")
+    parser.add_argument("--scene", default=None, metavar="NAME",
+                        help="objects in the world: one of the robot's scenes (default: the robot's default scene)")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m firmware_sim", description="CoCo's emulated board (MuJoCo).")
+    p = argparse.ArgumentParser(prog="python -m firmware_sim", description="A robot's emulated board (MuJoCo).")
     configure(p)
     return p
 
@@ -97,10 +102,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     from firmware_sim.config import BoardConfig, ConfigError
     from firmware_sim.server import BoardServer
     from firmware_sim.transports import open_board_transport
+    from robots.description import RobotDataError
+    from robots.registry import load_robot
 
+    try:
+        robot = load_robot(args.robot, args.robots_dir)
+    except RobotDataError as e:
+        print(f"board: {e}", file=sys.stderr)
+        return 2
+    if args.scene is not None and args.scene not in robot.scenes:
+        print(f"board: {robot.name} has no scene {args.scene!r}; scenes: {', '.join(robot.scenes)}", file=sys.stderr)
+        return 2
     cfg = BoardConfig(
         rate_hz=args.rate, dt=args.dt, lockstep=args.lockstep,
-        telemetry_rate_hz=args.telemetry_rate, watchdog_ms=args.watchdog_ms, scene=args.scene,
+        telemetry_rate_hz=args.telemetry_rate, watchdog_ms=args.watchdog_ms, robot=args.robot,
+        robots_dir=args.robots_dir, scene=args.scene,
     )
     try:
         cfg.validate()
@@ -141,9 +157,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             link.close()
             print(f"board: {e}", file=sys.stderr)
             return 2
-    board = Board(cfg)
+    board = Board(cfg, robot=robot)
     # Lockstep renders in the loop (deterministic and free: virtual time waits); realtime in a thread.
-    why = board.camera.warm_up() if cfg.lockstep else board.start_camera_worker()
+    why = None
+    if robot.peripherals.camera is not None:
+        why = board.camera.warm_up() if cfg.lockstep else board.start_camera_worker()
     if why is not None:
         print(f"board: camera captures will be refused: {why}", file=sys.stderr)
     viewer = None
@@ -161,13 +179,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     signal.signal(signal.SIGINT, _raise_stop)
     print(f"board: listening on {link.name}", flush=True)
     mode = "lockstep" if cfg.lockstep else "realtime"
-    print(f"board: {mode}, {cfg.rate_hz} Hz, dt {cfg.dt} s, telemetry {cfg.telemetry_rate_hz} Hz"
+    print(f"board: {robot.name} ({robot.servo_count} servos), {mode}, {cfg.rate_hz} Hz, dt {cfg.dt} s, "
+          f"telemetry {cfg.telemetry_rate_hz} Hz"
           + (f", {args.baud} baud" if args.baud else ""), file=sys.stderr, flush=True)
     if args.baud:
         from protocol.framing import frame_size
-        from protocol.samples import telemetry_12
 
-        need = cfg.telemetry_rate_hz * (frame_size(telemetry_12()) + frame_size(board.sim_state())) * 10
+        need = cfg.telemetry_rate_hz * (frame_size(board.telemetry()) + frame_size(board.sim_state())) * 10
         if need > 0.8 * args.baud:
             print(f"board: warning: telemetry needs ~{need} bit/s, more than 80% of {args.baud} baud; "
                   "some reports will be dropped (lower --telemetry-rate)", file=sys.stderr, flush=True)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from robots.registry import DEFAULT_ROBOT
+
 
 class ConfigError(ValueError):
     """An inconsistent board setting (message says which and why)."""
@@ -28,7 +30,9 @@ class BoardConfig:
     #: a minimum-jerk blend at this peak speed (rad/s, ~150 deg/s), over at least resume_blend_min_us
     resume_speed: float = 2.6
     resume_blend_min_us: int = 40_000
-    scene: str = "empty"  # objects in the world (robots.coco.scenes.SCENES)
+    robot: str = DEFAULT_ROBOT  # the robot it drives: a name on the robot search path or a folder (robots.registry)
+    robots_dir: str | None = None  # searched first for ``robot`` (--robots-dir)
+    scene: str | None = None  # objects in the world: one of the robot's scenes (None: its default scene)
 
     @property
     def tick_us(self) -> int:

@@ -99,14 +99,15 @@ class CameraUnavailable(RuntimeError):
 
 
 class Camera:
-    """Offscreen renders of the head camera; renderers are created lazily per image size."""
+    """Offscreen renders of the robot's camera (an MJCF camera name; None: the robot has none, and
+    every capture is refused); renderers are created lazily per image size."""
 
-    def __init__(self, model: mujoco.MjModel, camera: str = "head_cam", max_renderers: int = 2) -> None:
+    def __init__(self, model: mujoco.MjModel, camera: str | None, max_renderers: int = 2) -> None:
         self.model = model
         self.camera = camera
         self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
         self._max = max_renderers
-        self._error: str | None = None
+        self._error: str | None = None if camera is not None else "this robot has no camera"
 
     def _renderer(self, width: int, height: int) -> mujoco.Renderer:
         if self._error is not None:
@@ -163,7 +164,7 @@ class CameraWorker:
     the control loop to send on its next tick. Both queues are bounded.
     """
 
-    def __init__(self, model: mujoco.MjModel, camera: str = "head_cam", width: int = 160, height: int = 120) -> None:
+    def __init__(self, model: mujoco.MjModel, camera: str | None, width: int = 160, height: int = 120) -> None:
         self._jobs: queue.Queue[tuple[int, int, int, mujoco.MjData] | None] = queue.Queue(maxsize=4)
         self._done: queue.Queue[tuple[int, list[CameraChunk] | str]] = queue.Queue(maxsize=16)
         self._ready = threading.Event()
@@ -173,7 +174,7 @@ class CameraWorker:
         self._thread.start()
         self._ready.wait(30)
 
-    def _run(self, model: mujoco.MjModel, camera: str, width: int, height: int) -> None:
+    def _run(self, model: mujoco.MjModel, camera: str | None, width: int, height: int) -> None:
         cam = Camera(model, camera)
         self.error = cam.warm_up(width, height)
         self._ready.set()

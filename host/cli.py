@@ -16,7 +16,7 @@ from collections.abc import Sequence
 
 #: subcommand -> (module under host.commands, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
-    "board": ("board", "run the emulated CoCo board (firmware_sim) on a link: pty, a serial port/URL or CAN"),
+    "board": ("board", "run the emulated board of a robot (firmware_sim) on a link: pty, a serial port/URL or CAN"),
     "pose": ("pose", "drive the board to a named pose and report the largest error"),
     "estop": ("estop", "emergency-stop the board on a link (ESTOP), or clear an estop / latched watchdog fault (--clear)"),
     "demo": ("demo", "the showcase: a paper task end to end on an emulated board (pty, MuJoCo, scripted LLM)"),

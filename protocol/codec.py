@@ -529,6 +529,8 @@ LAYOUTS: dict[MsgType, Layout] = {
         ("telemetry_rate_hz", _U16),
         ("board_time_us", _U64),
         ("lockstep", Bool()),
+        ("robot", Str8(MAX_NAME_BYTES)),
+        ("servo_table_hash", _U32),
     ],
     MsgType.TIME_SYNC_REQUEST: [("t1_host_us", _U64)],
     MsgType.TIME_SYNC_REPLY: [("t1_host_us", _U64), ("t2_board_us", _U64), ("t3_board_us", _U64)],

@@ -1,4 +1,4 @@
-"""CoCo wire protocol, version 1: the message set as plain dataclasses.
+"""The GhostShell wire protocol, version 1: the message set as plain dataclasses.
 
 This module is the contract shared by the host and the board. It has no I/O and
 no encoding: :mod:`protocol.codec` packs these into payloads and
@@ -115,7 +115,8 @@ class Hello:
 
 @dataclass(frozen=True)
 class Caps:
-    """Board -> host: answer to HELLO."""
+    """Board -> host: answer to HELLO; the host refuses a board whose robot, servo count or servo
+    table hash differs from the robot it was started for."""
 
     protocol_version: int
     schema_hash: int
@@ -125,6 +126,8 @@ class Caps:
     telemetry_rate_hz: int
     board_time_us: int
     lockstep: bool
+    robot: str = ""  # the robot the board drives (its robot.toml name), UTF-8, at most 32 bytes
+    servo_table_hash: int = 0  # u32 over its servo table (robots.description.ServoTable.hash)
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from host.commands.run import add_run_options, resolve_strict
+from host.commands.run import add_run_options, check_run_args, resolve_strict
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -88,12 +88,11 @@ def main(args: argparse.Namespace) -> int:
         except GhostError as e:
             print(f"ghostshell chat: {e}", file=sys.stderr)
             return 2
-    from host.commands.linkarg import USAGE_STATUS, link_exit_status, unreachable_link
+    from host.commands.linkarg import link_exit_status
 
-    why = unreachable_link(args.link)
-    if why:
-        print(f"ghostshell chat: {why}", file=sys.stderr)
-        return USAGE_STATUS
+    status = check_run_args(args)
+    if status is not None:
+        return status
     out = Path(args.out) if args.out else Path("runs") / "chat"
     try:
         return anyio.run(_chat, args, turns, replies, skills, out, backend="asyncio")
@@ -109,8 +108,11 @@ async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any,
     from host.run.session import RobotSession, SessionOptions
 
     scripted = args.llm == "scripted"
-    opts = SessionOptions(vocabulary=args.vocabulary, mode=args.mode, strict=resolve_strict(args),
-                          lockstep=args.lockstep, link=args.link, baud=args.baud, out=out, skills=skills, label="chat")
+    opts = SessionOptions(robot=str(args.robot_value.root), robots_dir=args.robots_dir, vocabulary=args.vocabulary,
+                          mode=args.mode, strict=resolve_strict(args), lockstep=args.lockstep, link=args.link,
+                          emulate_board=args.emulate_board or None, baud=args.baud, out=out, skills=skills,
+                          label="chat", scene=args.scene, policy=getattr(args, "loaded_policy", None),
+                          faults=args.faults, fault_seed=args.fault_seed)
     pending = list(replies or [])
     interactive = turns is None and replies is None
     async with RobotSession(opts) as session:

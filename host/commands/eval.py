@@ -8,15 +8,20 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from host.commands.robotarg import add_robot_argument, robot_from_args
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the eval options."""
     parser.add_argument("--llm", required=True, metavar="PROVIDER:MODEL",
-                        help="openai:MODEL (any OpenAI-compatible endpoint) or anthropic:MODEL")
+                        help="openai:MODEL (any OpenAI-compatible endpoint), anthropic:MODEL, or ground-truth "
+                             "(offline: each task answered with its ground truth)")
+    add_robot_argument(parser)
     parser.add_argument("--base-url", default=None, help="the provider's API root (e.g. http://127.0.0.1:8000/v1)")
     parser.add_argument("--api-key", default=None, help="default: GHOSTSHELL_LLM_API_KEY, then the provider's variable")
     parser.add_argument("--tasks", default=None,
-                        help="task ids, e.g. 1-30 or 1,4,7-9 (default 1-30), or 'ablation' for the 15 ablation tasks (or e.g. ablation:6,9)")
+                        help="task ids, e.g. 1-30 or 1,4,7-9 (default: all of the robot's), or 'ablation' for the "
+                             "robot's native-call ablation tasks (e.g. ablation:6,9)")
     parser.add_argument("--trials", type=int, default=5, help="rounds per task (the paper: 5)")
     parser.add_argument("--workers", type=int, default=1, help="jobs at once, each with its own lockstep board")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default runs/eval-<model>)")
@@ -26,7 +31,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="native tool calls of one response: dispatched together after the speech (parallel "
                         "tool calls; one module's calls queue in order) or each to completion in turn")
     parser.add_argument("--no-run", action="store_true", help="score only; do not execute replies on the board")
-    parser.add_argument("--vocabulary", choices=("paper", "coco"), default="paper")
+    parser.add_argument("--vocabulary", default=None, metavar="NAME",
+                        help="the robot's vocabulary in the prompt (default: the robot's; ghostshell robots show NAME lists them)")
     parser.add_argument("--mode", choices=("async-first", "sync-first"), default="async-first")
     parser.add_argument("--format", choices=("code", "xml"), default="code", help="the prompt format (as ghostshell prompt)")
     parser.add_argument("--temperature", type=float, default=None)
@@ -39,12 +45,23 @@ def build_config(args: argparse.Namespace) -> Any:
     from host.eval.paper import ablation_tasks, hri_tasks, parse_task_spec
     from host.eval.sweep import SweepConfig
 
+    robot = robot_from_args(args, "eval")
+    if isinstance(robot, int):
+        raise ValueError("")  # the line is printed
+    if args.vocabulary is not None and args.vocabulary not in robot.interface.names:
+        raise ValueError(f"--vocabulary {args.vocabulary!r}: {robot.name} has {', '.join(robot.interface.names)}")
     spec = (args.tasks or "").strip()
     suite = "ablation" if spec.lower().startswith("ablation") else "hri"
     if suite == "ablation":  # "ablation" or "ablation:6,9"
-        tasks = parse_task_spec(spec.partition(":")[2] or "all", sorted(ablation_tasks()))
+        valid = sorted(ablation_tasks(robot))
+        if not valid:
+            raise ValueError(f"{robot.name} has no native-call ablation tasks (robot.toml [data] paper_results)")
+        tasks = parse_task_spec(spec.partition(":")[2] or "all", valid)
     else:
-        tasks = parse_task_spec(args.tasks or "1-30", sorted(hri_tasks()))
+        valid = sorted(hri_tasks(robot))
+        if not valid:
+            raise ValueError(f"{robot.name} has no tasks with a ground truth to evaluate")
+        tasks = parse_task_spec(args.tasks or "all", valid)
     if args.native_tools and suite != "ablation":
         raise ValueError("--native-tools is the ablation: use it with --tasks ablation")
     if args.trials < 1 or args.workers < 1:
@@ -52,7 +69,8 @@ def build_config(args: argparse.Namespace) -> Any:
     model = args.llm.split(":", 1)[-1].replace("/", "_") or "model"
     suffix = "-ablation-native" if args.native_tools else ("-ablation" if suite == "ablation" else "")
     out = args.out or Path("runs") / f"eval-{model}{suffix}"
-    return SweepConfig(llm=args.llm, tasks=tasks, trials=args.trials, suite=suite, native_tools=args.native_tools,
+    return SweepConfig(llm=args.llm, tasks=tasks, robot=str(robot.root), robots_dir=args.robots_dir,
+                       trials=args.trials, suite=suite, native_tools=args.native_tools,
                        base_url=args.base_url, api_key=args.api_key, workers=args.workers, out=out,
                        vocabulary=args.vocabulary, mode=args.mode, prompt_format=args.format,
                        execute=not args.no_run, temperature=args.temperature, native_exec=args.native_exec)
@@ -66,15 +84,21 @@ def main(args: argparse.Namespace) -> int:
     from host.eval.sweep import run_sweep
     from host.ghost import GhostError
 
+    from host.eval.sweep import GROUND_TRUTH
+
     try:
         cfg = build_config(args)
         if args.llm == "scripted":
-            raise ValueError("eval needs a real LLM: --llm openai:MODEL or anthropic:MODEL")
-        from host.ghost import make_ghost
+            raise ValueError("eval needs a real LLM: --llm openai:MODEL or anthropic:MODEL (or ground-truth, offline)")
+        if cfg.llm == GROUND_TRUTH and cfg.suite != "hri":
+            raise ValueError("--llm ground-truth answers tasks with their ground truth; the ablation has none")
+        if cfg.llm != GROUND_TRUTH:
+            from host.ghost import make_ghost
 
-        make_ghost(cfg.llm, base_url=cfg.base_url, api_key=cfg.api_key)  # bad spec/no key: once, up front
+            make_ghost(cfg.llm, base_url=cfg.base_url, api_key=cfg.api_key)  # bad spec/no key: once, up front
     except (ValueError, GhostError) as err:
-        print(f"ghostshell eval: {err}", file=sys.stderr)
+        if str(err):
+            print(f"ghostshell eval: {err}", file=sys.stderr)
         return 2
 
     def progress(rec: dict[str, Any], p: Any) -> None:

@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from host.commands.robotarg import add_robot_argument, robot_from_args
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the mcp options."""
@@ -15,9 +17,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     clock.add_argument("--lockstep", dest="lockstep", action="store_true", help="virtual-time board")
     clock.add_argument("--realtime", dest="lockstep", action="store_false", help="wall-clock board (default)")
     parser.set_defaults(lockstep=False)
-    parser.add_argument("--vocabulary", choices=("paper", "coco"), default="paper")
+    add_robot_argument(parser)
+    parser.add_argument("--vocabulary", default=None, metavar="NAME",
+                        help="the robot's vocabulary in the prompt (default: the robot's; ghostshell robots show NAME lists them)")
     parser.add_argument("--mode", choices=("async-first", "sync-first"), default="async-first")
-    parser.add_argument("--scene", choices=("empty", "bottles"), default="empty")
+    parser.add_argument("--scene", default=None, metavar="NAME",
+                        help="objects in the board's world: one of the robot's scenes (default: the robot's)")
     parser.add_argument("--link", default="pty", metavar="pty|PATH|URL")
     parser.add_argument("--out", type=Path, default=Path("runs/mcp"), help="session folder (frame logs, turns)")
 
@@ -31,7 +36,18 @@ def main(args: argparse.Namespace) -> int:
         return 2
     from host.run.session import SessionOptions
 
-    opts = SessionOptions(vocabulary=args.vocabulary, mode=args.mode, lockstep=args.lockstep, link=args.link,
-                          out=args.out, label="mcp", scene=args.scene)
+    robot = robot_from_args(args, "mcp")
+    if isinstance(robot, int):
+        return robot
+    if args.vocabulary is not None and args.vocabulary not in robot.interface.names:
+        print(f"ghostshell mcp: --vocabulary {args.vocabulary!r}: {robot.name} has {', '.join(robot.interface.names)}",
+              file=sys.stderr)
+        return 2
+    if args.scene is not None and args.scene not in robot.scenes:
+        print(f"ghostshell mcp: --scene {args.scene!r}: {robot.name} has {', '.join(robot.scenes)}", file=sys.stderr)
+        return 2
+    opts = SessionOptions(robot=str(robot.root), robots_dir=args.robots_dir, vocabulary=args.vocabulary,
+                          mode=args.mode, lockstep=args.lockstep, link=args.link, out=args.out, label="mcp",
+                          scene=args.scene)
     serve(opts, args.http)
     return 0

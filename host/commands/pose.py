@@ -8,6 +8,8 @@ import math
 import sys
 
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, refuse_unserved_link
+from host.commands.robotarg import add_robot_argument, robot_from_args
+from robots.description import Robot
 
 __all__ = ["configure", "main"]
 
@@ -16,7 +18,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     add_link_argument(parser, default=None,
                       help="the running board's link: a serial port / pty path / pyserial URL or "
                            "can:INTERFACE:CHANNEL[?node=N] (see DEVELOPERS.md)")
-    parser.add_argument("--pose", required=True, metavar="NAME", help="named pose (robots/coco/poses.toml)")
+    parser.add_argument("--pose", required=True, metavar="NAME", help="one of the robot's named poses "
+                        "(ghostshell robots show NAME lists them)")
+    add_robot_argument(parser)
     parser.add_argument("--duration", type=float, default=1.0, metavar="S",
                         help="move time (stretched to respect servo speed limits; default 1.0)")
     parser.add_argument("--baud", type=int, default=115200, metavar="N", help="baud rate (default 115200)")
@@ -26,16 +30,18 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tolerance", type=float, default=3.0, metavar="DEG", help=argparse.SUPPRESS)
 
 
-async def _run(args: argparse.Namespace, target: tuple[float, ...]) -> int:
-    from host.link import BoardClient, LinkConfigError, LinkError
+async def _run(args: argparse.Namespace, robot: Robot, target: tuple[float, ...]) -> int:
+    from host.link import BoardClient, LinkConfigError, LinkError, RobotIdentity, RobotMismatch
     from host.link.faultcheck import clear_leftover_fault
     from host.motion.moves import move_to
-    from robots.coco import load_servo_table
+    from robots.motion import Limits
 
-    names = load_servo_table().names
+    names = robot.servos.names
+    identity = RobotIdentity(robot.name, robot.servo_count, robot.servo_table_hash)
     try:
-        client = await BoardClient.connect(args.link, baud=args.baud, log_path=args.log, reconnect=False)
-    except LinkConfigError as e:  # the link cannot be opened as given
+        client = await BoardClient.connect(args.link, baud=args.baud, log_path=args.log, reconnect=False,
+                                           robot=identity)
+    except (LinkConfigError, RobotMismatch) as e:  # the link cannot be opened as given, or another robot
         print(f"ghostshell pose: {e}", file=sys.stderr)
         return USAGE_STATUS
     except LinkError as e:
@@ -45,7 +51,7 @@ async def _run(args: argparse.Namespace, target: tuple[float, ...]) -> int:
         note = await clear_leftover_fault(client)
         if note:
             print(f"ghostshell pose: {note}", file=sys.stderr)
-        res = await move_to(client, target, duration_s=args.duration, tolerance_deg=args.tolerance,
+        res = await move_to(client, target, Limits.of_robot(robot), duration_s=args.duration, tolerance_deg=args.tolerance,
                             settle_timeout_s=args.timeout, wall_timeout_s=max(30.0, 4 * args.timeout))
     except LinkError as e:
         print(f"ghostshell pose: pose {args.pose!r} not reached: {e}", file=sys.stderr)
@@ -58,17 +64,18 @@ async def _run(args: argparse.Namespace, target: tuple[float, ...]) -> int:
 
 
 def main(args: argparse.Namespace) -> int:
-    from robots.coco import load_poses
-
     status = refuse_unserved_link("pose", args.link)
     if status is not None:
         return status
-
-    poses = load_poses()
+    robot = robot_from_args(args, "pose")
+    if isinstance(robot, int):
+        return robot
+    poses = robot.poses
     if args.pose not in poses:
-        print(f"ghostshell pose: unknown pose {args.pose!r}; valid poses: {', '.join(sorted(poses))}", file=sys.stderr)
+        print(f"ghostshell pose: {robot.name} has no pose {args.pose!r}; valid poses: {', '.join(sorted(poses))}",
+              file=sys.stderr)
         return 2
     if not (args.duration >= 0 and math.isfinite(args.duration)) or not args.timeout > 0:
         print("ghostshell pose: --duration must be >= 0 and --timeout > 0", file=sys.stderr)
         return 2
-    return asyncio.run(_run(args, poses[args.pose]))
+    return asyncio.run(_run(args, robot, poses[args.pose]))

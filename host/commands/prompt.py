@@ -8,8 +8,7 @@ import sys
 from collections.abc import Iterable
 from typing import Any
 
-#: The default interface: CoCo, both vocabularies mounted, one shown (see host.coco.binding).
-DEFAULT_INTERFACE = "coco"
+from host.commands.robotarg import add_robot_argument, robot_from_args
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -22,10 +21,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="MODULE:ATTR",
         help="callable returning a Registry, a list of Modules or a dict {module: interface class} "
-        "(default: CoCo; e.g. host.shell.example:modules)",
+        "(default: the --robot's interface; e.g. host.shell.example:modules)",
     )
-    parser.add_argument("--vocabulary", choices=("paper", "coco"), default="paper",
-                        help="which of CoCo's two vocabularies the prompt shows (the mapper accepts both)")
+    add_robot_argument(parser)
+    parser.add_argument("--vocabulary", default=None, metavar="NAME",
+                        help="which of the robot's vocabularies the prompt shows (default: the robot's; the mapper "
+                             "accepts all; ghostshell robots show NAME lists them)")
     parser.add_argument("--skills", default=None, metavar="FILE", help="skill memory JSON file to list")
 
 
@@ -49,14 +50,18 @@ class _NoRobot:
         raise RuntimeError("prompt rendering does not execute calls")
 
 
-def build_registry(spec: str | None, vocabulary: str = "paper") -> tuple[Any, str]:
-    """A registry with the interface mounted, and the interface spec actually used."""
+def build_registry(spec: str | None, vocabulary: str | None = None, robot: Any = None) -> tuple[Any, str]:
+    """A registry with the interface mounted (``spec``, else ``robot``'s, else the default robot's), and
+    the interface actually used."""
     from host.shell.registry import Registry
 
     if spec is None:
-        from host.coco.binding import coco_registry
+        from host.robot.binding import robot_registry
+        from robots.registry import load_robot
 
-        return coco_registry(_NoRobot(), vocabulary), f"{DEFAULT_INTERFACE} ({vocabulary} vocabulary)"
+        bot = robot if robot is not None else load_robot()
+        vocab = vocabulary or bot.interface.default
+        return robot_registry(bot, _NoRobot(), vocab), f"{bot.name} ({vocab} vocabulary)"
     obj = load_interface(spec)
     if isinstance(obj, Registry):
         return obj, spec
@@ -72,8 +77,13 @@ def main(args: argparse.Namespace) -> int:
     from host.shell.prompt import render_prompt
     from host.shell.skills import SkillStore
 
+    robot = None
+    if args.interface is None:
+        robot = robot_from_args(args, "prompt")
+        if isinstance(robot, int):
+            return robot
     try:
-        registry, _used = build_registry(args.interface, args.vocabulary)
+        registry, _used = build_registry(args.interface, args.vocabulary, robot)
     except (ImportError, AttributeError, ValueError, TypeError) as exc:
         print(f"ghostshell prompt: cannot load interface {args.interface!r}: {exc}", file=sys.stderr)
         return 2

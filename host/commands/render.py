@@ -14,6 +14,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default=None, metavar="FILE", help="video file (default RUN_DIR/run.mp4)")
     parser.add_argument("--fps", type=int, default=25, choices=range(10, 61), metavar="FPS", help="frames per second (default 25)")
     parser.add_argument("--workers", type=_positive_int, default=2, help="render processes (default 2: both cores)")
+    parser.add_argument("--robots-dir", default=None, metavar="DIR",
+                        help="search this folder first for the robot the run drove (its summary.json names it)")
 
 
 def _positive_int(text: str) -> int:
@@ -32,7 +34,7 @@ def main(args: argparse.Namespace) -> int:
     t = time.monotonic()
     try:
         path = render_video(Path(args.run_dir), Path(args.out) if args.out else None,
-                            VideoSettings(fps=args.fps, workers=max(1, args.workers)))
+                            VideoSettings(fps=args.fps, workers=max(1, args.workers)), robots_dir=args.robots_dir)
     except VideoError as e:
         print(f"ghostshell render: {e}", file=sys.stderr)
         return 1

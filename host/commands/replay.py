@@ -13,16 +13,23 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("log", metavar="LOG", help="a run folder or a frame log of it: serial .jsonl or CAN .log/.asc/.blf, "
                         "the host's or the board's (after a faulted run the board's: what reached it)")
     parser.add_argument("--out", default=None, metavar="DIR", help="artefact folder (default runs/replay)")
+    parser.add_argument("--robot", default=None, metavar="NAME",
+                        help="the robot of the recorded run (default: the one its summary.json names)")
+    parser.add_argument("--robots-dir", default=None, metavar="DIR", help="search this folder for the robot first")
 
 
 def main(args: argparse.Namespace) -> int:
     from host.link.errors import LinkError
     from host.run.replay import replay
     from protocol.framelog import FrameLogError
+    from robots.description import RobotDataError
 
     out = Path(args.out) if args.out else Path("runs") / "replay"
     try:
-        res = replay(args.log, out)
+        res = replay(args.log, out, robot=args.robot, robots_dir=args.robots_dir)
+    except RobotDataError as e:
+        print(f"ghostshell replay: {e}", file=sys.stderr)
+        return 2
     except (LinkError, FrameLogError, RuntimeError, OSError) as e:
         print(f"ghostshell replay: {e}", file=sys.stderr)
         return 1

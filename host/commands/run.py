@@ -12,15 +12,16 @@ import argparse
 import sys
 from pathlib import Path
 
-from host.coco.binding import VOCABULARY_NAMES
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, unreachable_link
+from host.commands.robotarg import add_robot_argument, robot_from_args
 from protocol.faults import seed_arg
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     # not required=True: argparse would then report a missing source before an unknown flag (checked in main)
     src = parser.add_mutually_exclusive_group()
-    src.add_argument("--task", type=int, metavar="N", help="a paper task (1-30): replay its ground-truth tokens")
+    src.add_argument("--task", type=int, metavar="N",
+                     help="one of the robot's tasks (ghostshell robots show NAME): replay its ground-truth tokens")
     src.add_argument("--xml", metavar="TEXT", help="function tokens to replay, e.g. '<head_act action=\"nod\"/>'")
     src.add_argument("--xml-file", metavar="F", help="a file of function tokens to replay")
     src.add_argument("--prompt", metavar="TEXT", help="an instruction for a real LLM (needs --llm openai:MODEL)")
@@ -36,8 +37,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def add_run_options(parser: argparse.ArgumentParser) -> None:
     """Options shared by ``run`` and ``demo``."""
-    parser.add_argument("--vocabulary", choices=VOCABULARY_NAMES, default="paper",
-                        help="vocabulary shown in the prompt (the mapper accepts both)")
+    add_robot_argument(parser)
+    parser.add_argument("--vocabulary", default=None, metavar="NAME",
+                        help="the robot's vocabulary shown in the prompt (default: the robot's; the mapper accepts "
+                             "all of them; ghostshell robots show NAME lists them)")
     add_link_argument(parser)
     parser.add_argument("--emulate-board", action="store_true",
                         help="start the emulated board on --link first (implied for pty and can:slcan:pty)")
@@ -60,8 +63,9 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--baud", type=int, default=115200, help="baud rate for a real serial port")
     parser.add_argument("--out", default=None, metavar="DIR", help="artefact folder (default runs/<label>)")
     parser.add_argument("--no-live", action="store_true", help="no live channel view")
-    parser.add_argument("--scene", choices=("empty", "bottles"), default="empty",
-                        help="objects in the board's world; summary.json reports how many toppled")
+    parser.add_argument("--scene", default=None, metavar="NAME",
+                        help="objects in the board's world: one of the robot's scenes (default: the robot's); "
+                             "summary.json reports how many toppled")
     parser.add_argument("--faults", default=None, metavar="SPEC",
                         help="emulated board: inject link faults both ways, e.g. drop=0.01,corrupt=0.01,dup=0.005,"
                              "reorder=0.005 (also truncate=P, delay=MS[±MS], cut=START+LEN)")
@@ -95,7 +99,20 @@ def resolve_strict(args: argparse.Namespace) -> bool:
 def check_run_args(args: argparse.Namespace) -> int | None:
     """The checks of ``run``/``demo`` flags that need no board: an exit status after one printed line, or None.
 
-    Run before anything is printed, so a bad flag never follows the task banner."""
+    Run before anything is printed, so a bad flag never follows the task banner. Sets ``args.robot_value``."""
+    robot = getattr(args, "robot_value", None) or robot_from_args(args, args.command if "command" in args else "run")
+    if isinstance(robot, int):
+        return robot
+    args.robot_value = robot
+    vocabulary = getattr(args, "vocabulary", None)
+    if vocabulary is not None and vocabulary not in robot.interface.names:
+        print(f"ghostshell: --vocabulary {vocabulary!r}: {robot.name} has {', '.join(robot.interface.names)}",
+              file=sys.stderr)
+        return USAGE_STATUS
+    scene = getattr(args, "scene", None)
+    if scene is not None and scene not in robot.scenes:
+        print(f"ghostshell: --scene {scene!r}: {robot.name} has {', '.join(robot.scenes)}", file=sys.stderr)
+        return USAGE_STATUS
     why = unreachable_link(args.link)
     if why:
         print(f"ghostshell: {why}", file=sys.stderr)
@@ -104,9 +121,9 @@ def check_run_args(args: argparse.Namespace) -> int | None:
         from host.shell.policy import Policy, PolicyError
 
         try:
-            from host.coco.binding import function_params
+            from host.robot.binding import function_params
 
-            args.loaded_policy = Policy.load(args.policy, known=function_params())
+            args.loaded_policy = Policy.load(args.policy, known=function_params(robot))
         except PolicyError as e:
             print(f"ghostshell: {e}", file=sys.stderr)
             return USAGE_STATUS
@@ -159,12 +176,12 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     out = Path(args.out) if args.out else Path("runs") / slug
     opts = RunOptions(
         program=program, prompt=prompt, llm=getattr(args, "llm", "scripted"), task_label=label,
-        vocabulary=args.vocabulary, mode=args.mode, strict=resolve_strict(args), lockstep=args.lockstep,
+        robot=str(args.robot_value.root), robots_dir=getattr(args, "robots_dir", None), vocabulary=args.vocabulary, mode=args.mode, strict=resolve_strict(args), lockstep=args.lockstep,
         link=args.link, emulate_board=args.emulate_board or None, baud=args.baud, out=out,
         tokens_per_s=args.tokens_per_s, seed=args.seed,
         llm_base_url=getattr(args, "base_url", None), llm_api_key=getattr(args, "api_key", None),
         interrupt_at=getattr(args, "interrupt_at", None), live=not args.no_live and sys.stdout.isatty(),
-        scene=getattr(args, "scene", "empty"),
+        scene=getattr(args, "scene", None),
         skills=skills,
         policy=policy, faults=getattr(args, "faults", None), fault_seed=getattr(args, "fault_seed", 0),
     )
@@ -230,10 +247,11 @@ def main(args: argparse.Namespace) -> int:
     if status is not None:
         return status
     if args.task is not None:
-        from robots.coco.tasks import get_task
+        from robots.tasks import get_task
 
+        robot = args.robot_value
         try:
-            task = get_task(args.task)
+            task = get_task(robot.tasks, args.task, robot.name)
         except ValueError as e:
             print(f"ghostshell run: {e}", file=sys.stderr)
             return 2

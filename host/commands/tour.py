@@ -21,12 +21,12 @@ from pathlib import Path
 from typing import Any
 
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, unreachable_link
+from host.commands.robotarg import add_robot_argument, robot_from_args
 from host.link.board_process import BoardProcess, start_board
 from protocol.linkspec import LinkSpec
+from robots.description import Robot
 
-__all__ = ["SEQUENCE", "configure", "main"]
-
-SEQUENCE = ("neutral", "stand", "sit", "stand", "crouch", "neutral")
+__all__ = ["configure", "main"]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -40,6 +40,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     add_link_argument(parser)
     parser.add_argument("--emulate-board", action="store_true",
                         help="start the emulated board on --link first (implied for pty and can:slcan:pty)")
+    add_robot_argument(parser)
 
 
 def _deg(v: float) -> str:
@@ -59,7 +60,7 @@ async def _printer(client: Any, names: tuple[str, ...], state: dict[str, Any], l
             print(f"t={t.board_time_us / 1e6:7.3f}s pose={state['pose']:<8} faults={int(t.faults):#04x} "
                   f"buf={t.buffer_fill:3d} q(deg)=[" + " ".join(_deg(v) for v in t.positions) + "]", flush=True)
             continue
-        table = Table(title=f"CoCo  board time {t.board_time_us / 1e6:7.3f} s   pose -> {state['pose']}")
+        table = Table(title=f"{state['robot']}  board time {t.board_time_us / 1e6:7.3f} s   pose -> {state['pose']}")
         table.add_column("servo")
         table.add_column("pos deg", justify="right")
         table.add_column("vel rad/s", justify="right")
@@ -71,15 +72,17 @@ async def _printer(client: Any, names: tuple[str, ...], state: dict[str, Any], l
         live.update(table)
 
 
-async def _drive(port: LinkSpec, args: argparse.Namespace, out: Path | None) -> dict[str, Any]:
-    from host.link import BoardClient
+async def _drive(port: LinkSpec, args: argparse.Namespace, out: Path | None, robot: Robot) -> dict[str, Any]:
+    from host.link import BoardClient, RobotIdentity
     from host.link.faultcheck import clear_leftover_fault
     from host.motion.moves import move_to
-    from robots.coco import load_poses, load_servo_table
+    from robots.motion import Limits
 
-    poses = load_poses()
-    names = load_servo_table().names
-    state: dict[str, Any] = {"pose": "-"}
+    poses = robot.poses
+    names = robot.servos.names
+    limits = Limits.of_robot(robot)
+    identity = RobotIdentity(robot.name, robot.servo_count, robot.servo_table_hash)
+    state: dict[str, Any] = {"pose": "-", "robot": robot.title}
     results: list[dict[str, Any]] = []
     live = None
     if sys.stdout.isatty():
@@ -88,15 +91,16 @@ async def _drive(port: LinkSpec, args: argparse.Namespace, out: Path | None) -> 
         live = Live(refresh_per_second=8)
         live.start()
     try:
-        async with await BoardClient.connect(port, log_path=out / "host.jsonl" if out else None, reconnect=False) as client:
+        async with await BoardClient.connect(port, log_path=out / "host.jsonl" if out else None, reconnect=False,
+                                             robot=identity) as client:
             note = await clear_leftover_fault(client)
             if note:
                 print(f"ghostshell tour: {note}", file=sys.stderr)
             printer = asyncio.create_task(_printer(client, names, state, live))
             try:
-                for name in SEQUENCE:
+                for name in robot.tour:
                     state["pose"] = name
-                    res = await move_to(client, poses[name], duration_s=args.duration)
+                    res = await move_to(client, poses[name], limits, duration_s=args.duration)
                     results.append({"pose": name, "max_error_deg": round(res.max_error_deg, 3),
                                     "worst": names[res.worst_index], "board_time_s": res.board_time_us / 1e6})
                     msg = f"reached {name:<8} largest error {res.max_error_deg:.2f} deg ({names[res.worst_index]})"
@@ -124,12 +128,15 @@ def main(args: argparse.Namespace) -> int:
     if why:
         print(f"ghostshell tour: {why}", file=sys.stderr)
         return USAGE_STATUS
+    robot = robot_from_args(args, "tour")
+    if isinstance(robot, int):
+        return robot
     out = Path(args.out) if args.out else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
     board: BoardProcess | None = None
     if args.emulate_board or spec.implies_emulated_board:
-        board_args = ["--lockstep" if args.lockstep else "--realtime"]
+        board_args = ["--lockstep" if args.lockstep else "--realtime", "--robot", str(robot.root)]
         if out is not None:
             board_args += ["--log", str(out / "board.jsonl")]
         try:
@@ -142,7 +149,7 @@ def main(args: argparse.Namespace) -> int:
     code = 0
     rc = 0
     try:
-        summary = asyncio.run(_drive(spec, args, out))
+        summary = asyncio.run(_drive(spec, args, out, robot))
     except LinkError as e:
         print(f"ghostshell tour: {e}", file=sys.stderr)
         code = link_exit_status(e)

@@ -14,7 +14,8 @@
   to completion before the next (a ``<wait>`` per call). Either way there is no
   nesting and no overlap of speech and motion: the structure a flat
   ``tool_calls`` array beside a separate text field has.
-* :func:`judge` checks a board-measured timeline against an expected pattern
+* :func:`judge` checks a board-measured timeline against an expected pattern, in the atoms a
+  robot's ablation module defines (:func:`judge_words`)
   (the task data's ``expected``): ``A -> B`` (B starts after A ended, no overlap),
   ``A || B`` (their intervals overlap), parentheses, and ``outer{a, b}`` for
   lifecycle-scoped termination (outer runs while every inner call runs and stops
@@ -34,6 +35,8 @@ from xml.sax.saxutils import escape, quoteattr
 
 from host.shell.registry import Registry
 from host.shell.types import FunctionSpec, as_range
+from robots.description import Robot
+from robots.registry import load_robot
 
 #: "A -> B": B may start this much before A's measured end (one telemetry period + grid)
 SEQ_TOL_S = 0.05
@@ -177,52 +180,35 @@ class Interval:
     end: float
 
 
-def _arg(c: Interval, *names: str) -> Any:
-    for n in names:
-        if n in c.args:
-            return c.args[n]
-    return None
+@dataclass(frozen=True)
+class JudgeWords:
+    """A robot's words for the judge (its ablation module, robot.toml ``[data] ablation_judge``):
+    ``atoms`` name -> predicate on an :class:`Interval`; ``call_atom(base, args) -> (predicate, check)``
+    for shorthands with arguments; ``lifecycle`` task id -> the pattern ``nested lifecycle`` means."""
+
+    atoms: dict[str, Callable[[Interval], bool]]
+    call_atom: Callable[[str, list[str]], tuple[Callable[[Interval], bool], Callable[[Interval], bool]]]
+    lifecycle: dict[int, str]
 
 
-def _num(v: Any, default: float = 0.0) -> float:
-    try:
-        return float(v)
-    except (TypeError, ValueError):
-        return default
+def judge_words(robot: Robot | None = None) -> JudgeWords:
+    """``robot``'s judge words (default robot when None); ValueError when the robot has no ablation judge."""
+    bot = load_robot() if robot is None else robot
+    path = bot.data.get("ablation_judge")
+    if path is None:
+        raise ValueError(f"{bot.name} has no native-call ablation (robot.toml [data] ablation_judge)")
+    mod = bot.module(path.stem)
+    return JudgeWords(dict(mod.ATOMS), mod.call_atom, dict(getattr(mod, "LIFECYCLE_PATTERNS", {})))
 
-
-#: pattern atom -> predicate on a call (both of CoCo's vocabularies)
-ATOMS: dict[str, Callable[[Interval], bool]] = {
-    "say": lambda c: c.function in ("speak", "say"),
-    "move": lambda c: (c.function in ("run_distance", "move_forward", "spider_run_distance", "creep")
-                       and _num(_arg(c, "distance"), 1.0) > 0 and _arg(c, "direction") in (None, "forward"))
-    or (c.function == "move_strides" and _arg(c, "direction") in (None, "forward")),
-    "backward": lambda c: (c.function in ("run_distance", "spider_run_distance") and _num(_arg(c, "distance"), 0) < 0)
-    or (c.function in ("move_strides", "creep") and _arg(c, "direction") == "backward"),
-    "rotate": lambda c: c.function in ("rotate", "spider_rotate"),
-    "headShake": lambda c: (c.function == "head_act" and _arg(c, "action") == "shake") or c.function == "head_shake",
-    "headNod": lambda c: c.function == "head_act" and _arg(c, "action") in ("nod", None),
-    "earShake": lambda c: c.function in ("shake_ear", "shake_ears", "ear_swing"),
-    "ears": lambda c: c.function in ("shake_ear", "shake_ears", "ear_swing", "ear_state"),
-    "smile": lambda c: c.function in ("face_emo", "display_face", "emotion")
-    and str(_arg(c, "emo", "face")) in ("happy", "smile", "None", "laugh"),
-    "pushUp": lambda c: c.function in ("push_up", "spider_push_up"),
-}
 
 #: the data's shorthand with arguments -> an atom with a check on the measured call
 _CALL_RE = re.compile(r"^(\w+)\(([^)]*)\)$")
 
-#: ``nested lifecycle`` tasks: the pattern each one means (paper Table: lifecycle-scoped termination)
-LIFECYCLE_PATTERNS = {
-    13: "rotate{earShake}",
-    14: "rotate{say}",
-    15: "rotate{headShake, earShake}",
-}
 
-
-def expected_pattern(task_id: int, expected: str) -> str:
+def expected_pattern(task_id: int, expected: str, words: JudgeWords | None = None) -> str:
     """The judge's pattern for an ablation task (``nested lifecycle`` spelled out)."""
-    return LIFECYCLE_PATTERNS.get(task_id, expected) if expected.strip() == "nested lifecycle" else expected
+    lifecycle = (words or judge_words()).lifecycle
+    return lifecycle.get(task_id, expected) if expected.strip() == "nested lifecycle" else expected
 
 
 @dataclass(frozen=True)
@@ -242,31 +228,22 @@ def _tokens(pattern: str) -> list[str]:
 
 
 class _Judge:
-    def __init__(self, calls: Sequence[Interval]) -> None:
+    def __init__(self, calls: Sequence[Interval], words: JudgeWords) -> None:
         self.calls = sorted(calls, key=lambda c: (c.start, c.end))
         self.used: set[int] = set()
+        self.words = words
 
     def atom(self, name: str, after: float) -> tuple[float, float]:
         check: Callable[[Interval], bool] = lambda c: True
+        atoms = self.words.atoms
         m = _CALL_RE.match(name)
         if m:
             base, argtext = m.group(1), [a.strip() for a in m.group(2).split(",") if a.strip()]
-            if base == "headAct":
-                action = argtext[0] if argtext else "nod"
-                secs = next((float(a[:-1]) for a in argtext if a.endswith("s")), None)
-                pred = ATOMS["headNod" if action == "nod" else "headShake"]
-                check = (lambda c: secs is None or abs((c.end - c.start) - secs) <= 0.6 * secs)
-            elif base == "pushUp":
-                times = int(argtext[0]) if argtext else None
-                pred = ATOMS["pushUp"]
-                check = (lambda c: times is None or _arg(c, "times") in (None, times, str(times))
-                         or _num(_arg(c, "times")) == times)
-            else:
-                raise ValueError(f"unknown pattern call {name!r}")
+            pred, check = self.words.call_atom(base, argtext)
         else:
-            if name not in ATOMS:
-                raise ValueError(f"unknown pattern atom {name!r}; known: {', '.join(ATOMS)}")
-            pred = ATOMS[name]
+            if name not in atoms:
+                raise ValueError(f"unknown pattern atom {name!r}; known: {', '.join(atoms)}")
+            pred = atoms[name]
         for i, c in enumerate(self.calls):
             if i in self.used or c.start < after - SEQ_TOL_S:
                 continue
@@ -328,7 +305,7 @@ class _Judge:
             names: list[str] = []
             while True:
                 nxt = self.peek()
-                if nxt is not None and nxt in ATOMS:
+                if nxt is not None and nxt in self.words.atoms:
                     names.append(nxt)
                 inner.append(self.unit(outer[0]))
                 t = self.take()
@@ -339,7 +316,8 @@ class _Judge:
             first, last = min(s for s, _ in inner), max(e for _, e in inner)
             for name in names:  # "saying hello 3 times": every repeat inside the scope counts
                 for c in self.calls:
-                    if name in ATOMS and ATOMS[name](c) and outer[0] - SEQ_TOL_S <= c.start <= outer[1]:
+                    atoms = self.words.atoms
+                    if name in atoms and atoms[name](c) and outer[0] - SEQ_TOL_S <= c.start <= outer[1]:
                         last = max(last, c.end)
             if outer[0] > first + SEQ_TOL_S or outer[1] < last - SEQ_TOL_S:
                 raise _Fail(f"{tok} ({outer[0]:.2f}-{outer[1]:.2f} s) does not span its scoped calls "
@@ -349,10 +327,11 @@ class _Judge:
         return outer
 
 
-def judge(expected: str, calls: Sequence[Interval]) -> Verdict:
-    """Judge a board-measured timeline against ``expected`` (see the module docstring).
-    Calls that never started or never ended are ignored. Raises ValueError on a bad pattern."""
-    j = _Judge([c for c in calls if c.start is not None and c.end is not None])
+def judge(expected: str, calls: Sequence[Interval], words: JudgeWords | None = None) -> Verdict:
+    """Judge a board-measured timeline against ``expected`` (see the module docstring) in ``words``
+    (default: the default robot's). Calls that never started or never ended are ignored. Raises
+    ValueError on a bad pattern."""
+    j = _Judge([c for c in calls if c.start is not None and c.end is not None], words or judge_words())
     try:
         j.parse(_tokens(expected), float("-inf"))
     except _Fail as f:

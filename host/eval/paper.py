@@ -1,9 +1,11 @@
-"""The paper's task data and published numbers (``robots/coco/paper_results.json``).
+"""A robot's evaluation data: its tasks, and the published numbers where a paper has them.
 
-A copy of ``ghostshell_tasks.json`` shipped with the GhostShell paper's tables:
-the 30 grounded HRI tasks (instruction, ground truth, per-task DSBC for 21
-models, mean of 5 rounds), the 15 native-call ablation tasks (expected pattern,
-pass/fail of both modes for GPT-4.1) and the summary numbers.
+Every robot with tasks (robot.toml ``tasks``) can be evaluated: :func:`hri_tasks` gives its tasks
+with a ground truth. A robot whose package also names ``paper_results`` in ``[data]`` (the default robot's: a copy
+of ``ghostshell_tasks.json`` shipped with the GhostShell paper's tables: the 30 grounded HRI tasks
+with per-task DSBC for 21 models, mean of 5 rounds; the 15 native-call ablation tasks with the
+expected pattern and pass/fail of both modes for GPT-4.1; the summary numbers) gets those beside
+its scores, and the ablation. Every function takes the robot (default: the default robot).
 """
 
 from __future__ import annotations
@@ -15,9 +17,8 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-import robots.coco
-
-PAPER_DATA = Path(robots.coco.__file__).with_name("paper_results.json")
+from robots.description import Robot
+from robots.registry import load_robot
 
 
 @dataclass(frozen=True)
@@ -45,31 +46,50 @@ class AblationTask:
     paper_function_token: bool
 
 
-@lru_cache(maxsize=1)
-def _doc() -> dict[str, Any]:
-    return dict(json.loads(PAPER_DATA.read_text(encoding="utf-8")))
+def _robot(robot: Robot | None) -> Robot:
+    return load_robot() if robot is None else robot
 
 
-def hri_tasks() -> dict[int, EvalTask]:
-    """The grounded HRI tasks that have a ground truth (1-30), by id."""
-    return {t["id"]: EvalTask(t["id"], t["category"], t["instruction"], t["ground_truth"], dict(t.get("paper_dsbc", {})))
-            for t in _doc()["hri_tasks"] if t.get("ground_truth")}
+def paper_data(robot: Robot | None = None) -> Path | None:
+    """The robot's published-numbers file (robot.toml ``[data] paper_results``), None when it has none."""
+    return _robot(robot).data.get("paper_results")
 
 
-def ablation_tasks() -> dict[int, AblationTask]:
-    """The 15 native-call ablation tasks, by id."""
+@lru_cache(maxsize=8)
+def _load(path: Path) -> dict[str, Any]:
+    return dict(json.loads(path.read_text(encoding="utf-8")))
+
+
+def _doc(robot: Robot | None = None) -> dict[str, Any]:
+    path = paper_data(robot)
+    return _load(path) if path is not None else {}
+
+
+def hri_tasks(robot: Robot | None = None) -> dict[int, EvalTask]:
+    """The robot's tasks that have a ground truth, by id (with the paper's DSBC where it has them)."""
+    doc = _doc(robot)
+    if doc:
+        return {t["id"]: EvalTask(t["id"], t["category"], t["instruction"], t["ground_truth"],
+                                  dict(t.get("paper_dsbc", {})))
+                for t in doc["hri_tasks"] if t.get("ground_truth")}
+    return {t.id: EvalTask(t.id, t.category, t.instruction, t.ground_truth)
+            for t in _robot(robot).tasks.values() if t.ground_truth}
+
+
+def ablation_tasks(robot: Robot | None = None) -> dict[int, AblationTask]:
+    """The native-call ablation tasks, by id (empty for a robot without the paper's ablation data)."""
     return {t["id"]: AblationTask(t["id"], t["category"], t["instruction"], t["expected"],
                                   bool(t["paper_native_call_passed"]), bool(t["paper_function_token_passed"]))
-            for t in _doc()["native_call_ablation"]}
+            for t in _doc(robot).get("native_call_ablation", [])}
 
 
-def paper_models() -> list[str]:
-    """The 21 models of the paper's DSBC table, in its column order."""
-    return list(_doc()["dsbc_models"])
+def paper_models(robot: Robot | None = None) -> list[str]:
+    """The models of the paper's DSBC table, in its column order (empty without paper data)."""
+    return list(_doc(robot).get("dsbc_models", []))
 
 
-def paper_summary() -> dict[str, Any]:
-    return dict(_doc()["paper_summary"])
+def paper_summary(robot: Robot | None = None) -> dict[str, Any]:
+    return dict(_doc(robot).get("paper_summary", {}))
 
 
 def _norm(name: str) -> str:
@@ -84,7 +104,7 @@ ALIASES = {"claude3.7sonnet": "Claude-Sonnet-3.7", "kimik2": "Kimi-K2", "moonsho
            "qwen3235ba22b": "Qwen3-235B", "qwen3next80ba3b": "Qwen3-next-80B", "llama3.290bvision": "Llama-3.2-90b"}
 
 
-def match_paper_model(model: str) -> str | None:
+def match_paper_model(model: str, robot: Robot | None = None) -> str | None:
     """The paper's column for an API model id, or None when the paper has no such model.
 
     The id is normalised (provider prefix, a trailing date or ``-latest`` dropped,
@@ -95,7 +115,7 @@ def match_paper_model(model: str) -> str | None:
     m = _norm(model)
     if m in ALIASES:
         return ALIASES[m]
-    for name in paper_models():
+    for name in paper_models(robot):
         if _norm(name) == m:
             return name
     return None

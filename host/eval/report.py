@@ -16,6 +16,8 @@ from typing import Any
 import numpy as np
 
 from host.eval.paper import ablation_tasks, hri_tasks, match_paper_model, paper_summary
+from robots.description import Robot
+from robots.registry import DEFAULT_ROBOT, load_robot
 from host.eval.stats import DDOF, averages
 
 
@@ -23,9 +25,13 @@ def _fmt(x: float | None) -> str:
     return "–" if x is None else f"{x:.2f}"
 
 
-def summarise_hri(records: list[dict[str, Any]], paper_model: str | None) -> dict[str, Any]:
+def _robot(config: dict[str, Any]) -> Robot:
+    return load_robot(str(config.get("robot") or DEFAULT_ROBOT), config.get("robots_dir"))
+
+
+def summarise_hri(records: list[dict[str, Any]], paper_model: str | None, robot: Robot | None = None) -> dict[str, Any]:
     """Micro/macro over trials, per-task means and clean-run counts, the paper's values beside."""
-    tasks = hri_tasks()
+    tasks = hri_tasks(robot)
     scores = {(r["task"], r["trial"]): float(r["dsbc"]) for r in records}
     out: dict[str, Any] = {"jobs": len(records)}
     if not scores:
@@ -58,9 +64,9 @@ def summarise_hri(records: list[dict[str, Any]], paper_model: str | None) -> dic
     return out
 
 
-def summarise_ablation(records: list[dict[str, Any]], native: bool) -> dict[str, Any]:
+def summarise_ablation(records: list[dict[str, Any]], native: bool, robot: Robot | None = None) -> dict[str, Any]:
     """Passes per task (a task passes in a trial when the judge passes its timeline)."""
-    tasks = ablation_tasks()
+    tasks = ablation_tasks(robot)
     by_task: dict[int, list[bool]] = defaultdict(list)
     for r in records:
         if "passed" in r:
@@ -70,7 +76,7 @@ def summarise_ablation(records: list[dict[str, Any]], native: bool) -> dict[str,
                 for t, v in sorted(by_task.items())}
     # a task counts as completed when it passed in the majority of its trials
     completed = sum(1 for v in by_task.values() if v and sum(v) * 2 > len(v))
-    paper = paper_summary()["function_tokens_vs_native"]
+    paper = paper_summary(robot)["function_tokens_vs_native"]
     return {"mode": "native" if native else "function_tokens", "completed": completed, "tasks": len(by_task),
             "per_task": per_task, "paper": paper["native_calls" if native else "function_tokens"],
             "paper_other_mode": paper["function_tokens" if native else "native_calls"]}
@@ -78,11 +84,12 @@ def summarise_ablation(records: list[dict[str, Any]], native: bool) -> dict[str,
 
 def write_reports(out: Path, config: dict[str, Any], records: list[dict[str, Any]]) -> dict[str, Any]:
     """Write eval.json, eval.md and eval.png into ``out``; returns the summary."""
-    paper_model = config.get("paper_model") or match_paper_model(config["llm"])
+    robot = _robot(config)
+    paper_model = config.get("paper_model") or match_paper_model(config["llm"], robot)
     if config["suite"] == "ablation":
-        summary = summarise_ablation(records, config["native_tools"])
+        summary = summarise_ablation(records, config["native_tools"], robot)
     else:
-        summary = summarise_hri(records, paper_model)
+        summary = summarise_hri(records, paper_model, robot)
     doc = {"config": config, "paper_model": paper_model, "summary": summary, "records": records}
     (out / "eval.json").write_text(json.dumps(doc, indent=1, ensure_ascii=False, default=str) + "\n", encoding="utf-8")
     (out / "eval.md").write_text(_markdown(config, paper_model, summary), encoding="utf-8")
@@ -91,7 +98,7 @@ def write_reports(out: Path, config: dict[str, Any], records: list[dict[str, Any
 
 
 def _markdown(config: dict[str, Any], paper_model: str | None, s: dict[str, Any]) -> str:
-    lines = [f"# ghostshell eval: {config['llm']}", ""]
+    lines = [f"# ghostshell eval: {config['llm']} on {_robot(config).name}", ""]
     if config["suite"] == "ablation":
         mode = "native function calls" if config["native_tools"] else "function tokens"
         lines += [f"Native-call ablation, {mode}: **{s['completed']}/{s['tasks']}** tasks completed "

@@ -1,7 +1,7 @@
-"""``ghostshell eval``: the paper's evaluation of an LLM, resumable and parallel.
+"""``ghostshell eval``: the paper's evaluation of an LLM on a robot's tasks, resumable and parallel.
 
-For every (task, trial): the system prompt exactly as ``ghostshell prompt``
-builds it, the task's instruction as the user message, the streamed reply; DSBC
+For every (task, trial) of the robot (``SweepConfig.robot``): the system prompt exactly as
+``ghostshell prompt --robot R`` builds it, the task's instruction as the user message, the streamed reply; DSBC
 against the ground truth (:func:`host.eval.dsbc.dsbc_breakdown`); the reply
 executed on an emulated board in lockstep (:func:`host.run.runner.run_program`
 replaying the reply through the shell, one board subprocess per job) to record
@@ -28,15 +28,20 @@ from typing import IO, Any
 import anyio
 
 from host.eval.dsbc import dsbc_breakdown
-from host.eval.native import (ToolCall, expected_pattern, intervals_from_timeline, judge, native_program,
-                              parse_arguments, tool_schemas)
+from host.eval.native import (ToolCall, expected_pattern, intervals_from_timeline, judge, judge_words,
+                              native_program, parse_arguments, tool_schemas)
 from host.eval.paper import ablation_tasks, hri_tasks
 from host.ghost import GhostError, make_ghost
+from host.robot.binding import robot_registry
+from robots.description import Robot
+from robots.registry import DEFAULT_ROBOT, load_robot
 
 log = logging.getLogger("host.eval")
 
 RESULTS = "results.jsonl"
 CONFIG = "config.json"
+#: the LLM spec that answers every task with its ground truth (no model: micro = macro = 1.0)
+GROUND_TRUTH = "ground-truth"
 
 
 @dataclass
@@ -46,6 +51,8 @@ class SweepConfig:
 
     llm: str
     tasks: list[int]
+    robot: str = DEFAULT_ROBOT  # a robot name or folder (robots.registry); robots_dir is searched first
+    robots_dir: str | None = None
     trials: int = 5
     suite: str = "hri"
     native_tools: bool = False
@@ -53,7 +60,7 @@ class SweepConfig:
     api_key: str | None = None
     workers: int = 1
     out: Path = Path("runs/eval")
-    vocabulary: str = "paper"
+    vocabulary: str | None = None  # None: the robot's default vocabulary
     mode: str = "async-first"
     prompt_format: str = "code"
     execute: bool = True
@@ -64,21 +71,40 @@ class SweepConfig:
 
     def identity(self) -> dict[str, Any]:
         """What must match for a resumed sweep to continue this one."""
-        return {"llm": self.llm, "suite": self.suite, "native_tools": self.native_tools, "native_exec": self.native_exec,
+        return {"llm": self.llm, "robot": self.bot.name, "suite": self.suite, "native_tools": self.native_tools,
+                "native_exec": self.native_exec,
                 "vocabulary": self.vocabulary, "mode": self.mode, "prompt_format": self.prompt_format,
                 "base_url": self.base_url, "tasks": list(self.tasks), "trials": self.trials}
+
+
+    @property
+    def bot(self) -> Robot:
+        """The robot (loaded once per process)."""
+        return load_robot(self.robot, self.robots_dir)
 
 
 def job_key(task: int, trial: int) -> str:
     return f"{task}:{trial}"
 
 
+class _Signatures:
+    """A performer for the registry's signatures only: nothing is ever called on it."""
+
+    async def perform(self, behaviour: str, channel: str, args: dict[str, Any]) -> Any:
+        raise RuntimeError("the eval prompt does not execute calls")
+
+    async def reset(self, behaviour: str, channel: str) -> None:
+        return None
+
+    async def speak(self, text: str) -> Any:
+        raise RuntimeError("the eval prompt does not execute calls")
+
+
 def system_prompt(cfg: SweepConfig) -> str:
-    """The system prompt exactly as ``ghostshell prompt --format F --mode M --vocabulary V`` prints it."""
-    from host.commands.prompt import build_registry
+    """The system prompt exactly as ``ghostshell prompt --robot R --format F --mode M --vocabulary V`` prints it."""
     from host.shell.prompt import render_prompt
 
-    registry, _ = build_registry(None, cfg.vocabulary)
+    registry = robot_registry(cfg.bot, _Signatures(), cfg.vocabulary)
     return render_prompt(registry, format=cfg.prompt_format, mode=cfg.mode)
 
 
@@ -87,18 +113,22 @@ def provider_of(llm: str) -> str:
 
 
 def _instruction(cfg: SweepConfig, task: int) -> str:
-    return (ablation_tasks()[task].instruction if cfg.suite == "ablation" else hri_tasks()[task].instruction)
+    return (ablation_tasks(cfg.bot)[task].instruction if cfg.suite == "ablation" else
+            hri_tasks(cfg.bot)[task].instruction)
 
 
 async def ask(cfg: SweepConfig, task: int, system: str) -> dict[str, Any]:
     """The LLM's reply to one task: ``{"reply", "text", "tool_calls", "first_token_s", "llm_s"}``.
     Raises GhostError when the provider fails (after its retries)."""
+    if cfg.llm == GROUND_TRUTH:  # offline: the task's own ground truth, as if a model had written it
+        if cfg.suite != "hri":
+            raise GhostError("--llm ground-truth answers tasks with a ground truth, not the ablation's patterns")
+        truth = hri_tasks(cfg.bot)[task].ground_truth
+        return {"reply": truth, "text": truth, "tool_calls": [], "first_token_s": 0.0, "llm_s": 0.0}
     kw: dict[str, Any] = {"base_url": cfg.base_url, "api_key": cfg.api_key, "temperature": cfg.temperature,
                           "max_retries": cfg.max_retries}
     if cfg.native_tools:
-        from host.commands.prompt import build_registry
-
-        registry, _ = build_registry(None, cfg.vocabulary)
+        registry = robot_registry(cfg.bot, _Signatures(), cfg.vocabulary)
         kw["tools"] = tool_schemas(registry, "anthropic" if provider_of(cfg.llm) == "anthropic" else "openai")
     ghost = make_ghost(cfg.llm, **kw)
     messages = [{"role": "system", "content": system}, {"role": "user", "content": _instruction(cfg, task)}]
@@ -134,7 +164,8 @@ async def execute(cfg: SweepConfig, program: str, out: Path, label: str) -> dict
     """Run ``program`` on a fresh lockstep board; the run's outcome and board-measured calls."""
     from host.run.runner import RunOptions, run_program
 
-    opts = RunOptions(program=program, llm="scripted", task_label=label, vocabulary=cfg.vocabulary,
+    opts = RunOptions(program=program, llm="scripted", task_label=label, robot=str(cfg.bot.root),
+                      robots_dir=cfg.robots_dir, vocabulary=cfg.vocabulary,
                       mode=cfg.mode, strict=True, lockstep=True, out=out, tokens_per_s=cfg.tokens_per_s)
     try:
         report = await run_program(opts)
@@ -157,21 +188,22 @@ async def run_job(cfg: SweepConfig, task: int, trial: int, system: str) -> dict[
     except GhostError as err:
         return {**rec, "status": "llm_error", "error": str(err)}
     if cfg.suite == "hri":
-        t = hri_tasks()[task]
+        t = hri_tasks(cfg.bot)[task]
         res = dsbc_breakdown(t.ground_truth, rec["reply"])
         rec["category"] = t.category
         rec["dsbc"] = res.score
         rec["layers"] = [asdict(layer) for layer in res.layers]
         rec["parse_warnings"] = list(res.warnings)
     else:
-        rec["category"] = ablation_tasks()[task].category
+        rec["category"] = ablation_tasks(cfg.bot)[task].category
     if cfg.execute:
         run_dir = cfg.out / "runs" / f"task-{task:02d}-trial-{trial}"
         rec["run"] = await execute(cfg, rec["reply"], run_dir, f"task {task} trial {trial}")
         if cfg.suite == "ablation":
-            a = ablation_tasks()[task]
-            pattern = expected_pattern(task, a.expected)
-            v = judge(pattern, intervals_from_timeline(rec["run"]["calls"]))
+            a = ablation_tasks(cfg.bot)[task]
+            words = judge_words(cfg.bot)
+            pattern = expected_pattern(task, a.expected, words)
+            v = judge(pattern, intervals_from_timeline(rec["run"]["calls"]), words)
             rec["pattern"], rec["passed"], rec["verdict"] = pattern, v.passed, v.reason
     return rec
 
@@ -200,6 +232,7 @@ def _check_config(cfg: SweepConfig) -> None:
     if path.exists():
         old = json.loads(path.read_text(encoding="utf-8"))
         old.setdefault("tasks", ident["tasks"])  # written by versions that did not record them
+        old.setdefault("robot", ident["robot"])
         old.setdefault("trials", ident["trials"])
         diff = {k: (old.get(k), v) for k, v in ident.items() if k != "trials" and old.get(k) != v}
         if old["trials"] > cfg.trials:

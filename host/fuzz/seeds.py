@@ -146,9 +146,10 @@ def main(argv: list[str] | None = None) -> int:
         for receiver in ("board", "host"):
             for fd in (False, True):
                 can += can_records(frames, receiver, fd=fd)[:2]
-    from robots.coco.tasks import load_tasks
+    from robots.registry import load_robot
 
-    shell = [flag + t.ground_truth.encode() + _TAIL for t in load_tasks().values() if t.ground_truth for flag in (b"\0", b"\1")]
+    tasks = load_robot().tasks
+    shell = [flag + t.ground_truth.encode() + _TAIL for t in tasks.values() if t.ground_truth for flag in (b"\0", b"\1")]
     for name, seeds in (("serial-decoder", serial), ("session", session), ("board", board), ("shell", shell),
                         ("can-decoder", can)):
         print(f"{name}: {write_seeds(a.out / name / 'corpus', seeds, 60 if name == 'shell' else 24)} seed(s)")

@@ -11,7 +11,7 @@ Each input runs twice:
    nest properly; held-back input stays under ``MAX_TOKEN``; the mapper raises only
    :class:`MappingError`; every mapped argument satisfies its annotation
    (:func:`host.fuzz.validate.conforms`);
-2. through :class:`host.shell.shell.Shell` on Trio's ``MockClock`` (virtual time) with CoCo's paper
+2. through :class:`host.shell.shell.Shell` on Trio's ``MockClock`` (virtual time) with the default robot's
    vocabulary bound to a recorder: no exception escapes the run, and every call that reaches an
    implementation has exactly the declared parameters, each one conforming.
 """
@@ -45,7 +45,11 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
     from host.shell.registry import Registry
     from host.shell.shell import Shell
     from host.shell.types import Module, params_of, shell_function
-    from robots.coco import interface as coco_interface
+    from robots.interface import class_stubs, stub_info
+    from robots.registry import load_robot
+
+    robot = load_robot()  # the default robot's default vocabulary (the seeds are its tasks)
+    vocabulary = robot.interface.vocabularies[robot.interface.default]
 
     calls: list[tuple[str, dict[str, Any]]] = []
     params: dict[str, dict[str, Any]] = {}
@@ -62,10 +66,10 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
         calls.append(("speak", {"text": text}))
 
     modules = [Module.from_functions("speak", speak, channel="speech")]
-    for module_name, iface in coco_interface.VOCABULARIES["paper"].items():
-        stubs = {n: f for n, f in vars(iface).items() if hasattr(f, "__coco_stub__")}
+    for module_name, iface in vocabulary.items():
+        stubs = class_stubs(iface)
         impl = SimpleNamespace(**{n: recorder(n) for n in stubs})
-        channel = next(iter(stubs.values())).__coco_stub__.channel
+        channel = stub_info(next(iter(stubs.values()))).channel  # type: ignore[union-attr]
         view = type(iface.__name__, (), {"__doc__": iface.__doc__, **stubs})
         modules.append(Module.bind(module_name, view, impl, channel=channel))
         for n, f in stubs.items():
@@ -127,11 +131,10 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
             assert all(k in kwargs for k, a in declared.items() if _required(name, k)), f"{name} missing args"
 
     required: dict[tuple[str, str], bool] = {}
-    for module_name, iface in coco_interface.VOCABULARIES["paper"].items():
-        for n, f in vars(iface).items():
-            if hasattr(f, "__coco_stub__"):
-                for p in inspect.signature(f).parameters.values():
-                    required[(n, p.name)] = p.default is inspect.Parameter.empty and p.name != "self"
+    for module_name, iface in vocabulary.items():
+        for n, f in class_stubs(iface).items():
+            for p in inspect.signature(f).parameters.values():
+                required[(n, p.name)] = p.default is inspect.Parameter.empty and p.name != "self"
 
     def _required(name: str, param: str) -> bool:
         return required.get((name, param), False)

@@ -1,16 +1,16 @@
-"""host/link: the host end of the link to CoCo's board.
+"""host/link: the host end of the link to a robot's board.
 
 The session (:mod:`host.link.session`, :class:`BoardClient`) runs over a transport
 (:mod:`host.link.transports`: serial; CAN plugs in) built from a link spec
 (:mod:`protocol.linkspec`).
 """
 
-from host.link.session import ALL_SERVOS, FAULT_BITS, BoardClient, FaultEvent, LinkStats, host_now_us
-from host.link.errors import BoardFaulted, HandshakeError, LinkConfigError, LinkDown, LinkError, LinkTimeout, NackError
+from host.link.session import FAULT_BITS, BoardClient, FaultEvent, LinkStats, RobotIdentity, host_now_us
+from host.link.errors import (BoardFaulted, HandshakeError, LinkConfigError, LinkDown, LinkError, LinkTimeout, NackError,
+                             RobotMismatch)
 from host.link.timesync import ClockEstimate, ClockSync
 
 __all__ = [
-    "ALL_SERVOS",
     "FAULT_BITS",
     "BoardClient",
     "BoardFaulted",
@@ -24,5 +24,7 @@ __all__ = [
     "LinkStats",
     "LinkTimeout",
     "NackError",
+    "RobotIdentity",
+    "RobotMismatch",
     "host_now_us",
 ]

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from protocol.messages import MsgType, Nack, NackReason
 
-__all__ = ["BoardFaulted", "HandshakeError", "LinkConfigError", "LinkDown", "LinkError", "LinkTimeout", "NackError"]
+__all__ = ["BoardFaulted", "HandshakeError", "LinkConfigError", "LinkDown", "LinkError", "LinkTimeout", "NackError",
+           "RobotMismatch"]
 
 
 class LinkError(Exception):
@@ -33,6 +34,11 @@ class BoardFaulted(LinkError):
 
 class HandshakeError(LinkError):
     """HELLO/CAPS failed: wrong protocol version or schema, or no board answering."""
+
+
+class RobotMismatch(HandshakeError):
+    """The board drives another robot (name, servo count or servo table hash in CAPS differ from the
+    robot the host was started for): a usage error, exit status 2, never retried."""
 
 
 class NackError(LinkError):

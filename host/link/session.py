@@ -1,4 +1,4 @@
-"""The link session: an asyncio client for CoCo's board, written once above every transport.
+"""The link session: an asyncio client for a robot's board, written once above every transport.
 
 ``BoardClient`` owns one :class:`host.link.transports.base.Transport` (serial, CAN; built
 from a link spec by :func:`host.link.transports.open_transport`), speaks protocol v1 over
@@ -46,7 +46,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from host.link.errors import HandshakeError, LinkDown, LinkError, LinkTimeout, NackError
+from host.link.errors import HandshakeError, LinkDown, LinkError, LinkTimeout, NackError, RobotMismatch
 from host.link.timesync import ClockEstimate, ClockSync
 from host.link.transports import Transport, open_transport
 from protocol.codec import MAX_RESEND_BITMAP, SCHEMA_HASH
@@ -84,11 +84,11 @@ from protocol.messages import (
     TimeSyncRequest,
 )
 
-__all__ = ["ALL_SERVOS", "FAULT_BITS", "BoardClient", "FaultEvent", "LinkStats", "LinkTarget", "host_now_us"]
+__all__ = ["FAULT_BITS", "BoardClient", "FaultEvent", "LinkStats", "LinkTarget", "RobotIdentity", "host_now_us"]
 
 log = logging.getLogger("host.link")
-
-ALL_SERVOS = (1 << 12) - 1
+#: TIME_SYNC exchanges tried at connect before the link counts as failed (each waits 0.5, 1, then 2 s)
+SYNC_ATTEMPTS = 6
 #: telemetry bits that are reported as fault edges
 FAULT_BITS = FaultFlags.ESTOP | FaultFlags.WATCHDOG_HOLD | FaultFlags.WATCHDOG_FAULT
 
@@ -101,6 +101,18 @@ PortSpec = LinkTarget  # old name
 def host_now_us() -> int:
     """The host clock used for time sync: ``time.monotonic`` in integer microseconds."""
     return time.monotonic_ns() // 1000
+
+
+@dataclass(frozen=True)
+class RobotIdentity:
+    """What the host expects CAPS to report: the robot's name, servo count and servo table hash (u32)."""
+
+    name: str
+    servo_count: int
+    servo_table_hash: int
+
+    def __str__(self) -> str:
+        return f"{self.name!r} ({self.servo_count} servos, servo table {self.servo_table_hash:#010x})"
 
 
 @dataclass(frozen=True)
@@ -169,8 +181,10 @@ class BoardClient:
         schema_hash: int = SCHEMA_HASH,
         force_thread: bool = False,
         transport_options: dict[str, Any] | None = None,
+        robot: RobotIdentity | None = None,
     ) -> None:
         self._port = link
+        self.robot = robot
         self.baud = baud
         self.reply_timeout = reply_timeout
         self.handshake_timeout = handshake_timeout
@@ -375,7 +389,7 @@ class BoardClient:
                     fut.cancel()
                 raise HandshakeError(
                     f"no CAPS from {self.port_name!r} within {self.handshake_timeout} s: "
-                    "is a CoCo board (python -m firmware_sim) serving this port?"
+                    "is a GhostShell board (ghostshell board, python -m firmware_sim) serving this port?"
                 ) from None
         finally:
             self._hello_fut = None
@@ -389,6 +403,13 @@ class BoardClient:
                 f"schema mismatch: board {caps.schema_hash:#010x}, host {self.schema_hash:#010x}: "
                 "host and board were built from different protocol definitions; update one side"
             )
+        want = self.robot
+        if want is not None:
+            board = RobotIdentity(caps.robot, caps.servo_count, caps.servo_table_hash)
+            if board != want:
+                raise RobotMismatch(
+                    f"the board on {self.port_name} drives robot {board}, but this host was started for {want}: "
+                    "start host and board with the same --robot (and the same robot files)")
         return caps
 
     def _on_lost(self, reason: str) -> None:
@@ -534,13 +555,20 @@ class BoardClient:
         """Queue a timed servo frame; returns its sequence number (a NACK is recorded, see :meth:`frame_nack`)."""
         return self.send(frame)
 
-    def send_targets(self, apply_at_us: int, targets: Sequence[float], mask: int = ALL_SERVOS) -> int:
+    def all_mask(self) -> int:
+        """The mask of every servo the board has (from CAPS; bits 0..N-1)."""
+        if self.caps is None:
+            raise LinkDown("not connected: no CAPS yet")
+        return (1 << self.caps.servo_count) - 1
+
+    def send_targets(self, apply_at_us: int, targets: Sequence[float], mask: int | None = None) -> int:
         """Convenience: a :class:`ServoFrame` for ``targets`` (one per mask bit) at ``apply_at_us``."""
+        mask = self.all_mask() if mask is None else mask
         return self.send_frame(ServoFrame(int(apply_at_us), mask, tuple(float(v) for v in targets)))
 
-    async def flush(self, from_us: int, mask: int = ALL_SERVOS) -> Ack:
+    async def flush(self, from_us: int, mask: int | None = None) -> Ack:
         """Drop buffered frames due at or after ``from_us`` (board time) for the masked servos."""
-        return await self.request(Flush(int(from_us), mask))
+        return await self.request(Flush(int(from_us), self.all_mask() if mask is None else mask))
 
     async def estop(self) -> Ack:
         """Emergency stop: the board holds where it is and refuses frames until :meth:`estop_clear`.
@@ -667,14 +695,15 @@ class BoardClient:
 
     async def _sync_burst(self) -> None:
         for _ in range(self.sync_burst if not self.lockstep else 1):
-            # a lost probe or reply costs a retry, not the connection; a board slow to answer (a loaded
-            # machine, a board still loading its model) gets longer each time: 0.5, 1, 2 s
-            for attempt in range(3):
+            # a lost probe or reply costs a retry, not the connection (at 5 % frame loss a classic-CAN
+            # exchange of 6 frames fails 1 time in 4, three in a row 1 in 50); a board slow to answer (a
+            # loaded machine, a board still loading its model) gets longer each time: 0.5, 1, 2, 2, 2, 2 s
+            for attempt in range(SYNC_ATTEMPTS):
                 try:
-                    await self.sync_once(timeout=0.5 * 2**attempt)
+                    await self.sync_once(timeout=min(2.0, 0.5 * 2**attempt))
                     break
                 except LinkTimeout:
-                    if attempt == 2:
+                    if attempt == SYNC_ATTEMPTS - 1:
                         raise
                     self.stats.retries += 1
 

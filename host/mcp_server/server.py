@@ -9,7 +9,7 @@ shell) lives as long as the server (the SDK's lifespan) and serves every call:
 * tool ``interrupt(channels?)``: interrupts the running program (all channels,
   or the named ones) and returns how many calls were cancelled;
 * tool ``state()``: board time, base pose, tilt, fell, busy channels, the scene;
-* tool ``capture()``: a head-camera picture as MCP image content;
+* tool ``capture()``: a picture from the robot's camera as MCP image content (robots with a camera);
 * resource ``ghostshell://functions`` and prompt ``system_prompt``: the
   function stubs as the LLM sees them (code-as-prompt).
 
@@ -31,13 +31,17 @@ from mcp.server.mcpserver.exceptions import ToolError
 from mcp.server.mcpserver.utilities.types import Image
 
 from host.run.session import RobotSession, SessionOptions
+from robots.registry import load_robot
 
 #: the function stubs' resource URI
 FUNCTIONS_URI = "ghostshell://functions"
 
 
 def build_server(opts: SessionOptions) -> MCPServer[Any]:
-    """An ``MCPServer`` whose lifespan holds one robot session built from ``opts``."""
+    """An ``MCPServer`` whose lifespan holds one robot session built from ``opts``.
+
+    Raises :class:`robots.description.RobotDataError` when ``opts.robot`` names no usable robot."""
+    robot = load_robot(opts.robot, opts.robots_dir)
     holder: dict[str, RobotSession] = {}
     turn_lock = anyio.Lock()
 
@@ -58,9 +62,10 @@ def build_server(opts: SessionOptions) -> MCPServer[Any]:
 
     server = MCPServer(
         name="ghostshell",
-        instructions="Drive the CoCo robot (emulated board) by streaming function-token programs: "
-        "read the ghostshell://functions resource for the functions, then call run_program with XML "
-        "such as <head_act action=\"nod\"/>Hello!",
+        instructions=f"Drive the {robot.title} robot ({robot.servo_count} servos, emulated board) by streaming "
+        "function-token programs: read the ghostshell://functions resource for the functions, then call "
+        f"run_program with XML such as <pose name=\"{robot.start_pose}\"/>"
+        + ("Hello!" if robot.peripherals.speaker else ""),
         lifespan=lifespan,
     )
 
@@ -91,11 +96,12 @@ def build_server(opts: SessionOptions) -> MCPServer[Any]:
         """The robot now: board time (s), base pose [x m, y m, yaw deg], tilt, fell, running calls."""
         return session().state()
 
-    @server.tool()
-    async def capture() -> Image:
-        """A picture from the head camera (PNG)."""
-        path = await session().capture()
-        return Image(path=path)
+    if robot.peripherals.camera is not None:
+        @server.tool()
+        async def capture() -> Image:
+            """A picture from the robot's camera (PNG)."""
+            path = await session().capture()
+            return Image(path=path)
 
     @server.resource(FUNCTIONS_URI, mime_type="text/markdown")
     async def functions() -> str:

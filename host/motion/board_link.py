@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from host.link.client import BoardClient
+from host.link import BoardClient
 from protocol.messages import Flush, ServoFrame
 
 #: One-way latency (µs) assumed before any TIME_SYNC round trip was measured.

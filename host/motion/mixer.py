@@ -26,7 +26,7 @@ import numpy as np
 
 
 class MotionLike(Protocol):
-    """What the mixer needs of a motion (``robots.coco.motions.Motion`` fits)."""
+    """What the mixer needs of a motion (``robots.motion.Motion`` fits)."""
 
     @property
     def servos(self) -> tuple[int, ...]: ...

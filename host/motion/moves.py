@@ -1,6 +1,6 @@
 """Whole-body moves outside a program run: "go to this pose and confirm" (``ghostshell pose``/``tour``).
 
-The same road to the servos as a run: a minimum-jerk :func:`robots.coco.trajectory.transition`
+The same road to the servos as a run: a minimum-jerk :func:`robots.motion.transition`
 placed on a :class:`~host.motion.mixer.Mixer` and streamed by a
 :class:`~host.motion.streamer.FrameStreamer` over a :class:`~host.motion.board_link.BoardFrameLink`
 (one frame every ``1 / rate_hz`` s, ``lookahead`` ahead of the board). Telemetry confirms the
@@ -18,13 +18,13 @@ from dataclasses import dataclass
 import anyio
 import numpy as np
 
-from host.link.client import FAULT_BITS, BoardClient
+from host.link import FAULT_BITS, BoardClient
 from host.link.errors import LinkError, LinkTimeout, NackError
 from host.motion.board_link import BoardFrameLink
 from host.motion.mixer import Mixer
 from host.motion.streamer import FrameStreamer
 from protocol.messages import FaultFlags, Nack, Telemetry
-from robots.coco.trajectory import transition
+from robots.motion import Limits, transition
 
 __all__ = ["MoveResult", "current_positions", "max_error_deg", "move_to"]
 
@@ -64,6 +64,7 @@ async def current_positions(client: BoardClient, timeout: float = 2.0) -> tuple[
 async def move_to(
     client: BoardClient,
     target: Sequence[float],
+    limits: Limits | None = None,
     *,
     duration_s: float = 1.0,
     rate_hz: float = 100.0,
@@ -74,7 +75,8 @@ async def move_to(
 ) -> MoveResult:
     """Min-jerk move of all servos to ``target`` (rad); returns once telemetry shows every servo
     within ``tolerance_deg``. The move lasts at least ``duration_s`` and never asks a servo for
-    more than its table speed (times a margin) or ``max_speed`` (rad/s).
+    more than its table speed in ``limits`` (times a margin) or ``max_speed`` (rad/s); without
+    ``limits``, those of the robot the board reported in CAPS (found on the robot search path).
 
     Raises :class:`LinkTimeout` when the servos do not get there within ``settle_timeout_s`` of
     board time after the trajectory ends (the message names the worst servo) or the whole move
@@ -89,7 +91,12 @@ async def move_to(
     q0 = np.asarray(start.positions, dtype=float)
     goal = np.asarray(target, dtype=float)
     servos = tuple(range(len(goal)))
-    motion = transition(q0, goal, servos, max_speed=max_speed, min_duration=duration_s)
+    if limits is None:
+        from robots.registry import load_robot
+
+        name = client.caps.robot if client.caps is not None and client.caps.robot else None
+        limits = Limits.of_robot(load_robot(name) if name else load_robot())
+    motion = transition(q0, goal, servos, limits, max_speed=max_speed, min_duration=duration_s)
     link = BoardFrameLink(client)
     period_us = max(1, int(round(1e6 / rate_hz)))
     streamer = FrameStreamer(link, Mixer(q0), period_us=period_us, lookahead_us=max(60_000, 3 * period_us),

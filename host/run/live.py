@@ -9,14 +9,21 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from host.coco.runtime import CocoRuntime
+from host.robot.runtime import RobotRuntime
 from host.shell import Shell
 from host.shell.timeline import Timeline
 
-CHANNELS = ("main", "speech", "face", "head", "ears", "body", "bgm", "camera")
+
+def channels(shell: Shell) -> list[str]:
+    """The rows of the view: the main channel, then every channel of a visible mounted module."""
+    out = ["main"]
+    for m in shell.registry.modules():
+        if not getattr(m, "hidden", False) and m.channel and m.channel not in out:
+            out.append(m.channel)
+    return out
 
 
-def _table(shell: Shell, runtime: CocoRuntime, label: str, last: list[Timeline] | None = None) -> Table:
+def _table(shell: Shell, runtime: RobotRuntime, label: str, last: list[Timeline] | None = None) -> Table:
     """The channel table; ``last`` remembers the latest timeline so it stays shown between turns."""
     now = runtime.board_now_s()
     table = Table(title=f"{label}   board time {now:7.2f} s", title_justify="left", expand=False)
@@ -31,7 +38,7 @@ def _table(shell: Shell, runtime: CocoRuntime, label: str, last: list[Timeline] 
         elif last:
             tl = last[0]
     records = list(tl) if tl is not None else []
-    for ch in CHANNELS:
+    for ch in channels(shell):
         mine = [r for r in records if r.channel == ch]
         running = [r for r in mine if r.start is not None and r.end is None]
         finished = [r for r in mine if r.end is not None]
@@ -49,7 +56,7 @@ def _args(args: dict) -> str:
     return f"({text[:40]})"
 
 
-async def live_view(shell: Shell, runtime: CocoRuntime, label: str, period_s: float = 0.25) -> None:
+async def live_view(shell: Shell, runtime: RobotRuntime, label: str, period_s: float = 0.25) -> None:
     """Redraw the channel table until cancelled (only on a terminal)."""
     if not sys.stdout.isatty():
         await anyio.sleep_forever()

@@ -16,14 +16,13 @@ import anyio
 import anyio.lowlevel
 import numpy as np
 
-from host.coco.runtime import CocoRuntime
-from host.link.client import BoardClient
+from host.link import BoardClient
 from host.link.errors import LinkError
 from host.link.faultcheck import clear_command
+from host.robot.runtime import RobotRuntime
 from host.run import artefacts
 from protocol.messages import FaultFlags
-from robots.coco import load_poses
-from robots.coco.motions import transition
+from robots.motion import transition
 
 HISTORY = 360_000  # telemetry samples kept for the plots (2 h at 50 Hz); older ones are dropped
 
@@ -68,7 +67,7 @@ def watchdog_fault_message(client: BoardClient, board_time_us: int) -> str:
             f"A board that outlives the run keeps the fault latched until cleared: `{clear_command(client.link_spec)}`")
 
 
-async def pump(client: BoardClient, runtime: CocoRuntime, rec: Recorder) -> None:
+async def pump(client: BoardClient, runtime: RobotRuntime, rec: Recorder) -> None:
     """Telemetry -> confirmations, top-ups and the history.
 
     A latched watchdog fault (the link was cut for longer than watchdog + crouch delay) ends the
@@ -95,7 +94,7 @@ async def pump(client: BoardClient, runtime: CocoRuntime, rec: Recorder) -> None
             await runtime.streamer.top_up()
 
 
-async def silence_watchdog(runtime: CocoRuntime, rec: Recorder, client: BoardClient | None = None) -> None:
+async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardClient | None = None) -> None:
     """Fail the run when the board stops reporting (it died, or the link hung), or when the host
     stops streaming frames to it (a stalled streamer must end the run, not hang it).
 
@@ -134,14 +133,14 @@ async def silence_watchdog(runtime: CocoRuntime, rec: Recorder, client: BoardCli
                     await client.advance(target)
 
 
-def lockstep_nudge_target(client: BoardClient, runtime: CocoRuntime, previous: int) -> int:
+def lockstep_nudge_target(client: BoardClient, runtime: RobotRuntime, previous: int) -> int:
     """Board time (us) a lockstep nudge ADVANCEs to: one report period and one tick past the last
     frame sent (or past the previous nudge, or the link's estimate, whichever is latest)."""
     covered = runtime.streamer.next_us - runtime.streamer.period_us
     return max(client.board_now_estimate(), covered, previous) + client.report_period_us()
 
 
-async def realtime_topper(runtime: CocoRuntime) -> None:
+async def realtime_topper(runtime: RobotRuntime) -> None:
     period = runtime.streamer.period_us * 1e-6
     while True:
         await runtime.streamer.top_up()
@@ -190,7 +189,7 @@ class BoardPacer:
     summed from the first call and each wait targets the running deadline.
     """
 
-    def __init__(self, runtime: CocoRuntime) -> None:
+    def __init__(self, runtime: RobotRuntime) -> None:
         self.runtime = runtime
         self.deadline_us: int | None = None
 
@@ -202,10 +201,10 @@ class BoardPacer:
         await streamer.wait_board_time(self.deadline_us)
 
 
-async def go_to_pose(runtime: CocoRuntime, pose: str) -> None:
-    """Move every servo smoothly to a named pose before the program starts."""
-    target = np.asarray(load_poses()[pose])
+async def go_to_pose(runtime: RobotRuntime, pose: str) -> None:
+    """Move every servo smoothly to the robot's named pose before the program starts."""
+    target = np.asarray(runtime.robot.pose(pose))
     start = runtime.streamer.planned_targets()
     servos = tuple(range(len(target)))
-    seg = runtime.streamer.add(transition(start, target, servos), label=f"prepare:{pose}")
+    seg = runtime.streamer.add(transition(start, target, servos, runtime.limits), label=f"prepare:{pose}")
     await runtime.streamer.wait_ended(seg)

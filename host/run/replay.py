@@ -36,7 +36,7 @@ from host.run import artefacts
 from protocol import framelog
 from protocol.framing import DecodeError, Frame
 from protocol.messages import Ack, Advance, Message, Nack, ServoFrame, SimState, Telemetry
-from robots.coco import load_servo_table
+from robots.registry import DEFAULT_ROBOT, load_robot
 
 __all__ = ["LOG_READERS", "ReplayError", "ReplayResult", "find_host_log", "read_host_to_board",
            "read_serial_log", "replay"]
@@ -129,13 +129,25 @@ class ReplayResult:
     sim_states: list[SimState] = field(default_factory=list, repr=False)
 
 
-async def _replay(log_path: Path, out: Path, timeout_s: float) -> ReplayResult:
+def recorded_robot(log_path: Path) -> str | None:
+    """The robot a recorded run drove: ``extra.robot`` of the ``summary.json`` next to its log (None if absent)."""
+    try:
+        doc = json.loads((log_path.parent / "summary.json").read_text(encoding="utf-8"))
+        name = (doc.get("extra") or {}).get("robot")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return name if isinstance(name, str) and name else None
+
+
+async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, robots_dir: str | None) -> ReplayResult:
     msgs = list(read_host_to_board(log_path))
     if not msgs:
         raise ReplayError(f"{log_path} holds no host-to-board messages")
     last_fn = LAST_SIM_STATE.get(log_path.suffix.lower())
     original = last_fn(log_path) if last_fn is not None else None
-    board = start_board(["--lockstep", "--log", str(out / "board_frames.jsonl")], out / "board.stderr")
+    robot = load_robot(robot_name, robots_dir)
+    board = start_board(["--lockstep", "--robot", str(robot.root), "--log", str(out / "board_frames.jsonl")],
+                        out / "board.stderr")
     transport = open_transport(board.spec, log_path=out / "host_frames.jsonl")
     acks: dict[int, asyncio.Future[Message]] = {}
     tel_t: list[float] = []
@@ -182,7 +194,7 @@ async def _replay(log_path: Path, out: Path, timeout_s: float) -> ReplayResult:
                 end_us = max(end_us, msg.until_us)
             if isinstance(msg, ServoFrame):
                 end_us = max(end_us, msg.apply_at_us)
-                if msg.mask == (1 << len(msg.targets)) - 1 and len(msg.targets) == 12:
+                if msg.mask == robot.servos.all_mask and len(msg.targets) == robot.servo_count:
                     targets.append((msg.apply_at_us * 1e-6, msg.targets))
             transport.send(msg, seq)
             if fut is not None:
@@ -211,7 +223,7 @@ async def _replay(log_path: Path, out: Path, timeout_s: float) -> ReplayResult:
     if original is not None:
         err_mm = round(1000 * math.dist(final.base_pos[:2], original.base_pos[:2]), 3)
     if tel_t:
-        names = load_servo_table().names
+        names = robot.servos.names
         tgt = (np.asarray([t for t, _ in targets]), np.asarray([q for _, q in targets])) if targets else None
         artefacts.plot_joints(out / "joints.png", np.asarray(tel_t), np.asarray(tel_q), names, tgt)
     summary = {"replay_of": str(log_path), "messages": len(msgs), "base_end": base_end,
@@ -221,13 +233,17 @@ async def _replay(log_path: Path, out: Path, timeout_s: float) -> ReplayResult:
     return ReplayResult(base_end, orig_end, err_mm, len(msgs), final.board_time_us / 1e6, out, sims)
 
 
-def replay(log: str | Path, out: str | Path, *, timeout_s: float = 30.0) -> ReplayResult:
+def replay(log: str | Path, out: str | Path, *, timeout_s: float = 30.0, robot: str | None = None,
+           robots_dir: str | None = None) -> ReplayResult:
     """Replay the host log ``log`` (a file or a run folder) into a fresh lockstep board; artefacts in ``out``.
 
-    Raises :class:`ReplayError` / :class:`LinkError` with the reason, ``RuntimeError`` if the
-    board does not start, :class:`protocol.framelog.FrameLogError` for an unreadable log.
+    ``robot``: the robot the board drives (default: the one the recorded run's summary.json names,
+    else :data:`robots.registry.DEFAULT_ROBOT`). Raises :class:`ReplayError` / :class:`LinkError` with
+    the reason, ``RuntimeError`` if the board does not start, :class:`protocol.framelog.FrameLogError`
+    for an unreadable log, :class:`robots.description.RobotDataError` for an unknown robot.
     """
     log_path = find_host_log(Path(log))
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
-    return asyncio.run(_replay(log_path, out_dir, timeout_s))
+    name = robot or recorded_robot(log_path) or DEFAULT_ROBOT
+    return asyncio.run(_replay(log_path, out_dir, timeout_s, name, robots_dir))

@@ -1,4 +1,4 @@
-"""One run end to end: board on a pty (or a given port), link, CoCo runtime, shell, LLM, artefacts.
+"""One run end to end: board on a pty (or a given port), link, robot runtime, shell, LLM, artefacts.
 
 Everything is real: the board is ``python -m firmware_sim`` in a subprocess, the
 link is pyserial over its pty, the physics is MuJoCo stepping at the control
@@ -17,10 +17,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
-from host.coco.runtime import CocoRuntime
 from host.ghost import make_ghost
 from host.link.errors import LinkError
 from host.run import artefacts
+from host.robot.runtime import RobotRuntime
 from host.run.pump import HISTORY, SETTLE_CHECKPOINTS, TELEMETRY_SILENCE_S
 from host.run.session import RobotSession, SessionOptions
 from host.shell import Shell
@@ -28,6 +28,7 @@ from host.shell.skills import SkillStore
 from host.shell.policy import Policy
 from host.shell.timeline import RunResult
 from protocol.linkspec import LinkSpec
+from robots.registry import DEFAULT_ROBOT
 
 log = logging.getLogger("host.run")
 
@@ -42,7 +43,9 @@ class RunOptions:
     prompt: str | None = None  # an instruction for a real LLM
     llm: str = "scripted"
     task_label: str = "program"
-    vocabulary: str = "paper"
+    robot: str = DEFAULT_ROBOT  # a robot name or folder (robots.registry); robots_dir is searched first
+    robots_dir: str | None = None
+    vocabulary: str | None = None  # None: the robot's default vocabulary
     mode: str = "async-first"
     strict: bool = True
     lockstep: bool = False
@@ -58,10 +61,10 @@ class RunOptions:
     interrupt_at: float | None = None  # board seconds after the run starts: external interruption
     settle_s: float = 0.5
     buffer_response: bool = False  # wait for the whole LLM response before executing (the non-streaming baseline)
-    start_pose: str = "stand"
+    start_pose: str | None = None  # None: the robot's start pose
     live: bool = False  # draw the live channel view (on a terminal)
     skills: SkillStore | None = None  # the skill library (None: in memory, gone after the run)
-    scene: str = "empty"  # objects in the board's world (python -m firmware_sim --scene)
+    scene: str | None = None  # objects in the board's world (python -m firmware_sim --scene); None: the robot's default
     policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
     faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
     fault_seed: int = 0
@@ -85,7 +88,7 @@ def session_options(opts: RunOptions) -> SessionOptions:
     return SessionOptions(**shared, label=opts.task_label)
 
 
-async def run_program(opts: RunOptions, on_start: Callable[[Shell, CocoRuntime], None] | None = None) -> RunReport:
+async def run_program(opts: RunOptions, on_start: Callable[[Shell, RobotRuntime], None] | None = None) -> RunReport:
     """Run ``opts`` end to end and write the artefacts to ``opts.out``.
 
     A run that ends on a :class:`LinkError` after the session came up (the board latched its

@@ -1,8 +1,10 @@
-"""A persistent robot session: one board, one link, one CoCo runtime, one :class:`Shell`, many turns.
+"""A persistent robot session: one board, one link, one robot runtime, one :class:`Shell`, many turns.
 
-``RobotSession`` is an async context manager. Entering it starts the emulated
-board (``python -m firmware_sim`` on a pty, or connects to ``link``), the link
-client, the CoCo runtime, the registry and one shell, and runs the telemetry
+``RobotSession`` is an async context manager. Entering it loads the robot
+(``SessionOptions.robot``, :func:`robots.registry.load_robot`), starts the emulated
+board for it (``python -m firmware_sim --robot ...`` on a pty, or connects to ``link``
+and checks in the handshake that the board drives the same robot), the link
+client, the robot runtime, the registry and one shell, and runs the telemetry
 pump, the silence watchdog and (in realtime) the top-up task in a task group
 that lives as long as the session. Each :meth:`RobotSession.run_turn` runs one
 LLM output stream (or a complete program) on that shell and writes the turn's
@@ -44,16 +46,16 @@ import anyio.abc
 import anyio.to_thread
 import numpy as np
 
-from host.coco.binding import coco_registry
-from host.coco.link import ClientLink
-from host.coco.runtime import CocoRuntime
 from host.ghost import GhostError
+from host.link import BoardClient, RobotIdentity
 from host.link.board_process import BoardProcess, start_board
-from host.link.client import BoardClient
 from host.link.errors import BoardFaulted, LinkConfigError, LinkError
 from host.link.faultcheck import LATCHED, clear_command, clear_leftover_fault
 from host.link.session import FaultEvent
 from host.run import artefacts
+from host.robot.binding import robot_registry
+from host.robot.link import ClientLink
+from host.robot.runtime import RobotRuntime
 from host.run.pump import (
     BoardPacer,
     Recorder,
@@ -70,16 +72,23 @@ from host.shell.skills import SkillStore
 from host.shell.timeline import RunResult, Timeline
 from protocol.linkspec import LinkSpec, parse_link_spec
 from protocol.messages import FaultFlags, MsgType, Nack, NackReason
-from robots.coco import load_servo_table
+from robots.description import Robot
+from robots.registry import DEFAULT_ROBOT, load_robot
 
 log = logging.getLogger("host.run")
 
 
 @dataclass
 class SessionOptions:
-    """How to bring the robot up (the board/link/shell part of the ``run``/``chat`` flags)."""
+    """How to bring the robot up (the board/link/shell part of the ``run``/``chat`` flags).
 
-    vocabulary: str = "paper"
+    ``robot``: a robot name on the robot search path or a robot folder (``robots_dir`` is searched
+    first); ``vocabulary``, ``start_pose`` and ``scene`` default to the robot's own.
+    """
+
+    robot: str = DEFAULT_ROBOT
+    robots_dir: str | None = None
+    vocabulary: str | None = None
     mode: str = "async-first"
     strict: bool = True
     lockstep: bool = False
@@ -88,10 +97,10 @@ class SessionOptions:
     baud: int = 115200
     wire_baud: int | None = None  # the board models wire time at this baud rate (its --baud)
     out: Path = Path("runs/latest")
-    start_pose: str = "stand"
+    start_pose: str | None = None  # a pose of the robot's (None: its start_pose)
     skills: SkillStore | None = None  # None: an in-memory store (skills end with the session)
     label: str = "session"
-    scene: str = "empty"  # objects in the board's world (python -m firmware_sim --scene)
+    scene: str | None = None  # objects in the board's world (python -m firmware_sim --scene); None: the robot's default
     policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
     faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
     fault_seed: int = 0
@@ -157,6 +166,11 @@ class RobotSession:
 
     def __init__(self, opts: SessionOptions) -> None:
         self.opts = opts
+        #: the robot this session drives (loaded at construction: a bad --robot fails before anything starts)
+        self.robot: Robot = load_robot(opts.robot, opts.robots_dir)
+        #: the vocabulary shown in the prompt and the scene of the board's world
+        self.vocabulary = opts.vocabulary or self.robot.interface.default
+        self.scene = opts.scene or self.robot.default_scene
         self.out = opts.out
         self.rec = Recorder()
         self.turns = 0
@@ -164,15 +178,15 @@ class RobotSession:
         self._stack = contextlib.AsyncExitStack()
         self._tg: anyio.abc.TaskGroup | None = None
         self.client: BoardClient | None = None
-        self._runtime: CocoRuntime | None = None
+        self._runtime: RobotRuntime | None = None
         self._shell: Shell | None = None
         self._turn: _TurnStart | None = None  # the turn in progress
         self._link_tried = False  # a board link was attempted (a failure from then on has a report)
 
     # -- life cycle ------------------------------------------------------------------------------
     @property
-    def runtime(self) -> CocoRuntime:
-        """The CoCo runtime (only inside the session)."""
+    def runtime(self) -> RobotRuntime:
+        """The robot runtime (only inside the session)."""
         if self._runtime is None:
             raise RuntimeError("the robot session is not started")
         return self._runtime
@@ -205,8 +219,8 @@ class RobotSession:
             # frame logs: JSON Lines on serial; python-can's candump format (.log) on CAN
             log_suffix = ".log" if spec.kind == "can" else ".jsonl"
             if emulate:
-                board_args = ["--lockstep" if opts.lockstep else "--realtime",
-                              "--log", str(self.out / f"board_frames{log_suffix}"), "--scene", opts.scene]
+                board_args = ["--lockstep" if opts.lockstep else "--realtime", "--robot", str(self.robot.root),
+                              "--log", str(self.out / f"board_frames{log_suffix}"), "--scene", self.scene]
                 if opts.wire_baud:
                     board_args += ["--baud", str(opts.wire_baud)]
                 if opts.faults:
@@ -214,17 +228,20 @@ class RobotSession:
                 self._board = start_board(board_args, self.out / "board.stderr", link=spec)
                 target = self._board.spec
             self._link_tried = True
-            client = await BoardClient.connect(target, baud=opts.baud, log_path=self.out / f"host_frames{log_suffix}")
+            identity = RobotIdentity(self.robot.name, self.robot.servo_count, self.robot.servo_table_hash)
+            client = await BoardClient.connect(target, baud=opts.baud, log_path=self.out / f"host_frames{log_suffix}",
+                                               robot=identity)
             self.client = await self._stack.enter_async_context(client)
             note = await clear_leftover_fault(client)
             if note:
                 log.warning("%s", note)
             tel = await client.wait_for(lambda t: True, timeout=10, nudge=True)
-            runtime = CocoRuntime(ClientLink(client, wire_baud=opts.wire_baud), self.out, initial=np.asarray(tel.positions))
+            runtime = RobotRuntime(self.robot, ClientLink(client, wire_baud=opts.wire_baud), self.out,
+                                   initial=np.asarray(tel.positions))
             self._runtime = runtime
             client.on_fault.append(self._on_fault)
             client.on_nack.append(self._on_nack)
-            registry = coco_registry(runtime, opts.vocabulary)
+            registry = robot_registry(self.robot, runtime, self.vocabulary)
             self._shell = Shell(registry, mode=opts.mode, strict=opts.strict, clock=runtime.board_now_s,
                                 skills=opts.skills, policy=opts.policy)
             tg = anyio.create_task_group()
@@ -234,7 +251,7 @@ class RobotSession:
             if not client.lockstep:
                 tg.start_soon(self._ends_the_run, realtime_topper(runtime))
             await runtime.streamer.top_up()
-            await go_to_pose(runtime, opts.start_pose)
+            await go_to_pose(runtime, opts.start_pose or self.robot.start_pose)
         except BaseException as exc:
             await self.__aexit__(type(exc), exc, exc.__traceback__)
             raise
@@ -396,7 +413,8 @@ class RobotSession:
         summary = artefacts.Summary(
             task=label, outcome="link_lost", fell=False, base_start=_pose(None), base_end=_pose(None),
             max_tilt_deg=0.0, first_action_latency_ms=None, outcomes=artefacts.count_outcomes([]),
-            extra={"clock": "lockstep" if self.opts.lockstep else "realtime", "vocabulary": self.opts.vocabulary,
+            extra={"clock": "lockstep" if self.opts.lockstep else "realtime", "robot": self.robot.name,
+                   "vocabulary": self.vocabulary,
                    "mode": self.opts.mode, "error": None, "link_error": str(error), "observations": [],
                    "link": {}, "captures": [], "scene": self.scene_report(),
                    **({"faults": {"host_detected": host_detected}} if self.opts.faults else {})})
@@ -437,7 +455,7 @@ class RobotSession:
     def scene_report(self) -> dict[str, Any]:
         """The scene's ground truth now: ``{"name", "objects", "toppled"}`` (the board's SIM_STATE)."""
         s = self.client.latest_sim_state if self.client is not None else None
-        return {"name": self.opts.scene, "objects": s.objects if s else 0, "toppled": s.toppled if s else 0}
+        return {"name": self.scene, "objects": s.objects if s else 0, "toppled": s.toppled if s else 0}
 
     def prompt(self, format: str = "xml") -> str:
         """The system prompt (code-as-prompt) of the mounted vocabulary and the saved skills."""
@@ -482,7 +500,8 @@ class RobotSession:
             task=label, outcome=outcome, fell=fell, base_start=_pose(b0), base_end=_pose(b1),
             max_tilt_deg=round(max_tilt, 2), first_action_latency_ms=None if first is None else round(first, 1),
             outcomes=counts, duration_s=round(end_t - turn.board_t0, 3),
-            extra={"clock": "lockstep" if opts.lockstep else "realtime", "vocabulary": opts.vocabulary,
+            extra={"clock": "lockstep" if opts.lockstep else "realtime", "robot": self.robot.name,
+                   "vocabulary": self.vocabulary,
                    "mode": opts.mode, "error": None if result.error is None else str(result.error),
                    **({"link_error": str(link_error)} if link_error is not None else {}),
                    **({"board_fault": str(board_fault)} if board_fault is not None else {}),
@@ -498,7 +517,7 @@ class RobotSession:
         keep = times >= turn.board_t0 - 1e-9
         history = list(runtime.streamer.history) if runtime is not None else []
         sent = [(t, q_) for t, q_ in history if t * 1e-6 >= turn.board_t0 - 1e-9]
-        names = load_servo_table().names
+        names = self.robot.servos.names
         out, calls, summary, t0 = turn.out, list(turn.calls), turn.summary, turn.board_t0
         board_stderr = self.out / "board.stderr"
 
@@ -549,7 +568,7 @@ async def _one(text: str) -> AsyncIterator[str]:
     yield text
 
 
-def _board_calls(result: RunResult, runtime: CocoRuntime | None) -> list[artefacts.BoardCall]:
+def _board_calls(result: RunResult, runtime: RobotRuntime | None) -> list[artefacts.BoardCall]:
     calls = []
     board_times = runtime.board_times if runtime is not None else {}
     for r in result.timeline:

@@ -105,14 +105,15 @@ def _events_can(path: Path) -> Iterator[tuple[int, ServoFrame | Telemetry]]:
                 yield it.seq, it.msg
 
 
-def tracking_trace(log: Path, servos: int = 12) -> TrackingTrace:
+def tracking_trace(log: Path, servos: int | None = None) -> TrackingTrace:
     """The tracking error at every TELEMETRY in a board frame log (``.jsonl`` or a CAN capture).
 
+    ``servos``: how many servos to compare (default: as many as the telemetry reports).
     Raises ``ValueError`` when the log holds no TELEMETRY.
     """
     events = _events_jsonl(log) if log.suffix == ".jsonl" else _events_can(log)
     frames: dict[int, ServoFrame] = {}
-    target = np.full(servos, np.nan)
+    target: np.ndarray | None = None
     applied = -1
     t: list[float] = []
     err: list[np.ndarray] = []
@@ -121,6 +122,10 @@ def tracking_trace(log: Path, servos: int = 12) -> TrackingTrace:
         if isinstance(msg, ServoFrame):
             frames[seq & 0xFFFF] = msg  # the newest frame of a sequence number (a 16-bit lap later) wins
             continue
+        if target is None:
+            servos = len(msg.positions) if servos is None else servos
+            target = np.full(servos, np.nan)
+        assert servos is not None
         if msg.last_applied_seq != applied:
             applied = msg.last_applied_seq
             fr = frames.get(applied)

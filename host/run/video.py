@@ -4,12 +4,13 @@ Nothing is rendered inside the control loop. The board's frame log
 (``board_frames.jsonl``, written with ``--log``; on CAN the candump capture ``board_frames.log``,
 read through :mod:`host.link.canlog`) already records, at the
 telemetry rate (50 Hz), every joint angle (TELEMETRY ``positions``) and the
-floating base's pose (SIM_STATE ``base_pos``/``base_quat``) at the same board
-time: together that is the model's whole ``qpos``. Each video frame takes the
+base's pose (SIM_STATE ``base_pos``/``base_quat``) at the same board
+time: together that is the robot's whole ``qpos``. Each video frame takes the
 latest recorded state at its time (25 fps reads every other 50 Hz sample).
 
-A frame (640x480) is a third-person view that follows CoCo (a free MuJoCo camera
-looking at the base), the head camera (``head_cam``) as an inset, and a caption
+A frame (640x480) is a third-person view that follows the robot (a free MuJoCo camera
+looking at its base; distance and angles from the robot's ``[view]``), the robot's camera
+(its ``[peripherals] camera``, when it has one) as an inset, and a caption
 strip: the board time, the calls active on each channel (``timeline.json``) and
 the sentence being spoken. Frames are rendered offscreen (``MUJOCO_GL=egl`` unless
 set) by a pool of worker processes (both cores by default; ``spawn``, so each
@@ -36,8 +37,6 @@ __all__ = ["VideoError", "VideoSettings", "load_states", "render_video"]
 WIDTH, HEIGHT = 640, 480  # multiples of 16: H.264 macroblocks, no rescaling by ffmpeg
 CAPTION_H = 72
 INSET_W, INSET_H = 192, 144
-#: channels shown in the caption, in this order
-CAPTION_CHANNELS = ("body", "head", "ears", "face", "bgm", "camera")
 
 
 class VideoError(RuntimeError):
@@ -179,7 +178,7 @@ def caption_at(calls: Sequence[_Call], t: float) -> tuple[str, str]:
                 spoken = c.text
             else:
                 active.setdefault(c.channel, []).append(c.label)
-    line = "   ".join(f"{ch}: {' + '.join(active[ch])}" for ch in CAPTION_CHANNELS if ch in active)
+    line = "   ".join(f"{ch}: {' + '.join(labels)}" for ch, labels in active.items())
     return line or "(idle)", spoken
 
 
@@ -199,58 +198,77 @@ def run_scene(run_dir: Path) -> str:
     return name if isinstance(name, str) and name else "empty"
 
 
-def _init_worker(settings: VideoSettings, scene: str = "empty") -> None:
+def run_robot(run_dir: Path) -> str:
+    """The robot the run drove (``summary.json`` extra.robot; the default robot if not recorded)."""
+    from robots.registry import DEFAULT_ROBOT
+
+    try:
+        doc = json.loads((Path(run_dir) / "summary.json").read_text(encoding="utf-8"))
+        name = (doc.get("extra") or {}).get("robot")
+    except (OSError, ValueError, AttributeError):
+        return DEFAULT_ROBOT
+    return name if isinstance(name, str) and name else DEFAULT_ROBOT
+
+
+def _init_worker(settings: VideoSettings, scene: str = "empty", robot: str | None = None,
+                 robots_dir: str | None = None) -> None:
     os.environ.setdefault("MUJOCO_GL", "egl")
     import mujoco
 
-    from robots.coco.model import load_model
+    from robots.description import RobotDataError
+    from robots.registry import DEFAULT_ROBOT, load_robot
 
     try:
-        cm = load_model(scene=scene)  # the run's objects (e.g. bottles) at their start poses
-    except ValueError as e:
-        raise VideoError(f"cannot build the run's scene: {e}") from e
+        bot = load_robot(robot or DEFAULT_ROBOT, robots_dir)
+        cm = bot.model(scene)  # the run's objects (e.g. bottles) at their start poses
+    except (RobotDataError, KeyError, ValueError) as e:
+        raise VideoError(f"cannot build the run's robot and scene: {e}") from e
     model = cm.model
     # software GL (EGL on llvmpipe here) spends most of a frame on the 4096² shadow map and 4x MSAA:
     # a 1024² map and no MSAA render a 640x408 view ~4x faster (visual settings only, no physics)
     model.vis.quality.shadowsize = 1024
     model.vis.quality.offsamples = 0
     data = mujoco.MjData(model)
+    camera = bot.peripherals.camera
     try:
         main = mujoco.Renderer(model, height=HEIGHT - CAPTION_H, width=WIDTH)
-        head = mujoco.Renderer(model, height=INSET_H, width=INSET_W)
+        head = mujoco.Renderer(model, height=INSET_H, width=INSET_W) if camera is not None else None
     except Exception as e:  # no GL backend
         raise VideoError(f"no OpenGL renderer ({type(e).__name__}: {e}); try MUJOCO_GL=egl") from e
     cam = mujoco.MjvCamera()
     cam.type = mujoco.mjtCamera.mjCAMERA_FREE
-    cam.distance, cam.azimuth, cam.elevation = settings.distance_m, settings.azimuth_deg, settings.elevation_deg
-    head_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, "head_cam")
+    view = bot.view
+    cam.distance = float(view.get("distance_m", settings.distance_m))
+    cam.azimuth = float(view.get("azimuth_deg", settings.azimuth_deg))
+    cam.elevation = float(view.get("elevation_deg", settings.elevation_deg))
+    head_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera) if camera is not None else -1
     _W.update(mujoco=mujoco, model=model, data=data, main=main, head=head, cam=cam, head_id=head_id,
-              qpos_adr=np.asarray(cm.qpos_adr))
+              qpos_adr=np.asarray(cm.qpos_adr), rm=cm, label=bot.peripherals.camera_label,
+              lookat_z=float(view.get("lookat_z", 0.05)))
 
 
 def _render(job: tuple[float, np.ndarray, np.ndarray, str, str]) -> bytes:
     from PIL import Image, ImageDraw, ImageFont
 
     t, base, joints, line, spoken = job
-    mujoco, model, data = _W["mujoco"], _W["model"], _W["data"]
-    data.qpos[:7] = base
-    data.qpos[_W["qpos_adr"]] = joints
-    mujoco.mj_forward(model, data)
+    data = _W["data"]
+    _W["rm"].set_state(data, base, joints)
     cam = _W["cam"]
-    cam.lookat[:] = [base[0], base[1], max(0.05, base[2])]
+    cam.lookat[:] = [base[0], base[1], max(_W["lookat_z"], base[2])]
     _W["main"].update_scene(data, cam)
     view = _W["main"].render()
-    _W["head"].update_scene(data, _W["head_id"])
-    inset = _W["head"].render()
     img = Image.new("RGB", (WIDTH, HEIGHT), (18, 18, 24))
     img.paste(Image.fromarray(view), (0, 0))
-    x0, y0 = WIDTH - INSET_W - 8, 8
-    img.paste((235, 235, 235), (x0 - 2, y0 - 2, x0 + INSET_W + 2, y0 + INSET_H + 2))
-    img.paste(Image.fromarray(inset), (x0, y0))
     draw = ImageDraw.Draw(img)
     font = ImageFont.load_default(size=15)
     small = ImageFont.load_default(size=13)
-    draw.text((x0 + 4, y0 + INSET_H - 18), "head camera", fill=(255, 255, 255), font=small)
+    if _W["head"] is not None:
+        _W["head"].update_scene(data, _W["head_id"])
+        inset = _W["head"].render()
+        x0, y0 = WIDTH - INSET_W - 8, 8
+        img.paste((235, 235, 235), (x0 - 2, y0 - 2, x0 + INSET_W + 2, y0 + INSET_H + 2))
+        img.paste(Image.fromarray(inset), (x0, y0))
+        draw.text((x0 + 4, y0 + INSET_H - 18), _W["label"], fill=(255, 255, 255), font=small)
     top = HEIGHT - CAPTION_H
     draw.text((10, top + 8), f"t = {t:6.2f} s", fill=(160, 200, 255), font=font)
     draw.text((110, top + 8), _fit(draw, line, font, WIDTH - 120), fill=(240, 240, 240), font=font)
@@ -282,9 +300,11 @@ def _jobs(states: States, calls: Sequence[_Call], fps: int, t0: float | None
         yield float(t - (t0 or 0.0)), states.base[i], states.joints[i], line, spoken
 
 
-def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings | None = None) -> Path:
+def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings | None = None,
+                 robots_dir: str | None = None) -> Path:
     """Render ``run_dir``'s recorded run to ``out`` (default ``run_dir/run.mp4``); returns the path.
 
+    The robot is the one the run's summary.json names (``robots_dir`` is searched first for it).
     Raises :class:`VideoError` with the reason when it cannot.
     """
     import imageio_ffmpeg
@@ -306,7 +326,7 @@ def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings
     ctx = multiprocessing.get_context("spawn")
     try:
         with ctx.Pool(max(1, settings.workers), initializer=_init_worker,
-                      initargs=(settings, run_scene(run_dir))) as pool:
+                      initargs=(settings, run_scene(run_dir), run_robot(run_dir), robots_dir)) as pool:
             for frame in pool.imap(_render, jobs, chunksize=4):
                 writer.send(frame)
     except VideoError:

@@ -18,10 +18,11 @@ performs one gesture at its natural tempo ("nod three times" is three calls);
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Annotated, Any, Literal
 
 from annotated_types import Interval
+
+from robots.interface import NAME_BYTES, MaxUtf8Bytes, Name, StubInfo, class_stubs, stub, stub_info
 
 # --- value vocabularies ---------------------------------------------------------------------
 
@@ -47,17 +48,6 @@ Volume = Annotated[int, Interval(ge=0, le=100)]
 Degrees = Annotated[float, Interval(ge=-720.0, le=720.0)]
 
 
-@dataclass(frozen=True)
-class MaxUtf8Bytes:
-    """A string bound in bytes of UTF-8 (the wire limit of the board's name fields)."""
-
-    max_bytes: int
-
-
-#: longest voice or music name, in UTF-8 bytes (``protocol.codec.MAX_NAME_BYTES``)
-NAME_BYTES = 32
-#: an open set of names in any language: voices, music clips
-Name = Annotated[str, MaxUtf8Bytes(NAME_BYTES)]
 #: signed percentage offset from the normal rate (-50: half, 0: normal, 100: double), as cloud TTS APIs take it
 RatePercent = Annotated[float, Interval(ge=-50.0, le=100.0)]
 #: the voices CoCo's speech engine has; another name falls back to "robot" with a note
@@ -75,27 +65,6 @@ CHANNELS: dict[str, str] = {
     "bgm": "background music, mixed under speech",
     "camera": "the head camera",
 }
-
-
-@dataclass(frozen=True)
-class StubInfo:
-    """How a stub maps onto a behaviour."""
-
-    channel: str
-    behaviour: str
-    rename: dict[str, str] = field(default_factory=dict)  # stub param -> behaviour param
-    fixed: dict[str, Any] = field(default_factory=dict)  # behaviour params the stub pins
-
-
-def stub(channel: str, behaviour: str | None = None, *, rename: dict[str, str] | None = None,
-         fixed: dict[str, Any] | None = None) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
-    """Mark a function as an interface stub on ``channel`` implemented by ``behaviour``."""
-
-    def mark(fn: Callable[..., Any]) -> Callable[..., Any]:
-        fn.__coco_stub__ = StubInfo(channel, behaviour or fn.__name__, rename or {}, fixed or {})  # type: ignore[attr-defined]
-        return fn
-
-    return mark
 
 
 # ============================================================================================
@@ -350,6 +319,12 @@ COCO_MODULES: dict[str, type] = {
 VOCABULARIES: dict[str, dict[str, type]] = {"paper": PAPER_MODULES, "coco": COCO_MODULES}
 
 
+DEFAULT_VOCABULARY = "paper"
+
+__all__ = ["CHANNELS", "COCO_MODULES", "DEFAULT_VOCABULARY", "MaxUtf8Bytes", "NAME_BYTES", "Name", "PAPER_MODULES",
+           "StubInfo", "VOCABULARIES", "VOICES", "stub", "stubs"]
+
+
 def stubs(vocabulary: str) -> dict[str, tuple[Callable[..., Any], StubInfo]]:
     """All stubs of a vocabulary: name -> (function, mapping info)."""
     try:
@@ -358,8 +333,6 @@ def stubs(vocabulary: str) -> dict[str, tuple[Callable[..., Any], StubInfo]]:
         raise ValueError(f"unknown vocabulary {vocabulary!r}; choose one of {sorted(VOCABULARIES)}") from None
     out: dict[str, tuple[Callable[..., Any], StubInfo]] = {}
     for cls in modules.values():
-        for name, fn in vars(cls).items():
-            info = getattr(fn, "__coco_stub__", None)
-            if info is not None:
-                out[name] = (fn, info)
+        for name, fn in class_stubs(cls).items():
+            out[name] = (fn, stub_info(fn))  # type: ignore[assignment]
     return out

@@ -6,7 +6,7 @@ from typing import Any
 
 import pytest
 
-from host.coco.binding import coco_registry
+from support.coco import coco_registry
 from host.shell import Shell
 from host.shell.mapper import BadValue, map_element
 from host.shell.prompt import render_prompt

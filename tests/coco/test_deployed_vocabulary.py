@@ -9,7 +9,7 @@ from typing import Any
 import anyio
 import pytest
 
-from host.coco.binding import coco_registry
+from support.coco import coco_registry
 from host.run.session import RobotSession, SessionOptions
 from host.shell.mapper import BadValue, map_element
 from robots.coco.interface import NAME_BYTES

@@ -18,7 +18,7 @@ import pytest
 from PIL import Image
 
 from host.link.board_process import start_board
-from host.link.client import BoardClient
+from host.link import BoardClient
 
 LOSSY = "drop=0.01,corrupt=0.01,dup=0.005,reorder=0.005"  # the paper mix
 

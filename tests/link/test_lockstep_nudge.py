@@ -14,7 +14,7 @@ import anyio
 import pytest
 
 from host.link.board_process import start_board
-from host.link.client import BoardClient
+from host.link import BoardClient
 
 
 @pytest.mark.parametrize(("link", "faults"), [("pty", None), ("can:slcan:pty", "drop=0.05")])

@@ -364,7 +364,7 @@ def test_unknown_type_value() -> None:
 
 #: Pinned so that a schema change is a conscious act: update this value together with
 #: protocol/messages.py or protocol/codec.py (old boards will then refuse the new host).
-PINNED_SCHEMA_HASH = 0x5FACFBE3  # CAMERA_RESEND (selective repeat of camera chunks) added
+PINNED_SCHEMA_HASH = 0x568E0320  # CAPS carries the robot (name, servo table hash)
 
 
 def test_schema_hash_is_u32_and_pinned() -> None:

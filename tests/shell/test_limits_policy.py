@@ -180,7 +180,7 @@ def test_policy_file_errors(tmp_path: Path, text: str, match: str) -> None:
     ],
 )
 def test_a_policy_name_that_matches_nothing_or_a_non_number_is_refused(tmp_path: Path, text: str, match: str) -> None:
-    from host.coco.binding import function_params
+    from support.coco import function_params
 
     f = tmp_path / "p.toml"
     f.write_text(text)

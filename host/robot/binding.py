@@ -1,11 +1,11 @@
-"""Bind CoCo's interface stubs (``robots.coco.interface``) to behaviours: shell modules.
+"""Bind a robot's interface stubs (:attr:`robots.description.Robot.interface`) to behaviours: shell modules.
 
-Both vocabularies are mounted so the mapper accepts either; the one chosen for
-the prompt is visible, the other is mounted hidden (callable, not shown). A name
-both vocabularies declare is taken from the visible one. Each stub becomes an
-async function that fills the stub's defaults, renames parameters, pins fixed
-arguments and hands the behaviour call to a :class:`Performer` (the runtime that
-really moves the robot, or a fake one in tests).
+Every vocabulary of the robot is mounted so the mapper accepts any of them; the one chosen for the
+prompt is visible, the others are mounted hidden (callable, not shown). A name several vocabularies
+declare is taken from the visible one. Each stub becomes an async function that fills the stub's
+defaults, renames parameters, pins fixed arguments and hands the behaviour call to a
+:class:`Performer` (the runtime that really moves the robot, or a fake one in tests). Plain text is
+spoken only by a robot with a speaker (:func:`speech_module`).
 """
 
 from __future__ import annotations
@@ -17,10 +17,8 @@ from typing import Any, Protocol
 
 from host.shell.registry import Registry
 from host.shell.types import Module, shell_function
-from robots.coco import interface as coco_interface
-from robots.coco.interface import StubInfo
-
-VOCABULARY_NAMES = tuple(coco_interface.VOCABULARIES)
+from robots.description import Robot
+from robots.interface import StubInfo, class_stubs, stub_info
 
 
 class Performer(Protocol):
@@ -54,20 +52,22 @@ def _bound_reset(info: StubInfo, performer: Performer) -> Callable[..., Any]:
     return reset
 
 
-def vocabulary_modules(vocabulary: str, performer: Performer, *, hidden: bool = False,
+def vocabulary_modules(robot: Robot, vocabulary: str, performer: Performer, *, hidden: bool = False,
                        skip: frozenset[str] = frozenset()) -> list[Module]:
-    """Shell modules for one vocabulary, bound to ``performer``."""
-    if vocabulary not in coco_interface.VOCABULARIES:
-        raise ValueError(f"unknown vocabulary {vocabulary!r}; choose one of {sorted(coco_interface.VOCABULARIES)}")
+    """Shell modules for one of ``robot``'s vocabularies, bound to ``performer``."""
+    vocabularies = robot.interface.vocabularies
+    if vocabulary not in vocabularies:
+        raise ValueError(f"unknown vocabulary {vocabulary!r} for {robot.name}; choose one of {sorted(vocabularies)}")
     out: list[Module] = []
-    for module_name, iface in coco_interface.VOCABULARIES[vocabulary].items():
-        stubs = {n: f for n, f in vars(iface).items() if hasattr(f, "__coco_stub__") and n not in skip}
+    for module_name, iface in vocabularies[vocabulary].items():
+        stubs = {n: f for n, f in class_stubs(iface).items() if n not in skip}
         if not stubs:
             continue
         impl = SimpleNamespace()
         channel = ""
         for name, fn in stubs.items():
-            info: StubInfo = fn.__coco_stub__
+            info = stub_info(fn)
+            assert info is not None
             channel = info.channel
             setattr(impl, name, _bound_call(fn, info, performer))
             setattr(impl, f"reset_{name}", _bound_reset(info, performer))
@@ -89,26 +89,27 @@ def speech_module(performer: Performer) -> Module:
     return Module.from_functions("speak", speak, channel="speech", doc="the speaker")
 
 
-def coco_registry(performer: Performer, vocabulary: str = "paper") -> Registry:
-    """A registry with CoCo mounted: ``vocabulary`` visible, the other one hidden."""
-    visible = vocabulary_modules(vocabulary, performer)
-    registry = Registry([speech_module(performer)])
+def robot_registry(robot: Robot, performer: Performer, vocabulary: str | None = None) -> Registry:
+    """A registry with ``robot`` mounted: ``vocabulary`` (default: the robot's) visible, the others hidden."""
+    vocabulary = robot.interface.default if vocabulary is None else vocabulary
+    visible = vocabulary_modules(robot, vocabulary, performer)
+    registry = Registry([speech_module(performer)] if robot.peripherals.speaker else [])
     names: set[str] = set()
     for m in visible:
         registry.mount(m)
         names.update(s.name for s in m.functions)
-    for other in VOCABULARY_NAMES:
+    for other in robot.interface.names:
         if other != vocabulary:
-            for m in vocabulary_modules(other, performer, hidden=True, skip=frozenset(names)):
+            for m in vocabulary_modules(robot, other, performer, hidden=True, skip=frozenset(names)):
                 registry.mount(m)
                 names.update(s.name for s in m.functions)
     return registry
 
 
-def function_params() -> dict[str, frozenset[str]]:
-    """Every function CoCo's shell accepts (both vocabularies, aliases included) -> its parameter names
+def function_params(robot: Robot) -> dict[str, frozenset[str]]:
+    """Every function ``robot``'s shell accepts (all vocabularies, aliases included) -> its parameter names
     (for checking a safety policy's names: :meth:`host.shell.policy.Policy.check_names`)."""
-    registry = coco_registry(None, "paper")  # type: ignore[arg-type]  # the signatures only; nothing runs
+    registry = robot_registry(robot, None)  # type: ignore[arg-type]  # the signatures only; nothing runs
     out: dict[str, frozenset[str]] = {}
     for spec in registry.functions():
         params = frozenset(p.name for p in spec.params)

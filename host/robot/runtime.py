@@ -1,13 +1,14 @@
-"""CoCo's behaviours executed over the link: the shell's executor for the real (emulated) robot.
+"""A robot's behaviours executed over the link: the shell's executor for the real (emulated) robot.
 
-One implementation per behaviour. Motion behaviours (body, head, ears) ask
-``robots.coco.motions`` for a trajectory that starts where the channel's servos
-are planned to be, place it on the frame grid and complete when telemetry shows
+One implementation per behaviour. Motion behaviours (the robot's behaviours module and the generic
+``pose``/``joint_move``, :attr:`robots.description.Robot.behaviours`) ask for a trajectory that
+starts where the motion's servos are planned to be, place it on the frame grid and complete when telemetry shows
 its last frame applied. As a parent element (persistent) they loop until reset;
 reset and interruption FLUSH the channel's buffered frames and start a smooth
 return (reset) or a smooth stop (interruption of a finite call) at the cut.
-Face, speech, music and camera go over the same link as peripheral messages
-timed on the board clock; they complete when the board clock passes their end.
+Face, speech, music and camera (:data:`robots.interface.PERIPHERAL_BEHAVIOURS`) go over the same
+link as peripheral messages timed on the board clock; they complete when the board clock passes
+their end.
 
 Calls on one motion channel flow into each other: a finite motion is planned
 to start at the previous one's planned end (on the frame grid, so the gap is
@@ -19,7 +20,7 @@ frame. An interruption cancels the calls queued on the channel, and each
 cancelled motion cuts its own segment (planned-ahead ones included).
 
 Every call's board-measured start and end are kept by element path in
-:attr:`CocoRuntime.board_times` for the run's timeline.
+:attr:`RobotRuntime.board_times` for the run's timeline.
 """
 
 from __future__ import annotations
@@ -45,18 +46,16 @@ from protocol.messages import (
     SpeakerCommand,
 )
 from protocol.framing import encode_frame
-from robots.coco import motions as coco_motions
-from robots.coco.interface import VOICES
-from robots.coco.trajectory import ease_in
+from robots.description import Robot
+from robots.motion import Limits, ease_in, transition
 
-MOTION_CHANNELS = ("body", "head", "ears")
 #: How long (board µs) before the streamer's horizon reaches a motion's planned end the next
 #: call on its channel is let in, so that it is planned before that frame is sent.
 HANDOVER_LEAD_US = 200_000
 
 
-class CocoLink(FrameLink, Protocol):
-    """The link operations the runtime uses (see :class:`host.coco.link_adapter.ClientLink`)."""
+class RobotLink(FrameLink, Protocol):
+    """The link operations the runtime uses (see :class:`host.robot.link.ClientLink`)."""
 
     async def send_peripheral(self, msg: ScreenCommand | SpeakerCommand) -> None: ...
 
@@ -83,25 +82,29 @@ class Voice:
         return max(0.0, 1.0 + self.loudness_rate / 100.0)
 
 
-class CocoRuntime:
-    """Implements every behaviour of ``robots.coco.interface`` on a board behind ``link``."""
+class RobotRuntime:
+    """Implements every behaviour of ``robot``'s interface on a board behind ``link``."""
 
-    def __init__(self, link: CocoLink, run_dir: Path, *, initial: np.ndarray,
+    def __init__(self, robot: Robot, link: RobotLink, run_dir: Path, *, initial: np.ndarray,
                  speech_synth: Callable[..., Any] | None = None, period_us: int = 10_000,
-                 lookahead_us: int = 60_000, voices: tuple[str, ...] = VOICES,
+                 lookahead_us: int = 60_000, voices: tuple[str, ...] | None = None,
                  clips: tuple[str, ...] | None = None) -> None:
+        self.robot = robot
+        self.limits = Limits.of_robot(robot)
         self.link = link
         self.run_dir = run_dir
         self.mixer = Mixer(initial)
         self.streamer = FrameStreamer(link, self.mixer, period_us=period_us, lookahead_us=lookahead_us)
         self.voice = Voice()
-        self.voices = voices  # the speech engine's voices; another role falls back to "robot" with a note
-        self.clips = clips  # the music clips on the robot (None: the board plays any name)
+        #: the speech engine's voices; another role falls back to "robot" with a note
+        self.voices = voices if voices is not None else robot.peripherals.voices
+        #: the music clips on the robot (None: the board plays any name)
+        self.clips = clips if clips is not None else robot.peripherals.clips
         self.board_times: dict[str, list[float | None]] = {}
         self.captures: list[Path] = []
         self._active: dict[int, Segment] = {}  # element id -> the looping segment of a persistent call
         self._last: dict[str, Segment] = {}  # channel -> its last finite segment (where the next one starts)
-        self._channel_servos = {ch: tuple(coco_motions.channel_servos(ch)) for ch in MOTION_CHANNELS}
+        self._rest = np.asarray(robot.pose(robot.rest_pose))
         self._speech_synth = speech_synth
         self._playing_bgm: dict[int, str] = {}
 
@@ -128,18 +131,23 @@ class CocoRuntime:
         """Sleep on the board clock (works in lockstep, where wall time means nothing)."""
         await self.streamer.wait_board_time(self.streamer.board_now_us() + int(seconds * 1e6))
 
-    # -- the Performer protocol used by host.coco.binding ------------------------------------
+    # -- the Performer protocol used by host.robot.binding ------------------------------------
+    def _servos(self, channel: str, seg: Segment) -> tuple[int, ...]:
+        """The servos a cut on ``channel`` affects: the channel's (robot.toml), else the segment's own."""
+        c = self.robot.channels.get(channel)
+        return c.servos if c is not None else tuple(int(i) for i in seg.motion.servos)
+
     async def perform(self, behaviour: str, channel: str, args: dict[str, Any]) -> Any:
         """Run one behaviour call (the shell calls this with typed arguments)."""
-        if channel in MOTION_CHANNELS:
+        if behaviour in self.robot.behaviours:
             return await self._motion(behaviour, channel, args)
-        if channel == "face":
+        if behaviour == "face_emo":
             return await self._face(args)
-        if channel == "bgm":
+        if behaviour == "play_bgm":
             return await self._bgm(args)
-        if channel == "camera":
+        if behaviour == "capture":
             return await self._capture()
-        if channel == "speech" and behaviour == "speech_role":
+        if behaviour == "speech_role":
             return await self._speech_role(args)
         raise ValueError(f"no implementation for behaviour {behaviour!r} on channel {channel!r}")
 
@@ -148,22 +156,22 @@ class CocoRuntime:
         ctx = current_call()
         if ctx is None:
             return
-        if channel in MOTION_CHANNELS:
+        if behaviour in self.robot.behaviours:
             seg = self._active.pop(ctx.element_id, None)
             if seg is None:
                 return
-            servos = self._channel_servos[channel]
-            rest = coco_motions.rest_pose(channel)
-            new = await self.streamer.cut([seg], servos, lambda q: coco_motions.transition(q, rest, servos),
+            servos = self._servos(channel, seg)
+            rest = self._rest[list(servos)]
+            new = await self.streamer.cut([seg], servos, lambda q: transition(q, rest, servos, self.limits),
                                           label=f"{ctx.path}:reset")
             if new is not None:
                 self._mark(end=await self.streamer.wait_ended(new))
-        elif channel == "face":
+        elif behaviour == "face_emo":
             t = self._soonest(ScreenCommand(ScreenTarget.FACE, "neutral", 0, 0))
             await self.link.send_peripheral(ScreenCommand(ScreenTarget.FACE, "neutral", t, 0))
             await self.streamer.wait_board_time(t)
             self._mark(end=t * 1e-6)
-        elif channel == "bgm":
+        elif behaviour == "play_bgm":
             stop = SpeakerCommand(SpeakerAction.STOP, SoundKind.CLIP, 0, 0, 0, name=self._playing_bgm.pop(ctx.element_id, ""))
             t = self._soonest(stop)
             await self.link.send_peripheral(dataclasses.replace(stop, start_at_us=t))
@@ -224,11 +232,11 @@ class CocoRuntime:
         label = ctx.path if ctx else behaviour
         if at_us is None:  # a fresh start: as soon as the link allows, from rest (minimum-jerk start)
             start = self.streamer.planned_targets(self.streamer.soonest_us())
-            motion = ease_in(coco_motions.BEHAVIOURS[behaviour](start, persistent=persistent, **args))
+            motion = ease_in(self.robot.behaviours[behaviour](start, persistent=persistent, **args))
             seg = await self.streamer.start_now(motion, label=label)
         else:  # flowing on from the previous call on this channel
             start = self.streamer.planned_targets(from_us)
-            motion = coco_motions.BEHAVIOURS[behaviour](start, persistent=persistent, **args)
+            motion = self.robot.behaviours[behaviour](start, persistent=persistent, **args)
             seg = self.streamer.add(motion, label=label, start_us=at_us)
         if persistent and ctx is not None:
             self._last.pop(channel, None)
@@ -264,8 +272,8 @@ class CocoRuntime:
         if seg.first_frame_us is None:  # planned ahead and not sent yet: just drop it
             self.mixer.cancel(seg)
             return
-        servos = self._channel_servos[channel]
-        new = await self.streamer.cut([seg], servos, lambda q: coco_motions.transition(q, q, servos),
+        servos = self._servos(channel, seg)
+        new = await self.streamer.cut([seg], servos, lambda q: transition(q, q, servos, self.limits),
                                       label="stop")
         if new is not None:
             with anyio.move_on_after(5):

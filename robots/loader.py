@@ -1,0 +1,411 @@
+"""Read a robot folder into one :class:`robots.description.Robot`, checking it against its MJCF.
+
+``robot.toml`` (every path relative to the folder)::
+
+    name = "arm"                      # [a-z][a-z0-9_]*, the name --robot takes
+    title = "Desk arm"                # for people
+    description = "..."
+    mjcf = "arm.xml"
+    servo_table = "servos.toml"       # [[servo]] entries, see below
+    poses = "poses.toml"              # [poses] name = [deg per servo] or {joint = deg, ...}
+    tasks = "tasks.json"              # optional: {"tasks": [{"id", "category", "instruction", "ground_truth"}]}
+    interface = "interface"           # optional module: VOCABULARIES (robots.interface)
+    behaviours = "behaviours"         # optional module: BEHAVIOURS (robots.description.Behaviour)
+    default_vocabulary = "default"    # a key of VOCABULARIES
+    start_pose = "home"               # where a run starts
+    rest_pose = "home"                # a channel's reset returns its servos here
+    safe_pose = "rest"                # the board's latched-watchdog pose
+    default_scene = "table"
+    demo_task = 3                     # the task ``ghostshell demo`` shows (default: the first)
+    tour = ["home", "rest", "home"]   # the poses ``ghostshell tour`` drives through (default: all)
+    [base]      floating = false | true, feet = [site, ...], foot_radius = m, spawn_height = m
+    [channels.NAME]  servos = [servo name, ...], doc = "..."
+    [peripherals]    camera = "mjcf camera", camera_label, screen = bool, speaker = bool, voices, clips
+    [scenes.NAME]    doc = "..."; [[scenes.NAME.objects]] name, shape, size, pos, rgba, mass, free,
+                     friction, topples, euler_deg
+    [data]      KEY = "file"          # further files the robot's own tools read
+    [view]      distance_m, azimuth_deg, elevation_deg, lookat_z   # run.mp4's follow camera
+
+Servo table (``servo_table``)::
+
+    [model]  resolution_deg = 0.088, deadband_deg = 0.2, stall_torque_nm = 1.9, model = "STS3215"
+    [[servo]] id, name, joint, actuator, neutral_deg, min_deg, max_deg, direction (+-1), max_speed_dps,
+              further keys kept as tags (e.g. leg = 1)
+
+What is checked (each refusal is a :class:`RobotDataError` naming file:line where there is one):
+ids run 1..N in order with N <= :data:`robots.description.MAX_WIRE_SERVOS`; names and joints are
+unique; min < max with the neutral inside; direction +-1; speed > 0; every joint exists in the
+MJCF as a hinge or slide with a range that equals the table's (0.05 deg); every actuator exists,
+is a position actuator (affine bias, ``biasprm[1] = -kp``) and drives its servo's joint; poses give
+one in-range value per servo (or name joints that exist); the start/rest/safe poses exist; channel
+servos exist and no servo is in two channels; the camera exists in the MJCF; scene objects have
+valid shapes and sizes.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from robots.description import (
+    MAX_WIRE_SERVOS,
+    Base,
+    Channel,
+    Peripherals,
+    Robot,
+    RobotDataError,
+    SceneObjectSpec,
+    SceneSpec,
+    Servo,
+    ServoModelParams,
+    ServoTable,
+)
+
+__all__ = ["ROBOT_FILE", "load_robot_dir", "read_servo_table", "read_poses", "check_against_mjcf"]
+
+ROBOT_FILE = "robot.toml"
+NAME_RE = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
+#: joint range in the MJCF vs the servo table: equal within this (degrees)
+RANGE_TOL_DEG = 0.05
+SHAPES = {"box": 3, "cylinder": 2, "sphere": 1}
+
+
+# --- file helpers ---------------------------------------------------------------------------------
+
+
+def _read_toml(path: Path) -> tuple[dict[str, Any], str]:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise RobotDataError(f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise RobotDataError(f"{path}: cannot read it ({e})") from None
+    try:
+        return tomllib.loads(text), text
+    except tomllib.TOMLDecodeError as e:
+        m = re.search(r"line (\d+)", str(e))
+        where = f"{path}:{m.group(1)}" if m else str(path)
+        raise RobotDataError(f"{where}: not valid TOML ({e})") from None
+
+
+def _line(text: str, pattern: str, occurrence: int = 0) -> int | None:
+    """1-based line of the ``occurrence``-th match of regex ``pattern`` in ``text`` (None if absent)."""
+    for k, m in enumerate(re.finditer(pattern, text, flags=re.MULTILINE)):
+        if k == occurrence:
+            return text.count("\n", 0, m.start()) + 1
+    return None
+
+
+def _at(path: Path, line: int | None) -> str:
+    return f"{path}:{line}" if line else str(path)
+
+
+def _num(v: Any, what: str, where: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+        raise RobotDataError(f"{where}: {what} must be a finite number, got {v!r}")
+    return float(v)
+
+
+def _str(v: Any, what: str, where: str) -> str:
+    if not isinstance(v, str) or not v:
+        raise RobotDataError(f"{where}: {what} must be a non-empty string, got {v!r}")
+    return v
+
+
+# --- servo table ----------------------------------------------------------------------------------
+
+_SERVO_KEYS = {"id", "name", "joint", "actuator", "neutral_deg", "min_deg", "max_deg", "direction", "max_speed_dps"}
+
+
+def read_servo_table(path: Path) -> ServoTable:
+    """Read and check a servo table file (everything but the MJCF cross-check)."""
+    data, text = _read_toml(path)
+    rows = data.get("servo", [])
+    if not isinstance(rows, list) or not rows:
+        raise RobotDataError(f"{path}: no [[servo]] entries")
+    if len(rows) > MAX_WIRE_SERVOS:
+        where = _at(path, _line(text, r"^\[\[servo\]\]", MAX_WIRE_SERVOS))
+        raise RobotDataError(f"{where}: {len(rows)} servos; the wire carries at most {MAX_WIRE_SERVOS} "
+                             "(its servo mask is one u32)")
+    servos: list[Servo] = []
+    seen_ids: dict[int, int] = {}
+    seen: dict[str, dict[str, int]] = {"name": {}, "joint": {}, "actuator": {}}
+    for n, row in enumerate(rows, start=1):
+        where = _at(path, _line(text, r"^\[\[servo\]\]", n - 1))
+        if not isinstance(row, dict):
+            raise RobotDataError(f"{where}: servo entry {n} is not a table")
+        missing = [k for k in ("id", "name", "joint", "min_deg", "max_deg") if k not in row]
+        if missing:
+            raise RobotDataError(f"{where}: servo entry {n} lacks {', '.join(repr(k) for k in missing)}")
+        sid = row["id"]
+        if isinstance(sid, bool) or not isinstance(sid, int):
+            raise RobotDataError(f"{where}: servo id must be a whole number, got {sid!r}")
+        if sid in seen_ids:
+            raise RobotDataError(f"{where}: duplicate servo id {sid} (also servo entry {seen_ids[sid]})")
+        seen_ids[sid] = n
+        if sid != n:
+            raise RobotDataError(f"{where}: servo entry {n} has id {sid}; ids must run 1..{len(rows)} in order "
+                                 "(id N is wire index N-1)")
+        name = _str(row["name"], "name", where)
+        joint = _str(row["joint"], "joint", where)
+        actuator = _str(row.get("actuator", joint), "actuator", where)
+        for key, value in (("name", name), ("joint", joint), ("actuator", actuator)):
+            if value in seen[key]:
+                raise RobotDataError(f"{where}: {key} {value!r} is used by servo {seen[key][value]} too")
+            seen[key][value] = sid
+        lo = math.radians(_num(row["min_deg"], "min_deg", where))
+        hi = math.radians(_num(row["max_deg"], "max_deg", where))
+        neutral = math.radians(_num(row.get("neutral_deg", 0.0), "neutral_deg", where))
+        direction = row.get("direction", 1)
+        speed = math.radians(_num(row.get("max_speed_dps", 300.0), "max_speed_dps", where))
+        if not lo < hi or not lo <= neutral <= hi:
+            raise RobotDataError(f"{where}: servo {name}: need min_deg < max_deg and neutral_deg inside them")
+        if direction not in (-1, 1) or isinstance(direction, bool):
+            raise RobotDataError(f"{where}: servo {name}: direction must be 1 or -1, got {direction!r}")
+        if not speed > 0:
+            raise RobotDataError(f"{where}: servo {name}: max_speed_dps must be > 0")
+        tags = {k: v for k, v in row.items() if k not in _SERVO_KEYS}
+        servos.append(Servo(sid, name, joint, actuator, neutral, lo, hi, int(direction), speed, tags))
+    model = data.get("model", {})
+    where = _at(path, _line(text, r"^\[model\]"))
+    if not isinstance(model, dict):
+        raise RobotDataError(f"{where}: [model] must be a table")
+    stall = model.get("stall_torque_nm")
+    params = ServoModelParams(
+        resolution=math.radians(_num(model.get("resolution_deg", 0.088), "resolution_deg", where)),
+        deadband=math.radians(_num(model.get("deadband_deg", 0.2), "deadband_deg", where)),
+        stall_torque=None if stall is None else _num(stall, "stall_torque_nm", where),
+        model=str(model.get("model", "")),
+    )
+    if not params.resolution >= 0 or not params.deadband >= 0:
+        raise RobotDataError(f"{where}: resolution_deg and deadband_deg must be >= 0")
+    return ServoTable(tuple(servos), params)
+
+
+# --- poses ----------------------------------------------------------------------------------------
+
+
+def read_poses(path: Path, table: ServoTable) -> dict[str, tuple[float, ...]]:
+    """Named poses, radians in servo order. A pose is a list (degrees per servo, id order) or a table
+    ``{servo-or-joint name = degrees}`` (servos it leaves out take their neutral)."""
+    data, text = _read_toml(path)
+    entries = data.get("poses", {})
+    if not isinstance(entries, dict) or not entries:
+        raise RobotDataError(f"{path}: no [poses] table")
+    names = {s.name: s.index for s in table} | {s.joint: s.index for s in table}
+    out: dict[str, tuple[float, ...]] = {}
+    for name, value in entries.items():
+        where = _at(path, _line(text, rf"^\s*\"?{re.escape(name)}\"?\s*="))
+        if isinstance(value, list):
+            if len(value) != len(table):
+                raise RobotDataError(f"{where}: pose {name!r} has {len(value)} values; it needs {len(table)} "
+                                     "(degrees per servo in id order)")
+            q = [math.radians(_num(v, f"pose {name!r}", where)) for v in value]
+        elif isinstance(value, dict):
+            q = list(table.neutral)
+            for joint, v in value.items():
+                if joint not in names:
+                    raise RobotDataError(f"{where}: pose {name!r} names {joint!r}, which is no servo or joint of this "
+                                         f"robot (servos: {', '.join(table.names)})")
+                q[names[joint]] = math.radians(_num(v, f"pose {name!r} {joint}", where))
+        else:
+            raise RobotDataError(f"{where}: pose {name!r} must be a list of degrees or a table of joint = degrees")
+        for s, v in zip(table, q):
+            if not s.min - 1e-9 <= v <= s.max + 1e-9:
+                raise RobotDataError(f"{where}: pose {name!r}: {s.name} = {math.degrees(v):.1f} deg outside "
+                                     f"[{math.degrees(s.min):.0f}, {math.degrees(s.max):.0f}]")
+        out[name] = tuple(q)
+    return out
+
+
+# --- the MJCF cross-check -------------------------------------------------------------------------
+
+
+def check_against_mjcf(mjcf: Path, table: ServoTable, servo_path: Path, servo_text: str,
+                       camera: str | None = None, feet: Sequence[str] = ()) -> None:
+    """Compile ``mjcf`` and check the servo table (and camera, foot sites) against it."""
+    import mujoco
+
+    try:
+        model = mujoco.MjModel.from_xml_path(str(mjcf))
+    except (ValueError, OSError) as e:
+        raise RobotDataError(f"{mjcf}: MuJoCo cannot compile it: {' '.join(str(e).split())}") from None
+    xml = mjcf.read_text(encoding="utf-8", errors="replace")
+    hinge_slide = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+    for s in table:
+        where = _at(servo_path, _line(servo_text, r"^\[\[servo\]\]", s.id - 1))
+        jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, s.joint)
+        if jid < 0:
+            raise RobotDataError(f"{where}: servo {s.name}: joint {s.joint!r} is not in {mjcf.name}")
+        jline = _at(mjcf, _line(xml, rf"<joint\b[^>]*\bname=\"{re.escape(s.joint)}\""))
+        if int(model.jnt_type[jid]) not in hinge_slide:
+            raise RobotDataError(f"{jline}: joint {s.joint!r} (servo {s.name}) must be a hinge or slide joint")
+        if not model.jnt_limited[jid]:
+            raise RobotDataError(f"{jline}: joint {s.joint!r} (servo {s.name}) has no range; give it range=\"lo hi\"")
+        lo, hi = (float(v) for v in model.jnt_range[jid])
+        if abs(math.degrees(lo - s.min)) > RANGE_TOL_DEG or abs(math.degrees(hi - s.max)) > RANGE_TOL_DEG:
+            raise RobotDataError(
+                f"{where}: servo {s.name}: the table says [{math.degrees(s.min):.2f}, {math.degrees(s.max):.2f}] deg "
+                f"but {jline} joint {s.joint!r} has range [{math.degrees(lo):.2f}, {math.degrees(hi):.2f}] deg")
+        aid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, s.actuator)
+        if aid < 0:
+            raise RobotDataError(f"{where}: servo {s.name}: actuator {s.actuator!r} is not in {mjcf.name}")
+        aline = _at(mjcf, _line(xml, rf"<\w+\b[^>]*\bname=\"{re.escape(s.actuator)}\""))
+        if int(model.actuator_trntype[aid]) != int(mujoco.mjtTrn.mjTRN_JOINT) or int(model.actuator_trnid[aid, 0]) != jid:
+            raise RobotDataError(f"{aline}: actuator {s.actuator!r} does not drive joint {s.joint!r} (servo {s.name})")
+        kp = float(model.actuator_gainprm[aid, 0])
+        if (int(model.actuator_biastype[aid]) != int(mujoco.mjtBias.mjBIAS_AFFINE) or kp <= 0
+                or abs(float(model.actuator_biasprm[aid, 1]) + kp) > 1e-9 * max(1.0, kp)):
+            raise RobotDataError(f"{aline}: actuator {s.actuator!r} (servo {s.name}) is not a position actuator "
+                                 "(use <position kp=...>)")
+    if camera is not None and mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0:
+        raise RobotDataError(f"{mjcf}: no camera {camera!r} (robot.toml [peripherals] camera)")
+    for site in feet:
+        if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, site) < 0:
+            raise RobotDataError(f"{mjcf}: no site {site!r} (robot.toml [base] feet)")
+
+
+# --- robot.toml -----------------------------------------------------------------------------------
+
+
+def _names(v: Any, what: str, where: str) -> tuple[str, ...]:
+    if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
+        raise RobotDataError(f"{where}: {what} must be a list of names")
+    return tuple(v)
+
+
+def _file(root: Path, doc: Mapping[str, Any], key: str, where: str, *, required: bool = True) -> Path | None:
+    v = doc.get(key)
+    if v is None:
+        if required:
+            raise RobotDataError(f"{where}: {key} = \"FILE\" is missing")
+        return None
+    p = root / _str(v, key, where)
+    if not p.is_file():
+        raise RobotDataError(f"{where}: {key} = {v!r}: no such file in {root}")
+    return p
+
+
+def _scenes(doc: Mapping[str, Any], path: Path, text: str) -> dict[str, SceneSpec]:
+    scenes: dict[str, SceneSpec] = {"empty": SceneSpec("empty", "the robot alone")}
+    raw = doc.get("scenes", {})
+    if not isinstance(raw, dict):
+        raise RobotDataError(f"{path}: [scenes] must be a table")
+    for name, sc in raw.items():
+        where = _at(path, _line(text, rf"^\[scenes\.{re.escape(name)}\]"))
+        if not isinstance(sc, dict):
+            raise RobotDataError(f"{where}: scene {name!r} must be a table")
+        objects = []
+        for k, o in enumerate(sc.get("objects", [])):
+            owhere = _at(path, _line(text, rf"^\[\[scenes\.{re.escape(name)}\.objects\]\]", k))
+            try:
+                shape = str(o["shape"])
+                size = tuple(_num(v, "size", owhere) for v in o["size"])
+                pos = tuple(_num(v, "pos", owhere) for v in o["pos"])
+                obj = SceneObjectSpec(
+                    name=_str(o["name"], "name", owhere), shape=shape, size=size, pos=pos,  # type: ignore[arg-type]
+                    rgba=tuple(_num(v, "rgba", owhere) for v in o.get("rgba", (0.6, 0.6, 0.6, 1.0))),  # type: ignore[arg-type]
+                    mass=None if o.get("mass") is None else _num(o["mass"], "mass", owhere),
+                    free=bool(o.get("free", True)),
+                    friction=tuple(_num(v, "friction", owhere) for v in o.get("friction", (1.0, 0.005, 0.0001))),  # type: ignore[arg-type]
+                    topples=bool(o.get("topples", False)),
+                    euler_deg=tuple(_num(v, "euler_deg", owhere) for v in o.get("euler_deg", (0.0, 0.0, 0.0))),  # type: ignore[arg-type]
+                )
+            except (KeyError, TypeError) as e:
+                raise RobotDataError(f"{owhere}: scene object needs name, shape, size and pos ({e})") from None
+            if shape not in SHAPES or len(obj.size) != SHAPES[shape] or len(obj.pos) != 3 or min(obj.size) <= 0:
+                raise RobotDataError(f"{owhere}: object {obj.name!r}: shape must be one of {', '.join(SHAPES)} with "
+                                     "positive size values (box: 3 half sizes, cylinder: radius and half height, "
+                                     "sphere: radius) and pos = [x, y, z]")
+            if len(obj.rgba) != 4 or len(obj.friction) != 3 or len(obj.euler_deg) != 3:
+                raise RobotDataError(f"{owhere}: object {obj.name!r}: rgba needs 4 values, friction 3, euler_deg 3")
+            objects.append(obj)
+        scenes[name] = SceneSpec(name, str(sc.get("doc", "")), tuple(objects))
+    return scenes
+
+
+def _tour(doc: Mapping[str, Any], poses: Mapping[str, Any], path: Path) -> tuple[str, ...]:
+    names = _names(doc.get("tour", []), "tour", str(path))
+    for n in names:
+        if n not in poses:
+            raise RobotDataError(f"{path}: tour names pose {n!r}, which is not a pose ({', '.join(poses)})")
+    return names
+
+
+def load_robot_dir(root: Path, *, builtin: bool = False, check_mjcf: bool = True) -> Robot:
+    """Read the robot in folder ``root`` (its ``robot.toml``); :class:`RobotDataError` says what and where."""
+    root = Path(root).resolve()
+    path = root / ROBOT_FILE
+    doc, text = _read_toml(path)
+    name = doc.get("name")
+    if not isinstance(name, str) or not NAME_RE.match(name):
+        where = _at(path, _line(text, r"^name\s*="))
+        raise RobotDataError(f"{where}: name must match [a-z][a-z0-9_]* (at most 32 characters), got {name!r}")
+    mjcf = _file(root, doc, "mjcf", str(path))
+    servo_path = _file(root, doc, "servo_table", str(path))
+    poses_path = _file(root, doc, "poses", str(path))
+    assert mjcf and servo_path and poses_path
+    table = read_servo_table(servo_path)
+    poses = read_poses(poses_path, table)
+    for key, default in (("start_pose", None), ("rest_pose", None), ("safe_pose", None)):
+        pose = doc.get(key, default)
+        if pose not in poses:
+            where = _at(path, _line(text, "^" + key + r"\s*="))
+            raise RobotDataError(f"{where}: {key} = {pose!r} is not a pose in {poses_path.name} "
+                                 f"(poses: {', '.join(poses)})")
+    base_doc = doc.get("base", {})
+    base = Base(floating=bool(base_doc.get("floating", False)),
+                feet=_names(base_doc.get("feet", []), "feet", str(path)),
+                foot_radius=_num(base_doc.get("foot_radius", 0.0), "foot_radius", str(path)),
+                spawn_height=_num(base_doc.get("spawn_height", 0.2), "spawn_height", str(path)))
+    channels: dict[str, Channel] = {}
+    owner: dict[int, str] = {}
+    for cname, c in (doc.get("channels") or {}).items():
+        where = _at(path, _line(text, rf"^\[channels\.{re.escape(cname)}\]"))
+        idx = []
+        for sname in _names(c.get("servos", []), f"channel {cname} servos", where):
+            try:
+                i = table.by_name(sname).index
+            except KeyError as e:
+                raise RobotDataError(f"{where}: channel {cname!r}: {e.args[0]}") from None
+            if i in owner:
+                raise RobotDataError(f"{where}: servo {sname!r} is in channels {owner[i]!r} and {cname!r}")
+            owner[i] = cname
+            idx.append(i)
+        channels[cname] = Channel(cname, tuple(sorted(idx)), str(c.get("doc", "")))
+    per = doc.get("peripherals", {})
+    peripherals = Peripherals(
+        camera=per.get("camera"), camera_label=str(per.get("camera_label", "camera")),
+        screen=bool(per.get("screen", False)), speaker=bool(per.get("speaker", False)),
+        voices=tuple(per.get("voices", ("robot",))),
+        clips=None if per.get("clips") is None else tuple(per["clips"]))
+    scenes = _scenes(doc, path, text)
+    default_scene = str(doc.get("default_scene", "empty"))
+    if default_scene not in scenes:
+        raise RobotDataError(f"{path}: default_scene {default_scene!r} is not a scene ({', '.join(scenes)})")
+    for key in ("interface", "behaviours"):
+        mod = doc.get(key)
+        if mod is not None and not (root / f"{mod}.py").is_file():
+            where = _at(path, _line(text, "^" + key + r"\s*="))
+            raise RobotDataError(f"{where}: {key} = {mod!r}: no {mod}.py in {root}")
+    data = {k: root / str(v) for k, v in (doc.get("data") or {}).items()}
+    view = {str(k): _num(v, f"view {k}", str(path)) for k, v in (doc.get("view") or {}).items()}
+    if check_mjcf:
+        check_against_mjcf(mjcf, table, servo_path, servo_path.read_text(encoding="utf-8"),
+                           peripherals.camera, base.feet)
+    return Robot(
+        name=name, title=str(doc.get("title", name)), description=str(doc.get("description", "")), root=root,
+        mjcf=mjcf, servos=table, poses=poses, channels=channels, peripherals=peripherals, scenes=scenes,
+        default_scene=default_scene, base=base, start_pose=str(doc["start_pose"]), rest_pose=str(doc["rest_pose"]),
+        safe_pose=str(doc["safe_pose"]), tasks_path=_file(root, doc, "tasks", str(path), required=False),
+        behaviours_module=doc.get("behaviours"), interface_module=doc.get("interface"),
+        default_vocabulary=str(doc.get("default_vocabulary", "default")),
+        demo_task_id=None if doc.get("demo_task") is None else int(doc["demo_task"]),
+        tour_poses=_tour(doc, poses, path),
+        data=data, view=view, builtin=builtin,
+        sources={"robot": path, "servo_table": servo_path, "poses": poses_path, "mjcf": mjcf},
+    )
