@@ -744,7 +744,11 @@ class ProgramRun:
     async def _scope_timer(self, c: _Call) -> None:
         """End the scope ``c`` once its timeout has passed on the shell's clock."""
         assert c.timeout is not None
-        await self.sleep(c.timeout)
+        try:
+            await self.sleep(c.timeout)
+        except Exception as exc:  # the clock's source failed (e.g. the link): the scope fails, its calls go on
+            c.error = c.error or f"timeout clock failed: {type(exc).__name__}: {exc}"
+            return
         self._end_scope(c, "timeout", "timeout")
 
     def _end_scope(self, c: _Call, why: str, by: str) -> None:

@@ -190,6 +190,17 @@ async def test_timeout_sleeps_on_the_shells_clock():
     assert asked == [1.0] and tl.by_path("wait[0]").end == 0.5
 
 
+async def test_a_failing_clock_fails_the_scope_not_the_run():
+    async def broken(seconds: float) -> None:
+        raise RuntimeError("link lost")
+
+    r = await _shell(sleep=broken).run_text('<wait timeout="1"><walk/></wait><smile/>')
+    tl = r.timeline
+    w = tl.by_path("wait[0]")
+    assert w.outcome == "failed" and w.error == "timeout clock failed: RuntimeError: link lost" and w.end == 3
+    assert tl.one("walk").outcome == "done" and tl.one("smile").start == 3
+
+
 async def test_interrupting_a_timed_scope_cancels_its_timer():
     sh = _shell()
     out = {}
