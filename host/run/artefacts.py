@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-OUTCOMES = ("done", "failed", "cancelled", "interrupted", "pending")
+OUTCOMES = ("done", "failed", "cancelled", "interrupted", "pending", "timeout")
 
 
 @dataclass
@@ -30,6 +30,7 @@ class BoardCall:
     outcome: str
     error: str | None = None
     persistent: bool = False
+    ended_by: str | None = None  # a scope that ended early: the child's path or "timeout" (else not written)
 
 
 @dataclass
@@ -67,13 +68,15 @@ def calls_table(calls: Sequence[BoardCall], t0: float = 0.0) -> str:
     for c in calls:
         s = "   -  " if c.start is None else f"{c.start - t0:6.2f}"
         e = "   -  " if c.end is None else f"{c.end - t0:6.2f}"
-        rows.append(f"{s}  {e}  {c.channel or '-':7}  {c.outcome:11}  {c.path}  {c.args}{'  ' + c.error if c.error else ''}")
+        rows.append(f"{s}  {e}  {c.channel or '-':7}  {c.outcome:11}  {c.path}  {c.args}{'  ' + c.error if c.error else ''}"
+                    f"{'  ended by ' + c.ended_by if c.ended_by else ''}")
     return "\n".join(rows)
 
 
 def write_timeline_json(path: Path, calls: Sequence[BoardCall], t0: float = 0.0) -> None:
     """Write ``{"clock": "board", "t0": run start, "calls": [...]}`` (times in board seconds)."""
-    doc = {"clock": "board", "t0": t0, "calls": [{k: _jsonable(v) for k, v in asdict(c).items()} for c in calls]}
+    doc = {"clock": "board", "t0": t0, "calls": [{k: _jsonable(v) for k, v in asdict(c).items()
+                                                   if k != "ended_by" or v is not None} for c in calls]}
     path.write_text(json.dumps(doc, indent=1, ensure_ascii=False) + "\n", encoding="utf-8")
 
 
@@ -82,7 +85,7 @@ def write_summary_json(path: Path, summary: Summary) -> None:
 
 
 _COLOURS = {"done": "#4c9be8", "failed": "#e05050", "cancelled": "#aaaaaa", "interrupted": "#f0a030",
-            "pending": "#dddddd"}
+            "pending": "#dddddd", "timeout": "#b07cd8"}
 
 
 def plot_timeline(path: Path, calls: Sequence[BoardCall], title: str = "") -> None:
@@ -93,17 +96,19 @@ def plot_timeline(path: Path, calls: Sequence[BoardCall], title: str = "") -> No
     import matplotlib.pyplot as plt
 
     shown = [c for c in calls if c.start is not None]
-    channels = list(dict.fromkeys(c.channel or "?" for c in shown)) or ["-"]
+    row = lambda c: c.channel or ("skills" if c.function == "RUN" else "?")  # noqa: E731 (a RUN spans its calls)
+    channels = list(dict.fromkeys(row(c) for c in shown)) or ["-"]
     fig, ax = plt.subplots(figsize=(10, 0.6 * len(channels) + 1.4))
     t_max = max((c.end or c.start or 0.0) for c in shown) if shown else 1.0
     for c in shown:
         start = c.start if c.start is not None else 0.0  # (shown calls all started)
-        y = channels.index(c.channel or "?")
+        y = channels.index(row(c))
         end = c.end if c.end is not None else t_max
         h = 0.35 if c.persistent else 0.7
         ax.barh(y, max(end - start, 0.02), left=start, height=h, color=_COLOURS.get(c.outcome, "#888"),
                 edgecolor="black", linewidth=0.5, alpha=0.6 if c.persistent else 0.9)
-        ax.text(start + 0.02, y, c.function, va="center", fontsize=7, clip_on=True)
+        label = f"RUN {c.args.get('id', '')}" if c.function == "RUN" else c.function
+        ax.text(start + 0.02, y, label, va="center", fontsize=7, clip_on=True)
     ax.set_yticks(range(len(channels)), channels)
     ax.invert_yaxis()
     ax.set_xlabel("board time (s)")

@@ -243,7 +243,7 @@ class RobotSession:
             client.on_nack.append(self._on_nack)
             registry = robot_registry(self.robot, runtime, self.vocabulary)
             self._shell = Shell(registry, mode=opts.mode, strict=opts.strict, clock=runtime.board_now_s,
-                                skills=opts.skills, policy=opts.policy)
+                                sleep=runtime.sleep, skills=opts.skills, policy=opts.policy)
             tg = anyio.create_task_group()
             self._tg = await self._stack.enter_async_context(tg)
             tg.start_soon(self._ends_the_run, pump(client, runtime, self.rec))
@@ -576,7 +576,7 @@ def _board_calls(result: RunResult, runtime: RobotRuntime | None) -> list[artefa
         start = measured[0] if measured[0] is not None else (None if r.start is None else result.t0 + r.start)
         end = measured[1] if measured[1] is not None else (None if r.end is None else result.t0 + r.end)
         calls.append(artefacts.BoardCall(r.function, r.channel, dict(r.args), r.path, start, end, r.outcome,
-                                         r.error, r.persistent))
+                                         r.error, r.persistent, r.ended_by))
     return calls
 
 

@@ -9,6 +9,7 @@ limit                       default    when exceeded
 ``max_calls``               5 000      further elements are refused (one error, then counted)
 ``max_queued_per_channel``  1 000      a call on a channel with that many pending calls fails
 ``max_attr_chars``          4 096      an element with a longer attribute value fails
+``max_scope_timeout_s``     600        a ``<wait>``/``<async>`` with a longer ``timeout`` fails
 ``MAX_DEPTH`` (scheduler)   64         a deeper element fails; its children attach above
 ==========================  =========  ==========================================================
 
@@ -32,9 +33,12 @@ class Limits:
     max_calls: int = 5_000
     max_queued_per_channel: int = 1_000
     max_attr_chars: int = 4_096
+    max_scope_timeout_s: float = 600.0  # seconds of the shell's clock (board time in real runs)
 
     def validate(self) -> Limits:
         for name in ("max_text_chars", "max_calls", "max_queued_per_channel", "max_attr_chars"):
             if getattr(self, name) < 1:
                 raise ValueError(f"Limits.{name} must be at least 1, got {getattr(self, name)}")
+        if not 0 < self.max_scope_timeout_s < float("inf"):
+            raise ValueError(f"Limits.max_scope_timeout_s must be a finite number above 0, got {self.max_scope_timeout_s}")
         return self

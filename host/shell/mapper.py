@@ -2,7 +2,9 @@
 
 :func:`map_element` is the paper's M(E) = (F, theta): it resolves the element
 name on the registry and converts every attribute string with T(v)
-(:func:`convert_value`) to the declared parameter type. Errors are
+(:func:`convert_value`) to the declared parameter type. :func:`map_scope` does the
+same for the attributes of the scope elements ``<wait>`` and ``<async>``
+(``until``, ``timeout``), which name no function. Errors are
 :class:`MappingError` subclasses whose messages are meant for the LLM's next
 turn. (Streamed text becomes speech segments through
 :class:`host.speech.sentences.SentenceSplitter`, used by the scheduler.)
@@ -188,3 +190,34 @@ def map_element(registry: Registry, name: str, attrs: dict[str, str]) -> MappedC
         raise UnknownFunctionError(str(exc)) from None
     rest, sync = split_sync(name, attrs)
     return MappedCall(spec, map_args(spec, rest), sync)
+
+
+#: the values of a scope's ``until`` attribute (MOSShell's ``flow`` is not supported)
+SCOPE_UNTIL = ("all", "any")
+#: the attributes a scope element takes
+SCOPE_ATTRS = ("until", "timeout")
+
+
+def map_scope(name: str, attrs: dict[str, str], max_timeout_s: float) -> tuple[dict[str, Any], list[str]]:
+    """Typed ``until``/``timeout`` of the scope element ``<name>``, and the other attribute names.
+
+    ``until`` is ``"all"`` (the default) or ``"any"``; ``timeout`` a finite number of seconds
+    above 0 and at most ``max_timeout_s``. Only the attributes given are returned. Raises a
+    :class:`MappingError` (one line naming what is accepted).
+    """
+    args: dict[str, Any] = {}
+    if "until" in attrs:
+        raw = attrs["until"]
+        try:
+            args["until"] = convert_value(raw, Literal["all", "any"], where=f"<{name}> until")
+        except BadValue as exc:
+            note = " (until=\"flow\" is not supported)" if _normal(raw) == "flow" else ""
+            raise BadValue(f"{exc}{note}") from None
+    if "timeout" in attrs:
+        raw = attrs["timeout"]
+        t = convert_value(raw, float, where=f"<{name}> timeout")
+        if not 0 < t <= max_timeout_s:
+            raise OutOfRange(f"<{name}> timeout={raw!r} is out of range: seconds, more than 0 and at most "
+                             f"{max_timeout_s:g}")
+        args["timeout"] = t
+    return args, [k for k in attrs if k not in SCOPE_ATTRS]

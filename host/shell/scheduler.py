@@ -27,6 +27,31 @@ Scheduling rules (paper, Appendix A.4), with call ``j`` dispatched after ``i``:
   returned. So on one channel a reset always finishes before the next call
   starts.
 
+Scopes (issue 19): ``<wait>`` and ``<async>`` take ``until`` and ``timeout``.
+
+* ``until="all"`` (the default, the paper's meaning): the scope ends when all its
+  children have ended.
+* ``until="any"``: the first direct child to end (``done``, ``failed`` or, a scope,
+  ``timeout``; a child cancelled from outside does not count) ends the scope: every call still pending
+  under it is cancelled through the lifecycle tree (persistent ones are reset), and
+  children that arrive later in the stream are cancelled before they start.
+  ``CallRecord.ended_by`` names that child.
+* ``timeout="S"``: S seconds after the scope starts, on the shell's clock (slept
+  with ``Shell(sleep=...)``, the board clock in real runs), the scope ends the same
+  way; its outcome is then ``timeout`` (``ended_by`` ``"timeout"``), else ``done``.
+* The scope's ``end`` is the moment it ended; it still *completes* (what is written
+  after it may start) only when its end-tag arrived and every cancelled child has
+  stopped, so nothing after it overlaps what it cancelled.
+* A bad ``until``/``timeout`` (see :func:`host.shell.mapper.map_scope`) fails the
+  scope with one line; like any failed start-tag it still scopes its children, as a
+  plain scope (``until="all"``, no timeout). On a self-closing ``<wait/>`` the
+  attributes are checked but have nothing to act on (a warning says so).
+
+``<RUN id="skill"/>`` is an element: the skill's calls are its children (paths
+``RUN[0]/...``), it completes when they have, and cancelling it cancels them. It
+has no channel of its own (like a group), so its calls are scheduled exactly as if
+they were written in its place.
+
 Failures are local: a call whose function raises (or whose element cannot be
 mapped) is recorded ``failed`` with the error, and its children and siblings
 still run (a failed start-tag still scopes its children and is reset).
@@ -37,14 +62,14 @@ from __future__ import annotations
 import contextlib
 import itertools
 import re
-from collections.abc import AsyncIterable, Callable
+from collections.abc import AsyncIterable, Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import anyio
 
 from host.shell.context import CallContext, _current
-from host.shell.mapper import MappingError, map_element, split_sync
+from host.shell.mapper import MappingError, map_element, map_scope, split_sync
 from host.shell.limits import Limits
 from host.shell.parser import (
     EmptyTag,
@@ -85,7 +110,7 @@ MAX_SKILL_DEPTH = 16
 class _Call:
     id: int
     record: CallRecord
-    kind: str  # "fn" | "builtin" | "group"
+    kind: str  # "fn" | "builtin" (wait, async) | "group" (a failed start-tag) | "run" (<RUN>)
     spec: FunctionSpec | None
     args: dict[str, Any]
     channel: str | None
@@ -106,6 +131,10 @@ class _Call:
     reason: str | None = None
     error: str | None = None
     ctx: CallContext | None = None
+    until: str = "all"  # a scope: "all" | "any"
+    timeout: float | None = None  # a scope: seconds on the shell's clock
+    ending: str | None = None  # a scope that ended early: "any" | "timeout"
+    cut_at: float | None = None  # when it ended (seconds since the run's start)
 
     def ancestors(self) -> list[_Call]:
         out, p = [], self.parent
@@ -141,6 +170,7 @@ class ProgramRun:
         self.strict = shell.strict
         self.text_first_class = shell.text_first_class
         self.clock: Callable[[], float] = shell.clock or anyio.current_time
+        self.sleep: Callable[[float], Awaitable[None]] = getattr(shell, "sleep", None) or anyio.sleep
         self.skills = shell.skills
         self.timeline = Timeline()
         self.observations: list[Observation] = []
@@ -426,14 +456,20 @@ class ProgramRun:
             self._start_save(attrs, empty)
             return
         if name == "RUN":
-            self._run_skill(attrs)
-            if not empty:
-                self._stack.append(_Frame(name, None, frame.path, frame.async_ctx, frame.counts))
+            self._run_skill(attrs, empty)
             return
         if name in ("wait", "async"):
-            if attrs:
-                self._observe("warning", f"<{name}> takes no attributes; ignored {sorted(attrs)}")
-            call = self._new_call(name, "builtin", None, {}, MAIN_CHANNEL, None, persistent=not empty)
+            try:
+                args, ignored = map_scope(name, attrs, self.limits.max_scope_timeout_s)
+            except MappingError as exc:
+                self._scope_failed(name, attrs, str(exc), empty)
+                return
+            if ignored:
+                self._observe("warning", f"<{name}> takes only until and timeout; ignored {sorted(ignored)}")
+            if empty and args:
+                self._observe("warning", f"<{name}/> has no children: {' and '.join(sorted(args))} has no effect")
+            call = self._new_call(name, "builtin", None, args, MAIN_CHANNEL, None, persistent=not empty)
+            call.until, call.timeout = args.get("until", "all"), args.get("timeout")
             if not empty:
                 self._stack.append(_Frame(name, call, call.record.path, name == "async" or frame.async_ctx))
             return
@@ -480,6 +516,16 @@ class ProgramRun:
             call.error = message
             self._stack.append(_Frame(name, call, path, frame.async_ctx))
 
+    def _scope_failed(self, name: str, attrs: dict[str, str], message: str, empty: bool) -> None:
+        """A refused ``<wait>``/``<async>``: failed on the timeline; a start-tag still scopes its
+        children as a plain scope of its kind would (main channel, ``until="all"``, no timeout)."""
+        frame = self._stack[-1]
+        rec = self._record_failure(name, attrs, message, empty)
+        if not empty:
+            call = self._spawn(rec, "group", None, {}, MAIN_CHANNEL, None, frame, persistent=True)
+            call.error = message
+            self._stack.append(_Frame(name, call, rec.path, name == "async" or frame.async_ctx))
+
     def _end(self, name: str) -> None:
         if len(self._stack) == 1:
             self._observe("warning", f"end-tag </{name}> closes nothing; ignored")
@@ -497,13 +543,11 @@ class ProgramRun:
         self._recording = _Recording(name, attrs.get("description", ""))
         self._save_mark = max(0, len(self._executed) - 1)  # the <SAVE> start tag
 
-    def _run_skill(self, attrs: dict[str, str]) -> None:
+    def _run_skill(self, attrs: dict[str, str], empty: bool) -> None:
+        """``<RUN id=.../>``: an element (no channel) whose children are the skill's calls; a
+        ``<RUN>`` start-tag also scopes what it encloses, after the skill's calls."""
         frame = self._stack[-1]
         sid = attrs.get("id", attrs.get("name", ""))
-        path = self._path(frame, "RUN")
-        rec = CallRecord(next(self._ids), "RUN", None, {"id": sid}, path, False, self.now())
-        rec.start = rec.end = rec.dispatch
-        self.timeline.records.append(rec)
         try:
             if sid in self._skill_stack:
                 raise SkillError(f"recursive skill: {' -> '.join([*self._skill_stack, sid])}")
@@ -513,10 +557,17 @@ class ProgramRun:
             p = FunctionTokenParser(strict=True)
             events = p.feed(skill.program) + p.close()
         except (SkillError, ParseError) as exc:
+            path = self._path(frame, "RUN")
+            rec = CallRecord(next(self._ids), "RUN", None, {"id": sid}, path, False, self.now())
+            rec.start = rec.end = rec.dispatch
             rec.outcome, rec.error = "failed", str(exc)
+            self.timeline.records.append(rec)
             self._observe("error", f"<RUN id={sid!r}/>: {exc}", path)
+            if not empty:
+                self._stack.append(_Frame("RUN", None, frame.path, frame.async_ctx, frame.counts))
             return
-        rec.outcome = "done"
+        call = self._new_call("RUN", "run", None, {"id": sid}, None, None, persistent=True)
+        self._stack.append(_Frame("RUN", call, call.record.path, frame.async_ctx))
         self._skill_stack.append(sid)
         depth = len(self._stack)
         try:
@@ -527,8 +578,12 @@ class ProgramRun:
             self._flush_text()
         finally:
             self._skill_stack.pop()
+        if self._stopped:  # _stop closed every open element, this RUN included
+            return
         while len(self._stack) > depth:  # cannot happen for a strict-parsed program
             self._end(self._stack[-1].name)
+        if empty:
+            self._end("RUN")
 
     # -- dispatch ---------------------------------------------------------------
     def _path(self, frame: _Frame, name: str) -> str:
@@ -542,7 +597,7 @@ class ProgramRun:
         kind: str,
         spec: FunctionSpec | None,
         args: dict[str, Any],
-        channel: str,
+        channel: str | None,
         home: str | None,
         *,
         persistent: bool,
@@ -571,6 +626,9 @@ class ProgramRun:
         self._by_channel.setdefault(channel, {})[call.id] = call
         if parent is not None:
             parent.open_children += 1
+        if any(a.ending is not None for a in call.ancestors()):  # its scope already ended
+            call.reason = "cancelled"
+            call.scope.cancel()
         assert self._tg is not None
         self._tg.start_soon(self._run_element if persistent else self._run_leaf, call)
         return call
@@ -663,11 +721,18 @@ class ProgramRun:
                         tg.start_soon(self._persistent, c)
                         await c.subtree_done.wait()
                         c.run_scope.cancel()
+                elif c.timeout is not None:
+                    async with anyio.create_task_group() as tg:
+                        tg.start_soon(self._scope_timer, c)
+                        await c.subtree_done.wait()
+                        tg.cancel_scope.cancel()
                 else:
                     await c.subtree_done.wait()
                 c.ok = True
         finally:
             c.activated.set()  # children of an element cancelled before activation may proceed
+            if c.kind == "run" and not c.ok:  # a skill's calls belong to its RUN
+                self._cancel(lambda d: c in d.ancestors(), c.reason or "cancelled")
             try:
                 if c.started and c.spec is not None and c.spec.reset is not None:
                     await self._reset(c)
@@ -675,6 +740,28 @@ class ProgramRun:
                     await c.subtree_done.wait()
             finally:
                 self._finish(c)
+
+    async def _scope_timer(self, c: _Call) -> None:
+        """End the scope ``c`` once its timeout has passed on the shell's clock."""
+        assert c.timeout is not None
+        try:
+            await self.sleep(c.timeout)
+        except Exception as exc:  # the clock's source failed (e.g. the link): the scope fails, its calls go on
+            c.error = c.error or f"timeout clock failed: {type(exc).__name__}: {exc}"
+            return
+        self._end_scope(c, "timeout", "timeout")
+
+    def _end_scope(self, c: _Call, why: str, by: str) -> None:
+        """The scope ``c`` ends now (``why``: ``any`` or ``timeout``): cancel every call pending under it."""
+        if c.ending is not None or c.subtree_done.is_set():
+            return
+        c.ending, c.cut_at, c.record.ended_by = why, self.now(), by
+        n = self._cancel(lambda d: c in d.ancestors(), "cancelled")
+        attrs = "".join(f' {k}="{v:g}"' if isinstance(v, float) else f' {k}="{v}"' for k, v in c.args.items())
+        what = (f"timed out after {c.timeout:g} s" if why == "timeout"
+                else f"ended when its child {by} ended")
+        cancelled = f"; {n} call(s) under it cancelled" if n else ""
+        self._observe("info", f"<{c.record.function}{attrs}> {what}{cancelled}", c.record.path)
 
     async def _reset(self, c: _Call) -> None:
         assert c.spec is not None and c.spec.reset is not None
@@ -706,13 +793,17 @@ class ProgramRun:
             if c.kind != "group":
                 self._observe("error", f"{rec.function} failed: {c.error}", rec.path)
         elif c.ok:
-            rec.outcome = "done"
+            rec.outcome = "timeout" if c.ending == "timeout" else "done"
+            if c.cut_at is not None:  # a scope that ended early: its end is the cut
+                rec.end = c.cut_at
         else:
             rec.outcome = c.reason or "cancelled"  # type: ignore[assignment]
         if not c.started and rec.outcome != "failed":
             rec.end = None
         self._pending.pop(c.id, None)
         self._by_channel.get(c.channel, {}).pop(c.id, None)
+        if c.parent is not None and c.parent.until == "any" and rec.outcome in ("done", "failed", "timeout"):
+            self._end_scope(c.parent, "any", rec.path)  # before the events below wake its siblings
         c.activated.set()
         c.handed_over.set()
         c.completed.set()

@@ -9,7 +9,7 @@ Example::
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterable, AsyncIterator, Callable, Iterable
+from collections.abc import AsyncIterable, AsyncIterator, Awaitable, Callable, Iterable
 
 from host.shell.limits import Limits
 from host.shell.policy import Policy
@@ -27,7 +27,8 @@ class Shell:
     ``strict`` selects the paper's strict parser (a parse error stops the run) or
     lenient recovery (warnings become observations); ``text_first_class`` puts
     speech on the main channel; ``clock`` is the time source for the timeline
-    (default ``anyio.current_time``); ``skills`` is the skill memory (default: an
+    (default ``anyio.current_time``) and ``sleep(seconds)`` sleeps on that clock (a scope's
+    ``timeout``; default ``anyio.sleep``, right for the default clock); ``skills`` is the skill memory (default: an
     in-memory store); ``limits`` caps what one turn may do (:class:`Limits`); ``policy``
     refuses calls it does not allow before they are dispatched (:class:`Policy`).
     """
@@ -42,6 +43,7 @@ class Shell:
         skills: SkillStore | None = None,
         limits: Limits | None = None,
         policy: Policy | None = None,
+        sleep: Callable[[float], Awaitable[None]] | None = None,
     ) -> None:
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, not {mode!r}")
@@ -50,6 +52,7 @@ class Shell:
         self.strict = strict
         self.text_first_class = text_first_class
         self.clock = clock
+        self.sleep = sleep
         self.skills = skills if skills is not None else SkillStore()
         self.limits = (limits or Limits()).validate()
         self.policy = policy

@@ -3,6 +3,12 @@
 Times are seconds relative to the run's start on the shell's clock (``t0`` is
 the absolute start). ``start`` is None for a call that never began (mapping
 error, or cancelled while queued).
+
+A scope (``<wait>``/``<async>``) records the ``until``/``timeout`` it was given in
+``args``; its outcome is ``done`` when its children ended as ``until`` asks and
+``timeout`` when its timeout ended it; ``end`` is the moment it ended (its cancelled
+children's own ``end`` says when each of them stopped), and ``ended_by`` names the
+child whose end ended an ``until="any"`` scope (``"timeout"`` for a timeout).
 """
 
 from __future__ import annotations
@@ -11,7 +17,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-Outcome = Literal["pending", "done", "failed", "cancelled", "interrupted"]
+Outcome = Literal["pending", "done", "failed", "cancelled", "interrupted", "timeout"]
 
 
 @dataclass
@@ -30,6 +36,7 @@ class CallRecord:
     outcome: Outcome = "pending"
     error: str | None = None
     result: Any = None
+    ended_by: str | None = None  # a scope: the path of the child that ended it, or "timeout"
 
     @property
     def duration(self) -> float | None:
@@ -87,7 +94,8 @@ class Timeline:
         for r in self.records:
             s = "   -  " if r.start is None else f"{r.start:6.2f}"
             e = "   -  " if r.end is None else f"{r.end:6.2f}"
-            rows.append(f"{s}  {e}  {r.channel or '-':7}  {r.outcome:11}  {r.path}  {r.args}{'  ' + r.error if r.error else ''}")
+            rows.append(f"{s}  {e}  {r.channel or '-':7}  {r.outcome:11}  {r.path}  {r.args}{'  ' + r.error if r.error else ''}"
+                        f"{'  ended by ' + r.ended_by if r.ended_by else ''}")
         return "\n".join(rows)
 
 

@@ -115,11 +115,11 @@ def test_sentence_splitter_the_shell_uses():
 
 def test_prompt_changes_with_mount_and_mode(reg):
     code = render_prompt(reg)
-    assert 'def head_act(action: Literal["nod", "shake"], speed: Annotated[float, Range(0, 10)] = 1.0' in code
+    assert ('def head_act(\n    action: Literal["nod", "shake"],\n    speed: float = 1.0,  # 0..10\n' in code)  # bounds as the paper's stubs read
     assert 'mood: Literal["HAPPY", "SAD"] = "HAPPY"' in code and '"""Move the head.' in code
     assert "Also callable as: nod_head" in code and "Async-First" in code
     xml = render_prompt(reg, format="xml", mode="sync-first")
-    assert '<head_act action="nod|shake" speed="1.0"' in xml and "speed: number in [0, 10] (default 1.0)" in xml
+    assert '<head_act action="nod|shake" speed="1.0"' in xml and "speed: number 0..10 (default 1.0)" in xml
     assert "Sync-First" in xml and "<async>" in xml
 
     @shell_function(speech=True)
