@@ -1,8 +1,8 @@
 """``--mount-mcp`` arguments: ``NAME=COMMAND ARGS...`` (stdio) or ``NAME=URL`` (streamable HTTP).
 
 :func:`parse_mount_arg` returns a :class:`MountSpec` or raises :class:`MountSpecError` (a
-``ValueError``: argparse's ``type=`` turns it into a usage error, exit 2) naming the problem and
-the valid forms. ``str(spec)`` is canonical and parses back to the same spec.
+``ValueError`` and an ``argparse.ArgumentTypeError``: as ``type=`` it is a usage error with this
+message, exit 2) naming the problem and the valid forms. ``str(spec)`` is canonical and parses back to the same spec.
 
 * ``NAME``: the module (and channel) name the server's tools appear under, ``NAME.TOOL``; an
   ASCII letter or ``_``, then letters, digits, ``_`` or ``-`` (at most 40); not a shell built-in
@@ -17,6 +17,7 @@ the valid forms. ``str(spec)`` is canonical and parses back to the same spec.
 
 from __future__ import annotations
 
+import argparse
 import re
 import shlex
 from dataclasses import dataclass
@@ -28,8 +29,11 @@ FORMS = "NAME=COMMAND [ARGS...] (stdio) or NAME=http(s)://HOST[:PORT]/PATH (stre
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]{0,39}")
 
 
-class MountSpecError(ValueError):
-    """A ``--mount-mcp`` argument that names no server; the message says why and the valid forms."""
+class MountSpecError(argparse.ArgumentTypeError, ValueError):
+    """A ``--mount-mcp`` argument that names no server; the message says why and the valid forms.
+
+    An ``ArgumentTypeError``, so ``add_argument("--mount-mcp", type=parse_mount_arg, action="append")``
+    prints this message (argparse replaces a plain ``ValueError``'s with "invalid ... value")."""
 
 
 @dataclass(frozen=True)

@@ -31,9 +31,12 @@ GUARD = 60  # seconds: a hang guard, never a synchronisation
 pytestmark = pytest.mark.anyio
 
 
-@pytest.fixture(params=["asyncio", "trio"])
-def anyio_backend(request: pytest.FixtureRequest) -> str:
-    return str(request.param)
+@pytest.fixture
+def anyio_backend() -> str:
+    return "asyncio"  # what the CLI runs on; the cancellation and failure paths also run on trio (BOTH)
+
+
+BOTH = pytest.mark.parametrize("anyio_backend", ["asyncio", "trio"])
 
 
 def weather_spec(*flags: str, name: str = "weather") -> MountSpec:
@@ -77,7 +80,8 @@ async def test_prompt_shows_the_tools_as_typed_functions_with_notes() -> None:
             assert all("\n" not in n for n in mount.notes)
 
 
-async def test_a_call_returns_the_result_as_an_observation_beside_robot_functions() -> None:
+@BOTH
+async def test_a_call_returns_the_result_as_an_observation_beside_robot_functions(anyio_backend: str) -> None:
     nods: list[int] = []
 
     async def nod(times: int = 1) -> None:
@@ -139,7 +143,8 @@ async def test_a_tool_error_or_protocol_error_fails_the_call_with_the_servers_me
                 await mount.call("nope", {})
 
 
-async def test_an_interrupt_cancels_the_request_and_the_server_sees_it() -> None:
+@BOTH
+async def test_an_interrupt_cancels_the_request_and_the_server_sees_it(anyio_backend: str) -> None:
     with anyio.fail_after(GUARD):
         async with weather() as (shell, mount):
             results = []
@@ -158,7 +163,8 @@ async def test_an_interrupt_cancels_the_request_and_the_server_sees_it() -> None
             assert res.timeline.one("weather.get_forecast").outcome == "done"
 
 
-async def test_the_end_of_a_start_tags_lifecycle_cancels_its_request() -> None:
+@BOTH
+async def test_the_end_of_a_start_tags_lifecycle_cancels_its_request(anyio_backend: str) -> None:
     with anyio.fail_after(GUARD):
         async with weather() as (shell, mount):
             res = await shell.run_text('<weather.slow seconds="60"><weather.get_forecast city="Oslo"/></weather.slow>')
@@ -167,7 +173,8 @@ async def test_the_end_of_a_start_tags_lifecycle_cancels_its_request() -> None:
             assert "cancelled slow" in await events(mount, "cancelled slow")
 
 
-async def test_a_call_with_no_answer_in_time_fails_and_is_cancelled() -> None:
+@BOTH
+async def test_a_call_with_no_answer_in_time_fails_and_is_cancelled(anyio_backend: str) -> None:
     with anyio.fail_after(GUARD):
         async with weather(call_timeout=0.5) as (shell, mount):
             res = await shell.run_text('<weather.slow seconds="60"/>')
@@ -177,7 +184,8 @@ async def test_a_call_with_no_answer_in_time_fails_and_is_cancelled() -> None:
             assert "cancelled slow" in await events(mount, "cancelled slow")
 
 
-async def test_a_server_dying_mid_call_fails_the_call_with_its_message_and_the_turn_ends() -> None:
+@BOTH
+async def test_a_server_dying_mid_call_fails_the_call_with_its_message_and_the_turn_ends(anyio_backend: str) -> None:
     with anyio.fail_after(GUARD):
         async with weather("--die-on-call") as (shell, mount):
             res = await shell.run_text('<weather.get_forecast city="Lisbon"/><weather.convert amount="3"/>')
@@ -205,7 +213,8 @@ async def test_a_server_that_cannot_start_is_one_clear_line() -> None:
         assert reg.modules() == []  # nothing stays mounted
 
 
-async def test_a_server_that_never_answers_fails_the_mount_at_its_timeout() -> None:
+@BOTH
+async def test_a_server_that_never_answers_fails_the_mount_at_its_timeout(anyio_backend: str) -> None:
     with anyio.fail_after(GUARD):
         with pytest.raises(McpMountError, match=r"gave no answer \(handshake and tools/list\) within 1 s"):
             async with weather("--hang-start", startup_timeout=1.0):
@@ -239,8 +248,7 @@ async def test_mount_names_are_checked_before_anything_starts() -> None:
             pytest.fail("mounted one name twice")
 
 
-@pytest.mark.parametrize("anyio_backend", ["asyncio"])
-async def test_streamable_http_server_on_localhost(anyio_backend: str) -> None:
+async def test_streamable_http_server_on_localhost() -> None:
     proc = subprocess.Popen([sys.executable, str(SERVER), "--http", "0"], stderr=subprocess.PIPE, text=True)
     ready = threading.Event()
     port: list[int] = []

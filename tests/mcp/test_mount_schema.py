@@ -143,3 +143,15 @@ def test_mount_arguments_parse_and_round_trip() -> None:
             parse_mount_arg(bad)
     with pytest.raises(MountSpecError, match="exactly one"):
         MountSpec("w")
+
+
+def test_a_bad_mount_argument_is_an_argparse_usage_error_with_its_message(capsys: pytest.CaptureFixture[str]) -> None:
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="ghostshell run")
+    parser.add_argument("--mount-mcp", type=parse_mount_arg, action="append", default=[])
+    assert parser.parse_args(["--mount-mcp", "w=python s.py"]).mount_mcp == [MountSpec("w", command=("python", "s.py"))]
+    with pytest.raises(SystemExit) as exited:
+        parser.parse_args(["--mount-mcp", "wait=python s.py"])
+    assert exited.value.code == 2
+    assert "argument --mount-mcp: --mount-mcp wait: 'wait' is reserved by the shell" in capsys.readouterr().err
