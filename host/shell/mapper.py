@@ -2,9 +2,10 @@
 
 :func:`map_element` is the paper's M(E) = (F, theta): it resolves the element
 name on the registry and converts every attribute string with T(v)
-(:func:`convert_value`) to the declared parameter type. :func:`map_scope` does the
-same for the attributes of the scope elements ``<wait>`` and ``<async>``
-(``until``, ``timeout``), which name no function. Errors are
+(:func:`convert_value`) to the declared parameter type (``list[T]``: a JSON array
+whose items are converted with T; exclusive bounds: ``annotated_types`` ``gt``/``lt``).
+:func:`map_scope` does the same for the attributes of the scope elements ``<wait>`` and
+``<async>`` (``until``, ``timeout``), which name no function. Errors are
 :class:`MappingError` subclasses whose messages are meant for the LLM's next
 turn. (Streamed text becomes speech segments through
 :class:`host.speech.sentences.SentenceSplitter`, used by the scheduler.)
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import difflib
 import enum
+import json
 import math
 import types
 import typing
@@ -63,8 +65,11 @@ def convert_value(value: str, annotation: Any, *, where: str = "value") -> Any:
             rng = as_range(m)
             if rng is not None and out is not None and not (rng.lo <= out <= rng.hi):
                 raise OutOfRange(f"{where}={value!r} is out of range [{rng.lo:g}, {rng.hi:g}]")
+            _check_exclusive(m, out, where, value)
             _check_length(m, out, where)
         return out
+    if origin is list:  # a JSON array of scalars, e.g. labels='["a", "b"]' (MCP tools' array parameters)
+        return _convert_list(value, annotation, where)
     if origin is Literal:
         options = typing.get_args(annotation)
         for opt in options:
@@ -134,8 +139,38 @@ def _normal(value: str) -> str:
     return "_".join(value.strip().casefold().replace("-", " ").split())
 
 
+def _convert_list(value: str, annotation: Any, where: str) -> list[Any]:
+    """``list[T]``: the attribute is a JSON array; every item is converted with T(v) as ``str(item)``."""
+    (item_type,) = typing.get_args(annotation) or (str,)
+    try:
+        items = json.loads(value)
+    except ValueError:
+        items = None
+    if not isinstance(items, list):
+        raise BadValue(f"{where}={value[:40]!r} is not a JSON array (write e.g. [\"a\", \"b\"] or [1, 2])")
+    return [convert_value(x if isinstance(x, str) else json.dumps(x), item_type, where=f"{where}[{i}]")
+            for i, x in enumerate(items)]
+
+
+def _check_exclusive(meta: Any, value: Any, where: str, raw: str) -> None:
+    """Exclusive bounds: ``annotated_types`` ``Gt``/``Lt`` (or an ``Interval`` with ``gt``/``lt``)."""
+    if value is None or isinstance(value, (str, list)):
+        return
+    gt, lt = getattr(meta, "gt", None), getattr(meta, "lt", None)
+    if gt is not None and not value > gt:
+        raise OutOfRange(f"{where}={raw!r} is out of range: it must be greater than {gt:g}")
+    if lt is not None and not value < lt:
+        raise OutOfRange(f"{where}={raw!r} is out of range: it must be less than {lt:g}")
+
+
 def _check_length(meta: Any, value: Any, where: str) -> None:
-    """String bounds: ``max_bytes`` (UTF-8 bytes, e.g. ``MaxUtf8Bytes``) and ``annotated_types`` MaxLen/Len."""
+    """String bounds: ``max_bytes`` (UTF-8 bytes, e.g. ``MaxUtf8Bytes``) and ``annotated_types`` MaxLen/Len;
+    for a list, MaxLen bounds its number of items."""
+    if isinstance(value, list):
+        max_items = getattr(meta, "max_length", None)
+        if isinstance(max_items, int) and len(value) > max_items:
+            raise BadValue(f"{where} has {len(value)} items; at most {max_items} allowed")
+        return
     if not isinstance(value, str):
         return
     max_bytes = getattr(meta, "max_bytes", None)

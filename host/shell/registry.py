@@ -1,6 +1,8 @@
 """The function registry: modules mounted and unmounted at runtime.
 
-Every mounted function (and each of its aliases) is resolvable by element name.
+Every mounted function (and each of its aliases) is resolvable by element name, exactly
+as mounted: a qualified name such as ``weather.get_forecast`` (an MCP tool, ``host.mounts``)
+is one name, and its bare ``get_forecast`` does not resolve (it is only suggested).
 Mount order is kept, so the prompt lists modules in the order they were mounted.
 ``version`` increases on every change so callers can re-render the prompt.
 """
@@ -92,8 +94,10 @@ class Registry:
         try:
             return self._names[name]
         except KeyError:
+            # a qualified name "module.fn" (e.g. an MCP tool) called by its bare "fn" is suggested first
+            qualified = [n for n in self._names if n.rpartition(".")[2] == name and n != name][:3]
             close = difflib.get_close_matches(name, list(self._names) + sorted(BUILTINS), n=3, cutoff=0.6)
-            raise UnknownFunction(name, close) from None
+            raise UnknownFunction(name, (qualified + [c for c in close if c not in qualified])[:3]) from None
 
     def __contains__(self, name: object) -> bool:
         return name in self._names

@@ -10,7 +10,7 @@ from typing import Annotated, Literal
 import pytest
 from annotated_types import Interval, MaxLen
 
-from host.coco.binding import coco_registry
+from support.coco import coco_registry
 from host.shell.mapper import OutOfRange, map_element
 from host.shell.prompt import RULES, bounds_text, render_prompt, render_stub, render_xml
 from host.shell.types import Module, Range, params_of

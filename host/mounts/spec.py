@@ -1,0 +1,95 @@
+"""``--mount-mcp`` arguments: ``NAME=COMMAND ARGS...`` (stdio) or ``NAME=URL`` (streamable HTTP).
+
+:func:`parse_mount_arg` returns a :class:`MountSpec` or raises :class:`MountSpecError` (a
+``ValueError`` and an ``argparse.ArgumentTypeError``: as ``type=`` it is a usage error with this
+message, exit 2) naming the problem and the valid forms. ``str(spec)`` is canonical and parses back to the same spec.
+
+* ``NAME``: the module (and channel) name the server's tools appear under, ``NAME.TOOL``; an
+  ASCII letter or ``_``, then letters, digits, ``_`` or ``-`` (at most 40); not a shell built-in
+  (``wait``, ``async``, ``SAVE``, ``RUN``) nor ``main``.
+* ``COMMAND``: split like a POSIX shell (``shlex``): ``weather="python server.py --units metric"``.
+  It runs with the SDK's safe environment (``HOME``, ``PATH``, ...) plus ``PYTHONPATH``,
+  ``VIRTUAL_ENV``, ``LANG``/``LC_*``, ``TMPDIR``, ``MUJOCO_GL`` and ``GHOSTSHELL_*`` (no API keys);
+  pass more with ``env VAR=value COMMAND``. A command starting with ``python`` or ``python3`` runs
+  under ghostshell's own interpreter, so a server written with the same venv's ``mcp`` just works.
+* ``URL``: ``http://`` or ``https://`` with a host, e.g. ``http://127.0.0.1:8000/mcp``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import shlex
+from dataclasses import dataclass
+from urllib.parse import urlsplit
+
+from host.shell.types import BUILTINS, MAIN_CHANNEL
+
+FORMS = "NAME=COMMAND [ARGS...] (stdio) or NAME=http(s)://HOST[:PORT]/PATH (streamable HTTP)"
+_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]{0,39}")
+
+
+class MountSpecError(argparse.ArgumentTypeError, ValueError):
+    """A ``--mount-mcp`` argument that names no server; the message says why and the valid forms.
+
+    An ``ArgumentTypeError``, so ``add_argument("--mount-mcp", type=parse_mount_arg, action="append")``
+    prints this message (argparse replaces a plain ``ValueError``'s with "invalid ... value")."""
+
+
+@dataclass(frozen=True)
+class MountSpec:
+    """One MCP server to mount: under ``name``, started as ``command`` or reached at ``url``."""
+
+    name: str
+    command: tuple[str, ...] = ()
+    url: str | None = None
+
+    def __post_init__(self) -> None:
+        check_name(self.name)
+        if bool(self.command) == (self.url is not None):
+            raise MountSpecError(f"--mount-mcp {self.name}: give exactly one of a command or a URL ({FORMS})")
+        if self.url is not None:
+            _check_url(self.name, self.url)
+
+    @property
+    def kind(self) -> str:
+        """``"stdio"`` or ``"http"``."""
+        return "http" if self.url is not None else "stdio"
+
+    def __str__(self) -> str:
+        return f"{self.name}={self.url if self.url is not None else shlex.join(self.command)}"
+
+
+def check_name(name: str) -> None:
+    """Raise :class:`MountSpecError` unless ``name`` can name a mounted module."""
+    if not _NAME.fullmatch(name):
+        raise MountSpecError(f"--mount-mcp {name!r}: NAME must be an ASCII letter or _ followed by at most 39 "
+                             f"letters, digits, _ or - (it prefixes the tools: NAME.TOOL); forms: {FORMS}")
+    if name in BUILTINS or name == MAIN_CHANNEL:
+        raise MountSpecError(f"--mount-mcp {name}: {name!r} is reserved by the shell; choose another NAME")
+
+
+def _check_url(name: str, url: str) -> None:
+    parts = urlsplit(url)
+    if parts.scheme not in ("http", "https") or not parts.hostname:
+        raise MountSpecError(f"--mount-mcp {name}={url}: not an http(s) URL with a host; forms: {FORMS}")
+
+
+def parse_mount_arg(text: str) -> MountSpec:
+    """``NAME=COMMAND...`` or ``NAME=URL`` -> :class:`MountSpec` (raises :class:`MountSpecError`)."""
+    name, eq, rest = text.partition("=")
+    name, rest = name.strip(), rest.strip()
+    if not eq or not rest:
+        raise MountSpecError(f"--mount-mcp {text!r}: expected {FORMS}")
+    check_name(name)
+    if re.match(r"[A-Za-z][A-Za-z0-9+.-]*://", rest):
+        if " " in rest:
+            raise MountSpecError(f"--mount-mcp {name}: a URL takes no arguments ({rest!r}); forms: {FORMS}")
+        return MountSpec(name, url=rest)
+    try:
+        argv = shlex.split(rest)
+    except ValueError as exc:
+        raise MountSpecError(f"--mount-mcp {name}: cannot split the command {rest!r}: {exc}") from None
+    if not argv:
+        raise MountSpecError(f"--mount-mcp {name}: empty command; forms: {FORMS}")
+    return MountSpec(name, command=tuple(argv))
