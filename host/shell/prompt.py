@@ -78,19 +78,20 @@ def _bound_note(meta: Any) -> str | None:
     if isinstance(max_len, int):
         return f"at most {max_len} characters"
     rng = as_range(meta)
-    parts = []
-    if rng is not None:
-        lo, hi = rng.lo, rng.hi
-        if lo != float("-inf") and hi != float("inf"):
-            parts.append(f"{lo:g}..{hi:g}")
-        elif lo != float("-inf"):
-            parts.append(f">= {lo:g}")
-        elif hi != float("inf"):
-            parts.append(f"<= {hi:g}")
-    for attr, sign in (("gt", ">"), ("lt", "<")):
-        v = getattr(meta, attr, None)
-        if isinstance(v, (int, float)) and not isinstance(v, bool):
-            parts.append(f"{sign} {v:g}")
+    lo, hi = (rng.lo, rng.hi) if rng is not None else (float("-inf"), float("inf"))
+    gt, lt = (v if isinstance(v, (int, float)) and not isinstance(v, bool) else None
+              for v in (getattr(meta, "gt", None), getattr(meta, "lt", None)))
+    if lo != float("-inf") and hi != float("inf") and gt is None and lt is None:
+        return f"{lo:g}..{hi:g}"
+    parts = []  # the lower bound first, then the upper: "> 0, <= 1000"
+    if gt is not None:
+        parts.append(f"> {gt:g}")
+    elif lo != float("-inf"):
+        parts.append(f">= {lo:g}")
+    if lt is not None:
+        parts.append(f"< {lt:g}")
+    elif hi != float("inf"):
+        parts.append(f"<= {hi:g}")
     return ", ".join(parts) if parts else None
 
 
@@ -102,6 +103,8 @@ def _split_bounds(ann: Any) -> tuple[Any, list[str]]:
         notes, unknown = [], []
         for m in meta:
             note = _bound_note(m)
+            if note is not None and typing.get_origin(base) is list:  # a list's length bound counts items
+                note = note.replace(" characters", " items")
             (notes.append(note) if note is not None else unknown.append(m))
         base, inner = _split_bounds(base)
         return (Annotated[(base, *unknown)] if unknown else base), inner + notes  # type: ignore[return-value]

@@ -61,10 +61,11 @@ async def test_prompt_shows_the_tools_as_typed_functions_with_notes() -> None:
         async with weather() as (shell, mount):
             prompt = shell.prompt()
             assert "# module weather (channel weather): tools of the MCP server weather-test" in prompt
-            assert ("def weather.get_forecast(city: Annotated[str, MaxLen(max_length=40)], "
-                    "days: Annotated[int, Interval(gt=None, ge=1, lt=None, le=7)] = 1) -> None:") in prompt
+            assert ("def weather.get_forecast(\n    city: str,  # at most 40 characters\n"
+                    "    days: int = 1,  # 1..7\n) -> None:") in prompt
             assert "Get the weather forecast for a city." in prompt and "city: City name, e.g. Lisbon" in prompt
-            assert 'unit: Literal["C", "F"] = "C"' in prompt and "Interval(gt=0, ge=None, lt=None, le=1000)" in prompt
+            assert 'unit: Literal["C", "F"] = "C"' in prompt and "amount: float,  # > 0, <= 1000" in prompt
+            assert "labels: list[str],  # at most 3 items" in prompt
             xml = shell.prompt("xml")
             assert '<weather.get_forecast city="..." days="1"/>' in xml and "greater than 0" in xml
             notes = "\n".join(mount.notes)

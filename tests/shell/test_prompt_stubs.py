@@ -64,17 +64,17 @@ async def f(a: Annotated[int, Range(1, 20)] = 2, b: Annotated[float, Interval(gt
 def test_bounds_of_every_kind() -> None:
     p = {x.name: x for x in params_of(f)}
     assert bounds_text(p["a"]) == "1..20"
-    assert bounds_text(p["b"]) == "<= 5, > 0"
+    assert bounds_text(p["b"]) == "> 0, <= 5"
     assert bounds_text(p["c"]) == "at most 8 characters"
     assert bounds_text(p["d"]) == ">= 0"
     assert bounds_text(p["e"]) == bounds_text(p["g"]) == ""
     spec = Module.from_functions("m", f).functions[0]
     stub = render_stub(spec)
     assert "    a: int = 2,  # 1..20\n" in stub
-    assert "    b: float | None = None,  # <= 5, > 0\n" in stub
+    assert "    b: float | None = None,  # > 0, <= 5\n" in stub
     assert "    e: Annotated[float, 'opaque'] = 0.5,\n" in stub  # metadata the prompt cannot read stays
     xml = render_xml(spec)
-    assert "a: integer 1..20 (default 2)" in xml and "b: number <= 5, > 0 (optional)" in xml
+    assert "a: integer 1..20 (default 2)" in xml and "b: number > 0, <= 5 (optional)" in xml
 
 
 class Seconds:
