@@ -225,7 +225,8 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
     if tel_t:
         names = robot.servos.names
         tgt = (np.asarray([t for t, _ in targets]), np.asarray([q for _, q in targets])) if targets else None
-        artefacts.plot_joints(out / "joints.png", np.asarray(tel_t), np.asarray(tel_q), names, tgt)
+        artefacts.plot_joints(out / "joints.png", np.asarray(tel_t), np.asarray(tel_q), names, tgt,
+                              artefacts.servo_groups(robot))
     summary = {"replay_of": str(log_path), "messages": len(msgs), "base_end": base_end,
                "original_base_end": orig_end, "base_end_error_mm": err_mm,
                "board_time_s": round(final.board_time_us / 1e6, 6)}

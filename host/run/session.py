@@ -440,7 +440,7 @@ class RobotSession:
         running = {} if tl is None else {r.channel or "-": f"{r.function}{r.args}" for r in tl
                                          if r.start is not None and r.end is None}
         return {"board_time_s": round(runtime.board_now_s(), 3), "base": _pose(b), "tilt_deg": round(tilt, 2),
-                "fell": _fell(tilt, b), "running": running, "busy": self.shell.running,
+                "fell": self.robot.base.floating and _fell(tilt, b), "running": running, "busy": self.shell.running,
                 "skills": [s.name for s in self.shell.skills.list()], "scene": self.scene_report()}
 
     async def capture(self) -> Path:
@@ -479,7 +479,8 @@ class RobotSession:
                                                             ("failed" if failed else "done"))
         if link_error is not None:
             outcome = "link_lost"
-        fell = max_tilt > 45.0 or bool(base and min(b[1][2] for b in base) < 0.03)
+        # a robot fixed to the world (an arm) cannot fall; a floating one fell when it tipped or its base sank
+        fell = self.robot.base.floating and (max_tilt > 45.0 or bool(base and min(b[1][2] for b in base) < 0.03))
         client = self.client
         tel = client.latest_telemetry if client is not None else None
         stats = {"frames_sent": streamer.frames_sent, "late": tel.late_count if tel else None,
@@ -518,6 +519,7 @@ class RobotSession:
         history = list(runtime.streamer.history) if runtime is not None else []
         sent = [(t, q_) for t, q_ in history if t * 1e-6 >= turn.board_t0 - 1e-9]
         names = self.robot.servos.names
+        groups = artefacts.servo_groups(self.robot)
         out, calls, summary, t0 = turn.out, list(turn.calls), turn.summary, turn.board_t0
         board_stderr = self.out / "board.stderr"
 
@@ -530,7 +532,7 @@ class RobotSession:
             artefacts.plot_timeline(out / "timeline.png", calls, title=f"{label}: calls on the board clock")
             if len(times) and keep.any():
                 targets = (np.asarray([t for t, _ in sent]) * 1e-6, np.asarray([q_ for _, q_ in sent])) if sent else None
-                artefacts.plot_joints(out / "joints.png", times[keep], q[keep], names, targets)
+                artefacts.plot_joints(out / "joints.png", times[keep], q[keep], names, targets, groups)
             artefacts.write_summary_json(out / "summary.json", summary)
 
         return write
@@ -561,6 +563,7 @@ def _pose(b: Any) -> list[float]:
 
 
 def _fell(tilt: float, b: Any) -> bool:
+    """A floating robot fell: tilted more than 45 deg or its base below 3 cm."""
     return tilt > 45.0 or bool(b and b[1][2] < 0.03)
 
 
