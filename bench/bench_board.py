@@ -7,7 +7,10 @@
    board's own statistics (printed on SIGTERM).
 3. TIME_SYNC round trip over the pty (host write -> board reply -> host read), realtime board.
 
-Run: ``.venv/bin/python bench/bench_board.py [--seconds 10]``
+``--robot NAME`` (default: the default robot) picks whose board runs; the lockstep stream moves
+every servo of that robot (a sine of 0.2 rad around its neutral pose, clipped to the ranges).
+
+Run: ``.venv/bin/python bench/bench_board.py [--seconds 10] [--robot arm]``
 """
 
 from __future__ import annotations
@@ -34,27 +37,26 @@ from protocol.framing import Frame, FrameDecoder, encode_frame  # noqa: E402
 from protocol.messages import PROTOCOL_VERSION, Heartbeat, Hello, Telemetry, TimeSyncReply, TimeSyncRequest  # noqa: E402
 
 
-def bench_lockstep(sim_seconds: float = 30.0) -> None:
-    b = Board(BoardConfig(lockstep=True))
+def bench_lockstep(robot: str, sim_seconds: float = 30.0) -> None:
+    b = Board(BoardConfig(lockstep=True, robot=robot))
     b.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 0), 0)
     from protocol.messages import ServoFrame
 
-    # a moving stream (legs + head) at 50 Hz, fed 1 s ahead, so buffer and interpolation are exercised
+    # a moving stream (every servo) at 50 Hz, fed 1 s ahead, so buffer and interpolation are exercised
     neutral = np.array(b.table.neutral)
+    lo, hi = np.array(b.table.mins), np.array(b.table.maxs)
+    mask = b.table.all_mask
     n_frames = int(sim_seconds * 50)
     t0, c0 = time.perf_counter(), time.process_time()
     for k in range(1, n_frames + 1):
-        q = neutral.copy()
-        s = np.sin(2 * np.pi * k / 50)
-        q[[0, 2, 4, 6]] += 0.2 * s
-        q[8] += 0.4 * s
-        b.handle(ServoFrame(k * 20_000, 0x0FFF, tuple(q)), k)
+        q = np.clip(neutral + 0.2 * np.sin(2 * np.pi * k / 50), lo, hi)
+        b.handle(ServoFrame(k * 20_000, mask, tuple(q)), k)
         if k % 50 == 0 or k == n_frames:
             while b.can_tick():
                 b.tick()
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     n = b.ticks
-    print(f"lockstep: {n} ticks in {wall:.2f} s = {n / wall:,.0f} ticks/s, real-time factor {n * 0.002 / wall:.1f}x"
+    print(f"lockstep ({robot}, {b.n} servos, scene {b.scene}): {n} ticks in {wall:.2f} s = {n / wall:,.0f} ticks/s, real-time factor {n * 0.002 / wall:.1f}x"
           f" (CPU time {cpu:.2f} s = {n / cpu:,.0f} ticks/s, {n * 0.002 / cpu:.1f}x: what a busy machine hides)")
 
 
@@ -69,8 +71,8 @@ def _start_board(*extra: str) -> tuple[subprocess.Popen[str], str]:
     return proc, line.removeprefix("board: listening on ")
 
 
-def bench_realtime(seconds: float) -> None:
-    proc, port = _start_board("--realtime")
+def bench_realtime(robot: str, seconds: float) -> None:
+    proc, port = _start_board("--realtime", "--robot", robot)
     tel = 0
     try:
         with serial.Serial(port, 115200, timeout=0) as ser:
@@ -101,18 +103,21 @@ def bench_realtime(seconds: float) -> None:
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=10)
     summary = [line for line in err.splitlines() if "lateness" in line]
-    print(f"realtime 500 Hz for {seconds:.0f} s: {summary[-1] if summary else err}")
+    print(f"realtime 500 Hz ({robot}) for {seconds:.0f} s: {summary[-1] if summary else err}")
     print(f"  telemetry received: {tel} ({tel / seconds:.1f}/s)")
     r = np.array(rtts) * 1e3
     print(f"  TIME_SYNC round trip over pty: p50 {np.percentile(r, 50):.2f} ms, p99 {np.percentile(r, 99):.2f} ms, max {r.max():.2f} ms")
 
 
 def main() -> None:
+    from robots.registry import DEFAULT_ROBOT
+
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--robot", default=DEFAULT_ROBOT, help=f"whose board runs (default {DEFAULT_ROBOT})")
     args = ap.parse_args()
-    bench_lockstep()
-    bench_realtime(args.seconds)
+    bench_lockstep(args.robot)
+    bench_realtime(args.robot, args.seconds)
 
 
 if __name__ == "__main__":

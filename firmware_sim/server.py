@@ -133,10 +133,15 @@ class BoardServer:
 
     def serve(self) -> None:
         """Run until :meth:`stop` (or an exception such as KeyboardInterrupt)."""
-        if self.clock is None:
-            self._serve_lockstep()
-        else:
-            self._serve_realtime()
+        try:
+            if self.clock is None:
+                self._serve_lockstep()
+            else:
+                self._serve_realtime()
+        finally:
+            # a lockstep board renders captures in this thread: free its GL contexts here, the thread
+            # that made them (a board served in a thread would otherwise free them from another one)
+            self.board.camera.close()
 
     def _serve_realtime(self) -> None:
         clock = self.clock

@@ -17,6 +17,7 @@ from typing import Any
 
 from protocol import messages as m
 from protocol.codec import (
+    _Q16_NAN,
     PayloadError,
     _q16_decode,
     _q16_encode,
@@ -217,8 +218,14 @@ def raw_to_message(msg_type: MsgType, raw: dict[str, int]) -> Message:
         except ValueError as e:
             raise PayloadError(f"{msg_type.name}: {e}") from None
     if msg_type is MsgType.TELEMETRY:
+        # a robot with fewer than CAN_SERVOS servos leaves the slots after its last one at the NaN
+        # code (see _servo_values); those trailing slots are no servos and are dropped
+        n = CAN_SERVOS
+        while n and all(raw[f"{p}_{n:02d}"] == _Q16_NAN for p in ("position", "velocity", "effort")):
+            n -= 1
+
         def arr(prefix: str, cpu: int) -> tuple[float, ...]:
-            return tuple(_q16_decode(raw[f"{prefix}_{i + 1:02d}"], cpu) for i in range(CAN_SERVOS))
+            return tuple(_q16_decode(raw[f"{prefix}_{i + 1:02d}"], cpu) for i in range(n))
 
         rpy = tuple(_q16_decode(raw[n], 10_000) for n in ("imu_roll", "imu_pitch", "imu_yaw"))
         return m.Telemetry(

@@ -152,13 +152,18 @@ def _travel(track: Track, target: np.ndarray, min_duration: float = 0.6) -> None
     track.move(goal, min_duration, speed=TRAVEL_SPEED)
 
 
-def _cycles(times: int, duration: float, period: float) -> int:
-    """How many cycles a rhythmic gesture plays: ``times``, or as many as fill ``duration`` s."""
+def _cycles(times: int, duration: float, period: float) -> tuple[int, float]:
+    """How many cycles a rhythmic gesture plays and at what period (s): ``times`` at ``period``, or
+    as many as fill ``duration`` s, the period stretched or shrunk (not below 0.8 x, where the
+    gestures' speeds stay under the servos' limits) so they fill it."""
     check_finite(duration=duration)
     if duration < 0:
         raise ValueError(f"duration must be >= 0 s, got {duration}")
     n = check_count(times)
-    return max(1, round(duration / period)) if duration > 0 else n
+    if duration <= 0:
+        return n, period
+    n = max(1, round(duration / period))
+    return n, max(duration / n, 0.8 * period)
 
 
 def _rhythm(start: np.ndarray, servos: tuple[int, ...], persistent: bool, times: int, duration: float,
@@ -167,7 +172,7 @@ def _rhythm(start: np.ndarray, servos: tuple[int, ...], persistent: bool, times:
     cycle, then back to ``start``; persistent: loops one cycle. ``fn(0)`` must equal where the cycle
     starts (the setup pose, or the start)."""
     q0 = check_start(start, LIMITS)
-    n = _cycles(times, duration, period)
+    n, period = _cycles(times, duration, period)
     track = Track(servos, q0, LIMITS)
     if setup is not None:
         _travel(track, setup, 0.5)

@@ -312,3 +312,14 @@ def test_an_11_bit_sequence_coming_round_again_is_a_new_message() -> None:
     assert flushes == [(100, 1_000), (2148, 3_000), (2149, 4_000)]
     assert dec.errors[CanErrorKind.INCOMPLETE] == 1 and dec.errors[CanErrorKind.MIXED] == 0
     assert dec.duplicates == 0
+
+
+@pytest.mark.parametrize("fd", [False, True])
+def test_telemetry_of_a_robot_with_fewer_servos_keeps_its_count(fd: bool) -> None:
+    """The CAN layout has CAN_SERVOS slots; a 6-servo robot's TELEMETRY comes back with 6 values, not 12
+    (the unused slots travel as the NaN code and are dropped)."""
+    six = m.Telemetry(1_000, (0.1, -0.2, 0.3, 0.0, 1.5, -0.05), (0.5,) * 6, (0.01,) * 6, (0.0, 0.0, 0.0),
+                      m.FaultFlags.NONE, 3, 9, 0, 0, 0)
+    got = _roundtrip(six, "host", fd).msg
+    assert isinstance(got, m.Telemetry) and len(got.positions) == len(got.velocities) == len(got.efforts) == 6
+    assert _same(got, quantize_message(six))

@@ -1,0 +1,55 @@
+"""The desk arm's tasks under the paper's link fault mix, over serial and over CAN (SLCAN), in lockstep.
+
+The same guarantees as CoCo's (tests/e2e/test_faults_e2e.py, test_faults_can_e2e.py; the checks are
+:mod:`support.faults`): every call completes; every SERVO_FRAME the board decoded is one the host
+sent (byte-identical on serial; same sequence and values on CAN, whose CRC-16 drops a flipped one),
+so no corrupted setpoint is ever applied; every lost message is a counted sequence gap; the summary
+reports what was injected and what each end detected.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+
+from e2e.test_arm_tasks_e2e import TASKS
+from support.faults import PAPER_FAULTS, CliRun, assert_can_fault_guarantees, assert_serial_fault_guarantees, cli_run
+
+from .conftest import run_e2e
+
+WORKERS = 2
+
+
+def _serial(tid: int, out: Path) -> dict:
+    run_e2e(TASKS[tid].ground_truth, out, robot="arm", task_label=f"arm task {tid}", faults=PAPER_FAULTS,
+            fault_seed=tid)
+    return assert_serial_fault_guarantees(out)
+
+
+def test_arm_demo_task_under_paper_faults_over_serial(tmp_path: Path) -> None:
+    faults = _serial(12, tmp_path)
+    assert sum(sum(d["injected"].values()) for d in faults["board"]["injected"]) > 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("tid", sorted(TASKS))
+def test_arm_task_under_paper_faults_over_serial(tid: int, tmp_path: Path) -> None:
+    _serial(tid, tmp_path)
+
+
+@pytest.fixture(scope="module")
+def slcan_fault_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[int, CliRun]:
+    root = tmp_path_factory.mktemp("arm_can_faults")
+    with ThreadPoolExecutor(WORKERS) as pool:
+        return dict(zip(TASKS, pool.map(lambda t: cli_run(t, root / f"task{t:02d}", link="can:slcan:pty", robot="arm",
+                                                          faults=PAPER_FAULTS), TASKS)))
+
+
+@pytest.mark.slow  # ~1.5 min for the 15 tasks on two cores
+@pytest.mark.parametrize("tid", sorted(TASKS))
+def test_arm_task_under_paper_faults_over_slcan(tid: int, slcan_fault_runs: dict[int, CliRun]) -> None:
+    run = slcan_fault_runs[tid]
+    assert run.returncode == 0, run.output[-3000:]
+    assert_can_fault_guarantees(run.out)
