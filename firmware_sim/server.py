@@ -24,6 +24,7 @@ from typing import IO
 
 from firmware_sim.board import Board
 from firmware_sim.clock import RealtimeClock
+from firmware_sim.objects_log import ObjectsLog
 from firmware_sim.transports.base import BoardTransport
 from protocol.framing import DecodeError, Frame
 from protocol.messages import Message, SimState, Telemetry
@@ -46,8 +47,10 @@ class BoardServer:
         transport: BoardTransport,
         viewer: object | None = None,
         err: IO[str] = sys.stderr,
+        objects_log: ObjectsLog | None = None,
     ) -> None:
         self.board = board
+        self.objects_log = objects_log
         self.transport = transport
         transport.log_time = self._t
         self.tx_seq = 0
@@ -79,6 +82,13 @@ class BoardServer:
                 continue
             tr.queue(m, self.tx_seq, now)
             self.tx_seq = (self.tx_seq + 1) & 0xFFFF
+
+    def _tick(self) -> None:
+        """One control tick; its reports go out (and the object poses into the objects log)."""
+        out = self.board.tick()
+        if self.objects_log is not None:
+            self.objects_log.record(out)
+        self.send(out)
 
     def _flush_tx(self) -> None:
         self.transport.flush(time.monotonic())
@@ -160,7 +170,7 @@ class BoardServer:
                 before = clock.next_tick
                 _, overran = clock.begin_tick()
                 skipped = clock.next_tick - before - 1
-                self.send(self.board.tick())
+                self._tick()
                 if self.board.watchdog_events:
                     self._report_watchdog()
                 if skipped:
@@ -178,7 +188,7 @@ class BoardServer:
         while self.running:
             ran = 0
             while self.running and self.board.can_tick() and self.backlog < LOCKSTEP_BACKLOG and ran < 256:
-                self.send(self.board.tick())
+                self._tick()
                 if self.board.watchdog_events:
                     self._report_watchdog()
                 ran += 1

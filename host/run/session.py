@@ -220,7 +220,8 @@ class RobotSession:
             log_suffix = ".log" if spec.kind == "can" else ".jsonl"
             if emulate:
                 board_args = ["--lockstep" if opts.lockstep else "--realtime", "--robot", str(self.robot.root),
-                              "--log", str(self.out / f"board_frames{log_suffix}"), "--scene", self.scene]
+                              "--log", str(self.out / f"board_frames{log_suffix}"), "--scene", self.scene,
+                              "--objects-log", str(self.out / artefacts.OBJECTS_LOG)]
                 if opts.wire_baud:
                     board_args += ["--baud", str(opts.wire_baud)]
                 if opts.faults:

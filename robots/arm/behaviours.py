@@ -120,7 +120,11 @@ def target_point(name: str) -> tuple[float, float, float, float]:
 # --- building blocks -----------------------------------------------------------------------------
 
 
-def _down_pose(point: Sequence[float], yaw: float = 0.0) -> np.ndarray:
+#: a point in the world (m): x, y, z
+Point = Sequence[float] | np.ndarray
+
+
+def _down_pose(point: Point, yaw: float = 0.0) -> np.ndarray:
     """The five arm joints (rad) that put the grasp point at ``point`` with the hand straight down
     and the jaws square to a box at ``yaw``."""
     g = geometry()
@@ -136,7 +140,7 @@ def _full(arm: np.ndarray, grip: float) -> np.ndarray:
     return q
 
 
-def _line(track: Track, a: Sequence[float], b: Sequence[float], duration: float, yaw: float,
+def _line(track: Track, a: Point, b: Point, duration: float, yaw: float,
           grip: float) -> None:
     """A straight line of the grasp point from ``a`` to ``b`` (hand down) in ``duration`` s with a
     minimum-jerk profile along it, the gripper held at ``grip`` rad (track over all six servos)."""

@@ -33,6 +33,7 @@ dependency and iterations, and give no clearer answer to "is this point reachabl
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -94,7 +95,7 @@ class ArmGeometry:
                    l1=float(fore[2]), l2=float(wrist[0]), l3=float(grasp[0]), lo=lo, hi=hi)
 
     # -- forward ------------------------------------------------------------------------------------
-    def forward(self, q: np.ndarray | tuple[float, ...]) -> tuple[np.ndarray, float]:
+    def forward(self, q: np.ndarray | Sequence[float]) -> tuple[np.ndarray, float]:
         """Grasp point (world x, y, z in m) and the hand's pitch below the horizontal (rad) for the
         joint angles ``q`` (rad; the first four are used: pan, lift, elbow, wrist_flex)."""
         pan, lift, elbow, wflex = (float(v) for v in q[:4])
@@ -106,8 +107,7 @@ class ArmGeometry:
         return np.array([bx + r * math.cos(pan), by + r * math.sin(pan), bz + z]), a3
 
     # -- inverse ------------------------------------------------------------------------------------
-    def solve(self, point: np.ndarray | tuple[float, float, float], pitch: float = DOWN, roll: float = 0.0
-              ) -> np.ndarray:
+    def solve(self, point: np.ndarray | Sequence[float], pitch: float = DOWN, roll: float = 0.0) -> np.ndarray:
         """Joint angles (rad: pan, lift, elbow, wrist_flex, wrist_roll) that put the grasp point at
         ``point`` (world m) with the hand ``pitch`` rad below the horizontal and the wrist at
         ``roll``; :class:`Unreachable` when the point is out of reach or a joint would leave its range."""

@@ -4,7 +4,8 @@ The same guarantees as CoCo's (tests/e2e/test_faults_e2e.py, test_faults_can_e2e
 :mod:`support.faults`): every call completes; every SERVO_FRAME the board decoded is one the host
 sent (byte-identical on serial; same sequence and values on CAN, whose CRC-16 drops a flipped one),
 so no corrupted setpoint is ever applied; every lost message is a counted sequence gap; the summary
-reports what was injected and what each end detected.
+reports what was injected and what each end detected. And the cubes still end up where the task
+puts them (the board's objects log): lost and duplicated frames do not spoil a pick and place.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from e2e.test_arm_tasks_e2e import TASKS
+from e2e.test_arm_tasks_e2e import TASKS, check_cubes, final_objects
 from support.faults import PAPER_FAULTS, CliRun, assert_can_fault_guarantees, assert_serial_fault_guarantees, cli_run
 
 from .conftest import run_e2e
@@ -25,7 +26,9 @@ WORKERS = 2
 def _serial(tid: int, out: Path) -> dict:
     run_e2e(TASKS[tid].ground_truth, out, robot="arm", task_label=f"arm task {tid}", faults=PAPER_FAULTS,
             fault_seed=tid)
-    return assert_serial_fault_guarantees(out)
+    faults = assert_serial_fault_guarantees(out)
+    check_cubes(tid, final_objects(out))
+    return faults
 
 
 def test_arm_demo_task_under_paper_faults_over_serial(tmp_path: Path) -> None:
@@ -48,8 +51,10 @@ def slcan_fault_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[int, CliR
 
 
 @pytest.mark.slow  # ~1.5 min for the 15 tasks on two cores
+@pytest.mark.timeout(1200)  # the first test also waits for the module fixture's 15 runs (slower on a busy machine)
 @pytest.mark.parametrize("tid", sorted(TASKS))
 def test_arm_task_under_paper_faults_over_slcan(tid: int, slcan_fault_runs: dict[int, CliRun]) -> None:
     run = slcan_fault_runs[tid]
     assert run.returncode == 0, run.output[-3000:]
     assert_can_fault_guarantees(run.out)
+    check_cubes(tid, final_objects(run.out))

@@ -2,8 +2,9 @@
 virtual bus (the board in this process), in lockstep.
 
 SLCAN: each task as a user runs it, ``ghostshell run --robot arm --task N --link can:slcan:pty
---lockstep``, two subprocesses at a time; where the cubes ended up comes from an in-process replay of
-the host's candump capture, checked to be the run's physics (:mod:`support.board_replay`).
+--lockstep``, two subprocesses at a time; where the cubes ended up comes from the board's objects
+log, cross-checked for the pick-and-place tasks against an in-process replay of the host's candump
+capture (:mod:`support.board_replay`).
 Virtual: ``run_program(RunOptions(robot="arm", link="can:virtual:..."))`` against a board served in
 this process (:mod:`support.virtual_board`), whose MuJoCo state is read directly at the end.
 """
@@ -19,7 +20,7 @@ import anyio
 import numpy as np
 import pytest
 
-from e2e.test_arm_tasks_e2e import MOVES, TASKS, check_cubes
+from e2e.test_arm_tasks_e2e import MOVES, TASKS, check_cubes, final_objects
 from host.run.runner import RunOptions, run_program
 from robots.scenes import object_positions
 from support.board_replay import replay_in_process
@@ -49,12 +50,14 @@ def slcan_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[int, CliRun]:
 
 
 @pytest.mark.slow  # ~1 min for the 15 tasks on two cores
+@pytest.mark.timeout(1200)  # the first test also waits for the module fixture's 15 runs (slower on a busy machine)
 @pytest.mark.parametrize("tid", sorted(TASKS))
 def test_arm_task_over_slcan(tid: int, slcan_runs: dict[int, CliRun]) -> None:
     run = slcan_runs[tid]
     assert run.returncode == 0, run.output[-3000:]
     summary = _done(run.out)
     assert summary["extra"]["robot"] == "arm" and (run.out / "host_frames.log").is_file()
+    check_cubes(tid, final_objects(run.out))
     if tid in MOVES:
         rep = replay_in_process(run.out, "arm")
         err, n = rep.max_telemetry_error(run.out)

@@ -6,16 +6,19 @@ every call done and the lifecycle and channel rules (``check_common``, shared wi
 the order and overlap of the calls on the board clock; gestures counted in the measured joint
 angles; and where the cubes ended up.
 
-Where the cubes are: SIM_STATE reports only how many objects the scene has, so the final world is
-read from an in-process lockstep board that receives the run's host traffic again
-(:func:`support.board_replay.replay_in_process`); its TELEMETRY must equal what the run's board
-sent (same physics, to the wire's quantum), so the cube positions it shows are the run's.
+Where the cubes are: SIM_STATE reports only how many objects the scene has; the emulated board also
+writes its objects' poses with every SIM_STATE to ``objects.jsonl`` (``--objects-log``, simulation
+ground truth, never on the link), and its last line is where the cubes ended up. Cross-checked once
+(task 5) against an in-process lockstep board that receives the run's host traffic again
+(:func:`support.board_replay.replay_in_process`), whose TELEMETRY equals what the run's board sent.
 """
 
 from __future__ import annotations
 
 import itertools
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -49,13 +52,16 @@ def start_of(name: str) -> np.ndarray:
     return np.asarray(ARM.scene().object(name).pos)
 
 
+def final_objects(out: Path) -> dict[str, np.ndarray]:
+    """Where the scene's objects are at the end of the run in ``out`` (its board's objects log, the
+    last record: positions in m)."""
+    lines = (out / "objects.jsonl").read_text(encoding="utf-8").splitlines()
+    assert len(lines) > 10, "the board wrote no objects log"
+    return {k: np.asarray(v[:3]) for k, v in json.loads(lines[-1])["objects"].items()}
+
+
 def cubes_after(run: E2ERun) -> dict[str, np.ndarray]:
-    """Where the cubes are at the end of ``run`` (in-process replay of its host traffic, checked
-    to be the run's own physics)."""
-    rep = replay_in_process(run.out, "arm")
-    err, n = rep.max_telemetry_error(run.out)
-    assert n > 50 and err < 1e-4, f"the replay is not the run's physics ({n} reports, {err} rad)"
-    return {k: np.asarray(v) for k, v in rep.objects().items()}
+    return final_objects(run.out)
 
 
 def swings(run: E2ERun, servo: int, start: float, end: float, *, below: bool, depth_deg: float) -> int:
@@ -129,6 +135,13 @@ def check_task(tid: int, run: E2ERun) -> None:
         pick, place = one("pick", object="red_cube"), one("place", object="red_cube", on="blue_cube")
         if tid == 5:
             follows(pick, place, within=FRAME_S + 1e-9)  # one channel, queued: they flow into each other
+            # the objects log against an in-process replay of the host's traffic (the same physics)
+            rep = replay_in_process(run.out, "arm")
+            err, n = rep.max_telemetry_error(run.out)
+            assert n > 50 and err < 1e-4, f"the replay is not the run's physics ({n} reports, {err} rad)"
+            logged = cubes_after(run)
+            for name, pos in rep.objects().items():
+                assert np.linalg.norm(np.asarray(pos) - logged[name]) < 0.001, (name, pos, logged[name])
         else:
             talk, done = one("speak", text="I am picking up the red cube."), f("speak")[-1]
             overlap(pick, talk)  # it talks while it picks
@@ -206,6 +219,7 @@ def test_arm_task_end_to_end(tid: int, arm_run) -> None:
     assert s.extra["robot"] == "arm" and s.extra["scene"] == {"name": "table", "objects": 2, "toppled": 0}
     assert not s.fell and s.base_start == s.base_end == [0.0, 0.0, 0.0]  # bolted to the table
     check_task(tid, run)
+    check_cubes(tid, cubes_after(run))
 
 
 def test_every_task_has_a_check() -> None:
