@@ -10,7 +10,7 @@
 ``--robot NAME`` (default: the default robot) picks whose board runs; the lockstep stream moves
 every servo of that robot (a sine of 0.2 rad around its neutral pose, clipped to the ranges).
 
-Run: ``.venv/bin/python bench/bench_board.py [--seconds 10] [--robot arm]``
+Run: ``.venv/bin/python bench/bench_board.py [--seconds 10] [--robot NAME]``
 """
 
 from __future__ import annotations

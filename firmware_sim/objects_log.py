@@ -5,7 +5,7 @@ each one is (the wire stays small). For what is made after a run from the board'
 video, checks), ``python -m firmware_sim --objects-log FILE`` also writes, with every SIM_STATE the
 board sends, one line of simulation ground truth::
 
-    {"t_us": 120000, "objects": {"red_cube": [x, y, z, qw, qx, qy, qz], ...}}
+    {"t_us": 120000, "objects": {"NAME": [x, y, z, qw, qx, qy, qz], ...}}
 
 (board time in microseconds; positions in metres, orientation as a unit quaternion, rounded to
 1e-6). It is written by the board process, never sent on the link; a scene without movable objects

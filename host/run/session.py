@@ -480,7 +480,7 @@ class RobotSession:
                                                             ("failed" if failed else "done"))
         if link_error is not None:
             outcome = "link_lost"
-        # a robot fixed to the world (an arm) cannot fall; a floating one fell when it tipped or its base sank
+        # a robot fixed to the world cannot fall; a floating one fell when it tipped or its base sank
         fell = self.robot.base.floating and (max_tilt > 45.0 or bool(base and min(b[1][2] for b in base) < 0.03))
         client = self.client
         tel = client.latest_telemetry if client is not None else None

@@ -12,7 +12,7 @@ A frame (640x480) is a third-person view that follows the robot (a free MuJoCo c
 looking at its base; distance and angles from the robot's ``[view]``), the robot's camera
 (its ``[peripherals] camera``, when it has one) as an inset, and a caption
 strip: the board time, the calls active on each channel (``timeline.json``) and
-the sentence being spoken. The scene's movable objects (cubes, bottles) are drawn where the
+the sentence being spoken. The scene's movable objects are drawn where the
 emulated board's objects log (``objects.jsonl``, :mod:`firmware_sim.objects_log`) puts them at each
 time, at their start poses when the run has none. Frames are rendered offscreen (``MUJOCO_GL=egl`` unless
 set) by a pool of worker processes (both cores by default; ``spawn``, so each

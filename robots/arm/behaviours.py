@@ -36,7 +36,6 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Callable, Mapping, Sequence
-from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -74,18 +73,27 @@ DROP_M = 0.003
 POINT_HOVER_M = 0.06
 
 
-@cache
+#: the arm's link lengths and base, read from its MJCF once at import (a first call must not wait for it)
+GEOMETRY = ArmGeometry.from_mjcf(ROBOT.mjcf)
+
+
 def geometry() -> ArmGeometry:
     """The arm's link lengths and base, read from its MJCF (:class:`robots.arm.kinematics.ArmGeometry`)."""
-    return ArmGeometry.from_mjcf(ROBOT.mjcf)
+    return GEOMETRY
 
 
-@cache
-def places() -> Mapping[str, tuple[float, float]]:
-    """Named spots on the table top (``places.toml``): name -> (x, y) in metres."""
+def _read_places() -> dict[str, tuple[float, float]]:
     with open(ROBOT.data["places"], "rb") as f:
         doc = tomllib.load(f)
     return {str(k): (float(v[0]), float(v[1])) for k, v in doc["places"].items()}
+
+
+PLACES = _read_places()
+
+
+def places() -> Mapping[str, tuple[float, float]]:
+    """Named spots on the table top (``places.toml``): name -> (x, y) in metres."""
+    return PLACES
 
 
 def _objects() -> dict[str, SceneObjectSpec]:
