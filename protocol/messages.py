@@ -61,6 +61,7 @@ class NackReason(IntEnum):
     NO_RENDERER = 10
     BUSY = 11
     NOT_LOCKSTEP = 12
+    SERVO_FAULT = 13  # a servo stopped answering on the board's servo bus (detail names it)
 
 
 class FaultFlags(IntFlag):
@@ -73,6 +74,7 @@ class FaultFlags(IntFlag):
     CLAMPED = 0x08  # a target was clamped to a joint or speed limit since last report
     TICK_OVERRUN = 0x10  # realtime loop missed a deadline since last report
     LINK_ERRORS = 0x20  # bad frames were received since last report
+    SERVO_FAULT = 0x40  # latched: a servo stopped answering on the servo bus; the others hold; needs ESTOP_CLEAR
 
 
 class ConfigKey(IntEnum):

@@ -73,6 +73,10 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
                         help="seed of the fault injection (default 0; needs --faults)")
     parser.add_argument("--policy", default=None, metavar="FILE",
                         help="safety policy (TOML): allowed functions, tighter parameter bounds, motion budget")
+    parser.add_argument("--firmware", choices=("python", "c", "qemu"), default="python",
+                        help="the emulated board's firmware: python (default), c (the C firmware built natively, "
+                             "servos on a Feetech bus to the MuJoCo plant) or qemu (the same C on an emulated "
+                             "Cortex-M3, qemu-system-arm -M mps2-an385)")
 
 
 def _positive(text: str) -> float:
@@ -149,6 +153,18 @@ def check_run_args(args: argparse.Namespace) -> int | None:
     elif seed:
         print("ghostshell: --fault-seed has no effect without --faults", file=sys.stderr)
         return USAGE_STATUS
+    firmware = getattr(args, "firmware", "python")
+    if firmware != "python":
+        from protocol.linkspec import LinkSpecError, parse_link_spec
+
+        try:
+            spec = parse_link_spec(args.link)
+        except LinkSpecError:
+            spec = None
+        if spec is not None and not (spec.kind == "serial" and (args.emulate_board or spec.implies_emulated_board)):
+            print(f"ghostshell: --firmware {firmware} runs the emulated board this run starts on a serial link "
+                  f"(--link pty); {args.link} is not one", file=sys.stderr)
+            return USAGE_STATUS
     args.run_args_checked = True
     return None
 
@@ -184,6 +200,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         scene=getattr(args, "scene", None),
         skills=skills,
         policy=policy, faults=getattr(args, "faults", None), fault_seed=getattr(args, "fault_seed", 0),
+        firmware=getattr(args, "firmware", "python"),
     )
     try:
         report = anyio.run(run_program, opts, backend="asyncio")

@@ -68,6 +68,7 @@ class RunOptions:
     policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
     faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
     fault_seed: int = 0
+    firmware: str = "python"  # the emulated board's firmware: python, c or qemu (SessionOptions.firmware)
 
 
 @dataclass

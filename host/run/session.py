@@ -104,6 +104,9 @@ class SessionOptions:
     policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
     faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
     fault_seed: int = 0
+    #: the emulated board's firmware: "python" (firmware_sim), "c" (the C firmware, native) or "qemu" (the C
+    #: firmware on an emulated Cortex-M3); python -m firmware_sim --firmware
+    firmware: str = "python"
 
 
 @dataclass
@@ -225,6 +228,8 @@ class RobotSession:
                     board_args += ["--baud", str(opts.wire_baud)]
                 if opts.faults:
                     board_args += ["--faults", opts.faults, "--fault-seed", str(opts.fault_seed)]
+                if opts.firmware != "python":
+                    board_args += ["--firmware", opts.firmware]
                 self._board = start_board(board_args, self.out / "board.stderr", link=spec)
                 target = self._board.spec
             self._link_tried = True
