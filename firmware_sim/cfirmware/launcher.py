@@ -172,6 +172,7 @@ class _LogReader:
         self.stats: dict[str, int] = {}
         self.log: IO[str] | None = open(log_path, "w", buffering=1, encoding="utf-8") if log_path else None
         self.lines = 0
+        self.chardevs: dict[str, str] = {}  # QEMU's "char device redirected to X (label L)" (on its stdout)
 
     def feed(self, data: bytes) -> None:
         self.buf += data
@@ -198,6 +199,10 @@ class _LogReader:
                     print(f"board: unreadable frame record from the firmware: {text[:80]}", file=self.err, flush=True)
                     return
                 self.log.write(framelog.to_line(rec) + "\n")
+            return
+        m = _CHARDEV.search(text)
+        if m:
+            self.chardevs[m.group(2)] = m.group(1)
             return
         if text.startswith("S "):
             for item in text[2:].split():
@@ -269,7 +274,8 @@ def run_firmware(opts: LaunchOptions, err: IO[str] = sys.stderr) -> int:
         while True:
             now = time.monotonic()
             if announced is None:
-                found = _announcement(opts, bytes(side))
+                found = _announcement(opts, bytes(side)) or (logr.chardevs.get("serial0") if opts.firmware == "qemu"
+                                                             else None)
                 if found is not None:
                     announced = relay.host.name if relay is not None else found
                     print(f"board: listening on {announced}", flush=True)

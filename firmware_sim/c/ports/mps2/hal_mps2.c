@@ -46,13 +46,21 @@ static uint32_t waited_counts;       /* system clock counts spent waiting for bu
 void systick_handler(void) { systicks++; }
 void uart0_rx_handler(void) { UART_INT(HOST) = 2u; } /* wake from WFI; main loop reads DATA */
 
+#define SCB_ICSR REG32(0xE000ED04u)
+#define ICSR_PENDSTSET (1u << 26)
+
 static uint64_t now_counts(void) {
-    uint32_t t, v;
-    do {
-        t = systicks;
-        v = SYST_CVR;
-    } while (t != systicks);
-    return (uint64_t)t * COUNTS_PER_TICK + (COUNTS_PER_TICK - 1u - v);
+    for (;;) {
+        uint32_t t = systicks;
+        uint32_t v = SYST_CVR;
+        uint32_t pending = SCB_ICSR & ICSR_PENDSTSET;
+        if (t != systicks) continue; /* the interrupt ran in between: read again */
+        if (pending) {               /* wrapped, interrupt not taken yet: count the period now */
+            v = SYST_CVR;
+            t++;
+        }
+        return (uint64_t)t * COUNTS_PER_TICK + (COUNTS_PER_TICK - 1u - v);
+    }
 }
 
 uint64_t hal_now_us(void) { return now_counts() / (SYSCLK_HZ / 1000000u); }
