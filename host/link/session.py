@@ -72,6 +72,7 @@ from protocol.messages import (
     Message,
     MsgType,
     Nack,
+    NackReason,
     ScreenCommand,
     ScreenTarget,
     ServoFrame,
@@ -90,7 +91,7 @@ log = logging.getLogger("host.link")
 #: TIME_SYNC exchanges tried at connect before the link counts as failed (each waits 0.5, 1, then 2 s)
 SYNC_ATTEMPTS = 6
 #: telemetry bits that are reported as fault edges
-FAULT_BITS = FaultFlags.ESTOP | FaultFlags.WATCHDOG_HOLD | FaultFlags.WATCHDOG_FAULT
+FAULT_BITS = FaultFlags.ESTOP | FaultFlags.WATCHDOG_HOLD | FaultFlags.WATCHDOG_FAULT | FaultFlags.SERVO_FAULT
 
 #: what a client connects to: a link spec (text or parsed), or a callable giving one, re-resolved on
 #: every reconnect attempt (serial links: a board that comes back on another pty)
@@ -214,6 +215,8 @@ class BoardClient:
         self.fault_events: deque[FaultEvent] = deque(maxlen=256)
         self.on_fault: list[Callable[[FaultEvent], None]] = []
         self.on_nack: list[Callable[[Nack], None]] = []
+        #: the board's latest NACK SERVO_FAULT (its detail names the servo that stopped answering on its bus)
+        self.servo_fault: Nack | None = None
         self.on_reconnect: list[Callable[[BoardClient], None]] = []
         self.keepalive = True  # heartbeat + periodic sync; turn off to let the watchdog fire
 
@@ -783,6 +786,8 @@ class BoardClient:
             self._on_chunk(msg)
 
     def _on_nack(self, msg: Nack) -> None:
+        if msg.reason == NackReason.SERVO_FAULT:
+            self.servo_fault = msg
         if msg.msg_type == MsgType.HELLO and self._hello_fut is not None and not self._hello_fut.done():
             reason = msg.reason.name if hasattr(msg.reason, "name") else str(msg.reason)
             self._hello_fut.set_exception(HandshakeError(

@@ -17,8 +17,8 @@ import anyio.lowlevel
 import numpy as np
 
 from host.link import BoardClient
-from host.link.errors import LinkError
-from host.link.faultcheck import clear_command
+from host.link.errors import BoardFaulted, LinkError
+from host.link.faultcheck import clear_command, servo_fault_message
 from host.robot.runtime import RobotRuntime
 from host.run import artefacts
 from protocol.messages import FaultFlags
@@ -86,6 +86,8 @@ async def pump(client: BoardClient, runtime: RobotRuntime, rec: Recorder) -> Non
         rec.add(client, tel)
         if tel.faults & FaultFlags.WATCHDOG_FAULT:
             raise LinkError(watchdog_fault_message(client, tel.board_time_us))
+        if tel.faults & FaultFlags.SERVO_FAULT:  # a servo stopped answering on the board's bus (C firmware)
+            raise BoardFaulted(servo_fault_message(client, tel.board_time_us))
         if lockstep:
             for _ in range(SETTLE_CHECKPOINTS):
                 await anyio.lowlevel.checkpoint()

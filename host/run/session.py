@@ -318,6 +318,9 @@ class RobotSession:
         if nack.msg_type == MsgType.SERVO_FRAME and nack.reason == NackReason.ESTOPPED and self._runtime is not None:
             self._runtime.streamer.fail(BoardFaulted(
                 f"the board refused servo frames (ESTOPPED: {nack.detail}); " + self._how_to_clear()))
+        if nack.reason == NackReason.SERVO_FAULT and self._runtime is not None:
+            self._runtime.streamer.fail(BoardFaulted(
+                f"the board lost a servo ({nack.detail}) and refuses motion; " + self._how_to_clear()))
 
     # -- turns -----------------------------------------------------------------------------------
     def pacer(self) -> BoardPacer:

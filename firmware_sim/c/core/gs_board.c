@@ -194,6 +194,20 @@ static void gaps_feed(gs_board_t *b, uint16_t seq) {
 
 /* --- bus jobs ------------------------------------------------------------------------------- */
 
+/* "servo id N (name) <what>" for NACK details (static buffer, at most the detail's 64 bytes). */
+static const char *servo_text(unsigned i, const char *what) {
+    static char text[GS_MAX_NACK_DETAIL_BYTES + 1];
+    char id[4];
+    size_t n = 0;
+    const char *parts[5] = {"servo id ", id, " (", gs_servos[i].name, ") "};
+    fmt_u64(id, sizeof id, gs_servos[i].id);
+    for (unsigned k = 0; k < 5; k++)
+        for (const char *p = parts[k]; *p && n < GS_MAX_NACK_DETAIL_BYTES; p++) text[n++] = *p;
+    for (const char *p = what; *p && n < GS_MAX_NACK_DETAIL_BYTES; p++) text[n++] = *p;
+    text[n] = 0;
+    return text;
+}
+
 static void servo_lost(gs_board_t *b, unsigned i) {
     b->answering &= ~((gs_mask_t)1 << i);
     if (b->servo_fault) return;
@@ -208,9 +222,7 @@ static void servo_lost(gs_board_t *b, unsigned i) {
     gs_log_secs(b->now_us);
     gs_log_str(" s; every servo holds; fault latched until ESTOP_CLEAR");
     gs_log_end();
-    char id[4];
-    fmt_u64(id, sizeof id, gs_servos[i].id);
-    nack(b, b->last_rx_seq, GS_MSG_TYPE_SERVO_FRAME, GS_NACK_REASON_SERVO_FAULT, "servo id ", id);
+    nack(b, b->last_rx_seq, GS_MSG_TYPE_SERVO_FRAME, GS_NACK_REASON_SERVO_FAULT, servo_text(i, "stopped answering on the servo bus"), 0);
 }
 
 /* SYNC READ of present position, speed and load of servos [first, first + n). */
@@ -465,10 +477,9 @@ static void servo_frame(gs_board_t *b, const gs_servo_frame_t *f, uint16_t seq) 
         return;
     }
     if (b->servo_fault) {
-        char id[4];
-        fmt_u64(id, sizeof id, gs_servos[b->fault_servo].id);
         b->dropped_count++;
-        nack(b, seq, GS_MSG_TYPE_SERVO_FRAME, GS_NACK_REASON_SERVO_FAULT, "servo bus fault (send ESTOP_CLEAR): servo id ", id);
+        nack(b, seq, GS_MSG_TYPE_SERVO_FRAME, GS_NACK_REASON_SERVO_FAULT,
+             servo_text(b->fault_servo, "is not answering; send ESTOP_CLEAR"), 0);
         return;
     }
     int64_t now = b->now_us;
