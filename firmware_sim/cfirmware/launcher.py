@@ -173,6 +173,7 @@ class _LogReader:
         self.log: IO[str] | None = open(log_path, "w", buffering=1, encoding="utf-8") if log_path else None
         self.lines = 0
         self.chardevs: dict[str, str] = {}  # QEMU's "char device redirected to X (label L)" (on its stdout)
+        self.booted = False  # the firmware's boot line came (its devices are found)
 
     def feed(self, data: bytes) -> None:
         self.buf += data
@@ -210,6 +211,8 @@ class _LogReader:
                 if v.isdigit():
                     self.stats[k] = int(v)
             return
+        if " C firmware, " in text:
+            self.booted = True
         if text:
             print(text, file=self.err, flush=True)
 
@@ -246,8 +249,11 @@ def run_firmware(opts: LaunchOptions, err: IO[str] = sys.stderr) -> int:
     for sid, at in opts.dead_servos:
         plant.kill(sid, int(at * 1e6))
     bus = PtyPort()
-    relay = _Relay(opts.baud, opts.faults, opts.fault_seed) if (opts.faults is not None and opts.faults.active
-                                                               or opts.baud) else None
+    # QEMU's own pty backend notices its peer by polling once a second (the host's first bytes would wait up
+    # to 1 s): its UART0 gets a tty device instead, relayed byte for byte to the host's pty
+    modelled = opts.faults is not None and opts.faults.active or bool(opts.baud)
+    relay = _Relay(opts.baud, opts.faults, opts.fault_seed) if modelled or (opts.firmware == "qemu" and port == "pty") \
+        else None
     host_arg = relay.fw.name if relay is not None else port
     cmd = firmware_command(opts, exe, bus.name, host_arg)
     env = dict(os.environ)
@@ -264,16 +270,16 @@ def run_firmware(opts: LaunchOptions, err: IO[str] = sys.stderr) -> int:
     side = bytearray()
     announced: str | None = None
     if opts.firmware == "qemu" and (relay is not None or port != "pty"):  # no pty of QEMU's to wait for
-        announced = relay.host.name if relay is not None else port
-        print(f"board: listening on {announced}", flush=True)
+        side += f"char device redirected to {relay.host.name if relay is not None else port} (label serial0)".encode()
     old = (signal.signal(signal.SIGTERM, _raise_stop), signal.signal(signal.SIGINT, _raise_stop))
     status = 0
+    held_fds: list[int] = []
     bus_out = bytearray()
     t_start = time.monotonic()
     try:
         while True:
             now = time.monotonic()
-            if announced is None:
+            if announced is None and logr.booted:  # the bus devices are found: the host may talk now
                 found = _announcement(opts, bytes(side)) or (logr.chardevs.get("serial0") if opts.firmware == "qemu"
                                                              else None)
                 if found is not None:
@@ -360,6 +366,8 @@ def run_firmware(opts: LaunchOptions, err: IO[str] = sys.stderr) -> int:
                   f"n {logr.stats.get('tick_cycles_n', 0)}", file=err, flush=True)
         if relay is not None:
             relay.close()
+        for fd in held_fds:
+            os.close(fd)
         bus.close()
     return status
 
