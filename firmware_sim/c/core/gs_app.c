@@ -31,7 +31,7 @@ static void on_raw(void *ctx, const uint8_t *raw, size_t n) {
     gs_log_end();
 }
 
-static void process(gs_app_t *app, const gs_rx_item_t *it) {
+void gs_app_process(gs_app_t *app, const gs_rx_item_t *it) {
     gs_board_t *b = &app->board;
     if (it->kind != GS_RX_FRAME) {
         gs_board_on_link_error(b);
@@ -58,7 +58,7 @@ static void maybe_stats(gs_app_t *app, int force) {
     }
 }
 
-static void tick(gs_app_t *app) {
+void gs_app_tick(gs_app_t *app) {
     gs_board_tick(&app->board);
     if (app->board.ticks % STATS_EVERY_TICKS == 0) maybe_stats(app, 1);
     else if (app->board.ticks % gs_config_telemetry_every(&app->board.cfg) == 0) maybe_stats(app, 0);
@@ -71,7 +71,7 @@ static void serve_lockstep(gs_app_t *app) {
     while (!hal_should_stop()) {
         unsigned ran = 0;
         while (gs_board_can_tick(b) && gs_link_backlog(l) < GS_LOCKSTEP_BACKLOG && ran < 256u) {
-            tick(app);
+            gs_app_tick(app);
             if (++ran % 16u == 0) gs_link_flush(l);
         }
         unsigned handled = 0;
@@ -79,7 +79,7 @@ static void serve_lockstep(gs_app_t *app) {
         while (!gs_board_can_tick(b) && handled < 256u) {
             gs_link_pump_rx(l);
             if (!gs_link_next(l, &item)) break;
-            process(app, &item);
+            gs_app_process(app, &item);
             handled++;
         }
         gs_link_flush(l);
@@ -102,7 +102,7 @@ static void serve_realtime(gs_app_t *app) {
         uint64_t deadline = start + next_tick * b->tick_us;
         if (hal_now_us() < deadline) hal_wait(deadline, gs_link_backlog(l) > 0);
         gs_link_pump_rx(l);
-        while (gs_link_next(l, &item)) process(app, &item);
+        while (gs_link_next(l, &item)) gs_app_process(app, &item);
         while (start + next_tick * b->tick_us <= hal_now_us()) {
             uint64_t due = start + next_tick * b->tick_us;
             uint64_t late = hal_now_us() - due;
@@ -110,17 +110,17 @@ static void serve_realtime(gs_app_t *app) {
             next_tick++;
             if (late > RESYNC_BEHIND_US) next_tick += late / b->tick_us;
             uint64_t skipped = next_tick - before - 1u;
-            tick(app);
+            gs_app_tick(app);
             if (skipped) gs_board_skip(b, skipped);
             if (late > b->tick_us) gs_board_note_overrun(b);
             gs_link_pump_rx(l);
-            while (gs_link_next(l, &item)) process(app, &item);
+            while (gs_link_next(l, &item)) gs_app_process(app, &item);
         }
         gs_link_flush(l);
     }
 }
 
-void gs_app_run(gs_app_t *app, const gs_settings_t *cfg) {
+void gs_app_init(gs_app_t *app, const gs_settings_t *cfg) {
     gs_link_init(&app->link);
     gs_board_init(&app->board, cfg, on_send, app);
     if (cfg->log_frames) {
@@ -129,6 +129,10 @@ void gs_app_run(gs_app_t *app, const gs_settings_t *cfg) {
     }
     app->stats_key = 0;
     gs_board_boot(&app->board);
+}
+
+void gs_app_run(gs_app_t *app, const gs_settings_t *cfg) {
+    gs_app_init(app, cfg);
     gs_log_str("board: ");
     gs_log_str(GS_ROBOT_NAME);
     gs_log_str(" (");

@@ -17,5 +17,9 @@ typedef struct {
 
 /* Set up (the bus devices are found here) and run until hal_should_stop(). */
 void gs_app_run(gs_app_t *app, const gs_settings_t *cfg);
+/* The pieces of the loops, for harnesses that drive the core step by step (the fuzz targets). */
+void gs_app_init(gs_app_t *app, const gs_settings_t *cfg);
+void gs_app_process(gs_app_t *app, const gs_rx_item_t *item);
+void gs_app_tick(gs_app_t *app);
 
 #endif
