@@ -14,7 +14,7 @@ native-asan    the same with ``-fsanitize=address,undefined`` (tests run the cor
 mps2           the Cortex-M3 image for QEMU's ``mps2-an385`` (``arm-none-eabi-gcc``, newlib-nano)
 codec          the codec harness (stdin hex lines -> decode/dump/re-encode), ASan/UBSan
 fuzz-c-wire    libFuzzer: bytes into the C link decoder + board session (clang, fuzzer+ASan+UBSan)
-fuzz-c-diff    libFuzzer: the C frame decoder's output, printed for the differential check
+libdecode      the C frame decoder as a shared library (the differential target c-diff loads it)
 =============  ==================================================================================
 
 A missing compiler raises :class:`ToolchainMissing` whose message is the Debian install command
@@ -101,9 +101,11 @@ KINDS: dict[str, _Kind] = {
     "codec": _Kind("cc", ("core/gs_proto.c", "core/gs_cobs.c", "core/gs_crc.c", "tests/codec_harness.c"),
                    (*WARN, "-O1", "-DGS_PROTO_DUMP", *SAN), "codec_harness"),
     "fuzz-c-wire": _Kind("clang", _CORE + ("tests/fuzz_hal.c", "tests/fuzz_c_wire.c"),
-                         (*WARN, "-O1", "-g", "-fsanitize=fuzzer,address,undefined", "-DGS_FUZZ"), "fuzz_c_wire"),
-    "fuzz-c-diff": _Kind("clang", _CORE + ("tests/fuzz_hal.c", "tests/fuzz_c_diff.c"),
-                         (*WARN, "-O1", "-g", "-fsanitize=fuzzer,address,undefined", "-DGS_FUZZ"), "fuzz_c_diff"),
+                         (*WARN, "-O1", "-g", "-fsanitize=fuzzer,address,undefined", "-fno-sanitize-recover=all"),
+                         "fuzz_c_wire"),
+    "libdecode": _Kind("cc", ("core/gs_link.c", "core/gs_proto.c", "core/gs_cobs.c", "core/gs_crc.c",
+                              "tests/diff_lib.c"),
+                       (*WARN, "-O1", "-fPIC", "-shared", "-DGS_PROTO_DUMP"), "libgs_decode.so"),
 }
 
 
