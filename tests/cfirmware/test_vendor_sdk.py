@@ -7,9 +7,11 @@ them back with single READs. A client nobody in this project wrote."""
 from __future__ import annotations
 
 import math
+import sys
 import threading
 
 import pytest
+import scservo_sdk.port_handler
 from scservo_sdk import COMM_SUCCESS, GroupSyncWrite, PacketHandler, PortHandler
 
 from firmware_sim.cfirmware.servo_table import STEP_CENTRE
@@ -25,7 +27,13 @@ STEP = ROBOT.servos.model.resolution
 
 
 @pytest.fixture
-def bus():
+def bus(monkeypatch):
+    # The plant answers from a thread of this process; the SDK polls its port in a busy loop holding the
+    # GIL, so give the plant's thread its turns sooner and the SDK the answer time a USB adapter's
+    # latency timer would (its LATENCY_TIMER constant, 16 ms by default, is the knob the SDK exposes).
+    old = sys.getswitchinterval()
+    sys.setswitchinterval(0.0002)
+    monkeypatch.setattr(scservo_sdk.port_handler, "LATENCY_TIMER", 100)
     world = World(ROBOT)
     plant = PlantBus(world, lockstep=True)
     port = PtyPort()
@@ -39,6 +47,7 @@ def bus():
     stop.set()
     th.join(5)
     port.close()
+    sys.setswitchinterval(old)
 
 
 def _joint(i: int, steps: int) -> float:

@@ -355,8 +355,8 @@ void gs_board_init(gs_board_t *b, const gs_settings_t *cfg, gs_send_fn sendfn, v
     b->fault_servo = 0;
     b->servo_fault_t = 0;
     for (unsigned k = 0; k < 3; k++) b->screen_last[k].name_len = 0;
-    b->speaker_last.name_len = 0;
-    b->speaker_last.text_len = 0;
+    b->speaker_action = b->speaker_kind = 0;
+    b->speaker_start_us = 0;
     b->tick_cycles_last = b->tick_cycles_max = 0;
     b->tick_cycles_sum = b->tick_cycles_n = 0;
 }
@@ -640,7 +640,9 @@ void gs_board_handle(gs_board_t *b, const gs_msg_t *m, uint16_t seq, int64_t rx)
         ack(b, seq, t);
         return;
     case GS_MSG_TYPE_SPEAKER:
-        b->speaker_last = m->u.speaker;
+        b->speaker_action = m->u.speaker.action;
+        b->speaker_kind = m->u.speaker.kind;
+        b->speaker_start_us = m->u.speaker.start_at_us;
         ack(b, seq, t);
         return;
     case GS_MSG_TYPE_CAMERA_CAPTURE:

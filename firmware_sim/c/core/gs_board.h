@@ -90,9 +90,11 @@ struct gs_board {
     uint8_t servo_fault;   /* latched */
     uint8_t fault_servo;   /* index of the first servo that stopped answering */
     int64_t servo_fault_t;
-    /* peripherals: the last command per screen target and the speaker's (ACKed, kept) */
+    /* peripherals (none on this board's bus): the last command per screen target and the speaker's last
+     * action are ACKed and kept (speech text is not kept: it is the host's to synthesise) */
     gs_screen_command_t screen_last[3];
-    gs_speaker_command_t speaker_last;
+    uint8_t speaker_action, speaker_kind;
+    uint64_t speaker_start_us;
     /* tick cost (hal_cycles) */
     uint32_t tick_cycles_last, tick_cycles_max;
     uint64_t tick_cycles_sum, tick_cycles_n;

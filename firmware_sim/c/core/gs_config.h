@@ -17,10 +17,10 @@
 #define GS_RX_RING 512u /* host UART receive ring (bytes) */
 #endif
 #ifndef GS_TX_RING
-#define GS_TX_RING 1536u /* host UART transmit ring (bytes) */
+#define GS_TX_RING 1024u /* host UART transmit ring (bytes): ~5 telemetry reports */
 #endif
-#define GS_TELEMETRY_BACKLOG 1024u /* telemetry is dropped rather than queued past this backlog */
-#define GS_LOCKSTEP_BACKLOG 768u /* lockstep: stop ticking while this much waits to go out */
+#define GS_TELEMETRY_BACKLOG 768u /* telemetry is dropped rather than queued past this backlog */
+#define GS_LOCKSTEP_BACKLOG 512u /* lockstep: stop ticking while this much waits to go out */
 #define GS_GAP_WINDOW 64u /* missing sequence numbers remembered by the gap detector */
 
 typedef struct {

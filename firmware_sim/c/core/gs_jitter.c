@@ -2,7 +2,6 @@
 
 void gs_jb_init(gs_jb_t *b) {
     b->n = 0;
-    b->order = 0;
     b->next_valid = 0;
 }
 
@@ -18,7 +17,6 @@ int gs_jb_push(gs_jb_t *b, int64_t apply_at_us, uint16_t seq, gs_mask_t mask, co
     for (uint16_t k = b->n; k > pos; k--) b->f[k] = b->f[k - 1];
     gs_jframe_t *f = &b->f[pos];
     f->apply_at_us = apply_at_us;
-    f->order = ++b->order;
     f->seq = seq;
     f->mask = mask;
     for (unsigned i = 0; i < GS_SERVO_COUNT; i++) f->q[i] = (mask >> i & 1u) ? q[i] : 0;

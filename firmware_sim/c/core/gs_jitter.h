@@ -8,11 +8,15 @@
 
 #include "gs_config.h"
 
-typedef uint32_t gs_mask_t; /* bit i = servo i (id i + 1) */
+#if GS_SERVO_COUNT <= 16
+typedef uint16_t gs_mask_t; /* bit i = servo i (id i + 1) */
+#else
+typedef uint32_t gs_mask_t;
+#endif
 
+/* Frames are kept sorted by apply-at, equal times in arrival order (a new frame goes after them). */
 typedef struct {
     int64_t apply_at_us;
-    uint32_t order;
     uint16_t seq;
     gs_mask_t mask;
     int16_t q[GS_SERVO_COUNT]; /* target of servo i (q16 code, 1e-4 rad) where mask bit i is set */
@@ -21,7 +25,6 @@ typedef struct {
 typedef struct {
     gs_jframe_t f[GS_BUFFER_DEPTH];
     uint16_t n;
-    uint32_t order;
     uint8_t next_valid;
     uint8_t has_next[GS_SERVO_COUNT];
     int64_t next_t[GS_SERVO_COUNT];
