@@ -4,10 +4,12 @@ One process (this one) holds the world; the firmware runs as its own process:
 
 * ``c``: the native build (:mod:`firmware_sim.cfirmware.build`, kind ``native``) as a subprocess:
   ``gs_firmware --bus PTY --host pty`` (it creates the host pty itself, as a board's UART);
-* ``qemu``: the Cortex-M3 image on ``qemu-system-arm -M mps2-an385``: UART0 = ``-serial pty`` (the
-  host link), UART1 = the servo-bus pty, UART2 = ``-serial stdio`` (the log channel); boot settings
-  go into the image's configuration block through QEMU's generic loader. ``icount=True`` adds
-  ``-icount shift=0,sleep=on`` (one instruction per virtual nanosecond: the tick-cost figure).
+* ``qemu``: the Cortex-M3 image on ``qemu-system-arm -M mps2-an385``: UART0 = a pty this process
+  relays byte for byte to the host's pty (QEMU's own ``-serial pty`` notices its peer by polling
+  once a second, which would hold the host's first bytes back), UART1 = the servo-bus pty, UART2 =
+  ``-serial stdio`` (the log channel); boot settings go into the image's configuration block through
+  QEMU's generic loader. ``icount=True`` adds ``-icount shift=0,sleep=on`` (one instruction per
+  virtual nanosecond: the tick-cost figure).
 
 This process is the servo-bus plant (:mod:`firmware_sim.plant`: the robot's MuJoCo model behind
 Feetech SCS/STS devices on a pty) and reads the firmware's log channel: ``board: ...`` lines go to
@@ -15,7 +17,7 @@ stderr as the Python board prints them, ``F rx|tx T HEX`` records become the JSO
 (``--log``; decoded here with :mod:`protocol.framelog`, the raw bytes are the firmware's),
 ``S key=value`` records are its counters (the ``board: faults {json}`` line at exit).
 
-The host link is the firmware's own UART pty, except with ``--faults`` or ``--baud``: then the
+The host link is the firmware's own UART pty (native), except with ``--faults`` or ``--baud``: then the
 line between host and firmware is modelled here (the Python board's
 :class:`firmware_sim.transports.serial.WireModel` and :class:`firmware_sim.transports.faulty.FaultyWire`
 between two ptys), so the faults hit the firmware's UART as bytes on a bad wire would.

@@ -146,6 +146,8 @@ class PlantBus:
     def _handle(self, ins: Instruction) -> list[bytes]:
         p, inst, dev_id = ins.params, ins.instruction, ins.id
         w = self.world
+        if inst in (Inst.READ, Inst.SYNC_READ):
+            w.refresh_if_stale()
         replies: list[bytes] = []
         if inst == Inst.SYNC_WRITE and dev_id == BROADCAST_ID and len(p) >= 2:
             addr, n = p[0], p[1]

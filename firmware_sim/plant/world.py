@@ -63,6 +63,7 @@ class World:
         self.steps = 0
         for i, s in enumerate(self.table):
             self.servos[i].set_u16(REG.GOAL_POSITION, self._to_steps(i, s.neutral))
+        self.stale = False
         self.refresh()
 
     # -- conversions ---------------------------------------------------------------------------
@@ -91,10 +92,15 @@ class World:
         mujoco.mj_step(self.model, d, nstep=self.substeps)
         self.time_us += self.period_us
         self.steps += 1
-        self.refresh()
+        self.stale = True  # present registers are refreshed when read (PlantBus calls refresh_if_stale)
+
+    def refresh_if_stale(self) -> None:
+        if self.stale:
+            self.refresh()
 
     def refresh(self) -> None:
         """Present registers of every device from the current state."""
+        self.stale = False
         d, cm = self.data, self.cm
         q = d.qpos[cm.qpos_adr]
         v = d.qvel[cm.dof_adr]

@@ -2,7 +2,7 @@
  *
  * Input: 4 bytes seed the chunking (as the serial-decoder target's seeds: 4 bytes + wire bytes,
  * so the frame-log corpora seed it), the rest is the host's byte stream, delivered in pseudo-random
- * chunks; between chunks the board ticks while it may (at most 4000 ticks per input) and handles
+ * chunks; between chunks the board ticks while it may (at most 800 ticks, 1.6 s, per input: past the watchdog's crouch) and handles
  * messages when it cannot, as the firmware's lockstep loop does. Invariants (abort on failure, plus
  * AddressSanitizer and UBSan): the jitter buffer and the TX ring stay within their sizes, every
  * command stays inside its servo's range and every goal register inside its step range, ESTOP holds
@@ -33,7 +33,7 @@ static void invariants(void) {
 static void run(unsigned *ticks) {
     gs_rx_item_t item;
     for (;;) {
-        if (gs_board_can_tick(&app.board) && *ticks < 4000u) {
+        if (gs_board_can_tick(&app.board) && *ticks < 800u) {
             gs_app_tick(&app);
             (*ticks)++;
         } else {

@@ -49,6 +49,11 @@ void uart0_rx_handler(void) { UART_INT(HOST) = 2u; } /* wake from WFI; main loop
 #define SCB_ICSR REG32(0xE000ED04u)
 #define ICSR_PENDSTSET (1u << 26)
 
+static uint64_t last_counts;
+
+/* Monotonic system-clock counts: SysTick periods counted by its interrupt plus the counter. A reload
+ * seen before its interrupt was taken (pending, or not even flagged yet in QEMU's timer model) would
+ * make time step back by up to one period: such a reading is moved on by one period. */
 static uint64_t now_counts(void) {
     for (;;) {
         uint32_t t = systicks;
@@ -59,7 +64,11 @@ static uint64_t now_counts(void) {
             v = SYST_CVR;
             t++;
         }
-        return (uint64_t)t * COUNTS_PER_TICK + (COUNTS_PER_TICK - 1u - v);
+        uint64_t c = (uint64_t)t * COUNTS_PER_TICK + (COUNTS_PER_TICK - 1u - v);
+        if (c < last_counts) c += COUNTS_PER_TICK;
+        if (c < last_counts) c = last_counts;
+        last_counts = c;
+        return c;
     }
 }
 
