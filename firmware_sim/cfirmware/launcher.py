@@ -262,7 +262,8 @@ def run_firmware(opts: LaunchOptions, err: IO[str] = sys.stderr) -> int:
     if opts.asan:
         env.setdefault("ASAN_OPTIONS", "detect_leaks=0:abort_on_error=0")
         env.setdefault("UBSAN_OPTIONS", "print_stacktrace=1:halt_on_error=1")
-    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+                            preexec_fn=_die_with_parent)
     assert proc.stdout is not None and proc.stderr is not None
     log_fd = proc.stderr.fileno() if opts.firmware == "c" else proc.stdout.fileno()
     side_fd = proc.stdout.fileno() if opts.firmware == "c" else proc.stderr.fileno()
@@ -372,6 +373,17 @@ def run_firmware(opts: LaunchOptions, err: IO[str] = sys.stderr) -> int:
             os.close(fd)
         bus.close()
     return status
+
+
+def _die_with_parent() -> None:
+    """In the child before exec: SIGTERM it when this process dies, even by SIGKILL (Linux prctl
+    PR_SET_PDEATHSIG), so a killed board never leaves its firmware or QEMU running."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG = 1
+    except OSError:
+        pass
 
 
 def _read(fd: int) -> bytes:
