@@ -305,7 +305,7 @@ static void write_goals(gs_board_t *b) {
 void gs_board_init(gs_board_t *b, const gs_settings_t *cfg, gs_send_fn sendfn, void *ctx) {
     b->cfg = *cfg;
     b->tick_us = gs_config_tick_us(cfg);
-    b->bus_timeout_us = cfg->lockstep ? 200000u : 4000u;
+    b->bus_timeout_us = cfg->lockstep ? 1000000u : 10000u; /* lockstep: no deadline, only a dead servo waits */
     b->miss_limit = cfg->lockstep ? MISS_LIMIT_LOCKSTEP : MISS_LIMIT_REALTIME;
     b->send = sendfn;
     b->send_ctx = ctx;
