@@ -28,6 +28,7 @@ import importlib
 import importlib.util
 import math
 import sys
+import traceback
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -361,9 +362,12 @@ class Robot:
         sys.modules[mod_name] = mod
         try:
             spec.loader.exec_module(mod)
-        except Exception:
+        except Exception as e:  # a user robot's module: one line with its file:line, not a traceback
             sys.modules.pop(mod_name, None)
-            raise
+            line = getattr(e, "lineno", None) if isinstance(e, SyntaxError) else next(
+                (f.lineno for f in reversed(traceback.extract_tb(e.__traceback__)) if f.filename == str(path)), None)
+            raise RobotDataError(f"{path}{f':{line}' if line else ''}: cannot import this robot module "
+                                 f"({type(e).__name__}: {e})") from None
         return mod
 
     @cached_property
@@ -424,7 +428,8 @@ class Robot:
                  f"  servo table hash: {self.servo_table_hash:#010x}",
                  "  servos: " + ", ".join(f"{s.id}:{s.name}[{deg(s.min):.0f}..{deg(s.max):.0f}]" for s in self.servos),
                  "  poses: " + ", ".join(self.poses),
-                 "  channels: " + ", ".join(f"{c.name}({len(c.servos)})" for c in self.channels.values()),
+                 "  channels: " + (", ".join(f"{c.name}({len(c.servos)})" for c in self.channels.values())
+                                   or "none (pose and joint_move run on the generic channel joints)"),
                  "  peripherals: " + (", ".join(p for p, on in (("camera", self.peripherals.camera),
                                                                  ("screen", self.peripherals.screen),
                                                                  ("speaker", self.peripherals.speaker)) if on)

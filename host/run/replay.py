@@ -130,12 +130,18 @@ class ReplayResult:
 
 
 def recorded_robot(log_path: Path) -> str | None:
-    """The robot a recorded run drove: ``extra.robot`` of the ``summary.json`` next to its log (None if absent)."""
+    """The robot a recorded run drove, from the ``summary.json`` next to its log: its folder
+    (``extra.robot_folder``) while that still holds a robot, else its name (``extra.robot``); None if absent."""
+    from robots.loader import ROBOT_FILE
+
     try:
         doc = json.loads((log_path.parent / "summary.json").read_text(encoding="utf-8"))
-        name = (doc.get("extra") or {}).get("robot")
+        extra = doc.get("extra") or {}
+        name, folder = extra.get("robot"), extra.get("robot_folder")
     except (OSError, ValueError, AttributeError):
         return None
+    if isinstance(folder, str) and folder and (Path(folder) / ROBOT_FILE).is_file():
+        return folder
     return name if isinstance(name, str) and name else None
 
 
@@ -225,7 +231,8 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
     if tel_t:
         names = robot.servos.names
         tgt = (np.asarray([t for t, _ in targets]), np.asarray([q for _, q in targets])) if targets else None
-        artefacts.plot_joints(out / "joints.png", np.asarray(tel_t), np.asarray(tel_q), names, tgt)
+        artefacts.plot_joints(out / "joints.png", np.asarray(tel_t), np.asarray(tel_q), names, tgt,
+                              groups=artefacts.joint_groups(robot))
     summary = {"replay_of": str(log_path), "messages": len(msgs), "base_end": base_end,
                "original_base_end": orig_end, "base_end_error_mm": err_mm,
                "board_time_s": round(final.board_time_us / 1e6, 6)}

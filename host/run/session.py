@@ -413,7 +413,7 @@ class RobotSession:
         summary = artefacts.Summary(
             task=label, outcome="link_lost", fell=False, base_start=_pose(None), base_end=_pose(None),
             max_tilt_deg=0.0, first_action_latency_ms=None, outcomes=artefacts.count_outcomes([]),
-            extra={"clock": "lockstep" if self.opts.lockstep else "realtime", "robot": self.robot.name,
+            extra={"clock": "lockstep" if self.opts.lockstep else "realtime", "robot": self.robot.name, "robot_folder": str(self.robot.root),
                    "vocabulary": self.vocabulary,
                    "mode": self.opts.mode, "error": None, "link_error": str(error), "observations": [],
                    "link": {}, "captures": [], "scene": self.scene_report(),
@@ -440,7 +440,7 @@ class RobotSession:
         running = {} if tl is None else {r.channel or "-": f"{r.function}{r.args}" for r in tl
                                          if r.start is not None and r.end is None}
         return {"board_time_s": round(runtime.board_now_s(), 3), "base": _pose(b), "tilt_deg": round(tilt, 2),
-                "fell": _fell(tilt, b), "running": running, "busy": self.shell.running,
+                "fell": _fell(self.robot, tilt, b[1][2] if b else None, self.rec.base_z0), "running": running, "busy": self.shell.running,
                 "skills": [s.name for s in self.shell.skills.list()], "scene": self.scene_report()}
 
     async def capture(self) -> Path:
@@ -479,7 +479,7 @@ class RobotSession:
                                                             ("failed" if failed else "done"))
         if link_error is not None:
             outcome = "link_lost"
-        fell = max_tilt > 45.0 or bool(base and min(b[1][2] for b in base) < 0.03)
+        fell = _fell(self.robot, max_tilt, min((b[1][2] for b in base), default=None), rec.base_z0)
         client = self.client
         tel = client.latest_telemetry if client is not None else None
         stats = {"frames_sent": streamer.frames_sent, "late": tel.late_count if tel else None,
@@ -500,7 +500,7 @@ class RobotSession:
             task=label, outcome=outcome, fell=fell, base_start=_pose(b0), base_end=_pose(b1),
             max_tilt_deg=round(max_tilt, 2), first_action_latency_ms=None if first is None else round(first, 1),
             outcomes=counts, duration_s=round(end_t - turn.board_t0, 3),
-            extra={"clock": "lockstep" if opts.lockstep else "realtime", "robot": self.robot.name,
+            extra={"clock": "lockstep" if opts.lockstep else "realtime", "robot": self.robot.name, "robot_folder": str(self.robot.root),
                    "vocabulary": self.vocabulary,
                    "mode": opts.mode, "error": None if result.error is None else str(result.error),
                    **({"link_error": str(link_error)} if link_error is not None else {}),
@@ -530,7 +530,8 @@ class RobotSession:
             artefacts.plot_timeline(out / "timeline.png", calls, title=f"{label}: calls on the board clock")
             if len(times) and keep.any():
                 targets = (np.asarray([t for t, _ in sent]) * 1e-6, np.asarray([q_ for _, q_ in sent])) if sent else None
-                artefacts.plot_joints(out / "joints.png", times[keep], q[keep], names, targets)
+                artefacts.plot_joints(out / "joints.png", times[keep], q[keep], names, targets,
+                                      groups=artefacts.joint_groups(self.robot))
             artefacts.write_summary_json(out / "summary.json", summary)
 
         return write
@@ -560,8 +561,17 @@ def _pose(b: Any) -> list[float]:
     return [round(b[1][0], 4), round(b[1][1], 4), round(artefacts.yaw_deg(b[2]), 2)] if b else [0.0, 0.0, 0.0]
 
 
-def _fell(tilt: float, b: Any) -> bool:
-    return tilt > 45.0 or bool(b and b[1][2] < 0.03)
+#: a floating robot has fallen when its base tilts more than this (deg) ...
+FELL_TILT_DEG = 45.0
+#: ... or sinks below this fraction of the height it started at (CoCo: 0.09 m -> 0.03 m)
+FELL_HEIGHT_FRACTION = 1 / 3
+
+
+def _fell(robot: Robot, tilt: float, z: float | None, z0: float | None) -> bool:
+    """Whether ``robot`` fell: only a floating base can (a fixed one stays where its MJCF puts it)."""
+    if not robot.base.floating:
+        return False
+    return tilt > FELL_TILT_DEG or (z is not None and z0 is not None and z < z0 * FELL_HEIGHT_FRACTION)
 
 
 async def _one(text: str) -> AsyncIterator[str]:
