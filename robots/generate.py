@@ -62,6 +62,7 @@ import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from robots.description import MAX_WIRE_SERVOS, RobotDataError
 from robots.loader import NAME_RE, RANGE_TOL_DEG, ROBOT_FILE, load_robot_dir, position_kp
@@ -298,7 +299,8 @@ def generate_package(name: str, mjcf: str | Path, *, max_speed_dps: float = DEFA
         notes.append(f"{model.ncam} camera(s) without a name: no camera (name one to give the robot a camera)")
 
     mjcf_rel, copies = _package_files(src, index)
-    title = title or (index.first("mujoco").attrs.get("model") if index.first("mujoco") else None) or name
+    root_el = index.first("mujoco")
+    title = title or (root_el.attrs.get("model") if root_el is not None else None) or name
     texts = {
         ROBOT_FILE: _robot_toml(name, title, src, mjcf_rel, servos, floating, spawn_height, needs_floor, camera),
         SERVOS_FILE: _servos_toml(src, servos, max_speed_dps),
@@ -311,29 +313,28 @@ def generate_package(name: str, mjcf: str | Path, *, max_speed_dps: float = DEFA
     return RobotPackage(name, title, src, mjcf_rel, tuple(servos), poses, floating, camera, texts, copies, tuple(notes))
 
 
-def _floating_root(model: object, jids: Sequence[int]) -> int | None:
-    """The body under the world with a free joint that carries every servo joint (None: fixed base)."""
+def _floating_root(m: Any, jids: Sequence[int]) -> int | None:
+    """The body under the world with a free joint that carries every servo joint (None: fixed base).
+    ``m``: a ``mujoco.MjModel``."""
     import mujoco
 
-    m = model  # type: ignore[assignment]
-    for j in range(m.njnt):  # type: ignore[attr-defined]
-        if int(m.jnt_type[j]) != int(mujoco.mjtJoint.mjJNT_FREE):  # type: ignore[attr-defined]
+    for j in range(m.njnt):
+        if int(m.jnt_type[j]) != int(mujoco.mjtJoint.mjJNT_FREE):
             continue
-        body = int(m.jnt_bodyid[j])  # type: ignore[attr-defined]
-        if int(m.body_parentid[body]) != 0:  # type: ignore[attr-defined]
+        body = int(m.jnt_bodyid[j])
+        if int(m.body_parentid[body]) != 0:
             continue
-        if all(int(m.body_rootid[m.jnt_bodyid[s]]) == body for s in jids):  # type: ignore[attr-defined]
+        if all(int(m.body_rootid[m.jnt_bodyid[s]]) == body for s in jids):
             return body
     return None
 
 
-def _spawn_height(model: object, root: int, qadr: Sequence[int], q: Sequence[float]) -> float:
+def _spawn_height(m: Any, root: int, qadr: Sequence[int], q: Sequence[float]) -> float:
     """Root height (m) that puts the lowest collision geom of the robot SPAWN_CLEARANCE_M above z = 0, upright,
     at joint angles ``q`` (geoms bounded by their axis-aligned boxes, ``geom_aabb``)."""
     import mujoco
     import numpy as np
 
-    m: mujoco.MjModel = model  # type: ignore[assignment]
     d = mujoco.MjData(m)
     jfree = int(m.body_jntadr[root])
     r = int(m.jnt_qposadr[jfree])
@@ -356,12 +357,11 @@ def _spawn_height(model: object, root: int, qadr: Sequence[int], q: Sequence[flo
     return round(-lowest + SPAWN_CLEARANCE_M, 4)
 
 
-def _sag_notes(model: object, servos: Sequence[GeneratedServo], jids: Sequence[int], qadr: Sequence[int],
+def _sag_notes(m: Any, servos: Sequence[GeneratedServo], jids: Sequence[int], qadr: Sequence[int],
                kps: Sequence[float]) -> list[str]:
     """Joints whose actuator would hold them more than SAG_NOTE_DEG off target at the neutral pose."""
     import mujoco
 
-    m: mujoco.MjModel = model  # type: ignore[assignment]
     d = mujoco.MjData(m)
     d.qpos[list(qadr)] = [math.radians(s.neutral_deg) for s in servos]
     mujoco.mj_forward(m, d)
