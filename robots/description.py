@@ -372,15 +372,28 @@ class Robot:
 
     @cached_property
     def behaviours(self) -> Mapping[str, Behaviour]:
-        """Behaviour name -> generator: the generic ones (``pose``, ``joint_move``) and the module's."""
+        """Behaviour name -> generator: the generic ones (``pose``, ``joint_move``) and the module's.
+
+        The module's ``BEHAVIOURS`` is a dict, or a function ``BEHAVIOURS(robot) -> dict`` (so a user
+        package's generators can take their limits and servo indices from this robot)."""
         from robots.generic import generic_behaviours
 
         out: dict[str, Behaviour] = dict(generic_behaviours(self))
         if self.behaviours_module:
+            path = self.root / (self.behaviours_module + ".py")
             mod = self._module(self.behaviours_module)
             own = getattr(mod, "BEHAVIOURS", None)
+            if callable(own) and not isinstance(own, Mapping):
+                try:
+                    own = own(self)
+                except Exception as e:  # the package's code: one line with its place, not a traceback
+                    line = next((f.lineno for f in reversed(traceback.extract_tb(e.__traceback__))
+                                 if f.filename == str(path)), None)
+                    raise RobotDataError(f"{path}{f':{line}' if line else ''}: BEHAVIOURS(robot) failed "
+                                         f"({type(e).__name__}: {e})") from None
             if not isinstance(own, Mapping):
-                raise RobotDataError(f"{self.root / (self.behaviours_module + '.py')}: needs a BEHAVIOURS dict")
+                raise RobotDataError(f"{path}: needs BEHAVIOURS, a dict name -> generator or a function "
+                                     "robot -> that dict")
             out.update(own)
         return out
 

@@ -18,7 +18,8 @@ import pytest
 from host.link.board_process import start_board
 from protocol.framelog import iter_records
 from robots.generate import generate_package, install_package
-from support.robot_samples import RIG_ACTUATORS_XML, cli, line_of, one_line_error, write_crawler, write_rig
+from support.robot_samples import (RIG_ACTUATORS_XML, add_scan, cli, line_of, one_line_error, write_crawler,
+                                   write_rig)
 
 TOLERANCE_DEG = 3.0
 
@@ -182,3 +183,26 @@ def test_generated_robot_runs_pose_and_joint_move(robot: str, moves: str, target
     final = _final_positions_deg(out)
     errors = {j: abs(final[i] - t) for i, (j, t) in enumerate(target.items())}
     assert max(errors.values()) <= TOLERANCE_DEG, errors
+
+
+def test_a_behaviour_and_stub_added_to_a_generated_robot(tmp_path: Path) -> None:
+    """README "Add your robot": a behaviours module, an interface module and a channel, no other code."""
+    robots = tmp_path / "robots"
+    add_scan(install_package(generate_package("rig", write_rig(tmp_path / "src")), robots))
+    show = cli("robots", "show", "rig", "--robots-dir", str(robots), data_home=tmp_path)
+    assert show.returncode == 0, show.stderr
+    assert "scan(times: int 1..10 = 1)  [channel head]  Sweep the camera from right to left `times` times" in show.stdout
+    assert "channels: head(2)" in show.stdout
+    out = tmp_path / "run"
+    res = cli("run", "--robot", "rig", "--robots-dir", str(robots), "--lockstep", "--no-live", "--out", str(out),
+              "--xml", '<scan times="1"/><joint_move joint="tilt" deg="20"/>', data_home=tmp_path)
+    assert res.returncode == 0, res.stdout + res.stderr
+    calls = json.loads((out / "timeline.json").read_text())["calls"]
+    assert [(c["function"], c["channel"], c["outcome"]) for c in calls] == [
+        ("scan", "head", "done"), ("joint_move", "joints", "done")]
+    pan = []
+    with open(out / "board_frames.jsonl", encoding="utf-8") as f:
+        pan = [math.degrees(r["fields"]["positions"][1]) for r in iter_records(f)
+               if r.get("type") == "TELEMETRY" and r["dir"] == "tx"]
+    assert min(pan) < -60 + TOLERANCE_DEG and max(pan) > 60 - TOLERANCE_DEG  # the sweep reached both ends
+    assert abs(_final_positions_deg(out)[2] - 20) <= TOLERANCE_DEG

@@ -18,8 +18,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-__all__ = ["CRAWLER_XML", "RIG_ACTUATORS_XML", "RIG_XML", "cli", "line_of", "one_line_error", "write_crawler",
-           "write_rig"]
+__all__ = ["CRAWLER_XML", "RIG_ACTUATORS_XML", "RIG_BEHAVIOURS_PY", "RIG_INTERFACE_PY", "RIG_XML", "add_scan",
+           "cli", "line_of", "one_line_error", "write_crawler", "write_rig"]
 
 RIG_XML = """\
 <mujoco model="rail camera rig">
@@ -122,6 +122,57 @@ CRAWLER_XML = """\
   </actuator>
 </mujoco>
 """
+
+
+#: README "Add your robot": a behaviour of the rig (a pan sweep) ...
+RIG_BEHAVIOURS_PY = """\
+import math
+
+from robots.motion import Limits, Track
+
+
+def BEHAVIOURS(robot):
+    limits = Limits.of_robot(robot)
+    pan = robot.servos.by_name("pan").index
+
+    def scan(start, *, persistent=False, times=1):
+        track = Track([pan], start, limits)
+        for _ in range(times):
+            track.move([math.radians(-60)], 0.8).move([math.radians(60)], 0.8)
+        return track.build(hold_end=persistent)
+
+    return {"scan": scan}
+"""
+
+#: ... and the stub the LLM sees for it
+RIG_INTERFACE_PY = """\
+from typing import Annotated
+
+from annotated_types import Interval
+
+from robots.interface import stub
+
+
+class Head:
+    \"\"\"The pan-tilt head.\"\"\"
+
+    @stub("head")
+    def scan(self, times: Annotated[int, Interval(ge=1, le=10)] = 1) -> None:
+        \"\"\"Sweep the camera from right to left `times` times.\"\"\"
+
+
+VOCABULARIES = {"default": {"head": Head}}
+"""
+
+
+def add_scan(folder: Path) -> None:
+    """Give a generated rig package the README's behaviour, stub and channel."""
+    (folder / "behaviours.py").write_text(RIG_BEHAVIOURS_PY)
+    (folder / "interface.py").write_text(RIG_INTERFACE_PY)
+    toml = folder / "robot.toml"
+    text = toml.read_text().replace('# interface = "interface"', 'interface = "interface"')
+    text = text.replace('# behaviours = "behaviours"', 'behaviours = "behaviours"')
+    toml.write_text(text + '\n[channels.head]\nservos = ["pan", "tilt"]\ndoc = "the pan-tilt head"\n')
 
 
 def write_rig(folder: Path, xml: str = RIG_XML, actuators: str = RIG_ACTUATORS_XML) -> Path:
