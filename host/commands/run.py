@@ -73,6 +73,17 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
                         help="seed of the fault injection (default 0; needs --faults)")
     parser.add_argument("--policy", default=None, metavar="FILE",
                         help="safety policy (TOML): allowed functions, tighter parameter bounds, motion budget")
+    add_mount_argument(parser)
+
+
+def add_mount_argument(parser: argparse.ArgumentParser) -> None:
+    """``--mount-mcp NAME=COMMAND...|NAME=URL`` (repeatable): an MCP server's tools as the module NAME."""
+    from host.mounts.spec import parse_mount_arg
+
+    parser.add_argument("--mount-mcp", action="append", default=[], type=parse_mount_arg,
+                        metavar="NAME=COMMAND|NAME=URL",
+                        help="mount an MCP server's tools as functions NAME.TOOL: a stdio server command "
+                             "(e.g. weather='python weather.py') or a streamable HTTP URL; repeatable")
 
 
 def _positive(text: str) -> float:
@@ -184,6 +195,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         scene=getattr(args, "scene", None),
         skills=skills,
         policy=policy, faults=getattr(args, "faults", None), fault_seed=getattr(args, "fault_seed", 0),
+        mcp_mounts=tuple(getattr(args, "mount_mcp", ())),
     )
     try:
         report = anyio.run(run_program, opts, backend="asyncio")
@@ -196,8 +208,9 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
 
     s = report.summary
     print(calls_table(report.calls, report.board_t0))  # board-measured, as timeline.json
-    for o in report.result.observations:
-        if o.kind != "result":
+    mounted = {m.name for m in opts.mcp_mounts}
+    for o in report.result.observations:  # results of mounted tools are news; the robot's own are in the table
+        if o.kind != "result" or (o.path or "").split(".", 1)[0].split("/")[-1] in mounted:
             print(o)
     print(f"\n{label}: {s.outcome}; {sum(s.outcomes.values())} calls {dict((k, v) for k, v in s.outcomes.items() if v)}; "
           f"board time {s.duration_s:.2f} s; {_first_action(s.first_action_latency_ms)}; "

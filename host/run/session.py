@@ -33,6 +33,7 @@ reason and the turn's outcome is ``failed`` (``extra.board_fault`` in summary.js
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import logging
 from collections.abc import AsyncIterable, AsyncIterator, Awaitable, Callable, Iterable
@@ -104,6 +105,9 @@ class SessionOptions:
     policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
     faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
     fault_seed: int = 0
+    #: MCP servers mounted as shell modules (``--mount-mcp NAME=COMMAND|URL``, :mod:`host.mounts`)
+    mcp_mounts: tuple[Any, ...] = ()
+    mount_options: Any = None  # host.mounts.MountOptions (None: its defaults)
 
 
 @dataclass
@@ -182,6 +186,7 @@ class RobotSession:
         self._shell: Shell | None = None
         self._turn: _TurnStart | None = None  # the turn in progress
         self._link_tried = False  # a board link was attempted (a failure from then on has a report)
+        self.mounts: list[Any] = []  # the mounted MCP servers (host.mounts.McpMount)
 
     # -- life cycle ------------------------------------------------------------------------------
     @property
@@ -244,6 +249,17 @@ class RobotSession:
             registry = robot_registry(self.robot, runtime, self.vocabulary)
             self._shell = Shell(registry, mode=opts.mode, strict=opts.strict, clock=runtime.board_now_s,
                                 sleep=runtime.sleep, skills=opts.skills, policy=opts.policy)
+            if opts.mcp_mounts:  # McpMountError (one line) when a server cannot be mounted
+                from host.mounts import MountOptions, mounted
+
+                mount_opts = opts.mount_options or MountOptions()
+                if client.lockstep:  # a server answers in wall time: the virtual board clock waits for it
+                    mount_opts = dataclasses.replace(mount_opts, around_call=runtime.streamer.hold)
+                self.mounts = await self._stack.enter_async_context(
+                    mounted(opts.mcp_mounts, registry=registry, options=mount_opts))
+                for m in self.mounts:
+                    for note in m.notes:
+                        log.warning("%s", note)
             tg = anyio.create_task_group()
             self._tg = await self._stack.enter_async_context(tg)
             tg.start_soon(self._ends_the_run, pump(client, runtime, self.rec))
