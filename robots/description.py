@@ -403,7 +403,12 @@ class Robot:
         from robots.interface import build_interface
 
         mod = self._module(self.interface_module) if self.interface_module else None
-        return build_interface(self, mod)
+        try:
+            return build_interface(self, mod)
+        except (TypeError, AttributeError, KeyError) as e:  # VOCABULARIES of the wrong shape: one line
+            where = self.root / f"{self.interface_module}.py" if self.interface_module else self.root / "robot.toml"
+            raise RobotDataError(f"{where}: VOCABULARIES must map vocabulary -> {{module name: class of stubs}} "
+                                 f"({type(e).__name__}: {e})") from None
 
     @cached_property
     def tasks(self) -> Mapping[int, Task]:

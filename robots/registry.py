@@ -96,7 +96,7 @@ def list_robots(robots_dir: str | Path | None = None) -> list[RobotEntry]:
         if not folder.is_dir():
             continue
         for child in sorted(folder.iterdir()):
-            if (child / ROBOT_FILE).is_file():
+            if not child.name.startswith(".") and (child / ROBOT_FILE).is_file():  # (.NAME.new-PID: being written)
                 name = child.name
                 out.append(RobotEntry(name, child, builtin, seen.get(name)))
                 seen.setdefault(name, child)
