@@ -99,8 +99,8 @@ def iter_can_log(path: str | Path, *, dbc: bool = True, servos: int | None = Non
     ``dbc=False`` skips the DBC view (``dbc_name`` None, ``signals`` empty): several times faster
     for readers that need only the reassembled messages (``items``). ``servos``: the robot's servo
     count (default: the capture's first CAPS says, else :data:`DEFAULT_SERVO_COUNT`)."""
-    n = servos if servos is not None else (log_servo_count(path) or DEFAULT_SERVO_COUNT)
-    layouts = can_layouts(n)
+    servo_count = servos if servos is not None else (log_servo_count(path) or DEFAULT_SERVO_COUNT)
+    layouts = can_layouts(servo_count)
     nodes: dict[int, _Node] = {}
     for msg in can.LogReader(str(path)):  # type: ignore[no-untyped-call]
         if msg.is_error_frame:
@@ -112,7 +112,7 @@ def iter_can_log(path: str | Path, *, dbc: bool = True, servos: int | None = Non
         entry = CanLogEntry(float(msg.timestamp), direction, frame)
         if dbc and not frame.is_extended_id:
             try:
-                dm = load_dbc(frame.is_fd, n).get_message_by_frame_id(frame.arbitration_id)
+                dm = load_dbc(frame.is_fd, servo_count).get_message_by_frame_id(frame.arbitration_id)
                 entry.dbc_name = dm.name
                 entry.signals = dm.decode(frame.data, decode_choices=False, scaling=False, allow_truncated=True)
             except Exception:  # not in the DBC, or data the DBC cannot decode: no DBC view

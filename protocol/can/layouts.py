@@ -44,13 +44,19 @@ SERVO_FRAME and FLUSH is 16 bits for N <= 16 and 32 bits above (as the serial co
 most 32 parts (the 5-bit part index), so a message that would need more has **no** fixed layout in
 the table for that frame kind and travels as ISO-TP bulk instead: classic-CAN TELEMETRY takes
 N + 5 parts, so a robot of more than 27 servos sends TELEMETRY over ISO-TP on classic CAN (on CAN
-FD it always fits). Sizes (data bytes; classic: parts of 8 bytes):
+FD it always fits). Frames per message (classic: 8-byte parts; FD: frames x data bytes):
 
-=====  ==========================  ===============================
+=====  ==========================  =============================================
 N      SERVO_FRAME classic / FD    TELEMETRY classic / FD
-=====  ==========================  ===============================
-1      2 parts / 12 B              6 parts / 2 x 48 B ... (see ``python -m protocol.can.layouts``)
-=====  ==========================  ===============================
+=====  ==========================  =============================================
+1      2 parts / 1 x 12 B          6 parts / 1 x 48 B
+12     6 parts / 1 x 48 B          17 parts / 2 x 64 B
+16     7 parts / 1 x 48 B          21 parts / 3 x 64 B
+17     8 parts / 1 x 48 B          22 parts / 3 x 64 B
+27     11 parts / 2 x 64 B         32 parts / 4 x 64 B
+28     12 parts / 2 x 64 B         ISO-TP, 208-byte unit (30 frames) / 4 x 64 B
+32     13 parts / 2 x 64 B         ISO-TP, 232-byte unit (34 frames) / 4 x 64 B
+=====  ==========================  =============================================
 
 :data:`FIXED_LAYOUTS` is the table for :data:`DEFAULT_SERVO_COUNT` (12) servos, what callers that
 name no robot get (so their frames are the ones they always were).
@@ -65,7 +71,7 @@ from functools import lru_cache
 from protocol.can.frame import fd_length
 from protocol.can.ids import FunctionCode
 from protocol.codec import WireSchema, schema_for
-from protocol.messages import MAX_WIRE_SERVOS, MsgType
+from protocol.messages import MsgType
 
 __all__ = [
     "CRC_SIGNAL",
@@ -180,11 +186,6 @@ def _q16(name: str, scale: float, unit: str) -> SignalSpec:
     return SignalSpec(name, 16, True, scale, unit, "int16; -32768 = unknown (NaN)")
 
 
-def servo_signal(prefix: str, index: int) -> str:
-    """DBC name of servo ``index``'s (0-based) signal: ``target_01`` ..."""
-    return f"{prefix}_{index + 1:02d}"
-
-
 U48_TIME = "u48 microseconds (clamped)"
 
 
@@ -276,11 +277,14 @@ class CanLayouts:
         return self.fixed.get((fn, bool(fd)))
 
 
-@lru_cache(maxsize=None)
 def can_layouts(servo_count: int = DEFAULT_SERVO_COUNT) -> CanLayouts:
     """The layout table for a robot of ``servo_count`` servos (cached: one value per N);
     :class:`protocol.codec.WireBoundError` (a ``ValueError``) outside 1..32."""
-    n = int(servo_count)
+    return _can_layouts(int(servo_count))
+
+
+@lru_cache(maxsize=None)
+def _can_layouts(n: int) -> CanLayouts:
     schema = schema_for(n)  # refuses a count the wire cannot carry
     out: dict[tuple[FunctionCode, bool], FixedLayout] = {}
     for fd in (False, True):
@@ -293,8 +297,6 @@ def can_layouts(servo_count: int = DEFAULT_SERVO_COUNT) -> CanLayouts:
             out[(fn, fd)] = _build(MsgType.HEARTBEAT, fn, HEARTBEAT_SIGNALS, fd, n)
     return CanLayouts(n, out, schema)
 
-
-assert MAX_WIRE_SERVOS == 32 and can_layouts(MAX_WIRE_SERVOS).layout(FunctionCode.TELEMETRY, True) is not None
 
 #: (function code, is_fd) -> layout, for every fixed-layout function code, for :data:`DEFAULT_SERVO_COUNT` servos.
 FIXED_LAYOUTS: Mapping[tuple[FunctionCode, bool], FixedLayout] = can_layouts(DEFAULT_SERVO_COUNT).fixed
