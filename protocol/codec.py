@@ -58,15 +58,15 @@ byte. The module-level :data:`LAYOUTS`, :data:`SCHEMA_HASH`, :func:`encode_paylo
 MCU), and the largest message still fits a frame: payload bytes per message
 (SERVO_FRAME = apply-at 4 + mask + 2 N; TELEMETRY = 35 + 6 N, 3 count bytes included)
 
-=====  ===========  =========  ==========================================
-N      SERVO_FRAME  TELEMETRY  serial wire bytes (SERVO_FRAME / TELEMETRY)
-=====  ===========  =========  ==========================================
-1      8            41         17 / 50
-12     30           107        39 / 116
-16     38           131        47 / 140
-17     42           137        51 / 146
-32     72           227        81 / 236 (of :data:`MAX_PAYLOAD` 255)
-=====  ===========  =========  ==========================================
+=====  ===========  ============  ==========================================
+N      SERVO_FRAME  TELEMETRY     serial wire bytes (SERVO_FRAME / TELEMETRY)
+=====  ===========  ============  ==========================================
+1      8            41            17 / 50
+12     30           107           39 / 116
+16     38           131           47 / 140
+17     42           137           51 / 146
+32     72           227 (of 255)  81 / 236
+=====  ===========  ============  ==========================================
 
 (wire bytes = payload + 9: header 5, CRC 2, COBS code byte 1, delimiter 1; :mod:`protocol.framing`).
 A 33rd servo would need a second mask word; TELEMETRY would still fit up to 36 servos.
@@ -381,10 +381,6 @@ class Mask(Field):
         if v >> self.max_servos:
             raise PayloadError(f"{name}: {v:#x} has bits outside the {self.max_servos} servos")
         return v
-
-
-#: the default schema's mask (u16, 16 servos); the name it had before robots became data
-Mask16 = Mask
 
 
 def _seq_of_floats(name: str, value: Any) -> Sequence[float]:

@@ -65,7 +65,15 @@ from host.link.errors import (
 )
 from host.link.timesync import ClockEstimate, ClockSync
 from host.link.transports import Transport, open_transport
-from protocol.codec import MAX_RESEND_BITMAP, WIRE_SCHEMA_16, WIRE_SCHEMAS, WireBoundError, WireSchema, schema_for
+from protocol.codec import (
+    MAX_RESEND_BITMAP,
+    WIRE_SCHEMA_16,
+    WIRE_SCHEMAS,
+    WireBoundError,
+    WireSchema,
+    schema_by_hash,
+    schema_for,
+)
 from protocol.faults import GapDetector
 from protocol.framing import DecodeError, Frame
 from protocol.linkspec import LinkSpec, parse_link_spec
@@ -455,12 +463,15 @@ class BoardClient:
             raise RobotMismatch(
                 f"the board on {self.port_name} drives robot {board}, but this host was started for {want}: "
                 "start host and board with the same --robot (and the same robot files)")
-        transport = self._transport
-        if transport is not None:
-            try:
-                transport.set_servo_count(caps.servo_count)
-            except WireBoundError as e:
-                raise HandshakeError(f"the board on {self.port_name} reports robot {board}: {e}") from None
+        try:
+            board_schema = schema_for(caps.servo_count)
+        except WireBoundError as e:
+            raise HandshakeError(f"the board on {self.port_name} reports robot {board}: {e}") from None
+        if schema_by_hash(h) not in (None, board_schema):
+            raise HandshakeError(f"the board on {self.port_name} reports robot {board} but speaks the wire schema "
+                                 f"{h:#010x} of another servo count ({board_schema!r} expected): a broken board build")
+        if self._transport is not None:
+            self._transport.set_servo_count(caps.servo_count)
         self.schema_hash = h
         return caps
 
