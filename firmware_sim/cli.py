@@ -132,7 +132,7 @@ def main(argv: Sequence[str] | None = None) -> int:
               file=sys.stderr)
         return 2
     try:
-        link = open_board_transport(args.link, baud=args.baud, log_path=args.log)
+        link = open_board_transport(args.link, baud=args.baud, log_path=args.log, servo_count=robot.servo_count)
     except Exception as e:
         if args.link.kind == "can":
             from protocol.can.bus_errors import describe_bus_open_error
@@ -190,7 +190,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.baud:
         from protocol.framing import frame_size
 
-        need = cfg.telemetry_rate_hz * (frame_size(board.telemetry()) + frame_size(board.sim_state())) * 10
+        need = cfg.telemetry_rate_hz * (frame_size(board.telemetry(), board.wire_schema)
+                                        + frame_size(board.sim_state(), board.wire_schema)) * 10
         if need > 0.8 * args.baud:
             print(f"board: warning: telemetry needs ~{need} bit/s, more than 80% of {args.baud} baud; "
                   "some reports will be dropped (lower --telemetry-rate)", file=sys.stderr, flush=True)

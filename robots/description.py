@@ -36,6 +36,8 @@ from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
+from protocol.messages import MAX_WIRE_SERVOS as _MAX_WIRE_SERVOS
+
 if TYPE_CHECKING:
     from robots.interface import Interface
     from robots.model import RobotModel
@@ -55,9 +57,10 @@ __all__ = [
     "ServoTable",
 ]
 
-#: The most servos a robot may have: the wire's servo mask is at most one u32 (one register on an
-#: MCU; :mod:`protocol.codec` uses a u16 mask up to 16 servos and a u32 mask above).
-MAX_WIRE_SERVOS = 32
+#: The most servos a robot may have (:data:`protocol.messages.MAX_WIRE_SERVOS`): the wire's servo mask is
+#: at most one u32 (one register on an MCU; :mod:`protocol.codec` uses a u16 mask up to 16 servos and a
+#: u32 mask above).
+MAX_WIRE_SERVOS = _MAX_WIRE_SERVOS
 
 
 class RobotDataError(ValueError):

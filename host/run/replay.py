@@ -50,12 +50,18 @@ class ReplayError(LinkError):
 
 
 def read_serial_log(path: Path) -> Iterator[tuple[float, int, Message]]:
-    """Host-to-board messages (``tx`` records) of a serial JSON-Lines frame log, re-decoded from raw bytes."""
+    """Host-to-board messages (``tx`` records) of a serial JSON-Lines frame log, re-decoded from raw bytes
+    (in the log's own wire schema, :class:`protocol.framelog.LogDecoder`)."""
+    dec = framelog.LogDecoder()
     with open(path, encoding="utf-8") as f:
         for rec in framelog.iter_records(f):
-            if rec["dir"] != "tx" or "error" in rec:
+            if "error" in rec:
                 continue
-            item = framelog.decode_raw(rec["raw"])
+            if rec["dir"] != "tx":
+                if rec.get("type") == "CAPS":
+                    dec.decode(rec["raw"])  # the board's answer names the schema too
+                continue
+            item = dec.decode(rec["raw"])
             if isinstance(item, Frame):
                 yield float(rec["t"]), item.seq, item.msg
 
@@ -65,7 +71,7 @@ def _serial_last_sim_state(path: Path) -> SimState | None:
     with open(path, encoding="utf-8") as f:
         for rec in framelog.iter_records(f):
             if rec["dir"] == "rx" and rec.get("type") == "SIM_STATE":
-                item = framelog.decode_raw(rec["raw"])
+                item = framelog.decode_raw(rec["raw"])  # SIM_STATE is the same in every wire schema
                 if isinstance(item, Frame) and isinstance(item.msg, SimState):
                     last = item.msg
     return last
@@ -154,7 +160,7 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
     robot = load_robot(robot_name, robots_dir)
     board = start_board(["--lockstep", "--robot", str(robot.root), "--log", str(out / "board_frames.jsonl")],
                         out / "board.stderr")
-    transport = open_transport(board.spec, log_path=out / "host_frames.jsonl")
+    transport = open_transport(board.spec, log_path=out / "host_frames.jsonl", servo_count=robot.servo_count)
     acks: dict[int, asyncio.Future[Message]] = {}
     tel_t: list[float] = []
     tel_q: list[tuple[float, ...]] = []
