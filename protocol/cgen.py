@@ -138,14 +138,22 @@ def _flags16_emitter() -> Emitter:
     )
 
 
-def _mask16_emitter() -> Emitter:
+def _mask_bits_check(f: Any, n: str) -> str:
+    """C condition true when the mask has bits at or above the schema's servo count."""
+    if f.max_servos >= 8 * f.size:
+        return "0"
+    return f"(((uint64_t)x->{n} >> {f.max_servos}u) != 0u)"
+
+
+def _mask_emitter() -> Emitter:
+    """The servo mask of a schema: u16 up to 16 servos, u32 up to 32 (protocol.codec.Mask)."""
     return Emitter(
-        decl=lambda f, n: f"uint16_t {n}; /* bit i = servo i (id i+1), bits < GS_MAX_SERVOS */",
-        decode=lambda f, n: (f"GS_NEED(2, \"{n}\"); x->{n} = (uint16_t)rd_le(r, 2); "
-                             f"if (((uint32_t)x->{n} >> GS_MAX_SERVOS) != 0u) {{ GS_BAD(\"{n}: bits outside the servos\"); }}"),
-        encode=lambda f, n: (f"if (((uint32_t)x->{n} >> GS_MAX_SERVOS) != 0u) {{ return GS_E_VALUE; }} "
-                             f"GS_ROOM(2); wr_le(w, x->{n}, 2);"),
-        dump=lambda f, n: f"DUMP(\" {n}=%u\", (unsigned)x->{n});",
+        decl=lambda f, n: f"{_CTYPE_U[f.size]} {n}; /* bit i = servo i (id i+1), bits < {f.max_servos} */",
+        decode=lambda f, n: (f"GS_NEED({f.size}, \"{n}\"); x->{n} = ({_CTYPE_U[f.size]})rd_le(r, {f.size}); "
+                             f"if ({_mask_bits_check(f, n)}) {{ GS_BAD(\"{n}: bits outside the servos\"); }}"),
+        encode=lambda f, n: (f"if ({_mask_bits_check(f, n)}) {{ return GS_E_VALUE; }} "
+                             f"GS_ROOM({f.size}); wr_le(w, x->{n}, {f.size});"),
+        dump=lambda f, n: f"DUMP(\" {n}=%lu\", (unsigned long)x->{n});",
         py_text=lambda f, v: str(int(v)),
     )
 
@@ -170,7 +178,7 @@ def _q16_decode(f: Any, n: str) -> str:
     else:
         count = f"x->{n}_n"
         head = (f"GS_NEED(1, \"{n} count\"); x->{n}_n = (uint8_t)rd_le(r, 1); "
-                f"if (x->{n}_n > GS_MAX_SERVOS) {{ GS_BAD(\"{n}: count exceeds GS_MAX_SERVOS\"); }} ")
+                f"if (x->{n}_n > {f.max_count}u) {{ GS_BAD(\"{n}: count exceeds {f.max_count}\"); }} ")
     nan = "" if f.allow_nan else f" if (x->{n}[i] == -32768) {{ GS_BAD(\"{n}: NaN code not allowed\"); }}"
     return (f"{head}GS_NEED(2u * (size_t){count}, \"{n}\"); "
             f"for (size_t i = 0; i < (size_t){count}; i++) {{ x->{n}[i] = (int16_t)sext(rd_le(r, 2), 2);{nan} }}")
@@ -184,7 +192,7 @@ def _q16_encode(f: Any, n: str) -> str:
         head = f"if (x->{n}_n != popcount32(x->{f.mask_field})) {{ return GS_E_STRUCT; }} "
     else:
         count = f"x->{n}_n"
-        head = f"if (x->{n}_n > GS_MAX_SERVOS) {{ return GS_E_STRUCT; }} GS_ROOM(1); wr_le(w, x->{n}_n, 1); "
+        head = f"if (x->{n}_n > {f.max_count}u) {{ return GS_E_STRUCT; }} GS_ROOM(1); wr_le(w, x->{n}_n, 1); "
     nan = "" if f.allow_nan else f" if (x->{n}[i] == -32768) {{ return GS_E_VALUE; }}"
     return (f"{head}GS_ROOM(2u * (size_t){count}); "
             f"for (size_t i = 0; i < (size_t){count}; i++) {{{nan} wr_le(w, (uint16_t)x->{n}[i], 2); }}")
@@ -249,7 +257,7 @@ EMITTERS: dict[type, Emitter] = {
     c.Bool: _bool_emitter(),
     c.EnumU8: _enum_emitter(),
     c.Flags16: _flags16_emitter(),
-    c.Mask16: _mask16_emitter(),
+    c.Mask: _mask_emitter(),
     c.Q16Array: _q16_emitter(),
     c.F32Array: _f32_emitter(),
     c.Str8: _str8_emitter(),
@@ -268,11 +276,11 @@ def _emitter(t: MsgType, name: str, f: Any) -> Emitter:
 # --- the Python side of the comparison ---------------------------------------------------------
 
 
-def wire_text(msg: m.Message) -> str:
+def wire_text(msg: m.Message, schema: c.WireSchema = c.WIRE_SCHEMA_16) -> str:
     """The canonical dump of ``msg`` in wire units (what the C ``gs_dump_msg`` prints for it)."""
     t = c.msg_type_of(msg)
     parts = [f"T={int(t)}"]
-    for name, f in c.LAYOUTS[t]:
+    for name, f in schema.layouts[t]:
         parts.append(f" {name}={_emitter(t, name, f).py_text(f, getattr(msg, name))}")
     return "".join(parts)
 
@@ -280,11 +288,11 @@ def wire_text(msg: m.Message) -> str:
 # --- enums -------------------------------------------------------------------------------------
 
 
-def enum_classes() -> list[type]:
+def enum_classes(schema: c.WireSchema = c.WIRE_SCHEMA_16) -> list[type]:
     """Every enum the layouts use, plus MsgType, NackReason and FaultFlags, in a stable order."""
     out: list[type] = [MsgType, m.NackReason, m.FaultFlags]
-    for t in sorted(c.LAYOUTS, key=int):
-        for _, f in c.LAYOUTS[t]:
+    for t in sorted(schema.layouts, key=int):
+        for _, f in schema.layouts[t]:
             cls = getattr(f, "cls", None)
             if cls is not None and cls not in out:
                 out.append(cls)
@@ -308,13 +316,14 @@ def _enum_check(cls: type) -> str:
 # --- header and source -------------------------------------------------------------------------
 
 
-def c_header() -> str:
-    """Text of ``gs_proto.h``."""
+def c_header(schema: c.WireSchema = c.WIRE_SCHEMA_16) -> str:
+    """Text of ``gs_proto.h`` for ``schema`` (default: robots of up to 16 servos)."""
+    L = schema.layouts
     out = [BANNER, "#ifndef GS_PROTO_H\n#define GS_PROTO_H\n\n#include <stddef.h>\n#include <stdint.h>\n"]
     out.append(f"#define GS_PROTOCOL_VERSION {m.PROTOCOL_VERSION}u")
-    out.append(f"#define GS_MAX_SERVOS {m.MAX_SERVOS}u")
+    out.append(f"#define GS_MAX_SERVOS {schema.max_servos}u /* the schema's servos (mask {8 * schema.mask_bytes} bits) */")
     out.append(f"#define GS_MAX_PAYLOAD {c.MAX_PAYLOAD}u")
-    out.append(f"#define GS_SCHEMA_HASH {c.SCHEMA_HASH:#010x}u /* SHA-256 of protocol.codec.schema_text(), first 4 bytes */")
+    out.append(f"#define GS_SCHEMA_HASH {schema.hash:#010x}u /* SHA-256 of the schema's text, first 4 bytes */")
     out.append(f"#define GS_FRAME_HEADER_SIZE {framing.HEADER_SIZE}u /* version u8, type u8, seq u16, length u8 */")
     out.append(f"#define GS_FRAME_CRC_SIZE {framing.CRC_SIZE}u /* CRC-16/X-25, little-endian */")
     out.append(f"#define GS_FRAME_CRC_CHECK {framing.CRC_CHECK:#06x}u /* CRC of \"123456789\" */")
@@ -326,13 +335,13 @@ def c_header() -> str:
     out.append("/* decode/encode results */")
     out.append("#define GS_OK 0\n#define GS_E_TRUNCATED (-1)\n#define GS_E_TRAILING (-2)\n#define GS_E_VALUE (-3)")
     out.append("#define GS_E_TYPE (-4)\n#define GS_E_SPACE (-5)\n#define GS_E_STRUCT (-6)\n")
-    for cls in enum_classes():
+    for cls in enum_classes(schema):
         out.append(_enum_block(cls) + "\n")
-    for t in sorted(c.LAYOUTS, key=int):
+    for t in sorted(L, key=int):
         cls = c.MESSAGE_CLASSES[t]
         doc = (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
         out.append(f"/* {t.name} = {int(t):#04x}: {doc} */")
-        fields = c.LAYOUTS[t]
+        fields = L[t]
         if not fields:
             out.append(f"typedef struct {{ uint8_t unused_; }} {struct_name(t)};\n")
             continue
@@ -341,7 +350,7 @@ def c_header() -> str:
             out.append(f"    {_emitter(t, name, f).decl(f, name)} /* {f.wire} */")
         out.append(f"}} {struct_name(t)};\n")
     out.append("typedef struct {\n    uint8_t type; /* GS_MSG_TYPE_* */\n    union {")
-    for t in sorted(c.LAYOUTS, key=int):
+    for t in sorted(L, key=int):
         out.append(f"        {struct_name(t)} {member_name(t)};")
     out.append("    } u;\n} gs_msg_t;\n")
     out.append("/* Unpack a payload of message type `type` (0 or GS_E_*; `why` gets a static reason). */")
@@ -427,25 +436,26 @@ int gs_utf8_valid(const uint8_t *s, size_t n) {
 """
 
 
-def c_source() -> str:
-    """Text of ``gs_proto.c``."""
+def c_source(schema: c.WireSchema = c.WIRE_SCHEMA_16) -> str:
+    """Text of ``gs_proto.c`` for ``schema``."""
+    L = schema.layouts
     out = [BANNER, '#include "gs_proto.h"\n', "#ifdef GS_PROTO_DUMP\n#include <stdio.h>\n#endif\n", _C_HELPERS]
-    for cls in enum_classes():
+    for cls in enum_classes(schema):
         if issubclass(cls, IntEnum) and not issubclass(cls, IntFlag):
             out.append(_enum_check(cls))
     out.append("")
     out.append("int gs_is_msg_type(uint8_t type) { return is_msg_type(type); }\n")
     out.append("const char *gs_msg_type_name(uint8_t type) {\n    switch (type) {")
-    for t in sorted(c.LAYOUTS, key=int):
+    for t in sorted(L, key=int):
         out.append(f"    case {_const(MsgType, t.name)}: return \"{t.name}\";")
     out.append("    default: return \"?\";\n    }\n}\n")
     # decode
     out.append("int gs_decode_payload(uint8_t type, const uint8_t *payload, size_t n, gs_msg_t *msg, const char **why) {")
     out.append("    static const char *none_ = \"\";\n    if (why == NULL) why = &none_;\n    *why = \"\";")
     out.append("    rd_t rr = { payload, n, 0 };\n    rd_t *r = &rr;\n    msg->type = type;\n    switch (type) {")
-    for t in sorted(c.LAYOUTS, key=int):
+    for t in sorted(L, key=int):
         out.append(f"    case {_const(MsgType, t.name)}: {{")
-        fields = c.LAYOUTS[t]
+        fields = L[t]
         if fields:
             out.append(f"        {struct_name(t)} *x = &msg->u.{member_name(t)};")
         for name, f in fields:
@@ -459,9 +469,9 @@ def c_source() -> str:
     # encode
     out.append("int gs_encode_payload(const gs_msg_t *msg, uint8_t *out, size_t cap) {")
     out.append("    wr_t ww = { out, cap, 0 };\n    wr_t *w = &ww;\n    switch (msg->type) {")
-    for t in sorted(c.LAYOUTS, key=int):
+    for t in sorted(L, key=int):
         out.append(f"    case {_const(MsgType, t.name)}: {{")
-        fields = c.LAYOUTS[t]
+        fields = L[t]
         if fields:
             out.append(f"        const {struct_name(t)} *x = &msg->u.{member_name(t)};")
         if t is MsgType.CAMERA_CHUNK:
@@ -477,9 +487,9 @@ def c_source() -> str:
                "if (k_ < 0) return -1; len += (size_t)k_; } while (0)")
     out.append("int gs_dump_msg(const gs_msg_t *msg, char *out, size_t cap) {")
     out.append("    size_t len = 0;\n    DUMP(\"T=%u\", (unsigned)msg->type);\n    switch (msg->type) {")
-    for t in sorted(c.LAYOUTS, key=int):
+    for t in sorted(L, key=int):
         out.append(f"    case {_const(MsgType, t.name)}: {{")
-        fields = c.LAYOUTS[t]
+        fields = L[t]
         if fields:
             out.append(f"        const {struct_name(t)} *x = &msg->u.{member_name(t)};")
         for name, f in fields:
@@ -490,9 +500,10 @@ def c_source() -> str:
     return "\n".join(x for x in out if x is not None)
 
 
-def generate() -> dict[str, str]:
-    """File name -> text of every generated file."""
-    return {"gs_proto.h": c_header(), "gs_proto.c": c_source()}
+def generate(schema: c.WireSchema = c.WIRE_SCHEMA_16) -> dict[str, str]:
+    """File name -> text of every generated file, for ``schema`` (the firmware targets robots of up to 16
+    servos first: the default; ``c.WIRE_SCHEMA_32`` generates the u32-mask variant the same way)."""
+    return {"gs_proto.h": c_header(schema), "gs_proto.c": c_source(schema)}
 
 
 def main(argv: list[str] | None = None) -> int:

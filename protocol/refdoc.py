@@ -24,7 +24,8 @@ from protocol import codec as c
 from protocol import framing
 from protocol import messages as m
 from protocol.can import ids as can_ids
-from protocol.can.layouts import CAN_SERVOS, FIXED_LAYOUTS, HEADER_BITS, PART_BITS, SEQ_BITS
+from protocol.can.layouts import DEFAULT_SERVO_COUNT as CAN_SERVOS
+from protocol.can.layouts import FIXED_LAYOUTS, HEADER_BITS, PART_BITS, SEQ_BITS
 from protocol.messages import MsgType
 
 __all__ = ["BoardFacts", "DIRECTION", "field_type", "render"]
@@ -78,8 +79,8 @@ def field_type(f: c.Field) -> tuple[str, str]:
         return f"enum8 {f.cls.__name__}", "1"
     if isinstance(f, c.Flags16):
         return f"flags16 {f.cls.__name__}", "2"
-    if isinstance(f, c.Mask16):
-        return "mask16", "2"
+    if isinstance(f, c.Mask):
+        return f"mask{8 * f.size}", str(f.size)
     if isinstance(f, c.Q16Array):
         if f.fixed is not None:
             return f"i16[{f.fixed}]", str(2 * f.fixed)
@@ -101,8 +102,8 @@ def _notes(t: MsgType, name: str, f: c.Field) -> str:
         out.append(f"wraps modulo 2**{8 * f.size}")
     if name == "apply_at_us":
         out.append("board clock; the board unwraps it to the full time nearest its own clock")
-    if isinstance(f, c.Mask16):
-        out.append(f"bit i = servo id i+1; bits >= {m.MAX_SERVOS} are refused")
+    if isinstance(f, c.Mask):
+        out.append(f"bit i = servo id i+1; bits >= {f.max_servos} are refused")
     if isinstance(f, c.Q16Array):
         out.append("-32768 is refused" if not f.allow_nan else "-32768 = unknown (NaN)")
         out.append("clamped to ±32767 by the sender")
@@ -148,7 +149,7 @@ def _can_section() -> list[str]:
            f"0..{PART_BITS - 1} the part index, bits {PART_BITS}..{HEADER_BITS - 1} the sequence number modulo "
            f"2**{SEQ_BITS}. Signals follow little-endian, never straddling a frame; a message ends with `crc16` "
            f"(CRC-16/X-25 over the data bytes of all its parts with that field zero). Layouts are for "
-           f"{CAN_SERVOS} servos. Messages without a fixed layout travel as ISO-TP units on BULK_TO_BOARD/BULK_TO_HOST: "
+           f"{CAN_SERVOS} servos (`protocol.can.layouts.can_layouts(N)` places them for N servos). Messages without a fixed layout travel as ISO-TP units on BULK_TO_BOARD/BULK_TO_HOST: "
            "`type u8 | seq u16 LE | the serial payload | crc16 LE`.", "",
            "| function code | name | direction |", "| --- | --- | --- |"]
     for fn in can_ids.FunctionCode:
@@ -206,8 +207,11 @@ def render(facts: BoardFacts) -> str:
         "## Schema hash",
         "",
         f"HELLO and CAPS carry `schema_hash`, a u32: the first four bytes (big-endian) of SHA-256 over the "
-        f"schema text below (UTF-8). **Current value: `{c.SCHEMA_HASH:#010x}`.** A board answers a HELLO with "
-        "another hash with NACK SCHEMA_MISMATCH.",
+        f"schema text below (UTF-8). **Current value: `{c.SCHEMA_HASH:#010x}`** (robots of up to "
+        f"{c.WIRE_SCHEMA_16.max_servos} servos, the tables below). Robots of "
+        f"{c.WIRE_SCHEMA_16.max_servos + 1}..{c.WIRE_SCHEMA_32.max_servos} servos use the u32-mask schema, hash "
+        f"`{c.WIRE_SCHEMA_32.hash:#010x}` (every `mask16` below is a `mask32`, the u8 counts go up to "
+        f"{c.WIRE_SCHEMA_32.max_servos}). A board answers a HELLO with another hash with NACK SCHEMA_MISMATCH.",
         "",
         "<details><summary>schema text</summary>",
         "",

@@ -50,12 +50,18 @@ class ReplayError(LinkError):
 
 
 def read_serial_log(path: Path) -> Iterator[tuple[float, int, Message]]:
-    """Host-to-board messages (``tx`` records) of a serial JSON-Lines frame log, re-decoded from raw bytes."""
+    """Host-to-board messages (``tx`` records) of a serial JSON-Lines frame log, re-decoded from raw bytes
+    (in the log's own wire schema, :class:`protocol.framelog.LogDecoder`)."""
+    dec = framelog.LogDecoder()
     with open(path, encoding="utf-8") as f:
         for rec in framelog.iter_records(f):
-            if rec["dir"] != "tx" or "error" in rec:
+            if "error" in rec:
                 continue
-            item = framelog.decode_raw(rec["raw"])
+            if rec["dir"] != "tx":
+                if rec.get("type") == "CAPS":
+                    dec.decode(rec["raw"])  # the board's answer names the schema too
+                continue
+            item = dec.decode(rec["raw"])
             if isinstance(item, Frame):
                 yield float(rec["t"]), item.seq, item.msg
 
@@ -65,7 +71,7 @@ def _serial_last_sim_state(path: Path) -> SimState | None:
     with open(path, encoding="utf-8") as f:
         for rec in framelog.iter_records(f):
             if rec["dir"] == "rx" and rec.get("type") == "SIM_STATE":
-                item = framelog.decode_raw(rec["raw"])
+                item = framelog.decode_raw(rec["raw"])  # SIM_STATE is the same in every wire schema
                 if isinstance(item, Frame) and isinstance(item.msg, SimState):
                     last = item.msg
     return last
@@ -130,12 +136,18 @@ class ReplayResult:
 
 
 def recorded_robot(log_path: Path) -> str | None:
-    """The robot a recorded run drove: ``extra.robot`` of the ``summary.json`` next to its log (None if absent)."""
+    """The robot a recorded run drove, from the ``summary.json`` next to its log: its folder
+    (``extra.robot_folder``) while that still holds a robot, else its name (``extra.robot``); None if absent."""
+    from robots.loader import ROBOT_FILE
+
     try:
         doc = json.loads((log_path.parent / "summary.json").read_text(encoding="utf-8"))
-        name = (doc.get("extra") or {}).get("robot")
+        extra = doc.get("extra") or {}
+        name, folder = extra.get("robot"), extra.get("robot_folder")
     except (OSError, ValueError, AttributeError):
         return None
+    if isinstance(folder, str) and folder and (Path(folder) / ROBOT_FILE).is_file():
+        return folder
     return name if isinstance(name, str) and name else None
 
 
@@ -148,7 +160,7 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
     robot = load_robot(robot_name, robots_dir)
     board = start_board(["--lockstep", "--robot", str(robot.root), "--log", str(out / "board_frames.jsonl")],
                         out / "board.stderr")
-    transport = open_transport(board.spec, log_path=out / "host_frames.jsonl")
+    transport = open_transport(board.spec, log_path=out / "host_frames.jsonl", servo_count=robot.servo_count)
     acks: dict[int, asyncio.Future[Message]] = {}
     tel_t: list[float] = []
     tel_q: list[tuple[float, ...]] = []
@@ -225,7 +237,8 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
     if tel_t:
         names = robot.servos.names
         tgt = (np.asarray([t for t, _ in targets]), np.asarray([q for _, q in targets])) if targets else None
-        artefacts.plot_joints(out / "joints.png", np.asarray(tel_t), np.asarray(tel_q), names, tgt)
+        artefacts.plot_joints(out / "joints.png", np.asarray(tel_t), np.asarray(tel_q), names, tgt,
+                              groups=artefacts.joint_groups(robot))
     summary = {"replay_of": str(log_path), "messages": len(msgs), "base_end": base_end,
                "original_base_end": orig_end, "base_end_error_mm": err_mm,
                "board_time_s": round(final.board_time_us / 1e6, 6)}

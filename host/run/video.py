@@ -199,19 +199,33 @@ def run_scene(run_dir: Path) -> str:
 
 
 def run_robot(run_dir: Path) -> str:
-    """The robot the run drove (``summary.json`` extra.robot; the default robot if not recorded)."""
+    """The robot the run drove: its folder (``summary.json`` extra.robot_folder) while that still holds
+    a robot, else its name (extra.robot; the default robot if not recorded)."""
+    from robots.loader import ROBOT_FILE
     from robots.registry import DEFAULT_ROBOT
 
     try:
         doc = json.loads((Path(run_dir) / "summary.json").read_text(encoding="utf-8"))
-        name = (doc.get("extra") or {}).get("robot")
+        extra = doc.get("extra") or {}
+        name, folder = extra.get("robot"), extra.get("robot_folder")
     except (OSError, ValueError, AttributeError):
         return DEFAULT_ROBOT
+    if isinstance(folder, str) and folder and (Path(folder) / ROBOT_FILE).is_file():
+        return folder
     return name if isinstance(name, str) and name else DEFAULT_ROBOT
 
 
 def _init_worker(settings: VideoSettings, scene: str = "empty", robot: str | None = None,
                  robots_dir: str | None = None) -> None:
+    """Set up one render process. Never raises: a Pool whose initializer raises respawns workers
+    forever, so a failure is kept and raised by the first :func:`_render` instead."""
+    try:
+        _setup_worker(settings, scene, robot, robots_dir)
+    except Exception as e:
+        _W["error"] = e if isinstance(e, VideoError) else VideoError(f"render worker: {type(e).__name__}: {e}")
+
+
+def _setup_worker(settings: VideoSettings, scene: str, robot: str | None, robots_dir: str | None) -> None:
     os.environ.setdefault("MUJOCO_GL", "egl")
     import mujoco
 
@@ -250,6 +264,8 @@ def _init_worker(settings: VideoSettings, scene: str = "empty", robot: str | Non
 def _render(job: tuple[float, np.ndarray, np.ndarray, str, str]) -> bytes:
     from PIL import Image, ImageDraw, ImageFont
 
+    if "error" in _W:
+        raise _W["error"]
     t, base, joints, line, spoken = job
     data = _W["data"]
     _W["rm"].set_state(data, base, joints)
@@ -319,6 +335,13 @@ def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings
     if tl.exists():
         t0 = json.loads(tl.read_text(encoding="utf-8")).get("t0")
     jobs = list(_jobs(states, calls, settings.fps, t0))
+    from robots.description import RobotDataError
+    from robots.registry import load_robot
+
+    try:  # here, not only in the workers: a robot that cannot be found is one clear line
+        robot = str(load_robot(run_robot(run_dir), robots_dir).root)
+    except RobotDataError as e:
+        raise VideoError(f"cannot load the robot the run drove: {e}") from None
     writer = imageio_ffmpeg.write_frames(str(out), (WIDTH, HEIGHT), fps=settings.fps, codec="libx264",
                                          pix_fmt_out="yuv420p", quality=7, macro_block_size=16,
                                          output_params=["-preset", "veryfast"])
@@ -326,7 +349,7 @@ def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings
     ctx = multiprocessing.get_context("spawn")
     try:
         with ctx.Pool(max(1, settings.workers), initializer=_init_worker,
-                      initargs=(settings, run_scene(run_dir), run_robot(run_dir), robots_dir)) as pool:
+                      initargs=(settings, run_scene(run_dir), robot, robots_dir)) as pool:
             for frame in pool.imap(_render, jobs, chunksize=4):
                 writer.send(frame)
     except VideoError:

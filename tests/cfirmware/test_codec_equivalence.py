@@ -36,8 +36,8 @@ def _field(f: c.Field, ctx: dict) -> st.SearchStrategy:
         return st.sampled_from(list(f.cls))
     if isinstance(f, c.Flags16):
         return st.integers(0, 0xFFFF)
-    if isinstance(f, c.Mask16):
-        return st.integers(0, (1 << MAX_SERVOS) - 1)
+    if isinstance(f, c.Mask):
+        return st.integers(0, (1 << f.max_servos) - 1)
     if isinstance(f, c.Q16Array):
         values = FLOATS if not f.allow_nan else st.one_of(FLOATS, st.just(math.nan))
         if f.fixed is not None:
@@ -45,7 +45,7 @@ def _field(f: c.Field, ctx: dict) -> st.SearchStrategy:
         if f.mask_field is not None:
             n = int(ctx[f.mask_field]).bit_count()
             return st.lists(values, min_size=n, max_size=n)
-        return st.lists(values, max_size=MAX_SERVOS)
+        return st.lists(values, max_size=f.max_count)
     if isinstance(f, c.F32Array):
         return st.lists(st.floats(width=32, allow_nan=False), min_size=f.n, max_size=f.n)
     if isinstance(f, c.Str8):

@@ -166,14 +166,14 @@ int gs_decode_payload(uint8_t type, const uint8_t *payload, size_t n, gs_msg_t *
     case GS_MSG_TYPE_SERVO_FRAME: {
         gs_servo_frame_t *x = &msg->u.servo_frame;
         GS_NEED(4, "apply_at_us"); x->apply_at_us = (uint32_t)rd_le(r, 4);
-        GS_NEED(2, "mask"); x->mask = (uint16_t)rd_le(r, 2); if (((uint32_t)x->mask >> GS_MAX_SERVOS) != 0u) { GS_BAD("mask: bits outside the servos"); }
+        GS_NEED(2, "mask"); x->mask = (uint16_t)rd_le(r, 2); if (0) { GS_BAD("mask: bits outside the servos"); }
         x->targets_n = (uint8_t)popcount32(x->mask); GS_NEED(2u * (size_t)x->targets_n, "targets"); for (size_t i = 0; i < (size_t)x->targets_n; i++) { x->targets[i] = (int16_t)sext(rd_le(r, 2), 2); if (x->targets[i] == -32768) { GS_BAD("targets: NaN code not allowed"); } }
         break;
     }
     case GS_MSG_TYPE_FLUSH: {
         gs_flush_t *x = &msg->u.flush;
         GS_NEED(8, "from_us"); x->from_us = (uint64_t)rd_le(r, 8);
-        GS_NEED(2, "mask"); x->mask = (uint16_t)rd_le(r, 2); if (((uint32_t)x->mask >> GS_MAX_SERVOS) != 0u) { GS_BAD("mask: bits outside the servos"); }
+        GS_NEED(2, "mask"); x->mask = (uint16_t)rd_le(r, 2); if (0) { GS_BAD("mask: bits outside the servos"); }
         break;
     }
     case GS_MSG_TYPE_ESTOP: {
@@ -185,9 +185,9 @@ int gs_decode_payload(uint8_t type, const uint8_t *payload, size_t n, gs_msg_t *
     case GS_MSG_TYPE_TELEMETRY: {
         gs_telemetry_t *x = &msg->u.telemetry;
         GS_NEED(8, "board_time_us"); x->board_time_us = (uint64_t)rd_le(r, 8);
-        GS_NEED(1, "positions count"); x->positions_n = (uint8_t)rd_le(r, 1); if (x->positions_n > GS_MAX_SERVOS) { GS_BAD("positions: count exceeds GS_MAX_SERVOS"); } GS_NEED(2u * (size_t)x->positions_n, "positions"); for (size_t i = 0; i < (size_t)x->positions_n; i++) { x->positions[i] = (int16_t)sext(rd_le(r, 2), 2); }
-        GS_NEED(1, "velocities count"); x->velocities_n = (uint8_t)rd_le(r, 1); if (x->velocities_n > GS_MAX_SERVOS) { GS_BAD("velocities: count exceeds GS_MAX_SERVOS"); } GS_NEED(2u * (size_t)x->velocities_n, "velocities"); for (size_t i = 0; i < (size_t)x->velocities_n; i++) { x->velocities[i] = (int16_t)sext(rd_le(r, 2), 2); }
-        GS_NEED(1, "efforts count"); x->efforts_n = (uint8_t)rd_le(r, 1); if (x->efforts_n > GS_MAX_SERVOS) { GS_BAD("efforts: count exceeds GS_MAX_SERVOS"); } GS_NEED(2u * (size_t)x->efforts_n, "efforts"); for (size_t i = 0; i < (size_t)x->efforts_n; i++) { x->efforts[i] = (int16_t)sext(rd_le(r, 2), 2); }
+        GS_NEED(1, "positions count"); x->positions_n = (uint8_t)rd_le(r, 1); if (x->positions_n > 16u) { GS_BAD("positions: count exceeds 16"); } GS_NEED(2u * (size_t)x->positions_n, "positions"); for (size_t i = 0; i < (size_t)x->positions_n; i++) { x->positions[i] = (int16_t)sext(rd_le(r, 2), 2); }
+        GS_NEED(1, "velocities count"); x->velocities_n = (uint8_t)rd_le(r, 1); if (x->velocities_n > 16u) { GS_BAD("velocities: count exceeds 16"); } GS_NEED(2u * (size_t)x->velocities_n, "velocities"); for (size_t i = 0; i < (size_t)x->velocities_n; i++) { x->velocities[i] = (int16_t)sext(rd_le(r, 2), 2); }
+        GS_NEED(1, "efforts count"); x->efforts_n = (uint8_t)rd_le(r, 1); if (x->efforts_n > 16u) { GS_BAD("efforts: count exceeds 16"); } GS_NEED(2u * (size_t)x->efforts_n, "efforts"); for (size_t i = 0; i < (size_t)x->efforts_n; i++) { x->efforts[i] = (int16_t)sext(rd_le(r, 2), 2); }
         GS_NEED(2u * (size_t)3, "imu_rpy"); for (size_t i = 0; i < (size_t)3; i++) { x->imu_rpy[i] = (int16_t)sext(rd_le(r, 2), 2); }
         GS_NEED(2, "faults"); x->faults = (uint16_t)rd_le(r, 2);
         GS_NEED(2, "buffer_fill"); x->buffer_fill = (uint16_t)rd_le(r, 2);
@@ -326,14 +326,14 @@ int gs_encode_payload(const gs_msg_t *msg, uint8_t *out, size_t cap) {
     case GS_MSG_TYPE_SERVO_FRAME: {
         const gs_servo_frame_t *x = &msg->u.servo_frame;
         GS_ROOM(4); wr_le(w, (uint64_t)x->apply_at_us, 4);
-        if (((uint32_t)x->mask >> GS_MAX_SERVOS) != 0u) { return GS_E_VALUE; } GS_ROOM(2); wr_le(w, x->mask, 2);
+        if (0) { return GS_E_VALUE; } GS_ROOM(2); wr_le(w, x->mask, 2);
         if (x->targets_n != popcount32(x->mask)) { return GS_E_STRUCT; } GS_ROOM(2u * (size_t)x->targets_n); for (size_t i = 0; i < (size_t)x->targets_n; i++) { if (x->targets[i] == -32768) { return GS_E_VALUE; } wr_le(w, (uint16_t)x->targets[i], 2); }
         break;
     }
     case GS_MSG_TYPE_FLUSH: {
         const gs_flush_t *x = &msg->u.flush;
         GS_ROOM(8); wr_le(w, (uint64_t)x->from_us, 8);
-        if (((uint32_t)x->mask >> GS_MAX_SERVOS) != 0u) { return GS_E_VALUE; } GS_ROOM(2); wr_le(w, x->mask, 2);
+        if (0) { return GS_E_VALUE; } GS_ROOM(2); wr_le(w, x->mask, 2);
         break;
     }
     case GS_MSG_TYPE_ESTOP: {
@@ -345,9 +345,9 @@ int gs_encode_payload(const gs_msg_t *msg, uint8_t *out, size_t cap) {
     case GS_MSG_TYPE_TELEMETRY: {
         const gs_telemetry_t *x = &msg->u.telemetry;
         GS_ROOM(8); wr_le(w, (uint64_t)x->board_time_us, 8);
-        if (x->positions_n > GS_MAX_SERVOS) { return GS_E_STRUCT; } GS_ROOM(1); wr_le(w, x->positions_n, 1); GS_ROOM(2u * (size_t)x->positions_n); for (size_t i = 0; i < (size_t)x->positions_n; i++) { wr_le(w, (uint16_t)x->positions[i], 2); }
-        if (x->velocities_n > GS_MAX_SERVOS) { return GS_E_STRUCT; } GS_ROOM(1); wr_le(w, x->velocities_n, 1); GS_ROOM(2u * (size_t)x->velocities_n); for (size_t i = 0; i < (size_t)x->velocities_n; i++) { wr_le(w, (uint16_t)x->velocities[i], 2); }
-        if (x->efforts_n > GS_MAX_SERVOS) { return GS_E_STRUCT; } GS_ROOM(1); wr_le(w, x->efforts_n, 1); GS_ROOM(2u * (size_t)x->efforts_n); for (size_t i = 0; i < (size_t)x->efforts_n; i++) { wr_le(w, (uint16_t)x->efforts[i], 2); }
+        if (x->positions_n > 16u) { return GS_E_STRUCT; } GS_ROOM(1); wr_le(w, x->positions_n, 1); GS_ROOM(2u * (size_t)x->positions_n); for (size_t i = 0; i < (size_t)x->positions_n; i++) { wr_le(w, (uint16_t)x->positions[i], 2); }
+        if (x->velocities_n > 16u) { return GS_E_STRUCT; } GS_ROOM(1); wr_le(w, x->velocities_n, 1); GS_ROOM(2u * (size_t)x->velocities_n); for (size_t i = 0; i < (size_t)x->velocities_n; i++) { wr_le(w, (uint16_t)x->velocities[i], 2); }
+        if (x->efforts_n > 16u) { return GS_E_STRUCT; } GS_ROOM(1); wr_le(w, x->efforts_n, 1); GS_ROOM(2u * (size_t)x->efforts_n); for (size_t i = 0; i < (size_t)x->efforts_n; i++) { wr_le(w, (uint16_t)x->efforts[i], 2); }
         GS_ROOM(2u * (size_t)3); for (size_t i = 0; i < (size_t)3; i++) { wr_le(w, (uint16_t)x->imu_rpy[i], 2); }
         GS_ROOM(2); wr_le(w, x->faults, 2);
         GS_ROOM(2); wr_le(w, (uint64_t)x->buffer_fill, 2);
@@ -487,14 +487,14 @@ int gs_dump_msg(const gs_msg_t *msg, char *out, size_t cap) {
     case GS_MSG_TYPE_SERVO_FRAME: {
         const gs_servo_frame_t *x = &msg->u.servo_frame;
         DUMP(" apply_at_us=%llu", (unsigned long long)x->apply_at_us);
-        DUMP(" mask=%u", (unsigned)x->mask);
+        DUMP(" mask=%lu", (unsigned long)x->mask);
         DUMP(" targets=["); for (size_t i = 0; i < (size_t)x->targets_n; i++) DUMP("%s%d", i ? "," : "", (int)x->targets[i]); DUMP("]");
         break;
     }
     case GS_MSG_TYPE_FLUSH: {
         const gs_flush_t *x = &msg->u.flush;
         DUMP(" from_us=%llu", (unsigned long long)x->from_us);
-        DUMP(" mask=%u", (unsigned)x->mask);
+        DUMP(" mask=%lu", (unsigned long)x->mask);
         break;
     }
     case GS_MSG_TYPE_ESTOP: {

@@ -7,9 +7,9 @@
 #include <stdint.h>
 
 #define GS_PROTOCOL_VERSION 1u
-#define GS_MAX_SERVOS 16u
+#define GS_MAX_SERVOS 16u /* the schema's servos (mask 16 bits) */
 #define GS_MAX_PAYLOAD 255u
-#define GS_SCHEMA_HASH 0x1d7ad3a3u /* SHA-256 of protocol.codec.schema_text(), first 4 bytes */
+#define GS_SCHEMA_HASH 0x1d7ad3a3u /* SHA-256 of the schema's text, first 4 bytes */
 #define GS_FRAME_HEADER_SIZE 5u /* version u8, type u8, seq u16, length u8 */
 #define GS_FRAME_CRC_SIZE 2u /* CRC-16/X-25, little-endian */
 #define GS_FRAME_CRC_CHECK 0x906eu /* CRC of "123456789" */
@@ -147,7 +147,7 @@ typedef struct {
 /* SERVO_FRAME = 0x10: Targets to reach at ``apply_at_us`` on the board clock (board interpolates between frames). */
 typedef struct {
     uint32_t apply_at_us; /* u32w */
-    uint16_t mask; /* bit i = servo i (id i+1), bits < GS_MAX_SERVOS */ /* mask16[max=16] */
+    uint16_t mask; /* bit i = servo i (id i+1), bits < 16 */ /* mask16[max=16] */
     uint8_t targets_n; /* popcount(mask) */
     int16_t targets[GS_MAX_SERVOS]; /* q16 x 1/10000, never -32768 */ /* q16[popcount(mask)]/10000,nonan */
 } gs_servo_frame_t;
@@ -155,7 +155,7 @@ typedef struct {
 /* FLUSH = 0x11: Drop buffered frames due at or after ``from_us`` for the masked servos. */
 typedef struct {
     uint64_t from_us; /* u64 */
-    uint16_t mask; /* bit i = servo i (id i+1), bits < GS_MAX_SERVOS */ /* mask16[max=16] */
+    uint16_t mask; /* bit i = servo i (id i+1), bits < 16 */ /* mask16[max=16] */
 } gs_flush_t;
 
 /* ESTOP = 0x12: Estop() */
