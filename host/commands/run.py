@@ -215,7 +215,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
 
 
 ARTEFACTS = ("timeline.json", "timeline.png", "joints.png", "summary.json", "host_frames.jsonl", "board_frames.jsonl",
-             "host_frames.log", "board_frames.log")
+             "host_frames.log", "board_frames.log", "run.mcap")
 
 
 def _first_action(ms: float | None) -> str:

@@ -214,6 +214,8 @@ class BoardClient:
         self.fault_events: deque[FaultEvent] = deque(maxlen=256)
         self.on_fault: list[Callable[[FaultEvent], None]] = []
         self.on_nack: list[Callable[[Nack], None]] = []
+        #: called with (seq, message) after every message handed to the transport (e.g. a run's recorder)
+        self.on_sent: list[Callable[[int, Message], None]] = []
         self.on_reconnect: list[Callable[[BoardClient], None]] = []
         self.keepalive = True  # heartbeat + periodic sync; turn off to let the watchdog fire
 
@@ -472,6 +474,11 @@ class BoardClient:
         self._tx_seq = (seq + 1) & 0xFFFF
         self._last_tx = time.monotonic()
         self.stats.tx_frames += 1
+        for cb in self.on_sent:
+            try:
+                cb(seq, msg)
+            except Exception:  # a bug in a listener must not fail the send
+                log.exception("link: error in an on_sent listener")
         return seq
 
     def _forget_seq(self, seq: int) -> None:

@@ -68,6 +68,8 @@ class RunOptions:
     policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
     faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
     fault_seed: int = 0
+    mcap: bool = True  # record the run to <out>/run.mcap
+    foxglove: int | None = None  # serve the live view on this localhost port; None: off
 
 
 @dataclass

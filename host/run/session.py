@@ -56,6 +56,7 @@ from host.run import artefacts
 from host.robot.binding import robot_registry
 from host.robot.link import ClientLink
 from host.robot.runtime import RobotRuntime
+from host.run.recording import Recording
 from host.run.pump import (
     BoardPacer,
     Recorder,
@@ -104,6 +105,8 @@ class SessionOptions:
     policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
     faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
     fault_seed: int = 0
+    mcap: bool = True  # record the session to <out>/run.mcap (host.run.mcap_log)
+    foxglove: int | None = None  # serve the live view on this localhost port (host.run.foxglove_live); None: off
 
 
 @dataclass
@@ -182,6 +185,7 @@ class RobotSession:
         self._shell: Shell | None = None
         self._turn: _TurnStart | None = None  # the turn in progress
         self._link_tried = False  # a board link was attempted (a failure from then on has a report)
+        self.recording: Recording | None = None  # run.mcap and the live view (host.run.recording)
 
     # -- life cycle ------------------------------------------------------------------------------
     @property
@@ -244,8 +248,12 @@ class RobotSession:
             registry = robot_registry(self.robot, runtime, self.vocabulary)
             self._shell = Shell(registry, mode=opts.mode, strict=opts.strict, clock=runtime.board_now_s,
                                 sleep=runtime.sleep, skills=opts.skills, policy=opts.policy)
+            self.recording = Recording.start(self.out / "run.mcap" if opts.mcap else None, self.robot, client, runtime,
+                                             self._shell, live_port=opts.foxglove, meta=self._mcap_meta(spec))
             tg = anyio.create_task_group()
             self._tg = await self._stack.enter_async_context(tg)
+            if self.recording is not None:
+                tg.start_soon(self.recording.run)
             tg.start_soon(self._ends_the_run, pump(client, runtime, self.rec))
             tg.start_soon(self._ends_the_run, silence_watchdog(runtime, self.rec, client))
             if not client.lockstep:
@@ -270,6 +278,8 @@ class RobotSession:
             raise cause from group
         finally:
             self._tg = None
+            if self.recording is not None:
+                self.recording.close()
             if self._board is not None:
                 self._board.stop()
                 self._board = None
@@ -290,6 +300,10 @@ class RobotSession:
             if self._runtime is not None:
                 self._runtime.streamer.fail(exc)
             raise
+
+    def _mcap_meta(self, spec: LinkSpec) -> dict[str, str]:
+        return {"scene": self.scene, "vocabulary": self.vocabulary, "link": str(spec), "label": self.opts.label,
+                "clock_mode": "lockstep" if self.opts.lockstep else "realtime"}
 
     # -- board faults ----------------------------------------------------------------------------
     def _how_to_clear(self) -> str:
@@ -360,6 +374,8 @@ class RobotSession:
             await runtime.sleep(settle_s)
         turn = self._turn_result(start, result)
         self._turn = None
+        if self.recording is not None:
+            self.recording.on_turn_end(turn.calls)
         if write:
             await self.write(turn, label)
         return turn
