@@ -112,7 +112,7 @@ async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any,
                           mode=args.mode, strict=resolve_strict(args), lockstep=args.lockstep, link=args.link,
                           emulate_board=args.emulate_board or None, baud=args.baud, out=out, skills=skills,
                           label="chat", scene=args.scene, policy=getattr(args, "loaded_policy", None),
-                          faults=args.faults, fault_seed=args.fault_seed)
+                          faults=args.faults, fault_seed=args.fault_seed, foxglove=args.foxglove)
     pending = list(replies or [])
     interactive = turns is None and replies is None
     async with RobotSession(opts) as session:

@@ -73,12 +73,25 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
                         help="seed of the fault injection (default 0; needs --faults)")
     parser.add_argument("--policy", default=None, metavar="FILE",
                         help="safety policy (TOML): allowed functions, tighter parameter bounds, motion budget")
+    parser.add_argument("--foxglove", nargs="?", type=_port, const=8765, default=None, metavar="PORT",
+                        help="live view: serve the run's channels (those of run.mcap) to Foxglove on "
+                             "ws://127.0.0.1:PORT (default port 8765; off unless given)")
 
 
 def _positive(text: str) -> float:
     v = float(text)
     if not v > 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return v
+
+
+def _port(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a port number 0..65535, got {text!r}") from None
+    if not 0 <= v <= 65535:
+        raise argparse.ArgumentTypeError(f"must be a port number 0..65535, got {text}")
     return v
 
 
@@ -184,6 +197,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         scene=getattr(args, "scene", None),
         skills=skills,
         policy=policy, faults=getattr(args, "faults", None), fault_seed=getattr(args, "fault_seed", 0),
+        foxglove=getattr(args, "foxglove", None),
     )
     try:
         report = anyio.run(run_program, opts, backend="asyncio")

@@ -214,8 +214,10 @@ class BoardClient:
         self.fault_events: deque[FaultEvent] = deque(maxlen=256)
         self.on_fault: list[Callable[[FaultEvent], None]] = []
         self.on_nack: list[Callable[[Nack], None]] = []
-        #: called with (seq, message) after every message handed to the transport (e.g. a run's recorder)
+        #: called with (seq, message) after every message handed to the transport, and with every message
+        #: received, after the client handled it (listeners, e.g. a run's recorder; python-can's Listener model)
         self.on_sent: list[Callable[[int, Message], None]] = []
+        self.on_received: list[Callable[[Message], None]] = []
         self.on_reconnect: list[Callable[[BoardClient], None]] = []
         self.keepalive = True  # heartbeat + periodic sync; turn off to let the watchdog fire
 
@@ -765,6 +767,8 @@ class BoardClient:
             self.stats.seq_gaps = self._rx_gaps.lost
             try:
                 self._dispatch(item.msg, t4)
+                for cb in self.on_received:
+                    cb(item.msg)
             except Exception:  # a bug in a callback must not kill the reader
                 log.exception("link: error handling %s", item.msg_type.name)
 

@@ -6,10 +6,10 @@ as a second sink of the run log's context, so Foxglove (Open connection > Foxglo
 ``Time`` capability and broadcasts the board time of every report, so the viewer's clock is the
 board's (the same stamps as in the MCAP). Port 0 picks a free port (:attr:`LiveServer.port` says which).
 
-The protocol is the SDK's (Foxglove WebSocket protocol, subprotocol ``foxglove.sdk.v1``; the server
-also accepts the older ``foxglove.websocket.v1`` clients): JSON control messages (``serverInfo``,
+The protocol is the SDK's (Foxglove WebSocket protocol, subprotocol ``foxglove.sdk.v1``; a client
+offering only the older ``foxglove.websocket.v1`` is refused at the handshake): JSON control messages (``serverInfo``,
 ``advertise``, ``subscribe``) and binary message data (opcode 1, subscription id u32 LE, log time u64
-LE ns, payload). Clients that connect, disconnect or stall are the server's business: a slow client
+LE ns, payload; opcode 2 is the server time, u64 LE ns). Clients that connect, disconnect or stall are the server's business: a slow client
 loses its oldest messages (:data:`BACKLOG` per client), never the run.
 
 Errors: :class:`LiveError` (one line) when the server cannot start, e.g. the port is taken.

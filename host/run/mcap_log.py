@@ -7,7 +7,7 @@ time** (the board's clock since it started, ns in MCAP ``log_time`` and in messa
 reads the same in Foxglove as in timeline.json.
 
 Channels (all written live, while the run goes, so a killed run leaves an MCAP that is readable up
-to its last complete chunk; the writer finishes a chunk at least every :data:`FLUSH_S` wall seconds):
+to its last complete chunk; the writer finishes a chunk at least every :data:`FLUSH_S` board seconds):
 
 ==========================  ===========================  ===================================================
 topic                        schema (encoding)            what, when
@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import json
 import logging
-import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -67,7 +66,8 @@ __all__ = ["FLUSH_S", "McapError", "RunLog", "SCENE_EVERY_S", "TOPICS"]
 
 log = logging.getLogger("host.run")
 
-#: wall seconds between forced chunk ends (what a killed run can lose at most, besides the open chunk)
+#: board seconds between forced chunk ends: a killed run loses at most the last FLUSH_S of board time
+#: (board time, not wall time, so where a lockstep run's file can be cut is reproducible)
 FLUSH_S = 1.0
 #: board seconds between re-sent scene primitives (so a viewer that joins or seeks late still has them)
 SCENE_EVERY_S = 2.0
@@ -147,7 +147,8 @@ class RunLog:
         self.last_us = 0  # latest board time seen (µs)
         self._scene_at: int | None = None
         self._last_sim: SimState | None = None
-        self._last_flush = time.monotonic()
+        self._pending: Telemetry | None = None  # a report waiting for its SIM_STATE (on_message)
+        self._flushed_us = 0
         self.closed = False
 
     @classmethod
@@ -178,31 +179,68 @@ class RunLog:
             pass
 
     # -- telemetry ----------------------------------------------------------------------------
-    def on_telemetry(self, tel: Telemetry, sim: SimState | None) -> None:
-        """One report: joint states, transforms, the decoded telemetry, a new SIM_STATE, the scene when due."""
+    def on_telemetry(self, tel: Telemetry, sim: SimState | None = None) -> None:
+        """One report: joint states and the decoded telemetry; with ``sim`` (the SIM_STATE of its time) also
+        that SIM_STATE and the transforms. Without it, give those with :meth:`on_sim_state` and
+        :meth:`on_transforms` when they come."""
         t = tel.board_time_us
         self.last_us = max(self.last_us, t)
-        ts = stamp(t)
         ns = _ns(t)
         n = min(len(self.names), len(tel.positions))
         vel, eff = tel.velocities, tel.efforts
-        self.joint_states.log(JointStates(timestamp=ts, joints=[
+        self.joint_states.log(JointStates(timestamp=stamp(t), joints=[
             JointState(name=self.names[i], position=float(tel.positions[i]),
                        velocity=float(vel[i]) if i < len(vel) else None,
                        effort=float(eff[i]) if i < len(eff) else None) for i in range(n)]), log_time=ns)
-        fields = message_fields(tel)
-        self.telemetry.log(fields, log_time=ns)
-        if sim is not None and sim is not self._last_sim:
+        self.telemetry.log(message_fields(tel), log_time=ns)
+        for cb in list(self.time_listeners):
+            cb(ns)
+        if sim is not None:
+            self.on_sim_state(sim)
+            self.on_transforms(tel, sim)
+        if t - self._flushed_us >= FLUSH_S * 1e6:
+            self._flushed_us = t
+            self.flush()
+
+    def on_message(self, msg: Message) -> None:
+        """A board-to-host message as it arrives: TELEMETRY and SIM_STATE paired by board time.
+
+        A report's transforms wait for the SIM_STATE of the same board time (the board sends it right
+        after the TELEMETRY); when the next report comes first (it was lost, or replaced on CAN) they
+        use the latest one. Until a board has sent any SIM_STATE (real hardware never does) they come
+        at once, with the root where the MJCF places it. Other messages are ignored.
+        """
+        if isinstance(msg, Telemetry):
+            if self._pending is not None:
+                self.on_transforms(self._pending, self._last_sim)
+                self._pending = None
+            self.on_telemetry(msg)
+            if self._last_sim is None:
+                self.on_transforms(msg, None)
+            else:
+                self._pending = msg
+        elif isinstance(msg, SimState):
+            self.on_sim_state(msg)
+            tel, self._pending = self._pending, None
+            if tel is not None:
+                self.on_transforms(tel, msg)
+
+    def on_sim_state(self, sim: SimState) -> None:
+        """The emulator's ground truth (each new SIM_STATE once)."""
+        if sim is not self._last_sim:
             self._last_sim = sim
             self.sim_state.log(message_fields(sim), log_time=_ns(sim.board_time_us))
-        base = (sim.base_pos, sim.base_quat) if sim is not None else None
+
+    def on_transforms(self, tel: Telemetry, sim: SimState | None) -> None:
+        """The robot's frames at ``tel``'s joint angles, its base where ``sim`` puts it (None: where the
+        MJCF places it), and the scene's primitives when they are due."""
+        t = tel.board_time_us
+        ns = _ns(t)
         if self._scene_at is None or t - self._scene_at >= SCENE_EVERY_S * 1e6:
             self._scene_at = t
             self.scene_ch.log(self.scene.scene_update(t), log_time=ns)
-        self.tf.log(self.scene.transforms(t, tel.positions[:n], base), log_time=ns)
-        for cb in list(self.time_listeners):
-            cb(ns)
-        self._maybe_flush()
+        base = (sim.base_pos, sim.base_quat) if sim is not None else None
+        self.tf.log(self.scene.transforms(t, tel.positions[:len(self.names)], base), log_time=ns)
 
     def on_frame_sent(self, seq: int, msg: Message, board_time_us: int) -> None:
         """A host-to-board message went out (``board_time_us``: the board clock estimate at sending)."""
@@ -278,12 +316,6 @@ class RunLog:
                         log_time=_ns(board_time_us))
 
     # -- file ---------------------------------------------------------------------------------
-    def _maybe_flush(self) -> None:
-        now = time.monotonic()
-        if self.writer is not None and now - self._last_flush >= FLUSH_S:
-            self._last_flush = now
-            self.flush()
-
     def flush(self) -> None:
         """End the current chunk and flush the file (what is written so far survives a kill)."""
         if self.writer is not None and not self.closed:
@@ -305,6 +337,9 @@ class RunLog:
         """Finish the MCAP (summary, statistics, index) and close every channel. Idempotent."""
         if self.closed:
             return
+        if self._pending is not None:
+            self.on_transforms(self._pending, self._last_sim)
+            self._pending = None
         self.closed = True
         try:
             if self.writer is not None:

@@ -79,7 +79,7 @@ def _to_plain(value: Any) -> Any:
     if hasattr(value, "DESCRIPTOR"):
         from google.protobuf.json_format import MessageToDict
 
-        return MessageToDict(value, preserving_proto_field_name=True)
+        return MessageToDict(value, preserving_proto_field_name=True, always_print_fields_with_no_presence=True)
     return value
 
 

@@ -3,14 +3,16 @@
 A :class:`Recording` listens to the session the way a python-can ``Listener`` listens to a bus, and
 touches nothing else:
 
-* telemetry: its own subscription to the link client's reports (:meth:`BoardClient.telemetry`, a
-  task in the session's task group), with the latest SIM_STATE;
-* host-to-board messages: the client's ``on_sent`` callbacks (seq, message);
+* board-to-host and host-to-board messages: the client's ``on_received`` (message) and ``on_sent``
+  (seq, message) callbacks, called as each message is handled (no queue, so nothing is dropped and
+  the order is the wire's; TELEMETRY and SIM_STATE go to :meth:`RunLog.on_message`);
 * board faults and NACKs: the client's ``on_fault`` / ``on_nack`` callbacks;
-* calls, speech and photos: at most every :data:`POLL_S` board seconds, on a report, the shell's live
+* calls and speech: at most every :data:`POLL_S` board seconds, on a report, the shell's live
   timeline (``Shell.last_result``; board-measured start/end from ``RobotRuntime.board_times`` where
-  the runtime has them) and the runtime's new captures; at the end of each turn the turn's
-  board-measured calls (``on_turn_end``) as Events;
+  the runtime has them); at the end of each turn the turn's board-measured calls (``on_turn_end``)
+  as Events;
+* photos: the runtime's new captures, looked for on every report, stamped with the board time their
+  last CAMERA_CHUNK arrived;
 * sequence gaps, decode errors, re-sent requests, reconnects: the client's ``LinkStats`` counters,
   compared on every report.
 
@@ -30,7 +32,7 @@ from host.link.session import FaultEvent
 from host.robot.runtime import RobotRuntime
 from host.run.mcap_log import McapError, RunLog
 from host.shell import Shell
-from protocol.messages import Message, Nack, Telemetry
+from protocol.messages import CameraChunk, Message, Nack, SimState, Telemetry
 from robots.description import Robot
 
 __all__ = ["POLL_S", "Recording"]
@@ -58,9 +60,11 @@ class Recording:
         s = client.stats
         self._stats = (s.seq_gaps, s.decode_errors, s.retries, s.reconnects)
         self._failed = False
+        self._chunk_us: int | None = None  # board time the latest camera chunk arrived
         client.on_fault.append(self._on_fault)
         client.on_nack.append(self._on_nack)
         client.on_sent.append(self._on_sent)
+        client.on_received.append(self._on_received)
 
     @classmethod
     def start(cls, path: Path | None, robot: Robot, client: BoardClient, runtime: RobotRuntime, shell: Shell, *,
@@ -98,13 +102,14 @@ class Recording:
                   file=sys.stderr, flush=True)
         return rec
 
-    # -- the listener task ----------------------------------------------------------------------
-    async def run(self) -> None:
-        """Record every telemetry report until cancelled (a task in the session's task group)."""
-        async for tel in self.client.telemetry(maxsize=1024):
-            if self._failed:
-                return
-            self._guard(self._on_telemetry, tel)
+    # -- listening ------------------------------------------------------------------------------
+    def _on_received(self, msg: Message) -> None:
+        if isinstance(msg, CameraChunk):  # a photo is complete when its last chunk came: that is its time
+            self._chunk_us = self.client.board_now_estimate()
+        if isinstance(msg, (Telemetry, SimState)):
+            self._guard(self.run_log.on_message, msg)
+            if isinstance(msg, Telemetry):
+                self._guard(self._after_report, msg)
 
     def _guard(self, fn: Any, *args: Any) -> None:
         if self._failed:
@@ -117,14 +122,14 @@ class Recording:
             self.notes.append(note)
             log.warning("%s", note)
 
-    def _on_telemetry(self, tel: Telemetry) -> None:
-        self.run_log.on_telemetry(tel, self.client.latest_sim_state)
+    def _after_report(self, tel: Telemetry) -> None:
         self._link_stats(tel.board_time_us)
         t = tel.board_time_us * 1e-6
+        if len(self.runtime.captures) > self._captures:
+            self._poll_captures(t if self._chunk_us is None else self._chunk_us * 1e-6)
         if t - self._poll_at >= POLL_S:
             self._poll_at = t
             self._poll_calls()
-            self._poll_captures(t)
 
     def _link_stats(self, board_time_us: int) -> None:
         s = self.client.stats
@@ -195,7 +200,7 @@ class Recording:
     def close(self) -> None:
         """Stop the live view, finish the MCAP, drop the callbacks. Idempotent."""
         for lst, cb in ((self.client.on_fault, self._on_fault), (self.client.on_nack, self._on_nack),
-                        (self.client.on_sent, self._on_sent)):
+                        (self.client.on_sent, self._on_sent), (self.client.on_received, self._on_received)):
             if cb in lst:
                 lst.remove(cb)
         if self.live is not None:

@@ -179,8 +179,8 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
             if isinstance(item, DecodeError):
                 continue
             m = item.msg
-            if isinstance(m, Telemetry) and run_log is not None:
-                run_log.on_telemetry(m, sims[-1] if sims else None)
+            if run_log is not None:
+                run_log.on_message(m)
             if isinstance(m, Telemetry):
                 if len(tel_t) < 200_000:
                     tel_t.append(m.board_time_us * 1e-6)

@@ -252,8 +252,6 @@ class RobotSession:
                                              self._shell, live_port=opts.foxglove, meta=self._mcap_meta(spec))
             tg = anyio.create_task_group()
             self._tg = await self._stack.enter_async_context(tg)
-            if self.recording is not None:
-                tg.start_soon(self.recording.run)
             tg.start_soon(self._ends_the_run, pump(client, runtime, self.rec))
             tg.start_soon(self._ends_the_run, silence_watchdog(runtime, self.rec, client))
             if not client.lockstep:
