@@ -15,12 +15,14 @@ strip: the board time, the calls active on each channel (``timeline.json``) and
 the sentence being spoken. Frames are rendered offscreen (``MUJOCO_GL=egl`` unless
 set) by a pool of worker processes (both cores by default; ``spawn``, so each
 worker opens its own GL context) and encoded to H.264 by the ffmpeg binary that
-the ``imageio-ffmpeg`` wheel ships.
+the ``imageio-ffmpeg`` wheel ships. The sound (speech and music at the timeline's times) is then
+muxed in as AAC (:mod:`host.run.soundtrack`).
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import multiprocessing
 import os
 from collections.abc import Iterator, Sequence
@@ -33,6 +35,8 @@ import numpy as np
 from protocol.framelog import iter_records
 
 __all__ = ["VideoError", "VideoSettings", "load_states", "render_video"]
+
+log = logging.getLogger("host.run")
 
 WIDTH, HEIGHT = 640, 480  # multiples of 16: H.264 macroblocks, no rescaling by ffmpeg
 CAPTION_H = 72
@@ -335,4 +339,10 @@ def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings
         raise VideoError(f"rendering failed: {type(e).__name__}: {e}") from e
     finally:
         writer.close()
+    if jobs:  # the sound: speech and music where the timeline has them (host.run.soundtrack)
+        from host.run.soundtrack import add_soundtrack
+
+        start = float(states.t[0]) if t0 is None else max(float(states.t[0]), float(t0))
+        for note in add_soundtrack(run_dir, out, start, len(jobs) / settings.fps, robots_dir):
+            log.warning("%s", note)
     return out
