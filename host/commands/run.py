@@ -73,6 +73,8 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
                         help="seed of the fault injection (default 0; needs --faults)")
     parser.add_argument("--policy", default=None, metavar="FILE",
                         help="safety policy (TOML): allowed functions, tighter parameter bounds, motion budget")
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress bars (rendering run.mp4); they are shown only on a terminal anyway")
     parser.add_argument("--foxglove", nargs="?", type=_port, const=8765, default=None, metavar="PORT",
                         help="live view: serve the run's channels (those of run.mcap) to Foxglove on "
                              "ws://127.0.0.1:PORT (default port 8765; off unless given)")
@@ -223,7 +225,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     if scene.get("objects"):
         print(f"scene {scene['name']}: {scene['toppled']} of {scene['objects']} toppled")
     if getattr(args, "video", False):
-        render_into(out)
+        render_into(out, quiet=getattr(args, "quiet", False))
     print(f"artefacts in {out}/: " + " ".join(n for n in (*ARTEFACTS, "run.mp4") if (out / n).exists()))
     return 0 if s.outcome in ("done", "interrupted") else 1
 
@@ -236,15 +238,17 @@ def _first_action(ms: float | None) -> str:
     return "no action" if ms is None else f"first action after {ms} ms"
 
 
-def render_into(out: Path) -> bool:
-    """Render ``out/run.mp4`` from the run's recorded state; print progress or why not."""
+def render_into(out: Path, quiet: bool = False) -> bool:
+    """Render ``out/run.mp4`` from the run's recorded state; print progress (a bar on a terminal) or why not."""
     import time
 
+    from host.progress import bar
     from host.run.video import VideoError, render_video
 
     t = time.monotonic()
     try:
-        path = render_video(out)
+        with bar("rendering run.mp4", None, quiet=quiet, transient=True) as shown:
+            path = render_video(out, progress=lambda done, total: shown.update(completed=done, total=total))
     except VideoError as e:
         print(f"ghostshell: no video: {e}", file=sys.stderr)
         return False

@@ -25,7 +25,7 @@ import json
 import logging
 import multiprocessing
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -305,10 +305,11 @@ def _jobs(states: States, calls: Sequence[_Call], fps: int, t0: float | None
 
 
 def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings | None = None,
-                 robots_dir: str | None = None) -> Path:
+                 robots_dir: str | None = None, progress: Callable[[int, int], None] | None = None) -> Path:
     """Render ``run_dir``'s recorded run to ``out`` (default ``run_dir/run.mp4``); returns the path.
 
     The robot is the one the run's summary.json names (``robots_dir`` is searched first for it).
+    ``progress(frames done, frames)`` is called after each frame (e.g. :mod:`host.progress`).
     Raises :class:`VideoError` with the reason when it cannot.
     """
     import imageio_ffmpeg
@@ -331,8 +332,10 @@ def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings
     try:
         with ctx.Pool(max(1, settings.workers), initializer=_init_worker,
                       initargs=(settings, run_scene(run_dir), run_robot(run_dir), robots_dir)) as pool:
-            for frame in pool.imap(_render, jobs, chunksize=4):
+            for done, frame in enumerate(pool.imap(_render, jobs, chunksize=4), 1):
                 writer.send(frame)
+                if progress is not None:
+                    progress(done, len(jobs))
     except VideoError:
         raise
     except Exception as e:
