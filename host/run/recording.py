@@ -199,8 +199,10 @@ class Recording:
 
     def close(self) -> None:
         """Stop the live view, finish the MCAP, drop the callbacks. Idempotent."""
-        for lst, cb in ((self.client.on_fault, self._on_fault), (self.client.on_nack, self._on_nack),
-                        (self.client.on_sent, self._on_sent), (self.client.on_received, self._on_received)):
+        listeners: list[tuple[list[Any], Any]] = [
+            (self.client.on_fault, self._on_fault), (self.client.on_nack, self._on_nack),
+            (self.client.on_sent, self._on_sent), (self.client.on_received, self._on_received)]
+        for lst, cb in listeners:
             if cb in lst:
                 lst.remove(cb)
         if self.live is not None:

@@ -57,7 +57,7 @@ def stamp(board_time_us: int) -> Timestamp:
     return Timestamp(board_time_us // 1_000_000, (board_time_us % 1_000_000) * 1000)
 
 
-def _pose(pos: Sequence[float], quat_wxyz: Sequence[float]) -> Pose:
+def _pose(pos: Sequence[float] | np.ndarray, quat_wxyz: Sequence[float] | np.ndarray) -> Pose:
     w, x, y, z = (float(v) for v in quat_wxyz)
     return Pose(position=Vector3(x=float(pos[0]), y=float(pos[1]), z=float(pos[2])),
                 orientation=Quaternion(x=x, y=y, z=z, w=w))
