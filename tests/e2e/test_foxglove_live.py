@@ -130,14 +130,28 @@ def test_live_view_streams_joint_states_of_a_realtime_run(tmp_path: Path) -> Non
     stamps = [t for _, t, _ in got]
     assert stamps == sorted(stamps)
     assert all(abs(m.timestamp.ToNanoseconds() - t) == 0 for _, t, m in got)
-    # no report lost on the way: consecutive stamps are one telemetry period (20 ms at 50 Hz) apart
-    steps = {round((b - a) / 1e6) for a, b in zip(stamps, stamps[1:])}
-    assert steps == {20}, steps
+    # nothing lost on the way: the viewer got every joint state the run recorded while it was subscribed
+    from host.run.mcap_read import McapRun
+
+    recorded = [m.log_time_ns for m in McapRun(tmp_path / "run.mcap").messages(["/joint_states"], decode=False)
+                if stamps[0] <= m.log_time_ns <= stamps[-1]]
+    assert stamps == recorded
+    # at the telemetry rate: one joint state per 20 ms report (50 Hz; a realtime board on a loaded machine
+    # may skip a report now and then, which the recording shows too)
+    steps = [round((b - a) / 1e6) for a, b in zip(stamps, stamps[1:])]
+    assert sorted(steps)[len(steps) // 2] == 20 and min(steps) == 20, steps
     board_rate = (len(stamps) - 1) / ((stamps[-1] - stamps[0]) / 1e9)
     wall_rate = (len(got) - 1) / (got[-1][0] - got[0][0])
-    assert board_rate >= 50.0 - 1e-6
     assert r["times"] and max(r["times"]) >= stamps[-1]
     print(f"live /joint_states: {len(got)} messages, {board_rate:.2f} Hz by board time, {wall_rate:.2f} Hz by wall time")
+
+
+def test_foxglove_port_argument_is_checked(capsys: pytest.CaptureFixture[str]) -> None:
+    from host.cli import main as cli_main
+
+    with pytest.raises(SystemExit) as e:
+        cli_main(["run", "--xml", "<head_act/>", "--foxglove", "70000"])
+    assert e.value.code == 2 and "must be a port number 0..65535" in capsys.readouterr().err
 
 
 def test_a_taken_port_is_one_line_and_the_run_goes_on(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
