@@ -2,8 +2,10 @@
 
 With ``--link pty`` (default) it starts the emulated board itself. It shows the
 channels live (on a terminal) and leaves timeline.json/png, joints.png,
-summary.json and both frame logs in ``--out``; with ``--video`` also run.mp4
-(rendered after the run, see :mod:`host.run.video`).
+summary.json, both frame logs and run.mcap (:mod:`host.run.mcap_log`) in ``--out``;
+with ``--video`` also run.mp4 with its sound (rendered after the run, see
+:mod:`host.run.video`); with ``--foxglove [PORT]`` Foxglove can watch the run live
+(:mod:`host.run.foxglove_live`).
 """
 
 from __future__ import annotations

@@ -6,8 +6,11 @@ sink attached to it receives every message: the MCAP writer (:meth:`RunLog.open`
 time** (the board's clock since it started, ns in MCAP ``log_time`` and in message stamps), so a run
 reads the same in Foxglove as in timeline.json.
 
-Channels (all written live, while the run goes, so a killed run leaves an MCAP that is readable up
-to its last complete chunk; the writer finishes a chunk at least every :data:`FLUSH_S` board seconds):
+Channels (written live, as things happen, so a killed run leaves an MCAP that is readable up to its
+last complete chunk, and the writer finishes a chunk every :data:`FLUSH_S` board seconds; only
+``/calls/events`` waits for the end of each turn, when the board-measured times are known). The SDK
+writes a channel's record with its first message, so a channel that got none (a run that never
+speaks has no ``/speech``) is not in the file:
 
 ==========================  ===========================  ===================================================
 topic                        schema (encoding)            what, when
@@ -33,7 +36,9 @@ attachment. Everything goes through the SDK; the ``mcap`` package is used only t
 (:mod:`host.run.mcap_read`).
 
 Errors: :meth:`RunLog.open` raises :class:`McapError` (one line naming the path and the reason) when
-the file cannot be created; the caller decides (a run goes on without its MCAP). Logging never raises.
+the file cannot be created; the caller decides (a run goes on without its MCAP). A write that fails
+later (disk full) stops the recording with one warning; the caller (:mod:`host.run.recording`) also
+turns any other exception of a logging method into one warning.
 """
 
 from __future__ import annotations
