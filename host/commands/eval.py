@@ -37,6 +37,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--format", choices=("code", "xml"), default="code", help="the prompt format (as ghostshell prompt)")
     parser.add_argument("--temperature", type=float, default=None)
     parser.add_argument("--paper-model", default=None, help="the paper's column to compare with (default: matched from --llm)")
+    from host.commands.run import add_mount_argument
+
+    add_mount_argument(parser)
     parser.add_argument("--ray", default=None, metavar="ADDRESS",
                         help="run the jobs on a Ray cluster (needs ghostshell[ray]); 'local' starts one here")
     parser.add_argument("--quiet", action="store_true",
@@ -75,7 +78,8 @@ def build_config(args: argparse.Namespace) -> Any:
                        trials=args.trials, suite=suite, native_tools=args.native_tools,
                        base_url=args.base_url, api_key=args.api_key, workers=args.workers, out=out,
                        vocabulary=args.vocabulary, mode=args.mode, prompt_format=args.format,
-                       execute=not args.no_run, temperature=args.temperature, native_exec=args.native_exec)
+                       execute=not args.no_run, temperature=args.temperature, native_exec=args.native_exec,
+                       mcp_mounts=tuple(args.mount_mcp))
 
 
 def main(args: argparse.Namespace) -> int:
@@ -131,6 +135,13 @@ def main(args: argparse.Namespace) -> int:
             else:
                 records = anyio.run(run_sweep, cfg, progress, backend="asyncio")
         except (ValueError, GhostError, ImportError) as err:
+            print(f"ghostshell eval: {err}", file=sys.stderr)
+            return 2
+        except RuntimeError as err:  # a --mount-mcp server that cannot be mounted: one line, usage error
+            from host.commands.linkarg import link_exit_status
+
+            if link_exit_status(err) != 2:
+                raise
             print(f"ghostshell eval: {err}", file=sys.stderr)
             return 2
     config = {**asdict(cfg), "out": str(cfg.out), "api_key": None, "paper_model": args.paper_model}
