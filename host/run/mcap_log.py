@@ -43,8 +43,10 @@ turns any other exception of a logging method into one warning.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
+from enum import Enum, IntFlag
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -62,7 +64,6 @@ from foxglove.mcap import MCAPWriteOptions
 from foxglove.messages import CompressedImage, Event, JointState, JointStates, KeyValuePair, Log, LogLevel
 
 from host.run.scene3d import RobotScene, stamp
-from protocol.framelog import message_fields
 from protocol.framing import encode_frame
 from protocol.messages import FaultFlags, Message, Nack, ServoFrame, SimState, Telemetry
 from robots.description import Robot
@@ -116,6 +117,27 @@ def _ns(board_time_us: int) -> int:
 
 def _flag_names(f: int) -> str:
     return "|".join(e.name or "" for e in FaultFlags if e.value and f & e) or "NONE"
+
+
+def _fields(msg: Any) -> dict[str, Any]:
+    """A message's fields for a JSON channel: :func:`protocol.framelog.message_fields`' rendering (enums by
+    name, flags as ``A|B``, bytes as hex), done per field instead of per element: this runs for every
+    report and every frame sent, on the link's own event loop."""
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(msg):
+        v = getattr(msg, f.name)
+        if isinstance(v, (IntFlag, Enum, bytes, bytearray)):
+            v = message_fields_one(v)
+        elif isinstance(v, tuple) and v and not isinstance(v[0], (int, float)):
+            v = message_fields_one(v)
+        out[f.name] = v
+    return out
+
+
+def message_fields_one(v: Any) -> Any:
+    from protocol.framelog import _jsonable  # noqa: PLC2701 (the log's own rendering of one value)
+
+    return _jsonable(v)
 
 
 class RunLog:
@@ -197,7 +219,7 @@ class RunLog:
             JointState(name=self.names[i], position=float(tel.positions[i]),
                        velocity=float(vel[i]) if i < len(vel) else None,
                        effort=float(eff[i]) if i < len(eff) else None) for i in range(n)]), log_time=ns)
-        self.telemetry.log(message_fields(tel), log_time=ns)
+        self.telemetry.log(_fields(tel), log_time=ns)
         for cb in list(self.time_listeners):
             cb(ns)
         if sim is not None:
@@ -234,7 +256,7 @@ class RunLog:
         """The emulator's ground truth (each new SIM_STATE once)."""
         if sim is not self._last_sim:
             self._last_sim = sim
-            self.sim_state.log(message_fields(sim), log_time=_ns(sim.board_time_us))
+            self.sim_state.log(_fields(sim), log_time=_ns(sim.board_time_us))
 
     def on_transforms(self, tel: Telemetry, sim: SimState | None) -> None:
         """The robot's frames at ``tel``'s joint angles, its base where ``sim`` puts it (None: where the
@@ -253,7 +275,7 @@ class RunLog:
             raw = encode_frame(msg, seq).hex()
         except (ValueError, OverflowError):
             raw = ""
-        self.link_tx.log({"seq": seq, "type": type(msg).__name__, "fields": message_fields(msg), "raw": raw},
+        self.link_tx.log({"seq": seq, "type": type(msg).__name__, "fields": _fields(msg), "raw": raw},
                          log_time=_ns(board_time_us))
         if isinstance(msg, ServoFrame):
             joints = [JointState(name=self.names[i], position=float(q))

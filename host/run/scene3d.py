@@ -100,6 +100,7 @@ class RobotScene:
         self.names[0] = WORLD
         self.parent = np.asarray(m.body_parentid, dtype=int)
         self.bodies = np.arange(1, m.nbody)  # every body but the world
+        self._pairs = [(self.names[int(self.parent[b])], self.names[int(b)]) for b in self.bodies]
         self._fixed_root = (tuple(float(v) for v in self.data.xpos[self.rm.root_body]),
                             tuple(float(v) for v in self.data.xquat[self.rm.root_body]))
         geoms = []
@@ -141,12 +142,10 @@ class RobotScene:
         rel_p = np.einsum("nij,nj->ni", d.xmat[p].reshape(-1, 3, 3).transpose(0, 2, 1), dp)
         rel_q = _quat_conj_mul(xq_p, d.xquat[b])
         ts = stamp(board_time_us)
-        out = []
-        for i, body in enumerate(b):
-            qw, qx, qy, qz = (float(v) for v in rel_q[i])
-            out.append(FrameTransform(timestamp=ts, parent_frame_id=self.names[p[i]], child_frame_id=self.names[body],
-                                      translation=Vector3(x=float(rel_p[i, 0]), y=float(rel_p[i, 1]), z=float(rel_p[i, 2])),
-                                      rotation=Quaternion(x=qx, y=qy, z=qz, w=qw)))
+        names = self._pairs
+        out = [FrameTransform(timestamp=ts, parent_frame_id=parent, child_frame_id=child,
+                              translation=Vector3(x=px, y=py, z=pz), rotation=Quaternion(x=qx, y=qy, z=qz, w=qw))
+               for (parent, child), (px, py, pz), (qw, qx, qy, qz) in zip(names, rel_p.tolist(), rel_q.tolist())]
         return FrameTransforms(transforms=out)
 
     # -- primitives ---------------------------------------------------------------------------
