@@ -250,6 +250,10 @@ class BoardClient:
         self.on_nack: list[Callable[[Nack], None]] = []
         #: the board's latest NACK SERVO_FAULT (its detail names the servo that stopped answering on its bus)
         self.servo_fault: Nack | None = None
+        #: called with (seq, message) after every message handed to the transport, and with every message
+        #: received, after the client handled it (listeners, e.g. a run's recorder; python-can's Listener model)
+        self.on_sent: list[Callable[[int, Message], None]] = []
+        self.on_received: list[Callable[[Message], None]] = []
         self.on_reconnect: list[Callable[[BoardClient], None]] = []
         self.keepalive = True  # heartbeat + periodic sync; turn off to let the watchdog fire
 
@@ -537,6 +541,11 @@ class BoardClient:
         self._tx_seq = (seq + 1) & 0xFFFF
         self._last_tx = time.monotonic()
         self.stats.tx_frames += 1
+        for cb in self.on_sent:
+            try:
+                cb(seq, msg)
+            except Exception:  # a bug in a listener must not fail the send
+                log.exception("link: error in an on_sent listener")
         return seq
 
     def _forget_seq(self, seq: int) -> None:
@@ -823,6 +832,8 @@ class BoardClient:
             self.stats.seq_gaps = self._rx_gaps.lost
             try:
                 self._dispatch(item.msg, t4)
+                for cb in self.on_received:
+                    cb(item.msg)
             except Exception:  # a bug in a callback must not kill the reader
                 log.exception("link: error handling %s", item.msg_type.name)
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -33,16 +34,21 @@ from host.link.canlog import CAN_LOG_SUFFIXES, can_last_sim_state, read_can_host
 from host.link.errors import LinkDown, LinkError, LinkTimeout
 from host.link.transports import open_transport
 from host.run import artefacts
+from host.run.mcap_log import McapError, RunLog
+from host.run.mcap_read import mcap_last_sim_state, read_mcap_host_to_board
 from protocol import framelog
 from protocol.framing import DecodeError, Frame
 from protocol.messages import Ack, Advance, Message, Nack, ServoFrame, SimState, Telemetry
+from robots.description import Robot
 from robots.registry import DEFAULT_ROBOT, load_robot
+
+log = logging.getLogger("host.run")
 
 __all__ = ["LOG_READERS", "ReplayError", "ReplayResult", "find_host_log", "read_host_to_board",
            "read_serial_log", "replay"]
 
 #: host log file names looked for in a run folder, in order
-HOST_LOG_NAMES = ("host_frames.jsonl", "host.jsonl", "host_frames.log", "host_frames.asc", "host_frames.blf")
+HOST_LOG_NAMES = ("host_frames.jsonl", "host.jsonl", "host_frames.log", "host_frames.asc", "host_frames.blf", "run.mcap")
 
 
 class ReplayError(LinkError):
@@ -81,11 +87,13 @@ def _serial_last_sim_state(path: Path) -> SimState | None:
 LOG_READERS: dict[str, Callable[[Path], Iterator[tuple[float, int, Message]]]] = {
     ".jsonl": read_serial_log,
     **{suffix: read_can_host_to_board for suffix in CAN_LOG_SUFFIXES},
+    ".mcap": read_mcap_host_to_board,  # the run's MCAP: its /link/tx channel (host.run.mcap_log)
 }
 #: suffix -> the last ground truth the recording host received (None if the format cannot say)
 LAST_SIM_STATE: dict[str, Callable[[Path], SimState | None]] = {
     ".jsonl": _serial_last_sim_state,
     **{suffix: can_last_sim_state for suffix in CAN_LOG_SUFFIXES},
+    ".mcap": mcap_last_sim_state,
 }
 
 
@@ -135,6 +143,15 @@ class ReplayResult:
     sim_states: list[SimState] = field(default_factory=list, repr=False)
 
 
+def _replay_log(path: Path, robot: Robot, log_path: Path) -> RunLog | None:
+    """The replay's own run.mcap (one warning line and none when it cannot be written)."""
+    try:
+        return RunLog.create(path, robot, {"label": f"replay of {log_path}", "clock_mode": "lockstep"})
+    except McapError as e:
+        log.warning("ghostshell: no run.mcap: %s; the replay goes on without it", e)
+        return None
+
+
 def recorded_robot(log_path: Path) -> str | None:
     """The robot a recorded run drove, from the ``summary.json`` next to its log: its folder
     (``extra.robot_folder``) while that still holds a robot, else its name (``extra.robot``); None if absent."""
@@ -161,6 +178,7 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
     board = start_board(["--lockstep", "--robot", str(robot.root), "--log", str(out / "board_frames.jsonl")],
                         out / "board.stderr")
     transport = open_transport(board.spec, log_path=out / "host_frames.jsonl", servo_count=robot.servo_count)
+    run_log = _replay_log(out / "run.mcap", robot, log_path)
     acks: dict[int, asyncio.Future[Message]] = {}
     tel_t: list[float] = []
     tel_q: list[tuple[float, ...]] = []
@@ -173,6 +191,8 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
             if isinstance(item, DecodeError):
                 continue
             m = item.msg
+            if run_log is not None:
+                run_log.on_message(m)
             if isinstance(m, Telemetry):
                 if len(tel_t) < 200_000:
                     tel_t.append(m.board_time_us * 1e-6)
@@ -209,6 +229,8 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
                 if msg.mask == robot.servos.all_mask and len(msg.targets) == robot.servo_count:
                     targets.append((msg.apply_at_us * 1e-6, msg.targets))
             transport.send(msg, seq)
+            if run_log is not None:
+                run_log.on_frame_sent(seq, msg, end_us)
             if fut is not None:
                 try:
                     await asyncio.wait_for(fut, timeout_s)
@@ -230,6 +252,8 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
     finally:
         transport.close()
         board.stop()
+        if run_log is not None:
+            run_log.close()
     base_end, orig_end = _pose(final), _pose(original)
     err_mm = None
     if original is not None:

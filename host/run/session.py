@@ -59,6 +59,7 @@ from host.run.events import Event, EventMonitor, EventPolicy, ScriptedEvent, has
 from host.robot.binding import robot_registry
 from host.robot.link import ClientLink
 from host.robot.runtime import RobotRuntime
+from host.run.recording import Recording
 from host.run.pump import (
     BoardPacer,
     Recorder,
@@ -111,6 +112,8 @@ class SessionOptions:
     #: the emulated board's firmware: "python" (firmware_sim), "c" (the C firmware, native) or "qemu" (the C
     #: firmware on an emulated Cortex-M3); python -m firmware_sim --firmware
     firmware: str = "python"
+    mcap: bool = True  # record the session to <out>/run.mcap (host.run.mcap_log)
+    foxglove: int | None = None  # serve the live view on this localhost port (host.run.foxglove_live); None: off
     #: MCP servers mounted as shell modules (``--mount-mcp NAME=COMMAND|URL``, :mod:`host.mounts`)
     mcp_mounts: tuple[Any, ...] = ()
     mount_options: Any = None  # host.mounts.MountOptions (None: its defaults)
@@ -200,6 +203,7 @@ class RobotSession:
         self._shell: Shell | None = None
         self._turn: _TurnStart | None = None  # the turn in progress
         self._link_tried = False  # a board link was attempted (a failure from then on has a report)
+        self.recording: Recording | None = None  # run.mcap and the live view (host.run.recording)
         self.mounts: list[Any] = []  # the mounted MCP servers (host.mounts.McpMount)
         #: events handled so far (not the ignored ones), newest last, bounded; see :meth:`emit`
         self.events: deque[Event] = deque(maxlen=256)
@@ -286,6 +290,8 @@ class RobotSession:
                 for m in self.mounts:
                     for note in m.notes:
                         log.warning("%s", note)
+            self.recording = Recording.start(self.out / "run.mcap" if opts.mcap else None, self.robot, client, runtime,
+                                             self._shell, live_port=opts.foxglove, meta=self._mcap_meta(spec))
             tg = anyio.create_task_group()
             self._tg = await self._stack.enter_async_context(tg)
             self._monitor = EventMonitor(self.robot.servos.names, self.robot.base.floating,
@@ -316,6 +322,8 @@ class RobotSession:
             raise cause from group
         finally:
             self._tg = None
+            if self.recording is not None:
+                self.recording.close()
             if self._board is not None:
                 self._board.stop()
                 self._board = None
@@ -336,6 +344,10 @@ class RobotSession:
             if self._runtime is not None:
                 self._runtime.streamer.fail(exc)
             raise
+
+    def _mcap_meta(self, spec: LinkSpec) -> dict[str, str]:
+        return {"scene": self.scene, "vocabulary": self.vocabulary, "link": str(spec), "label": self.opts.label,
+                "clock_mode": "lockstep" if self.opts.lockstep else "realtime"}
 
     # -- events (host.run.events) ----------------------------------------------------------------
     def _on_report(self, tel: Any) -> None:
@@ -452,6 +464,8 @@ class RobotSession:
             await runtime.sleep(settle_s)
         turn = self._turn_result(start, result)
         self._turn = None
+        if self.recording is not None:
+            self.recording.on_turn_end(turn.calls)
         if write:
             await self.write(turn, label)
         return turn

@@ -15,15 +15,17 @@ strip: the board time, the calls active on each channel (``timeline.json``) and
 the sentence being spoken. Frames are rendered offscreen (``MUJOCO_GL=egl`` unless
 set) by a pool of worker processes (both cores by default; ``spawn``, so each
 worker opens its own GL context) and encoded to H.264 by the ffmpeg binary that
-the ``imageio-ffmpeg`` wheel ships.
+the ``imageio-ffmpeg`` wheel ships. The sound (speech and music at the timeline's times) is then
+muxed in as AAC (:mod:`host.run.soundtrack`).
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import multiprocessing
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -33,6 +35,8 @@ import numpy as np
 from protocol.framelog import iter_records
 
 __all__ = ["VideoError", "VideoSettings", "load_states", "render_video"]
+
+log = logging.getLogger("host.run")
 
 WIDTH, HEIGHT = 640, 480  # multiples of 16: H.264 macroblocks, no rescaling by ffmpeg
 CAPTION_H = 72
@@ -317,10 +321,11 @@ def _jobs(states: States, calls: Sequence[_Call], fps: int, t0: float | None
 
 
 def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings | None = None,
-                 robots_dir: str | None = None) -> Path:
+                 robots_dir: str | None = None, progress: Callable[[int, int], None] | None = None) -> Path:
     """Render ``run_dir``'s recorded run to ``out`` (default ``run_dir/run.mp4``); returns the path.
 
     The robot is the one the run's summary.json names (``robots_dir`` is searched first for it).
+    ``progress(frames done, frames)`` is called after each frame (e.g. :mod:`host.progress`).
     Raises :class:`VideoError` with the reason when it cannot.
     """
     import imageio_ffmpeg
@@ -350,12 +355,20 @@ def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings
     try:
         with ctx.Pool(max(1, settings.workers), initializer=_init_worker,
                       initargs=(settings, run_scene(run_dir), robot, robots_dir)) as pool:
-            for frame in pool.imap(_render, jobs, chunksize=4):
+            for done, frame in enumerate(pool.imap(_render, jobs, chunksize=4), 1):
                 writer.send(frame)
+                if progress is not None:
+                    progress(done, len(jobs))
     except VideoError:
         raise
     except Exception as e:
         raise VideoError(f"rendering failed: {type(e).__name__}: {e}") from e
     finally:
         writer.close()
+    if jobs:  # the sound: speech and music where the timeline has them (host.run.soundtrack)
+        from host.run.soundtrack import add_soundtrack
+
+        start = float(states.t[0]) if t0 is None else max(float(states.t[0]), float(t0))
+        for note in add_soundtrack(run_dir, out, start, len(jobs) / settings.fps, robots_dir):
+            log.warning("%s", note)
     return out
