@@ -175,3 +175,19 @@ def count_outcomes(calls: Sequence[BoardCall]) -> dict[str, int]:
     for c in calls:
         out[c.outcome] = out.get(c.outcome, 0) + 1
     return out
+
+
+def recorded_robot(run_dir: Path) -> str | None:
+    """The robot a recorded run drove, from its ``summary.json``: its folder (``extra.robot_folder``) while
+    that still holds a robot, else its name (``extra.robot``); None when not recorded."""
+    from robots.loader import ROBOT_FILE
+
+    try:
+        doc = json.loads((Path(run_dir) / "summary.json").read_text(encoding="utf-8"))
+        extra = doc.get("extra") or {}
+        name, folder = extra.get("robot"), extra.get("robot_folder")
+    except (OSError, ValueError, AttributeError):
+        return None
+    if isinstance(folder, str) and folder and (Path(folder) / ROBOT_FILE).is_file():
+        return folder
+    return name if isinstance(name, str) and name else None

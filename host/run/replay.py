@@ -34,6 +34,7 @@ from host.link.canlog import CAN_LOG_SUFFIXES, can_last_sim_state, read_can_host
 from host.link.errors import LinkDown, LinkError, LinkTimeout
 from host.link.transports import open_transport
 from host.run import artefacts
+from host.run.artefacts import recorded_robot
 from host.run.mcap_log import McapError, RunLog
 from host.run.mcap_read import mcap_last_sim_state, read_mcap_host_to_board
 from protocol import framelog
@@ -152,22 +153,6 @@ def _replay_log(path: Path, robot: Robot, log_path: Path) -> RunLog | None:
         return None
 
 
-def recorded_robot(log_path: Path) -> str | None:
-    """The robot a recorded run drove, from the ``summary.json`` next to its log: its folder
-    (``extra.robot_folder``) while that still holds a robot, else its name (``extra.robot``); None if absent."""
-    from robots.loader import ROBOT_FILE
-
-    try:
-        doc = json.loads((log_path.parent / "summary.json").read_text(encoding="utf-8"))
-        extra = doc.get("extra") or {}
-        name, folder = extra.get("robot"), extra.get("robot_folder")
-    except (OSError, ValueError, AttributeError):
-        return None
-    if isinstance(folder, str) and folder and (Path(folder) / ROBOT_FILE).is_file():
-        return folder
-    return name if isinstance(name, str) and name else None
-
-
 async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, robots_dir: str | None) -> ReplayResult:
     msgs = list(read_host_to_board(log_path))
     if not msgs:
@@ -282,5 +267,5 @@ def replay(log: str | Path, out: str | Path, *, timeout_s: float = 30.0, robot: 
     log_path = find_host_log(Path(log))
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
-    name = robot or recorded_robot(log_path) or DEFAULT_ROBOT
+    name = robot or recorded_robot(log_path.parent) or DEFAULT_ROBOT
     return asyncio.run(_replay(log_path, out_dir, timeout_s, name, robots_dir))

@@ -203,20 +203,11 @@ def run_scene(run_dir: Path) -> str:
 
 
 def run_robot(run_dir: Path) -> str:
-    """The robot the run drove: its folder (``summary.json`` extra.robot_folder) while that still holds
-    a robot, else its name (extra.robot; the default robot if not recorded)."""
-    from robots.loader import ROBOT_FILE
+    """The robot the run drove (:func:`host.run.artefacts.recorded_robot`; the default robot if not recorded)."""
+    from host.run.artefacts import recorded_robot
     from robots.registry import DEFAULT_ROBOT
 
-    try:
-        doc = json.loads((Path(run_dir) / "summary.json").read_text(encoding="utf-8"))
-        extra = doc.get("extra") or {}
-        name, folder = extra.get("robot"), extra.get("robot_folder")
-    except (OSError, ValueError, AttributeError):
-        return DEFAULT_ROBOT
-    if isinstance(folder, str) and folder and (Path(folder) / ROBOT_FILE).is_file():
-        return folder
-    return name if isinstance(name, str) and name else DEFAULT_ROBOT
+    return recorded_robot(Path(run_dir)) or DEFAULT_ROBOT
 
 
 def _init_worker(settings: VideoSettings, scene: str = "empty", robot: str | None = None,
