@@ -31,7 +31,7 @@ from firmware_sim.jitter_buffer import JitterBuffer
 from firmware_sim.peripherals import MAX_IMAGE_SIDE, Camera, CameraUnavailable, CameraWorker, Screen, Speaker
 from firmware_sim.safety import Mode, Safety
 from firmware_sim.servo_model import ServoModel
-from protocol.codec import SCHEMA_HASH, msg_type_of, quantize_apply_at, unwrap_time_us
+from protocol.codec import msg_type_of, quantize_apply_at, schema_for, unwrap_time_us
 from protocol.faults import GapDetector
 from protocol.messages import (
     PROTOCOL_VERSION,
@@ -127,6 +127,8 @@ class Board:
         self.model.opt.timestep = self.cfg.dt
         self.data: mujoco.MjData = reuse.data if reuse is not None else self.cm.new_data()
         self.n = len(self.table)
+        #: the wire schema of this robot (u16 servo mask up to 16 servos, u32 above): HELLO must name it
+        self.wire_schema = schema_for(self.n)
         neutral = np.array(self.table.neutral)
         self.cm.place_on_floor(self.data, neutral)
         self.servo = ServoModel(
@@ -186,6 +188,24 @@ class Board:
         self.link_errors = 0
         self.clamped_ticks = 0
         self._flags_since = FaultFlags.NONE
+        #: scripted pushes on the base (emulator only): (start us, end us, force N world frame), by start
+        self._pushes: list[tuple[int, int, tuple[float, float, float]]] = []
+
+    def push(self, at_s: float, force: tuple[float, float, float], duration_s: float = 0.2) -> None:
+        """Emulator only: push the robot's root body with ``force`` (N, world frame) from board time ``at_s``
+        for ``duration_s`` (a disturbance for tests of falls; a real board cannot do this)."""
+        start = int(at_s * 1e6)
+        self._pushes.append((start, start + int(duration_s * 1e6), (float(force[0]), float(force[1]), float(force[2]))))
+        self._pushes.sort()
+
+    def _apply_pushes(self, t: int) -> None:
+        body = self.cm.root_body
+        total = [0.0, 0.0, 0.0]
+        for start, end, f in self._pushes:
+            if start <= t < end:
+                total = [a + b for a, b in zip(total, f)]
+        self.data.xfrc_applied[body, :3] = total
+        self._pushes = [p for p in self._pushes if p[1] > t]  # finished pushes are dropped
 
     # --- time ------------------------------------------------------------------------------
 
@@ -288,14 +308,15 @@ class Board:
                 msg, seq, NackReason.VERSION_MISMATCH,
                 f"host protocol v{msg.protocol_version}, board speaks v{PROTOCOL_VERSION}",
             )
-        if msg.schema_hash != SCHEMA_HASH:
+        schema = self.wire_schema
+        if msg.schema_hash != schema.hash:
             return self._nack(
                 msg, seq, NackReason.SCHEMA_MISMATCH,
-                f"host schema {msg.schema_hash:#010x} != board {SCHEMA_HASH:#010x}",
+                f"host schema {msg.schema_hash:#010x} != board {schema.hash:#010x}",
             )
         return Caps(
             protocol_version=PROTOCOL_VERSION,
-            schema_hash=SCHEMA_HASH,
+            schema_hash=schema.hash,
             servo_count=self.n,
             control_rate_hz=self.cfg.rate_hz,
             buffer_depth=self.cfg.buffer_depth,
@@ -540,6 +561,8 @@ class Board:
             self.clamped_ticks += 1
         self._desired, self._ctrl = desired, ctrl
         data.ctrl[self._ctrl_at] = ctrl
+        if self._pushes:
+            self._apply_pushes(t)
         substeps = self._substeps
         if substeps == 1:
             mujoco.mj_step(self.model, data)

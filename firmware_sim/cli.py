@@ -8,7 +8,7 @@ import signal
 import sys
 from collections.abc import Sequence
 
-from protocol.faults import seed_arg
+from protocol.faults import push_arg, seed_arg
 from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
 from robots.registry import DEFAULT_ROBOT
 
@@ -74,14 +74,71 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help=f"the robot this board drives: a name (ghostshell robots list) or a robot folder "
                              f"(default {DEFAULT_ROBOT})")
     parser.add_argument("--robots-dir", default=None, metavar="DIR", help="search this folder for --robot first")
+    parser.add_argument("--push", action="append", default=[], type=push_arg, metavar="S:FX,FY,FZ[:DUR]",
+                        help="emulator only: push the robot's base with a force (N, world frame) at board time S "
+                             "for DUR s (default 0.2); repeatable (a scripted disturbance, e.g. to test falls)")
     parser.add_argument("--scene", default=None, metavar="NAME",
                         help="objects in the world: one of the robot's scenes (default: the robot's default scene)")
+    parser.add_argument("--firmware", choices=FIRMWARES, default="python",
+                        help="python: this emulator (default); c: the C firmware built natively, its servos on a "
+                             "Feetech bus to the MuJoCo plant; qemu: the same C firmware as a Cortex-M3 image on "
+                             "qemu-system-arm -M mps2-an385")
+    parser.add_argument("--dead-servo", action="append", default=[], type=_dead_servo, metavar="ID@SECONDS",
+                        help="--firmware c|qemu: servo ID stops answering on the bus at world time SECONDS (a fault)")
+    parser.add_argument("--icount", action="store_true",
+                        help="--firmware qemu: -icount shift=0 (one instruction per virtual ns; tick cost figures)")
+    parser.add_argument("--asan", action="store_true",
+                        help="--firmware c: run the AddressSanitizer/UBSan build of the firmware")
+
+
+FIRMWARES = ("python", "c", "qemu")
+
+
+def _dead_servo(text: str) -> tuple[int, float]:
+    sid, sep, at = text.partition("@")
+    try:
+        v = (int(sid), float(at or "0"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected ID@SECONDS (e.g. 3@2.5), got {text!r}") from None
+    if not 1 <= v[0] <= 253 or v[1] < 0:
+        raise argparse.ArgumentTypeError(f"servo id must be 1..253 and the time >= 0, got {text!r}")
+    return v
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m firmware_sim", description="A robot's emulated board (MuJoCo).")
     configure(p)
     return p
+
+
+def _run_c_firmware(args: argparse.Namespace, robot: object, parser: argparse.ArgumentParser) -> int:
+    """``--firmware c|qemu``: the C firmware with the servo-bus plant (firmware_sim.cfirmware.launcher)."""
+    from firmware_sim.cfirmware.launcher import LaunchOptions, run_firmware
+    from firmware_sim.config import BoardConfig, ConfigError
+
+    try:
+        BoardConfig(rate_hz=args.rate, dt=args.dt, telemetry_rate_hz=args.telemetry_rate,
+                    watchdog_ms=args.watchdog_ms).validate()
+    except ConfigError as e:
+        parser.error(str(e))
+    if args.viewer:
+        parser.error("--viewer is not available with --firmware c|qemu")
+    if args.icount and args.firmware != "qemu" or args.asan and args.firmware != "c":
+        parser.error("--icount needs --firmware qemu; --asan needs --firmware c")
+    fault_spec = None
+    if args.faults:
+        from protocol.faults import FaultSpec, FaultSpecError
+
+        try:
+            fault_spec = FaultSpec.parse(args.faults)
+        except FaultSpecError as e:
+            parser.error(f"--faults: {e}")
+    opts = LaunchOptions(robot=robot, firmware=args.firmware, link=args.link, lockstep=args.lockstep,  # type: ignore[arg-type]
+                         rate_hz=args.rate, dt=args.dt, telemetry_rate_hz=args.telemetry_rate,
+                         watchdog_ms=args.watchdog_ms, scene=args.scene, baud=args.baud, log_path=args.log,
+                         faults=fault_spec, fault_seed=args.fault_seed, dead_servos=list(args.dead_servo),
+                         asan=args.asan, icount=args.icount)
+    return run_firmware(opts)
 
 
 class _Stop(BaseException):  # not Exception: a handler that guards against bugs must not swallow it
@@ -116,6 +173,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.scene is not None and args.scene not in robot.scenes:
         print(f"board: {robot.name} has no scene {args.scene!r}; scenes: {', '.join(robot.scenes)}", file=sys.stderr)
         return 2
+    if args.firmware != "python":
+        return _run_c_firmware(args, robot, parser)
+    if args.dead_servo or args.icount or args.asan:
+        parser.error("--dead-servo, --icount and --asan need --firmware c or qemu")
     cfg = BoardConfig(
         rate_hz=args.rate, dt=args.dt, lockstep=args.lockstep,
         telemetry_rate_hz=args.telemetry_rate, watchdog_ms=args.watchdog_ms, robot=args.robot,
@@ -132,7 +193,7 @@ def main(argv: Sequence[str] | None = None) -> int:
               file=sys.stderr)
         return 2
     try:
-        link = open_board_transport(args.link, baud=args.baud, log_path=args.log)
+        link = open_board_transport(args.link, baud=args.baud, log_path=args.log, servo_count=robot.servo_count)
     except Exception as e:
         if args.link.kind == "can":
             from protocol.can.bus_errors import describe_bus_open_error
@@ -161,6 +222,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"board: {e}", file=sys.stderr)
             return 2
     board = Board(cfg, robot=robot)
+    for at, force, dur in args.push:
+        board.push(at, force, dur)
     # Lockstep renders in the loop (deterministic and free: virtual time waits); realtime in a thread.
     why = None
     if robot.peripherals.camera is not None:
@@ -198,7 +261,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.baud:
         from protocol.framing import frame_size
 
-        need = cfg.telemetry_rate_hz * (frame_size(board.telemetry()) + frame_size(board.sim_state())) * 10
+        need = cfg.telemetry_rate_hz * (frame_size(board.telemetry(), board.wire_schema)
+                                        + frame_size(board.sim_state(), board.wire_schema)) * 10
         if need > 0.8 * args.baud:
             print(f"board: warning: telemetry needs ~{need} bit/s, more than 80% of {args.baud} baud; "
                   "some reports will be dropped (lower --telemetry-rate)", file=sys.stderr, flush=True)

@@ -21,7 +21,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from host.commands.run import add_run_options, check_run_args, resolve_strict
+from host.commands.run import _push_text, add_run_options, check_run_args, resolve_strict
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -112,7 +112,11 @@ async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any,
                           mode=args.mode, strict=resolve_strict(args), lockstep=args.lockstep, link=args.link,
                           emulate_board=args.emulate_board or None, baud=args.baud, out=out, skills=skills,
                           label="chat", scene=args.scene, policy=getattr(args, "loaded_policy", None),
-                          faults=args.faults, fault_seed=args.fault_seed)
+                          faults=args.faults, fault_seed=args.fault_seed, foxglove=args.foxglove,
+                          mcp_mounts=tuple(args.mount_mcp),
+                          event_policy=getattr(args, "event_policy", None),
+                          events=getattr(args, "scripted_events", ()),
+                          pushes=tuple(_push_text(p) for p in args.push))
     pending = list(replies or [])
     interactive = turns is None and replies is None
     async with RobotSession(opts) as session:

@@ -37,8 +37,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--format", choices=("code", "xml"), default="code", help="the prompt format (as ghostshell prompt)")
     parser.add_argument("--temperature", type=float, default=None)
     parser.add_argument("--paper-model", default=None, help="the paper's column to compare with (default: matched from --llm)")
+    from host.commands.run import add_mount_argument
+
+    add_mount_argument(parser)
     parser.add_argument("--ray", default=None, metavar="ADDRESS",
                         help="run the jobs on a Ray cluster (needs ghostshell[ray]); 'local' starts one here")
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress (bar and per-job lines); on a terminal a bar shows jobs, ETA and the running micro mean")
 
 
 def build_config(args: argparse.Namespace) -> Any:
@@ -73,7 +78,8 @@ def build_config(args: argparse.Namespace) -> Any:
                        trials=args.trials, suite=suite, native_tools=args.native_tools,
                        base_url=args.base_url, api_key=args.api_key, workers=args.workers, out=out,
                        vocabulary=args.vocabulary, mode=args.mode, prompt_format=args.format,
-                       execute=not args.no_run, temperature=args.temperature, native_exec=args.native_exec)
+                       execute=not args.no_run, temperature=args.temperature, native_exec=args.native_exec,
+                       mcp_mounts=tuple(args.mount_mcp))
 
 
 def main(args: argparse.Namespace) -> int:
@@ -101,23 +107,43 @@ def main(args: argparse.Namespace) -> int:
             print(f"ghostshell eval: {err}", file=sys.stderr)
         return 2
 
-    def progress(rec: dict[str, Any], p: Any) -> None:
-        what = (f"DSBC {rec['dsbc']:.2f}" if "dsbc" in rec else
-                (f"{'pass' if rec.get('passed') else 'FAIL'}" if "passed" in rec else rec.get("error", "")))
-        run = rec.get("run")
-        ran = "" if run is None else f", run {run['outcome']}{' (fell)' if run.get('fell') else ''}"
-        print(f"[{p.skipped + p.finished}/{p.total}] task {rec['task']} trial {rec['trial']}: {what}{ran}", flush=True)
+    from host.progress import bar
 
-    try:
-        if args.ray:
-            from host.eval.ray_backend import run_sweep_on_ray
+    scores: list[float] = []
+    total = len(cfg.tasks) * cfg.trials
+    with bar(f"eval {cfg.llm}", total, quiet=args.quiet, fields=("micro", "failed")) as shown:
 
-            records = run_sweep_on_ray(cfg, args.ray, on_result=progress)
-        else:
-            records = anyio.run(run_sweep, cfg, progress, backend="asyncio")
-    except (ValueError, GhostError, ImportError) as err:
-        print(f"ghostshell eval: {err}", file=sys.stderr)
-        return 2
+        def progress(rec: dict[str, Any], p: Any) -> None:
+            what = (f"DSBC {rec['dsbc']:.2f}" if "dsbc" in rec else
+                    (f"{'pass' if rec.get('passed') else 'FAIL'}" if "passed" in rec else rec.get("error", "")))
+            run = rec.get("run")
+            ran = "" if run is None else f", run {run['outcome']}{' (fell)' if run.get('fell') else ''}"
+            if "dsbc" in rec:
+                scores.append(float(rec["dsbc"]))
+            elif "passed" in rec:
+                scores.append(1.0 if rec.get("passed") else 0.0)
+            if not args.quiet:
+                shown.print(f"[{p.skipped + p.finished}/{p.total}] task {rec['task']} trial {rec['trial']}: {what}{ran}")
+            shown.update(completed=p.skipped + p.finished, total=p.total,
+                         micro=f"{sum(scores) / len(scores):.2f}" if scores else "", failed=len(p.errors) or "")
+
+        try:
+            if args.ray:
+                from host.eval.ray_backend import run_sweep_on_ray
+
+                records = run_sweep_on_ray(cfg, args.ray, on_result=progress)
+            else:
+                records = anyio.run(run_sweep, cfg, progress, backend="asyncio")
+        except (ValueError, GhostError, ImportError) as err:
+            print(f"ghostshell eval: {err}", file=sys.stderr)
+            return 2
+        except RuntimeError as err:  # a --mount-mcp server that cannot be mounted: one line, usage error
+            from host.commands.linkarg import link_exit_status
+
+            if link_exit_status(err) != 2:
+                raise
+            print(f"ghostshell eval: {err}", file=sys.stderr)
+            return 2
     config = {**asdict(cfg), "out": str(cfg.out), "api_key": None, "paper_model": args.paper_model}
     summary = write_reports(cfg.out, config, records)
     if cfg.suite == "ablation":

@@ -2,8 +2,10 @@
 
 With ``--link pty`` (default) it starts the emulated board itself. It shows the
 channels live (on a terminal) and leaves timeline.json/png, joints.png,
-summary.json and both frame logs in ``--out``; with ``--video`` also run.mp4
-(rendered after the run, see :mod:`host.run.video`).
+summary.json, both frame logs and run.mcap (:mod:`host.run.mcap_log`) in ``--out``;
+with ``--video`` also run.mp4 with its sound (rendered after the run, see
+:mod:`host.run.video`); with ``--foxglove [PORT]`` Foxglove can watch the run live
+(:mod:`host.run.foxglove_live`).
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from pathlib import Path
 
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, unreachable_link
 from host.commands.robotarg import add_robot_argument, robot_from_args
-from protocol.faults import seed_arg
+from protocol.faults import push_arg, seed_arg
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -73,12 +75,48 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
                         help="seed of the fault injection (default 0; needs --faults)")
     parser.add_argument("--policy", default=None, metavar="FILE",
                         help="safety policy (TOML): allowed functions, tighter parameter bounds, motion budget")
+    parser.add_argument("--firmware", choices=("python", "c", "qemu"), default="python",
+                        help="the emulated board's firmware: python (default), c (the C firmware built natively, "
+                             "servos on a Feetech bus to the MuJoCo plant) or qemu (the same C on an emulated "
+                             "Cortex-M3, qemu-system-arm -M mps2-an385)")
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress bars (rendering run.mp4); they are shown only on a terminal anyway")
+    parser.add_argument("--foxglove", nargs="?", type=_port, const=8765, default=None, metavar="PORT",
+                        help="live view: serve the run's channels (those of run.mcap) to Foxglove on "
+                             "ws://127.0.0.1:PORT (default port 8765; off unless given)")
+    parser.add_argument("--events", default=None, metavar="FILE",
+                        help="scripted world events, one per line 'at SECONDS: text' (board time from the start); "
+                             "the policy's [events] table says what each kind does (default: interrupt)")
+    parser.add_argument("--push", action="append", default=[], type=push_arg, metavar="S:FX,FY,FZ[:DUR]",
+                        help="emulated board only: push the robot's base at board time S with a force in newtons "
+                             "(world frame) for DUR s (default 0.2); repeatable")
+    add_mount_argument(parser)
+
+
+def add_mount_argument(parser: argparse.ArgumentParser) -> None:
+    """``--mount-mcp NAME=COMMAND...|NAME=URL`` (repeatable): an MCP server's tools as the module NAME."""
+    from host.mounts.spec import parse_mount_arg
+
+    parser.add_argument("--mount-mcp", action="append", default=[], type=parse_mount_arg,
+                        metavar="NAME=COMMAND|NAME=URL",
+                        help="mount an MCP server's tools as functions NAME.TOOL: a stdio server command "
+                             "(e.g. weather='python weather.py') or a streamable HTTP URL; repeatable")
 
 
 def _positive(text: str) -> float:
     v = float(text)
     if not v > 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return v
+
+
+def _port(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a port number 0..65535, got {text!r}") from None
+    if not 0 <= v <= 65535:
+        raise argparse.ArgumentTypeError(f"must be a port number 0..65535, got {text}")
     return v
 
 
@@ -118,15 +156,29 @@ def check_run_args(args: argparse.Namespace) -> int | None:
         print(f"ghostshell: {why}", file=sys.stderr)
         return USAGE_STATUS
     if getattr(args, "policy", None):
+        from host.run.events import EventFileError, EventPolicy
         from host.shell.policy import Policy, PolicyError
 
         try:
             from host.robot.binding import function_params
 
             args.loaded_policy = Policy.load(args.policy, known=function_params(robot))
-        except PolicyError as e:
+            args.event_policy = EventPolicy.load(args.policy)
+        except (PolicyError, EventFileError) as e:
             print(f"ghostshell: {e}", file=sys.stderr)
             return USAGE_STATUS
+    if getattr(args, "events", None):
+        from host.run.events import EventFileError, parse_event_file
+
+        try:
+            args.scripted_events = tuple(parse_event_file(args.events))
+        except EventFileError as e:
+            print(f"ghostshell: --events {e}", file=sys.stderr)
+            return USAGE_STATUS
+    if getattr(args, "push", None) and not (args.emulate_board or _implies_emulated(args.link)):
+        print(f"ghostshell: --push acts in the emulated board a run starts, and {args.link} is a board you started: "
+              "give that board --push, or let this run start one (--emulate-board)", file=sys.stderr)
+        return USAGE_STATUS
     faults, seed = getattr(args, "faults", None), getattr(args, "fault_seed", 0)
     if faults:
         from protocol.faults import FaultSpec, FaultSpecError
@@ -149,8 +201,34 @@ def check_run_args(args: argparse.Namespace) -> int | None:
     elif seed:
         print("ghostshell: --fault-seed has no effect without --faults", file=sys.stderr)
         return USAGE_STATUS
+    firmware = getattr(args, "firmware", "python")
+    if firmware != "python":
+        from protocol.linkspec import LinkSpecError, parse_link_spec
+
+        try:
+            spec = parse_link_spec(args.link)
+        except LinkSpecError:
+            spec = None
+        if spec is not None and not (spec.kind == "serial" and (args.emulate_board or spec.implies_emulated_board)):
+            print(f"ghostshell: --firmware {firmware} runs the emulated board this run starts on a serial link "
+                  f"(--link pty); {args.link} is not one", file=sys.stderr)
+            return USAGE_STATUS
     args.run_args_checked = True
     return None
+
+
+def _implies_emulated(link: object) -> bool:
+    from protocol.linkspec import LinkSpecError, parse_link_spec
+
+    try:
+        return parse_link_spec(str(link)).implies_emulated_board
+    except LinkSpecError:
+        return False
+
+
+def _push_text(p: tuple[float, tuple[float, float, float], float]) -> str:
+    at, (fx, fy, fz), dur = p
+    return f"{at!r}:{fx!r},{fy!r},{fz!r}:{dur!r}"
 
 
 def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | None, label: str) -> int:
@@ -184,6 +262,11 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         scene=getattr(args, "scene", None),
         skills=skills,
         policy=policy, faults=getattr(args, "faults", None), fault_seed=getattr(args, "fault_seed", 0),
+        firmware=getattr(args, "firmware", "python"),
+        foxglove=getattr(args, "foxglove", None),
+        mcp_mounts=tuple(getattr(args, "mount_mcp", ())),
+        event_policy=getattr(args, "event_policy", None), events=getattr(args, "scripted_events", ()),
+        pushes=tuple(_push_text(p) for p in getattr(args, "push", ())),
     )
     try:
         report = anyio.run(run_program, opts, backend="asyncio")
@@ -196,8 +279,9 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
 
     s = report.summary
     print(calls_table(report.calls, report.board_t0))  # board-measured, as timeline.json
-    for o in report.result.observations:
-        if o.kind != "result":
+    mounted = {m.name for m in opts.mcp_mounts}
+    for o in report.result.observations:  # results of mounted tools are news; the robot's own are in the table
+        if o.kind != "result" or (o.path or "").split(".", 1)[0].split("/")[-1] in mounted:
             print(o)
     print(f"\n{label}: {s.outcome}; {sum(s.outcomes.values())} calls {dict((k, v) for k, v in s.outcomes.items() if v)}; "
           f"board time {s.duration_s:.2f} s; {_first_action(s.first_action_latency_ms)}; "
@@ -209,28 +293,30 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     if scene.get("objects"):
         print(f"scene {scene['name']}: {scene['toppled']} of {scene['objects']} toppled")
     if getattr(args, "video", False):
-        render_into(out)
+        render_into(out, quiet=getattr(args, "quiet", False))
     print(f"artefacts in {out}/: " + " ".join(n for n in (*ARTEFACTS, "run.mp4") if (out / n).exists()))
     return 0 if s.outcome in ("done", "interrupted") else 1
 
 
 ARTEFACTS = ("timeline.json", "timeline.png", "joints.png", "summary.json", "host_frames.jsonl", "board_frames.jsonl",
-             "host_frames.log", "board_frames.log")
+             "host_frames.log", "board_frames.log", "run.mcap")
 
 
 def _first_action(ms: float | None) -> str:
     return "no action" if ms is None else f"first action after {ms} ms"
 
 
-def render_into(out: Path) -> bool:
-    """Render ``out/run.mp4`` from the run's recorded state; print progress or why not."""
+def render_into(out: Path, quiet: bool = False) -> bool:
+    """Render ``out/run.mp4`` from the run's recorded state; print progress (a bar on a terminal) or why not."""
     import time
 
+    from host.progress import bar
     from host.run.video import VideoError, render_video
 
     t = time.monotonic()
     try:
-        path = render_video(out)
+        with bar("rendering run.mp4", None, quiet=quiet, transient=True) as shown:
+            path = render_video(out, progress=lambda done, total: shown.update(completed=done, total=total))
     except VideoError as e:
         print(f"ghostshell: no video: {e}", file=sys.stderr)
         return False

@@ -124,26 +124,27 @@ def plot_timeline(path: Path, calls: Sequence[BoardCall], title: str = "") -> No
     plt.close(fig)
 
 
-def servo_groups(robot: Robot) -> list[tuple[str, list[int]]]:
-    """The servos by motion channel (robot.toml ``[channels]``, in order), then any servo in none:
-    the panels of ``joints.png``."""
+def joint_groups(robot: Robot) -> list[tuple[str, list[int]]]:
+    """Panels of ``joints.png``: one per motion channel of ``robot`` (its servos), then the servos no
+    channel drives ("joints"); a robot without channels gets one panel."""
     groups = [(c.name, list(c.servos)) for c in robot.channels.values() if c.servos]
-    rest = [i for i in range(robot.servo_count) if robot.channel_of_servo(i) is None]
-    return groups + ([("other", rest)] if rest else [])
+    taken = {i for _, idx in groups for i in idx}
+    rest = [i for i in range(robot.servo_count) if i not in taken]
+    return groups + ([("joints", rest)] if rest else [])
 
 
 def plot_joints(path: Path, times: np.ndarray, positions: np.ndarray, names: Sequence[str],
                 targets: tuple[np.ndarray, np.ndarray] | None = None,
                 groups: Sequence[tuple[str, Sequence[int]]] | None = None) -> None:
-    """Joint angles (degrees) against board time, one panel per servo group (``groups``: label and
-    servo indices, e.g. :func:`servo_groups`; default one panel for every servo)."""
+    """Joint angles (degrees) against board time, one panel per servo group (``groups``: (label,
+    servo indices), e.g. :func:`joint_groups`; default one panel of every servo)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     panels = [(label, list(idx)) for label, idx in (groups or [("joints", range(len(names)))]) if len(idx)]
-    fig, axes = plt.subplots(len(panels), 1, figsize=(10, 7), sharex=True, squeeze=False)
+    fig, axes = plt.subplots(len(panels), 1, figsize=(10, max(3.0, 2.3 * len(panels))), sharex=True, squeeze=False)
     for ax, (label, idx) in zip(axes[:, 0], panels):
         for i in idx:
             line, = ax.plot(times, np.degrees(positions[:, i]), lw=1, label=names[i])
@@ -176,3 +177,19 @@ def count_outcomes(calls: Sequence[BoardCall]) -> dict[str, int]:
     for c in calls:
         out[c.outcome] = out.get(c.outcome, 0) + 1
     return out
+
+
+def recorded_robot(run_dir: Path) -> str | None:
+    """The robot a recorded run drove, from its ``summary.json``: its folder (``extra.robot_folder``) while
+    that still holds a robot, else its name (``extra.robot``); None when not recorded."""
+    from robots.loader import ROBOT_FILE
+
+    try:
+        doc = json.loads((Path(run_dir) / "summary.json").read_text(encoding="utf-8"))
+        extra = doc.get("extra") or {}
+        name, folder = extra.get("robot"), extra.get("robot_folder")
+    except (OSError, ValueError, AttributeError):
+        return None
+    if isinstance(folder, str) and folder and (Path(folder) / ROBOT_FILE).is_file():
+        return folder
+    return name if isinstance(name, str) and name else None

@@ -9,7 +9,7 @@ from __future__ import annotations
 import contextlib
 import time
 from collections import deque
-from collections.abc import AsyncIterable, AsyncIterator, Callable
+from collections.abc import AsyncIterable, AsyncIterator, Callable, Sequence
 from typing import Any
 
 import anyio
@@ -17,8 +17,8 @@ import anyio.lowlevel
 import numpy as np
 
 from host.link import BoardClient
-from host.link.errors import LinkError
-from host.link.faultcheck import clear_command
+from host.link.errors import BoardFaulted, LinkError
+from host.link.faultcheck import clear_command, servo_fault_message
 from host.robot.runtime import RobotRuntime
 from host.run import artefacts
 from protocol.messages import FaultFlags
@@ -35,6 +35,8 @@ class Recorder:
         self.q: deque[tuple[float, ...]] = deque(maxlen=HISTORY)
         self.base: deque[tuple[float, tuple[float, float, float], tuple[float, float, float, float]]] = deque(maxlen=HISTORY)
         self.max_tilt = 0.0
+        #: the base's height (m) in the first ground-truth report: what "fell" is measured against
+        self.base_z0: float | None = None
         self.last_rx = time.monotonic()  # wall time of the last report (for the silence watchdog)
 
     def add(self, client: BoardClient, tel: Any) -> None:
@@ -43,6 +45,8 @@ class Recorder:
         s = client.latest_sim_state
         if s is not None:
             self.base.append((s.board_time_us * 1e-6, s.base_pos, s.base_quat))
+            if self.base_z0 is None:
+                self.base_z0 = float(s.base_pos[2])
             self.max_tilt = max(self.max_tilt, artefacts.tilt_deg(s.base_quat))
 
 
@@ -67,7 +71,8 @@ def watchdog_fault_message(client: BoardClient, board_time_us: int) -> str:
             f"A board that outlives the run keeps the fault latched until cleared: `{clear_command(client.link_spec)}`")
 
 
-async def pump(client: BoardClient, runtime: RobotRuntime, rec: Recorder) -> None:
+async def pump(client: BoardClient, runtime: RobotRuntime, rec: Recorder,
+               listeners: Sequence[Callable[[Any], None]] = ()) -> None:
     """Telemetry -> confirmations, top-ups and the history.
 
     A latched watchdog fault (the link was cut for longer than watchdog + crouch delay) ends the
@@ -84,8 +89,12 @@ async def pump(client: BoardClient, runtime: RobotRuntime, rec: Recorder) -> Non
         rec.last_rx = time.monotonic()
         runtime.streamer.on_telemetry(tel)
         rec.add(client, tel)
+        for listener in listeners:  # e.g. the session's event monitor (host.run.events)
+            listener(tel)
         if tel.faults & FaultFlags.WATCHDOG_FAULT:
             raise LinkError(watchdog_fault_message(client, tel.board_time_us))
+        if tel.faults & FaultFlags.SERVO_FAULT:  # a servo stopped answering on the board's bus (C firmware)
+            raise BoardFaulted(servo_fault_message(client, tel.board_time_us))
         if lockstep:
             for _ in range(SETTLE_CHECKPOINTS):
                 await anyio.lowlevel.checkpoint()

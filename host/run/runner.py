@@ -16,10 +16,12 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any
 
 from host.ghost import make_ghost
 from host.link.errors import LinkError
 from host.run import artefacts
+from host.run.events import EventPolicy, ScriptedEvent
 from host.robot.runtime import RobotRuntime
 from host.run.pump import HISTORY, SETTLE_CHECKPOINTS, TELEMETRY_SILENCE_S
 from host.run.session import RobotSession, SessionOptions
@@ -68,6 +70,14 @@ class RunOptions:
     policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
     faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
     fault_seed: int = 0
+    firmware: str = "python"  # the emulated board's firmware: python, c or qemu (SessionOptions.firmware)
+    mcap: bool = True  # record the run to <out>/run.mcap
+    foxglove: int | None = None  # serve the live view on this localhost port; None: off
+    mcp_mounts: tuple[Any, ...] = ()  # MCP servers mounted as shell modules (host.mounts.MountSpec)
+    mount_options: Any = None  # host.mounts.MountOptions (None: its defaults)
+    event_policy: EventPolicy | None = None  # per event kind: ignore, note or interrupt (host.run.events)
+    events: tuple[ScriptedEvent, ...] = ()  # scripted events (--events FILE)
+    pushes: tuple[str, ...] = ()  # emulated board: pushes on the base (board --push S:FX,FY,FZ[:DUR])
 
 
 @dataclass

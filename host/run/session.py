@@ -33,8 +33,10 @@ reason and the turn's outcome is ``failed`` (``extra.board_fault`` in summary.js
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import logging
+from collections import deque
 from collections.abc import AsyncIterable, AsyncIterator, Awaitable, Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,9 +55,11 @@ from host.link.errors import BoardFaulted, LinkConfigError, LinkError
 from host.link.faultcheck import LATCHED, clear_command, clear_leftover_fault
 from host.link.session import FaultEvent
 from host.run import artefacts
+from host.run.events import Event, EventMonitor, EventPolicy, ScriptedEvent, has_fallen
 from host.robot.binding import robot_registry
 from host.robot.link import ClientLink
 from host.robot.runtime import RobotRuntime
+from host.run.recording import Recording
 from host.run.pump import (
     BoardPacer,
     Recorder,
@@ -69,10 +73,11 @@ from host.run.pump import (
 from host.shell import Shell
 from host.shell.policy import Policy
 from host.shell.skills import SkillStore
-from host.shell.timeline import RunResult, Timeline
+from host.shell.timeline import Observation, RunResult, Timeline
 from protocol.linkspec import LinkSpec, parse_link_spec
 from protocol.messages import FaultFlags, MsgType, Nack, NackReason
 from robots.description import Robot
+from robots.generic import GENERIC_CHANNEL
 from robots.registry import DEFAULT_ROBOT, load_robot
 
 log = logging.getLogger("host.run")
@@ -104,6 +109,19 @@ class SessionOptions:
     policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
     faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
     fault_seed: int = 0
+    #: the emulated board's firmware: "python" (firmware_sim), "c" (the C firmware, native) or "qemu" (the C
+    #: firmware on an emulated Cortex-M3); python -m firmware_sim --firmware
+    firmware: str = "python"
+    mcap: bool = True  # record the session to <out>/run.mcap (host.run.mcap_log)
+    foxglove: int | None = None  # serve the live view on this localhost port (host.run.foxglove_live); None: off
+    #: MCP servers mounted as shell modules (``--mount-mcp NAME=COMMAND|URL``, :mod:`host.mounts`)
+    mcp_mounts: tuple[Any, ...] = ()
+    mount_options: Any = None  # host.mounts.MountOptions (None: its defaults)
+    #: events (host.run.events): what to do per kind, and scripted ones (``--events FILE``)
+    event_policy: EventPolicy | None = None
+    events: tuple[ScriptedEvent, ...] = ()
+    #: emulated board only: pushes on the robot's base, ``S:FX,FY,FZ[:DURATION]`` (board ``--push``)
+    pushes: tuple[str, ...] = ()
 
 
 @dataclass
@@ -137,6 +155,9 @@ class TurnResult:
     board_t0: float = 0.0
     executed_text: str = ""
     received_text: str = ""
+    #: the events of this turn that were not ignored (host.run.events), and the one that interrupted it
+    events: list[Event] = field(default_factory=list)
+    interrupted_by: Event | None = None
 
     @property
     def interrupted(self) -> bool:
@@ -182,6 +203,16 @@ class RobotSession:
         self._shell: Shell | None = None
         self._turn: _TurnStart | None = None  # the turn in progress
         self._link_tried = False  # a board link was attempted (a failure from then on has a report)
+        self.recording: Recording | None = None  # run.mcap and the live view (host.run.recording)
+        self.mounts: list[Any] = []  # the mounted MCP servers (host.mounts.McpMount)
+        #: events handled so far (not the ignored ones), newest last, bounded; see :meth:`emit`
+        self.events: deque[Event] = deque(maxlen=256)
+        #: called with every event that is not ignored, and its action ("note" | "interrupt")
+        self.on_event: list[Callable[[Event, str], None]] = []
+        self.event_policy = opts.event_policy or EventPolicy()
+        self._turn_events: list[Event] = []  # events during the running turn (or since the last one)
+        self._interrupted_by: Event | None = None
+        self._monitor: EventMonitor | None = None
 
     # -- life cycle ------------------------------------------------------------------------------
     @property
@@ -222,10 +253,14 @@ class RobotSession:
                 board_args = ["--lockstep" if opts.lockstep else "--realtime", "--robot", str(self.robot.root),
                               "--log", str(self.out / f"board_frames{log_suffix}"), "--scene", self.scene,
                               "--objects-log", str(self.out / artefacts.OBJECTS_LOG)]
+                for push in opts.pushes:
+                    board_args += ["--push", push]
                 if opts.wire_baud:
                     board_args += ["--baud", str(opts.wire_baud)]
                 if opts.faults:
                     board_args += ["--faults", opts.faults, "--fault-seed", str(opts.fault_seed)]
+                if opts.firmware != "python":
+                    board_args += ["--firmware", opts.firmware]
                 self._board = start_board(board_args, self.out / "board.stderr", link=spec)
                 target = self._board.spec
             self._link_tried = True
@@ -245,9 +280,26 @@ class RobotSession:
             registry = robot_registry(self.robot, runtime, self.vocabulary)
             self._shell = Shell(registry, mode=opts.mode, strict=opts.strict, clock=runtime.board_now_s,
                                 sleep=runtime.sleep, skills=opts.skills, policy=opts.policy)
+            if opts.mcp_mounts:  # McpMountError (one line) when a server cannot be mounted
+                from host.mounts import MountOptions, mounted
+
+                mount_opts = opts.mount_options or MountOptions()
+                if client.lockstep:  # a server answers in wall time: the virtual board clock waits for it
+                    mount_opts = dataclasses.replace(mount_opts, around_call=runtime.streamer.hold)
+                self.mounts = await self._stack.enter_async_context(
+                    mounted(opts.mcp_mounts, registry=registry, options=mount_opts))
+                for m in self.mounts:
+                    for note in m.notes:
+                        log.warning("%s", note)
+            self.recording = Recording.start(self.out / "run.mcap" if opts.mcap else None, self.robot, client, runtime,
+                                             self._shell, live_port=opts.foxglove, meta=self._mcap_meta(spec))
             tg = anyio.create_task_group()
             self._tg = await self._stack.enter_async_context(tg)
-            tg.start_soon(self._ends_the_run, pump(client, runtime, self.rec))
+            self._monitor = EventMonitor(self.robot.servos.names, self.robot.base.floating,
+                                         _targets_at(runtime.streamer.history))
+            tg.start_soon(self._ends_the_run, pump(client, runtime, self.rec, [self._on_report]))
+            if opts.events:
+                tg.start_soon(self._scripted_events, runtime.board_now_s(), opts.events)
             tg.start_soon(self._ends_the_run, silence_watchdog(runtime, self.rec, client))
             if not client.lockstep:
                 tg.start_soon(self._ends_the_run, realtime_topper(runtime))
@@ -271,6 +323,8 @@ class RobotSession:
             raise cause from group
         finally:
             self._tg = None
+            if self.recording is not None:
+                self.recording.close()
             if self._board is not None:
                 self._board.stop()
                 self._board = None
@@ -291,6 +345,53 @@ class RobotSession:
             if self._runtime is not None:
                 self._runtime.streamer.fail(exc)
             raise
+
+    def _mcap_meta(self, spec: LinkSpec) -> dict[str, str]:
+        return {"scene": self.scene, "vocabulary": self.vocabulary, "link": str(spec), "label": self.opts.label,
+                "clock_mode": "lockstep" if self.opts.lockstep else "realtime"}
+
+    # -- events (host.run.events) ----------------------------------------------------------------
+    def _on_report(self, tel: Any) -> None:
+        if self._monitor is None or self.client is None:
+            return
+        sim = self.client.latest_sim_state
+        stats = self.client.stats
+        base = (sim.base_pos, sim.base_quat) if sim is not None else None
+        for ev in self._monitor.feed(tel.board_time_us * 1e-6, tel.positions, base,
+                                     toppled=sim.toppled if sim is not None else 0,
+                                     losses=stats.decode_errors + stats.retries + stats.seq_gaps):
+            self.emit(ev)
+
+    async def _scripted_events(self, t0: float, events: Iterable[ScriptedEvent]) -> None:
+        streamer = self.runtime.streamer
+        for ev in events:
+            await streamer.wait_board_time(int((t0 + ev.at_s) * 1e6))
+            self.emit(Event("scripted", t0 + ev.at_s, ev.text))
+
+    def emit(self, event: Event) -> str:
+        """Handle ``event`` as the policy says; returns the action taken ("ignore" | "note" | "interrupt").
+
+        A fall always stops motion first (every motion channel interrupted), whatever the policy.
+        ``note``: the event joins the observations of the running turn (or the next one);
+        ``interrupt``: also cuts the running turn (if none runs, it is a note)."""
+        action = self.event_policy.action(event.kind)
+        shell = self._shell
+        running = shell is not None and shell.running
+        if event.kind == "fall" and running and shell is not None and self._runtime is not None:
+            motion = [c for c in shell.registry.channels() if c in self.robot.channels or c == GENERIC_CHANNEL]
+            shell.interrupt(motion)
+        if action == "ignore":
+            return action
+        self.events.append(event)
+        self._turn_events.append(event)
+        log.info("event: %s (%s)", event, action)
+        if action == "interrupt" and running and shell is not None:
+            if self._interrupted_by is None:
+                self._interrupted_by = event
+            shell.interrupt()
+        for cb in list(self.on_event):
+            cb(event, action)
+        return action
 
     # -- board faults ----------------------------------------------------------------------------
     def _how_to_clear(self) -> str:
@@ -314,6 +415,9 @@ class RobotSession:
         if nack.msg_type == MsgType.SERVO_FRAME and nack.reason == NackReason.ESTOPPED and self._runtime is not None:
             self._runtime.streamer.fail(BoardFaulted(
                 f"the board refused servo frames (ESTOPPED: {nack.detail}); " + self._how_to_clear()))
+        if nack.reason == NackReason.SERVO_FAULT and self._runtime is not None:
+            self._runtime.streamer.fail(BoardFaulted(
+                f"the board lost a servo ({nack.detail}) and refuses motion; " + self._how_to_clear()))
 
     # -- turns -----------------------------------------------------------------------------------
     def pacer(self) -> BoardPacer:
@@ -361,13 +465,20 @@ class RobotSession:
             await runtime.sleep(settle_s)
         turn = self._turn_result(start, result)
         self._turn = None
+        if self.recording is not None:
+            self.recording.on_turn_end(turn.calls)
         if write:
             await self.write(turn, label)
         return turn
 
     def _turn_result(self, start: _TurnStart, result: RunResult, link_error: BaseException | None = None) -> TurnResult:
+        events, self._turn_events = self._turn_events, []
+        by, self._interrupted_by = self._interrupted_by, None
+        for ev in events:  # what the next request hears about, like any observation
+            result.observations.append(Observation("info", f"event: {ev}", None, ev.board_time_s))
         turn = TurnResult(result, [], None, start.out, start.token_times, start.board_t0,  # type: ignore[arg-type]
-                          executed_text=result.executed_text, received_text="".join(c for _, c in start.token_times))
+                          executed_text=result.executed_text, received_text="".join(c for _, c in start.token_times),
+                          events=events, interrupted_by=by if result.interrupted else None)
         turn.calls = _board_calls(result, self._runtime)
         captures = self._runtime.captures[start.n_captures:] if self._runtime is not None else []
         turn.summary = self._summary(turn, start.label, start.base_start, start.tilt_from, captures, link_error)
@@ -414,7 +525,7 @@ class RobotSession:
         summary = artefacts.Summary(
             task=label, outcome="link_lost", fell=False, base_start=_pose(None), base_end=_pose(None),
             max_tilt_deg=0.0, first_action_latency_ms=None, outcomes=artefacts.count_outcomes([]),
-            extra={"clock": "lockstep" if self.opts.lockstep else "realtime", "robot": self.robot.name,
+            extra={"clock": "lockstep" if self.opts.lockstep else "realtime", "robot": self.robot.name, "robot_folder": str(self.robot.root),
                    "vocabulary": self.vocabulary,
                    "mode": self.opts.mode, "error": None, "link_error": str(error), "observations": [],
                    "link": {}, "captures": [], "scene": self.scene_report(),
@@ -441,7 +552,7 @@ class RobotSession:
         running = {} if tl is None else {r.channel or "-": f"{r.function}{r.args}" for r in tl
                                          if r.start is not None and r.end is None}
         return {"board_time_s": round(runtime.board_now_s(), 3), "base": _pose(b), "tilt_deg": round(tilt, 2),
-                "fell": self.robot.base.floating and _fell(tilt, b), "running": running, "busy": self.shell.running,
+                "fell": _fell(self.robot, tilt, b[1][2] if b else None, self.rec.base_z0), "running": running, "busy": self.shell.running,
                 "skills": [s.name for s in self.shell.skills.list()], "scene": self.scene_report()}
 
     async def capture(self) -> Path:
@@ -480,8 +591,7 @@ class RobotSession:
                                                             ("failed" if failed else "done"))
         if link_error is not None:
             outcome = "link_lost"
-        # a robot fixed to the world cannot fall; a floating one fell when it tipped or its base sank
-        fell = self.robot.base.floating and (max_tilt > 45.0 or bool(base and min(b[1][2] for b in base) < 0.03))
+        fell = _fell(self.robot, max_tilt, min((b[1][2] for b in base), default=None), rec.base_z0)
         client = self.client
         tel = client.latest_telemetry if client is not None else None
         stats = {"frames_sent": streamer.frames_sent, "late": tel.late_count if tel else None,
@@ -502,12 +612,14 @@ class RobotSession:
             task=label, outcome=outcome, fell=fell, base_start=_pose(b0), base_end=_pose(b1),
             max_tilt_deg=round(max_tilt, 2), first_action_latency_ms=None if first is None else round(first, 1),
             outcomes=counts, duration_s=round(end_t - turn.board_t0, 3),
-            extra={"clock": "lockstep" if opts.lockstep else "realtime", "robot": self.robot.name,
+            extra={"clock": "lockstep" if opts.lockstep else "realtime", "robot": self.robot.name, "robot_folder": str(self.robot.root),
                    "vocabulary": self.vocabulary,
                    "mode": opts.mode, "error": None if result.error is None else str(result.error),
                    **({"link_error": str(link_error)} if link_error is not None else {}),
                    **({"board_fault": str(board_fault)} if board_fault is not None else {}),
                    "observations": [str(o) for o in result.observations], "link": stats,
+                   "events": [str(e) for e in turn.events],
+                   **({"interrupted_by": str(turn.interrupted_by)} if turn.interrupted_by is not None else {}),
                    "captures": [p.name for p in captures], "scene": self.scene_report(),
                    **({"faults": {"host_detected": host_detected}} if opts.faults else {})})
 
@@ -520,7 +632,6 @@ class RobotSession:
         history = list(runtime.streamer.history) if runtime is not None else []
         sent = [(t, q_) for t, q_ in history if t * 1e-6 >= turn.board_t0 - 1e-9]
         names = self.robot.servos.names
-        groups = artefacts.servo_groups(self.robot)
         out, calls, summary, t0 = turn.out, list(turn.calls), turn.summary, turn.board_t0
         board_stderr = self.out / "board.stderr"
 
@@ -533,7 +644,8 @@ class RobotSession:
             artefacts.plot_timeline(out / "timeline.png", calls, title=f"{label}: calls on the board clock")
             if len(times) and keep.any():
                 targets = (np.asarray([t for t, _ in sent]) * 1e-6, np.asarray([q_ for _, q_ in sent])) if sent else None
-                artefacts.plot_joints(out / "joints.png", times[keep], q[keep], names, targets, groups)
+                artefacts.plot_joints(out / "joints.png", times[keep], q[keep], names, targets,
+                                      groups=artefacts.joint_groups(self.robot))
             artefacts.write_summary_json(out / "summary.json", summary)
 
         return write
@@ -545,6 +657,20 @@ class RobotSession:
     async def write(self, turn: TurnResult, label: str | None = None) -> None:
         """Write a turn's artefacts; the plotting runs in a worker thread so the board keeps its frames."""
         await anyio.to_thread.run_sync(self.writer(turn, label or turn.summary.task))
+
+
+def _targets_at(history: Any) -> Callable[[int], Any]:
+    """``targets(t_us)``: the targets of the last frame sent at or before board time ``t_us`` (None before
+    the first; ``history`` is the streamer's bounded, time-ordered deque of ``(t_us, targets)``)."""
+
+    def targets(t_us: int) -> Any:
+        for i in range(len(history) - 1, max(-1, len(history) - 400), -1):  # recent frames: 4 s at 100 Hz
+            t, q = history[i]
+            if t <= t_us:
+                return q
+        return None
+
+    return targets
 
 
 def board_fault_report(stderr_path: Path) -> Any:
@@ -563,9 +689,10 @@ def _pose(b: Any) -> list[float]:
     return [round(b[1][0], 4), round(b[1][1], 4), round(artefacts.yaw_deg(b[2]), 2)] if b else [0.0, 0.0, 0.0]
 
 
-def _fell(tilt: float, b: Any) -> bool:
-    """A floating robot fell: tilted more than 45 deg or its base below 3 cm."""
-    return tilt > 45.0 or bool(b and b[1][2] < 0.03)
+def _fell(robot: Robot, tilt: float, z: float | None, z0: float | None) -> bool:
+    """Whether ``robot`` fell (:func:`host.run.events.has_fallen`): only a floating base can (a fixed one
+    stays where its MJCF puts it)."""
+    return robot.base.floating and has_fallen(tilt, z, z0)
 
 
 async def _one(text: str) -> AsyncIterator[str]:

@@ -17,15 +17,17 @@ emulated board's objects log (``objects.jsonl``, :mod:`firmware_sim.objects_log`
 time, at their start poses when the run has none. Frames are rendered offscreen (``MUJOCO_GL=egl`` unless
 set) by a pool of worker processes (both cores by default; ``spawn``, so each
 worker opens its own GL context) and encoded to H.264 by the ffmpeg binary that
-the ``imageio-ffmpeg`` wheel ships.
+the ``imageio-ffmpeg`` wheel ships. The sound (speech and music at the timeline's times) is then
+muxed in as AAC (:mod:`host.run.soundtrack`).
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import multiprocessing
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -35,6 +37,8 @@ import numpy as np
 from protocol.framelog import iter_records
 
 __all__ = ["VideoError", "VideoSettings", "load_states", "render_video"]
+
+log = logging.getLogger("host.run")
 
 WIDTH, HEIGHT = 640, 480  # multiples of 16: H.264 macroblocks, no rescaling by ffmpeg
 CAPTION_H = 72
@@ -227,19 +231,24 @@ def run_scene(run_dir: Path) -> str:
 
 
 def run_robot(run_dir: Path) -> str:
-    """The robot the run drove (``summary.json`` extra.robot; the default robot if not recorded)."""
+    """The robot the run drove (:func:`host.run.artefacts.recorded_robot`; the default robot if not recorded)."""
+    from host.run.artefacts import recorded_robot
     from robots.registry import DEFAULT_ROBOT
 
-    try:
-        doc = json.loads((Path(run_dir) / "summary.json").read_text(encoding="utf-8"))
-        name = (doc.get("extra") or {}).get("robot")
-    except (OSError, ValueError, AttributeError):
-        return DEFAULT_ROBOT
-    return name if isinstance(name, str) and name else DEFAULT_ROBOT
+    return recorded_robot(Path(run_dir)) or DEFAULT_ROBOT
 
 
 def _init_worker(settings: VideoSettings, scene: str = "empty", robot: str | None = None,
                  robots_dir: str | None = None) -> None:
+    """Set up one render process. Never raises: a Pool whose initializer raises respawns workers
+    forever, so a failure is kept and raised by the first :func:`_render` instead."""
+    try:
+        _setup_worker(settings, scene, robot, robots_dir)
+    except Exception as e:
+        _W["error"] = e if isinstance(e, VideoError) else VideoError(f"render worker: {type(e).__name__}: {e}")
+
+
+def _setup_worker(settings: VideoSettings, scene: str, robot: str | None, robots_dir: str | None) -> None:
     os.environ.setdefault("MUJOCO_GL", "egl")
     import mujoco
 
@@ -278,6 +287,8 @@ def _init_worker(settings: VideoSettings, scene: str = "empty", robot: str | Non
 def _render(job: tuple[float, np.ndarray, np.ndarray, str, str, dict[str, list[float]]]) -> bytes:
     from PIL import Image, ImageDraw, ImageFont
 
+    if "error" in _W:
+        raise _W["error"]
     t, base, joints, line, spoken, objects = job
     data = _W["data"]
     _W["rm"].set_state(data, base, joints, objects)
@@ -330,10 +341,11 @@ def _jobs(states: States, calls: Sequence[_Call], fps: int, t0: float | None
 
 
 def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings | None = None,
-                 robots_dir: str | None = None) -> Path:
+                 robots_dir: str | None = None, progress: Callable[[int, int], None] | None = None) -> Path:
     """Render ``run_dir``'s recorded run to ``out`` (default ``run_dir/run.mp4``); returns the path.
 
     The robot is the one the run's summary.json names (``robots_dir`` is searched first for it).
+    ``progress(frames done, frames)`` is called after each frame (e.g. :mod:`host.progress`).
     Raises :class:`VideoError` with the reason when it cannot.
     """
     import imageio_ffmpeg
@@ -348,6 +360,13 @@ def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings
     if tl.exists():
         t0 = json.loads(tl.read_text(encoding="utf-8")).get("t0")
     jobs = list(_jobs(states, calls, settings.fps, t0))
+    from robots.description import RobotDataError
+    from robots.registry import load_robot
+
+    try:  # here, not only in the workers: a robot that cannot be found is one clear line
+        robot = str(load_robot(run_robot(run_dir), robots_dir).root)
+    except RobotDataError as e:
+        raise VideoError(f"cannot load the robot the run drove: {e}") from None
     writer = imageio_ffmpeg.write_frames(str(out), (WIDTH, HEIGHT), fps=settings.fps, codec="libx264",
                                          pix_fmt_out="yuv420p", quality=7, macro_block_size=16,
                                          output_params=["-preset", "veryfast"])
@@ -355,13 +374,21 @@ def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings
     ctx = multiprocessing.get_context("spawn")
     try:
         with ctx.Pool(max(1, settings.workers), initializer=_init_worker,
-                      initargs=(settings, run_scene(run_dir), run_robot(run_dir), robots_dir)) as pool:
-            for frame in pool.imap(_render, jobs, chunksize=4):
+                      initargs=(settings, run_scene(run_dir), robot, robots_dir)) as pool:
+            for done, frame in enumerate(pool.imap(_render, jobs, chunksize=4), 1):
                 writer.send(frame)
+                if progress is not None:
+                    progress(done, len(jobs))
     except VideoError:
         raise
     except Exception as e:
         raise VideoError(f"rendering failed: {type(e).__name__}: {e}") from e
     finally:
         writer.close()
+    if jobs:  # the sound: speech and music where the timeline has them (host.run.soundtrack)
+        from host.run.soundtrack import add_soundtrack
+
+        start = float(states.t[0]) if t0 is None else max(float(states.t[0]), float(t0))
+        for note in add_soundtrack(run_dir, out, start, len(jobs) / settings.fps, robots_dir):
+            log.warning("%s", note)
     return out

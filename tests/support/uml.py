@@ -358,6 +358,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--keep", action="append", default=[], help="a host folder under /tmp the command needs")
     ap.add_argument("--run-dir", default=None,
                     help="where the run's files go, kept afterwards (default: a temporary folder, removed at exit)")
+    ap.add_argument("--quiet", action="store_true", help="no spinner while the guest boots and runs (terminal only)")
     ap.add_argument("command", nargs=argparse.REMAINDER)
     args = ap.parse_args(argv)
     command = args.command[1:] if args.command[:1] == ["--"] else args.command
@@ -368,10 +369,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     temporary = args.run_dir is None
     run_dir = Path(tempfile.mkdtemp(prefix="uml_run_")) if temporary else Path(args.run_dir)
     try:
+        from host.progress import status
+
         try:
-            result = run_in_uml(command, run_dir=run_dir, vcans=tuple(v for v in args.vcan.split(",") if v),
-                                fd=not args.classic, keep=[Path(k) for k in args.keep], timeout=args.timeout,
-                                cwd=Path.cwd())
+            with status(f"booting User-Mode Linux ({args.vcan}) and running {' '.join(command)[:60]}", quiet=args.quiet):
+                result = run_in_uml(command, run_dir=run_dir, vcans=tuple(v for v in args.vcan.split(",") if v),
+                                    fd=not args.classic, keep=[Path(k) for k in args.keep], timeout=args.timeout,
+                                    cwd=Path.cwd())
         except UmlError as e:
             print(f"uml: {e}", file=sys.stderr)
             return 125
