@@ -42,9 +42,10 @@ def serve_virtual(channel: str, node: int = 1, lockstep: bool = True, log: str |
     """A board thread on ``can:virtual:CHANNEL?node=NODE``; ``cfg``: further :class:`BoardConfig` fields
     (e.g. ``robot="arm"``)."""
     spec = parse_link_spec(f"can:virtual:{channel}?node={node}" + ("&fd=1" if fd else ""))
-    transport = open_board_transport(spec, log_path=log)
-    assert isinstance(transport, CanBoardTransport)
     board = Board(BoardConfig(lockstep=lockstep, **cfg))  # type: ignore[arg-type]
+    # the robot's CAN layout table, as python -m firmware_sim opens it
+    transport = open_board_transport(spec, log_path=log, servo_count=board.n)
+    assert isinstance(transport, CanBoardTransport)
     server = BoardServer(board, transport)
     th = threading.Thread(target=server.serve, name=f"board-{channel}-{node}", daemon=True)
     th.start()
