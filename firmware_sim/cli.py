@@ -64,7 +64,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--log", default=None, metavar="FILE", help="write every frame in/out as JSON lines")
     parser.add_argument("--objects-log", default=None, metavar="FILE",
                         help="write the scene's movable objects' poses with every SIM_STATE as JSON lines "
-                             "(simulation ground truth for the video; see firmware_sim.objects_log)")
+                             "(simulation ground truth for the video; see firmware_sim.objects_log; the Python board only: "
+                             "ignored with --firmware c|qemu)")
     parser.add_argument("--faults", default=None, metavar="SPEC",
                         help="inject link faults both ways (serial and CAN), e.g. drop=0.01,corrupt=0.01,dup=0.005,"
                              "reorder=0.005,truncate=P,delay=MS[±MS],cut=START+LEN (see protocol.faults)")
