@@ -73,12 +73,35 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robots-dir", default=None, metavar="DIR", help="search this folder for --robot first")
     parser.add_argument("--scene", default=None, metavar="NAME",
                         help="objects in the world: one of the robot's scenes (default: the robot's default scene)")
+    parser.add_argument("--stop-on-stdin-eof", action="store_true",
+                        help="stop when standard input closes: a host that starts the board gives it a pipe, so the "
+                             "board never outlives that host, however the host ends")
+
+
+#: The name the usage line shows: ``ghostshell board`` sets it when it runs the board for the user.
+PROG_ENV = "GHOSTSHELL_BOARD_PROG"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m firmware_sim", description="A robot's emulated board (MuJoCo).")
+    p = argparse.ArgumentParser(prog=os.environ.get(PROG_ENV) or "python -m firmware_sim",
+                                description="A robot's emulated board (MuJoCo).")
     configure(p)
     return p
+
+
+def _stop_on_stdin_eof() -> None:
+    """Read standard input until it closes, then stop the board as SIGTERM does (in a daemon thread)."""
+    import threading
+
+    def watch() -> None:  # os.read on the fd: a thread blocked in sys.stdin would hold its lock at exit
+        try:
+            while os.read(0, 4096):
+                pass
+        except OSError:
+            pass
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=watch, name="stdin-eof", daemon=True).start()
 
 
 class _Stop(BaseException):  # not Exception: a handler that guards against bugs must not swallow it
@@ -177,6 +200,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     server = BoardServer(board, link, viewer=viewer)
     signal.signal(signal.SIGTERM, _raise_stop)
     signal.signal(signal.SIGINT, _raise_stop)
+    if args.stop_on_stdin_eof:
+        _stop_on_stdin_eof()
     print(f"board: listening on {link.name}", flush=True)
     mode = "lockstep" if cfg.lockstep else "realtime"
     print(f"board: {robot.name} ({robot.servo_count} servos), {mode}, {cfg.rate_hz} Hz, dt {cfg.dt} s, "
@@ -204,6 +229,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"board: {server.clock.stats.summary()}", file=sys.stderr, flush=True)
         if server.tx_dropped:
             print(f"board: {server.tx_dropped} outgoing report(s) dropped (link too slow)", file=sys.stderr, flush=True)
+        if server.tx_dropped_no_host:
+            print(f"board: {server.tx_dropped_no_host} report(s) not sent while no host was talking to the board "
+                  "(nothing read the link; not a fault)", file=sys.stderr, flush=True)
         note = link.exit_note()
         if note:
             print(f"board: {note}", file=sys.stderr, flush=True)

@@ -4,6 +4,11 @@ With ``--link pty`` (default) it starts the emulated board itself. It shows the
 channels live (on a terminal) and leaves timeline.json/png, joints.png,
 summary.json and both frame logs in ``--out``; with ``--video`` also run.mp4
 (rendered after the run, see :mod:`host.run.video`).
+
+Ctrl-C (or SIGTERM) interrupts the run: the turn is cut through the lifecycle tree, the robot goes
+to its rest pose, every artefact is written, one line says so, exit status 130; a second Ctrl-C
+stops at once (summary.json and timeline.json still written). ``--max-board-s`` / ``--max-log-mb``
+bound a run the same way (exit status 1). See :mod:`host.run.stops`.
 """
 
 from __future__ import annotations
@@ -12,8 +17,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, unreachable_link
+from host.commands.inputs import InputError, read_text_input
+from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, preflight_link, unreachable_link
 from host.commands.robotarg import add_robot_argument, robot_from_args
+from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB
 from protocol.faults import seed_arg
 
 
@@ -60,7 +67,7 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
                         help="skill library file (else $GHOSTSHELL_SKILLS, else the user data directory)")
     parser.add_argument("--tokens-per-s", type=_positive, default=30.0, help="scripted LLM speed (default 30)")
     parser.add_argument("--seed", type=int, default=0, help="scripted LLM jitter seed")
-    parser.add_argument("--baud", type=int, default=115200, help="baud rate for a real serial port")
+    parser.add_argument("--baud", type=_baud, default=115200, help="baud rate for a real serial port")
     parser.add_argument("--out", default=None, metavar="DIR", help="artefact folder (default runs/<label>)")
     parser.add_argument("--no-live", action="store_true", help="no live channel view")
     parser.add_argument("--scene", default=None, metavar="NAME",
@@ -73,19 +80,50 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
                         help="seed of the fault injection (default 0; needs --faults)")
     parser.add_argument("--policy", default=None, metavar="FILE",
                         help="safety policy (TOML): allowed functions, tighter parameter bounds, motion budget")
+    parser.add_argument("--max-board-s", type=_bound, default=DEFAULT_MAX_BOARD_S, metavar="S",
+                        help=f"stop a turn after S board seconds (default {DEFAULT_MAX_BOARD_S:g}; 0: no bound); "
+                             "summary.json says so, exit status 1")
+    parser.add_argument("--max-log-mb", type=_bound, default=DEFAULT_MAX_LOG_MB, metavar="MB",
+                        help=f"stop when the frame logs reach MB megabytes (default {DEFAULT_MAX_LOG_MB:g}; 0: no bound)")
+
+
+def _number(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if v != v or v in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return v
 
 
 def _positive(text: str) -> float:
-    v = float(text)
+    v = _number(text)
     if not v > 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
     return v
 
 
 def _non_negative(text: str) -> float:
-    v = float(text)
+    v = _number(text)
     if not v >= 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return v
+
+
+def _bound(text: str) -> float | None:
+    """A bound: a number > 0, or 0 for none (None)."""
+    v = _non_negative(text)
+    return v or None
+
+
+def _baud(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of bit/s, e.g. 115200, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
     return v
 
 
@@ -114,6 +152,11 @@ def check_run_args(args: argparse.Namespace) -> int | None:
         print(f"ghostshell: --scene {scene!r}: {robot.name} has {', '.join(robot.scenes)}", file=sys.stderr)
         return USAGE_STATUS
     why = unreachable_link(args.link)
+    if why:
+        print(f"ghostshell: {why}", file=sys.stderr)
+        return USAGE_STATUS
+    emulate = bool(getattr(args, "emulate_board", False)) or args.link.implies_emulated_board
+    why = preflight_link(args.link, emulated=emulate)
     if why:
         print(f"ghostshell: {why}", file=sys.stderr)
         return USAGE_STATUS
@@ -160,6 +203,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     from host.ghost import GhostError
     from host.link import LinkError
     from host.run.runner import RunOptions, ended_report, run_program
+    from host.run.stops import Interrupted
 
     from host.shell.skills import SkillError, SkillStore, skills_path
 
@@ -184,9 +228,17 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         scene=getattr(args, "scene", None),
         skills=skills,
         policy=policy, faults=getattr(args, "faults", None), fault_seed=getattr(args, "fault_seed", 0),
+        max_board_s=args.max_board_s, max_log_mb=args.max_log_mb, handle_signals=True,
     )
+    command = getattr(args, "command", None) or "run"
     try:
         report = anyio.run(run_program, opts, backend="asyncio")
+    except Interrupted as e:
+        ended = ended_report(e)
+        what = f"; {_counts(ended.summary.outcomes)}" if ended is not None else ""
+        print(f"ghostshell {command}: {e.stop.message}, then {e.forced_by} again: stopped at once{what}; "
+              + (f"summary.json and timeline.json in {out}/" if ended is not None else "nothing ran"), file=sys.stderr)
+        return 130
     except (LinkError, GhostError, RuntimeError, OSError) as e:
         print(f"ghostshell: {e}", file=sys.stderr)
         if ended_report(e) is not None:  # a run the link ended still left its report
@@ -195,6 +247,12 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     from host.run.artefacts import calls_table
 
     s = report.summary
+    if report.stop is not None:  # a signal or a bound stopped the run: one line says what and where
+        rest = (f"the robot went to its rest pose {args.robot_value.rest_pose!r}" if report.rested else
+                "the robot could not be brought to its rest pose")
+        print(f"ghostshell {command}: {report.stop.message} at board time {s.duration_s:.2f} s; "
+              f"{_counts(s.outcomes)}; {rest}; artefacts in {out}/", file=sys.stderr)
+        return report.stop.exit_status
     print(calls_table(report.calls, report.board_t0))  # board-measured, as timeline.json
     for o in report.result.observations:
         if o.kind != "result":
@@ -216,6 +274,13 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
 
 ARTEFACTS = ("timeline.json", "timeline.png", "joints.png", "summary.json", "host_frames.jsonl", "board_frames.jsonl",
              "host_frames.log", "board_frames.log")
+
+
+def _counts(outcomes: dict[str, int]) -> str:
+    """``"3 calls: 2 done, 1 interrupted"`` from summary.json's outcome counts."""
+    n = sum(outcomes.values())
+    parts = ", ".join(f"{v} {k}" for k, v in outcomes.items() if v)
+    return f"{n} call{'s' if n != 1 else ''}" + (f": {parts}" if parts else "")
 
 
 def _first_action(ms: float | None) -> str:
@@ -258,19 +323,24 @@ def main(args: argparse.Namespace) -> int:
         program, label = task.ground_truth, f"task {task.id}"
         print(f"task {task.id} ({task.category}): {task.instruction}\n  {task.ground_truth}")
     elif args.xml is not None:
+        if not args.xml.strip():
+            print("ghostshell run: --xml is empty: give function tokens, e.g. --xml '<head_act action=\"nod\"/>'",
+                  file=sys.stderr)
+            return 2
         program, label = args.xml, "program"
     elif args.xml_file is not None:
         try:
-            program = Path(args.xml_file).read_text(encoding="utf-8")
-        except OSError as e:
-            print(f"ghostshell run: cannot read {args.xml_file}: {e.strerror}", file=sys.stderr)
-            return 2
-        except UnicodeDecodeError as e:
-            print(f"ghostshell run: {args.xml_file} is not UTF-8 text ({e.reason} at byte {e.start})", file=sys.stderr)
+            program = read_text_input(args.xml_file, "--xml-file", what="function tokens")
+        except InputError as e:
+            print(f"ghostshell run: {e}", file=sys.stderr)
             return 2
         label = Path(args.xml_file).stem
     else:
         label = "prompt"
+        if not args.prompt.strip():
+            print("ghostshell run: --prompt is empty: give an instruction, e.g. --prompt 'Nod, then wave'",
+                  file=sys.stderr)
+            return 2
         if args.llm == "scripted":
             print("ghostshell run: --prompt needs a real LLM, e.g. --llm openai:gpt-4o-mini", file=sys.stderr)
             return 2
@@ -280,5 +350,13 @@ def main(args: argparse.Namespace) -> int:
             make_ghost(args.llm, base_url=args.base_url, api_key=args.api_key)  # bad spec/no key: before the board
         except GhostError as e:
             print(f"ghostshell run: {e}", file=sys.stderr)
+            return 2
+    if program is not None:
+        from host.shell.limits import Limits
+
+        why = Limits().refuse_reply(program)
+        if why is not None:  # refused before the board starts, not cut minutes into the run
+            source = f"--xml-file {args.xml_file}" if args.xml_file is not None else "the program"
+            print(f"ghostshell run: {source}: {why}; nothing was run", file=sys.stderr)
             return 2
     return run_with(args, program=program, prompt=prompt, label=label)

@@ -212,6 +212,11 @@ def run_robot(run_dir: Path) -> str:
 
 def _init_worker(settings: VideoSettings, scene: str = "empty", robot: str | None = None,
                  robots_dir: str | None = None) -> None:
+    import signal
+
+    # the terminal's Ctrl-C reaches the whole process group: the parent stops the pool (terminate), so a
+    # worker ignores SIGINT rather than print a KeyboardInterrupt traceback of its own
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.environ.setdefault("MUJOCO_GL", "egl")
     import mujoco
 
@@ -305,7 +310,10 @@ def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings
     """Render ``run_dir``'s recorded run to ``out`` (default ``run_dir/run.mp4``); returns the path.
 
     The robot is the one the run's summary.json names (``robots_dir`` is searched first for it).
-    Raises :class:`VideoError` with the reason when it cannot.
+    Raises :class:`VideoError` with the reason when it cannot. The video is written to
+    ``<stem>.partial<suffix>`` beside ``out`` and renamed to ``out`` only when it is complete: a
+    render that fails or is interrupted (Ctrl-C) leaves no truncated ``run.mp4`` (nor the partial
+    file), and an older complete ``out`` stays as it was.
     """
     import imageio_ffmpeg
 
@@ -319,20 +327,30 @@ def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings
     if tl.exists():
         t0 = json.loads(tl.read_text(encoding="utf-8")).get("t0")
     jobs = list(_jobs(states, calls, settings.fps, t0))
-    writer = imageio_ffmpeg.write_frames(str(out), (WIDTH, HEIGHT), fps=settings.fps, codec="libx264",
+    partial = out.with_name(f"{out.stem}.partial{out.suffix}")
+    writer = imageio_ffmpeg.write_frames(str(partial), (WIDTH, HEIGHT), fps=settings.fps, codec="libx264",
                                          pix_fmt_out="yuv420p", quality=7, macro_block_size=16,
                                          output_params=["-preset", "veryfast"])
-    writer.send(None)
-    ctx = multiprocessing.get_context("spawn")
+    complete = False
     try:
+        writer.send(None)
+        ctx = multiprocessing.get_context("spawn")
         with ctx.Pool(max(1, settings.workers), initializer=_init_worker,
                       initargs=(settings, run_scene(run_dir), run_robot(run_dir), robots_dir)) as pool:
             for frame in pool.imap(_render, jobs, chunksize=4):
                 writer.send(frame)
+        writer.close()  # ffmpeg finishes the file here
+        complete = True
     except VideoError:
         raise
     except Exception as e:
         raise VideoError(f"rendering failed: {type(e).__name__}: {e}") from e
     finally:
-        writer.close()
+        if not complete:
+            try:
+                writer.close()
+            except Exception:
+                pass
+            partial.unlink(missing_ok=True)
+    os.replace(partial, out)
     return out
