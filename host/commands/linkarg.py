@@ -62,20 +62,17 @@ def unreachable_link(spec: LinkSpec) -> str | None:
 def preflight_link(spec: LinkSpec, *, emulated: bool = False) -> str | None:
     """Why ``spec`` cannot be opened (one line, for the user), found without disturbing a device, or None.
 
-    * a serial device path (or an SLCAN adapter's) must exist and be a character device; it is not
-      opened here (opening a USB serial port resets many boards), so a character device that is no
-      tty (``/dev/null``) is refused when it is opened (:class:`host.link.errors.LinkConfigError`);
+    * a serial device path must exist and be a character device; it is not opened here (opening a
+      USB serial port resets many boards), so a character device that is no tty (``/dev/null``) is
+      refused when it is opened (:class:`host.link.errors.LinkConfigError`), as is an SLCAN adapter
+      that is not there (``cannot open CAN bus ...``);
     * SocketCAN (``can:socketcan:...``) is opened and closed again: a raw CAN socket has no effect on
       the bus, and this is where a kernel without SocketCAN or a missing interface shows;
     * ``emulated``: the emulated board creates or opens the link and reports its own refusal.
     """
     if emulated:
         return None
-    path = None
-    if spec.kind == "serial" and "://" not in spec.port:
-        path = spec.port
-    elif spec.kind == "can" and spec.interface == "slcan" and spec.channel and "://" not in spec.channel:
-        path = spec.channel
+    path = spec.port if spec.kind == "serial" and "://" not in spec.port else None
     if path is not None and os.name == "posix":
         try:
             mode = os.stat(path).st_mode

@@ -155,11 +155,6 @@ def check_run_args(args: argparse.Namespace) -> int | None:
     if why:
         print(f"ghostshell: {why}", file=sys.stderr)
         return USAGE_STATUS
-    emulate = bool(getattr(args, "emulate_board", False)) or args.link.implies_emulated_board
-    why = preflight_link(args.link, emulated=emulate)
-    if why:
-        print(f"ghostshell: {why}", file=sys.stderr)
-        return USAGE_STATUS
     if getattr(args, "policy", None):
         from host.shell.policy import Policy, PolicyError
 
@@ -191,6 +186,11 @@ def check_run_args(args: argparse.Namespace) -> int | None:
             return USAGE_STATUS
     elif seed:
         print("ghostshell: --fault-seed has no effect without --faults", file=sys.stderr)
+        return USAGE_STATUS
+    emulate = bool(getattr(args, "emulate_board", False)) or args.link.implies_emulated_board
+    why = preflight_link(args.link, emulated=emulate)  # last: it may open a CAN bus
+    if why:
+        print(f"ghostshell: {why}", file=sys.stderr)
         return USAGE_STATUS
     args.run_args_checked = True
     return None

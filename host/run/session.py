@@ -322,6 +322,10 @@ class RobotSession:
             self._shell.interrupt()
         return True
 
+    def clear_stop(self) -> None:
+        """Forget a stop (e.g. a board-time bound that ended one MCP program): later turns run again."""
+        self.stop = None
+
     async def go_to_rest(self, timeout_s: float = 10.0) -> bool:
         """Move every servo smoothly to the robot's rest pose (``robot.toml`` ``rest_pose``), e.g. after a
         stop; returns False when it could not within ``timeout_s`` wall seconds (the link is down, the

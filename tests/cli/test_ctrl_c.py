@@ -153,3 +153,49 @@ def test_ctrl_c_while_the_demo_renders_leaves_no_video(tmp_path: Path) -> None:
     assert not (out / "run.mp4").exists() and not (out / "run.partial.mp4").exists()
     assert json.loads((out / "summary.json").read_text())["outcome"] == "done"  # the run itself had finished
     assert processes_mentioning(str(out)) == []
+
+
+def test_ctrl_c_ends_a_chat_at_rest_with_its_transcript(tmp_path: Path) -> None:
+    from robots.registry import load_robot
+    from robots.tasks import get_task
+
+    robot = load_robot()
+    square = get_task(robot.tasks, 9).ground_truth
+    replies = tmp_path / "replies.txt"
+    replies.write_text(f"{square}\n---\n{square}\n", encoding="utf-8")
+    out = tmp_path / "chat"
+    cli = start(["chat", "--replies", str(replies), "--lockstep", "--no-live", "--out", str(out)], tmp_path / "logs")
+    wait_until(lambda: sent_servo_frames_until(out) > UNDER_WAY_S, "the first turn is under way", proc=cli)
+    cli.ctrl_c()
+    rc = cli.wait()
+    err = cli.stderr.strip().splitlines()
+    assert rc == 130 and len(err) == 1, cli.stderr[-3000:]
+    assert "interrupted by SIGINT" in err[0] and "after 1 turn" in err[0] and "rest pose 'stand'" in err[0], err
+    doc = json.loads((out / "transcript.json").read_text())
+    assert len(doc["turns"]) == 1 and doc["turns"][0]["interrupted"], doc["turns"]  # the second reply never ran
+    step = json.loads((out / "turn_01" / "step_1" / "summary.json").read_text())
+    assert step["outcome"] == "interrupted" and step["extra"]["stopped"]["by"] == "SIGINT"
+    errors = [abs(a - b) for a, b in zip(_last_positions_deg(out), _stand_deg())]
+    assert max(errors) < 3.0, errors
+    assert processes_mentioning(str(out)) == []
+
+
+def test_ctrl_c_stops_the_mcp_server_and_its_board(tmp_path: Path) -> None:
+    out = tmp_path / "mcp"
+    # stdin stays open (a client that is still connected): the server must not wait for it to close
+    cli = start(["mcp", "--lockstep", "--out", str(out)], tmp_path / "logs", stdin_pipe=True)
+    assert cli.proc.stdin is not None
+    init = {"jsonrpc": "2.0", "id": 1, "method": "initialize",
+            "params": {"protocolVersion": "2025-06-18", "capabilities": {}, "clientInfo": {"name": "t", "version": "1"}}}
+    cli.proc.stdin.write((json.dumps(init) + "\n").encode())
+    cli.proc.stdin.flush()
+    # the server answers once its robot session (board, link, start pose) is up
+    wait_until(lambda: '"id":1' in cli.stdout.replace(" ", ""), "the server answers initialize", proc=cli)
+    cli.ctrl_c()
+    rc = cli.wait()
+    last = cli.stderr.strip().splitlines()[-1]
+    assert rc == 130 and "interrupted by SIGINT" in last and "the board with it" in last, cli.stderr[-3000:]
+    assert "Traceback" not in cli.stderr
+    errors = [abs(a - b) for a, b in zip(_last_positions_deg(out), _stand_deg())]
+    assert max(errors) < 3.0, errors
+    assert processes_mentioning(str(out)) == []

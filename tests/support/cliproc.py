@@ -26,11 +26,13 @@ __all__ = ["Cli", "last_telemetry", "processes_mentioning", "sent_servo_frames_u
 class Cli:
     """A running ``python -m host ARGS`` (stdout/stderr to files in ``logs``)."""
 
-    def __init__(self, args: Sequence[str], logs: Path, env: dict[str, str] | None = None) -> None:
+    def __init__(self, args: Sequence[str], logs: Path, env: dict[str, str] | None = None,
+                 stdin_pipe: bool = False) -> None:
         logs.mkdir(parents=True, exist_ok=True)
         self.out_path, self.err_path = logs / "cli.stdout", logs / "cli.stderr"
         self._out, self._err = open(self.out_path, "wb"), open(self.err_path, "wb")
-        self.proc = subprocess.Popen([sys.executable, "-m", "host", *args], stdin=subprocess.DEVNULL,
+        stdin = subprocess.PIPE if stdin_pipe else subprocess.DEVNULL  # a pipe stays open (a client, a user)
+        self.proc = subprocess.Popen([sys.executable, "-m", "host", *args], stdin=stdin,
                                      stdout=self._out, stderr=self._err, start_new_session=True,
                                      env=env if env is not None else dict(os.environ))
 
@@ -48,6 +50,8 @@ class Cli:
         finally:
             self._out.close()
             self._err.close()
+            if self.proc.stdin is not None:
+                self.proc.stdin.close()
 
     @property
     def stdout(self) -> str:
@@ -63,8 +67,8 @@ class Cli:
             self.proc.wait()
 
 
-def start(args: Sequence[str], logs: Path, env: dict[str, str] | None = None) -> Cli:
-    return Cli(args, logs, env)
+def start(args: Sequence[str], logs: Path, env: dict[str, str] | None = None, stdin_pipe: bool = False) -> Cli:
+    return Cli(args, logs, env, stdin_pipe)
 
 
 def wait_until(cond: Callable[[], bool], what: str, timeout: float = 60.0, proc: Cli | None = None) -> None:
