@@ -9,9 +9,10 @@ naming the option, the file and what would be right.
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
-__all__ = ["InputError", "port_number", "read_text_input"]
+__all__ = ["InputError", "baud_rate", "port_number", "positive_seconds", "read_text_input", "seconds"]
 
 
 class InputError(ValueError):
@@ -47,4 +48,41 @@ def port_number(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a TCP port number 1-65535, got {text!r}") from None
     if not 1 <= v <= 65535:
         raise argparse.ArgumentTypeError(f"a TCP port is 1-65535, got {v}")
+    return v
+
+
+def _number(text: str, what: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return v
+
+
+def seconds(text: str) -> float:
+    """argparse ``type=`` for a duration: a finite number of seconds >= 0."""
+    v = _number(text, "a number of seconds")
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0 seconds, got {text}")
+    return v
+
+
+def positive_seconds(text: str) -> float:
+    """argparse ``type=`` for a timeout: a finite number of seconds > 0."""
+    v = _number(text, "a number of seconds")
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"must be > 0 seconds, got {text}")
+    return v
+
+
+def baud_rate(text: str) -> int:
+    """argparse ``type=`` for a serial baud rate: a whole number of bit/s >= 1."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of bit/s, e.g. 115200, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1 bit/s, got {v}")
     return v

@@ -20,7 +20,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, unreachable_link
+from host.commands.inputs import seconds
+from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, preflight_link, unreachable_link
 from host.commands.robotarg import add_robot_argument, robot_from_args
 from host.link.board_process import BoardProcess, start_board
 from protocol.linkspec import LinkSpec
@@ -36,7 +37,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.set_defaults(lockstep=False)
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="write the frame logs (board.jsonl, host.jsonl), board stderr and summary.json here")
-    parser.add_argument("--duration", type=float, default=1.0, metavar="S", help="seconds per pose move (default 1.0)")
+    parser.add_argument("--duration", type=seconds, default=1.0, metavar="S", help="seconds per pose move (default 1.0)")
     add_link_argument(parser)
     parser.add_argument("--emulate-board", action="store_true",
                         help="start the emulated board on --link first (implied for pty and can:slcan:pty)")
@@ -124,7 +125,7 @@ def main(args: argparse.Namespace) -> int:
     from host.link import LinkError
 
     spec: LinkSpec = args.link
-    why = unreachable_link(spec)
+    why = unreachable_link(spec) or preflight_link(spec, emulated=args.emulate_board or spec.implies_emulated_board)
     if why:
         print(f"ghostshell tour: {why}", file=sys.stderr)
         return USAGE_STATUS

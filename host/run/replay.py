@@ -38,7 +38,7 @@ from protocol.framing import DecodeError, Frame
 from protocol.messages import Ack, Advance, Message, Nack, ServoFrame, SimState, Telemetry
 from robots.registry import DEFAULT_ROBOT, load_robot
 
-__all__ = ["LOG_READERS", "ReplayError", "ReplayResult", "find_host_log", "read_host_to_board",
+__all__ = ["LOG_READERS", "ReplayError", "ReplayInputError", "ReplayResult", "find_host_log", "read_host_to_board",
            "read_serial_log", "replay"]
 
 #: host log file names looked for in a run folder, in order
@@ -47,6 +47,11 @@ HOST_LOG_NAMES = ("host_frames.jsonl", "host.jsonl", "host_frames.log", "host_fr
 
 class ReplayError(LinkError):
     """The log cannot be replayed (unreadable, nothing sent, or the board did not follow)."""
+
+
+class ReplayInputError(ReplayError):
+    """The log given is no replayable log (missing, no host log in the folder, unknown format,
+    unreadable, nothing sent): a bad input, found before the board starts (exit status 2)."""
 
 
 def read_serial_log(path: Path) -> Iterator[tuple[float, int, Message]]:
@@ -92,9 +97,9 @@ def find_host_log(path: Path) -> Path:
         found = sorted(p for p in path.iterdir() if p.name.startswith("host") and p.suffix in LOG_READERS)
         if found:
             return found[0]
-        raise ReplayError(f"no host frame log in {path} (looked for {', '.join(HOST_LOG_NAMES)})")
+        raise ReplayInputError(f"no host frame log in {path} (looked for {', '.join(HOST_LOG_NAMES)})")
     if not path.is_file():
-        raise ReplayError(f"no such log: {path}")
+        raise ReplayInputError(f"no such log: {path}")
     return path
 
 
@@ -102,12 +107,12 @@ def read_host_to_board(path: Path) -> Iterator[tuple[float, int, Message]]:
     """``(t, seq, message)`` the host sent, in order, from the log at ``path`` (reader by suffix)."""
     reader = LOG_READERS.get(path.suffix.lower())
     if reader is None:
-        raise ReplayError(f"cannot replay {path.name}: unknown log format {path.suffix!r} "
+        raise ReplayInputError(f"cannot replay {path.name}: unknown log format {path.suffix!r} "
                           f"(known: {', '.join(sorted(LOG_READERS))})")
     try:
         yield from reader(path)
     except (ValueError, UnicodeDecodeError) as e:  # a file with a log's name that is not that log
-        raise ReplayError(f"cannot replay {path.name}: not a readable {path.suffix} frame log ({e})") from None
+        raise ReplayInputError(f"cannot replay {path.name}: not a readable {path.suffix} frame log ({e})") from None
 
 
 def _pose(s: SimState | None) -> list[float] | None:
@@ -142,7 +147,7 @@ def recorded_robot(log_path: Path) -> str | None:
 async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, robots_dir: str | None) -> ReplayResult:
     msgs = list(read_host_to_board(log_path))
     if not msgs:
-        raise ReplayError(f"{log_path} holds no host-to-board messages")
+        raise ReplayInputError(f"{log_path} holds no host-to-board messages")
     last_fn = LAST_SIM_STATE.get(log_path.suffix.lower())
     original = last_fn(log_path) if last_fn is not None else None
     robot = load_robot(robot_name, robots_dir)

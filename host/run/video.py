@@ -43,6 +43,11 @@ class VideoError(RuntimeError):
     """The video cannot be made (no frame log, no GL renderer, ffmpeg failed); the message says why."""
 
 
+class VideoInputError(VideoError):
+    """The run folder given holds nothing to render (no frame log, an unreadable one, no reports):
+    bad input (``ghostshell render`` exits 2)."""
+
+
 @dataclass(frozen=True)
 class VideoSettings:
     fps: int = 25
@@ -80,8 +85,8 @@ def load_states(run_dir: Path) -> States:
         found = [run_dir / f"{stem}{suffix}" for stem in ("board_frames", "host_frames") for suffix in CAN_LOG_SUFFIXES]
         found = [p for p in found if p.exists()]
         if not found:
-            raise VideoError(f"{path} not found (nor a CAN log board_frames.log): the video is made from the "
-                             "board's frame log (board --log)")
+            raise VideoInputError(f"{path} not found (nor a CAN log board_frames.log): the video is made from the "
+                                  "board's frame log (board --log); give a run folder (ghostshell run/demo --out)")
         path = found[0]
         joints, base = _states_from_can(path)
     # every TELEMETRY sample from the first SIM_STATE on, each with the latest SIM_STATE at or before
@@ -90,7 +95,7 @@ def load_states(run_dir: Path) -> States:
     base_t = sorted(base)
     times = [t for t in sorted(joints) if base_t and t >= base_t[0]]
     if not times:
-        raise VideoError(f"{path} holds no TELEMETRY/SIM_STATE pairs to render")
+        raise VideoInputError(f"{path} holds no TELEMETRY/SIM_STATE pairs to render")
     bt = np.asarray(base_t)
     which = np.searchsorted(bt, np.asarray(times), side="right") - 1
     return States(np.asarray(times, dtype=float) * 1e-6, np.asarray([base[base_t[i]] for i in which]),
@@ -138,7 +143,7 @@ def _states_from_can(path: Path) -> tuple[dict[int, list[float]], dict[int, list
                 else:
                     base[it.msg.board_time_us] = [*it.msg.base_pos, *it.msg.base_quat]
     except ValueError as e:  # python-can cannot read the format
-        raise VideoError(f"{path}: {e}") from e
+        raise VideoInputError(f"{path} is not a CAN log python-can reads: {e}") from e
     return joints, base
 
 
