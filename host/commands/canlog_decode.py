@@ -12,7 +12,6 @@ frame.
 
 from __future__ import annotations
 
-import re
 from typing import IO
 
 from protocol import framelog
@@ -26,29 +25,11 @@ def _fmt(v: object) -> str:
     return str(v)
 
 
-#: a candump -L line: "(1700000000.123456) vcan0 123#DEADBEEF" (CAN FD: ID##F DATA; remote: ID#R)
-_CANDUMP_LINE = re.compile(r"^\(\d+(\.\d+)?\)\s+\S+\s+[0-9A-Fa-f]{1,8}#")
-
-
-def candump_problem(path: str) -> str | None:
-    """Why ``path`` (a ``.log``) is not a candump ``-L`` log python-can reads (one line naming the first
-    bad line), or None. python-can's reader fails on such a line with an unpacking error that names
-    neither the file nor the line."""
-    try:
-        with open(path, encoding="utf-8", errors="replace") as f:
-            for lineno, line in enumerate(f, 1):
-                text = line.strip()
-                if text and not text.startswith("#") and not _CANDUMP_LINE.match(text):
-                    return (f"{path}:{lineno} is not a candump -L line (expected '(TIMESTAMP) CHANNEL ID#DATA'): "
-                            f"{text[:60]!r}")
-    except OSError as e:
-        return f"cannot read {path}: {e.strerror or e}"
-    return None
-
-
 def decode_can_file(path: str, out: IO[str], err: IO[str], types: list[str] | None = None,
                     node: int | None = None, frames: bool = True) -> int:
     """Print a python-can log; exit code 0, 1 (unknown or undecodable frames) or 2 (not a CAN log, no frames)."""
+    from host.link.canlog import candump_problem
+
     if path.lower().endswith(".log"):
         problem = candump_problem(path)
         if problem is not None:

@@ -43,12 +43,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     add_run_options(parser)
 
 
-def _read(path: str) -> str:
-    """The text of ``path``; OSError with the file name when it is unreadable or not UTF-8."""
-    try:
-        return Path(path).read_text(encoding="utf-8")
-    except UnicodeDecodeError as e:
-        raise OSError(f"{path} is not UTF-8 text ({e.reason} at byte {e.start})") from None
+def _read(path: str, option: str) -> str:
+    """The text of ``path`` (given with ``option``); :class:`host.commands.inputs.InputError` (one line)
+    when it is missing, unreadable, not UTF-8 or empty."""
+    from host.commands.inputs import read_text_input
+
+    return read_text_input(path, option, what="user turns" if option == "--turns" else "replies")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -64,10 +64,10 @@ def main(args: argparse.Namespace) -> int:
         return 2
     scripted = args.llm == "scripted"
     try:
-        turns = parse_blocks(_read(args.turns)) if args.turns else None
-        replies = parse_blocks(_read(args.replies)) if args.replies else None
+        turns = parse_blocks(_read(args.turns, "--turns")) if args.turns else None
+        replies = parse_blocks(_read(args.replies, "--replies")) if args.replies else None
         skills = SkillStore(skills_path(args.skills))
-    except (OSError, ScriptError, SkillError) as e:
+    except (OSError, ValueError, ScriptError, SkillError) as e:  # InputError is a ValueError
         print(f"ghostshell chat: {e}", file=sys.stderr)
         return 2
     if replies is not None and not scripted:

@@ -196,8 +196,13 @@ def check_run_args(args: argparse.Namespace) -> int | None:
     return None
 
 
-def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | None, label: str) -> int:
-    """Build :class:`RunOptions` from ``args``, run, print where the artefacts are."""
+def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | None, label: str,
+             banner: str | None = None) -> int:
+    """Build :class:`RunOptions` from ``args``, run, print where the artefacts are.
+
+    ``banner`` (e.g. the task and its ground truth) is printed once the robot is up, just before
+    the program streams: a run refused at the start (a port that cannot be opened) prints only
+    its one error line."""
     import anyio
 
     from host.ghost import GhostError
@@ -231,8 +236,12 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         max_board_s=args.max_board_s, max_log_mb=args.max_log_mb, handle_signals=True,
     )
     command = getattr(args, "command", None) or "run"
+    def show_banner(*_: object) -> None:
+        if banner is not None:
+            print(banner, flush=True)
+
     try:
-        report = anyio.run(run_program, opts, backend="asyncio")
+        report = anyio.run(run_program, opts, show_banner, backend="asyncio")
     except Interrupted as e:
         ended = ended_report(e)
         what = f"; {_counts(ended.summary.outcomes)}" if ended is not None else ""
@@ -304,7 +313,7 @@ def render_into(out: Path) -> bool:
 
 
 def main(args: argparse.Namespace) -> int:
-    program, prompt = None, args.prompt
+    program, prompt, banner = None, args.prompt, None
     if args.task is None and args.xml is None and args.xml_file is None and args.prompt is None:
         print("ghostshell run: one of the arguments --task --xml --xml-file --prompt is required", file=sys.stderr)
         return 2
@@ -321,7 +330,7 @@ def main(args: argparse.Namespace) -> int:
             print(f"ghostshell run: {e}", file=sys.stderr)
             return 2
         program, label = task.ground_truth, f"task {task.id}"
-        print(f"task {task.id} ({task.category}): {task.instruction}\n  {task.ground_truth}")
+        banner = f"task {task.id} ({task.category}): {task.instruction}\n  {task.ground_truth}"
     elif args.xml is not None:
         if not args.xml.strip():
             print("ghostshell run: --xml is empty: give function tokens, e.g. --xml '<head_act action=\"nod\"/>'",
@@ -359,4 +368,4 @@ def main(args: argparse.Namespace) -> int:
             source = f"--xml-file {args.xml_file}" if args.xml_file is not None else "the program"
             print(f"ghostshell run: {source}: {why}; nothing was run", file=sys.stderr)
             return 2
-    return run_with(args, program=program, prompt=prompt, label=label)
+    return run_with(args, program=program, prompt=prompt, label=label, banner=banner)

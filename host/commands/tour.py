@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import math
 import signal
@@ -133,6 +134,7 @@ def main(args: argparse.Namespace) -> int:
     if isinstance(robot, int):
         return robot
     out = Path(args.out) if args.out else None
+    created = out is not None and not out.exists()
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
     board: BoardProcess | None = None
@@ -155,6 +157,9 @@ def main(args: argparse.Namespace) -> int:
         print(f"ghostshell tour: {e}", file=sys.stderr)
         code = link_exit_status(e)
         summary = None
+        if created and out is not None and code == USAGE_STATUS and board is None:
+            with contextlib.suppress(OSError):
+                out.rmdir()  # the link could not be opened: nothing ran, no empty folder left
     finally:
         if board is not None:
             rc = board.stop()

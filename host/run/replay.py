@@ -109,6 +109,12 @@ def read_host_to_board(path: Path) -> Iterator[tuple[float, int, Message]]:
     if reader is None:
         raise ReplayInputError(f"cannot replay {path.name}: unknown log format {path.suffix!r} "
                           f"(known: {', '.join(sorted(LOG_READERS))})")
+    if path.suffix.lower() == ".log":
+        from host.link.canlog import candump_problem
+
+        problem = candump_problem(path)
+        if problem is not None:
+            raise ReplayInputError(f"cannot replay it: {problem}")
     try:
         yield from reader(path)
     except (ValueError, UnicodeDecodeError) as e:  # a file with a log's name that is not that log
@@ -148,6 +154,7 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
     msgs = list(read_host_to_board(log_path))
     if not msgs:
         raise ReplayInputError(f"{log_path} holds no host-to-board messages")
+    out.mkdir(parents=True, exist_ok=True)  # only for a log that can be replayed
     last_fn = LAST_SIM_STATE.get(log_path.suffix.lower())
     original = last_fn(log_path) if last_fn is not None else None
     robot = load_robot(robot_name, robots_dir)
@@ -249,6 +256,5 @@ def replay(log: str | Path, out: str | Path, *, timeout_s: float = 30.0, robot: 
     """
     log_path = find_host_log(Path(log))
     out_dir = Path(out)
-    out_dir.mkdir(parents=True, exist_ok=True)
     name = robot or recorded_robot(log_path) or DEFAULT_ROBOT
     return asyncio.run(_replay(log_path, out_dir, timeout_s, name, robots_dir))

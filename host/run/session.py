@@ -220,6 +220,7 @@ class RobotSession:
 
     async def __aenter__(self) -> RobotSession:
         opts = self.opts
+        created = not self.out.exists()
         self.out.mkdir(parents=True, exist_ok=True)
         spec = parse_link_spec(opts.link) if isinstance(opts.link, str) else opts.link
         target = spec
@@ -271,6 +272,9 @@ class RobotSession:
             await go_to_pose(runtime, opts.start_pose or self.robot.start_pose)
         except BaseException as exc:
             await self.__aexit__(type(exc), exc, exc.__traceback__)
+            if created and isinstance(exc, LinkConfigError):  # nothing ran: leave no empty run folder behind
+                with contextlib.suppress(OSError):
+                    self.out.rmdir()
             raise
         return self
 
