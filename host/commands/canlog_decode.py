@@ -19,12 +19,6 @@ from protocol import framelog
 __all__ = ["decode_can_file"]
 
 
-def _fmt(v: object) -> str:
-    if isinstance(v, float):
-        return f"{v:.6g}"
-    return str(v)
-
-
 def decode_can_file(path: str, out: IO[str], err: IO[str], types: list[str] | None = None,
                     node: int | None = None, frames: bool = True) -> int:
     """Print a python-can log; exit code 0, 1 (unknown or undecodable frames) or 2 (not a CAN log, no frames)."""
@@ -49,7 +43,7 @@ def decode_can_file(path: str, out: IO[str], err: IO[str], types: list[str] | No
             if e.dbc_name is None:
                 unknown += 1
             if frames and wanted is None:
-                sig = " ".join(f"{k}={_fmt(v)}" for k, v in e.signals.items())
+                sig = framelog.format_fields(dict(e.signals))  # the DBC's signals, in the messages' layout
                 name = e.dbc_name or "UNKNOWN"
                 fd = " FD" if e.frame.is_fd else ""
                 out.write(f"{e.t:17.6f} {e.direction} {e.frame.arbitration_id:03X}{fd} [{len(e.frame.data):2d}] "

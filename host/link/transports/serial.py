@@ -22,9 +22,11 @@ A vanished port (pty master closed, USB unplugged) shows up as a read error; pys
 process read the bytes first (two hosts on one board: :data:`SHARED_PORT` says so). Either way
 ``on_lost(reason)`` is called once and the transport closes.
 
-Opening: a port that cannot be opened on the first connection (no such device, not a tty, a
+Opening: a device is opened exclusively (pyserial's ``exclusive``, an advisory ``flock``), so a
+second GhostShell host on the same board cannot open it ("another host has it open"). A port that
+cannot be opened on the first connection (no such device, not a tty, in use by another host, a
 pyserial URL it cannot parse) is a :class:`~host.link.errors.LinkConfigError` (the port as given
-is wrong: exit status 2 in every command); after a connection, the same failure while
+cannot be used: exit status 2 in every command); after a connection, the same failure while
 reconnecting is a vanished port (:class:`~host.link.errors.LinkDown`, retried).
 """
 
@@ -83,7 +85,10 @@ class SerialPort:
         self._tx = bytearray()
         self._thread: threading.Thread | None = None
         self._writer_added = False
-        self.ser = serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0)
+        # a device is opened for this host alone (pyserial's exclusive: flock): a second host on the same
+        # board is refused at once with a clear reason, instead of both hosts stealing each other's bytes
+        exclusive = {"exclusive": True} if "://" not in url and os.name == "posix" else {}
+        self.ser = serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0, **exclusive)
         fd: int | None = None
         if not force_thread:
             try:
@@ -204,6 +209,10 @@ class SerialPort:
 def open_failure(url: str, e: BaseException) -> str:
     """One line for a port that could not be opened as given (pyserial's error, rephrased where it is obscure)."""
     text = str(e)
+    if "exclusively lock" in text:
+        why = ("another host has it open (a second host on the same board?); a board serves one host at a time: "
+               "stop the other host (ghostshell run, chat, mcp, pose, tour) first")
+        return f"cannot open serial port {url!r}: {why}"
     if "Inappropriate ioctl" in text or getattr(e, "errno", None) == errno.ENOTTY:
         why = "it is not a serial port or tty (its terminal settings cannot be set)"
     elif isinstance(e, (TypeError, ValueError)) and "://" in url:
