@@ -241,7 +241,20 @@ class RobotSession:
                     board_args += ["--baud", str(opts.wire_baud)]
                 if opts.faults:
                     board_args += ["--faults", opts.faults, "--fault-seed", str(opts.fault_seed)]
-                self._board = start_board(board_args, self.out / "board.stderr", link=spec)
+                # in a worker thread: a board takes seconds to load its model, and other sessions in this
+                # event loop (eval --workers) must keep streaming meanwhile
+                started: list[BoardProcess] = []
+
+                def start() -> BoardProcess:
+                    started.append(start_board(board_args, self.out / "board.stderr", link=spec))
+                    return started[-1]
+
+                try:
+                    self._board = await anyio.to_thread.run_sync(start)
+                except BaseException:
+                    for board in started:  # cancelled while it started: it must not be left behind
+                        board.stop()
+                    raise
                 target = self._board.spec
             self._link_tried = True
             identity = RobotIdentity(self.robot.name, self.robot.servo_count, self.robot.servo_table_hash)
