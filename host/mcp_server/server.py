@@ -57,12 +57,12 @@ class ServerState:
     turn_lock: anyio.Lock = field(default_factory=anyio.Lock)
 
 
-def build_server(opts: SessionOptions, state: ServerState | None = None) -> MCPServer[Any]:
-    """An ``MCPServer`` whose lifespan holds one robot session built from ``opts`` (in ``state.session``).
+def build_server(opts: SessionOptions, served: ServerState | None = None) -> MCPServer[Any]:
+    """An ``MCPServer`` whose lifespan holds one robot session built from ``opts`` (in ``served.session``).
 
     Raises :class:`robots.description.RobotDataError` when ``opts.robot`` names no usable robot."""
     robot = load_robot(opts.robot, opts.robots_dir)
-    st = state if state is not None else ServerState()
+    st = served if served is not None else ServerState()
     holder: dict[str, RobotSession] = {}
     turn_lock = st.turn_lock
 

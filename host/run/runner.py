@@ -160,6 +160,7 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, RobotRuntime]
             setattr(interrupted, _REPORT_ATTR, RunReport(ended.result, ended.calls, ended.summary, ended.out,
                                                          ended.token_times, ended.board_t0, stop))
         raise interrupted
+    assert turn is not None  # the session ran its turn (every other way out raised above)
     await anyio.to_thread.run_sync(write)  # plotting takes a second: other runs in this loop go on meanwhile
     return RunReport(turn.result, turn.calls, turn.summary, turn.out, turn.token_times, turn.board_t0,
                      session.stop, rested)

@@ -525,7 +525,8 @@ class RobotSession:
             extra={"clock": "lockstep" if self.opts.lockstep else "realtime", "robot": self.robot.name,
                    "vocabulary": self.vocabulary,
                    "mode": self.opts.mode, "error": None,
-                   **(_stopped_extra(error) if stopped else {"link_error": str(error)}), "observations": [],
+                   **(_stopped_extra(error) if isinstance(error, Interrupted) else {"link_error": str(error)}),
+                   "observations": [],
                    "link": {}, "captures": [], "scene": self.scene_report(),
                    **({"faults": {"host_detected": host_detected}} if self.opts.faults and not stopped else {})})
         return TurnResult(RunResult(Timeline(), [], 0.0), [], summary, out)

@@ -273,7 +273,7 @@ def run_in_uml(
         "env": dict(env if env is not None else default_env()),
         "run_dir": str(run_dir),
         # the checkout and its venv are always reachable, also when they live under /tmp (a CI clone)
-        "keep": sorted({str(Path(k).resolve()) for k in (*keep, REPO_ROOT, sys.prefix, cwd or REPO_ROOT)}),
+        "keep": sorted({str(Path(str(k)).resolve()) for k in (*keep, REPO_ROOT, sys.prefix, cwd or REPO_ROOT)}),
         "modules": [str(p) for p in module_paths([*BASE_MODULES, *extra_modules], modules)],
         "vcans": list(vcans),
         "mtu": CANFD_MTU if fd else CAN_MTU,
