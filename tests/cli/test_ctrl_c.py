@@ -199,3 +199,14 @@ def test_ctrl_c_stops_the_mcp_server_and_its_board(tmp_path: Path) -> None:
     errors = [abs(a - b) for a, b in zip(_last_positions_deg(out), _stand_deg())]
     assert max(errors) < 3.0, errors
     assert processes_mentioning(str(out)) == []
+
+
+def test_ctrl_c_stops_a_tour_and_its_board(tmp_path: Path) -> None:
+    out = tmp_path / "tour"
+    cli = start(["tour", "--lockstep", "--duration", "5", "--out", str(out)], tmp_path / "logs")
+    wait_until(lambda: "reached" in cli.stdout, "the tour reached its first pose", proc=cli)
+    cli.ctrl_c()
+    rc = cli.wait()
+    err = cli.stderr.strip().splitlines()
+    assert rc == 130 and err == ["ghostshell tour: interrupted by SIGINT (Ctrl-C)"], cli.stderr[-3000:]
+    assert processes_mentioning(str(out)) == []
