@@ -11,13 +11,12 @@ import argparse
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import anyio
 import numpy as np
 
-from host.robot.binding import robot_registry
+from host.robot.binding import signature_registry
 from host.run.runner import RunOptions, RunReport, run_program
 from host.shell.registry import Registry
 from robots.description import Robot
@@ -92,7 +91,7 @@ def out_root(arg: str | None, prefix: str) -> Path:
 
 def home_channels(vocabulary: str | None = None, robot: Robot | None = None) -> Registry:
     """The robot's registry (never called) to look up each function's home channel."""
-    return robot_registry(robot or load_robot(), SimpleNamespace(), vocabulary)  # type: ignore[arg-type]
+    return signature_registry(robot or load_robot(), vocabulary)
 
 
 def stats_ms(xs: Sequence[float]) -> dict[str, Any]:

@@ -186,6 +186,24 @@ class Board:
         self.link_errors = 0
         self.clamped_ticks = 0
         self._flags_since = FaultFlags.NONE
+        #: scripted pushes on the base (emulator only): (start us, end us, force N world frame), by start
+        self._pushes: list[tuple[int, int, tuple[float, float, float]]] = []
+
+    def push(self, at_s: float, force: tuple[float, float, float], duration_s: float = 0.2) -> None:
+        """Emulator only: push the robot's root body with ``force`` (N, world frame) from board time ``at_s``
+        for ``duration_s`` (a disturbance for tests of falls; a real board cannot do this)."""
+        start = int(at_s * 1e6)
+        self._pushes.append((start, start + int(duration_s * 1e6), (float(force[0]), float(force[1]), float(force[2]))))
+        self._pushes.sort()
+
+    def _apply_pushes(self, t: int) -> None:
+        body = self.cm.root_body
+        total = [0.0, 0.0, 0.0]
+        for start, end, f in self._pushes:
+            if start <= t < end:
+                total = [a + b for a, b in zip(total, f)]
+        self.data.xfrc_applied[body, :3] = total
+        self._pushes = [p for p in self._pushes if p[1] > t]  # finished pushes are dropped
 
     # --- time ------------------------------------------------------------------------------
 
@@ -540,6 +558,8 @@ class Board:
             self.clamped_ticks += 1
         self._desired, self._ctrl = desired, ctrl
         data.ctrl[self._ctrl_at] = ctrl
+        if self._pushes:
+            self._apply_pushes(t)
         substeps = self._substeps
         if substeps == 1:
             mujoco.mj_step(self.model, data)

@@ -8,7 +8,7 @@ import signal
 import sys
 from collections.abc import Sequence
 
-from protocol.faults import seed_arg
+from protocol.faults import push_arg, seed_arg
 from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
 from robots.registry import DEFAULT_ROBOT
 
@@ -71,6 +71,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help=f"the robot this board drives: a name (ghostshell robots list) or a robot folder "
                              f"(default {DEFAULT_ROBOT})")
     parser.add_argument("--robots-dir", default=None, metavar="DIR", help="search this folder for --robot first")
+    parser.add_argument("--push", action="append", default=[], type=push_arg, metavar="S:FX,FY,FZ[:DUR]",
+                        help="emulator only: push the robot's base with a force (N, world frame) at board time S "
+                             "for DUR s (default 0.2); repeatable (a scripted disturbance, e.g. to test falls)")
     parser.add_argument("--scene", default=None, metavar="NAME",
                         help="objects in the world: one of the robot's scenes (default: the robot's default scene)")
     parser.add_argument("--stop-on-stdin-eof", action="store_true",
@@ -181,6 +184,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"board: {e}", file=sys.stderr)
             return 2
     board = Board(cfg, robot=robot)
+    for at, force, dur in args.push:
+        board.push(at, force, dur)
     # Lockstep renders in the loop (deterministic and free: virtual time waits); realtime in a thread.
     why = None
     if robot.peripherals.camera is not None:

@@ -18,6 +18,9 @@ the observations go back at once and the model continues, up to ``max_steps``
 requests per user turn. :meth:`Conversation.interrupt` (a new user message, or
 ``interrupt-after``) cuts the running step: the LLM stream is cancelled, the
 dispatched calls are interrupted (reset, smooth stop), no further step runs.
+An event whose policy is ``interrupt`` (:mod:`host.run.events`: a fall, a
+scripted event, ...) cuts the step the same way, and the LLM is asked again at
+once with the event in the observations (a further step of the same turn).
 """
 
 from __future__ import annotations
@@ -160,6 +163,8 @@ class Conversation:
                         interrupt_after=cut, settle_s=self.settle_s)
                     looked = any(r.function in LOOK_FUNCTIONS and r.start is not None for r in turn.result.timeline)
                     obs = self._after_step(record, step, turn, looked)
+                    if turn.interrupted_by is not None and not self._cut and step < self.max_steps:
+                        continue  # the world interrupted: ask again at once, with the event observed
                     if turn.interrupted or self._cut:
                         record.interrupted = True
                         break

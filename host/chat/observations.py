@@ -14,6 +14,8 @@ Format (plain text; one line per item, every line bounded, at most
     notes:
     - skill 'greet' saved
     robot: upright, max tilt 3.1 deg; base moved 0.12 m (from x=0.00 y=0.00 yaw=0 to x=0.12 y=0.01 yaw=2 deg)
+    events:
+    - fall at board time 3.20 s: the robot fell over (tilt 80 deg, ...); motion was stopped
     interrupted: the user interrupted this turn; only what ran before the cut is kept above
     camera: 1 photo attached
     </observations>
@@ -83,13 +85,20 @@ def observation_text(turn: TurnResult, *, step: int, max_steps: int, images_atta
     if len(calls) > MAX_LINES:
         lines.append(f"- ... and {len(calls) - MAX_LINES} more calls")
     warnings = [o for o in res.observations if o.kind == "warning"]
-    notes = [o for o in res.observations if o.kind == "info" or (o.kind == "error" and o.path is None)]
+    notes = [o for o in res.observations if (o.kind == "info" and not o.message.startswith("event: "))
+             or (o.kind == "error" and o.path is None)]
     for title, items in (("warnings:", warnings), ("notes:", notes)):
         if items:
             lines.append(title)
             lines.extend(_clip(f"- {o.message}") for o in items[:MAX_LINES])
+    if turn.events:
+        lines.append("events:")
+        lines.extend(_clip(f"- {e}") for e in turn.events[:MAX_LINES])
     lines.append(telemetry_line(turn))
-    if res.interrupted:
+    if res.interrupted and turn.interrupted_by is not None:
+        lines.append(_clip(f"interrupted: by the event above ({turn.interrupted_by.kind}); only what ran before "
+                           "the cut is kept above"))
+    elif res.interrupted:
         lines.append("interrupted: the user interrupted this turn; only what ran before the cut is kept above")
     captures = [Path(p) for p in turn.summary.extra.get("captures", [])]
     if captures:

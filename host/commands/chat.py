@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from host.commands.run import add_run_options, check_run_args, resolve_strict
+from host.commands.run import _push_text, add_run_options, check_run_args, resolve_strict
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -144,7 +144,10 @@ async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any,
                           mode=args.mode, strict=resolve_strict(args), lockstep=args.lockstep, link=args.link,
                           emulate_board=args.emulate_board or None, baud=args.baud, out=out, skills=skills,
                           label="chat", scene=args.scene, policy=getattr(args, "loaded_policy", None),
-                          faults=args.faults, fault_seed=args.fault_seed, max_board_s=args.max_board_s,
+                          faults=args.faults, fault_seed=args.fault_seed, mcp_mounts=tuple(args.mount_mcp),
+                          event_policy=getattr(args, "event_policy", None),
+                          events=getattr(args, "scripted_events", ()),
+                          pushes=tuple(_push_text(p) for p in args.push), max_board_s=args.max_board_s,
                           max_log_mb=args.max_log_mb)
     session = RobotSession(opts)
     chat = _Chat(session)

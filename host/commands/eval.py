@@ -51,6 +51,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--format", choices=("code", "xml"), default="code", help="the prompt format (as ghostshell prompt)")
     parser.add_argument("--temperature", type=_temperature, default=None, help="sampling temperature, 0-2")
     parser.add_argument("--paper-model", default=None, help="the paper's column to compare with (default: matched from --llm)")
+    from host.commands.run import add_mount_argument
+
+    add_mount_argument(parser)
     parser.add_argument("--ray", default=None, metavar="ADDRESS",
                         help="run the jobs on a Ray cluster (needs ghostshell[ray]); 'local' starts one here")
 
@@ -139,7 +142,7 @@ def build_config(args: argparse.Namespace) -> Any:
                        base_url=args.base_url, api_key=args.api_key, workers=args.workers, out=out,
                        vocabulary=args.vocabulary, mode=args.mode, prompt_format=args.format,
                        execute=not args.no_run, temperature=args.temperature, native_exec=args.native_exec,
-                       replies=replies)
+                       replies=replies, mcp_mounts=tuple(args.mount_mcp))
 
 
 def main(args: argparse.Namespace) -> int:
@@ -181,6 +184,13 @@ def main(args: argparse.Namespace) -> int:
         else:
             records = anyio.run(_sweep_until_signal, cfg, progress, stopped, backend="asyncio")
     except (ValueError, GhostError, ImportError) as err:
+        print(f"ghostshell eval: {err}", file=sys.stderr)
+        return 2
+    except RuntimeError as err:  # a --mount-mcp server that cannot be mounted: one line, usage error
+        from host.commands.linkarg import link_exit_status
+
+        if link_exit_status(err) != 2:
+            raise
         print(f"ghostshell eval: {err}", file=sys.stderr)
         return 2
     config = {**asdict(cfg), "out": str(cfg.out), "api_key": None, "paper_model": args.paper_model}

@@ -116,7 +116,14 @@ def refuse_unserved_link(command: str, spec: LinkSpec) -> int | None:
 def link_exit_status(error: BaseException) -> int:
     """Exit status for a link failure: :data:`USAGE_STATUS` (2) when the link cannot be opened or served as
     specified (:class:`host.link.errors.LinkConfigError`, :class:`protocol.linkspec.LinkSpecError`) or the
-    board drives another robot (:class:`host.link.errors.RobotMismatch`), else 1."""
+    board drives another robot (:class:`host.link.errors.RobotMismatch`) or a ``--mount-mcp`` server cannot be
+    mounted (``host.mounts.McpMountError``), else 1."""
     from host.link.errors import LinkConfigError, RobotMismatch
 
-    return USAGE_STATUS if isinstance(error, (LinkConfigError, LinkSpecError, RobotMismatch)) else 1
+    if isinstance(error, (LinkConfigError, LinkSpecError, RobotMismatch)):
+        return USAGE_STATUS
+    if type(error).__name__ == "McpMountError":
+        from host.mounts.mcp_mount import McpMountError
+
+        return USAGE_STATUS if isinstance(error, McpMountError) else 1
+    return 1

@@ -25,6 +25,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     clock.add_argument("--realtime", dest="lockstep", action="store_false", help="wall-clock board (default)")
     parser.set_defaults(lockstep=False)
     add_robot_argument(parser)
+    from host.commands.run import add_mount_argument
+
+    add_mount_argument(parser)
     parser.add_argument("--vocabulary", default=None, metavar="NAME",
                         help="the robot's vocabulary in the prompt (default: the robot's; ghostshell robots show NAME lists them)")
     parser.add_argument("--mode", choices=("async-first", "sync-first"), default="async-first")
@@ -63,7 +66,8 @@ def main(args: argparse.Namespace) -> int:
 
     opts = SessionOptions(robot=str(robot.root), robots_dir=args.robots_dir, vocabulary=args.vocabulary,
                           mode=args.mode, lockstep=args.lockstep, link=args.link,
-                          emulate_board=args.emulate_board or None, out=args.out, label="mcp", scene=args.scene)
+                          emulate_board=args.emulate_board or None, out=args.out, label="mcp", scene=args.scene,
+                          mcp_mounts=tuple(args.mount_mcp))
     try:
         stop = serve(opts, args.http)
     except (LinkError, RuntimeError, OSError) as e:

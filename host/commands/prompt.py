@@ -37,31 +37,18 @@ def load_interface(spec: str) -> Any:
     return obj() if callable(obj) else obj
 
 
-class _NoRobot:
-    """A performer for prompt rendering only: the prompt never calls anything."""
-
-    async def perform(self, behaviour: str, channel: str, args: dict[str, Any]) -> Any:
-        raise RuntimeError("prompt rendering does not execute calls")
-
-    async def reset(self, behaviour: str, channel: str) -> None:
-        return None
-
-    async def speak(self, text: str) -> Any:
-        raise RuntimeError("prompt rendering does not execute calls")
-
-
 def build_registry(spec: str | None, vocabulary: str | None = None, robot: Any = None) -> tuple[Any, str]:
     """A registry with the interface mounted (``spec``, else ``robot``'s, else the default robot's), and
     the interface actually used."""
     from host.shell.registry import Registry
 
     if spec is None:
-        from host.robot.binding import robot_registry
+        from host.robot.binding import signature_registry
         from robots.registry import load_robot
 
         bot = robot if robot is not None else load_robot()
         vocab = vocabulary or bot.interface.default
-        return robot_registry(bot, _NoRobot(), vocab), f"{bot.name} ({vocab} vocabulary)"
+        return signature_registry(bot, vocab), f"{bot.name} ({vocab} vocabulary)"
     obj = load_interface(spec)
     if isinstance(obj, Registry):
         return obj, spec

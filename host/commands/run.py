@@ -21,7 +21,7 @@ from host.commands.inputs import InputError, read_text_input
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, preflight_link, unreachable_link
 from host.commands.robotarg import add_robot_argument, robot_from_args
 from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB
-from protocol.faults import seed_arg
+from protocol.faults import push_arg, seed_arg
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -80,11 +80,28 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
                         help="seed of the fault injection (default 0; needs --faults)")
     parser.add_argument("--policy", default=None, metavar="FILE",
                         help="safety policy (TOML): allowed functions, tighter parameter bounds, motion budget")
+    parser.add_argument("--events", default=None, metavar="FILE",
+                        help="scripted world events, one per line 'at SECONDS: text' (board time from the start); "
+                             "the policy's [events] table says what each kind does (default: interrupt)")
+    parser.add_argument("--push", action="append", default=[], type=push_arg, metavar="S:FX,FY,FZ[:DUR]",
+                        help="emulated board only: push the robot's base at board time S with a force in newtons "
+                             "(world frame) for DUR s (default 0.2); repeatable")
+    add_mount_argument(parser)
     parser.add_argument("--max-board-s", type=_bound, default=DEFAULT_MAX_BOARD_S, metavar="S",
                         help=f"stop a turn after S board seconds (default {DEFAULT_MAX_BOARD_S:g}; 0: no bound); "
                              "summary.json says so, exit status 1")
     parser.add_argument("--max-log-mb", type=_bound, default=DEFAULT_MAX_LOG_MB, metavar="MB",
                         help=f"stop when the frame logs reach MB megabytes (default {DEFAULT_MAX_LOG_MB:g}; 0: no bound)")
+
+
+def add_mount_argument(parser: argparse.ArgumentParser) -> None:
+    """``--mount-mcp NAME=COMMAND...|NAME=URL`` (repeatable): an MCP server's tools as the module NAME."""
+    from host.mounts.spec import parse_mount_arg
+
+    parser.add_argument("--mount-mcp", action="append", default=[], type=parse_mount_arg,
+                        metavar="NAME=COMMAND|NAME=URL",
+                        help="mount an MCP server's tools as functions NAME.TOOL: a stdio server command "
+                             "(e.g. weather='python weather.py') or a streamable HTTP URL; repeatable")
 
 
 def _number(text: str) -> float:
@@ -156,15 +173,29 @@ def check_run_args(args: argparse.Namespace) -> int | None:
         print(f"ghostshell: {why}", file=sys.stderr)
         return USAGE_STATUS
     if getattr(args, "policy", None):
+        from host.run.events import EventFileError, EventPolicy
         from host.shell.policy import Policy, PolicyError
 
         try:
             from host.robot.binding import function_params
 
             args.loaded_policy = Policy.load(args.policy, known=function_params(robot))
-        except PolicyError as e:
+            args.event_policy = EventPolicy.load(args.policy)
+        except (PolicyError, EventFileError) as e:
             print(f"ghostshell: {e}", file=sys.stderr)
             return USAGE_STATUS
+    if getattr(args, "events", None):
+        from host.run.events import EventFileError, parse_event_file
+
+        try:
+            args.scripted_events = tuple(parse_event_file(args.events))
+        except EventFileError as e:
+            print(f"ghostshell: --events {e}", file=sys.stderr)
+            return USAGE_STATUS
+    if getattr(args, "push", None) and not (args.emulate_board or _implies_emulated(args.link)):
+        print(f"ghostshell: --push acts in the emulated board a run starts, and {args.link} is a board you started: "
+              "give that board --push, or let this run start one (--emulate-board)", file=sys.stderr)
+        return USAGE_STATUS
     faults, seed = getattr(args, "faults", None), getattr(args, "fault_seed", 0)
     if faults:
         from protocol.faults import FaultSpec, FaultSpecError
@@ -194,6 +225,20 @@ def check_run_args(args: argparse.Namespace) -> int | None:
         return USAGE_STATUS
     args.run_args_checked = True
     return None
+
+
+def _implies_emulated(link: object) -> bool:
+    from protocol.linkspec import LinkSpecError, parse_link_spec
+
+    try:
+        return parse_link_spec(str(link)).implies_emulated_board
+    except LinkSpecError:
+        return False
+
+
+def _push_text(p: tuple[float, tuple[float, float, float], float]) -> str:
+    at, (fx, fy, fz), dur = p
+    return f"{at!r}:{fx!r},{fy!r},{fz!r}:{dur!r}"
 
 
 def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | None, label: str,
@@ -234,6 +279,9 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         skills=skills,
         policy=policy, faults=getattr(args, "faults", None), fault_seed=getattr(args, "fault_seed", 0),
         max_board_s=args.max_board_s, max_log_mb=args.max_log_mb, handle_signals=True,
+        mcp_mounts=tuple(getattr(args, "mount_mcp", ())),
+        event_policy=getattr(args, "event_policy", None), events=getattr(args, "scripted_events", ()),
+        pushes=tuple(_push_text(p) for p in getattr(args, "push", ())),
     )
     command = getattr(args, "command", None) or "run"
     def show_banner(*_: object) -> None:
@@ -263,8 +311,9 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
               f"{_counts(s.outcomes)}; {rest}; artefacts in {out}/", file=sys.stderr)
         return report.stop.exit_status
     print(calls_table(report.calls, report.board_t0))  # board-measured, as timeline.json
-    for o in report.result.observations:
-        if o.kind != "result":
+    mounted = {m.name for m in opts.mcp_mounts}
+    for o in report.result.observations:  # results of mounted tools are news; the robot's own are in the table
+        if o.kind != "result" or (o.path or "").split(".", 1)[0].split("/")[-1] in mounted:
             print(o)
     print(f"\n{label}: {s.outcome}; {sum(s.outcomes.values())} calls {dict((k, v) for k, v in s.outcomes.items() if v)}; "
           f"board time {s.duration_s:.2f} s; {_first_action(s.first_action_latency_ms)}; "

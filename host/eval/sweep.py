@@ -31,13 +31,14 @@ from pathlib import Path
 from typing import IO, Any
 
 import anyio
+import anyio.to_thread
 
 from host.eval.dsbc import dsbc_breakdown
 from host.eval.native import (ToolCall, expected_pattern, intervals_from_timeline, judge, judge_words,
                               native_program, parse_arguments, tool_schemas)
 from host.eval.paper import ablation_tasks, hri_tasks
 from host.ghost import GhostError, make_ghost
-from host.robot.binding import robot_registry
+from host.robot.binding import signature_registry
 from robots.description import Robot
 from robots.registry import DEFAULT_ROBOT, load_robot
 
@@ -78,6 +79,7 @@ class SweepConfig:
     max_retries: int = 2
     native_exec: str = "parallel"  # how one response's tool calls run (host.eval.native.NATIVE_EXEC)
     replies: dict[int, str] | None = None  # llm SCRIPTED: the reply to each task
+    mcp_mounts: tuple[Any, ...] = ()  # MCP servers mounted as modules in the prompt and every run (host.mounts)
 
     def identity(self) -> dict[str, Any]:
         """What must match for a resumed sweep to continue this one."""
@@ -101,25 +103,22 @@ def job_key(task: int, trial: int) -> str:
     return f"{task}:{trial}"
 
 
-class _Signatures:
-    """A performer for the registry's signatures only: nothing is ever called on it."""
-
-    async def perform(self, behaviour: str, channel: str, args: dict[str, Any]) -> Any:
-        raise RuntimeError("the eval prompt does not execute calls")
-
-    async def reset(self, behaviour: str, channel: str) -> None:
-        return None
-
-    async def speak(self, text: str) -> Any:
-        raise RuntimeError("the eval prompt does not execute calls")
-
-
 def system_prompt(cfg: SweepConfig) -> str:
-    """The system prompt exactly as ``ghostshell prompt --robot R --format F --mode M --vocabulary V`` prints it."""
+    """The system prompt exactly as ``ghostshell prompt --robot R --format F --mode M --vocabulary V`` prints it
+    (with ``cfg.mcp_mounts``, the servers are started once to list their tools)."""
     from host.shell.prompt import render_prompt
 
-    registry = robot_registry(cfg.bot, _Signatures(), cfg.vocabulary)
-    return render_prompt(registry, format=cfg.prompt_format, mode=cfg.mode)
+    registry = signature_registry(cfg.bot, cfg.vocabulary)
+    if not cfg.mcp_mounts:
+        return render_prompt(registry, format=cfg.prompt_format, mode=cfg.mode)
+
+    async def with_mounts() -> str:
+        from host.mounts import mounted
+
+        async with mounted(cfg.mcp_mounts, registry=registry):
+            return render_prompt(registry, format=cfg.prompt_format, mode=cfg.mode)
+
+    return anyio.run(with_mounts)
 
 
 def replies_for_tasks(blocks: list[Any], tasks: list[int]) -> dict[int, str]:
@@ -181,7 +180,7 @@ async def ask(cfg: SweepConfig, task: int, system: str) -> dict[str, Any]:
     kw: dict[str, Any] = {"base_url": cfg.base_url, "api_key": cfg.api_key, "temperature": cfg.temperature,
                           "max_retries": cfg.max_retries}
     if cfg.native_tools:
-        registry = robot_registry(cfg.bot, _Signatures(), cfg.vocabulary)
+        registry = signature_registry(cfg.bot, cfg.vocabulary)
         kw["tools"] = tool_schemas(registry, "anthropic" if provider_of(cfg.llm) == "anthropic" else "openai")
     ghost = make_ghost(cfg.llm, **kw)
     messages = [{"role": "system", "content": system}, {"role": "user", "content": _instruction(cfg, task)}]
@@ -218,7 +217,7 @@ async def execute(cfg: SweepConfig, program: str, out: Path, label: str) -> dict
     from host.run.runner import RunOptions, run_program
 
     opts = RunOptions(program=program, llm="scripted", task_label=label, robot=str(cfg.bot.root),
-                      robots_dir=cfg.robots_dir, vocabulary=cfg.vocabulary,
+                      robots_dir=cfg.robots_dir, vocabulary=cfg.vocabulary, mcp_mounts=cfg.mcp_mounts,
                       mode=cfg.mode, strict=True, lockstep=True, out=out, tokens_per_s=cfg.tokens_per_s)
     try:
         report = await run_program(opts)
@@ -341,7 +340,7 @@ async def run_sweep(cfg: SweepConfig, on_result: Callable[[dict[str, Any], Sweep
     done = load_results(cfg.out)
     jobs = pending_jobs(cfg, done)
     progress = SweepProgress(total=len(cfg.tasks) * cfg.trials, skipped=len(ordered(cfg, done)))
-    system = system_prompt(cfg)
+    system = await anyio.to_thread.run_sync(system_prompt, cfg)  # its own event loop when servers are mounted
     limiter = anyio.CapacityLimiter(max(1, cfg.workers))
     with (cfg.out / RESULTS).open("a", encoding="utf-8") as sink:
         record = recorder(sink, done, progress, on_result)

@@ -6,6 +6,9 @@ shell) lives as long as the server (the SDK's lifespan) and serves every call:
 * tool ``run_program(xml)``: streams the function-token program into the shell
   (a turn) and returns its outcome, the board-measured timeline and the
   observations for the next turn; one program runs at a time;
+* one tool per function of the robot (``pose``, ``joint_move``, ... and ``say``;
+  :mod:`host.mcp_server.functions`), each running that one element as a turn: so another
+  shell can mount this one (``--mount-mcp arm="ghostshell mcp --robot arm"``);
 * tool ``interrupt(channels?)``: interrupts the running program (all channels,
   or the named ones) and returns how many calls were cancelled;
 * tool ``state()``: board time, base pose, tilt, fell, busy channels, the scene;
@@ -40,6 +43,8 @@ from mcp.server.mcpserver import MCPServer
 from mcp.server.mcpserver.exceptions import ToolError
 from mcp.server.mcpserver.utilities.types import Image
 
+from host.mcp_server.functions import function_tools
+from host.robot.binding import signature_registry
 from host.run.session import RobotSession, SessionOptions
 from host.run.stops import StopReason, StopSignals
 from host.shell.limits import Limits
@@ -91,10 +96,7 @@ def build_server(opts: SessionOptions, served: ServerState | None = None) -> MCP
         lifespan=lifespan,
     )
 
-    @server.tool()
-    async def run_program(xml: str) -> dict[str, Any]:
-        """Stream a function-token program (XML tokens and plain text to speak) into the shell and
-        run it on the robot. Returns the outcome, the timeline (board seconds) and the observations."""
+    async def run(xml: str) -> dict[str, Any]:
         s = session()
         if turn_lock.locked():
             # ToolError: the client gets this message as an is_error result (no server traceback)
@@ -114,6 +116,17 @@ def build_server(opts: SessionOptions, served: ServerState | None = None) -> MCP
                 "timeline": [_call(asdict(c), turn.board_t0) for c in turn.calls],
                 "observations": [str(o) for o in turn.result.observations],
                 "error": summary.extra.get("error"), "scene": summary.extra.get("scene")}
+
+    @server.tool()
+    async def run_program(xml: str) -> dict[str, Any]:
+        """Stream a function-token program (XML tokens and plain text to speak) into the shell and
+        run it on the robot. Returns the outcome, the timeline (board seconds) and the observations."""
+        return await run(xml)
+
+    registry = signature_registry(robot, opts.vocabulary)
+    for name, description, fn in function_tools(
+            (s for m in registry.modules() if not m.hidden for s in m.functions), run):
+        server.add_tool(fn, name=name, description=description)
 
     @server.tool()
     async def interrupt(channels: list[str] | None = None) -> dict[str, Any]:

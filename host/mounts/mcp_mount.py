@@ -49,7 +49,7 @@ import json
 import logging
 import math
 import sys
-from collections.abc import AsyncIterator, Sequence
+from collections.abc import AsyncIterator, Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -86,6 +86,9 @@ class MountOptions:
     max_result_chars: int = 4000  # longest result kept (text or JSON)
     max_tools: int = 128  # tools mounted per server (the rest: one note)
     max_line: int = MAX_LINE  # longest stdout line (JSON-RPC message) from a stdio server, bytes
+    #: entered around every tools/call (a lockstep session passes its streamer's ``hold``: the board
+    #: clock stands still while the host waits on a server's wall-clock answer, as for a real LLM)
+    around_call: Callable[[], contextlib.AbstractAsyncContextManager[Any]] | None = None
 
 
 @dataclass
@@ -119,9 +122,14 @@ class McpMount:
         client = self._client
         if client is None or self._gone is not None:
             raise McpCallError(self._gone or f"MCP server {self.name!r} is not connected")
+        timeout = self.options.call_timeout
+        around = self.options.around_call() if self.options.around_call is not None else contextlib.nullcontext()
+        async with around:
+            return await self._call(client, tool, arguments, timeout)
+
+    async def _call(self, client: Any, tool: str, arguments: dict[str, Any], timeout: float) -> Any:
         from mcp.shared.exceptions import MCPError
 
-        timeout = self.options.call_timeout
         with anyio.move_on_after(timeout):
             try:
                 result = await client.call_tool(tool, arguments)
@@ -178,6 +186,8 @@ class McpMount:
                 argv = list(self.spec.command)
                 if argv[0] in ("python", "python3"):
                     argv[0] = sys.executable  # ghostshell's interpreter (see host.mounts.spec)
+                elif argv[0] == "ghostshell":  # another shell of this installation (item 5: a robot as functions)
+                    argv[:1] = [sys.executable, "-m", "host"]
                 self.stdio = StdioServer(argv, max_line=opts.max_line)
                 transport = self.stdio.streams()
             client = Client(transport, client_info=types.Implementation(name="ghostshell", version="0.1.0"),

@@ -11,7 +11,9 @@ message, exit 2) naming the problem and the valid forms. ``str(spec)`` is canoni
   It runs with the SDK's safe environment (``HOME``, ``PATH``, ...) plus ``PYTHONPATH``,
   ``VIRTUAL_ENV``, ``LANG``/``LC_*``, ``TMPDIR``, ``MUJOCO_GL`` and ``GHOSTSHELL_*`` (no API keys);
   pass more with ``env VAR=value COMMAND``. A command starting with ``python`` or ``python3`` runs
-  under ghostshell's own interpreter, so a server written with the same venv's ``mcp`` just works.
+  under ghostshell's own interpreter, so a server written with the same venv's ``mcp`` just works;
+  one starting with ``ghostshell`` runs this installation's ``ghostshell`` (``python -m host``), so
+  ``arm="ghostshell mcp --robot arm --lockstep"`` mounts another robot's shell.
 * ``URL``: ``http://`` or ``https://`` with a host, e.g. ``http://127.0.0.1:8000/mcp``.
 """
 

@@ -106,10 +106,28 @@ def robot_registry(robot: Robot, performer: Performer, vocabulary: str | None = 
     return registry
 
 
+class _SignaturesOnly:
+    """A performer for registries that are only read (prompts, tool schemas, policy checks)."""
+
+    async def perform(self, behaviour: str, channel: str, args: dict[str, Any]) -> Any:
+        raise RuntimeError(f"{behaviour}: this registry lists the robot's functions; it runs nothing")
+
+    async def reset(self, behaviour: str, channel: str) -> None:
+        return None
+
+    async def speak(self, text: str) -> Any:
+        raise RuntimeError("this registry lists the robot's functions; it runs nothing")
+
+
+def signature_registry(robot: Robot, vocabulary: str | None = None) -> Registry:
+    """``robot``'s registry for reading only: its prompt, its tools' schemas (calls raise RuntimeError)."""
+    return robot_registry(robot, _SignaturesOnly(), vocabulary)
+
+
 def function_params(robot: Robot) -> dict[str, frozenset[str]]:
     """Every function ``robot``'s shell accepts (all vocabularies, aliases included) -> its parameter names
     (for checking a safety policy's names: :meth:`host.shell.policy.Policy.check_names`)."""
-    registry = robot_registry(robot, None)  # type: ignore[arg-type]  # the signatures only; nothing runs
+    registry = signature_registry(robot)
     out: dict[str, frozenset[str]] = {}
     for spec in registry.functions():
         params = frozenset(p.name for p in spec.params)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import contextlib
 import time
 from collections import deque
-from collections.abc import AsyncIterable, AsyncIterator, Callable
+from collections.abc import AsyncIterable, AsyncIterator, Callable, Sequence
 from typing import Any
 
 import anyio
@@ -71,7 +71,8 @@ def watchdog_fault_message(client: BoardClient, board_time_us: int) -> str:
             f"A board that outlives the run keeps the fault latched until cleared: `{clear_command(client.link_spec)}`")
 
 
-async def pump(client: BoardClient, runtime: RobotRuntime, rec: Recorder) -> None:
+async def pump(client: BoardClient, runtime: RobotRuntime, rec: Recorder,
+               listeners: Sequence[Callable[[Any], None]] = ()) -> None:
     """Telemetry -> confirmations, top-ups and the history.
 
     A latched watchdog fault (the link was cut for longer than watchdog + crouch delay) ends the
@@ -88,6 +89,8 @@ async def pump(client: BoardClient, runtime: RobotRuntime, rec: Recorder) -> Non
         rec.last_rx = time.monotonic()
         runtime.streamer.on_telemetry(tel)
         rec.add(client, tel)
+        for listener in listeners:  # e.g. the session's event monitor (host.run.events)
+            listener(tel)
         if tel.faults & FaultFlags.WATCHDOG_FAULT:
             raise LinkError(watchdog_fault_message(client, tel.board_time_us))
         if lockstep:

@@ -24,6 +24,7 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any
 
 import anyio
 import anyio.to_thread
@@ -31,6 +32,7 @@ import anyio.to_thread
 from host.ghost import make_ghost
 from host.link.errors import LinkError
 from host.run import artefacts
+from host.run.events import EventPolicy, ScriptedEvent
 from host.robot.runtime import RobotRuntime
 from host.run.pump import HISTORY, SETTLE_CHECKPOINTS, TELEMETRY_SILENCE_S
 from host.run.session import RobotSession, SessionOptions, TurnResult
@@ -80,6 +82,11 @@ class RunOptions:
     policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
     faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
     fault_seed: int = 0
+    mcp_mounts: tuple[Any, ...] = ()  # MCP servers mounted as shell modules (host.mounts.MountSpec)
+    mount_options: Any = None  # host.mounts.MountOptions (None: its defaults)
+    event_policy: EventPolicy | None = None  # per event kind: ignore, note or interrupt (host.run.events)
+    events: tuple[ScriptedEvent, ...] = ()  # scripted events (--events FILE)
+    pushes: tuple[str, ...] = ()  # emulated board: pushes on the base (board --push S:FX,FY,FZ[:DUR])
     max_board_s: float | None = DEFAULT_MAX_BOARD_S  # board seconds the run may last (None: no bound)
     max_log_mb: float | None = DEFAULT_MAX_LOG_MB  # megabytes its frame logs may reach (None: no bound)
     handle_signals: bool = False  # SIGINT/SIGTERM interrupt the run (the CLI; main thread only)

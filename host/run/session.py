@@ -39,8 +39,10 @@ through the shell's lifecycle tree (and every later turn at its start) for a sig
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import logging
+from collections import deque
 from collections.abc import AsyncIterable, AsyncIterator, Awaitable, Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -59,6 +61,7 @@ from host.link.errors import BoardFaulted, LinkConfigError, LinkError
 from host.link.faultcheck import LATCHED, clear_command, clear_leftover_fault
 from host.link.session import FaultEvent
 from host.run import artefacts
+from host.run.events import Event, EventMonitor, EventPolicy, ScriptedEvent
 from host.robot.binding import robot_registry
 from host.robot.link import ClientLink
 from host.robot.runtime import RobotRuntime
@@ -76,10 +79,11 @@ from host.run.pump import (
 from host.shell import Shell
 from host.shell.policy import Policy
 from host.shell.skills import SkillStore
-from host.shell.timeline import RunResult, Timeline
+from host.shell.timeline import Observation, RunResult, Timeline
 from protocol.linkspec import LinkSpec, parse_link_spec
 from protocol.messages import FaultFlags, MsgType, Nack, NackReason
 from robots.description import Robot
+from robots.generic import GENERIC_CHANNEL
 from robots.registry import DEFAULT_ROBOT, load_robot
 
 log = logging.getLogger("host.run")
@@ -111,6 +115,14 @@ class SessionOptions:
     policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
     faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
     fault_seed: int = 0
+    #: MCP servers mounted as shell modules (``--mount-mcp NAME=COMMAND|URL``, :mod:`host.mounts`)
+    mcp_mounts: tuple[Any, ...] = ()
+    mount_options: Any = None  # host.mounts.MountOptions (None: its defaults)
+    #: events (host.run.events): what to do per kind, and scripted ones (``--events FILE``)
+    event_policy: EventPolicy | None = None
+    events: tuple[ScriptedEvent, ...] = ()
+    #: emulated board only: pushes on the robot's base, ``S:FX,FY,FZ[:DURATION]`` (board ``--push``)
+    pushes: tuple[str, ...] = ()
     max_board_s: float | None = DEFAULT_MAX_BOARD_S  # board seconds one turn may last (None: no bound)
     max_log_mb: float | None = DEFAULT_MAX_LOG_MB  # megabytes the session's frame logs may reach (None: no bound)
 
@@ -150,6 +162,9 @@ class TurnResult:
     board_t0: float = 0.0
     executed_text: str = ""
     received_text: str = ""
+    #: the events of this turn that were not ignored (host.run.events), and the one that interrupted it
+    events: list[Event] = field(default_factory=list)
+    interrupted_by: Event | None = None
 
     @property
     def interrupted(self) -> bool:
@@ -197,6 +212,15 @@ class RobotSession:
         self._link_tried = False  # a board link was attempted (a failure from then on has a report)
         #: why the session stops early (a signal, a bound), once :meth:`request_stop` was called
         self.stop: StopReason | None = None
+        self.mounts: list[Any] = []  # the mounted MCP servers (host.mounts.McpMount)
+        #: events handled so far (not the ignored ones), newest last, bounded; see :meth:`emit`
+        self.events: deque[Event] = deque(maxlen=256)
+        #: called with every event that is not ignored, and its action ("note" | "interrupt")
+        self.on_event: list[Callable[[Event, str], None]] = []
+        self.event_policy = opts.event_policy or EventPolicy()
+        self._turn_events: list[Event] = []  # events during the running turn (or since the last one)
+        self._interrupted_by: Event | None = None
+        self._monitor: EventMonitor | None = None
 
     # -- life cycle ------------------------------------------------------------------------------
     @property
@@ -237,6 +261,8 @@ class RobotSession:
             if emulate:
                 board_args = ["--lockstep" if opts.lockstep else "--realtime", "--robot", str(self.robot.root),
                               "--log", str(self.out / f"board_frames{log_suffix}"), "--scene", self.scene]
+                for push in opts.pushes:
+                    board_args += ["--push", push]
                 if opts.wire_baud:
                     board_args += ["--baud", str(opts.wire_baud)]
                 if opts.faults:
@@ -273,9 +299,24 @@ class RobotSession:
             registry = robot_registry(self.robot, runtime, self.vocabulary)
             self._shell = Shell(registry, mode=opts.mode, strict=opts.strict, clock=runtime.board_now_s,
                                 sleep=runtime.sleep, skills=opts.skills, policy=opts.policy)
+            if opts.mcp_mounts:  # McpMountError (one line) when a server cannot be mounted
+                from host.mounts import MountOptions, mounted
+
+                mount_opts = opts.mount_options or MountOptions()
+                if client.lockstep:  # a server answers in wall time: the virtual board clock waits for it
+                    mount_opts = dataclasses.replace(mount_opts, around_call=runtime.streamer.hold)
+                self.mounts = await self._stack.enter_async_context(
+                    mounted(opts.mcp_mounts, registry=registry, options=mount_opts))
+                for m in self.mounts:
+                    for note in m.notes:
+                        log.warning("%s", note)
             tg = anyio.create_task_group()
             self._tg = await self._stack.enter_async_context(tg)
-            tg.start_soon(self._ends_the_run, pump(client, runtime, self.rec))
+            self._monitor = EventMonitor(self.robot.servos.names, self.robot.base.floating,
+                                         _targets_at(runtime.streamer.history))
+            tg.start_soon(self._ends_the_run, pump(client, runtime, self.rec, [self._on_report]))
+            if opts.events:
+                tg.start_soon(self._scripted_events, runtime.board_now_s(), opts.events)
             tg.start_soon(self._ends_the_run, silence_watchdog(runtime, self.rec, client))
             if not client.lockstep:
                 tg.start_soon(self._ends_the_run, realtime_topper(runtime))
@@ -385,6 +426,48 @@ class RobotSession:
             return
         self.request_stop(StopReason("limit", "max_board_s", (
             f"the turn reached its board-time bound of {max_s:g} s (--max-board-s)")))
+    # -- events (host.run.events) ----------------------------------------------------------------
+    def _on_report(self, tel: Any) -> None:
+        if self._monitor is None or self.client is None:
+            return
+        sim = self.client.latest_sim_state
+        stats = self.client.stats
+        base = (sim.base_pos, sim.base_quat) if sim is not None else None
+        for ev in self._monitor.feed(tel.board_time_us * 1e-6, tel.positions, base,
+                                     toppled=sim.toppled if sim is not None else 0,
+                                     losses=stats.decode_errors + stats.retries + stats.seq_gaps):
+            self.emit(ev)
+
+    async def _scripted_events(self, t0: float, events: Iterable[ScriptedEvent]) -> None:
+        streamer = self.runtime.streamer
+        for ev in events:
+            await streamer.wait_board_time(int((t0 + ev.at_s) * 1e6))
+            self.emit(Event("scripted", t0 + ev.at_s, ev.text))
+
+    def emit(self, event: Event) -> str:
+        """Handle ``event`` as the policy says; returns the action taken ("ignore" | "note" | "interrupt").
+
+        A fall always stops motion first (every motion channel interrupted), whatever the policy.
+        ``note``: the event joins the observations of the running turn (or the next one);
+        ``interrupt``: also cuts the running turn (if none runs, it is a note)."""
+        action = self.event_policy.action(event.kind)
+        shell = self._shell
+        running = shell is not None and shell.running
+        if event.kind == "fall" and running and shell is not None and self._runtime is not None:
+            motion = [c for c in shell.registry.channels() if c in self.robot.channels or c == GENERIC_CHANNEL]
+            shell.interrupt(motion)
+        if action == "ignore":
+            return action
+        self.events.append(event)
+        self._turn_events.append(event)
+        log.info("event: %s (%s)", event, action)
+        if action == "interrupt" and running and shell is not None:
+            if self._interrupted_by is None:
+                self._interrupted_by = event
+            shell.interrupt()
+        for cb in list(self.on_event):
+            cb(event, action)
+        return action
 
     # -- board faults ----------------------------------------------------------------------------
     def _how_to_clear(self) -> str:
@@ -464,8 +547,13 @@ class RobotSession:
         return turn
 
     def _turn_result(self, start: _TurnStart, result: RunResult, link_error: BaseException | None = None) -> TurnResult:
+        events, self._turn_events = self._turn_events, []
+        by, self._interrupted_by = self._interrupted_by, None
+        for ev in events:  # what the next request hears about, like any observation
+            result.observations.append(Observation("info", f"event: {ev}", None, ev.board_time_s))
         turn = TurnResult(result, [], None, start.out, start.token_times, start.board_t0,  # type: ignore[arg-type]
-                          executed_text=result.executed_text, received_text="".join(c for _, c in start.token_times))
+                          executed_text=result.executed_text, received_text="".join(c for _, c in start.token_times),
+                          events=events, interrupted_by=by if result.interrupted else None)
         turn.calls = _board_calls(result, self._runtime)
         captures = self._runtime.captures[start.n_captures:] if self._runtime is not None else []
         turn.summary = self._summary(turn, start.label, start.base_start, start.tilt_from, captures, link_error)
@@ -623,6 +711,8 @@ class RobotSession:
                    **stopped,
                    **({"board_fault": str(board_fault)} if board_fault is not None else {}),
                    "observations": [str(o) for o in result.observations], "link": stats,
+                   "events": [str(e) for e in turn.events],
+                   **({"interrupted_by": str(turn.interrupted_by)} if turn.interrupted_by is not None else {}),
                    "captures": [p.name for p in captures], "scene": self.scene_report(),
                    **({"faults": {"host_detected": host_detected}} if opts.faults else {})})
 
@@ -665,6 +755,20 @@ class RobotSession:
     async def write(self, turn: TurnResult, label: str | None = None) -> None:
         """Write a turn's artefacts; the plotting runs in a worker thread so the board keeps its frames."""
         await anyio.to_thread.run_sync(self.writer(turn, label or turn.summary.task))
+
+
+def _targets_at(history: Any) -> Callable[[int], Any]:
+    """``targets(t_us)``: the targets of the last frame sent at or before board time ``t_us`` (None before
+    the first; ``history`` is the streamer's bounded, time-ordered deque of ``(t_us, targets)``)."""
+
+    def targets(t_us: int) -> Any:
+        for i in range(len(history) - 1, max(-1, len(history) - 400), -1):  # recent frames: 4 s at 100 Hz
+            t, q = history[i]
+            if t <= t_us:
+                return q
+        return None
+
+    return targets
 
 
 def board_fault_report(stderr_path: Path) -> Any:

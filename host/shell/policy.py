@@ -15,6 +15,10 @@ Example (every table optional)::
     max_calls = 5                         # and at most 5 calls per window
     window_s = 60                         # seconds on the run clock (default 60)
 
+    [events]                              # what a run does per world event (read by host.run.events)
+    fall = "interrupt"                    # "ignore" | "note" | "interrupt"
+    stall = "note"
+
 A refused call fails with ``refused by policy: ...``: the scheduler records it on the timeline and
 reports it as an error observation for the LLM's next turn; nothing reaches the link. The budget
 ledger lives in the :class:`Policy` object, so it spans turns of one session. Errors in the file
@@ -90,9 +94,9 @@ class Policy:
 
     @classmethod
     def from_dict(cls, doc: dict[str, Any]) -> Policy:
-        unknown = set(doc) - {"functions", "params", "budget"}
+        unknown = set(doc) - {"functions", "params", "budget", "events"}  # [events]: host.run.events reads it
         if unknown:
-            raise PolicyError(f"unknown table(s) {sorted(unknown)}; expected functions, params, budget")
+            raise PolicyError(f"unknown table(s) {sorted(unknown)}; expected functions, params, budget, events")
         fns = doc.get("functions", {})
         extra = set(fns) - {"allow", "deny"} if isinstance(fns, dict) else set()
         if extra:

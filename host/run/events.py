@@ -1,0 +1,253 @@
+"""Events from the world that may interrupt a turn: falls, stalls, a degrading link, toppled objects,
+scripted events and user messages, each handled as the policy says.
+
+Detection (:class:`EventMonitor`, fed every TELEMETRY with the latest SIM_STATE and the host's link
+counters; pure bookkeeping, no I/O):
+
+==========  ==========================================================================================
+``fall``    a floating-base robot tilts more than :data:`FALL_TILT_DEG` (45 deg) or its base drops below
+            :data:`FALL_HEIGHT_M` (3 cm): the same test as ``summary.json``'s ``fell``; once per fall
+``tilt``    it tilts more than :data:`TILT_DEG` (25 deg) without falling; once until it is upright again
+``stall``   a servo whose target has been steady for :data:`STALL_S` stays more than
+            :data:`STALL_DEG` from it for :data:`STALL_S` (blocked, collided, overloaded); once per servo
+            until it reaches a target again
+``link``    the link lost :data:`LINK_BURST` or more messages (decode errors, re-sent requests, sequence
+            gaps) within one second; at most once per :data:`LINK_QUIET_S`
+``toppled`` SIM_STATE's toppled count rose (a scene object fell over)
+``scripted`` a line of ``--events FILE``: ``at S: text`` (board seconds from the session start)
+``user``    a user message while the robot acts (chat)
+==========  ==========================================================================================
+
+Policy (the ``[events]`` table of the ``--policy`` file, ``kind = "ignore" | "note" | "interrupt"``;
+defaults :data:`DEFAULT_ACTIONS`): ``note`` puts the event into the observations of the running turn
+(or the next one), ``interrupt`` also cancels the running turn through the lifecycle tree (as an
+interruption does: the executed text is kept as history), and in ``chat`` the LLM is asked again at
+once with the event as the observation. A fall always stops motion first, whatever the policy says
+(every motion channel is interrupted: each motion settles smoothly where it is).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["ACTIONS", "DEFAULT_ACTIONS", "Event", "EventFileError", "EventMonitor", "EventPolicy", "KINDS",
+           "ScriptedEvent", "parse_event_file", "parse_events_table"]
+
+KINDS = ("fall", "tilt", "stall", "link", "toppled", "scripted", "user")
+ACTIONS = ("ignore", "note", "interrupt")
+DEFAULT_ACTIONS: dict[str, str] = {"fall": "interrupt", "tilt": "note", "stall": "note", "link": "note",
+                                   "toppled": "note", "scripted": "interrupt", "user": "interrupt"}
+FALL_TILT_DEG = 45.0
+FALL_HEIGHT_M = 0.03
+TILT_DEG = 25.0
+STALL_DEG = 15.0
+STALL_S = 0.5
+#: a servo whose error falls below this has reached its target (re-arms its stall event)
+REACHED_DEG = 5.0
+LINK_BURST = 5
+LINK_QUIET_S = 5.0
+#: most events kept per session (older ones are dropped; the count stays exact)
+MAX_EVENTS = 256
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something that happened to the robot: ``kind`` (:data:`KINDS`), board time (s), one line of text."""
+
+    kind: str
+    board_time_s: float
+    text: str
+    data: Mapping[str, Any] = field(default_factory=dict)
+
+    def __str__(self) -> str:
+        return f"{self.kind} at board time {self.board_time_s:.2f} s: {self.text}"
+
+
+class EventFileError(ValueError):
+    """A malformed ``--events`` file or ``[events]`` table; the message names file:line."""
+
+
+@dataclass(frozen=True)
+class ScriptedEvent:
+    """``at S: text`` from an events file."""
+
+    at_s: float
+    text: str
+
+
+_LINE = re.compile(r"^at\s+([^:]+):\s*(.*)$")
+MAX_SCRIPTED = 10_000
+
+
+def parse_event_file(path: str | Path) -> list[ScriptedEvent]:
+    """The scripted events of ``path`` (``at S: text`` per line; ``#`` comments and blank lines skipped),
+    sorted by time. :class:`EventFileError` names file:line for a bad line, an empty file, or too many."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as e:
+        raise EventFileError(f"{p}: cannot read it ({e.strerror or e})") from None
+    except UnicodeDecodeError as e:
+        raise EventFileError(f"{p}: not UTF-8 text ({e.reason} at byte {e.start})") from None
+    out: list[ScriptedEvent] = []
+    for n, raw in enumerate(text.splitlines(), start=1):
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        m = _LINE.match(line)
+        if m is None:
+            raise EventFileError(f"{p}:{n}: expected 'at SECONDS: text', got {line[:60]!r}")
+        try:
+            at = float(m.group(1))
+        except ValueError:
+            raise EventFileError(f"{p}:{n}: {m.group(1).strip()!r} is not a number of seconds") from None
+        if not math.isfinite(at) or at < 0:
+            raise EventFileError(f"{p}:{n}: the time must be a finite number of seconds >= 0, got {m.group(1).strip()}")
+        what = m.group(2).strip()
+        if not what:
+            raise EventFileError(f"{p}:{n}: the event at {at:g} s has no text")
+        out.append(ScriptedEvent(at, what[:300]))
+        if len(out) > MAX_SCRIPTED:
+            raise EventFileError(f"{p}:{n}: more than {MAX_SCRIPTED} events")
+    if not out:
+        raise EventFileError(f"{p}: no events (lines 'at SECONDS: text')")
+    return sorted(out, key=lambda e: e.at_s)
+
+
+def parse_events_table(doc: Mapping[str, Any], where: str = "policy") -> dict[str, str]:
+    """The ``[events]`` table of a policy document merged over :data:`DEFAULT_ACTIONS`."""
+    table = doc.get("events", {})
+    if not isinstance(table, Mapping):
+        raise EventFileError(f"{where}: [events] must be a table of kind = \"ignore\" | \"note\" | \"interrupt\"")
+    actions = dict(DEFAULT_ACTIONS)
+    for kind, action in table.items():
+        if kind not in KINDS:
+            raise EventFileError(f"{where}: [events] {kind!r} is no event kind; kinds: {', '.join(KINDS)}")
+        if action not in ACTIONS:
+            raise EventFileError(f"{where}: [events] {kind} = {action!r}; choose one of {', '.join(ACTIONS)}")
+        actions[kind] = str(action)
+    return actions
+
+
+@dataclass
+class EventPolicy:
+    """What to do per event kind (:data:`ACTIONS`)."""
+
+    actions: dict[str, str] = field(default_factory=lambda: dict(DEFAULT_ACTIONS))
+
+    @classmethod
+    def load(cls, path: str | Path) -> EventPolicy:
+        """The ``[events]`` table of a TOML policy file (the shell's own tables are read by
+        :class:`host.shell.policy.Policy`)."""
+        import tomllib
+
+        try:
+            doc = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+            raise EventFileError(f"policy {path}: {e}") from None
+        return cls(parse_events_table(doc, f"policy {path}"))
+
+    def action(self, kind: str) -> str:
+        return self.actions.get(kind, "note")
+
+
+def _tilt_deg(quat: Sequence[float]) -> float:
+    w, x, y, z = quat
+    n = w * w + x * x + y * y + z * z
+    cos = 1.0 - 2.0 * (x * x + y * y) / n if n > 1e-12 else 1.0
+    return math.degrees(math.acos(max(-1.0, min(1.0, cos))))
+
+
+class EventMonitor:
+    """Turns reports into :class:`Event` s (see the module docstring); :meth:`feed` returns the new ones.
+
+    ``names``: servo names (messages); ``floating``: the robot has a floating base (fall/tilt are
+    only meaningful then); ``targets(t_us)``: the host's commanded targets at board time ``t_us``
+    (the frames it sent), None when it sent none.
+    """
+
+    def __init__(self, names: Sequence[str], floating: bool, targets: Any = None) -> None:
+        self.names = tuple(names)
+        self.floating = floating
+        self.targets = targets
+        self._fallen = False
+        self._tilted = False
+        self._toppled = 0
+        self._stall_since: dict[int, float] = {}
+        self._stalled: set[int] = set()
+        self._losses: deque[tuple[float, int]] = deque(maxlen=64)
+        self._link_last = -math.inf
+
+    def feed(self, t_s: float, positions: Sequence[float], base: tuple[Sequence[float], Sequence[float]] | None,
+             toppled: int = 0, losses: int = 0) -> list[Event]:
+        """One report at board time ``t_s``: joint positions (rad), base (position m, quaternion) if the
+        board reports it, the scene's toppled count, the link's cumulative loss count."""
+        out: list[Event] = []
+        if base is not None and self.floating:
+            pos, quat = base
+            tilt = _tilt_deg(quat)
+            fell = tilt > FALL_TILT_DEG or pos[2] < FALL_HEIGHT_M
+            if fell and not self._fallen:
+                out.append(Event("fall", t_s, f"the robot fell over (tilt {tilt:.0f} deg, base {pos[2] * 100:.1f} cm "
+                                              "above the floor); motion was stopped",
+                                 {"tilt_deg": round(tilt, 1), "height_m": round(float(pos[2]), 3)}))
+            elif not fell and tilt > TILT_DEG and not self._tilted:
+                out.append(Event("tilt", t_s, f"the robot tilts {tilt:.0f} deg", {"tilt_deg": round(tilt, 1)}))
+            self._fallen = fell if fell else (self._fallen and tilt > TILT_DEG)
+            self._tilted = tilt > TILT_DEG
+        if toppled > self._toppled:
+            out.append(Event("toppled", t_s, f"{toppled - self._toppled} scene object(s) toppled ({toppled} now)",
+                             {"toppled": toppled}))
+        self._toppled = max(self._toppled, toppled)
+        out += self._stalls(t_s, positions)
+        out += self._link(t_s, losses)
+        return out
+
+    def _stalls(self, t_s: float, positions: Sequence[float]) -> list[Event]:
+        if self.targets is None:
+            return []
+        now_t = self.targets(int(t_s * 1e6))
+        before = self.targets(int((t_s - STALL_S) * 1e6))
+        if now_t is None or before is None:
+            return []
+        q = np.asarray(positions, dtype=float)
+        err = np.degrees(np.abs(q - now_t))
+        steady = np.degrees(np.abs(now_t - before)) < 1.0
+        out = []
+        for i, e in enumerate(err):
+            if not math.isfinite(float(e)):
+                continue
+            if e < REACHED_DEG:
+                self._stalled.discard(i)
+                self._stall_since.pop(i, None)
+                continue
+            if not steady[i] or e < STALL_DEG:
+                self._stall_since.pop(i, None)
+                continue
+            since = self._stall_since.setdefault(i, t_s)
+            if t_s - since >= STALL_S and i not in self._stalled:
+                self._stalled.add(i)
+                name = self.names[i] if i < len(self.names) else f"servo {i + 1}"
+                out.append(Event("stall", t_s, f"{name} cannot reach its target: {e:.0f} deg off for "
+                                               f"{t_s - since:.1f} s (blocked or overloaded)",
+                                 {"servo": name, "error_deg": round(float(e), 1)}))
+        return out
+
+    def _link(self, t_s: float, losses: int) -> list[Event]:
+        self._losses.append((t_s, losses))
+        while self._losses and self._losses[0][0] < t_s - 1.0:
+            self._losses.popleft()
+        burst = losses - self._losses[0][1] if self._losses else 0
+        if burst >= LINK_BURST and t_s - self._link_last >= LINK_QUIET_S:
+            self._link_last = t_s
+            return [Event("link", t_s, f"the link is degrading: {burst} messages lost or re-sent in the last second",
+                          {"lost_per_s": burst})]
+        return []
