@@ -116,6 +116,10 @@ async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardCl
     or missing, as they would be after any loss). Each further nudge reaches one period further.
     """
     sent, since = runtime.streamer.frames_sent, time.monotonic()
+    # silence counts from now, not from when the Recorder was made: before the session's first report
+    # the board was still starting (seconds, ~12 s inside User-Mode Linux on a loaded machine), which
+    # ended every such run at the first check with "no telemetry for 10 s"
+    rec.last_rx = max(rec.last_rx, since)
     lockstep = client is not None and client.lockstep
     nudged_at = 0.0
     target = 0
