@@ -362,14 +362,17 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     run_dir = Path(args.out) / "uml"
     t0 = time.monotonic()
-    result = run_in_uml(
-        [sys.executable, str(Path(__file__).resolve()), "--inside", "--n", str(args.n), "--seconds", str(args.seconds),
-         "--out", str(args.out), "--tasks", args.tasks, "--skip", args.skip],
-        run_dir=run_dir,
-        keep=[Path(args.out)],
-        env=default_env({"GHOSTSHELL_IN_UML": "1"}),
-        timeout=900,
-    )
+    from host.progress import status
+
+    with status("bench_can: booting User-Mode Linux and measuring inside it (the results print when it is done)"):
+        result = run_in_uml(
+            [sys.executable, str(Path(__file__).resolve()), "--inside", "--n", str(args.n), "--seconds",
+             str(args.seconds), "--out", str(args.out), "--tasks", args.tasks, "--skip", args.skip],
+            run_dir=run_dir,
+            keep=[Path(args.out)],
+            env=default_env({"GHOSTSHELL_IN_UML": "1"}),
+            timeout=900,
+        )
     print(result.stdout, end="")
     if result.returncode != 0:
         print(result.describe(), file=sys.stderr)

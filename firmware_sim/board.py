@@ -31,7 +31,7 @@ from firmware_sim.jitter_buffer import JitterBuffer
 from firmware_sim.peripherals import MAX_IMAGE_SIDE, Camera, CameraUnavailable, CameraWorker, Screen, Speaker
 from firmware_sim.safety import Mode, Safety
 from firmware_sim.servo_model import ServoModel
-from protocol.codec import SCHEMA_HASH, msg_type_of, quantize_apply_at, unwrap_time_us
+from protocol.codec import msg_type_of, quantize_apply_at, schema_for, unwrap_time_us
 from protocol.faults import GapDetector
 from protocol.messages import (
     PROTOCOL_VERSION,
@@ -127,6 +127,8 @@ class Board:
         self.model.opt.timestep = self.cfg.dt
         self.data: mujoco.MjData = reuse.data if reuse is not None else self.cm.new_data()
         self.n = len(self.table)
+        #: the wire schema of this robot (u16 servo mask up to 16 servos, u32 above): HELLO must name it
+        self.wire_schema = schema_for(self.n)
         neutral = np.array(self.table.neutral)
         self.cm.place_on_floor(self.data, neutral)
         self.servo = ServoModel(
@@ -306,14 +308,15 @@ class Board:
                 msg, seq, NackReason.VERSION_MISMATCH,
                 f"host protocol v{msg.protocol_version}, board speaks v{PROTOCOL_VERSION}",
             )
-        if msg.schema_hash != SCHEMA_HASH:
+        schema = self.wire_schema
+        if msg.schema_hash != schema.hash:
             return self._nack(
                 msg, seq, NackReason.SCHEMA_MISMATCH,
-                f"host schema {msg.schema_hash:#010x} != board {SCHEMA_HASH:#010x}",
+                f"host schema {msg.schema_hash:#010x} != board {schema.hash:#010x}",
             )
         return Caps(
             protocol_version=PROTOCOL_VERSION,
-            schema_hash=SCHEMA_HASH,
+            schema_hash=schema.hash,
             servo_count=self.n,
             control_rate_hz=self.cfg.rate_hz,
             buffer_depth=self.cfg.buffer_depth,

@@ -80,9 +80,33 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="stop when standard input closes: a host that starts the board gives it a pipe, so the "
                              "board never outlives that host, however the host ends")
 
+    parser.add_argument("--firmware", choices=FIRMWARES, default="python",
+                        help="python: this emulator (default); c: the C firmware built natively, its servos on a "
+                             "Feetech bus to the MuJoCo plant; qemu: the same C firmware as a Cortex-M3 image on "
+                             "qemu-system-arm -M mps2-an385")
+    parser.add_argument("--dead-servo", action="append", default=[], type=_dead_servo, metavar="ID@SECONDS",
+                        help="--firmware c|qemu: servo ID stops answering on the bus at world time SECONDS (a fault)")
+    parser.add_argument("--icount", action="store_true",
+                        help="--firmware qemu: -icount shift=0 (one instruction per virtual ns; tick cost figures)")
+    parser.add_argument("--asan", action="store_true",
+                        help="--firmware c: run the AddressSanitizer/UBSan build of the firmware")
+
+
+FIRMWARES = ("python", "c", "qemu")
 
 #: The name the usage line shows: ``ghostshell board`` sets it when it runs the board for the user.
 PROG_ENV = "GHOSTSHELL_BOARD_PROG"
+
+
+def _dead_servo(text: str) -> tuple[int, float]:
+    sid, sep, at = text.partition("@")
+    try:
+        v = (int(sid), float(at or "0"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected ID@SECONDS (e.g. 3@2.5), got {text!r}") from None
+    if not 1 <= v[0] <= 253 or v[1] < 0:
+        raise argparse.ArgumentTypeError(f"servo id must be 1..253 and the time >= 0, got {text!r}")
+    return v
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -105,6 +129,36 @@ def _stop_on_stdin_eof() -> None:
         os.kill(os.getpid(), signal.SIGTERM)
 
     threading.Thread(target=watch, name="stdin-eof", daemon=True).start()
+
+
+def _run_c_firmware(args: argparse.Namespace, robot: object, parser: argparse.ArgumentParser) -> int:
+    """``--firmware c|qemu``: the C firmware with the servo-bus plant (firmware_sim.cfirmware.launcher)."""
+    from firmware_sim.cfirmware.launcher import LaunchOptions, run_firmware
+    from firmware_sim.config import BoardConfig, ConfigError
+
+    try:
+        BoardConfig(rate_hz=args.rate, dt=args.dt, telemetry_rate_hz=args.telemetry_rate,
+                    watchdog_ms=args.watchdog_ms).validate()
+    except ConfigError as e:
+        parser.error(str(e))
+    if args.viewer:
+        parser.error("--viewer is not available with --firmware c|qemu")
+    if args.icount and args.firmware != "qemu" or args.asan and args.firmware != "c":
+        parser.error("--icount needs --firmware qemu; --asan needs --firmware c")
+    fault_spec = None
+    if args.faults:
+        from protocol.faults import FaultSpec, FaultSpecError
+
+        try:
+            fault_spec = FaultSpec.parse(args.faults)
+        except FaultSpecError as e:
+            parser.error(f"--faults: {e}")
+    opts = LaunchOptions(robot=robot, firmware=args.firmware, link=args.link, lockstep=args.lockstep,  # type: ignore[arg-type]
+                         rate_hz=args.rate, dt=args.dt, telemetry_rate_hz=args.telemetry_rate,
+                         watchdog_ms=args.watchdog_ms, scene=args.scene, baud=args.baud, log_path=args.log,
+                         faults=fault_spec, fault_seed=args.fault_seed, dead_servos=list(args.dead_servo),
+                         asan=args.asan, icount=args.icount)
+    return run_firmware(opts)
 
 
 class _Stop(BaseException):  # not Exception: a handler that guards against bugs must not swallow it
@@ -139,6 +193,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.scene is not None and args.scene not in robot.scenes:
         print(f"board: {robot.name} has no scene {args.scene!r}; scenes: {', '.join(robot.scenes)}", file=sys.stderr)
         return 2
+    if args.firmware != "python":
+        if args.stop_on_stdin_eof:  # the launcher stops on SIGTERM, as the Python board does
+            _stop_on_stdin_eof()
+        return _run_c_firmware(args, robot, parser)
+    if args.dead_servo or args.icount or args.asan:
+        parser.error("--dead-servo, --icount and --asan need --firmware c or qemu")
     cfg = BoardConfig(
         rate_hz=args.rate, dt=args.dt, lockstep=args.lockstep,
         telemetry_rate_hz=args.telemetry_rate, watchdog_ms=args.watchdog_ms, robot=args.robot,
@@ -155,7 +215,7 @@ def main(argv: Sequence[str] | None = None) -> int:
               file=sys.stderr)
         return 2
     try:
-        link = open_board_transport(args.link, baud=args.baud, log_path=args.log)
+        link = open_board_transport(args.link, baud=args.baud, log_path=args.log, servo_count=robot.servo_count)
     except Exception as e:
         if args.link.kind == "can":
             from protocol.can.bus_errors import describe_bus_open_error
@@ -215,7 +275,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.baud:
         from protocol.framing import frame_size
 
-        need = cfg.telemetry_rate_hz * (frame_size(board.telemetry()) + frame_size(board.sim_state())) * 10
+        need = cfg.telemetry_rate_hz * (frame_size(board.telemetry(), board.wire_schema)
+                                        + frame_size(board.sim_state(), board.wire_schema)) * 10
         if need > 0.8 * args.baud:
             print(f"board: warning: telemetry needs ~{need} bit/s, more than 80% of {args.baud} baud; "
                   "some reports will be dropped (lower --telemetry-rate)", file=sys.stderr, flush=True)

@@ -115,7 +115,7 @@ def load(instrument: bool = False, *, persistent: bool = False) -> Callable[[byt
             board, dec, accepted, applied = last[0]
         else:
             board = Board(config(), reuse=last[0][0] if last else None)
-            dec, accepted, applied = FrameDecoder(), {}, []
+            dec, accepted, applied = FrameDecoder(schema=board.wire_schema), {}, []
             observe_pops(board, applied)
             last[:] = [(board, dec, accepted, applied)]
         r = Reader(data)
@@ -144,12 +144,12 @@ def load(instrument: bool = False, *, persistent: bool = False) -> Callable[[byt
             now, mask = board.now_us, msg.mask
             estopped, latched = board.safety.estopped, board.safety.fault_latched
             replies = board.handle(msg, seq)
-            ok = mask and not mask & ~0xFFF
+            ok = mask and not mask & ~board.table.all_mask
             if not replies:
                 assert ok and not estopped and not latched, f"frame accepted: mask {mask:#x}, estop {estopped}"
                 t = msg.apply_at_us  # inputs stay far below the 2**32 us wrap
                 assert now - board.cfg.max_late_us <= t <= now + board.cfg.max_future_us, f"frame due {t} accepted at {now}"
-                idx = [i for i in range(16) if mask >> i & 1]
+                idx = idx_of(mask)
                 accepted.setdefault((seq, t), []).append((now, dict(zip(idx, msg.targets))))
             else:
                 assert len(replies) == 1 and isinstance(replies[0], Nack), f"SERVO_FRAME replies {replies}"
@@ -158,10 +158,10 @@ def load(instrument: bool = False, *, persistent: bool = False) -> Callable[[byt
             return replies
 
         def idx_of(mask: int) -> list[int]:
-            return [i for i in range(16) if mask >> i & 1]
+            return [i for i in range(board.wire_schema.max_servos) if mask >> i & 1]
 
         def send(msg: Message, seq: int) -> list[Message]:
-            return deliver(encode_frame(msg, seq))
+            return deliver(encode_frame(msg, seq, board.wire_schema))
 
         def tick() -> None:
             before = board.servo.cmd.copy()
@@ -196,7 +196,7 @@ def load(instrument: bool = False, *, persistent: bool = False) -> Callable[[byt
             drain()
 
         if persistent:  # frames the previous input left in the buffer are not this input's to check
-            send(Flush(0, 0xFFF), 0xFFFF)
+            send(Flush(0, board.table.all_mask), 0xFFFF)
             accepted.clear()
         while True:
             try:

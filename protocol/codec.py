@@ -30,13 +30,46 @@ targets again anyway):
 * a NaN in a report (telemetry, sim state) travels as the reserved code and decodes
   as NaN; a NaN *target* in a SERVO_FRAME is refused (there is no safe value for it).
 * structurally invalid messages raise :class:`PayloadError` (a ``ValueError``) at
-  encode time: a mask with bits at or above ``MAX_SERVOS``, a target count that is
-  not ``popcount(mask)``, more than ``MAX_SERVOS`` telemetry values, a string that
+  encode time: a mask with bits at or above the schema's ``max_servos``, a target count that is
+  not ``popcount(mask)``, more than ``max_servos`` telemetry values, a string that
   is too long or not ASCII, an enum value that is not a member, a camera chunk whose
   index is not below its total.
 
 Use :func:`quantize_position` and friends, or :func:`quantize_message`, to predict
 exactly what survives a round trip.
+
+Wire schemas (the robot on the wire). The layouts of three messages depend on how many servos the
+robot has; everything else (HELLO, CAPS, NACK, ...) is the same for every robot, so the handshake
+works before either side knows the other's robot. A :class:`WireSchema` is one complete set of
+layouts with its own hash; :func:`schema_for` picks it from the robot's servo count N:
+
+=========================  =====================  ======================================
+schema                     robots                 SERVO_FRAME / FLUSH mask, TELEMETRY
+=========================  =====================  ======================================
+``WIRE_SCHEMA_16``         1 <= N <= 16           u16 mask (bit i = servo i); <= 16 values
+``WIRE_SCHEMA_32``         17 <= N <= 32          u32 mask; <= 32 values per array
+=========================  =====================  ======================================
+
+The 16 schema is the protocol as it was before robots became data: its text and hash
+(:data:`SCHEMA_HASH`) are unchanged, so every robot of up to 16 servos keeps its frames byte for
+byte. The module-level :data:`LAYOUTS`, :data:`SCHEMA_HASH`, :func:`encode_payload`,
+:func:`decode_payload` and :func:`quantize_message` are the 16 schema's (``schema=None``). The bound
+32 (:data:`protocol.messages.MAX_WIRE_SERVOS`): the mask is at most one u32 (one register on an
+MCU), and the largest message still fits a frame: payload bytes per message
+(SERVO_FRAME = apply-at 4 + mask + 2 N; TELEMETRY = 35 + 6 N, 3 count bytes included)
+
+=====  ===========  ============  ==========================================
+N      SERVO_FRAME  TELEMETRY     serial wire bytes (SERVO_FRAME / TELEMETRY)
+=====  ===========  ============  ==========================================
+1      8            41            17 / 50
+12     30           107           39 / 116
+16     38           131           47 / 140
+17     42           137           51 / 146
+32     72           227 (of 255)  81 / 236
+=====  ===========  ============  ==========================================
+
+(wire bytes = payload + 9: header 5, CRC 2, COBS code byte 1, delimiter 1; :mod:`protocol.framing`).
+A 33rd servo would need a second mask word; TELEMETRY would still fit up to 36 servos.
 """
 
 from __future__ import annotations
@@ -46,11 +79,12 @@ import hashlib
 import math
 import struct
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from enum import IntEnum, IntFlag
 from typing import Any
 
 from protocol import messages as m
-from protocol.messages import MAX_SERVOS, Message, MsgType
+from protocol.messages import MAX_SERVOS, MAX_WIRE_SERVOS, Message, MsgType
 
 __all__ = [
     "LAYOUTS",
@@ -62,7 +96,14 @@ __all__ = [
     "VELOCITY_SCALE",
     "EFFORT_SCALE",
     "SCHEMA_HASH",
+    "WIRE_SCHEMA_16",
+    "WIRE_SCHEMA_32",
+    "WIRE_SCHEMAS",
+    "WireBoundError",
+    "WireSchema",
     "compute_schema_hash",
+    "schema_by_hash",
+    "schema_for",
     "schema_text",
     "MAX_NAME_BYTES",
     "MAX_NACK_DETAIL_BYTES",
@@ -317,22 +358,28 @@ class Flags16(Field):
         return self.cls(struct.unpack("<H", r.take(2, name))[0])
 
 
-class Mask16(Field):
-    """Servo mask: u16, only bits below ``MAX_SERVOS`` allowed (bit i = servo i)."""
+class Mask(Field):
+    """Servo mask of a schema for ``max_servos`` servos: u16 up to 16 servos, else u32; only bits below
+    ``max_servos`` allowed (bit i = servo i)."""
 
-    assert MAX_SERVOS <= 16, "the mask is 16 bits on the wire"
-    wire = f"mask16[max={MAX_SERVOS}]"
+    def __init__(self, max_servos: int = MAX_SERVOS) -> None:
+        if not 1 <= max_servos <= MAX_WIRE_SERVOS:
+            raise ValueError(f"a servo mask covers 1..{MAX_WIRE_SERVOS} servos, not {max_servos}")
+        self.max_servos = max_servos
+        self.size = 2 if max_servos <= 16 else 4
+        self.st = struct.Struct("<H" if self.size == 2 else "<I")
+        self.wire = f"mask{8 * self.size}[max={max_servos}]"
 
     def encode(self, name: str, value: Any, out: bytearray, ctx: Mapping[str, Any]) -> None:
-        v = _as_int(name, value, -1, 1 << MAX_SERVOS)
-        if v < 0 or v >> MAX_SERVOS:
-            raise PayloadError(f"{name}: {v:#x} has bits outside the {MAX_SERVOS} servos")
-        out += struct.pack("<H", v)
+        v = _as_int(name, value, -1, 1 << self.max_servos)
+        if v < 0 or v >> self.max_servos:
+            raise PayloadError(f"{name}: {v:#x} has bits outside the {self.max_servos} servos")
+        out += self.st.pack(v)
 
     def decode(self, name: str, r: _Reader, ctx: Mapping[str, Any]) -> Any:
-        v: int = struct.unpack("<H", r.take(2, name))[0]
-        if v >> MAX_SERVOS:
-            raise PayloadError(f"{name}: {v:#x} has bits outside the {MAX_SERVOS} servos")
+        v: int = self.st.unpack(r.take(self.size, name))[0]
+        if v >> self.max_servos:
+            raise PayloadError(f"{name}: {v:#x} has bits outside the {self.max_servos} servos")
         return v
 
 
@@ -349,7 +396,7 @@ class Q16Array(Field):
     """Array of q16 values with one of three length rules.
 
     ``fixed=N``: exactly N values; ``mask_field=F``: popcount of field F values;
-    otherwise a u8 count (at most ``MAX_SERVOS``) precedes the values.
+    otherwise a u8 count (at most ``max_count``, the schema's servos) precedes the values.
     """
 
     def __init__(
@@ -359,11 +406,13 @@ class Q16Array(Field):
         fixed: int | None = None,
         mask_field: str | None = None,
         allow_nan: bool = True,
+        max_count: int = MAX_SERVOS,
     ) -> None:
         self.cpu = counts_per_unit
         self.fixed = fixed
         self.mask_field = mask_field
         self.allow_nan = allow_nan
+        self.max_count = max_count
         rule = f"fixed{fixed}" if fixed is not None else (f"popcount({mask_field})" if mask_field else "count8")
         self.wire = f"q16[{rule}]/{counts_per_unit}{'' if allow_nan else ',nonan'}"
 
@@ -382,8 +431,8 @@ class Q16Array(Field):
             why = f"popcount({self.mask_field})" if self.mask_field else "fixed"
             raise PayloadError(f"{name}: {n} value(s) but {why} = {expected}")
         if expected is None:
-            if n > MAX_SERVOS:
-                raise PayloadError(f"{name}: {n} values, at most {MAX_SERVOS} allowed")
+            if n > self.max_count:
+                raise PayloadError(f"{name}: {n} values, at most {self.max_count} allowed")
             out.append(n)
         try:
             codes = [_q16_encode(v, self.cpu) for v in vals]
@@ -397,8 +446,8 @@ class Q16Array(Field):
         n = self._expected(name, ctx)
         if n is None:
             n = r.take(1, f"{name} count")[0]
-            if n > MAX_SERVOS:
-                raise PayloadError(f"{name}: count {n} exceeds {MAX_SERVOS}")
+            if n > self.max_count:
+                raise PayloadError(f"{name}: count {n} exceeds {self.max_count}")
         codes = struct.unpack(f"<{n}h", r.take(2 * n, name))
         if not self.allow_nan and _Q16_NAN in codes:
             raise PayloadError(f"{name}: reserved code -32768 (NaN) is not allowed here")
@@ -517,93 +566,96 @@ MESSAGE_CLASSES: dict[MsgType, type] = {
     MsgType.CAMERA_RESEND: m.CameraResend,
 }
 
-#: Message type -> ordered wire fields (names must match the dataclass fields).
-LAYOUTS: dict[MsgType, Layout] = {
-    MsgType.HELLO: [("protocol_version", _U8), ("schema_hash", _U32), ("host_time_us", _U64)],
-    MsgType.CAPS: [
-        ("protocol_version", _U8),
-        ("schema_hash", _U32),
-        ("servo_count", _U8),
-        ("control_rate_hz", _U16),
-        ("buffer_depth", _U16),
-        ("telemetry_rate_hz", _U16),
-        ("board_time_us", _U64),
-        ("lockstep", Bool()),
-        ("robot", Str8(MAX_NAME_BYTES)),
-        ("servo_table_hash", _U32),
-    ],
-    MsgType.TIME_SYNC_REQUEST: [("t1_host_us", _U64)],
-    MsgType.TIME_SYNC_REPLY: [("t1_host_us", _U64), ("t2_board_us", _U64), ("t3_board_us", _U64)],
-    MsgType.CONFIG: [("key", EnumU8(m.ConfigKey)), ("value", SInt(4))],
-    MsgType.HEARTBEAT: [("sender_time_us", _U64)],
-    MsgType.ADVANCE: [("until_us", _U64)],
-    MsgType.SERVO_FRAME: [
-        ("apply_at_us", _APPLY_AT),
-        ("mask", Mask16()),
-        ("targets", Q16Array(10_000, mask_field="mask", allow_nan=False)),
-    ],
-    MsgType.FLUSH: [("from_us", _U64), ("mask", Mask16())],
-    MsgType.ESTOP: [],
-    MsgType.ESTOP_CLEAR: [],
-    MsgType.TELEMETRY: [
-        ("board_time_us", _U64),
-        ("positions", Q16Array(10_000)),
-        ("velocities", Q16Array(1_000)),
-        ("efforts", Q16Array(1_000)),
-        ("imu_rpy", Q16Array(10_000, fixed=3)),
-        ("faults", Flags16(m.FaultFlags)),
-        ("buffer_fill", _U16),
-        ("last_applied_seq", _SEQ16),
-        ("late_count", _U32),
-        ("dropped_count", _U32),
-        ("link_errors", _U32),
-    ],
-    MsgType.SIM_STATE: [("board_time_us", _U64), ("base_pos", F32Array(3)), ("base_quat", F32Array(4)),
-                        ("objects", _U8), ("toppled", _U8)],
-    MsgType.ACK: [("ack_seq", _SEQ16), ("msg_type", EnumU8(MsgType))],
-    MsgType.NACK: [
-        ("ack_seq", _SEQ16),
-        ("msg_type", EnumU8(MsgType)),
-        ("reason", EnumU8(m.NackReason)),
-        ("detail", Str8(MAX_NACK_DETAIL_BYTES)),
-    ],
-    MsgType.SCREEN: [
-        ("target", EnumU8(m.ScreenTarget)),
-        ("name", Str8(MAX_NAME_BYTES)),
-        ("start_at_us", _U64),
-        ("duration_ms", _U32),
-    ],
-    MsgType.SPEAKER: [
-        ("action", EnumU8(m.SpeakerAction)),
-        ("kind", EnumU8(m.SoundKind)),
-        ("start_at_us", _U64),
-        ("duration_ms", _U32),
-        ("volume", UInt(1)),  # clamps; the board clamps to 0..100
-        ("name", Str8(MAX_NAME_BYTES)),
-        ("text", Str8(MAX_SPEECH_TEXT_BYTES, "utf-8")),
-    ],
-    MsgType.CAMERA_CAPTURE: [("request_id", _U32), ("width", _U16), ("height", _U16)],
-    MsgType.CAMERA_CHUNK: [
-        ("request_id", _U32),
-        ("index", _U16),
-        ("total", _U16),
-        ("data", RestBytes(MAX_CHUNK_DATA)),
-    ],
-    MsgType.CAMERA_RESEND: [("request_id", _U32), ("first", _U16), ("wanted", RestBytes(MAX_RESEND_BITMAP))],
-}
+def _layouts(max_servos: int) -> dict[MsgType, Layout]:
+    """Message type -> ordered wire fields (names match the dataclass fields) for robots of up to
+    ``max_servos`` servos: only SERVO_FRAME, FLUSH and TELEMETRY depend on it."""
+    mask = Mask(max_servos)
+    n = max_servos
+    return {
+        MsgType.HELLO: [("protocol_version", _U8), ("schema_hash", _U32), ("host_time_us", _U64)],
+        MsgType.CAPS: [
+            ("protocol_version", _U8),
+            ("schema_hash", _U32),
+            ("servo_count", _U8),
+            ("control_rate_hz", _U16),
+            ("buffer_depth", _U16),
+            ("telemetry_rate_hz", _U16),
+            ("board_time_us", _U64),
+            ("lockstep", Bool()),
+            ("robot", Str8(MAX_NAME_BYTES)),
+            ("servo_table_hash", _U32),
+        ],
+        MsgType.TIME_SYNC_REQUEST: [("t1_host_us", _U64)],
+        MsgType.TIME_SYNC_REPLY: [("t1_host_us", _U64), ("t2_board_us", _U64), ("t3_board_us", _U64)],
+        MsgType.CONFIG: [("key", EnumU8(m.ConfigKey)), ("value", SInt(4))],
+        MsgType.HEARTBEAT: [("sender_time_us", _U64)],
+        MsgType.ADVANCE: [("until_us", _U64)],
+        MsgType.SERVO_FRAME: [
+            ("apply_at_us", _APPLY_AT),
+            ("mask", mask),
+            ("targets", Q16Array(10_000, mask_field="mask", allow_nan=False, max_count=n)),
+        ],
+        MsgType.FLUSH: [("from_us", _U64), ("mask", mask)],
+        MsgType.ESTOP: [],
+        MsgType.ESTOP_CLEAR: [],
+        MsgType.TELEMETRY: [
+            ("board_time_us", _U64),
+            ("positions", Q16Array(10_000, max_count=n)),
+            ("velocities", Q16Array(1_000, max_count=n)),
+            ("efforts", Q16Array(1_000, max_count=n)),
+            ("imu_rpy", Q16Array(10_000, fixed=3)),
+            ("faults", Flags16(m.FaultFlags)),
+            ("buffer_fill", _U16),
+            ("last_applied_seq", _SEQ16),
+            ("late_count", _U32),
+            ("dropped_count", _U32),
+            ("link_errors", _U32),
+        ],
+        MsgType.SIM_STATE: [("board_time_us", _U64), ("base_pos", F32Array(3)), ("base_quat", F32Array(4)),
+                            ("objects", _U8), ("toppled", _U8)],
+        MsgType.ACK: [("ack_seq", _SEQ16), ("msg_type", EnumU8(MsgType))],
+        MsgType.NACK: [
+            ("ack_seq", _SEQ16),
+            ("msg_type", EnumU8(MsgType)),
+            ("reason", EnumU8(m.NackReason)),
+            ("detail", Str8(MAX_NACK_DETAIL_BYTES)),
+        ],
+        MsgType.SCREEN: [
+            ("target", EnumU8(m.ScreenTarget)),
+            ("name", Str8(MAX_NAME_BYTES)),
+            ("start_at_us", _U64),
+            ("duration_ms", _U32),
+        ],
+        MsgType.SPEAKER: [
+            ("action", EnumU8(m.SpeakerAction)),
+            ("kind", EnumU8(m.SoundKind)),
+            ("start_at_us", _U64),
+            ("duration_ms", _U32),
+            ("volume", UInt(1)),  # clamps; the board clamps to 0..100
+            ("name", Str8(MAX_NAME_BYTES)),
+            ("text", Str8(MAX_SPEECH_TEXT_BYTES, "utf-8")),
+        ],
+        MsgType.CAMERA_CAPTURE: [("request_id", _U32), ("width", _U16), ("height", _U16)],
+        MsgType.CAMERA_CHUNK: [
+            ("request_id", _U32),
+            ("index", _U16),
+            ("total", _U16),
+            ("data", RestBytes(MAX_CHUNK_DATA)),
+        ],
+        MsgType.CAMERA_RESEND: [("request_id", _U32), ("first", _U16), ("wanted", RestBytes(MAX_RESEND_BITMAP))],
+    }
+
+
 
 _TYPE_OF_CLASS: dict[type, MsgType] = {cls: t for t, cls in MESSAGE_CLASSES.items()}
 
 
-def _check_layouts() -> None:
+def _check_layouts(layouts: Mapping[MsgType, Layout]) -> None:
     assert set(MESSAGE_CLASSES) == set(MsgType), "every MsgType needs a class"
-    assert set(LAYOUTS) == set(MsgType), "every MsgType needs a layout"
+    assert set(layouts) == set(MsgType), "every MsgType needs a layout"
     for t, cls in MESSAGE_CLASSES.items():
         names = [f.name for f in dataclasses.fields(cls)]
-        assert names == [n for n, _ in LAYOUTS[t]], f"{t.name}: layout fields {LAYOUTS[t]} != {names}"
-
-
-_check_layouts()
+        assert names == [n for n, _ in layouts[t]], f"{t.name}: layout fields {layouts[t]} != {names}"
 
 
 # --- schema hash ---------------------------------------------------------------------------
@@ -617,11 +669,13 @@ def _annotation(cls: type, name: str) -> str:
 def schema_text(
     layouts: Mapping[MsgType, Layout] | None = None,
     classes: Mapping[MsgType, type] | None = None,
+    max_servos: int = MAX_SERVOS,
 ) -> str:
-    """Canonical text the schema hash is computed from (one line per field)."""
-    layouts = LAYOUTS if layouts is None else layouts
+    """Canonical text the schema hash is computed from (one line per field); the default schema's
+    layouts unless ``layouts`` is given (``max_servos`` names the schema in its first line)."""
+    layouts = _DEFAULT_LAYOUTS if layouts is None else layouts
     classes = MESSAGE_CLASSES if classes is None else classes
-    lines = [f"protocol {m.PROTOCOL_VERSION} max_servos {MAX_SERVOS} max_payload {MAX_PAYLOAD}"]
+    lines = [f"protocol {m.PROTOCOL_VERSION} max_servos {max_servos} max_payload {MAX_PAYLOAD}"]
     for t in sorted(layouts, key=int):
         cls = classes[t]
         lines.append(f"type {t.name}={int(t):#04x} {cls.__name__}")
@@ -633,29 +687,21 @@ def schema_text(
 def compute_schema_hash(
     layouts: Mapping[MsgType, Layout] | None = None,
     classes: Mapping[MsgType, type] | None = None,
+    max_servos: int = MAX_SERVOS,
 ) -> int:
     """u32: the first four bytes (big-endian) of SHA-256 over :func:`schema_text`."""
-    digest = hashlib.sha256(schema_text(layouts, classes).encode()).digest()
+    digest = hashlib.sha256(schema_text(layouts, classes, max_servos).encode()).digest()
     return int.from_bytes(digest[:4], "big")
 
 
-#: Hash of the message definitions; HELLO and CAPS carry it so both ends can refuse a mismatch.
-SCHEMA_HASH: int = compute_schema_hash()
+# --- wire schemas --------------------------------------------------------------------------
 
 
-# --- encode / decode -----------------------------------------------------------------------
+class WireBoundError(ValueError):
+    """A servo count the wire cannot carry (below 1 or above :data:`protocol.messages.MAX_WIRE_SERVOS`)."""
 
 
-def msg_type_of(msg: Message) -> MsgType:
-    """The :class:`MsgType` of a message instance (``PayloadError`` if it is not a message)."""
-    try:
-        return _TYPE_OF_CLASS[type(msg)]
-    except KeyError:
-        raise PayloadError(f"not a protocol message: {type(msg).__name__}") from None
-
-
-def encode_payload(msg: Message) -> bytes:
-    """Pack a message into payload bytes (clamps numbers; ``PayloadError`` if structurally invalid)."""
+def _encode(layouts: Mapping[MsgType, Layout], msg: Message) -> bytes:
     t = msg_type_of(msg)
     if t is MsgType.CAMERA_CHUNK and not (
         0 <= _as_int("index", msg.index, -1, 1 << 16) < _as_int("total", msg.total, -1, 1 << 16)  # type: ignore[union-attr]
@@ -663,7 +709,7 @@ def encode_payload(msg: Message) -> bytes:
         raise PayloadError(f"CAMERA_CHUNK: index {msg.index} not below total {msg.total}")  # type: ignore[union-attr]
     out = bytearray()
     ctx: dict[str, Any] = {}
-    for name, f in LAYOUTS[t]:
+    for name, f in layouts[t]:
         value = getattr(msg, name)
         try:
             f.encode(name, value, out, ctx)
@@ -677,8 +723,7 @@ def encode_payload(msg: Message) -> bytes:
     return bytes(out)
 
 
-def decode_payload(msg_type: MsgType, payload: bytes) -> Message:
-    """Unpack payload bytes into the message of ``msg_type`` (``PayloadError`` on any bad payload)."""
+def _decode(layouts: Mapping[MsgType, Layout], msg_type: MsgType, payload: bytes) -> Message:
     try:
         t = MsgType(msg_type)
     except ValueError:
@@ -686,7 +731,7 @@ def decode_payload(msg_type: MsgType, payload: bytes) -> Message:
     r = _Reader(bytes(payload))
     values: dict[str, Any] = {}
     try:
-        for name, f in LAYOUTS[t]:
+        for name, f in layouts[t]:
             values[name] = f.decode(name, r, values)
     except PayloadError as e:
         raise PayloadError(f"{t.name}: {e}") from None
@@ -697,6 +742,98 @@ def decode_payload(msg_type: MsgType, payload: bytes) -> Message:
     return MESSAGE_CLASSES[t](**values)  # type: ignore[no-any-return]
 
 
-def quantize_message(msg: Message) -> Message:
+@dataclass(frozen=True, eq=False)
+class WireSchema:
+    """One complete set of payload layouts: the message definitions for robots of up to
+    ``max_servos`` servos (16: u16 mask; 32: u32 mask), its canonical ``text`` and ``hash`` (u32,
+    what HELLO and CAPS carry). Build one with :meth:`build`; use :func:`schema_for`."""
+
+    max_servos: int
+    layouts: Mapping[MsgType, Layout]
+    text: str
+    hash: int
+
+    @classmethod
+    def build(cls, max_servos: int) -> WireSchema:
+        layouts = _layouts(max_servos)
+        _check_layouts(layouts)
+        text = schema_text(layouts, MESSAGE_CLASSES, max_servos)
+        return cls(max_servos, layouts, text, compute_schema_hash(layouts, MESSAGE_CLASSES, max_servos))
+
+    @property
+    def mask_bytes(self) -> int:
+        """Bytes of the servo mask on the wire (2 or 4)."""
+        return 2 if self.max_servos <= 16 else 4
+
+    def encode_payload(self, msg: Message) -> bytes:
+        """Pack a message into payload bytes (clamps numbers; ``PayloadError`` if structurally invalid)."""
+        return _encode(self.layouts, msg)
+
+    def decode_payload(self, msg_type: MsgType, payload: bytes) -> Message:
+        """Unpack payload bytes into the message of ``msg_type`` (``PayloadError`` on any bad payload)."""
+        return _decode(self.layouts, msg_type, payload)
+
+    def quantize_message(self, msg: Message) -> Message:
+        """Exactly what ``msg`` decodes as at the other end (clamped, rounded, wrapped)."""
+        return _decode(self.layouts, msg_type_of(msg), _encode(self.layouts, msg))
+
+    def __repr__(self) -> str:
+        return f"WireSchema(max_servos={self.max_servos}, hash={self.hash:#010x})"
+
+
+#: Robots of 1..16 servos: u16 mask. Its text and hash are the protocol's from before robots became data.
+WIRE_SCHEMA_16 = WireSchema.build(MAX_SERVOS)
+#: Robots of 17..32 servos: u32 mask, up to 32 values per TELEMETRY array.
+WIRE_SCHEMA_32 = WireSchema.build(MAX_WIRE_SERVOS)
+#: Every schema this build speaks, the default first.
+WIRE_SCHEMAS: tuple[WireSchema, ...] = (WIRE_SCHEMA_16, WIRE_SCHEMA_32)
+_DEFAULT_LAYOUTS = WIRE_SCHEMA_16.layouts
+
+#: The default (16) schema's layouts: message type -> ordered wire fields.
+LAYOUTS: Mapping[MsgType, Layout] = WIRE_SCHEMA_16.layouts
+#: Hash of the default (16) schema; HELLO and CAPS carry their schema's hash so both ends can refuse a mismatch.
+SCHEMA_HASH: int = WIRE_SCHEMA_16.hash
+
+
+def schema_for(servo_count: int) -> WireSchema:
+    """The schema of a robot with ``servo_count`` servos: :data:`WIRE_SCHEMA_16` for 1..16,
+    :data:`WIRE_SCHEMA_32` for 17..32; :class:`WireBoundError` otherwise."""
+    n = int(servo_count)
+    for schema in WIRE_SCHEMAS:
+        if 1 <= n <= schema.max_servos:
+            return schema
+    raise WireBoundError(f"{n} servos: the wire carries 1 to {MAX_WIRE_SERVOS} "
+                         f"(its servo mask is at most one u32)")
+
+
+def schema_by_hash(schema_hash: int) -> WireSchema | None:
+    """The schema whose hash is ``schema_hash`` (None: not one this build speaks)."""
+    return next((s for s in WIRE_SCHEMAS if s.hash == schema_hash), None)
+
+
+# --- encode / decode -----------------------------------------------------------------------
+
+
+def msg_type_of(msg: Message) -> MsgType:
+    """The :class:`MsgType` of a message instance (``PayloadError`` if it is not a message)."""
+    try:
+        return _TYPE_OF_CLASS[type(msg)]
+    except KeyError:
+        raise PayloadError(f"not a protocol message: {type(msg).__name__}") from None
+
+
+def encode_payload(msg: Message, schema: WireSchema | None = None) -> bytes:
+    """Pack a message into payload bytes with ``schema`` (default: the 16 schema); clamps numbers,
+    ``PayloadError`` if structurally invalid."""
+    return _encode(_DEFAULT_LAYOUTS if schema is None else schema.layouts, msg)
+
+
+def decode_payload(msg_type: MsgType, payload: bytes, schema: WireSchema | None = None) -> Message:
+    """Unpack payload bytes into the message of ``msg_type`` with ``schema`` (default: the 16 schema);
+    ``PayloadError`` on any bad payload."""
+    return _decode(_DEFAULT_LAYOUTS if schema is None else schema.layouts, msg_type, payload)
+
+
+def quantize_message(msg: Message, schema: WireSchema | None = None) -> Message:
     """Exactly what ``msg`` decodes as at the other end (clamped, rounded, wrapped)."""
-    return decode_payload(msg_type_of(msg), encode_payload(msg))
+    return decode_payload(msg_type_of(msg), encode_payload(msg, schema), schema)

@@ -12,6 +12,16 @@ e.g. ASC/BLF) instead. A record is::
 ``fields`` holds the decoded message: enums by name, flags as ``"A|B"``, tuples as
 lists, bytes as hex, NaN as ``null``. The raw bytes alone are enough to re-decode
 a record (:func:`decode_raw`), so a log stays useful if the field rendering changes.
+
+Which robot a log is for: the payloads of SERVO_FRAME, FLUSH and TELEMETRY depend on the robot's
+wire schema (:class:`protocol.codec.WireSchema`: u16 servo mask up to 16 servos, u32 above). A log
+says which itself: every session starts with HELLO (host -> board) and CAPS (board -> host), whose
+layouts are the same for every robot and which carry the schema hash. :class:`LogDecoder`
+re-decodes a log's raw bytes with the schema its latest HELLO/CAPS named; before the first one (a
+realtime board's reports before a host connected) it takes the first schema that decodes the frame,
+the u16 one first. That is unambiguous: a SERVO_FRAME or FLUSH of one schema never decodes under the
+other (the length check fails), and a TELEMETRY decodes the same under both. Logs of robots with up
+to 16 servos (every log written before robots became data) decode exactly as before.
 """
 
 from __future__ import annotations
@@ -23,10 +33,13 @@ from collections.abc import Iterable, Iterator
 from enum import Enum, IntFlag
 from typing import Any
 
+from protocol.codec import WIRE_SCHEMAS, WireSchema, schema_by_hash
 from protocol.framing import DecodeError, DecodeErrorKind, Frame, FrameDecoder
+from protocol.messages import Caps, Hello
 
 __all__ = [
     "FrameLogError",
+    "LogDecoder",
     "decode_raw",
     "format_fields",
     "format_record",
@@ -65,8 +78,9 @@ def message_fields(msg: Any) -> dict[str, Any]:
     return {f.name: _jsonable(getattr(msg, f.name)) for f in dataclasses.fields(msg)}
 
 
-def decode_raw(raw: str | bytes) -> Frame | DecodeError:
-    """Decode one frame from its wire bytes (hex string or bytes; the delimiter may be missing).
+def decode_raw(raw: str | bytes, schema: WireSchema | None = None) -> Frame | DecodeError:
+    """Decode one frame from its wire bytes (hex string or bytes; the delimiter may be missing) with
+    ``schema`` (default: the u16 schema; :class:`LogDecoder` follows a log's own).
 
     Raises :class:`FrameLogError` only when ``raw`` is not valid hex.
     """
@@ -79,7 +93,7 @@ def decode_raw(raw: str | bytes) -> Frame | DecodeError:
         data = bytes(raw)
     if not data.endswith(b"\x00"):
         data += b"\x00"
-    items = FrameDecoder(max_frame_bytes=max(512, len(data))).feed(data)
+    items = FrameDecoder(max_frame_bytes=max(512, len(data)), schema=schema).feed(data)
     if len(items) == 1:
         return items[0]
     if not items:
@@ -88,12 +102,41 @@ def decode_raw(raw: str | bytes) -> Frame | DecodeError:
     return DecodeError(DecodeErrorKind.COBS, f"raw bytes hold {len(items)} frames/errors ({kinds}), expected one", data)
 
 
-def record(direction: str, t: float, raw: bytes, item: Frame | DecodeError | None = None) -> dict[str, Any]:
-    """Build one log record; when ``item`` is None the raw bytes are decoded here."""
+class LogDecoder:
+    """Re-decodes the raw bytes of one log's records in file order with the log's own wire schema
+    (see the module docstring); ``schema`` pins one instead. ``.schema`` is the one in effect (None
+    until a HELLO/CAPS named one)."""
+
+    def __init__(self, schema: WireSchema | None = None) -> None:
+        self.pinned = schema is not None
+        self.schema: WireSchema | None = schema
+
+    def decode(self, raw: str | bytes) -> Frame | DecodeError:
+        """The frame (or the error) in one record's raw bytes; :class:`FrameLogError` for bad hex."""
+        if self.schema is not None:
+            item = decode_raw(raw, self.schema)
+        else:
+            item = decode_raw(raw, WIRE_SCHEMAS[0])
+            if isinstance(item, DecodeError) and item.kind is DecodeErrorKind.PAYLOAD:
+                for other in WIRE_SCHEMAS[1:]:
+                    again = decode_raw(raw, other)
+                    if isinstance(again, Frame):
+                        item = again
+                        break
+        if not self.pinned and isinstance(item, Frame) and isinstance(item.msg, (Hello, Caps)):
+            named = schema_by_hash(item.msg.schema_hash)
+            if named is not None:
+                self.schema = named
+        return item
+
+
+def record(direction: str, t: float, raw: bytes, item: Frame | DecodeError | None = None,
+           schema: WireSchema | None = None) -> dict[str, Any]:
+    """Build one log record; when ``item`` is None the raw bytes are decoded here (with ``schema``)."""
     if direction not in DIRECTIONS:
         raise ValueError(f"direction must be 'tx' or 'rx', got {direction!r}")
     if item is None:
-        item = decode_raw(bytes(raw))
+        item = decode_raw(bytes(raw), schema)
     rec: dict[str, Any] = {"dir": direction, "t": float(t), "raw": bytes(raw).hex()}
     if isinstance(item, Frame):
         rec["seq"] = item.seq

@@ -20,6 +20,11 @@ CRC: crcmod's predefined ``'x-25'`` (CRC-16/IBM-SDLC: poly 0x1021 reflected,
 init 0xFFFF, xorout 0xFFFF); check value for ``b"123456789"`` is ``0x906E``.
 
 A version-1 12-servo SERVO_FRAME is 5 + 30 + 2 = 37 bytes, 39 on the wire.
+
+The payload layouts of SERVO_FRAME, FLUSH and TELEMETRY depend on the robot's wire schema
+(:class:`protocol.codec.WireSchema`, u16 or u32 servo mask): :func:`encode_frame` and
+:class:`FrameDecoder` take the session's ``schema`` (default: the u16 schema, every robot of up
+to 16 servos); the header, CRC and COBS are the same for every schema.
 Future protocol versions must keep byte 0 as the version and the CRC at the
 end so that a version mismatch is reported as ``VERSION`` rather than garbage.
 """
@@ -33,7 +38,7 @@ from enum import Enum
 import crcmod.predefined
 from cobs import cobs
 
-from protocol.codec import MAX_PAYLOAD, PayloadError, decode_payload, encode_payload, msg_type_of
+from protocol.codec import WIRE_SCHEMA_16, MAX_PAYLOAD, PayloadError, WireSchema, msg_type_of
 from protocol.messages import PROTOCOL_VERSION, Message, MsgType
 
 __all__ = [
@@ -112,20 +117,21 @@ def encode_raw_frame(msg_type: int, seq: int, payload: bytes, version: int = PRO
     return cobs.encode(body + _CRC.pack(crc16(body))) + b"\x00"
 
 
-def encode_frame(msg: Message, seq: int) -> bytes:
-    """Complete wire bytes of ``msg`` with sequence ``seq`` (taken modulo 2**16), delimiter included.
+def encode_frame(msg: Message, seq: int, schema: WireSchema | None = None) -> bytes:
+    """Complete wire bytes of ``msg`` with sequence ``seq`` (taken modulo 2**16), delimiter included,
+    payload in ``schema`` (default: the u16 schema).
 
     Raises :class:`protocol.codec.PayloadError` for a structurally invalid message.
     """
-    return encode_raw_frame(msg_type_of(msg), seq, encode_payload(msg))
+    return encode_raw_frame(msg_type_of(msg), seq, (schema or WIRE_SCHEMA_16).encode_payload(msg))
 
 
-def frame_size(msg: Message) -> int:
+def frame_size(msg: Message, schema: WireSchema | None = None) -> int:
     """Bytes ``msg`` occupies on the wire (exact below 248 payload bytes; +-1 above, COBS is data-dependent)."""
-    return len(encode_frame(msg, 0))
+    return len(encode_frame(msg, 0, schema))
 
 
-def _decode_block(block: bytes, raw: bytes) -> Frame | DecodeError:
+def _decode_block(block: bytes, raw: bytes, schema: WireSchema = WIRE_SCHEMA_16) -> Frame | DecodeError:
     """Decode one delimiter-free block; ``raw`` is what to report (block + delimiter)."""
     try:
         body = cobs.decode(block)
@@ -156,7 +162,7 @@ def _decode_block(block: bytes, raw: bytes) -> Frame | DecodeError:
     except ValueError:
         return DecodeError(DecodeErrorKind.UNKNOWN_TYPE, f"unknown message type {type_byte:#04x} (seq {seq})", raw)
     try:
-        msg = decode_payload(msg_type, body[HEADER_SIZE:-CRC_SIZE])
+        msg = schema.decode_payload(msg_type, body[HEADER_SIZE:-CRC_SIZE])
     except PayloadError as e:
         return DecodeError(DecodeErrorKind.PAYLOAD, f"seq {seq}: {e}", raw)
     return Frame(seq=seq, msg_type=msg_type, msg=msg, raw=raw)
@@ -169,13 +175,15 @@ class FrameDecoder:
     a longer run is dropped and reported once as ``OVERSIZE``, and everything up
     to the next 0x00 is discarded (counted in ``bytes_discarded``). Counters:
     ``frames_ok``, ``errors`` (per :class:`DecodeErrorKind`), ``bytes_discarded``
-    (bytes of every discarded frame or run) and ``bytes_received``.
+    (bytes of every discarded frame or run) and ``bytes_received``. Payloads decode with ``schema``
+    (default: the u16 schema); the attribute may be changed between feeds.
     """
 
-    def __init__(self, max_frame_bytes: int = DEFAULT_MAX_FRAME_BYTES) -> None:
+    def __init__(self, max_frame_bytes: int = DEFAULT_MAX_FRAME_BYTES, schema: WireSchema | None = None) -> None:
         if max_frame_bytes < MAX_WIRE_FRAME:
             raise ValueError(f"max_frame_bytes must be at least {MAX_WIRE_FRAME} (longest valid frame)")
         self.max_frame_bytes = max_frame_bytes
+        self.schema: WireSchema = schema or WIRE_SCHEMA_16
         self._buf = bytearray()
         self._skipping = False  # discarding an oversize run until the next delimiter
         self.frames_ok = 0
@@ -248,7 +256,7 @@ class FrameDecoder:
                 )
                 self.bytes_discarded += len(block) + 1 - self.max_frame_bytes
                 continue
-            item = _decode_block(block, block + b"\x00")
+            item = _decode_block(block, block + b"\x00", self.schema)
             if isinstance(item, Frame):
                 self.frames_ok += 1
                 out.append(item)

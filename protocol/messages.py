@@ -8,7 +8,9 @@ Units: times are integer microseconds (board clock unless the field says host),
 positions radians, velocities rad/s, efforts N*m. Servo ``i`` (0-based) is the
 servo with id ``i + 1`` in the robot's servo table; a ``mask`` has bit ``i`` set
 for every servo a message covers, and per-servo tuples list only the masked
-servos in ascending index order.
+servos in ascending index order. A robot has 1 to :data:`MAX_WIRE_SERVOS` servos; the mask
+travels as a u16 for robots of up to :data:`MAX_SERVOS` servos and as a u32 above
+(:class:`protocol.codec.WireSchema`).
 """
 
 from __future__ import annotations
@@ -17,7 +19,12 @@ from dataclasses import dataclass, field
 from enum import IntEnum, IntFlag
 
 PROTOCOL_VERSION = 1
+#: Servos the default wire schema carries (its servo mask is a u16): every robot with up to 16 servos.
 MAX_SERVOS = 16
+#: The most servos the wire carries (robots with 17..32 servos use the u32-mask schema,
+#: :func:`protocol.codec.schema_for`). Why 32: the servo mask is at most one u32, one register on an MCU,
+#: and a 32-servo TELEMETRY (227 payload bytes) still fits a serial frame's 255-byte payload.
+MAX_WIRE_SERVOS = 32
 
 
 class MsgType(IntEnum):
@@ -61,6 +68,7 @@ class NackReason(IntEnum):
     NO_RENDERER = 10
     BUSY = 11
     NOT_LOCKSTEP = 12
+    SERVO_FAULT = 13  # a servo stopped answering on the board's servo bus (detail names it)
 
 
 class FaultFlags(IntFlag):
@@ -73,6 +81,7 @@ class FaultFlags(IntFlag):
     CLAMPED = 0x08  # a target was clamped to a joint or speed limit since last report
     TICK_OVERRUN = 0x10  # realtime loop missed a deadline since last report
     LINK_ERRORS = 0x20  # bad frames were received since last report
+    SERVO_FAULT = 0x40  # latched: a servo stopped answering on the servo bus; the others hold; needs ESTOP_CLEAR
 
 
 class ConfigKey(IntEnum):

@@ -5,21 +5,31 @@ from __future__ import annotations
 from protocol import messages as m
 from protocol.messages import Message, MsgType
 
-__all__ = ["SAMPLES", "servo_frame_12", "telemetry_12"]
+__all__ = ["SAMPLES", "servo_frame_12", "servo_frame_n", "telemetry_12", "telemetry_n"]
+
+
+def servo_frame_n(n: int, apply_at_us: int = 1_234_567) -> m.ServoFrame:
+    """A full SERVO_FRAME for a robot of ``n`` servos (the hot path host -> board)."""
+    return m.ServoFrame(apply_at_us=apply_at_us, mask=(1 << n) - 1, targets=tuple(0.05 * i - 0.3 for i in range(n)))
 
 
 def servo_frame_12(apply_at_us: int = 1_234_567) -> m.ServoFrame:
-    """A full 12-servo SERVO_FRAME (the hot path host -> board)."""
-    return m.ServoFrame(apply_at_us=apply_at_us, mask=0x0FFF, targets=tuple(0.05 * i - 0.3 for i in range(12)))
+    """A full 12-servo SERVO_FRAME."""
+    return servo_frame_n(12, apply_at_us)
 
 
 def telemetry_12(board_time_us: int = 2_000_000) -> m.Telemetry:
-    """A 12-servo TELEMETRY report (the hot path board -> host)."""
+    """A 12-servo TELEMETRY report."""
+    return telemetry_n(12, board_time_us)
+
+
+def telemetry_n(n: int, board_time_us: int = 2_000_000) -> m.Telemetry:
+    """A TELEMETRY report of a robot of ``n`` servos (the hot path board -> host)."""
     return m.Telemetry(
         board_time_us=board_time_us,
-        positions=tuple(0.1 * i - 0.6 for i in range(12)),
-        velocities=tuple(0.5 - 0.1 * i for i in range(12)),
-        efforts=tuple(0.01 * i for i in range(12)),
+        positions=tuple(0.1 * i - 0.6 for i in range(n)),
+        velocities=tuple(0.5 - 0.1 * i for i in range(n)),
+        efforts=tuple(0.01 * i for i in range(n)),
         imu_rpy=(0.01, -0.02, 1.5),
         faults=m.FaultFlags.CLAMPED,
         buffer_fill=4,

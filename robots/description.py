@@ -28,12 +28,15 @@ import importlib
 import importlib.util
 import math
 import sys
+import traceback
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
+
+from protocol.messages import MAX_WIRE_SERVOS as _MAX_WIRE_SERVOS
 
 if TYPE_CHECKING:
     from robots.interface import Interface
@@ -54,9 +57,10 @@ __all__ = [
     "ServoTable",
 ]
 
-#: The most servos a robot may have: the wire's servo mask is at most one u32 (one register on an
-#: MCU; :mod:`protocol.codec` uses a u16 mask up to 16 servos and a u32 mask above).
-MAX_WIRE_SERVOS = 32
+#: The most servos a robot may have (:data:`protocol.messages.MAX_WIRE_SERVOS`): the wire's servo mask is
+#: at most one u32 (one register on an MCU; :mod:`protocol.codec` uses a u16 mask up to 16 servos and a
+#: u32 mask above).
+MAX_WIRE_SERVOS = _MAX_WIRE_SERVOS
 
 
 class RobotDataError(ValueError):
@@ -361,22 +365,38 @@ class Robot:
         sys.modules[mod_name] = mod
         try:
             spec.loader.exec_module(mod)
-        except Exception:
+        except Exception as e:  # a user robot's module: one line with its file:line, not a traceback
             sys.modules.pop(mod_name, None)
-            raise
+            line = getattr(e, "lineno", None) if isinstance(e, SyntaxError) else next(
+                (f.lineno for f in reversed(traceback.extract_tb(e.__traceback__)) if f.filename == str(path)), None)
+            raise RobotDataError(f"{path}{f':{line}' if line else ''}: cannot import this robot module "
+                                 f"({type(e).__name__}: {e})") from None
         return mod
 
     @cached_property
     def behaviours(self) -> Mapping[str, Behaviour]:
-        """Behaviour name -> generator: the generic ones (``pose``, ``joint_move``) and the module's."""
+        """Behaviour name -> generator: the generic ones (``pose``, ``joint_move``) and the module's.
+
+        The module's ``BEHAVIOURS`` is a dict, or a function ``BEHAVIOURS(robot) -> dict`` (so a user
+        package's generators can take their limits and servo indices from this robot)."""
         from robots.generic import generic_behaviours
 
         out: dict[str, Behaviour] = dict(generic_behaviours(self))
         if self.behaviours_module:
+            path = self.root / (self.behaviours_module + ".py")
             mod = self._module(self.behaviours_module)
             own = getattr(mod, "BEHAVIOURS", None)
+            if callable(own) and not isinstance(own, Mapping):
+                try:
+                    own = own(self)
+                except Exception as e:  # the package's code: one line with its place, not a traceback
+                    line = next((f.lineno for f in reversed(traceback.extract_tb(e.__traceback__))
+                                 if f.filename == str(path)), None)
+                    raise RobotDataError(f"{path}{f':{line}' if line else ''}: BEHAVIOURS(robot) failed "
+                                         f"({type(e).__name__}: {e})") from None
             if not isinstance(own, Mapping):
-                raise RobotDataError(f"{self.root / (self.behaviours_module + '.py')}: needs a BEHAVIOURS dict")
+                raise RobotDataError(f"{path}: needs BEHAVIOURS, a dict name -> generator or a function "
+                                     "robot -> that dict")
             out.update(own)
         return out
 
@@ -386,7 +406,12 @@ class Robot:
         from robots.interface import build_interface
 
         mod = self._module(self.interface_module) if self.interface_module else None
-        return build_interface(self, mod)
+        try:
+            return build_interface(self, mod)
+        except (TypeError, AttributeError, KeyError) as e:  # VOCABULARIES of the wrong shape: one line
+            where = self.root / f"{self.interface_module}.py" if self.interface_module else self.root / "robot.toml"
+            raise RobotDataError(f"{where}: VOCABULARIES must map vocabulary -> {{module name: class of stubs}} "
+                                 f"({type(e).__name__}: {e})") from None
 
     @cached_property
     def tasks(self) -> Mapping[int, Task]:
@@ -424,7 +449,8 @@ class Robot:
                  f"  servo table hash: {self.servo_table_hash:#010x}",
                  "  servos: " + ", ".join(f"{s.id}:{s.name}[{deg(s.min):.0f}..{deg(s.max):.0f}]" for s in self.servos),
                  "  poses: " + ", ".join(self.poses),
-                 "  channels: " + ", ".join(f"{c.name}({len(c.servos)})" for c in self.channels.values()),
+                 "  channels: " + (", ".join(f"{c.name}({len(c.servos)})" for c in self.channels.values())
+                                   or "none (pose and joint_move run on the generic channel joints)"),
                  "  peripherals: " + (", ".join(p for p, on in (("camera", self.peripherals.camera),
                                                                  ("screen", self.peripherals.screen),
                                                                  ("speaker", self.peripherals.speaker)) if on)

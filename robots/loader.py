@@ -65,7 +65,7 @@ from robots.description import (
     ServoTable,
 )
 
-__all__ = ["ROBOT_FILE", "load_robot_dir", "read_servo_table", "read_poses", "check_against_mjcf"]
+__all__ = ["ROBOT_FILE", "load_robot_dir", "read_servo_table", "read_poses", "check_against_mjcf", "position_kp"]
 
 ROBOT_FILE = "robot.toml"
 NAME_RE = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
@@ -98,6 +98,20 @@ def _line(text: str, pattern: str, occurrence: int = 0) -> int | None:
         if k == occurrence:
             return text.count("\n", 0, m.start()) + 1
     return None
+
+
+def _key_line(text: str, section_line: int | None, key: str) -> int | None:
+    """Line of ``key = ...`` in the table that starts at ``section_line`` (before the next ``[...]``)."""
+    if section_line is None:
+        return None
+    lines = text.splitlines()
+    for n in range(section_line, len(lines)):  # lines[section_line] is the line after the header
+        stripped = lines[n].strip()
+        if stripped.startswith("["):
+            break
+        if re.match(rf"^\"?{re.escape(key)}\"?\s*=", stripped):
+            return n + 1
+    return section_line
 
 
 def _at(path: Path, line: int | None) -> str:
@@ -199,7 +213,10 @@ def read_poses(path: Path, table: ServoTable) -> dict[str, tuple[float, ...]]:
     names = {s.name: s.index for s in table} | {s.joint: s.index for s in table}
     out: dict[str, tuple[float, ...]] = {}
     for name, value in entries.items():
-        where = _at(path, _line(text, rf"^\s*\"?{re.escape(name)}\"?\s*="))
+        # [poses.NAME], or NAME = ... ([ \t], not \s: a match must not start on an earlier, blank line)
+        section = _line(text, rf"^[ \t]*\[[ \t]*poses[ \t]*\.[ \t]*\"?{re.escape(name)}\"?[ \t]*\]")
+        where = _at(path, section or _line(text, rf"^[ \t]*\"?{re.escape(name)}\"?[ \t]*="))
+        at: dict[int, str] = {}  # servo index -> where its value is written
         if isinstance(value, list):
             if len(value) != len(table):
                 raise RobotDataError(f"{where}: pose {name!r} has {len(value)} values; it needs {len(table)} "
@@ -208,16 +225,18 @@ def read_poses(path: Path, table: ServoTable) -> dict[str, tuple[float, ...]]:
         elif isinstance(value, dict):
             q = list(table.neutral)
             for joint, v in value.items():
+                jwhere = _at(path, _key_line(text, section, joint)) if section else where
                 if joint not in names:
-                    raise RobotDataError(f"{where}: pose {name!r} names {joint!r}, which is no servo or joint of this "
-                                         f"robot (servos: {', '.join(table.names)})")
-                q[names[joint]] = math.radians(_num(v, f"pose {name!r} {joint}", where))
+                    raise RobotDataError(f"{jwhere}: pose {name!r} names {joint!r}, which is no servo or joint of "
+                                         f"this robot (servos: {', '.join(table.names)})")
+                q[names[joint]] = math.radians(_num(v, f"pose {name!r} {joint}", jwhere))
+                at[names[joint]] = jwhere
         else:
             raise RobotDataError(f"{where}: pose {name!r} must be a list of degrees or a table of joint = degrees")
         for s, v in zip(table, q):
             if not s.min - 1e-9 <= v <= s.max + 1e-9:
-                raise RobotDataError(f"{where}: pose {name!r}: {s.name} = {math.degrees(v):.1f} deg outside "
-                                     f"[{math.degrees(s.min):.0f}, {math.degrees(s.max):.0f}]")
+                raise RobotDataError(f"{at.get(s.index, where)}: pose {name!r}: {s.name} = {math.degrees(v):.1f} deg "
+                                     f"outside [{math.degrees(s.min):.0f}, {math.degrees(s.max):.0f}]")
         out[name] = tuple(q)
     return out
 
@@ -225,23 +244,44 @@ def read_poses(path: Path, table: ServoTable) -> dict[str, tuple[float, ...]]:
 # --- the MJCF cross-check -------------------------------------------------------------------------
 
 
+def position_kp(model: Any, aid: int) -> float | None:
+    """``kp`` of actuator ``aid`` when it is a position actuator (fixed gain ``kp > 0``, affine bias with
+    ``biasprm[1] = -kp``: ``<position>`` or the equivalent ``<general>``), else None."""
+    import mujoco
+
+    kp = float(model.actuator_gainprm[aid, 0])
+    if (int(model.actuator_gaintype[aid]) != int(mujoco.mjtGain.mjGAIN_FIXED)
+            or int(model.actuator_biastype[aid]) != int(mujoco.mjtBias.mjBIAS_AFFINE) or not kp > 0
+            or abs(float(model.actuator_biasprm[aid, 1]) + kp) > 1e-9 * max(1.0, kp)):
+        return None
+    return kp
+
+
 def check_against_mjcf(mjcf: Path, table: ServoTable, servo_path: Path, servo_text: str,
-                       camera: str | None = None, feet: Sequence[str] = ()) -> None:
-    """Compile ``mjcf`` and check the servo table (and camera, foot sites) against it."""
+                       camera: str | None = None, feet: Sequence[str] = (), *, camera_at: str | None = None,
+                       feet_at: str | None = None) -> None:
+    """Compile ``mjcf`` and check the servo table (and camera, foot sites) against it.
+
+    ``camera_at``/``feet_at``: where robot.toml names them (file:line), for the messages. MJCF places
+    come from :func:`robots.mjcf_index.index_mjcf` (includes followed)."""
+    from robots.mjcf_index import index_mjcf
+
     import mujoco
 
     try:
         model = mujoco.MjModel.from_xml_path(str(mjcf))
     except (ValueError, OSError) as e:
         raise RobotDataError(f"{mjcf}: MuJoCo cannot compile it: {' '.join(str(e).split())}") from None
-    xml = mjcf.read_text(encoding="utf-8", errors="replace")
+    index = index_mjcf(mjcf)
+    actuators = {e.attrs.get("name"): e for e in index.children_of("actuator")}
     hinge_slide = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
     for s in table:
         where = _at(servo_path, _line(servo_text, r"^\[\[servo\]\]", s.id - 1))
         jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, s.joint)
         if jid < 0:
             raise RobotDataError(f"{where}: servo {s.name}: joint {s.joint!r} is not in {mjcf.name}")
-        jline = _at(mjcf, _line(xml, rf"<joint\b[^>]*\bname=\"{re.escape(s.joint)}\""))
+        jel = index.named("joint", s.joint)
+        jline = jel.where if jel is not None else str(mjcf)
         if int(model.jnt_type[jid]) not in hinge_slide:
             raise RobotDataError(f"{jline}: joint {s.joint!r} (servo {s.name}) must be a hinge or slide joint")
         if not model.jnt_limited[jid]:
@@ -254,19 +294,20 @@ def check_against_mjcf(mjcf: Path, table: ServoTable, servo_path: Path, servo_te
         aid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, s.actuator)
         if aid < 0:
             raise RobotDataError(f"{where}: servo {s.name}: actuator {s.actuator!r} is not in {mjcf.name}")
-        aline = _at(mjcf, _line(xml, rf"<\w+\b[^>]*\bname=\"{re.escape(s.actuator)}\""))
+        ael = actuators.get(s.actuator)
+        aline = ael.where if ael is not None else str(mjcf)
         if int(model.actuator_trntype[aid]) != int(mujoco.mjtTrn.mjTRN_JOINT) or int(model.actuator_trnid[aid, 0]) != jid:
             raise RobotDataError(f"{aline}: actuator {s.actuator!r} does not drive joint {s.joint!r} (servo {s.name})")
-        kp = float(model.actuator_gainprm[aid, 0])
-        if (int(model.actuator_biastype[aid]) != int(mujoco.mjtBias.mjBIAS_AFFINE) or kp <= 0
-                or abs(float(model.actuator_biasprm[aid, 1]) + kp) > 1e-9 * max(1.0, kp)):
+        if position_kp(model, aid) is None:
             raise RobotDataError(f"{aline}: actuator {s.actuator!r} (servo {s.name}) is not a position actuator "
                                  "(use <position kp=...>)")
     if camera is not None and mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0:
-        raise RobotDataError(f"{mjcf}: no camera {camera!r} (robot.toml [peripherals] camera)")
+        raise RobotDataError(f"{camera_at or 'robot.toml [peripherals]'}: camera = {camera!r}: {mjcf.name} has no "
+                             "camera of that name")
     for site in feet:
         if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, site) < 0:
-            raise RobotDataError(f"{mjcf}: no site {site!r} (robot.toml [base] feet)")
+            raise RobotDataError(f"{feet_at or 'robot.toml [base]'}: feet names site {site!r}, which {mjcf.name} "
+                                 "does not have")
 
 
 # --- robot.toml -----------------------------------------------------------------------------------
@@ -278,12 +319,14 @@ def _names(v: Any, what: str, where: str) -> tuple[str, ...]:
     return tuple(v)
 
 
-def _file(root: Path, doc: Mapping[str, Any], key: str, where: str, *, required: bool = True) -> Path | None:
+def _file(root: Path, doc: Mapping[str, Any], key: str, path: Path, text: str, *,
+          required: bool = True) -> Path | None:
     v = doc.get(key)
     if v is None:
         if required:
-            raise RobotDataError(f"{where}: {key} = \"FILE\" is missing")
+            raise RobotDataError(f"{path}: {key} = \"FILE\" is missing")
         return None
+    where = _at(path, _line(text, "^" + key + r"\s*="))
     p = root / _str(v, key, where)
     if not p.is_file():
         raise RobotDataError(f"{where}: {key} = {v!r}: no such file in {root}")
@@ -328,26 +371,39 @@ def _scenes(doc: Mapping[str, Any], path: Path, text: str) -> dict[str, SceneSpe
     return scenes
 
 
-def _tour(doc: Mapping[str, Any], poses: Mapping[str, Any], path: Path) -> tuple[str, ...]:
-    names = _names(doc.get("tour", []), "tour", str(path))
+def _tour(doc: Mapping[str, Any], poses: Mapping[str, Any], path: Path, text: str) -> tuple[str, ...]:
+    where = _at(path, _line(text, r"^tour\s*="))
+    names = _names(doc.get("tour", []), "tour", where)
     for n in names:
         if n not in poses:
-            raise RobotDataError(f"{path}: tour names pose {n!r}, which is not a pose ({', '.join(poses)})")
+            raise RobotDataError(f"{where}: tour names pose {n!r}, which is not a pose ({', '.join(poses)})")
     return names
 
 
 def load_robot_dir(root: Path, *, builtin: bool = False, check_mjcf: bool = True) -> Robot:
-    """Read the robot in folder ``root`` (its ``robot.toml``); :class:`RobotDataError` says what and where."""
-    root = Path(root).resolve()
+    """Read the robot in folder ``root`` (its ``robot.toml``); :class:`RobotDataError` says what and where.
+
+    A value of the wrong TOML type that no check names (``base = 3``, ``voices = 7``) is a
+    :class:`RobotDataError` naming robot.toml too, never a traceback."""
+    try:
+        return _load_robot_dir(Path(root).resolve(), builtin=builtin, check_mjcf=check_mjcf)
+    except RobotDataError:
+        raise
+    except (TypeError, AttributeError, KeyError, IndexError, ValueError) as e:
+        raise RobotDataError(f"{Path(root).resolve() / ROBOT_FILE}: a value has the wrong type or shape "
+                             f"({type(e).__name__}: {e}); robots/loader.py documents every key") from None
+
+
+def _load_robot_dir(root: Path, *, builtin: bool, check_mjcf: bool) -> Robot:
     path = root / ROBOT_FILE
     doc, text = _read_toml(path)
     name = doc.get("name")
     if not isinstance(name, str) or not NAME_RE.match(name):
         where = _at(path, _line(text, r"^name\s*="))
         raise RobotDataError(f"{where}: name must match [a-z][a-z0-9_]* (at most 32 characters), got {name!r}")
-    mjcf = _file(root, doc, "mjcf", str(path))
-    servo_path = _file(root, doc, "servo_table", str(path))
-    poses_path = _file(root, doc, "poses", str(path))
+    mjcf = _file(root, doc, "mjcf", path, text)
+    servo_path = _file(root, doc, "servo_table", path, text)
+    poses_path = _file(root, doc, "poses", path, text)
     assert mjcf and servo_path and poses_path
     table = read_servo_table(servo_path)
     poses = read_poses(poses_path, table)
@@ -358,10 +414,12 @@ def load_robot_dir(root: Path, *, builtin: bool = False, check_mjcf: bool = True
             raise RobotDataError(f"{where}: {key} = {pose!r} is not a pose in {poses_path.name} "
                                  f"(poses: {', '.join(poses)})")
     base_doc = doc.get("base", {})
+    base_at = {k: _at(path, _line(text, rf"^{k}\s*=") or _line(text, r"^\[base\]"))
+               for k in ("feet", "foot_radius", "spawn_height")}
     base = Base(floating=bool(base_doc.get("floating", False)),
-                feet=_names(base_doc.get("feet", []), "feet", str(path)),
-                foot_radius=_num(base_doc.get("foot_radius", 0.0), "foot_radius", str(path)),
-                spawn_height=_num(base_doc.get("spawn_height", 0.2), "spawn_height", str(path)))
+                feet=_names(base_doc.get("feet", []), "feet", base_at["feet"]),
+                foot_radius=_num(base_doc.get("foot_radius", 0.0), "foot_radius", base_at["foot_radius"]),
+                spawn_height=_num(base_doc.get("spawn_height", 0.2), "spawn_height", base_at["spawn_height"]))
     channels: dict[str, Channel] = {}
     owner: dict[int, str] = {}
     for cname, c in (doc.get("channels") or {}).items():
@@ -386,7 +444,8 @@ def load_robot_dir(root: Path, *, builtin: bool = False, check_mjcf: bool = True
     scenes = _scenes(doc, path, text)
     default_scene = str(doc.get("default_scene", "empty"))
     if default_scene not in scenes:
-        raise RobotDataError(f"{path}: default_scene {default_scene!r} is not a scene ({', '.join(scenes)})")
+        where = _at(path, _line(text, r"^default_scene\s*="))
+        raise RobotDataError(f"{where}: default_scene {default_scene!r} is not a scene ({', '.join(scenes)})")
     for key in ("interface", "behaviours"):
         mod = doc.get(key)
         if mod is not None and not (root / f"{mod}.py").is_file():
@@ -396,16 +455,17 @@ def load_robot_dir(root: Path, *, builtin: bool = False, check_mjcf: bool = True
     view = {str(k): _num(v, f"view {k}", str(path)) for k, v in (doc.get("view") or {}).items()}
     if check_mjcf:
         check_against_mjcf(mjcf, table, servo_path, servo_path.read_text(encoding="utf-8"),
-                           peripherals.camera, base.feet)
+                           peripherals.camera, base.feet, camera_at=_at(path, _line(text, r"^camera\s*=")),
+                           feet_at=base_at["feet"])
     return Robot(
         name=name, title=str(doc.get("title", name)), description=str(doc.get("description", "")), root=root,
         mjcf=mjcf, servos=table, poses=poses, channels=channels, peripherals=peripherals, scenes=scenes,
         default_scene=default_scene, base=base, start_pose=str(doc["start_pose"]), rest_pose=str(doc["rest_pose"]),
-        safe_pose=str(doc["safe_pose"]), tasks_path=_file(root, doc, "tasks", str(path), required=False),
+        safe_pose=str(doc["safe_pose"]), tasks_path=_file(root, doc, "tasks", path, text, required=False),
         behaviours_module=doc.get("behaviours"), interface_module=doc.get("interface"),
         default_vocabulary=str(doc.get("default_vocabulary", "default")),
         demo_task_id=None if doc.get("demo_task") is None else int(doc["demo_task"]),
-        tour_poses=_tour(doc, poses, path),
+        tour_poses=_tour(doc, poses, path, text),
         data=data, view=view, builtin=builtin,
         sources={"robot": path, "servo_table": servo_path, "poses": poses_path, "mjcf": mjcf},
     )

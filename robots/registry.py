@@ -26,7 +26,7 @@ from robots.description import Robot, RobotDataError
 from robots.loader import ROBOT_FILE, load_robot_dir
 
 __all__ = ["BUILTIN_DIR", "DEFAULT_ROBOT", "RobotEntry", "RobotNotFound", "find_robot", "list_robots", "load_robot",
-           "search_path", "user_robots_dir"]
+           "new_robots_dir", "search_path", "user_robots_dir"]
 
 BUILTIN_DIR = Path(__file__).resolve().parent
 ENV_VAR = "GHOSTSHELL_ROBOTS"
@@ -57,6 +57,12 @@ def user_robots_dir() -> Path:
     import platformdirs
 
     return Path(platformdirs.user_data_dir("ghostshell")) / "robots"
+
+
+def new_robots_dir(robots_dir: str | Path | None = None) -> Path:
+    """Where ``ghostshell robots new`` writes: ``robots_dir`` if given, else the first folder of
+    ``$GHOSTSHELL_ROBOTS``, else :func:`user_robots_dir` (the first user folder of :func:`search_path`)."""
+    return next(folder for folder, builtin in search_path(robots_dir) if not builtin)
 
 
 def search_path(robots_dir: str | Path | None = None) -> list[tuple[Path, bool]]:
@@ -90,7 +96,7 @@ def list_robots(robots_dir: str | Path | None = None) -> list[RobotEntry]:
         if not folder.is_dir():
             continue
         for child in sorted(folder.iterdir()):
-            if (child / ROBOT_FILE).is_file():
+            if not child.name.startswith(".") and (child / ROBOT_FILE).is_file():  # (.NAME.new-PID: being written)
                 name = child.name
                 out.append(RobotEntry(name, child, builtin, seen.get(name)))
                 seen.setdefault(name, child)

@@ -21,9 +21,12 @@ def open_board_transport(
     *,
     baud: int | None = None,
     log_path: str | None = None,
+    servo_count: int | None = None,
     **options: Any,
 ) -> BoardTransport:
-    """Open the board's end of ``spec``; ``baud`` models serial wire time; ``log_path`` is the frame log.
+    """Open the board's end of ``spec``; ``baud`` models serial wire time; ``log_path`` is the frame log;
+    ``servo_count`` is the robot's: its wire schema / CAN layout table (None: the defaults, for a
+    robot of up to 16 servos on serial, :data:`protocol.can.layouts.DEFAULT_SERVO_COUNT` on CAN).
 
     Raises :class:`protocol.linkspec.LinkSpecError` for a bad spec, ``ValueError`` for a kind
     no transport serves, ``OSError`` / ``serial.SerialException`` when the port cannot be opened.
@@ -32,9 +35,9 @@ def open_board_transport(
     if spec.kind == "serial":
         from firmware_sim.transports.serial import SerialBoardTransport
 
-        return SerialBoardTransport(spec.port, baud=baud, log_path=log_path)
+        return SerialBoardTransport(spec.port, baud=baud, log_path=log_path, servo_count=servo_count)
     if spec.kind == "can":
         from firmware_sim.transports.can import open_can_board_transport  # python-can loads only for CAN links
 
-        return open_can_board_transport(spec, log_path=log_path, **options)
+        return open_can_board_transport(spec, log_path=log_path, servo_count=servo_count, **options)
     raise ValueError(f"no transport for link kind {spec.kind!r}")

@@ -1,7 +1,9 @@
 """The board's CAN transports: a python-can bus (SocketCAN, virtual, ...) or an SLCAN adapter on a pty.
 
 Both share :class:`CanBoardTransport`: fixed-layout frames are encoded and reassembled with
-:mod:`protocol.can` (the board's node id selects its identifiers; the broadcast ESTOP 0x000 is
+:mod:`protocol.can` in the robot's layout table (:func:`protocol.can.layouts.can_layouts` for its
+``servo_count``; a message without a fixed layout in the link's frame kind, classic TELEMETRY above
+27 servos, goes as bulk; the board's node id selects its identifiers; the broadcast ESTOP 0x000 is
 honoured too), bulk messages travel over ISO-TP (:mod:`protocol.can.isotp_link`), and
 every frame sent and received is logged with python-can's writers (``can.Logger``: format by
 suffix, ``.log`` candump, ``.asc``, ``.blf``; timestamps are wall-clock seconds).
@@ -43,13 +45,14 @@ from protocol.can import (
 )
 from protocol.can.codec import Sender
 from protocol.can.decoder import CanErrorKind, as_frame_items
-from protocol.can.ids import bulk_ids
+from protocol.can.ids import FunctionCode, bulk_ids
 from protocol.can.isotp_link import IsoTpLink
+from protocol.can.layouts import CanLayouts, can_layouts
 from protocol.faults import FaultInjector
 from protocol.codec import PayloadError
 from protocol.framing import DecodeError, DecodeErrorKind, Frame
 from protocol.linkspec import LinkSpec
-from protocol.messages import Message, MsgType, Nack, SimState
+from protocol.messages import Message, MsgType, Nack, SimState, Telemetry
 
 __all__ = [
     "BusBoardTransport",
@@ -105,13 +108,14 @@ def open_can_logger(path: str | Path) -> Any:
 class CanBoardTransport(BoardTransport):
     """Shared CAN logic; subclasses read and write frames."""
 
-    def __init__(self, spec: LinkSpec, log_path: str | None = None) -> None:
+    def __init__(self, spec: LinkSpec, log_path: str | None = None, servo_count: int | None = None) -> None:
         super().__init__()
         self.spec = spec
         self.node = spec.node
         self.fd = spec.fd
         self.channel_name = spec.channel or "can0"
-        self.decoder = CanDecoder(self.node, "board")
+        self.layouts: CanLayouts = can_layouts() if servo_count is None else can_layouts(servo_count)
+        self.decoder = CanDecoder(self.node, "board", self.layouts)
         to_board, to_host = bulk_ids(self.node)
         self.bulk_rx_id = to_board
         self.isotp = IsoTpLink(rxid=to_board, txid=to_host, fd=self.fd, send=self._enqueue)
@@ -121,7 +125,9 @@ class CanBoardTransport(BoardTransport):
         self._backoff = BACKOFF_MIN_S
         self.tx_retries = 0
         self.tx_frames = 0
-        self._periodic: bytes | None = None  # the newest SIM_STATE not yet handed to ISO-TP
+        #: per message type, the newest periodic bulk report (SIM_STATE; TELEMETRY where it has no fixed
+        #: layout) not yet handed to ISO-TP; they take turns (insertion order)
+        self._periodic: dict[MsgType, bytes] = {}
         self._periodic_in_flight = False  # the ISO-TP transfer under way is a periodic SIM_STATE
         self.host_heard = False  # a frame came from a host since the start, or since a periodic report went unanswered
         self.periodic_unheard = 0  # SIM_STATE reports not sent: no host heard yet (or it went away)
@@ -183,7 +189,7 @@ class CanBoardTransport(BoardTransport):
     def _poll(self) -> None:
         """Advance ISO-TP; bulk messages it completes wait in ``_sdus`` for :meth:`receive` (never dropped).
 
-        A periodic SIM_STATE whose First Frame nobody answers is no link error: no host is listening
+        A periodic report (SIM_STATE; bulk TELEMETRY) whose First Frame nobody answers is no link error: no host is listening
         (it has not connected yet, or it went away mid-transfer). It is counted
         (``periodic_unanswered``), and reports wait until a host is heard again."""
         fc_before = self.isotp.flow_control_timeouts
@@ -216,17 +222,19 @@ class CanBoardTransport(BoardTransport):
             msg = dataclasses.replace(msg, detail="")
             self.nack_details_dropped += 1
         try:
-            if is_fixed(msg):
-                for f in encode_fixed(msg, seq, self.node, self.fd, Sender.BOARD):
+            if is_fixed(msg, self.fd, self.layouts):
+                for f in encode_fixed(msg, seq, self.node, self.fd, Sender.BOARD, self.layouts):
                     self._enqueue(f)
-            elif isinstance(msg, SimState):
-                # periodic bulk: the newest report wins; it waits until the ISO-TP link is idle
-                if self._periodic is not None:
+            elif isinstance(msg, (SimState, Telemetry)):
+                # periodic bulk (SIM_STATE; TELEMETRY too where it has no fixed layout): the newest
+                # report wins; it waits until the ISO-TP link is idle
+                kind = MsgType.SIM_STATE if isinstance(msg, SimState) else MsgType.TELEMETRY
+                if kind in self._periodic:
                     self.periodic_replaced += 1
-                self._periodic = encode_bulk(msg, seq)
+                self._periodic[kind] = encode_bulk(msg, seq, self.layouts.schema)
                 self._start_periodic()
             else:
-                self.isotp.send(encode_bulk(msg, seq))
+                self.isotp.send(encode_bulk(msg, seq, self.layouts.schema))
                 self._poll()
         except (PayloadError, BufferError) as e:
             print(f"board: cannot send {type(msg).__name__} on CAN: {e}", file=sys.stderr, flush=True)
@@ -238,14 +246,14 @@ class CanBoardTransport(BoardTransport):
         return msg.msg_type == MsgType.SERVO_FRAME or self.isotp.layer.tx_queue.qsize() >= NACK_BULK_BACKLOG
 
     def _start_periodic(self) -> None:
-        if self._periodic is not None and not self.host_heard:
+        if self._periodic and not self.host_heard:
             # a multi-frame ISO-TP transfer needs a receiver's flow control: with no host on the bus it could
             # only time out, so the report is left out (the next one after a host is heard goes)
-            self._periodic = None
-            self.periodic_unheard += 1
+            self.periodic_unheard += len(self._periodic)
+            self._periodic.clear()
             return
-        if self._periodic is not None and not self.isotp.layer.transmitting() and self.isotp.layer.tx_queue.empty():
-            sdu, self._periodic = self._periodic, None
+        if self._periodic and not self.isotp.layer.transmitting() and self.isotp.layer.tx_queue.empty():
+            sdu = self._periodic.pop(next(iter(self._periodic)))
             self.isotp.send(sdu)
             self._periodic_in_flight = True
             self._poll()
@@ -298,7 +306,7 @@ class CanBoardTransport(BoardTransport):
             due.append(time.monotonic() + BACKOFF_MIN_S)
         if self._retry_at is not None:
             due.append(self._retry_at)
-        if self.isotp.busy or self._periodic is not None:
+        if self.isotp.busy or self._periodic:
             due.append(time.monotonic() + 0.002)
         return min(due) if due else None
 
@@ -306,7 +314,9 @@ class CanBoardTransport(BoardTransport):
         if not self.periodic_unanswered:
             return None
         lossy = " or the link lost the frames" if self.rx_faults is not None or self.tx_faults is not None else ""
-        return (f"{self.periodic_unanswered} SIM_STATE report(s) got no ISO-TP flow control (the host had gone "
+        bulk_telemetry = self.layouts.layout(FunctionCode.TELEMETRY, self.fd) is None
+        what = "SIM_STATE/TELEMETRY" if bulk_telemetry else "SIM_STATE"
+        return (f"{self.periodic_unanswered} {what} report(s) got no ISO-TP flow control (the host had gone "
                 f"away{lossy}); later reports waited until a host was heard again")
 
     def close(self) -> None:
@@ -321,8 +331,9 @@ class CanBoardTransport(BoardTransport):
 class BusBoardTransport(CanBoardTransport):
     """The board on a python-can bus: ``can.Bus(**spec.bus_kwargs())`` filtered on its node id."""
 
-    def __init__(self, spec: LinkSpec, log_path: str | None = None, bus: can.BusABC | None = None) -> None:
-        super().__init__(spec, log_path)
+    def __init__(self, spec: LinkSpec, log_path: str | None = None, bus: can.BusABC | None = None,
+                 servo_count: int | None = None) -> None:
+        super().__init__(spec, log_path, servo_count)
         if bus is None:
             kw = spec.bus_kwargs()
             kw.setdefault("can_filters", [
@@ -381,8 +392,8 @@ class BusBoardTransport(CanBoardTransport):
 class SlcanBoardTransport(CanBoardTransport):
     """The board as an SLCAN USB-CAN adapter on a new pty (``can:slcan:pty``)."""
 
-    def __init__(self, spec: LinkSpec, log_path: str | None = None) -> None:
-        super().__init__(spec, log_path)
+    def __init__(self, spec: LinkSpec, log_path: str | None = None, servo_count: int | None = None) -> None:
+        super().__init__(spec, log_path, servo_count)
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)
         os.set_blocking(self.master, False)
@@ -460,7 +471,9 @@ class SlcanBoardTransport(CanBoardTransport):
 
 
 def open_can_board_transport(spec: LinkSpec, *, log_path: str | None = None, **options: Any) -> CanBoardTransport:
-    """``can:slcan:pty`` -> :class:`SlcanBoardTransport`; any other CAN spec -> :class:`BusBoardTransport`."""
+    """``can:slcan:pty`` -> :class:`SlcanBoardTransport`; any other CAN spec -> :class:`BusBoardTransport`
+    (options: ``bus=`` an open python-can bus, ``servo_count=`` the robot's)."""
+    servo_count = options.get("servo_count")
     if spec.interface == "slcan" and spec.channel == "pty":
-        return SlcanBoardTransport(spec, log_path)
-    return BusBoardTransport(spec, log_path, bus=options.get("bus"))
+        return SlcanBoardTransport(spec, log_path, servo_count)
+    return BusBoardTransport(spec, log_path, bus=options.get("bus"), servo_count=servo_count)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import errno
 import os
+import sys
 import tty
 from collections import deque
 
@@ -21,7 +22,7 @@ import serial
 
 from firmware_sim.transports.base import BoardTransport
 from protocol import framelog
-from protocol.codec import msg_type_of
+from protocol.codec import WIRE_SCHEMA_16, PayloadError, WireSchema, msg_type_of, schema_for
 from protocol.framing import DecodeError, Frame, FrameDecoder, encode_frame
 from protocol.messages import Message
 
@@ -152,17 +153,21 @@ class SerialBoardTransport(BoardTransport):
     """Protocol v1 over a pty pair (``port == "pty"``) or a serial port / pyserial URL.
 
     ``baud`` (None = no model) delays bytes by their wire time in both directions;
-    ``log_path`` gets one JSON-Lines record per frame both ways, stamped with :attr:`log_time`.
+    ``log_path`` gets one JSON-Lines record per frame both ways, stamped with :attr:`log_time`;
+    ``servo_count`` (the robot's) picks the wire schema (default: the u16 one).
     """
 
-    def __init__(self, port: str, *, baud: int | None = None, log_path: str | None = None) -> None:
+    def __init__(self, port: str, *, baud: int | None = None, log_path: str | None = None,
+                 servo_count: int | None = None) -> None:
         super().__init__()
+        self.schema: WireSchema = WIRE_SCHEMA_16 if servo_count is None else schema_for(servo_count)
         self.port = open_port(port, baud)
         self.name = self.port.name
-        self.decoder = FrameDecoder()
+        self.decoder = FrameDecoder(schema=self.schema)
         self.rx_wire = WireModel(baud)
         self.tx_wire = WireModel(baud)
         self.tx_pending = bytearray()
+        self.unsendable = 0  # messages that did not encode (reported on stderr, not sent)
         self._log: IO[str] | None = None
         if log_path:
             try:
@@ -190,11 +195,21 @@ class SerialBoardTransport(BoardTransport):
         return items
 
     def queue(self, msg: Message, seq: int, now: float) -> None:
-        raw = encode_frame(msg, seq)
+        try:
+            raw = encode_frame(msg, seq, self.schema)
+        except PayloadError as e:  # nothing the board sends may take it down: say so (once), send nothing
+            self.unsendable += 1
+            if self.unsendable == 1:
+                print(f"board: cannot send {type(msg).__name__}: {e} (further ones counted at exit)",
+                      file=sys.stderr, flush=True)
+            return
         if self._log is not None:
             item = Frame(seq & 0xFFFF, msg_type_of(msg), msg, raw)
             self._log.write(framelog.to_line(framelog.record("tx", self.log_time(), raw, item)) + "\n")
         self.tx_wire.push(now, raw)
+
+    def exit_note(self) -> str | None:
+        return f"{self.unsendable} message(s) could not be encoded and were not sent" if self.unsendable else None
 
     def flush(self, now: float) -> None:
         self.tx_pending += self.tx_wire.pop_ready(now)

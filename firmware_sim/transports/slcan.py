@@ -14,7 +14,7 @@ command    meaning                                                answer
 ``Sn``     bitrate code 0..8 (10 k .. 1 M), ``Yn`` FD data rate   ``\\r`` (closed only)
 ``sXXYY``  BTR0/BTR1 registers                                    ``\\r`` (closed only)
 ``V``      version                                                ``V1013\\r``
-``N``      serial number                                          ``NCOCO\\r``
+``N``      serial number                                          ``NGHST\\r``
 ``F``      status flags                                           ``F00\\r``
 ``tIIIL..`` standard frame, ``T`` extended, ``r``/``R`` remote    ``z\\r`` / ``Z\\r``
 ``dIIIL..`` FD frame (L = FD DLC hex), ``D`` ext., ``b``/``B`` BRS  ``z\\r`` / ``Z\\r``
@@ -127,7 +127,7 @@ class SlcanDevice:
         if c == "V" and len(line) == 1:
             return SlcanEvent(command=c), b"V1013\r"
         if c == "N" and len(line) == 1:
-            return SlcanEvent(command=c), b"NCOCO\r"
+            return SlcanEvent(command=c), b"NGHST\r"
         if c == "F" and len(line) == 1:
             return SlcanEvent(command=c), b"F00\r"
         if c in "tTrRdDbB":

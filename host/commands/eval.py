@@ -56,6 +56,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     add_mount_argument(parser)
     parser.add_argument("--ray", default=None, metavar="ADDRESS",
                         help="run the jobs on a Ray cluster (needs ghostshell[ray]); 'local' starts one here")
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress (bar and per-job lines); on a terminal a bar shows jobs, ETA and the running micro mean")
 
 
 def _at_least_one(text: str) -> int:
@@ -150,7 +152,6 @@ def main(args: argparse.Namespace) -> int:
     import anyio
 
     from host.eval.report import write_reports
-    from host.eval.sweep import run_sweep
     from host.ghost import GhostError
 
     from host.eval.sweep import GROUND_TRUTH, OFFLINE
@@ -168,31 +169,44 @@ def main(args: argparse.Namespace) -> int:
             print(f"ghostshell eval: {err}", file=sys.stderr)
         return 2
 
-    def progress(rec: dict[str, Any], p: Any) -> None:
-        what = (f"DSBC {rec['dsbc']:.2f}" if "dsbc" in rec else
-                (f"{'pass' if rec.get('passed') else 'FAIL'}" if "passed" in rec else rec.get("error", "")))
-        run = rec.get("run")
-        ran = "" if run is None else f", run {run['outcome']}{' (fell)' if run.get('fell') else ''}"
-        print(f"[{p.skipped + p.finished}/{p.total}] task {rec['task']} trial {rec['trial']}: {what}{ran}", flush=True)
+    from host.progress import bar
 
     stopped: list[str] = []
-    try:
-        if args.ray:
-            from host.eval.ray_backend import run_sweep_on_ray
+    scores: list[float] = []
+    total = len(cfg.tasks) * cfg.trials
+    with bar(f"eval {cfg.llm}", total, quiet=args.quiet, fields=("micro", "failed")) as shown:
 
-            records = run_sweep_on_ray(cfg, args.ray, on_result=progress)
-        else:
-            records = anyio.run(_sweep_until_signal, cfg, progress, stopped, backend="asyncio")
-    except (ValueError, GhostError, ImportError) as err:
-        print(f"ghostshell eval: {err}", file=sys.stderr)
-        return 2
-    except RuntimeError as err:  # a --mount-mcp server that cannot be mounted: one line, usage error
-        from host.commands.linkarg import link_exit_status
+        def progress(rec: dict[str, Any], p: Any) -> None:
+            what = (f"DSBC {rec['dsbc']:.2f}" if "dsbc" in rec else
+                    (f"{'pass' if rec.get('passed') else 'FAIL'}" if "passed" in rec else rec.get("error", "")))
+            run = rec.get("run")
+            ran = "" if run is None else f", run {run['outcome']}{' (fell)' if run.get('fell') else ''}"
+            if "dsbc" in rec:
+                scores.append(float(rec["dsbc"]))
+            elif "passed" in rec:
+                scores.append(1.0 if rec.get("passed") else 0.0)
+            if not args.quiet:
+                shown.print(f"[{p.skipped + p.finished}/{p.total}] task {rec['task']} trial {rec['trial']}: {what}{ran}")
+            shown.update(completed=p.skipped + p.finished, total=p.total,
+                         micro=f"{sum(scores) / len(scores):.2f}" if scores else "", failed=len(p.errors) or "")
 
-        if link_exit_status(err) != 2:
-            raise
-        print(f"ghostshell eval: {err}", file=sys.stderr)
-        return 2
+        try:
+            if args.ray:
+                from host.eval.ray_backend import run_sweep_on_ray
+
+                records = run_sweep_on_ray(cfg, args.ray, on_result=progress)
+            else:
+                records = anyio.run(_sweep_until_signal, cfg, progress, stopped, backend="asyncio")
+        except (ValueError, GhostError, ImportError) as err:
+            print(f"ghostshell eval: {err}", file=sys.stderr)
+            return 2
+        except RuntimeError as err:  # a --mount-mcp server that cannot be mounted: one line, usage error
+            from host.commands.linkarg import link_exit_status
+
+            if link_exit_status(err) != 2:
+                raise
+            print(f"ghostshell eval: {err}", file=sys.stderr)
+            return 2
     config = {**asdict(cfg), "out": str(cfg.out), "api_key": None, "paper_model": args.paper_model}
     expected = len(cfg.tasks) * cfg.trials
     if stopped:  # Ctrl-C / SIGTERM: what finished is in results.jsonl; report it, resume later

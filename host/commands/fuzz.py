@@ -21,6 +21,8 @@ import argparse
 import importlib.util
 import subprocess
 import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 from host.fuzz import TARGETS
@@ -45,6 +47,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rss-limit-mb", type=int, default=DEFAULT_RSS_LIMIT_MB, metavar="MB",
                         help=f"fail when a fuzzing process's resident memory passes MB (default {DEFAULT_RSS_LIMIT_MB})")
     parser.add_argument("--no-seeds", action="store_true", help="do not read tests/fuzz/TARGET")
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress (libFuzzer's lines, or on a terminal a bar with exec/s, corpus and crashes)")
 
 
 def seed_dirs(target: str) -> list[Path]:
@@ -54,9 +58,14 @@ def seed_dirs(target: str) -> list[Path]:
 
 def run_target(
     target: str, seconds: int, corpus: Path, out: Path, jobs: int = 1, max_len: int = 4096, seeds: bool = True,
-    echo: bool = False, rss_limit_mb: int = DEFAULT_RSS_LIMIT_MB,
+    echo: bool | Callable[[str], None] = False, rss_limit_mb: int = DEFAULT_RSS_LIMIT_MB,
+    on_stats: Callable[[FuzzStats], None] | None = None,
 ) -> tuple[int, FuzzStats]:
-    """Fuzz ``target`` for ``seconds``; returns (libFuzzer's exit code, parsed stats). Log: ``out/fuzz.log``."""
+    """Fuzz ``target`` for ``seconds``; returns (libFuzzer's exit code, parsed stats). Log: ``out/fuzz.log``.
+
+    ``echo``: print libFuzzer's progress lines (True: ``print``; or a function taking each line);
+    ``on_stats``: called with the totals so far after each progress line or crash.
+    """
     t = TARGETS[target]
     corpus.mkdir(parents=True, exist_ok=True)
     out.mkdir(parents=True, exist_ok=True)
@@ -72,11 +81,21 @@ def run_target(
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace")
         assert proc.stdout is not None
         lines: list[str] = []
+        say = echo if callable(echo) else (lambda text: print(text, flush=True)) if echo else None
+        so_far = FuzzStats()
         for line in proc.stdout:
             log.write(line)
             lines.append(line)
-            if echo and (line.startswith("#") and ("pulse" in line or "DONE" in line or ": cov:" in line)):
-                print(f"  {line.rstrip()}", flush=True)
+            progress_line = line.startswith("#") and ("pulse" in line or "DONE" in line or ": cov:" in line)
+            if say is not None and progress_line:
+                say(f"  {line.rstrip()}")
+            if on_stats is not None and (line.startswith("#") or "Test unit written" in line):
+                now = parse_output(line)
+                if now.executions:
+                    so_far.executions, so_far.exec_per_s = now.executions, now.exec_per_s
+                    so_far.corpus, so_far.coverage = now.corpus, now.coverage
+                so_far.crashes += now.crashes
+                on_stats(so_far)
         rc = proc.wait()
     stats = parse_output("".join(lines))
     if rc and not stats.crashes and not stats.traceback:
@@ -113,8 +132,19 @@ def main(args: argparse.Namespace) -> int:
             return 2
     print(f"fuzzing {args.target} for {args.seconds} s ({args.jobs} job(s)); corpus {corpus}"
           + (f", seeds {', '.join(map(str, seeds))}" if seeds else ""), flush=True)
-    rc, st = run_target(args.target, args.seconds, corpus, out, args.jobs, args.max_len, not args.no_seeds, echo=True,
-                        rss_limit_mb=args.rss_limit_mb)
+    from host.progress import bar
+
+    with bar(f"fuzzing {args.target}", args.seconds, quiet=args.quiet, fields=("exec/s", "corpus", "cov", "crashes")
+             ) as shown:
+        started = time.monotonic()
+
+        def stats(s: FuzzStats) -> None:
+            shown.update(completed=min(args.seconds, time.monotonic() - started), **{
+                "exec/s": s.exec_per_s, "corpus": s.corpus, "cov": s.coverage, "crashes": len(s.crashes)})
+
+        rc, st = run_target(args.target, args.seconds, corpus, out, args.jobs, args.max_len, not args.no_seeds,
+                            echo=False if args.quiet or shown.shown else True, rss_limit_mb=args.rss_limit_mb,
+                            on_stats=stats if shown.shown else None)
     print(f"{args.target}: {st.summary()}")
     if st.crashes or rc:
         if st.traceback:

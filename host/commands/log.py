@@ -1,6 +1,7 @@
 """``ghostshell log decode FILE``: print a frame log readably: serial JSON Lines (:mod:`protocol.framelog`),
-or a CAN log in a python-can format (``.log`` candump, ``.asc``, ``.blf``: through the DBC, see
-:mod:`host.commands.canlog_decode`).
+a CAN log in a python-can format (``.log`` candump, ``.asc``, ``.blf``: through the DBC, see
+:mod:`host.commands.canlog_decode`), or a run's ``run.mcap`` (:mod:`host.run.mcap_read`: one line per
+message, ``board-time topic {decoded fields}``, then a per-topic count on stderr).
 
 Exit status: 0 every record decoded; 1 some records could not be decoded (each named with its line;
 the rest are printed); 2 the file is missing, empty, not a frame log at all, or ``--type`` names no
@@ -14,15 +15,17 @@ import sys
 
 from host.commands.linkarg import add_link_argument
 
-__all__ = ["configure", "decode_file", "main"]
+__all__ = ["configure", "decode_file", "decode_mcap_file", "main"]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     p = sub.add_parser("decode", help="print every record of a frame log, one line each")
-    p.add_argument("file", metavar="FILE", help="a log written with --log (by the board or the host): .jsonl serial; .log/.asc/.blf CAN")
+    p.add_argument("file", metavar="FILE", help="a log written with --log (by the board or the host): .jsonl serial; "
+                   ".log/.asc/.blf CAN; or a run's run.mcap")
     p.add_argument("--type", action="append", default=None, metavar="NAME",
-                   help="only records of this message type (repeatable), e.g. --type TELEMETRY")
+                   help="only records of this message type (repeatable), e.g. --type TELEMETRY; for an MCAP a "
+                        "topic or schema, e.g. --type /joint_states")
     add_link_argument(p, default=None, required=False, help="the link the log was recorded on (default: by the file's suffix; "
                       ".jsonl = serial JSON Lines); for CAN logs ?node=N picks the board")
 
@@ -81,9 +84,51 @@ def decode_file(path: str, out=sys.stdout, err=sys.stderr, types: list[str] | No
     return 0
 
 
+def decode_mcap_file(path: str, out=sys.stdout, err=sys.stderr, types: list[str] | None = None) -> int:
+    """Print a run.mcap's messages in board-time order (a cut file: in file order, up to its last chunk)."""
+    import json
+
+    from host.run.mcap_read import McapReadError, McapRun
+
+    try:
+        run = McapRun(path)
+    except McapReadError as e:
+        print(f"ghostshell log: {e}", file=err)
+        return 2
+    wanted = {t.lower() for t in types} if types else None
+    counts: dict[str, int] = {}
+    for m in run.messages():
+        if wanted and m.topic.lower() not in wanted and m.schema.lower() not in wanted:
+            continue
+        counts[m.topic] = counts.get(m.topic, 0) + 1
+        value = _shorten(m.value)
+        text = json.dumps(value, ensure_ascii=False, separators=(",", ":"), default=str)
+        out.write(f"{m.log_time_ns / 1e9:12.6f} {m.topic:<15} {text}\n")
+    print("ghostshell log: " + (", ".join(f"{t} {n}" for t, n in counts.items()) or "no messages"), file=err)
+    if run.truncated:
+        print(f"ghostshell log: {run.truncated}", file=err)
+        return 1
+    return 0
+
+
+def _shorten(value):
+    """Image bytes (base64 in the decoded message) as their size, so a photo is one short line."""
+    if isinstance(value, dict):
+        return {k: (f"<{len(v) * 3 // 4} B>" if k == "data" and isinstance(v, str) and len(v) > 64 else _shorten(v))
+                for k, v in value.items()}
+    if isinstance(value, list):
+        return [_shorten(v) for v in value]
+    return value
+
+
 def main(args: argparse.Namespace) -> int:
     from host.link.canlog import CAN_LOG_SUFFIXES
 
+    if args.file.lower().endswith(".mcap"):
+        try:
+            return decode_mcap_file(args.file, types=args.type)
+        except BrokenPipeError:
+            return 0
     if args.type:
         known = type_names()
         unknown = [t for t in args.type if t.upper() not in known]

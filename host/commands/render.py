@@ -16,6 +16,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=_positive_int, default=2, help="render processes (default 2: both cores)")
     parser.add_argument("--robots-dir", default=None, metavar="DIR",
                         help="search this folder first for the robot the run drove (its summary.json names it)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar (shown only on a terminal anyway)")
 
 
 def _positive_int(text: str) -> int:
@@ -32,6 +33,7 @@ def main(args: argparse.Namespace) -> int:
     import sys
     import time
 
+    from host.progress import bar
     from host.run.video import VideoError, VideoInputError, VideoSettings, render_video
 
     run_dir = Path(args.run_dir)
@@ -41,8 +43,10 @@ def main(args: argparse.Namespace) -> int:
         return 2
     t = time.monotonic()
     try:
-        path = render_video(Path(args.run_dir), Path(args.out) if args.out else None,
-                            VideoSettings(fps=args.fps, workers=max(1, args.workers)), robots_dir=args.robots_dir)
+        with bar("rendering run.mp4", None, quiet=args.quiet, transient=True) as shown:
+            path = render_video(Path(args.run_dir), Path(args.out) if args.out else None,
+                                VideoSettings(fps=args.fps, workers=max(1, args.workers)), robots_dir=args.robots_dir,
+                                progress=lambda done, total: shown.update(completed=done, total=total))
     except VideoInputError as e:  # nothing to render there: bad input
         print(f"ghostshell render: {e}", file=sys.stderr)
         return 2

@@ -10,7 +10,7 @@ __all__ = ["configure", "main"]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("log", metavar="LOG", help="a run folder or a frame log of it: serial .jsonl or CAN .log/.asc/.blf, "
+    parser.add_argument("log", metavar="LOG", help="a run folder or a frame log of it: serial .jsonl, CAN .log/.asc/.blf, or the run's run.mcap; "
                         "the host's or the board's (after a faulted run the board's: what reached it)")
     parser.add_argument("--out", default=None, metavar="DIR", help="artefact folder (default runs/replay)")
     parser.add_argument("--robot", default=None, metavar="NAME",
@@ -37,5 +37,6 @@ def main(args: argparse.Namespace) -> int:
     print(f"base ends at {res.base_end} [x m, y m, yaw deg]"
           + (f"; the original ended at {res.original_base_end} ({res.base_end_error_mm} mm apart)"
              if res.original_base_end is not None else ""))
-    print(f"artefacts in {out}/: summary.json joints.png board_frames.jsonl host_frames.jsonl")
+    print(f"artefacts in {out}/: summary.json joints.png board_frames.jsonl host_frames.jsonl"
+          + (" run.mcap" if (out / "run.mcap").exists() else ""))
     return 0

@@ -2,7 +2,8 @@
 
 A robot is a name on the robot search path (:mod:`robots.registry`: ``--robots-dir``,
 ``$GHOSTSHELL_ROBOTS``, the user robot folder, the built-in robots) or a robot folder. A name that
-finds nothing, or a robot package that is malformed, is a usage error: one line naming what is
+finds nothing, or a robot package that is malformed (its data, or its interface or behaviours
+module failing to import), is a usage error: one line naming what is
 wrong (file:line where there is one) and exit status 2, before anything starts.
 """
 
@@ -30,7 +31,9 @@ def add_robot_argument(parser: argparse.ArgumentParser) -> None:
 def robot_from_args(args: argparse.Namespace, command: str) -> Robot | int:
     """The robot ``args`` name, or (after printing one line) the exit status :data:`USAGE_STATUS`."""
     try:
-        return load_robot(getattr(args, "robot", DEFAULT_ROBOT), getattr(args, "robots_dir", None))
+        robot = load_robot(getattr(args, "robot", DEFAULT_ROBOT), getattr(args, "robots_dir", None))
+        robot.interface  # imports the package's interface and behaviours modules: their errors now, not mid-run
+        return robot
     except RobotDataError as e:
         print(f"ghostshell {command}: {e}", file=sys.stderr)
         return USAGE_STATUS

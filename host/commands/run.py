@@ -2,8 +2,10 @@
 
 With ``--link pty`` (default) it starts the emulated board itself. It shows the
 channels live (on a terminal) and leaves timeline.json/png, joints.png,
-summary.json and both frame logs in ``--out``; with ``--video`` also run.mp4
-(rendered after the run, see :mod:`host.run.video`).
+summary.json, both frame logs and run.mcap (:mod:`host.run.mcap_log`) in ``--out``;
+with ``--video`` also run.mp4 with its sound (rendered after the run, see
+:mod:`host.run.video`); with ``--foxglove [PORT]`` Foxglove can watch the run live
+(:mod:`host.run.foxglove_live`).
 
 Ctrl-C (or SIGTERM) interrupts the run: the turn is cut through the lifecycle tree, the robot goes
 to its rest pose, every artefact is written, one line says so, exit status 130; a second Ctrl-C
@@ -80,6 +82,15 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
                         help="seed of the fault injection (default 0; needs --faults)")
     parser.add_argument("--policy", default=None, metavar="FILE",
                         help="safety policy (TOML): allowed functions, tighter parameter bounds, motion budget")
+    parser.add_argument("--firmware", choices=("python", "c", "qemu"), default="python",
+                        help="the emulated board's firmware: python (default), c (the C firmware built natively, "
+                             "servos on a Feetech bus to the MuJoCo plant) or qemu (the same C on an emulated "
+                             "Cortex-M3, qemu-system-arm -M mps2-an385)")
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress bars (rendering run.mp4); they are shown only on a terminal anyway")
+    parser.add_argument("--foxglove", nargs="?", type=_port, const=8765, default=None, metavar="PORT",
+                        help="live view: serve the run's channels (those of run.mcap) to Foxglove on "
+                             "ws://127.0.0.1:PORT (default port 8765; off unless given)")
     parser.add_argument("--events", default=None, metavar="FILE",
                         help="scripted world events, one per line 'at SECONDS: text' (board time from the start); "
                              "the policy's [events] table says what each kind does (default: interrupt)")
@@ -118,6 +129,16 @@ def _positive(text: str) -> float:
     v = _number(text)
     if not v > 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return v
+
+
+def _port(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a port number 0..65535, got {text!r}") from None
+    if not 0 <= v <= 65535:
+        raise argparse.ArgumentTypeError(f"must be a port number 0..65535, got {text}")
     return v
 
 
@@ -218,6 +239,18 @@ def check_run_args(args: argparse.Namespace) -> int | None:
     elif seed:
         print("ghostshell: --fault-seed has no effect without --faults", file=sys.stderr)
         return USAGE_STATUS
+    firmware = getattr(args, "firmware", "python")
+    if firmware != "python":
+        from protocol.linkspec import LinkSpecError, parse_link_spec
+
+        try:
+            spec = parse_link_spec(args.link)
+        except LinkSpecError:
+            spec = None
+        if spec is not None and not (spec.kind == "serial" and (args.emulate_board or spec.implies_emulated_board)):
+            print(f"ghostshell: --firmware {firmware} runs the emulated board this run starts on a serial link "
+                  f"(--link pty); {args.link} is not one", file=sys.stderr)
+            return USAGE_STATUS
     emulate = bool(getattr(args, "emulate_board", False)) or args.link.implies_emulated_board
     why = preflight_link(args.link, emulated=emulate)  # last: it may open a CAN bus
     if why:
@@ -279,6 +312,8 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         skills=skills,
         policy=policy, faults=getattr(args, "faults", None), fault_seed=getattr(args, "fault_seed", 0),
         max_board_s=args.max_board_s, max_log_mb=args.max_log_mb, handle_signals=True,
+        firmware=getattr(args, "firmware", "python"),
+        foxglove=getattr(args, "foxglove", None),
         mcp_mounts=tuple(getattr(args, "mount_mcp", ())),
         event_policy=getattr(args, "event_policy", None), events=getattr(args, "scripted_events", ()),
         pushes=tuple(_push_text(p) for p in getattr(args, "push", ())),
@@ -325,13 +360,13 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     if scene.get("objects"):
         print(f"scene {scene['name']}: {scene['toppled']} of {scene['objects']} toppled")
     if getattr(args, "video", False):
-        render_into(out)
+        render_into(out, quiet=getattr(args, "quiet", False))
     print(f"artefacts in {out}/: " + " ".join(n for n in (*ARTEFACTS, "run.mp4") if (out / n).exists()))
     return 0 if s.outcome in ("done", "interrupted") else 1
 
 
 ARTEFACTS = ("timeline.json", "timeline.png", "joints.png", "summary.json", "host_frames.jsonl", "board_frames.jsonl",
-             "host_frames.log", "board_frames.log")
+             "host_frames.log", "board_frames.log", "run.mcap")
 
 
 def _counts(outcomes: dict[str, int]) -> str:
@@ -345,15 +380,17 @@ def _first_action(ms: float | None) -> str:
     return "no action" if ms is None else f"first action after {ms} ms"
 
 
-def render_into(out: Path) -> bool:
-    """Render ``out/run.mp4`` from the run's recorded state; print progress or why not."""
+def render_into(out: Path, quiet: bool = False) -> bool:
+    """Render ``out/run.mp4`` from the run's recorded state; print progress (a bar on a terminal) or why not."""
     import time
 
+    from host.progress import bar
     from host.run.video import VideoError, render_video
 
     t = time.monotonic()
     try:
-        path = render_video(out)
+        with bar("rendering run.mp4", None, quiet=quiet, transient=True) as shown:
+            path = render_video(out, progress=lambda done, total: shown.update(completed=done, total=total))
     except VideoError as e:
         print(f"ghostshell: no video: {e}", file=sys.stderr)
         return False

@@ -4,7 +4,9 @@ Each target is a module with ``load(instrument: bool) -> Callable[[bytes], None]
 function; it raises ``AssertionError`` when an invariant breaks) and a ``__main__`` that hands it to
 atheris. ``ghostshell fuzz`` starts the module as a subprocess (libFuzzer owns the process: it exits
 on the first crash), so the CLI never imports a target. The board target lives in
-``firmware_sim.fuzz`` because the host never imports the board.
+``firmware_sim.fuzz`` because the host never imports the board; the C firmware's in
+``firmware_sim.cfirmware`` (``c-wire`` execs a clang libFuzzer binary, ``c-diff`` is atheris over both
+decoders).
 """
 
 from __future__ import annotations
@@ -50,6 +52,19 @@ TARGETS: dict[str, FuzzTarget] = {
             "host.fuzz.can_decoder",
             "arbitrary CAN frames (ids, DLCs, FD, 29-bit, remote) into the CAN reassembly/decoder and ISO-TP: "
             "no partial message surfaces, surfaced messages re-encode to their frames, bounded state",
+        ),
+        FuzzTarget(
+            "c-wire",
+            "firmware_sim.cfirmware.fuzz_wire",
+            "the C firmware's link decoder + board session (clang -fsanitize=fuzzer,address,undefined, lockstep, "
+            "emulated bus): no memory error or UB, buffers within their sizes, commands inside the servo table's "
+            "ranges, ESTOP holds",
+        ),
+        FuzzTarget(
+            "c-diff",
+            "firmware_sim.cfirmware.fuzz_diff",
+            "the same bytes into the C and the Python frame decoders (Python chunked): the same frames (bytes and "
+            "decoded fields) and errors out",
         ),
         FuzzTarget(
             "session",

@@ -2,11 +2,16 @@
 
 ``iter_can_log(path)`` yields one :class:`CanLogEntry` per frame, in file order: the frame, its
 direction (from the function code: ``h>b`` host to board, ``b>h`` board to host), its DBC view
-(cantools, :data:`protocol.can` DBCs ``coco.dbc`` / ``coco_fd.dbc``: message name and raw signal
-values; None for a frame the DBC does not know) and, when the frame completes one, the message
-(fixed layouts reassembled by :class:`protocol.can.CanDecoder`, bulk by ISO-TP in listen mode) or
-the decode error. Any number of nodes may share a capture (a decoder pair per node seen).
-Used by ``ghostshell log decode`` and ``ghostshell replay``.
+(cantools, the robot's DBC generated from its layouts, :mod:`protocol.can.make_dbc`, nodes 1 and 2:
+message name and raw signal values; None for a frame the DBC does not know) and, when the frame
+completes one, the message (fixed layouts reassembled by :class:`protocol.can.CanDecoder`, bulk by
+ISO-TP in listen mode) or the decode error. Any number of nodes may share a capture (a decoder pair
+per node seen). Used by ``ghostshell log decode`` and ``ghostshell replay``.
+
+Which robot: the fixed layouts depend on the robot's servo count. ``servos`` names it; without it
+the capture says itself: the servo count of its first CAPS (a bulk message whose layout is the same
+for every robot; :func:`log_servo_count` finds it), else
+:data:`protocol.can.layouts.DEFAULT_SERVO_COUNT`.
 """
 
 from __future__ import annotations
@@ -19,15 +24,17 @@ from pathlib import Path
 from typing import Any
 
 import can
-import cantools
 
 from protocol.can import CanDecodeError, CanDecoder, CanFrame, CanItem
+from protocol.can.codec import decode_bulk
 from protocol.can.ids import BROADCAST_NODE, HOST_TO_BOARD, FunctionCode, bulk_ids, split_id
 from protocol.can.isotp_link import IsoTpLink
-from protocol.messages import Message, SimState
+from protocol.can.layouts import DEFAULT_SERVO_COUNT, CanLayouts, can_layouts
+from protocol.codec import PayloadError
+from protocol.messages import MAX_WIRE_SERVOS, Caps, Message, SimState
 
-__all__ = ["CAN_LOG_SUFFIXES", "CanLogEntry", "can_last_sim_state", "candump_problem", "iter_can_log",
-           "read_can_host_to_board"]
+__all__ = ["CAN_LOG_SUFFIXES", "CanLogEntry", "can_last_sim_state", "candump_problem", "iter_can_log", "load_dbc",
+           "log_servo_count", "read_can_host_to_board"]
 
 #: a candump -L line: "(1700000000.123456) vcan0 123#DEADBEEF" (CAN FD: ID##F DATA; remote: ID#R)
 _CANDUMP_LINE = re.compile(r"^\(\d+(\.\d+)?\)\s+\S+\s+[0-9A-Fa-f]{1,8}#")
@@ -50,13 +57,41 @@ def candump_problem(path: str | Path) -> str | None:
 
 #: suffixes python-can reads (can.LogReader) that a CAN run may be logged in
 CAN_LOG_SUFFIXES = (".log", ".asc", ".blf", ".csv", ".trc", ".mf4")
-PROTOCOL_DIR = Path(__file__).resolve().parents[2] / "protocol"
 
 
-@lru_cache(maxsize=2)
-def load_dbc(fd: bool) -> Any:
-    """The checked-in DBC (classic or FD) as a cantools database."""
-    return cantools.database.load_file(str(PROTOCOL_DIR / ("coco_fd.dbc" if fd else "coco.dbc")))
+@lru_cache(maxsize=8)
+def load_dbc(fd: bool, servos: int = DEFAULT_SERVO_COUNT) -> Any:
+    """The DBC (classic or FD) of a robot of ``servos`` servos as a cantools database (generated from
+    the layouts; the robot's name and title only appear in comments, so any name does)."""
+    from protocol.can.make_dbc import DbcRobot, build_database
+
+    return build_database(fd, robot=DbcRobot("robot", "Robot", servos))
+
+
+def log_servo_count(path: str | Path) -> int | None:
+    """The servo count the first CAPS in a CAN capture reports (None: the capture holds no CAPS).
+    Reads only up to that CAPS; ``ValueError`` for a format python-can cannot read."""
+    bulk: dict[int, IsoTpLink] = {}
+    for msg in can.LogReader(str(path)):  # type: ignore[no-untyped-call]
+        if msg.is_error_frame or msg.is_extended_id:
+            continue
+        fn, node = split_id(int(msg.arbitration_id))
+        data = bytes(msg.data or b"")
+        if fn is not FunctionCode.BULK_TO_HOST or node is None or (data[:1] and data[0] >> 4 == 3):
+            continue
+        link = bulk.get(node)
+        if link is None:
+            b, h = bulk_ids(node)
+            link = bulk[node] = IsoTpLink(rxid=h, txid=b, fd=bool(msg.is_fd), send=lambda f: None, listen=True)
+        link.feed(CanFrame(int(msg.arbitration_id), data, bool(msg.is_fd)))
+        for sdu in link.poll():
+            try:
+                _, m = decode_bulk(sdu)  # CAPS has the same layout in every wire schema
+            except PayloadError:
+                continue
+            if isinstance(m, Caps) and 1 <= m.servo_count <= MAX_WIRE_SERVOS:
+                return int(m.servo_count)
+    return None
 
 
 @dataclass
@@ -70,19 +105,22 @@ class CanLogEntry:
 
 
 class _Node:
-    def __init__(self, node: int, fd: bool) -> None:
-        self.to_board = CanDecoder(node, "board")
-        self.to_host = CanDecoder(node, "host")
+    def __init__(self, node: int, fd: bool, layouts: CanLayouts) -> None:
+        self.to_board = CanDecoder(node, "board", layouts)
+        self.to_host = CanDecoder(node, "host", layouts)
         b, h = bulk_ids(node)
         self.bulk_board = IsoTpLink(rxid=b, txid=h, fd=fd, send=lambda f: None, listen=True)
         self.bulk_host = IsoTpLink(rxid=h, txid=b, fd=fd, send=lambda f: None, listen=True)
 
 
-def iter_can_log(path: str | Path, *, dbc: bool = True) -> Iterator[CanLogEntry]:
+def iter_can_log(path: str | Path, *, dbc: bool = True, servos: int | None = None) -> Iterator[CanLogEntry]:
     """Entries of a python-can log (see the module docstring); ``ValueError`` for an unknown format.
 
     ``dbc=False`` skips the DBC view (``dbc_name`` None, ``signals`` empty): several times faster
-    for readers that need only the reassembled messages (``items``)."""
+    for readers that need only the reassembled messages (``items``). ``servos``: the robot's servo
+    count (default: the capture's first CAPS says, else :data:`DEFAULT_SERVO_COUNT`)."""
+    servo_count = servos if servos is not None else (log_servo_count(path) or DEFAULT_SERVO_COUNT)
+    layouts = can_layouts(servo_count)
     nodes: dict[int, _Node] = {}
     for msg in can.LogReader(str(path)):  # type: ignore[no-untyped-call]
         if msg.is_error_frame:
@@ -94,7 +132,7 @@ def iter_can_log(path: str | Path, *, dbc: bool = True) -> Iterator[CanLogEntry]
         entry = CanLogEntry(float(msg.timestamp), direction, frame)
         if dbc and not frame.is_extended_id:
             try:
-                dm = load_dbc(frame.is_fd).get_message_by_frame_id(frame.arbitration_id)
+                dm = load_dbc(frame.is_fd, servo_count).get_message_by_frame_id(frame.arbitration_id)
                 entry.dbc_name = dm.name
                 entry.signals = dm.decode(frame.data, decode_choices=False, scaling=False, allow_truncated=True)
             except Exception:  # not in the DBC, or data the DBC cannot decode: no DBC view
@@ -111,7 +149,7 @@ def iter_can_log(path: str | Path, *, dbc: bool = True) -> Iterator[CanLogEntry]
             continue
         st = nodes.get(node)
         if st is None:
-            st = nodes[node] = _Node(node, frame.is_fd)
+            st = nodes[node] = _Node(node, frame.is_fd, layouts)
         if fn in (FunctionCode.BULK_TO_BOARD, FunctionCode.BULK_TO_HOST) and frame.data[:1] and frame.data[0] >> 4 == 3:
             yield entry  # ISO-TP flow control: for the other direction's sender, nothing to reassemble
             continue

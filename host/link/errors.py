@@ -5,7 +5,7 @@ from __future__ import annotations
 from protocol.messages import MsgType, Nack, NackReason
 
 __all__ = ["BoardFaulted", "HandshakeError", "LinkConfigError", "LinkDown", "LinkError", "LinkTimeout", "NackError",
-           "RobotMismatch"]
+           "RobotMismatch", "SchemaMismatch"]
 
 
 class LinkError(Exception):
@@ -34,6 +34,11 @@ class BoardFaulted(LinkError):
 
 class HandshakeError(LinkError):
     """HELLO/CAPS failed: wrong protocol version or schema, or no board answering."""
+
+
+class SchemaMismatch(HandshakeError):
+    """The board refused the HELLO: its message schema (:class:`protocol.codec.WireSchema`) is not the
+    one HELLO named (another protocol build, or a robot whose servo mask is another width)."""
 
 
 class RobotMismatch(HandshakeError):

@@ -8,6 +8,10 @@ that did not clear it would have every SERVO_FRAME refused (NACK FAULT_LATCHED).
 So :func:`clear_leftover_fault` clears it explicitly with ESTOP_CLEAR and returns a
 one-line note for the user.
 
+A servo that stopped answering on the board's servo bus (the C firmware's SERVO_FAULT: it holds every
+servo and refuses frames until ESTOP_CLEAR) is a hardware problem: never cleared automatically either;
+:func:`servo_fault_message` is the one line a run or a connect ends with.
+
 ESTOP is different: someone (or something) asked the robot to stop, and only a
 person may decide it is safe to move again. It is never cleared automatically;
 :func:`clear_leftover_fault` raises :class:`BoardFaulted` telling the user how to
@@ -22,10 +26,10 @@ from host.link.errors import BoardFaulted, LinkTimeout
 from host.link.session import BoardClient
 from protocol.messages import FaultFlags
 
-__all__ = ["LATCHED", "clear_command", "clear_leftover_fault", "estop_message"]
+__all__ = ["LATCHED", "clear_command", "clear_leftover_fault", "estop_message", "servo_fault_message"]
 
 #: telemetry bits under which the board refuses every servo frame
-LATCHED = FaultFlags.ESTOP | FaultFlags.WATCHDOG_FAULT
+LATCHED = FaultFlags.ESTOP | FaultFlags.WATCHDOG_FAULT | FaultFlags.SERVO_FAULT
 
 
 def clear_command(link: object) -> str:
@@ -40,6 +44,15 @@ def estop_message(link: object) -> str:
             f"`{clear_command(link)}`")
 
 
+def servo_fault_message(client: BoardClient, board_time_us: int) -> str:
+    """The one line for a board that latched SERVO_FAULT (a servo stopped answering on its bus)."""
+    nack = client.servo_fault
+    which = nack.detail if nack is not None and nack.detail else "a servo stopped answering on the servo bus"
+    return (f"board fault: {which} (reported at board time {board_time_us / 1e6:.3f} s); the board holds every "
+            f"servo and refuses motion. Check that servo's power and cable, then clear it with "
+            f"`{clear_command(client.link_spec)}`")
+
+
 async def clear_leftover_fault(client: BoardClient, timeout: float = 10.0) -> str | None:
     """Clear a latched WATCHDOG_FAULT left by a previous host; refuse a board in ESTOP.
 
@@ -52,6 +65,8 @@ async def clear_leftover_fault(client: BoardClient, timeout: float = 10.0) -> st
     faults = FaultFlags(tel.faults)
     if faults & FaultFlags.ESTOP:
         raise BoardFaulted(estop_message(client.link_spec))
+    if faults & FaultFlags.SERVO_FAULT:
+        raise BoardFaulted(servo_fault_message(client, tel.board_time_us))
     if not faults & FaultFlags.WATCHDOG_FAULT:
         return None
     at = tel.board_time_us

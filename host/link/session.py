@@ -5,7 +5,15 @@ from a link spec by :func:`host.link.transports.open_transport`), speaks protoco
 it and keeps the session alive:
 
 * handshake: HELLO -> CAPS; a protocol-version or schema-hash mismatch (either
-  side noticing) raises :class:`HandshakeError` with both values and what to do;
+  side noticing) raises :class:`HandshakeError` with both values and what to do.
+  The wire schema (:class:`protocol.codec.WireSchema`: u16 servo mask up to 16 servos, u32
+  above) is the robot's: a client started for a robot (``robot=RobotIdentity(...)``) speaks its
+  schema from the first frame. HELLO, CAPS and NACK are the same in every schema, so when the
+  board refuses the HELLO with SCHEMA_MISMATCH and the schema was not pinned (``schema_hash=``),
+  the client says HELLO once more with each other schema this build speaks: a client without a
+  robot (``ghostshell estop``) so reaches any board, and one started for another robot learns which
+  robot the board drives and raises :class:`RobotMismatch` naming both. After CAPS the transport
+  speaks the board's servo count (:meth:`Transport.set_servo_count`);
 * time sync: NTP-style TIME_SYNC exchanges feed :class:`host.link.timesync.ClockSync`
   (offset + drift + uncertainty); :meth:`BoardClient.host_to_board` and
   :meth:`BoardClient.board_now_estimate` turn host time into board time. A
@@ -46,10 +54,26 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from host.link.errors import HandshakeError, LinkDown, LinkError, LinkTimeout, NackError, RobotMismatch
+from host.link.errors import (
+    HandshakeError,
+    LinkDown,
+    LinkError,
+    LinkTimeout,
+    NackError,
+    RobotMismatch,
+    SchemaMismatch,
+)
 from host.link.timesync import ClockEstimate, ClockSync
 from host.link.transports import Transport, open_transport
-from protocol.codec import MAX_RESEND_BITMAP, SCHEMA_HASH
+from protocol.codec import (
+    MAX_RESEND_BITMAP,
+    WIRE_SCHEMA_16,
+    WIRE_SCHEMAS,
+    WireBoundError,
+    WireSchema,
+    schema_by_hash,
+    schema_for,
+)
 from protocol.faults import GapDetector
 from protocol.framing import DecodeError, Frame
 from protocol.linkspec import LinkSpec, parse_link_spec
@@ -72,6 +96,7 @@ from protocol.messages import (
     Message,
     MsgType,
     Nack,
+    NackReason,
     ScreenCommand,
     ScreenTarget,
     ServoFrame,
@@ -90,7 +115,7 @@ log = logging.getLogger("host.link")
 #: TIME_SYNC exchanges tried at connect before the link counts as failed (each waits 0.5, 1, then 2 s)
 SYNC_ATTEMPTS = 6
 #: telemetry bits that are reported as fault edges
-FAULT_BITS = FaultFlags.ESTOP | FaultFlags.WATCHDOG_HOLD | FaultFlags.WATCHDOG_FAULT
+FAULT_BITS = FaultFlags.ESTOP | FaultFlags.WATCHDOG_HOLD | FaultFlags.WATCHDOG_FAULT | FaultFlags.SERVO_FAULT
 
 #: what a client connects to: a link spec (text or parsed), or a callable giving one, re-resolved on
 #: every reconnect attempt (serial links: a board that comes back on another pty)
@@ -160,6 +185,8 @@ class BoardClient:
     built transport to use instead (e.g. one wrapped for fault injection). ``baud`` and
     ``force_thread`` are for serial links; ``log_path`` is the transport's frame log;
     ``transport_options`` go to :func:`host.link.transports.open_transport` (CAN settings).
+    ``robot`` is the robot this host was started for (CAPS must report it; it also picks the wire
+    schema); ``schema_hash`` pins the hash HELLO carries (tests), instead of the robot's schema's.
     """
 
     def __init__(
@@ -178,7 +205,7 @@ class BoardClient:
         reconnect_max_s: float = 1.0,
         telemetry_queue: int = 64,
         protocol_version: int = PROTOCOL_VERSION,
-        schema_hash: int = SCHEMA_HASH,
+        schema_hash: int | None = None,
         force_thread: bool = False,
         transport_options: dict[str, Any] | None = None,
         robot: RobotIdentity | None = None,
@@ -195,7 +222,14 @@ class BoardClient:
         self.reconnect_max_s = reconnect_max_s
         self.telemetry_queue = telemetry_queue
         self.protocol_version = protocol_version
-        self.schema_hash = schema_hash
+        try:
+            #: the wire schema of the robot this host was started for (the u16 one without a robot)
+            self.schema: WireSchema = WIRE_SCHEMA_16 if robot is None else schema_for(robot.servo_count)
+        except WireBoundError as e:
+            raise LinkError(f"robot {robot}: {e}") from None
+        self._schema_pinned = schema_hash is not None
+        #: the schema hash HELLO carries (the one the board accepted, after a handshake)
+        self.schema_hash = self.schema.hash if schema_hash is None else schema_hash
         self.force_thread = force_thread
         self.log_path = log_path
         self.transport_options = dict(transport_options or {})
@@ -214,6 +248,12 @@ class BoardClient:
         self.fault_events: deque[FaultEvent] = deque(maxlen=256)
         self.on_fault: list[Callable[[FaultEvent], None]] = []
         self.on_nack: list[Callable[[Nack], None]] = []
+        #: the board's latest NACK SERVO_FAULT (its detail names the servo that stopped answering on its bus)
+        self.servo_fault: Nack | None = None
+        #: called with (seq, message) after every message handed to the transport, and with every message
+        #: received, after the client handled it (listeners, e.g. a run's recorder; python-can's Listener model)
+        self.on_sent: list[Callable[[int, Message], None]] = []
+        self.on_received: list[Callable[[Message], None]] = []
         self.on_reconnect: list[Callable[[BoardClient], None]] = []
         self.keepalive = True  # heartbeat + periodic sync; turn off to let the watchdog fire
 
@@ -339,15 +379,20 @@ class BoardClient:
     def _get_transport(self) -> Transport:
         """The transport, built from the spec on first use (it then lives across reconnects)."""
         if self._transport is None:
+            options = dict(self.transport_options)
+            if self.robot is not None:
+                options.setdefault("servo_count", self.robot.servo_count)
             try:
                 self._transport = open_transport(self._port, baud=self.baud, log_path=self.log_path,
-                                                 force_thread=self.force_thread, **self.transport_options)
+                                                 force_thread=self.force_thread, **options)
             except OSError as e:
                 raise LinkDown(f"cannot open {self._port}: {e}") from None
         return self._transport
 
     async def _connect_once(self) -> None:
         transport = self._get_transport()
+        if self.robot is not None:
+            transport.set_servo_count(self.robot.servo_count)
         self._lost.clear()
         await transport.connect(self._on_items, self._on_lost)
         self.port_name = port = transport.name  # a callable spec resolves on connect
@@ -370,48 +415,72 @@ class BoardClient:
             caps.servo_count, caps.control_rate_hz, "lockstep" if caps.lockstep else "realtime",
         )
 
-    async def _handshake(self) -> Caps:
+    async def _hello(self, schema_hash: int) -> Caps:
+        """HELLO with ``schema_hash`` until CAPS (re-sent a few times within the timeout: one lost
+        frame, either way, must not fail the handshake); a NACK raises (:class:`SchemaMismatch`)."""
         loop = asyncio.get_running_loop()
         fut: asyncio.Future[Caps] = loop.create_future()
         self._hello_fut = fut
         try:
-            # HELLO is re-sent a few times within the timeout: one lost frame (either way) must not
-            # fail the handshake
             tries = 4
-            caps = None
             for _ in range(tries):
-                self._send(Hello(self.protocol_version, self.schema_hash, host_now_us()))
+                self._send(Hello(self.protocol_version, schema_hash, host_now_us()))
                 try:
-                    caps = await asyncio.wait_for(asyncio.shield(fut), self.handshake_timeout / tries)
-                    break
+                    return await asyncio.wait_for(asyncio.shield(fut), self.handshake_timeout / tries)
                 except TimeoutError:
                     continue
-            if caps is None:
-                if not fut.done():
-                    fut.cancel()
-                raise HandshakeError(
-                    f"no CAPS from {self.port_name!r} within {self.handshake_timeout} s: "
-                    "is a GhostShell board (ghostshell board, python -m firmware_sim) serving this port?"
-                ) from None
+            if not fut.done():
+                fut.cancel()
+            raise HandshakeError(
+                f"no CAPS from {self.port_name!r} within {self.handshake_timeout} s: "
+                "is a GhostShell board (ghostshell board, python -m firmware_sim) serving this port?"
+            ) from None
         finally:
             self._hello_fut = None
+
+    async def _handshake(self) -> Caps:
+        # the robot's schema first (pinned: only it); then, after a SCHEMA_MISMATCH, every other one
+        # this build speaks (module docstring)
+        first = self.schema_hash if self._schema_pinned else self.schema.hash
+        hashes = [first] + ([] if self._schema_pinned else [s.hash for s in WIRE_SCHEMAS if s.hash != first])
+        caps = None
+        refused: SchemaMismatch | None = None
+        for h in hashes:
+            try:
+                caps = await self._hello(h)
+            except SchemaMismatch as e:
+                refused = refused or e
+                continue
+            break
+        if caps is None:
+            assert refused is not None
+            raise refused
         if caps.protocol_version != self.protocol_version:
             raise HandshakeError(
                 f"board speaks protocol v{caps.protocol_version}, host v{self.protocol_version}: "
                 "update the host or the board firmware so both match"
             )
-        if caps.schema_hash != self.schema_hash:
+        if caps.schema_hash != h:
             raise HandshakeError(
-                f"schema mismatch: board {caps.schema_hash:#010x}, host {self.schema_hash:#010x}: "
+                f"schema mismatch: board {caps.schema_hash:#010x}, host {h:#010x}: "
                 "host and board were built from different protocol definitions; update one side"
             )
         want = self.robot
-        if want is not None:
-            board = RobotIdentity(caps.robot, caps.servo_count, caps.servo_table_hash)
-            if board != want:
-                raise RobotMismatch(
-                    f"the board on {self.port_name} drives robot {board}, but this host was started for {want}: "
-                    "start host and board with the same --robot (and the same robot files)")
+        board = RobotIdentity(caps.robot, caps.servo_count, caps.servo_table_hash)
+        if want is not None and board != want:
+            raise RobotMismatch(
+                f"the board on {self.port_name} drives robot {board}, but this host was started for {want}: "
+                "start host and board with the same --robot (and the same robot files)")
+        try:
+            board_schema = schema_for(caps.servo_count)
+        except WireBoundError as e:
+            raise HandshakeError(f"the board on {self.port_name} reports robot {board}: {e}") from None
+        if schema_by_hash(h) not in (None, board_schema):
+            raise HandshakeError(f"the board on {self.port_name} reports robot {board} but speaks the wire schema "
+                                 f"{h:#010x} of another servo count ({board_schema!r} expected): a broken board build")
+        if self._transport is not None:
+            self._transport.set_servo_count(caps.servo_count)
+        self.schema_hash = h
         return caps
 
     def _on_lost(self, reason: str) -> None:
@@ -474,6 +543,11 @@ class BoardClient:
         self._tx_seq = (seq + 1) & 0xFFFF
         self._last_tx = time.monotonic()
         self.stats.tx_frames += 1
+        for cb in self.on_sent:
+            try:
+                cb(seq, msg)
+            except Exception:  # a bug in a listener must not fail the send
+                log.exception("link: error in an on_sent listener")
         return seq
 
     def _forget_seq(self, seq: int) -> None:
@@ -760,6 +834,8 @@ class BoardClient:
             self.stats.seq_gaps = self._rx_gaps.lost
             try:
                 self._dispatch(item.msg, t4)
+                for cb in self.on_received:
+                    cb(item.msg)
             except Exception:  # a bug in a callback must not kill the reader
                 log.exception("link: error handling %s", item.msg_type.name)
 
@@ -785,9 +861,12 @@ class BoardClient:
             self._on_chunk(msg)
 
     def _on_nack(self, msg: Nack) -> None:
+        if msg.reason == NackReason.SERVO_FAULT:
+            self.servo_fault = msg
         if msg.msg_type == MsgType.HELLO and self._hello_fut is not None and not self._hello_fut.done():
             reason = msg.reason.name if hasattr(msg.reason, "name") else str(msg.reason)
-            self._hello_fut.set_exception(HandshakeError(
+            error = SchemaMismatch if msg.reason == NackReason.SCHEMA_MISMATCH else HandshakeError
+            self._hello_fut.set_exception(error(
                 f"board refused the handshake: {reason}: {msg.detail or 'no detail'}; "
                 "host and board must run the same protocol version and message schema"
             ))

@@ -47,6 +47,7 @@ import anyio
 import numpy as np
 
 from host.motion.mixer import MixedFrame, Mixer, MotionLike, Segment
+from protocol.codec import WireSchema, schema_for
 from protocol.framing import encode_frame
 from protocol.messages import Flush, ServoFrame, Telemetry
 
@@ -78,12 +79,20 @@ class FrameLink(Protocol):
 
 
 #: Wire bytes of a FLUSH and of a SERVO_FRAME for ``n`` servos (framing and COBS overhead included),
-#: from :func:`protocol.framing.encode_frame`.
+#: from :func:`protocol.framing.encode_frame`, in the wire schema of a robot of up to 16 servos.
 FLUSH_WIRE_BYTES = len(encode_frame(Flush(0, 0xFFF), 0))
 
 
-def frame_wire_bytes(n_servos: int) -> int:
-    return len(encode_frame(ServoFrame(0, (1 << n_servos) - 1, (0.0,) * n_servos), 0))
+def frame_wire_bytes(n_servos: int, schema: WireSchema | None = None) -> int:
+    """Wire bytes of a SERVO_FRAME for ``n_servos`` of a robot whose wire schema is ``schema``
+    (default: the schema of a robot of ``n_servos`` servos)."""
+    schema = schema or schema_for(max(1, n_servos))
+    return len(encode_frame(ServoFrame(0, (1 << n_servos) - 1, (0.0,) * n_servos), 0, schema))
+
+
+def flush_wire_bytes(schema: WireSchema | None = None) -> int:
+    """Wire bytes of a FLUSH in ``schema`` (default: the u16 schema)."""
+    return len(encode_frame(Flush(0, 1), 0, schema))
 
 
 def mask_of(servos: Sequence[int]) -> int:
@@ -116,6 +125,9 @@ class FrameStreamer:
                  start_us: int | None = None, history: int = 720_000) -> None:
         self.link = link
         self.mixer = mixer
+        #: the robot's wire schema (the mask's width): what a FLUSH and a frame cost on the wire
+        self.schema = schema_for(max(1, mixer.n_servos))
+        self._flush_bytes = flush_wire_bytes(self.schema)
         self.period_us = period_us
         self.lookahead_us = lookahead_us
         now = link.board_now_us() if start_us is None else start_us
@@ -223,7 +235,7 @@ class FrameStreamer:
         async with self._lock:
             servos = sorted(int(i) for i in motion.servos)
             mask = mask_of(servos)
-            t0 = self.soonest_us(FLUSH_WIRE_BYTES + frame_wire_bytes(len(servos)))
+            t0 = self.soonest_us(self._flush_bytes + frame_wire_bytes(len(servos), self.schema))
             if t0 >= self.next_us:
                 seg = self.mixer.add(motion, self.next_us, label)
                 self._times[seg] = SegmentTimes()

@@ -11,9 +11,12 @@ import os
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from robots.description import Robot
 
 OUTCOMES = ("done", "failed", "cancelled", "interrupted", "pending", "timeout")
 
@@ -128,19 +131,28 @@ def plot_timeline(path: Path, calls: Sequence[BoardCall], title: str = "") -> No
     plt.close(fig)
 
 
+def joint_groups(robot: Robot) -> list[tuple[str, list[int]]]:
+    """Panels of ``joints.png``: one per motion channel of ``robot`` (its servos), then the servos no
+    channel drives ("joints"); a robot without channels gets one panel."""
+    groups = [(c.name, list(c.servos)) for c in robot.channels.values() if c.servos]
+    taken = {i for _, idx in groups for i in idx}
+    rest = [i for i in range(robot.servo_count) if i not in taken]
+    return groups + ([("joints", rest)] if rest else [])
+
+
 def plot_joints(path: Path, times: np.ndarray, positions: np.ndarray, names: Sequence[str],
-                targets: tuple[np.ndarray, np.ndarray] | None = None) -> None:
-    """Joint angles (degrees) against board time, one panel per servo group."""
+                targets: tuple[np.ndarray, np.ndarray] | None = None,
+                groups: Sequence[tuple[str, Sequence[int]]] | None = None) -> None:
+    """Joint angles (degrees) against board time, one panel per servo group (``groups``: (label,
+    servo indices), e.g. :func:`joint_groups`; default one panel of every servo)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    groups = [("legs (hips)", [i for i, n in enumerate(names) if n.endswith("hip")]),
-              ("legs (knees)", [i for i, n in enumerate(names) if n.endswith("knee")]),
-              ("head and ears", [i for i, n in enumerate(names) if not n.endswith(("hip", "knee"))])]
-    fig, axes = plt.subplots(len(groups), 1, figsize=(10, 7), sharex=True)
-    for ax, (label, idx) in zip(axes, groups):
+    panels = [(label, list(idx)) for label, idx in (groups or [("joints", range(len(names)))]) if len(idx)]
+    fig, axes = plt.subplots(len(panels), 1, figsize=(10, max(3.0, 2.3 * len(panels))), sharex=True, squeeze=False)
+    for ax, (label, idx) in zip(axes[:, 0], panels):
         for i in idx:
             line, = ax.plot(times, np.degrees(positions[:, i]), lw=1, label=names[i])
             if targets is not None and len(targets[0]):
@@ -148,6 +160,7 @@ def plot_joints(path: Path, times: np.ndarray, positions: np.ndarray, names: Seq
         ax.set_ylabel(f"{label}\n(deg)")
         ax.legend(fontsize=6, ncol=4, loc="upper right")
         ax.grid(alpha=0.3)
+    axes = axes[:, 0]
     axes[-1].set_xlabel("board time (s)  (solid: measured, dashed: commanded)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -171,3 +184,19 @@ def count_outcomes(calls: Sequence[BoardCall]) -> dict[str, int]:
     for c in calls:
         out[c.outcome] = out.get(c.outcome, 0) + 1
     return out
+
+
+def recorded_robot(run_dir: Path) -> str | None:
+    """The robot a recorded run drove, from its ``summary.json``: its folder (``extra.robot_folder``) while
+    that still holds a robot, else its name (``extra.robot``); None when not recorded."""
+    from robots.loader import ROBOT_FILE
+
+    try:
+        doc = json.loads((Path(run_dir) / "summary.json").read_text(encoding="utf-8"))
+        extra = doc.get("extra") or {}
+        name, folder = extra.get("robot"), extra.get("robot_folder")
+    except (OSError, ValueError, AttributeError):
+        return None
+    if isinstance(folder, str) and folder and (Path(folder) / ROBOT_FILE).is_file():
+        return folder
+    return name if isinstance(name, str) and name else None

@@ -6,7 +6,9 @@ counters; pure bookkeeping, no I/O):
 
 ==========  ==========================================================================================
 ``fall``    a floating-base robot tilts more than :data:`FALL_TILT_DEG` (45 deg) or its base drops below
-            :data:`FALL_HEIGHT_M` (3 cm): the same test as ``summary.json``'s ``fell``; once per fall
+            :data:`FALL_HEIGHT_FRACTION` of its height in the first report (CoCo standing at 9 cm: 3 cm;
+            any robot's own size): :func:`has_fallen`, the same test as ``summary.json``'s ``fell``;
+            once per fall
 ``tilt``    it tilts more than :data:`TILT_DEG` (25 deg) without falling; once until it is upright again
 ``stall``   a servo whose target has been steady for :data:`STALL_S` stays more than
             :data:`STALL_DEG` from it for :data:`STALL_S` (blocked, collided, overloaded); once per servo
@@ -46,7 +48,8 @@ ACTIONS = ("ignore", "note", "interrupt")
 DEFAULT_ACTIONS: dict[str, str] = {"fall": "interrupt", "tilt": "note", "stall": "note", "link": "note",
                                    "toppled": "note", "scripted": "interrupt", "user": "interrupt"}
 FALL_TILT_DEG = 45.0
-FALL_HEIGHT_M = 0.03
+#: ... or its base sinks below this fraction of the height it started at
+FALL_HEIGHT_FRACTION = 1 / 3
 TILT_DEG = 25.0
 STALL_DEG = 15.0
 STALL_S = 0.5
@@ -166,6 +169,12 @@ def _tilt_deg(quat: Sequence[float]) -> float:
     return math.degrees(math.acos(max(-1.0, min(1.0, cos))))
 
 
+def has_fallen(tilt_deg: float, z: float | None, z0: float | None) -> bool:
+    """A floating base has fallen: tilted more than :data:`FALL_TILT_DEG`, or its height ``z`` (m) below
+    :data:`FALL_HEIGHT_FRACTION` of ``z0``, its height at the start (None: unknown, tilt only)."""
+    return tilt_deg > FALL_TILT_DEG or (z is not None and z0 is not None and z < z0 * FALL_HEIGHT_FRACTION)
+
+
 class EventMonitor:
     """Turns reports into :class:`Event` s (see the module docstring); :meth:`feed` returns the new ones.
 
@@ -179,6 +188,7 @@ class EventMonitor:
         self.floating = floating
         self.targets = targets
         self._fallen = False
+        self._z0: float | None = None  # the base's height in the first report (m)
         self._tilted = False
         self._toppled = 0
         self._stall_since: dict[int, float] = {}
@@ -194,7 +204,9 @@ class EventMonitor:
         if base is not None and self.floating:
             pos, quat = base
             tilt = _tilt_deg(quat)
-            fell = tilt > FALL_TILT_DEG or pos[2] < FALL_HEIGHT_M
+            if self._z0 is None:
+                self._z0 = float(pos[2])
+            fell = has_fallen(tilt, float(pos[2]), self._z0)
             if fell and not self._fallen:
                 out.append(Event("fall", t_s, f"the robot fell over (tilt {tilt:.0f} deg, base {pos[2] * 100:.1f} cm "
                                               "above the floor); motion was stopped",

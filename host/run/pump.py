@@ -17,8 +17,8 @@ import anyio.lowlevel
 import numpy as np
 
 from host.link import BoardClient
-from host.link.errors import LinkError
-from host.link.faultcheck import clear_command
+from host.link.errors import BoardFaulted, LinkError
+from host.link.faultcheck import clear_command, servo_fault_message
 from host.robot.runtime import RobotRuntime
 from host.run import artefacts
 from protocol.messages import FaultFlags
@@ -35,6 +35,8 @@ class Recorder:
         self.q: deque[tuple[float, ...]] = deque(maxlen=HISTORY)
         self.base: deque[tuple[float, tuple[float, float, float], tuple[float, float, float, float]]] = deque(maxlen=HISTORY)
         self.max_tilt = 0.0
+        #: the base's height (m) in the first ground-truth report: what "fell" is measured against
+        self.base_z0: float | None = None
         self.last_rx = time.monotonic()  # wall time of the last report (for the silence watchdog)
 
     def add(self, client: BoardClient, tel: Any) -> None:
@@ -43,6 +45,8 @@ class Recorder:
         s = client.latest_sim_state
         if s is not None:
             self.base.append((s.board_time_us * 1e-6, s.base_pos, s.base_quat))
+            if self.base_z0 is None:
+                self.base_z0 = float(s.base_pos[2])
             self.max_tilt = max(self.max_tilt, artefacts.tilt_deg(s.base_quat))
 
 
@@ -93,6 +97,8 @@ async def pump(client: BoardClient, runtime: RobotRuntime, rec: Recorder,
             listener(tel)
         if tel.faults & FaultFlags.WATCHDOG_FAULT:
             raise LinkError(watchdog_fault_message(client, tel.board_time_us))
+        if tel.faults & FaultFlags.SERVO_FAULT:  # a servo stopped answering on the board's bus (C firmware)
+            raise BoardFaulted(servo_fault_message(client, tel.board_time_us))
         if lockstep:
             for _ in range(SETTLE_CHECKPOINTS):
                 await anyio.lowlevel.checkpoint()

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -33,16 +34,22 @@ from host.link.canlog import CAN_LOG_SUFFIXES, can_last_sim_state, read_can_host
 from host.link.errors import LinkDown, LinkError, LinkTimeout
 from host.link.transports import open_transport
 from host.run import artefacts
+from host.run.artefacts import recorded_robot
+from host.run.mcap_log import McapError, RunLog
+from host.run.mcap_read import mcap_last_sim_state, read_mcap_host_to_board
 from protocol import framelog
 from protocol.framing import DecodeError, Frame
 from protocol.messages import Ack, Advance, Message, Nack, ServoFrame, SimState, Telemetry
+from robots.description import Robot
 from robots.registry import DEFAULT_ROBOT, load_robot
+
+log = logging.getLogger("host.run")
 
 __all__ = ["LOG_READERS", "ReplayError", "ReplayInputError", "ReplayResult", "find_host_log", "read_host_to_board",
            "read_serial_log", "replay"]
 
 #: host log file names looked for in a run folder, in order
-HOST_LOG_NAMES = ("host_frames.jsonl", "host.jsonl", "host_frames.log", "host_frames.asc", "host_frames.blf")
+HOST_LOG_NAMES = ("host_frames.jsonl", "host.jsonl", "host_frames.log", "host_frames.asc", "host_frames.blf", "run.mcap")
 
 
 class ReplayError(LinkError):
@@ -55,12 +62,18 @@ class ReplayInputError(ReplayError):
 
 
 def read_serial_log(path: Path) -> Iterator[tuple[float, int, Message]]:
-    """Host-to-board messages (``tx`` records) of a serial JSON-Lines frame log, re-decoded from raw bytes."""
+    """Host-to-board messages (``tx`` records) of a serial JSON-Lines frame log, re-decoded from raw bytes
+    (in the log's own wire schema, :class:`protocol.framelog.LogDecoder`)."""
+    dec = framelog.LogDecoder()
     with open(path, encoding="utf-8") as f:
         for rec in framelog.iter_records(f):
-            if rec["dir"] != "tx" or "error" in rec:
+            if "error" in rec:
                 continue
-            item = framelog.decode_raw(rec["raw"])
+            if rec["dir"] != "tx":
+                if rec.get("type") == "CAPS":
+                    dec.decode(rec["raw"])  # the board's answer names the schema too
+                continue
+            item = dec.decode(rec["raw"])
             if isinstance(item, Frame):
                 yield float(rec["t"]), item.seq, item.msg
 
@@ -70,7 +83,7 @@ def _serial_last_sim_state(path: Path) -> SimState | None:
     with open(path, encoding="utf-8") as f:
         for rec in framelog.iter_records(f):
             if rec["dir"] == "rx" and rec.get("type") == "SIM_STATE":
-                item = framelog.decode_raw(rec["raw"])
+                item = framelog.decode_raw(rec["raw"])  # SIM_STATE is the same in every wire schema
                 if isinstance(item, Frame) and isinstance(item.msg, SimState):
                     last = item.msg
     return last
@@ -80,11 +93,13 @@ def _serial_last_sim_state(path: Path) -> SimState | None:
 LOG_READERS: dict[str, Callable[[Path], Iterator[tuple[float, int, Message]]]] = {
     ".jsonl": read_serial_log,
     **{suffix: read_can_host_to_board for suffix in CAN_LOG_SUFFIXES},
+    ".mcap": read_mcap_host_to_board,  # the run's MCAP: its /link/tx channel (host.run.mcap_log)
 }
 #: suffix -> the last ground truth the recording host received (None if the format cannot say)
 LAST_SIM_STATE: dict[str, Callable[[Path], SimState | None]] = {
     ".jsonl": _serial_last_sim_state,
     **{suffix: can_last_sim_state for suffix in CAN_LOG_SUFFIXES},
+    ".mcap": mcap_last_sim_state,
 }
 
 
@@ -140,14 +155,13 @@ class ReplayResult:
     sim_states: list[SimState] = field(default_factory=list, repr=False)
 
 
-def recorded_robot(log_path: Path) -> str | None:
-    """The robot a recorded run drove: ``extra.robot`` of the ``summary.json`` next to its log (None if absent)."""
+def _replay_log(path: Path, robot: Robot, log_path: Path) -> RunLog | None:
+    """The replay's own run.mcap (one warning line and none when it cannot be written)."""
     try:
-        doc = json.loads((log_path.parent / "summary.json").read_text(encoding="utf-8"))
-        name = (doc.get("extra") or {}).get("robot")
-    except (OSError, ValueError, AttributeError):
+        return RunLog.create(path, robot, {"label": f"replay of {log_path}", "clock_mode": "lockstep"})
+    except McapError as e:
+        log.warning("ghostshell: no run.mcap: %s; the replay goes on without it", e)
         return None
-    return name if isinstance(name, str) and name else None
 
 
 async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, robots_dir: str | None) -> ReplayResult:
@@ -160,7 +174,8 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
     robot = load_robot(robot_name, robots_dir)
     board = start_board(["--lockstep", "--robot", str(robot.root), "--log", str(out / "board_frames.jsonl")],
                         out / "board.stderr")
-    transport = open_transport(board.spec, log_path=out / "host_frames.jsonl")
+    transport = open_transport(board.spec, log_path=out / "host_frames.jsonl", servo_count=robot.servo_count)
+    run_log = _replay_log(out / "run.mcap", robot, log_path)
     acks: dict[int, asyncio.Future[Message]] = {}
     tel_t: list[float] = []
     tel_q: list[tuple[float, ...]] = []
@@ -173,6 +188,8 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
             if isinstance(item, DecodeError):
                 continue
             m = item.msg
+            if run_log is not None:
+                run_log.on_message(m)
             if isinstance(m, Telemetry):
                 if len(tel_t) < 200_000:
                     tel_t.append(m.board_time_us * 1e-6)
@@ -209,6 +226,8 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
                 if msg.mask == robot.servos.all_mask and len(msg.targets) == robot.servo_count:
                     targets.append((msg.apply_at_us * 1e-6, msg.targets))
             transport.send(msg, seq)
+            if run_log is not None:
+                run_log.on_frame_sent(seq, msg, end_us)
             if fut is not None:
                 try:
                     await asyncio.wait_for(fut, timeout_s)
@@ -230,6 +249,8 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
     finally:
         transport.close()
         board.stop()
+        if run_log is not None:
+            run_log.close()
     base_end, orig_end = _pose(final), _pose(original)
     err_mm = None
     if original is not None:
@@ -237,7 +258,8 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
     if tel_t:
         names = robot.servos.names
         tgt = (np.asarray([t for t, _ in targets]), np.asarray([q for _, q in targets])) if targets else None
-        artefacts.plot_joints(out / "joints.png", np.asarray(tel_t), np.asarray(tel_q), names, tgt)
+        artefacts.plot_joints(out / "joints.png", np.asarray(tel_t), np.asarray(tel_q), names, tgt,
+                              groups=artefacts.joint_groups(robot))
     summary = {"replay_of": str(log_path), "messages": len(msgs), "base_end": base_end,
                "original_base_end": orig_end, "base_end_error_mm": err_mm,
                "board_time_s": round(final.board_time_us / 1e6, 6)}
@@ -256,5 +278,5 @@ def replay(log: str | Path, out: str | Path, *, timeout_s: float = 30.0, robot: 
     """
     log_path = find_host_log(Path(log))
     out_dir = Path(out)
-    name = robot or recorded_robot(log_path) or DEFAULT_ROBOT
+    name = robot or recorded_robot(log_path.parent) or DEFAULT_ROBOT
     return asyncio.run(_replay(log_path, out_dir, timeout_s, name, robots_dir))

@@ -82,6 +82,9 @@ class RunOptions:
     policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
     faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
     fault_seed: int = 0
+    firmware: str = "python"  # the emulated board's firmware: python, c or qemu (SessionOptions.firmware)
+    mcap: bool = True  # record the run to <out>/run.mcap
+    foxglove: int | None = None  # serve the live view on this localhost port; None: off
     mcp_mounts: tuple[Any, ...] = ()  # MCP servers mounted as shell modules (host.mounts.MountSpec)
     mount_options: Any = None  # host.mounts.MountOptions (None: its defaults)
     event_policy: EventPolicy | None = None  # per event kind: ignore, note or interrupt (host.run.events)

@@ -61,11 +61,12 @@ from host.link.errors import BoardFaulted, LinkConfigError, LinkError
 from host.link.faultcheck import LATCHED, clear_command, clear_leftover_fault
 from host.link.session import FaultEvent
 from host.run import artefacts
-from host.run.events import Event, EventMonitor, EventPolicy, ScriptedEvent
+from host.run.events import Event, EventMonitor, EventPolicy, ScriptedEvent, has_fallen
 from host.robot.binding import robot_registry
 from host.robot.link import ClientLink
 from host.robot.runtime import RobotRuntime
 from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB, Interrupted, StopReason
+from host.run.recording import Recording
 from host.run.pump import (
     BoardPacer,
     Recorder,
@@ -115,6 +116,11 @@ class SessionOptions:
     policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
     faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
     fault_seed: int = 0
+    #: the emulated board's firmware: "python" (firmware_sim), "c" (the C firmware, native) or "qemu" (the C
+    #: firmware on an emulated Cortex-M3); python -m firmware_sim --firmware
+    firmware: str = "python"
+    mcap: bool = True  # record the session to <out>/run.mcap (host.run.mcap_log)
+    foxglove: int | None = None  # serve the live view on this localhost port (host.run.foxglove_live); None: off
     #: MCP servers mounted as shell modules (``--mount-mcp NAME=COMMAND|URL``, :mod:`host.mounts`)
     mcp_mounts: tuple[Any, ...] = ()
     mount_options: Any = None  # host.mounts.MountOptions (None: its defaults)
@@ -212,6 +218,7 @@ class RobotSession:
         self._link_tried = False  # a board link was attempted (a failure from then on has a report)
         #: why the session stops early (a signal, a bound), once :meth:`request_stop` was called
         self.stop: StopReason | None = None
+        self.recording: Recording | None = None  # run.mcap and the live view (host.run.recording)
         self.mounts: list[Any] = []  # the mounted MCP servers (host.mounts.McpMount)
         #: events handled so far (not the ignored ones), newest last, bounded; see :meth:`emit`
         self.events: deque[Event] = deque(maxlen=256)
@@ -267,6 +274,8 @@ class RobotSession:
                     board_args += ["--baud", str(opts.wire_baud)]
                 if opts.faults:
                     board_args += ["--faults", opts.faults, "--fault-seed", str(opts.fault_seed)]
+                if opts.firmware != "python":
+                    board_args += ["--firmware", opts.firmware]
                 # in a worker thread: a board takes seconds to load its model, and other sessions in this
                 # event loop (eval --workers) must keep streaming meanwhile
                 started: list[BoardProcess] = []
@@ -310,6 +319,8 @@ class RobotSession:
                 for m in self.mounts:
                     for note in m.notes:
                         log.warning("%s", note)
+            self.recording = Recording.start(self.out / "run.mcap" if opts.mcap else None, self.robot, client, runtime,
+                                             self._shell, live_port=opts.foxglove, meta=self._mcap_meta(spec))
             tg = anyio.create_task_group()
             self._tg = await self._stack.enter_async_context(tg)
             self._monitor = EventMonitor(self.robot.servos.names, self.robot.base.floating,
@@ -345,6 +356,8 @@ class RobotSession:
             raise cause from group
         finally:
             self._tg = None
+            if self.recording is not None:
+                self.recording.close()
             if self._board is not None:
                 self._board.stop()
                 self._board = None
@@ -426,6 +439,11 @@ class RobotSession:
             return
         self.request_stop(StopReason("limit", "max_board_s", (
             f"the turn reached its board-time bound of {max_s:g} s (--max-board-s)")))
+
+    def _mcap_meta(self, spec: LinkSpec) -> dict[str, str]:
+        return {"scene": self.scene, "vocabulary": self.vocabulary, "link": str(spec), "label": self.opts.label,
+                "clock_mode": "lockstep" if self.opts.lockstep else "realtime"}
+
     # -- events (host.run.events) ----------------------------------------------------------------
     def _on_report(self, tel: Any) -> None:
         if self._monitor is None or self.client is None:
@@ -491,6 +509,9 @@ class RobotSession:
         if nack.msg_type == MsgType.SERVO_FRAME and nack.reason == NackReason.ESTOPPED and self._runtime is not None:
             self._runtime.streamer.fail(BoardFaulted(
                 f"the board refused servo frames (ESTOPPED: {nack.detail}); " + self._how_to_clear()))
+        if nack.reason == NackReason.SERVO_FAULT and self._runtime is not None:
+            self._runtime.streamer.fail(BoardFaulted(
+                f"the board lost a servo ({nack.detail}) and refuses motion; " + self._how_to_clear()))
 
     # -- turns -----------------------------------------------------------------------------------
     def pacer(self) -> BoardPacer:
@@ -542,6 +563,8 @@ class RobotSession:
             await runtime.sleep(settle_s)
         turn = self._turn_result(start, result)
         self._turn = None
+        if self.recording is not None:
+            self.recording.on_turn_end(turn.calls)
         if write:
             await self.write(turn, label)
         return turn
@@ -611,6 +634,7 @@ class RobotSession:
             task=label, outcome="interrupted" if stopped else "link_lost", fell=False, base_start=_pose(None),
             base_end=_pose(None), max_tilt_deg=0.0, first_action_latency_ms=None, outcomes=artefacts.count_outcomes([]),
             extra={"clock": "lockstep" if self.opts.lockstep else "realtime", "robot": self.robot.name,
+                   "robot_folder": str(self.robot.root),
                    "vocabulary": self.vocabulary,
                    "mode": self.opts.mode, "error": None,
                    **(_stopped_extra(error) if isinstance(error, Interrupted) else {"link_error": str(error)}),
@@ -639,7 +663,7 @@ class RobotSession:
         running = {} if tl is None else {r.channel or "-": f"{r.function}{r.args}" for r in tl
                                          if r.start is not None and r.end is None}
         return {"board_time_s": round(runtime.board_now_s(), 3), "base": _pose(b), "tilt_deg": round(tilt, 2),
-                "fell": _fell(tilt, b), "running": running, "busy": self.shell.running,
+                "fell": _fell(self.robot, tilt, b[1][2] if b else None, self.rec.base_z0), "running": running, "busy": self.shell.running,
                 "skills": [s.name for s in self.shell.skills.list()], "scene": self.scene_report()}
 
     async def capture(self) -> Path:
@@ -683,7 +707,7 @@ class RobotSession:
             outcome = "link_lost"
         elif self.stop is not None and board_fault is None:
             outcome, stopped = self.stop.outcome, {"stopped": self.stop.as_dict()}
-        fell = max_tilt > 45.0 or bool(base and min(b[1][2] for b in base) < 0.03)
+        fell = _fell(self.robot, max_tilt, min((b[1][2] for b in base), default=None), rec.base_z0)
         client = self.client
         tel = client.latest_telemetry if client is not None else None
         stats = {"frames_sent": streamer.frames_sent, "late": tel.late_count if tel else None,
@@ -704,7 +728,7 @@ class RobotSession:
             task=label, outcome=outcome, fell=fell, base_start=_pose(b0), base_end=_pose(b1),
             max_tilt_deg=round(max_tilt, 2), first_action_latency_ms=None if first is None else round(first, 1),
             outcomes=counts, duration_s=round(end_t - turn.board_t0, 3),
-            extra={"clock": "lockstep" if opts.lockstep else "realtime", "robot": self.robot.name,
+            extra={"clock": "lockstep" if opts.lockstep else "realtime", "robot": self.robot.name, "robot_folder": str(self.robot.root),
                    "vocabulary": self.vocabulary,
                    "mode": opts.mode, "error": None if result.error is None else str(result.error),
                    **({"link_error": str(link_error)} if link_error is not None else {}),
@@ -743,7 +767,8 @@ class RobotSession:
             artefacts.plot_timeline(out / "timeline.png", calls, title=f"{label}: calls on the board clock")
             if len(times) and keep.any():
                 targets = (np.asarray([t for t, _ in sent]) * 1e-6, np.asarray([q_ for _, q_ in sent])) if sent else None
-                artefacts.plot_joints(out / "joints.png", times[keep], q[keep], names, targets)
+                artefacts.plot_joints(out / "joints.png", times[keep], q[keep], names, targets,
+                                      groups=artefacts.joint_groups(self.robot))
 
         return write
 
@@ -791,8 +816,10 @@ def _pose(b: Any) -> list[float]:
     return [round(b[1][0], 4), round(b[1][1], 4), round(artefacts.yaw_deg(b[2]), 2)] if b else [0.0, 0.0, 0.0]
 
 
-def _fell(tilt: float, b: Any) -> bool:
-    return tilt > 45.0 or bool(b and b[1][2] < 0.03)
+def _fell(robot: Robot, tilt: float, z: float | None, z0: float | None) -> bool:
+    """Whether ``robot`` fell (:func:`host.run.events.has_fallen`): only a floating base can (a fixed one
+    stays where its MJCF puts it)."""
+    return robot.base.floating and has_fallen(tilt, z, z0)
 
 
 async def _one(text: str) -> AsyncIterator[str]:

@@ -81,15 +81,18 @@ def find_board_log(run_dir: Path) -> Path:
 
 
 def _events_jsonl(path: Path) -> Iterator[tuple[int, ServoFrame | Telemetry]]:
-    from protocol.framelog import decode_raw
+    from protocol.framelog import LogDecoder
     from protocol.framing import Frame
 
+    dec = LogDecoder()  # the log's own wire schema (its HELLO / CAPS say which)
     with open(path, encoding="utf-8") as f:
         for rec in iter_records(f):
             kind, direction = rec.get("type"), rec.get("dir")
+            if kind in ("HELLO", "CAPS"):
+                dec.decode(rec["raw"])
             if "error" in rec or (kind, direction) not in (("SERVO_FRAME", "rx"), ("TELEMETRY", "tx")):
                 continue
-            item = decode_raw(rec["raw"])
+            item = dec.decode(rec["raw"])
             if isinstance(item, Frame) and isinstance(item.msg, (ServoFrame, Telemetry)):
                 yield item.seq, item.msg
 

@@ -15,15 +15,17 @@ strip: the board time, the calls active on each channel (``timeline.json``) and
 the sentence being spoken. Frames are rendered offscreen (``MUJOCO_GL=egl`` unless
 set) by a pool of worker processes (both cores by default; ``spawn``, so each
 worker opens its own GL context) and encoded to H.264 by the ffmpeg binary that
-the ``imageio-ffmpeg`` wheel ships.
+the ``imageio-ffmpeg`` wheel ships. The sound (speech and music at the timeline's times) is then
+muxed in as AAC (:mod:`host.run.soundtrack`).
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import multiprocessing
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -33,6 +35,8 @@ import numpy as np
 from protocol.framelog import iter_records
 
 __all__ = ["VideoError", "VideoSettings", "load_states", "render_video"]
+
+log = logging.getLogger("host.run")
 
 WIDTH, HEIGHT = 640, 480  # multiples of 16: H.264 macroblocks, no rescaling by ffmpeg
 CAPTION_H = 72
@@ -204,24 +208,29 @@ def run_scene(run_dir: Path) -> str:
 
 
 def run_robot(run_dir: Path) -> str:
-    """The robot the run drove (``summary.json`` extra.robot; the default robot if not recorded)."""
+    """The robot the run drove (:func:`host.run.artefacts.recorded_robot`; the default robot if not recorded)."""
+    from host.run.artefacts import recorded_robot
     from robots.registry import DEFAULT_ROBOT
 
-    try:
-        doc = json.loads((Path(run_dir) / "summary.json").read_text(encoding="utf-8"))
-        name = (doc.get("extra") or {}).get("robot")
-    except (OSError, ValueError, AttributeError):
-        return DEFAULT_ROBOT
-    return name if isinstance(name, str) and name else DEFAULT_ROBOT
+    return recorded_robot(Path(run_dir)) or DEFAULT_ROBOT
 
 
 def _init_worker(settings: VideoSettings, scene: str = "empty", robot: str | None = None,
                  robots_dir: str | None = None) -> None:
+    """Set up one render process. Never raises: a Pool whose initializer raises respawns workers
+    forever, so a failure is kept and raised by the first :func:`_render` instead."""
     import signal
 
     # the terminal's Ctrl-C reaches the whole process group: the parent stops the pool (terminate), so a
     # worker ignores SIGINT rather than print a KeyboardInterrupt traceback of its own
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        _setup_worker(settings, scene, robot, robots_dir)
+    except Exception as e:
+        _W["error"] = e if isinstance(e, VideoError) else VideoError(f"render worker: {type(e).__name__}: {e}")
+
+
+def _setup_worker(settings: VideoSettings, scene: str, robot: str | None, robots_dir: str | None) -> None:
     os.environ.setdefault("MUJOCO_GL", "egl")
     import mujoco
 
@@ -260,6 +269,8 @@ def _init_worker(settings: VideoSettings, scene: str = "empty", robot: str | Non
 def _render(job: tuple[float, np.ndarray, np.ndarray, str, str]) -> bytes:
     from PIL import Image, ImageDraw, ImageFont
 
+    if "error" in _W:
+        raise _W["error"]
     t, base, joints, line, spoken = job
     data = _W["data"]
     _W["rm"].set_state(data, base, joints)
@@ -311,12 +322,13 @@ def _jobs(states: States, calls: Sequence[_Call], fps: int, t0: float | None
 
 
 def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings | None = None,
-                 robots_dir: str | None = None) -> Path:
+                 robots_dir: str | None = None, progress: Callable[[int, int], None] | None = None) -> Path:
     """Render ``run_dir``'s recorded run to ``out`` (default ``run_dir/run.mp4``); returns the path.
 
     The robot is the one the run's summary.json names (``robots_dir`` is searched first for it).
-    Raises :class:`VideoError` with the reason when it cannot. The video is written to
-    ``<stem>.partial<suffix>`` beside ``out`` and renamed to ``out`` only when it is complete: a
+    ``progress(frames done, frames)`` is called after each frame (e.g. :mod:`host.progress`).
+    Raises :class:`VideoError` with the reason when it cannot. The video (and its sound) is written
+    to ``<stem>.partial<suffix>`` beside ``out`` and renamed to ``out`` only when it is complete: a
     render that fails or is interrupted (Ctrl-C) leaves no truncated ``run.mp4`` (nor the partial
     file), and an older complete ``out`` stays as it was.
     """
@@ -332,6 +344,13 @@ def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings
     if tl.exists():
         t0 = json.loads(tl.read_text(encoding="utf-8")).get("t0")
     jobs = list(_jobs(states, calls, settings.fps, t0))
+    from robots.description import RobotDataError
+    from robots.registry import load_robot
+
+    try:  # here, not only in the workers: a robot that cannot be found is one clear line
+        robot = str(load_robot(run_robot(run_dir), robots_dir).root)
+    except RobotDataError as e:
+        raise VideoError(f"cannot load the robot the run drove: {e}") from None
     partial = out.with_name(f"{out.stem}.partial{out.suffix}")
     writer = imageio_ffmpeg.write_frames(str(partial), (WIDTH, HEIGHT), fps=settings.fps, codec="libx264",
                                          pix_fmt_out="yuv420p", quality=7, macro_block_size=16,
@@ -341,10 +360,18 @@ def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings
         writer.send(None)
         ctx = multiprocessing.get_context("spawn")
         with ctx.Pool(max(1, settings.workers), initializer=_init_worker,
-                      initargs=(settings, run_scene(run_dir), run_robot(run_dir), robots_dir)) as pool:
-            for frame in pool.imap(_render, jobs, chunksize=4):
+                      initargs=(settings, run_scene(run_dir), robot, robots_dir)) as pool:
+            for done, frame in enumerate(pool.imap(_render, jobs, chunksize=4), 1):
                 writer.send(frame)
+                if progress is not None:
+                    progress(done, len(jobs))
         writer.close()  # ffmpeg finishes the file here
+        if jobs:  # the sound: speech and music where the timeline has them (host.run.soundtrack)
+            from host.run.soundtrack import add_soundtrack
+
+            start = float(states.t[0]) if t0 is None else max(float(states.t[0]), float(t0))
+            for note in add_soundtrack(run_dir, partial, start, len(jobs) / settings.fps, robots_dir):
+                log.warning("%s", note)
         complete = True
     except VideoError:
         raise

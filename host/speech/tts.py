@@ -15,6 +15,7 @@ rates 120-250 wpm)::
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import re
 import shutil
@@ -40,6 +41,8 @@ CJK_CHAR_WEIGHT = 1.1
 SENTENCE_PAUSE = 1.1
 #: pause at each clause mark (, ; : ， 、 ； ：), in nominal words (0.26 s at 175 wpm)
 CLAUSE_PAUSE = 0.75
+#: the list of a speech folder's WAVs and their sentences (one JSON object per line)
+INDEX_NAME = "index.jsonl"
 #: longest time espeak-ng may take for one utterance
 ESPEAK_TIMEOUT_S = 60.0
 
@@ -138,7 +141,10 @@ def synthesize(
     backend forces it (``"espeak-ng"`` raises :class:`SpeechError` when missing).
     ``voice=None`` picks Mandarin/Japanese/Korean for CJK text, else espeak's
     default. The WAV is named after a hash of (text, voice, rate), so repeating
-    a sentence reuses its file; with ``out_dir=None`` no file is kept.
+    a sentence reuses its file; with ``out_dir=None`` no file is kept. Each new WAV
+    gets a line in ``out_dir/index.jsonl`` (``{"wav", "text", "voice", "rate_wpm"}``),
+    so the sound of a run can be put together from its sentences afterwards
+    (:mod:`host.run.soundtrack`).
     """
     _check_rate(rate_wpm)
     exe = espeak_path()
@@ -169,6 +175,9 @@ def synthesize(
             os.replace(tmp_wav, wav)
         finally:
             tmp_wav.unlink(missing_ok=True)
+        with open(out / INDEX_NAME, "a", encoding="utf-8") as f:
+            f.write(json.dumps({"wav": wav.name, "text": text, "voice": voice, "rate_wpm": rate_wpm},
+                               ensure_ascii=False) + "\n")
     return Utterance(text, wav_duration_s(wav), wav, "espeak-ng")
 
 

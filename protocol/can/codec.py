@@ -1,11 +1,17 @@
 """Messages <-> CAN frames: fixed layouts for the real-time path, an ISO-TP envelope for bulk.
 
-``encode_fixed(msg, seq, node, fd=False, sender=...)`` -> the frames of one fixed-layout message
-(``PayloadError`` if it has none or is invalid); ``encode_bulk(msg, seq)`` -> the ISO-TP service
-data unit ``type u8 | seq u16 LE | protocol.codec payload | CRC-16/X-25 u16 LE`` for any message; ``decode_bulk`` is its
-inverse. ``is_fixed(msg)`` says which path a message takes: HELLO/CAPS, CONFIG, SCREEN, SPEAKER,
-CAMERA_*, SIM_STATE and a NACK with a detail text go as bulk, everything else as fixed frames.
-Raw signal values (``message_to_raw`` / ``raw_to_message``) are what the DBC describes.
+``encode_fixed(msg, seq, node, fd=False, sender=..., layouts=None)`` -> the frames of one
+fixed-layout message (``PayloadError`` if it has none or is invalid); ``encode_bulk(msg, seq,
+schema=None)`` -> the ISO-TP service data unit ``type u8 | seq u16 LE | protocol.codec payload |
+CRC-16/X-25 u16 LE`` for any message; ``decode_bulk`` is its inverse. ``is_fixed(msg, fd, layouts)``
+says which path a message takes: HELLO/CAPS, CONFIG, SCREEN, SPEAKER, CAMERA_*, SIM_STATE and a
+NACK with a detail text go as bulk, and so does a message the robot's layout table has no fixed
+layout for in that frame kind (classic-CAN TELEMETRY above 27 servos); everything else as fixed
+frames. Raw signal values (``message_to_raw`` / ``raw_to_message``) are what the DBC describes.
+
+``layouts`` is the robot's table (:func:`protocol.can.layouts.can_layouts`); None means the default
+table (:data:`protocol.can.layouts.DEFAULT_SERVO_COUNT` servos). Bulk payloads use the table's
+serial schema (``layouts.schema``).
 """
 
 from __future__ import annotations
@@ -17,17 +23,17 @@ from typing import Any
 
 from protocol import messages as m
 from protocol.codec import (
+    WIRE_SCHEMA_16,
     PayloadError,
+    WireSchema,
     _q16_decode,
     _q16_encode,
     _as_int,
-    decode_payload,
-    encode_payload,
     msg_type_of,
 )
 from protocol.can.frame import CanFrame
 from protocol.can.ids import FunctionCode, cob_id
-from protocol.can.layouts import CAN_SERVOS, CRC_SIGNAL, FIXED_LAYOUTS, SEQ_MASK, FixedLayout
+from protocol.can.layouts import CRC_SIGNAL, SEQ_MASK, CanLayouts, FixedLayout, can_layouts
 from protocol.framing import crc16
 from protocol.messages import Message, MsgType
 
@@ -71,24 +77,36 @@ _U48 = (1 << 48) - 1
 _U24 = (1 << 24) - 1
 
 
-def is_fixed(msg: Message) -> bool:
-    """True when ``msg`` travels in fixed-layout frames, False when it goes as bulk (ISO-TP)."""
-    t = msg_type_of(msg)
-    if t is MsgType.NACK:
-        return not msg.detail  # type: ignore[union-attr]
-    return t in _FN_OF_TYPE or t is MsgType.HEARTBEAT
+def _table(layouts: CanLayouts | None) -> CanLayouts:
+    return can_layouts() if layouts is None else layouts
 
 
-def fixed_layout_for(msg_type: MsgType, fd: bool, sender: str = Sender.HOST) -> FixedLayout:
-    """The layout a message type uses (``PayloadError`` if it has no fixed layout)."""
+def _fn_of(msg_type: MsgType, sender: str) -> FunctionCode | None:
     if msg_type is MsgType.HEARTBEAT:
-        fn = FunctionCode.HEARTBEAT_HOST if sender == Sender.HOST else FunctionCode.HEARTBEAT_BOARD
-    else:
-        try:
-            fn = _FN_OF_TYPE[msg_type]
-        except KeyError:
-            raise PayloadError(f"{msg_type.name} has no fixed CAN layout (it goes as ISO-TP bulk)") from None
-    return FIXED_LAYOUTS[(fn, bool(fd))]
+        return FunctionCode.HEARTBEAT_HOST if sender == Sender.HOST else FunctionCode.HEARTBEAT_BOARD
+    return _FN_OF_TYPE.get(msg_type)
+
+
+def is_fixed(msg: Message, fd: bool = False, layouts: CanLayouts | None = None) -> bool:
+    """True when ``msg`` travels in fixed-layout frames of this frame kind (classic or FD) with the
+    robot's ``layouts``, False when it goes as bulk (ISO-TP)."""
+    t = msg_type_of(msg)
+    if t is MsgType.NACK and msg.detail:  # type: ignore[union-attr]
+        return False
+    fn = _fn_of(t, Sender.HOST)
+    return fn is not None and _table(layouts).layout(fn, fd) is not None
+
+
+def fixed_layout_for(msg_type: MsgType, fd: bool, sender: str = Sender.HOST,
+                     layouts: CanLayouts | None = None) -> FixedLayout:
+    """The layout a message type uses (``PayloadError`` if it has no fixed layout)."""
+    fn = _fn_of(msg_type, sender)
+    layout = None if fn is None else _table(layouts).layout(fn, fd)
+    if layout is None:
+        raise PayloadError(f"{msg_type.name} has no fixed CAN layout"
+                           + ("" if fn is None else f" for {_table(layouts).servo_count} servos on "
+                              f"{'CAN FD' if fd else 'classic CAN'}") + " (it goes as ISO-TP bulk)")
+    return layout
 
 
 # --- raw signal values -----------------------------------------------------------------------
@@ -98,32 +116,34 @@ def _clamp(name: str, v: Any, hi: int) -> int:
     return min(max(_as_int(name, v, 0, hi), 0), hi)
 
 
-def _servo_values(name: str, values: Any, cpu: int) -> list[int]:
+def _servo_values(name: str, values: Any, cpu: int, n: int) -> list[int]:
     vals = list(values)
-    if len(vals) > CAN_SERVOS:
-        raise PayloadError(f"{name}: {len(vals)} values, the CAN layout carries {CAN_SERVOS}")
+    if len(vals) > n:
+        raise PayloadError(f"{name}: {len(vals)} values, the CAN layout carries {n}")
     try:
         codes = [_q16_encode(v, cpu) for v in vals]
     except (TypeError, ValueError):
         raise PayloadError(f"{name}: values must be numbers") from None
-    return codes + [-32768] * (CAN_SERVOS - len(codes))
+    return codes + [-32768] * (n - len(codes))
 
 
-def message_to_raw(msg: Message) -> dict[str, int]:
+def message_to_raw(msg: Message, layouts: CanLayouts | None = None) -> dict[str, int]:
     """Raw (integer) signal values of a fixed-layout message, keyed by DBC signal name."""
     t = msg_type_of(msg)
+    table = _table(layouts)
+    n = table.servo_count
     raw: dict[str, int] = {}
     if isinstance(msg, m.ServoFrame):
-        mask = _as_int("mask", msg.mask, -1, 1 << 16)
-        if mask < 0 or mask >> CAN_SERVOS:
-            raise PayloadError(f"SERVO_FRAME: mask {mask:#x} has bits outside the {CAN_SERVOS} CAN servos")
+        mask = _as_int("mask", msg.mask, -1, 1 << 32)
+        if mask < 0 or mask >> n:
+            raise PayloadError(f"SERVO_FRAME: mask {mask:#x} has bits outside the {n} CAN servos")
         targets = list(msg.targets)
         if len(targets) != mask.bit_count():
             raise PayloadError(f"SERVO_FRAME: {len(targets)} target(s) but popcount(mask) = {mask.bit_count()}")
         raw["apply_at_us"] = _as_int("apply_at_us", msg.apply_at_us, 0, 1 << 32) & 0xFFFF_FFFF
         raw["mask"] = mask
         it = iter(targets)
-        for i in range(CAN_SERVOS):
+        for i in range(n):
             if mask >> i & 1:
                 v = next(it)
                 try:
@@ -138,12 +158,13 @@ def message_to_raw(msg: Message) -> dict[str, int]:
     elif isinstance(msg, m.TimeSyncRequest):
         raw["t1_host_us"] = _clamp("t1_host_us", msg.t1_host_us, _U48)
     elif isinstance(msg, m.TimeSyncReply):
-        for n in ("t1_host_us", "t2_board_us", "t3_board_us"):
-            raw[n] = _clamp(n, getattr(msg, n), _U48)
+        for k in ("t1_host_us", "t2_board_us", "t3_board_us"):
+            raw[k] = _clamp(k, getattr(msg, k), _U48)
     elif isinstance(msg, m.Flush):
-        mask = _as_int("mask", msg.mask, -1, 1 << 16)
-        if mask < 0 or mask >> 16:
-            raise PayloadError(f"FLUSH: mask {mask:#x} does not fit 16 bits")
+        bits = table.mask_bits
+        mask = _as_int("mask", msg.mask, -1, 1 << bits)
+        if mask < 0 or mask >> bits:
+            raise PayloadError(f"FLUSH: mask {mask:#x} does not fit {bits} bits")
         raw["from_us"] = _clamp("from_us", msg.from_us, _U48)
         raw["mask"] = mask
     elif isinstance(msg, m.Advance):
@@ -165,21 +186,21 @@ def message_to_raw(msg: Message) -> dict[str, int]:
             ("velocity", msg.velocities, 1_000),
             ("effort", msg.efforts, 1_000),
         ):
-            for i, code in enumerate(_servo_values(prefix, values, cpu)):
+            for i, code in enumerate(_servo_values(prefix, values, cpu, n)):
                 raw[f"{prefix}_{i + 1:02d}"] = code
         rpy = list(msg.imu_rpy)
         if len(rpy) != 3:
             raise PayloadError(f"TELEMETRY: imu_rpy needs 3 values, got {len(rpy)}")
-        for n, v in zip(("imu_roll", "imu_pitch", "imu_yaw"), rpy):
-            raw[n] = _q16_encode(v, 10_000)
+        for k, v in zip(("imu_roll", "imu_pitch", "imu_yaw"), rpy):
+            raw[k] = _q16_encode(v, 10_000)
         faults = _as_int("faults", msg.faults, -1, 1 << 16)
         if faults < 0 or faults > 0xFFFF:
             raise PayloadError(f"TELEMETRY: faults {faults:#x} do not fit 16 bits")
         raw["faults"] = faults
         raw["buffer_fill"] = _clamp("buffer_fill", msg.buffer_fill, 0xFFFF)
         raw["last_applied_seq"] = _as_int("last_applied_seq", msg.last_applied_seq, 0, 1 << 16) & 0xFFFF
-        for n in ("late_count", "dropped_count", "link_errors"):
-            raw[n] = _clamp(n, getattr(msg, n), _U24)
+        for k in ("late_count", "dropped_count", "link_errors"):
+            raw[k] = _clamp(k, getattr(msg, k), _U24)
     elif isinstance(msg, (m.Estop, m.EstopClear)):
         pass
     else:
@@ -187,13 +208,14 @@ def message_to_raw(msg: Message) -> dict[str, int]:
     return raw
 
 
-def raw_to_message(msg_type: MsgType, raw: dict[str, int]) -> Message:
+def raw_to_message(msg_type: MsgType, raw: dict[str, int], layouts: CanLayouts | None = None) -> Message:
     """Inverse of :func:`message_to_raw` (``PayloadError`` on values the message cannot hold)."""
+    n = _table(layouts).servo_count
     if msg_type is MsgType.SERVO_FRAME:
         mask = raw["mask"]
-        if mask >> CAN_SERVOS:
-            raise PayloadError(f"SERVO_FRAME: mask {mask:#x} has bits outside the {CAN_SERVOS} CAN servos")
-        codes = [raw[f"target_{i + 1:02d}"] for i in range(CAN_SERVOS) if mask >> i & 1]
+        if mask >> n:
+            raise PayloadError(f"SERVO_FRAME: mask {mask:#x} has bits outside the {n} CAN servos")
+        codes = [raw[f"target_{i + 1:02d}"] for i in range(n) if mask >> i & 1]
         if -32768 in codes:  # as protocol.codec: a target has no "unknown" (there is no safe value for it)
             raise PayloadError("SERVO_FRAME: targets: reserved code -32768 (NaN) is not allowed here")
         targets = tuple(_q16_decode(c, 10_000) for c in codes)
@@ -218,7 +240,7 @@ def raw_to_message(msg_type: MsgType, raw: dict[str, int]) -> Message:
             raise PayloadError(f"{msg_type.name}: {e}") from None
     if msg_type is MsgType.TELEMETRY:
         def arr(prefix: str, cpu: int) -> tuple[float, ...]:
-            return tuple(_q16_decode(raw[f"{prefix}_{i + 1:02d}"], cpu) for i in range(CAN_SERVOS))
+            return tuple(_q16_decode(raw[f"{prefix}_{i + 1:02d}"], cpu) for i in range(n))
 
         rpy = tuple(_q16_decode(raw[n], 10_000) for n in ("imu_roll", "imu_pitch", "imu_yaw"))
         return m.Telemetry(
@@ -279,8 +301,10 @@ def fixed_crc(layout: FixedLayout, seq: int, raw: dict[str, int]) -> int:
     return int(crc16(b"".join(pack_part(layout, k, seq, zeroed) for k in range(layout.parts))))
 
 
-def encode_fixed(msg: Message, seq: int, node: int, fd: bool = False, sender: str = Sender.HOST) -> list[CanFrame]:
-    """The frames (in part order) carrying ``msg`` with sequence ``seq`` to/from board ``node``.
+def encode_fixed(msg: Message, seq: int, node: int, fd: bool = False, sender: str = Sender.HOST,
+                 layouts: CanLayouts | None = None) -> list[CanFrame]:
+    """The frames (in part order) carrying ``msg`` with sequence ``seq`` to/from board ``node``, in
+    the robot's ``layouts`` (default: :data:`protocol.can.layouts.DEFAULT_SERVO_COUNT` servos).
 
     ``sender`` only matters for HEARTBEAT (each end has its own identifier).
     Raises ``PayloadError`` for a message without a fixed layout or with invalid values.
@@ -288,24 +312,26 @@ def encode_fixed(msg: Message, seq: int, node: int, fd: bool = False, sender: st
     t = msg_type_of(msg)
     if t is MsgType.NACK and msg.detail:  # type: ignore[union-attr]
         raise PayloadError("a NACK with a detail text goes as bulk (encode_bulk)")
-    layout = fixed_layout_for(t, fd, sender)
-    raw = message_to_raw(msg)
+    layout = fixed_layout_for(t, fd, sender, layouts)
+    raw = message_to_raw(msg, layouts)
     if layout.has_crc:
         raw[CRC_SIGNAL] = fixed_crc(layout, seq, raw)
     aid = cob_id(layout.fn, node)
     return [CanFrame(aid, pack_part(layout, k, seq, raw), is_fd=bool(fd)) for k in range(layout.parts)]
 
 
-def encode_bulk(msg: Message, seq: int) -> bytes:
+def encode_bulk(msg: Message, seq: int, schema: WireSchema | None = None) -> bytes:
     """ISO-TP service data unit: ``type u8 | seq u16 LE | protocol.codec payload | crc u16 LE``
-    (CRC-16/X-25 over everything before it, as the fixed layouts' ``crc16``)."""
-    payload = encode_payload(msg)
+    (CRC-16/X-25 over everything before it, as the fixed layouts' ``crc16``); the payload in the
+    robot's ``schema`` (default: the u16 schema; a table's is ``layouts.schema``)."""
+    payload = (schema or WIRE_SCHEMA_16).encode_payload(msg)
     body = BULK_HEADER.pack(int(msg_type_of(msg)), int(seq) & 0xFFFF) + payload
     return body + int(crc16(body)).to_bytes(2, "little")
 
 
-def decode_bulk(sdu: bytes) -> tuple[int, Message]:
-    """(seq, message) of an ISO-TP service data unit (``PayloadError`` on anything malformed)."""
+def decode_bulk(sdu: bytes, schema: WireSchema | None = None) -> tuple[int, Message]:
+    """(seq, message) of an ISO-TP service data unit, payload in ``schema`` (``PayloadError`` on
+    anything malformed)."""
     data = bytes(sdu)
     if len(data) < BULK_HEADER.size + 2:
         raise PayloadError(f"bulk message of {len(data)} byte(s) is shorter than its 3-byte header and 2-byte CRC")
@@ -317,7 +343,7 @@ def decode_bulk(sdu: bytes) -> tuple[int, Message]:
         mt = MsgType(t)
     except ValueError:
         raise PayloadError(f"bulk message: unknown message type {t:#04x}") from None
-    return seq, decode_payload(mt, data[BULK_HEADER.size :])
+    return seq, (schema or WIRE_SCHEMA_16).decode_payload(mt, data[BULK_HEADER.size :])
 
 
 def physical(raw: dict[str, int], layout: FixedLayout) -> dict[str, float]:

@@ -18,6 +18,11 @@ boundary) still completes its message. An assembly still unfinished ``STALE_FRAM
 its first part is dropped (INCOMPLETE), and a surfaced sequence is forgotten as long after, so an
 11-bit sequence that comes round again 2 048 messages later is a new message. State is bounded:
 at most two assemblies and four surfaced sequences per function code. ``feed_bulk(sdu)`` decodes a reassembled ISO-TP unit.
+
+``layouts`` is the robot's layout table (:func:`protocol.can.layouts.can_layouts`; default: the
+:data:`~protocol.can.layouts.DEFAULT_SERVO_COUNT`-servo table); bulk units decode with its serial
+schema. A fixed-layout frame of a message the table sends as bulk in that frame kind (classic
+TELEMETRY above 27 servos) is dropped as ``errors[PAYLOAD]``.
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ from enum import Enum
 from protocol.can.codec import decode_bulk, fixed_crc, raw_to_message, unpack_part
 from protocol.can.frame import CanFrame
 from protocol.can.ids import BOARD_TO_HOST, BROADCAST_NODE, HOST_TO_BOARD, FunctionCode, check_node, split_id
-from protocol.can.layouts import CRC_SIGNAL, FIXED_LAYOUTS, SEQ_MASK, FixedLayout, unwrap_seq
+from protocol.can.layouts import CRC_SIGNAL, SEQ_MASK, CanLayouts, FixedLayout, can_layouts, unwrap_seq
 from protocol.codec import PayloadError, msg_type_of
 from protocol.framing import DecodeError, DecodeErrorKind, Frame
 from protocol.messages import Message, MsgType
@@ -84,11 +89,12 @@ class _Assembly:
 class CanDecoder:
     """Reassembles fixed-layout messages for one receiver of one node; counts every problem."""
 
-    def __init__(self, node: int, receiver: str = "board") -> None:
+    def __init__(self, node: int, receiver: str = "board", layouts: CanLayouts | None = None) -> None:
         if receiver not in ("board", "host"):
             raise ValueError(f"receiver must be 'board' or 'host', got {receiver!r}")
         self.node = check_node(node)
         self.receiver = receiver
+        self.layouts = can_layouts() if layouts is None else layouts
         self._accept = HOST_TO_BOARD if receiver == "board" else BOARD_TO_HOST
         #: per function code, the assemblies in progress, oldest first (at most ``MAX_ASSEMBLIES``)
         self._assemblies: dict[FunctionCode, list[_Assembly]] = {}
@@ -149,11 +155,14 @@ class CanDecoder:
             # an ESTOP is honoured whatever its length (e.g. ``cansend vcan0 001#``); without a header
             # it gets a sequence 1024 behind the last one seen, which no request in flight can have
             seq = (self.last_seq - 1024) & 0xFFFF
-            return [CanItem(seq, MsgType.ESTOP, raw_to_message(MsgType.ESTOP, {}), (frame,))]
+            return [CanItem(seq, MsgType.ESTOP, raw_to_message(MsgType.ESTOP, {}, self.layouts), (frame,))]
         if len(data) < 2:
             return [self._error(CanErrorKind.LENGTH, f"{fn.name}: {len(data)} byte(s), no header", frame)]
         fd = bool(frame.is_fd)
-        layout = FIXED_LAYOUTS[(fn, fd)]
+        layout = self.layouts.layout(fn, fd)
+        if layout is None:
+            return [self._error(CanErrorKind.PAYLOAD, f"{fn.name}: no fixed layout for {self.layouts.servo_count} "
+                                f"servos on {'CAN FD' if fd else 'classic CAN'} (it travels as ISO-TP)", frame)]
         header = int.from_bytes(data[:2], "little")
         part, seq11 = header & 0x1F, (header >> 5) & SEQ_MASK
         if part >= layout.parts:
@@ -236,7 +245,7 @@ class CanDecoder:
                                        f"parts give {want:#06x} (dropped)", frames[-1]))
                 return out
         try:
-            msg = raw_to_message(layout.msg_type, raw)
+            msg = raw_to_message(layout.msg_type, raw, self.layouts)
         except PayloadError as e:
             out.append(self._error(CanErrorKind.PAYLOAD, str(e), frames[-1]))
             return out
@@ -248,7 +257,7 @@ class CanDecoder:
     def feed_bulk(self, sdu: bytes) -> CanItem | CanDecodeError:
         """Decode one reassembled ISO-TP unit (its full sequence re-anchors the unwrapping)."""
         try:
-            seq, msg = decode_bulk(sdu)
+            seq, msg = decode_bulk(sdu, self.layouts.schema)
         except PayloadError as e:
             return self._error(CanErrorKind.BULK, str(e), None)
         except Exception as e:  # defensive, as in feed()

@@ -1,4 +1,4 @@
-"""CAN identifiers of the CoCo protocol: 11-bit COB-IDs, function code high, node id low.
+"""CAN identifiers of the GhostShell protocol: 11-bit COB-IDs, function code high, node id low.
 
 The layout follows CANopen's COB-ID (CiA 301): ``cob_id = function_code << 7 | node_id`` with a
 4-bit function code (bits 10..7) and a 7-bit node id (bits 6..0, boards 1..127). On CAN the

@@ -55,7 +55,7 @@ class IsoTpLink:
             "rx_consecutive_frame_timeout": ISOTP_TIMEOUT_MS,
             "wftmax": 0,
             # frames padded to 8 bytes (classic) or 64 (FD) (ISO 15765-2 padding): every frame of a
-            # link then has one length, which the DBC describes (protocol/coco*.dbc, BULK_* messages)
+            # link then has one length, which the DBC describes (a robot's DBC, BULK_* messages)
             "tx_padding": 0xCC,
             "tx_data_min_length": 64 if fd else 8,
             "listen_mode": listen,  # True: reassemble only, never answer (reading a capture)

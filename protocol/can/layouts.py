@@ -34,20 +34,49 @@ Scales are the serial codec's (:mod:`protocol.codec`): positions and IMU angles 
 velocities 1e-3 rad/s, efforts 1e-3 N*m, all int16 with -32768 = unknown (NaN). Times that are
 u64 in the serial codec travel as u48 microseconds (8.9 years; larger values clamp), except
 SERVO_FRAME's apply-at, which is u32 modulo 2**32 as on serial. Telemetry counters travel as
-u24 (clamped at 16 777 215). The layouts are for ``CAN_SERVOS`` = 12 servos (CoCo).
+u24 (clamped at 16 777 215).
+
+Layouts per robot: :func:`can_layouts` builds (and caches) the table for a robot of N servos
+(1 <= N <= :data:`protocol.messages.MAX_WIRE_SERVOS`): SERVO_FRAME carries ``target_01`` ..
+``target_NN``, TELEMETRY ``position_NN``, ``velocity_NN``, ``effort_NN``; the ``mask`` signal of
+SERVO_FRAME and FLUSH is 16 bits for N <= 16 and 32 bits above (as the serial codec's
+:class:`protocol.codec.WireSchema`, which also encodes the bulk messages). A fixed layout has at
+most 32 parts (the 5-bit part index), so a message that would need more has **no** fixed layout in
+the table for that frame kind and travels as ISO-TP bulk instead: classic-CAN TELEMETRY takes
+N + 5 parts, so a robot of more than 27 servos sends TELEMETRY over ISO-TP on classic CAN (on CAN
+FD it always fits). Frames per message (classic: 8-byte parts; FD: frames x data bytes):
+
+=====  ==========================  =============================================
+N      SERVO_FRAME classic / FD    TELEMETRY classic / FD
+=====  ==========================  =============================================
+1      2 parts / 1 x 12 B          6 parts / 1 x 48 B
+12     6 parts / 1 x 48 B          17 parts / 2 x 64 B
+16     7 parts / 1 x 48 B          21 parts / 3 x 64 B
+17     8 parts / 1 x 48 B          22 parts / 3 x 64 B
+27     11 parts / 2 x 64 B         32 parts / 4 x 64 B
+28     12 parts / 2 x 64 B         ISO-TP, 208-byte unit (30 frames) / 4 x 64 B
+32     13 parts / 2 x 64 B         ISO-TP, 232-byte unit (34 frames) / 4 x 64 B
+=====  ==========================  =============================================
+
+:data:`FIXED_LAYOUTS` is the table for :data:`DEFAULT_SERVO_COUNT` (12) servos, what callers that
+name no robot get (so their frames are the ones they always were).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import lru_cache
 
 from protocol.can.frame import fd_length
 from protocol.can.ids import FunctionCode
+from protocol.codec import WireSchema, schema_for
 from protocol.messages import MsgType
 
 __all__ = [
-    "CAN_SERVOS",
     "CRC_SIGNAL",
+    "CanLayouts",
+    "DEFAULT_SERVO_COUNT",
     "HEADER_BITS",
     "PART_BITS",
     "SEQ_BITS",
@@ -55,10 +84,12 @@ __all__ = [
     "FixedLayout",
     "Placed",
     "SignalSpec",
+    "can_layouts",
     "unwrap_seq",
 ]
 
-CAN_SERVOS = 12
+#: the servo count of the layouts callers get when they name no robot (:data:`FIXED_LAYOUTS`)
+DEFAULT_SERVO_COUNT = 12
 #: name of the integrity signal a layout may end with (see the module docstring)
 CRC_SIGNAL = "crc16"
 PART_BITS = 5
@@ -102,11 +133,12 @@ class FixedLayout:
     parts: int
     length: int  # bytes of every frame of this message (classic: <= 8; FD: a valid FD length)
     part_bytes: tuple[int, ...]  # bytes each part needs (header included)
+    servos: int = DEFAULT_SERVO_COUNT  # the robot's servo count this layout is for
 
     def __hash__(self) -> int:
-        # one layout per (message type, frame kind): hashing that pair, not every nested signal,
-        # keeps the per-frame lookups keyed by layout (``codec._part_signals``) cheap
-        return hash((self.msg_type, self.fd))
+        # one layout per (message type, frame kind, servo count): hashing that, not every nested
+        # signal, keeps the per-frame lookups keyed by layout (``codec._part_signals``) cheap
+        return hash((self.msg_type, self.fd, self.servos))
 
     @property
     def name(self) -> str:
@@ -127,6 +159,10 @@ def unwrap_seq(seq11: int, reference: int) -> int:
     return (int(reference) + delta) & 0xFFFF
 
 
+class TooManyParts(ValueError):
+    """The signals of a message need more parts than the 5-bit part index counts."""
+
+
 def _place(signals: list[SignalSpec], part_bits: int) -> tuple[list[Placed], int, list[int]]:
     placed: list[Placed] = []
     part, used = 0, 0
@@ -142,7 +178,7 @@ def _place(signals: list[SignalSpec], part_bits: int) -> tuple[list[Placed], int
         used_by_part[part] = used
     nparts = part + 1
     if nparts > MAX_PARTS:
-        raise AssertionError(f"{nparts} parts do not fit the {PART_BITS}-bit part index")
+        raise TooManyParts(f"{nparts} parts do not fit the {PART_BITS}-bit part index")
     return placed, nparts, [(HEADER_BITS + u + 7) // 8 for u in used_by_part]
 
 
@@ -150,54 +186,60 @@ def _q16(name: str, scale: float, unit: str) -> SignalSpec:
     return SignalSpec(name, 16, True, scale, unit, "int16; -32768 = unknown (NaN)")
 
 
-def _servo_names(prefix: str) -> list[str]:
-    return [f"{prefix}_{i + 1:02d}" for i in range(CAN_SERVOS)]
-
-
 U48_TIME = "u48 microseconds (clamped)"
 
-_SIGNALS: dict[MsgType, tuple[FunctionCode, list[SignalSpec]]] = {
-    MsgType.ESTOP: (FunctionCode.ESTOP, []),
-    MsgType.ESTOP_CLEAR: (FunctionCode.ESTOP_CLEAR, []),
-    MsgType.SERVO_FRAME: (
-        FunctionCode.SERVO_FRAME,
-        [
-            SignalSpec("apply_at_us", 32, unit="us", comment="board clock modulo 2**32"),
-            SignalSpec("mask", 16, comment="bit i = servo i+1 present"),
-            *[_q16(n, 1e-4, "rad") for n in _servo_names("target")],
-        ],
-    ),
-    MsgType.TIME_SYNC_REQUEST: (FunctionCode.TIME_SYNC_REQUEST, [SignalSpec("t1_host_us", 48, unit="us", comment=U48_TIME)]),
-    MsgType.TIME_SYNC_REPLY: (
-        FunctionCode.TIME_SYNC_REPLY,
-        [SignalSpec(n, 48, unit="us", comment=U48_TIME) for n in ("t1_host_us", "t2_board_us", "t3_board_us")],
-    ),
-    MsgType.FLUSH: (
-        FunctionCode.FLUSH,
-        [SignalSpec("from_us", 48, unit="us", comment=U48_TIME), SignalSpec("mask", 16, comment="bit i = servo i+1")],
-    ),
-    MsgType.ADVANCE: (FunctionCode.ADVANCE, [SignalSpec("until_us", 48, unit="us", comment=U48_TIME)]),
-    MsgType.ACK: (FunctionCode.ACK, [SignalSpec("ack_seq", 16), SignalSpec("msg_type", 8)]),
-    MsgType.NACK: (FunctionCode.NACK, [SignalSpec("ack_seq", 16), SignalSpec("msg_type", 8), SignalSpec("reason", 8)]),
-    MsgType.TELEMETRY: (
-        FunctionCode.TELEMETRY,
-        [
-            SignalSpec("board_time_us", 48, unit="us", comment=U48_TIME),
-            *[_q16(n, 1e-4, "rad") for n in _servo_names("position")],
-            *[_q16(n, 1e-3, "rad/s") for n in _servo_names("velocity")],
-            *[_q16(n, 1e-3, "N*m") for n in _servo_names("effort")],
-            _q16("imu_roll", 1e-4, "rad"),
-            _q16("imu_pitch", 1e-4, "rad"),
-            _q16("imu_yaw", 1e-4, "rad"),
-            SignalSpec("faults", 16, comment="FaultFlags"),
-            SignalSpec("buffer_fill", 16),
-            SignalSpec("last_applied_seq", 16),
-            SignalSpec("late_count", 24, comment="clamped"),
-            SignalSpec("dropped_count", 24, comment="clamped"),
-            SignalSpec("link_errors", 24, comment="clamped"),
-        ],
-    ),
-}
+
+def _signals(n: int) -> dict[MsgType, tuple[FunctionCode, list[SignalSpec]]]:
+    """Message type -> (function code, signals) for a robot of ``n`` servos."""
+    mask_bits = 16 if n <= 16 else 32
+    names = [f"{i + 1:02d}" for i in range(n)]
+    return {
+        MsgType.ESTOP: (FunctionCode.ESTOP, []),
+        MsgType.ESTOP_CLEAR: (FunctionCode.ESTOP_CLEAR, []),
+        MsgType.SERVO_FRAME: (
+            FunctionCode.SERVO_FRAME,
+            [
+                SignalSpec("apply_at_us", 32, unit="us", comment="board clock modulo 2**32"),
+                SignalSpec("mask", mask_bits, comment="bit i = servo i+1 present"),
+                *[_q16(f"target_{k}", 1e-4, "rad") for k in names],
+            ],
+        ),
+        MsgType.TIME_SYNC_REQUEST: (FunctionCode.TIME_SYNC_REQUEST,
+                                    [SignalSpec("t1_host_us", 48, unit="us", comment=U48_TIME)]),
+        MsgType.TIME_SYNC_REPLY: (
+            FunctionCode.TIME_SYNC_REPLY,
+            [SignalSpec(k, 48, unit="us", comment=U48_TIME) for k in ("t1_host_us", "t2_board_us", "t3_board_us")],
+        ),
+        MsgType.FLUSH: (
+            FunctionCode.FLUSH,
+            [SignalSpec("from_us", 48, unit="us", comment=U48_TIME),
+             SignalSpec("mask", mask_bits, comment="bit i = servo i+1")],
+        ),
+        MsgType.ADVANCE: (FunctionCode.ADVANCE, [SignalSpec("until_us", 48, unit="us", comment=U48_TIME)]),
+        MsgType.ACK: (FunctionCode.ACK, [SignalSpec("ack_seq", 16), SignalSpec("msg_type", 8)]),
+        MsgType.NACK: (FunctionCode.NACK,
+                       [SignalSpec("ack_seq", 16), SignalSpec("msg_type", 8), SignalSpec("reason", 8)]),
+        MsgType.TELEMETRY: (
+            FunctionCode.TELEMETRY,
+            [
+                SignalSpec("board_time_us", 48, unit="us", comment=U48_TIME),
+                *[_q16(f"position_{k}", 1e-4, "rad") for k in names],
+                *[_q16(f"velocity_{k}", 1e-3, "rad/s") for k in names],
+                *[_q16(f"effort_{k}", 1e-3, "N*m") for k in names],
+                _q16("imu_roll", 1e-4, "rad"),
+                _q16("imu_pitch", 1e-4, "rad"),
+                _q16("imu_yaw", 1e-4, "rad"),
+                SignalSpec("faults", 16, comment="FaultFlags"),
+                SignalSpec("buffer_fill", 16),
+                SignalSpec("last_applied_seq", 16),
+                SignalSpec("late_count", 24, comment="clamped"),
+                SignalSpec("dropped_count", 24, comment="clamped"),
+                SignalSpec("link_errors", 24, comment="clamped"),
+            ],
+        ),
+    }
+
+
 # Heartbeats exist in both directions with their own identifiers (one transmitter per id).
 HEARTBEAT_SIGNALS = [SignalSpec("sender_time_us", 48, unit="us", comment=U48_TIME)]
 
@@ -205,24 +247,56 @@ HEARTBEAT_SIGNALS = [SignalSpec("sender_time_us", 48, unit="us", comment=U48_TIM
 CRC_SPEC = SignalSpec(CRC_SIGNAL, 16, comment="CRC-16/X-25 over every part of the message with this field zero")
 
 
-def _build(msg_type: MsgType, fn: FunctionCode, signals: list[SignalSpec], fd: bool) -> FixedLayout:
+def _build(msg_type: MsgType, fn: FunctionCode, signals: list[SignalSpec], fd: bool, n: int) -> FixedLayout:
     if signals:  # every message with content ends with the integrity CRC (module docstring)
         signals = [*signals, CRC_SPEC]
     placed, nparts, part_bytes = _place(signals, FD_PART_BITS if fd else CLASSIC_PART_BITS)
     longest = max(part_bytes)
     length = fd_length(longest) if fd else (8 if nparts > 1 else longest)
-    return FixedLayout(msg_type, fn, fd, tuple(placed), nparts, length, tuple(part_bytes))
+    return FixedLayout(msg_type, fn, fd, tuple(placed), nparts, length, tuple(part_bytes), n)
 
 
-def _all_layouts() -> dict[tuple[FunctionCode, bool], FixedLayout]:
+@dataclass(frozen=True, eq=False)
+class CanLayouts:
+    """The CAN form of the protocol for a robot of ``servo_count`` servos.
+
+    ``fixed``: (function code, is_fd) -> layout, for every message that has a fixed layout in that
+    frame kind (absent: the message travels as ISO-TP bulk there, e.g. classic TELEMETRY above 27
+    servos); ``schema``: the serial payload schema the bulk (ISO-TP) messages are encoded with."""
+
+    servo_count: int
+    fixed: Mapping[tuple[FunctionCode, bool], FixedLayout]
+    schema: WireSchema
+
+    @property
+    def mask_bits(self) -> int:
+        return 16 if self.servo_count <= 16 else 32
+
+    def layout(self, fn: FunctionCode, fd: bool) -> FixedLayout | None:
+        """The fixed layout of ``fn`` in this frame kind (None: that message goes as ISO-TP bulk)."""
+        return self.fixed.get((fn, bool(fd)))
+
+
+def can_layouts(servo_count: int = DEFAULT_SERVO_COUNT) -> CanLayouts:
+    """The layout table for a robot of ``servo_count`` servos (cached: one value per N);
+    :class:`protocol.codec.WireBoundError` (a ``ValueError``) outside 1..32."""
+    return _can_layouts(int(servo_count))
+
+
+@lru_cache(maxsize=None)
+def _can_layouts(n: int) -> CanLayouts:
+    schema = schema_for(n)  # refuses a count the wire cannot carry
     out: dict[tuple[FunctionCode, bool], FixedLayout] = {}
     for fd in (False, True):
-        for t, (fn, sigs) in _SIGNALS.items():
-            out[(fn, fd)] = _build(t, fn, sigs, fd)
+        for t, (fn, sigs) in _signals(n).items():
+            try:
+                out[(fn, fd)] = _build(t, fn, sigs, fd, n)
+            except TooManyParts:
+                continue  # no fixed layout in this frame kind: ISO-TP bulk (module docstring)
         for fn in (FunctionCode.HEARTBEAT_HOST, FunctionCode.HEARTBEAT_BOARD):
-            out[(fn, fd)] = _build(MsgType.HEARTBEAT, fn, HEARTBEAT_SIGNALS, fd)
-    return out
+            out[(fn, fd)] = _build(MsgType.HEARTBEAT, fn, HEARTBEAT_SIGNALS, fd, n)
+    return CanLayouts(n, out, schema)
 
 
-#: (function code, is_fd) -> layout, for every fixed-layout function code.
-FIXED_LAYOUTS: dict[tuple[FunctionCode, bool], FixedLayout] = _all_layouts()
+#: (function code, is_fd) -> layout, for every fixed-layout function code, for :data:`DEFAULT_SERVO_COUNT` servos.
+FIXED_LAYOUTS: Mapping[tuple[FunctionCode, bool], FixedLayout] = can_layouts(DEFAULT_SERVO_COUNT).fixed

@@ -1,13 +1,21 @@
-"""Write ``protocol/coco.dbc`` (classic CAN) and ``protocol/coco_fd.dbc`` (CAN FD) from the layouts.
+"""A robot's DBC (classic CAN or CAN FD) from its layouts: :func:`build_database`, :func:`dbc_text`.
 
-``python -m protocol.can.make_dbc [--nodes 1,2] [--out-dir protocol] [--check]`` builds a cantools
-database from :data:`protocol.can.layouts.FIXED_LAYOUTS`: one DBC message per fixed-layout
+``dbc_text(fd, nodes, robot=DbcRobot(name, title, servos))`` builds a cantools database from the
+robot's layout table (:func:`protocol.can.layouts.can_layouts`): one DBC message per fixed-layout
 function code and node (``SERVO_FRAME_N1`` = 0x081 ...), plus the broadcast ``ESTOP_ALL`` (0x000).
 A multi-part message is a multiplexed DBC message: the 5-bit ``part`` signal is the multiplexer
 and every other signal belongs to the part it is placed in. The ISO-TP (bulk) identifiers are in the DBC as opaque frames
 (PCI nibbles + bytes: their content is the serial payload codec, reassembled by ISO-TP), so a
-capture has no unknown frames. ``--check`` exits 1 when
-the checked-in files differ from what would be generated.
+capture has no unknown frames. A message the robot's table sends as bulk in that frame kind
+(classic TELEMETRY above 27 servos) has no DBC message of its own. The text names the robot only in
+the database version (``NAME-1``, 1 = the protocol version) and the board nodes' comments
+(``TITLE board, node id N``); the rest comes from the layouts.
+
+``ghostshell dbc --robot NAME [--fd] [--nodes 1,2]`` prints a robot's DBC. Built-in robots may check
+theirs in next to their robot.toml as ``NAME.dbc`` and ``NAME_fd.dbc``:
+``python -m protocol.can.make_dbc [--check] [--robot NAME] [--nodes 1,2]`` rewrites (or, with
+``--check``, compares; exit 1 on a difference) every such file; this command line (not the
+library) finds them through :mod:`robots.registry`, imported only there.
 
 This is the only module of ``protocol`` that imports cantools (it is a build tool, not runtime).
 """
@@ -16,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import cantools
@@ -23,9 +32,10 @@ from cantools.database.can import Database, Message, Node, Signal
 from cantools.database.conversion import BaseConversion
 
 from protocol.can.ids import BROADCAST_NODE, BOARD_TO_HOST, FunctionCode, cob_id
-from protocol.can.layouts import FIXED_LAYOUTS, PART_BITS, SEQ_BITS, FixedLayout
+from protocol.can.layouts import PART_BITS, SEQ_BITS, FixedLayout, can_layouts
+from protocol.messages import PROTOCOL_VERSION
 
-__all__ = ["CYCLE_MS", "build_database", "dbc_text", "main"]
+__all__ = ["CYCLE_MS", "DbcRobot", "build_database", "dbc_text", "main"]
 
 DEFAULT_NODES = (1, 2)
 #: Nominal periods (ms) at the default rates: servo frames 100 Hz, telemetry 50 Hz, heartbeats 50 ms.
@@ -37,6 +47,16 @@ CYCLE_MS = {
     FunctionCode.TIME_SYNC_REPLY: 500,
 }
 HOST = "HOST"
+
+
+@dataclass(frozen=True)
+class DbcRobot:
+    """What a DBC says about its robot: ``name`` (the database version ``NAME-1``), ``title`` (the
+    board nodes' comments) and ``servos`` (the layout table)."""
+
+    name: str
+    title: str
+    servos: int
 
 
 def _board(node: int) -> str:
@@ -101,11 +121,12 @@ def _bulk_message(fn: FunctionCode, node: int, fd: bool, sender: str, receiver: 
     )
 
 
-def build_database(fd: bool, nodes: tuple[int, ...] = DEFAULT_NODES) -> Database:
-    """A cantools database of every fixed-layout message for ``nodes`` (classic or FD)."""
+def build_database(fd: bool, nodes: tuple[int, ...] = DEFAULT_NODES, *, robot: DbcRobot) -> Database:
+    """A cantools database of every fixed-layout message of ``robot`` for ``nodes`` (classic or FD)."""
+    table = can_layouts(robot.servos)
     messages: list[Message] = []
     for node in nodes:
-        for (fn, is_fd), layout in sorted(FIXED_LAYOUTS.items(), key=lambda kv: int(kv[0][0])):
+        for (fn, is_fd), layout in sorted(table.fixed.items(), key=lambda kv: int(kv[0][0])):
             if is_fd != fd:
                 continue
             to_host = fn in BOARD_TO_HOST
@@ -127,7 +148,7 @@ def build_database(fd: bool, nodes: tuple[int, ...] = DEFAULT_NODES) -> Database
             to_host = fn is FunctionCode.BULK_TO_HOST
             sender, receiver = (_board(node), HOST) if to_host else (HOST, _board(node))
             messages.append(_bulk_message(fn, node, fd, sender, receiver))
-    estop = FIXED_LAYOUTS[(FunctionCode.ESTOP, fd)]
+    estop = table.fixed[(FunctionCode.ESTOP, fd)]
     messages.insert(
         0,
         Message(
@@ -140,12 +161,13 @@ def build_database(fd: bool, nodes: tuple[int, ...] = DEFAULT_NODES) -> Database
             is_fd=fd,
         ),
     )
-    node_list = [Node(HOST, comment="GhostShell host")] + [Node(_board(n), comment=f"CoCo board, node id {n}") for n in nodes]
+    node_list = [Node(HOST, comment="GhostShell host")] + [Node(_board(n), comment=f"{robot.title} board, node id {n}")
+                                                     for n in nodes]
     # start from a skeleton that carries the BusType attribute: cantools marks FD frames
     # (VFrameFormat StandardCAN_FD) only on a bus declared "CAN FD"
     db = cantools.database.load_string(_SKELETON.format(bus="CAN FD" if fd else "CAN"), database_format="dbc")
     assert isinstance(db, Database)
-    db.version = "coco-1"
+    db.version = f"{robot.name}-{PROTOCOL_VERSION}"
     db.messages.extend(messages)
     db.nodes.extend(node_list)
     db.refresh()
@@ -166,30 +188,52 @@ BA_ "BusType" "{bus}";
 '''
 
 
-def dbc_text(fd: bool, nodes: tuple[int, ...] = DEFAULT_NODES) -> str:
-    """The DBC file text (deterministic)."""
-    return build_database(fd, nodes).as_dbc_string().replace("\r\n", "\n")
+def dbc_text(fd: bool, nodes: tuple[int, ...] = DEFAULT_NODES, *, robot: DbcRobot) -> str:
+    """The DBC file text of ``robot`` (deterministic)."""
+    return build_database(fd, nodes, robot=robot).as_dbc_string().replace("\r\n", "\n")
+
+
+def dbc_files(folder: Path, name: str) -> tuple[tuple[bool, Path], tuple[bool, Path]]:
+    """Where a robot checks its DBCs in: ``(False, folder/NAME.dbc), (True, folder/NAME_fd.dbc)``."""
+    return (False, folder / f"{name}.dbc"), (True, folder / f"{name}_fd.dbc")
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m protocol.can.make_dbc", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m protocol.can.make_dbc",
+                                 description="write (or --check) the DBC files built-in robots check in")
     ap.add_argument("--nodes", default=",".join(map(str, DEFAULT_NODES)), help="node ids, comma-separated")
-    ap.add_argument("--out-dir", type=Path, default=Path(__file__).resolve().parent.parent)
+    ap.add_argument("--robot", action="append", default=None, metavar="NAME",
+                    help="only this built-in robot (repeatable; default: every one with NAME.dbc in its folder)")
     ap.add_argument("--check", action="store_true", help="compare with the files instead of writing")
     args = ap.parse_args(argv)
-    nodes = tuple(int(n) for n in args.nodes.split(","))
+    try:
+        nodes = tuple(int(n) for n in args.nodes.split(","))
+    except ValueError:
+        ap.error(f"--nodes: expected comma-separated node ids, got {args.nodes!r}")
+    from robots.registry import BUILTIN_DIR, load_robot  # the command line only: the library names no robot
+
     status = 0
-    for fd, name in ((False, "coco.dbc"), (True, "coco_fd.dbc")):
-        text = dbc_text(fd, nodes)
-        path = args.out_dir / name
-        if args.check:
-            if not path.exists() or path.read_text() != text:
-                print(f"{path}: differs from the generated DBC (run python -m protocol.can.make_dbc)")
-                status = 1
-        else:
-            path.write_text(text)
-            cantools.database.load_file(str(path))  # it must load back
-            print(f"wrote {path}")
+    robots = args.robot or sorted(p.parent.name for p in BUILTIN_DIR.glob("*/*.dbc") if p.stem == p.parent.name)
+    if not robots:
+        print(f"no built-in robot checks in a DBC ({BUILTIN_DIR}/NAME/NAME.dbc)", file=sys.stderr)
+        return 1
+    for name in robots:
+        try:
+            robot = load_robot(name)
+        except ValueError as e:  # robots.description.RobotDataError: no such robot, or a malformed one
+            print(f"python -m protocol.can.make_dbc: {e}", file=sys.stderr)
+            return 2
+        who = DbcRobot(robot.name, robot.title, robot.servo_count)
+        for fd, path in dbc_files(robot.root, robot.name):
+            text = dbc_text(fd, nodes, robot=who)
+            if args.check:
+                if not path.exists() or path.read_text() != text:
+                    print(f"{path}: differs from the generated DBC (run python -m protocol.can.make_dbc)")
+                    status = 1
+            else:
+                path.write_text(text)
+                cantools.database.load_file(str(path))  # it must load back
+                print(f"wrote {path}")
     return status
 
 

@@ -22,7 +22,7 @@ from typing import Annotated, Any, Literal
 
 from annotated_types import Interval
 
-from robots.interface import NAME_BYTES, MaxUtf8Bytes, Name, StubInfo, class_stubs, stub, stub_info
+from robots.interface import NAME_BYTES, Interface, MaxUtf8Bytes, Name, StubInfo, stub
 
 # --- value vocabularies ---------------------------------------------------------------------
 
@@ -326,13 +326,5 @@ __all__ = ["CHANNELS", "COCO_MODULES", "DEFAULT_VOCABULARY", "MaxUtf8Bytes", "NA
 
 
 def stubs(vocabulary: str) -> dict[str, tuple[Callable[..., Any], StubInfo]]:
-    """All stubs of a vocabulary: name -> (function, mapping info)."""
-    try:
-        modules = VOCABULARIES[vocabulary]
-    except KeyError:
-        raise ValueError(f"unknown vocabulary {vocabulary!r}; choose one of {sorted(VOCABULARIES)}") from None
-    out: dict[str, tuple[Callable[..., Any], StubInfo]] = {}
-    for cls in modules.values():
-        for name, fn in class_stubs(cls).items():
-            out[name] = (fn, stub_info(fn))  # type: ignore[assignment]
-    return out
+    """All stubs of one of CoCo's own vocabularies: name -> (function, mapping info)."""
+    return Interface(VOCABULARIES, DEFAULT_VOCABULARY).stubs(vocabulary)

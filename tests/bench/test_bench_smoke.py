@@ -23,6 +23,8 @@ CASES = {
     "bench_hostile.py": ["--mb", "0.01", "--calls", "50"],
     "bench_recovery.py": ["--links", "pty", "--starts", "3"],  # one realtime run, ~9 s
     "bench_can.py": ["--n", "20", "--seconds", "0.3", "--skip", "session,latency"],  # one short UML boot
+    "bench_cfirmware.py": ["--seconds", "0.3", "--repeat", "1", "--skip-fuzz"],  # QEMU boot + native builds
+    "bench_foxglove.py": ["--n", "1", "--task", "1"],  # one realtime run with a live client, two lockstep runs
 }
 
 

@@ -95,3 +95,38 @@ def test_host_and_board_logs_name_the_slcan_channel_alike(tmp_path: Path) -> Non
     host, board_log = _channels(tmp_path / "host.log"), _channels(tmp_path / "board.log")
     assert host == {True: {tty}, False: {tty}}  # received and sent frames: the adapter's tty, as python-can opened it
     assert board_log == {True: {tty}, False: {tty}}
+
+
+def test_a_capture_names_its_robot_in_caps(tmp_path: Path) -> None:
+    """A 17-servo robot's capture (u32 mask, 17-servo layouts) decodes through the layouts its CAPS names,
+    also after a broadcast ESTOP; the DBC view is the robot's generated one."""
+    from protocol.can.ids import ESTOP_BROADCAST_ID, bulk_ids
+    from protocol.can.isotp_link import IsoTpLink
+    from protocol.can.layouts import can_layouts
+    from protocol.can import encode_bulk
+    from protocol.can.frame import CanFrame
+    from protocol.messages import Caps, Estop
+    from protocol.samples import servo_frame_n, telemetry_n
+    from host.link.canlog import log_servo_count
+
+    t = can_layouts(17)
+    caps = Caps(1, t.schema.hash, 17, 500, 64, 50, 0, True, "chain17", 0x1234)
+    out: list[CanFrame] = []
+    board, host = bulk_ids(1)
+    iso = IsoTpLink(rxid=board, txid=host, fd=True, send=out.append)
+    iso.send(encode_bulk(caps, 1, t.schema))
+    iso.poll()
+    assert len(out) == 1  # one CAN FD single frame
+    frames = [(f.arbitration_id, f.data, True) for f in out]
+    frames += [(f.arbitration_id, f.data, True) for f in encode_fixed(servo_frame_n(17), 7, 1, True, layouts=t)]
+    frames += [(f.arbitration_id, f.data, True) for f in encode_fixed(Estop(), 8, 0, True)]
+    assert frames[-1][0] == ESTOP_BROADCAST_ID
+    frames += [(f.arbitration_id, f.data, True) for f in encode_fixed(telemetry_n(17), 2, 1, True, Sender.BOARD, t)]
+    path = tmp_path / "capture.log"
+    _write(path, frames)
+    assert log_servo_count(path) == 17
+    entries = list(iter_can_log(path))
+    assert all(e.dbc_name for e in entries), [(hex(e.frame.arbitration_id), e.dbc_name) for e in entries]
+    done = [it.msg for e in entries for it in e.items if isinstance(it, CanItem)]
+    assert [type(m).__name__ for m in done] == ["Caps", "ServoFrame", "Estop", "Telemetry"]
+    assert done[1].mask == (1 << 17) - 1 and len(done[3].positions) == 17  # type: ignore[attr-defined]

@@ -12,7 +12,7 @@ from protocol.can import CanFrame
 def test_commands_and_frames() -> None:
     d = SlcanDevice()
     ev, reply = d.feed(b"C\rS8\rV\rN\rF\r\rO\r")
-    assert reply == b"\r\rV1013\rNCOCO\rF00\r\r\r" and d.is_open and d.bitrate_code == "S8"
+    assert reply == b"\r\rV1013\rNGHST\rF00\r\r\r" and d.is_open and d.bitrate_code == "S8"
     ev, reply = d.feed(b"t0818" + b"0011223344556677" + b"\rd0819" + b"00" * 12 + b"\rr0818\rT000000811AA\r")
     frames = [e.frame for e in ev]
     assert frames[0] == CanFrame(0x081, bytes.fromhex("0011223344556677"))

@@ -145,15 +145,21 @@ def run_e2e(program: str, out: Path, **options: Any) -> E2ERun:
     return E2ERun(anyio.run(run_program, opts, backend="asyncio"))
 
 
-_TASK_RUNS: dict[int, E2ERun] = {}
+_TASK_RUNS: dict[tuple[int, str], E2ERun] = {}
+
+#: the boards a task runs on: the Python emulator and the C firmware (native, over the same pty);
+#: ``qemu`` (the C firmware on an emulated Cortex-M3) runs a few tasks in tests/cfirmware
+FIRMWARES = ("python", "c")
 
 
 @pytest.fixture(scope="session")
 def task_run(tmp_path_factory: pytest.TempPathFactory):
-    """``task_run(tid) -> E2ERun``: the ground truth of task ``tid``, run once per session."""
-    def get(tid: int) -> E2ERun:
-        if tid not in _TASK_RUNS:
-            out = tmp_path_factory.mktemp(f"task{tid}")
-            _TASK_RUNS[tid] = run_e2e(TASKS[tid].ground_truth, out, task_label=f"task {tid}")
-        return _TASK_RUNS[tid]
+    """``task_run(tid, firmware="python") -> E2ERun``: the ground truth of task ``tid`` on that board's
+    firmware (``python -m firmware_sim --firmware``), run once per session."""
+    def get(tid: int, firmware: str = "python") -> E2ERun:
+        key = (tid, firmware)
+        if key not in _TASK_RUNS:
+            out = tmp_path_factory.mktemp(f"task{tid}-{firmware}")
+            _TASK_RUNS[key] = run_e2e(TASKS[tid].ground_truth, out, task_label=f"task {tid}", firmware=firmware)
+        return _TASK_RUNS[key]
     return get

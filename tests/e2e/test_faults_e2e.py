@@ -16,7 +16,7 @@ import pytest
 from protocol.faults import GapDetector
 from robots.coco.tasks import load_tasks
 
-from .conftest import run_e2e
+from .conftest import FIRMWARES, run_e2e
 
 PAPER_FAULTS = "drop=0.01,corrupt=0.01,dup=0.005,reorder=0.005"
 TASKS = {t.id: t for t in load_tasks().values() if t.ground_truth}
@@ -26,8 +26,9 @@ def _records(path: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
 
-def _check(tid: int, out: Path, seed: int) -> dict:
-    run = run_e2e(TASKS[tid].ground_truth, out, task_label=f"task {tid}", faults=PAPER_FAULTS, fault_seed=seed)
+def _check(tid: int, out: Path, seed: int, firmware: str = "python") -> dict:
+    run = run_e2e(TASKS[tid].ground_truth, out, task_label=f"task {tid}", faults=PAPER_FAULTS, fault_seed=seed,
+                  firmware=firmware)
     summary = json.loads((out / "summary.json").read_text())
     outcomes = {c.function: c.outcome for c in run.calls}
     assert summary["outcome"] == "done" and set(outcomes.values()) == {"done"}, outcomes
@@ -57,8 +58,11 @@ def _check(tid: int, out: Path, seed: int) -> dict:
     return faults
 
 
-def test_task_completes_under_paper_faults(tmp_path: Path) -> None:
-    faults = _check(26, tmp_path, seed=3)
+@pytest.mark.parametrize("firmware", FIRMWARES)
+def test_task_completes_under_paper_faults(firmware: str, tmp_path: Path) -> None:
+    """Task 26 under the paper's fault rates, on the Python board and on the C firmware (whose UART the
+    faults hit on the modelled line between two ptys; its frame log is the raw bytes it decoded)."""
+    faults = _check(26, tmp_path, seed=3, firmware=firmware)
     total = sum(sum(d["injected"].values()) for d in faults["board"]["injected"])
     assert total > 0
 

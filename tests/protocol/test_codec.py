@@ -364,7 +364,7 @@ def test_unknown_type_value() -> None:
 
 #: Pinned so that a schema change is a conscious act: update this value together with
 #: protocol/messages.py or protocol/codec.py (old boards will then refuse the new host).
-PINNED_SCHEMA_HASH = 0x568E0320  # CAPS carries the robot (name, servo table hash)
+PINNED_SCHEMA_HASH = 0x1D7AD3A3  # FaultFlags.SERVO_FAULT + NackReason.SERVO_FAULT (the C firmware's servo bus)
 
 
 def test_schema_hash_is_u32_and_pinned() -> None:

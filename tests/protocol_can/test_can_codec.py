@@ -16,13 +16,14 @@ from protocol.can import CanDecodeError, CanDecoder, CanErrorKind, CanFrame, Can
 from protocol.can.codec import Sender, fixed_crc, fixed_layout_for, message_to_raw
 from protocol.can.ids import FunctionCode, cob_id, split_id
 from protocol.can.layouts import CRC_SIGNAL, FIXED_LAYOUTS, unwrap_seq
-from protocol.can.make_dbc import dbc_text
+from protocol.can.make_dbc import DbcRobot, dbc_text
 from protocol.codec import PayloadError, msg_type_of, quantize_message
 from protocol.messages import MsgType
 from protocol.samples import SAMPLES
 
-PROTOCOL_DIR = Path(__file__).resolve().parents[2] / "protocol"
-DBC = {fd: cantools.database.load_file(str(PROTOCOL_DIR / ("coco_fd.dbc" if fd else "coco.dbc"))) for fd in (False, True)}
+COCO_DIR = Path(__file__).resolve().parents[2] / "robots" / "coco"  # CoCo's checked-in DBCs
+COCO = DbcRobot("coco", "CoCo", 12)
+DBC = {fd: cantools.database.load_file(str(COCO_DIR / ("coco_fd.dbc" if fd else "coco.dbc"))) for fd in (False, True)}
 
 BOARD_BOUND = [MsgType.SERVO_FRAME, MsgType.TIME_SYNC_REQUEST, MsgType.FLUSH, MsgType.ADVANCE, MsgType.ESTOP, MsgType.ESTOP_CLEAR, MsgType.HEARTBEAT]
 HOST_BOUND = [MsgType.TIME_SYNC_REPLY, MsgType.ACK, MsgType.TELEMETRY, MsgType.HEARTBEAT]
@@ -214,7 +215,7 @@ def test_decoder_never_raises_and_stays_bounded(frames: list[CanFrame], receiver
 
 @pytest.mark.parametrize("fd", [False, True])
 def test_checked_in_dbc_is_generated(fd: bool) -> None:
-    assert (PROTOCOL_DIR / ("coco_fd.dbc" if fd else "coco.dbc")).read_text() == dbc_text(fd)
+    assert (COCO_DIR / ("coco_fd.dbc" if fd else "coco.dbc")).read_text() == dbc_text(fd, robot=COCO)
 
 
 def _fixed_samples() -> list[tuple[m.Message, str]]:

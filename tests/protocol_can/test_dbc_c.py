@@ -13,7 +13,7 @@ from protocol.can import CanDecoder, CanFrame, CanItem
 from protocol.codec import quantize_message
 from protocol.messages import MsgType, ServoFrame
 
-DBC = Path(__file__).resolve().parents[2] / "protocol" / "coco.dbc"
+DBC = Path(__file__).resolve().parents[2] / "robots" / "coco" / "coco.dbc"
 CC = shutil.which("cc") or shutil.which("gcc")
 
 TARGETS = [0.05 * i - 0.3 for i in range(12)]

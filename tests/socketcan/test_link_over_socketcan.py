@@ -1,5 +1,5 @@
 """The CoCo link over real SocketCAN (``can:socketcan:vcan0``): board subprocesses, the host's
-BoardClient, a paper task end to end, candump captures decoded through ``protocol/coco.dbc``,
+BoardClient, a paper task end to end, candump captures decoded through ``robots/coco/coco.dbc``,
 ``cansend`` ESTOP, CAN FD, and two boards on one bus.
 
 Everything runs in lockstep (the board advances only when the host says so), so nothing waits on
@@ -41,7 +41,7 @@ pytestmark = pytest.mark.timeout(240)
 CHANNEL = "vcan0"
 POSES = load_poses()
 ROOT = Path(__file__).resolve().parents[2]
-DBC = ROOT / "protocol" / "coco.dbc"
+DBC = ROOT / "robots" / "coco" / "coco.dbc"
 #: the board's control tick at the default 500 Hz (us)
 TICK_US = 2_000
 
@@ -62,7 +62,7 @@ def boards(tmp_path: Path) -> Iterator[Any]:
 
 
 def _check_capture(path: Path, nodes: tuple[int, ...] = (1,)) -> Counter[str]:
-    """Every frame of a candump log is a message of ``protocol/coco.dbc`` that cantools decodes
+    """Every frame of a candump log is a message of ``robots/coco/coco.dbc`` that cantools decodes
     (ISO-TP frames too: opaque PCI + bytes, with a valid PCI type); returns counts by message
     name. Fails on any unknown frame."""
     db = cantools.database.load_file(str(DBC))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import wave
 from pathlib import Path
 
@@ -78,7 +80,9 @@ def test_espeak_writes_a_wav_whose_duration_is_reported(tmp_path: Path) -> None:
         assert w.getnchannels() == 1
     assert 1.0 < u.duration_s < 5.0
     again = synthesize("Hello, I am CoCo. Nice to meet you!", tmp_path)
-    assert again == u and len(list(tmp_path.iterdir())) == 1  # same sentence, same file
+    assert again == u and len(list(tmp_path.glob("*.wav"))) == 1  # same sentence, same file
+    index = [json.loads(line) for line in (tmp_path / "index.jsonl").read_text().splitlines()]
+    assert index == [{"wav": u.wav_path.name, "text": u.text, "voice": None, "rate_wpm": 175}]  # listed once
 
 
 @needs_espeak

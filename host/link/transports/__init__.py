@@ -25,12 +25,14 @@ def open_transport(
     baud: int = 115200,
     log_path: str | Path | None = None,
     force_thread: bool = False,
+    servo_count: int | None = None,
     **options: Any,
 ) -> Transport:
     """A transport for ``spec`` (not yet connected: the session calls ``connect``).
 
     ``baud`` and ``force_thread`` apply to serial links; ``log_path`` is the frame log
-    (its format is the transport's: JSON Lines for serial). Further keyword ``options``
+    (its format is the transport's: JSON Lines for serial); ``servo_count`` is the robot's (its
+    wire form, :meth:`Transport.set_servo_count`; None: not known yet). Further keyword ``options``
     go to the CAN transport. ``spec`` may be a callable: a serial transport then re-resolves
     its port on every ``connect`` (a board that came back on another pty), a CAN transport its spec. Raises :class:`protocol.linkspec.LinkSpecError` for a bad
     spec and :class:`LinkError` for a kind no transport serves.
@@ -47,11 +49,12 @@ def open_transport(
         if resolve is not None:
             r = resolve
             port = lambda: parse_link_spec(r()).port  # noqa: E731
-        return SerialLinkTransport(port, baud=baud, log_path=log_path, force_thread=force_thread)
+        return SerialLinkTransport(port, baud=baud, log_path=log_path, force_thread=force_thread,
+                                   servo_count=servo_count)
     if spec.kind == "can":
         from host.link.transports.can import open_can_transport  # python-can loads only for CAN links
 
         if resolve is not None:
             options.setdefault("resolve", resolve)
-        return open_can_transport(spec, log_path=log_path, **options)
+        return open_can_transport(spec, log_path=log_path, servo_count=servo_count, **options)
     raise LinkError(f"no transport for link kind {spec.kind!r}")

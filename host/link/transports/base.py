@@ -66,6 +66,14 @@ class Transport(ABC):
         is full (the board stopped reading); nothing is logged then.
         """
 
+    def set_servo_count(self, servo_count: int) -> None:
+        """Speak the wire form of a robot of ``servo_count`` servos from now on: serial, its wire
+        schema (:func:`protocol.codec.schema_for`); CAN, its layout table
+        (:func:`protocol.can.layouts.can_layouts`). The session calls it before connecting when it
+        knows its robot, and again with the servo count CAPS reports. Raises
+        :class:`protocol.codec.WireBoundError` for a count the wire cannot carry. A transport whose
+        framing does not depend on the robot keeps this default (nothing to change)."""
+
     @property
     def backlog(self) -> int:
         """Bytes (or encoded frame bytes) accepted by :meth:`send` but not yet handed to the OS."""

@@ -12,7 +12,8 @@ spec: a SLCAN board that came back on another pty is found again (its node id an
 stay the same).
 
 Fixed-layout messages become frames (:func:`protocol.can.encode_fixed`), the rest goes over
-ISO-TP (can-isotp, :mod:`protocol.can.isotp_link`). Sending never blocks: frames queue
+ISO-TP (can-isotp, :mod:`protocol.can.isotp_link`); both in the robot's layout table
+(:func:`protocol.can.layouts.can_layouts` for ``servo_count``; :meth:`set_servo_count`). Sending never blocks: frames queue
 and are written in order; a refused write (SocketCAN's ENOBUFS on a full tx queue, python-can
 issue #2004) keeps the frame at the head and retries after 1 ms doubling to 20 ms
 (``tx_retries``); more than ``MAX_TX_FRAMES`` waiting raises ``LinkError`` (the bus is not
@@ -57,6 +58,7 @@ from protocol.can.codec import Sender
 from protocol.can.decoder import CanErrorKind, as_frame_items
 from protocol.can.ids import bulk_ids
 from protocol.can.isotp_link import IsoTpLink
+from protocol.can.layouts import CanLayouts, can_layouts
 from protocol.codec import PayloadError
 from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
 from protocol.messages import Message
@@ -164,11 +166,13 @@ class _Listener(can.Listener):
 
 
 class CanLinkTransport(Transport):
-    """Protocol v1 over CAN to board ``spec.node`` (see the module docstring)."""
+    """Protocol v1 over CAN to board ``spec.node`` (see the module docstring); ``servo_count`` is the
+    robot's (None: not known yet, the default layout table until CAPS says)."""
 
     def __init__(self, spec: LinkSpec, *, log_path: str | Path | None = None, bus: can.BusABC | None = None,
-                 resolve: Callable[[], LinkSpec | str] | None = None) -> None:
+                 resolve: Callable[[], LinkSpec | str] | None = None, servo_count: int | None = None) -> None:
         self.spec = spec
+        self.layouts: CanLayouts = can_layouts() if servo_count is None else can_layouts(servo_count)
         self._resolve = resolve
         self.node = spec.node
         self.fd = spec.fd
@@ -189,7 +193,7 @@ class CanLinkTransport(Transport):
         self.tx_frames = 0
         self.rx_frames = 0
         self.error_frames = 0
-        self.decoder = CanDecoder(self.node, "host")
+        self.decoder = CanDecoder(self.node, "host", self.layouts)
         to_board, to_host = bulk_ids(self.node)
         self._bulk_rx = to_host
         self.isotp = IsoTpLink(rxid=to_host, txid=to_board, fd=self.fd, send=self._enqueue)
@@ -203,6 +207,14 @@ class CanLinkTransport(Transport):
     @property
     def link_spec(self) -> str:
         return str(self.spec)  # the node id is in the spec (?node=N) when it is not the default
+
+    def set_servo_count(self, servo_count: int) -> None:
+        layouts = can_layouts(servo_count)
+        if layouts is not self.layouts:
+            self.layouts = layouts
+            last = self.decoder.last_seq
+            self.decoder = CanDecoder(self.node, "host", layouts)
+            self.decoder.last_seq = last
 
     @property
     def connected(self) -> bool:
@@ -229,7 +241,7 @@ class CanLinkTransport(Transport):
         self.bus = bus
         self._channel_name = _log_channel(self.spec, bus)
         self._generation += 1
-        self.decoder = CanDecoder(self.node, "host")
+        self.decoder = CanDecoder(self.node, "host", self.layouts)
         self.isotp = IsoTpLink(rxid=self._bulk_rx, txid=bulk_ids(self.node)[0], fd=self.fd, send=self._enqueue)
         self._txq.clear()
         self._reader_fd = None
@@ -328,11 +340,11 @@ class CanLinkTransport(Transport):
         if len(self._txq) >= MAX_TX_FRAMES:
             raise LinkError(f"CAN transmit queue over {MAX_TX_FRAMES} frames: the bus is not draining")
         try:
-            if is_fixed(msg):
-                for f in encode_fixed(msg, seq, self.node, self.fd, Sender.HOST):
+            if is_fixed(msg, self.fd, self.layouts):
+                for f in encode_fixed(msg, seq, self.node, self.fd, Sender.HOST, self.layouts):
                     self._enqueue(f)
             else:
-                self.isotp.send(encode_bulk(msg, seq))
+                self.isotp.send(encode_bulk(msg, seq, self.layouts.schema))
                 items = self._poll_isotp()
                 if items and self._on_receive is not None:
                     self._on_receive(as_frame_items(items))
@@ -500,5 +512,6 @@ def open_bus(spec: LinkSpec) -> can.BusABC:
 
 def open_can_transport(spec: LinkSpec, *, log_path: str | Path | None = None, **options: Any) -> CanLinkTransport:
     """The host's CAN transport for ``spec`` (``bus=`` may pass an already open python-can bus,
-    ``resolve=`` a callable that gives the spec anew on every connect)."""
-    return CanLinkTransport(spec, log_path=log_path, bus=options.get("bus"), resolve=options.get("resolve"))
+    ``resolve=`` a callable that gives the spec anew on every connect, ``servo_count=`` the robot's)."""
+    return CanLinkTransport(spec, log_path=log_path, bus=options.get("bus"), resolve=options.get("resolve"),
+                            servo_count=options.get("servo_count"))

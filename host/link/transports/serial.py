@@ -45,7 +45,7 @@ import serial
 from host.link.errors import LinkConfigError, LinkDown, LinkError
 from host.link.transports.base import LossHandler, ReceiveHandler, Transport
 from host.link.transports.framelog_file import FrameLogFile
-from protocol.codec import msg_type_of
+from protocol.codec import WIRE_SCHEMA_16, WireSchema, msg_type_of, schema_for
 from protocol.framing import Frame, FrameDecoder, encode_frame
 from protocol.messages import Message
 
@@ -239,17 +239,19 @@ class SerialLinkTransport(Transport):
     ``baud`` is the port's rate (ignored by ptys); ``log_path`` gets one JSON-Lines record
     per frame both ways (:mod:`protocol.framelog`, ``t`` = host ``time.monotonic()``);
     ``force_thread`` reads in a thread even where the port has a file descriptor. ``url`` may
-    be a callable, resolved again on every :meth:`connect`.
+    be a callable, resolved again on every :meth:`connect`. ``servo_count`` (the robot's; default
+    none known: the u16 schema) picks the wire schema frames are encoded and decoded with.
     """
 
     def __init__(self, url: str | Callable[[], str], *, baud: int = 115200, log_path: str | Path | None = None,
-                 force_thread: bool = False) -> None:
+                 force_thread: bool = False, servo_count: int | None = None) -> None:
         self._url = url
         self.url = url if isinstance(url, str) else ""
         self.baud = baud
         self.force_thread = force_thread
         self.framelog = FrameLogFile(log_path) if log_path else None
-        self._decoder = FrameDecoder()
+        self.schema: WireSchema = WIRE_SCHEMA_16 if servo_count is None else schema_for(servo_count)
+        self._decoder = FrameDecoder(schema=self.schema)
         self._port: SerialPort | None = None
         self._on_receive: ReceiveHandler | None = None
         self._ever_connected = False
@@ -257,6 +259,9 @@ class SerialLinkTransport(Transport):
     @property
     def name(self) -> str:
         return self.url
+
+    def set_servo_count(self, servo_count: int) -> None:
+        self.schema = self._decoder.schema = schema_for(servo_count)
 
     @property
     def connected(self) -> bool:
@@ -303,7 +308,7 @@ class SerialLinkTransport(Transport):
         port = self._port
         if port is None or port.closed:
             raise LinkDown(f"link to {self.url!r} is down")
-        raw = encode_frame(msg, seq)
+        raw = encode_frame(msg, seq, self.schema)
         try:
             port.write(raw)
         except BufferError as e:

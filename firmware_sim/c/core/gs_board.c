@@ -1,0 +1,873 @@
+#include "gs_board.h"
+
+#include "gs_bus.h"
+#include "gs_hal.h"
+#include "gs_log.h"
+
+#if GS_SERVO_COUNT > GS_MAX_SERVOS
+#error "this wire schema carries at most GS_MAX_SERVOS servos"
+#endif
+
+#define MISS_LIMIT_LOCKSTEP 3u
+#define MISS_LIMIT_REALTIME 5u
+#define READ_GROUP 6u /* servos per SYNC READ: one read job fits a 2 ms tick at 1 Mbaud */
+
+static const gs_mask_t ALL = (gs_mask_t)((1ull << GS_SERVO_COUNT) - 1u);
+
+/* --- small helpers ----------------------------------------------------------------------- */
+
+static int64_t div_round(int64_t a, int64_t b) { /* b > 0; halves away from zero */
+    return a >= 0 ? (a + b / 2) / b : -((-a + b / 2) / b);
+}
+
+static int32_t clamp32(int64_t v, int64_t lo, int64_t hi) { return (int32_t)(v < lo ? lo : v > hi ? hi : v); }
+
+static int16_t q16_of(int64_t v, int64_t per_count) { /* units -> q16 code, clamped to +-32767 */
+    return (int16_t)clamp32(div_round(v, per_count), -32767, 32767);
+}
+
+static int32_t steps_to_urad(unsigned i, int32_t steps) {
+    const gs_servo_t *s = &gs_servos[i];
+    return (int32_t)(s->neutral_urad + div_round((int64_t)s->direction * (steps - GS_STEP_CENTRE) * GS_STEP_NRAD, 1000));
+}
+
+static uint16_t urad_to_goal(unsigned i, int32_t q) {
+    const gs_servo_t *s = &gs_servos[i];
+    int64_t rel = div_round(((int64_t)q - s->neutral_urad) * 1000, GS_STEP_NRAD);
+    int64_t steps = GS_STEP_CENTRE + s->direction * rel;
+    return (uint16_t)clamp32(steps, s->step_lo, s->step_hi);
+}
+
+static int32_t sign_mag(uint16_t raw, unsigned bit) { /* Feetech sign-magnitude register */
+    int32_t mag = (int32_t)(raw & ((1u << bit) - 1u));
+    return (raw >> bit & 1u) ? -mag : mag;
+}
+
+static uint64_t unwrap32(uint32_t wrapped, int64_t ref) { /* protocol.codec.unwrap_time_us */
+    int64_t delta = (int64_t)(((uint64_t)wrapped - (uint64_t)ref) & 0xFFFFFFFFu);
+    if (delta >= 0x80000000ll) delta -= 0x100000000ll;
+    return (uint64_t)(ref + delta);
+}
+
+static int64_t clamp_u64(uint64_t v) { return v > (uint64_t)INT64_MAX ? INT64_MAX : (int64_t)v; }
+
+/* --- output -------------------------------------------------------------------------------- */
+
+static void send(gs_board_t *b, const gs_msg_t *m, int periodic) { b->send(b->send_ctx, m, periodic); }
+
+static void set_str(uint8_t *dst, uint8_t *len, size_t cap, const char *s) {
+    size_t n = 0;
+    while (s[n] && n < cap) {
+        dst[n] = (uint8_t)s[n];
+        n++;
+    }
+    *len = (uint8_t)n;
+}
+
+static void ack(gs_board_t *b, uint16_t seq, uint8_t type) {
+    gs_msg_t m;
+    m.type = GS_MSG_TYPE_ACK;
+    m.u.ack.ack_seq = seq;
+    m.u.ack.msg_type = type;
+    send(b, &m, 0);
+}
+
+/* NACK with a detail assembled from up to three text parts and one number. */
+static void nack(gs_board_t *b, uint16_t seq, uint8_t type, uint8_t reason, const char *a, const char *c) {
+    gs_msg_t m;
+    m.type = GS_MSG_TYPE_NACK;
+    m.u.nack.ack_seq = seq;
+    m.u.nack.msg_type = type;
+    m.u.nack.reason = reason;
+    char text[GS_MAX_NACK_DETAIL_BYTES + 1];
+    size_t n = 0;
+    for (const char *p = a; p && *p && n < GS_MAX_NACK_DETAIL_BYTES; p++) text[n++] = *p;
+    for (const char *p = c; p && *p && n < GS_MAX_NACK_DETAIL_BYTES; p++) text[n++] = *p;
+    text[n] = 0;
+    set_str(m.u.nack.detail, &m.u.nack.detail_len, GS_MAX_NACK_DETAIL_BYTES, text);
+    send(b, &m, 0);
+}
+
+static void fmt_u64(char *out, size_t cap, uint64_t v) { /* decimal into a small buffer */
+    char tmp[21];
+    size_t i = sizeof tmp, k = 0;
+    do {
+        tmp[--i] = (char)('0' + (int)(v % 10u));
+        v /= 10u;
+    } while (v);
+    while (i < sizeof tmp && k + 1 < cap) out[k++] = tmp[i++];
+    out[k] = 0;
+}
+
+/* --- safety (firmware_sim/safety.py) -------------------------------------------------------- */
+
+static int safety_feed(gs_board_t *b, int64_t t) {
+    b->armed = 1;
+    if (t > b->last_feed_us) b->last_feed_us = t;
+    if (b->hold_since_us != GS_NO_TIME && !b->fault_latched) {
+        b->hold_since_us = GS_NO_TIME;
+        return 1;
+    }
+    return 0;
+}
+
+static gs_mode_t safety_mode(const gs_board_t *b) {
+    if (b->estopped) return GS_MODE_ESTOP;
+    if (b->fault_latched) return GS_MODE_CROUCH;
+    if (b->servo_fault) return GS_MODE_SERVO_FAULT;
+    if (b->hold_since_us != GS_NO_TIME) return GS_MODE_HOLD;
+    return GS_MODE_RUN;
+}
+
+static gs_mode_t safety_update(gs_board_t *b, int64_t t, int *entered) {
+    gs_mode_t before = safety_mode(b);
+    if (b->armed && !b->estopped && !b->fault_latched) {
+        if (b->hold_since_us == GS_NO_TIME && t - b->last_feed_us > b->watchdog_us) {
+            b->hold_since_us = t;
+            b->watchdog_trips++;
+        }
+        if (b->hold_since_us != GS_NO_TIME && t - b->hold_since_us >= b->crouch_after_us) b->fault_latched = 1;
+    }
+    gs_mode_t after = safety_mode(b);
+    *entered = after != before;
+    return after;
+}
+
+static uint16_t safety_flags(const gs_board_t *b) {
+    uint16_t f = 0;
+    if (b->estopped) f |= GS_FAULT_FLAGS_ESTOP;
+    if (b->hold_since_us != GS_NO_TIME && !b->fault_latched) f |= GS_FAULT_FLAGS_WATCHDOG_HOLD;
+    if (b->fault_latched) f |= GS_FAULT_FLAGS_WATCHDOG_FAULT;
+    if (b->servo_fault) f |= GS_FAULT_FLAGS_SERVO_FAULT;
+    return f;
+}
+
+static void log_event(const char *what, int64_t t, int64_t ref) {
+    gs_log_str("board: ");
+    gs_log_str(what);
+    gs_log_str(" at board time ");
+    gs_log_secs(t);
+    gs_log_str(" s, ");
+    gs_log_secs(t - ref);
+}
+
+/* --- sequence gaps (protocol.faults.GapDetector) ------------------------------------------ */
+
+static void gaps_reset(gs_board_t *b) {
+    b->gap_started = 0;
+    b->gap_n = b->gap_head = 0;
+}
+
+static void gaps_feed(gs_board_t *b, uint16_t seq) {
+    if (!b->gap_started) {
+        b->gap_started = 1;
+        b->gap_highest = seq;
+        return;
+    }
+    uint16_t ahead = (uint16_t)(seq - b->gap_highest);
+    if (ahead == 0 || ahead >= 0x8000u) { /* a duplicate or a late (reordered) one */
+        for (uint16_t k = 0; k < b->gap_n; k++) {
+            uint16_t at = (uint16_t)((b->gap_head + k) % GS_GAP_WINDOW);
+            if (b->gap_missing[at] == seq) { /* it filled a gap: remove it */
+                for (uint16_t j = k; j + 1 < b->gap_n; j++)
+                    b->gap_missing[(b->gap_head + j) % GS_GAP_WINDOW] = b->gap_missing[(b->gap_head + j + 1) % GS_GAP_WINDOW];
+                b->gap_n--;
+                b->seq_gaps--;
+                break;
+            }
+        }
+        return;
+    }
+    uint16_t gap = (uint16_t)(ahead - 1u);
+    for (uint16_t k = gap > GS_GAP_WINDOW ? (uint16_t)(gap - GS_GAP_WINDOW) : 0; k < gap; k++) {
+        uint16_t missing = (uint16_t)(b->gap_highest + 1u + k);
+        if (b->gap_n == GS_GAP_WINDOW) { /* forget the oldest */
+            b->gap_head = (uint16_t)((b->gap_head + 1u) % GS_GAP_WINDOW);
+            b->gap_n--;
+        }
+        b->gap_missing[(b->gap_head + b->gap_n) % GS_GAP_WINDOW] = missing;
+        b->gap_n++;
+    }
+    b->seq_gaps += gap;
+    b->gap_highest = seq;
+}
+
+/* --- bus jobs ------------------------------------------------------------------------------- */
+
+/* "servo id N (name) <what>" for NACK details (static buffer, at most the detail's 64 bytes). */
+static const char *servo_text(unsigned i, const char *what) {
+    static char text[GS_MAX_NACK_DETAIL_BYTES + 1];
+    char id[4];
+    size_t n = 0;
+    const char *parts[5] = {"servo id ", id, " (", gs_servos[i].name, ") "};
+    fmt_u64(id, sizeof id, gs_servos[i].id);
+    for (unsigned k = 0; k < 5; k++)
+        for (const char *p = parts[k]; *p && n < GS_MAX_NACK_DETAIL_BYTES; p++) text[n++] = *p;
+    for (const char *p = what; *p && n < GS_MAX_NACK_DETAIL_BYTES; p++) text[n++] = *p;
+    text[n] = 0;
+    return text;
+}
+
+static void servo_lost(gs_board_t *b, unsigned i) {
+    b->answering &= ~((gs_mask_t)1 << i);
+    if (b->servo_fault) return;
+    b->servo_fault = 1;
+    b->fault_servo = (uint8_t)i;
+    b->servo_fault_t = b->now_us;
+    gs_log_str("board: servo id ");
+    gs_log_u64(gs_servos[i].id);
+    gs_log_str(" (");
+    gs_log_str(gs_servos[i].name);
+    gs_log_str(") stopped answering on the servo bus at board time ");
+    gs_log_secs(b->now_us);
+    gs_log_str(" s; every servo holds; fault latched until ESTOP_CLEAR");
+    gs_log_end();
+    nack(b, b->last_rx_seq, GS_MSG_TYPE_SERVO_FRAME, GS_NACK_REASON_SERVO_FAULT, servo_text(i, "stopped answering on the servo bus"), 0);
+}
+
+/* SYNC READ of present position, speed and load of servos [first, first + n). */
+static void read_group(gs_board_t *b, unsigned first, unsigned n, int all) {
+    uint8_t ids[READ_GROUP], data[READ_GROUP * GS_PRESENT_LEN];
+    unsigned idx[READ_GROUP], k = 0;
+    for (unsigned i = first; i < first + n && i < GS_SERVO_COUNT; i++) {
+        if (!all && !(b->answering >> i & 1u)) continue;
+        idx[k] = i;
+        ids[k++] = gs_servos[i].id;
+    }
+    if (!k) return;
+    uint32_t ok = gs_bus_sync_read(GS_REG_PRESENT, GS_PRESENT_LEN, ids, k, data, b->bus_timeout_us);
+    for (unsigned j = 0; j < k; j++) {
+        unsigned i = idx[j];
+        if (!(ok >> j & 1u)) {
+            if (++b->miss[i] >= b->miss_limit) servo_lost(b, i);
+            continue;
+        }
+        b->miss[i] = 0;
+        const uint8_t *d = &data[j * GS_PRESENT_LEN];
+        uint16_t pos = (uint16_t)(d[0] | d[1] << 8), spd = (uint16_t)(d[2] | d[3] << 8), load = (uint16_t)(d[4] | d[5] << 8);
+        const gs_servo_t *s = &gs_servos[i];
+        b->pos_urad[i] = steps_to_urad(i, sign_mag(pos, 15));
+        b->vel_urad_s[i] = (int32_t)div_round((int64_t)s->direction * sign_mag(spd, 15) * GS_STEP_NRAD, 1000);
+        b->eff_mnm[i] = (int32_t)div_round((int64_t)s->direction * sign_mag(load, 10) * s->load_full_mnm, 1000);
+    }
+}
+
+static void read_imu(gs_board_t *b) {
+    uint8_t d[GS_IMU_LEN];
+    if (!b->imu_present || !gs_bus_read(GS_IMU_ID, GS_REG_PRESENT, GS_IMU_LEN, d, b->bus_timeout_us)) return;
+    for (unsigned k = 0; k < 3; k++) b->imu[k] = (int16_t)(uint16_t)(d[2 * k] | d[2 * k + 1] << 8);
+}
+
+static void read_probe(gs_board_t *b) {
+    if (!b->probe_present) return;
+    if (gs_bus_read(GS_PROBE_ID, GS_REG_PRESENT, GS_PROBE_LEN, b->probe, b->bus_timeout_us)) {
+        b->probe_fresh = 1;
+        b->probe_t_us = b->now_us;
+    }
+}
+
+#define N_GROUPS ((GS_SERVO_COUNT + READ_GROUP - 1u) / READ_GROUP)
+
+/* The read schedule: one job per tick, so that every job of a telemetry period has run by its
+ * telemetry tick, the servo groups last: [probe, IMU, group 0, group 1, ...]. */
+static void bus_read_job(gs_board_t *b) {
+    unsigned jobs = 2u + N_GROUPS;
+    uint32_t every = gs_config_telemetry_every(&b->cfg);
+    unsigned job;
+    if (every >= jobs) {
+        uint32_t r = (uint32_t)((every - b->ticks % every) % every); /* ticks to the next telemetry */
+        if (r >= jobs) return;
+        job = jobs - 1u - r;
+    } else {
+        job = (unsigned)(b->ticks % jobs);
+    }
+    if (job == 0) read_probe(b);
+    else if (job == 1) read_imu(b);
+    else read_group(b, (job - 2u) * READ_GROUP, READ_GROUP, 0);
+}
+
+static void read_all_positions(gs_board_t *b) {
+    for (unsigned g = 0; g < N_GROUPS; g++) read_group(b, g * READ_GROUP, READ_GROUP, 0);
+}
+
+static void write_goals(gs_board_t *b) {
+    uint8_t ids[GS_SERVO_COUNT], data[2u * GS_SERVO_COUNT];
+    for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
+        ids[i] = gs_servos[i].id;
+        data[2 * i] = (uint8_t)(b->goal[i] & 0xFFu);
+        data[2 * i + 1] = (uint8_t)(b->goal[i] >> 8);
+    }
+    gs_bus_sync_write(GS_REG_GOAL_POSITION, 2, ids, GS_SERVO_COUNT, data);
+}
+
+/* --- init ------------------------------------------------------------------------------------ */
+
+void gs_board_init(gs_board_t *b, const gs_settings_t *cfg, gs_send_fn sendfn, void *ctx) {
+    b->cfg = *cfg;
+    b->tick_us = gs_config_tick_us(cfg);
+    b->bus_timeout_us = cfg->lockstep ? 1000000u : 10000u; /* lockstep: no deadline, only a dead servo waits */
+    b->miss_limit = cfg->lockstep ? MISS_LIMIT_LOCKSTEP : MISS_LIMIT_REALTIME;
+    b->send = sendfn;
+    b->send_ctx = ctx;
+    b->now_us = 0;
+    b->ticks = 0;
+    b->advance_until = 0;
+    b->covered_until = -1;
+    b->clock_us = 0;
+    b->clock_origin_us = 0;
+    b->last_applied_seq = 0;
+    b->last_rx_seq = 0;
+    gs_jb_init(&b->buf);
+    b->armed = b->fault_latched = b->estopped = 0;
+    b->last_feed_us = 0;
+    b->hold_since_us = GS_NO_TIME;
+    b->watchdog_us = (int64_t)cfg->watchdog_ms * 1000;
+    b->crouch_after_us = (int64_t)cfg->crouch_after_ms * 1000;
+    b->watchdog_trips = 0;
+    b->mode = GS_MODE_RUN;
+    b->estop_rx_us = GS_NO_TIME;
+    for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
+        const gs_servo_t *s = &gs_servos[i];
+        b->cmd[i] = clamp32(s->neutral_urad, s->min_urad, s->max_urad);
+        b->anchor_t[i] = 0;
+        b->anchor_v[i] = s->neutral_urad;
+        b->hold_q[i] = s->neutral_urad;
+        b->desired[i] = s->neutral_urad;
+        b->goal[i] = urad_to_goal(i, b->cmd[i]);
+        b->resume_pending[i] = 0;
+        b->blend_off[i] = 0;
+        b->pos_urad[i] = s->neutral_urad;
+        b->vel_urad_s[i] = 0;
+        b->eff_mnm[i] = 0;
+        b->miss[i] = 0;
+    }
+    b->resume_t = 0;
+    b->blending = 0;
+    b->late_count = b->dropped_count = b->link_errors = b->clamped_ticks = 0;
+    b->flags_since = 0;
+    gaps_reset(b);
+    b->seq_gaps = 0;
+    b->imu[0] = b->imu[1] = b->imu[2] = 0;
+    b->imu_present = b->probe_present = b->probe_fresh = 0;
+    b->probe_t_us = 0;
+    b->answering = ALL;
+    b->servo_fault = 0;
+    b->fault_servo = 0;
+    b->servo_fault_t = 0;
+    for (unsigned k = 0; k < 3; k++) b->screen_last[k].name_len = 0;
+    b->speaker_action = b->speaker_kind = 0;
+    b->speaker_start_us = 0;
+    b->tick_cycles_last = b->tick_cycles_max = 0;
+    b->tick_cycles_sum = b->tick_cycles_n = 0;
+}
+
+void gs_board_boot(gs_board_t *b) {
+    for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
+        if (!gs_bus_ping(gs_servos[i].id, b->bus_timeout_us)) {
+            b->miss[i] = b->miss_limit;
+            servo_lost(b, i);
+        }
+    }
+    b->imu_present = (uint8_t)gs_bus_ping(GS_IMU_ID, b->bus_timeout_us);
+    b->probe_present = (uint8_t)gs_bus_ping(GS_PROBE_ID, b->bus_timeout_us);
+    uint8_t ids[GS_SERVO_COUNT], on[GS_SERVO_COUNT];
+    for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
+        ids[i] = gs_servos[i].id;
+        on[i] = 1;
+    }
+    gs_bus_sync_write(GS_REG_TORQUE_ENABLE, 1, ids, GS_SERVO_COUNT, on);
+    read_all_positions(b);
+    read_imu(b);
+    read_probe(b);
+    gs_log_str("board: servo bus: ");
+    gs_log_u64(GS_SERVO_COUNT);
+    gs_log_str(" servos, IMU ");
+    gs_log_str(b->imu_present ? "present" : "absent");
+    gs_log_str(", ground-truth probe ");
+    gs_log_str(b->probe_present ? "present (emulator: SIM_STATE forwarded)" : "absent (no SIM_STATE)");
+    gs_log_end();
+}
+
+/* --- time ------------------------------------------------------------------------------------ */
+
+int64_t gs_board_time_us(const gs_board_t *b) {
+    if (b->cfg.lockstep || !b->clock_us) return b->now_us;
+    return (int64_t)b->clock_us() - b->clock_origin_us;
+}
+
+int gs_board_can_tick(const gs_board_t *b) {
+    if (!b->cfg.lockstep) return 1;
+    return b->now_us < b->advance_until || b->now_us <= b->covered_until;
+}
+
+void gs_board_skip(gs_board_t *b, uint64_t n) {
+    b->now_us += (int64_t)n * b->tick_us;
+    b->ticks += n;
+}
+
+void gs_board_note_overrun(gs_board_t *b) { b->flags_since |= GS_FAULT_FLAGS_TICK_OVERRUN; }
+
+void gs_board_on_link_error(gs_board_t *b) {
+    b->link_errors++;
+    b->flags_since |= GS_FAULT_FLAGS_LINK_ERRORS;
+}
+
+static void recompute_cover(gs_board_t *b) {
+    int64_t latest;
+    int64_t bound = gs_jb_latest(&b->buf, &latest) ? latest : b->now_us - b->tick_us;
+    if (bound < b->covered_until) b->covered_until = bound;
+}
+
+/* Leaving a hold: each servo continues from its command, blending into the stream (see blend). */
+static void resume(gs_board_t *b) {
+    for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
+        b->anchor_t[i] = b->now_us;
+        b->anchor_v[i] = b->cmd[i];
+        b->resume_pending[i] = 1;
+        b->resume_from[i] = b->cmd[i];
+        b->blend_off[i] = 0;
+    }
+    b->resume_t = b->now_us;
+    b->blending = 1;
+    recompute_cover(b);
+}
+
+/* --- messages ---------------------------------------------------------------------------- */
+
+static void hello(gs_board_t *b, const gs_hello_t *h, uint16_t seq) {
+    if (h->protocol_version != GS_PROTOCOL_VERSION) {
+        nack(b, seq, GS_MSG_TYPE_HELLO, GS_NACK_REASON_VERSION_MISMATCH, "host protocol version differs; board speaks v1", 0);
+        return;
+    }
+    if (h->schema_hash != GS_SCHEMA_HASH) {
+        nack(b, seq, GS_MSG_TYPE_HELLO, GS_NACK_REASON_SCHEMA_MISMATCH, "host schema hash differs from the board's", 0);
+        return;
+    }
+    gs_msg_t m;
+    gs_caps_t *c = &m.u.caps;
+    m.type = GS_MSG_TYPE_CAPS;
+    c->protocol_version = GS_PROTOCOL_VERSION;
+    c->schema_hash = GS_SCHEMA_HASH;
+    c->servo_count = GS_SERVO_COUNT;
+    c->control_rate_hz = (uint16_t)b->cfg.rate_hz;
+    c->buffer_depth = GS_BUFFER_DEPTH;
+    c->telemetry_rate_hz = (uint16_t)b->cfg.telemetry_rate_hz;
+    c->board_time_us = (uint64_t)gs_board_time_us(b);
+    c->lockstep = b->cfg.lockstep ? 1u : 0u;
+    set_str(c->robot, &c->robot_len, GS_MAX_NAME_BYTES, GS_ROBOT_NAME);
+    c->servo_table_hash = GS_SERVO_TABLE_HASH;
+    send(b, &m, 0);
+}
+
+static void servo_frame(gs_board_t *b, const gs_servo_frame_t *f, uint16_t seq) {
+    gs_mask_t mask = f->mask;
+    if (!mask || (mask & ~ALL)) {
+        b->dropped_count++;
+        nack(b, seq, GS_MSG_TYPE_SERVO_FRAME, GS_NACK_REASON_BAD_VALUE, "mask must cover the board's servos only", 0);
+        return;
+    }
+    if (b->estopped) {
+        b->dropped_count++;
+        nack(b, seq, GS_MSG_TYPE_SERVO_FRAME, GS_NACK_REASON_ESTOPPED, "estop active; send ESTOP_CLEAR", 0);
+        return;
+    }
+    if (b->fault_latched) {
+        b->dropped_count++;
+        nack(b, seq, GS_MSG_TYPE_SERVO_FRAME, GS_NACK_REASON_FAULT_LATCHED, "watchdog fault latched; send ESTOP_CLEAR", 0);
+        return;
+    }
+    if (b->servo_fault) {
+        b->dropped_count++;
+        nack(b, seq, GS_MSG_TYPE_SERVO_FRAME, GS_NACK_REASON_SERVO_FAULT,
+             servo_text(b->fault_servo, "is not answering; send ESTOP_CLEAR"), 0);
+        return;
+    }
+    int64_t now = b->now_us;
+    int64_t t = (int64_t)unwrap32(f->apply_at_us, now);
+    if (t < now - b->cfg.max_late_us) {
+        char late[24];
+        fmt_u64(late, sizeof late, (uint64_t)(now - t));
+        b->late_count++;
+        nack(b, seq, GS_MSG_TYPE_SERVO_FRAME, GS_NACK_REASON_LATE, "late by us: ", late);
+        return;
+    }
+    if (t > now + b->cfg.max_future_us) {
+        b->dropped_count++;
+        nack(b, seq, GS_MSG_TYPE_SERVO_FRAME, GS_NACK_REASON_TOO_FAR_FUTURE, "due too far ahead of the board clock", 0);
+        return;
+    }
+    int16_t q[GS_SERVO_COUNT];
+    gs_mask_t resume_mask = 0;
+    unsigned k = 0;
+    for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
+        q[i] = 0;
+        if (!(mask >> i & 1u)) continue;
+        q[i] = f->targets[k++];
+        if (!gs_jb_pending_for(&b->buf, i) && now - b->anchor_t[i] > b->cfg.resume_gap_us) resume_mask |= (gs_mask_t)1 << i;
+    }
+    if (!gs_jb_push(&b->buf, t, seq, mask, q)) {
+        b->dropped_count++;
+        nack(b, seq, GS_MSG_TYPE_SERVO_FRAME, GS_NACK_REASON_BUFFER_FULL, "jitter buffer full", 0);
+        return;
+    }
+    for (unsigned i = 0; i < GS_SERVO_COUNT; i++) { /* an idle servo starts the new stream from where it is */
+        if (resume_mask >> i & 1u) {
+            b->anchor_t[i] = now;
+            b->anchor_v[i] = b->cmd[i];
+        }
+    }
+    if (t > b->covered_until) b->covered_until = t;
+}
+
+static void config(gs_board_t *b, const gs_msg_t *m, uint16_t seq) {
+    int32_t v = m->u.config.value;
+    switch (m->u.config.key) {
+    case GS_CONFIG_KEY_TELEMETRY_RATE_HZ:
+        if (v >= 1 && (uint32_t)v <= b->cfg.rate_hz) { b->cfg.telemetry_rate_hz = (uint32_t)v; break; }
+        goto bad;
+    case GS_CONFIG_KEY_WATCHDOG_MS:
+        if (v > 0) { b->cfg.watchdog_ms = (uint32_t)v; b->watchdog_us = (int64_t)v * 1000; break; }
+        goto bad;
+    case GS_CONFIG_KEY_CROUCH_AFTER_MS:
+        if (v >= 0) { b->cfg.crouch_after_ms = (uint32_t)v; b->crouch_after_us = (int64_t)v * 1000; break; }
+        goto bad;
+    case GS_CONFIG_KEY_MAX_LATE_US:
+        if (v >= 0) { b->cfg.max_late_us = v; break; }
+        goto bad;
+    case GS_CONFIG_KEY_MAX_FUTURE_US:
+        if (v > 0) { b->cfg.max_future_us = v; break; }
+        goto bad;
+    default:
+        goto bad;
+    }
+    ack(b, seq, GS_MSG_TYPE_CONFIG);
+    return;
+bad:
+    nack(b, seq, GS_MSG_TYPE_CONFIG, GS_NACK_REASON_BAD_VALUE, "config value out of range", 0);
+}
+
+void gs_board_handle(gs_board_t *b, const gs_msg_t *m, uint16_t seq, int64_t rx) {
+    uint8_t t = m->type;
+    if (t == GS_MSG_TYPE_TELEMETRY || t == GS_MSG_TYPE_SIM_STATE || t == GS_MSG_TYPE_CAPS ||
+        t == GS_MSG_TYPE_TIME_SYNC_REPLY || t == GS_MSG_TYPE_ACK || t == GS_MSG_TYPE_NACK ||
+        t == GS_MSG_TYPE_CAMERA_CHUNK) {
+        nack(b, seq, t, GS_NACK_REASON_UNSUPPORTED, "board does not accept ", gs_msg_type_name(t));
+        return;
+    }
+    if (t == GS_MSG_TYPE_HELLO) gaps_reset(b); /* a (new) host numbers its messages from 0 again */
+    gaps_feed(b, seq);
+    b->last_rx_seq = seq;
+    int64_t held_since = b->hold_since_us;
+    if (safety_feed(b, b->now_us)) {
+        resume(b);
+        gs_log_str("board: watchdog resume at board time ");
+        gs_log_secs(b->now_us);
+        gs_log_str(" s, a valid message ended the hold after ");
+        gs_log_secs(b->now_us - (held_since != GS_NO_TIME ? held_since : b->now_us));
+        gs_log_str(" s");
+        gs_log_end();
+    }
+    switch (t) {
+    case GS_MSG_TYPE_SERVO_FRAME:
+        servo_frame(b, &m->u.servo_frame, seq);
+        return;
+    case GS_MSG_TYPE_HEARTBEAT:
+        return;
+    case GS_MSG_TYPE_TIME_SYNC_REQUEST: {
+        gs_msg_t r;
+        r.type = GS_MSG_TYPE_TIME_SYNC_REPLY;
+        r.u.time_sync_reply.t1_host_us = m->u.time_sync_request.t1_host_us;
+        r.u.time_sync_reply.t2_board_us = (uint64_t)rx;
+        r.u.time_sync_reply.t3_board_us = (uint64_t)gs_board_time_us(b);
+        send(b, &r, 0);
+        return;
+    }
+    case GS_MSG_TYPE_HELLO:
+        hello(b, &m->u.hello, seq);
+        return;
+    case GS_MSG_TYPE_ADVANCE: {
+        if (!b->cfg.lockstep) {
+            nack(b, seq, t, GS_NACK_REASON_NOT_LOCKSTEP, "ADVANCE needs a --lockstep board", 0);
+            return;
+        }
+        int64_t until = clamp_u64(m->u.advance.until_us);
+        if (until > b->advance_until) b->advance_until = until;
+        ack(b, seq, t);
+        return;
+    }
+    case GS_MSG_TYPE_FLUSH: {
+        gs_mask_t touched = gs_jb_flush(&b->buf, clamp_u64(m->u.flush.from_us), m->u.flush.mask);
+        for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
+            if (!(touched >> i & 1u)) continue;
+            b->anchor_t[i] = b->now_us;
+            b->anchor_v[i] = b->cmd[i];
+            b->resume_pending[i] = 0; /* the new stream starts from the command */
+            b->blend_off[i] = 0;
+        }
+        recompute_cover(b);
+        ack(b, seq, t);
+        return;
+    }
+    case GS_MSG_TYPE_ESTOP:
+        if (b->estop_rx_us == GS_NO_TIME && !b->estopped) b->estop_rx_us = rx;
+        b->estopped = 1;
+        gs_jb_clear(&b->buf);
+        read_all_positions(b); /* hold where the servos are now */
+        for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
+            b->hold_q[i] = b->pos_urad[i];
+            b->cmd[i] = clamp32(b->hold_q[i], gs_servos[i].min_urad, gs_servos[i].max_urad);
+        }
+        ack(b, seq, t);
+        return;
+    case GS_MSG_TYPE_ESTOP_CLEAR:
+        b->estopped = 0;
+        b->fault_latched = 0;
+        b->hold_since_us = GS_NO_TIME;
+        b->last_feed_us = b->now_us;
+        if (b->servo_fault) { /* try the servos again; one still silent latches the fault anew */
+            b->servo_fault = 0;
+            b->answering = ALL;
+            for (unsigned i = 0; i < GS_SERVO_COUNT; i++) b->miss[i] = 0;
+        }
+        resume(b);
+        ack(b, seq, t);
+        return;
+    case GS_MSG_TYPE_CONFIG:
+        config(b, m, seq);
+        return;
+    case GS_MSG_TYPE_SCREEN:
+        if (m->u.screen.target < 3u) b->screen_last[m->u.screen.target] = m->u.screen;
+        ack(b, seq, t);
+        return;
+    case GS_MSG_TYPE_SPEAKER:
+        b->speaker_action = m->u.speaker.action;
+        b->speaker_kind = m->u.speaker.kind;
+        b->speaker_start_us = m->u.speaker.start_at_us;
+        ack(b, seq, t);
+        return;
+    case GS_MSG_TYPE_CAMERA_CAPTURE:
+        nack(b, seq, t, GS_NACK_REASON_NO_RENDERER, "this board has no camera renderer (an MCU)", 0);
+        return;
+    case GS_MSG_TYPE_CAMERA_RESEND:
+        nack(b, seq, t, GS_NACK_REASON_BAD_VALUE, "no image kept (this board has no camera renderer)", 0);
+        return;
+    default:
+        nack(b, seq, t, GS_NACK_REASON_UNSUPPORTED, "board does not accept ", gs_msg_type_name(t));
+        return;
+    }
+}
+
+/* --- control tick -------------------------------------------------------------------------- */
+
+/* Per servo: linear from its anchor (last applied keyframe) to its next buffered keyframe. */
+static void interpolate(gs_board_t *b, int64_t t, int32_t *out) {
+    gs_jb_next_all(&b->buf);
+    for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
+        out[i] = b->anchor_v[i];
+        if (!b->buf.has_next[i]) continue;
+        int64_t t1 = b->buf.next_t[i], t0 = b->anchor_t[i];
+        if (t1 > t0) {
+            int64_t a = b->anchor_v[i], v1 = (int64_t)b->buf.next_q[i] * 100;
+            out[i] = (int32_t)(a + (v1 - a) * (t - t0) / (t1 - t0));
+        }
+    }
+}
+
+/* 1 - min_jerk(s) in Q16 for s = num/den in [0, 1) (robots.motion.min_jerk: 10s^3 - 15s^4 + 6s^5). */
+static int64_t fade_q16(int64_t num, int64_t den) {
+    int64_t s = num * 65536 / den;
+    int64_t s2 = s * s >> 16, s3 = s2 * s >> 16;
+    int64_t poly = 10 * 65536 - 15 * s + 6 * s2;
+    return 65536 - (s3 * poly >> 16);
+}
+
+/* Interpolated targets plus, per servo after a resume, the offset from the held command to the
+ * stream fading with a minimum-jerk profile over 1.875 |offset| / resume_speed (board.py _blend). */
+static void blend(gs_board_t *b, int64_t t, int32_t *out) {
+    gs_jb_next_all(&b->buf);
+    for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
+        if (!b->resume_pending[i]) continue;
+        int32_t held = b->resume_from[i], v1;
+        if (b->buf.has_next[i]) {
+            v1 = (int32_t)b->buf.next_q[i] * 100;
+            b->anchor_t[i] = t; /* flat at the first target until it is due */
+            b->anchor_v[i] = v1;
+        } else if (b->anchor_t[i] != b->resume_t || b->anchor_v[i] != held) {
+            v1 = b->anchor_v[i]; /* a frame was applied at once */
+        } else {
+            continue;
+        }
+        b->resume_pending[i] = 0;
+        int32_t off = held - v1;
+        b->blend_t0[i] = t;
+        b->blend_off[i] = off;
+        int64_t len = (int64_t)(off < 0 ? -off : off) * 1875 / (b->cfg.resume_speed_urad_s / 1000);
+        b->blend_len[i] = len > b->cfg.resume_blend_min_us ? len : b->cfg.resume_blend_min_us;
+    }
+    interpolate(b, t, out);
+    int active = 0;
+    for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
+        if (b->resume_pending[i]) active = 1;
+        if (!b->blend_off[i]) continue;
+        int64_t el = t - b->blend_t0[i];
+        if (el >= b->blend_len[i]) {
+            b->blend_off[i] = 0;
+            continue;
+        }
+        out[i] = (int32_t)(out[i] + ((int64_t)b->blend_off[i] * fade_q16(el, b->blend_len[i]) >> 16));
+        active = 1;
+    }
+    if (!active) b->blending = 0;
+    for (unsigned i = 0; i < GS_SERVO_COUNT; i++)
+        if (b->resume_pending[i]) out[i] = b->resume_from[i];
+}
+
+/* The servo table's clamps per tick: joint range, then speed (servo_model.py; quantisation and
+ * deadband happen in the servo itself). Returns 1 when any target was clamped. */
+static int servo_step(gs_board_t *b, const int32_t *desired, int32_t speed_cap_urad_s) {
+    int hit = 0;
+    for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
+        const gs_servo_t *s = &gs_servos[i];
+        int32_t x = desired[i];
+        int32_t tg = x > s->max_urad ? s->max_urad : (x < s->min_urad ? s->min_urad : x);
+        if (tg != x) hit = 1;
+        int64_t speed = s->max_speed_urad_s;
+        if (speed_cap_urad_s > 0 && speed_cap_urad_s < speed) speed = speed_cap_urad_s;
+        int64_t step = speed * b->tick_us / 1000000;
+        int64_t delta = (int64_t)tg - b->cmd[i];
+        if (delta > step || delta < -step) hit = 1;
+        b->cmd[i] = (int32_t)(b->cmd[i] + (delta > step ? step : (delta < -step ? -step : delta)));
+        b->goal[i] = urad_to_goal(i, b->cmd[i]);
+    }
+    return hit;
+}
+
+static void telemetry(gs_board_t *b) {
+    gs_msg_t m;
+    gs_telemetry_t *x = &m.u.telemetry;
+    m.type = GS_MSG_TYPE_TELEMETRY;
+    x->board_time_us = (uint64_t)b->now_us;
+    x->positions_n = x->velocities_n = x->efforts_n = GS_SERVO_COUNT;
+    for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
+        x->positions[i] = q16_of(b->pos_urad[i], 100);
+        x->velocities[i] = q16_of(b->vel_urad_s[i], 1000);
+        x->efforts[i] = (int16_t)clamp32(b->eff_mnm[i], -32767, 32767);
+    }
+    for (unsigned k = 0; k < 3; k++) x->imu_rpy[k] = b->imu[k];
+    x->faults = (uint16_t)(safety_flags(b) | b->flags_since);
+    b->flags_since = 0;
+    x->buffer_fill = b->buf.n;
+    x->last_applied_seq = b->last_applied_seq;
+    x->late_count = b->late_count;
+    x->dropped_count = b->dropped_count;
+    x->link_errors = b->link_errors;
+    send(b, &m, 1);
+    if (b->probe_present && b->probe_fresh) {
+        gs_msg_t s;
+        gs_sim_state_t *y = &s.u.sim_state;
+        s.type = GS_MSG_TYPE_SIM_STATE;
+        y->board_time_us = (uint64_t)b->probe_t_us;
+        for (unsigned k = 0; k < 3; k++)
+            y->base_pos[k] = (uint32_t)(b->probe[4 * k] | b->probe[4 * k + 1] << 8 | b->probe[4 * k + 2] << 16 | (uint32_t)b->probe[4 * k + 3] << 24);
+        for (unsigned k = 0; k < 4; k++) {
+            const uint8_t *p = &b->probe[12 + 4 * k];
+            y->base_quat[k] = (uint32_t)(p[0] | p[1] << 8 | p[2] << 16 | (uint32_t)p[3] << 24);
+        }
+        y->objects = b->probe[28];
+        y->toppled = b->probe[29];
+        send(b, &s, 1);
+    }
+}
+
+void gs_board_tick(gs_board_t *b) {
+    uint32_t c0 = hal_cycles();
+    int64_t t = b->now_us;
+    int entered = 0;
+    gs_mode_t mode = safety_update(b, t, &entered);
+    int32_t speed_cap = 0;
+    if (b->estop_rx_us != GS_NO_TIME && mode == GS_MODE_ESTOP) {
+        log_event("estop in effect", t, b->estop_rx_us);
+        gs_log_str(" s after it arrived");
+        gs_log_end();
+        b->estop_rx_us = GS_NO_TIME;
+    }
+    if (entered && (mode == GS_MODE_HOLD || mode == GS_MODE_CROUCH || mode == GS_MODE_SERVO_FAULT)) {
+        gs_jb_clear(&b->buf);
+        for (unsigned i = 0; i < GS_SERVO_COUNT; i++) b->hold_q[i] = b->cmd[i];
+        if (mode != GS_MODE_SERVO_FAULT) {
+            log_event(mode == GS_MODE_HOLD ? "watchdog hold" : "watchdog crouch", t, b->last_feed_us);
+            gs_log_str(" s after the last valid message");
+            if (mode == GS_MODE_CROUCH) gs_log_str("; fault latched until ESTOP_CLEAR");
+            gs_log_end();
+        }
+    }
+    b->mode = mode;
+    if (mode == GS_MODE_RUN) {
+        uint16_t k = gs_jb_due(&b->buf, t);
+        for (uint16_t j = 0; j < k; j++) {
+            const gs_jframe_t *f = &b->buf.f[j];
+            for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
+                if (!(f->mask >> i & 1u)) continue;
+                b->anchor_t[i] = f->apply_at_us;
+                b->anchor_v[i] = (int32_t)f->q[i] * 100;
+            }
+            b->last_applied_seq = f->seq;
+            if (b->cfg.lockstep) safety_feed(b, f->apply_at_us);
+        }
+        gs_jb_drop_front(&b->buf, k);
+        if (b->blending) blend(b, t, b->desired);
+        else interpolate(b, t, b->desired);
+    } else if (mode == GS_MODE_CROUCH) {
+        for (unsigned i = 0; i < GS_SERVO_COUNT; i++) b->desired[i] = gs_servos[i].safe_urad;
+        speed_cap = b->cfg.crouch_speed_urad_s;
+    } else {
+        for (unsigned i = 0; i < GS_SERVO_COUNT; i++) b->desired[i] = b->hold_q[i];
+    }
+    if (servo_step(b, b->desired, speed_cap) && mode == GS_MODE_RUN) {
+        b->flags_since |= GS_FAULT_FLAGS_CLAMPED;
+        b->clamped_ticks++;
+    }
+    write_goals(b); /* one SYNC WRITE per tick: in lockstep the plant steps its physics on it */
+    b->now_us = t + b->tick_us;
+    b->ticks++;
+    bus_read_job(b);
+    uint32_t every = gs_config_telemetry_every(&b->cfg);
+    if (b->ticks % every == 0) telemetry(b);
+    uint32_t dc = hal_cycles() - c0;
+    if (c0 || dc) {
+        b->tick_cycles_last = dc;
+        if (dc > b->tick_cycles_max) b->tick_cycles_max = dc;
+        b->tick_cycles_sum += dc;
+        b->tick_cycles_n++;
+    }
+}
+
+void gs_board_log_stats(const gs_board_t *b) {
+    gs_log_str("S link_errors=");
+    gs_log_u64(b->link_errors);
+    gs_log_str(" late_frames=");
+    gs_log_u64(b->late_count);
+    gs_log_str(" dropped_frames=");
+    gs_log_u64(b->dropped_count);
+    gs_log_str(" watchdog_trips=");
+    gs_log_u64(b->watchdog_trips);
+    gs_log_str(" seq_gaps=");
+    gs_log_u64(b->seq_gaps);
+    gs_log_str(" ticks=");
+    gs_log_u64(b->ticks);
+    gs_log_str(" bus_out=");
+    gs_log_u64(gs_bus_stats.bytes_out);
+    gs_log_str(" bus_in=");
+    gs_log_u64(gs_bus_stats.bytes_in);
+    gs_log_str(" bus_timeouts=");
+    gs_log_u64(gs_bus_stats.timeouts);
+    if (b->tick_cycles_n) {
+        gs_log_str(" tick_cycles_mean=");
+        gs_log_u64(b->tick_cycles_sum / b->tick_cycles_n);
+        gs_log_str(" tick_cycles_max=");
+        gs_log_u64(b->tick_cycles_max);
+        gs_log_str(" tick_cycles_n=");
+        gs_log_u64(b->tick_cycles_n);
+    }
+    gs_log_end();
+}

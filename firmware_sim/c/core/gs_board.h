@@ -1,0 +1,116 @@
+/* The board core: message handling and the control tick (firmware_sim/board.py, safety.py,
+ * servo_model.py ported), driving the servos over the bus (gs_bus.h) instead of MuJoCo.
+ *
+ * gs_board_handle() consumes one decoded host message and sends the replies; gs_board_tick() runs
+ * one control period at board time now_us: safety update, due frames, interpolation (or the
+ * minimum-jerk blend after a hold), the servo table's range and speed clamps, the goal positions
+ * to the bus (SYNC WRITE every tick), one scheduled bus read, and TELEMETRY (+ SIM_STATE when the
+ * emulator's probe answers) every telemetry period. Reply policy as the Python board's docstring,
+ * except CAMERA_CAPTURE -> NACK NO_RENDERER (an MCU has no renderer) and CAMERA_RESEND -> NACK
+ * BAD_VALUE; a servo that stops answering latches SERVO_FAULT (one unsolicited NACK SERVO_FAULT
+ * naming it, frames refused with SERVO_FAULT, every servo holds) until ESTOP_CLEAR.
+ *
+ * Units inside: angles in micro-radians (int32), times in microseconds (int64), the jitter
+ * buffer keeps the wire's q16 codes. No floating point. */
+#ifndef GS_BOARD_H
+#define GS_BOARD_H
+
+#include <stdint.h>
+
+#include "gs_config.h"
+#include "gs_bus.h"
+#include "gs_jitter.h"
+#include "gs_proto.h"
+
+#define GS_NO_TIME INT64_MIN
+
+typedef enum { GS_MODE_RUN = 0, GS_MODE_HOLD, GS_MODE_CROUCH, GS_MODE_ESTOP, GS_MODE_SERVO_FAULT } gs_mode_t;
+
+typedef struct gs_board gs_board_t;
+/* Where replies and reports go: `periodic` for TELEMETRY/SIM_STATE (droppable first). */
+typedef void (*gs_send_fn)(void *ctx, const gs_msg_t *msg, int periodic);
+
+struct gs_board {
+    gs_settings_t cfg;
+    uint32_t tick_us;
+    uint32_t bus_timeout_us;
+    gs_send_fn send;
+    void *send_ctx;
+    /* time */
+    int64_t now_us;       /* board time of the next tick */
+    uint64_t ticks;
+    int64_t advance_until; /* lockstep: ticks run while now_us < this */
+    int64_t covered_until; /* lockstep: latest accepted frame apply-at */
+    uint64_t (*clock_us)(void); /* realtime fine clock (NULL in lockstep) */
+    int64_t clock_origin_us;
+    uint16_t last_applied_seq;
+    uint16_t last_rx_seq;
+    gs_jb_t buf;
+    /* safety (firmware_sim/safety.py) */
+    uint8_t armed, fault_latched, estopped;
+    int64_t last_feed_us, hold_since_us; /* GS_NO_TIME: not holding */
+    int64_t watchdog_us, crouch_after_us;
+    uint32_t watchdog_trips;
+    gs_mode_t mode;
+    int64_t estop_rx_us;
+    /* servo model and interpolation */
+    int32_t cmd[GS_SERVO_COUNT];       /* last speed-limited command (urad) */
+    int64_t anchor_t[GS_SERVO_COUNT];
+    int32_t anchor_v[GS_SERVO_COUNT];
+    int32_t hold_q[GS_SERVO_COUNT];
+    int32_t desired[GS_SERVO_COUNT];
+    uint16_t goal[GS_SERVO_COUNT];     /* goal position register (steps) written this tick */
+    int64_t resume_t;
+    uint8_t resume_pending[GS_SERVO_COUNT];
+    int32_t resume_from[GS_SERVO_COUNT];
+    int64_t blend_t0[GS_SERVO_COUNT], blend_len[GS_SERVO_COUNT];
+    int32_t blend_off[GS_SERVO_COUNT];
+    uint8_t blending;
+    /* counters */
+    uint32_t late_count, dropped_count, link_errors, clamped_ticks;
+    uint16_t flags_since;
+    /* sequence gaps of what the host sent (protocol.faults.GapDetector) */
+    uint8_t gap_started;
+    uint16_t gap_highest;
+    uint32_t seq_gaps;
+    uint16_t gap_missing[GS_GAP_WINDOW];
+    uint16_t gap_n, gap_head;
+    /* measured (bus) */
+    int32_t pos_urad[GS_SERVO_COUNT];
+    int32_t vel_urad_s[GS_SERVO_COUNT];
+    int32_t eff_mnm[GS_SERVO_COUNT];
+    int16_t imu[3];
+    uint8_t imu_present, probe_present, probe_fresh;
+    uint8_t probe[GS_PROBE_LEN];
+    int64_t probe_t_us;
+    /* servo-bus health */
+    uint8_t miss[GS_SERVO_COUNT];
+    uint8_t miss_limit;
+    gs_mask_t answering;   /* servos included in reads */
+    uint8_t servo_fault;   /* latched */
+    uint8_t fault_servo;   /* index of the first servo that stopped answering */
+    int64_t servo_fault_t;
+    /* peripherals (none on this board's bus): the last command per screen target and the speaker's last
+     * action are ACKed and kept (speech text is not kept: it is the host's to synthesise) */
+    gs_screen_command_t screen_last[3];
+    uint8_t speaker_action, speaker_kind;
+    uint64_t speaker_start_us;
+    /* tick cost (hal_cycles) */
+    uint32_t tick_cycles_last, tick_cycles_max;
+    uint64_t tick_cycles_sum, tick_cycles_n;
+};
+
+void gs_board_init(gs_board_t *b, const gs_settings_t *cfg, gs_send_fn send, void *ctx);
+/* Find the devices on the bus, enable torque, read the first positions. */
+void gs_board_boot(gs_board_t *b);
+int64_t gs_board_time_us(const gs_board_t *b);
+int gs_board_can_tick(const gs_board_t *b);
+void gs_board_handle(gs_board_t *b, const gs_msg_t *msg, uint16_t seq, int64_t rx_us);
+void gs_board_tick(gs_board_t *b);
+void gs_board_skip(gs_board_t *b, uint64_t n_ticks);
+void gs_board_note_overrun(gs_board_t *b);
+void gs_board_on_link_error(gs_board_t *b);
+/* One "S ..." statistics record on the log channel (counters the launcher reports at exit). */
+void gs_board_log_stats(const gs_board_t *b);
+
+#endif

@@ -1,0 +1,157 @@
+#include "gs_bus.h"
+
+#include "gs_hal.h"
+
+gs_bus_stats_t gs_bus_stats;
+
+/* received bytes not yet parsed (a status packet may arrive in pieces) */
+static uint8_t rx[2u * (GS_BUS_MAX_PARAMS + 6u)];
+static size_t rx_len;
+
+static void send_packet(uint8_t id, uint8_t inst, const uint8_t *params, size_t n) {
+    uint8_t pkt[GS_BUS_MAX_PARAMS + 6u];
+    if (n > GS_BUS_MAX_PARAMS) return;
+    pkt[0] = 0xFFu;
+    pkt[1] = 0xFFu;
+    pkt[2] = id;
+    pkt[3] = (uint8_t)(n + 2u);
+    pkt[4] = inst;
+    unsigned sum = (unsigned)id + pkt[3] + inst;
+    for (size_t i = 0; i < n; i++) {
+        pkt[5 + i] = params[i];
+        sum += params[i];
+    }
+    pkt[5 + n] = (uint8_t)(~sum & 0xFFu);
+    hal_bus_drain(); /* a late answer to an earlier request must not be taken for this one's */
+    rx_len = 0;
+    hal_bus_write(pkt, n + 6u);
+    gs_bus_stats.packets_out++;
+    gs_bus_stats.bytes_out += n + 6u;
+}
+
+/* Parse one status packet from rx[]; returns its id (and copies its params), -1 when incomplete. */
+static int parse_status(uint8_t *params, size_t cap, size_t *n_params) {
+    for (;;) {
+        size_t s = 0;
+        while (s + 1 < rx_len && !(rx[s] == 0xFFu && rx[s + 1] == 0xFFu)) s++;
+        if (s) { /* garbage before a header */
+            for (size_t i = s; i < rx_len; i++) rx[i - s] = rx[i];
+            rx_len -= s;
+        }
+        if (rx_len < 4) return -1;
+        uint8_t len = rx[3];
+        if (rx[2] > 0xFDu || len < 2u || len > GS_BUS_MAX_PARAMS + 2u) { /* not a status header: resync */
+            gs_bus_stats.bad_packets++;
+            for (size_t i = 1; i < rx_len; i++) rx[i - 1] = rx[i];
+            rx_len--;
+            continue;
+        }
+        size_t total = (size_t)len + 4u;
+        if (rx_len < total) return -1;
+        unsigned sum = 0;
+        for (size_t i = 2; i < total - 1; i++) sum += rx[i];
+        int id = rx[2];
+        int ok = (uint8_t)(~sum & 0xFFu) == rx[total - 1];
+        size_t np = (size_t)len - 2u;
+        if (ok) {
+            if (np > cap) np = cap;
+            for (size_t i = 0; i < np; i++) params[i] = rx[5 + i];
+            *n_params = np;
+        }
+        for (size_t i = total; i < rx_len; i++) rx[i - total] = rx[i];
+        rx_len -= total;
+        if (ok) {
+            gs_bus_stats.packets_in++;
+            gs_bus_stats.bytes_in += total;
+            return id;
+        }
+        gs_bus_stats.bad_packets++;
+    }
+}
+
+/* Wait for the next status packet until `deadline`; its id, or -1 on timeout. */
+static int next_status(uint64_t deadline, uint8_t *params, size_t cap, size_t *n_params) {
+    for (;;) {
+        int id = parse_status(params, cap, n_params);
+        if (id >= 0) return id;
+        uint64_t now = hal_now_us();
+        if (now >= deadline) return -1;
+        if (rx_len >= sizeof rx) rx_len = 0; /* cannot happen with sane packets; never overflow */
+        size_t got = hal_bus_read(&rx[rx_len], sizeof rx - rx_len, (uint32_t)(deadline - now));
+        rx_len += got;
+    }
+}
+
+void gs_bus_sync_write(uint8_t addr, uint8_t len, const uint8_t *ids, size_t n, const uint8_t *data) {
+    uint8_t params[GS_BUS_MAX_PARAMS];
+    size_t k = 0;
+    if (2u + n * (1u + len) > GS_BUS_MAX_PARAMS) return;
+    params[k++] = addr;
+    params[k++] = len;
+    for (size_t i = 0; i < n; i++) {
+        params[k++] = ids[i];
+        for (size_t j = 0; j < len; j++) params[k++] = data[i * len + j];
+    }
+    send_packet(GS_BUS_BROADCAST, GS_INST_SYNC_WRITE, params, k);
+}
+
+uint32_t gs_bus_sync_read(uint8_t addr, uint8_t len, const uint8_t *ids, size_t n, uint8_t *data, uint32_t timeout_us) {
+    uint8_t params[GS_BUS_MAX_PARAMS];
+    uint32_t got = 0, want = n >= 32u ? 0xFFFFFFFFu : ((1u << n) - 1u);
+    if (2u + n > GS_BUS_MAX_PARAMS || len > GS_BUS_MAX_PARAMS) return 0;
+    params[0] = addr;
+    params[1] = len;
+    for (size_t i = 0; i < n; i++) params[2 + i] = ids[i];
+    send_packet(GS_BUS_BROADCAST, GS_INST_SYNC_READ, params, 2u + n);
+    uint64_t deadline = hal_now_us() + timeout_us;
+    while (got != want) {
+        uint8_t p[GS_BUS_MAX_PARAMS];
+        size_t np = 0;
+        int id = next_status(deadline, p, sizeof p, &np);
+        if (id < 0) {
+            gs_bus_stats.timeouts++;
+            break;
+        }
+        for (size_t i = 0; i < n; i++) {
+            if (ids[i] == (uint8_t)id && np == len) {
+                for (size_t j = 0; j < len; j++) data[i * len + j] = p[j];
+                got |= 1u << i;
+            }
+        }
+    }
+    return got;
+}
+
+int gs_bus_read(uint8_t id, uint8_t addr, uint8_t len, uint8_t *data, uint32_t timeout_us) {
+    uint8_t params[2] = {addr, len};
+    send_packet(id, GS_INST_READ, params, 2);
+    uint64_t deadline = hal_now_us() + timeout_us;
+    for (;;) {
+        uint8_t p[GS_BUS_MAX_PARAMS];
+        size_t np = 0;
+        int got = next_status(deadline, p, sizeof p, &np);
+        if (got < 0) {
+            gs_bus_stats.timeouts++;
+            return 0;
+        }
+        if (got == id && np == len) {
+            for (size_t j = 0; j < len; j++) data[j] = p[j];
+            return 1;
+        }
+    }
+}
+
+int gs_bus_ping(uint8_t id, uint32_t timeout_us) {
+    send_packet(id, GS_INST_PING, 0, 0);
+    uint64_t deadline = hal_now_us() + timeout_us;
+    for (;;) {
+        uint8_t p[4];
+        size_t np = 0;
+        int got = next_status(deadline, p, sizeof p, &np);
+        if (got < 0) {
+            gs_bus_stats.timeouts++;
+            return 0;
+        }
+        if (got == id) return 1;
+    }
+}

@@ -1,0 +1,162 @@
+/* The Cortex-M3 port for QEMU's mps2-an385: CMSDK APB UART0 = host link, UART1 = servo bus,
+ * UART2 = log channel; SysTick at 4 kHz from the 25 MHz system clock is the tick timer; the CPU
+ * sleeps in WFI between events (UART0 receive interrupt, SysTick). Polled UART data registers
+ * (one byte deep in QEMU's model, which holds further bytes back until the register is read: the
+ * receive side never overruns). Boot settings come from the configuration block the launcher
+ * writes with QEMU's generic loader (-device loader,addr=...,data=...). */
+#include <stdint.h>
+
+#include "gs_app.h"
+#include "gs_hal.h"
+
+#define REG32(a) (*(volatile uint32_t *)(a))
+
+#define UART_BASE(i) (0x40004000u + 0x1000u * (i))
+#define UART_DATA(i) REG32(UART_BASE(i) + 0x00u)
+#define UART_STATE(i) REG32(UART_BASE(i) + 0x04u)
+#define UART_CTRL(i) REG32(UART_BASE(i) + 0x08u)
+#define UART_INT(i) REG32(UART_BASE(i) + 0x0Cu)
+#define UART_BAUDDIV(i) REG32(UART_BASE(i) + 0x10u)
+#define ST_TXFULL 1u
+#define ST_RXFULL 2u
+
+#define SYST_CSR REG32(0xE000E010u)
+#define SYST_RVR REG32(0xE000E014u)
+#define SYST_CVR REG32(0xE000E018u)
+#define NVIC_ISER0 REG32(0xE000E100u)
+
+#define SYSCLK_HZ 25000000u
+#define SYSTICK_HZ 4000u
+#define COUNTS_PER_TICK (SYSCLK_HZ / SYSTICK_HZ) /* 6250 */
+
+#define HOST 0u
+#define BUS 1u
+#define LOG 2u
+
+/* boot configuration, written by the launcher before reset (magic 'GSCF' + check word) */
+typedef struct {
+    uint32_t magic, lockstep, rate_hz, telemetry_rate_hz, watchdog_ms, log_frames, check;
+} boot_cfg_t;
+__attribute__((section(".bootcfg"), used)) volatile boot_cfg_t boot_cfg;
+#define BOOT_MAGIC 0x47534346u
+
+static volatile uint32_t systicks;  /* SysTick interrupts since boot */
+static uint32_t waited_counts;       /* system clock counts spent waiting for bus bytes */
+
+void systick_handler(void) { systicks++; }
+void uart0_rx_handler(void) { UART_INT(HOST) = 2u; } /* wake from WFI; main loop reads DATA */
+
+#define SCB_ICSR REG32(0xE000ED04u)
+#define ICSR_PENDSTSET (1u << 26)
+
+static uint64_t last_counts;
+
+/* Monotonic system-clock counts: SysTick periods counted by its interrupt plus the counter. A reload
+ * seen before its interrupt was taken (pending, or not even flagged yet in QEMU's timer model) would
+ * make time step back by up to one period: such a reading is moved on by one period. */
+static uint64_t now_counts(void) {
+    for (;;) {
+        uint32_t t = systicks;
+        uint32_t v = SYST_CVR;
+        uint32_t pending = SCB_ICSR & ICSR_PENDSTSET;
+        if (t != systicks) continue; /* the interrupt ran in between: read again */
+        if (pending) {               /* wrapped, interrupt not taken yet: count the period now */
+            v = SYST_CVR;
+            t++;
+        }
+        uint64_t c = (uint64_t)t * COUNTS_PER_TICK + (COUNTS_PER_TICK - 1u - v);
+        if (c < last_counts) c += COUNTS_PER_TICK;
+        if (c < last_counts) c = last_counts;
+        last_counts = c;
+        return c;
+    }
+}
+
+uint64_t hal_now_us(void) { return now_counts() / (SYSCLK_HZ / 1000000u); }
+
+uint32_t hal_cycles(void) { return (uint32_t)now_counts() - waited_counts; }
+
+size_t hal_host_read(uint8_t *buf, size_t cap) {
+    size_t n = 0;
+    while (n < cap && (UART_STATE(HOST) & ST_RXFULL)) buf[n++] = (uint8_t)UART_DATA(HOST);
+    return n;
+}
+
+size_t hal_host_write(const uint8_t *buf, size_t n) {
+    size_t k = 0;
+    while (k < n && !(UART_STATE(HOST) & ST_TXFULL)) UART_DATA(HOST) = buf[k++];
+    return k;
+}
+
+void hal_bus_write(const uint8_t *buf, size_t n) {
+    for (size_t k = 0; k < n; k++) {
+        while (UART_STATE(BUS) & ST_TXFULL) {
+        }
+        UART_DATA(BUS) = buf[k];
+    }
+}
+
+size_t hal_bus_read(uint8_t *buf, size_t cap, uint32_t timeout_us) {
+    uint64_t start = now_counts();
+    uint64_t limit = (uint64_t)timeout_us * (SYSCLK_HZ / 1000000u);
+    size_t n = 0;
+    while (!(UART_STATE(BUS) & ST_RXFULL)) {
+        if (now_counts() - start >= limit) break;
+    }
+    while (n < cap && (UART_STATE(BUS) & ST_RXFULL)) buf[n++] = (uint8_t)UART_DATA(BUS);
+    waited_counts += (uint32_t)(now_counts() - start);
+    return n;
+}
+
+void hal_bus_drain(void) {
+    while (UART_STATE(BUS) & ST_RXFULL) (void)UART_DATA(BUS);
+}
+
+void hal_wait(uint64_t until_us, int want_write) {
+    while (hal_now_us() < until_us) {
+        if (UART_STATE(HOST) & ST_RXFULL) return;
+        if (want_write && !(UART_STATE(HOST) & ST_TXFULL)) return;
+        __asm volatile("wfi");
+    }
+}
+
+void hal_log_write(const char *s, size_t n) {
+    for (size_t k = 0; k < n; k++) {
+        while (UART_STATE(LOG) & ST_TXFULL) {
+        }
+        UART_DATA(LOG) = (uint8_t)s[k];
+    }
+}
+
+int hal_should_stop(void) { return 0; }
+
+static gs_app_t app;
+
+int main(void) {
+    for (unsigned i = 0; i < 3u; i++) {
+        UART_BAUDDIV(i) = i == BUS ? SYSCLK_HZ / 1000000u : SYSCLK_HZ / 115200u;
+        UART_CTRL(i) = 3u; /* TX and RX enabled */
+    }
+    UART_CTRL(HOST) = 3u | 8u; /* + RX interrupt: wakes the WFI */
+    NVIC_ISER0 = 1u << 0;      /* UART0 RX is IRQ 0 on AN385 */
+    SYST_RVR = COUNTS_PER_TICK - 1u;
+    SYST_CVR = 0;
+    SYST_CSR = 7u; /* processor clock, interrupt, enable */
+    gs_settings_t cfg;
+    gs_config_defaults(&cfg);
+    const volatile boot_cfg_t *b = &boot_cfg;
+    if (b->magic == BOOT_MAGIC &&
+        b->check == (b->magic ^ b->lockstep ^ b->rate_hz ^ b->telemetry_rate_hz ^ b->watchdog_ms ^ b->log_frames) &&
+        b->rate_hz >= 1u && b->rate_hz <= 10000u && 1000000u % b->rate_hz == 0u && b->telemetry_rate_hz >= 1u &&
+        b->telemetry_rate_hz <= b->rate_hz && b->watchdog_ms >= 1u) {
+        cfg.lockstep = (uint8_t)(b->lockstep != 0u);
+        cfg.rate_hz = b->rate_hz;
+        cfg.telemetry_rate_hz = b->telemetry_rate_hz;
+        cfg.watchdog_ms = b->watchdog_ms;
+        cfg.log_frames = (uint8_t)(b->log_frames != 0u);
+    }
+    gs_app_run(&app, &cfg);
+    for (;;) {
+        __asm volatile("wfi");
+    }
+}

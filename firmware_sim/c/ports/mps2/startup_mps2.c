@@ -1,0 +1,43 @@
+/* Reset and the vector table of the Cortex-M3 image: copy .data, zero .bss, run main. */
+#include <stdint.h>
+
+extern uint32_t _sidata, _sdata, _edata, _sbss, _ebss, _estack;
+int main(void);
+void systick_handler(void);
+void uart0_rx_handler(void);
+
+void reset_handler(void);
+void default_handler(void);
+
+void default_handler(void) {
+    for (;;) {
+    }
+}
+
+void reset_handler(void) {
+    uint32_t *src = &_sidata, *dst = &_sdata;
+    while (dst < &_edata) *dst++ = *src++;
+    for (dst = &_sbss; dst < &_ebss;) *dst++ = 0;
+    main();
+    for (;;) {
+    }
+}
+
+typedef void (*vector_t)(void);
+
+__attribute__((section(".vectors"), used)) const vector_t vectors[16 + 1] = {
+    (vector_t)(uintptr_t)&_estack, /* initial main stack pointer */
+    reset_handler,
+    default_handler, /* NMI */
+    default_handler, /* HardFault */
+    default_handler, /* MemManage */
+    default_handler, /* BusFault */
+    default_handler, /* UsageFault */
+    0, 0, 0, 0,
+    default_handler, /* SVCall */
+    default_handler, /* DebugMonitor */
+    0,
+    default_handler, /* PendSV */
+    systick_handler,
+    uart0_rx_handler, /* IRQ 0: UART0 RX */
+};

@@ -1,0 +1,145 @@
+/* The native (POSIX) port: the host UART is a pty this program creates (or a serial device path),
+ * the servo-bus UART is a tty path (the plant's pty), the tick timer is CLOCK_MONOTONIC and the
+ * log channel is stderr. */
+#ifndef _GNU_SOURCE
+#define _GNU_SOURCE
+#endif
+#include <errno.h>
+#include <fcntl.h>
+#include <poll.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "gs_hal.h"
+#include "hal_native.h"
+
+static int host_fd = -1, host_slave_fd = -1, bus_fd = -1;
+static volatile sig_atomic_t stop_flag;
+static uint64_t t0_ns;
+
+static uint64_t mono_ns(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+}
+
+static void on_signal(int sig) {
+    (void)sig;
+    stop_flag = 1;
+}
+
+static int make_raw(int fd) {
+    struct termios t;
+    if (tcgetattr(fd, &t) != 0) return -1;
+    cfmakeraw(&t);
+    t.c_cc[VMIN] = 0;
+    t.c_cc[VTIME] = 0;
+    return tcsetattr(fd, TCSANOW, &t);
+}
+
+int native_open_host(const char *spec, char *name, size_t cap) {
+    if (strcmp(spec, "pty") == 0) {
+        int m = posix_openpt(O_RDWR | O_NOCTTY);
+        if (m < 0 || grantpt(m) != 0 || unlockpt(m) != 0) return -1;
+        const char *slave = ptsname(m);
+        if (!slave) return -1;
+        snprintf(name, cap, "%s", slave);
+        int s = open(slave, O_RDWR | O_NOCTTY); /* kept open: the pty survives the host closing it */
+        if (s < 0 || make_raw(s) != 0) return -1;
+        host_fd = m;
+        host_slave_fd = s;
+    } else {
+        host_fd = open(spec, O_RDWR | O_NOCTTY);
+        if (host_fd < 0) return -1;
+        if (isatty(host_fd)) make_raw(host_fd);
+        snprintf(name, cap, "%s", spec);
+    }
+    return fcntl(host_fd, F_SETFL, fcntl(host_fd, F_GETFL) | O_NONBLOCK);
+}
+
+int native_open_bus(const char *path) {
+    bus_fd = open(path, O_RDWR | O_NOCTTY);
+    if (bus_fd < 0) return -1;
+    if (isatty(bus_fd)) make_raw(bus_fd);
+    return fcntl(bus_fd, F_SETFL, fcntl(bus_fd, F_GETFL) | O_NONBLOCK);
+}
+
+void native_init(void) {
+    t0_ns = mono_ns();
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_signal;
+    sigaction(SIGTERM, &sa, NULL);
+    sigaction(SIGINT, &sa, NULL);
+    signal(SIGPIPE, SIG_IGN);
+    setvbuf(stderr, NULL, _IOLBF, 8192);
+}
+
+void native_close(void) {
+    if (host_fd >= 0) close(host_fd);
+    if (host_slave_fd >= 0) close(host_slave_fd);
+    if (bus_fd >= 0) close(bus_fd);
+}
+
+uint64_t hal_now_us(void) { return (mono_ns() - t0_ns) / 1000u; }
+
+size_t hal_host_read(uint8_t *buf, size_t cap) {
+    ssize_t n = read(host_fd, buf, cap);
+    return n > 0 ? (size_t)n : 0;
+}
+
+size_t hal_host_write(const uint8_t *buf, size_t n) {
+    ssize_t k = write(host_fd, buf, n);
+    return k > 0 ? (size_t)k : 0;
+}
+
+void hal_bus_write(const uint8_t *buf, size_t n) {
+    size_t done = 0;
+    while (done < n && !stop_flag) {
+        ssize_t k = write(bus_fd, buf + done, n - done);
+        if (k > 0) {
+            done += (size_t)k;
+        } else if (k < 0 && errno != EAGAIN && errno != EINTR) {
+            return;
+        } else {
+            struct pollfd p = {bus_fd, POLLOUT, 0};
+            poll(&p, 1, 10);
+        }
+    }
+}
+
+size_t hal_bus_read(uint8_t *buf, size_t cap, uint32_t timeout_us) {
+    ssize_t n = read(bus_fd, buf, cap);
+    if (n > 0) return (size_t)n;
+    struct pollfd p = {bus_fd, POLLIN, 0};
+    struct timespec ts = {(time_t)(timeout_us / 1000000u), (long)(timeout_us % 1000000u) * 1000L};
+    if (ppoll(&p, 1, &ts, NULL) <= 0) return 0;
+    n = read(bus_fd, buf, cap);
+    return n > 0 ? (size_t)n : 0;
+}
+
+void hal_bus_drain(void) {
+    uint8_t junk[256];
+    while (read(bus_fd, junk, sizeof junk) > 0) {
+    }
+}
+
+void hal_wait(uint64_t until_us, int want_write) {
+    uint64_t now = hal_now_us();
+    if (until_us <= now || stop_flag) return;
+    uint64_t d = until_us - now;
+    struct pollfd p = {host_fd, (short)(POLLIN | (want_write ? POLLOUT : 0)), 0};
+    struct timespec ts = {(time_t)(d / 1000000u), (long)(d % 1000000u) * 1000L};
+    ppoll(&p, 1, &ts, NULL);
+}
+
+void hal_log_write(const char *s, size_t n) { fwrite(s, 1, n, stderr); }
+
+int hal_should_stop(void) { return stop_flag != 0; }
+
+uint32_t hal_cycles(void) { return 0; }

@@ -1,0 +1,417 @@
+"""Run the C firmware as the board: ``python -m firmware_sim --firmware c|qemu --link pty ...``.
+
+One process (this one) holds the world; the firmware runs as its own process:
+
+* ``c``: the native build (:mod:`firmware_sim.cfirmware.build`, kind ``native``) as a subprocess:
+  ``gs_firmware --bus PTY --host pty`` (it creates the host pty itself, as a board's UART);
+* ``qemu``: the Cortex-M3 image on ``qemu-system-arm -M mps2-an385``: UART0 = a pty this process
+  relays byte for byte to the host's pty (QEMU's own ``-serial pty`` notices its peer by polling
+  once a second, which would hold the host's first bytes back), UART1 = the servo-bus pty, UART2 =
+  ``-serial stdio`` (the log channel); boot settings go into the image's configuration block through
+  QEMU's generic loader. ``icount=True`` adds ``-icount shift=0,sleep=on`` (one instruction per
+  virtual nanosecond: the tick-cost figure).
+
+This process is the servo-bus plant (:mod:`firmware_sim.plant`: the robot's MuJoCo model behind
+Feetech SCS/STS devices on a pty) and reads the firmware's log channel: ``board: ...`` lines go to
+stderr as the Python board prints them, ``F rx|tx T HEX`` records become the JSON-Lines frame log
+(``--log``; decoded here with :mod:`protocol.framelog`, the raw bytes are the firmware's),
+``S key=value`` records are its counters (the ``board: faults {json}`` line at exit).
+
+The host link is the firmware's own UART pty (native), except with ``--faults`` or ``--baud``: then the
+line between host and firmware is modelled here (the Python board's
+:class:`firmware_sim.transports.serial.WireModel` and :class:`firmware_sim.transports.faulty.FaultyWire`
+between two ptys), so the faults hit the firmware's UART as bytes on a bad wire would.
+
+SIM_STATE: the firmware forwards what the emulator-only probe device on its bus reports (ground
+truth the plant knows and no real robot has; on hardware nothing answers and no SIM_STATE is sent).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import select
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+from firmware_sim.cfirmware.build import BuildError, build, require
+from firmware_sim.plant.bus import PlantBus
+from firmware_sim.plant.world import World
+from firmware_sim.transports.serial import PtyPort, WireModel
+from protocol import framelog
+from protocol.faults import FaultInjector, FaultSpec
+from protocol.linkspec import LinkSpec
+from robots.description import Robot
+
+__all__ = ["LaunchOptions", "run_firmware"]
+
+QEMU_MACHINE = "mps2-an385"
+BOOT_CFG_ADDR = 0x20000000  # the image's .bootcfg block (firmware_sim/c/ports/mps2/mps2_an385.ld)
+BOOT_MAGIC = 0x47534346
+_CHARDEV = re.compile(r"char device redirected to (\S+) \(label (\w+)\)")
+STATS_KEYS = ("link_errors", "late_frames", "dropped_frames", "watchdog_trips", "seq_gaps")
+
+
+@dataclass
+class LaunchOptions:
+    robot: Robot
+    firmware: str = "c"  # "c" (native) or "qemu"
+    link: LinkSpec | None = None
+    lockstep: bool = False
+    rate_hz: int = 500
+    dt: float = 0.002
+    telemetry_rate_hz: int = 50
+    watchdog_ms: int = 200
+    scene: str | None = None
+    baud: int | None = None
+    log_path: str | None = None
+    faults: FaultSpec | None = None
+    fault_seed: int = 0
+    dead_servos: list[tuple[int, float]] = field(default_factory=list)  # (servo id, world seconds)
+    asan: bool = False  # native: the ASan/UBSan build
+    icount: bool = False  # qemu: -icount shift=0
+
+
+class _Stop(BaseException):
+    pass
+
+
+def _raise_stop(signum: int, frame: object) -> None:
+    raise _Stop()
+
+
+def boot_config_words(opts: LaunchOptions) -> list[int]:
+    """The configuration block the MCU image reads at boot (magic, settings, check word)."""
+    words = [BOOT_MAGIC, int(opts.lockstep), opts.rate_hz, opts.telemetry_rate_hz, opts.watchdog_ms,
+             int(bool(opts.log_path))]
+    check = 0
+    for w in words:
+        check ^= w
+    return [*words, check]
+
+
+def firmware_command(opts: LaunchOptions, exe: Path, bus_tty: str, host: str) -> list[str]:
+    """The command line that starts the firmware with its UARTs on ``host`` and ``bus_tty``."""
+    if opts.firmware == "c":
+        cmd = [str(exe), "--bus", bus_tty, "--host", host, "--lockstep" if opts.lockstep else "--realtime",
+               "--rate", str(opts.rate_hz), "--telemetry-rate", str(opts.telemetry_rate_hz),
+               "--watchdog-ms", str(opts.watchdog_ms)]
+        return cmd + (["--log-frames"] if opts.log_path else [])
+    cmd = [require("qemu-system-arm"), "-M", QEMU_MACHINE, "-display", "none", "-monitor", "none",
+           "-kernel", str(exe), "-serial", host, "-serial", bus_tty, "-serial", "stdio"]
+    for k, w in enumerate(boot_config_words(opts)):
+        cmd += ["-device", f"loader,addr={BOOT_CFG_ADDR + 4 * k:#x},data={w:#x},data-len=4"]
+    if opts.icount:
+        cmd += ["-icount", "shift=0,sleep=on"]
+    return cmd
+
+
+class _Relay:
+    """The modelled line between the host's pty and the firmware's (wire time and/or faults)."""
+
+    def __init__(self, baud: int | None, faults: FaultSpec | None, seed: int) -> None:
+        from firmware_sim.transports.faulty import FaultyWire
+
+        self.host = PtyPort()  # the host connects to host.name
+        self.fw = PtyPort()  # the firmware's UART opens fw.name
+        self.to_fw: Any = WireModel(baud)
+        self.to_host: Any = WireModel(baud)
+        self.injectors: list[FaultInjector[bytes]] = []
+        if faults is not None and faults.active:
+            rx: FaultInjector[bytes] = FaultInjector(faults, seed, "host->board")
+            tx: FaultInjector[bytes] = FaultInjector(faults, seed, "board->host")
+            self.to_fw, self.to_host = FaultyWire(self.to_fw, rx), FaultyWire(self.to_host, tx)
+            self.injectors = [rx, tx]
+        self.pend_fw = bytearray()
+        self.pend_host = bytearray()
+
+    def fds(self) -> list[int]:
+        return [self.host.master, self.fw.master]
+
+    def on_readable(self, fd: int, now: float) -> None:
+        if fd == self.host.master:
+            data = self.host.read()
+            if data:
+                self.to_fw.push(now, data)
+        elif fd == self.fw.master:
+            data = self.fw.read()
+            if data:
+                self.to_host.push(now, data)
+
+    def pump(self, now: float) -> None:
+        self.pend_fw += self.to_fw.pop_ready(now)
+        self.pend_host += self.to_host.pop_ready(now)
+        if self.pend_fw:
+            del self.pend_fw[: self.fw.write(bytes(self.pend_fw))]
+        if self.pend_host:
+            del self.pend_host[: self.host.write(bytes(self.pend_host))]
+
+    def next_time(self) -> float | None:
+        times = [t for t in (self.to_fw.next_release(), self.to_host.next_release()) if t is not None]
+        return min(times) if times else None
+
+    @property
+    def wants_write(self) -> bool:
+        return bool(self.pend_fw or self.pend_host)
+
+    def close(self) -> None:
+        self.host.close()
+        self.fw.close()
+
+
+class _LogReader:
+    """Splits the firmware's log channel into stderr lines, frame records and counters."""
+
+    def __init__(self, err: IO[str], log_path: str | None) -> None:
+        self.err = err
+        self.buf = bytearray()
+        self.stats: dict[str, int] = {}
+        self.log: IO[str] | None = open(log_path, "w", buffering=1, encoding="utf-8") if log_path else None
+        self.lines = 0
+        self.chardevs: dict[str, str] = {}  # QEMU's "char device redirected to X (label L)" (on its stdout)
+        self.booted = False  # the firmware's boot line came (its devices are found)
+
+    def feed(self, data: bytes) -> None:
+        self.buf += data
+        while True:
+            end = self.buf.find(b"\n")
+            if end < 0:
+                if len(self.buf) > 1 << 16:  # a runaway line: pass it on rather than grow
+                    self._line(bytes(self.buf))
+                    self.buf.clear()
+                return
+            line = bytes(self.buf[:end]).rstrip(b"\r")
+            del self.buf[: end + 1]
+            self._line(line)
+
+    def _line(self, raw: bytes) -> None:
+        self.lines += 1
+        text = raw.decode("utf-8", "replace")
+        if text.startswith("F ") and self.log is not None:
+            parts = text.split(" ")
+            if len(parts) == 4 and parts[1] in ("rx", "tx"):
+                try:
+                    rec = framelog.record(parts[1], int(parts[2]) / 1e6, bytes.fromhex(parts[3]))
+                except ValueError:
+                    print(f"board: unreadable frame record from the firmware: {text[:80]}", file=self.err, flush=True)
+                    return
+                self.log.write(framelog.to_line(rec) + "\n")
+            return
+        m = _CHARDEV.search(text)
+        if m:
+            self.chardevs[m.group(2)] = m.group(1)
+            return
+        if text.startswith("S "):
+            for item in text[2:].split():
+                k, _, v = item.partition("=")
+                if v.isdigit():
+                    self.stats[k] = int(v)
+            return
+        if " C firmware, " in text:
+            self.booted = True
+        if text:
+            print(text, file=self.err, flush=True)
+
+    def close(self) -> None:
+        if self.buf:
+            self._line(bytes(self.buf))
+            self.buf.clear()
+        if self.log is not None:
+            self.log.close()
+            self.log = None
+
+
+def run_firmware(opts: LaunchOptions, err: IO[str] = sys.stderr) -> int:
+    """Build, boot and serve until SIGTERM/SIGINT; 0, 1 (the firmware died) or 2 (cannot start)."""
+    link = opts.link
+    if link is not None and link.kind != "serial":
+        print(f"board: the C firmware speaks the serial wire only; {link} is a CAN link", file=err)
+        return 2
+    port = link.port if link is not None else "pty"
+    if (opts.faults is not None and opts.faults.active or opts.baud) and port != "pty":
+        print("board: --faults and --baud with the C firmware need --link pty (the line is modelled between two ptys)",
+              file=err)
+        return 2
+    kind = "mps2" if opts.firmware == "qemu" else ("native-asan" if opts.asan else "native")
+    try:
+        exe = build(kind, opts.robot)
+        if opts.firmware == "qemu":
+            require("qemu-system-arm")
+    except BuildError as e:
+        print(f"board: cannot build the C firmware: {e}", file=err)
+        return 2
+    world = World(opts.robot, scene=opts.scene, rate_hz=opts.rate_hz, dt=opts.dt)
+    plant = PlantBus(world, lockstep=opts.lockstep)
+    for sid, at in opts.dead_servos:
+        plant.kill(sid, int(at * 1e6))
+    bus = PtyPort()
+    # QEMU's own pty backend notices its peer by polling once a second (the host's first bytes would wait up
+    # to 1 s): its UART0 gets a tty device instead, relayed byte for byte to the host's pty
+    modelled = opts.faults is not None and opts.faults.active or bool(opts.baud)
+    relay = _Relay(opts.baud, opts.faults, opts.fault_seed) if modelled or (opts.firmware == "qemu" and port == "pty") \
+        else None
+    host_arg = relay.fw.name if relay is not None else port
+    cmd = firmware_command(opts, exe, bus.name, host_arg)
+    env = dict(os.environ)
+    if opts.asan:
+        env.setdefault("ASAN_OPTIONS", "detect_leaks=0:abort_on_error=0")
+        env.setdefault("UBSAN_OPTIONS", "print_stacktrace=1:halt_on_error=1")
+    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+                            preexec_fn=_die_with_parent)
+    assert proc.stdout is not None and proc.stderr is not None
+    log_fd = proc.stderr.fileno() if opts.firmware == "c" else proc.stdout.fileno()
+    side_fd = proc.stdout.fileno() if opts.firmware == "c" else proc.stderr.fileno()
+    for fd in (log_fd, side_fd, bus.master):
+        os.set_blocking(fd, False)
+    logr = _LogReader(err, opts.log_path)
+    side = bytearray()
+    announced: str | None = None
+    if opts.firmware == "qemu" and (relay is not None or port != "pty"):  # no pty of QEMU's to wait for
+        side += f"char device redirected to {relay.host.name if relay is not None else port} (label serial0)".encode()
+    old = (signal.signal(signal.SIGTERM, _raise_stop), signal.signal(signal.SIGINT, _raise_stop))
+    status = 0
+    held_fds: list[int] = []
+    bus_out = bytearray()
+    t_start = time.monotonic()
+    try:
+        while True:
+            now = time.monotonic()
+            if announced is None and logr.booted:  # the bus devices are found: the host may talk now
+                found = _announcement(opts, bytes(side)) or (logr.chardevs.get("serial0") if opts.firmware == "qemu"
+                                                             else None)
+                if found is not None:
+                    announced = relay.host.name if relay is not None else found
+                    print(f"board: listening on {announced}", flush=True)
+                elif now - t_start > 60:
+                    print("board: the C firmware did not open its host UART within 60 s", file=err, flush=True)
+                    status = 1
+                    break
+            timeout = 0.5
+            for t in (plant.next_step_time(), plant.next_release(), relay.next_time() if relay else None):
+                if t is not None:
+                    timeout = min(timeout, max(0.0, t - now))
+            rfds = [bus.master, log_fd, side_fd] + (relay.fds() if relay else [])
+            wfds = ([bus.master] if bus_out else []) + (relay.fds() if relay and relay.wants_write else [])
+            try:
+                readable, _, _ = select.select(rfds, wfds, [], timeout)
+            except InterruptedError:
+                continue
+            now = time.monotonic()
+            for fd in readable:
+                if fd == bus.master:
+                    data = bus.read()
+                    if data:
+                        bus_out += plant.feed(data, now)
+                elif fd == log_fd:
+                    data = _read(fd)
+                    if data:
+                        logr.feed(data)
+                elif fd == side_fd:
+                    data = _read(fd)
+                    if data:
+                        side += data
+                        if announced is not None and opts.firmware == "qemu":
+                            _pass_lines(side, err)
+                        elif len(side) > 1 << 16:
+                            del side[: len(side) - 4096]
+                elif relay is not None:
+                    relay.on_readable(fd, now)
+            plant.step_due(now)
+            bus_out += plant.ready(now)
+            if bus_out:
+                del bus_out[: bus.write(bytes(bus_out))]
+            if relay is not None:
+                relay.pump(now)
+            if proc.poll() is not None:
+                status = proc.returncode
+                break
+    except (_Stop, KeyboardInterrupt):
+        pass
+    finally:
+        signal.signal(signal.SIGTERM, old[0])
+        signal.signal(signal.SIGINT, old[1])
+        died = proc.poll() is not None
+        if not died:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        for fd in (log_fd,):
+            while True:
+                data = _read(fd)
+                if not data:
+                    break
+                logr.feed(data)
+        logr.close()
+        if died:
+            print(f"board: the C firmware exited with status {proc.returncode}", file=err, flush=True)
+            tail = bytes(side[-2000:]).decode("utf-8", "replace").strip()
+            if tail and opts.firmware == "qemu":
+                print(tail, file=err, flush=True)
+            status = status or 1
+        if relay is not None and relay.injectors and opts.faults is not None:
+            detected = {k: int(logr.stats.get(k, 0)) for k in STATS_KEYS}
+            print("board: faults " + json.dumps({"spec": str(opts.faults), "seed": opts.fault_seed,
+                                                 "injected": [i.summary() for i in relay.injectors],
+                                                 "board_detected": detected}), file=err, flush=True)
+        print(f"board: {plant.stats.line(world.period_us)}", file=err, flush=True)
+        if "tick_cycles_mean" in logr.stats:
+            print(f"board: tick cost (virtual-time cycles at 25 MHz, bus waits excluded): mean "
+                  f"{logr.stats['tick_cycles_mean']}, max {logr.stats.get('tick_cycles_max', 0)}, "
+                  f"n {logr.stats.get('tick_cycles_n', 0)}", file=err, flush=True)
+        if relay is not None:
+            relay.close()
+        for fd in held_fds:
+            os.close(fd)
+        bus.close()
+    return status
+
+
+def _die_with_parent() -> None:
+    """In the child before exec: SIGTERM it when this process dies, even by SIGKILL (Linux prctl
+    PR_SET_PDEATHSIG), so a killed board never leaves its firmware or QEMU running."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG = 1
+    except OSError:
+        pass
+
+
+def _read(fd: int) -> bytes:
+    try:
+        return os.read(fd, 65536)
+    except (BlockingIOError, OSError):
+        return b""
+
+
+def _announcement(opts: LaunchOptions, side: bytes) -> str | None:
+    """The host pty the firmware opened: its "board: listening on X" line, or QEMU's chardev line."""
+    text = side.decode("utf-8", "replace")
+    if opts.firmware == "c":
+        m = re.search(r"board: listening on (\S+)", text)
+        return m.group(1) if m else None
+    for m in _CHARDEV.finditer(text):
+        if m.group(2) == "serial0":
+            return m.group(1)
+    return None
+
+
+def _pass_lines(buf: bytearray, err: IO[str]) -> None:
+    """QEMU's own messages after start: pass complete lines to stderr."""
+    while True:
+        end = buf.find(b"\n")
+        if end < 0:
+            return
+        line = bytes(buf[:end]).decode("utf-8", "replace").strip()
+        del buf[: end + 1]
+        if line and not _CHARDEV.search(line):
+            print(f"board: qemu: {line}", file=err, flush=True)

@@ -1,0 +1,5 @@
+import sys
+
+from firmware_sim.plant.server import main
+
+sys.exit(main())

@@ -1,0 +1,385 @@
+"""A run as Foxglove channels, recorded live to ``run.mcap`` (foxglove-sdk) and shown live (its WebSocket server).
+
+:class:`RunLog` owns one :class:`foxglove.Context`: every channel below is created on it, and each
+sink attached to it receives every message: the MCAP writer (:meth:`RunLog.open`) and, with
+``--foxglove``, the live WebSocket server (:mod:`host.run.foxglove_live`). All times are **board
+time** (the board's clock since it started, ns in MCAP ``log_time`` and in message stamps), so a run
+reads the same in Foxglove as in timeline.json.
+
+Channels (written live, as things happen, so a killed run leaves an MCAP that is readable up to its
+last complete chunk, and the writer finishes a chunk every :data:`FLUSH_S` board seconds; only
+``/calls/events`` waits for the end of each turn, when the board-measured times are known). The SDK
+writes a channel's record with its first message, so a channel that got none (a run that never
+speaks has no ``/speech``) is not in the file:
+
+==========================  ===========================  ===================================================
+topic                        schema (encoding)            what, when
+==========================  ===========================  ===================================================
+``/joint_states``            foxglove.JointStates (pb)    measured position, velocity, effort per servo; each TELEMETRY
+``/joint_targets``           foxglove.JointStates (pb)    commanded targets per servo; each SERVO_FRAME sent, at its apply time
+``/tf``                      foxglove.FrameTransforms     every MJCF body in its parent's frame (:mod:`host.run.scene3d`); each TELEMETRY
+``/scene``                   foxglove.SceneUpdate         the robot's geoms as primitives; at the first report, then every :data:`SCENE_EVERY_S`
+``/telemetry``               ghostshell.Telemetry (json)  every TELEMETRY field decoded (faults by name)
+``/sim_state``               ghostshell.SimState (json)   the emulator's ground truth (base pose, scene objects); each new SIM_STATE
+``/link/tx``                 ghostshell.LinkFrame (json)  every host-to-board message: seq, type, decoded fields, serial wire bytes (hex)
+``/calls``                   foxglove.Log                 one line when a call starts and one when it ends (outcome, error)
+``/calls/events``            foxglove.Event               each finished call: board-measured start/end, function, channel, path, outcome, args
+``/speech``                  ghostshell.Speech (json)     each sentence spoken: text, start/end, outcome (cut sentences end where the cut was)
+``/camera``                  foxglove.CompressedImage     each photo the robot took (PNG)
+``/link/faults``             foxglove.Log                 board fault bits raised/cleared, NACKs, decode errors, re-sent requests, reconnects
+``/link/gaps``               ghostshell.SeqGap (json)     each time board messages went missing (gaps in the board's sequence numbers)
+==========================  ===========================  ===================================================
+
+(pb = protobuf, the SDK's encoding for its typed channels; json = a JSON channel with a JSON schema.)
+The MCAP also holds a ``run`` metadata record (robot, scene, link, clock) and the robot's MJCF as an
+attachment. Everything goes through the SDK; the ``mcap`` package is used only to read files back
+(:mod:`host.run.mcap_read`).
+
+Errors: :meth:`RunLog.open` raises :class:`McapError` (one line naming the path and the reason) when
+the file cannot be created; the caller decides (a run goes on without its MCAP). A write that fails
+later (disk full) stops the recording with one warning; the caller (:mod:`host.run.recording`) also
+turns any other exception of a logging method into one warning.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+from enum import Enum, IntFlag
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import foxglove
+from foxglove.channels import (
+    CompressedImageChannel,
+    EventChannel,
+    FrameTransformsChannel,
+    JointStatesChannel,
+    LogChannel,
+    SceneUpdateChannel,
+)
+from foxglove.mcap import MCAPWriteOptions
+from foxglove.messages import CompressedImage, Event, JointState, JointStates, KeyValuePair, Log, LogLevel
+
+from host.run.scene3d import RobotScene, stamp
+from protocol.framing import encode_frame
+from protocol.messages import FaultFlags, Message, Nack, ServoFrame, SimState, Telemetry
+from robots.description import Robot
+
+__all__ = ["FLUSH_S", "McapError", "RunLog", "SCENE_EVERY_S", "TOPICS"]
+
+log = logging.getLogger("host.run")
+
+#: board seconds between forced chunk ends: a killed run loses at most the last FLUSH_S of board time
+#: (board time, not wall time, so where a lockstep run's file can be cut is reproducible)
+FLUSH_S = 1.0
+#: board seconds between re-sent scene primitives (so a viewer that joins or seeks late still has them)
+SCENE_EVERY_S = 2.0
+#: target uncompressed chunk size; small, so chunks end often and a cut file loses little
+CHUNK_BYTES = 256 * 1024
+
+TOPICS = ("/joint_states", "/joint_targets", "/tf", "/scene", "/telemetry", "/sim_state", "/link/tx", "/calls",
+          "/calls/events", "/speech", "/camera", "/link/faults", "/link/gaps")
+
+
+class McapError(OSError):
+    """The MCAP file cannot be written (the message names the path and the reason)."""
+
+
+def _schema(name: str, properties: Mapping[str, Any]) -> dict[str, Any]:
+    return {"title": name, "type": "object", "properties": dict(properties)}
+
+
+_NUM = {"type": "number"}
+_INT = {"type": "integer"}
+_STR = {"type": "string"}
+_NUMS = {"type": "array", "items": _NUM}
+
+TELEMETRY_SCHEMA = _schema("ghostshell.Telemetry", {
+    "board_time_us": _INT, "positions": _NUMS, "velocities": _NUMS, "efforts": _NUMS, "imu_rpy": _NUMS,
+    "faults": _STR, "buffer_fill": _INT, "last_applied_seq": _INT, "late_count": _INT, "dropped_count": _INT,
+    "link_errors": _INT})
+SIM_STATE_SCHEMA = _schema("ghostshell.SimState", {
+    "board_time_us": _INT, "base_pos": _NUMS, "base_quat": _NUMS, "objects": _INT, "toppled": _INT})
+LINK_FRAME_SCHEMA = _schema("ghostshell.LinkFrame", {
+    "seq": _INT, "type": _STR, "fields": {"type": "object"}, "raw": _STR})
+SPEECH_SCHEMA = _schema("ghostshell.Speech", {
+    "text": _STR, "start_s": _NUM, "end_s": _NUM, "outcome": _STR, "path": _STR})
+GAP_SCHEMA = _schema("ghostshell.SeqGap", {
+    "board_time_us": _INT, "lost": _INT, "lost_total": _INT})
+
+
+def _ns(board_time_us: int) -> int:
+    return max(0, int(board_time_us)) * 1000
+
+
+def _flag_names(f: int) -> str:
+    return "|".join(e.name or "" for e in FaultFlags if e.value and f & e) or "NONE"
+
+
+def _fields(msg: Any) -> dict[str, Any]:
+    """A message's fields for a JSON channel: :func:`protocol.framelog.message_fields`' rendering (enums by
+    name, flags as ``A|B``, bytes as hex), done per field instead of per element: this runs for every
+    report and every frame sent, on the link's own event loop."""
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(msg):
+        v = getattr(msg, f.name)
+        if isinstance(v, (IntFlag, Enum, bytes, bytearray)):
+            v = message_fields_one(v)
+        elif isinstance(v, tuple) and v and not isinstance(v[0], (int, float)):
+            v = message_fields_one(v)
+        out[f.name] = v
+    return out
+
+
+def message_fields_one(v: Any) -> Any:
+    from protocol.framelog import _jsonable  # noqa: PLC2701 (the log's own rendering of one value)
+
+    return _jsonable(v)
+
+
+class RunLog:
+    """The run's Foxglove channels on one context (see the module docstring for topics and timing).
+
+    ``RunLog(robot)`` creates the channels; :meth:`open` adds the MCAP sink (or create it with
+    :meth:`create`). Feed it with the ``on_*`` methods from the event loop's thread; :meth:`close`
+    finishes the file. ``time_listeners`` get the board time (ns) of every report (the live server
+    broadcasts it as the viewer's clock).
+    """
+
+    def __init__(self, robot: Robot) -> None:
+        self.robot = robot
+        self.context = foxglove.Context()
+        self.scene = RobotScene(robot)
+        self.names = list(robot.servos.names)
+        ctx = self.context
+        self.joint_states = JointStatesChannel("/joint_states", context=ctx)
+        self.joint_targets = JointStatesChannel("/joint_targets", context=ctx)
+        self.tf = FrameTransformsChannel("/tf", context=ctx)
+        self.scene_ch = SceneUpdateChannel("/scene", context=ctx)
+        self.telemetry = foxglove.Channel("/telemetry", schema=TELEMETRY_SCHEMA, context=ctx)
+        self.sim_state = foxglove.Channel("/sim_state", schema=SIM_STATE_SCHEMA, context=ctx)
+        self.link_tx = foxglove.Channel("/link/tx", schema=LINK_FRAME_SCHEMA, context=ctx)
+        self.calls = LogChannel("/calls", context=ctx)
+        self.call_events = EventChannel("/calls/events", context=ctx)
+        self.speech = foxglove.Channel("/speech", schema=SPEECH_SCHEMA, context=ctx)
+        self.camera = CompressedImageChannel("/camera", context=ctx)
+        self.faults = LogChannel("/link/faults", context=ctx)
+        self.gaps = foxglove.Channel("/link/gaps", schema=GAP_SCHEMA, context=ctx)
+        self.writer: Any = None
+        self.path: Path | None = None
+        self.time_listeners: list[Callable[[int], None]] = []
+        self.last_us = 0  # latest board time seen (µs)
+        self._scene_at: int | None = None
+        self._last_sim: SimState | None = None
+        self._pending: Telemetry | None = None  # a report waiting for its SIM_STATE (on_message)
+        self._flushed_us = 0
+        self.closed = False
+
+    @classmethod
+    def create(cls, path: Path, robot: Robot, meta: Mapping[str, str] | None = None) -> RunLog:
+        """A RunLog recording to ``path`` (:class:`McapError` if it cannot be written)."""
+        run_log = cls(robot)
+        run_log.open(path, meta)
+        return run_log
+
+    def open(self, path: Path, meta: Mapping[str, str] | None = None) -> None:
+        """Start recording every channel to the MCAP file ``path`` (replaced if it exists)."""
+        path = Path(path)
+        options = MCAPWriteOptions(chunk_size=CHUNK_BYTES, compression_threads=0)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self.writer = foxglove.open_mcap(path, allow_overwrite=True, context=self.context, writer_options=options)
+        except (OSError, RuntimeError) as e:
+            reason = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
+            raise McapError(f"cannot write {path}: {reason}") from e
+        self.path = path
+        info = {"robot": self.robot.name, "servos": ",".join(self.names), "clock": "board", **(meta or {})}
+        self.writer.write_metadata("run", {k: str(v) for k, v in info.items()})
+        try:
+            mjcf = Path(self.robot.mjcf)
+            self.writer.attach(log_time=0, create_time=0, name=mjcf.name, media_type="application/xml",
+                               data=mjcf.read_bytes())
+        except OSError:
+            pass
+
+    # -- telemetry ----------------------------------------------------------------------------
+    def on_telemetry(self, tel: Telemetry, sim: SimState | None = None) -> None:
+        """One report: joint states and the decoded telemetry; with ``sim`` (the SIM_STATE of its time) also
+        that SIM_STATE and the transforms. Without it, give those with :meth:`on_sim_state` and
+        :meth:`on_transforms` when they come."""
+        t = tel.board_time_us
+        self.last_us = max(self.last_us, t)
+        ns = _ns(t)
+        n = min(len(self.names), len(tel.positions))
+        vel, eff = tel.velocities, tel.efforts
+        self.joint_states.log(JointStates(timestamp=stamp(t), joints=[
+            JointState(name=self.names[i], position=float(tel.positions[i]),
+                       velocity=float(vel[i]) if i < len(vel) else None,
+                       effort=float(eff[i]) if i < len(eff) else None) for i in range(n)]), log_time=ns)
+        self.telemetry.log(_fields(tel), log_time=ns)
+        for cb in list(self.time_listeners):
+            cb(ns)
+        if sim is not None:
+            self.on_sim_state(sim)
+            self.on_transforms(tel, sim)
+        if t - self._flushed_us >= FLUSH_S * 1e6:
+            self._flushed_us = t
+            self.flush()
+
+    def on_message(self, msg: Message) -> None:
+        """A board-to-host message as it arrives: TELEMETRY and SIM_STATE paired by board time.
+
+        A report's transforms wait for the SIM_STATE of the same board time (the board sends it right
+        after the TELEMETRY); when the next report comes first (it was lost, or replaced on CAN) they
+        use the latest one. Until a board has sent any SIM_STATE (real hardware never does) they come
+        at once, with the root where the MJCF places it. Other messages are ignored.
+        """
+        if isinstance(msg, Telemetry):
+            if self._pending is not None:
+                self.on_transforms(self._pending, self._last_sim)
+                self._pending = None
+            self.on_telemetry(msg)
+            if self._last_sim is None:
+                self.on_transforms(msg, None)
+            else:
+                self._pending = msg
+        elif isinstance(msg, SimState):
+            self.on_sim_state(msg)
+            tel, self._pending = self._pending, None
+            if tel is not None:
+                self.on_transforms(tel, msg)
+
+    def on_sim_state(self, sim: SimState) -> None:
+        """The emulator's ground truth (each new SIM_STATE once)."""
+        if sim is not self._last_sim:
+            self._last_sim = sim
+            self.sim_state.log(_fields(sim), log_time=_ns(sim.board_time_us))
+
+    def on_transforms(self, tel: Telemetry, sim: SimState | None) -> None:
+        """The robot's frames at ``tel``'s joint angles, its base where ``sim`` puts it (None: where the
+        MJCF places it), and the scene's primitives when they are due."""
+        t = tel.board_time_us
+        ns = _ns(t)
+        if self._scene_at is None or t - self._scene_at >= SCENE_EVERY_S * 1e6:
+            self._scene_at = t
+            self.scene_ch.log(self.scene.scene_update(t), log_time=ns)
+        base = (sim.base_pos, sim.base_quat) if sim is not None else None
+        self.tf.log(self.scene.transforms(t, tel.positions[:len(self.names)], base), log_time=ns)
+
+    def on_frame_sent(self, seq: int, msg: Message, board_time_us: int) -> None:
+        """A host-to-board message went out (``board_time_us``: the board clock estimate at sending)."""
+        try:
+            raw = encode_frame(msg, seq).hex()
+        except (ValueError, OverflowError):
+            raw = ""
+        self.link_tx.log({"seq": seq, "type": type(msg).__name__, "fields": _fields(msg), "raw": raw},
+                         log_time=_ns(board_time_us))
+        if isinstance(msg, ServoFrame):
+            joints = [JointState(name=self.names[i], position=float(q))
+                      for i, q in enumerate(msg.targets[:len(self.names)]) if msg.mask >> i & 1]
+            self.joint_targets.log(JointStates(timestamp=stamp(msg.apply_at_us), joints=joints),
+                                   log_time=_ns(msg.apply_at_us))
+
+    # -- calls, speech, images ----------------------------------------------------------------
+    def on_call_start(self, path: str, function: str, channel: str | None, args: Mapping[str, Any],
+                      board_time_s: float) -> None:
+        self.calls.log(Log(timestamp=stamp(int(board_time_s * 1e6)), level=LogLevel.Info, name=channel or "main",
+                           message=f"start {path} {function}({_args(args)})"), log_time=_ns(int(board_time_s * 1e6)))
+
+    def on_call_end(self, path: str, function: str, channel: str | None, outcome: str, error: str | None,
+                    board_time_s: float) -> None:
+        level = LogLevel.Info if outcome in ("done", "interrupted", "cancelled") else LogLevel.Warning
+        text = f"end {path} {function}: {outcome}" + (f": {error}" if error else "")
+        self.calls.log(Log(timestamp=stamp(int(board_time_s * 1e6)), level=level, name=channel or "main", message=text),
+                       log_time=_ns(int(board_time_s * 1e6)))
+
+    def on_call(self, record: Any) -> None:
+        """A finished call (``host.run.artefacts.BoardCall``: board-measured times) as an Event."""
+        if record.start is None:
+            return
+        start_us = int(record.start * 1e6)
+        end_us = int((record.end if record.end is not None else record.start) * 1e6)
+        meta = {"function": record.function, "channel": record.channel or "", "path": record.path,
+                "outcome": record.outcome, "args": json.dumps(record.args, ensure_ascii=False, default=str),
+                **({"error": record.error} if record.error else {})}
+        self.call_events.log(Event(start_time=stamp(start_us), end_time=stamp(end_us),
+                                   metadata=[KeyValuePair(key=k, value=str(v)) for k, v in meta.items()]),
+                             log_time=_ns(start_us))
+
+    def on_speech(self, text: str, start_s: float, end_s: float | None, outcome: str, path: str = "") -> None:
+        """A sentence that was spoken from ``start_s`` to ``end_s`` (board seconds; cut sentences end at the cut)."""
+        self.speech.log({"text": text, "start_s": start_s, "end_s": end_s if end_s is not None else start_s,
+                         "outcome": outcome, "path": path}, log_time=_ns(int(start_s * 1e6)))
+
+    def on_image(self, board_time_s: float, png: bytes, frame_id: str = "camera") -> None:
+        """A photo (PNG bytes) taken at ``board_time_s``."""
+        t = int(board_time_s * 1e6)
+        self.camera.log(CompressedImage(timestamp=stamp(t), frame_id=frame_id, data=png, format="png"), log_time=_ns(t))
+
+    # -- link ---------------------------------------------------------------------------------
+    def on_fault(self, board_time_us: int, raised: int, cleared: int) -> None:
+        """Board fault bits changed (``host.link.session.FaultEvent``)."""
+        parts = ([f"raised {_flag_names(raised)}"] if raised else []) + ([f"cleared {_flag_names(cleared)}"] if cleared else [])
+        level = LogLevel.Error if raised & (FaultFlags.ESTOP | FaultFlags.WATCHDOG_FAULT) else LogLevel.Warning
+        self.link_note("board fault " + ", ".join(parts), board_time_us, level)
+
+    def on_nack(self, nack: Nack, board_time_us: int) -> None:
+        reason = getattr(nack.reason, "name", str(nack.reason))
+        kind = getattr(nack.msg_type, "name", str(nack.msg_type))
+        self.link_note(f"NACK {kind} seq {nack.ack_seq}: {reason}{': ' + nack.detail if nack.detail else ''}",
+                       board_time_us, LogLevel.Warning)
+
+    def on_gap(self, board_time_us: int, lost: int, lost_total: int) -> None:
+        """``lost`` board messages went missing since the last report (``lost_total`` since the handshake)."""
+        self.gaps.log({"board_time_us": board_time_us, "lost": lost, "lost_total": lost_total},
+                      log_time=_ns(board_time_us))
+
+    def link_note(self, text: str, board_time_us: int, level: LogLevel = LogLevel.Warning) -> None:
+        """One line on ``/link/faults``."""
+        self.faults.log(Log(timestamp=stamp(board_time_us), level=level, name="link", message=text),
+                        log_time=_ns(board_time_us))
+
+    # -- file ---------------------------------------------------------------------------------
+    def flush(self) -> None:
+        """End the current chunk and flush the file (what is written so far survives a kill)."""
+        if self.writer is not None and not self.closed:
+            try:
+                self.writer.flush()
+            except (OSError, RuntimeError) as e:  # disk full, file removed: stop recording, keep running
+                log.warning("ghostshell: run.mcap: %s; recording stopped", e)
+                self._drop_writer()
+
+    def _drop_writer(self) -> None:
+        writer, self.writer = self.writer, None
+        if writer is not None:
+            try:
+                writer.close()
+            except (OSError, RuntimeError):
+                pass
+
+    def close(self) -> None:
+        """Finish the MCAP (summary, statistics, index) and close every channel. Idempotent."""
+        if self.closed:
+            return
+        if self._pending is not None:
+            self.on_transforms(self._pending, self._last_sim)
+            self._pending = None
+        self.closed = True
+        try:
+            if self.writer is not None:
+                self.writer.close()
+        except (OSError, RuntimeError) as e:
+            log.warning("ghostshell: run.mcap: cannot finish %s: %s", self.path, e)
+        self.writer = None
+        for ch in (self.joint_states, self.joint_targets, self.tf, self.scene_ch, self.telemetry, self.sim_state,
+                   self.link_tx, self.calls, self.call_events, self.speech, self.camera, self.faults, self.gaps):
+            ch.close()
+
+
+def _args(args: Mapping[str, Any]) -> str:
+    text = ", ".join(f"{k}={v!r}" for k, v in args.items())
+    return text if len(text) <= 200 else text[:199] + "\u2026"
+

@@ -1,0 +1,211 @@
+"""Feeds a session's :class:`~host.run.mcap_log.RunLog` (run.mcap, and the live view with ``--foxglove``).
+
+A :class:`Recording` listens to the session the way a python-can ``Listener`` listens to a bus, and
+touches nothing else:
+
+* board-to-host and host-to-board messages: the client's ``on_received`` (message) and ``on_sent``
+  (seq, message) callbacks, called as each message is handled (no queue, so nothing is dropped and
+  the order is the wire's; TELEMETRY and SIM_STATE go to :meth:`RunLog.on_message`);
+* board faults and NACKs: the client's ``on_fault`` / ``on_nack`` callbacks;
+* calls and speech: at most every :data:`POLL_S` board seconds, on a report, the shell's live
+  timeline (``Shell.last_result``; board-measured start/end from ``RobotRuntime.board_times`` where
+  the runtime has them); at the end of each turn the turn's board-measured calls (``on_turn_end``)
+  as Events;
+* photos: the runtime's new captures, looked for on every report, stamped with the board time their
+  last CAMERA_CHUNK arrived;
+* sequence gaps, decode errors, re-sent requests, reconnects: the client's ``LinkStats`` counters,
+  compared on every report.
+
+Nothing here can end a run: a failure of the recording is one warning line and the recording stops.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from host.link import BoardClient
+from host.link.session import FaultEvent
+from host.robot.runtime import RobotRuntime
+from host.run.mcap_log import McapError, RunLog
+from host.shell import Shell
+from protocol.messages import CameraChunk, Message, Nack, SimState, Telemetry
+from robots.description import Robot
+
+__all__ = ["POLL_S", "Recording"]
+
+log = logging.getLogger("host.run")
+
+#: board seconds between looks at the shell's timeline and the runtime's captures
+POLL_S = 0.05
+
+
+class Recording:
+    """One session's recording (see the module docstring); create with :meth:`start`."""
+
+    def __init__(self, run_log: RunLog, client: BoardClient, runtime: RobotRuntime, shell: Shell) -> None:
+        self.run_log = run_log
+        self.client = client
+        self.runtime = runtime
+        self.shell = shell
+        self.live: Any = None  # host.run.foxglove_live.LiveServer while serving
+        self.notes: list[str] = []  # the warnings printed (for reports and tests)
+        self._poll_at = -1.0
+        self._started: set[tuple[float, str]] = set()
+        self._ended: set[tuple[float, str]] = set()
+        self._captures = len(runtime.captures)
+        s = client.stats
+        self._stats = (s.seq_gaps, s.decode_errors, s.retries, s.reconnects)
+        self._failed = False
+        self._chunk_us: int | None = None  # board time the latest camera chunk arrived
+        client.on_fault.append(self._on_fault)
+        client.on_nack.append(self._on_nack)
+        client.on_sent.append(self._on_sent)
+        client.on_received.append(self._on_received)
+
+    @classmethod
+    def start(cls, path: Path | None, robot: Robot, client: BoardClient, runtime: RobotRuntime, shell: Shell, *,
+              live_port: int | None = None, meta: Mapping[str, str] | None = None) -> Recording | None:
+        """Record to ``path`` (None: no MCAP) and serve live on ``live_port`` (None: no live view).
+
+        An MCAP that cannot be written or a port that is taken is one warning line (stderr), and the
+        run goes on without it; None when neither remains.
+        """
+        notes: list[str] = []
+        run_log = RunLog(robot)
+        if path is not None:
+            try:
+                run_log.open(path, meta)
+            except McapError as e:
+                notes.append(f"ghostshell: no run.mcap: {e}; the run goes on without it")
+        live = None
+        if live_port is not None:
+            from host.run.foxglove_live import LiveError, start_live
+
+            try:
+                live = start_live(run_log, live_port)
+            except LiveError as e:
+                notes.append(f"ghostshell: {e}; the run goes on without it")
+        for note in notes:
+            log.warning("%s", note)
+        if run_log.writer is None and live is None:
+            run_log.close()
+            return None
+        rec = cls(run_log, client, runtime, shell)
+        rec.notes = notes
+        rec.live = live
+        if live is not None:
+            print(f"foxglove: live view on {live.url} (Foxglove: Open connection > Foxglove WebSocket)",
+                  file=sys.stderr, flush=True)
+        return rec
+
+    # -- listening ------------------------------------------------------------------------------
+    def _on_received(self, msg: Message) -> None:
+        if isinstance(msg, CameraChunk):  # a photo is complete when its last chunk came: that is its time
+            self._chunk_us = self.client.board_now_estimate()
+        if isinstance(msg, (Telemetry, SimState)):
+            self._guard(self.run_log.on_message, msg)
+            if isinstance(msg, Telemetry):
+                self._guard(self._after_report, msg)
+
+    def _guard(self, fn: Any, *args: Any) -> None:
+        if self._failed:
+            return
+        try:
+            fn(*args)
+        except Exception as e:  # a recording bug or a dead sink must not end the run
+            self._failed = True
+            note = f"ghostshell: the recording stopped: {type(e).__name__}: {e}"
+            self.notes.append(note)
+            log.warning("%s", note)
+
+    def _after_report(self, tel: Telemetry) -> None:
+        self._link_stats(tel.board_time_us)
+        t = tel.board_time_us * 1e-6
+        if len(self.runtime.captures) > self._captures:
+            self._poll_captures(t if self._chunk_us is None else self._chunk_us * 1e-6)
+        if t - self._poll_at >= POLL_S:
+            self._poll_at = t
+            self._poll_calls()
+
+    def _link_stats(self, board_time_us: int) -> None:
+        s = self.client.stats
+        now = (s.seq_gaps, s.decode_errors, s.retries, s.reconnects)
+        if now == self._stats:
+            return
+        gaps, errors, retries, reconnects = (a - b for a, b in zip(now, self._stats))
+        self._stats = now
+        if gaps > 0:
+            self.run_log.on_gap(board_time_us, gaps, s.seq_gaps)
+        if errors > 0:
+            self.run_log.link_note(f"{errors} undecodable frame(s) discarded ({s.last_decode_error})", board_time_us)
+        if retries > 0:
+            self.run_log.link_note(f"{retries} request(s) re-sent (no ACK/NACK in time)", board_time_us)
+        if reconnects > 0:
+            self.run_log.link_note(f"link re-established (reconnect #{s.reconnects})", board_time_us)
+
+    def _poll_calls(self) -> None:
+        result = self.shell.last_result
+        if result is None:
+            return
+        t0 = result.t0
+        board = self.runtime.board_times
+        for r in result.timeline:
+            key = (t0, r.path)
+            measured = board.get(r.path, [None, None])
+            if r.start is not None and key not in self._started:
+                self._started.add(key)
+                start = measured[0] if measured[0] is not None else t0 + r.start
+                self.run_log.on_call_start(r.path, r.function, r.channel, r.args, start)
+            if r.end is not None and r.outcome != "pending" and key not in self._ended:
+                self._ended.add(key)
+                end = measured[1] if measured[1] is not None else t0 + r.end
+                self.run_log.on_call_end(r.path, r.function, r.channel, r.outcome, r.error, end)
+                if r.function == "speak" and r.start is not None:
+                    start = measured[0] if measured[0] is not None else t0 + r.start
+                    self.run_log.on_speech(str(r.args.get("text", "")), start, end, r.outcome, r.path)
+
+    def _poll_captures(self, t: float) -> None:
+        caps = self.runtime.captures
+        while self._captures < len(caps):
+            path = caps[self._captures]
+            self._captures += 1
+            try:
+                png = Path(path).read_bytes()
+            except OSError:
+                continue
+            self.run_log.on_image(t, png, frame_id=self.runtime.robot.peripherals.camera or "camera")
+
+    # -- callbacks --------------------------------------------------------------------------------
+    def _on_sent(self, seq: int, msg: Message) -> None:
+        self._guard(self.run_log.on_frame_sent, seq, msg, self.client.board_now_estimate())
+
+    def _on_fault(self, ev: FaultEvent) -> None:
+        self._guard(self.run_log.on_fault, ev.board_time_us, int(ev.raised), int(ev.cleared))
+
+    def _on_nack(self, nack: Nack) -> None:
+        self._guard(self.run_log.on_nack, nack, self.client.board_now_estimate())
+
+    def on_turn_end(self, calls: Sequence[Any]) -> None:
+        """The turn's board-measured calls (``host.run.artefacts.BoardCall``) as Events; the timeline's
+        last changes first."""
+        self._guard(self._poll_calls)
+        for c in calls:
+            self._guard(self.run_log.on_call, c)
+        self._guard(self.run_log.flush)
+
+    def close(self) -> None:
+        """Stop the live view, finish the MCAP, drop the callbacks. Idempotent."""
+        listeners: list[tuple[list[Any], Any]] = [
+            (self.client.on_fault, self._on_fault), (self.client.on_nack, self._on_nack),
+            (self.client.on_sent, self._on_sent), (self.client.on_received, self._on_received)]
+        for lst, cb in listeners:
+            if cb in lst:
+                lst.remove(cb)
+        if self.live is not None:
+            self.live.stop()
+            self.live = None
+        self.run_log.close()

@@ -1,0 +1,217 @@
+"""A robot's 3D scene for Foxglove: primitives from its MJCF geoms, frame transforms from its joint angles.
+
+Any robot (fixed or floating base): the model is the robot's own MJCF compiled without scene objects
+(:func:`robots.model.load_model` with the ``empty`` scene), so nothing here names a robot.
+
+Frames: one per MuJoCo body, named after the body (``body<N>`` when unnamed); ``world`` is MuJoCo's
+world body. :meth:`RobotScene.transforms` gives every body's pose in its parent body's frame (the
+tree Foxglove's transform panel shows, as ROS's robot_state_publisher does for a URDF): forward
+kinematics (``mj_kinematics``) of the recorded state, then ``p_rel = R_parentᵀ (p_child − p_parent)``,
+``q_rel = q_parent* ⊗ q_child``. The root's pose is the board's ground truth (SIM_STATE) for a
+floating base, or the MJCF's placement for a fixed one.
+
+Geoms become :class:`foxglove.messages.SceneEntity` primitives in their body's frame
+(:meth:`RobotScene.scene_update`): box -> cube (full extents = 2 x MuJoCo's half sizes), sphere,
+ellipsoid -> sphere (diameters), cylinder -> cylinder (z axis, height = 2 x half length), capsule ->
+cylinder + two end spheres, mesh -> triangle list (the compiled mesh's vertices in the geom frame; a mesh
+over :data:`MAX_MESH_TRIANGLES` becomes its bounding box). Planes (the floor) and height fields are left out:
+Foxglove's 3D panel draws its own grid. Colour: the geom's material colour, else its ``rgba``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+from foxglove.messages import (
+    Color,
+    CubePrimitive,
+    CylinderPrimitive,
+    FrameTransform,
+    FrameTransforms,
+    Point3,
+    Pose,
+    Quaternion,
+    SceneEntity,
+    SceneUpdate,
+    SpherePrimitive,
+    Timestamp,
+    TriangleListPrimitive,
+    Vector3,
+)
+
+from robots.description import Robot
+from robots.model import RobotModel, load_model
+
+__all__ = ["MAX_MESH_TRIANGLES", "RobotScene", "stamp"]
+
+#: a mesh with more triangles than this is drawn as its bounding box (keeps the scene message small)
+MAX_MESH_TRIANGLES = 20_000
+WORLD = "world"
+
+
+def stamp(board_time_us: int) -> Timestamp:
+    """A Foxglove timestamp on the board clock (seconds since the board started)."""
+    return Timestamp(board_time_us // 1_000_000, (board_time_us % 1_000_000) * 1000)
+
+
+def _pose(pos: Sequence[float] | np.ndarray, quat_wxyz: Sequence[float] | np.ndarray) -> Pose:
+    w, x, y, z = (float(v) for v in quat_wxyz)
+    return Pose(position=Vector3(x=float(pos[0]), y=float(pos[1]), z=float(pos[2])),
+                orientation=Quaternion(x=x, y=y, z=z, w=w))
+
+
+def _quat_conj_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``conj(a) ⊗ b`` row by row for (n, 4) arrays of (w, x, y, z) quaternions."""
+    aw, ax, ay, az = -a[:, 0], a[:, 1], a[:, 2], a[:, 3]  # -conj(a) = (-w, x, y, z): same rotation
+    bw, bx, by, bz = b[:, 0], b[:, 1], b[:, 2], b[:, 3]
+    out = np.stack([aw * bw - ax * bx - ay * by - az * bz,
+                    aw * bx + ax * bw + ay * bz - az * by,
+                    aw * by - ax * bz + ay * bw + az * bx,
+                    aw * bz + ax * by - ay * bx + az * bw], axis=1)
+    return -out
+
+
+@dataclass(frozen=True)
+class _Geom:
+    body: int
+    kind: int
+    size: tuple[float, float, float]
+    pos: tuple[float, float, float]
+    quat: tuple[float, float, float, float]
+    rgba: tuple[float, float, float, float]
+    mesh: int
+
+
+class RobotScene:
+    """The robot's bodies as Foxglove frames and primitives (see the module docstring)."""
+
+    def __init__(self, robot: Robot) -> None:
+        self.robot = robot
+        self.rm: RobotModel = load_model(robot, "empty")
+        m = self.rm.model
+        self.model = m
+        self.data = mujoco.MjData(m)
+        self.rm.place_on_floor(self.data, robot.pose(robot.start_pose) if robot.start_pose else
+                               [0.0] * robot.servo_count)
+        self.names = [m.body(i).name or f"body{i}" for i in range(m.nbody)]
+        self.names[0] = WORLD
+        self.parent = np.asarray(m.body_parentid, dtype=int)
+        self.bodies = np.arange(1, m.nbody)  # every body but the world
+        self._pairs = [(self.names[int(self.parent[b])], self.names[int(b)]) for b in self.bodies]
+        self._fixed_root = (tuple(float(v) for v in self.data.xpos[self.rm.root_body]),
+                            tuple(float(v) for v in self.data.xquat[self.rm.root_body]))
+        geoms = []
+        for g in range(m.ngeom):
+            kind = int(m.geom_type[g])
+            if kind in (mujoco.mjtGeom.mjGEOM_PLANE, mujoco.mjtGeom.mjGEOM_HFIELD) or m.geom_bodyid[g] == 0:
+                continue
+            mat = int(m.geom_matid[g])
+            rgba = m.mat_rgba[mat] if mat >= 0 else m.geom_rgba[g]
+            if rgba[3] <= 0:
+                continue
+            geoms.append(_Geom(int(m.geom_bodyid[g]), kind, tuple(float(v) for v in m.geom_size[g]),  # type: ignore[arg-type]
+                               tuple(float(v) for v in m.geom_pos[g]), tuple(float(v) for v in m.geom_quat[g]),  # type: ignore[arg-type]
+                               tuple(float(v) for v in rgba), int(m.geom_dataid[g])))  # type: ignore[arg-type]
+        self.geoms = geoms
+
+    @property
+    def frame_ids(self) -> list[str]:
+        """Every frame this scene publishes, world first."""
+        return list(self.names)
+
+    # -- transforms ---------------------------------------------------------------------------
+    def transforms(self, board_time_us: int, joints: Sequence[float],
+                   base: tuple[Sequence[float], Sequence[float]] | None = None) -> FrameTransforms:
+        """Every body in its parent's frame at ``joints`` (rad, servo order); ``base`` = (position m,
+        quaternion w x y z) of a floating root (None: the MJCF's placement / the last one set)."""
+        d, m = self.data, self.model
+        r = self.rm.root_qpos
+        if r is not None and base is not None:
+            d.qpos[r:r + 3] = base[0]
+            d.qpos[r + 3:r + 7] = base[1]
+        d.qpos[self.rm.qpos_adr] = joints
+        mujoco.mj_kinematics(m, d)
+        b = self.bodies
+        p = self.parent[b]
+        xq_p = d.xquat[p]
+        dp = d.xpos[b] - d.xpos[p]
+        # rotate dp by conj(q_parent): rows of xmat are the parent's axes in world coordinates
+        rel_p = np.einsum("nij,nj->ni", d.xmat[p].reshape(-1, 3, 3).transpose(0, 2, 1), dp)
+        rel_q = _quat_conj_mul(xq_p, d.xquat[b])
+        ts = stamp(board_time_us)
+        names = self._pairs
+        out = [FrameTransform(timestamp=ts, parent_frame_id=parent, child_frame_id=child,
+                              translation=Vector3(x=px, y=py, z=pz), rotation=Quaternion(x=qx, y=qy, z=qz, w=qw))
+               for (parent, child), (px, py, pz), (qw, qx, qy, qz) in zip(names, rel_p.tolist(), rel_q.tolist())]
+        return FrameTransforms(transforms=out)
+
+    # -- primitives ---------------------------------------------------------------------------
+    def scene_update(self, board_time_us: int) -> SceneUpdate:
+        """One entity per body that has visible geoms, in that body's frame (``frame_locked``)."""
+        per_body: dict[int, list[_Geom]] = {}
+        for g in self.geoms:
+            per_body.setdefault(g.body, []).append(g)
+        ts = stamp(board_time_us)
+        entities = []
+        for body, geoms in per_body.items():
+            cubes: list[CubePrimitive] = []
+            spheres: list[SpherePrimitive] = []
+            cylinders: list[CylinderPrimitive] = []
+            triangles: list[TriangleListPrimitive] = []
+            for g in geoms:
+                self._primitive(g, cubes, spheres, cylinders, triangles)
+            entities.append(SceneEntity(timestamp=ts, frame_id=self.names[body], id=f"{self.robot.name}/{self.names[body]}",
+                                        frame_locked=True, cubes=cubes, spheres=spheres, cylinders=cylinders,
+                                        triangles=triangles))
+        return SceneUpdate(entities=entities)
+
+    def _primitive(self, g: _Geom, cubes: list[CubePrimitive], spheres: list[SpherePrimitive],
+                   cylinders: list[CylinderPrimitive], triangles: list[TriangleListPrimitive]) -> None:
+        T = mujoco.mjtGeom
+        colour = Color(r=g.rgba[0], g=g.rgba[1], b=g.rgba[2], a=g.rgba[3])
+        pose = _pose(g.pos, g.quat)
+        sx, sy, sz = g.size
+        if g.kind == T.mjGEOM_BOX:
+            cubes.append(CubePrimitive(pose=pose, size=Vector3(x=2 * sx, y=2 * sy, z=2 * sz), color=colour))
+        elif g.kind == T.mjGEOM_SPHERE:
+            spheres.append(SpherePrimitive(pose=pose, size=Vector3(x=2 * sx, y=2 * sx, z=2 * sx), color=colour))
+        elif g.kind == T.mjGEOM_ELLIPSOID:
+            spheres.append(SpherePrimitive(pose=pose, size=Vector3(x=2 * sx, y=2 * sy, z=2 * sz), color=colour))
+        elif g.kind == T.mjGEOM_CYLINDER:
+            cylinders.append(CylinderPrimitive(pose=pose, size=Vector3(x=2 * sx, y=2 * sx, z=2 * sy),
+                                               bottom_scale=1.0, top_scale=1.0, color=colour))
+        elif g.kind == T.mjGEOM_CAPSULE:
+            cylinders.append(CylinderPrimitive(pose=pose, size=Vector3(x=2 * sx, y=2 * sx, z=2 * sy),
+                                               bottom_scale=1.0, top_scale=1.0, color=colour))
+            rot = np.zeros(9)
+            mujoco.mju_quat2Mat(rot, np.asarray(g.quat))
+            axis = rot.reshape(3, 3)[:, 2] * sy
+            for sign in (1.0, -1.0):
+                spheres.append(SpherePrimitive(pose=_pose(np.asarray(g.pos) + sign * axis, g.quat),
+                                               size=Vector3(x=2 * sx, y=2 * sx, z=2 * sx), color=colour))
+        elif g.kind == T.mjGEOM_MESH and g.mesh >= 0:
+            m = self.model
+            nface = int(m.mesh_facenum[g.mesh])
+            if nface <= MAX_MESH_TRIANGLES:
+                v0, f0 = int(m.mesh_vertadr[g.mesh]), int(m.mesh_faceadr[g.mesh])
+                verts = m.mesh_vert[v0:v0 + int(m.mesh_vertnum[g.mesh])]
+                faces = m.mesh_face[f0:f0 + nface].reshape(-1)
+                points = [Point3(x=float(x), y=float(y), z=float(z)) for x, y, z in verts[faces]]
+                triangles.append(TriangleListPrimitive(pose=pose, points=points, color=colour))
+            else:  # too big for one message: its bounding box (centred where the vertices are)
+                v0 = int(m.mesh_vertadr[g.mesh])
+                verts = m.mesh_vert[v0:v0 + int(m.mesh_vertnum[g.mesh])]
+                lo, hi = verts.min(axis=0), verts.max(axis=0)
+                rot = np.zeros(9)
+                mujoco.mju_quat2Mat(rot, np.asarray(g.quat))
+                centre = np.asarray(g.pos) + rot.reshape(3, 3) @ ((lo + hi) / 2)
+                cubes.append(CubePrimitive(pose=_pose(centre, g.quat), color=colour,
+                                           size=Vector3(x=float(hi[0] - lo[0]), y=float(hi[1] - lo[1]),
+                                                        z=float(hi[2] - lo[2]))))
+
+    def root_pose(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """The root body's pose in the MJCF's placement (position m, quaternion w x y z)."""
+        return self._fixed_root

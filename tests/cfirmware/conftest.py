@@ -1,0 +1,49 @@
+"""Fixtures for the C firmware tests: builds (cached, firmware_sim.cfirmware.build) and harnesses.
+
+A missing toolchain is a failure with the install command (ToolchainMissing's message), not a skip.
+"""
+
+from __future__ import annotations
+
+import subprocess
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from firmware_sim.cfirmware.build import build
+from robots.registry import load_robot
+
+
+class CodecHarness:
+    """The C codec harness as a line-oriented subprocess (firmware_sim/c/tests/codec_harness.c)."""
+
+    def __init__(self, exe: Path) -> None:
+        self.proc = subprocess.Popen([str(exe)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
+
+    def ask(self, line: str) -> str:
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self.proc.stdin.write(line + "\n")
+        self.proc.stdin.flush()
+        answer = self.proc.stdout.readline()
+        if not answer:
+            raise AssertionError(f"the C codec harness died (status {self.proc.poll()}) on {line[:120]!r}")
+        return answer.rstrip("\n")
+
+    def close(self) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.close()
+        rc = self.proc.wait(30)
+        assert rc == 0, f"codec harness exit status {rc} (a sanitizer report is on stderr)"
+
+
+@pytest.fixture(scope="session")
+def coco():
+    return load_robot("coco")
+
+
+@pytest.fixture(scope="session")
+def codec_harness(coco) -> Iterator[CodecHarness]:
+    h = CodecHarness(build("codec", coco))
+    yield h
+    h.close()

@@ -1,0 +1,50 @@
+"""The C firmware as a Cortex-M3 image on QEMU (``--firmware qemu``: ``qemu-system-arm -M mps2-an385``,
+UART0 the host's pty, UART1 the servo-bus plant): tasks 1, 23 and 26 end to end, checked as the
+Python board's runs are (tests/e2e/test_tasks_e2e.py), and task 26's call timeline is the Python
+board's and the native C firmware's (board-measured starts and ends within one control tick).
+
+Lockstep, not realtime: the board's virtual clock advances only with the host's frames and ADVANCE,
+so the run is reproducible however slowly QEMU executes (its UARTs cost a main-loop round per byte);
+``-icount`` would make QEMU's own clock deterministic but is not needed for that, and is used only
+for the tick-cost figure (bench/bench_cfirmware.py).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from e2e.conftest import TASKS, E2ERun, run_e2e
+from e2e.test_tasks_e2e import check_common, check_task
+
+TICK_S = 0.002
+_RUNS: dict[tuple[int, str], E2ERun] = {}
+
+
+def _run(tid: int, firmware: str, tmp: pytest.TempPathFactory) -> E2ERun:
+    if (tid, firmware) not in _RUNS:
+        out: Path = tmp.mktemp(f"task{tid}-{firmware}")
+        _RUNS[(tid, firmware)] = run_e2e(TASKS[tid].ground_truth, out, task_label=f"task {tid}", firmware=firmware)
+    return _RUNS[(tid, firmware)]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("tid", [1, 23, 26])
+def test_task_on_qemu(tid: int, tmp_path_factory: pytest.TempPathFactory) -> None:
+    run = _run(tid, "qemu", tmp_path_factory)
+    check_common(run, "qemu")
+    check_task(tid, run, "qemu")
+    err = (run.out / "board.stderr").read_text()
+    assert "C firmware" in err and "servo bus" in err
+
+
+@pytest.mark.slow
+def test_task26_timeline_same_on_every_board(tmp_path_factory: pytest.TempPathFactory) -> None:
+    runs = {fw: _run(26, fw, tmp_path_factory) for fw in ("python", "c", "qemu")}
+    ref = runs["python"]
+    for fw, run in runs.items():
+        assert [c.path for c in run.calls] == [c.path for c in ref.calls], fw
+        for a, b in zip(run.calls, ref.calls):
+            assert abs((a.start - run.t0) - (b.start - ref.t0)) <= TICK_S + 1e-9, (fw, a.path, a.start, b.start)
+            assert abs((a.end - run.t0) - (b.end - ref.t0)) <= TICK_S + 1e-9, (fw, a.path, a.end, b.end)
