@@ -170,6 +170,10 @@ def _rows(f: dict[str, str], out: str) -> list[Row]:
         # fuzz
         Row(("fuzz", "no-such-target"), "unknown target 'no-such-target'"),
         Row(("fuzz", "serial-decoder", "--seconds", "0"), "must be at least 1"),
+        # robots
+        Row(("robots", "show", "no-such-robot"), "no robot 'no-such-robot'"),
+        Row(("robots", "new", "x"), "required: --mjcf"),
+        Row(("robots", "new", "x", "--mjcf", f["missing"], "--robots-dir", OUT), "missing.xml"),
         # vcan
         Row(("vcan",), "no COMMAND given"),
         Row(("vcan", "--ifaces", "a b", "--", "true"), "is not a list of interface names"),
