@@ -170,7 +170,8 @@ def _rows(f: dict[str, str], out: str) -> list[Row]:
         # fuzz
         Row(("fuzz", "no-such-target"), "unknown target 'no-such-target'"),
         Row(("fuzz", "serial-decoder", "--seconds", "0"), "must be at least 1"),
-        # robots
+        # dbc, robots
+        Row(("dbc", "--robot", "no-such-robot"), "no robot 'no-such-robot'"),
         Row(("robots", "show", "no-such-robot"), "no robot 'no-such-robot'"),
         Row(("robots", "new", "x"), "required: --mjcf"),
         Row(("robots", "new", "x", "--mjcf", f["missing"], "--robots-dir", OUT), "missing.xml"),
