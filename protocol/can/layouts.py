@@ -221,6 +221,7 @@ class CarriedField:
 
 
 Q16_COMMENT = "int16; -32768 = unknown (NaN)"
+_PLAIN = CanField()  # a field CAN_FIXED does not mention: its serial form
 
 
 def _comment(form: CanField, unit: str, bits: int, default: str = "") -> str:
@@ -275,9 +276,6 @@ def message_signals(t: MsgType, layout: Sequence[tuple[str, Field]], forms: Mapp
                     n: int) -> list[SignalSpec]:
     """The CAN signals of one message, in order (before the ``crc16`` the layout appends)."""
     return [s for cf in message_fields(t, layout, forms, n) for s in cf.signals]
-
-
-_PLAIN = CanField()
 
 
 def function_codes(t: MsgType) -> tuple[FunctionCode, ...]:
