@@ -76,6 +76,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "for DUR s (default 0.2); repeatable (a scripted disturbance, e.g. to test falls)")
     parser.add_argument("--scene", default=None, metavar="NAME",
                         help="objects in the world: one of the robot's scenes (default: the robot's default scene)")
+    parser.add_argument("--stop-on-stdin-eof", action="store_true",
+                        help="stop when standard input closes: a host that starts the board gives it a pipe, so the "
+                             "board never outlives that host, however the host ends")
+
     parser.add_argument("--firmware", choices=FIRMWARES, default="python",
                         help="python: this emulator (default); c: the C firmware built natively, its servos on a "
                              "Feetech bus to the MuJoCo plant; qemu: the same C firmware as a Cortex-M3 image on "
@@ -90,6 +94,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 FIRMWARES = ("python", "c", "qemu")
 
+#: The name the usage line shows: ``ghostshell board`` sets it when it runs the board for the user.
+PROG_ENV = "GHOSTSHELL_BOARD_PROG"
+
 
 def _dead_servo(text: str) -> tuple[int, float]:
     sid, sep, at = text.partition("@")
@@ -103,9 +110,25 @@ def _dead_servo(text: str) -> tuple[int, float]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m firmware_sim", description="A robot's emulated board (MuJoCo).")
+    p = argparse.ArgumentParser(prog=os.environ.get(PROG_ENV) or "python -m firmware_sim",
+                                description="A robot's emulated board (MuJoCo).")
     configure(p)
     return p
+
+
+def _stop_on_stdin_eof() -> None:
+    """Read standard input until it closes, then stop the board as SIGTERM does (in a daemon thread)."""
+    import threading
+
+    def watch() -> None:  # os.read on the fd: a thread blocked in sys.stdin would hold its lock at exit
+        try:
+            while os.read(0, 4096):
+                pass
+        except OSError:
+            pass
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=watch, name="stdin-eof", daemon=True).start()
 
 
 def _run_c_firmware(args: argparse.Namespace, robot: object, parser: argparse.ArgumentParser) -> int:
@@ -171,6 +194,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"board: {robot.name} has no scene {args.scene!r}; scenes: {', '.join(robot.scenes)}", file=sys.stderr)
         return 2
     if args.firmware != "python":
+        if args.stop_on_stdin_eof:  # the launcher stops on SIGTERM, as the Python board does
+            _stop_on_stdin_eof()
         return _run_c_firmware(args, robot, parser)
     if args.dead_servo or args.icount or args.asan:
         parser.error("--dead-servo, --icount and --asan need --firmware c or qemu")
@@ -240,6 +265,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     server = BoardServer(board, link, viewer=viewer)
     signal.signal(signal.SIGTERM, _raise_stop)
     signal.signal(signal.SIGINT, _raise_stop)
+    if args.stop_on_stdin_eof:
+        _stop_on_stdin_eof()
     print(f"board: listening on {link.name}", flush=True)
     mode = "lockstep" if cfg.lockstep else "realtime"
     print(f"board: {robot.name} ({robot.servo_count} servos), {mode}, {cfg.rate_hz} Hz, dt {cfg.dt} s, "
@@ -268,6 +295,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"board: {server.clock.stats.summary()}", file=sys.stderr, flush=True)
         if server.tx_dropped:
             print(f"board: {server.tx_dropped} outgoing report(s) dropped (link too slow)", file=sys.stderr, flush=True)
+        if server.tx_dropped_no_host:
+            print(f"board: {server.tx_dropped_no_host} report(s) not sent while no host was talking to the board "
+                  "(nothing read the link; not a fault)", file=sys.stderr, flush=True)
         note = link.exit_note()
         if note:
             print(f"board: {note}", file=sys.stderr, flush=True)

@@ -11,7 +11,9 @@ outgoing backlog is large, so a slow reader never loses telemetry.
 Outgoing bytes are bounded: telemetry is dropped (counted in ``tx_dropped``) when the
 backlog passes ``TELEMETRY_BACKLOG`` or, with a modelled wire rate, when the wire is
 already busy for more than 20 ms (so replies never queue behind telemetry the line
-cannot carry); replies are dropped only past ``MAX_BACKLOG``.
+cannot carry); replies are dropped only past ``MAX_BACKLOG``. Reports dropped while no host has
+been heard for ``NO_HOST_S`` are counted apart (``tx_dropped_no_host``): nobody was reading then,
+which is not a slow link.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ TELEMETRY_WIRE_BACKLOG_S = 0.02  # with --baud: drop telemetry rather than queue
 LOCKSTEP_BACKLOG = 8 * 1024
 MAX_BACKLOG = 4 * 1024 * 1024
 INBOX_LIMIT = 4096  # lockstep: stop reading (the pty buffers, the host blocks) beyond this
+NO_HOST_S = 1.0  # wall seconds without a valid message after which no host is taken to be listening
 
 
 class BoardServer:
@@ -51,7 +54,9 @@ class BoardServer:
         self.transport = transport
         transport.log_time = self._t
         self.tx_seq = 0
-        self.tx_dropped = 0
+        self.tx_dropped = 0  # dropped while a host was talking to the board: the link was too slow
+        self.tx_dropped_no_host = 0  # dropped while no host had been heard for NO_HOST_S
+        self.last_rx: float | None = None  # monotonic time of the last valid message
         self.viewer = viewer
         self.err = err
         self.running = True
@@ -66,16 +71,22 @@ class BoardServer:
     def backlog(self) -> int:
         return self.transport.backlog
 
+    def _dropped(self, now: float) -> None:
+        if self.last_rx is None or now - self.last_rx > NO_HOST_S:
+            self.tx_dropped_no_host += 1
+        else:
+            self.tx_dropped += 1
+
     def send(self, msgs: list[Message]) -> None:
         now = time.monotonic()
         tr = self.transport
         for m in msgs:
             periodic = isinstance(m, (Telemetry, SimState))
             if periodic and tr.tx_busy_s(now) > TELEMETRY_WIRE_BACKLOG_S:
-                self.tx_dropped += 1
+                self._dropped(now)
                 continue
             if tr.backlog > (TELEMETRY_BACKLOG if periodic else MAX_BACKLOG):
-                self.tx_dropped += 1
+                self._dropped(now)
                 continue
             tr.queue(m, self.tx_seq, now)
             self.tx_seq = (self.tx_seq + 1) & 0xFFFF
@@ -104,6 +115,7 @@ class BoardServer:
             self.board.on_link_error()
             print(f"board: link error {item.kind.value}: {item.detail}", file=self.err, flush=True)
             return
+        self.last_rx = time.monotonic()
         try:
             replies = self.board.handle(item.msg, item.seq)
         except Exception as e:  # a bug must not take the board down: report and go on

@@ -5,14 +5,24 @@ Each subcommand lives in its own module under ``host/commands`` exposing
 ``main(args: argparse.Namespace) -> int``. Modules are imported only when their
 subcommand runs, so ``ghostshell --help`` stays fast and one broken optional
 dependency cannot take down every command.
+
+Exit status, the same in every command (:data:`EXIT_CODES`; ``tests/cli/test_exit_codes.py``
+checks each command): 0 success, 1 the run or operation failed, 2 usage or bad input (every
+argument is checked before anything starts: one line says what is wrong and what would be right),
+130 interrupted (Ctrl-C or SIGTERM). ``ghostshell vcan`` passes its COMMAND's status through.
+SIGTERM is handled as Ctrl-C is: ``run``, ``demo`` and ``chat`` interrupt their turn
+(:mod:`host.run.stops`); elsewhere the command stops, cleans up and exits 130.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
+import threading
 from collections.abc import Sequence
+from types import FrameType
 
 #: subcommand -> (module under host.commands, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -34,12 +44,27 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "eval": ("eval", "evaluate an LLM the paper's way: DSBC over the tasks, runs on the board, the native-call ablation"),
     "render": ("render", "render run.mp4 for a finished run from its recorded state"),
     "fuzz": ("fuzz", "coverage-guided fuzzing (atheris) of the decoder, board, shell and link client"),
+    "vcan": ("vcan", "run a command with SocketCAN vcan interfaces up (this kernel, or User-Mode Linux where it has no vcan)"),
 }
+
+
+#: status -> meaning (``ghostshell --help`` prints it; the README's "Exit status" section is the same table)
+EXIT_CODES: dict[int, str] = {
+    0: "success",
+    1: "the run or operation failed (a call failed, the link was lost, the board refused, a bound was reached)",
+    2: "usage or bad input: an argument, a file, a link spec or a port that cannot be used (one line says why)",
+    130: "interrupted (Ctrl-C or SIGTERM); run, demo and chat still write what ran",
+}
+
+DESCRIPTION = ("GhostShell: an LLM drives a robot while it is still talking. Its streamed function tokens run "
+               "through the shell onto the robot's emulated board (MuJoCo) or a real one, over a serial link or CAN.")
 
 
 def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     """Build the top-level parser; only the chosen subcommand's module is imported."""
-    parser = argparse.ArgumentParser(prog="ghostshell", description=__doc__.splitlines()[0])
+    epilog = "exit status: " + "; ".join(f"{k} {v}" for k, v in EXIT_CODES.items()) + \
+        " (ghostshell vcan: its COMMAND's status)."
+    parser = argparse.ArgumentParser(prog="ghostshell", description=DESCRIPTION, epilog=epilog)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     chosen = next((a for a in argv if not a.startswith("-")), None)
     for name, (module, help_text) in COMMANDS.items():
@@ -51,19 +76,37 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the command runs, as Ctrl-C raises KeyboardInterrupt."""
+
+
+def _on_sigterm(signum: int, frame: FrameType | None) -> None:
+    raise Terminated()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``ghostshell`` console script."""
     args_list = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser(args_list)
-    args = parser.parse_args(args_list)
+    command = next((a for a in args_list if not a.startswith("-")), "")
+    previous = signal.getsignal(signal.SIGTERM)
+    in_main_thread = threading.current_thread() is threading.main_thread()  # else leave signals alone
+    if in_main_thread:
+        signal.signal(signal.SIGTERM, _on_sigterm)
     try:
+        parser = build_parser(args_list)
+        args = parser.parse_args(args_list)
         return int(args._main(args) or 0)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as e:  # Ctrl-C or SIGTERM where the command has no handling of its own
+        what = "SIGTERM" if isinstance(e, Terminated) else "SIGINT (Ctrl-C)"
+        print(f"ghostshell{' ' + command if command in COMMANDS else ''}: interrupted by {what}", file=sys.stderr)
         return 130
     except UnicodeDecodeError as e:  # a file the command read is not UTF-8: one clear line, not a traceback
-        print(f"ghostshell {args.command}: an input file is not UTF-8 text ({e.reason} at byte {e.start})",
+        print(f"ghostshell {command}: an input file is not UTF-8 text ({e.reason} at byte {e.start})",
               file=sys.stderr)
         return 2
+    finally:
+        if in_main_thread:
+            signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
 
 
 if __name__ == "__main__":

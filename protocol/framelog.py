@@ -41,6 +41,7 @@ __all__ = [
     "FrameLogError",
     "LogDecoder",
     "decode_raw",
+    "format_fields",
     "format_record",
     "from_line",
     "iter_records",
@@ -210,12 +211,19 @@ def format_record(rec: dict[str, Any]) -> str:
     head = f"{float(rec['t']):12.6f} {rec['dir']}"
     if "error" in rec:
         return f"{head} ERROR {rec['error']:<12} {n:4d} B  {rec.get('detail', '')}  raw={rec.get('raw', '')[:64]}"
+    return f"{head} #{rec.get('seq', 0):5d} {rec['type']:<17} {n:4d} B  " + format_fields(rec.get("fields", {}))
+
+
+def format_fields(fields: dict[str, Any]) -> str:
+    """A message's fields (:func:`message_fields`) as ``key=value`` words, the one layout of every
+    ``ghostshell log decode`` (serial and CAN): a servo mask in hex (``mask=0x0fff``), binary data
+    by its length, numbers with up to six significant digits."""
     parts = []
-    for key, value in rec.get("fields", {}).items():
+    for key, value in fields.items():
         if key == "mask" and isinstance(value, int):
             parts.append(f"mask={value:#06x}")
         elif key == "data" and isinstance(value, str):
             parts.append(f"data=<{len(value) // 2} B>")
         else:
             parts.append(f"{key}={_fmt_value(value)}")
-    return f"{head} #{rec.get('seq', 0):5d} {rec['type']:<17} {n:4d} B  " + " ".join(parts)
+    return " ".join(parts)

@@ -21,7 +21,9 @@ CAN options: ``node=N`` (the board's node id, 1..127, default 1), ``fd=0|1``,
 arguments in :data:`CAN_PASSTHROUGH_OPTIONS` (kept as text in ``LinkSpec.options``;
 :meth:`LinkSpec.bus_kwargs` converts them). Anything else, a repeated option or a
 bad value raises :class:`LinkSpecError`. A serial spec is taken verbatim (pyserial
-URLs carry their own ``?options``), except that it must not be empty.
+URLs carry their own ``?options``), except that it must not be empty, a URL's scheme must be one
+pyserial knows (:data:`PYSERIAL_SCHEMES`), and ``socket://`` / ``rfc2217://`` need ``HOST:PORT``
+(pyserial itself fails on ``rfc2217://x`` with a ``TypeError``).
 
 ``str(spec)`` gives the canonical text; ``parse_link_spec(str(spec)) == spec``.
 """
@@ -68,6 +70,8 @@ _CAN_INTERFACES = frozenset({
     "socketcan", "slcan", "virtual", "pcan", "kvaser", "vector", "ixxat", "nican", "gs_usb",
     "serial", "udp_multicast", "cantact", "neovi", "robotell", "seeedstudio", "socketcand",
 })
+#: URL schemes pyserial's ``serial_for_url`` handles (pyserial 3.5 ``serial.protocol_handler_packages``)
+PYSERIAL_SCHEMES = ("rfc2217", "socket", "loop", "hwgrep", "spy", "alt", "cp2110")
 _TRUE = ("1", "true", "yes", "on")
 _FALSE = ("0", "false", "no", "off")
 
@@ -237,4 +241,18 @@ def parse_link_spec(text: str | LinkSpec) -> LinkSpec:
         raise _error(text, "did you mean 'can:' (python-can's configured default bus)?")
     if re.fullmatch(r"v?can\d+", text):
         raise _error(text, f"{text!r} looks like a CAN network interface: did you mean 'can:socketcan:{text}'?")
+    if "://" in text:
+        _check_serial_url(text)
     return LinkSpec("serial", port=text)
+
+
+def _check_serial_url(text: str) -> None:
+    scheme, _, rest = text.partition("://")
+    if scheme.lower() not in PYSERIAL_SCHEMES:
+        raise _error(text, f"pyserial has no URL scheme {scheme!r} (it has {', '.join(PYSERIAL_SCHEMES)})")
+    if scheme.lower() in ("socket", "rfc2217"):
+        address = rest.partition("?")[0]
+        host, colon, port = address.rpartition(":")
+        if not colon or not host or not port.isdigit() or not 0 < int(port) < 65536:
+            raise _error(text, f"the {scheme}:// URL needs HOST:PORT with a port 1-65535, "
+                               f"e.g. {scheme}://192.168.1.20:{2217 if scheme.lower() == 'rfc2217' else 7777}")

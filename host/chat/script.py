@@ -1,11 +1,12 @@
 """Batch chat files: user turns (``--turns``) or assistant replies (``--replies``).
 
-Blocks are separated by a line holding only ``---``. A separator may carry an
-option for the block that follows it: ``--- interrupt-after 1.5`` interrupts
+Blocks are separated by a line holding only ``---``. A separator may carry
+options for the block that follows it: ``--- interrupt-after 1.5`` interrupts
 that block's turn 1.5 s (board time) after it started, as an external event
-would. A separator on the first line only sets options for the first block.
-Leading and trailing blank lines of a block are dropped; empty blocks are
-skipped.
+would; ``--- task 9`` (``ghostshell eval --replies`` only: ``parse_blocks(text,
+options=("task",))``) names the task the reply answers. A separator on the first
+line only sets options for the first block. Leading and trailing blank lines of a
+block are dropped; empty blocks are skipped.
 
 Errors: :class:`ScriptError` with the line number for a malformed separator.
 """
@@ -30,34 +31,50 @@ class Block:
     text: str
     interrupt_after: float | None = None
     line: int = 1  # first line of the block (1-based)
+    task: int | None = None  # ``--- task N`` (eval --replies)
 
 
-def _options(text: str, lineno: int) -> float | None:
+_USAGE = {"interrupt-after": "'--- interrupt-after SECONDS'", "task": "'--- task N'"}
+
+
+def _options(text: str, lineno: int, allowed: tuple[str, ...]) -> dict[str, float | int]:
     words = text.split()
-    if not words:
-        return None
-    if words[0] != "interrupt-after" or len(words) != 2:
-        raise ScriptError(f"line {lineno}: unknown separator option {text!r}; expected '--- interrupt-after SECONDS'")
-    try:
-        value = float(words[1])
-    except ValueError:
-        raise ScriptError(f"line {lineno}: interrupt-after needs seconds, got {words[1]!r}") from None
-    if not math.isfinite(value) or value < 0:
-        raise ScriptError(f"line {lineno}: interrupt-after must be >= 0 seconds, got {words[1]!r}")
-    return value
+    expected = " or ".join(_USAGE[k] for k in allowed)
+    found: dict[str, float | int] = {}
+    for key, value in zip(words[::2], words[1::2] if len(words) % 2 == 0 else [*words[1::2], ""]):
+        if key not in allowed:
+            raise ScriptError(f"line {lineno}: unknown separator option {text!r}; expected {expected}")
+        if key in found:
+            raise ScriptError(f"line {lineno}: {key} given twice")
+        if key == "task":
+            if not value.isdigit() or int(value) < 1:
+                raise ScriptError(f"line {lineno}: task needs a task number (1, 2, ...), got {value!r}")
+            found[key] = int(value)
+            continue
+        try:
+            seconds = float(value)
+        except ValueError:
+            raise ScriptError(f"line {lineno}: interrupt-after needs seconds, got {value!r}") from None
+        if not math.isfinite(seconds) or seconds < 0:
+            raise ScriptError(f"line {lineno}: interrupt-after must be >= 0 seconds, got {value!r}")
+        found[key] = seconds
+    return found
 
 
-def parse_blocks(text: str) -> list[Block]:
-    """Split a batch chat file into blocks (see the module docstring)."""
+def parse_blocks(text: str, options: tuple[str, ...] = ("interrupt-after",)) -> list[Block]:
+    """Split a batch file into blocks (see the module docstring); ``options``: the separator options allowed."""
     blocks: list[Block] = []
     current: list[str] = []
-    opts: float | None = None
+    opts: dict[str, float | int] = {}
     start = 1
 
     def flush() -> None:
         body = "\n".join(current).strip("\n")
         if body.strip():
-            blocks.append(Block(body, opts, start))
+            after = opts.get("interrupt-after")
+            task = opts.get("task")
+            blocks.append(Block(body, None if after is None else float(after), start,
+                                None if task is None else int(task)))
 
     for i, line in enumerate(text.splitlines(), start=1):
         m = _SEP.match(line)
@@ -65,6 +82,6 @@ def parse_blocks(text: str) -> list[Block]:
             current.append(line)
             continue
         flush()
-        current, opts, start = [], _options(m.group("opts") or "", i), i + 1
+        current, opts, start = [], _options(m.group("opts") or "", i, options), i + 1
     flush()
     return blocks

@@ -39,5 +39,6 @@ def main(args: argparse.Namespace) -> int:
         argv = argv[1:]
     sys.stdout.flush()
     sys.stderr.flush()
+    os.environ["GHOSTSHELL_BOARD_PROG"] = "ghostshell board"  # firmware_sim.cli.PROG_ENV: the usage line's name
     os.execv(sys.executable, [sys.executable, "-m", "firmware_sim", *argv])
     return 0  # not reached

@@ -2,7 +2,12 @@
 
 One line per frame: time, direction, identifier, the DBC message name and raw signal values (or
 ``UNKNOWN`` for a frame the DBC does not describe), then, indented, the protocol message the frame
-completed (fixed layouts from their parts, bulk from ISO-TP) or the decode error.
+completed (fixed layouts from their parts, bulk from ISO-TP) or the decode error. The message's
+fields use the serial decoder's layout (:func:`protocol.framelog.format_fields`: ``mask=0x0fff``).
+
+Exit status: 0 every frame decoded; 1 some frame is unknown or undecodable; 2 the file is not a
+CAN log python-can reads (one line naming the first bad line of a candump ``.log``), or holds no
+frame.
 """
 
 from __future__ import annotations
@@ -14,15 +19,16 @@ from protocol import framelog
 __all__ = ["decode_can_file"]
 
 
-def _fmt(v: object) -> str:
-    if isinstance(v, float):
-        return f"{v:.6g}"
-    return str(v)
-
-
 def decode_can_file(path: str, out: IO[str], err: IO[str], types: list[str] | None = None,
                     node: int | None = None, frames: bool = True) -> int:
-    """Print a python-can log; exit code 0, 1 (no frames or unknown frames) or 2 (unreadable)."""
+    """Print a python-can log; exit code 0, 1 (unknown or undecodable frames) or 2 (not a CAN log, no frames)."""
+    from host.link.canlog import candump_problem
+
+    if path.lower().endswith(".log"):
+        problem = candump_problem(path)
+        if problem is not None:
+            print(f"ghostshell log: {problem}", file=err)
+            return 2
     from host.link.canlog import iter_can_log
     from protocol.can import CanItem
     from protocol.can.ids import split_id
@@ -37,7 +43,7 @@ def decode_can_file(path: str, out: IO[str], err: IO[str], types: list[str] | No
             if e.dbc_name is None:
                 unknown += 1
             if frames and wanted is None:
-                sig = " ".join(f"{k}={_fmt(v)}" for k, v in e.signals.items())
+                sig = framelog.format_fields(dict(e.signals))  # the DBC's signals, in the messages' layout
                 name = e.dbc_name or "UNKNOWN"
                 fd = " FD" if e.frame.is_fd else ""
                 out.write(f"{e.t:17.6f} {e.direction} {e.frame.arbitration_id:03X}{fd} [{len(e.frame.data):2d}] "
@@ -46,9 +52,7 @@ def decode_can_file(path: str, out: IO[str], err: IO[str], types: list[str] | No
                 if isinstance(it, CanItem):
                     if wanted and it.msg_type.name not in wanted:
                         continue
-                    fields = framelog.message_fields(it.msg)
-                    text = " ".join(f"{k}={_fmt(v)}" if k != "data" else f"data=<{len(str(v)) // 2} B>"
-                                    for k, v in fields.items())
+                    text = framelog.format_fields(framelog.message_fields(it.msg))
                     via = "ISO-TP" if it.bulk else f"{len(it.frames)} frame(s)"
                     out.write(f"{'':17} {e.direction} #{it.seq:5d} {it.msg_type.name:<17} ({via}) {text}\n")
                 else:
@@ -57,12 +61,15 @@ def decode_can_file(path: str, out: IO[str], err: IO[str], types: list[str] | No
                         out.write(f"{'':17} {e.direction} ERROR {it.kind.value}: {it.detail}\n")
     except BrokenPipeError:  # piped into head
         return 0
-    except (OSError, ValueError) as ex:
-        print(f"ghostshell log: cannot read {path} as a CAN log: {ex}", file=err)
+    except (OSError, ValueError, EOFError) as ex:  # python-can's readers: a damaged .asc/.blf
+        print(f"ghostshell log: cannot read {path} as a CAN log ({type(ex).__name__}: {ex})", file=err)
+        return 2
+    except Exception as ex:  # noqa: BLE001 - python-can's BLF reader raises struct.error and others
+        print(f"ghostshell log: python-can cannot read {path} as a CAN log ({type(ex).__name__}: {ex})", file=err)
         return 2
     if not n:
-        print(f"ghostshell log: {path} holds no CAN frames", file=err)
-        return 1
+        print(f"ghostshell log: {path} holds no CAN frames: nothing to decode", file=err)
+        return 2
     if unknown or errors:
         print(f"ghostshell log: {n} frame(s), {unknown} not in the DBC, {errors} decode error(s)", file=err)
         return 1

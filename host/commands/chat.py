@@ -12,12 +12,18 @@
 Artefacts: ``<out>/turn_NN/step_K/`` per LLM request (timeline, joints,
 summary), ``<out>/transcript.json`` (history and per-step records), the frame
 logs of the session in ``<out>``.
+
+Ctrl-C (or SIGTERM) ends the conversation (:mod:`host.run.stops`): the running turn is
+interrupted as a typed message interrupts it, the robot goes to its rest pose, the transcript and
+every step's artefacts are written, one line, exit 130; a second Ctrl-C stops at once. A turn that
+reaches ``--max-board-s``, or frame logs that reach ``--max-log-mb``, end it the same way (exit 1).
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -37,12 +43,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     add_run_options(parser)
 
 
-def _read(path: str) -> str:
-    """The text of ``path``; OSError with the file name when it is unreadable or not UTF-8."""
-    try:
-        return Path(path).read_text(encoding="utf-8")
-    except UnicodeDecodeError as e:
-        raise OSError(f"{path} is not UTF-8 text ({e.reason} at byte {e.start})") from None
+def _read(path: str, option: str) -> str:
+    """The text of ``path`` (given with ``option``); :class:`host.commands.inputs.InputError` (one line)
+    when it is missing, unreadable, not UTF-8 or empty."""
+    from host.commands.inputs import read_text_input
+
+    return read_text_input(path, option, what="user turns" if option == "--turns" else "replies")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -58,10 +64,10 @@ def main(args: argparse.Namespace) -> int:
         return 2
     scripted = args.llm == "scripted"
     try:
-        turns = parse_blocks(_read(args.turns)) if args.turns else None
-        replies = parse_blocks(_read(args.replies)) if args.replies else None
+        turns = parse_blocks(_read(args.turns, "--turns")) if args.turns else None
+        replies = parse_blocks(_read(args.replies, "--replies")) if args.replies else None
         skills = SkillStore(skills_path(args.skills))
-    except (OSError, ScriptError, SkillError) as e:
+    except (OSError, ValueError, ScriptError, SkillError) as e:  # InputError is a ValueError
         print(f"ghostshell chat: {e}", file=sys.stderr)
         return 2
     if replies is not None and not scripted:
@@ -93,6 +99,14 @@ def main(args: argparse.Namespace) -> int:
     status = check_run_args(args)
     if status is not None:
         return status
+    from host.shell.limits import Limits
+
+    for name, blocks in (("--replies", replies), ("--turns", turns)):
+        for i, block in enumerate(blocks or [], 1):
+            why = Limits().refuse_reply(block.text) if name == "--replies" else None
+            if why is not None:  # refused before the board starts, not cut minutes into the turn
+                print(f"ghostshell chat: {name} {args.replies}: reply {i}: {why}; nothing was run", file=sys.stderr)
+                return 2
     out = Path(args.out) if args.out else Path("runs") / "chat"
     try:
         return anyio.run(_chat, args, turns, replies, skills, out, backend="asyncio")
@@ -101,13 +115,31 @@ def main(args: argparse.Namespace) -> int:
         return link_exit_status(e)
 
 
-async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any, out: Path) -> int:
-    from host.chat.conversation import Conversation
-    from host.ghost import make_ghost
-    from host.ghost.base import Ghost
-    from host.run.session import RobotSession, SessionOptions
+@dataclass
+class _Chat:
+    """What the stop handler needs to see of a conversation in progress."""
 
-    scripted = args.llm == "scripted"
+    session: Any
+    conv: Any = None
+    loop: Any = None  # the conversation loop's cancel scope: cancelled by a stop while no turn runs
+    rested: bool | None = None
+
+    def on_first_stop(self, stop: Any) -> bool:
+        """A first Ctrl-C / SIGTERM (or a bound): interrupt the running turn (as a typed message does) or
+        leave the wait for input; the conversation then ends at the rest pose."""
+        graceful = self.session.request_stop(stop)
+        if self.conv is not None and self.conv.acting:
+            self.conv.interrupt()
+        elif self.loop is not None:
+            self.loop.cancel()
+        return graceful
+
+
+async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any, out: Path) -> int:
+    from host.link import LinkError
+    from host.run.session import RobotSession, SessionOptions
+    from host.run.stops import Interrupted, StopReason, StopSignals
+
     opts = SessionOptions(robot=str(args.robot_value.root), robots_dir=args.robots_dir, vocabulary=args.vocabulary,
                           mode=args.mode, strict=resolve_strict(args), lockstep=args.lockstep, link=args.link,
                           emulate_board=args.emulate_board or None, baud=args.baud, out=out, skills=skills,
@@ -116,58 +148,103 @@ async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any,
                           mcp_mounts=tuple(args.mount_mcp),
                           event_policy=getattr(args, "event_policy", None),
                           events=getattr(args, "scripted_events", ()),
-                          pushes=tuple(_push_text(p) for p in args.push))
-    pending = list(replies or [])
-    interactive = turns is None and replies is None
-    async with RobotSession(opts) as session:
-        typed: list[str] = []  # interactive scripted: the typed line is the reply
+                          pushes=tuple(_push_text(p) for p in args.push), max_board_s=args.max_board_s,
+                          max_log_mb=args.max_log_mb)
+    session = RobotSession(opts)
+    chat = _Chat(session)
+    signals = StopSignals(chat.on_first_stop)
+    transcript = out / "transcript.json"
+    try:
+        async with signals.guard(), session:
+            await _converse(args, chat, turns, list(replies or []), transcript)
+    except LinkError:
+        if signals.forced is None:
+            raise
+    conv = chat.conv
+    if signals.forced is not None:  # stopped at once: the step in progress and the transcript, no plots
+        stop = signals.first or StopReason("signal", signals.forced, f"interrupted by {signals.forced}")
+        ended = session.ended_turn(Interrupted(stop, signals.forced))
+        if ended is not None and session.turns:
+            session.write_now(ended, plots=False)
+        if conv is not None:
+            conv.write_transcript(transcript)
+        print(f"ghostshell chat: {stop.message}, then {signals.forced} again: stopped at once; transcript and "
+              f"artefacts in {out}/", file=sys.stderr)
+        return 130
+    if session.stop is not None:
+        rest = (f"the robot went to its rest pose {session.robot.rest_pose!r}" if chat.rested else
+                "the robot could not be brought to its rest pose")
+        n = len(conv.turns) if conv is not None else 0
+        print(f"ghostshell chat: {session.stop.message} after {n} turn{'s' if n != 1 else ''}; {rest}; "
+              f"transcript and artefacts in {out}/", file=sys.stderr)
+        return int(session.stop.exit_status)
+    print(f"transcript and artefacts in {out}/")
+    steps = [s for t in conv.turns for s in t.steps] if conv is not None else []
+    if steps and all(s.stream_error for s in steps):
+        print(f"ghostshell chat: every LLM request failed ({steps[-1].stream_error})", file=sys.stderr)
+        return 1
+    return 0
 
-        def ghost() -> Ghost | None:
-            if scripted:
-                if interactive:
-                    program = typed.pop(0) if typed else None
-                    if program is None:
-                        return None
-                    g = make_ghost("scripted", program=program, tokens_per_s=args.tokens_per_s, seed=args.seed,
-                                   sleep=session.pacer())
-                    return g
-                if not pending:
+
+async def _converse(args: argparse.Namespace, chat: _Chat, turns: Any, pending: list[Any], transcript: Path) -> None:
+    """The conversation on a started session (``chat.conv``); after a stop, the robot goes to its rest pose."""
+    import anyio
+
+    from host.chat.conversation import Conversation
+    from host.ghost import make_ghost
+    from host.ghost.base import Ghost
+
+    session = chat.session
+    scripted = args.llm == "scripted"
+    interactive = turns is None and not pending
+    typed: list[str] = []  # interactive scripted: the typed line is the reply
+
+    def ghost() -> Ghost | None:
+        if scripted:
+            if interactive:
+                program = typed.pop(0) if typed else None
+                if program is None:
                     return None
-                block = pending.pop(0)
-                g = make_ghost("scripted", program=block.text, tokens_per_s=args.tokens_per_s, seed=args.seed,
-                               sleep=session.pacer())
-                g.interrupt_after = block.interrupt_after  # type: ignore[attr-defined]
-                return g
-            return make_ghost(args.llm, base_url=args.base_url, api_key=args.api_key)
+                return make_ghost("scripted", program=program, tokens_per_s=args.tokens_per_s, seed=args.seed,
+                                  sleep=session.pacer())
+            if not pending:
+                return None
+            block = pending.pop(0)
+            g = make_ghost("scripted", program=block.text, tokens_per_s=args.tokens_per_s, seed=args.seed,
+                           sleep=session.pacer())
+            g.interrupt_after = block.interrupt_after  # type: ignore[attr-defined]
+            return g
+        return make_ghost(args.llm, base_url=args.base_url, api_key=args.api_key)
 
-        conv = Conversation(session, ghost, max_steps=args.max_steps, vision=args.vision, real_llm=not scripted)
-        live = not args.no_live and sys.stdout.isatty()
-        if live:
-            from host.run.live import live_view
+    conv = chat.conv = Conversation(session, ghost, max_steps=args.max_steps, vision=args.vision,
+                                    real_llm=not scripted)
+    if not args.no_live and sys.stdout.isatty():
+        from host.run.live import live_view
 
-            session.background().start_soon(live_view, session.shell, session.runtime, "chat")
-        transcript = out / "transcript.json"
-        if interactive:
+        session.background().start_soon(live_view, session.shell, session.runtime, "chat")
+    with anyio.CancelScope() as chat.loop:
+        if session.stop is not None:  # stopped while the session started
+            pass
+        elif interactive:
             await _interactive(conv, typed if scripted else None)
         elif turns is not None:
             for block in turns:
                 rec = await conv.turn(block.text, interrupt_after=block.interrupt_after)
                 _print_turn(rec)
                 conv.write_transcript(transcript)
+                if session.stop is not None:
+                    break
         else:
             n = 0
-            while pending:
+            while pending and session.stop is None:
                 n += 1
                 rec = await conv.turn(f"(turn {n})")
                 _print_turn(rec)
                 conv.write_transcript(transcript)
-        conv.write_transcript(transcript)
-    print(f"transcript and artefacts in {out}/")
-    steps = [s for t in conv.turns for s in t.steps]
-    if steps and all(s.stream_error for s in steps):
-        print(f"ghostshell chat: every LLM request failed ({steps[-1].stream_error})", file=sys.stderr)
-        return 1
-    return 0
+    chat.loop = None
+    if session.stop is not None:
+        chat.rested = await session.go_to_rest()
+    conv.write_transcript(transcript)
 
 
 def _print_turn(rec: Any) -> None:
@@ -225,6 +302,8 @@ async def _interactive(conv: Any, typed: list[str] | None) -> None:
                 await done.wait()
                 for scope in watching:
                     scope.cancel()
+            if conv.session.stop is not None:  # Ctrl-C (or a bound) ended the conversation
+                break
             if got:
                 nxt = got[0]
             else:

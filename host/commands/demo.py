@@ -38,5 +38,5 @@ def main(args: argparse.Namespace) -> int:
     except ValueError as e:
         print(f"ghostshell demo: {e}", file=sys.stderr)
         return 2
-    print(f"task {task.id} ({task.category}): {task.instruction}\n  {task.ground_truth}\n")
-    return run_with(args, program=task.ground_truth, prompt=None, label=f"demo task {task.id}")
+    return run_with(args, program=task.ground_truth, prompt=None, label=f"demo task {task.id}",
+                    banner=f"task {task.id} ({task.category}): {task.instruction}\n  {task.ground_truth}\n")

@@ -11,19 +11,20 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
+from host.commands.inputs import InputError, read_text_input
 from host.eval.dsbc import dsbc_breakdown
 
 
-def _load(arg: str) -> str:
-    """A program given inline, as ``@FILE``, or ``-`` for standard input."""
-    if arg == "-":
-        return sys.stdin.read()
+def _load(arg: str, what: str) -> str:
+    """A program given inline, as ``@FILE``, or ``-`` for standard input; :class:`InputError` when it
+    cannot be read or is empty (an empty program is refused as every command refuses empty input)."""
     if arg.startswith("@"):
-        try:
-            return Path(arg[1:]).read_text(encoding="utf-8")
-        except UnicodeDecodeError as e:
-            raise ValueError(f"{arg[1:]} is not UTF-8 text ({e.reason} at byte {e.start})") from None
-    return arg
+        return read_text_input(arg[1:], what, what="function tokens")
+    text = sys.stdin.read() if arg == "-" else arg
+    if not text.strip():
+        raise InputError(f"{what} is empty ({'standard input' if arg == '-' else 'an empty argument'}); "
+                         "give function tokens, @FILE or -")
+    return text
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -37,11 +38,11 @@ def main(args: argparse.Namespace) -> int:
     """Print the DSBC score with its per-layer breakdown; exit 2 on unreadable or malformed GT."""
     console = Console()
     try:
-        gt = _load(args.ground_truth)
-        gen = _load(args.generated)
+        gt = _load(args.ground_truth, "GT")
+        gen = _load(args.generated, "GEN")
         result = dsbc_breakdown(gt, gen)
-    except (OSError, ValueError) as exc:
-        Console(stderr=True).print(f"[red]error:[/red] {exc}", highlight=False)
+    except (OSError, ValueError) as exc:  # InputError is a ValueError; a malformed GT one too
+        print(f"ghostshell dsbc: {exc}", file=sys.stderr)
         return 2
     if args.json:
         print(

@@ -3,9 +3,11 @@
 ESTOP makes the board hold where it is and refuse every servo frame (NACK ESTOPPED)
 until ESTOP_CLEAR; ESTOP_CLEAR also releases a latched WATCHDOG_FAULT (a board that
 lost its host). Either request is re-sent until the board acknowledges it
-(:meth:`host.link.BoardClient.request` retries). Exit status: 0 acknowledged (for
-``--clear``: and the board reports no fault afterwards), 1 not acknowledged or
-refused, 2 bad arguments or no board on the link.
+(:meth:`host.link.BoardClient.request` retries). ``--clear`` says what it cleared (the
+board's report before the request: an ESTOP, a watchdog fault, or nothing was latched).
+Exit status: 0 acknowledged (for ``--clear``: and the board reports no fault afterwards), 1 not
+acknowledged or refused, or no board answered on the link, 2 bad arguments or a link that cannot
+be opened as given.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import argparse
 import asyncio
 import sys
 
+from host.commands.inputs import baud_rate
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, refuse_unserved_link
 
 __all__ = ["configure", "main"]
@@ -25,7 +28,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                            "can:INTERFACE:CHANNEL[?node=N] (see DEVELOPERS.md)")
     parser.add_argument("--clear", action="store_true",
                         help="send ESTOP_CLEAR (release an estop or a latched watchdog fault) instead of ESTOP")
-    parser.add_argument("--baud", type=int, default=115200, metavar="N", help="baud rate (default 115200)")
+    parser.add_argument("--baud", type=baud_rate, default=115200, metavar="N", help="baud rate (default 115200)")
     parser.add_argument("--log", default=None, metavar="FILE", help="frame log of this session")
 
 
@@ -40,18 +43,22 @@ async def _run(args: argparse.Namespace) -> int:
         print(f"ghostshell estop: {e}", file=sys.stderr)
         return USAGE_STATUS
     except LinkError as e:
-        print(f"ghostshell estop: no board on {args.link}: {e}", file=sys.stderr)
-        return USAGE_STATUS
+        print(f"ghostshell estop: no board answered on {args.link}: {e}", file=sys.stderr)
+        return 1
     try:
         if args.clear:
+            before = await client.wait_for(lambda t: True, timeout=5.0, nudge=True)  # what is latched now
+            latched = FaultFlags(before.faults & LATCHED)
             await client.estop_clear()
             at = client.board_now_estimate()
             tel = await client.wait_for(lambda t: t.board_time_us > at, timeout=5.0, nudge=True)
             if tel.faults & LATCHED:
                 print(f"ghostshell estop: ESTOP_CLEAR acknowledged but the board still reports "
-                      f"{FaultFlags(tel.faults & LATCHED)!r}", file=sys.stderr)
+                      f"{_names(FaultFlags(tel.faults & LATCHED))}", file=sys.stderr)
                 return 1
-            print(f"board on {client.port_name}: ESTOP_CLEAR acknowledged; no estop or watchdog fault latched")
+            what = (f"cleared its {_names(latched)}; it takes motion again" if latched else
+                    "nothing was latched (no estop, no watchdog fault)")
+            print(f"board on {client.port_name}: ESTOP_CLEAR acknowledged; {what}")
         else:
             await client.estop()
             print(f"board on {client.port_name}: ESTOP acknowledged; it holds and refuses motion until "
@@ -63,6 +70,14 @@ async def _run(args: argparse.Namespace) -> int:
     finally:
         await client.close()
     return 0
+
+
+def _names(flags: object) -> str:
+    """``ESTOP and WATCHDOG_FAULT`` from latched fault flags."""
+    from protocol.messages import FaultFlags
+
+    names = [f.name for f in FaultFlags if f & flags and f.name]  # type: ignore[operator]
+    return " and ".join(n.replace("ESTOP", "estop").replace("WATCHDOG_FAULT", "watchdog fault") for n in names)
 
 
 def main(args: argparse.Namespace) -> int:

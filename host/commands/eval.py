@@ -1,4 +1,15 @@
-"""``ghostshell eval``: evaluate an LLM the paper's way (DSBC, runs on the board, the native-call ablation)."""
+"""``ghostshell eval``: evaluate an LLM the paper's way (DSBC, runs on the board, the native-call ablation).
+
+Offline, without a model: ``--llm ground-truth`` answers every task with its ground truth (micro =
+macro = 1.0), ``--llm scripted --replies FILE`` with the replies in FILE (the format of ``chat
+--replies``: blocks separated by lines ``---``; either one reply per task in ``--tasks`` order, or
+each block headed ``--- task N``; see :func:`host.eval.sweep.replies_for_tasks`). Either shows the
+whole report (eval.json, eval.md, eval.png) with no key and no network.
+
+Exit status: 0 every job finished, 1 some job failed (run again to retry it), 2 bad arguments,
+130 interrupted (Ctrl-C / SIGTERM: the running jobs are cancelled, their boards stopped; the reports
+cover the jobs that finished; the same command resumes).
+"""
 
 from __future__ import annotations
 
@@ -14,16 +25,19 @@ from host.commands.robotarg import add_robot_argument, robot_from_args
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the eval options."""
     parser.add_argument("--llm", required=True, metavar="PROVIDER:MODEL",
-                        help="openai:MODEL (any OpenAI-compatible endpoint), anthropic:MODEL, or ground-truth "
-                             "(offline: each task answered with its ground truth)")
+                        help="openai:MODEL (any OpenAI-compatible endpoint), anthropic:MODEL; offline: ground-truth "
+                             "(each task answered with its ground truth) or scripted (with --replies FILE)")
+    parser.add_argument("--replies", default=None, metavar="FILE",
+                        help="--llm scripted: the replies, blocks separated by lines '---' (one per task in --tasks "
+                             "order, or each headed '--- task N')")
     add_robot_argument(parser)
     parser.add_argument("--base-url", default=None, help="the provider's API root (e.g. http://127.0.0.1:8000/v1)")
     parser.add_argument("--api-key", default=None, help="default: GHOSTSHELL_LLM_API_KEY, then the provider's variable")
     parser.add_argument("--tasks", default=None,
                         help="task ids, e.g. 1-30 or 1,4,7-9 (default: all of the robot's), or 'ablation' for the "
                              "robot's native-call ablation tasks (e.g. ablation:6,9)")
-    parser.add_argument("--trials", type=int, default=5, help="rounds per task (the paper: 5)")
-    parser.add_argument("--workers", type=int, default=1, help="jobs at once, each with its own lockstep board")
+    parser.add_argument("--trials", type=_at_least_one, default=5, help="rounds per task (the paper: 5)")
+    parser.add_argument("--workers", type=_at_least_one, default=1, help="jobs at once, each with its own lockstep board")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default runs/eval-<model>)")
     parser.add_argument("--native-tools", action="store_true",
                         help="expose the functions as provider tool definitions (native function calling)")
@@ -35,7 +49,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="the robot's vocabulary in the prompt (default: the robot's; ghostshell robots show NAME lists them)")
     parser.add_argument("--mode", choices=("async-first", "sync-first"), default="async-first")
     parser.add_argument("--format", choices=("code", "xml"), default="code", help="the prompt format (as ghostshell prompt)")
-    parser.add_argument("--temperature", type=float, default=None)
+    parser.add_argument("--temperature", type=_temperature, default=None, help="sampling temperature, 0-2")
     parser.add_argument("--paper-model", default=None, help="the paper's column to compare with (default: matched from --llm)")
     from host.commands.run import add_mount_argument
 
@@ -44,6 +58,54 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="run the jobs on a Ray cluster (needs ghostshell[ray]); 'local' starts one here")
     parser.add_argument("--quiet", action="store_true",
                         help="no progress (bar and per-job lines); on a terminal a bar shows jobs, ETA and the running micro mean")
+
+
+def _at_least_one(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
+    return v
+
+
+def _temperature(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not 0 <= v <= 2:
+        raise argparse.ArgumentTypeError(f"a temperature is 0-2, got {text}")
+    return v
+
+
+def _scripted_replies(args: argparse.Namespace, tasks: list[int]) -> dict[int, str] | None:
+    """``--replies`` read and mapped onto ``tasks`` (ValueError with one line), or None without it."""
+    from host.chat.script import ScriptError, parse_blocks
+    from host.commands.inputs import InputError, read_text_input
+    from host.eval.sweep import SCRIPTED, replies_for_tasks
+    from host.shell.limits import Limits
+
+    if args.llm != SCRIPTED:
+        if args.replies is not None:
+            raise ValueError("--replies needs --llm scripted")
+        return None
+    if args.replies is None:
+        raise ValueError("--llm scripted replays --replies FILE (one reply per task, blocks separated by '---'); "
+                         "without a file use --llm ground-truth")
+    try:
+        blocks = parse_blocks(read_text_input(args.replies, "--replies", what="replies"), options=("task",))
+        replies = replies_for_tasks(blocks, tasks)
+    except InputError as e:
+        raise ValueError(str(e)) from None
+    except (ScriptError, ValueError) as e:
+        raise ValueError(f"--replies {args.replies}: {e}") from None
+    for task, text in replies.items():
+        why = Limits().refuse_reply(text)
+        if why is not None:
+            raise ValueError(f"--replies {args.replies}: the reply for task {task}: {why}")
+    return replies
 
 
 def build_config(args: argparse.Namespace) -> Any:
@@ -71,6 +133,9 @@ def build_config(args: argparse.Namespace) -> Any:
         raise ValueError("--native-tools is the ablation: use it with --tasks ablation")
     if args.trials < 1 or args.workers < 1:
         raise ValueError("--trials and --workers must be at least 1")
+    replies = _scripted_replies(args, tasks)
+    if replies is not None and args.native_tools:
+        raise ValueError("--native-tools needs a provider's tool calls; --llm scripted replays function tokens")
     model = args.llm.split(":", 1)[-1].replace("/", "_") or "model"
     suffix = "-ablation-native" if args.native_tools else ("-ablation" if suite == "ablation" else "")
     out = args.out or Path("runs") / f"eval-{model}{suffix}"
@@ -79,7 +144,7 @@ def build_config(args: argparse.Namespace) -> Any:
                        base_url=args.base_url, api_key=args.api_key, workers=args.workers, out=out,
                        vocabulary=args.vocabulary, mode=args.mode, prompt_format=args.format,
                        execute=not args.no_run, temperature=args.temperature, native_exec=args.native_exec,
-                       mcp_mounts=tuple(args.mount_mcp))
+                       replies=replies, mcp_mounts=tuple(args.mount_mcp))
 
 
 def main(args: argparse.Namespace) -> int:
@@ -87,18 +152,15 @@ def main(args: argparse.Namespace) -> int:
     import anyio
 
     from host.eval.report import write_reports
-    from host.eval.sweep import run_sweep
     from host.ghost import GhostError
 
-    from host.eval.sweep import GROUND_TRUTH
+    from host.eval.sweep import GROUND_TRUTH, OFFLINE
 
     try:
         cfg = build_config(args)
-        if args.llm == "scripted":
-            raise ValueError("eval needs a real LLM: --llm openai:MODEL or anthropic:MODEL (or ground-truth, offline)")
         if cfg.llm == GROUND_TRUTH and cfg.suite != "hri":
             raise ValueError("--llm ground-truth answers tasks with their ground truth; the ablation has none")
-        if cfg.llm != GROUND_TRUTH:
+        if cfg.llm not in OFFLINE:
             from host.ghost import make_ghost
 
             make_ghost(cfg.llm, base_url=cfg.base_url, api_key=cfg.api_key)  # bad spec/no key: once, up front
@@ -109,6 +171,7 @@ def main(args: argparse.Namespace) -> int:
 
     from host.progress import bar
 
+    stopped: list[str] = []
     scores: list[float] = []
     total = len(cfg.tasks) * cfg.trials
     with bar(f"eval {cfg.llm}", total, quiet=args.quiet, fields=("micro", "failed")) as shown:
@@ -133,7 +196,7 @@ def main(args: argparse.Namespace) -> int:
 
                 records = run_sweep_on_ray(cfg, args.ray, on_result=progress)
             else:
-                records = anyio.run(run_sweep, cfg, progress, backend="asyncio")
+                records = anyio.run(_sweep_until_signal, cfg, progress, stopped, backend="asyncio")
         except (ValueError, GhostError, ImportError) as err:
             print(f"ghostshell eval: {err}", file=sys.stderr)
             return 2
@@ -145,6 +208,14 @@ def main(args: argparse.Namespace) -> int:
             print(f"ghostshell eval: {err}", file=sys.stderr)
             return 2
     config = {**asdict(cfg), "out": str(cfg.out), "api_key": None, "paper_model": args.paper_model}
+    expected = len(cfg.tasks) * cfg.trials
+    if stopped:  # Ctrl-C / SIGTERM: what finished is in results.jsonl; report it, resume later
+        if records:
+            write_reports(cfg.out, config, records)
+        print(f"ghostshell eval: {stopped[0]}: {len(records)} of {expected} jobs done (in {cfg.out / 'results.jsonl'}"
+              f"{'; reports for those written' if records else ''}); run the same command again to resume",
+              file=sys.stderr)
+        return 130
     summary = write_reports(cfg.out, config, records)
     if cfg.suite == "ablation":
         print(f"completed {summary['completed']}/{summary['tasks']} (paper: {summary['paper']})")
@@ -152,8 +223,23 @@ def main(args: argparse.Namespace) -> int:
         print(f"micro {summary['micro']:.2f} ± {summary['micro_std']:.2f}, macro {summary['macro']:.2f} ± "
               f"{summary['macro_std']:.2f}; ran clean {summary['ran_clean']}/{summary['runs']}")
     print(f"wrote {cfg.out / 'eval.json'}, eval.md, eval.png")
-    expected = len(cfg.tasks) * cfg.trials
     if len(records) < expected:
         print(f"ghostshell eval: {expected - len(records)} job(s) failed; run again to retry them", file=sys.stderr)
-        return 1 if not records else 3
+        return 1
     return 0
+
+
+async def _sweep_until_signal(cfg: Any, progress: Any, stopped: list[str]) -> list[dict[str, Any]]:
+    """The sweep, cancelled by the first SIGINT/SIGTERM (its name then goes into ``stopped``): the
+    running jobs stop (their sessions stop their boards); returns the records finished so far."""
+    from host.eval.sweep import load_results, ordered, run_sweep
+    from host.run.stops import StopSignals
+
+    signals = StopSignals(lambda stop: False)  # no turn of its own to end gracefully: stop the jobs at once
+    records: list[dict[str, Any]] = []
+    async with signals.guard():
+        records = await run_sweep(cfg, progress)
+    if signals.first is not None:
+        stopped.append(signals.first.message)
+        return ordered(cfg, load_results(cfg.out))
+    return records

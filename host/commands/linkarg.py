@@ -3,18 +3,22 @@
 Parsing is :func:`protocol.linkspec.parse_link_spec`; a bad spec is an argparse error
 (exit status 2) naming the problem and the valid forms. Problems found only later are usage errors
 too, with the same status in every command: :func:`unreachable_link` (a spec no board process can
-serve, refused before anything starts) and :func:`link_exit_status` (a link that cannot be opened as
-specified, :class:`host.link.errors.LinkConfigError`).
+serve, refused before anything starts), :func:`preflight_link` (a port or bus that cannot be opened,
+found before anything starts without disturbing a device) and :func:`link_exit_status` (a link that
+cannot be opened as specified, :class:`host.link.errors.LinkConfigError`, found when it is opened).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import stat
 import sys
 
 from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
 
-__all__ = ["LINK_HELP", "USAGE_STATUS", "add_link_argument", "link_exit_status", "link_spec_arg", "unreachable_link"]
+__all__ = ["LINK_HELP", "USAGE_STATUS", "add_link_argument", "link_exit_status", "link_spec_arg", "preflight_link",
+           "unreachable_link"]
 
 USAGE_STATUS = 2  # argparse's status for a usage error; also a link spec that cannot be opened or served
 
@@ -55,6 +59,45 @@ def unreachable_link(spec: LinkSpec) -> str | None:
     return None
 
 
+def preflight_link(spec: LinkSpec, *, emulated: bool = False) -> str | None:
+    """Why ``spec`` cannot be opened (one line, for the user), found without disturbing a device, or None.
+
+    * a serial device path must exist and be a character device; it is not opened here (opening a
+      USB serial port resets many boards), so a character device that is no tty (``/dev/null``) is
+      refused when it is opened (:class:`host.link.errors.LinkConfigError`), as is an SLCAN adapter
+      that is not there (``cannot open CAN bus ...``);
+    * SocketCAN (``can:socketcan:...``) is opened and closed again: a raw CAN socket has no effect on
+      the bus, and this is where a kernel without SocketCAN or a missing interface shows;
+    * ``emulated``: the emulated board creates or opens the link and reports its own refusal.
+    """
+    if emulated:
+        return None
+    path = spec.port if spec.kind == "serial" and "://" not in spec.port else None
+    if path is not None and os.name == "posix":
+        try:
+            mode = os.stat(path).st_mode
+        except FileNotFoundError:
+            return (f"--link {spec}: there is no device {path!r}; give the port a running board announced "
+                    "(`ghostshell board --link pty` prints /dev/pts/N), a serial device such as /dev/ttyUSB0, a "
+                    "pyserial URL, or pty to start the emulated board")
+        except OSError as e:
+            return f"--link {spec}: cannot look at {path!r}: {e.strerror or e}"
+        if not stat.S_ISCHR(mode):
+            kind = "folder" if stat.S_ISDIR(mode) else "regular file" if stat.S_ISREG(mode) else "file"
+            return (f"--link {spec}: {path!r} is a {kind}, not a serial device (a character device such as "
+                    "/dev/ttyUSB0 or /dev/pts/N)")
+        return None
+    if spec.kind == "can" and spec.interface == "socketcan":
+        from host.link.errors import LinkConfigError
+        from host.link.transports.can import open_bus
+
+        try:
+            open_bus(spec).shutdown()
+        except LinkConfigError as e:
+            return str(e)
+    return None
+
+
 def refuse_unserved_link(command: str, spec: LinkSpec) -> int | None:
     """For commands that talk to a board already running (``pose``, ``estop``): print why ``spec``
     cannot reach one and return :data:`USAGE_STATUS`, or return None when it can."""
@@ -62,6 +105,8 @@ def refuse_unserved_link(command: str, spec: LinkSpec) -> int | None:
     if why is None and spec.implies_emulated_board:
         why = (f"--link {spec} names a link the emulated board creates; give the port a running board "
                "announced (ghostshell board --link pty prints it)")
+    if why is None:
+        why = preflight_link(spec)
     if why is None:
         return None
     print(f"ghostshell {command}: {why}", file=sys.stderr)

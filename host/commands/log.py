@@ -1,7 +1,12 @@
 """``ghostshell log decode FILE``: print a frame log readably: serial JSON Lines (:mod:`protocol.framelog`),
 a CAN log in a python-can format (``.log`` candump, ``.asc``, ``.blf``: through the DBC, see
 :mod:`host.commands.canlog_decode`), or a run's ``run.mcap`` (:mod:`host.run.mcap_read`: one line per
-message, ``board-time topic {decoded fields}``, then a per-topic count on stderr)."""
+message, ``board-time topic {decoded fields}``, then a per-topic count on stderr).
+
+Exit status: 0 every record decoded; 1 some records could not be decoded (each named with its line;
+the rest are printed); 2 the file is missing, empty, not a frame log at all, or ``--type`` names no
+message type (the valid names are listed).
+"""
 
 from __future__ import annotations
 
@@ -25,6 +30,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
                       ".jsonl = serial JSON Lines); for CAN logs ?node=N picks the board")
 
 
+#: ``--type`` values: the protocol's message types and ERROR (a record that did not decode)
+def type_names() -> list[str]:
+    from protocol.messages import MsgType
+
+    return [t.name for t in MsgType] + ["ERROR"]
+
+
 def decode_file(path: str, out=sys.stdout, err=sys.stderr, types: list[str] | None = None) -> int:
     """Print ``path``'s records; bad lines are reported with their number and skipped. Returns an exit code."""
     from protocol.framelog import FrameLogError, format_record, from_line
@@ -36,6 +48,7 @@ def decode_file(path: str, out=sys.stdout, err=sys.stderr, types: list[str] | No
         print(f"ghostshell log: cannot read {path}: {e.strerror or e}", file=err)
         return 2
     bad = good = 0
+    held: list[str] = []  # bad lines before the first good record: said only if the file is a frame log at all
     with f:
         for lineno, line in enumerate(f, 1):
             if not line.strip():
@@ -44,18 +57,30 @@ def decode_file(path: str, out=sys.stdout, err=sys.stderr, types: list[str] | No
                 rec = from_line(line)
             except (FrameLogError, UnicodeDecodeError) as e:
                 bad += 1
-                print(f"{path}:{lineno}: not a frame-log record: {e}", file=err)
+                note = f"{path}:{lineno}: not a frame-log record: {e}"
+                if good:
+                    print(note, file=err)
+                elif len(held) < 20:
+                    held.append(note)
                 continue
+            if not good:
+                for note in held:
+                    print(note, file=err)
             good += 1
             if wanted and rec.get("type", "ERROR" if "error" in rec else "") not in wanted:
                 continue
             out.write(format_record(rec) + "\n")
+    if bad and not good:
+        first = held[0].replace(": not a frame-log record", "") if held else path
+        print(f"ghostshell log: {path} is not a frame log ({first}); give a file written with --log: .jsonl "
+              "for a serial link, .log/.asc/.blf for CAN", file=err)
+        return 2
     if bad:
         print(f"ghostshell log: {bad} bad line(s) skipped, {good} record(s) decoded", file=err)
         return 1
     if not good:
-        print(f"ghostshell log: {path} holds no records", file=err)
-        return 1
+        print(f"ghostshell log: {path} holds no records: nothing to decode", file=err)
+        return 2
     return 0
 
 
@@ -104,6 +129,13 @@ def main(args: argparse.Namespace) -> int:
             return decode_mcap_file(args.file, types=args.type)
         except BrokenPipeError:
             return 0
+    if args.type:
+        known = type_names()
+        unknown = [t for t in args.type if t.upper() not in known]
+        if unknown:
+            print(f"ghostshell log: --type {', '.join(unknown)}: no such message type; the types are "
+                  f"{', '.join(known)}", file=sys.stderr)
+            return 2
 
     is_can = (args.link is not None and args.link.kind == "can") or (
         args.link is None and args.file.lower().endswith(CAN_LOG_SUFFIXES))

@@ -1,4 +1,9 @@
-"""``ghostshell mcp``: serve the shell over the Model Context Protocol (stdio or streamable HTTP)."""
+"""``ghostshell mcp``: serve the shell over the Model Context Protocol (stdio or streamable HTTP).
+
+Every argument is checked before the board starts (exit status 2, one line). Ctrl-C / SIGTERM stop
+the server: a running program is interrupted, the robot goes to its rest pose, the board stops,
+one line, exit status 130 (see :mod:`host.mcp_server.server`).
+"""
 
 from __future__ import annotations
 
@@ -6,12 +11,14 @@ import argparse
 import sys
 from pathlib import Path
 
+from host.commands.inputs import port_number
+from host.commands.linkarg import USAGE_STATUS, add_link_argument, preflight_link, unreachable_link
 from host.commands.robotarg import add_robot_argument, robot_from_args
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the mcp options."""
-    parser.add_argument("--http", type=int, default=None, metavar="PORT",
+    parser.add_argument("--http", type=port_number, default=None, metavar="PORT",
                         help="streamable HTTP on 127.0.0.1:PORT (path /mcp) instead of stdio")
     clock = parser.add_mutually_exclusive_group()
     clock.add_argument("--lockstep", dest="lockstep", action="store_true", help="virtual-time board")
@@ -26,19 +33,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mode", choices=("async-first", "sync-first"), default="async-first")
     parser.add_argument("--scene", default=None, metavar="NAME",
                         help="objects in the board's world: one of the robot's scenes (default: the robot's)")
-    parser.add_argument("--link", default="pty", metavar="pty|PATH|URL")
+    add_link_argument(parser)
+    parser.add_argument("--emulate-board", action="store_true",
+                        help="start the emulated board on --link first (implied for pty and can:slcan:pty)")
     parser.add_argument("--out", type=Path, default=Path("runs/mcp"), help="session folder (frame logs, turns)")
 
 
 def main(args: argparse.Namespace) -> int:
     """Serve until stdin closes (stdio) or the process is stopped (HTTP)."""
-    try:
-        from host.mcp_server.server import serve
-    except ImportError as err:
-        print(f"ghostshell mcp: the MCP SDK is missing ({err}); pip install 'mcp>=2'", file=sys.stderr)
-        return 2
-    from host.run.session import SessionOptions
-
+    why = unreachable_link(args.link) or preflight_link(
+        args.link, emulated=args.emulate_board or args.link.implies_emulated_board)
+    if why:
+        print(f"ghostshell mcp: {why}", file=sys.stderr)
+        return USAGE_STATUS
     robot = robot_from_args(args, "mcp")
     if isinstance(robot, int):
         return robot
@@ -49,8 +56,27 @@ def main(args: argparse.Namespace) -> int:
     if args.scene is not None and args.scene not in robot.scenes:
         print(f"ghostshell mcp: --scene {args.scene!r}: {robot.name} has {', '.join(robot.scenes)}", file=sys.stderr)
         return 2
+    try:
+        from host.mcp_server.server import serve
+    except ImportError as err:
+        print(f"ghostshell mcp: the MCP SDK is missing ({err}); pip install 'mcp>=2'", file=sys.stderr)
+        return 2
+    from host.link import LinkError
+    from host.run.session import SessionOptions
+
     opts = SessionOptions(robot=str(robot.root), robots_dir=args.robots_dir, vocabulary=args.vocabulary,
-                          mode=args.mode, lockstep=args.lockstep, link=args.link, out=args.out, label="mcp",
-                          scene=args.scene, mcp_mounts=tuple(args.mount_mcp))
-    serve(opts, args.http)
+                          mode=args.mode, lockstep=args.lockstep, link=args.link,
+                          emulate_board=args.emulate_board or None, out=args.out, label="mcp", scene=args.scene,
+                          mcp_mounts=tuple(args.mount_mcp))
+    try:
+        stop = serve(opts, args.http)
+    except (LinkError, RuntimeError, OSError) as e:
+        from host.commands.linkarg import link_exit_status
+
+        print(f"ghostshell mcp: {e}", file=sys.stderr)
+        return link_exit_status(e)
+    if stop is not None:
+        print(f"ghostshell mcp: {stop.message}; the server stopped and the board with it; session in {args.out}/",
+              file=sys.stderr)
+        return 130
     return 0

@@ -7,6 +7,7 @@ import asyncio
 import math
 import sys
 
+from host.commands.inputs import baud_rate, positive_seconds, seconds
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, refuse_unserved_link
 from host.commands.robotarg import add_robot_argument, robot_from_args
 from robots.description import Robot
@@ -21,11 +22,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pose", required=True, metavar="NAME", help="one of the robot's named poses "
                         "(ghostshell robots show NAME lists them)")
     add_robot_argument(parser)
-    parser.add_argument("--duration", type=float, default=1.0, metavar="S",
+    parser.add_argument("--duration", type=seconds, default=1.0, metavar="S",
                         help="move time (stretched to respect servo speed limits; default 1.0)")
-    parser.add_argument("--baud", type=int, default=115200, metavar="N", help="baud rate (default 115200)")
+    parser.add_argument("--baud", type=baud_rate, default=115200, metavar="N", help="baud rate (default 115200)")
     parser.add_argument("--log", default=None, metavar="FILE", help="frame log (JSON lines) of this session")
-    parser.add_argument("--timeout", type=float, default=5.0, metavar="S",
+    parser.add_argument("--timeout", type=positive_seconds, default=5.0, metavar="S",
                         help="board seconds to settle within 3 deg after the move (default 5)")
     parser.add_argument("--tolerance", type=float, default=3.0, metavar="DEG", help=argparse.SUPPRESS)
 
@@ -44,9 +45,9 @@ async def _run(args: argparse.Namespace, robot: Robot, target: tuple[float, ...]
     except (LinkConfigError, RobotMismatch) as e:  # the link cannot be opened as given, or another robot
         print(f"ghostshell pose: {e}", file=sys.stderr)
         return USAGE_STATUS
-    except LinkError as e:
-        print(f"ghostshell pose: no board on {args.link}: {e}", file=sys.stderr)
-        return USAGE_STATUS
+    except LinkError as e:  # the port opened but no board answered there as one should
+        print(f"ghostshell pose: no board answered on {args.link}: {e}", file=sys.stderr)
+        return 1
     try:
         note = await clear_leftover_fault(client)
         if note:

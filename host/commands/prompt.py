@@ -74,7 +74,13 @@ def main(args: argparse.Namespace) -> int:
     except (ImportError, AttributeError, ValueError, TypeError) as exc:
         print(f"ghostshell prompt: cannot load interface {args.interface!r}: {exc}", file=sys.stderr)
         return 2
-    skills = SkillStore(args.skills) if args.skills else None
+    from host.shell.skills import SkillError
+
+    try:
+        skills = SkillStore(args.skills) if args.skills else None
+    except SkillError as exc:
+        print(f"ghostshell prompt: {exc}", file=sys.stderr)
+        return 2
     sys.stdout.write(render_prompt(registry, format=args.format, mode=args.mode,
                                    text_first_class=args.text_first_class, skills=skills))
     return 0

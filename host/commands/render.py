@@ -20,7 +20,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def _positive_int(text: str) -> int:
-    v = int(text)
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
     if v < 1:
         raise argparse.ArgumentTypeError(f"must be >= 1, got {text}")
     return v
@@ -31,14 +34,22 @@ def main(args: argparse.Namespace) -> int:
     import time
 
     from host.progress import bar
-    from host.run.video import VideoError, VideoSettings, render_video
+    from host.run.video import VideoError, VideoInputError, VideoSettings, render_video
 
+    run_dir = Path(args.run_dir)
+    if not run_dir.is_dir():
+        what = "is not a folder" if run_dir.exists() else "does not exist"
+        print(f"ghostshell render: {run_dir} {what}; give a run's folder (ghostshell run/demo --out)", file=sys.stderr)
+        return 2
     t = time.monotonic()
     try:
         with bar("rendering run.mp4", None, quiet=args.quiet, transient=True) as shown:
             path = render_video(Path(args.run_dir), Path(args.out) if args.out else None,
                                 VideoSettings(fps=args.fps, workers=max(1, args.workers)), robots_dir=args.robots_dir,
                                 progress=lambda done, total: shown.update(completed=done, total=total))
+    except VideoInputError as e:  # nothing to render there: bad input
+        print(f"ghostshell render: {e}", file=sys.stderr)
+        return 2
     except VideoError as e:
         print(f"ghostshell render: {e}", file=sys.stderr)
         return 1

@@ -20,14 +20,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from host.link.errors import LinkError
-    from host.run.replay import replay
+    from host.run.replay import ReplayInputError, replay
     from protocol.framelog import FrameLogError
     from robots.description import RobotDataError
 
     out = Path(args.out) if args.out else Path("runs") / "replay"
     try:
         res = replay(args.log, out, robot=args.robot, robots_dir=args.robots_dir)
-    except RobotDataError as e:
+    except (RobotDataError, ReplayInputError) as e:  # bad input: exit status 2
         print(f"ghostshell replay: {e}", file=sys.stderr)
         return 2
     except (LinkError, FrameLogError, RuntimeError, OSError) as e:

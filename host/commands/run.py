@@ -6,6 +6,11 @@ summary.json, both frame logs and run.mcap (:mod:`host.run.mcap_log`) in ``--out
 with ``--video`` also run.mp4 with its sound (rendered after the run, see
 :mod:`host.run.video`); with ``--foxglove [PORT]`` Foxglove can watch the run live
 (:mod:`host.run.foxglove_live`).
+
+Ctrl-C (or SIGTERM) interrupts the run: the turn is cut through the lifecycle tree, the robot goes
+to its rest pose, every artefact is written, one line says so, exit status 130; a second Ctrl-C
+stops at once (summary.json and timeline.json still written). ``--max-board-s`` / ``--max-log-mb``
+bound a run the same way (exit status 1). See :mod:`host.run.stops`.
 """
 
 from __future__ import annotations
@@ -14,8 +19,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, unreachable_link
+from host.commands.inputs import InputError, read_text_input
+from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, preflight_link, unreachable_link
 from host.commands.robotarg import add_robot_argument, robot_from_args
+from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB
 from protocol.faults import push_arg, seed_arg
 
 
@@ -62,7 +69,7 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
                         help="skill library file (else $GHOSTSHELL_SKILLS, else the user data directory)")
     parser.add_argument("--tokens-per-s", type=_positive, default=30.0, help="scripted LLM speed (default 30)")
     parser.add_argument("--seed", type=int, default=0, help="scripted LLM jitter seed")
-    parser.add_argument("--baud", type=int, default=115200, help="baud rate for a real serial port")
+    parser.add_argument("--baud", type=_baud, default=115200, help="baud rate for a real serial port")
     parser.add_argument("--out", default=None, metavar="DIR", help="artefact folder (default runs/<label>)")
     parser.add_argument("--no-live", action="store_true", help="no live channel view")
     parser.add_argument("--scene", default=None, metavar="NAME",
@@ -91,6 +98,11 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
                         help="emulated board only: push the robot's base at board time S with a force in newtons "
                              "(world frame) for DUR s (default 0.2); repeatable")
     add_mount_argument(parser)
+    parser.add_argument("--max-board-s", type=_bound, default=DEFAULT_MAX_BOARD_S, metavar="S",
+                        help=f"stop a turn after S board seconds (default {DEFAULT_MAX_BOARD_S:g}; 0: no bound); "
+                             "summary.json says so, exit status 1")
+    parser.add_argument("--max-log-mb", type=_bound, default=DEFAULT_MAX_LOG_MB, metavar="MB",
+                        help=f"stop when the frame logs reach MB megabytes (default {DEFAULT_MAX_LOG_MB:g}; 0: no bound)")
 
 
 def add_mount_argument(parser: argparse.ArgumentParser) -> None:
@@ -103,8 +115,18 @@ def add_mount_argument(parser: argparse.ArgumentParser) -> None:
                              "(e.g. weather='python weather.py') or a streamable HTTP URL; repeatable")
 
 
+def _number(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if v != v or v in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return v
+
+
 def _positive(text: str) -> float:
-    v = float(text)
+    v = _number(text)
     if not v > 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
     return v
@@ -121,9 +143,25 @@ def _port(text: str) -> int:
 
 
 def _non_negative(text: str) -> float:
-    v = float(text)
+    v = _number(text)
     if not v >= 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return v
+
+
+def _bound(text: str) -> float | None:
+    """A bound: a number > 0, or 0 for none (None)."""
+    v = _non_negative(text)
+    return v or None
+
+
+def _baud(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of bit/s, e.g. 115200, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
     return v
 
 
@@ -213,6 +251,11 @@ def check_run_args(args: argparse.Namespace) -> int | None:
             print(f"ghostshell: --firmware {firmware} runs the emulated board this run starts on a serial link "
                   f"(--link pty); {args.link} is not one", file=sys.stderr)
             return USAGE_STATUS
+    emulate = bool(getattr(args, "emulate_board", False)) or args.link.implies_emulated_board
+    why = preflight_link(args.link, emulated=emulate)  # last: it may open a CAN bus
+    if why:
+        print(f"ghostshell: {why}", file=sys.stderr)
+        return USAGE_STATUS
     args.run_args_checked = True
     return None
 
@@ -231,13 +274,19 @@ def _push_text(p: tuple[float, tuple[float, float, float], float]) -> str:
     return f"{at!r}:{fx!r},{fy!r},{fz!r}:{dur!r}"
 
 
-def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | None, label: str) -> int:
-    """Build :class:`RunOptions` from ``args``, run, print where the artefacts are."""
+def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | None, label: str,
+             banner: str | None = None) -> int:
+    """Build :class:`RunOptions` from ``args``, run, print where the artefacts are.
+
+    ``banner`` (e.g. the task and its ground truth) is printed once the robot is up, just before
+    the program streams: a run refused at the start (a port that cannot be opened) prints only
+    its one error line."""
     import anyio
 
     from host.ghost import GhostError
     from host.link import LinkError
     from host.run.runner import RunOptions, ended_report, run_program
+    from host.run.stops import Interrupted
 
     from host.shell.skills import SkillError, SkillStore, skills_path
 
@@ -262,14 +311,26 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         scene=getattr(args, "scene", None),
         skills=skills,
         policy=policy, faults=getattr(args, "faults", None), fault_seed=getattr(args, "fault_seed", 0),
+        max_board_s=args.max_board_s, max_log_mb=args.max_log_mb, handle_signals=True,
         firmware=getattr(args, "firmware", "python"),
         foxglove=getattr(args, "foxglove", None),
         mcp_mounts=tuple(getattr(args, "mount_mcp", ())),
         event_policy=getattr(args, "event_policy", None), events=getattr(args, "scripted_events", ()),
         pushes=tuple(_push_text(p) for p in getattr(args, "push", ())),
     )
+    command = getattr(args, "command", None) or "run"
+    def show_banner(*_: object) -> None:
+        if banner is not None:
+            print(banner, flush=True)
+
     try:
-        report = anyio.run(run_program, opts, backend="asyncio")
+        report = anyio.run(run_program, opts, show_banner, backend="asyncio")
+    except Interrupted as e:
+        ended = ended_report(e)
+        what = f"; {_counts(ended.summary.outcomes)}" if ended is not None else ""
+        print(f"ghostshell {command}: {e.stop.message}, then {e.forced_by} again: stopped at once{what}; "
+              + (f"summary.json and timeline.json in {out}/" if ended is not None else "nothing ran"), file=sys.stderr)
+        return 130
     except (LinkError, GhostError, RuntimeError, OSError) as e:
         print(f"ghostshell: {e}", file=sys.stderr)
         if ended_report(e) is not None:  # a run the link ended still left its report
@@ -278,6 +339,12 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     from host.run.artefacts import calls_table
 
     s = report.summary
+    if report.stop is not None:  # a signal or a bound stopped the run: one line says what and where
+        rest = (f"the robot went to its rest pose {args.robot_value.rest_pose!r}" if report.rested else
+                "the robot could not be brought to its rest pose")
+        print(f"ghostshell {command}: {report.stop.message} at board time {s.duration_s:.2f} s; "
+              f"{_counts(s.outcomes)}; {rest}; artefacts in {out}/", file=sys.stderr)
+        return report.stop.exit_status
     print(calls_table(report.calls, report.board_t0))  # board-measured, as timeline.json
     mounted = {m.name for m in opts.mcp_mounts}
     for o in report.result.observations:  # results of mounted tools are news; the robot's own are in the table
@@ -300,6 +367,13 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
 
 ARTEFACTS = ("timeline.json", "timeline.png", "joints.png", "summary.json", "host_frames.jsonl", "board_frames.jsonl",
              "host_frames.log", "board_frames.log", "run.mcap")
+
+
+def _counts(outcomes: dict[str, int]) -> str:
+    """``"3 calls: 2 done, 1 interrupted"`` from summary.json's outcome counts."""
+    n = sum(outcomes.values())
+    parts = ", ".join(f"{v} {k}" for k, v in outcomes.items() if v)
+    return f"{n} call{'s' if n != 1 else ''}" + (f": {parts}" if parts else "")
 
 
 def _first_action(ms: float | None) -> str:
@@ -325,7 +399,7 @@ def render_into(out: Path, quiet: bool = False) -> bool:
 
 
 def main(args: argparse.Namespace) -> int:
-    program, prompt = None, args.prompt
+    program, prompt, banner = None, args.prompt, None
     if args.task is None and args.xml is None and args.xml_file is None and args.prompt is None:
         print("ghostshell run: one of the arguments --task --xml --xml-file --prompt is required", file=sys.stderr)
         return 2
@@ -342,21 +416,26 @@ def main(args: argparse.Namespace) -> int:
             print(f"ghostshell run: {e}", file=sys.stderr)
             return 2
         program, label = task.ground_truth, f"task {task.id}"
-        print(f"task {task.id} ({task.category}): {task.instruction}\n  {task.ground_truth}")
+        banner = f"task {task.id} ({task.category}): {task.instruction}\n  {task.ground_truth}"
     elif args.xml is not None:
+        if not args.xml.strip():
+            print("ghostshell run: --xml is empty: give function tokens, e.g. --xml '<head_act action=\"nod\"/>'",
+                  file=sys.stderr)
+            return 2
         program, label = args.xml, "program"
     elif args.xml_file is not None:
         try:
-            program = Path(args.xml_file).read_text(encoding="utf-8")
-        except OSError as e:
-            print(f"ghostshell run: cannot read {args.xml_file}: {e.strerror}", file=sys.stderr)
-            return 2
-        except UnicodeDecodeError as e:
-            print(f"ghostshell run: {args.xml_file} is not UTF-8 text ({e.reason} at byte {e.start})", file=sys.stderr)
+            program = read_text_input(args.xml_file, "--xml-file", what="function tokens")
+        except InputError as e:
+            print(f"ghostshell run: {e}", file=sys.stderr)
             return 2
         label = Path(args.xml_file).stem
     else:
         label = "prompt"
+        if not args.prompt.strip():
+            print("ghostshell run: --prompt is empty: give an instruction, e.g. --prompt 'Nod, then wave'",
+                  file=sys.stderr)
+            return 2
         if args.llm == "scripted":
             print("ghostshell run: --prompt needs a real LLM, e.g. --llm openai:gpt-4o-mini", file=sys.stderr)
             return 2
@@ -367,4 +446,12 @@ def main(args: argparse.Namespace) -> int:
         except GhostError as e:
             print(f"ghostshell run: {e}", file=sys.stderr)
             return 2
-    return run_with(args, program=program, prompt=prompt, label=label)
+    if program is not None:
+        from host.shell.limits import Limits
+
+        why = Limits().refuse_reply(program)
+        if why is not None:  # refused before the board starts, not cut minutes into the run
+            source = f"--xml-file {args.xml_file}" if args.xml_file is not None else "the program"
+            print(f"ghostshell run: {source}: {why}; nothing was run", file=sys.stderr)
+            return 2
+    return run_with(args, program=program, prompt=prompt, label=label, banner=banner)

@@ -2,6 +2,7 @@
 
 The library is the file given with ``--skills``, else ``$GHOSTSHELL_SKILLS``,
 else ``skills.json`` in the user's data directory (see :func:`host.shell.skills.skills_path`).
+Exit status: 0 done; 1 the library could not be written; 2 no such skill, or an unreadable library.
 """
 
 from __future__ import annotations
@@ -42,7 +43,10 @@ def main(args: argparse.Namespace) -> int:
         elif args.action == "rm":
             store.delete(args.name)
             print(f"deleted skill {args.name!r} from {path}")
-    except (SkillError, OSError) as e:
+    except SkillError as e:  # an unknown skill, an unreadable library file: bad input
+        print(f"ghostshell skills: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # the library could not be written
         print(f"ghostshell skills: {e}", file=sys.stderr)
         return 1
     return 0

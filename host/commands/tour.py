@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import math
 import signal
@@ -20,7 +21,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, unreachable_link
+from host.commands.inputs import seconds
+from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, preflight_link, unreachable_link
 from host.commands.robotarg import add_robot_argument, robot_from_args
 from host.link.board_process import BoardProcess, start_board
 from protocol.linkspec import LinkSpec
@@ -36,7 +38,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.set_defaults(lockstep=False)
     parser.add_argument("--out", default=None, metavar="DIR",
                         help="write the frame logs (board.jsonl, host.jsonl), board stderr and summary.json here")
-    parser.add_argument("--duration", type=float, default=1.0, metavar="S", help="seconds per pose move (default 1.0)")
+    parser.add_argument("--duration", type=seconds, default=1.0, metavar="S", help="seconds per pose move (default 1.0)")
     add_link_argument(parser)
     parser.add_argument("--emulate-board", action="store_true",
                         help="start the emulated board on --link first (implied for pty and can:slcan:pty)")
@@ -124,7 +126,7 @@ def main(args: argparse.Namespace) -> int:
     from host.link import LinkError
 
     spec: LinkSpec = args.link
-    why = unreachable_link(spec)
+    why = unreachable_link(spec) or preflight_link(spec, emulated=args.emulate_board or spec.implies_emulated_board)
     if why:
         print(f"ghostshell tour: {why}", file=sys.stderr)
         return USAGE_STATUS
@@ -132,6 +134,7 @@ def main(args: argparse.Namespace) -> int:
     if isinstance(robot, int):
         return robot
     out = Path(args.out) if args.out else None
+    created = out is not None and not out.exists()
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
     board: BoardProcess | None = None
@@ -154,6 +157,9 @@ def main(args: argparse.Namespace) -> int:
         print(f"ghostshell tour: {e}", file=sys.stderr)
         code = link_exit_status(e)
         summary = None
+        if created and out is not None and code == USAGE_STATUS and board is None:
+            with contextlib.suppress(OSError):
+                out.rmdir()  # the link could not be opened: nothing ran, no empty folder left
     finally:
         if board is not None:
             rc = board.stop()

@@ -13,10 +13,15 @@ JSON object per line, flushed), so an interrupted sweep continues where it
 stopped; a job whose LLM call failed is retried on the next start. Jobs run
 ``workers`` at a time in one AnyIO task group (each with its own board), or on
 a Ray cluster (:mod:`host.eval.ray_backend`).
+
+Offline (no model): ``llm=GROUND_TRUTH`` answers each task with its own ground truth (micro =
+macro = 1.0); ``llm=SCRIPTED`` answers each task with ``SweepConfig.replies[task]`` (from
+``ghostshell eval --llm scripted --replies FILE``, :func:`replies_for_tasks`).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import time
@@ -43,6 +48,10 @@ RESULTS = "results.jsonl"
 CONFIG = "config.json"
 #: the LLM spec that answers every task with its ground truth (no model: micro = macro = 1.0)
 GROUND_TRUTH = "ground-truth"
+#: the LLM spec that answers every task with a reply from a file (``SweepConfig.replies``)
+SCRIPTED = "scripted"
+#: LLM specs that need no model, key or network
+OFFLINE = (GROUND_TRUTH, SCRIPTED)
 
 
 @dataclass
@@ -69,14 +78,19 @@ class SweepConfig:
     temperature: float | None = None
     max_retries: int = 2
     native_exec: str = "parallel"  # how one response's tool calls run (host.eval.native.NATIVE_EXEC)
+    replies: dict[int, str] | None = None  # llm SCRIPTED: the reply to each task
     mcp_mounts: tuple[Any, ...] = ()  # MCP servers mounted as modules in the prompt and every run (host.mounts)
 
     def identity(self) -> dict[str, Any]:
         """What must match for a resumed sweep to continue this one."""
-        return {"llm": self.llm, "robot": self.bot.name, "suite": self.suite, "native_tools": self.native_tools,
-                "native_exec": self.native_exec,
-                "vocabulary": self.vocabulary, "mode": self.mode, "prompt_format": self.prompt_format,
-                "base_url": self.base_url, "tasks": list(self.tasks), "trials": self.trials}
+        ident = {"llm": self.llm, "robot": self.bot.name, "suite": self.suite, "native_tools": self.native_tools,
+                 "native_exec": self.native_exec,
+                 "vocabulary": self.vocabulary, "mode": self.mode, "prompt_format": self.prompt_format,
+                 "base_url": self.base_url, "tasks": list(self.tasks), "trials": self.trials}
+        if self.replies is not None:  # other replies are another sweep
+            text = json.dumps(sorted(self.replies.items()), ensure_ascii=False)
+            ident["replies_sha256"] = hashlib.sha256(text.encode()).hexdigest()
+        return ident
 
 
     @property
@@ -107,6 +121,40 @@ def system_prompt(cfg: SweepConfig) -> str:
     return anyio.run(with_mounts)
 
 
+def replies_for_tasks(blocks: list[Any], tasks: list[int]) -> dict[int, str]:
+    """The reply to each of ``tasks`` from ``--replies`` blocks (:func:`host.chat.script.parse_blocks`
+    with ``options=("task",)``): either every block has a ``--- task N`` header (tasks not in
+    ``tasks`` are ignored, so one file can serve any ``--tasks``), or none has and the blocks answer
+    ``tasks`` in order, one each. ValueError (one line) otherwise."""
+    headed = [b for b in blocks if b.task is not None]
+    if not blocks:
+        raise ValueError("holds no reply (blocks are separated by lines '---')")
+    if headed and len(headed) != len(blocks):
+        first = next(b for b in blocks if b.task is None)
+        raise ValueError(f"line {first.line}: a reply without '--- task N' in a file whose other replies name "
+                         "their task; name every reply's task, or none (then the replies answer --tasks in order)")
+    if not headed:
+        if len(blocks) != len(tasks):
+            raise ValueError(f"holds {len(blocks)} repl{'y' if len(blocks) == 1 else 'ies'} for {len(tasks)} task(s) "
+                             f"({_spec(tasks)}); give one reply per task in that order, or head each reply "
+                             "'--- task N'")
+        return {t: b.text for t, b in zip(tasks, blocks)}
+    by_task: dict[int, str] = {}
+    for b in blocks:
+        assert b.task is not None
+        if b.task in by_task:
+            raise ValueError(f"line {b.line}: a second reply for task {b.task}")
+        by_task[b.task] = b.text
+    missing = [t for t in tasks if t not in by_task]
+    if missing:
+        raise ValueError(f"has no reply for task(s) {_spec(missing)} (--tasks {_spec(tasks)})")
+    return {t: by_task[t] for t in tasks}
+
+
+def _spec(tasks: list[int]) -> str:
+    return ",".join(map(str, tasks)) if len(tasks) <= 8 else f"{tasks[0]}..{tasks[-1]} ({len(tasks)} tasks)"
+
+
 def provider_of(llm: str) -> str:
     return llm.split(":", 1)[0].lower()
 
@@ -124,6 +172,11 @@ async def ask(cfg: SweepConfig, task: int, system: str) -> dict[str, Any]:
             raise GhostError("--llm ground-truth answers tasks with a ground truth, not the ablation's patterns")
         truth = hri_tasks(cfg.bot)[task].ground_truth
         return {"reply": truth, "text": truth, "tool_calls": [], "first_token_s": 0.0, "llm_s": 0.0}
+    if cfg.llm == SCRIPTED:  # offline: the reply the --replies file gives this task
+        if cfg.replies is None or task not in cfg.replies:
+            raise GhostError(f"--llm scripted has no reply for task {task}")
+        text = cfg.replies[task]
+        return {"reply": text, "text": text, "tool_calls": [], "first_token_s": 0.0, "llm_s": 0.0}
     kw: dict[str, Any] = {"base_url": cfg.base_url, "api_key": cfg.api_key, "temperature": cfg.temperature,
                           "max_retries": cfg.max_retries}
     if cfg.native_tools:

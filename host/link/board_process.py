@@ -5,6 +5,12 @@ and reads the first stdout line, ``board: listening on X``. For links the board 
 (``pty``, ``can:slcan:pty``) X is the new pty and the host connects to the spec with that
 port (:meth:`protocol.linkspec.LinkSpec.with_port`); for every other link the host connects
 to the spec as given.
+
+The host owns the board's life: the board runs in its own process group, so a Ctrl-C in the
+terminal reaches only the host, which then stops the board itself (:meth:`BoardProcess.stop`)
+after it has finished with it (the link never looks "lost" because of the user's Ctrl-C); and
+its standard input is a pipe from the host (``--stop-on-stdin-eof``), so a host that dies in any
+way (SIGKILL included) takes its board with it.
 """
 
 from __future__ import annotations
@@ -53,8 +59,12 @@ class BoardProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
+        for pipe in (self.proc.stdin, self.proc.stdout):
+            if pipe is not None:
+                try:
+                    pipe.close()
+                except OSError:
+                    pass
         self._stderr.close()
         return int(self.proc.returncode)
 
@@ -77,16 +87,25 @@ def start_board(
     spec = parse_link_spec(link)
     err: IO[str] = open(stderr_path, "w+") if stderr_path else tempfile.TemporaryFile("w+")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "firmware_sim", "--link", str(spec), *args],
-        stdout=subprocess.PIPE, stderr=err, text=True, env=dict(os.environ, PYTHONUNBUFFERED="1"),
+        [sys.executable, "-m", "firmware_sim", "--link", str(spec), "--stop-on-stdin-eof", *args],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=err, text=True, env=dict(os.environ, PYTHONUNBUFFERED="1"),
+        process_group=0,  # the terminal's Ctrl-C reaches the host only; the host stops the board
     )
     assert proc.stdout is not None
-    ready, _, _ = select.select([proc.stdout], [], [], timeout)
-    line = proc.stdout.readline().strip() if ready else ""
+    try:
+        ready, _, _ = select.select([proc.stdout], [], [], timeout)
+        line = proc.stdout.readline().strip() if ready else ""
+    except BaseException:  # e.g. KeyboardInterrupt while it starts: the board must not be left behind
+        proc.kill()
+        proc.wait()
+        err.close()
+        raise
     prefix = "board: listening on "
     if not line.startswith(prefix):
         proc.kill()
         status = proc.wait()
+        assert proc.stdin is not None
+        proc.stdin.close()
         why = _last_line(err)
         err.close()
         if status == USAGE_STATUS and why:  # the board refused the link spec (its own one-line reason)

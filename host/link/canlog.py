@@ -16,6 +16,7 @@ for every robot; :func:`log_servo_count` finds it), else
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -32,8 +33,27 @@ from protocol.can.layouts import DEFAULT_SERVO_COUNT, CanLayouts, can_layouts
 from protocol.codec import PayloadError
 from protocol.messages import MAX_WIRE_SERVOS, Caps, Message, SimState
 
-__all__ = ["CAN_LOG_SUFFIXES", "CanLogEntry", "can_last_sim_state", "iter_can_log", "load_dbc", "log_servo_count",
-           "read_can_host_to_board"]
+__all__ = ["CAN_LOG_SUFFIXES", "CanLogEntry", "can_last_sim_state", "candump_problem", "iter_can_log", "load_dbc",
+           "log_servo_count", "read_can_host_to_board"]
+
+#: a candump -L line: "(1700000000.123456) vcan0 123#DEADBEEF" (CAN FD: ID##F DATA; remote: ID#R)
+_CANDUMP_LINE = re.compile(r"^\(\d+(\.\d+)?\)\s+\S+\s+[0-9A-Fa-f]{1,8}#")
+
+
+def candump_problem(path: str | Path) -> str | None:
+    """Why ``path`` (a ``.log``) is not a candump ``-L`` log python-can reads (one line naming the first
+    bad line), or None. python-can's reader fails on such a line with an unpacking error that names
+    neither the file nor the line ("not enough values to unpack (expected 3, got 1)")."""
+    try:
+        with open(path, encoding="utf-8", errors="replace") as f:
+            for lineno, line in enumerate(f, 1):
+                text = line.strip()
+                if text and not text.startswith("#") and not _CANDUMP_LINE.match(text):
+                    return (f"{path}:{lineno} is not a candump -L line (expected '(TIMESTAMP) CHANNEL ID#DATA'): "
+                            f"{text[:60]!r}")
+    except OSError as e:
+        return f"cannot read {path}: {e.strerror or e}"
+    return None
 
 #: suffixes python-can reads (can.LogReader) that a CAN run may be logged in
 CAN_LOG_SUFFIXES = (".log", ".asc", ".blf", ".csv", ".trc", ".mf4")

@@ -320,14 +320,16 @@ class BoardClient:
         for t in self._tasks:
             t.cancel()
         tg, self._tg = self._tg, None
-        if tg is not None:
-            with contextlib.suppress(Exception):
-                await tg.__aexit__(None, None, None)
-        self._tasks = []
-        if self._transport is not None:
-            self._transport.close()
-        self._ready = False
-        self._fail_pending(LinkDown("client closed"))
+        try:
+            if tg is not None:
+                with contextlib.suppress(Exception):
+                    await tg.__aexit__(None, None, None)
+        finally:  # also when the close itself is cancelled (a second Ctrl-C): the port and the frame log close
+            self._tasks = []
+            if self._transport is not None:
+                self._transport.close()
+            self._ready = False
+            self._fail_pending(LinkDown("client closed"))
 
     async def __aenter__(self) -> BoardClient:
         if self._tg is None:

@@ -18,13 +18,23 @@ shell) lives as long as the server (the SDK's lifespan) and serves every call:
 
 Transports: stdio (default) and streamable HTTP bound to 127.0.0.1
 (``--http PORT``; path ``/mcp``).
+
+A program is checked against the shell's per-turn limits before it runs (a tool error, nothing
+run); one that reaches the board-time bound (``SessionOptions.max_board_s``) is stopped with outcome
+``limit`` and the server goes on. Ctrl-C / SIGTERM (:func:`serve`): the running program is
+interrupted through the lifecycle tree, the robot goes to its rest pose, the session closes (the
+board stops), exit 130; a second signal stops at once. Over stdio the requests are read by
+:class:`_StdinLines` (a reader the signal can abandon: the SDK's reader thread would block the
+exit until the client closed stdin).
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
+import threading
 from collections.abc import AsyncIterator
-from dataclasses import asdict
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -36,28 +46,40 @@ from mcp.server.mcpserver.utilities.types import Image
 from host.mcp_server.functions import function_tools
 from host.robot.binding import signature_registry
 from host.run.session import RobotSession, SessionOptions
+from host.run.stops import StopReason, StopSignals
+from host.shell.limits import Limits
 from robots.registry import load_robot
 
 #: the function stubs' resource URI
 FUNCTIONS_URI = "ghostshell://functions"
 
 
-def build_server(opts: SessionOptions) -> MCPServer[Any]:
-    """An ``MCPServer`` whose lifespan holds one robot session built from ``opts``.
+@dataclass
+class ServerState:
+    """The session a server holds (while its lifespan runs) and the lock one program at a time takes."""
+
+    session: RobotSession | None = None
+    turn_lock: anyio.Lock = field(default_factory=anyio.Lock)
+
+
+def build_server(opts: SessionOptions, served: ServerState | None = None) -> MCPServer[Any]:
+    """An ``MCPServer`` whose lifespan holds one robot session built from ``opts`` (in ``served.session``).
 
     Raises :class:`robots.description.RobotDataError` when ``opts.robot`` names no usable robot."""
     robot = load_robot(opts.robot, opts.robots_dir)
+    st = served if served is not None else ServerState()
     holder: dict[str, RobotSession] = {}
-    turn_lock = anyio.Lock()
+    turn_lock = st.turn_lock
 
     @contextlib.asynccontextmanager
     async def lifespan(_server: Any) -> AsyncIterator[None]:
         async with RobotSession(opts) as session:
-            holder["session"] = session
+            holder["session"] = st.session = session
             try:
                 yield None
             finally:
                 holder.pop("session", None)
+                st.session = None
 
     def session() -> RobotSession:
         s = holder.get("session")
@@ -79,8 +101,15 @@ def build_server(opts: SessionOptions) -> MCPServer[Any]:
         if turn_lock.locked():
             # ToolError: the client gets this message as an is_error result (no server traceback)
             raise ToolError("a program is already running; call interrupt() first or wait for it")
+        why = Limits().refuse_reply(xml)
+        if why is not None:
+            raise ToolError(f"{why}; nothing was run")
+        if s.stop is not None and s.stop.kind == "signal":
+            raise ToolError(f"the server is stopping ({s.stop.message})")
         async with turn_lock:
             turn = await s.run_turn(xml)
+            if s.stop is not None and s.stop.name == "max_board_s":
+                s.clear_stop()  # that bound cut this program only; the server goes on
         summary = turn.summary
         return {"outcome": summary.outcome, "fell": summary.fell, "duration_s": summary.duration_s,
                 "executed_text": turn.executed_text,
@@ -137,13 +166,106 @@ def _call(d: dict[str, Any], t0: float) -> dict[str, Any]:
     return d
 
 
-def serve(opts: SessionOptions, http_port: int | None = None) -> None:
-    """Run until the client disconnects (stdio) or the process is stopped (HTTP)."""
-    server = build_server(opts)
-    if http_port is None:
-        server.run("stdio")
-    else:
-        server.run("streamable-http", host="127.0.0.1", port=http_port)
+class _StdinLines:
+    """The client's requests, one text line at a time, from a private copy of fd 0.
+
+    The SDK's own reader reads ``sys.stdin`` in an AnyIO worker thread, which a cancellation cannot
+    stop and the exiting interpreter waits for: a Ctrl-C would hang until the client closed stdin.
+    Here a daemon thread does raw ``os.read`` calls (no lock the exiting interpreter needs), one
+    chunk ahead of the consumer, and hands them to the event loop. A line is at most ``MAX_LINE``
+    bytes (a longer one is passed on cut there; the SDK then answers a parse error), so nothing
+    grows without bound. asyncio only (``serve`` runs on it).
+    """
+
+    MAX_LINE = 16 * 1024 * 1024
+
+    def __init__(self, fd: int = 0) -> None:
+        self.fd = os.dup(fd)
+        self.buf = bytearray()
+        self.eof = False
+        self._chunks: Any = None
+        self._more = threading.Event()
+
+    def _reader(self, loop: Any) -> None:
+        while True:
+            self._more.wait()
+            self._more.clear()
+            try:
+                chunk = os.read(self.fd, 65536)
+            except OSError:
+                chunk = b""
+            loop.call_soon_threadsafe(self._chunks.put_nowait, chunk)
+            if not chunk:
+                return
+
+    def __aiter__(self) -> _StdinLines:
+        return self
+
+    async def __anext__(self) -> str:
+        import asyncio
+
+        if self._chunks is None:
+            self._chunks = asyncio.Queue()
+            threading.Thread(target=self._reader, args=(asyncio.get_running_loop(),), name="mcp-stdin",
+                             daemon=True).start()
+        while b"\n" not in self.buf and len(self.buf) < self.MAX_LINE and not self.eof:
+            self._more.set()
+            chunk = await self._chunks.get()
+            self.eof = not chunk
+            self.buf += chunk
+        if not self.buf:
+            raise StopAsyncIteration
+        end = self.buf.find(b"\n")
+        cut = end + 1 if 0 <= end < self.MAX_LINE else min(len(self.buf), self.MAX_LINE)
+        line = bytes(self.buf[:cut])
+        del self.buf[:cut]
+        return line.decode("utf-8", errors="replace")
+
+
+async def _serve(opts: SessionOptions, http_port: int | None) -> StopReason | None:
+    """Serve until the client goes away (stdio), or a signal; returns the signal's stop (None otherwise)."""
+    state = ServerState()
+    server = build_server(opts, state)
+    stopping = anyio.Event()
+
+    def on_first(stop: StopReason) -> bool:
+        session = state.session
+        if session is None:  # not started (or already closing): nothing to bring to rest
+            return False
+        session.request_stop(stop)  # a running program is interrupted through the lifecycle tree
+        stopping.set()
+        return True
+
+    signals = StopSignals(on_first)
+    async with signals.guard(), anyio.create_task_group() as tg:
+        async def run() -> None:
+            if http_port is None:
+                from mcp.server.stdio import stdio_server
+
+                async with stdio_server(stdin=_StdinLines()) as (read, write):  # type: ignore[arg-type]
+                    low = server._lowlevel_server
+                    await low.run(read, write, low.create_initialization_options())
+            else:
+                await server.run_streamable_http_async(host="127.0.0.1", port=http_port)
+            tg.cancel_scope.cancel()
+
+        async def wind_down() -> None:
+            await stopping.wait()
+            async with state.turn_lock:  # the interrupted program has ended
+                session = state.session
+                if session is not None:
+                    await session.go_to_rest()
+            tg.cancel_scope.cancel()
+
+        tg.start_soon(run)
+        tg.start_soon(wind_down)
+    return signals.first
+
+
+def serve(opts: SessionOptions, http_port: int | None = None) -> StopReason | None:
+    """Run until the client disconnects (stdio) or the process is stopped; returns the signal that
+    stopped it (see the module docstring), or None."""
+    return anyio.run(_serve, opts, http_port, backend="asyncio")
 
 
 def default_out() -> Path:

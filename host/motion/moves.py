@@ -131,6 +131,11 @@ async def move_to(
                 tg.cancel_scope.cancel()
     except TimeoutError:
         raise LinkTimeout(f"move did not finish within {wall_timeout_s} s of wall time") from None
+    except BaseExceptionGroup as group:  # the move's own error (a NACK, a fault), not a group: callers catch LinkError
+        link_errors = [e for e in group.exceptions if isinstance(e, LinkError)]
+        if len(link_errors) == len(group.exceptions) == 1:
+            raise link_errors[0] from None
+        raise
     finally:
         client.on_nack.remove(nacks.append)
         _SENT_UNTIL[client] = streamer.first_free_us

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -80,11 +81,19 @@ def write_timeline_json(path: Path, calls: Sequence[BoardCall], t0: float = 0.0)
     """Write ``{"clock": "board", "t0": run start, "calls": [...]}`` (times in board seconds)."""
     doc = {"clock": "board", "t0": t0, "calls": [{k: _jsonable(v) for k, v in asdict(c).items()
                                                    if k != "ended_by" or v is not None} for c in calls]}
-    path.write_text(json.dumps(doc, indent=1, ensure_ascii=False) + "\n", encoding="utf-8")
+    _write_atomic(path, json.dumps(doc, indent=1, ensure_ascii=False) + "\n")
 
 
 def write_summary_json(path: Path, summary: Summary) -> None:
-    path.write_text(json.dumps(_jsonable(asdict(summary)), indent=1) + "\n", encoding="utf-8")
+    _write_atomic(path, json.dumps(_jsonable(asdict(summary)), indent=1) + "\n")
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to a temporary file beside ``path`` and rename it: a reader (or a process
+    stopped mid-write) never sees half a file."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
 
 
 _COLOURS = {"done": "#4c9be8", "failed": "#e05050", "cancelled": "#aaaaaa", "interrupted": "#f0a030",

@@ -56,6 +56,10 @@ SETTLE_CHECKPOINTS = 32
 #: wall seconds without telemetry after which a run fails (the board died or the link hung)
 TELEMETRY_SILENCE_S = 10.0
 LOCKSTEP_NUDGE_S = 0.5  # lockstep: wall seconds without telemetry before the host ADVANCEs the board
+#: wall seconds the silence watchdog may oversleep before it takes the gap as its own process not running
+#: (a starved or suspended host: a User-Mode Linux guest on an overloaded machine stood still for ~10 s),
+#: which is not the board's silence: the gap is not counted
+STALL_S = 1.0
 #: the same once the link has shown losses (decode errors, re-sent requests): a lost report, not a
 #: slow board, is then the likely reason for the silence
 LOSSY_NUDGE_S = 0.05
@@ -107,6 +111,9 @@ async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardCl
     """Fail the run when the board stops reporting (it died, or the link hung), or when the host
     stops streaming frames to it (a stalled streamer must end the run, not hang it).
 
+    Silence is counted only while this process runs: a gap in which the watchdog itself did not
+    run (``STALL_S``) is the host's stall, not the board's silence.
+
     Lockstep over a lossy link: when the frame that would have let the board reach its next report
     (or that report itself) was lost, both ends wait for each other. After ``LOCKSTEP_NUDGE_S`` of
     silence (``LOSSY_NUDGE_S`` once the link has lost something) the host ADVANCEs the board one
@@ -115,12 +122,23 @@ async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardCl
     or missing, as they would be after any loss). Each further nudge reaches one period further.
     """
     sent, since = runtime.streamer.frames_sent, time.monotonic()
+    # silence counts from now, not from when the Recorder was made: before the session's first report
+    # the board was still starting (seconds, ~12 s inside User-Mode Linux on a loaded machine), which
+    # ended every such run at the first check with "no telemetry for 10 s"
+    rec.last_rx = max(rec.last_rx, since)
     lockstep = client is not None and client.lockstep
     nudged_at = 0.0
     target = 0
+    step = 0.02 if lockstep else 0.25
+    woke = since
     while True:
-        await anyio.sleep(0.02 if lockstep else 0.25)
+        await anyio.sleep(step)
         now = time.monotonic()
+        stalled = now - woke - step
+        woke = now
+        if stalled > STALL_S:  # this process did not run (an overloaded machine, a blocked loop): not silence
+            rec.last_rx += stalled
+            since += stalled
         if runtime.streamer.frames_sent != sent or runtime.streamer.held:
             sent, since = runtime.streamer.frames_sent, now
         silent = now - rec.last_rx

@@ -45,7 +45,7 @@ from robots.registry import DEFAULT_ROBOT, load_robot
 
 log = logging.getLogger("host.run")
 
-__all__ = ["LOG_READERS", "ReplayError", "ReplayResult", "find_host_log", "read_host_to_board",
+__all__ = ["LOG_READERS", "ReplayError", "ReplayInputError", "ReplayResult", "find_host_log", "read_host_to_board",
            "read_serial_log", "replay"]
 
 #: host log file names looked for in a run folder, in order
@@ -54,6 +54,11 @@ HOST_LOG_NAMES = ("host_frames.jsonl", "host.jsonl", "host_frames.log", "host_fr
 
 class ReplayError(LinkError):
     """The log cannot be replayed (unreadable, nothing sent, or the board did not follow)."""
+
+
+class ReplayInputError(ReplayError):
+    """The log given is no replayable log (missing, no host log in the folder, unknown format,
+    unreadable, nothing sent): a bad input, found before the board starts (exit status 2)."""
 
 
 def read_serial_log(path: Path) -> Iterator[tuple[float, int, Message]]:
@@ -107,9 +112,9 @@ def find_host_log(path: Path) -> Path:
         found = sorted(p for p in path.iterdir() if p.name.startswith("host") and p.suffix in LOG_READERS)
         if found:
             return found[0]
-        raise ReplayError(f"no host frame log in {path} (looked for {', '.join(HOST_LOG_NAMES)})")
+        raise ReplayInputError(f"no host frame log in {path} (looked for {', '.join(HOST_LOG_NAMES)})")
     if not path.is_file():
-        raise ReplayError(f"no such log: {path}")
+        raise ReplayInputError(f"no such log: {path}")
     return path
 
 
@@ -117,12 +122,18 @@ def read_host_to_board(path: Path) -> Iterator[tuple[float, int, Message]]:
     """``(t, seq, message)`` the host sent, in order, from the log at ``path`` (reader by suffix)."""
     reader = LOG_READERS.get(path.suffix.lower())
     if reader is None:
-        raise ReplayError(f"cannot replay {path.name}: unknown log format {path.suffix!r} "
+        raise ReplayInputError(f"cannot replay {path.name}: unknown log format {path.suffix!r} "
                           f"(known: {', '.join(sorted(LOG_READERS))})")
+    if path.suffix.lower() == ".log":
+        from host.link.canlog import candump_problem
+
+        problem = candump_problem(path)
+        if problem is not None:
+            raise ReplayInputError(f"cannot replay it: {problem}")
     try:
         yield from reader(path)
     except (ValueError, UnicodeDecodeError) as e:  # a file with a log's name that is not that log
-        raise ReplayError(f"cannot replay {path.name}: not a readable {path.suffix} frame log ({e})") from None
+        raise ReplayInputError(f"cannot replay {path.name}: not a readable {path.suffix} frame log ({e})") from None
 
 
 def _pose(s: SimState | None) -> list[float] | None:
@@ -156,7 +167,8 @@ def _replay_log(path: Path, robot: Robot, log_path: Path) -> RunLog | None:
 async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, robots_dir: str | None) -> ReplayResult:
     msgs = list(read_host_to_board(log_path))
     if not msgs:
-        raise ReplayError(f"{log_path} holds no host-to-board messages")
+        raise ReplayInputError(f"{log_path} holds no host-to-board messages")
+    out.mkdir(parents=True, exist_ok=True)  # only for a log that can be replayed
     last_fn = LAST_SIM_STATE.get(log_path.suffix.lower())
     original = last_fn(log_path) if last_fn is not None else None
     robot = load_robot(robot_name, robots_dir)
@@ -266,6 +278,5 @@ def replay(log: str | Path, out: str | Path, *, timeout_s: float = 30.0, robot: 
     """
     log_path = find_host_log(Path(log))
     out_dir = Path(out)
-    out_dir.mkdir(parents=True, exist_ok=True)
     name = robot or recorded_robot(log_path.parent) or DEFAULT_ROBOT
     return asyncio.run(_replay(log_path, out_dir, timeout_s, name, robots_dir))

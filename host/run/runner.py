@@ -8,15 +8,26 @@ the board clock; in realtime both follow the wall clock.
 
 A run is a :class:`~host.run.session.RobotSession` with a single turn whose
 artefacts go straight into ``out``.
+
+Stops (:mod:`host.run.stops`): with ``RunOptions.handle_signals`` (the CLI) the first SIGINT or
+SIGTERM interrupts the turn, the robot goes to its rest pose and every artefact is written
+(``RunReport.stop``); a second one (or one during start-up) cancels the run at once and
+:func:`run_program` raises :class:`~host.run.stops.Interrupted` after writing summary.json and
+timeline.json (:func:`ended_report` gives that report). A bound (``max_board_s``, ``max_log_mb``)
+stops the run like a first signal, with outcome ``limit``.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
+
+import anyio
+import anyio.to_thread
 
 from host.ghost import make_ghost
 from host.link.errors import LinkError
@@ -24,7 +35,8 @@ from host.run import artefacts
 from host.run.events import EventPolicy, ScriptedEvent
 from host.robot.runtime import RobotRuntime
 from host.run.pump import HISTORY, SETTLE_CHECKPOINTS, TELEMETRY_SILENCE_S
-from host.run.session import RobotSession, SessionOptions
+from host.run.session import RobotSession, SessionOptions, TurnResult
+from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB, Interrupted, StopReason, StopSignals
 from host.shell import Shell
 from host.shell.skills import SkillStore
 from host.shell.policy import Policy
@@ -78,6 +90,9 @@ class RunOptions:
     event_policy: EventPolicy | None = None  # per event kind: ignore, note or interrupt (host.run.events)
     events: tuple[ScriptedEvent, ...] = ()  # scripted events (--events FILE)
     pushes: tuple[str, ...] = ()  # emulated board: pushes on the base (board --push S:FX,FY,FZ[:DUR])
+    max_board_s: float | None = DEFAULT_MAX_BOARD_S  # board seconds the run may last (None: no bound)
+    max_log_mb: float | None = DEFAULT_MAX_LOG_MB  # megabytes its frame logs may reach (None: no bound)
+    handle_signals: bool = False  # SIGINT/SIGTERM interrupt the run (the CLI; main thread only)
 
 
 @dataclass
@@ -90,6 +105,8 @@ class RunReport:
     out: Path
     token_times: list[tuple[float, str]] = field(default_factory=list)
     board_t0: float = 0.0
+    stop: StopReason | None = None  # why the run stopped early (a signal, a bound), else None
+    rested: bool | None = None  # after a stop: the robot reached its rest pose (None: no stop)
 
 
 def session_options(opts: RunOptions) -> SessionOptions:
@@ -108,8 +125,11 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, RobotRuntime]
     gives the :class:`RunReport` it wrote.
     """
     session = RobotSession(session_options(opts))
+    signals = StopSignals(session.request_stop) if opts.handle_signals else None
+    rested: bool | None = None
+    turn: TurnResult | None = None
     try:
-        async with session:
+        async with (signals.guard() if signals is not None else contextlib.nullcontext()), session:
             messages = [{"role": "system", "content": session.prompt(format="xml")},
                         {"role": "user", "content": opts.prompt or ""}]
             if opts.llm == "scripted":  # paced on the board clock, so lockstep runs are reproducible
@@ -126,18 +146,45 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, RobotRuntime]
             turn = await session.run_turn(ghost.stream(messages), label=opts.task_label, out=opts.out,
                                           hold=opts.llm != "scripted", buffer=opts.buffer_response,
                                           interrupt_after=opts.interrupt_at, settle_s=opts.settle_s, write=False)
+            if session.stop is not None:  # a signal or a bound cut the run: end at the rest pose
+                rested = await session.go_to_rest()
+                turn.summary.extra.setdefault("stopped", {})["rest_pose"] = (
+                    session.robot.rest_pose if rested else None)
             write = session.writer(turn, opts.task_label)  # snapshot now, plot after the board stopped
     except LinkError as exc:
-        ended = session.ended_turn(exc, opts.task_label, opts.out)
-        if ended is None:  # the session never came up: nothing ran, nothing to report
+        if signals is None or signals.forced is None:
+            _end_on_link_error(session, exc, opts)
             raise
-        log.info("the run ended on a link error; writing its artefacts to %s", opts.out)
-        session.write_now(ended, opts.task_label)  # the board has stopped: its fault report is in
-        setattr(exc, _REPORT_ATTR, RunReport(ended.result, ended.calls, ended.summary, ended.out,
-                                             ended.token_times, ended.board_t0))
-        raise
-    write()
-    return RunReport(turn.result, turn.calls, turn.summary, turn.out, turn.token_times, turn.board_t0)
+        # else the cancellation broke the link: not a loss; reported as the interruption it was, below
+    if signals is not None and signals.forced is not None:  # cancelled at once: the JSON files, then out
+        stop = signals.first or StopReason("signal", signals.forced, f"interrupted by {signals.forced}")
+        interrupted = Interrupted(stop, signals.forced)
+        if turn is not None:  # the turn itself had ended (the second signal came while going to rest)
+            turn.summary.outcome = "interrupted"
+            turn.summary.extra["stopped"] = {**stop.as_dict(), "forced_by": signals.forced, "rest_pose": None}
+            ended: TurnResult | None = turn
+        else:
+            ended = session.ended_turn(interrupted, opts.task_label, opts.out)
+        if ended is not None:
+            session.write_now(ended, opts.task_label, plots=False)
+            setattr(interrupted, _REPORT_ATTR, RunReport(ended.result, ended.calls, ended.summary, ended.out,
+                                                         ended.token_times, ended.board_t0, stop))
+        raise interrupted
+    assert turn is not None  # the session ran its turn (every other way out raised above)
+    await anyio.to_thread.run_sync(write)  # plotting takes a second: other runs in this loop go on meanwhile
+    return RunReport(turn.result, turn.calls, turn.summary, turn.out, turn.token_times, turn.board_t0,
+                     session.stop, rested)
+
+
+def _end_on_link_error(session: RobotSession, exc: LinkError, opts: RunOptions) -> None:
+    """Write the report of a run a link error ended (see :func:`run_program`), if anything ran."""
+    ended = session.ended_turn(exc, opts.task_label, opts.out)
+    if ended is None:  # the session never came up: nothing ran, nothing to report
+        return
+    log.info("the run ended on a link error; writing its artefacts to %s", opts.out)
+    session.write_now(ended, opts.task_label)  # the board has stopped: its fault report is in
+    setattr(exc, _REPORT_ATTR, RunReport(ended.result, ended.calls, ended.summary, ended.out,
+                                         ended.token_times, ended.board_t0))
 
 
 _REPORT_ATTR = "ghostshell_run_report"

@@ -28,6 +28,12 @@ fault the board raises during a turn (ESTOP, WATCHDOG_FAULT), or servo frames it
 refuses (NACK ESTOPPED / FAULT_LATCHED), fail the streamer
 (:meth:`~host.motion.streamer.FrameStreamer.fail`): the running calls fail with the
 reason and the turn's outcome is ``failed`` (``extra.board_fault`` in summary.json).
+
+Stops (:mod:`host.run.stops`): :meth:`RobotSession.request_stop` interrupts the running turn
+through the shell's lifecycle tree (and every later turn at its start) for a signal or a bound;
+:meth:`RobotSession.go_to_rest` then moves the robot smoothly to its rest pose. Bounds:
+``SessionOptions.max_board_s`` per turn (board seconds from the turn's start) and
+``max_log_mb`` for the session's frame logs (checked every 0.25 s of wall time).
 """
 
 from __future__ import annotations
@@ -59,6 +65,7 @@ from host.run.events import Event, EventMonitor, EventPolicy, ScriptedEvent, has
 from host.robot.binding import robot_registry
 from host.robot.link import ClientLink
 from host.robot.runtime import RobotRuntime
+from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB, Interrupted, StopReason
 from host.run.recording import Recording
 from host.run.pump import (
     BoardPacer,
@@ -122,6 +129,12 @@ class SessionOptions:
     events: tuple[ScriptedEvent, ...] = ()
     #: emulated board only: pushes on the robot's base, ``S:FX,FY,FZ[:DURATION]`` (board ``--push``)
     pushes: tuple[str, ...] = ()
+    max_board_s: float | None = DEFAULT_MAX_BOARD_S  # board seconds one turn may last (None: no bound)
+    max_log_mb: float | None = DEFAULT_MAX_LOG_MB  # megabytes the session's frame logs may reach (None: no bound)
+
+
+#: wall seconds between two checks of the frame logs' size (``max_log_mb``)
+LOG_CHECK_S = 0.25
 
 
 @dataclass
@@ -203,6 +216,8 @@ class RobotSession:
         self._shell: Shell | None = None
         self._turn: _TurnStart | None = None  # the turn in progress
         self._link_tried = False  # a board link was attempted (a failure from then on has a report)
+        #: why the session stops early (a signal, a bound), once :meth:`request_stop` was called
+        self.stop: StopReason | None = None
         self.recording: Recording | None = None  # run.mcap and the live view (host.run.recording)
         self.mounts: list[Any] = []  # the mounted MCP servers (host.mounts.McpMount)
         #: events handled so far (not the ignored ones), newest last, bounded; see :meth:`emit`
@@ -236,6 +251,7 @@ class RobotSession:
 
     async def __aenter__(self) -> RobotSession:
         opts = self.opts
+        created = not self.out.exists()
         self.out.mkdir(parents=True, exist_ok=True)
         spec = parse_link_spec(opts.link) if isinstance(opts.link, str) else opts.link
         target = spec
@@ -260,7 +276,20 @@ class RobotSession:
                     board_args += ["--faults", opts.faults, "--fault-seed", str(opts.fault_seed)]
                 if opts.firmware != "python":
                     board_args += ["--firmware", opts.firmware]
-                self._board = start_board(board_args, self.out / "board.stderr", link=spec)
+                # in a worker thread: a board takes seconds to load its model, and other sessions in this
+                # event loop (eval --workers) must keep streaming meanwhile
+                started: list[BoardProcess] = []
+
+                def start() -> BoardProcess:
+                    started.append(start_board(board_args, self.out / "board.stderr", link=spec))
+                    return started[-1]
+
+                try:
+                    self._board = await anyio.to_thread.run_sync(start)
+                except BaseException:
+                    for board in started:  # cancelled while it started: it must not be left behind
+                        board.stop()
+                    raise
                 target = self._board.spec
             self._link_tried = True
             identity = RobotIdentity(self.robot.name, self.robot.servo_count, self.robot.servo_table_hash)
@@ -302,10 +331,15 @@ class RobotSession:
             tg.start_soon(self._ends_the_run, silence_watchdog(runtime, self.rec, client))
             if not client.lockstep:
                 tg.start_soon(self._ends_the_run, realtime_topper(runtime))
+            if opts.max_log_mb is not None:
+                tg.start_soon(self._log_bound, opts.max_log_mb)
             await runtime.streamer.top_up()
             await go_to_pose(runtime, opts.start_pose or self.robot.start_pose)
         except BaseException as exc:
             await self.__aexit__(type(exc), exc, exc.__traceback__)
+            if created and isinstance(exc, LinkConfigError):  # nothing ran: leave no empty run folder behind
+                with contextlib.suppress(OSError):
+                    self.out.rmdir()
             raise
         return self
 
@@ -344,6 +378,67 @@ class RobotSession:
             if self._runtime is not None:
                 self._runtime.streamer.fail(exc)
             raise
+
+    # -- stops -----------------------------------------------------------------------------------
+    def request_stop(self, stop: StopReason) -> bool:
+        """Stop the session's work early (a signal, a bound): the running turn is interrupted through
+        the shell's lifecycle tree, as an external interruption is, and any later turn is interrupted
+        at its start. The first reason is kept. Returns False while the session is still starting
+        (no shell yet: nothing to interrupt gracefully), else True."""
+        if self.stop is None:
+            self.stop = stop
+        if self._shell is None:
+            return False
+        if self._shell.running:
+            self._shell.interrupt()
+        return True
+
+    def clear_stop(self) -> None:
+        """Forget a stop (e.g. a board-time bound that ended one MCP program): later turns run again."""
+        self.stop = None
+
+    async def go_to_rest(self, timeout_s: float = 10.0) -> bool:
+        """Move every servo smoothly to the robot's rest pose (``robot.toml`` ``rest_pose``), e.g. after a
+        stop; returns False when it could not within ``timeout_s`` wall seconds (the link is down, the
+        board refuses motion, ...)."""
+        runtime, client = self._runtime, self.client
+        if runtime is None or client is None or not client.connected or runtime.streamer.failure is not None:
+            return False
+        with anyio.move_on_after(timeout_s):
+            try:
+                await go_to_pose(runtime, self.robot.rest_pose)
+            except (LinkError, BoardFaulted):
+                return False
+            return True
+        return False
+
+    def log_bytes(self) -> int:
+        """The size of the session's frame logs (host and board) so far, in bytes."""
+        total = 0
+        for path in self.out.glob("*_frames.*"):
+            try:
+                total += path.stat().st_size
+            except OSError:
+                pass
+        return total
+
+    async def _log_bound(self, max_mb: float) -> None:
+        limit = max_mb * 1e6
+        while True:
+            await anyio.sleep(LOG_CHECK_S)
+            size = self.log_bytes()
+            if size > limit:
+                self.request_stop(StopReason("limit", "max_log_mb", (
+                    f"the frame logs reached {size / 1e6:.1f} MB, over the bound of {max_mb:g} MB (--max-log-mb)")))
+                return
+
+    async def _board_time_bound(self, at_s: float, max_s: float) -> None:
+        try:
+            await self.runtime.streamer.wait_board_time(int(at_s * 1e6))
+        except BoardFaulted:
+            return
+        self.request_stop(StopReason("limit", "max_board_s", (
+            f"the turn reached its board-time bound of {max_s:g} s (--max-board-s)")))
 
     def _mcap_meta(self, spec: LinkSpec) -> dict[str, str]:
         return {"scene": self.scene, "vocabulary": self.vocabulary, "link": str(spec), "label": self.opts.label,
@@ -458,6 +553,10 @@ class RobotSession:
         async with anyio.create_task_group() as tg:
             if interrupt_after is not None:
                 tg.start_soon(self._interrupt_at, start.board_t0 + interrupt_after)
+            if self.stop is not None:  # the session is stopping: this turn is cut at once
+                tg.start_soon(self._interrupt_at, start.board_t0)
+            if self.opts.max_board_s is not None:
+                tg.start_soon(self._board_time_bound, start.board_t0 + self.opts.max_board_s, self.opts.max_board_s)
             result = await shell.run(buffered(chunks) if buffer else chunks)
             tg.cancel_scope.cancel()
         if settle_s > 0 and runtime.streamer.failure is None:
@@ -491,13 +590,21 @@ class RobotSession:
         queued``); ``summary.outcome`` is ``link_lost`` and ``extra.link_error`` the one-line
         message. When the link failed before any turn began (connecting: no TIME_SYNC reply, or
         while going to the start pose), an empty turn labelled ``label`` in ``out`` (default the
-        session folder). None when no link was tried, or the board refused the host at connect
+        session folder). None when no link was tried, the link could not be opened as specified
+        (:class:`LinkConfigError`: a usage error), or the board refused the host at connect
         (:class:`BoardFaulted`: nothing ran). Write it with :meth:`write_now` after the session
         ended: the emulated board has then stopped and printed its fault report
         (``extra.faults.board``).
+
+        ``error`` may also be :class:`host.run.stops.Interrupted` (a signal cancelled the work at
+        once): the outcome is then ``interrupted``, ``extra.stopped`` names the signals, and the
+        calls cut short say ``stopped by SIGINT while running|queued``; such a turn is reported
+        also when the session had not started yet.
         """
+        if isinstance(error, LinkConfigError):
+            return None
         if self._runtime is None:
-            if not self._link_tried or isinstance(error, BoardFaulted):
+            if not isinstance(error, Interrupted) and (not self._link_tried or isinstance(error, BoardFaulted)):
                 return None
             return self._bare_turn(error, label or self.opts.label, out or self.out)
         start, self._turn = self._turn, None
@@ -508,9 +615,10 @@ class RobotSession:
         else:
             result = self._shell.last_result
         turn = self._turn_result(start, result, error)
+        what = (f"stopped by {error.forced_by}" if isinstance(error, Interrupted) else "link lost")
         for c in turn.calls:
             if c.outcome == "cancelled" and c.error is None:
-                c.error = f"link lost while {'running' if c.start is not None else 'queued'}"
+                c.error = f"{what} while {'running' if c.start is not None else 'queued'}"
         return turn
 
     def _bare_turn(self, error: BaseException, label: str, out: Path) -> TurnResult:
@@ -521,14 +629,18 @@ class RobotSession:
                          "frame_nacks": stats.frame_nacks if stats else None,
                          "request_retries": stats.retries if stats else None,
                          "seq_gaps": stats.seq_gaps if stats else None, "link_lost": str(error)}
+        stopped = isinstance(error, Interrupted)
         summary = artefacts.Summary(
-            task=label, outcome="link_lost", fell=False, base_start=_pose(None), base_end=_pose(None),
-            max_tilt_deg=0.0, first_action_latency_ms=None, outcomes=artefacts.count_outcomes([]),
-            extra={"clock": "lockstep" if self.opts.lockstep else "realtime", "robot": self.robot.name, "robot_folder": str(self.robot.root),
+            task=label, outcome="interrupted" if stopped else "link_lost", fell=False, base_start=_pose(None),
+            base_end=_pose(None), max_tilt_deg=0.0, first_action_latency_ms=None, outcomes=artefacts.count_outcomes([]),
+            extra={"clock": "lockstep" if self.opts.lockstep else "realtime", "robot": self.robot.name,
+                   "robot_folder": str(self.robot.root),
                    "vocabulary": self.vocabulary,
-                   "mode": self.opts.mode, "error": None, "link_error": str(error), "observations": [],
+                   "mode": self.opts.mode, "error": None,
+                   **(_stopped_extra(error) if isinstance(error, Interrupted) else {"link_error": str(error)}),
+                   "observations": [],
                    "link": {}, "captures": [], "scene": self.scene_report(),
-                   **({"faults": {"host_detected": host_detected}} if self.opts.faults else {})})
+                   **({"faults": {"host_detected": host_detected}} if self.opts.faults and not stopped else {})})
         return TurnResult(RunResult(Timeline(), [], 0.0), [], summary, out)
 
     async def _interrupt_at(self, at_s: float) -> None:
@@ -588,8 +700,13 @@ class RobotSession:
         failed = counts.get("failed", 0) or result.error is not None or result.save_failures or board_fault is not None
         outcome = "failed" if board_fault is not None else ("interrupted" if result.interrupted else
                                                             ("failed" if failed else "done"))
-        if link_error is not None:
+        stopped: dict[str, Any] = {}
+        if isinstance(link_error, Interrupted):  # a signal cancelled the work at once: not a link error
+            outcome, stopped, link_error = "interrupted", _stopped_extra(link_error), None
+        elif link_error is not None:
             outcome = "link_lost"
+        elif self.stop is not None and board_fault is None:
+            outcome, stopped = self.stop.outcome, {"stopped": self.stop.as_dict()}
         fell = _fell(self.robot, max_tilt, min((b[1][2] for b in base), default=None), rec.base_z0)
         client = self.client
         tel = client.latest_telemetry if client is not None else None
@@ -615,6 +732,7 @@ class RobotSession:
                    "vocabulary": self.vocabulary,
                    "mode": opts.mode, "error": None if result.error is None else str(result.error),
                    **({"link_error": str(link_error)} if link_error is not None else {}),
+                   **stopped,
                    **({"board_fault": str(board_fault)} if board_fault is not None else {}),
                    "observations": [str(o) for o in result.observations], "link": stats,
                    "events": [str(e) for e in turn.events],
@@ -622,8 +740,11 @@ class RobotSession:
                    "captures": [p.name for p in captures], "scene": self.scene_report(),
                    **({"faults": {"host_detected": host_detected}} if opts.faults else {})})
 
-    def writer(self, turn: TurnResult, label: str) -> Callable[[], None]:
-        """Snapshot what the turn's artefacts need (on the loop) and return the writer (thread-safe)."""
+    def writer(self, turn: TurnResult, label: str, *, plots: bool = True) -> Callable[[], None]:
+        """Snapshot what the turn's artefacts need (on the loop) and return the writer (thread-safe).
+
+        The writer writes timeline.json and summary.json first, then (``plots``) timeline.png and
+        joints.png, so a process stopped while plotting still leaves both JSON files."""
         rec, runtime = self.rec, self._runtime
         times = np.asarray(rec.t)
         q = np.asarray(rec.q)
@@ -640,18 +761,21 @@ class RobotSession:
             if isinstance(faults, dict):  # the board reports what it injected and detected when it stops
                 faults["board"] = board_fault_report(board_stderr)
             artefacts.write_timeline_json(out / "timeline.json", calls, t0=t0)
+            artefacts.write_summary_json(out / "summary.json", summary)
+            if not plots:
+                return
             artefacts.plot_timeline(out / "timeline.png", calls, title=f"{label}: calls on the board clock")
             if len(times) and keep.any():
                 targets = (np.asarray([t for t, _ in sent]) * 1e-6, np.asarray([q_ for _, q_ in sent])) if sent else None
                 artefacts.plot_joints(out / "joints.png", times[keep], q[keep], names, targets,
                                       groups=artefacts.joint_groups(self.robot))
-            artefacts.write_summary_json(out / "summary.json", summary)
 
         return write
 
-    def write_now(self, turn: TurnResult, label: str | None = None) -> None:
-        """Write a turn's artefacts in this thread (e.g. after the session ended)."""
-        self.writer(turn, label or turn.summary.task)()
+    def write_now(self, turn: TurnResult, label: str | None = None, *, plots: bool = True) -> None:
+        """Write a turn's artefacts in this thread (e.g. after the session ended; ``plots=False``: the
+        JSON files only, for a process that must exit at once)."""
+        self.writer(turn, label or turn.summary.task, plots=plots)()
 
     async def write(self, turn: TurnResult, label: str | None = None) -> None:
         """Write a turn's artefacts; the plotting runs in a worker thread so the board keeps its frames."""
@@ -682,6 +806,10 @@ def board_fault_report(stderr_path: Path) -> Any:
     except (OSError, ValueError):
         pass
     return report
+
+
+def _stopped_extra(error: Interrupted) -> dict[str, Any]:
+    return {"stopped": {**error.stop.as_dict(), "forced_by": error.forced_by}}
 
 
 def _pose(b: Any) -> list[float]:

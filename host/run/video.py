@@ -47,6 +47,11 @@ class VideoError(RuntimeError):
     """The video cannot be made (no frame log, no GL renderer, ffmpeg failed); the message says why."""
 
 
+class VideoInputError(VideoError):
+    """The run folder given holds nothing to render (no frame log, an unreadable one, no reports):
+    bad input (``ghostshell render`` exits 2)."""
+
+
 @dataclass(frozen=True)
 class VideoSettings:
     fps: int = 25
@@ -84,8 +89,8 @@ def load_states(run_dir: Path) -> States:
         found = [run_dir / f"{stem}{suffix}" for stem in ("board_frames", "host_frames") for suffix in CAN_LOG_SUFFIXES]
         found = [p for p in found if p.exists()]
         if not found:
-            raise VideoError(f"{path} not found (nor a CAN log board_frames.log): the video is made from the "
-                             "board's frame log (board --log)")
+            raise VideoInputError(f"{path} not found (nor a CAN log board_frames.log): the video is made from the "
+                                  "board's frame log (board --log); give a run folder (ghostshell run/demo --out)")
         path = found[0]
         joints, base = _states_from_can(path)
     # every TELEMETRY sample from the first SIM_STATE on, each with the latest SIM_STATE at or before
@@ -94,7 +99,7 @@ def load_states(run_dir: Path) -> States:
     base_t = sorted(base)
     times = [t for t in sorted(joints) if base_t and t >= base_t[0]]
     if not times:
-        raise VideoError(f"{path} holds no TELEMETRY/SIM_STATE pairs to render")
+        raise VideoInputError(f"{path} holds no TELEMETRY/SIM_STATE pairs to render")
     bt = np.asarray(base_t)
     which = np.searchsorted(bt, np.asarray(times), side="right") - 1
     return States(np.asarray(times, dtype=float) * 1e-6, np.asarray([base[base_t[i]] for i in which]),
@@ -142,7 +147,7 @@ def _states_from_can(path: Path) -> tuple[dict[int, list[float]], dict[int, list
                 else:
                     base[it.msg.board_time_us] = [*it.msg.base_pos, *it.msg.base_quat]
     except ValueError as e:  # python-can cannot read the format
-        raise VideoError(f"{path}: {e}") from e
+        raise VideoInputError(f"{path} is not a CAN log python-can reads: {e}") from e
     return joints, base
 
 
@@ -214,6 +219,11 @@ def _init_worker(settings: VideoSettings, scene: str = "empty", robot: str | Non
                  robots_dir: str | None = None) -> None:
     """Set up one render process. Never raises: a Pool whose initializer raises respawns workers
     forever, so a failure is kept and raised by the first :func:`_render` instead."""
+    import signal
+
+    # the terminal's Ctrl-C reaches the whole process group: the parent stops the pool (terminate), so a
+    # worker ignores SIGINT rather than print a KeyboardInterrupt traceback of its own
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         _setup_worker(settings, scene, robot, robots_dir)
     except Exception as e:
@@ -317,7 +327,10 @@ def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings
 
     The robot is the one the run's summary.json names (``robots_dir`` is searched first for it).
     ``progress(frames done, frames)`` is called after each frame (e.g. :mod:`host.progress`).
-    Raises :class:`VideoError` with the reason when it cannot.
+    Raises :class:`VideoError` with the reason when it cannot. The video (and its sound) is written
+    to ``<stem>.partial<suffix>`` beside ``out`` and renamed to ``out`` only when it is complete: a
+    render that fails or is interrupted (Ctrl-C) leaves no truncated ``run.mp4`` (nor the partial
+    file), and an older complete ``out`` stays as it was.
     """
     import imageio_ffmpeg
 
@@ -338,28 +351,38 @@ def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings
         robot = str(load_robot(run_robot(run_dir), robots_dir).root)
     except RobotDataError as e:
         raise VideoError(f"cannot load the robot the run drove: {e}") from None
-    writer = imageio_ffmpeg.write_frames(str(out), (WIDTH, HEIGHT), fps=settings.fps, codec="libx264",
+    partial = out.with_name(f"{out.stem}.partial{out.suffix}")
+    writer = imageio_ffmpeg.write_frames(str(partial), (WIDTH, HEIGHT), fps=settings.fps, codec="libx264",
                                          pix_fmt_out="yuv420p", quality=7, macro_block_size=16,
                                          output_params=["-preset", "veryfast"])
-    writer.send(None)
-    ctx = multiprocessing.get_context("spawn")
+    complete = False
     try:
+        writer.send(None)
+        ctx = multiprocessing.get_context("spawn")
         with ctx.Pool(max(1, settings.workers), initializer=_init_worker,
                       initargs=(settings, run_scene(run_dir), robot, robots_dir)) as pool:
             for done, frame in enumerate(pool.imap(_render, jobs, chunksize=4), 1):
                 writer.send(frame)
                 if progress is not None:
                     progress(done, len(jobs))
+        writer.close()  # ffmpeg finishes the file here
+        if jobs:  # the sound: speech and music where the timeline has them (host.run.soundtrack)
+            from host.run.soundtrack import add_soundtrack
+
+            start = float(states.t[0]) if t0 is None else max(float(states.t[0]), float(t0))
+            for note in add_soundtrack(run_dir, partial, start, len(jobs) / settings.fps, robots_dir):
+                log.warning("%s", note)
+        complete = True
     except VideoError:
         raise
     except Exception as e:
         raise VideoError(f"rendering failed: {type(e).__name__}: {e}") from e
     finally:
-        writer.close()
-    if jobs:  # the sound: speech and music where the timeline has them (host.run.soundtrack)
-        from host.run.soundtrack import add_soundtrack
-
-        start = float(states.t[0]) if t0 is None else max(float(states.t[0]), float(t0))
-        for note in add_soundtrack(run_dir, out, start, len(jobs) / settings.fps, robots_dir):
-            log.warning("%s", note)
+        if not complete:
+            try:
+                writer.close()
+            except Exception:
+                pass
+            partial.unlink(missing_ok=True)
+    os.replace(partial, out)
     return out

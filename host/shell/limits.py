@@ -16,13 +16,25 @@ limit                       default    when exceeded
 The parser already caps one incomplete tag or reference at ``MAX_TOKEN`` (64 KiB) characters.
 Speech segments count towards ``max_queued_per_channel`` (on the speech channel) but not towards
 ``max_calls`` (text has its own limit).
+
+A reply known in full before it runs (``run --xml-file``, ``chat --replies``, an MCP
+``run_program``) is checked first with :meth:`Limits.refuse_reply`: one that exceeds the text or
+call limit is refused before any of it runs, instead of running (and speaking) for minutes up to
+the point where the limit cuts it.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from host.shell.parser import Event
 
 __all__ = ["Limits"]
+
+_CHECK_CHUNK = 64 * 1024  # characters parsed between two checks of the counts
 
 
 @dataclass(frozen=True)
@@ -42,3 +54,37 @@ class Limits:
         if not 0 < self.max_scope_timeout_s < float("inf"):
             raise ValueError(f"Limits.max_scope_timeout_s must be a finite number above 0, got {self.max_scope_timeout_s}")
         return self
+
+    def refuse_reply(self, text: str) -> str | None:
+        """Why the complete reply ``text`` exceeds these limits (one line), or None when it does not.
+
+        Counts as the shell does: characters of text outside the elements (``max_text_chars``) and
+        elements (``max_calls``), with the lenient parser (a malformed reply is refused or not by
+        its size, never by its syntax). Cheap for ordinary replies (the whole text within both
+        bounds is not parsed) and stops parsing at the first bound exceeded (2 MB of prose is
+        refused after parsing ~1 MB, well under a second).
+        """
+        if len(text) <= self.max_text_chars and text.count("<") <= self.max_calls:
+            return None
+        from host.shell.parser import EmptyTag, Event, FunctionTokenParser, StartTag, Text
+
+        parser = FunctionTokenParser(strict=False)
+        chars = calls = 0
+
+        def batches() -> Iterator[list[Event]]:
+            for i in range(0, len(text), _CHECK_CHUNK):
+                yield parser.feed(text[i:i + _CHECK_CHUNK])
+            yield parser.close()
+
+        for events in batches():
+            for ev in events:
+                if isinstance(ev, Text):
+                    chars += len(ev.text)
+                elif isinstance(ev, (StartTag, EmptyTag)):
+                    calls += 1
+            if chars > self.max_text_chars:
+                return (f"the reply has more than {self.max_text_chars:,} characters of text (the per-turn limit "
+                        f"max_text_chars); it is {len(text):,} characters long in all")
+            if calls > self.max_calls:
+                return f"the reply has more than {self.max_calls:,} calls (the per-turn limit max_calls)"
+        return None

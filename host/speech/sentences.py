@@ -62,26 +62,40 @@ def _emit_cut(buffer: str, start: int, max_chars: int, out: list[str]) -> int:
     return _skip_space(buffer, start + cut)
 
 
-def split_sentences(buffer: str, max_chars: int = MAX_CHARS) -> tuple[list[str], str]:
+def split_sentences(buffer: str, max_chars: int = MAX_CHARS, context: str = "") -> tuple[list[str], str]:
     """Return ``(complete_sentences, rest)``; feed ``rest`` + new text next time.
 
     Sentences are stripped and non-empty; ``rest`` has no leading whitespace and
-    at most ``max_chars`` characters.
+    at most ``max_chars`` characters. ``context``: the part of the current sentence
+    already returned by an over-long cut (see :class:`SentenceSplitter`): whether a
+    terminator ends a sentence may depend on it (the word before ``.``, the
+    character before ``…``), so it is read, never returned.
     """
+    return _split(buffer, max_chars, context)[:2]
+
+
+#: longest context kept for the lookbehind rules (abbreviations, a CJK character before an ellipsis)
+CONTEXT_CHARS = 64
+
+
+def _split(buffer: str, max_chars: int, context: str) -> tuple[list[str], str, str]:
+    """:func:`split_sentences` plus the new context (the already-returned part of the open sentence)."""
     if max_chars < 1:
         raise ValueError(f"max_chars must be >= 1, got {max_chars}")
     out: list[str] = []
-    start = _skip_space(buffer, 0)
+    buffer = context + buffer
+    seg = 0  # where the open sentence began: lookbehind rules read from here, cuts do not move it
+    start = _skip_space(buffer, len(context))
 
     def emit_until(end: int) -> None:
         """Emit buffer[start:end] as one sentence, cutting pieces over max_chars."""
-        nonlocal start
+        nonlocal start, seg
         while end - start > max_chars:
             start = _emit_cut(buffer, start, max_chars, out)
         piece = buffer[start:end].strip()
         if piece:
             out.append(piece)
-        start = _skip_space(buffer, end)
+        start = seg = _skip_space(buffer, end)
 
     pos = start
     while (m := _BOUNDARY.search(buffer, pos)) is not None:
@@ -94,18 +108,18 @@ def split_sentences(buffer: str, max_chars: int = MAX_CHARS) -> tuple[list[str],
                 break  # undecided until the next character arrives
             run = m.group("term")
             nxt = buffer[b]
-            cjk = any(c in _CJK_TERMS for c in run) or ("…" in run and a > start and _is_cjk(buffer[a - 1]))
+            cjk = any(c in _CJK_TERMS for c in run) or ("…" in run and a > seg and _is_cjk(buffer[a - 1]))
             if not (nxt.isspace() or cjk):
                 continue
             if run == ".":
-                w = _WORD_BEFORE.search(buffer, start, a)
+                w = _WORD_BEFORE.search(buffer, seg, a)
                 if w and w.group(1).lower() in _ABBREV:
                     continue
         emit_until(b)
         pos = max(pos, start)
     while len(buffer) - start > max_chars:  # over-long unterminated tail
         start = _emit_cut(buffer, start, max_chars, out)
-    return out, buffer[start:]
+    return out, buffer[start:], buffer[seg:start][-CONTEXT_CHARS:]
 
 
 class SentenceSplitter:
@@ -114,6 +128,7 @@ class SentenceSplitter:
     def __init__(self, max_chars: int = MAX_CHARS) -> None:
         self.max_chars = max_chars
         self._buf = ""
+        self._context = ""  # the open sentence's part already returned by over-long cuts
 
     @property
     def pending(self) -> str:
@@ -122,12 +137,12 @@ class SentenceSplitter:
 
     def feed(self, text: str) -> list[str]:
         """Add ``text``; return the sentences it completed."""
-        sentences, self._buf = split_sentences(self._buf + text, self.max_chars)
+        sentences, self._buf, self._context = _split(self._buf + text, self.max_chars, self._context)
         return sentences
 
     def flush(self) -> list[str]:
         """End of stream: return the pending text as a last sentence (if any)."""
-        sentences, rest = split_sentences(self._buf, self.max_chars)
-        self._buf = ""
+        sentences, rest, _ = _split(self._buf, self.max_chars, self._context)
+        self._buf, self._context = "", ""
         rest = rest.strip()
         return [*sentences, rest] if rest else sentences

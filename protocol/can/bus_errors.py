@@ -73,7 +73,8 @@ def describe_bus_open_error(spec: LinkSpec, exc: BaseException, *, interfaces: C
                     "(can:socketcan:CHANNEL, can:slcan:DEVICE, or can:slcan:pty for the emulated board)")
     elif code == errno.EAFNOSUPPORT:
         problem = "this kernel has no SocketCAN (CAN address family not supported)"
-        todo = "use can:slcan:pty, or a Linux machine (or User-Mode Linux) with the can and vcan modules"
+        todo = ("use can:slcan:pty, or run the command on a kernel with vcan: `ghostshell vcan -- COMMAND` "
+                "(this machine's kernel, or User-Mode Linux)")
     elif code == errno.ENODEV:
         problem = f"there is no CAN network interface {chan!r}"
         todo = (f"create it (sudo ip link add dev {chan} type vcan && sudo ip link set up {chan}) "

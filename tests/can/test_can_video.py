@@ -46,7 +46,7 @@ def test_run_video_over_slcan(tmp_path: Path) -> None:
 def test_render_without_any_frame_log_names_both(tmp_path: Path, capsys) -> None:
     with pytest.raises(VideoError, match="board_frames.log"):
         render_video(tmp_path)
-    assert cli_main(["render", str(tmp_path)]) == 1
+    assert cli_main(["render", str(tmp_path)]) == 2  # nothing to render there: bad input (the exit-code table)
 
 
 def test_a_can_log_without_reports_says_so(tmp_path: Path) -> None:

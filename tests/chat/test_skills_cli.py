@@ -42,4 +42,4 @@ def test_save_in_one_run_then_run_it_in_the_next(tmp_path: Path) -> None:
     assert '<wave times="1"/>' in shown.stdout
     assert ghostshell("skills", "rm", NAME, env=env).returncode == 0
     missing = ghostshell("skills", "show", NAME, env=env)
-    assert missing.returncode == 1 and "unknown skill" in missing.stderr
+    assert missing.returncode == 2 and "unknown skill" in missing.stderr  # bad input: the exit-code table

@@ -175,6 +175,6 @@ def test_log_decode_and_replay_read_the_mcap(tmp_path: Path, capsys: pytest.Capt
     bad = tmp_path / "bad.mcap"
     bad.write_text("not an mcap\n")
     assert cli_main(["log", "decode", str(bad)]) == 2
-    assert cli_main(["replay", str(bad), "--out", str(tmp_path / "r2")]) == 1
+    assert cli_main(["replay", str(bad), "--out", str(tmp_path / "r2")]) == 2  # bad input, as log decode says
     err = capsys.readouterr().err
     assert "not an MCAP file" in err

@@ -60,9 +60,9 @@ def test_replay_refuses_what_it_cannot_read(tmp_path: Path) -> None:
     empty.write_text("")
     with pytest.raises(ReplayError, match="no host-to-board messages"):
         replay(empty, tmp_path / "out")
-    assert cli_main(["replay", str(tmp_path / "missing.jsonl")]) == 1
+    assert cli_main(["replay", str(tmp_path / "missing.jsonl")]) == 2  # bad input: the exit-code table
     text = tmp_path / "text.log"  # a CAN log's name, not a CAN log (found by a fresh-user review)
     text.write_text("hello world\nnot a log\n")
-    with pytest.raises(ReplayError, match=r"not a readable \.log frame log"):
+    with pytest.raises(ReplayError, match=r"text\.log:1 is not a candump -L line"):
         list(read_host_to_board(text))
-    assert cli_main(["replay", str(text), "--out", str(tmp_path / "r")]) == 1
+    assert cli_main(["replay", str(text), "--out", str(tmp_path / "r")]) == 2

@@ -36,5 +36,5 @@ def test_caption_shows_active_calls_and_the_sentence() -> None:
 def test_render_without_a_frame_log_says_why(tmp_path, capsys) -> None:
     with pytest.raises(VideoError, match="board_frames.jsonl"):
         render_video(tmp_path)
-    assert cli_main(["render", str(tmp_path)]) == 1
+    assert cli_main(["render", str(tmp_path)]) == 2  # nothing to render there: bad input
     assert "board_frames.jsonl" in capsys.readouterr().err

@@ -214,7 +214,7 @@ def test_pose_command(board_factory) -> None:
     r = _ghostshell("pose", "--link", board.port, "--pose", "dance")
     assert r.returncode == 2 and "valid poses: crouch, neutral, sit, stand" in r.stderr
     r = _ghostshell("pose", "--link", "/dev/pts/does-not-exist", "--pose", "sit")
-    assert r.returncode == 2 and "no board" in r.stderr
+    assert r.returncode == 2 and "there is no device '/dev/pts/does-not-exist'" in r.stderr
 
 
 def test_tour_command_runs_end_to_end(tmp_path: Path) -> None:

@@ -47,3 +47,4 @@ def test_interrupted_turn_keeps_only_what_ran(tmp_path: Path) -> None:
     assert text.startswith('<head_act action="nod"><move_strides')
     assert "Never said" not in text
     assert turn.received_text == program
+

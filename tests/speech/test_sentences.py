@@ -67,3 +67,14 @@ def test_streaming_split_does_not_depend_on_chunking(parts: list[str], cuts: lis
     got += chunked.flush()
     assert got == expected
     assert "".join(got).replace(" ", "").replace("\n", "") == text.replace(" ", "").replace("\n", "")
+
+
+def test_an_over_long_cut_keeps_what_decides_the_next_terminator() -> None:
+    """Found by the property test: a streamed tail cut between a CJK character and its ellipsis used to
+    lose the character that makes the ellipsis end the sentence (``…a`` instead of ``…`` + ``a``)."""
+    text = "a。aa你…a"
+    whole = SentenceSplitter(3)
+    chunked = SentenceSplitter(3)
+    expected = whole.feed(text) + whole.flush()
+    assert expected == ["a。", "aa你", "…", "a"]
+    assert chunked.feed(text[:6]) + chunked.feed(text[6:]) + chunked.flush() == expected

@@ -88,12 +88,12 @@ def test_command_line_removes_its_temporary_run_dir(tmp_path: Path, monkeypatch:
                                                     capsys: pytest.CaptureFixture[str]) -> None:
     import tempfile
 
-    import support.uml as uml
+    from host.cli import main
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # mkdtemp's folder: only this test's files there
-    assert uml.main(["--classic", "--timeout", "30", "--", "sh", "-c", "echo hi; exit 3"]) == 3
+    assert main(["vcan", "--uml", "--classic", "--timeout", "30", "--", "sh", "-c", "echo hi; exit 3"]) == 3
     out, err = capsys.readouterr()
-    assert out == "hi\n" and "exit status 3" in err
+    assert out == "hi\n" and "sh exited 3" in err
     assert _leftover_run_dirs(tmp_path) == []
 
 
@@ -102,13 +102,15 @@ def test_command_line_removes_its_temporary_run_dir_on_failure(tmp_path: Path, m
     import tempfile
 
     import support.uml as uml
+    from host.cli import main
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
-    monkeypatch.setattr(uml, "UML_KERNEL", Path("/nonexistent/linux.uml"))  # UML cannot start: UmlError
-    assert uml.main(["--", "true"]) == 125
-    assert "/nonexistent/linux.uml" in capsys.readouterr().err
+    monkeypatch.setattr(uml, "UML_KERNEL", Path("/nonexistent/linux.uml"))  # UML cannot start
+    assert main(["vcan", "--uml", "--", "true"]) == 125
+    err = capsys.readouterr().err
+    assert "/nonexistent/linux.uml" in err and len(err.strip().splitlines()) == 1
     assert _leftover_run_dirs(tmp_path) == []
     kept = tmp_path / "kept"
     kept.mkdir()
-    assert uml.main(["--run-dir", str(kept), "--", "true"]) == 125
+    assert main(["vcan", "--uml", "--run-dir", str(kept), "--", "true"]) == 125
     assert kept.is_dir()  # a folder the user named is the user's

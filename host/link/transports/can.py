@@ -504,6 +504,12 @@ def _shutdown(bus: can.BusABC) -> None:
                 pass
 
 
+def open_bus(spec: LinkSpec) -> can.BusABC:
+    """Open the python-can bus ``spec`` names (the caller shuts it down); :class:`LinkConfigError` with one
+    line when python-can cannot (e.g. to check a SocketCAN interface before anything starts)."""
+    return _open_bus(spec, spec.bus_kwargs())
+
+
 def open_can_transport(spec: LinkSpec, *, log_path: str | Path | None = None, **options: Any) -> CanLinkTransport:
     """The host's CAN transport for ``spec`` (``bus=`` may pass an already open python-can bus,
     ``resolve=`` a callable that gives the spec anew on every connect, ``servo_count=`` the robot's)."""

@@ -17,9 +17,17 @@ non-blocking fd, and what does not fit waits for ``loop.add_writer``. pyserial's
 busy loop and with any other timeout it blocks the event loop. The thread
 transport writes with pyserial and a bounded ``write_timeout``.
 
-A vanished port (pty master closed, USB unplugged) shows up as a read error or a
-"readiness to read but returned no data" ``SerialException``; either way
+A vanished port (pty master closed, USB unplugged) shows up as a read error; pyserial's
+"readiness to read but returned no data" ``SerialException`` means, on a tty, that another
+process read the bytes first (two hosts on one board: :data:`SHARED_PORT` says so). Either way
 ``on_lost(reason)`` is called once and the transport closes.
+
+Opening: a device is opened exclusively (pyserial's ``exclusive``, an advisory ``flock``), so a
+second GhostShell host on the same board cannot open it ("another host has it open"). A port that
+cannot be opened on the first connection (no such device, not a tty, in use by another host, a
+pyserial URL it cannot parse) is a :class:`~host.link.errors.LinkConfigError` (the port as given
+cannot be used: exit status 2 in every command); after a connection, the same failure while
+reconnecting is a vanished port (:class:`~host.link.errors.LinkDown`, retried).
 """
 
 from __future__ import annotations
@@ -34,7 +42,7 @@ from pathlib import Path
 
 import serial
 
-from host.link.errors import LinkDown, LinkError
+from host.link.errors import LinkConfigError, LinkDown, LinkError
 from host.link.transports.base import LossHandler, ReceiveHandler, Transport
 from host.link.transports.framelog_file import FrameLogFile
 from protocol.codec import WIRE_SCHEMA_16, WireSchema, msg_type_of, schema_for
@@ -44,6 +52,17 @@ from protocol.messages import Message
 __all__ = ["MAX_TX_BACKLOG", "SerialLinkTransport", "SerialPort"]
 
 MAX_TX_BACKLOG = 256 * 1024  # bytes waiting for the port before writes are refused
+_NO_DATA = "readiness to read but returned no data"  # pyserial's text for select-ready + an empty read
+
+
+def SHARED_PORT(url: str) -> str:  # noqa: N802 - a message template, named like a constant
+    """Why a read found nothing though the port was readable: another reader took the bytes."""
+    return (f"another program is reading {url} at the same time (a second host on the same board?); "
+            "a board serves one host at a time: stop the other host first")
+
+
+def _read_failed(url: str, e: BaseException) -> str:
+    return SHARED_PORT(url) if _NO_DATA in str(e) else f"read failed: {e}"
 
 
 class SerialPort:
@@ -66,7 +85,10 @@ class SerialPort:
         self._tx = bytearray()
         self._thread: threading.Thread | None = None
         self._writer_added = False
-        self.ser = serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0)
+        # a device is opened for this host alone (pyserial's exclusive: flock): a second host on the same
+        # board is refused at once with a clear reason, instead of both hosts stealing each other's bytes
+        exclusive = {"exclusive": True} if "://" not in url and os.name == "posix" else {}
+        self.ser = serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0, **exclusive)
         fd: int | None = None
         if not force_thread:
             try:
@@ -99,7 +121,7 @@ class SerialPort:
         try:
             data = self.ser.read(max(1, self.ser.in_waiting))
         except (serial.SerialException, OSError) as e:
-            self._lose(f"read failed: {e}")
+            self._lose(_read_failed(self.url, e))
             return
         if data:
             self._on_data(bytes(data))
@@ -110,7 +132,7 @@ class SerialPort:
                 data = self.ser.read(max(1, self.ser.in_waiting))
             except Exception as e:  # the port vanished
                 if not self._closed:
-                    self._loop.call_soon_threadsafe(self._lose, f"read failed: {e}")
+                    self._loop.call_soon_threadsafe(self._lose, _read_failed(self.url, e))
                 return
             if data:
                 self._loop.call_soon_threadsafe(self._deliver, bytes(data))
@@ -184,6 +206,28 @@ class SerialPort:
             pass
 
 
+def open_failure(url: str, e: BaseException) -> str:
+    """One line for a port that could not be opened as given (pyserial's error, rephrased where it is obscure)."""
+    text = str(e)
+    if "exclusively lock" in text:
+        why = ("another host has it open (a second host on the same board?); a board serves one host at a time: "
+               "stop the other host (ghostshell run, chat, mcp, pose, tour) first")
+        return f"cannot open serial port {url!r}: {why}"
+    if "Inappropriate ioctl" in text or getattr(e, "errno", None) == errno.ENOTTY:
+        why = "it is not a serial port or tty (its terminal settings cannot be set)"
+    elif isinstance(e, (TypeError, ValueError)) and "://" in url:
+        why = f"pyserial cannot use this URL ({e})"
+    elif "No such file" in text or getattr(e, "errno", None) == errno.ENOENT:
+        why = "there is no such device"
+    elif "Permission denied" in text or getattr(e, "errno", None) == errno.EACCES:
+        why = "permission denied (is your user in the dialout group?)"
+    else:
+        why = text
+    return (f"cannot open serial port {url!r}: {why}; give the port a running board announced (`ghostshell board "
+            "--link pty` prints /dev/pts/N), a serial device such as /dev/ttyUSB0, a pyserial URL, or pty "
+            "to start the emulated board")
+
+
 def is_vanished_error(e: BaseException) -> bool:
     """True for errors meaning the device is gone rather than misconfigured."""
     return isinstance(e, OSError) and e.errno in (errno.ENOENT, errno.EIO, errno.ENXIO, errno.ENODEV)
@@ -210,6 +254,7 @@ class SerialLinkTransport(Transport):
         self._decoder = FrameDecoder(schema=self.schema)
         self._port: SerialPort | None = None
         self._on_receive: ReceiveHandler | None = None
+        self._ever_connected = False
 
     @property
     def name(self) -> str:
@@ -239,9 +284,12 @@ class SerialLinkTransport(Transport):
 
         try:
             port = SerialPort(self.url, self.baud, self._on_data, lost, force_thread=self.force_thread)
-        except (serial.SerialException, OSError, ValueError) as e:
-            raise LinkDown(f"cannot open {self.url!r}: {e} (is a board running? e.g. `ghostshell board --link pty`)") from None
+        except (serial.SerialException, OSError, ValueError, TypeError) as e:
+            if self._ever_connected:  # it was there: it vanished (reconnects retry this)
+                raise LinkDown(f"cannot open {self.url!r}: {e}") from None
+            raise LinkConfigError(open_failure(self.url, e)) from e
         self._port = port
+        self._ever_connected = True
         try:
             port.write(b"\x00")  # end any partial frame the board may hold
         except (BufferError, ConnectionError) as e:

@@ -1,6 +1,6 @@
 """PID 1 inside a throwaway User-Mode Linux guest: set up SocketCAN, run one job, power off.
 
-Started by :func:`support.uml.run_in_uml` through a generated ``init`` script as
+Started by :func:`host.vcan.uml.run_in_uml` through a generated ``init`` script as
 ``python uml_init.py RUN_DIR/job.json``. The guest's root is the host's root through hostfs,
 so every path means the same inside and out. Steps:
 
@@ -12,7 +12,8 @@ so every path means the same inside and out. Steps:
    package ships them under ``/usr/lib/uml/modules/<version>/``);
 3. create the vcan interfaces with ``ip link`` (MTU 72 = CAN FD capable, optional txqueuelen);
 4. run the job with the exact environment given, stdout/stderr into files in the run dir,
-   killing it after its timeout (exit status 124, as coreutils ``timeout``);
+   killing it after its timeout (exit status 124, as coreutils ``timeout``); a command that is
+   not found or not executable gets one line on its stderr and 127 / 126, as a shell gives;
 5. write ``exit_status`` atomically, ``sync``, and power off with ``sysrq o``. PID 1 never
    exits (a dying init panics the kernel); any failure of steps 1-3 is written to
    ``init_error.txt`` with exit status 125.
@@ -125,15 +126,22 @@ def _write_status(run_dir: Path, status: int) -> None:
 
 def _run_job(job: dict, run_dir: Path) -> int:
     with open(run_dir / "stdout.txt", "wb") as out, open(run_dir / "stderr.txt", "wb") as err:
-        proc = subprocess.Popen(
-            job["argv"],
-            cwd=job["cwd"],
-            env=job["env"],
-            stdin=subprocess.DEVNULL,
-            stdout=out,
-            stderr=err,
-            start_new_session=True,
-        )
+        try:
+            proc = subprocess.Popen(
+                job["argv"],
+                cwd=job["cwd"],
+                env=job["env"],
+                stdin=subprocess.DEVNULL,
+                stdout=out,
+                stderr=err,
+                start_new_session=True,
+            )
+        except (FileNotFoundError, PermissionError, NotADirectoryError) as e:
+            missing = isinstance(e, FileNotFoundError) and not Path(job["cwd"]).is_dir()
+            what = (f"working folder {job['cwd']} does not exist in the guest" if missing else
+                    f"{job['argv'][0]}: {'command not found' if isinstance(e, FileNotFoundError) else e.strerror}")
+            err.write(f"[uml] {what}\n".encode())
+            return 127 if isinstance(e, FileNotFoundError) else 126
         try:
             status = proc.wait(timeout=job["timeout"])
         except subprocess.TimeoutExpired:

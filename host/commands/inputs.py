@@ -1,0 +1,88 @@
+"""Input files and values every command refuses the same way: one line, exit status 2, before anything starts.
+
+:func:`read_text_input` reads a text file a command was given (``run --xml-file``, ``chat --turns``
+/ ``--replies``, ``eval --replies``, ``dsbc @FILE``, ...): a missing or unreadable file, a folder, a
+file that is not UTF-8 text and an empty (or whitespace-only) file are each an :class:`InputError`
+naming the option, the file and what would be right.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+__all__ = ["InputError", "baud_rate", "port_number", "positive_seconds", "read_text_input", "seconds"]
+
+
+class InputError(ValueError):
+    """An input the command cannot use (one line, for the user)."""
+
+
+def read_text_input(path: str | Path, option: str, *, what: str = "text", allow_empty: bool = False) -> str:
+    """The UTF-8 text of ``path``, given with ``option`` (e.g. ``"--xml-file"``); :class:`InputError`
+    when it is missing, unreadable, not a file, not UTF-8, or (unless ``allow_empty``) holds only
+    whitespace."""
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except IsADirectoryError:
+        raise InputError(f"{option} {path} is a folder; give a file of {what}") from None
+    except OSError as e:
+        raise InputError(f"{option} {path}: cannot read it ({e.strerror or e})") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise InputError(f"{option} {path} is not UTF-8 text ({e.reason} at byte {e.start}); "
+                         f"give a UTF-8 file of {what}") from None
+    if not allow_empty and not text.strip():
+        raise InputError(f"{option} {path} is empty: nothing to run; give a file of {what}")
+    return text
+
+
+def port_number(text: str) -> int:
+    """argparse ``type=`` for a TCP port: a whole number 1..65535."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a TCP port number 1-65535, got {text!r}") from None
+    if not 1 <= v <= 65535:
+        raise argparse.ArgumentTypeError(f"a TCP port is 1-65535, got {v}")
+    return v
+
+
+def _number(text: str, what: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return v
+
+
+def seconds(text: str) -> float:
+    """argparse ``type=`` for a duration: a finite number of seconds >= 0."""
+    v = _number(text, "a number of seconds")
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0 seconds, got {text}")
+    return v
+
+
+def positive_seconds(text: str) -> float:
+    """argparse ``type=`` for a timeout: a finite number of seconds > 0."""
+    v = _number(text, "a number of seconds")
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"must be > 0 seconds, got {text}")
+    return v
+
+
+def baud_rate(text: str) -> int:
+    """argparse ``type=`` for a serial baud rate: a whole number of bit/s >= 1."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of bit/s, e.g. 115200, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1 bit/s, got {v}")
+    return v

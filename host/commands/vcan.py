@@ -1,0 +1,184 @@
+"""``ghostshell vcan [--ifaces vcan0,vcan1] -- COMMAND ...``: run COMMAND with SocketCAN ``vcan`` interfaces up.
+
+Where this kernel has the interfaces, or can create them (root and the ``vcan`` module), COMMAND runs
+here, directly, after they are created (and they are deleted afterwards). Elsewhere (a kernel without
+``vcan``, e.g. this machine's) it runs inside a throwaway User-Mode Linux guest (:mod:`host.vcan.uml`):
+the guest's root is this machine's root, so the working folder, the venv and every path outside
+``/tmp`` are the same inside; folders under ``/tmp`` that the command names (and ``--keep DIR``) are
+shared too; the kernel modules the SocketCAN tests need (``sch_tbf`` for ``tc``) are loaded; output
+streams to this terminal while COMMAND runs; the guest's files are removed afterwards (unless
+``--run-dir``).
+
+Exit status: COMMAND's own; 2 a usage error (no COMMAND, a bad interface name or option); 125 the
+command could not be run (no SocketCAN here and no usable User-Mode Linux, or the guest failed to
+boot; one line says why); 126 / 127 COMMAND is not executable / not found (as a shell); 130
+interrupted (Ctrl-C or SIGTERM: the guest is killed, its files removed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import sys
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+__all__ = ["configure", "main"]
+
+USAGE, HARNESS_FAILED, NOT_EXECUTABLE, NOT_FOUND = 2, 125, 126, 127
+#: Interface names: what ``ip link add`` takes (IFNAMSIZ 16 with the NUL; no '/', ':' or spaces).
+_IFNAME = re.compile(r"[A-Za-z0-9_.-]{1,15}")
+
+
+def _ifaces(text: str) -> tuple[str, ...]:
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    bad = [n for n in names if not _IFNAME.fullmatch(n)]
+    if bad or not names:
+        raise argparse.ArgumentTypeError(
+            f"{', '.join(map(repr, bad)) or repr(text)} is not a list of interface names: give names of 1-15 "
+            "letters, digits, '_', '.' or '-' separated by commas, e.g. vcan0,vcan1")
+    return names
+
+
+def _modules(text: str) -> tuple[str, ...]:
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    bad = [n for n in names if not re.fullmatch(r"[A-Za-z0-9_-]+", n)]
+    if bad:
+        raise argparse.ArgumentTypeError(f"{', '.join(map(repr, bad))}: a kernel module name has only letters, digits, '_' and '-'")
+    return names
+
+
+def _positive(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not 0 < v < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a number of seconds above 0, got {text}")
+    return v
+
+
+def _queue_len(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of frames, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
+    return v
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--ifaces", "--vcan", dest="ifaces", type=_ifaces, default=("vcan0", "vcan1"), metavar="LIST",
+                        help="the vcan interfaces to bring up, comma-separated (default vcan0,vcan1)")
+    parser.add_argument("--classic", action="store_true", help="classic CAN MTU 16 instead of CAN FD's 72")
+    parser.add_argument("--txqueuelen", type=_queue_len, default=None, metavar="N",
+                        help="the interfaces' transmit queue length (a real can0 has 10)")
+    parser.add_argument("--modules", type=_modules, default=("sch_tbf",), metavar="LIST",
+                        help="further kernel modules to load, comma-separated (default sch_tbf: tc's token bucket, "
+                             "which tests/socketcan uses); '' for none")
+    parser.add_argument("--uml", action="store_true",
+                        help="run in User-Mode Linux even where this kernel could create the interfaces")
+    parser.add_argument("--timeout", type=_positive, default=3600.0, metavar="S",
+                        help="kill COMMAND after S seconds (exit status 124; default 3600)")
+    parser.add_argument("--keep", action="append", default=[], metavar="DIR",
+                        help="User-Mode Linux: another folder under /tmp COMMAND needs (the working folder and "
+                             "/tmp paths named in COMMAND are shared without it)")
+    parser.add_argument("--run-dir", default=None, metavar="DIR",
+                        help="User-Mode Linux: keep the guest's files (job, console, output) in DIR "
+                             "(default: a temporary folder, removed at exit)")
+    parser.add_argument("command", nargs=argparse.REMAINDER, metavar="-- COMMAND ...",
+                        help="the command and its arguments")
+
+
+def _tmp_paths(argv: Sequence[str], cwd: Path) -> list[Path]:
+    """Folders under /tmp the command names (a file's or a new file's folder), which the guest must see."""
+    found = []
+    for arg in argv:
+        for part in arg.split("=", 1)[-1:] if arg.startswith("-") else [arg]:
+            if not part or "\n" in part:
+                continue
+            p = Path(part) if os.path.isabs(part) else cwd / part
+            try:
+                p = p.resolve()
+                folder = p if p.is_dir() else p.parent  # a file, or one the command will create
+                exists = folder.is_dir()
+            except (OSError, RuntimeError, ValueError):
+                continue
+            if exists and str(folder).startswith("/tmp/"):
+                found.append(folder)
+    return found
+
+
+def _sink(stream: str, data: bytes) -> None:
+    out = sys.stdout if stream == "stdout" else sys.stderr
+    out.buffer.write(data)
+    out.flush()
+
+
+def _which(program: str, cwd: Path, path: str) -> str | None:
+    if "/" in program:
+        p = Path(program) if os.path.isabs(program) else cwd / program
+        return str(p) if p.exists() else None
+    return shutil.which(program, path=path)
+
+
+def main(args: argparse.Namespace) -> int:
+    from host.vcan.native import native_plan, run_native
+    from host.vcan.uml import UmlError, default_env, run_in_uml, uml_unavailable_reason
+
+    command = args.command[1:] if args.command[:1] == ["--"] else list(args.command)
+    if not command:
+        print("ghostshell vcan: no COMMAND given; put it after --, e.g. ghostshell vcan -- candump vcan0",
+              file=sys.stderr)
+        return USAGE
+    cwd = Path.cwd()
+    env = default_env()
+    exe = _which(command[0], cwd, env["PATH"])
+    if exe is None:
+        print(f"ghostshell vcan: {command[0]}: command not found", file=sys.stderr)
+        return NOT_FOUND
+    if not os.access(exe, os.X_OK) or os.path.isdir(exe):
+        print(f"ghostshell vcan: {command[0]}: not an executable file", file=sys.stderr)
+        return NOT_EXECUTABLE
+    plan = None if args.uml else native_plan(args.ifaces)
+    if plan is not None:
+        try:
+            return run_native(command, plan, fd=not args.classic, txqueuelen=args.txqueuelen, modules=args.modules,
+                              cwd=cwd, env=env)
+        except OSError as e:
+            print(f"ghostshell vcan: {e}", file=sys.stderr)
+            return HARNESS_FAILED
+        except KeyboardInterrupt:
+            print("ghostshell vcan: interrupted", file=sys.stderr)
+            return 130
+    why = uml_unavailable_reason()
+    if why is not None:
+        print(f"ghostshell vcan: this kernel cannot create {', '.join(args.ifaces)} and User-Mode Linux is unusable: "
+              f"{why}", file=sys.stderr)
+        return HARNESS_FAILED
+    temporary = args.run_dir is None
+    run_dir = Path(tempfile.mkdtemp(prefix="uml_run_")) if temporary else Path(args.run_dir)
+    keep = [Path(k) for k in args.keep] + _tmp_paths(command, cwd)
+    try:
+        result = run_in_uml(command, run_dir=run_dir, cwd=cwd, env=env, vcans=args.ifaces, fd=not args.classic,
+                            txqueuelen=args.txqueuelen, keep=keep, extra_modules=args.modules, timeout=args.timeout,
+                            on_output=_sink)
+    except UmlError as e:
+        first = str(e).partition("\n")[0]
+        print(f"ghostshell vcan: {first}" + (f" (details in {run_dir})" if not temporary else ""), file=sys.stderr)
+        return HARNESS_FAILED
+    except KeyboardInterrupt:
+        print("ghostshell vcan: interrupted; the User-Mode Linux guest was stopped", file=sys.stderr)
+        return 130
+    finally:
+        if temporary:
+            shutil.rmtree(run_dir, ignore_errors=True)
+    if result.returncode:
+        kept = f"the guest's files are in {run_dir}" if not temporary else "--run-dir DIR keeps the guest's files"
+        print(f"ghostshell vcan: {command[0]} exited {result.returncode} after {result.seconds:.1f} s in User-Mode "
+              f"Linux ({kept})", file=sys.stderr)
+    return result.returncode

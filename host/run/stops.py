@@ -1,0 +1,141 @@
+"""Why a session stops before its work is done: a signal (Ctrl-C, SIGTERM) or a bound it reached.
+
+**Signals** (:class:`StopSignals`, used by ``run``, ``demo`` and ``chat``): the first SIGINT or
+SIGTERM is an *interruption*, not an abort: the session's running turn is cancelled through the
+shell's lifecycle tree (:meth:`host.shell.Shell.interrupt`, exactly as an external interruption:
+moving channels FLUSHed and stopped smoothly, active parents reset), the robot is moved smoothly
+to its rest pose (:meth:`host.run.session.RobotSession.go_to_rest`), and every artefact of what ran
+is written (summary.json with outcome ``interrupted``, timeline, plots, frame logs); the command
+prints one line and exits 130. A second signal exits at once: the work is cancelled, summary.json
+and timeline.json of what ran are written (no plots, no rest pose), the emulated board is stopped,
+exit 130. A signal while the session is still starting (no turn yet to interrupt) is that second
+kind at once. Signals are taken with AnyIO's :func:`anyio.open_signal_receiver` (the main thread
+of the event loop), so they never arrive as a ``KeyboardInterrupt`` in the middle of a task.
+
+The emulated board does not see the terminal's Ctrl-C at all: the host starts it in its own
+process group (:func:`host.link.board_process.start_board`), so the host owns the shutdown and the
+link never looks "lost" because of the user's Ctrl-C.
+
+**Bounds** (``--max-board-s``, ``--max-log-mb``, :class:`host.run.session.SessionOptions`): a turn
+that reaches its board-time bound, or a session whose frame logs reach their size bound, is stopped
+the same way as by a first signal (interrupted through the lifecycle tree, rest pose, artefacts),
+with outcome ``limit`` and the reason in ``summary.json`` (``extra.stopped``); the command exits 1.
+"""
+
+from __future__ import annotations
+
+import signal
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
+from dataclasses import dataclass
+
+import anyio
+import anyio.abc
+
+__all__ = ["DEFAULT_MAX_BOARD_S", "DEFAULT_MAX_LOG_MB", "Interrupted", "StopReason", "StopSignals", "signal_stop"]
+
+#: Board seconds one turn (one ``run``, one chat step) may last: a paper task takes at most ~30 s;
+#: a reply that would speak or move for longer is cut here (lockstep reaches it in seconds).
+DEFAULT_MAX_BOARD_S = 120.0
+#: Megabytes the session's frame logs (host and board, both directions) may reach: 50 Hz telemetry
+#: and 100 Hz servo frames log ~0.2 MB per board second, so ~40 minutes of a session.
+DEFAULT_MAX_LOG_MB = 500.0
+
+
+@dataclass(frozen=True)
+class StopReason:
+    """Why the session stopped early.
+
+    ``kind``: ``"signal"`` (outcome ``interrupted``, exit 130) or ``"limit"`` (outcome ``limit``,
+    exit 1); ``name``: the signal (``"SIGINT"``, ``"SIGTERM"``) or the bound (``"max_board_s"``,
+    ``"max_log_mb"``); ``message``: one line for the user and ``summary.json``.
+    """
+
+    kind: str
+    name: str
+    message: str
+
+    @property
+    def outcome(self) -> str:
+        return "interrupted" if self.kind == "signal" else "limit"
+
+    @property
+    def exit_status(self) -> int:
+        return 130 if self.kind == "signal" else 1
+
+    def as_dict(self) -> dict[str, str]:
+        return {"by": self.name, "kind": self.kind, "message": self.message}
+
+
+def signal_stop(signum: int) -> StopReason:
+    """The stop a signal asks for."""
+    name = signal.Signals(signum).name
+    how = "Ctrl-C" if signum == signal.SIGINT else name
+    return StopReason("signal", name, f"interrupted by {name} ({how})" if how != name else f"interrupted by {name}")
+
+
+class Interrupted(Exception):
+    """Raised out of a command's work that a signal cancelled at once (a second signal, or one that
+    came while the session was still starting). ``stop`` is the first signal's reason."""
+
+    def __init__(self, stop: StopReason, forced_by: str) -> None:
+        super().__init__(f"{stop.message}; stopped at once by {forced_by}")
+        self.stop = stop
+        self.forced_by = forced_by
+
+
+class StopSignals:
+    """SIGINT/SIGTERM handling for one command (see the module docstring).
+
+    ``on_first(stop) -> bool`` is called with the first signal; it returns True when it took the
+    graceful road (a turn will end interrupted), False when there is nothing to interrupt yet, and
+    the guarded work is then cancelled at once. A second signal always cancels it at once. After
+    :meth:`guard` exits, ``first`` is the first signal's :class:`StopReason` (or None) and
+    ``forced`` the name of the signal that cancelled the work (or None).
+    """
+
+    def __init__(self, on_first: Callable[[StopReason], bool]) -> None:
+        self.on_first = on_first
+        self.first: StopReason | None = None
+        self.forced: str | None = None
+        self._body: anyio.CancelScope | None = None
+
+    async def _watch(self, *, task_status: anyio.abc.TaskStatus[None] = anyio.TASK_STATUS_IGNORED) -> None:
+        # asyncio resets a handler it removes to the default (SIGTERM: terminate at once), not to the one
+        # before it: put those back, so a signal after the guarded work (e.g. while a video renders) is
+        # handled as the command handles it elsewhere
+        previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            with anyio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
+                task_status.started()
+                async for signum in signals:
+                    stop = signal_stop(signum)
+                    if self.first is None:
+                        self.first = stop
+                        if self.on_first(stop):
+                            continue
+                    self.forced = stop.name
+                    if self._body is not None:
+                        self._body.cancel()
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+
+    @asynccontextmanager
+    async def guard(self) -> AsyncIterator[StopSignals]:
+        """Watch for signals while the body runs; a forced stop cancels the body (and is swallowed
+        here: check ``forced`` afterwards)."""
+        try:
+            async with anyio.create_task_group() as tg:
+                await tg.start(self._watch)  # the handlers are installed before the body runs
+                try:
+                    with anyio.CancelScope() as body:
+                        self._body = body
+                        yield self
+                finally:
+                    self._body = None
+                    tg.cancel_scope.cancel()
+        except BaseExceptionGroup as group:  # the body's own error, not a group: the watcher never fails
+            if len(group.exceptions) == 1 and not isinstance(group.exceptions[0], BaseExceptionGroup):
+                raise group.exceptions[0] from None
+            raise

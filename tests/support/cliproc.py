@@ -1,0 +1,146 @@
+"""``ghostshell`` as a real process a terminal would run: its own process group, real signals.
+
+A terminal's Ctrl-C sends SIGINT to the foreground process group; :func:`start` puts the command in
+a new session (so it leads its own group, as a shell job does) and :meth:`Cli.ctrl_c` signals that
+whole group with ``os.killpg``, exactly what the terminal does. :func:`wait_until` polls an
+observable condition (a frame in a log, a file) with a deadline: synchronisation on an event the
+run shows, not a guessed sleep. :func:`processes_mentioning` finds processes whose command line
+names a path (a run folder): the emulated board gets ``--log RUN/board_frames.*``, so a board left
+behind by a run is found by its folder.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+__all__ = ["Cli", "last_telemetry", "processes_mentioning", "sent_servo_frames_until", "start", "wait_until"]
+
+
+class Cli:
+    """A running ``python -m host ARGS`` (stdout/stderr to files in ``logs``)."""
+
+    def __init__(self, args: Sequence[str], logs: Path, env: dict[str, str] | None = None,
+                 stdin_pipe: bool = False) -> None:
+        logs.mkdir(parents=True, exist_ok=True)
+        self.out_path, self.err_path = logs / "cli.stdout", logs / "cli.stderr"
+        self._out, self._err = open(self.out_path, "wb"), open(self.err_path, "wb")
+        stdin = subprocess.PIPE if stdin_pipe else subprocess.DEVNULL  # a pipe stays open (a client, a user)
+        self.proc = subprocess.Popen([sys.executable, "-m", "host", *args], stdin=stdin,
+                                     stdout=self._out, stderr=self._err, start_new_session=True,
+                                     env=env if env is not None else dict(os.environ))
+
+    def ctrl_c(self, sig: int = signal.SIGINT) -> None:
+        """What a terminal does on Ctrl-C: ``sig`` to the command's whole process group."""
+        os.killpg(self.proc.pid, sig)
+
+    def signal(self, sig: int) -> None:
+        """``sig`` to the command's process alone (``kill PID``)."""
+        self.proc.send_signal(sig)
+
+    def wait(self, timeout: float = 120.0) -> int:
+        try:
+            return self.proc.wait(timeout)
+        finally:
+            self._out.close()
+            self._err.close()
+            if self.proc.stdin is not None:
+                self.proc.stdin.close()
+
+    @property
+    def stdout(self) -> str:
+        return self.out_path.read_text(errors="replace")
+
+    @property
+    def stderr(self) -> str:
+        return self.err_path.read_text(errors="replace")
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait()
+
+
+def start(args: Sequence[str], logs: Path, env: dict[str, str] | None = None, stdin_pipe: bool = False) -> Cli:
+    return Cli(args, logs, env, stdin_pipe)
+
+
+def wait_until(cond: Callable[[], bool], what: str, timeout: float = 60.0, proc: Cli | None = None) -> None:
+    """Poll ``cond`` every 20 ms until it holds; AssertionError naming ``what`` after ``timeout`` s (or
+    at once when ``proc`` exits first)."""
+    deadline = time.monotonic() + timeout
+    while not cond():
+        if proc is not None and proc.proc.poll() is not None:
+            raise AssertionError(f"the command exited ({proc.proc.returncode}) before {what}:\n{proc.stderr[-3000:]}")
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what}: not within {timeout} s")
+        time.sleep(0.02)
+
+
+def _json_records(path: Path) -> list[dict]:
+    records = []
+    try:
+        lines = path.read_text(errors="replace").splitlines()
+    except FileNotFoundError:
+        return records
+    for line in lines:
+        try:
+            records.append(json.loads(line))
+        except ValueError:  # the line being written
+            continue
+    return records
+
+
+def sent_servo_frames_until(run_dir: Path) -> float:
+    """The latest board time (s) of a SERVO_FRAME the host has sent so far (its frame log: ``.jsonl``
+    serial or ``.log`` CAN), or -1 before the first."""
+    jsonl = run_dir / "host_frames.jsonl"
+    if jsonl.exists():
+        times = [r["fields"]["apply_at_us"] for r in _json_records(jsonl)
+                 if r.get("dir") == "tx" and r.get("type") == "SERVO_FRAME"]
+        return max(times) / 1e6 if times else -1.0
+    can_log = run_dir / "host_frames.log"
+    if not can_log.exists():
+        return -1.0
+    from host.link.canlog import iter_can_log
+    from protocol.can import CanItem
+    from protocol.messages import ServoFrame
+
+    latest = -1.0
+    try:
+        for e in iter_can_log(can_log):
+            for it in e.items:
+                if isinstance(it, CanItem) and isinstance(it.msg, ServoFrame) and e.direction == "h>b":
+                    latest = max(latest, it.msg.apply_at_us / 1e6)
+    except (OSError, ValueError):  # the line being written
+        pass
+    return latest
+
+
+def last_telemetry(run_dir: Path) -> dict:
+    """The board's last TELEMETRY record (serial ``board_frames.jsonl``): ``fields`` with positions etc."""
+    tel = [r for r in _json_records(run_dir / "board_frames.jsonl") if r.get("type") == "TELEMETRY"]
+    assert tel, f"no TELEMETRY in {run_dir / 'board_frames.jsonl'}"
+    return tel[-1]["fields"]
+
+
+def processes_mentioning(text: str) -> list[str]:
+    """Command lines of live processes that contain ``text`` (e.g. a run folder a board logs into)."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        if not proc.name.isdigit() or int(proc.name) == os.getpid():
+            continue
+        try:
+            cmd = (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            state = (proc / "stat").read_text().split()[2]
+        except OSError:
+            continue
+        if text in cmd and state != "Z":
+            found.append(f"{proc.name}: {cmd}")
+    return found
