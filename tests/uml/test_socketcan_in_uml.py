@@ -1,4 +1,4 @@
-"""The README's SocketCAN commands, run exactly as written (``ghostshell vcan -- ...``).
+"""The SocketCAN commands of docs/guides/can.md (and the README), run exactly as written (``ghostshell vcan -- ...``).
 
 Where this kernel has no ``vcan0``, ``tests/socketcan`` runs here: the README's
 ``ghostshell vcan -- .venv/bin/python -m pytest tests/socketcan -x -q`` boots User-Mode Linux
@@ -27,12 +27,15 @@ from support.uml import REPO_ROOT, socketcan_skip_reason
 pytestmark = pytest.mark.skipif(socketcan_skip_reason() is not None, reason=socketcan_skip_reason() or "")
 
 README = REPO_ROOT / "README.md"
+#: where the commands are written: the CAN guide of the docs site, and the README while it still has them
+SOURCES = (REPO_ROOT / "docs" / "guides" / "can.md", README)
 
 
 def readme_vcan_commands() -> list[str]:
-    """Every line of a README ``sh`` code block that starts with ``ghostshell vcan``."""
+    """Every line of a docs or README ``sh`` code block that starts with ``ghostshell vcan``."""
     commands = []
-    for block in re.findall(r"```sh\n(.*?)```", README.read_text(encoding="utf-8"), re.S):
+    text = "\n".join(p.read_text(encoding="utf-8") for p in SOURCES if p.is_file())
+    for block in re.findall(r"```sh\n(.*?)```", text, re.S):
         for line in block.splitlines():
             if line.startswith("ghostshell vcan ") and "COMMAND" not in line:
                 commands.append(line.split("  #", 1)[0].strip())
