@@ -15,8 +15,8 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-#: the README a newcomer reads: docs/README.short.md until it replaces README.md
-README = ROOT / "docs" / "README.short.md" if (ROOT / "docs" / "README.short.md").exists() else ROOT / "README.md"
+#: the README a newcomer reads
+README = ROOT / "README.md"
 
 
 def test_mkdocs_build_strict(tmp_path: Path) -> None:
@@ -37,7 +37,7 @@ def test_mkdocs_build_strict(tmp_path: Path) -> None:
 
 def test_every_page_is_in_the_nav() -> None:
     nav = (ROOT / "mkdocs.yml").read_text(encoding="utf-8")
-    pages = {p.relative_to(ROOT / "docs").as_posix() for p in (ROOT / "docs").rglob("*.md")} - {"README.short.md"}
+    pages = {p.relative_to(ROOT / "docs").as_posix() for p in (ROOT / "docs").rglob("*.md")}
     missing = sorted(p for p in pages if f": {p}" not in nav)
     assert not missing, f"pages not in mkdocs.yml's nav: {missing}"
 
