@@ -227,8 +227,9 @@ class _LogReader:
             self.log = None
 
 
-def run_firmware(opts: LaunchOptions, err: IO[str] = sys.stderr) -> int:
+def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
     """Build, boot and serve until SIGTERM/SIGINT; 0, 1 (the firmware died) or 2 (cannot start)."""
+    err = sys.stderr if err is None else err
     link = opts.link
     if link is not None and link.kind != "serial":
         print(f"board: the C firmware speaks the serial wire only; {link} is a CAN link", file=err)
