@@ -12,7 +12,7 @@
 
 Run: ``.venv/bin/python bench/bench_board.py [--seconds 10] [--lockstep-only]``
 (``GHOSTSHELL_BOARD_KERNEL=python`` for the reference path; ``--profile FILE`` writes the pty board
-process's cProfile stats).
+process's cProfile stats, timed by CPU time).
 """
 
 from __future__ import annotations
@@ -72,8 +72,7 @@ def _stream_targets(neutral: np.ndarray, k: int) -> tuple[float, ...]:
 def bench_lockstep_pty(sim_seconds: float = 30.0, profile: str | None = None) -> None:
     from protocol.messages import ServoFrame
 
-    prefix = ("-m", "cProfile", "-o", profile) if profile else ()
-    proc, port = _start_board("--lockstep", prefix=prefix)
+    proc, port = _start_board("--lockstep", head=("-c", _CPU_PROFILE, profile) if profile else ("-m", "firmware_sim"))
     neutral = np.array(Board(BoardConfig(lockstep=True, kernel="python")).table.neutral)
     end_us, board_us, tel, k = int(sim_seconds * 1e6), 0, 0, 0
     try:
@@ -105,9 +104,22 @@ def _cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def _start_board(*extra: str, prefix: tuple[str, ...] = ()) -> tuple[subprocess.Popen[str], str]:
+# the board CLI under cProfile timed by CPU time (on a busy machine wall time is mostly waiting):
+# python -c _CPU_PROFILE OUT ARGS...
+_CPU_PROFILE = """
+import cProfile, sys, time
+from firmware_sim.cli import main
+prof = cProfile.Profile(time.thread_time)
+try:
+    prof.runcall(main, sys.argv[2:])
+finally:
+    prof.dump_stats(sys.argv[1])
+"""
+
+
+def _start_board(*extra: str, head: tuple[str, ...] = ("-m", "firmware_sim")) -> tuple[subprocess.Popen[str], str]:
     proc = subprocess.Popen(
-        [sys.executable, *prefix, "-m", "firmware_sim", "--link", "pty", *extra],
+        [sys.executable, *head, "--link", "pty", *extra],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         env=dict(os.environ, PYTHONUNBUFFERED="1"),
     )
