@@ -4,7 +4,9 @@
    real-time factor (simulated seconds per wall second), for the kernel ``$GHOSTSHELL_BOARD_KERNEL``
    picks (``native``, the default, or ``python``; see firmware_sim.native); then the same stream
    end to end: a ``--lockstep`` board process on a pty fed 1 s of frames ahead by a host that reads
-   every TELEMETRY (encode, pty, decode, the server loop and the reports on top of the core).
+   every TELEMETRY (encode, pty, decode, the server loop and the reports on top of the core); then
+   both kernels A/B, interleaved in one process (CPU time per tick, min and median of 7 rounds: on
+   a shared machine the minimum is the least disturbed).
 2. Realtime pacing: a real board process on a pty at 500 Hz for ``--seconds`` (default 10)
    while a host feeds heartbeats and reads telemetry; tick lateness p50/p99/max from the
    board's own statistics (printed on SIGTERM).
@@ -58,6 +60,32 @@ def bench_lockstep(sim_seconds: float = 30.0) -> None:
     kernel = "native (C)" if b.native is not None else "python"
     print(f"lockstep core, {kernel} kernel: {n} ticks in {wall:.2f} s = {n / wall:,.0f} ticks/s, real-time factor {n * 0.002 / wall:.1f}x"
           f" (CPU time {cpu:.2f} s = {n / cpu:,.0f} ticks/s, {n * 0.002 / cpu:.1f}x: what a busy machine hides)")
+
+
+def bench_kernels_ab(rounds: int = 7, frames: int = 500) -> None:
+    from protocol.messages import ServoFrame
+
+    per_tick: dict[str, list[float]] = {"python": [], "native": []}
+    for _ in range(rounds):
+        for kernel, got in per_tick.items():
+            b = Board(BoardConfig(lockstep=True, kernel=kernel))
+            if kernel == "native" and b.native is None:
+                print("kernels A/B: the native kernel is unavailable here (see the note above)")
+                return
+            b.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 0), 0)
+            neutral = np.array(b.table.neutral)
+            c0 = time.process_time()
+            for k in range(1, frames + 1):
+                b.handle(ServoFrame(k * 20_000, 0x0FFF, _stream_targets(neutral, k)), k)
+                if k % 50 == 0:
+                    while b.can_tick():
+                        b.tick()
+            got.append((time.process_time() - c0) / b.ticks)
+    for kernel, got in per_tick.items():
+        got.sort()
+        lo, mid = got[0], got[len(got) // 2]
+        print(f"kernels A/B, {kernel}: CPU per tick min {lo * 1e6:.1f} us ({0.002 / lo:.0f}x real time), "
+              f"median {mid * 1e6:.1f} us ({0.002 / mid:.0f}x), n = {rounds} x {frames * 10} ticks")
 
 
 def _stream_targets(neutral: np.ndarray, k: int) -> tuple[float, ...]:
@@ -174,6 +202,7 @@ def main() -> None:
     args = ap.parse_args()
     bench_lockstep()
     bench_lockstep_pty(profile=args.profile)
+    bench_kernels_ab()
     if not args.lockstep_only:
         bench_realtime(args.seconds)
 
