@@ -45,6 +45,7 @@ from firmware_sim.plant.bus import PlantBus
 from firmware_sim.plant.world import World
 from firmware_sim.transports.serial import PtyPort, WireModel
 from protocol import framelog
+from protocol.codec import WireSchema, schema_for
 from protocol.faults import FaultInjector, FaultSpec
 from protocol.linkspec import LinkSpec
 from robots.description import Robot
@@ -168,8 +169,9 @@ class _Relay:
 class _LogReader:
     """Splits the firmware's log channel into stderr lines, frame records and counters."""
 
-    def __init__(self, err: IO[str], log_path: str | None) -> None:
+    def __init__(self, err: IO[str], log_path: str | None, schema: WireSchema) -> None:
         self.err = err
+        self.schema = schema  # the robot's wire schema: the firmware's frames are in it
         self.buf = bytearray()
         self.stats: dict[str, int] = {}
         self.log: IO[str] | None = open(log_path, "w", buffering=1, encoding="utf-8") if log_path else None
@@ -197,7 +199,8 @@ class _LogReader:
             parts = text.split(" ")
             if len(parts) == 4 and parts[1] in ("rx", "tx"):
                 try:
-                    rec = framelog.record(parts[1], int(parts[2]) / 1e6, bytes.fromhex(parts[3]))
+                    rec = framelog.record(parts[1], int(parts[2]) / 1e6, bytes.fromhex(parts[3]),
+                                          schema=self.schema)
                 except ValueError:
                     print(f"board: unreadable frame record from the firmware: {text[:80]}", file=self.err, flush=True)
                     return
@@ -227,8 +230,9 @@ class _LogReader:
             self.log = None
 
 
-def run_firmware(opts: LaunchOptions, err: IO[str] = sys.stderr) -> int:
+def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
     """Build, boot and serve until SIGTERM/SIGINT; 0, 1 (the firmware died) or 2 (cannot start)."""
+    err = sys.stderr if err is None else err
     link = opts.link
     if link is not None and link.kind != "serial":
         print(f"board: the C firmware speaks the serial wire only; {link} is a CAN link", file=err)
@@ -269,7 +273,7 @@ def run_firmware(opts: LaunchOptions, err: IO[str] = sys.stderr) -> int:
     side_fd = proc.stdout.fileno() if opts.firmware == "c" else proc.stderr.fileno()
     for fd in (log_fd, side_fd, bus.master):
         os.set_blocking(fd, False)
-    logr = _LogReader(err, opts.log_path)
+    logr = _LogReader(err, opts.log_path, schema_for(opts.robot.servo_count))
     side = bytearray()
     announced: str | None = None
     if opts.firmware == "qemu" and (relay is not None or port != "pty"):  # no pty of QEMU's to wait for
