@@ -8,7 +8,7 @@ reports what was injected and what each end detected. And the cubes still end up
 puts them (the board's objects log): lost and duplicated frames do not spoil a pick and place.
 
 By default the demo task over serial and two tasks over SLCAN, a pick and place and a wave scoped by
-speech (``GHOSTSHELL_ARM_ALL_TASKS=1``: every task over both).
+speech (``GHOSTSHELL_ALL_TASKS=1``: every task over both).
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ def test_arm_demo_task_under_paper_faults_over_serial(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not ALL_TASKS, reason="every task under faults over serial: GHOSTSHELL_ARM_ALL_TASKS=1")
+@pytest.mark.skipif(not ALL_TASKS, reason="every task under faults over serial: GHOSTSHELL_ALL_TASKS=1")
 @pytest.mark.parametrize("tid", sorted(TASKS))
 def test_arm_task_under_paper_faults_over_serial(tid: int, tmp_path: Path) -> None:
     _serial(tid, tmp_path)

@@ -8,7 +8,7 @@ pick-and-place tasks against an in-process replay of the host's candump capture
 Virtual: ``run_program(RunOptions(robot="arm", link="can:virtual:..."))`` against a board served in
 this process (:mod:`support.virtual_board`), whose MuJoCo state is read directly at the end.
 
-A few tasks per link by default (``GHOSTSHELL_ARM_ALL_TASKS=1``: all of them): over SLCAN a pick and a
+A few tasks per link by default (``GHOSTSHELL_ALL_TASKS=1``: all of them): over SLCAN a pick and a
 scoped pick and place (each with its replay cross-check); over the virtual bus the stack, a parallel
 nod with a release and a wave scoped by speech.
 """

@@ -14,7 +14,7 @@ ground truth, never on the link), and its last line is where the cubes ended up.
 
 The suite runs :data:`REPRESENTATIVE` tasks (a pick and place, speech in parallel with a gesture, a
 scoped termination; the demo task 12 and eval's tasks run in test_arm_cli_e2e.py) so it stays fast;
-``GHOSTSHELL_ARM_ALL_TASKS=1`` runs every task here and in the link and fault tests, each with its check.
+``GHOSTSHELL_ALL_TASKS=1`` runs every task here and in the link and fault tests, each with its check.
 """
 
 from __future__ import annotations
@@ -40,14 +40,14 @@ TASKS = {i: t for i, t in ARM.tasks.items() if t.ground_truth}
 PAN, LIFT, ELBOW, WFLEX, WROLL, GRIP = range(6)
 CUBE = 0.0125  # half size (m)
 _RUNS: dict[int, E2ERun] = {}
-#: every task's check runs with GHOSTSHELL_ARM_ALL_TASKS=1; by default only these (CI time)
-ALL_TASKS = os.environ.get("GHOSTSHELL_ARM_ALL_TASKS", "") not in ("", "0")
+#: every task's check runs with GHOSTSHELL_ALL_TASKS=1; by default only these (CI time)
+ALL_TASKS = os.environ.get("GHOSTSHELL_ALL_TASKS", "") not in ("", "0")
 REPRESENTATIVE = (5, 8, 13)
 
 
 def selected(*tids: int) -> list[int]:
     """The task ids a parametrized test runs: ``tids`` (a representative few), or all with ground truth
-    when ``GHOSTSHELL_ARM_ALL_TASKS`` is set."""
+    when ``GHOSTSHELL_ALL_TASKS`` is set."""
     return sorted(TASKS) if ALL_TASKS else sorted(tids)
 
 

@@ -1,4 +1,4 @@
-"""All 30 paper tasks over CAN (SLCAN adapter on a pty, lockstep) with injected faults both ways.
+"""The paper tasks over CAN (SLCAN adapter on a pty, lockstep) with injected faults both ways.
 
 Each task runs as a user runs it, ``ghostshell run --task N --link can:slcan:pty --lockstep
 --faults drop=0.01,corrupt=0.01,dup=0.005,reorder=0.005 --fault-seed N``, two subprocesses at a
@@ -14,6 +14,7 @@ injected and what each end detected.
 
 from __future__ import annotations
 
+import os
 from concurrent.futures import ThreadPoolExecutor
 
 import pytest
@@ -21,7 +22,12 @@ import pytest
 from robots.coco.tasks import load_tasks
 from support.faults import PAPER_FAULTS, CliRun, assert_can_fault_guarantees, cli_run
 
-TASKS = sorted(t.id for t in load_tasks().values() if t.ground_truth)
+ALL = sorted(t.id for t in load_tasks().values() if t.ground_truth)
+#: by default (CI time) two or three tasks per category of the paper, the long speech ones among
+#: them (task 8 lost a speech call here when a request had three attempts); every task runs over
+#: serial under the same faults (test_faults_e2e.py), and here too with GHOSTSHELL_ALL_TASKS=1
+SAMPLE = [1, 3, 7, 8, 9, 14, 17, 20, 22, 23, 26, 29]
+TASKS = ALL if os.environ.get("GHOSTSHELL_ALL_TASKS", "") not in ("", "0") else SAMPLE
 WORKERS = 2
 
 
@@ -33,7 +39,7 @@ def can_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[int, CliRun]:
                                                           faults=PAPER_FAULTS), TASKS)))
 
 
-@pytest.mark.slow  # ~2.5 min for the 30 tasks on two cores
+@pytest.mark.slow  # ~1 min for the 12 sampled tasks on two cores (~2.5 min for all 30)
 @pytest.mark.parametrize("tid", TASKS)
 def test_task_completes_under_paper_faults_over_slcan(tid: int, can_runs: dict[int, CliRun]) -> None:
     run = can_runs[tid]

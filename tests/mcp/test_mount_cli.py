@@ -34,20 +34,23 @@ def test_a_server_that_cannot_start_is_a_usage_error(tmp_path: Path, capsys: pyt
 
 
 def test_one_reply_drives_two_robots_each_on_its_own_board(tmp_path: Path) -> None:
-    """The local CoCo nods while the mounted shell's CoCo (another board, another process) shakes its
-    head and sits: both timelines show every call done, the mounted one on its own board clock."""
+    """CoCo nods while the mounted shell's desk arm (another robot, another board, another process:
+    ``ghostshell mcp --robot arm``) waves and points: both timelines show every call done, the arm's on
+    its own board clock."""
     out, remote = tmp_path / "local", tmp_path / "remote"
     rc = cli_main(["run", "--lockstep", "--no-live", "--out", str(out),
-                   "--mount-mcp", f"twin=ghostshell mcp --lockstep --out {remote}",
-                   "--xml", '<head_act action="nod" duration="1"/><twin.head_act action="shake"/><twin.pose name="sit"/>'])
+                   "--mount-mcp", f"arm=ghostshell mcp --robot arm --lockstep --out {remote}",
+                   "--xml", '<head_act action="nod" duration="1.5"/><arm.wave/><arm.point_at target="red_cube"/>'])
     assert rc == 0
     local = json.loads((out / "timeline.json").read_text())["calls"]
     assert {(c["function"], c["outcome"]) for c in local} == {
-        ("head_act", "done"), ("twin.head_act", "done"), ("twin.pose", "done")}
+        ("head_act", "done"), ("arm.wave", "done"), ("arm.point_at", "done")}
     nod = next(c for c in local if c["function"] == "head_act")
-    shake = next(c for c in local if c["function"] == "twin.head_act")
-    assert shake["start"] < nod["end"]  # the twin shook its head while this robot was still nodding
+    wave = next(c for c in local if c["function"] == "arm.wave")
+    assert wave["start"] < nod["end"]  # the arm waved while CoCo was still nodding
     turns = sorted(p for p in remote.iterdir() if p.name.startswith("turn_"))
     remote_calls = [c for t in turns for c in json.loads((t / "timeline.json").read_text())["calls"]]
-    assert [(c["function"], c["outcome"]) for c in remote_calls] == [("head_act", "done"), ("pose", "done")]
+    assert [(c["function"], c["outcome"]) for c in remote_calls] == [("wave", "done"), ("point_at", "done")]
     assert all(c["start"] is not None and c["end"] > c["start"] for c in remote_calls)  # board-measured there
+    assert json.loads((turns[0] / "summary.json").read_text())["extra"]["robot"] == "arm"
+    assert json.loads((out / "summary.json").read_text())["extra"]["robot"] == "coco"
