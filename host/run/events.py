@@ -6,7 +6,7 @@ counters; pure bookkeeping, no I/O):
 
 ==========  ==========================================================================================
 ``fall``    a floating-base robot tilts more than :data:`FALL_TILT_DEG` (45 deg) or its base drops below
-            :data:`FALL_HEIGHT_FRACTION` of its height in the first report (CoCo standing at 9 cm: 3 cm;
+            :data:`FALL_HEIGHT_FRACTION` of its height in the first report (a quadruped standing at 9 cm: 3 cm;
             any robot's own size): :func:`has_fallen`, the same test as ``summary.json``'s ``fell``;
             once per fall
 ``tilt``    it tilts more than :data:`TILT_DEG` (25 deg) without falling; once until it is upright again

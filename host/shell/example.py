@@ -1,16 +1,16 @@
-"""A small CoCo-like example interface with a simulated implementation.
+"""A small example interface of a quadruped with ears, a head and a face, with a simulated implementation.
 
-Used by ``ghostshell prompt`` until ``robots/coco/interface.py`` exists, and by
-the shell tests as fake functions of known duration. Each module is an abstract
+Used by the shell tests as fake functions of known duration, and by ``ghostshell prompt --interface
+host.shell.example:modules`` to show the shell's prompt without a robot. Each module is an abstract
 interface (stubs with hints and docstrings: what the LLM sees) bound by
-dependency injection to :class:`SimulatedCoCo`, whose methods just
+dependency injection to :class:`SimulatedQuadruped`, whose methods just
 ``await anyio.sleep(seconds)`` and log what they did. Durations (seconds):
 
 * finite calls: ``duration`` if given, else ``times`` x per-repetition time,
   else the default in :data:`DEFAULT_SECONDS`; ``speak`` takes 0.1 s per character,
   ``rotate`` 1 s per 90 degrees, ``run_distance`` 1 s per 10 cm;
 * persistent calls (start-tag elements) loop that action (or hold the posture)
-  until reset; reset hooks take :attr:`SimulatedCoCo.reset_seconds` (0 by default).
+  until reset; reset hooks take :attr:`SimulatedQuadruped.reset_seconds` (0 by default).
 """
 
 from __future__ import annotations
@@ -141,7 +141,7 @@ class Camera:
         raise NotImplementedError("interface stub: Module.bind routes calls to the implementation")
 
 
-class SimulatedCoCo:
+class SimulatedQuadruped:
     """Implements every example interface by sleeping for a known time and logging."""
 
     def __init__(self, reset_seconds: float = 0.0) -> None:
@@ -256,7 +256,7 @@ INTERFACES: dict[str, type] = {
 }
 
 
-def modules(impl: SimulatedCoCo | None = None) -> list[Module]:
-    """The example modules, each interface bound to ``impl`` (a fresh :class:`SimulatedCoCo` by default)."""
-    impl = impl if impl is not None else SimulatedCoCo()
+def modules(impl: SimulatedQuadruped | None = None) -> list[Module]:
+    """The example modules, each interface bound to ``impl`` (a fresh :class:`SimulatedQuadruped` by default)."""
+    impl = impl if impl is not None else SimulatedQuadruped()
     return [Module.bind(name, iface, impl) for name, iface in INTERFACES.items()]

@@ -11,7 +11,7 @@ stand at 45 degrees:
 
 The amplitude fades in over the first half cycle and out over the last, so a gait starts and ends
 in the stand pose. Distance and angle per cycle come from MuJoCo: ``gait.toml`` next to this file,
-written by ``bench/calibrate_gaits.py``.
+written by ``robots/coco/calibrate_gaits.py``.
 """
 
 from __future__ import annotations

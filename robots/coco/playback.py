@@ -1,6 +1,6 @@
 """Play motions on CoCo in MuJoCo the way the board does, and measure what the base did.
 
-Used by the gait calibration (``bench/calibrate_gaits.py``) and the motion tests. Like the board,
+Used by the gait calibration (``robots/coco/calibrate_gaits.py``) and the motion tests. Like the board,
 targets are interpolated at the control rate (500 Hz, one 2 ms physics step per tick), clamped to
 the joint limits and speed limits, quantised to the encoder resolution, and held inside the
 deadband. This mirrors ``firmware_sim``'s servo model in a few lines because ``robots`` may not

@@ -18,7 +18,6 @@ CASES = {
     "bench_roundtrip.py": ["--n", "20"],
     "bench_streaming.py": ["--tasks", "5"],
     "bench_latency.py": ["--tasks", "5", "--lockstep"],
-    "calibrate_gaits.py": ["--check"],
     "bench_canload.py": ["--no-run"],
     "bench_hostile.py": ["--mb", "0.01", "--calls", "50"],
     "bench_recovery.py": ["--links", "pty", "--starts", "3"],  # one realtime run, ~9 s

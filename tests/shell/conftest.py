@@ -14,13 +14,13 @@ def anyio_backend():
 
 @pytest.fixture
 def coco():
-    """Factory: ``coco(**shell_kwargs) -> (Shell, SimulatedCoCo)`` with the example CoCo-like modules."""
-    from host.shell.example import SimulatedCoCo, modules
+    """Factory: ``coco(**shell_kwargs) -> (Shell, SimulatedQuadruped)`` with the example CoCo-like modules."""
+    from host.shell.example import SimulatedQuadruped, modules
     from host.shell.registry import Registry
     from host.shell.shell import Shell
 
     def make(reset_seconds: float = 0.0, **kw):
-        impl = SimulatedCoCo(reset_seconds=reset_seconds)
+        impl = SimulatedQuadruped(reset_seconds=reset_seconds)
         return Shell(Registry(modules(impl)), **kw), impl
 
     return make

@@ -120,7 +120,7 @@ FRAGMENTS = st.sampled_from([
 def test_property_lenient_speech_never_contains_markup(parts: list[str], step: int) -> None:
     import anyio
 
-    from host.shell.example import SimulatedCoCo, modules
+    from host.shell.example import SimulatedQuadruped, modules
     from host.shell.registry import Registry
     from host.shell.shell import Shell
 
@@ -128,7 +128,7 @@ def test_property_lenient_speech_never_contains_markup(parts: list[str], step: i
     chunks = [source[i:i + step] for i in range(0, len(source), step)] or [""]
 
     async def main() -> list[str]:
-        shell = Shell(Registry(modules(SimulatedCoCo())), strict=False, clock=lambda: 0.0)
+        shell = Shell(Registry(modules(SimulatedQuadruped())), strict=False, clock=lambda: 0.0)
         result = await shell.run_text(chunks)
         assert result.error is None
         return [r.args["text"] for r in result.timeline if r.function == "speak"]

@@ -42,11 +42,11 @@ async def _timelines(make) -> dict[str, list[dict]]:
 
 
 def _make(**kw):
-    from host.shell.example import SimulatedCoCo, modules
+    from host.shell.example import SimulatedQuadruped, modules
     from host.shell.registry import Registry
     from host.shell.shell import Shell
 
-    impl = SimulatedCoCo()
+    impl = SimulatedQuadruped()
     return Shell(Registry(modules(impl)), **kw), impl
 
 

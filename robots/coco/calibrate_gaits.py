@@ -1,7 +1,7 @@
 """Calibrate CoCo's gaits in MuJoCo and print their accuracy.
 
-    python bench/calibrate_gaits.py            # measure, rewrite robots/coco/gait.toml, print accuracy
-    python bench/calibrate_gaits.py --check    # only print the accuracy table for the current gait.toml
+    python -m robots.coco.calibrate_gaits          # measure, rewrite robots/coco/gait.toml, print accuracy
+    python -m robots.coco.calibrate_gaits --check  # only print the accuracy table for the current gait.toml
 
 Walking: for each (speed, amplitude) in {0, 50, 100}^2 and both directions, walk 2 and 6 cycles at
 full amplitude and fit ``distance = offset + per_cycle * cycles``; the yaw drift of forward and
@@ -77,7 +77,7 @@ def calibrate() -> str:
         return "[" + ", ".join("[" + ", ".join(f"{v:.3f}" for v in r) + "]" for r in rows) + "]"
 
     return "\n".join([
-        "# CoCo gait calibration, measured in MuJoCo by bench/calibrate_gaits.py (do not edit by hand).",
+        "# CoCo gait calibration, measured in MuJoCo by robots/coco/calibrate_gaits.py (do not edit by hand).",
         "# travel = offset + per_cycle * cycles at full amplitude; rows: speed, columns: amplitude.",
         "",
         "[walk]",
