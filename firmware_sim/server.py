@@ -48,7 +48,7 @@ class BoardServer:
         board: Board,
         transport: BoardTransport,
         viewer: object | None = None,
-        err: IO[str] = sys.stderr,
+        err: IO[str] | None = None,
     ) -> None:
         self.board = board
         self.transport = transport
@@ -58,7 +58,7 @@ class BoardServer:
         self.tx_dropped_no_host = 0  # dropped while no host had been heard for NO_HOST_S
         self.last_rx: float | None = None  # monotonic time of the last valid message
         self.viewer = viewer
-        self.err = err
+        self.err: IO[str] = sys.stderr if err is None else err
         self.running = True
         self.inbox: deque[Frame | DecodeError] = deque()  # lockstep: decoded, not yet handled
         self.clock = RealtimeClock(board.tick_us / 1e6) if not board.cfg.lockstep else None

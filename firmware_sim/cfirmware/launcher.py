@@ -230,8 +230,9 @@ class _LogReader:
             self.log = None
 
 
-def run_firmware(opts: LaunchOptions, err: IO[str] = sys.stderr) -> int:
+def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
     """Build, boot and serve until SIGTERM/SIGINT; 0, 1 (the firmware died) or 2 (cannot start)."""
+    err = sys.stderr if err is None else err
     link = opts.link
     kind = link_kind(link) if link is not None else None
     if kind is not None and opts.firmware not in kind.firmwares:

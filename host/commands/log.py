@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import IO
 
 from host.commands.linkarg import add_link_argument
 from protocol.linkkinds import link_kind
@@ -38,8 +39,10 @@ def type_names() -> list[str]:
     return [t.name for t in MsgType] + ["ERROR"]
 
 
-def decode_file(path: str, out=sys.stdout, err=sys.stderr, types: list[str] | None = None) -> int:
+def decode_file(path: str, out: IO[str] | None = None, err: IO[str] | None = None, types: list[str] | None = None) -> int:
     """Print ``path``'s records; bad lines are reported with their number and skipped. Returns an exit code."""
+    out = sys.stdout if out is None else out  # resolved per call: a default bound at import would pin
+    err = sys.stderr if err is None else err  # the stream of whoever imported first (pytest's capture, a redirect)
     from protocol.framelog import FrameLogError, format_record, from_line
 
     wanted = {t.upper() for t in types} if types else None
@@ -85,8 +88,10 @@ def decode_file(path: str, out=sys.stdout, err=sys.stderr, types: list[str] | No
     return 0
 
 
-def decode_mcap_file(path: str, out=sys.stdout, err=sys.stderr, types: list[str] | None = None) -> int:
+def decode_mcap_file(path: str, out: IO[str] | None = None, err: IO[str] | None = None, types: list[str] | None = None) -> int:
     """Print a run.mcap's messages in board-time order (a cut file: in file order, up to its last chunk)."""
+    out = sys.stdout if out is None else out  # resolved per call: a default bound at import would pin
+    err = sys.stderr if err is None else err  # the stream of whoever imported first (pytest's capture, a redirect)
     import json
 
     from host.run.mcap_read import McapReadError, McapRun

@@ -186,7 +186,7 @@ def test_generated_robot_runs_pose_and_joint_move(robot: str, moves: str, target
 
 
 def test_a_behaviour_and_stub_added_to_a_generated_robot(tmp_path: Path) -> None:
-    """README "Add your robot": a behaviours module, an interface module and a channel, no other code."""
+    """docs/guides/robots.md, "Add your robot": a behaviours module, an interface module and a channel, no other code."""
     robots = tmp_path / "robots"
     add_scan(install_package(generate_package("rig", write_rig(tmp_path / "src")), robots))
     show = cli("robots", "show", "rig", "--robots-dir", str(robots), data_home=tmp_path)

@@ -14,7 +14,7 @@ then 16 inputs: catches ~70 B per input, one small object).
 The RSS creep seen under libFuzzer came from native memory tracemalloc does not see (a new 14 MB
 MuJoCo arena per input fragmenting the C heap): the last test checks that the target compiles the
 model and allocates ``MjData`` once, tests/firmware/test_board_reuse.py that a reused board runs
-bit-for-bit as a new one; README ("Fuzzing") has the RSS numbers.
+bit-for-bit as a new one; docs/guides/fuzzing.md has the RSS numbers.
 """
 
 from __future__ import annotations

@@ -124,7 +124,7 @@ CRAWLER_XML = """\
 """
 
 
-#: README "Add your robot": a behaviour of the rig (a pan sweep) ...
+#: docs/guides/robots.md, "Add your robot": a behaviour of the rig (a pan sweep) ...
 RIG_BEHAVIOURS_PY = """\
 import math
 
@@ -166,7 +166,7 @@ VOCABULARIES = {"default": {"head": Head}}
 
 
 def add_scan(folder: Path) -> None:
-    """Give a generated rig package the README's behaviour, stub and channel."""
+    """Give a generated rig package the robots guide's behaviour, stub and channel."""
     (folder / "behaviours.py").write_text(RIG_BEHAVIOURS_PY)
     (folder / "interface.py").write_text(RIG_INTERFACE_PY)
     toml = folder / "robot.toml"

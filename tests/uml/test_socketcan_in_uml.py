@@ -1,11 +1,11 @@
-"""The README's SocketCAN commands, run exactly as written (``ghostshell vcan -- ...``).
+"""The SocketCAN commands of docs/guides/can.md, run exactly as written (``ghostshell vcan -- ...``).
 
-Where this kernel has no ``vcan0``, ``tests/socketcan`` runs here: the README's
+Where this kernel has no ``vcan0``, ``tests/socketcan`` runs here: the CAN guide's
 ``ghostshell vcan -- .venv/bin/python -m pytest tests/socketcan -x -q`` boots User-Mode Linux
 once and runs the whole directory inside (python start-up over hostfs is the cost, not the boot;
 ~1-2 min, three paper-task runs included), then ``ghostshell vcan -- ghostshell run --task 26
 --link 'can:socketcan:vcan0?node=2' ...`` runs a task over SocketCAN. Each command is read from the
-README's code blocks (``.venv/bin/python`` is this interpreter, ``ghostshell`` is ``python -m
+guide's code blocks (``.venv/bin/python`` is this interpreter, ``ghostshell`` is ``python -m
 host``: the checkout's venv may live elsewhere); each must exit 0, and the test suite's summary
 must show nothing failed, errored or skipped (inside UML every prerequisite exists, so a skip there
 is a bug, not noise).
@@ -26,17 +26,19 @@ from support.uml import REPO_ROOT, socketcan_skip_reason
 
 pytestmark = pytest.mark.skipif(socketcan_skip_reason() is not None, reason=socketcan_skip_reason() or "")
 
-README = REPO_ROOT / "README.md"
+#: where the commands are written: the CAN guide of the docs site (the README links to it)
+SOURCES = (REPO_ROOT / "docs" / "guides" / "can.md",)
 
 
 def readme_vcan_commands() -> list[str]:
-    """Every line of a README ``sh`` code block that starts with ``ghostshell vcan``."""
+    """Every line of the guide's ``sh`` code blocks that starts with ``ghostshell vcan``."""
     commands = []
-    for block in re.findall(r"```sh\n(.*?)```", README.read_text(encoding="utf-8"), re.S):
+    text = "\n".join(p.read_text(encoding="utf-8") for p in SOURCES if p.is_file())
+    for block in re.findall(r"```sh\n(.*?)```", text, re.S):
         for line in block.splitlines():
             if line.startswith("ghostshell vcan ") and "COMMAND" not in line:
                 commands.append(line.split("  #", 1)[0].strip())
-    return list(dict.fromkeys(commands))  # a command the README shows twice runs once
+    return list(dict.fromkeys(commands))  # a command the guide shows twice runs once
 
 
 def _argv(command: str) -> list[str]:
