@@ -63,6 +63,8 @@ from host.link.errors import (
     RobotMismatch,
     SchemaMismatch,
 )
+from host.link.telemetry import FAULT_BITS, FaultEvent, TelemetryFanout
+from host.link.telemetry import flag_names as _flag_names
 from host.link.timesync import ClockEstimate, ClockSync
 from host.link.transports import Transport, open_transport
 from protocol.codec import (
@@ -114,8 +116,6 @@ __all__ = ["FAULT_BITS", "BoardClient", "FaultEvent", "LinkStats", "LinkTarget",
 log = logging.getLogger("host.link")
 #: TIME_SYNC exchanges tried at connect before the link counts as failed (each waits 0.5, 1, then 2 s)
 SYNC_ATTEMPTS = 6
-#: telemetry bits that are reported as fault edges
-FAULT_BITS = FaultFlags.ESTOP | FaultFlags.WATCHDOG_HOLD | FaultFlags.WATCHDOG_FAULT | FaultFlags.SERVO_FAULT
 
 #: what a client connects to: a link spec (text or parsed), or a callable giving one, re-resolved on
 #: every reconnect attempt (serial links: a board that comes back on another pty)
@@ -140,24 +140,6 @@ class RobotIdentity:
         return f"{self.name!r} ({self.servo_count} servos, servo table {self.servo_table_hash:#010x})"
 
 
-@dataclass(frozen=True)
-class FaultEvent:
-    """A change of the telemetry fault bits in :data:`FAULT_BITS`."""
-
-    board_time_us: int
-    host_time: float
-    before: FaultFlags
-    after: FaultFlags
-
-    @property
-    def raised(self) -> FaultFlags:
-        return FaultFlags(self.after & ~self.before)
-
-    @property
-    def cleared(self) -> FaultFlags:
-        return FaultFlags(self.before & ~self.after)
-
-
 @dataclass
 class LinkStats:
     """Counters since the client was created."""
@@ -171,10 +153,6 @@ class LinkStats:
     retries: int = 0  # requests re-sent because no ACK/NACK came in time (a lost frame either way)
     seq_gaps: int = 0  # board messages never received (gaps in the board's sequence numbers), since the handshake
     last_decode_error: str = ""  # kind and detail of the latest undecodable item, for reports
-
-
-def _flag_names(f: FaultFlags) -> str:
-    return "|".join(e.name or "" for e in FaultFlags if e.value and f & e) or "NONE"
 
 
 class BoardClient:
@@ -242,11 +220,9 @@ class BoardClient:
         self._rx_gaps = GapDetector()
         self.clock = ClockSync()
         self.stats = LinkStats()
-        self.latest_telemetry: Telemetry | None = None
+        #: the TELEMETRY listener: latest report, fault edges, subscribers, waiters (host.link.telemetry)
+        self.fanout = TelemetryFanout(telemetry_queue)
         self.latest_sim_state: SimState | None = None
-        self.faults = FaultFlags.NONE
-        self.fault_events: deque[FaultEvent] = deque(maxlen=256)
-        self.on_fault: list[Callable[[FaultEvent], None]] = []
         self.on_nack: list[Callable[[Nack], None]] = []
         #: the board's latest NACK SERVO_FAULT (its detail names the servo that stopped answering on its bus)
         self.servo_fault: Nack | None = None
@@ -268,8 +244,6 @@ class BoardClient:
         self._sync_pending: dict[int, asyncio.Future[tuple[TimeSyncReply, int]]] = {}
         self._frame_nacks: OrderedDict[int, Nack] = OrderedDict()
         self._nack_waiters: list[tuple[int, asyncio.Future[Nack | None]]] = []
-        self._tele_waiters: list[tuple[Callable[[Telemetry], bool], asyncio.Future[Telemetry]]] = []
-        self._subs: set[asyncio.Queue[Telemetry]] = set()
         self._captures: dict[int, dict[int, bytes]] = {}
         self._capture_total: dict[int, int] = {}  # request id -> chunk count (from its first chunk)
         self._capture_seq: dict[int, int] = {}
@@ -351,6 +325,26 @@ class BoardClient:
     @property
     def lockstep(self) -> bool:
         return bool(self.caps and self.caps.lockstep)
+
+    @property
+    def latest_telemetry(self) -> Telemetry | None:
+        """The latest TELEMETRY report (None before the first)."""
+        return self.fanout.latest
+
+    @property
+    def faults(self) -> FaultFlags:
+        """The fault bits of :data:`FAULT_BITS` in the latest report."""
+        return self.fanout.faults
+
+    @property
+    def fault_events(self) -> deque[FaultEvent]:
+        """The latest 256 fault edges."""
+        return self.fanout.fault_events
+
+    @property
+    def on_fault(self) -> list[Callable[[FaultEvent], None]]:
+        """Callbacks called with every fault edge (append to it)."""
+        return self.fanout.on_fault
 
     async def wait_connected(self, timeout: float) -> None:
         """Wait until the link is up (e.g. after a reconnect); :class:`LinkTimeout` otherwise."""
@@ -845,26 +839,48 @@ class BoardClient:
             except Exception:  # a bug in a callback must not kill the reader
                 log.exception("link: error handling %s", item.msg_type.name)
 
+    #: received message class -> the name of its handler, ``handler(msg, t4)`` (a table, not an isinstance
+    #: chain; looked up by name so a handler replaced on the instance or the class is the one called)
+    _HANDLERS: dict[type[Message], str] = {
+        Telemetry: "_handle_telemetry",
+        SimState: "_handle_sim_state",
+        Ack: "_handle_ack",
+        Nack: "_handle_nack",
+        TimeSyncReply: "_handle_time_sync",
+        Caps: "_handle_caps",
+        CameraChunk: "_handle_chunk",
+    }
+
     def _dispatch(self, msg: Message, t4: int) -> None:
-        if isinstance(msg, Telemetry):
-            self._on_telemetry(msg)
-        elif isinstance(msg, SimState):
-            self.latest_sim_state = msg
-        elif isinstance(msg, Ack):
-            fut = self._pending.get(msg.ack_seq)
-            if fut is not None and not fut.done():
-                fut.set_result(msg)
-        elif isinstance(msg, Nack):
-            self._on_nack(msg)
-        elif isinstance(msg, TimeSyncReply):
-            sfut = self._sync_pending.get(msg.t1_host_us)
-            if sfut is not None and not sfut.done():
-                sfut.set_result((msg, t4))
-        elif isinstance(msg, Caps):
-            if self._hello_fut is not None and not self._hello_fut.done():
-                self._hello_fut.set_result(msg)
-        elif isinstance(msg, CameraChunk):
-            self._on_chunk(msg)
+        name = self._HANDLERS.get(type(msg))
+        if name is not None:
+            getattr(self, name)(msg, t4)
+
+    def _handle_telemetry(self, msg: Telemetry, t4: int) -> None:
+        self._on_telemetry(msg)
+
+    def _handle_sim_state(self, msg: SimState, t4: int) -> None:
+        self.latest_sim_state = msg
+
+    def _handle_ack(self, msg: Ack, t4: int) -> None:
+        fut = self._pending.get(msg.ack_seq)
+        if fut is not None and not fut.done():
+            fut.set_result(msg)
+
+    def _handle_nack(self, msg: Nack, t4: int) -> None:
+        self._on_nack(msg)
+
+    def _handle_time_sync(self, msg: TimeSyncReply, t4: int) -> None:
+        sfut = self._sync_pending.get(msg.t1_host_us)
+        if sfut is not None and not sfut.done():
+            sfut.set_result((msg, t4))
+
+    def _handle_caps(self, msg: Caps, t4: int) -> None:
+        if self._hello_fut is not None and not self._hello_fut.done():
+            self._hello_fut.set_result(msg)
+
+    def _handle_chunk(self, msg: CameraChunk, t4: int) -> None:
+        self._on_chunk(msg)
 
     def _on_nack(self, msg: Nack) -> None:
         if msg.reason == NackReason.SERVO_FAULT:
@@ -928,45 +944,14 @@ class BoardClient:
                 fut.set_result(b"".join(parts[i] for i in range(total)))
 
     def _on_telemetry(self, t: Telemetry) -> None:
-        self.latest_telemetry = t
         self.stats.telemetry += 1
         self._board_time_seen = max(self._board_time_seen, t.board_time_us)
-        now_faults = FaultFlags(t.faults & FAULT_BITS)
-        if now_faults != self.faults:
-            ev = FaultEvent(t.board_time_us, time.monotonic(), self.faults, now_faults)
-            self.faults = now_faults
-            self.fault_events.append(ev)
-            if ev.raised:
-                # info, not warning: the application reports faults (on_fault); a run ends with one message
-                log.info("board fault raised: %s (board time %.3f s)", _flag_names(ev.raised), t.board_time_us / 1e6)
-            if ev.cleared:
-                log.info("board fault cleared: %s (board time %.3f s)", _flag_names(ev.cleared), t.board_time_us / 1e6)
-            for cb in list(self.on_fault):
-                cb(ev)
-        for q in self._subs:
-            if q.full():
-                q.get_nowait()
-            q.put_nowait(t)
-        if self._tele_waiters:
-            keep = []
-            for pred, fut in self._tele_waiters:
-                if fut.done():
-                    continue
-                if pred(t):
-                    fut.set_result(t)
-                else:
-                    keep.append((pred, fut))
-            self._tele_waiters = keep
+        self.fanout.on_telemetry(t)
 
     async def telemetry(self, maxsize: int | None = None) -> AsyncIterator[Telemetry]:
         """Every telemetry report from now on; a slow consumer loses the oldest (bounded queue)."""
-        q: asyncio.Queue[Telemetry] = asyncio.Queue(maxsize or self.telemetry_queue)
-        self._subs.add(q)
-        try:
-            while True:
-                yield await q.get()
-        finally:
-            self._subs.discard(q)
+        async for t in self.fanout.subscribe(maxsize):
+            yield t
 
     async def wait_for(self, predicate: Callable[[Telemetry], bool], timeout: float, *, nudge: bool = False) -> Telemetry:
         """The first telemetry (latest included) satisfying ``predicate``; :class:`LinkTimeout` after ``timeout`` s.
@@ -980,8 +965,7 @@ class BoardClient:
         t = self.latest_telemetry
         if t is not None and predicate(t):
             return t
-        fut: asyncio.Future[Telemetry] = asyncio.get_running_loop().create_future()
-        self._tele_waiters.append((predicate, fut))
+        fut = self.fanout.waiter(predicate)
         deadline = time.monotonic() + timeout
         nudging = nudge and self.lockstep
         until = 0
@@ -1006,7 +990,7 @@ class BoardClient:
         finally:
             if not fut.done():
                 fut.cancel()
-            self._tele_waiters = [(p, f) for p, f in self._tele_waiters if f is not fut]
+            self.fanout.forget(fut)
 
     #: wall seconds between the ADVANCEs of :meth:`wait_for` with ``nudge`` (a lockstep board answers in ~1 ms)
     NUDGE_S = 0.1
@@ -1020,11 +1004,10 @@ class BoardClient:
 
     async def next_telemetry(self, timeout: float) -> Telemetry:
         """The next telemetry report received after this call."""
-        fut: asyncio.Future[Telemetry] = asyncio.get_running_loop().create_future()
-        self._tele_waiters.append((lambda _t: True, fut))
+        fut = self.fanout.waiter(lambda _t: True)
         try:
             return await asyncio.wait_for(fut, timeout)
         except TimeoutError:
             raise LinkTimeout(f"no telemetry within {timeout} s") from None
         finally:
-            self._tele_waiters = [(p, f) for p, f in self._tele_waiters if f is not fut]
+            self.fanout.forget(fut)
