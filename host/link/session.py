@@ -63,12 +63,12 @@ from host.link.errors import (
     RobotMismatch,
     SchemaMismatch,
 )
+from host.link.camera import CameraAssembler
 from host.link.telemetry import FAULT_BITS, FaultEvent, TelemetryFanout
 from host.link.telemetry import flag_names as _flag_names
 from host.link.timesync import ClockEstimate, ClockSync
 from host.link.transports import Transport, open_transport
 from protocol.codec import (
-    MAX_RESEND_BITMAP,
     WIRE_SCHEMA_16,
     WIRE_SCHEMAS,
     WireBoundError,
@@ -244,9 +244,7 @@ class BoardClient:
         self._sync_pending: dict[int, asyncio.Future[tuple[TimeSyncReply, int]]] = {}
         self._frame_nacks: OrderedDict[int, Nack] = OrderedDict()
         self._nack_waiters: list[tuple[int, asyncio.Future[Nack | None]]] = []
-        self._captures: dict[int, dict[int, bytes]] = {}
-        self._capture_total: dict[int, int] = {}  # request id -> chunk count (from its first chunk)
-        self._capture_seq: dict[int, int] = {}
+        self.camera = CameraAssembler()  # camera captures in progress (host.link.camera)
         self._next_request_id = 1
         self._connected = asyncio.Event()
         self._lost = asyncio.Event()
@@ -498,9 +496,7 @@ class BoardClient:
         self._pending.clear()
         self._sync_pending.clear()
         self._nack_waiters.clear()
-        self._captures.clear()
-        self._capture_total.clear()
-        self._capture_seq.clear()
+        self.camera.clear()
 
     async def _supervise(self) -> None:
         while not self._closing:
@@ -561,10 +557,7 @@ class BoardClient:
         if old is not None and not old.done():
             old.set_exception(LinkTimeout(f"no reply for seq {seq} before the sequence number came round again"))
             old.exception()
-        for rid, cseq in list(self._capture_seq.items()):
-            if cseq == seq:
-                del self._capture_seq[rid]
-                self._captures.pop(rid, None)
+        self.camera.forget_seq(seq)
 
     def _require_ready(self) -> None:
         if not self._ready:
@@ -700,11 +693,9 @@ class BoardClient:
         self._next_request_id = (rid + 1) & 0xFFFFFFFF or 1
         fut: asyncio.Future[bytes] = asyncio.get_running_loop().create_future()
         request = CameraCapture(rid, int(width), int(height))
-        parts: dict[int, bytes] = {}
-        self._captures[rid] = parts
         seqs = [self._send(request)]
         self._pending[seqs[0]] = fut
-        self._capture_seq[rid] = seqs[0]
+        parts = self.camera.start(rid, seqs[0])
         deadline = time.monotonic() + timeout
         try:
             while True:
@@ -717,32 +708,23 @@ class BoardClient:
                 except TimeoutError:
                     if len(parts) != have:
                         continue  # chunks are still arriving
-                total = self._capture_total.get(rid)
-                if total is None:  # nothing arrived: the request or every chunk was lost
+                gap = self.camera.missing(rid)
+                if gap is None:  # nothing arrived: the request or every chunk was lost
                     seq = self._send(request)
                     seqs.append(seq)
                     self._pending[seq] = fut
                 else:
-                    missing = [i for i in range(total) if i not in parts]
-                    first = missing[0]
-                    wanted = bytearray((min(missing[-1] - first, MAX_RESEND_BITMAP * 8 - 1) >> 3) + 1)
-                    for i in missing:
-                        if i - first < len(wanted) * 8:
-                            wanted[(i - first) >> 3] |= 1 << ((i - first) & 7)
-                    self._send(CameraResend(rid, first, bytes(wanted)))
+                    self._send(CameraResend(rid, *gap))
                 self.stats.retries += 1
         except TimeoutError:
-            got = f"{len(parts)} of {self._capture_total[rid]} chunks" if rid in self._capture_total else "no chunk"
-            raise LinkTimeout(f"camera image {rid} incomplete after {timeout} s ({got})") from None
+            raise LinkTimeout(f"camera image {rid} incomplete after {timeout} s ({self.camera.describe(rid)})") from None
         finally:
             for seq in seqs:
                 if self._pending.get(seq) is fut:
                     del self._pending[seq]
             if not fut.done():
                 fut.cancel()
-            self._captures.pop(rid, None)
-            self._capture_seq.pop(rid, None)
-            self._capture_total.pop(rid, None)
+            self.camera.drop(rid)
 
     #: wall seconds without a new camera chunk before the host asks again (a render takes ~0.1 s)
     CAPTURE_STALL_S = 0.4
@@ -928,20 +910,11 @@ class BoardClient:
             self._nack_waiters = [(s, f) for s, f in self._nack_waiters if f is not fut]
 
     def _on_chunk(self, msg: CameraChunk) -> None:
-        parts = self._captures.get(msg.request_id)
-        seq = self._capture_seq.get(msg.request_id)
-        if parts is None or seq is None:
-            return
-        total = self._capture_total.setdefault(msg.request_id, msg.total)
-        if msg.total != total:  # chunks of one image disagree: the first count holds, this one is dropped
-            log.debug("link: camera image %d: chunk %d says %d chunks, the first said %d (dropped)",
-                      msg.request_id, msg.index, msg.total, total)
-            return
-        parts[msg.index] = msg.data
-        if len(parts) >= total and all(i in parts for i in range(total)):  # never a partial image
-            fut = self._pending.get(seq)
+        done = self.camera.on_chunk(msg)
+        if done is not None:
+            fut = self._pending.get(done[0])
             if fut is not None and not fut.done():
-                fut.set_result(b"".join(parts[i] for i in range(total)))
+                fut.set_result(done[1])
 
     def _on_telemetry(self, t: Telemetry) -> None:
         self.stats.telemetry += 1
