@@ -1,13 +1,20 @@
 """Board benchmarks (prints numbers, asserts nothing).
 
 1. Lockstep speed: ticks/s of the board core (500 Hz, dt 2 ms, telemetry 50 Hz) and the
-   real-time factor (simulated seconds per wall second).
+   real-time factor (simulated seconds per wall second), for the kernel ``$GHOSTSHELL_BOARD_KERNEL``
+   picks (``native``, the default, or ``python``; see firmware_sim.native); then the same stream
+   end to end: a ``--lockstep`` board process on a pty fed 1 s of frames ahead by a host that reads
+   every TELEMETRY (encode, pty, decode, the server loop and the reports on top of the core); then
+   both kernels A/B, interleaved in one process (CPU time per tick, min and median of 7 rounds: on
+   a shared machine the minimum is the least disturbed).
 2. Realtime pacing: a real board process on a pty at 500 Hz for ``--seconds`` (default 10)
    while a host feeds heartbeats and reads telemetry; tick lateness p50/p99/max from the
    board's own statistics (printed on SIGTERM).
 3. TIME_SYNC round trip over the pty (host write -> board reply -> host read), realtime board.
 
-Run: ``.venv/bin/python bench/bench_board.py [--seconds 10]``
+Run: ``.venv/bin/python bench/bench_board.py [--seconds 10] [--lockstep-only]``
+(``GHOSTSHELL_BOARD_KERNEL=python`` for the reference path; ``--profile FILE`` writes the pty board
+process's cProfile stats, timed by CPU time).
 """
 
 from __future__ import annotations
@@ -44,23 +51,103 @@ def bench_lockstep(sim_seconds: float = 30.0) -> None:
     n_frames = int(sim_seconds * 50)
     t0, c0 = time.perf_counter(), time.process_time()
     for k in range(1, n_frames + 1):
-        q = neutral.copy()
-        s = np.sin(2 * np.pi * k / 50)
-        q[[0, 2, 4, 6]] += 0.2 * s
-        q[8] += 0.4 * s
-        b.handle(ServoFrame(k * 20_000, 0x0FFF, tuple(q)), k)
+        b.handle(ServoFrame(k * 20_000, 0x0FFF, _stream_targets(neutral, k)), k)
         if k % 50 == 0 or k == n_frames:
             while b.can_tick():
                 b.tick()
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     n = b.ticks
-    print(f"lockstep: {n} ticks in {wall:.2f} s = {n / wall:,.0f} ticks/s, real-time factor {n * 0.002 / wall:.1f}x"
+    kernel = "native (C)" if b.native is not None else "python"
+    print(f"lockstep core, {kernel} kernel: {n} ticks in {wall:.2f} s = {n / wall:,.0f} ticks/s, real-time factor {n * 0.002 / wall:.1f}x"
           f" (CPU time {cpu:.2f} s = {n / cpu:,.0f} ticks/s, {n * 0.002 / cpu:.1f}x: what a busy machine hides)")
 
 
-def _start_board(*extra: str) -> tuple[subprocess.Popen[str], str]:
+def bench_kernels_ab(rounds: int = 7, frames: int = 500) -> None:
+    from protocol.messages import ServoFrame
+
+    per_tick: dict[str, list[float]] = {"python": [], "native": []}
+    for _ in range(rounds):
+        for kernel, got in per_tick.items():
+            b = Board(BoardConfig(lockstep=True, kernel=kernel))
+            if kernel == "native" and b.native is None:
+                print("kernels A/B: the native kernel is unavailable here (see the note above)")
+                return
+            b.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 0), 0)
+            neutral = np.array(b.table.neutral)
+            c0 = time.process_time()
+            for k in range(1, frames + 1):
+                b.handle(ServoFrame(k * 20_000, 0x0FFF, _stream_targets(neutral, k)), k)
+                if k % 50 == 0:
+                    while b.can_tick():
+                        b.tick()
+            got.append((time.process_time() - c0) / b.ticks)
+    for kernel, got in per_tick.items():
+        got.sort()
+        lo, mid = got[0], got[len(got) // 2]
+        print(f"kernels A/B, {kernel}: CPU per tick min {lo * 1e6:.1f} us ({0.002 / lo:.0f}x real time), "
+              f"median {mid * 1e6:.1f} us ({0.002 / mid:.0f}x), n = {rounds} x {frames * 10} ticks")
+
+
+def _stream_targets(neutral: np.ndarray, k: int) -> tuple[float, ...]:
+    """Frame ``k`` of the benchmark's moving stream (legs + head at 1 Hz)."""
+    q = neutral.copy()
+    s = np.sin(2 * np.pi * k / 50)
+    q[[0, 2, 4, 6]] += 0.2 * s
+    q[8] += 0.4 * s
+    return tuple(q)
+
+
+def bench_lockstep_pty(sim_seconds: float = 30.0, profile: str | None = None) -> None:
+    from protocol.messages import ServoFrame
+
+    proc, port = _start_board("--lockstep", head=("-c", _CPU_PROFILE, profile) if profile else ("-m", "firmware_sim"))
+    neutral = np.array(Board(BoardConfig(lockstep=True, kernel="python")).table.neutral)
+    end_us, board_us, tel, k = int(sim_seconds * 1e6), 0, 0, 0
+    try:
+        with serial.Serial(port, 115200, timeout=0) as ser:
+            dec = FrameDecoder()
+            t0, cpu0 = time.perf_counter(), _cpu_s(proc.pid)
+            ser.write(encode_frame(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 0), 0))
+            while board_us < end_us - 20_000:
+                while k * 20_000 < min(board_us + 1_000_000, end_us):  # keep 1 s of frames ahead
+                    k += 1
+                    ser.write(encode_frame(ServoFrame(k * 20_000, 0x0FFF, _stream_targets(neutral, k)), k))
+                select.select([ser.fileno()], [], [], 1.0)
+                for f in dec.feed(ser.read(65536)):
+                    if isinstance(f, Frame) and isinstance(f.msg, Telemetry):
+                        tel += 1
+                        board_us = max(board_us, f.msg.board_time_us)
+            wall, cpu = time.perf_counter() - t0, _cpu_s(proc.pid) - cpu0
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=60)
+    print(f"lockstep over pty: {board_us / 1e6:.1f} s simulated in {wall:.2f} s wall = {board_us / 1e6 / wall:.1f}x"
+          f" real time ({tel} TELEMETRY read; board process CPU time {cpu:.2f} s = {board_us / 1e6 / cpu:.1f}x)"
+          f"{'; profile in ' + profile if profile else ''}")
+
+
+def _cpu_s(pid: int) -> float:
+    """User + system CPU seconds of process ``pid`` so far (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+# the board CLI under cProfile timed by CPU time (on a busy machine wall time is mostly waiting):
+# python -c _CPU_PROFILE OUT ARGS...
+_CPU_PROFILE = """
+import cProfile, sys, time
+from firmware_sim.cli import main
+prof = cProfile.Profile(time.thread_time)
+try:
+    prof.runcall(main, sys.argv[2:])
+finally:
+    prof.dump_stats(sys.argv[1])
+"""
+
+
+def _start_board(*extra: str, head: tuple[str, ...] = ("-m", "firmware_sim")) -> tuple[subprocess.Popen[str], str]:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "firmware_sim", "--link", "pty", *extra],
+        [sys.executable, *head, "--link", "pty", *extra],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         env=dict(os.environ, PYTHONUNBUFFERED="1"),
     )
@@ -110,9 +197,14 @@ def bench_realtime(seconds: float) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--lockstep-only", action="store_true", help="skip the realtime pacing and round-trip parts")
+    ap.add_argument("--profile", metavar="FILE", help="cProfile stats of the pty lockstep board process")
     args = ap.parse_args()
     bench_lockstep()
-    bench_realtime(args.seconds)
+    bench_lockstep_pty(profile=args.profile)
+    bench_kernels_ab()
+    if not args.lockstep_only:
+        bench_realtime(args.seconds)
 
 
 if __name__ == "__main__":

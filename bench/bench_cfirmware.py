@@ -4,7 +4,8 @@ speed of the native C board against the Python board, libFuzzer throughput of th
     python bench/bench_cfirmware.py [--seconds 10] [--repeat 3] [--fuzz-seconds 20] [--skip-fuzz]
 
 * **size**: ``arm-none-eabi-size -A`` of the mps2-an385 image (flash = .text + .ARM.exidx + .data,
-  RAM = .data + .bss + the 2 KB main stack + the 28-byte boot block).
+  RAM = .data + .bss + the 2 KB main stack + the 28-byte boot block), for the default robot and
+  for generated robots of 17 and 32 servos (built with the u32-mask codec).
 * **tick cost**: the image on ``qemu-system-arm -icount shift=0,sleep=on`` (one instruction per
   virtual nanosecond), a lockstep board streamed ``--seconds`` of frames; the firmware measures each
   control tick on SysTick (25 MHz of virtual time, its waits for bus bytes excluded) and reports the
@@ -31,21 +32,25 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 from cfirmware.wire import Wire  # noqa: E402
-from firmware_sim.cfirmware.build import build, size_of  # noqa: E402
+from firmware_sim.cfirmware.build import build, codec_dir, size_of  # noqa: E402
 from protocol.codec import SCHEMA_HASH  # noqa: E402
 from protocol.messages import PROTOCOL_VERSION, Advance, Caps, Hello, ServoFrame, Telemetry  # noqa: E402
+from robots.loader import load_robot_dir  # noqa: E402
 from robots.registry import DEFAULT_ROBOT, load_robot  # noqa: E402
+from support.gen_robot import write_chain_robot  # noqa: E402
 
 
-def sizes() -> None:
-    robot = load_robot(DEFAULT_ROBOT)
-    elf = build("mps2", robot)
-    s = size_of(elf)
-    flash = s[".text"] + s.get(".ARM.exidx", 0) + s[".data"]
-    ram = s[".data"] + s[".bss"] + s.get(".stack", 0) + s.get(".bootcfg", 0)
-    print(f"size ({robot.name}, {robot.servo_count} servos, {elf.name}): .text {s['.text']} B, .data {s['.data']} B, "
-          f".bss {s['.bss']} B, stack {s.get('.stack', 0)} B -> flash {flash} B ({flash / 1024:.1f} KB of 32), "
-          f"RAM {ram} B ({ram / 1024:.2f} KB of 8)")
+def sizes(tmp: Path) -> None:
+    """The default robot's image, then generated robots of 17 and 32 servos (the u32-mask codec)."""
+    robots = [load_robot(DEFAULT_ROBOT)] + [load_robot_dir(write_chain_robot(tmp, n)) for n in (17, 32)]
+    for robot in robots:
+        elf = build("mps2", robot)
+        s = size_of(elf)
+        flash = s[".text"] + s.get(".ARM.exidx", 0) + s[".data"]
+        ram = s[".data"] + s[".bss"] + s.get(".stack", 0) + s.get(".bootcfg", 0)
+        print(f"size ({robot.name}, {robot.servo_count} servos, {codec_dir(robot).name} codec, {elf.name}): "
+              f".text {s['.text']} B, .data {s['.data']} B, .bss {s['.bss']} B, stack {s.get('.stack', 0)} B -> "
+              f"flash {flash} B ({flash / 1024:.1f} KB of 32), RAM {ram} B ({ram / 1024:.2f} KB of 8)")
 
 
 def stream(firmware: str, seconds: float, extra: list[str], tmp: Path) -> tuple[float, str]:
@@ -114,7 +119,7 @@ def main() -> int:
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
-        sizes()
+        sizes(tmp)
         tick_cost(min(args.seconds, 4.0), tmp)
         speed(args.seconds, args.repeat, tmp)
         if not args.skip_fuzz:

@@ -28,6 +28,7 @@ import numpy as np
 
 from firmware_sim.config import BoardConfig
 from firmware_sim.jitter_buffer import JitterBuffer
+from firmware_sim.native import GS_CAP, GS_INTERP, NativeTick, NativeUnavailable, kernel_choice, note_fallback
 from firmware_sim.peripherals import MAX_IMAGE_SIDE, Camera, CameraUnavailable, CameraWorker, Screen, Speaker
 from firmware_sim.safety import Mode, Safety
 from firmware_sim.servo_model import ServoModel
@@ -153,9 +154,9 @@ class Board:
         #: the last KEPT_IMAGES images' chunks by request id, for CAMERA_RESEND and a repeated CAMERA_CAPTURE
         self._kept_images: OrderedDict[int, list[CameraChunk]] = OrderedDict()
         self._clock_us = clock_us
-        # per-servo interpolation anchor: the last applied keyframe (or where a resumed servo was)
-        # (plain lists: the per-tick loop is faster on 12 Python floats than on numpy, see servo_model)
-        self.anchor_t: list[int] = [0] * self.n
+        # per-servo interpolation anchor: the last applied keyframe (or where a resumed servo was);
+        # arrays updated in place (the native tick holds their addresses), read as lists by the Python path
+        self.anchor_t: np.ndarray = np.zeros(self.n, dtype=np.int64)
         # leaving a hold (see _resume, _blend): per servo the held command still waiting for its first
         # keyframe, then a minimum-jerk blend of the offset (held - stream) down to 0: start, length, offset
         self._resume_t = 0
@@ -164,15 +165,24 @@ class Board:
         self._blend_len: list[int] = [0] * self.n
         self._blend_off: list[float] = [0.0] * self.n
         self._blending = False
-        self.anchor_v: list[float] = neutral.tolist()
+        self.anchor_v: np.ndarray = neutral.astype(np.float64)
         self.hold_q = neutral.copy()
-        self._desired: list[float] = neutral.tolist()
-        self._ctrl: list[float] = self.data.ctrl[self.cm.act_id].tolist()
+        self._desired: np.ndarray = neutral.astype(np.float64)
+        self._ctrl: np.ndarray = self.data.ctrl[self.cm.act_id].astype(np.float64)
+        # the buffer's next keyframe per servo as arrays for the native tick (refreshed when the buffer changes)
+        self._next_ok = np.zeros(self.n, dtype=np.int64)
+        self._next_t = np.zeros(self.n, dtype=np.int64)
+        self._next_v = np.zeros(self.n, dtype=np.float64)
+        self._next_src: object = None
         # the servos' joints and actuators as slices when contiguous (cheaper than index arrays per tick)
         self._qpos_at = _as_slice(self.cm.qpos_adr)
         self._ctrl_at = _as_slice(self.cm.act_id)
+        self._dof_at = _as_slice(self.cm.dof_adr)
         self._tick_us = self.cfg.tick_us  # rate and dt are fixed for a board's life (CONFIG cannot change them)
         self._substeps = self.cfg.substeps
+        self._telemetry_every = self.cfg.telemetry_every  # CONFIG TELEMETRY_RATE_HZ updates it
+        #: the per-tick servo path in C (:mod:`firmware_sim.native`), or None: the Python reference path
+        self.native: NativeTick | None = self._bind_native()
         self.now_us = 0
         self.ticks = 0
         self.advance_until = 0  # lockstep: ADVANCE lets ticks run while now_us < this
@@ -190,6 +200,33 @@ class Board:
         self._flags_since = FaultFlags.NONE
         #: scripted pushes on the base (emulator only): (start us, end us, force N world frame), by start
         self._pushes: list[tuple[int, int, tuple[float, float, float]]] = []
+
+    def _bind_native(self) -> NativeTick | None:
+        """The C tick on this board's arrays, per ``cfg.kernel`` / ``$GHOSTSHELL_BOARD_KERNEL`` (see
+        :mod:`firmware_sim.native`); None runs the Python reference path."""
+        choice = kernel_choice(self.cfg.kernel)
+        if choice == "python":
+            return None
+        s = self.servo
+        arrays = {
+            "qpos_adr": np.ascontiguousarray(self.cm.qpos_adr, dtype=np.int64),
+            "act_id": np.ascontiguousarray(self.cm.act_id, dtype=np.int64),
+            "anchor_t": self.anchor_t, "anchor_v": self.anchor_v,
+            "next_ok": self._next_ok, "next_t": self._next_t, "next_v": self._next_v,
+            "desired": self._desired, "ctrl": self._ctrl, "cmd": s._cmd,
+            "mins": np.ascontiguousarray(s.mins, dtype=np.float64), "maxs": np.ascontiguousarray(s.maxs, dtype=np.float64),
+            "max_step": np.ascontiguousarray(s.max_step, dtype=np.float64),
+            "max_speed": np.ascontiguousarray(s.max_speeds, dtype=np.float64),
+        }
+        try:
+            native = NativeTick(self.model, self.data, self._substeps, s.period_s, s.resolution, s.deadband, arrays)
+        except Exception as e:  # noqa: BLE001 - no build, no load, no bind: the Python path runs instead
+            if choice == "native!":
+                raise e if isinstance(e, NativeUnavailable) else NativeUnavailable(f"{type(e).__name__}: {e}") from e
+            note_fallback(str(e))
+            return None
+        s.native_counts = native
+        return native
 
     def push(self, at_s: float, force: tuple[float, float, float], duration_s: float = 0.2) -> None:
         """Emulator only: push the robot's root body with ``force`` (N, world frame) from board time ``at_s``
@@ -351,7 +388,8 @@ class Board:
             self.dropped_count += 1
             return [self._nack(msg, seq, NackReason.TOO_FAR_FUTURE, f"due {t} us, board at {now} us (> {self.cfg.max_future_us} us ahead)")]
         values = {i: float(v) for i, v in zip(idx, msg.targets)}
-        resume = [i for i in idx if not self.buffer.pending_for(i) and now - self.anchor_t[i] > self.cfg.resume_gap_us]
+        nxt, anchors, gap = self.buffer.next_all(), self.anchor_t.tolist(), self.cfg.resume_gap_us
+        resume = [i for i in idx if nxt[i] is None and now - anchors[i] > gap]  # idle: nothing buffered for it
         if not self.buffer.push(t, seq, values):
             self.dropped_count += 1
             return [self._nack(msg, seq, NackReason.BUFFER_FULL, f"jitter buffer full ({self.cfg.buffer_depth} frames)")]
@@ -365,6 +403,7 @@ class Board:
         key = msg.key
         if key is ConfigKey.TELEMETRY_RATE_HZ and 1 <= v <= self.cfg.rate_hz:
             self.cfg.telemetry_rate_hz = v
+            self._telemetry_every = self.cfg.telemetry_every
         elif key is ConfigKey.WATCHDOG_MS and v > 0:
             self.cfg.watchdog_ms = v
             self.safety.watchdog_us = v * 1000
@@ -442,10 +481,10 @@ class Board:
         stream (:meth:`_blend`) instead of ramping to the first keyframe within the lookahead, which
         would step to the speed limit.
         """
-        self.anchor_t = [self.now_us] * self.n
-        self.anchor_v = self.servo.cmd.tolist()
+        self.anchor_t[:] = self.now_us
+        self.anchor_v[:] = self.servo._cmd
         self._resume_t = self.now_us
-        self._resume_from = list(self.anchor_v)
+        self._resume_from = self.anchor_v.tolist()
         self._blend_off = [0.0] * self.n
         self._blending = True
         self._recompute_cover()
@@ -469,7 +508,7 @@ class Board:
                 v1 = first[1]
                 at[i], av[i] = t, v1  # flat at the first target until it is due
             elif at[i] != self._resume_t or av[i] != held:
-                v1 = av[i]  # a frame was applied at once
+                v1 = float(av[i])  # a frame was applied at once
             else:
                 continue
             pend[i] = None
@@ -500,8 +539,10 @@ class Board:
     # --- control tick ----------------------------------------------------------------------
 
     def _interpolate(self, t: int) -> list[float]:
-        """Per servo: linear from its anchor (last applied keyframe) to its next buffered keyframe."""
-        at, av = self.anchor_t, self.anchor_v
+        """Per servo: linear from its anchor (last applied keyframe) to its next buffered keyframe.
+
+        The reference for the native tick's interpolation (``firmware_sim/native/tick.c``)."""
+        at, av = self.anchor_t.tolist(), self.anchor_v.tolist()
         out = av[:]
         for i, nxt in enumerate(self.buffer.next_all()):
             if nxt is not None:
@@ -512,25 +553,42 @@ class Board:
                     out[i] = a + (v1 - a) * (t - t0) / (t1 - t0)
         return out
 
+    def _refresh_next(self) -> None:
+        """Copy the buffer's next keyframe per servo into the native tick's arrays when it changed
+        (the buffer rebuilds its cached list, a new object, after every change)."""
+        nxt = self.buffer.next_all()
+        if nxt is self._next_src:
+            return
+        self._next_src = nxt
+        ok, nt, nv = self._next_ok, self._next_t, self._next_v
+        for i, x in enumerate(nxt):
+            if x is None:
+                ok[i] = 0
+            else:
+                ok[i] = 1
+                nt[i], nv[i] = x
+
     @property
     def desired(self) -> np.ndarray:
         """The interpolated targets of the last tick (rad, servo order), before the servo model."""
-        return np.array(self._desired)
+        return self._desired.copy()
 
     @property
     def ctrl(self) -> np.ndarray:
         """The actuator commands of the last tick (rad, servo order)."""
-        return np.array(self._ctrl)
+        return self._ctrl.copy()
 
     def tick(self) -> list[Message]:
         """Run one control period at board time ``now_us``; return telemetry when due.
 
-        The hot path of lockstep runs: per-tick work is plain Python on the servos' floats
-        (see :mod:`firmware_sim.servo_model`) plus MuJoCo; reports are built only when due.
+        The hot path of lockstep runs: the per-servo work (interpolation, servo model, ctrl) and
+        ``mj_step`` run in C (:mod:`firmware_sim.native`) or, as the reference, in plain Python on
+        the servos' floats (:mod:`firmware_sim.servo_model`); reports are built only when due.
         """
         t = self.now_us
         mode, entered = self.safety.update(t)
         speed_cap: float | None = None
+        native = self.native
         if self._estop_rx_us is not None and mode is Mode.ESTOP:
             self.watchdog_events.append((t, "estop", self._estop_rx_us))
             self._estop_rx_us = None
@@ -538,42 +596,64 @@ class Board:
             self.buffer.clear()
             self.hold_q = self.servo.cmd
             self.watchdog_events.append((t, mode.value, self.safety.last_feed_us))
-        desired: list[float]
+        desired: list[float] | np.ndarray | None = None  # None: the native tick interpolates
         if mode is Mode.RUN:
             due = self.buffer.pop_due(t)
             if due:
                 at, av = self.anchor_t, self.anchor_v
                 for f in due:
+                    when = f.apply_at_us
                     for i, v in f.values.items():
-                        at[i], av[i] = f.apply_at_us, v
+                        at[i] = when
+                        av[i] = v
                     self.last_applied_seq = f.seq
                     if self.cfg.lockstep:
-                        self.safety.feed(f.apply_at_us)
-            desired = self._blend(t) if self._blending else self._interpolate(t)
+                        self.safety.feed(when)
+            if self._blending:
+                desired = self._blend(t)
+            elif native is None:
+                desired = self._interpolate(t)
+            else:
+                self._refresh_next()
         elif mode is Mode.CROUCH:
-            desired, speed_cap = self.crouch.tolist(), self.cfg.crouch_speed
+            desired, speed_cap = self.crouch, self.cfg.crouch_speed
         else:
-            desired = self.hold_q.tolist()
-        data = self.data
-        ctrl, clamped = self.servo.step_list(desired, data.qpos[self._qpos_at].tolist(), speed_cap)
+            desired = self.hold_q
+        if self._pushes:
+            self._apply_pushes(t)
+        if native is not None:
+            flags = GS_INTERP if desired is None else 0
+            if desired is not None:
+                self._desired[:] = desired
+            if speed_cap is not None:
+                flags |= GS_CAP
+            clamped = native.tick(t, flags, speed_cap or 0.0)
+        else:
+            assert desired is not None  # the Python path always interpolates above
+            clamped = self._python_tick(desired if isinstance(desired, list) else desired.tolist(), speed_cap)
         if clamped and mode is Mode.RUN:
             self._flags_since |= FaultFlags.CLAMPED
             self.clamped_ticks += 1
-        self._desired, self._ctrl = desired, ctrl
+        self.now_us = t + self._tick_us
+        self.ticks += 1
+        out = self._camera_results() if self.camera_worker is not None else []
+        if self.ticks % self._telemetry_every == 0:
+            out += [self.telemetry(), self.sim_state()]
+        return out
+
+    def _python_tick(self, desired: list[float], speed_cap: float | None) -> bool:
+        """The reference path of one tick after interpolation: servo model, ctrl, ``mj_step``; True if clamped."""
+        data = self.data
+        ctrl, clamped = self.servo.step_list(desired, data.qpos[self._qpos_at].tolist(), speed_cap)
+        self._desired[:] = desired
+        self._ctrl[:] = ctrl
         data.ctrl[self._ctrl_at] = ctrl
-        if self._pushes:
-            self._apply_pushes(t)
         substeps = self._substeps
         if substeps == 1:
             mujoco.mj_step(self.model, data)
         else:
             mujoco.mj_step(self.model, data, nstep=substeps)
-        self.now_us = t + self._tick_us
-        self.ticks += 1
-        out = self._camera_results() if self.camera_worker is not None else []
-        if self.ticks % self.cfg.telemetry_every == 0:
-            out += [self.telemetry(), self.sim_state()]
-        return out
+        return bool(clamped)
 
     # --- reports ---------------------------------------------------------------------------
 
@@ -581,13 +661,13 @@ class Board:
         """TELEMETRY for the current state (clears the since-last-report flags)."""
         d, cm = self.data, self.cm
         w, x, y, z = cm.base_pose(d)[1]
-        faults = self.safety.flags | self._flags_since
+        faults = self.safety.flags | self._flags_since if self._flags_since else self.safety.flags
         self._flags_since = FaultFlags.NONE
         return Telemetry(
             board_time_us=self.now_us,
-            positions=tuple(float(v) for v in d.qpos[cm.qpos_adr]),
-            velocities=tuple(float(v) for v in d.qvel[cm.dof_adr]),
-            efforts=tuple(float(v) for v in d.actuator_force[cm.act_id]),
+            positions=tuple(d.qpos[self._qpos_at].tolist()),
+            velocities=tuple(d.qvel[self._dof_at].tolist()),
+            efforts=tuple(d.actuator_force[self._ctrl_at].tolist()),
             imu_rpy=quat_to_rpy(w, x, y, z),
             faults=faults,
             buffer_fill=len(self.buffer),

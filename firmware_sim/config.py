@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 from robots.registry import DEFAULT_ROBOT
@@ -9,6 +10,24 @@ from robots.registry import DEFAULT_ROBOT
 
 class ConfigError(ValueError):
     """An inconsistent board setting (message says which and why)."""
+
+
+#: the environment variable that picks the per-tick servo path when ``BoardConfig.kernel`` is None
+KERNEL_ENV = "GHOSTSHELL_BOARD_KERNEL"
+#: the per-tick servo paths: C when it builds (else Python, with a note), C or an error, the Python reference
+KERNELS = ("native", "native!", "python")
+
+
+def kernel_choice(override: str | None = None) -> str:
+    """One of :data:`KERNELS`: ``override``, else ``$GHOSTSHELL_BOARD_KERNEL``, else ``"native"``.
+
+    Raises :class:`ConfigError` naming the bad value and where it came from."""
+    raw = override if override is not None else os.environ.get(KERNEL_ENV) or "native"
+    choice = raw.strip().lower()
+    if choice not in KERNELS:
+        where = "kernel" if override is not None else f"${KERNEL_ENV}"
+        raise ConfigError(f"board kernel must be native, native! or python, got {raw!r} ({where})")
+    return choice
 
 
 @dataclass
@@ -33,6 +52,9 @@ class BoardConfig:
     robot: str = DEFAULT_ROBOT  # the robot it drives: a name on the robot search path or a folder (robots.registry)
     robots_dir: str | None = None  # searched first for ``robot`` (--robots-dir)
     scene: str | None = None  # objects in the world: one of the robot's scenes (None: its default scene)
+    #: the per-tick servo path: "native" (C when it builds, else Python), "native!" (C or an error), "python"
+    #: (the reference); None: ``$GHOSTSHELL_BOARD_KERNEL``, else native (see :mod:`firmware_sim.native`)
+    kernel: str | None = None
 
     @property
     def tick_us(self) -> int:
@@ -68,4 +90,5 @@ class BoardConfig:
             raise ConfigError("max_late_us >= 0, max_future_us > 0 and buffer_depth >= 2 are required")
         if not self.resume_speed > 0 or self.resume_blend_min_us <= 0:
             raise ConfigError("resume_speed must be > 0 rad/s and resume_blend_min_us > 0")
+        kernel_choice(self.kernel)
         return self

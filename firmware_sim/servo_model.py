@@ -11,7 +11,9 @@ Python loop over the 12 servos' floats. For 12 elements that is about three
 times faster than the ~20 numpy ufunc calls of the vectorised form (each call
 costs ~0.5-1 µs of overhead), and it does the same IEEE double operations in the
 same order (``round`` is round-half-even like ``np.round``), so results are
-bit-identical. :meth:`ServoModel.step` keeps the array interface.
+bit-identical. :meth:`ServoModel.step` keeps the array interface. The board normally runs the
+same arithmetic in C (:mod:`firmware_sim.native`, on this model's ``_cmd`` array and its table
+arrays); this module stays the reference the C is tested against, and runs when the C cannot.
 """
 
 from __future__ import annotations
@@ -45,22 +47,36 @@ class ServoModel:
         self.period_s = float(period_s)
         self._mins = self.mins.tolist()
         self._maxs = self.maxs.tolist()
-        self._max_step = (self.max_speeds * self.period_s).tolist()  # rad per tick at the table speeds
-        self._cmd: list[float] = np.clip(np.zeros_like(self.mins), self.mins, self.maxs).tolist()
-        self.limit_clamps = 0  # servo-ticks clamped to a joint limit, since boot
-        self.speed_clamps = 0  # servo-ticks clamped to the speed limit, since boot
+        self.max_step = self.max_speeds * self.period_s  # rad per tick at the table speeds
+        self._max_step = self.max_step.tolist()
+        #: the command, in place for the life of the model (the native tick holds its address)
+        self._cmd: np.ndarray = np.clip(np.zeros_like(self.mins), self.mins, self.maxs)
+        self._limit_clamps = 0
+        self._speed_clamps = 0
+        #: counts kept by the native tick (``limit_clamps``/``speed_clamps``), added to the Python path's
+        self.native_counts: object | None = None
+
+    @property
+    def limit_clamps(self) -> int:
+        """Servo-ticks clamped to a joint limit, since boot."""
+        return self._limit_clamps + (self.native_counts.limit_clamps if self.native_counts is not None else 0)  # type: ignore[attr-defined]
+
+    @property
+    def speed_clamps(self) -> int:
+        """Servo-ticks clamped to the speed limit, since boot."""
+        return self._speed_clamps + (self.native_counts.speed_clamps if self.native_counts is not None else 0)  # type: ignore[attr-defined]
 
     @property
     def cmd(self) -> np.ndarray:
         """The last speed-limited command per servo (rad), a new array."""
-        return np.array(self._cmd)
+        return self._cmd.copy()
 
     def cmd_of(self, i: int) -> float:
-        return self._cmd[i]
+        return float(self._cmd[i])
 
     def reset(self, q: Sequence[float] | np.ndarray) -> None:
         """Set the command to ``q`` (clamped to limits) without speed limiting."""
-        self._cmd = np.clip(np.asarray(q, dtype=float), self.mins, self.maxs).tolist()
+        self._cmd[:] = np.clip(np.asarray(q, dtype=float), self.mins, self.maxs)
 
     def quantise(self, q: np.ndarray) -> np.ndarray:
         return np.clip(np.round(q / self.resolution) * self.resolution, self.mins, self.maxs)
@@ -76,7 +92,7 @@ class ServoModel:
                   mask: bool = False) -> tuple[list[float], list[bool] | bool]:
         """:meth:`step` on plain float sequences: (ctrl list, any servo clamped) — or, with ``mask``,
         the per-servo clamped list."""
-        mins, maxs, cmd = self._mins, self._maxs, self._cmd
+        mins, maxs, cmd = self._mins, self._maxs, self._cmd.tolist()
         steps = self._max_step if speed_cap is None else [
             min(s, speed_cap) * self.period_s for s in self.max_speeds.tolist()]
         res, db = self.resolution, self.deadband
@@ -103,6 +119,7 @@ class ServoModel:
             v = m if abs(q - m) < db else q
             ctrl[i] = hi if v > hi else (lo if v < lo else v)
             hits[i] = hit
-        self.limit_clamps += limit_hits
-        self.speed_clamps += speed_hits
+        self._cmd[:] = cmd
+        self._limit_clamps += limit_hits
+        self._speed_clamps += speed_hits
         return ctrl, (hits if mask else bool(limit_hits or speed_hits))

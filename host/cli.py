@@ -32,7 +32,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("demo", "the showcase: a paper task end to end on an emulated board (pty, MuJoCo, scripted LLM)"),
     "tour": ("tour", "start a board (default on a pty) and drive it through the named poses"),
     "log": ("log", "decode a frame log written with --log"),
-    "dbc": ("dbc", "print a robot's CAN database (DBC, classic or --fd) on stdout"),
+    "dbc": ("dbc", "print a robot's CAN database (DBC, classic or --fd), or --check/--write the files it checks in"),
     "replay": ("replay", "feed a recorded run's host-to-board traffic into a fresh lockstep board"),
     "prompt": ("prompt", "print the system prompt for the mounted functions"),
     "dsbc": ("dsbc", "score a generated function-token program against a ground truth"),

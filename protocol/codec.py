@@ -87,6 +87,8 @@ from protocol import messages as m
 from protocol.messages import MAX_SERVOS, MAX_WIRE_SERVOS, Message, MsgType
 
 __all__ = [
+    "CAN_FIXED",
+    "CanField",
     "LAYOUTS",
     "MAX_PAYLOAD",
     "MAX_CHUNK_DATA",
@@ -110,6 +112,7 @@ __all__ = [
     "MAX_SPEECH_TEXT_BYTES",
     "decode_payload",
     "encode_payload",
+    "field_unit",
     "msg_type_of",
     "quantize_angle",
     "quantize_effort",
@@ -397,6 +400,7 @@ class Q16Array(Field):
 
     ``fixed=N``: exactly N values; ``mask_field=F``: popcount of field F values;
     otherwise a u8 count (at most ``max_count``, the schema's servos) precedes the values.
+    A value is ``code / counts_per_unit`` in ``unit`` (``"rad"``, ``"rad/s"``, ``"N*m"``).
     """
 
     def __init__(
@@ -407,12 +411,14 @@ class Q16Array(Field):
         mask_field: str | None = None,
         allow_nan: bool = True,
         max_count: int = MAX_SERVOS,
+        unit: str = "",
     ) -> None:
         self.cpu = counts_per_unit
         self.fixed = fixed
         self.mask_field = mask_field
         self.allow_nan = allow_nan
         self.max_count = max_count
+        self.unit = unit  # of the decoded value (documentation, DBC): not on the wire, not in the hash
         rule = f"fixed{fixed}" if fixed is not None else (f"popcount({mask_field})" if mask_field else "count8")
         self.wire = f"q16[{rule}]/{counts_per_unit}{'' if allow_nan else ',nonan'}"
 
@@ -455,10 +461,11 @@ class Q16Array(Field):
 
 
 class F32Array(Field):
-    """Fixed number of IEEE float32 values."""
+    """Fixed number of IEEE float32 values (in ``unit``: documentation only, not on the wire)."""
 
-    def __init__(self, n: int) -> None:
+    def __init__(self, n: int, unit: str = "") -> None:
         self.n = n
+        self.unit = unit
         self.st = struct.Struct(f"<{n}f")
         self.wire = f"f32[{n}]"
 
@@ -593,17 +600,17 @@ def _layouts(max_servos: int) -> dict[MsgType, Layout]:
         MsgType.SERVO_FRAME: [
             ("apply_at_us", _APPLY_AT),
             ("mask", mask),
-            ("targets", Q16Array(10_000, mask_field="mask", allow_nan=False, max_count=n)),
+            ("targets", Q16Array(10_000, mask_field="mask", allow_nan=False, max_count=n, unit="rad")),
         ],
         MsgType.FLUSH: [("from_us", _U64), ("mask", mask)],
         MsgType.ESTOP: [],
         MsgType.ESTOP_CLEAR: [],
         MsgType.TELEMETRY: [
             ("board_time_us", _U64),
-            ("positions", Q16Array(10_000, max_count=n)),
-            ("velocities", Q16Array(1_000, max_count=n)),
-            ("efforts", Q16Array(1_000, max_count=n)),
-            ("imu_rpy", Q16Array(10_000, fixed=3)),
+            ("positions", Q16Array(10_000, max_count=n, unit="rad")),
+            ("velocities", Q16Array(1_000, max_count=n, unit="rad/s")),
+            ("efforts", Q16Array(1_000, max_count=n, unit="N*m")),
+            ("imu_rpy", Q16Array(10_000, fixed=3, unit="rad")),
             ("faults", Flags16(m.FaultFlags)),
             ("buffer_fill", _U16),
             ("last_applied_seq", _SEQ16),
@@ -611,7 +618,7 @@ def _layouts(max_servos: int) -> dict[MsgType, Layout]:
             ("dropped_count", _U32),
             ("link_errors", _U32),
         ],
-        MsgType.SIM_STATE: [("board_time_us", _U64), ("base_pos", F32Array(3)), ("base_quat", F32Array(4)),
+        MsgType.SIM_STATE: [("board_time_us", _U64), ("base_pos", F32Array(3, "m")), ("base_quat", F32Array(4, "1")),
                             ("objects", _U8), ("toppled", _U8)],
         MsgType.ACK: [("ack_seq", _SEQ16), ("msg_type", EnumU8(MsgType))],
         MsgType.NACK: [
@@ -646,6 +653,81 @@ def _layouts(max_servos: int) -> dict[MsgType, Layout]:
     }
 
 
+def field_unit(name: str, f: Field) -> str:
+    """Unit of a field's decoded value: the array's declared unit (``"rad"``, ``"rad/s"``, ``"N*m"``,
+    ``"m"``), else by the name's suffix: ``_us`` -> ``"us"``, ``_ms`` -> ``"ms"``, ``_hz`` -> ``"Hz"``;
+    ``""`` for counts, flags and enums."""
+    unit = getattr(f, "unit", "")
+    if unit:
+        return str(unit)
+    for suffix, u in (("_us", "us"), ("_ms", "ms"), ("_hz", "Hz")):
+        if name.endswith(suffix):
+            return u
+    return ""
+
+
+# --- the CAN form of the real-time messages ----------------------------------------------------
+
+
+@dataclass(frozen=True)
+class CanField:
+    """How one field of :data:`LAYOUTS` travels in a fixed CAN layout, where that differs from what
+    :mod:`protocol.can.layouts` derives from the serial field (one signal of the serial width; a servo
+    mask as wide as the schema's; a per-servo array as one int16 signal per servo of the robot,
+    named ``FIELD_01`` ..; a fixed array as ``FIELD_0`` ..).
+
+    ``bits``: the width on CAN when narrower than on serial; ``clamped``: larger values saturate at
+    the CAN width (the DBC comment says so); ``signals``: a per-servo array's signal name prefix
+    (``"target"`` -> ``target_01`` .. ``target_NN``) or a fixed array's signal names; ``comment``:
+    the DBC comment (default: derived, :func:`protocol.can.layouts.message_signals`); ``omitted``: not
+    carried on CAN: the message goes as ISO-TP bulk when the field is not empty, and a fixed-layout
+    message decodes with it empty."""
+
+    bits: int | None = None
+    clamped: bool = False
+    signals: str | tuple[str, ...] | None = None
+    comment: str = ""
+    omitted: bool = False
+
+
+#: u64 microseconds on serial travel as u48 on CAN (8.9 years; larger values clamp)
+_CAN_TIME = CanField(bits=48, clamped=True)
+#: u32 telemetry counters travel as u24 on CAN (16 777 215; larger values clamp)
+_CAN_COUNTER = CanField(bits=24, clamped=True)
+
+#: The messages that have a fixed CAN layout (the real-time path; every other message travels as
+#: ISO-TP bulk with its serial payload), each with the CAN form of the fields that differ from the
+#: serial one (field name -> :class:`CanField`). Signals follow the serial layout's field order;
+#: :mod:`protocol.can.layouts` places them per robot servo count, :mod:`protocol.can.codec` packs the
+#: values, :mod:`protocol.can.make_dbc` writes the DBC, :mod:`protocol.refdoc` the reference from it.
+CAN_FIXED: Mapping[MsgType, Mapping[str, CanField]] = {
+    MsgType.ESTOP: {},
+    MsgType.ESTOP_CLEAR: {},
+    MsgType.SERVO_FRAME: {
+        "apply_at_us": CanField(comment="board clock modulo 2**32"),
+        "mask": CanField(comment="bit i = servo i+1 present"),
+        "targets": CanField(signals="target"),
+    },
+    MsgType.TIME_SYNC_REQUEST: {"t1_host_us": _CAN_TIME},
+    MsgType.TIME_SYNC_REPLY: {"t1_host_us": _CAN_TIME, "t2_board_us": _CAN_TIME, "t3_board_us": _CAN_TIME},
+    MsgType.FLUSH: {"from_us": _CAN_TIME, "mask": CanField(comment="bit i = servo i+1")},
+    MsgType.ADVANCE: {"until_us": _CAN_TIME},
+    MsgType.HEARTBEAT: {"sender_time_us": _CAN_TIME},
+    MsgType.ACK: {},
+    MsgType.NACK: {"detail": CanField(omitted=True)},
+    MsgType.TELEMETRY: {
+        "board_time_us": _CAN_TIME,
+        "positions": CanField(signals="position"),
+        "velocities": CanField(signals="velocity"),
+        "efforts": CanField(signals="effort"),
+        "imu_rpy": CanField(signals=("imu_roll", "imu_pitch", "imu_yaw")),
+        "late_count": _CAN_COUNTER,
+        "dropped_count": _CAN_COUNTER,
+        "link_errors": _CAN_COUNTER,
+    },
+}
+
+
 
 _TYPE_OF_CLASS: dict[type, MsgType] = {cls: t for t, cls in MESSAGE_CLASSES.items()}
 
@@ -656,6 +738,9 @@ def _check_layouts(layouts: Mapping[MsgType, Layout]) -> None:
     for t, cls in MESSAGE_CLASSES.items():
         names = [f.name for f in dataclasses.fields(cls)]
         assert names == [n for n, _ in layouts[t]], f"{t.name}: layout fields {layouts[t]} != {names}"
+    for t, forms in CAN_FIXED.items():
+        unknown = set(forms) - {n for n, _ in layouts[t]}
+        assert not unknown, f"CAN_FIXED[{t.name}] names fields the layout does not have: {sorted(unknown)}"
 
 
 # --- schema hash ---------------------------------------------------------------------------

@@ -171,8 +171,9 @@ class _Relay:
 class _LogReader:
     """Splits the firmware's log channel into stderr lines, frame records and counters."""
 
-    def __init__(self, err: IO[str], log_path: str | None, schema: WireSchema | None = None) -> None:
+    def __init__(self, err: IO[str], log_path: str | None, schema: WireSchema) -> None:
         self.err = err
+        self.schema = schema  # the robot's wire schema: the firmware's frames are in it
         self.buf = bytearray()
         self.stats: dict[str, int] = {}
         self.log: FrameLogWriter | None = open_frame_log(log_path, "serial", schema=schema) if log_path else None

@@ -759,7 +759,9 @@ class BoardClient:
         clock runs, so ADVANCE it one report period past the latest board time known at once and
         again every :attr:`NUDGE_S` s while no report satisfies ``predicate``: a lost ADVANCE or
         a lost report (likely on a lossy CAN link, where a report is 17 frames) cannot stall the
-        wait. The ADVANCEs are not awaited: the report is the acknowledgement that matters.
+        wait. The target repeats until a report reaches it or :attr:`NUDGE_RAISE_S` passes, so a
+        slow board is not pushed ahead. The ADVANCEs are not awaited: the report is the
+        acknowledgement that matters.
         """
         t = self.latest_telemetry
         if t is not None and predicate(t):
@@ -768,10 +770,19 @@ class BoardClient:
         deadline = time.monotonic() + timeout
         nudging = nudge and self.lockstep
         until = 0
+        raised_at = 0.0
         try:
             while True:
                 if nudging:
-                    until = max(until, self.board_now_estimate()) + self.report_period_us()
+                    now = time.monotonic()
+                    seen = self.board_now_estimate()
+                    if until == 0 or seen >= until or now - raised_at >= self.NUDGE_RAISE_S:
+                        # first nudge; the board got there and its report went missing; or nothing for
+                        # NUDGE_RAISE_S: move the target one report period on. Otherwise the same
+                        # target again (a lost ADVANCE): a slow board (QEMU on a loaded machine) must
+                        # not be pushed ahead of the frames the host is about to time from its report
+                        until = max(until, seen) + self.report_period_us()
+                        raised_at = now
                     with contextlib.suppress(LinkError):
                         self._send(Advance(until))
                 left = deadline - time.monotonic()
@@ -793,6 +804,10 @@ class BoardClient:
 
     #: wall seconds between the ADVANCEs of :meth:`wait_for` with ``nudge`` (a lockstep board answers in ~1 ms)
     NUDGE_S = 0.1
+    #: wall seconds without a satisfying report before a nudge moves its ADVANCE target further (a
+    #: report lost on a lossy link); until then it repeats the target (it was pushed 5 periods ahead of
+    #: a slow QEMU board in 0.5 s, whose next frames then arrived LATE)
+    NUDGE_RAISE_S = 1.0
 
     def report_period_us(self) -> int:
         """One telemetry period plus one control tick (us): an ADVANCE this far always yields a report."""

@@ -2,10 +2,10 @@
 
 Pure code (no I/O, no python-can): :mod:`protocol.can.ids` (11-bit COB-IDs), :mod:`.frame`
 (:class:`CanFrame`), :mod:`.layouts` (signals and parts, one table per robot servo count:
-:func:`can_layouts`), :mod:`.codec` (encode), :mod:`.decoder` (reassemble, never raises).
-:mod:`protocol.can.make_dbc` builds a robot's DBC from its layouts with cantools
-(``ghostshell dbc --robot NAME [--fd]``; ``python -m protocol.can.make_dbc [--check]`` writes or
-checks the DBC files checked in with built-in robots).
+:func:`can_layouts`, derived from the message declaration :data:`protocol.codec.CAN_FIXED`),
+:mod:`.codec` (encode), :mod:`.decoder` (reassemble, never raises). :mod:`protocol.can.make_dbc`
+builds a robot's DBC from its layouts with cantools (``ghostshell dbc --robot NAME [--fd]
+[--check | --write]``; ``python -m protocol.can.make_dbc --servos N`` without a robot).
 """
 
 from protocol.can.codec import Sender, decode_bulk, encode_bulk, encode_fixed, is_fixed

@@ -7,7 +7,10 @@ CRC-16/X-25 u16 LE`` for any message; ``decode_bulk`` is its inverse. ``is_fixed
 says which path a message takes: HELLO/CAPS, CONFIG, SCREEN, SPEAKER, CAMERA_*, SIM_STATE and a
 NACK with a detail text go as bulk, and so does a message the robot's layout table has no fixed
 layout for in that frame kind (classic-CAN TELEMETRY above 27 servos); everything else as fixed
-frames. Raw signal values (``message_to_raw`` / ``raw_to_message``) are what the DBC describes.
+frames. Raw signal values (``message_to_raw`` / ``raw_to_message``) are what the DBC describes; they
+follow one rule per serial field kind over the fields the table derives from the declaration
+(:data:`protocol.codec.CAN_FIXED`, :class:`protocol.can.layouts.CarriedField`), so no message is
+spelled out here.
 
 ``layouts`` is the robot's table (:func:`protocol.can.layouts.can_layouts`); None means the default
 table (:data:`protocol.can.layouts.DEFAULT_SERVO_COUNT` servos). Bulk payloads use the table's
@@ -21,19 +24,30 @@ import struct
 from functools import lru_cache
 from typing import Any
 
-from protocol import messages as m
 from protocol.codec import (
+    _Q16_NAN,
+    CAN_FIXED,
+    MESSAGE_CLASSES,
     WIRE_SCHEMA_16,
+    Bool,
+    EnumU8,
+    Flags16,
+    Mask,
     PayloadError,
+    Q16Array,
+    RestBytes,
+    SInt,
+    UInt,
     WireSchema,
+    _as_int,
     _q16_decode,
     _q16_encode,
-    _as_int,
+    _seq_of_floats,
     msg_type_of,
 )
 from protocol.can.frame import CanFrame
 from protocol.can.ids import FunctionCode, cob_id
-from protocol.can.layouts import CRC_SIGNAL, SEQ_MASK, CanLayouts, FixedLayout, can_layouts
+from protocol.can.layouts import CRC_SIGNAL, SEQ_MASK, CanLayouts, CarriedField, FixedLayout, can_layouts, function_codes
 from protocol.framing import crc16
 from protocol.messages import Message, MsgType
 
@@ -60,25 +74,12 @@ class Sender:
     BOARD = "board"
 
 
-_FN_OF_TYPE: dict[MsgType, FunctionCode] = {
-    MsgType.ESTOP: FunctionCode.ESTOP,
-    MsgType.ESTOP_CLEAR: FunctionCode.ESTOP_CLEAR,
-    MsgType.SERVO_FRAME: FunctionCode.SERVO_FRAME,
-    MsgType.TIME_SYNC_REQUEST: FunctionCode.TIME_SYNC_REQUEST,
-    MsgType.TIME_SYNC_REPLY: FunctionCode.TIME_SYNC_REPLY,
-    MsgType.FLUSH: FunctionCode.FLUSH,
-    MsgType.ADVANCE: FunctionCode.ADVANCE,
-    MsgType.ACK: FunctionCode.ACK,
-    MsgType.NACK: FunctionCode.NACK,
-    MsgType.TELEMETRY: FunctionCode.TELEMETRY,
-}
-
-_U48 = (1 << 48) - 1
-_U24 = (1 << 24) - 1
-
-
 def _table(layouts: CanLayouts | None) -> CanLayouts:
     return can_layouts() if layouts is None else layouts
+
+
+#: message type -> its function code (HEARTBEAT: by sender, :func:`_fn_of`), from the declaration
+_FN_OF_TYPE: dict[MsgType, FunctionCode] = {t: function_codes(t)[0] for t in CAN_FIXED if t is not MsgType.HEARTBEAT}
 
 
 def _fn_of(msg_type: MsgType, sender: str) -> FunctionCode | None:
@@ -87,14 +88,20 @@ def _fn_of(msg_type: MsgType, sender: str) -> FunctionCode | None:
     return _FN_OF_TYPE.get(msg_type)
 
 
+def _carries_omitted(msg: Message, t: MsgType, table: CanLayouts) -> bool:
+    """True when a field CAN omits (NACK's detail) is not empty: the message must go as bulk."""
+    return any(cf.form.omitted and getattr(msg, cf.name) for cf in table.fields.get(t, ()))
+
+
 def is_fixed(msg: Message, fd: bool = False, layouts: CanLayouts | None = None) -> bool:
     """True when ``msg`` travels in fixed-layout frames of this frame kind (classic or FD) with the
     robot's ``layouts``, False when it goes as bulk (ISO-TP)."""
     t = msg_type_of(msg)
-    if t is MsgType.NACK and msg.detail:  # type: ignore[union-attr]
+    table = _table(layouts)
+    if _carries_omitted(msg, t, table):
         return False
     fn = _fn_of(t, Sender.HOST)
-    return fn is not None and _table(layouts).layout(fn, fd) is not None
+    return fn is not None and table.layout(fn, fd) is not None
 
 
 def fixed_layout_for(msg_type: MsgType, fd: bool, sender: str = Sender.HOST,
@@ -110,157 +117,142 @@ def fixed_layout_for(msg_type: MsgType, fd: bool, sender: str = Sender.HOST,
 
 
 # --- raw signal values -----------------------------------------------------------------------
+#
+# One rule per serial field kind, applied to the fields of the declaration (protocol.codec.CAN_FIXED
+# through protocol.can.layouts.CarriedField): integers clamp to the signal's width (wrapping fields
+# wrap, as on serial), q16 values quantise as the serial codec does, a per-servo array has one signal
+# per servo of the robot (-32768 where the mask has no bit or the array no value).
 
 
-def _clamp(name: str, v: Any, hi: int) -> int:
-    return min(max(_as_int(name, v, 0, hi), 0), hi)
+def _drives_array(carried: tuple[CarriedField, ...], mask_name: str) -> bool:
+    return any(isinstance(cf.field, Q16Array) and cf.field.mask_field == mask_name for cf in carried)
 
 
-def _servo_values(name: str, values: Any, cpu: int, n: int) -> list[int]:
-    vals = list(values)
-    if len(vals) > n:
-        raise PayloadError(f"{name}: {len(vals)} values, the CAN layout carries {n}")
+def _q16_codes(t: MsgType, name: str, values: Any, cpu: int) -> list[int]:
     try:
-        codes = [_q16_encode(v, cpu) for v in vals]
+        return [_q16_encode(v, cpu) for v in values]
     except (TypeError, ValueError):
-        raise PayloadError(f"{name}: values must be numbers") from None
-    return codes + [-32768] * (n - len(codes))
+        raise PayloadError(f"{t.name}: {name}: values must be numbers, got {list(values)!r}") from None
+
+
+def _to_raw(t: MsgType, cf: CarriedField, value: Any, raw: dict[str, int], carried: tuple[CarriedField, ...],
+            n: int) -> None:
+    f, name, sigs = cf.field, cf.name, cf.signals
+    if isinstance(f, UInt):
+        hi = (1 << sigs[0].bits) - 1
+        if f.wrap and not cf.form.clamped:
+            raw[name] = _as_int(name, value, 0, hi + 1) & hi
+        else:
+            raw[name] = min(max(_as_int(name, value, 0, hi), 0), hi)
+    elif isinstance(f, SInt):
+        hi = (1 << (sigs[0].bits - 1)) - 1
+        raw[name] = min(max(_as_int(name, value, -hi - 1, hi), -hi - 1), hi)
+    elif isinstance(f, Bool):
+        raw[name] = 1 if value else 0
+    elif isinstance(f, EnumU8):
+        try:
+            raw[name] = int(f.cls(value))
+        except ValueError as e:
+            raise PayloadError(f"{t.name}: {e}") from None
+    elif isinstance(f, Flags16):
+        v = _as_int(name, value, -1, 1 << 16)
+        if v < 0 or v > 0xFFFF:
+            raise PayloadError(f"{t.name}: {name} {v:#x} do not fit 16 bits")
+        raw[name] = v
+    elif isinstance(f, Mask):
+        bits = sigs[0].bits
+        v = _as_int(name, value, -1, 1 << bits)
+        if _drives_array(carried, name):  # its array has signals for the robot's n servos only
+            if v < 0 or v >> n:
+                raise PayloadError(f"{t.name}: {name} {v:#x} has bits outside the {n} CAN servos")
+        elif v < 0 or v >> bits:
+            raise PayloadError(f"{t.name}: {name} {v:#x} does not fit {bits} bits")
+        raw[name] = v
+    elif isinstance(f, Q16Array):
+        vals = list(_seq_of_floats(name, value))
+        if f.fixed is not None:
+            if len(vals) != f.fixed:
+                raise PayloadError(f"{t.name}: {name} needs {f.fixed} values, got {len(vals)}")
+            codes = _q16_codes(t, name, vals, f.cpu)
+        elif f.mask_field is not None:
+            mask = raw[f.mask_field]
+            if len(vals) != mask.bit_count():
+                raise PayloadError(f"{t.name}: {len(vals)} {name} but popcount({f.mask_field}) = {mask.bit_count()}")
+            it = iter(_q16_codes(t, name, vals, f.cpu))
+            codes = [next(it) if mask >> i & 1 else _Q16_NAN for i in range(len(sigs))]
+            if not f.allow_nan and any(mask >> i & 1 and code == _Q16_NAN for i, code in enumerate(codes)):
+                raise PayloadError(f"{t.name}: {name}: NaN is not allowed here")
+        else:
+            if len(vals) > len(sigs):
+                raise PayloadError(f"{t.name}: {name}: {len(vals)} values, the CAN layout carries {len(sigs)}")
+            codes = _q16_codes(t, name, vals, f.cpu)
+            codes += [_Q16_NAN] * (len(sigs) - len(codes))
+        for s, code in zip(sigs, codes):
+            raw[s.name] = code
+    else:  # protocol.can.layouts refuses a field kind without a CAN form when it builds the table
+        raise PayloadError(f"{t.name}: {name}: no CAN form for {type(f).__name__}")
 
 
 def message_to_raw(msg: Message, layouts: CanLayouts | None = None) -> dict[str, int]:
-    """Raw (integer) signal values of a fixed-layout message, keyed by DBC signal name."""
+    """Raw (integer) signal values of a fixed-layout message, keyed by DBC signal name; the rules per
+    field come from the declaration (:data:`protocol.codec.CAN_FIXED`). ``PayloadError`` for a message
+    without a fixed layout or with values it cannot carry (a NACK's detail is not carried: see
+    :func:`is_fixed`)."""
     t = msg_type_of(msg)
     table = _table(layouts)
-    n = table.servo_count
+    carried = table.fields.get(t)
+    if carried is None:
+        raise PayloadError(f"{t.name} has no fixed CAN layout")
     raw: dict[str, int] = {}
-    if isinstance(msg, m.ServoFrame):
-        mask = _as_int("mask", msg.mask, -1, 1 << 32)
-        if mask < 0 or mask >> n:
-            raise PayloadError(f"SERVO_FRAME: mask {mask:#x} has bits outside the {n} CAN servos")
-        targets = list(msg.targets)
-        if len(targets) != mask.bit_count():
-            raise PayloadError(f"SERVO_FRAME: {len(targets)} target(s) but popcount(mask) = {mask.bit_count()}")
-        raw["apply_at_us"] = _as_int("apply_at_us", msg.apply_at_us, 0, 1 << 32) & 0xFFFF_FFFF
-        raw["mask"] = mask
-        it = iter(targets)
-        for i in range(n):
-            if mask >> i & 1:
-                v = next(it)
-                try:
-                    code = _q16_encode(v, 10_000)
-                except (TypeError, ValueError):
-                    raise PayloadError(f"SERVO_FRAME: target {v!r} is not a number") from None
-                if code == -32768:
-                    raise PayloadError("SERVO_FRAME: NaN target is not allowed")
-            else:
-                code = -32768
-            raw[f"target_{i + 1:02d}"] = code
-    elif isinstance(msg, m.TimeSyncRequest):
-        raw["t1_host_us"] = _clamp("t1_host_us", msg.t1_host_us, _U48)
-    elif isinstance(msg, m.TimeSyncReply):
-        for k in ("t1_host_us", "t2_board_us", "t3_board_us"):
-            raw[k] = _clamp(k, getattr(msg, k), _U48)
-    elif isinstance(msg, m.Flush):
-        bits = table.mask_bits
-        mask = _as_int("mask", msg.mask, -1, 1 << bits)
-        if mask < 0 or mask >> bits:
-            raise PayloadError(f"FLUSH: mask {mask:#x} does not fit {bits} bits")
-        raw["from_us"] = _clamp("from_us", msg.from_us, _U48)
-        raw["mask"] = mask
-    elif isinstance(msg, m.Advance):
-        raw["until_us"] = _clamp("until_us", msg.until_us, _U48)
-    elif isinstance(msg, m.Heartbeat):
-        raw["sender_time_us"] = _clamp("sender_time_us", msg.sender_time_us, _U48)
-    elif isinstance(msg, (m.Ack, m.Nack)):
-        raw["ack_seq"] = _as_int("ack_seq", msg.ack_seq, 0, 1 << 16) & 0xFFFF
+    for cf in carried:
+        if cf.signals:
+            _to_raw(t, cf, getattr(msg, cf.name), raw, carried, table.servo_count)
+    return raw
+
+
+def _from_raw(t: MsgType, cf: CarriedField, raw: dict[str, int], values: dict[str, Any],
+              carried: tuple[CarriedField, ...], n: int) -> Any:
+    f, name, sigs = cf.field, cf.name, cf.signals
+    if not sigs:  # omitted on CAN: a fixed-layout message has it empty
+        return b"" if isinstance(f, RestBytes) else ""
+    if isinstance(f, (UInt, SInt)):
+        return raw[name]
+    if isinstance(f, Bool):
+        if raw[name] > 1:
+            raise PayloadError(f"{t.name}: {name}: boolean must be 0 or 1, got {raw[name]}")
+        return bool(raw[name])
+    if isinstance(f, (EnumU8, Flags16)):
         try:
-            raw["msg_type"] = int(MsgType(msg.msg_type))
-            if isinstance(msg, m.Nack):
-                raw["reason"] = int(m.NackReason(msg.reason))
+            return f.cls(raw[name])
         except ValueError as e:
             raise PayloadError(f"{t.name}: {e}") from None
-    elif isinstance(msg, m.Telemetry):
-        raw["board_time_us"] = _clamp("board_time_us", msg.board_time_us, _U48)
-        for prefix, values, cpu in (
-            ("position", msg.positions, 10_000),
-            ("velocity", msg.velocities, 1_000),
-            ("effort", msg.efforts, 1_000),
-        ):
-            for i, code in enumerate(_servo_values(prefix, values, cpu, n)):
-                raw[f"{prefix}_{i + 1:02d}"] = code
-        rpy = list(msg.imu_rpy)
-        if len(rpy) != 3:
-            raise PayloadError(f"TELEMETRY: imu_rpy needs 3 values, got {len(rpy)}")
-        for k, v in zip(("imu_roll", "imu_pitch", "imu_yaw"), rpy):
-            raw[k] = _q16_encode(v, 10_000)
-        faults = _as_int("faults", msg.faults, -1, 1 << 16)
-        if faults < 0 or faults > 0xFFFF:
-            raise PayloadError(f"TELEMETRY: faults {faults:#x} do not fit 16 bits")
-        raw["faults"] = faults
-        raw["buffer_fill"] = _clamp("buffer_fill", msg.buffer_fill, 0xFFFF)
-        raw["last_applied_seq"] = _as_int("last_applied_seq", msg.last_applied_seq, 0, 1 << 16) & 0xFFFF
-        for k in ("late_count", "dropped_count", "link_errors"):
-            raw[k] = _clamp(k, getattr(msg, k), _U24)
-    elif isinstance(msg, (m.Estop, m.EstopClear)):
-        pass
-    else:
-        raise PayloadError(f"{t.name} has no fixed CAN layout")
-    return raw
+    if isinstance(f, Mask):
+        v = raw[name]
+        if _drives_array(carried, name) and v >> n:
+            raise PayloadError(f"{t.name}: {name} {v:#x} has bits outside the {n} CAN servos")
+        return v
+    if isinstance(f, Q16Array):
+        if f.mask_field is not None:
+            mask = values[f.mask_field]
+            codes = [raw[s.name] for i, s in enumerate(sigs) if mask >> i & 1]
+            if not f.allow_nan and _Q16_NAN in codes:  # as protocol.codec: a target has no "unknown"
+                raise PayloadError(f"{t.name}: {name}: reserved code -32768 (NaN) is not allowed here")
+        else:
+            codes = [raw[s.name] for s in sigs]
+        return tuple(_q16_decode(code, f.cpu) for code in codes)
+    raise PayloadError(f"{t.name}: {name}: no CAN form for {type(f).__name__}")
 
 
 def raw_to_message(msg_type: MsgType, raw: dict[str, int], layouts: CanLayouts | None = None) -> Message:
     """Inverse of :func:`message_to_raw` (``PayloadError`` on values the message cannot hold)."""
-    n = _table(layouts).servo_count
-    if msg_type is MsgType.SERVO_FRAME:
-        mask = raw["mask"]
-        if mask >> n:
-            raise PayloadError(f"SERVO_FRAME: mask {mask:#x} has bits outside the {n} CAN servos")
-        codes = [raw[f"target_{i + 1:02d}"] for i in range(n) if mask >> i & 1]
-        if -32768 in codes:  # as protocol.codec: a target has no "unknown" (there is no safe value for it)
-            raise PayloadError("SERVO_FRAME: targets: reserved code -32768 (NaN) is not allowed here")
-        targets = tuple(_q16_decode(c, 10_000) for c in codes)
-        return m.ServoFrame(raw["apply_at_us"], mask, targets)
-    if msg_type is MsgType.TIME_SYNC_REQUEST:
-        return m.TimeSyncRequest(raw["t1_host_us"])
-    if msg_type is MsgType.TIME_SYNC_REPLY:
-        return m.TimeSyncReply(raw["t1_host_us"], raw["t2_board_us"], raw["t3_board_us"])
-    if msg_type is MsgType.FLUSH:
-        return m.Flush(raw["from_us"], raw["mask"])
-    if msg_type is MsgType.ADVANCE:
-        return m.Advance(raw["until_us"])
-    if msg_type is MsgType.HEARTBEAT:
-        return m.Heartbeat(raw["sender_time_us"])
-    if msg_type in (MsgType.ACK, MsgType.NACK):
-        try:
-            mt = MsgType(raw["msg_type"])
-            if msg_type is MsgType.ACK:
-                return m.Ack(raw["ack_seq"], mt)
-            return m.Nack(raw["ack_seq"], mt, m.NackReason(raw["reason"]), "")
-        except ValueError as e:
-            raise PayloadError(f"{msg_type.name}: {e}") from None
-    if msg_type is MsgType.TELEMETRY:
-        def arr(prefix: str, cpu: int) -> tuple[float, ...]:
-            return tuple(_q16_decode(raw[f"{prefix}_{i + 1:02d}"], cpu) for i in range(n))
-
-        rpy = tuple(_q16_decode(raw[n], 10_000) for n in ("imu_roll", "imu_pitch", "imu_yaw"))
-        return m.Telemetry(
-            raw["board_time_us"],
-            arr("position", 10_000),
-            arr("velocity", 1_000),
-            arr("effort", 1_000),
-            (rpy[0], rpy[1], rpy[2]),
-            m.FaultFlags(raw["faults"]),
-            raw["buffer_fill"],
-            raw["last_applied_seq"],
-            raw["late_count"],
-            raw["dropped_count"],
-            raw["link_errors"],
-        )
-    if msg_type is MsgType.ESTOP:
-        return m.Estop()
-    if msg_type is MsgType.ESTOP_CLEAR:
-        return m.EstopClear()
-    raise PayloadError(f"{msg_type.name} has no fixed CAN layout")
+    table = _table(layouts)
+    carried = table.fields.get(msg_type)
+    if carried is None:
+        raise PayloadError(f"{msg_type.name} has no fixed CAN layout")
+    values: dict[str, Any] = {}
+    for cf in carried:
+        values[cf.name] = _from_raw(msg_type, cf, raw, values, carried, table.servo_count)
+    return MESSAGE_CLASSES[msg_type](**values)  # type: ignore[no-any-return]
 
 
 # --- frames ------------------------------------------------------------------------------------
@@ -310,8 +302,9 @@ def encode_fixed(msg: Message, seq: int, node: int, fd: bool = False, sender: st
     Raises ``PayloadError`` for a message without a fixed layout or with invalid values.
     """
     t = msg_type_of(msg)
-    if t is MsgType.NACK and msg.detail:  # type: ignore[union-attr]
-        raise PayloadError("a NACK with a detail text goes as bulk (encode_bulk)")
+    if _carries_omitted(msg, t, _table(layouts)):
+        omitted = [cf.name for cf in _table(layouts).fields[t] if cf.form.omitted]
+        raise PayloadError(f"a {t.name} with a non-empty {'/'.join(omitted)} goes as bulk (encode_bulk)")
     layout = fixed_layout_for(t, fd, sender, layouts)
     raw = message_to_raw(msg, layouts)
     if layout.has_crc:

@@ -30,11 +30,18 @@ seconds off; the header (part index, 11-bit sequence) alone cannot catch either.
 CAN: one more part where the last one is full (SERVO_FRAME 6 parts, TIME_SYNC_REPLY 4, ADVANCE,
 TIME_SYNC_REQUEST and HEARTBEAT 2); on CAN FD a few bytes (SERVO_FRAME 48 bytes).
 
-Scales are the serial codec's (:mod:`protocol.codec`): positions and IMU angles 1e-4 rad,
-velocities 1e-3 rad/s, efforts 1e-3 N*m, all int16 with -32768 = unknown (NaN). Times that are
-u64 in the serial codec travel as u48 microseconds (8.9 years; larger values clamp), except
-SERVO_FRAME's apply-at, which is u32 modulo 2**32 as on serial. Telemetry counters travel as
-u24 (clamped at 16 777 215).
+The signals come from the one message declaration (:mod:`protocol.codec`), never from a list of
+their own: :data:`protocol.codec.CAN_FIXED` names the messages that have a fixed layout and the CAN
+form of each field that differs from its serial form; :func:`message_fields` derives every signal
+from the serial layout of the robot's schema and that form, in the layout's field order (integers
+keep their serial width unless narrowed, a servo mask is the schema's, a per-servo array becomes one
+int16 signal per servo, a fixed array one per element; a field kind with no CAN form is refused
+with its name). So a field added to a real-time message reaches serial, CAN, the DBC, the C codec
+and the reference at once. Scales are the serial codec's: positions and IMU angles 1e-4 rad,
+velocities 1e-3 rad/s, efforts 1e-3 N*m, all int16 with -32768 = unknown (NaN). Times that are u64
+in the serial codec travel as u48 microseconds (8.9 years; larger values clamp), except
+SERVO_FRAME's apply-at, which is u32 modulo 2**32 as on serial. Telemetry counters travel as u24
+(clamped at 16 777 215). NACK's detail text is not carried: a NACK with one goes as ISO-TP bulk.
 
 Layouts per robot: :func:`can_layouts` builds (and caches) the table for a robot of N servos
 (1 <= N <= :data:`protocol.messages.MAX_WIRE_SERVOS`): SERVO_FRAME carries ``target_01`` ..
@@ -64,18 +71,35 @@ name no robot get (so their frames are the ones they always were).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 
 from protocol.can.frame import fd_length
 from protocol.can.ids import FunctionCode
-from protocol.codec import WireSchema, schema_for
+from protocol.codec import (
+    CAN_FIXED,
+    Bool,
+    CanField,
+    EnumU8,
+    Field,
+    Flags16,
+    Mask,
+    Q16Array,
+    RestBytes,
+    SInt,
+    Str8,
+    UInt,
+    WireSchema,
+    field_unit,
+    schema_for,
+)
 from protocol.messages import MsgType
 
 __all__ = [
     "CRC_SIGNAL",
     "CanLayouts",
+    "CarriedField",
     "DEFAULT_SERVO_COUNT",
     "HEADER_BITS",
     "PART_BITS",
@@ -85,6 +109,9 @@ __all__ = [
     "Placed",
     "SignalSpec",
     "can_layouts",
+    "function_codes",
+    "message_fields",
+    "message_signals",
     "unwrap_seq",
 ]
 
@@ -182,66 +209,81 @@ def _place(signals: list[SignalSpec], part_bits: int) -> tuple[list[Placed], int
     return placed, nparts, [(HEADER_BITS + u + 7) // 8 for u in used_by_part]
 
 
-def _q16(name: str, scale: float, unit: str) -> SignalSpec:
-    return SignalSpec(name, 16, True, scale, unit, "int16; -32768 = unknown (NaN)")
+@dataclass(frozen=True)
+class CarriedField:
+    """One field of a message's serial layout and the CAN signals that carry it, in order
+    (``signals`` empty: the field is omitted on CAN, :attr:`protocol.codec.CanField.omitted`)."""
+
+    name: str
+    field: Field
+    form: CanField
+    signals: tuple[SignalSpec, ...]
 
 
-U48_TIME = "u48 microseconds (clamped)"
+Q16_COMMENT = "int16; -32768 = unknown (NaN)"
+_PLAIN = CanField()  # a field CAN_FIXED does not mention: its serial form
 
 
-def _signals(n: int) -> dict[MsgType, tuple[FunctionCode, list[SignalSpec]]]:
-    """Message type -> (function code, signals) for a robot of ``n`` servos."""
-    mask_bits = 16 if n <= 16 else 32
-    names = [f"{i + 1:02d}" for i in range(n)]
-    return {
-        MsgType.ESTOP: (FunctionCode.ESTOP, []),
-        MsgType.ESTOP_CLEAR: (FunctionCode.ESTOP_CLEAR, []),
-        MsgType.SERVO_FRAME: (
-            FunctionCode.SERVO_FRAME,
-            [
-                SignalSpec("apply_at_us", 32, unit="us", comment="board clock modulo 2**32"),
-                SignalSpec("mask", mask_bits, comment="bit i = servo i+1 present"),
-                *[_q16(f"target_{k}", 1e-4, "rad") for k in names],
-            ],
-        ),
-        MsgType.TIME_SYNC_REQUEST: (FunctionCode.TIME_SYNC_REQUEST,
-                                    [SignalSpec("t1_host_us", 48, unit="us", comment=U48_TIME)]),
-        MsgType.TIME_SYNC_REPLY: (
-            FunctionCode.TIME_SYNC_REPLY,
-            [SignalSpec(k, 48, unit="us", comment=U48_TIME) for k in ("t1_host_us", "t2_board_us", "t3_board_us")],
-        ),
-        MsgType.FLUSH: (
-            FunctionCode.FLUSH,
-            [SignalSpec("from_us", 48, unit="us", comment=U48_TIME),
-             SignalSpec("mask", mask_bits, comment="bit i = servo i+1")],
-        ),
-        MsgType.ADVANCE: (FunctionCode.ADVANCE, [SignalSpec("until_us", 48, unit="us", comment=U48_TIME)]),
-        MsgType.ACK: (FunctionCode.ACK, [SignalSpec("ack_seq", 16), SignalSpec("msg_type", 8)]),
-        MsgType.NACK: (FunctionCode.NACK,
-                       [SignalSpec("ack_seq", 16), SignalSpec("msg_type", 8), SignalSpec("reason", 8)]),
-        MsgType.TELEMETRY: (
-            FunctionCode.TELEMETRY,
-            [
-                SignalSpec("board_time_us", 48, unit="us", comment=U48_TIME),
-                *[_q16(f"position_{k}", 1e-4, "rad") for k in names],
-                *[_q16(f"velocity_{k}", 1e-3, "rad/s") for k in names],
-                *[_q16(f"effort_{k}", 1e-3, "N*m") for k in names],
-                _q16("imu_roll", 1e-4, "rad"),
-                _q16("imu_pitch", 1e-4, "rad"),
-                _q16("imu_yaw", 1e-4, "rad"),
-                SignalSpec("faults", 16, comment="FaultFlags"),
-                SignalSpec("buffer_fill", 16),
-                SignalSpec("last_applied_seq", 16),
-                SignalSpec("late_count", 24, comment="clamped"),
-                SignalSpec("dropped_count", 24, comment="clamped"),
-                SignalSpec("link_errors", 24, comment="clamped"),
-            ],
-        ),
-    }
+def _comment(form: CanField, unit: str, bits: int, default: str = "") -> str:
+    if form.comment:
+        return form.comment
+    if form.clamped:
+        return f"u{bits} microseconds (clamped)" if unit == "us" else "clamped"
+    return default
 
 
-# Heartbeats exist in both directions with their own identifiers (one transmitter per id).
-HEARTBEAT_SIGNALS = [SignalSpec("sender_time_us", 48, unit="us", comment=U48_TIME)]
+def _field_signals(t: MsgType, name: str, f: Field, form: CanField, n: int) -> tuple[SignalSpec, ...]:
+    """The signals of one serial field for a robot of ``n`` servos (rules: :class:`CanField`)."""
+    if form.omitted:
+        if not isinstance(f, (Str8, RestBytes)):
+            raise ValueError(f"{t.name}.{name}: only a text or byte field can be omitted on CAN (it travels "
+                             "when empty, the message goes as bulk otherwise)")
+        return ()
+    unit = field_unit(name, f)
+    if isinstance(f, (UInt, SInt, Mask)):
+        bits = form.bits or 8 * f.size
+        return (SignalSpec(name, bits, isinstance(f, SInt), 1.0, unit, _comment(form, unit, bits)),)
+    if isinstance(f, (Bool, EnumU8)):
+        return (SignalSpec(name, 8, comment=_comment(form, unit, 8)),)
+    if isinstance(f, Flags16):
+        return (SignalSpec(name, 16, comment=_comment(form, unit, 16, f.cls.__name__)),)
+    if isinstance(f, Q16Array):
+        if f.fixed is not None:
+            names = form.signals if isinstance(form.signals, tuple) else tuple(f"{name}_{i}" for i in range(f.fixed))
+            if len(names) != f.fixed:
+                raise ValueError(f"{t.name}.{name}: {len(names)} CAN signal names for {f.fixed} values")
+        else:  # one signal per servo of the robot (a mask's unset bits and missing values: -32768)
+            prefix = form.signals if isinstance(form.signals, str) else name
+            names = tuple(f"{prefix}_{i + 1:02d}" for i in range(n))
+        return tuple(SignalSpec(k, 16, True, 1 / f.cpu, unit, form.comment or Q16_COMMENT) for k in names)
+    raise ValueError(f"{t.name}.{name}: a {type(f).__name__} ({f.wire}) has no fixed CAN form; declare it "
+                     "omitted in protocol.codec.CAN_FIXED or let the message travel as ISO-TP bulk")
+
+
+def message_fields(t: MsgType, layout: Sequence[tuple[str, Field]], forms: Mapping[str, CanField],
+                   n: int) -> tuple[CarriedField, ...]:
+    """Every field of ``layout`` (a message's serial layout) with its CAN signals for a robot of ``n``
+    servos, given the message's CAN forms (:data:`protocol.codec.CAN_FIXED`); ``ValueError`` for a field
+    that cannot travel in a fixed layout."""
+    out = []
+    for name, f in layout:
+        form = forms.get(name, _PLAIN)
+        out.append(CarriedField(name, f, form, _field_signals(t, name, f, form, n)))
+    return tuple(out)
+
+
+def message_signals(t: MsgType, layout: Sequence[tuple[str, Field]], forms: Mapping[str, CanField],
+                    n: int) -> list[SignalSpec]:
+    """The CAN signals of one message, in order (before the ``crc16`` the layout appends)."""
+    return [s for cf in message_fields(t, layout, forms, n) for s in cf.signals]
+
+
+def function_codes(t: MsgType) -> tuple[FunctionCode, ...]:
+    """The identifiers' function codes a fixed-layout message type travels with: HEARTBEAT has one per
+    direction (one transmitter per identifier), every other its namesake."""
+    if t is MsgType.HEARTBEAT:
+        return (FunctionCode.HEARTBEAT_HOST, FunctionCode.HEARTBEAT_BOARD)
+    return (FunctionCode[t.name],)
 
 
 CRC_SPEC = SignalSpec(CRC_SIGNAL, 16, comment="CRC-16/X-25 over every part of the message with this field zero")
@@ -262,15 +304,18 @@ class CanLayouts:
 
     ``fixed``: (function code, is_fd) -> layout, for every message that has a fixed layout in that
     frame kind (absent: the message travels as ISO-TP bulk there, e.g. classic TELEMETRY above 27
-    servos); ``schema``: the serial payload schema the bulk (ISO-TP) messages are encoded with."""
+    servos); ``fields``: message type -> its serial fields with the signals carrying each (what
+    :mod:`protocol.can.codec` packs values by), for every message of :data:`protocol.codec.CAN_FIXED`;
+    ``schema``: the serial payload schema the bulk (ISO-TP) messages are encoded with."""
 
     servo_count: int
     fixed: Mapping[tuple[FunctionCode, bool], FixedLayout]
     schema: WireSchema
+    fields: Mapping[MsgType, tuple[CarriedField, ...]]
 
     @property
     def mask_bits(self) -> int:
-        return 16 if self.servo_count <= 16 else 32
+        return 8 * self.schema.mask_bytes
 
     def layout(self, fn: FunctionCode, fd: bool) -> FixedLayout | None:
         """The fixed layout of ``fn`` in this frame kind (None: that message goes as ISO-TP bulk)."""
@@ -286,16 +331,17 @@ def can_layouts(servo_count: int = DEFAULT_SERVO_COUNT) -> CanLayouts:
 @lru_cache(maxsize=None)
 def _can_layouts(n: int) -> CanLayouts:
     schema = schema_for(n)  # refuses a count the wire cannot carry
+    fields = {t: message_fields(t, schema.layouts[t], forms, n) for t, forms in CAN_FIXED.items()}
     out: dict[tuple[FunctionCode, bool], FixedLayout] = {}
     for fd in (False, True):
-        for t, (fn, sigs) in _signals(n).items():
-            try:
-                out[(fn, fd)] = _build(t, fn, sigs, fd, n)
-            except TooManyParts:
-                continue  # no fixed layout in this frame kind: ISO-TP bulk (module docstring)
-        for fn in (FunctionCode.HEARTBEAT_HOST, FunctionCode.HEARTBEAT_BOARD):
-            out[(fn, fd)] = _build(MsgType.HEARTBEAT, fn, HEARTBEAT_SIGNALS, fd, n)
-    return CanLayouts(n, out, schema)
+        for t, carried in fields.items():
+            sigs = [s for cf in carried for s in cf.signals]
+            for fn in function_codes(t):
+                try:
+                    out[(fn, fd)] = _build(t, fn, sigs, fd, n)
+                except TooManyParts:
+                    continue  # no fixed layout in this frame kind: ISO-TP bulk (module docstring)
+    return CanLayouts(n, out, schema, fields)
 
 
 #: (function code, is_fd) -> layout, for every fixed-layout function code, for :data:`DEFAULT_SERVO_COUNT` servos.

@@ -11,11 +11,12 @@ capture has no unknown frames. A message the robot's table sends as bulk in that
 the database version (``NAME-1``, 1 = the protocol version) and the board nodes' comments
 (``TITLE board, node id N``); the rest comes from the layouts.
 
-``ghostshell dbc --robot NAME [--fd] [--nodes 1,2]`` prints a robot's DBC. Built-in robots may check
-theirs in next to their robot.toml as ``NAME.dbc`` and ``NAME_fd.dbc``:
-``python -m protocol.can.make_dbc [--check] [--robot NAME] [--nodes 1,2]`` rewrites (or, with
-``--check``, compares; exit 1 on a difference) every such file; this command line (not the
-library) finds them through :mod:`robots.registry`, imported only there.
+``ghostshell dbc --robot NAME [--fd] [--nodes 1,2]`` prints a robot's DBC; built-in robots may check
+theirs in next to their robot.toml as ``NAME.dbc`` and ``NAME_fd.dbc``, which ``ghostshell dbc --robot
+NAME --check`` compares and ``--write`` rewrites (:mod:`host.commands.dbc`: finding robots is the
+host's business; ``protocol`` imports no robot). Without a robot,
+``python -m protocol.can.make_dbc --servos N [--fd] [--nodes 1,2] [--name NAME] [--title TITLE]``
+prints the DBC of a robot of N servos (exit 2 with one line for bad arguments).
 
 This is the only module of ``protocol`` that imports cantools (it is a build tool, not runtime).
 """
@@ -25,7 +26,6 @@ from __future__ import annotations
 import argparse
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 
 import cantools
 from cantools.database.can import Database, Message, Node, Signal
@@ -193,48 +193,31 @@ def dbc_text(fd: bool, nodes: tuple[int, ...] = DEFAULT_NODES, *, robot: DbcRobo
     return build_database(fd, nodes, robot=robot).as_dbc_string().replace("\r\n", "\n")
 
 
-def dbc_files(folder: Path, name: str) -> tuple[tuple[bool, Path], tuple[bool, Path]]:
-    """Where a robot checks its DBCs in: ``(False, folder/NAME.dbc), (True, folder/NAME_fd.dbc)``."""
-    return (False, folder / f"{name}.dbc"), (True, folder / f"{name}_fd.dbc")
-
-
 def main(argv: list[str] | None = None) -> int:
+    """``python -m protocol.can.make_dbc --servos N ...``: print the DBC of a robot of N servos."""
     ap = argparse.ArgumentParser(prog="python -m protocol.can.make_dbc",
-                                 description="write (or --check) the DBC files built-in robots check in")
+                                 description="print the DBC (classic CAN, or FD) of a robot of N servos")
+    ap.add_argument("--servos", type=int, required=True, metavar="N", help="the robot's servo count (1..32)")
+    ap.add_argument("--fd", action="store_true", help="the CAN FD database (default: classic CAN)")
     ap.add_argument("--nodes", default=",".join(map(str, DEFAULT_NODES)), help="node ids, comma-separated")
-    ap.add_argument("--robot", action="append", default=None, metavar="NAME",
-                    help="only this built-in robot (repeatable; default: every one with NAME.dbc in its folder)")
-    ap.add_argument("--check", action="store_true", help="compare with the files instead of writing")
+    ap.add_argument("--name", default="robot", help="the database version's robot name (default robot)")
+    ap.add_argument("--title", default="Robot", help="the board nodes' comments say 'TITLE board' (default Robot)")
     args = ap.parse_args(argv)
     try:
         nodes = tuple(int(n) for n in args.nodes.split(","))
     except ValueError:
         ap.error(f"--nodes: expected comma-separated node ids, got {args.nodes!r}")
-    from robots.registry import BUILTIN_DIR, load_robot  # the command line only: the library names no robot
-
-    status = 0
-    robots = args.robot or sorted(p.parent.name for p in BUILTIN_DIR.glob("*/*.dbc") if p.stem == p.parent.name)
-    if not robots:
-        print(f"no built-in robot checks in a DBC ({BUILTIN_DIR}/NAME/NAME.dbc)", file=sys.stderr)
-        return 1
-    for name in robots:
-        try:
-            robot = load_robot(name)
-        except ValueError as e:  # robots.description.RobotDataError: no such robot, or a malformed one
-            print(f"python -m protocol.can.make_dbc: {e}", file=sys.stderr)
-            return 2
-        who = DbcRobot(robot.name, robot.title, robot.servo_count)
-        for fd, path in dbc_files(robot.root, robot.name):
-            text = dbc_text(fd, nodes, robot=who)
-            if args.check:
-                if not path.exists() or path.read_text() != text:
-                    print(f"{path}: differs from the generated DBC (run python -m protocol.can.make_dbc)")
-                    status = 1
-            else:
-                path.write_text(text)
-                cantools.database.load_file(str(path))  # it must load back
-                print(f"wrote {path}")
-    return status
+    try:
+        text = dbc_text(args.fd, nodes, robot=DbcRobot(args.name, args.title, args.servos))
+    except ValueError as e:  # a servo count the wire cannot carry, a node id out of range
+        print(f"python -m protocol.can.make_dbc: {e}", file=sys.stderr)
+        return 2
+    try:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        return 0
+    return 0
 
 
 if __name__ == "__main__":

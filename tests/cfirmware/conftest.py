@@ -12,7 +12,10 @@ from pathlib import Path
 import pytest
 
 from firmware_sim.cfirmware.build import build
+from protocol.codec import WIRE_SCHEMAS, WireSchema, schema_for
+from robots.loader import load_robot_dir
 from robots.registry import load_robot
+from support.gen_robot import write_chain_robot
 
 
 class CodecHarness:
@@ -46,4 +49,17 @@ def coco():
 def codec_harness(coco) -> Iterator[CodecHarness]:
     h = CodecHarness(build("codec", coco))
     yield h
+    h.close()
+
+
+@pytest.fixture(scope="session", params=WIRE_SCHEMAS, ids=lambda s: f"schema{s.max_servos}")
+def schema_codec(request, coco, tmp_path_factory) -> Iterator[tuple[WireSchema, CodecHarness]]:
+    """Every wire schema with the C codec harness built for it: CoCo's (12 servos) for the 16 schema, a
+    generated robot of the schema's full servo count above (the build picks the codec by servo count)."""
+    schema: WireSchema = request.param
+    robot = coco if schema.max_servos <= 16 else load_robot_dir(
+        write_chain_robot(tmp_path_factory.mktemp("robots"), schema.max_servos))
+    assert schema_for(robot.servo_count) is schema
+    h = CodecHarness(build("codec", robot))
+    yield schema, h
     h.close()

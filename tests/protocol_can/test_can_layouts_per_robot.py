@@ -96,9 +96,57 @@ def test_checked_in_coco_dbcs_are_generated() -> None:
     coco = DbcRobot("coco", "CoCo", 12)
     for fd, name in ((False, "coco.dbc"), (True, "coco_fd.dbc")):
         assert (COCO_DIR / name).read_text() == dbc_text(fd, robot=coco)
-    r = subprocess.run([sys.executable, "-m", "protocol.can.make_dbc", "--check"], capture_output=True, text=True,
-                       cwd=ROOT, timeout=120)
-    assert r.returncode == 0, r.stdout + r.stderr
+        # the protocol-only command line (a servo count, no robot) prints the same bytes
+        r = subprocess.run([sys.executable, "-m", "protocol.can.make_dbc", "--servos", "12", "--name", "coco",
+                            "--title", "CoCo", *(["--fd"] if fd else [])], capture_output=True, cwd=ROOT, timeout=120)
+        assert r.returncode == 0 and r.stdout == (COCO_DIR / name).read_bytes(), r.stderr
+
+
+def test_every_built_in_robots_checked_in_dbcs_are_current() -> None:
+    from robots.registry import BUILTIN_DIR
+
+    robots = sorted(p.parent.name for p in BUILTIN_DIR.glob("*/*.dbc") if p.stem == p.parent.name)
+    assert "coco" in robots
+    for name in robots:
+        r = subprocess.run([sys.executable, "-m", "host", "dbc", "--robot", name, "--check"], capture_output=True,
+                           text=True, cwd=ROOT, timeout=120)
+        assert r.returncode == 0 and r.stdout == "" and r.stderr == "", (name, r.stdout, r.stderr)
+
+
+def test_ghostshell_dbc_check_and_write_a_robots_files(tmp_path: Path) -> None:
+    pkg = write_chain_robot(tmp_path, 20)
+    classic, fd = pkg / "chain20.dbc", pkg / "chain20_fd.dbc"
+
+    def dbc(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "host", "dbc", "--robot", str(pkg), *args], capture_output=True,
+                              text=True, timeout=120)
+
+    r = dbc("--check")
+    assert r.returncode == 1 and r.stdout == "", r
+    assert [ln.split(": ")[1].split(" ")[0] for ln in r.stderr.splitlines()] == [str(classic), str(fd)]
+    assert all("is missing (ghostshell dbc --robot chain20 --write)" in ln for ln in r.stderr.splitlines())
+    r = dbc("--write")
+    assert r.returncode == 0 and r.stdout.splitlines() == [f"wrote {classic}", f"wrote {fd}"], r
+    assert classic.read_text() == dbc().stdout and fd.read_text() == dbc("--fd").stdout
+    assert dbc("--check").returncode == 0
+    fd.write_text(fd.read_text().replace("Chain 20 board", "Chain 21 board"))
+    r = dbc("--check")
+    assert r.returncode == 1 and r.stderr.strip() == (f"ghostshell dbc: {fd} differs from the generated DBC "
+                                                      "(ghostshell dbc --robot chain20 --write)"), r
+    r = dbc("--check", "--fd")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "drop --fd" in r.stderr, r
+
+
+def test_protocol_imports_no_robot() -> None:
+    """protocol/ is pure codecs (DEVELOPERS.md): it imports neither robots nor host nor firmware_sim."""
+    import ast
+
+    for path in sorted((ROOT / "protocol").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            for n in names:
+                assert n.split(".")[0] not in ("robots", "host", "firmware_sim"), f"{path}: imports {n}"
 
 
 @pytest.mark.parametrize("fd", [False, True])

@@ -14,6 +14,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "gs_servo_table.h" /* generated per robot: GS_SERVO_COUNT sizes the longest packet */
+
 #define GS_BUS_BROADCAST 0xFEu
 #define GS_INST_PING 0x01u
 #define GS_INST_READ 0x02u
@@ -32,7 +34,15 @@
 #define GS_PROBE_ID 0xF1u          /* emulator only: base pos f32 x3, quat f32 x4, objects u8, toppled u8 */
 #define GS_PROBE_LEN 30u
 
-#define GS_BUS_MAX_PARAMS 64u
+/* Parameters of the longest instruction: the goal-position SYNC WRITE to every servo (address,
+ * length, then id + u16 per servo: 2 + 3 N; 98 for 32 servos, LENGTH 100 of 255), at least 64
+ * (a status packet's room: the probe's 30-byte READ reply). Sized per robot, so no goal write is
+ * ever too long to send. */
+#define GS_BUS_GOAL_SYNC_PARAMS (2u + 3u * GS_SERVO_COUNT)
+#define GS_BUS_MAX_PARAMS (GS_BUS_GOAL_SYNC_PARAMS > 64u ? GS_BUS_GOAL_SYNC_PARAMS : 64u)
+#if GS_BUS_MAX_PARAMS + 2u > 255u
+#error "the goal SYNC WRITE does not fit a Feetech packet (LENGTH is one byte)"
+#endif
 
 typedef struct {
     uint32_t packets_out, packets_in, timeouts, bad_packets;

@@ -1,0 +1,252 @@
+"""The board's per-tick servo path in C (``tick.c``), built on first use and loaded with ctypes.
+
+Why: a lockstep tick is MuJoCo's ``mj_step`` plus the board's own per-tick work (interpolation, the
+servo model, writing ctrl). In Python that work cost ~20 µs per tick for a 12-servo robot, more
+than ``mj_step`` itself for a robot standing still (~15 µs); in C it is well under a microsecond
+plus one ctypes call. The C does the same IEEE double operations in the same order as the Python
+reference (:meth:`firmware_sim.board.Board._interpolate`, :meth:`firmware_sim.servo_model.ServoModel.step_list`),
+so the board's state is bit-identical whichever runs (``tests/firmware/test_native_tick.py`` compares
+both tick by tick over long random streams). ``mj_step`` is called from C through a function pointer
+into the ``libmujoco`` the mujoco wheel ships (the one the Python bindings already loaded), on the
+``mjModel``/``mjData`` addresses the bindings expose (``MjModel._address``, ``MjData._address``).
+
+Which runs: :func:`firmware_sim.config.kernel_choice` reads ``$GHOSTSHELL_BOARD_KERNEL``: ``native`` (the
+default: C when a C compiler is installed and the build loads, else the Python path with a one-line note
+on stderr, once per process), ``python`` (the reference), ``native!`` (C or :class:`NativeUnavailable`;
+tests use it). ``BoardConfig.kernel`` overrides the variable. Whatever goes wrong building or loading
+(no compiler, a compiler error, a stale or corrupt cached library, another libmujoco) only selects the
+Python path: it never stops a board. The build is warning-clean under ``-Werror`` (a test checks);
+the runtime build does not pass ``-Werror``, so a newer compiler's new warning cannot disable the C.
+
+Wire input never reaches the C as an index: the servo count, ``qpos``/``ctrl`` addresses and limits
+come from the model; wire values arrive as doubles already bounded by the codec (Q16 targets, no NaN)
+and the board's admission checks (apply-at within ``max_future_us``), so the C only does arithmetic on them.
+
+Written by hand rather than with cffi or a setuptools extension: the project installs editable from
+a fresh clone with no build step, and ctypes needs neither Python headers nor another dependency;
+the build follows :mod:`firmware_sim.cfirmware.build` (a cache folder keyed by a SHA-256 of the
+source, the flags and the compiler; written to a temporary name and renamed into place).
+
+A MuJoCo fatal error (``mju_error``) inside a native ``mj_step`` ends the process through MuJoCo's
+handler instead of raising ``mujoco.FatalError``; with the Python path that exception ends the board
+too (nothing catches it), so only the message's form differs.
+
+Cache folder: ``$GHOSTSHELL_NATIVE_CACHE`` or the user cache dir (platformdirs) ``/native``.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import platformdirs
+
+from firmware_sim.config import KERNEL_ENV, kernel_choice
+
+__all__ = ["FLAGS", "GS_CAP", "GS_INTERP", "KERNEL_ENV", "NativeTick", "NativeUnavailable", "TickState",
+           "build", "cache_root", "kernel_choice", "load", "native_reason", "note_fallback"]
+
+SOURCE = Path(__file__).with_name("tick.c")
+#: -ffp-contract=off and no -ffast-math keep the C's double operations those of the Python reference
+FLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-ffp-contract=off", "-fno-fast-math", "-Wall", "-Wextra")
+GS_INTERP = 1
+GS_CAP = 2
+
+_ptr_t = ctypes.c_void_p  # every array pointer (int64_t* / double* in tick.c: the same ABI)
+
+
+class NativeUnavailable(RuntimeError):
+    """The C tick cannot be built or loaded here (message: why, e.g. no C compiler)."""
+
+
+class TickState(ctypes.Structure):
+    """Mirror of ``gs_tick_state`` in tick.c (every field 8 bytes, same order).
+
+    Array pointers are plain addresses (``c_void_p`` set from ``ndarray.ctypes.data``): numpy's
+    ``data_as`` (a ``ctypes.cast``) left ~350 B per board on the heap (tests/fuzz/test_fuzz_memory.py)."""
+
+    _fields_ = [
+        ("n", ctypes.c_int64), ("substeps", ctypes.c_int64),
+        ("model", ctypes.c_void_p), ("data", ctypes.c_void_p), ("mj_step", ctypes.c_void_p),
+        ("qpos", _ptr_t), ("mj_ctrl", _ptr_t), ("qpos_adr", _ptr_t), ("act_id", _ptr_t),
+        ("anchor_t", _ptr_t), ("anchor_v", _ptr_t), ("next_ok", _ptr_t), ("next_t", _ptr_t), ("next_v", _ptr_t),
+        ("desired", _ptr_t), ("ctrl", _ptr_t), ("cmd", _ptr_t),
+        ("mins", _ptr_t), ("maxs", _ptr_t), ("max_step", _ptr_t), ("max_speed", _ptr_t),
+        ("period_s", ctypes.c_double), ("resolution", ctypes.c_double), ("deadband", ctypes.c_double),
+        ("limit_clamps", ctypes.c_int64), ("speed_clamps", ctypes.c_int64),
+    ]
+
+
+def cache_root() -> Path:
+    """Where built libraries are kept: ``$GHOSTSHELL_NATIVE_CACHE``, else the user cache dir's ``native``."""
+    env = os.environ.get("GHOSTSHELL_NATIVE_CACHE")
+    return Path(env) if env else Path(platformdirs.user_cache_dir("ghostshell")) / "native"
+
+
+def _compiler() -> str:
+    cc = shutil.which(os.environ.get("CC") or "cc")
+    if cc is None:
+        raise NativeUnavailable(f"no C compiler ({os.environ.get('CC') or 'cc'}) found; "
+                                "install one with: apt-get install -y gcc libc6-dev")
+    return cc
+
+
+def build(rebuild: bool = False) -> Path:
+    """Compile tick.c into the cache (unless there already, or ``rebuild``); returns the library's path.
+
+    The file name is a SHA-256 of the source, :data:`FLAGS`, the compiler (path, size, mtime) and the
+    platform. Raises :class:`NativeUnavailable` (no compiler, or the compiler's last lines) or ``OSError``."""
+    cc = _compiler()
+    text = SOURCE.read_bytes()
+    st = os.stat(cc)
+    ident = (FLAGS, os.path.realpath(cc), st.st_size, st.st_mtime_ns, sys.platform, platform.machine())
+    key = hashlib.sha256(text + repr(ident).encode()).hexdigest()[:16]
+    out = cache_root() / f"tick-{key}.so"
+    if out.is_file() and not rebuild:
+        return out
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=".tick-", suffix=".so", dir=out.parent)
+    os.close(fd)
+    try:
+        r = subprocess.run([cc, *FLAGS, str(SOURCE), "-o", tmp_name, "-lm"], capture_output=True, text=True, timeout=120)
+        if r.returncode != 0:
+            tail = " | ".join((r.stdout + r.stderr).strip().splitlines()[-5:])
+            raise NativeUnavailable(f"building {SOURCE.name} with {cc} failed (exit {r.returncode}): {tail}")
+        os.replace(tmp_name, out)  # atomic: parallel processes never load a half-written library
+    finally:
+        if os.path.exists(tmp_name):
+            os.unlink(tmp_name)
+    return out
+
+
+_lock = threading.Lock()
+_loaded: tuple[ctypes.CDLL, int] | None = None
+_failure: str | None = None
+_noted = False
+
+
+def _libmujoco() -> ctypes.CDLL:
+    folder = Path(mujoco.__file__).parent
+    found = sorted(folder.glob("libmujoco.so*")) + sorted(folder.glob("libmujoco*.dylib"))
+    if not found:
+        raise NativeUnavailable(f"no libmujoco shared library next to {mujoco.__file__}")
+    lib = ctypes.CDLL(str(found[0]))  # already loaded by the bindings: the same library, the same globals
+    lib.mj_versionString.restype = ctypes.c_char_p
+    theirs, ours = lib.mj_versionString().decode(), mujoco.mj_versionString()
+    if theirs != ours:
+        raise NativeUnavailable(f"{found[0].name} is MuJoCo {theirs}, the bindings run {ours}")
+    return lib
+
+
+def _open(path: Path) -> ctypes.CDLL:
+    lib = ctypes.CDLL(str(path))
+    fn = lib.gs_tick
+    fn.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_int64, ctypes.c_double]
+    fn.restype = ctypes.c_int
+    return lib
+
+
+def load() -> tuple[ctypes.CDLL, int]:
+    """The loaded kernel library and the address of ``mj_step`` (cached per process)."""
+    global _loaded, _failure
+    with _lock:
+        if _loaded is not None:
+            return _loaded
+        if _failure is not None:
+            raise NativeUnavailable(_failure)
+        try:
+            path = build()
+            try:
+                lib = _open(path)
+            except (OSError, AttributeError):  # a corrupt or foreign file under our name: build it again
+                lib = _open(build(rebuild=True))
+            step = ctypes.cast(_libmujoco().mj_step, ctypes.c_void_p).value
+            if not step:
+                raise NativeUnavailable("libmujoco has no mj_step")
+            _loaded = (lib, step)
+            return _loaded
+        except Exception as e:  # noqa: BLE001 - whatever it is, the board runs the Python path instead
+            _failure = str(e) if isinstance(e, NativeUnavailable) else f"{type(e).__name__}: {e}"
+            raise NativeUnavailable(_failure) from None
+
+
+def native_reason() -> str | None:
+    """Why the native kernel is unavailable (None when it loads)."""
+    try:
+        load()
+    except NativeUnavailable as e:
+        return str(e)
+    return None
+
+
+def note_fallback(reason: str) -> None:
+    """One stderr line per process: the board runs the Python path because the C one is unavailable."""
+    global _noted
+    if not _noted:
+        _noted = True
+        print(f"board: native tick unavailable ({reason}); running the Python reference path", file=sys.stderr)
+
+
+def _ptr(a: np.ndarray) -> int:
+    """The address of ``a``'s first element (the caller keeps ``a`` alive)."""
+    return int(a.__array_interface__["data"][0])
+
+
+class NativeTick:
+    """The C tick bound to one board's arrays (which must stay allocated as long as this lives).
+
+    ``arrays``: ``anchor_t``/``next_ok``/``next_t`` int64, ``anchor_v``/``next_v``/``desired``/``ctrl``/``cmd``/
+    ``mins``/``maxs``/``max_step``/``max_speed`` float64, ``qpos_adr``/``act_id`` int64, one per servo.
+    """
+
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, substeps: int, period_s: float,
+                 resolution: float, deadband: float, arrays: dict[str, np.ndarray]) -> None:
+        lib, step = load()
+        self._keep = arrays  # the C holds raw pointers into these
+        self._model, self._data = model, data
+        s = TickState()
+        s.n = len(arrays["cmd"])
+        s.substeps = int(substeps)
+        s.model, s.data, s.mj_step = model._address, data._address, step
+        s.qpos = _ptr(data.qpos)
+        s.mj_ctrl = _ptr(data.ctrl)
+        for names, dtype in ((("qpos_adr", "act_id", "anchor_t", "next_ok", "next_t"), np.int64),
+                             (("anchor_v", "next_v", "desired", "ctrl", "cmd", "mins", "maxs", "max_step",
+                               "max_speed"), np.float64)):
+            for name in names:
+                a = arrays[name]
+                if a.dtype != dtype or not a.flags.c_contiguous or len(a) != s.n:
+                    raise ValueError(f"{name}: need {s.n} contiguous {np.dtype(dtype)}, got {len(a)} {a.dtype}")
+                setattr(s, name, _ptr(a))
+        # the C indexes qpos and ctrl with these: check them here, once
+        if s.n and not (0 <= int(arrays["qpos_adr"].min()) and int(arrays["qpos_adr"].max()) < model.nq
+                        and 0 <= int(arrays["act_id"].min()) and int(arrays["act_id"].max()) < model.nu):
+            raise ValueError("qpos_adr/act_id outside the model's qpos/ctrl")
+        if data.qpos.dtype != np.float64 or data.ctrl.dtype != np.float64:
+            raise ValueError("MjData qpos/ctrl are not float64")
+        s.period_s, s.resolution, s.deadband = float(period_s), float(resolution), float(deadband)
+        self.state = s
+        self._addr = ctypes.addressof(s)
+        self._fn = lib.gs_tick
+
+    def tick(self, t: int, flags: int, cap: float = 0.0) -> bool:
+        """One tick at board time ``t`` (µs); ``flags``: :data:`GS_INTERP` | :data:`GS_CAP`. True if clamped."""
+        return bool(self._fn(self._addr, t, flags, cap))
+
+    @property
+    def limit_clamps(self) -> int:
+        return int(self.state.limit_clamps)
+
+    @property
+    def speed_clamps(self) -> int:
+        return int(self.state.speed_clamps)

@@ -1,0 +1,106 @@
+/* The board's per-tick servo path in C: interpolation -> servo model -> MuJoCo ctrl -> mj_step.
+ *
+ * A transcription of firmware_sim/board.py `Board._interpolate` and
+ * firmware_sim/servo_model.py `ServoModel.step_list` (the Python reference) doing the same IEEE
+ * double operations in the same order, so the board's state is bit-identical whichever runs
+ * (tests/firmware/test_native_tick.py compares both over long random streams):
+ *
+ *   - Python's `float * int` and `float / int` convert the int to double first: (double)(t - t0);
+ *   - Python's round(x) is round-half-even: nearbyint() in the default rounding mode; round()
+ *     returns an int, so a result of 0 is +0.0 once multiplied back: `+ 0.0` turns nearbyint's
+ *     -0.0 into +0.0 (and changes nothing else);
+ *   - min(s, cap) keeps s unless cap < s;
+ *   - compiled with -ffp-contract=off (no fused multiply-add) and without -ffast-math.
+ *
+ * No MuJoCo header is needed: mj_step comes in as a function pointer taken from the libmujoco the
+ * mujoco wheel ships (already loaded by the Python bindings), and qpos/ctrl as the addresses of
+ * the MjData arrays the bindings expose. Built and loaded by firmware_sim/native/__init__.py.
+ */
+#include <math.h>
+#include <stdint.h>
+
+typedef void (*gs_mj_step_fn)(const void *m, void *d);
+
+/* Field order and types match firmware_sim.native.TickState (ctypes); all 8-byte fields. */
+typedef struct {
+    int64_t n;                 /* servos */
+    int64_t substeps;          /* mj_step calls per tick */
+    const void *model;         /* mjModel* */
+    void *data;                /* mjData* */
+    gs_mj_step_fn mj_step;
+    double *qpos;              /* d->qpos */
+    double *mj_ctrl;           /* d->ctrl */
+    const int64_t *qpos_adr;   /* per servo: index into qpos */
+    const int64_t *act_id;     /* per servo: index into ctrl */
+    const int64_t *anchor_t;   /* per servo: interpolation anchor (us) */
+    const double *anchor_v;    /*   and its value (rad) */
+    const int64_t *next_ok;    /* per servo: 1 when a buffered keyframe covers it */
+    const int64_t *next_t;     /*   its apply-at (us) */
+    const double *next_v;      /*   its target (rad) */
+    double *desired;           /* per servo: the interpolated target (out, or in without GS_INTERP) */
+    double *ctrl;              /* per servo: the servo model's output (out) */
+    double *cmd;               /* per servo: the speed-limited command (in/out) */
+    const double *mins;
+    const double *maxs;
+    const double *max_step;    /* rad per tick at the table speeds */
+    const double *max_speed;   /* rad/s (for a speed cap) */
+    double period_s;
+    double resolution;
+    double deadband;
+    int64_t limit_clamps;      /* servo-ticks clamped to a joint limit (added to) */
+    int64_t speed_clamps;      /* servo-ticks clamped to the speed limit (added to) */
+} gs_tick_state;
+
+#define GS_INTERP 1   /* interpolate `desired` from the anchors and next keyframes */
+#define GS_CAP 2      /* lower every speed limit to `cap` rad/s */
+#define GS_EPS 1e-9
+
+/* One control tick at board time t (us). Returns 1 when a servo was clamped, else 0. */
+int gs_tick(gs_tick_state *s, int64_t t, int64_t flags, double cap)
+{
+    const int64_t n = s->n;
+    int64_t limit_hits = 0, speed_hits = 0;
+    if (flags & GS_INTERP) {
+        for (int64_t i = 0; i < n; i++) {
+            double out = s->anchor_v[i];
+            if (s->next_ok[i]) {
+                const int64_t t1 = s->next_t[i], t0 = s->anchor_t[i];
+                if (t1 > t0) {
+                    const double a = s->anchor_v[i];
+                    out = a + (s->next_v[i] - a) * (double)(t - t0) / (double)(t1 - t0);
+                }
+            }
+            s->desired[i] = out;
+        }
+    }
+    const double res = s->resolution, db = s->deadband;
+    for (int64_t i = 0; i < n; i++) {
+        const double x = s->desired[i], lo = s->mins[i], hi = s->maxs[i];
+        double step = s->max_step[i];
+        if (flags & GS_CAP) {
+            const double sp = s->max_speed[i];
+            step = (cap < sp ? cap : sp) * s->period_s;
+        }
+        const double tg = x > hi ? hi : (x < lo ? lo : x);
+        if (fabs(tg - x) > GS_EPS)
+            limit_hits++;
+        double c = s->cmd[i];
+        const double delta = tg - c;
+        if (fabs(delta) > step + GS_EPS)
+            speed_hits++;
+        c += delta > step ? step : (delta < -step ? -step : delta);
+        s->cmd[i] = c;
+        double q = (nearbyint(c / res) + 0.0) * res;
+        q = q > hi ? hi : (q < lo ? lo : q);
+        const double m = s->qpos[s->qpos_adr[i]];
+        const double v = fabs(q - m) < db ? m : q;
+        const double out = v > hi ? hi : (v < lo ? lo : v);
+        s->ctrl[i] = out;
+        s->mj_ctrl[s->act_id[i]] = out;
+    }
+    s->limit_clamps += limit_hits;
+    s->speed_clamps += speed_hits;
+    for (int64_t k = 0; k < s->substeps; k++)
+        s->mj_step(s->model, s->data);
+    return (limit_hits || speed_hits) ? 1 : 0;
+}

@@ -1,0 +1,31 @@
+"""The Cortex-M3 image (mps2-an385) of the default robot fits a small MCU: flash <= 32 KiB, RAM <= 8 KiB
+(flash = .text + .ARM.exidx + .data; RAM = .data + .bss + the main stack + the boot block, as
+bench/bench_cfirmware.py counts them). A 32-servo robot's image (the u32-mask codec) builds too."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from firmware_sim.cfirmware.build import build, size_of
+from robots.loader import load_robot_dir
+from robots.registry import DEFAULT_ROBOT, load_robot
+from support.gen_robot import write_chain_robot
+
+FLASH_BUDGET, RAM_BUDGET = 32 * 1024, 8 * 1024
+
+
+def _flash_ram(elf: Path) -> tuple[int, int]:
+    s = size_of(elf)
+    return (s[".text"] + s.get(".ARM.exidx", 0) + s[".data"],
+            s[".data"] + s[".bss"] + s.get(".stack", 0) + s.get(".bootcfg", 0))
+
+
+def test_default_robots_image_fits(tmp_path: Path) -> None:
+    flash, ram = _flash_ram(build("mps2", load_robot(DEFAULT_ROBOT)))
+    assert flash <= FLASH_BUDGET and ram <= RAM_BUDGET, f"flash {flash} B, RAM {ram} B"
+
+
+def test_a_32_servo_image_builds_with_the_u32_codec(tmp_path: Path) -> None:
+    small = _flash_ram(build("mps2", load_robot(DEFAULT_ROBOT)))
+    wide = _flash_ram(build("mps2", load_robot_dir(write_chain_robot(tmp_path, 32))))
+    assert wide[0] > small[0] and wide[1] > small[1]  # more servos: more state, the wider codec
