@@ -12,7 +12,10 @@
    board's own statistics (printed on SIGTERM).
 3. TIME_SYNC round trip over the pty (host write -> board reply -> host read), realtime board.
 
-Run: ``.venv/bin/python bench/bench_board.py [--seconds 10] [--lockstep-only]``
+``--robot NAME`` (default: the default robot) picks whose board runs; the moving stream moves every
+servo of that robot (a 1 Hz sine of 0.2 rad around its neutral pose, clipped to the servo table's ranges).
+
+Run: ``.venv/bin/python bench/bench_board.py [--seconds 10] [--lockstep-only] [--robot NAME]``
 (``GHOSTSHELL_BOARD_KERNEL=python`` for the reference path; ``--profile FILE`` writes the pty board
 process's cProfile stats, timed by CPU time).
 """
@@ -41,42 +44,40 @@ from protocol.framing import Frame, FrameDecoder, encode_frame  # noqa: E402
 from protocol.messages import PROTOCOL_VERSION, Heartbeat, Hello, Telemetry, TimeSyncReply, TimeSyncRequest  # noqa: E402
 
 
-def bench_lockstep(sim_seconds: float = 30.0) -> None:
-    b = Board(BoardConfig(lockstep=True))
+def bench_lockstep(robot: str, sim_seconds: float = 30.0) -> None:
+    b = Board(BoardConfig(lockstep=True, robot=robot))
     b.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 0), 0)
     from protocol.messages import ServoFrame
 
-    # a moving stream (legs + head) at 50 Hz, fed 1 s ahead, so buffer and interpolation are exercised
-    neutral = np.array(b.table.neutral)
+    # a moving stream (every servo) at 50 Hz, fed 1 s ahead, so buffer and interpolation are exercised
     n_frames = int(sim_seconds * 50)
     t0, c0 = time.perf_counter(), time.process_time()
     for k in range(1, n_frames + 1):
-        b.handle(ServoFrame(k * 20_000, 0x0FFF, _stream_targets(neutral, k)), k)
+        b.handle(ServoFrame(k * 20_000, b.table.all_mask, _stream_targets(b, k)), k)
         if k % 50 == 0 or k == n_frames:
             while b.can_tick():
                 b.tick()
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     n = b.ticks
     kernel = "native (C)" if b.native is not None else "python"
-    print(f"lockstep core, {kernel} kernel: {n} ticks in {wall:.2f} s = {n / wall:,.0f} ticks/s, real-time factor {n * 0.002 / wall:.1f}x"
+    print(f"lockstep core ({robot}, {b.n} servos, scene {b.scene}), {kernel} kernel: {n} ticks in {wall:.2f} s = {n / wall:,.0f} ticks/s, real-time factor {n * 0.002 / wall:.1f}x"
           f" (CPU time {cpu:.2f} s = {n / cpu:,.0f} ticks/s, {n * 0.002 / cpu:.1f}x: what a busy machine hides)")
 
 
-def bench_kernels_ab(rounds: int = 7, frames: int = 500) -> None:
+def bench_kernels_ab(robot: str, rounds: int = 7, frames: int = 500) -> None:
     from protocol.messages import ServoFrame
 
     per_tick: dict[str, list[float]] = {"python": [], "native": []}
     for _ in range(rounds):
         for kernel, got in per_tick.items():
-            b = Board(BoardConfig(lockstep=True, kernel=kernel))
+            b = Board(BoardConfig(lockstep=True, kernel=kernel, robot=robot))
             if kernel == "native" and b.native is None:
                 print("kernels A/B: the native kernel is unavailable here (see the note above)")
                 return
             b.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 0), 0)
-            neutral = np.array(b.table.neutral)
             c0 = time.process_time()
             for k in range(1, frames + 1):
-                b.handle(ServoFrame(k * 20_000, 0x0FFF, _stream_targets(neutral, k)), k)
+                b.handle(ServoFrame(k * 20_000, b.table.all_mask, _stream_targets(b, k)), k)
                 if k % 50 == 0:
                     while b.can_tick():
                         b.tick()
@@ -88,20 +89,19 @@ def bench_kernels_ab(rounds: int = 7, frames: int = 500) -> None:
               f"median {mid * 1e6:.1f} us ({0.002 / mid:.0f}x), n = {rounds} x {frames * 10} ticks")
 
 
-def _stream_targets(neutral: np.ndarray, k: int) -> tuple[float, ...]:
-    """Frame ``k`` of the benchmark's moving stream (legs + head at 1 Hz)."""
-    q = neutral.copy()
-    s = np.sin(2 * np.pi * k / 50)
-    q[[0, 2, 4, 6]] += 0.2 * s
-    q[8] += 0.4 * s
-    return tuple(q)
+def _stream_targets(b: Board, k: int) -> tuple[float, ...]:
+    """Frame ``k`` of the benchmark's moving stream for ``b``'s robot: every servo at 1 Hz, 0.2 rad
+    around its neutral pose, clipped to the servo table's ranges (rad)."""
+    q = np.array(b.table.neutral) + 0.2 * np.sin(2 * np.pi * k / 50)
+    return tuple(np.clip(q, b.table.mins, b.table.maxs))
 
 
-def bench_lockstep_pty(sim_seconds: float = 30.0, profile: str | None = None) -> None:
+def bench_lockstep_pty(robot: str, sim_seconds: float = 30.0, profile: str | None = None) -> None:
     from protocol.messages import ServoFrame
 
-    proc, port = _start_board("--lockstep", head=("-c", _CPU_PROFILE, profile) if profile else ("-m", "firmware_sim"))
-    neutral = np.array(Board(BoardConfig(lockstep=True, kernel="python")).table.neutral)
+    proc, port = _start_board("--lockstep", "--robot", robot,
+                              head=("-c", _CPU_PROFILE, profile) if profile else ("-m", "firmware_sim"))
+    ref = Board(BoardConfig(lockstep=True, kernel="python", robot=robot))
     end_us, board_us, tel, k = int(sim_seconds * 1e6), 0, 0, 0
     try:
         with serial.Serial(port, 115200, timeout=0) as ser:
@@ -111,7 +111,7 @@ def bench_lockstep_pty(sim_seconds: float = 30.0, profile: str | None = None) ->
             while board_us < end_us - 20_000:
                 while k * 20_000 < min(board_us + 1_000_000, end_us):  # keep 1 s of frames ahead
                     k += 1
-                    ser.write(encode_frame(ServoFrame(k * 20_000, 0x0FFF, _stream_targets(neutral, k)), k))
+                    ser.write(encode_frame(ServoFrame(k * 20_000, ref.table.all_mask, _stream_targets(ref, k)), k))
                 select.select([ser.fileno()], [], [], 1.0)
                 for f in dec.feed(ser.read(65536)):
                     if isinstance(f, Frame) and isinstance(f.msg, Telemetry):
@@ -121,7 +121,7 @@ def bench_lockstep_pty(sim_seconds: float = 30.0, profile: str | None = None) ->
     finally:
         proc.send_signal(signal.SIGTERM)
         proc.communicate(timeout=60)
-    print(f"lockstep over pty: {board_us / 1e6:.1f} s simulated in {wall:.2f} s wall = {board_us / 1e6 / wall:.1f}x"
+    print(f"lockstep over pty ({robot}): {board_us / 1e6:.1f} s simulated in {wall:.2f} s wall = {board_us / 1e6 / wall:.1f}x"
           f" real time ({tel} TELEMETRY read; board process CPU time {cpu:.2f} s = {board_us / 1e6 / cpu:.1f}x)"
           f"{'; profile in ' + profile if profile else ''}")
 
@@ -156,8 +156,8 @@ def _start_board(*extra: str, head: tuple[str, ...] = ("-m", "firmware_sim")) ->
     return proc, line.removeprefix("board: listening on ")
 
 
-def bench_realtime(seconds: float) -> None:
-    proc, port = _start_board("--realtime")
+def bench_realtime(robot: str, seconds: float) -> None:
+    proc, port = _start_board("--realtime", "--robot", robot)
     tel = 0
     try:
         with serial.Serial(port, 115200, timeout=0) as ser:
@@ -188,23 +188,26 @@ def bench_realtime(seconds: float) -> None:
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=10)
     summary = [line for line in err.splitlines() if "lateness" in line]
-    print(f"realtime 500 Hz for {seconds:.0f} s: {summary[-1] if summary else err}")
+    print(f"realtime 500 Hz ({robot}) for {seconds:.0f} s: {summary[-1] if summary else err}")
     print(f"  telemetry received: {tel} ({tel / seconds:.1f}/s)")
     r = np.array(rtts) * 1e3
     print(f"  TIME_SYNC round trip over pty: p50 {np.percentile(r, 50):.2f} ms, p99 {np.percentile(r, 99):.2f} ms, max {r.max():.2f} ms")
 
 
 def main() -> None:
+    from robots.registry import DEFAULT_ROBOT
+
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--lockstep-only", action="store_true", help="skip the realtime pacing and round-trip parts")
     ap.add_argument("--profile", metavar="FILE", help="cProfile stats of the pty lockstep board process")
+    ap.add_argument("--robot", default=DEFAULT_ROBOT, help=f"whose board runs (default {DEFAULT_ROBOT})")
     args = ap.parse_args()
-    bench_lockstep()
-    bench_lockstep_pty(profile=args.profile)
-    bench_kernels_ab()
+    bench_lockstep(args.robot)
+    bench_lockstep_pty(args.robot, profile=args.profile)
+    bench_kernels_ab(args.robot)
     if not args.lockstep_only:
-        bench_realtime(args.seconds)
+        bench_realtime(args.robot, args.seconds)
 
 
 if __name__ == "__main__":

@@ -62,6 +62,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--watchdog-ms", type=_positive_int, default=200, metavar="MS",
                         help="link silence before holding position (default 200)")
     parser.add_argument("--log", default=None, metavar="FILE", help="write every frame in/out as JSON lines")
+    parser.add_argument("--objects-log", default=None, metavar="FILE",
+                        help="write the scene's movable objects' poses with every SIM_STATE as JSON lines "
+                             "(simulation ground truth for the video; see firmware_sim.objects_log; the Python board only: "
+                             "ignored with --firmware c|qemu)")
     parser.add_argument("--faults", default=None, metavar="SPEC",
                         help="inject link faults both ways (serial and CAN), e.g. drop=0.01,corrupt=0.01,dup=0.005,"
                              "reorder=0.005,truncate=P,delay=MS[±MS],cut=START+LEN (see protocol.faults)")
@@ -264,7 +268,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             link.close()
             print(f"board: cannot open the viewer: {e}", file=sys.stderr)
             return 2
-    server = BoardServer(board, link, viewer=viewer)
+    objects_log = None
+    if args.objects_log:
+        from firmware_sim.objects_log import ObjectsLog
+
+        try:
+            objects_log = ObjectsLog(args.objects_log, board)
+        except OSError as e:
+            link.close()
+            print(f"board: cannot write --objects-log {args.objects_log}: {e}", file=sys.stderr)
+            return 2
+    server = BoardServer(board, link, viewer=viewer, objects_log=objects_log)
     signal.signal(signal.SIGTERM, _raise_stop)
     signal.signal(signal.SIGINT, _raise_stop)
     if args.stop_on_stdin_eof:
@@ -305,5 +319,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"board: {note}", file=sys.stderr, flush=True)
         if viewer is not None:
             viewer.close()
+        if objects_log is not None:
+            objects_log.close()
         link.close()
     return 0

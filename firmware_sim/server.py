@@ -26,6 +26,7 @@ from typing import IO
 
 from firmware_sim.board import Board
 from firmware_sim.clock import RealtimeClock
+from firmware_sim.objects_log import ObjectsLog
 from firmware_sim.transports.base import BoardTransport
 from protocol.framing import DecodeError, Frame
 from protocol.messages import Message, SimState, Telemetry
@@ -49,8 +50,10 @@ class BoardServer:
         transport: BoardTransport,
         viewer: object | None = None,
         err: IO[str] | None = None,
+        objects_log: ObjectsLog | None = None,
     ) -> None:
         self.board = board
+        self.objects_log = objects_log
         self.transport = transport
         transport.log_time = self._t
         self.tx_seq = 0
@@ -90,6 +93,13 @@ class BoardServer:
                 continue
             tr.queue(m, self.tx_seq, now)
             self.tx_seq = (self.tx_seq + 1) & 0xFFFF
+
+    def _tick(self) -> None:
+        """One control tick; its reports go out (and the object poses into the objects log)."""
+        out = self.board.tick()
+        if self.objects_log is not None:
+            self.objects_log.record(out)
+        self.send(out)
 
     def _flush_tx(self) -> None:
         self.transport.flush(time.monotonic())
@@ -145,10 +155,15 @@ class BoardServer:
 
     def serve(self) -> None:
         """Run until :meth:`stop` (or an exception such as KeyboardInterrupt)."""
-        if self.clock is None:
-            self._serve_lockstep()
-        else:
-            self._serve_realtime()
+        try:
+            if self.clock is None:
+                self._serve_lockstep()
+            else:
+                self._serve_realtime()
+        finally:
+            # a lockstep board renders captures in this thread: free its GL contexts here, the thread
+            # that made them (a board served in a thread would otherwise free them from another one)
+            self.board.camera.close()
 
     def _serve_realtime(self) -> None:
         clock = self.clock
@@ -167,7 +182,7 @@ class BoardServer:
                 before = clock.next_tick
                 _, overran = clock.begin_tick()
                 skipped = clock.next_tick - before - 1
-                self.send(self.board.tick())
+                self._tick()
                 if self.board.watchdog_events:
                     self._report_watchdog()
                 if skipped:
@@ -185,7 +200,7 @@ class BoardServer:
         while self.running:
             ran = 0
             while self.running and self.board.can_tick() and self.backlog < LOCKSTEP_BACKLOG and ran < 256:
-                self.send(self.board.tick())
+                self._tick()
                 if self.board.watchdog_events:
                     self._report_watchdog()
                 ran += 1

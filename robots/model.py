@@ -9,7 +9,7 @@ the root's position and orientation either way (SIM_STATE and the IMU report it)
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import mujoco
@@ -76,13 +76,19 @@ class RobotModel:
         p, quat = data.xpos[b], data.xquat[b]
         return (float(p[0]), float(p[1]), float(p[2])), (float(quat[0]), float(quat[1]), float(quat[2]), float(quat[3]))
 
-    def set_state(self, data: mujoco.MjData, base: Sequence[float] | None, joints: Sequence[float]) -> None:
-        """Put a recorded state into ``data`` (base = x y z qw qx qy qz for a floating robot) and run
-        forward kinematics (for rendering)."""
+    def set_state(self, data: mujoco.MjData, base: Sequence[float] | None, joints: Sequence[float],
+                  objects: Mapping[str, Sequence[float]] | None = None) -> None:
+        """Put a recorded state into ``data`` (base = x y z qw qx qy qz for a floating robot; ``objects``:
+        movable scene objects' poses by name, x y z qw qx qy qz, others stay put) and run forward
+        kinematics (for rendering)."""
         r = self.root_qpos
         if r is not None and base is not None:
             data.qpos[r:r + 7] = base
         data.qpos[self.qpos_adr] = joints
+        for o in self.objects if objects else ():
+            pose = objects.get(o.name) if objects else None
+            if pose is not None and len(pose) == 7:
+                data.qpos[o.qpos_adr:o.qpos_adr + 7] = pose
         mujoco.mj_forward(self.model, data)
 
 

@@ -18,6 +18,8 @@ import numpy as np
 if TYPE_CHECKING:
     from robots.description import Robot
 
+#: the emulated board's object poses (``python -m firmware_sim --objects-log``, firmware_sim.objects_log)
+OBJECTS_LOG = "objects.jsonl"
 OUTCOMES = ("done", "failed", "cancelled", "interrupted", "pending", "timeout")
 
 

@@ -268,7 +268,8 @@ class RobotSession:
             log_suffix = link_kind(spec).log_suffix
             if emulate:
                 board_args = ["--lockstep" if opts.lockstep else "--realtime", "--robot", str(self.robot.root),
-                              "--log", str(self.out / f"board_frames{log_suffix}"), "--scene", self.scene]
+                              "--log", str(self.out / f"board_frames{log_suffix}"), "--scene", self.scene,
+                              "--objects-log", str(self.out / artefacts.OBJECTS_LOG)]
                 for push in opts.pushes:
                     board_args += ["--push", push]
                 if opts.wire_baud:

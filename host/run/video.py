@@ -12,7 +12,9 @@ A frame (640x480) is a third-person view that follows the robot (a free MuJoCo c
 looking at its base; distance and angles from the robot's ``[view]``), the robot's camera
 (its ``[peripherals] camera``, when it has one) as an inset, and a caption
 strip: the board time, the calls active on each channel (``timeline.json``) and
-the sentence being spoken. Frames are rendered offscreen (``MUJOCO_GL=egl`` unless
+the sentence being spoken. The scene's movable objects are drawn where the
+emulated board's objects log (``objects.jsonl``, :mod:`firmware_sim.objects_log`) puts them at each
+time, at their start poses when the run has none. Frames are rendered offscreen (``MUJOCO_GL=egl`` unless
 set) by a pool of worker processes (both cores by default; ``spawn``, so each
 worker opens its own GL context) and encoded to H.264 by the ffmpeg binary that
 the ``imageio-ffmpeg`` wheel ships. The sound (speech and music at the timeline's times) is then
@@ -64,11 +66,13 @@ class VideoSettings:
 @dataclass(frozen=True)
 class States:
     """Recorded simulation state: ``t`` (n,) board seconds, ``base`` (n, 7) pos + quat (w, x, y, z),
-    ``joints`` (n, 12) servo angles (rad, servo order)."""
+    ``joints`` (n, N) servo angles (rad, servo order); ``objects``: per sample the movable objects'
+    poses (name -> x y z qw qx qy qz), empty dicts when the run has no objects log."""
 
     t: np.ndarray
     base: np.ndarray
     joints: np.ndarray
+    objects: tuple[dict[str, list[float]], ...] = ()
 
 
 def load_states(run_dir: Path) -> States:
@@ -103,7 +107,31 @@ def load_states(run_dir: Path) -> States:
     bt = np.asarray(base_t)
     which = np.searchsorted(bt, np.asarray(times), side="right") - 1
     return States(np.asarray(times, dtype=float) * 1e-6, np.asarray([base[base_t[i]] for i in which]),
-                  np.asarray([joints[t] for t in times]))
+                  np.asarray([joints[t] for t in times]), _objects_at(run_dir, times))
+
+
+def _objects_at(run_dir: Path, times: Sequence[int]) -> tuple[dict[str, list[float]], ...]:
+    """The objects log's poses at each board time (us): the latest record at or before it."""
+    from host.run.artefacts import OBJECTS_LOG
+
+    path = run_dir / OBJECTS_LOG
+    if not path.exists():
+        return tuple({} for _ in times)
+    rec_t: list[int] = []
+    rec: list[dict[str, list[float]]] = []
+    with open(path, encoding="utf-8") as f:
+        for line in f:
+            try:
+                doc = json.loads(line)
+                t, poses = int(doc["t_us"]), {str(k): [float(x) for x in v] for k, v in doc["objects"].items()}
+            except (ValueError, KeyError, TypeError, AttributeError):
+                continue  # a torn last line (the board was stopped mid-write)
+            rec_t.append(t)
+            rec.append(poses)
+    if not rec:
+        return tuple({} for _ in times)
+    idx = np.searchsorted(np.asarray(rec_t), np.asarray(times), side="right") - 1
+    return tuple(rec[i] if i >= 0 else {} for i in idx)
 
 
 def _states_from_jsonl(path: Path) -> tuple[dict[int, list[float]], dict[int, list[float]]]:
@@ -266,14 +294,14 @@ def _setup_worker(settings: VideoSettings, scene: str, robot: str | None, robots
               lookat_z=float(view.get("lookat_z", 0.05)))
 
 
-def _render(job: tuple[float, np.ndarray, np.ndarray, str, str]) -> bytes:
+def _render(job: tuple[float, np.ndarray, np.ndarray, str, str, dict[str, list[float]]]) -> bytes:
     from PIL import Image, ImageDraw, ImageFont
 
     if "error" in _W:
         raise _W["error"]
-    t, base, joints, line, spoken = job
+    t, base, joints, line, spoken, objects = job
     data = _W["data"]
-    _W["rm"].set_state(data, base, joints)
+    _W["rm"].set_state(data, base, joints, objects)
     cam = _W["cam"]
     cam.lookat[:] = [base[0], base[1], max(_W["lookat_z"], base[2])]
     _W["main"].update_scene(data, cam)
@@ -312,13 +340,14 @@ def _fit(draw: Any, text: str, font: Any, width: int) -> str:
 
 
 def _jobs(states: States, calls: Sequence[_Call], fps: int, t0: float | None
-          ) -> Iterator[tuple[float, np.ndarray, np.ndarray, str, str]]:
+          ) -> Iterator[tuple[float, np.ndarray, np.ndarray, str, str, dict[str, list[float]]]]:
     start = states.t[0] if t0 is None else max(states.t[0], t0)
     times = np.arange(start, states.t[-1] + 1e-9, 1.0 / fps)
     idx = np.clip(np.searchsorted(states.t, times, side="right") - 1, 0, len(states.t) - 1)
     for t, i in zip(times, idx):
         line, spoken = caption_at(calls, float(t))
-        yield float(t - (t0 or 0.0)), states.base[i], states.joints[i], line, spoken
+        objects = states.objects[i] if states.objects else {}
+        yield float(t - (t0 or 0.0)), states.base[i], states.joints[i], line, spoken, objects
 
 
 def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings | None = None,

@@ -18,6 +18,7 @@ import pytest
 from host.link.board_process import start_board
 from protocol.framelog import iter_records
 from robots.generate import generate_package, install_package
+from robots.registry import BUILTIN_DIR
 from support.robot_samples import (RIG_ACTUATORS_XML, add_scan, cli, line_of, one_line_error, write_crawler,
                                    write_rig)
 
@@ -81,7 +82,8 @@ def test_new_honours_robots_dir_then_the_environment(tmp_path: Path) -> None:
     assert (env_dir / "a" / "robot.toml").is_file() and (flag_dir / "b" / "robot.toml").is_file()
     assert cli("robots", "path", data_home=tmp_path, env=env).stdout.strip() == str(env_dir)
     listing = cli("robots", "list", "--robots-dir", str(flag_dir), data_home=tmp_path, env=env).stdout
-    assert [line.split()[0] for line in listing.splitlines()[1:]] == ["b", "a", "coco"]  # search order
+    builtin = sorted(p.parent.name for p in BUILTIN_DIR.glob("*/robot.toml"))  # coco, arm, ...
+    assert [line.split()[0] for line in listing.splitlines()[1:]] == ["b", "a", *builtin]  # search order
 
 
 def test_list_marks_broken_and_shadowing_packages(tmp_path: Path) -> None:

@@ -313,3 +313,4 @@ def test_an_11_bit_sequence_coming_round_again_is_a_new_message() -> None:
     assert flushes == [(100, 1_000), (2148, 3_000), (2149, 4_000)]
     assert dec.errors[CanErrorKind.INCOMPLETE] == 1 and dec.errors[CanErrorKind.MIXED] == 0
     assert dec.duplicates == 0
+
