@@ -26,6 +26,7 @@ import numpy as np
 
 from host.link.board_process import start_board
 from host.link import BoardClient, host_now_us
+from protocol.linkkinds import link_kind
 from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
 from protocol.messages import ServoFrame
 from robots.registry import load_robot
@@ -78,7 +79,7 @@ def main() -> None:
     if a.telemetry_rate is None:
         # a 12-servo report is 17 classic CAN frames: 500 Hz would need ~115 % of a 1 Mbit/s bus, and the
         # lowest-priority ISO-TP flow control would starve behind it (the handshake fails); 100 Hz is ~23 %
-        a.telemetry_rate = 100 if spec.kind == "can" else 500
+        a.telemetry_rate = 100 if link_kind(spec).wire == "can" else 500
     args = ["--realtime", "--telemetry-rate", str(a.telemetry_rate)] + (["--baud", str(a.baud)] if a.baud else [])
     board = start_board(args, link=spec)
     print(f"board on {board.port} (link {spec}): {' '.join(args)}")

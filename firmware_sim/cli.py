@@ -186,6 +186,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from firmware_sim.config import BoardConfig, ConfigError
     from firmware_sim.server import BoardServer
     from firmware_sim.transports import open_board_transport
+    from protocol.linkkinds import link_kind
     from robots.description import RobotDataError
     from robots.registry import load_robot
 
@@ -212,7 +213,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         cfg.validate()
     except ConfigError as e:
         parser.error(str(e))
-    if args.link.kind == "can" and args.link.interface == "virtual":
+    kind = link_kind(args.link)
+    if not kind.cross_process:
         print(f"board: {args.link} is python-can's in-process virtual bus: a board process serving it could "
               "never be reached by a host in another process; use can:slcan:pty or can:socketcan:vcan0 "
               "(tests serve the virtual bus in-process with firmware_sim.transports.open_board_transport)",
@@ -221,7 +223,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         link = open_board_transport(args.link, baud=args.baud, log_path=args.log, servo_count=robot.servo_count)
     except Exception as e:
-        if args.link.kind == "can":
+        if kind.wire == "can":
             from protocol.can.bus_errors import describe_bus_open_error
 
             print(f"board: {describe_bus_open_error(args.link, e)}", file=sys.stderr)

@@ -112,8 +112,11 @@ class LinkSpec:
 
     @property
     def implies_emulated_board(self) -> bool:
-        """True where only an emulated board can serve the link: ``pty`` and ``can:slcan:pty``."""
-        return self.is_pty or (self.kind == "can" and self.interface == "slcan" and self.channel == "pty")
+        """True where only an emulated board can serve the link, which it creates: ``pty`` and
+        ``can:slcan:pty`` (:attr:`protocol.linkkinds.LinkKind.board_creates` of the spec's kind)."""
+        from protocol.linkkinds import link_kind  # the kinds table builds on this module
+
+        return link_kind(self).board_creates
 
     def with_port(self, port: str) -> LinkSpec:
         """The same spec on another port/channel (e.g. the pty a board announced)."""

@@ -19,7 +19,7 @@ stderr as the Python board prints them, ``F rx|tx T HEX`` records become the JSO
 
 The host link is the firmware's own UART pty (native), except with ``--faults`` or ``--baud``: then the
 line between host and firmware is modelled here (the Python board's
-:class:`firmware_sim.transports.serial.WireModel` and :class:`firmware_sim.transports.faulty.FaultyWire`
+:class:`protocol.wiremodel.WireModel` and :class:`firmware_sim.transports.faulty.FaultyWire`
 between two ptys), so the faults hit the firmware's UART as bytes on a bad wire would.
 
 SIM_STATE: the firmware forwards what the emulator-only probe device on its bus reports (ground
@@ -43,11 +43,13 @@ from typing import IO, Any
 from firmware_sim.cfirmware.build import BuildError, build, require
 from firmware_sim.plant.bus import PlantBus
 from firmware_sim.plant.world import World
-from firmware_sim.transports.serial import PtyPort, WireModel
-from protocol import framelog
+from firmware_sim.transports.ports import PtyPort
 from protocol.codec import WireSchema, schema_for
 from protocol.faults import FaultInjector, FaultSpec
+from protocol.linkkinds import link_kind
 from protocol.linkspec import LinkSpec
+from protocol.logfile import FrameLogWriter, open_frame_log
+from protocol.wiremodel import WireModel
 from robots.description import Robot
 
 __all__ = ["LaunchOptions", "run_firmware"]
@@ -174,7 +176,7 @@ class _LogReader:
         self.schema = schema  # the robot's wire schema: the firmware's frames are in it
         self.buf = bytearray()
         self.stats: dict[str, int] = {}
-        self.log: IO[str] | None = open(log_path, "w", buffering=1, encoding="utf-8") if log_path else None
+        self.log: FrameLogWriter | None = open_frame_log(log_path, "serial", schema=schema) if log_path else None
         self.lines = 0
         self.chardevs: dict[str, str] = {}  # QEMU's "char device redirected to X (label L)" (on its stdout)
         self.booted = False  # the firmware's boot line came (its devices are found)
@@ -199,12 +201,11 @@ class _LogReader:
             parts = text.split(" ")
             if len(parts) == 4 and parts[1] in ("rx", "tx"):
                 try:
-                    rec = framelog.record(parts[1], int(parts[2]) / 1e6, bytes.fromhex(parts[3]),
-                                          schema=self.schema)
+                    t, raw = int(parts[2]) / 1e6, bytes.fromhex(parts[3])
                 except ValueError:
                     print(f"board: unreadable frame record from the firmware: {text[:80]}", file=self.err, flush=True)
                     return
-                self.log.write(framelog.to_line(rec) + "\n")
+                self.log.write_serial(parts[1], t, raw)  # decoded here from the firmware's raw bytes
             return
         m = _CHARDEV.search(text)
         if m:
@@ -234,17 +235,18 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
     """Build, boot and serve until SIGTERM/SIGINT; 0, 1 (the firmware died) or 2 (cannot start)."""
     err = sys.stderr if err is None else err
     link = opts.link
-    if link is not None and link.kind != "serial":
-        print(f"board: the C firmware speaks the serial wire only; {link} is a CAN link", file=err)
+    kind = link_kind(link) if link is not None else None
+    if kind is not None and opts.firmware not in kind.firmwares:
+        print(f"board: the C firmware speaks the serial wire only; {link} is a {kind.wire.upper()} link", file=err)
         return 2
     port = link.port if link is not None else "pty"
     if (opts.faults is not None and opts.faults.active or opts.baud) and port != "pty":
         print("board: --faults and --baud with the C firmware need --link pty (the line is modelled between two ptys)",
               file=err)
         return 2
-    kind = "mps2" if opts.firmware == "qemu" else ("native-asan" if opts.asan else "native")
+    target = "mps2" if opts.firmware == "qemu" else ("native-asan" if opts.asan else "native")
     try:
-        exe = build(kind, opts.robot)
+        exe = build(target, opts.robot)
         if opts.firmware == "qemu":
             require("qemu-system-arm")
     except BuildError as e:

@@ -18,7 +18,7 @@ import time
 
 from firmware_sim.plant.bus import PlantBus
 from firmware_sim.plant.world import World
-from firmware_sim.transports.serial import PtyPort
+from firmware_sim.transports.ports import PtyPort
 
 __all__ = ["main", "serve"]
 

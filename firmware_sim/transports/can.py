@@ -1,12 +1,14 @@
 """The board's CAN transports: a python-can bus (SocketCAN, virtual, ...) or an SLCAN adapter on a pty.
 
-Both share :class:`CanBoardTransport`: fixed-layout frames are encoded and reassembled with
-:mod:`protocol.can` in the robot's layout table (:func:`protocol.can.layouts.can_layouts` for its
-``servo_count``; a message without a fixed layout in the link's frame kind, classic TELEMETRY above
-27 servos, goes as bulk; the board's node id selects its identifiers; the broadcast ESTOP 0x000 is
-honoured too), bulk messages travel over ISO-TP (:mod:`protocol.can.isotp_link`), and
-every frame sent and received is logged with python-can's writers (``can.Logger``: format by
-suffix, ``.log`` candump, ``.asc``, ``.blf``; timestamps are wall-clock seconds).
+Both share :class:`CanBoardTransport`, a thin adapter around the CAN wire engine shared with the
+host (:class:`protocol.can.engine.CanEngine`: fixed-layout frames and ISO-TP in the robot's layout
+table, :func:`protocol.can.layouts.can_layouts` for its ``servo_count``; a message without a fixed
+layout in the link's frame kind, classic TELEMETRY above 27 servos, goes as bulk; the board's node
+id selects its identifiers; the broadcast ESTOP 0x000 is honoured too). The board's own policy stays
+here: a CAN controller's transmit priority (lowest identifier first), periodic bulk reports (newest
+wins, sent only while a host is heard), NACKs without their detail text when they must be short.
+Every frame sent and received goes to the frame log chosen by suffix (:mod:`protocol.logfile`:
+python-can's writers, ``.log`` candump, ``.asc``, ``.blf``; wall-clock timestamps).
 
 * :class:`BusBoardTransport` opens ``can.Bus(**spec.bus_kwargs())`` (python-can's configuration
   fills in what the spec leaves out) with a filter on the node id. A refused send (SocketCAN
@@ -14,7 +16,8 @@ suffix, ``.log`` candump, ``.asc``, ``.blf``; timestamps are wall-clock seconds)
   at the head of the queue and retries after a backoff of 1 ms doubling to 20 ms (counted in
   ``tx_retries``): nothing is lost and frame order is kept.
 * :class:`SlcanBoardTransport` creates a pty and behaves as a USB-CAN adapter speaking SLCAN
-  (:mod:`firmware_sim.transports.slcan`), so the host uses python-can's own ``slcan`` interface.
+  (the device engine :class:`protocol.can.slcan.SlcanDevice`), so the host uses python-can's own
+  ``slcan`` interface.
 """
 
 from __future__ import annotations
@@ -27,38 +30,28 @@ import sys
 import time
 import tty
 from collections import deque
-from pathlib import Path
 from typing import Any
 
 import can
 
 from firmware_sim.transports.base import BoardTransport
-from firmware_sim.transports.slcan import SlcanDevice, format_frame
-from protocol.can import (
-    CanDecodeError,
-    CanDecoder,
-    CanFrame,
-    CanItem,
-    encode_bulk,
-    encode_fixed,
-    is_fixed,
-)
-from protocol.can.codec import Sender
-from protocol.can.decoder import CanErrorKind, as_frame_items
-from protocol.can.ids import FunctionCode, bulk_ids
-from protocol.can.isotp_link import IsoTpLink
+from protocol.can.engine import CanEngine
+from protocol.can.frame import CanFrame
+from protocol.can.ids import FunctionCode
 from protocol.can.layouts import CanLayouts, can_layouts
-from protocol.faults import FaultInjector
+from protocol.can.pycan import from_can_message, to_can_message
+from protocol.can.slcan import SlcanDevice, format_frame
 from protocol.codec import PayloadError
+from protocol.faults import FaultInjector
 from protocol.framing import DecodeError, DecodeErrorKind, Frame
 from protocol.linkspec import LinkSpec
+from protocol.logfile import FrameLogWriter, open_frame_log
 from protocol.messages import Message, MsgType, Nack, SimState, Telemetry
 
 __all__ = [
     "BusBoardTransport",
     "CanBoardTransport",
     "SlcanBoardTransport",
-    "open_can_board_transport",
     "to_can_message",
 ]
 
@@ -69,56 +62,19 @@ FAULTY_WINDOW = 32  # frames the tx fault injector released that may wait for th
 BACKOFF_MIN_S = 0.001
 BACKOFF_MAX_S = 0.02
 
-def to_can_message(frame: CanFrame, channel: str | None = None, is_rx: bool = False) -> can.Message:
-    return can.Message(
-        timestamp=time.time(),
-        arbitration_id=frame.arbitration_id,
-        data=frame.data,
-        is_fd=frame.is_fd,
-        is_extended_id=frame.is_extended_id,
-        is_remote_frame=frame.is_remote,
-        channel=channel,
-        is_rx=is_rx,
-        dlc=len(frame.data),
-    )
-
-
-def from_can_message(msg: can.Message) -> CanFrame:
-    return CanFrame(
-        int(msg.arbitration_id),
-        bytes(msg.data or b""),
-        is_fd=bool(msg.is_fd),
-        is_extended_id=bool(msg.is_extended_id),
-        is_remote=bool(msg.is_remote_frame),
-    )
-
-
-
-def open_can_logger(path: str | Path) -> Any:
-    """python-can's writer for ``path`` (format by suffix). A serial-style ``.jsonl`` name (what the
-    serial link would log) becomes the same name with ``.log`` (candump format)."""
-    p = Path(path)
-    if p.suffix.lower() == ".jsonl":
-        p = p.with_suffix(".log")
-    try:
-        return can.Logger(str(p))  # type: ignore[no-untyped-call]
-    except ValueError as e:
-        raise ValueError(f"cannot log CAN frames to {p}: {e} (use .log, .asc or .blf)") from None
-
 class CanBoardTransport(BoardTransport):
-    """Shared CAN logic; subclasses read and write frames."""
+    """Shared CAN logic over :class:`protocol.can.engine.CanEngine`; subclasses read and write frames."""
 
     def __init__(self, spec: LinkSpec, log_path: str | None = None, servo_count: int | None = None) -> None:
         super().__init__()
         self.spec = spec
         self.node = spec.node
         self.fd = spec.fd
+        self.framelog: FrameLogWriter | None = None
         self.channel_name = spec.channel or "can0"
         self.layouts: CanLayouts = can_layouts() if servo_count is None else can_layouts(servo_count)
-        self.decoder = CanDecoder(self.node, "board", self.layouts)
-        to_board, to_host = bulk_ids(self.node)
-        self.bulk_rx_id = to_board
-        self.isotp = IsoTpLink(rxid=to_board, txid=to_host, fd=self.fd, send=self._enqueue)
+        self.engine = CanEngine(self.node, "board", self.fd, self._enqueue, self.layouts)
+        self.engine.excuse_flow_control = self._unanswered_reports
         self._txq: list[tuple[int, int, CanFrame]] = []  # heap: (identifier, order, frame)
         self._order = 0
         self._retry_at: float | None = None
@@ -132,24 +88,46 @@ class CanBoardTransport(BoardTransport):
         self.host_heard = False  # a frame came from a host since the start, or since a periodic report went unanswered
         self.periodic_unheard = 0  # SIM_STATE reports not sent: no host heard yet (or it went away)
         self.periodic_unanswered = 0  # SIM_STATE transfers whose First Frame no host answered (flow control timeout)
-        self._isotp_errors_accounted = 0  # ISO-TP errors already reported as link errors, or explained
-        self._sdus: list[bytes] = []  # bulk messages ISO-TP completed, not yet delivered
+        self._items: list[Frame | DecodeError] = []  # what ISO-TP completed between receives (never dropped)
         self.periodic_replaced = 0
         self.nack_details_dropped = 0  # NACKs sent as one fixed frame without their detail text
         self.error_frames = 0
-        self.logger: Any = open_can_logger(log_path) if log_path else None
+        if log_path:
+            self.framelog = open_frame_log(log_path, "can", channel=self.channel_name)
         # link fault injection (``--faults``, firmware_sim.transports.faulty.install_faults)
         self.rx_faults: FaultInjector[CanFrame] | None = None
         self.tx_faults: FaultInjector[CanFrame] | None = None
         self._faulty_out: deque[CanFrame] = deque()  # frames the tx injector released, not yet written
+
+    @property
+    def channel_name(self) -> str:
+        """The bus as the frame log names it (the host's log names it the same way)."""
+        return self._channel_name
+
+    @channel_name.setter
+    def channel_name(self, name: str) -> None:
+        self._channel_name = name
+        if self.framelog is not None:
+            self.framelog.channel = name  # type: ignore[attr-defined]
+
+    @property
+    def decoder(self) -> Any:
+        """The engine's fixed-layout reassembler (its ``errors``, ``foreign``, ``duplicates`` counters)."""
+        return self.engine.decoder
+
+    @property
+    def isotp(self) -> Any:
+        """The engine's ISO-TP link."""
+        return self.engine.isotp
 
     # subclass hooks ------------------------------------------------------------------------
 
     def _read_frames(self) -> list[CanFrame]:
         raise NotImplementedError
 
-    def _write_frame(self, frame: CanFrame) -> bool:
-        """Hand one frame to the wire; False if it must be retried later (nothing sent)."""
+    def _write_frame(self, frame: CanFrame) -> bool | None:
+        """Hand one frame to the wire: True sent; False refused now (retried later); None the wire
+        cannot carry it (dropped and counted by the subclass: not logged, it never was on the bus)."""
         raise NotImplementedError
 
     def _wire_has_room(self) -> bool:
@@ -165,41 +143,23 @@ class CanBoardTransport(BoardTransport):
         self._order += 1
 
     def _log(self, frame: CanFrame, is_rx: bool) -> None:
-        if self.logger is not None:
-            self.logger.on_message_received(to_can_message(frame, self.channel_name, is_rx))
+        if self.framelog is not None:
+            self.framelog.write_can("rx" if is_rx else "tx", frame)
 
-    def _handle_frames(self, frames: list[CanFrame]) -> list[Frame | DecodeError]:
-        items: list[CanItem | CanDecodeError] = []
-        for f in frames:
-            self._log(f, True)
-            self.host_heard = True
-            if f.arbitration_id == self.bulk_rx_id and not f.is_extended_id:
-                self.isotp.feed(f)
-                continue
-            items += self.decoder.feed(f)
-        self._poll()
-        sdus, self._sdus = self._sdus, []
-        for sdu in sdus:
-            items.append(self.decoder.feed_bulk(sdu))
-        if self.isotp.errors > self._isotp_errors_accounted:
-            self._isotp_errors_accounted = self.isotp.errors
-            items.append(CanDecodeError(CanErrorKind.BULK, f"ISO-TP: {self.isotp.last_error}"))
-        return as_frame_items(items)
+    def _unanswered_reports(self, timeouts: int) -> int:
+        """A periodic report (SIM_STATE; bulk TELEMETRY) whose First Frame nobody answers is no link error:
+        no host is listening (it has not connected yet, or it went away mid-transfer). It is counted
+        (``periodic_unanswered``), and reports wait until a host is heard again."""
+        if not self._periodic_in_flight:
+            return 0
+        self.periodic_unanswered += timeouts
+        self.host_heard = False
+        return timeouts
 
     def _poll(self) -> None:
-        """Advance ISO-TP; bulk messages it completes wait in ``_sdus`` for :meth:`receive` (never dropped).
-
-        A periodic report (SIM_STATE; bulk TELEMETRY) whose First Frame nobody answers is no link error: no host is listening
-        (it has not connected yet, or it went away mid-transfer). It is counted
-        (``periodic_unanswered``), and reports wait until a host is heard again."""
-        fc_before = self.isotp.flow_control_timeouts
-        self._sdus += self.isotp.poll()
-        unanswered = self.isotp.flow_control_timeouts - fc_before
-        if unanswered and self._periodic_in_flight:
-            self.periodic_unanswered += unanswered
-            self._isotp_errors_accounted += unanswered
-            self.host_heard = False
-        if self._periodic_in_flight and not self.isotp.layer.transmitting():
+        """Advance ISO-TP; what it completes waits for :meth:`receive`."""
+        self._items += self.engine.poll()
+        if self._periodic_in_flight and not self.engine.isotp.layer.transmitting():
             self._periodic_in_flight = False
 
     def _take_line_errors(self) -> list[Frame | DecodeError]:
@@ -212,9 +172,17 @@ class CanBoardTransport(BoardTransport):
                 self.rx_faults.push(f, now)
             frames = self.rx_faults.pop_due(now)
         errors = self._take_line_errors()
-        if not frames and not self.isotp.busy and not self._sdus:
+        if not frames and not self.engine.busy and not self._items:
             return errors
-        return errors + self._handle_frames(frames)
+        for f in frames:
+            self._log(f, True)
+        if frames:
+            self.host_heard = True
+        items = self.engine.feed_many(frames)
+        if self._periodic_in_flight and not self.engine.isotp.layer.transmitting():
+            self._periodic_in_flight = False
+        taken, self._items = self._items, []
+        return errors + taken + items
 
     def queue(self, msg: Message, seq: int, now: float) -> None:
         if isinstance(msg, Nack) and msg.detail and self._nack_fixed(msg):
@@ -222,19 +190,18 @@ class CanBoardTransport(BoardTransport):
             msg = dataclasses.replace(msg, detail="")
             self.nack_details_dropped += 1
         try:
-            if is_fixed(msg, self.fd, self.layouts):
-                for f in encode_fixed(msg, seq, self.node, self.fd, Sender.BOARD, self.layouts):
-                    self._enqueue(f)
+            if self.engine.is_fixed(msg):
+                self.engine.send(msg, seq)
             elif isinstance(msg, (SimState, Telemetry)):
                 # periodic bulk (SIM_STATE; TELEMETRY too where it has no fixed layout): the newest
                 # report wins; it waits until the ISO-TP link is idle
                 kind = MsgType.SIM_STATE if isinstance(msg, SimState) else MsgType.TELEMETRY
                 if kind in self._periodic:
                     self.periodic_replaced += 1
-                self._periodic[kind] = encode_bulk(msg, seq, self.layouts.schema)
+                self._periodic[kind] = self.engine.encode_bulk(msg, seq)
                 self._start_periodic()
             else:
-                self.isotp.send(encode_bulk(msg, seq, self.layouts.schema))
+                self.engine.send(msg, seq)
                 self._poll()
         except (PayloadError, BufferError) as e:
             print(f"board: cannot send {type(msg).__name__} on CAN: {e}", file=sys.stderr, flush=True)
@@ -243,7 +210,7 @@ class CanBoardTransport(BoardTransport):
         """Send this NACK as one fixed frame, without its detail text? Yes for a refused SERVO_FRAME
         (up to one per frame, 100 Hz: as ISO-TP transfers they queued up behind each other under
         load, 256 of them, and telemetry waited) and whenever bulk messages are already waiting."""
-        return msg.msg_type == MsgType.SERVO_FRAME or self.isotp.layer.tx_queue.qsize() >= NACK_BULK_BACKLOG
+        return msg.msg_type == MsgType.SERVO_FRAME or self.engine.isotp.layer.tx_queue.qsize() >= NACK_BULK_BACKLOG
 
     def _start_periodic(self) -> None:
         if self._periodic and not self.host_heard:
@@ -252,14 +219,15 @@ class CanBoardTransport(BoardTransport):
             self.periodic_unheard += len(self._periodic)
             self._periodic.clear()
             return
-        if self._periodic and not self.isotp.layer.transmitting() and self.isotp.layer.tx_queue.empty():
+        layer = self.engine.isotp.layer
+        if self._periodic and not layer.transmitting() and layer.tx_queue.empty():
             sdu = self._periodic.pop(next(iter(self._periodic)))
-            self.isotp.send(sdu)
+            self.engine.send_bulk(sdu)
             self._periodic_in_flight = True
             self._poll()
 
     def flush(self, now: float) -> None:
-        if self.isotp.busy:
+        if self.engine.busy:
             self._poll()
         self._start_periodic()
         if self._retry_at is not None and now < self._retry_at:
@@ -267,18 +235,20 @@ class CanBoardTransport(BoardTransport):
         self._retry_at = None
         while self._txq and self._wire_has_room() and len(self._faulty_out) < FAULTY_WINDOW:
             f = self._txq[0][2]
-            if not self._emit(f, now):
+            sent = self._emit(f, now)
+            if sent is False:
                 self.tx_retries += 1
                 self._retry_at = now + self._backoff
                 self._backoff = min(self._backoff * 2, BACKOFF_MAX_S)
                 return
             heapq.heappop(self._txq)
-            self.tx_frames += 1
             self._backoff = BACKOFF_MIN_S
-            self._log(f, False)
+            if sent:
+                self.tx_frames += 1
+                self._log(f, False)
         self._drain_faulty(now)
 
-    def _emit(self, frame: CanFrame, now: float) -> bool:
+    def _emit(self, frame: CanFrame, now: float) -> bool | None:
         """Send one frame, through the tx fault injector when one is installed."""
         if self.tx_faults is None:
             return self._write_frame(frame)
@@ -290,14 +260,13 @@ class CanBoardTransport(BoardTransport):
         if self.tx_faults is None:
             return
         self._faulty_out.extend(self.tx_faults.pop_due(now))
-        while self._faulty_out and self._wire_has_room() and self._write_frame(self._faulty_out[0]):
+        while self._faulty_out and self._wire_has_room() and self._write_frame(self._faulty_out[0]) is not False:
             self._faulty_out.popleft()
 
     @property
     def backlog(self) -> int:
         # queued frames plus bulk messages still waiting in the ISO-TP layer (~one frame per 7 bytes)
-        pending_bulk = self.isotp.layer.tx_queue.qsize() + (1 if self.isotp.layer.transmitting() else 0)
-        return FRAME_COST * (len(self._txq) + len(self._faulty_out) + 8 * pending_bulk)
+        return FRAME_COST * (len(self._txq) + len(self._faulty_out) + 8 * self.engine.bulk_waiting)
 
     def next_io_time(self) -> float | None:
         due = [t for inj in (self.rx_faults, self.tx_faults) if inj is not None
@@ -306,7 +275,7 @@ class CanBoardTransport(BoardTransport):
             due.append(time.monotonic() + BACKOFF_MIN_S)
         if self._retry_at is not None:
             due.append(self._retry_at)
-        if self.isotp.busy or self._periodic:
+        if self.engine.busy or self._periodic:
             due.append(time.monotonic() + 0.002)
         return min(due) if due else None
 
@@ -320,12 +289,9 @@ class CanBoardTransport(BoardTransport):
                 f"away{lossy}); later reports waited until a host was heard again")
 
     def close(self) -> None:
-        if self.logger is not None:
-            try:
-                self.logger.stop()
-            except Exception:
-                pass
-            self.logger = None
+        if self.framelog is not None:
+            self.framelog.close()
+            self.framelog = None
 
 
 class BusBoardTransport(CanBoardTransport):
@@ -370,7 +336,7 @@ class BusBoardTransport(CanBoardTransport):
             out.append(from_can_message(msg))
         return out
 
-    def _write_frame(self, frame: CanFrame) -> bool:
+    def _write_frame(self, frame: CanFrame) -> bool | None:
         try:
             self.bus.send(to_can_message(frame, None), timeout=0)
         except can.CanOperationError as e:
@@ -428,10 +394,10 @@ class SlcanBoardTransport(CanBoardTransport):
         errs, self._line_errors = self._line_errors, []
         return [DecodeError(DecodeErrorKind.LENGTH, f"SLCAN: {e}", b"") for e in errs]
 
-    def _write_frame(self, frame: CanFrame) -> bool:
+    def _write_frame(self, frame: CanFrame) -> bool | None:
         if not self.device.is_open:
             self.dropped_closed += 1  # a closed adapter is not on the bus: the frame is lost
-            return True
+            return None
         self._out += format_frame(frame)
         return True
 
@@ -468,12 +434,3 @@ class SlcanBoardTransport(CanBoardTransport):
             except OSError:
                 pass
         super().close()
-
-
-def open_can_board_transport(spec: LinkSpec, *, log_path: str | None = None, **options: Any) -> CanBoardTransport:
-    """``can:slcan:pty`` -> :class:`SlcanBoardTransport`; any other CAN spec -> :class:`BusBoardTransport`
-    (options: ``bus=`` an open python-can bus, ``servo_count=`` the robot's)."""
-    servo_count = options.get("servo_count")
-    if spec.interface == "slcan" and spec.channel == "pty":
-        return SlcanBoardTransport(spec, log_path, servo_count)
-    return BusBoardTransport(spec, log_path, bus=options.get("bus"), servo_count=servo_count)

@@ -1,6 +1,6 @@
 """Fault injection on the board's serial link, both directions (``python -m firmware_sim --faults SPEC``).
 
-:class:`FaultyWire` wraps a :class:`firmware_sim.transports.serial.WireModel`: bytes the wire model
+:class:`FaultyWire` wraps a :class:`protocol.wiremodel.WireModel`: bytes the wire model
 releases are split into frames at the 0x00 delimiter (the wire unit of the serial protocol) and
 each frame goes through a seeded :class:`protocol.faults.FaultInjector` (drop, bit flip, duplicate,
 reorder, truncate, delay, cut). Installed on both the receive and the transmit wire of a

@@ -1,152 +1,26 @@
-"""The board's serial transport: a pty pair it creates, or an existing port / pyserial URL.
+"""The board's serial transport: a thin adapter from a byte port to the serial wire engines.
 
-:class:`SerialBoardTransport` (the :class:`firmware_sim.transports.base.BoardTransport`
-for serial) frames messages with :mod:`protocol.framing` (COBS + CRC), models wire
-time and writes the JSON-Lines frame log. Under it, :class:`PtyPort` / :class:`SerialPort`
-are non-blocking byte pipes. The wire-time model (:class:`WireModel`): a pty ignores baud
-rates, so with ``baud`` set every byte costs 10 bit times in each direction (start + 8
-data + stop).
+:class:`SerialBoardTransport` (the :class:`firmware_sim.transports.base.BoardTransport` for serial)
+reads and writes a non-blocking byte port (:mod:`firmware_sim.transports.ports`: a pty pair it
+creates, or an existing port / pyserial URL) and leaves everything else to the sans-I/O pieces of
+``protocol/``: framing (:func:`protocol.framing.encode_frame`, :class:`protocol.framing.FrameDecoder`),
+the wire-time model in each direction (:class:`protocol.wiremodel.WireModel`: with ``baud`` set,
+every byte costs 10 bit times) and the JSON-Lines frame log (:mod:`protocol.logfile`).
 """
 
 from __future__ import annotations
 
-import errno
-import os
 import sys
-import tty
-from collections import deque
-
-from typing import IO
-
-import serial
 
 from firmware_sim.transports.base import BoardTransport
-from protocol import framelog
-from protocol.codec import WIRE_SCHEMA_16, PayloadError, WireSchema, msg_type_of, schema_for
+from firmware_sim.transports.ports import open_port
+from protocol.codec import WIRE_SCHEMA_16, PayloadError, WireSchema, schema_for
 from protocol.framing import DecodeError, Frame, FrameDecoder, encode_frame
+from protocol.logfile import FrameLogWriter, open_frame_log
 from protocol.messages import Message
+from protocol.wiremodel import WireModel
 
-__all__ = ["BytePort", "PtyPort", "SerialBoardTransport", "SerialPort", "WireModel", "open_port"]
-
-
-class BytePort:
-    """Non-blocking byte pipe with an optional fd for select()."""
-
-    name: str = ""
-
-    def fileno(self) -> int | None:
-        raise NotImplementedError
-
-    def read(self) -> bytes:
-        """Bytes available now (b"" if none)."""
-        raise NotImplementedError
-
-    def write(self, data: bytes) -> int:
-        """Write what fits without blocking; returns the count written."""
-        raise NotImplementedError
-
-    def close(self) -> None:
-        raise NotImplementedError
-
-
-class PtyPort(BytePort):
-    """The master side of a pty pair created by the board; the slave stays open so it persists."""
-
-    def __init__(self) -> None:
-        self.master, self.slave = os.openpty()
-        tty.setraw(self.slave)  # no echo, no line editing: bytes pass untouched
-        os.set_blocking(self.master, False)
-        self.name = os.ttyname(self.slave)
-
-    def fileno(self) -> int:
-        return self.master
-
-    def read(self) -> bytes:
-        try:
-            return os.read(self.master, 65536)
-        except BlockingIOError:
-            return b""
-        except OSError as e:
-            if e.errno == errno.EIO:  # no slave open (cannot happen while we hold it)
-                return b""
-            raise
-
-    def write(self, data: bytes) -> int:
-        try:
-            return os.write(self.master, data)
-        except BlockingIOError:
-            return 0
-
-    def close(self) -> None:
-        for fd in (self.master, self.slave):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
-
-
-class SerialPort(BytePort):
-    """An existing serial device path or any pyserial URL (``socket://host:port``, ``loop://`` ...)."""
-
-    def __init__(self, url: str, baud: int) -> None:
-        self.ser = serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0)
-        self.name = url
-
-    def fileno(self) -> int | None:
-        try:
-            return self.ser.fileno()
-        except Exception:
-            sock = getattr(self.ser, "_socket", None)
-            return sock.fileno() if sock is not None else None
-
-    def read(self) -> bytes:
-        return bytes(self.ser.read(65536))
-
-    def write(self, data: bytes) -> int:
-        try:
-            n = self.ser.write(data)
-        except serial.SerialTimeoutException:
-            return 0
-        return len(data) if n is None else int(n)
-
-    def close(self) -> None:
-        self.ser.close()
-
-
-def open_port(port: str, baud: int | None) -> BytePort:
-    """``"pty"`` -> a new pty pair; anything else -> pyserial ``serial_for_url``."""
-    if port == "pty":
-        return PtyPort()
-    return SerialPort(port, baud or 115200)
-
-
-class WireModel:
-    """Serialises bytes on a modelled UART: each chunk finishes ``10 * n / baud`` s after the previous."""
-
-    def __init__(self, baud: int | None) -> None:
-        self.byte_time = 10.0 / baud if baud else 0.0
-        self.free_at = 0.0
-        self.queue: deque[tuple[float, bytes]] = deque()
-        self.bytes_queued = 0
-
-    def push(self, now: float, data: bytes) -> None:
-        if self.byte_time:
-            self.free_at = max(self.free_at, now) + len(data) * self.byte_time
-            release = self.free_at
-        else:
-            release = now
-        self.queue.append((release, data))
-        self.bytes_queued += len(data)
-
-    def next_release(self) -> float | None:
-        return self.queue[0][0] if self.queue else None
-
-    def pop_ready(self, now: float) -> bytes:
-        out = bytearray()
-        while self.queue and self.queue[0][0] <= now:
-            out += self.queue.popleft()[1]
-        self.bytes_queued -= len(out)
-        return bytes(out)
+__all__ = ["SerialBoardTransport"]
 
 
 class SerialBoardTransport(BoardTransport):
@@ -168,10 +42,10 @@ class SerialBoardTransport(BoardTransport):
         self.tx_wire = WireModel(baud)
         self.tx_pending = bytearray()
         self.unsendable = 0  # messages that did not encode (reported on stderr, not sent)
-        self._log: IO[str] | None = None
+        self.framelog: FrameLogWriter | None = None
         if log_path:
             try:
-                self._log = open(log_path, "w", buffering=1, encoding="utf-8")
+                self.framelog = open_frame_log(log_path, "serial", schema=self.schema)
             except OSError:
                 self.port.close()
                 raise
@@ -188,10 +62,10 @@ class SerialBoardTransport(BoardTransport):
         if not data:
             return []
         items = self.decoder.feed(data)
-        if self._log is not None and items:
+        if self.framelog is not None and items:
             t = self.log_time()
             for item in items:
-                self._log.write(framelog.to_line(framelog.record("rx", t, item.raw, item)) + "\n")
+                self.framelog.write_serial("rx", t, item.raw, item)
         return items
 
     def queue(self, msg: Message, seq: int, now: float) -> None:
@@ -203,9 +77,8 @@ class SerialBoardTransport(BoardTransport):
                 print(f"board: cannot send {type(msg).__name__}: {e} (further ones counted at exit)",
                       file=sys.stderr, flush=True)
             return
-        if self._log is not None:
-            item = Frame(seq & 0xFFFF, msg_type_of(msg), msg, raw)
-            self._log.write(framelog.to_line(framelog.record("tx", self.log_time(), raw, item)) + "\n")
+        if self.framelog is not None:
+            self.framelog.write_serial("tx", self.log_time(), raw)  # as the wire bytes decode
         self.tx_wire.push(now, raw)
 
     def exit_note(self) -> str | None:
@@ -233,7 +106,10 @@ class SerialBoardTransport(BoardTransport):
         return min(times) if times else None
 
     def close(self) -> None:
-        if self._log is not None:
-            self._log.close()
-            self._log = None
+        # what the board queued (and logged as sent) goes out now, as far as the port takes it without
+        # blocking: a frame in the log is a frame that went to the wire
+        self.flush(float("inf"))
+        if self.framelog is not None:
+            self.framelog.close()
+            self.framelog = None
         self.port.close()

@@ -15,6 +15,7 @@ import os
 import stat
 import sys
 
+from protocol.linkkinds import link_kind
 from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
 
 __all__ = ["LINK_HELP", "USAGE_STATUS", "add_link_argument", "link_exit_status", "link_spec_arg", "preflight_link",
@@ -52,7 +53,7 @@ def unreachable_link(spec: LinkSpec) -> str | None:
     that is already running, or the one ``--emulate-board`` would start) is never on it. It serves
     in-process use only (tests put a board on it with ``firmware_sim.transports.open_board_transport``).
     """
-    if spec.kind == "can" and spec.interface == "virtual":
+    if not link_kind(spec).cross_process:
         return (f"--link {spec} is python-can's virtual bus, which exists only inside one process: no board "
                 "process can be on it (with or without --emulate-board); use can:slcan:pty (the emulated board as "
                 "an SLCAN adapter) or can:socketcan:vcan0 --emulate-board (the virtual bus is for in-process use)")
@@ -72,7 +73,8 @@ def preflight_link(spec: LinkSpec, *, emulated: bool = False) -> str | None:
     """
     if emulated:
         return None
-    path = spec.port if spec.kind == "serial" and "://" not in spec.port else None
+    check = link_kind(spec).preflight
+    path = spec.port if check == "device" and "://" not in spec.port else None
     if path is not None and os.name == "posix":
         try:
             mode = os.stat(path).st_mode
@@ -87,7 +89,7 @@ def preflight_link(spec: LinkSpec, *, emulated: bool = False) -> str | None:
             return (f"--link {spec}: {path!r} is a {kind}, not a serial device (a character device such as "
                     "/dev/ttyUSB0 or /dev/pts/N)")
         return None
-    if spec.kind == "can" and spec.interface == "socketcan":
+    if check == "open":
         from host.link.errors import LinkConfigError
         from host.link.transports.can import open_bus
 

@@ -15,6 +15,7 @@ import sys
 from typing import IO
 
 from host.commands.linkarg import add_link_argument
+from protocol.linkkinds import link_kind
 
 __all__ = ["configure", "decode_file", "decode_mcap_file", "main"]
 
@@ -142,13 +143,14 @@ def main(args: argparse.Namespace) -> int:
                   f"{', '.join(known)}", file=sys.stderr)
             return 2
 
-    is_can = (args.link is not None and args.link.kind == "can") or (
+    link_is_can = args.link is not None and link_kind(args.link).wire == "can"
+    is_can = link_is_can or (
         args.link is None and args.file.lower().endswith(CAN_LOG_SUFFIXES))
     try:
         if is_can:
             from host.commands.canlog_decode import decode_can_file
 
-            node = args.link.node if args.link is not None and args.link.kind == "can" else None
+            node = args.link.node if link_is_can else None
             return decode_can_file(args.file, sys.stdout, sys.stderr, types=args.type, node=node)
         return decode_file(args.file, types=args.type)
     except BrokenPipeError:  # e.g. piped into head

@@ -241,13 +241,15 @@ def check_run_args(args: argparse.Namespace) -> int | None:
         return USAGE_STATUS
     firmware = getattr(args, "firmware", "python")
     if firmware != "python":
+        from protocol.linkkinds import link_kind
         from protocol.linkspec import LinkSpecError, parse_link_spec
 
         try:
             spec = parse_link_spec(args.link)
         except LinkSpecError:
             spec = None
-        if spec is not None and not (spec.kind == "serial" and (args.emulate_board or spec.implies_emulated_board)):
+        if spec is not None and not (firmware in link_kind(spec).firmwares
+                                     and (args.emulate_board or spec.implies_emulated_board)):
             print(f"ghostshell: --firmware {firmware} runs the emulated board this run starts on a serial link "
                   f"(--link pty); {args.link} is not one", file=sys.stderr)
             return USAGE_STATUS

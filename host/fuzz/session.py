@@ -71,8 +71,7 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
         sync: asyncio.Future[object] = loop.create_future()
         client._pending[7] = ack
         client._pending[9] = cap
-        client._captures[1] = {}
-        client._capture_seq[1] = 9
+        client.camera.start(1, 9)
         client._sync_pending[1000] = sync  # type: ignore[assignment]
         on_chunk = client._on_chunk
 
@@ -80,7 +79,7 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
             was_done = cap.done()
             on_chunk(msg)
             if cap.done() and not was_done and cap.exception() is None:
-                parts, total = client._captures[1], client._capture_total.get(1, msg.total)
+                parts, total = client.camera.parts[1], client.camera.totals.get(1, msg.total)
                 missing = [i for i in range(total) if i not in parts]
                 assert not missing, f"a partial image surfaced: chunks {missing} of {total} missing"
 

@@ -31,6 +31,13 @@ it and keeps the session alive:
   (a serial port may be a callable re-resolved on every attempt), then re-handshakes
   and re-syncs; calls made meanwhile raise :class:`LinkDown`.
 
+The parts are objects of their own, as python-can splits Bus, Notifier and Listener: the session
+(:class:`BoardClient`) numbers, sends and matches ACK/NACK to requests; the supervisor
+(:class:`host.link.supervisor.Supervisor`) does the handshake, time sync, heartbeat and reconnect;
+telemetry fan-out and fault edges are a listener (:class:`host.link.telemetry.TelemetryFanout`);
+camera images are reassembled by :class:`host.link.camera.CameraAssembler`; the frame log is the
+transport's (:mod:`protocol.logfile`); received messages go to their handler through a table.
+
 Background tasks (supervisor, heartbeat, sync) run in an ``asyncio.TaskGroup`` the
 session enters in :meth:`BoardClient.open` and leaves in :meth:`BoardClient.close`
 (call both from the same task, e.g. ``async with``); they never raise.
@@ -60,18 +67,18 @@ from host.link.errors import (
     LinkError,
     LinkTimeout,
     NackError,
-    RobotMismatch,
     SchemaMismatch,
 )
+from host.link.camera import CameraAssembler
+from host.link.supervisor import RobotIdentity, Supervisor, host_now_us
+from host.link.telemetry import FAULT_BITS, FaultEvent, TelemetryFanout
+from host.link.telemetry import flag_names as _flag_names
 from host.link.timesync import ClockEstimate, ClockSync
 from host.link.transports import Transport, open_transport
 from protocol.codec import (
-    MAX_RESEND_BITMAP,
     WIRE_SCHEMA_16,
-    WIRE_SCHEMAS,
     WireBoundError,
     WireSchema,
-    schema_by_hash,
     schema_for,
 )
 from protocol.faults import GapDetector
@@ -91,8 +98,6 @@ from protocol.messages import (
     EstopClear,
     FaultFlags,
     Flush,
-    Heartbeat,
-    Hello,
     Message,
     MsgType,
     Nack,
@@ -106,56 +111,16 @@ from protocol.messages import (
     SpeakerCommand,
     Telemetry,
     TimeSyncReply,
-    TimeSyncRequest,
 )
 
 __all__ = ["FAULT_BITS", "BoardClient", "FaultEvent", "LinkStats", "LinkTarget", "RobotIdentity", "host_now_us"]
 
 log = logging.getLogger("host.link")
-#: TIME_SYNC exchanges tried at connect before the link counts as failed (each waits 0.5, 1, then 2 s)
-SYNC_ATTEMPTS = 6
-#: telemetry bits that are reported as fault edges
-FAULT_BITS = FaultFlags.ESTOP | FaultFlags.WATCHDOG_HOLD | FaultFlags.WATCHDOG_FAULT | FaultFlags.SERVO_FAULT
 
 #: what a client connects to: a link spec (text or parsed), or a callable giving one, re-resolved on
 #: every reconnect attempt (serial links: a board that comes back on another pty)
 LinkTarget = LinkSpec | str | Callable[[], LinkSpec | str]
 PortSpec = LinkTarget  # old name
-
-
-def host_now_us() -> int:
-    """The host clock used for time sync: ``time.monotonic`` in integer microseconds."""
-    return time.monotonic_ns() // 1000
-
-
-@dataclass(frozen=True)
-class RobotIdentity:
-    """What the host expects CAPS to report: the robot's name, servo count and servo table hash (u32)."""
-
-    name: str
-    servo_count: int
-    servo_table_hash: int
-
-    def __str__(self) -> str:
-        return f"{self.name!r} ({self.servo_count} servos, servo table {self.servo_table_hash:#010x})"
-
-
-@dataclass(frozen=True)
-class FaultEvent:
-    """A change of the telemetry fault bits in :data:`FAULT_BITS`."""
-
-    board_time_us: int
-    host_time: float
-    before: FaultFlags
-    after: FaultFlags
-
-    @property
-    def raised(self) -> FaultFlags:
-        return FaultFlags(self.after & ~self.before)
-
-    @property
-    def cleared(self) -> FaultFlags:
-        return FaultFlags(self.before & ~self.after)
 
 
 @dataclass
@@ -171,10 +136,6 @@ class LinkStats:
     retries: int = 0  # requests re-sent because no ACK/NACK came in time (a lost frame either way)
     seq_gaps: int = 0  # board messages never received (gaps in the board's sequence numbers), since the handshake
     last_decode_error: str = ""  # kind and detail of the latest undecodable item, for reports
-
-
-def _flag_names(f: FaultFlags) -> str:
-    return "|".join(e.name or "" for e in FaultFlags if e.value and f & e) or "NONE"
 
 
 class BoardClient:
@@ -242,11 +203,9 @@ class BoardClient:
         self._rx_gaps = GapDetector()
         self.clock = ClockSync()
         self.stats = LinkStats()
-        self.latest_telemetry: Telemetry | None = None
+        #: the TELEMETRY listener: latest report, fault edges, subscribers, waiters (host.link.telemetry)
+        self.fanout = TelemetryFanout(telemetry_queue)
         self.latest_sim_state: SimState | None = None
-        self.faults = FaultFlags.NONE
-        self.fault_events: deque[FaultEvent] = deque(maxlen=256)
-        self.on_fault: list[Callable[[FaultEvent], None]] = []
         self.on_nack: list[Callable[[Nack], None]] = []
         #: the board's latest NACK SERVO_FAULT (its detail names the servo that stopped answering on its bus)
         self.servo_fault: Nack | None = None
@@ -263,16 +222,12 @@ class BoardClient:
         self._closing = False
         self._last_tx = 0.0
         self._board_time_seen = 0
-        self._hello_fut: asyncio.Future[Caps] | None = None
         self._pending: dict[int, asyncio.Future[Any]] = {}  # wire seq -> ACK (or image) future
-        self._sync_pending: dict[int, asyncio.Future[tuple[TimeSyncReply, int]]] = {}
         self._frame_nacks: OrderedDict[int, Nack] = OrderedDict()
         self._nack_waiters: list[tuple[int, asyncio.Future[Nack | None]]] = []
-        self._tele_waiters: list[tuple[Callable[[Telemetry], bool], asyncio.Future[Telemetry]]] = []
-        self._subs: set[asyncio.Queue[Telemetry]] = set()
-        self._captures: dict[int, dict[int, bytes]] = {}
-        self._capture_total: dict[int, int] = {}  # request id -> chunk count (from its first chunk)
-        self._capture_seq: dict[int, int] = {}
+        self.camera = CameraAssembler()  # camera captures in progress (host.link.camera)
+        #: handshake, time sync, heartbeat, reconnect (host.link.supervisor)
+        self.supervisor = Supervisor(self)
         self._next_request_id = 1
         self._connected = asyncio.Event()
         self._lost = asyncio.Event()
@@ -297,14 +252,14 @@ class BoardClient:
 
     async def open(self) -> None:
         """First connection (no retries: a wrong port should fail fast), then the background tasks."""
-        await self._connect_once()
+        await self.supervisor.connect_once()
         tg = asyncio.TaskGroup()
         await tg.__aenter__()
         self._tg = tg
         self._tasks = [
-            tg.create_task(self._guarded(self._supervise), name="link-supervisor"),
-            tg.create_task(self._guarded(self._heartbeat_loop), name="link-heartbeat"),
-            tg.create_task(self._guarded(self._sync_loop), name="link-sync"),
+            tg.create_task(self._guarded(self.supervisor.supervise), name="link-supervisor"),
+            tg.create_task(self._guarded(self.supervisor.heartbeat_loop), name="link-heartbeat"),
+            tg.create_task(self._guarded(self.supervisor.sync_loop), name="link-sync"),
         ]
 
     async def _guarded(self, loop: Callable[[], Any]) -> None:
@@ -352,6 +307,26 @@ class BoardClient:
     def lockstep(self) -> bool:
         return bool(self.caps and self.caps.lockstep)
 
+    @property
+    def latest_telemetry(self) -> Telemetry | None:
+        """The latest TELEMETRY report (None before the first)."""
+        return self.fanout.latest
+
+    @property
+    def faults(self) -> FaultFlags:
+        """The fault bits of :data:`FAULT_BITS` in the latest report."""
+        return self.fanout.faults
+
+    @property
+    def fault_events(self) -> deque[FaultEvent]:
+        """The latest 256 fault edges."""
+        return self.fanout.fault_events
+
+    @property
+    def on_fault(self) -> list[Callable[[FaultEvent], None]]:
+        """Callbacks called with every fault edge (append to it)."""
+        return self.fanout.on_fault
+
     async def wait_connected(self, timeout: float) -> None:
         """Wait until the link is up (e.g. after a reconnect); :class:`LinkTimeout` otherwise."""
         try:
@@ -389,100 +364,6 @@ class BoardClient:
                 raise LinkDown(f"cannot open {self._port}: {e}") from None
         return self._transport
 
-    async def _connect_once(self) -> None:
-        transport = self._get_transport()
-        if self.robot is not None:
-            transport.set_servo_count(self.robot.servo_count)
-        self._lost.clear()
-        await transport.connect(self._on_items, self._on_lost)
-        self.port_name = port = transport.name  # a callable spec resolves on connect
-        self.link_spec = transport.link_spec
-        try:
-            caps = await self._handshake()
-            self.caps = caps
-            self._rx_gaps = GapDetector()  # the board's numbering as from this connection
-            self._board_time_seen = caps.board_time_us
-            self.clock.clear()
-            self._ready = True
-            await self._sync_burst()
-        except BaseException:
-            self._ready = False
-            transport.disconnect()
-            raise
-        self._connected.set()
-        log.info(
-            "link up on %s: protocol v%d, %d servos, %d Hz, %s", port, caps.protocol_version,
-            caps.servo_count, caps.control_rate_hz, "lockstep" if caps.lockstep else "realtime",
-        )
-
-    async def _hello(self, schema_hash: int) -> Caps:
-        """HELLO with ``schema_hash`` until CAPS (re-sent a few times within the timeout: one lost
-        frame, either way, must not fail the handshake); a NACK raises (:class:`SchemaMismatch`)."""
-        loop = asyncio.get_running_loop()
-        fut: asyncio.Future[Caps] = loop.create_future()
-        self._hello_fut = fut
-        try:
-            tries = 4
-            for _ in range(tries):
-                self._send(Hello(self.protocol_version, schema_hash, host_now_us()))
-                try:
-                    return await asyncio.wait_for(asyncio.shield(fut), self.handshake_timeout / tries)
-                except TimeoutError:
-                    continue
-            if not fut.done():
-                fut.cancel()
-            raise HandshakeError(
-                f"no CAPS from {self.port_name!r} within {self.handshake_timeout} s: "
-                "is a GhostShell board (ghostshell board, python -m firmware_sim) serving this port?"
-            ) from None
-        finally:
-            self._hello_fut = None
-
-    async def _handshake(self) -> Caps:
-        # the robot's schema first (pinned: only it); then, after a SCHEMA_MISMATCH, every other one
-        # this build speaks (module docstring)
-        first = self.schema_hash if self._schema_pinned else self.schema.hash
-        hashes = [first] + ([] if self._schema_pinned else [s.hash for s in WIRE_SCHEMAS if s.hash != first])
-        caps = None
-        refused: SchemaMismatch | None = None
-        for h in hashes:
-            try:
-                caps = await self._hello(h)
-            except SchemaMismatch as e:
-                refused = refused or e
-                continue
-            break
-        if caps is None:
-            assert refused is not None
-            raise refused
-        if caps.protocol_version != self.protocol_version:
-            raise HandshakeError(
-                f"board speaks protocol v{caps.protocol_version}, host v{self.protocol_version}: "
-                "update the host or the board firmware so both match"
-            )
-        if caps.schema_hash != h:
-            raise HandshakeError(
-                f"schema mismatch: board {caps.schema_hash:#010x}, host {h:#010x}: "
-                "host and board were built from different protocol definitions; update one side"
-            )
-        want = self.robot
-        board = RobotIdentity(caps.robot, caps.servo_count, caps.servo_table_hash)
-        if want is not None and board != want:
-            raise RobotMismatch(
-                f"the board on {self.port_name} drives robot {board}, but this host was started for {want}: "
-                "start host and board with the same --robot (and the same robot files)")
-        try:
-            board_schema = schema_for(caps.servo_count)
-        except WireBoundError as e:
-            raise HandshakeError(f"the board on {self.port_name} reports robot {board}: {e}") from None
-        if schema_by_hash(h) not in (None, board_schema):
-            raise HandshakeError(f"the board on {self.port_name} reports robot {board} but speaks the wire schema "
-                                 f"{h:#010x} of another servo count ({board_schema!r} expected): a broken board build")
-        if self._transport is not None:
-            self._transport.set_servo_count(caps.servo_count)
-        self.schema_hash = h
-        return caps
-
     def _on_lost(self, reason: str) -> None:
         was_ready = self._ready
         self._ready = False
@@ -494,41 +375,15 @@ class BoardClient:
         self._lost.set()
 
     def _fail_pending(self, exc: LinkError) -> None:
-        futs = [*self._pending.values(), *self._sync_pending.values(), *(f for _, f in self._nack_waiters)]
-        if self._hello_fut is not None:
-            futs.append(self._hello_fut)
+        futs = [*self._pending.values(), *self.supervisor.waiting(), *(f for _, f in self._nack_waiters)]
         for fut in futs:
             if not fut.done():
                 fut.set_exception(exc)
                 fut.exception()  # mark retrieved: nobody may be awaiting it
         self._pending.clear()
-        self._sync_pending.clear()
+        self.supervisor.sync_pending.clear()
         self._nack_waiters.clear()
-        self._captures.clear()
-        self._capture_total.clear()
-        self._capture_seq.clear()
-
-    async def _supervise(self) -> None:
-        while not self._closing:
-            await self._lost.wait()
-            if self._closing or not self.reconnect:
-                return
-            delay = 0.05
-            while not self._closing:
-                await asyncio.sleep(delay)  # backoff between attempts (not synchronisation)
-                try:
-                    await self._connect_once()
-                except LinkError as e:
-                    log.debug("reconnect to %s failed: %s", self.port_name, e)
-                    self.last_reconnect_error = str(e)  # the loss's own cause stays in last_disconnect_reason
-                    delay = min(self.reconnect_max_s, delay * 2)
-                    continue
-                self.stats.reconnects += 1
-                self.last_reconnect_error = ""
-                log.warning("link to %s re-established (reconnect #%d)", self.port_name, self.stats.reconnects)
-                for cb in list(self.on_reconnect):
-                    cb(self)
-                break
+        self.camera.clear()
 
     # --- sending ---------------------------------------------------------------------------
 
@@ -567,10 +422,7 @@ class BoardClient:
         if old is not None and not old.done():
             old.set_exception(LinkTimeout(f"no reply for seq {seq} before the sequence number came round again"))
             old.exception()
-        for rid, cseq in list(self._capture_seq.items()):
-            if cseq == seq:
-                del self._capture_seq[rid]
-                self._captures.pop(rid, None)
+        self.camera.forget_seq(seq)
 
     def _require_ready(self) -> None:
         if not self._ready:
@@ -706,11 +558,9 @@ class BoardClient:
         self._next_request_id = (rid + 1) & 0xFFFFFFFF or 1
         fut: asyncio.Future[bytes] = asyncio.get_running_loop().create_future()
         request = CameraCapture(rid, int(width), int(height))
-        parts: dict[int, bytes] = {}
-        self._captures[rid] = parts
         seqs = [self._send(request)]
         self._pending[seqs[0]] = fut
-        self._capture_seq[rid] = seqs[0]
+        parts = self.camera.start(rid, seqs[0])
         deadline = time.monotonic() + timeout
         try:
             while True:
@@ -723,71 +573,42 @@ class BoardClient:
                 except TimeoutError:
                     if len(parts) != have:
                         continue  # chunks are still arriving
-                total = self._capture_total.get(rid)
-                if total is None:  # nothing arrived: the request or every chunk was lost
+                gap = self.camera.missing(rid)
+                if gap is None:  # nothing arrived: the request or every chunk was lost
                     seq = self._send(request)
                     seqs.append(seq)
                     self._pending[seq] = fut
                 else:
-                    missing = [i for i in range(total) if i not in parts]
-                    first = missing[0]
-                    wanted = bytearray((min(missing[-1] - first, MAX_RESEND_BITMAP * 8 - 1) >> 3) + 1)
-                    for i in missing:
-                        if i - first < len(wanted) * 8:
-                            wanted[(i - first) >> 3] |= 1 << ((i - first) & 7)
-                    self._send(CameraResend(rid, first, bytes(wanted)))
+                    self._send(CameraResend(rid, *gap))
                 self.stats.retries += 1
         except TimeoutError:
-            got = f"{len(parts)} of {self._capture_total[rid]} chunks" if rid in self._capture_total else "no chunk"
-            raise LinkTimeout(f"camera image {rid} incomplete after {timeout} s ({got})") from None
+            raise LinkTimeout(f"camera image {rid} incomplete after {timeout} s ({self.camera.describe(rid)})") from None
         finally:
             for seq in seqs:
                 if self._pending.get(seq) is fut:
                     del self._pending[seq]
             if not fut.done():
                 fut.cancel()
-            self._captures.pop(rid, None)
-            self._capture_seq.pop(rid, None)
-            self._capture_total.pop(rid, None)
+            self.camera.drop(rid)
 
     #: wall seconds without a new camera chunk before the host asks again (a render takes ~0.1 s)
     CAPTURE_STALL_S = 0.4
 
     # --- time ------------------------------------------------------------------------------
 
+    # --- time (the supervisor's) -------------------------------------------------------------
+
     async def sync_once(self, timeout: float = 0.5) -> tuple[int, int, int, int]:
         """One TIME_SYNC exchange; returns ``(t1, t2, t3, t4)`` and feeds the estimator (realtime)."""
-        loop = asyncio.get_running_loop()
-        t1 = host_now_us()
-        while t1 in self._sync_pending:
-            t1 += 1
-        fut: asyncio.Future[tuple[TimeSyncReply, int]] = loop.create_future()
-        self._sync_pending[t1] = fut
-        try:
-            self._send(TimeSyncRequest(t1))
-            reply, t4 = await asyncio.wait_for(fut, timeout)
-        except TimeoutError:
-            raise LinkTimeout(f"no TIME_SYNC reply within {timeout} s") from None
-        finally:
-            self._sync_pending.pop(t1, None)
-        self._board_time_seen = max(self._board_time_seen, reply.t3_board_us)
-        if not self.lockstep:
-            self.clock.add(t1, reply.t2_board_us, reply.t3_board_us, t4)
-        return t1, reply.t2_board_us, reply.t3_board_us, t4
+        return await self.supervisor.sync_once(timeout)
 
-    async def _sync_burst(self) -> None:
-        for _ in range(self.sync_burst if not self.lockstep else 1):
-            # a lost probe or reply costs a retry, not the connection (at 5 % frame loss a classic-CAN
-            # exchange of 6 frames fails 1 time in 4, three in a row 1 in 50); a board slow to answer (a
-            # loaded machine, a board still loading its model) gets longer each time: 0.5, 1, 2, 2, 2, 2 s
-            for attempt in range(SYNC_ATTEMPTS):
-                try:
-                    await self.sync_once(timeout=min(2.0, 0.5 * 2**attempt))
-                    break
-                except LinkTimeout:
-                    if attempt == SYNC_ATTEMPTS - 1:
-                        raise
-                    self.stats.retries += 1
+    async def _connect_once(self) -> None:
+        """Connect, handshake and sync once (:meth:`host.link.supervisor.Supervisor.connect_once`)."""
+        await self.supervisor.connect_once()
+
+    @property
+    def _sync_pending(self) -> dict[int, asyncio.Future[tuple[TimeSyncReply, int]]]:
+        return self.supervisor.sync_pending
 
     @property
     def clock_estimate(self) -> ClockEstimate | None:
@@ -809,22 +630,6 @@ class BoardClient:
             return self._board_time_seen
         return self.host_to_board(host_now_us())
 
-    # --- background loops -----------------------------------------------------------------
-
-    async def _heartbeat_loop(self) -> None:
-        while True:
-            await asyncio.sleep(self.heartbeat_s / 2)
-            if self._ready and self.keepalive and time.monotonic() - self._last_tx >= self.heartbeat_s:
-                with contextlib.suppress(LinkError):
-                    self._send(Heartbeat(host_now_us()))
-
-    async def _sync_loop(self) -> None:
-        while True:
-            await asyncio.sleep(self.sync_interval_s)
-            if self._ready and self.keepalive and not self.lockstep:
-                with contextlib.suppress(LinkError):
-                    await self.sync_once()
-
     # --- receiving -------------------------------------------------------------------------
 
     def _on_items(self, items: Sequence[Frame | DecodeError]) -> None:
@@ -845,38 +650,57 @@ class BoardClient:
             except Exception:  # a bug in a callback must not kill the reader
                 log.exception("link: error handling %s", item.msg_type.name)
 
+    #: received message class -> the name of its handler, ``handler(msg, t4)`` (a table, not an isinstance
+    #: chain; looked up by name so a handler replaced on the instance or the class is the one called)
+    _HANDLERS: dict[type[Message], str] = {
+        Telemetry: "_handle_telemetry",
+        SimState: "_handle_sim_state",
+        Ack: "_handle_ack",
+        Nack: "_handle_nack",
+        TimeSyncReply: "_handle_time_sync",
+        Caps: "_handle_caps",
+        CameraChunk: "_handle_chunk",
+    }
+
     def _dispatch(self, msg: Message, t4: int) -> None:
-        if isinstance(msg, Telemetry):
-            self._on_telemetry(msg)
-        elif isinstance(msg, SimState):
-            self.latest_sim_state = msg
-        elif isinstance(msg, Ack):
-            fut = self._pending.get(msg.ack_seq)
-            if fut is not None and not fut.done():
-                fut.set_result(msg)
-        elif isinstance(msg, Nack):
-            self._on_nack(msg)
-        elif isinstance(msg, TimeSyncReply):
-            sfut = self._sync_pending.get(msg.t1_host_us)
-            if sfut is not None and not sfut.done():
-                sfut.set_result((msg, t4))
-        elif isinstance(msg, Caps):
-            if self._hello_fut is not None and not self._hello_fut.done():
-                self._hello_fut.set_result(msg)
-        elif isinstance(msg, CameraChunk):
-            self._on_chunk(msg)
+        name = self._HANDLERS.get(type(msg))
+        if name is not None:
+            getattr(self, name)(msg, t4)
+
+    def _handle_telemetry(self, msg: Telemetry, t4: int) -> None:
+        self._on_telemetry(msg)
+
+    def _handle_sim_state(self, msg: SimState, t4: int) -> None:
+        self.latest_sim_state = msg
+
+    def _handle_ack(self, msg: Ack, t4: int) -> None:
+        fut = self._pending.get(msg.ack_seq)
+        if fut is not None and not fut.done():
+            fut.set_result(msg)
+
+    def _handle_nack(self, msg: Nack, t4: int) -> None:
+        self._on_nack(msg)
+
+    def _handle_time_sync(self, msg: TimeSyncReply, t4: int) -> None:
+        self.supervisor.on_sync_reply(msg, t4)
+
+    def _handle_caps(self, msg: Caps, t4: int) -> None:
+        self.supervisor.on_caps(msg)
+
+    def _handle_chunk(self, msg: CameraChunk, t4: int) -> None:
+        self._on_chunk(msg)
 
     def _on_nack(self, msg: Nack) -> None:
         if msg.reason == NackReason.SERVO_FAULT:
             self.servo_fault = msg
-        if msg.msg_type == MsgType.HELLO and self._hello_fut is not None and not self._hello_fut.done():
+        if msg.msg_type == MsgType.HELLO:
             reason = msg.reason.name if hasattr(msg.reason, "name") else str(msg.reason)
             error = SchemaMismatch if msg.reason == NackReason.SCHEMA_MISMATCH else HandshakeError
-            self._hello_fut.set_exception(error(
+            if self.supervisor.refuse_hello(error(
                 f"board refused the handshake: {reason}: {msg.detail or 'no detail'}; "
                 "host and board must run the same protocol version and message schema"
-            ))
-            return
+            )):
+                return
         fut = self._pending.get(msg.ack_seq)
         if fut is not None and not fut.done():
             fut.set_exception(NackError(msg))
@@ -912,61 +736,21 @@ class BoardClient:
             self._nack_waiters = [(s, f) for s, f in self._nack_waiters if f is not fut]
 
     def _on_chunk(self, msg: CameraChunk) -> None:
-        parts = self._captures.get(msg.request_id)
-        seq = self._capture_seq.get(msg.request_id)
-        if parts is None or seq is None:
-            return
-        total = self._capture_total.setdefault(msg.request_id, msg.total)
-        if msg.total != total:  # chunks of one image disagree: the first count holds, this one is dropped
-            log.debug("link: camera image %d: chunk %d says %d chunks, the first said %d (dropped)",
-                      msg.request_id, msg.index, msg.total, total)
-            return
-        parts[msg.index] = msg.data
-        if len(parts) >= total and all(i in parts for i in range(total)):  # never a partial image
-            fut = self._pending.get(seq)
+        done = self.camera.on_chunk(msg)
+        if done is not None:
+            fut = self._pending.get(done[0])
             if fut is not None and not fut.done():
-                fut.set_result(b"".join(parts[i] for i in range(total)))
+                fut.set_result(done[1])
 
     def _on_telemetry(self, t: Telemetry) -> None:
-        self.latest_telemetry = t
         self.stats.telemetry += 1
         self._board_time_seen = max(self._board_time_seen, t.board_time_us)
-        now_faults = FaultFlags(t.faults & FAULT_BITS)
-        if now_faults != self.faults:
-            ev = FaultEvent(t.board_time_us, time.monotonic(), self.faults, now_faults)
-            self.faults = now_faults
-            self.fault_events.append(ev)
-            if ev.raised:
-                # info, not warning: the application reports faults (on_fault); a run ends with one message
-                log.info("board fault raised: %s (board time %.3f s)", _flag_names(ev.raised), t.board_time_us / 1e6)
-            if ev.cleared:
-                log.info("board fault cleared: %s (board time %.3f s)", _flag_names(ev.cleared), t.board_time_us / 1e6)
-            for cb in list(self.on_fault):
-                cb(ev)
-        for q in self._subs:
-            if q.full():
-                q.get_nowait()
-            q.put_nowait(t)
-        if self._tele_waiters:
-            keep = []
-            for pred, fut in self._tele_waiters:
-                if fut.done():
-                    continue
-                if pred(t):
-                    fut.set_result(t)
-                else:
-                    keep.append((pred, fut))
-            self._tele_waiters = keep
+        self.fanout.on_telemetry(t)
 
     async def telemetry(self, maxsize: int | None = None) -> AsyncIterator[Telemetry]:
         """Every telemetry report from now on; a slow consumer loses the oldest (bounded queue)."""
-        q: asyncio.Queue[Telemetry] = asyncio.Queue(maxsize or self.telemetry_queue)
-        self._subs.add(q)
-        try:
-            while True:
-                yield await q.get()
-        finally:
-            self._subs.discard(q)
+        async for t in self.fanout.subscribe(maxsize):
+            yield t
 
     async def wait_for(self, predicate: Callable[[Telemetry], bool], timeout: float, *, nudge: bool = False) -> Telemetry:
         """The first telemetry (latest included) satisfying ``predicate``; :class:`LinkTimeout` after ``timeout`` s.
@@ -982,8 +766,7 @@ class BoardClient:
         t = self.latest_telemetry
         if t is not None and predicate(t):
             return t
-        fut: asyncio.Future[Telemetry] = asyncio.get_running_loop().create_future()
-        self._tele_waiters.append((predicate, fut))
+        fut = self.fanout.waiter(predicate)
         deadline = time.monotonic() + timeout
         nudging = nudge and self.lockstep
         until = 0
@@ -1017,7 +800,7 @@ class BoardClient:
         finally:
             if not fut.done():
                 fut.cancel()
-            self._tele_waiters = [(p, f) for p, f in self._tele_waiters if f is not fut]
+            self.fanout.forget(fut)
 
     #: wall seconds between the ADVANCEs of :meth:`wait_for` with ``nudge`` (a lockstep board answers in ~1 ms)
     NUDGE_S = 0.1
@@ -1035,11 +818,10 @@ class BoardClient:
 
     async def next_telemetry(self, timeout: float) -> Telemetry:
         """The next telemetry report received after this call."""
-        fut: asyncio.Future[Telemetry] = asyncio.get_running_loop().create_future()
-        self._tele_waiters.append((lambda _t: True, fut))
+        fut = self.fanout.waiter(lambda _t: True)
         try:
             return await asyncio.wait_for(fut, timeout)
         except TimeoutError:
             raise LinkTimeout(f"no telemetry within {timeout} s") from None
         finally:
-            self._tele_waiters = [(p, f) for p, f in self._tele_waiters if f is not fut]
+            self.fanout.forget(fut)

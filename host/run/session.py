@@ -81,6 +81,7 @@ from host.shell import Shell
 from host.shell.policy import Policy
 from host.shell.skills import SkillStore
 from host.shell.timeline import Observation, RunResult, Timeline
+from protocol.linkkinds import link_kind
 from protocol.linkspec import LinkSpec, parse_link_spec
 from protocol.messages import FaultFlags, MsgType, Nack, NackReason
 from robots.description import Robot
@@ -259,12 +260,12 @@ class RobotSession:
         try:
             if spec.implies_emulated_board and not emulate:
                 raise LinkConfigError(f"{spec} is a link the emulated board creates: it cannot be used without starting the board")
-            if emulate and spec.kind == "can" and spec.interface == "virtual":
+            if emulate and not link_kind(spec).cross_process:
                 raise LinkConfigError(f"{spec}: python-can's virtual bus exists inside one process, so an emulated board "
                                 "started as a subprocess cannot join it; use can:slcan:pty, or can:socketcan:vcan0 "
                                 "with --emulate-board (the virtual bus is for in-process tests)")
-            # frame logs: JSON Lines on serial; python-can's candump format (.log) on CAN
-            log_suffix = ".log" if spec.kind == "can" else ".jsonl"
+            # frame logs: the kind's format (JSON Lines on serial; python-can's candump format, .log, on CAN)
+            log_suffix = link_kind(spec).log_suffix
             if emulate:
                 board_args = ["--lockstep" if opts.lockstep else "--realtime", "--robot", str(self.robot.root),
                               "--log", str(self.out / f"board_frames{log_suffix}"), "--scene", self.scene,

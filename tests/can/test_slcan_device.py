@@ -5,7 +5,7 @@ from __future__ import annotations
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from firmware_sim.transports.slcan import MAX_LINE, SlcanDevice, format_frame
+from protocol.can.slcan import MAX_LINE, SlcanDevice, format_frame
 from protocol.can import CanFrame
 
 

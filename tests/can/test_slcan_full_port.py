@@ -18,7 +18,7 @@ from collections.abc import Iterator
 import can
 import pytest
 
-from firmware_sim.transports.slcan import SlcanDevice
+from protocol.can.slcan import SlcanDevice
 from host.link.transports.can import CanLinkTransport
 from host.link.transports.slcan_tx import slcan_line
 from protocol.can import CanDecoder, CanItem

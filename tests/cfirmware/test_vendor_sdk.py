@@ -19,7 +19,7 @@ from firmware_sim.plant.bus import PlantBus
 from firmware_sim.plant.devices import IMU_ID, PROBE_ID, REG, STS_MODEL
 from firmware_sim.plant.server import serve
 from firmware_sim.plant.world import World
-from firmware_sim.transports.serial import PtyPort
+from firmware_sim.transports.ports import PtyPort
 from robots.registry import load_robot
 
 ROBOT = load_robot("coco")

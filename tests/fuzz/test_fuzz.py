@@ -35,29 +35,28 @@ def test_corpus_and_regressions_replay(target: str) -> None:
 def test_regressions_fail_without_the_fix() -> None:
     """The partial-camera-image regression input really breaks an invariant when the fix is undone."""
     from host.fuzz.session import load
-    from host.link.session import BoardClient
+    from host.link.camera import CameraAssembler
 
-    fixed = BoardClient._on_chunk
+    fixed = CameraAssembler.on_chunk
 
-    def old_on_chunk(self: BoardClient, msg) -> None:  # type: ignore[no-untyped-def]
-        parts = self._captures.get(msg.request_id)
-        seq = self._capture_seq.get(msg.request_id)
+    def old_on_chunk(self: CameraAssembler, msg) -> tuple[int, bytes] | None:  # type: ignore[no-untyped-def]
+        parts = self.parts.get(msg.request_id)
+        seq = self.seqs.get(msg.request_id)
         if parts is None or seq is None:
-            return
+            return None
         parts[msg.index] = msg.data
         if len(parts) >= msg.total:
-            fut = self._pending.get(seq)
-            if fut is not None and not fut.done():
-                fut.set_result(b"".join(parts[i] for i in range(msg.total) if i in parts))
+            return seq, b"".join(parts[i] for i in range(msg.total) if i in parts)
+        return None
 
     one_input = load(False)
     data = (HERE / "session" / "regressions" / "partial-camera-image").read_bytes()
-    BoardClient._on_chunk = old_on_chunk  # type: ignore[method-assign]
+    CameraAssembler.on_chunk = old_on_chunk  # type: ignore[method-assign]
     try:
         with pytest.raises(AssertionError, match="partial image"):
             one_input(data)
     finally:
-        BoardClient._on_chunk = fixed  # type: ignore[method-assign]
+        CameraAssembler.on_chunk = fixed  # type: ignore[method-assign]
     one_input(data)
 
 

@@ -1,9 +1,9 @@
 """Host link transports and the factory that opens one from a link spec.
 
-``open_transport(spec, ...)`` dispatches on :attr:`protocol.linkspec.LinkSpec.kind`:
-``"serial"`` -> :class:`host.link.transports.serial.SerialLinkTransport`;
-``"can"`` -> :func:`host.link.transports.can.open_can_transport` (python-can is imported
-only for CAN links).
+``open_transport(spec, ...)`` looks the spec's kind (:func:`protocol.linkkinds.link_kind`) up in
+the host's registry (:data:`host.link.kinds.HOST_TRANSPORTS`): serial kinds ->
+:class:`host.link.transports.serial.SerialLinkTransport`; CAN kinds ->
+:func:`host.link.transports.can.open_can_transport` (python-can is imported only for CAN links).
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from typing import Any
 
 from host.link.errors import LinkError
 from host.link.transports.base import LossHandler, ReceiveHandler, Transport
+from protocol.linkkinds import link_kind
 from protocol.linkspec import LinkSpec, parse_link_spec
 
 __all__ = ["LossHandler", "ReceiveHandler", "Transport", "open_transport"]
@@ -39,22 +40,11 @@ def open_transport(
     """
     resolve = spec if callable(spec) else None
     spec = parse_link_spec(spec() if callable(spec) else spec)
-    if spec.kind == "serial":
-        if spec.is_pty:
-            raise LinkError("'pty' names a link the emulated board creates: start the board first "
-                            "(ghostshell run --link pty does) and connect to the pty it announces")
-        from host.link.transports.serial import SerialLinkTransport
+    from host.link.kinds import HOST_TRANSPORTS  # the registry imports this package's base
 
-        port: str | Callable[[], str] = spec.port
-        if resolve is not None:
-            r = resolve
-            port = lambda: parse_link_spec(r()).port  # noqa: E731
-        return SerialLinkTransport(port, baud=baud, log_path=log_path, force_thread=force_thread,
-                                   servo_count=servo_count)
-    if spec.kind == "can":
-        from host.link.transports.can import open_can_transport  # python-can loads only for CAN links
-
-        if resolve is not None:
-            options.setdefault("resolve", resolve)
-        return open_can_transport(spec, log_path=log_path, servo_count=servo_count, **options)
-    raise LinkError(f"no transport for link kind {spec.kind!r}")
+    kind = link_kind(spec)
+    opener = HOST_TRANSPORTS.get(kind.name)
+    if opener is None:
+        raise LinkError(f"no transport for link kind {kind.name!r}")
+    return opener(spec, resolve, baud=baud, log_path=log_path, force_thread=force_thread,
+                  servo_count=servo_count, **options)

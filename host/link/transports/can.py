@@ -11,9 +11,10 @@ python-can waits for real adapters defaults to 0 (a spec option overrides it). G
 spec: a SLCAN board that came back on another pty is found again (its node id and FD mode must
 stay the same).
 
-Fixed-layout messages become frames (:func:`protocol.can.encode_fixed`), the rest goes over
-ISO-TP (can-isotp, :mod:`protocol.can.isotp_link`); both in the robot's layout table
-(:func:`protocol.can.layouts.can_layouts` for ``servo_count``; :meth:`set_servo_count`). Sending never blocks: frames queue
+Messages become frames and frames messages in the CAN wire engine shared with the board
+(:class:`protocol.can.engine.CanEngine`: fixed layouts, the rest over ISO-TP with can-isotp), in the
+robot's layout table (:func:`protocol.can.layouts.can_layouts` for ``servo_count``; :meth:`set_servo_count`).
+This module only moves the engine's frames to and from python-can. Sending never blocks: frames queue
 and are written in order; a refused write (SocketCAN's ENOBUFS on a full tx queue, python-can
 issue #2004) keeps the frame at the head and retries after 1 ms doubling to 20 ms
 (``tx_retries``); more than ``MAX_TX_FRAMES`` waiting raises ``LinkError`` (the bus is not
@@ -22,10 +23,12 @@ instead of python-can's ``send`` (which spins in pyserial's write on a full port
 event loop, and loses the rest of a line the port took in part): at most ``SLCAN_CHUNK`` bytes
 of whole lines are handed to the port at a time, the loop's writer callback (``add_writer``)
 continues when the port has room again (``tx_retries`` counts the waits); SLCAN is read through
-:class:`~host.link.transports.slcan_rx.BufferedSlcanBus`. Every frame both ways is logged with
-python-can's writers (``can.Logger``: ``.log``, candump, ``.asc``, ``.blf`` ... by suffix;
-wall-clock timestamps; received and sent frames carry the same channel, the bus's python-can
-channel, e.g. the SLCAN adapter's tty, as the board's own log names it).
+:class:`~host.link.transports.slcan_rx.BufferedSlcanBus`. Every frame both ways goes to the frame log
+chosen by suffix (:func:`protocol.logfile.open_frame_log`: python-can's writers, ``.log`` candump,
+``.asc``, ``.blf`` ...; wall-clock timestamps, the driver's for received frames; the direction is
+the one this end knows, not python-can's ``is_rx``, which marks SocketCAN's vcan loop-back as sent;
+received and sent frames carry the same channel, the bus's python-can channel, e.g. the SLCAN
+adapter's tty, as the board's own log names it).
 """
 
 from __future__ import annotations
@@ -33,7 +36,6 @@ from __future__ import annotations
 import asyncio
 import errno
 import logging
-import time
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
@@ -43,24 +45,17 @@ import can
 
 from host.link.errors import LinkConfigError, LinkDown, LinkError
 from host.link.transports.base import LossHandler, ReceiveHandler, Transport
-from host.link.transports.slcan_tx import SlcanWriter, slcan_line
-from protocol.can import (
-    CanDecodeError,
-    CanDecoder,
-    CanFrame,
-    CanItem,
-    encode_bulk,
-    encode_fixed,
-    is_fixed,
-)
+from host.link.transports.slcan_tx import SlcanWriter
 from protocol.can.bus_errors import describe_bus_open_error
-from protocol.can.codec import Sender
-from protocol.can.decoder import CanErrorKind, as_frame_items
-from protocol.can.ids import bulk_ids
-from protocol.can.isotp_link import IsoTpLink
+from protocol.can.engine import CanEngine
+from protocol.can.frame import CanFrame
 from protocol.can.layouts import CanLayouts, can_layouts
+from protocol.can.pycan import from_can_message, to_can_message
+from protocol.can.slcan import format_frame
 from protocol.codec import PayloadError
+from protocol.linkkinds import link_kind
 from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
+from protocol.logfile import FrameLogWriter, open_frame_log
 from protocol.messages import Message
 
 __all__ = ["MAX_TX_FRAMES", "CanLinkTransport", "open_can_transport"]
@@ -88,17 +83,6 @@ def _make_bus(kw: dict[str, Any]) -> can.BusABC:
     bus: can.BusABC = BufferedSlcanBus(**cfg) if channel is None else BufferedSlcanBus(channel, **cfg)
     return bus
 
-
-def open_can_logger(path: str | Path) -> Any:
-    """python-can's writer for ``path`` (format by suffix). A serial-style ``.jsonl`` name (what the
-    serial link would log) becomes the same name with ``.log`` (candump format)."""
-    p = Path(path)
-    if p.suffix.lower() == ".jsonl":
-        p = p.with_suffix(".log")
-    try:
-        return can.Logger(str(p))  # type: ignore[no-untyped-call]
-    except ValueError as e:
-        raise ValueError(f"cannot log CAN frames to {p}: {e} (use .log, .asc or .blf)") from None
 
 class _Collect(logging.Handler):
     def __init__(self) -> None:
@@ -185,7 +169,7 @@ class CanLinkTransport(Transport):
         self._generation = 0
         self._on_receive: ReceiveHandler | None = None
         self._on_lost: LossHandler | None = None
-        self._txq: deque[can.Message] = deque()
+        self._txq: deque[CanFrame] = deque()
         self._retry: asyncio.TimerHandle | None = None
         self._tick: asyncio.TimerHandle | None = None
         self._backoff = BACKOFF_MIN_S
@@ -193,12 +177,20 @@ class CanLinkTransport(Transport):
         self.tx_frames = 0
         self.rx_frames = 0
         self.error_frames = 0
-        self.decoder = CanDecoder(self.node, "host", self.layouts)
-        to_board, to_host = bulk_ids(self.node)
-        self._bulk_rx = to_host
-        self.isotp = IsoTpLink(rxid=to_host, txid=to_board, fd=self.fd, send=self._enqueue)
-        self.logger: Any = open_can_logger(log_path) if log_path else None
+        self.engine = CanEngine(self.node, "host", self.fd, self._txq.append, self.layouts)
+        self.framelog: FrameLogWriter | None = (
+            open_frame_log(log_path, "can", channel=spec.channel or "can0") if log_path else None)
         self._channel_name = spec.channel or "can0"
+
+    @property
+    def decoder(self) -> Any:
+        """The engine's fixed-layout reassembler (its ``errors``, ``error_count`` counters)."""
+        return self.engine.decoder
+
+    @property
+    def isotp(self) -> Any:
+        """The engine's ISO-TP link."""
+        return self.engine.isotp
 
     @property
     def name(self) -> str:
@@ -209,12 +201,8 @@ class CanLinkTransport(Transport):
         return str(self.spec)  # the node id is in the spec (?node=N) when it is not the default
 
     def set_servo_count(self, servo_count: int) -> None:
-        layouts = can_layouts(servo_count)
-        if layouts is not self.layouts:
-            self.layouts = layouts
-            last = self.decoder.last_seq
-            self.decoder = CanDecoder(self.node, "host", layouts)
-            self.decoder.last_seq = last
+        self.layouts = can_layouts(servo_count)
+        self.engine.set_layouts(self.layouts)
 
     @property
     def connected(self) -> bool:
@@ -240,9 +228,10 @@ class CanLinkTransport(Transport):
             bus = await asyncio.to_thread(_open_bus, self.spec, kw)
         self.bus = bus
         self._channel_name = _log_channel(self.spec, bus)
+        if self.framelog is not None:
+            self.framelog.channel = self._channel_name  # type: ignore[attr-defined]
         self._generation += 1
-        self.decoder = CanDecoder(self.node, "host", self.layouts)
-        self.isotp = IsoTpLink(rxid=self._bulk_rx, txid=bulk_ids(self.node)[0], fd=self.fd, send=self._enqueue)
+        self.engine.reset()
         self._txq.clear()
         self._reader_fd = None
         try:
@@ -266,7 +255,7 @@ class CanLinkTransport(Transport):
             spec = parse_link_spec(self._resolve())
         except (LinkSpecError, OSError) as e:
             raise LinkDown(f"cannot resolve the CAN link: {e}") from None
-        if spec.kind != "can" or spec.node != self.node or spec.fd != self.fd:
+        if link_kind(spec).wire != "can" or spec.node != self.node or spec.fd != self.fd:
             raise LinkDown(f"the link now resolves to {spec}, not a CAN link to node {self.node} "
                            f"({'FD' if self.fd else 'classic'}) as before")
         return spec
@@ -296,41 +285,30 @@ class CanLinkTransport(Transport):
         if generation != self._generation or self.bus is None:
             return
         self.rx_frames += 1
-        if self.logger is not None:
-            msg.channel = self._channel_name  # as the frames sent (python-can's slcan leaves it unset)
-            self.logger.on_message_received(msg)
         if msg.is_error_frame:
             self.error_frames += 1
             return
-        frame = CanFrame(int(msg.arbitration_id), bytes(msg.data or b""), bool(msg.is_fd),
-                         bool(msg.is_extended_id), bool(msg.is_remote_frame))
-        items: list[CanItem | CanDecodeError] = []
-        if frame.arbitration_id == self._bulk_rx and not frame.is_extended_id:
-            self.isotp.feed(frame)
-            items += self._poll_isotp()
-        else:
-            items += self.decoder.feed(frame)
+        frame = from_can_message(msg)
+        if self.framelog is not None:  # "rx" as this end knows it (python-can marks vcan loop-back as sent)
+            self.framelog.write_can("rx", frame, msg.timestamp or None)
+        items = self.engine.feed(frame)
+        if self.engine.busy or self._txq:
+            self._pump()
+            self._arm_tick()
         if items and self._on_receive is not None:
-            self._on_receive(as_frame_items(items))
-
-    def _poll_isotp(self) -> list[CanItem | CanDecodeError]:
-        before = self.isotp.errors
-        items: list[CanItem | CanDecodeError] = [self.decoder.feed_bulk(sdu) for sdu in self.isotp.poll()]
-        if self.isotp.errors > before:
-            items.append(CanDecodeError(CanErrorKind.BULK, f"ISO-TP: {self.isotp.last_error}"))
-        self._pump()
-        self._arm_tick()
-        return items
+            self._on_receive(items)
 
     def _arm_tick(self) -> None:
-        if self._tick is None and self.isotp.busy and self.bus is not None:
+        if self._tick is None and self.engine.busy and self.bus is not None:
             self._tick = asyncio.get_running_loop().call_later(ISOTP_TICK_S, self._on_tick)
 
     def _on_tick(self) -> None:
         self._tick = None
-        items = self._poll_isotp()
+        items = self.engine.poll()
+        self._pump()
+        self._arm_tick()
         if items and self._on_receive is not None:
-            self._on_receive(as_frame_items(items))
+            self._on_receive(items)
 
     # --- sending --------------------------------------------------------------------------
 
@@ -340,27 +318,23 @@ class CanLinkTransport(Transport):
         if len(self._txq) >= MAX_TX_FRAMES:
             raise LinkError(f"CAN transmit queue over {MAX_TX_FRAMES} frames: the bus is not draining")
         try:
-            if is_fixed(msg, self.fd, self.layouts):
-                for f in encode_fixed(msg, seq, self.node, self.fd, Sender.HOST, self.layouts):
-                    self._enqueue(f)
-            else:
-                self.isotp.send(encode_bulk(msg, seq, self.layouts.schema))
-                items = self._poll_isotp()
+            fixed = self.engine.is_fixed(msg)
+            self.engine.send(msg, seq)
+            if not fixed:
+                items = self.engine.poll()
+                self._pump()
+                self._arm_tick()
                 if items and self._on_receive is not None:
-                    self._on_receive(as_frame_items(items))
+                    self._on_receive(items)
         except PayloadError as e:
             raise LinkError(f"cannot send {type(msg).__name__} on CAN: {e}") from None
         except BufferError as e:
             raise LinkError(str(e)) from None
         self._pump()
 
-    def _enqueue(self, frame: CanFrame) -> None:
-        self._txq.append(
-            can.Message(
-                arbitration_id=frame.arbitration_id, data=frame.data, is_fd=frame.is_fd,
-                is_extended_id=False, dlc=len(frame.data), is_rx=False,
-            )
-        )
+    def _log_sent(self, frame: CanFrame) -> None:
+        if self.framelog is not None:
+            self.framelog.write_can("tx", frame)
 
     def _pump(self) -> None:
         bus = self.bus
@@ -370,9 +344,9 @@ class CanLinkTransport(Transport):
             self._pump_slcan(self._slcan)
             return
         while self._txq:
-            msg = self._txq[0]
+            frame = self._txq[0]
             try:
-                bus.send(msg, timeout=0.0)
+                bus.send(to_can_message(frame), timeout=0.0)
             except can.CanOperationError as e:
                 # ENOBUFS (python-can #2004) or a full serial port: keep it, retry with backoff
                 self.tx_retries += 1
@@ -389,10 +363,7 @@ class CanLinkTransport(Transport):
             self._txq.popleft()
             self.tx_frames += 1
             self._backoff = BACKOFF_MIN_S
-            if self.logger is not None:
-                msg.timestamp = time.time()
-                msg.channel = self._channel_name
-                self.logger.on_message_received(msg)
+            self._log_sent(frame)
 
     def _retry_now(self) -> None:
         self._retry = None
@@ -415,13 +386,10 @@ class CanLinkTransport(Transport):
                 self._stop_waiting_writable()
                 return
             while self._txq and len(out.pending) < SLCAN_CHUNK:
-                msg = self._txq.popleft()
-                out.push(slcan_line(msg))
+                frame = self._txq.popleft()
+                out.push(format_frame(frame))
                 self.tx_frames += 1
-                if self.logger is not None:
-                    msg.timestamp = time.time()
-                    msg.channel = self._channel_name
-                    self.logger.on_message_received(msg)
+                self._log_sent(frame)
 
     def _wait_writable(self, fd: int) -> None:
         if self._writer_fd is None:
@@ -475,12 +443,9 @@ class CanLinkTransport(Transport):
 
     def close(self) -> None:
         self.disconnect()
-        if self.logger is not None:
-            try:
-                self.logger.stop()
-            except Exception:
-                pass
-            self.logger = None
+        if self.framelog is not None:
+            self.framelog.close()
+            self.framelog = None
 
 
 def _shutdown(bus: can.BusABC) -> None:

@@ -36,6 +36,7 @@ import asyncio
 import errno
 import os
 import threading
+import time
 from collections.abc import Callable
 
 from pathlib import Path
@@ -44,9 +45,9 @@ import serial
 
 from host.link.errors import LinkConfigError, LinkDown, LinkError
 from host.link.transports.base import LossHandler, ReceiveHandler, Transport
-from host.link.transports.framelog_file import FrameLogFile
-from protocol.codec import WIRE_SCHEMA_16, WireSchema, msg_type_of, schema_for
-from protocol.framing import Frame, FrameDecoder, encode_frame
+from protocol.codec import WIRE_SCHEMA_16, WireSchema, schema_for
+from protocol.framing import FrameDecoder, encode_frame
+from protocol.logfile import FrameLogWriter, JsonlFrameLog, open_frame_log
 from protocol.messages import Message
 
 __all__ = ["MAX_TX_BACKLOG", "SerialLinkTransport", "SerialPort"]
@@ -237,7 +238,8 @@ class SerialLinkTransport(Transport):
     """Protocol v1 frames over one serial port / pty / pyserial URL (see the module docstring).
 
     ``baud`` is the port's rate (ignored by ptys); ``log_path`` gets one JSON-Lines record
-    per frame both ways (:mod:`protocol.framelog`, ``t`` = host ``time.monotonic()``);
+    per frame both ways (:func:`protocol.logfile.open_frame_log`, ``t`` = host ``time.monotonic()``;
+    a sent frame is logged as its wire bytes decode, as the board logs it; created with the first record);
     ``force_thread`` reads in a thread even where the port has a file descriptor. ``url`` may
     be a callable, resolved again on every :meth:`connect`. ``servo_count`` (the robot's; default
     none known: the u16 schema) picks the wire schema frames are encoded and decoded with.
@@ -249,8 +251,9 @@ class SerialLinkTransport(Transport):
         self.url = url if isinstance(url, str) else ""
         self.baud = baud
         self.force_thread = force_thread
-        self.framelog = FrameLogFile(log_path) if log_path else None
         self.schema: WireSchema = WIRE_SCHEMA_16 if servo_count is None else schema_for(servo_count)
+        self.framelog: FrameLogWriter | None = (
+            open_frame_log(log_path, "serial", schema=self.schema, lazy=True) if log_path else None)
         self._decoder = FrameDecoder(schema=self.schema)
         self._port: SerialPort | None = None
         self._on_receive: ReceiveHandler | None = None
@@ -262,6 +265,8 @@ class SerialLinkTransport(Transport):
 
     def set_servo_count(self, servo_count: int) -> None:
         self.schema = self._decoder.schema = schema_for(servo_count)
+        if isinstance(self.framelog, JsonlFrameLog):
+            self.framelog.schema = self.schema
 
     @property
     def connected(self) -> bool:
@@ -300,7 +305,7 @@ class SerialLinkTransport(Transport):
         items = self._decoder.feed(data)
         if self.framelog is not None:
             for item in items:
-                self.framelog.write("rx", item.raw, item)
+                self.framelog.write_serial("rx", time.monotonic(), item.raw, item)
         if items and self._on_receive is not None:
             self._on_receive(items)
 
@@ -316,7 +321,7 @@ class SerialLinkTransport(Transport):
         except ConnectionError as e:
             raise LinkDown(f"link to {self.url!r} is down: {e}") from None
         if self.framelog is not None:
-            self.framelog.write("tx", raw, Frame(seq, msg_type_of(msg), msg, raw))
+            self.framelog.write_serial("tx", time.monotonic(), raw)  # decoded from the wire bytes (quantised)
 
     def disconnect(self) -> None:
         if self._port is not None:

@@ -7,8 +7,9 @@ host's event loop -- telemetry, the request timers and the run's silence watchdo
 as long as the other end does not read; and when the port takes only part of a line, pyserial
 returns the count and python-can ignores it, so the rest of the line is lost and the next line is
 glued onto the stub (the adapter refuses both). With a positive timeout it still spins until the
-timeout and may leave a partial line behind. So the host formats the lines itself (the same
-``t``/``d``/``b`` lines python-can's ``send`` builds, with its ``len2dlc``) and writes them to the
+timeout and may leave a partial line behind. So the host formats the lines itself with the
+SLCAN engine shared with the board (:func:`protocol.can.slcan.format_frame`: the same
+``t``/``d``/``b`` lines python-can's ``send`` builds) and writes them to the
 port's file descriptor (``bus.fileno()``, non-blocking as pyserial opens it), keeping whatever
 did not fit for the next write. Receiving stays python-can's.
 """
@@ -19,7 +20,9 @@ import errno
 import os
 
 import can
-from can.util import len2dlc
+
+from protocol.can.pycan import from_can_message
+from protocol.can.slcan import format_frame
 
 __all__ = ["SlcanWriter", "slcan_line"]
 
@@ -33,12 +36,7 @@ def slcan_line(msg: can.Message) -> bytes:
     """
     if msg.is_extended_id or msg.is_remote_frame:
         raise ValueError("the host's SLCAN output carries standard data frames only")
-    data = bytes(msg.data or b"")
-    if msg.is_fd:
-        head = f"{'b' if msg.bitrate_switch else 'd'}{msg.arbitration_id:03X}{len2dlc(len(data)):X}"
-    else:
-        head = f"t{msg.arbitration_id:03X}{len(data):d}"
-    return (head + data.hex().upper()).encode("ascii") + b"\r"
+    return format_frame(from_can_message(msg), brs=bool(msg.is_fd and msg.bitrate_switch))
 
 
 class SlcanWriter:

@@ -1,8 +1,19 @@
-"""SLCAN (Lawicel ASCII) device side: the board answers like a USB-CAN adapter on a pty.
+"""SLCAN (Lawicel ASCII) as sans-I/O engines: bytes in -> lines / frames out, frames in -> lines out.
 
-Hand-written because python-can (and every maintained package we know of) implements only the
-*host* side of SLCAN (``can.interfaces.slcan``); an adapter's firmware side is exactly what the
-emulated board has to be here. The dialect is the one python-can's ``slcan`` interface speaks
+Shared by both ends: :class:`LineSplitter` cuts a byte stream into bounded lines (the adapter's
+command lines, the host's response lines); :func:`format_frame` is the one place a frame becomes
+a ``t``/``T``/``r``/``R``/``d``/``D``/``b``/``B`` line (the board announcing a received frame to
+the host, the host's non-blocking output to an adapter: the same lines python-can's
+``slcanBus.send`` writes); :class:`SlcanDevice` is the adapter's firmware side, the state machine
+the emulated board runs on its pty. No I/O here: the board's SLCAN transport and the host's
+:mod:`host.link.transports.slcan_tx` / ``slcan_rx`` move the bytes.
+
+The device side is hand-written because python-can (and every maintained package we know of)
+implements only the *host* side of SLCAN (``can.interfaces.slcan``); an adapter's firmware side is
+exactly what the emulated board has to be here. The host keeps python-can's parser
+(``slcanBus._recv_internal``) and uses :class:`LineSplitter` only to read whole lines at once.
+
+The dialect is the one python-can's ``slcan`` interface speaks
 (Lawicel CANUSB manual + the common FD extension): commands end with ``\\r``; an accepted command
 is answered ``\\r``, a refused one with BEL (``\\a``).
 
@@ -26,11 +37,12 @@ longer run without ``\\r`` is dropped and counted; a malformed line is counted a
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 from protocol.can.frame import FD_LENGTHS, CanFrame
 
-__all__ = ["MAX_LINE", "SlcanDevice", "SlcanEvent", "format_frame"]
+__all__ = ["MAX_LINE", "LineSplitter", "SlcanDevice", "SlcanEvent", "format_frame"]
 
 MAX_LINE = 1 + 8 + 1 + 2 * 64 + 8  # longest valid line (extended FD frame) plus slack
 OK = b"\r"
@@ -47,12 +59,16 @@ class SlcanEvent:
     error: str = ""
 
 
-def format_frame(frame: CanFrame) -> bytes:
-    """The SLCAN line (``\\r`` included) announcing ``frame`` to the host."""
+def format_frame(frame: CanFrame, *, brs: bool = False) -> bytes:
+    """The SLCAN line (``\\r`` included) for ``frame``: what an adapter prints for a frame it received,
+    and what a host writes to send one (python-can's ``slcanBus.send`` builds the same text). FD
+    frames: ``d``/``D`` (``b``/``B`` with ``brs``, bit-rate switch), the length as the FD DLC in hex
+    (``ValueError`` for a length no FD frame has)."""
     n = len(frame.data)
     if frame.is_fd:
         dlc = FD_LENGTHS.index(n)
-        head = f"D{frame.arbitration_id:08X}" if frame.is_extended_id else f"d{frame.arbitration_id:03X}"
+        letter = "b" if brs else "d"
+        head = f"{letter.upper()}{frame.arbitration_id:08X}" if frame.is_extended_id else f"{letter}{frame.arbitration_id:03X}"
         return f"{head}{dlc:X}{frame.data.hex().upper()}\r".encode()
     if frame.is_remote:
         head = f"R{frame.arbitration_id:08X}" if frame.is_extended_id else f"r{frame.arbitration_id:03X}"
@@ -61,40 +77,68 @@ def format_frame(frame: CanFrame) -> bytes:
     return f"{head}{n:d}{frame.data.hex().upper()}\r".encode()
 
 
+class LineSplitter:
+    """Bytes in, whole lines out: ``feed(data) -> [(line, terminator)]``; never raises, bounded.
+
+    A line ends at any byte of ``terminators`` (the terminator is returned apart, not in the
+    line). A run of more than ``max_line`` bytes without a terminator is dropped (memory stays
+    bounded) and reported once, at its terminator, as ``(None, terminator)``. ``pending`` is the
+    partial line held for the next feed.
+    """
+
+    def __init__(self, terminators: bytes, max_line: int) -> None:
+        self._ends = re.compile(b"[" + re.escape(terminators) + b"]")
+        self.max_line = max_line
+        self.pending = bytearray()
+        self._overlong = False
+
+    def feed(self, data: bytes) -> list[tuple[bytes | None, int]]:
+        out: list[tuple[bytes | None, int]] = []
+        start = 0
+        for m in self._ends.finditer(data):
+            end = m.start()
+            if self._overlong or len(self.pending) + end - start > self.max_line:
+                out.append((None, data[end]))
+            else:
+                out.append((bytes(self.pending + data[start:end]) if self.pending else bytes(data[start:end]), data[end]))
+            self.pending.clear()
+            self._overlong = False
+            start = end + 1
+        if start < len(data) and not self._overlong:
+            self.pending += data[start:]
+            if len(self.pending) > self.max_line:
+                self._overlong = True
+                self.pending.clear()
+        return out
+
+
 class SlcanDevice:
     """The adapter's state machine: ``feed(bytes) -> (events, reply bytes)``; never raises."""
 
     def __init__(self) -> None:
         self.is_open = False
         self.bitrate_code = "S8"
-        self._line = bytearray()
-        self._overlong = False
+        self._lines = LineSplitter(b"\r\n", MAX_LINE)
         self.errors = 0
         self.frames_in = 0
+
+    @property
+    def _line(self) -> bytearray:
+        """The partial line held for the next feed (at most ``MAX_LINE`` bytes)."""
+        return self._lines.pending
 
     def feed(self, data: bytes) -> tuple[list[SlcanEvent], bytes]:
         events: list[SlcanEvent] = []
         reply = bytearray()
-        for b in data:
-            if b in (0x0D, 0x0A):  # \r ends a line (\n tolerated)
-                if self._overlong:
-                    self._overlong = False
-                    self.errors += 1
-                    events.append(SlcanEvent(error=f"line longer than {MAX_LINE} characters"))
-                    reply += BELL
-                elif self._line or b == 0x0D:
-                    ev, ans = self._line_done(bytes(self._line))
-                    events.append(ev)
-                    reply += ans
-                self._line.clear()
-                continue
-            if self._overlong:
-                continue
-            if len(self._line) >= MAX_LINE:
-                self._overlong = True
-                self._line.clear()
-                continue
-            self._line.append(b)
+        for line, end in self._lines.feed(data):
+            if line is None:  # \r ends a line (\n tolerated); an over-long one is refused
+                self.errors += 1
+                events.append(SlcanEvent(error=f"line longer than {MAX_LINE} characters"))
+                reply += BELL
+            elif line or end == 0x0D:  # an empty line ended by \n alone is nothing
+                ev, ans = self._line_done(line)
+                events.append(ev)
+                reply += ans
         return events, bytes(reply)
 
     def _bad(self, why: str) -> tuple[SlcanEvent, bytes]:

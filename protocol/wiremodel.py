@@ -1,0 +1,58 @@
+"""The wire-time model of a serial line (sans-I/O: bytes and times in, bytes out; no clock of its own).
+
+A pty ignores baud rates, so an emulated line that should behave like a UART of ``baud`` bit/s
+delays every byte by its wire time: 10 bit times per byte (start + 8 data + stop, 8N1). Chunks
+are serialised: a chunk pushed while the line is still busy starts when the previous one ends.
+The caller passes the time (``now``, seconds on any monotonic clock) to every call; the model
+only orders and releases bytes. Used by the emulated board's serial transport (both directions)
+and by the C firmware launcher's relay between two ptys.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+__all__ = ["BITS_PER_BYTE", "WireModel"]
+
+#: UART 8N1: start bit + 8 data bits + stop bit
+BITS_PER_BYTE = 10
+
+
+class WireModel:
+    """Serialises bytes on a modelled UART: each chunk finishes ``10 * n / baud`` s after the previous.
+
+    ``baud`` None (or 0): no model, every chunk is released at the time it was pushed.
+    ``free_at``: the time the line becomes idle; ``bytes_queued``: bytes pushed, not yet released.
+    """
+
+    def __init__(self, baud: int | None) -> None:
+        self.byte_time = BITS_PER_BYTE / baud if baud else 0.0
+        self.free_at = 0.0
+        self.queue: deque[tuple[float, bytes]] = deque()
+        self.bytes_queued = 0
+
+    def push(self, now: float, data: bytes) -> None:
+        """``data`` enters the line at ``now`` (s); it is released once its last byte is through."""
+        if self.byte_time:
+            self.free_at = max(self.free_at, now) + len(data) * self.byte_time
+            release = self.free_at
+        else:
+            release = now
+        self.queue.append((release, data))
+        self.bytes_queued += len(data)
+
+    def next_release(self) -> float | None:
+        """When the next chunk is through (s), or None when nothing waits."""
+        return self.queue[0][0] if self.queue else None
+
+    def pop_ready(self, now: float) -> bytes:
+        """Every byte through the line by ``now``, in order (b"" when none)."""
+        out = bytearray()
+        while self.queue and self.queue[0][0] <= now:
+            out += self.queue.popleft()[1]
+        self.bytes_queued -= len(out)
+        return bytes(out)
+
+    def busy_s(self, now: float) -> float:
+        """Seconds of wire time already committed beyond ``now`` (0 without a model)."""
+        return self.free_at - now if self.byte_time else 0.0
