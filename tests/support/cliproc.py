@@ -34,7 +34,8 @@ class Cli:
         stdin = subprocess.PIPE if stdin_pipe else subprocess.DEVNULL  # a pipe stays open (a client, a user)
         self.proc = subprocess.Popen([sys.executable, "-m", "host", *args], stdin=stdin,
                                      stdout=self._out, stderr=self._err, start_new_session=True,
-                                     env=env if env is not None else dict(os.environ))
+                                     env=env if env is not None else dict(os.environ),
+                                     preexec_fn=_as_a_foreground_job)
 
     def ctrl_c(self, sig: int = signal.SIGINT) -> None:
         """What a terminal does on Ctrl-C: ``sig`` to the command's whole process group."""
@@ -65,6 +66,15 @@ class Cli:
         if self.proc.poll() is None:
             os.killpg(self.proc.pid, signal.SIGKILL)
             self.proc.wait()
+
+
+def _as_a_foreground_job() -> None:
+    """SIGINT and SIGQUIT at their defaults in the command, as for a job a terminal runs in the
+    foreground: a shell starts background jobs (``pytest ... &``) with both ignored, the children
+    inherit that, and Python then installs no KeyboardInterrupt handler, so a Ctrl-C test of a command
+    that relies on it (render, tour) saw exit 0 when the suite itself ran in the background."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGQUIT, signal.SIG_DFL)
 
 
 def start(args: Sequence[str], logs: Path, env: dict[str, str] | None = None, stdin_pipe: bool = False) -> Cli:
