@@ -57,7 +57,7 @@ import numpy as np
 from host.ghost import GhostError
 from host.link import BoardClient, RobotIdentity
 from host.link.board_process import BoardProcess, start_board
-from host.link.errors import BoardFaulted, LinkConfigError, LinkError
+from host.link.errors import BoardFaulted, LinkConfigError, LinkDown, LinkError
 from host.link.faultcheck import LATCHED, clear_command, clear_leftover_fault
 from host.link.session import FaultEvent
 from host.run import artefacts
@@ -295,8 +295,17 @@ class RobotSession:
                 target = self._board.spec
             self._link_tried = True
             identity = RobotIdentity(self.robot.name, self.robot.servo_count, self.robot.servo_table_hash)
-            client = await BoardClient.connect(target, baud=opts.baud, log_path=self.out / f"host_frames{log_suffix}",
-                                               robot=identity)
+            try:
+                client = await BoardClient.connect(target, baud=opts.baud, log_path=self.out / f"host_frames{log_suffix}",
+                                                   robot=identity)
+            except LinkConfigError as e:
+                dead = self._board
+                if dead is None or dead.proc.poll() is None:
+                    raise
+                # the link the host was given is fine: the board it started died before the host could
+                # open it (its pty is gone), which is a lost link (exit 1), not a usage error (exit 2)
+                raise LinkDown(f"the emulated board exited (status {dead.proc.returncode}) before the link came "
+                               f"up; see {self.out / 'board.stderr'}") from e
             self.client = await self._stack.enter_async_context(client)
             note = await clear_leftover_fault(client)
             if note:
