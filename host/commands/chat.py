@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from host.commands.outarg import out_dir_problem
 from host.commands.run import _push_text, add_run_options, check_run_args, resolve_strict
 
 
@@ -108,6 +109,10 @@ def main(args: argparse.Namespace) -> int:
                 print(f"ghostshell chat: {name} {args.replies}: reply {i}: {why}; nothing was run", file=sys.stderr)
                 return 2
     out = Path(args.out) if args.out else Path("runs") / "chat"
+    why = None if args.out else out_dir_problem(out)  # a given --out was checked when it was parsed
+    if why is not None:
+        print(f"ghostshell chat: the run folder {out} {why}; give another with --out DIR", file=sys.stderr)
+        return 2
     try:
         return anyio.run(_chat, args, turns, replies, skills, out, backend="asyncio")
     except (LinkError, GhostError, SkillError, RuntimeError, OSError) as e:

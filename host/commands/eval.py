@@ -19,6 +19,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from host.commands.outarg import out_dir, out_dir_problem
 from host.commands.robotarg import add_robot_argument, robot_from_args
 
 
@@ -38,7 +39,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "robot's native-call ablation tasks (e.g. ablation:6,9)")
     parser.add_argument("--trials", type=_at_least_one, default=5, help="rounds per task (the paper: 5)")
     parser.add_argument("--workers", type=_at_least_one, default=1, help="jobs at once, each with its own lockstep board")
-    parser.add_argument("--out", type=Path, default=None, help="output folder (default runs/eval-<model>)")
+    parser.add_argument("--out", type=out_dir, default=None, help="output folder (default runs/eval-<model>)")
     parser.add_argument("--native-tools", action="store_true",
                         help="expose the functions as provider tool definitions (native function calling)")
     parser.add_argument("--native-exec", choices=("parallel", "sequential"), default="parallel",
@@ -139,6 +140,14 @@ def build_config(args: argparse.Namespace) -> Any:
     model = args.llm.split(":", 1)[-1].replace("/", "_") or "model"
     suffix = "-ablation-native" if args.native_tools else ("-ablation" if suite == "ablation" else "")
     out = args.out or Path("runs") / f"eval-{model}{suffix}"
+    why = None if args.out else out_dir_problem(out)  # a given --out was checked when it was parsed
+    if why is not None:
+        raise ValueError(f"the output folder {out} {why}; give another with --out DIR")
+    from host.commands.run import mount_problem
+
+    why = mount_problem(args, robot)
+    if why is not None:
+        raise ValueError(why)
     return SweepConfig(llm=args.llm, tasks=tasks, robot=str(robot.root), robots_dir=args.robots_dir,
                        trials=args.trials, suite=suite, native_tools=args.native_tools,
                        base_url=args.base_url, api_key=args.api_key, workers=args.workers, out=out,

@@ -25,6 +25,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from host.commands.outarg import out_dir
 from host.fuzz import TARGETS
 from host.fuzz.libfuzzer import FuzzStats, parse_output
 
@@ -38,10 +39,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("target", nargs="?", metavar="TARGET", help=f"one of: {', '.join(TARGETS)}")
     parser.add_argument("--list", action="store_true", help="list the targets and what each checks")
     parser.add_argument("--seconds", type=int, default=60, metavar="N", help="fuzz for N seconds (default 60)")
-    parser.add_argument("--corpus", default=None, metavar="DIR",
+    parser.add_argument("--corpus", type=out_dir, default=None, metavar="DIR",
                         help="where new interesting inputs are kept (default fuzz-out/TARGET/corpus)")
     parser.add_argument("--jobs", type=int, default=1, metavar="N", help="parallel fuzzing processes (libFuzzer -fork)")
-    parser.add_argument("--out", default=None, metavar="DIR",
+    parser.add_argument("--out", type=out_dir, default=None, metavar="DIR",
                         help="crash inputs and the full log (default fuzz-out/TARGET)")
     parser.add_argument("--max-len", type=int, default=4096, metavar="BYTES", help="longest input (default 4096)")
     parser.add_argument("--rss-limit-mb", type=int, default=DEFAULT_RSS_LIMIT_MB, metavar="MB",

@@ -67,6 +67,7 @@ def preflight_link(spec: LinkSpec, *, emulated: bool = False) -> str | None:
       USB serial port resets many boards), so a character device that is no tty (``/dev/null``) is
       refused when it is opened (:class:`host.link.errors.LinkConfigError`), as is an SLCAN adapter
       that is not there (``cannot open CAN bus ...``);
+    * ``can:`` (no interface) must find one in python-can's configuration (read, no bus opened);
     * SocketCAN (``can:socketcan:...``) is opened and closed again: a raw CAN socket has no effect on
       the bus, and this is where a kernel without SocketCAN or a missing interface shows;
     * ``emulated``: the emulated board creates or opens the link and reports its own refusal.
@@ -89,6 +90,8 @@ def preflight_link(spec: LinkSpec, *, emulated: bool = False) -> str | None:
             return (f"--link {spec}: {path!r} is a {kind}, not a serial device (a character device such as "
                     "/dev/ttyUSB0 or /dev/pts/N)")
         return None
+    if spec.kind == "can" and not spec.interface:
+        return _configured_can_problem(spec)
     if check == "open":
         from host.link.errors import LinkConfigError
         from host.link.transports.can import open_bus
@@ -97,6 +100,20 @@ def preflight_link(spec: LinkSpec, *, emulated: bool = False) -> str | None:
             open_bus(spec).shutdown()
         except LinkConfigError as e:
             return str(e)
+    return None
+
+
+def _configured_can_problem(spec: LinkSpec) -> str | None:
+    """Why python-can's configuration (``CAN_INTERFACE``, ``~/.canrc``) names no interface for ``can:``, or
+    None: read without opening a bus (:func:`can.util.load_config`, which python-can's ``Bus`` calls)."""
+    import can
+
+    from protocol.can.bus_errors import describe_bus_open_error
+
+    try:
+        can.util.load_config(config={k: v for k, v in (("channel", spec.channel),) if v})
+    except Exception as e:  # python-can raises CanInterfaceNotImplementedError (or a config parse error)
+        return describe_bus_open_error(spec, e, interfaces=can.VALID_INTERFACES)
     return None
 
 

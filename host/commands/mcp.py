@@ -13,6 +13,7 @@ from pathlib import Path
 
 from host.commands.inputs import port_number
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, preflight_link, unreachable_link
+from host.commands.outarg import out_dir, out_dir_problem, tcp_port_taken
 from host.commands.robotarg import add_robot_argument, robot_from_args
 
 
@@ -36,7 +37,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     add_link_argument(parser)
     parser.add_argument("--emulate-board", action="store_true",
                         help="start the emulated board on --link first (implied for pty and can:slcan:pty)")
-    parser.add_argument("--out", type=Path, default=Path("runs/mcp"), help="session folder (frame logs, turns)")
+    parser.add_argument("--out", type=out_dir, default=Path("runs/mcp"), help="session folder (frame logs, turns)")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -56,6 +57,20 @@ def main(args: argparse.Namespace) -> int:
     if args.scene is not None and args.scene not in robot.scenes:
         print(f"ghostshell mcp: --scene {args.scene!r}: {robot.name} has {', '.join(robot.scenes)}", file=sys.stderr)
         return 2
+    from host.commands.run import mount_problem
+
+    why = mount_problem(args, robot)
+    if why is None and args.http is not None:
+        why = tcp_port_taken(args.http)
+        why = None if why is None else f"--http {args.http}: {why}"
+    if why is None and not isinstance(args.out, Path):
+        args.out = Path(args.out)
+    if why is None:
+        problem = out_dir_problem(args.out)  # the default folder (a given --out was checked when parsed)
+        why = None if problem is None else f"--out {args.out} {problem}"
+    if why:
+        print(f"ghostshell mcp: {why}", file=sys.stderr)
+        return USAGE_STATUS
     try:
         from host.mcp_server.server import serve
     except ImportError as err:

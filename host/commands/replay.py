@@ -6,13 +6,15 @@ import argparse
 import sys
 from pathlib import Path
 
+from host.commands.outarg import out_dir, out_dir_problem
+
 __all__ = ["configure", "main"]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("log", metavar="LOG", help="a run folder or a frame log of it: serial .jsonl, CAN .log/.asc/.blf, or the run's run.mcap; "
                         "the host's or the board's (after a faulted run the board's: what reached it)")
-    parser.add_argument("--out", default=None, metavar="DIR", help="artefact folder (default runs/replay)")
+    parser.add_argument("--out", type=out_dir, default=None, metavar="DIR", help="artefact folder (default runs/replay)")
     parser.add_argument("--robot", default=None, metavar="NAME",
                         help="the robot of the recorded run (default: the one its summary.json names)")
     parser.add_argument("--robots-dir", default=None, metavar="DIR", help="search this folder for the robot first")
@@ -25,6 +27,10 @@ def main(args: argparse.Namespace) -> int:
     from robots.description import RobotDataError
 
     out = Path(args.out) if args.out else Path("runs") / "replay"
+    why = None if args.out else out_dir_problem(out)  # a given --out was checked when it was parsed
+    if why is not None:
+        print(f"ghostshell replay: the run folder {out} {why}; give another with --out DIR", file=sys.stderr)
+        return 2
     try:
         res = replay(args.log, out, robot=args.robot, robots_dir=args.robots_dir)
     except (RobotDataError, ReplayInputError) as e:  # bad input: exit status 2

@@ -21,8 +21,10 @@ from pathlib import Path
 
 from host.commands.inputs import InputError, read_text_input
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, preflight_link, unreachable_link
+from host.commands.outarg import out_dir, out_dir_problem, tcp_port_taken
 from host.commands.robotarg import add_robot_argument, robot_from_args
 from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB
+from robots.description import Robot
 from protocol.faults import push_arg, seed_arg
 
 
@@ -70,7 +72,7 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tokens-per-s", type=_positive, default=30.0, help="scripted LLM speed (default 30)")
     parser.add_argument("--seed", type=int, default=0, help="scripted LLM jitter seed")
     parser.add_argument("--baud", type=_baud, default=115200, help="baud rate for a real serial port")
-    parser.add_argument("--out", default=None, metavar="DIR", help="artefact folder (default runs/<label>)")
+    parser.add_argument("--out", type=out_dir, default=None, metavar="DIR", help="artefact folder (default runs/<label>)")
     parser.add_argument("--no-live", action="store_true", help="no live channel view")
     parser.add_argument("--scene", default=None, metavar="NAME",
                         help="objects in the board's world: one of the robot's scenes (default: the robot's); "
@@ -113,6 +115,25 @@ def add_mount_argument(parser: argparse.ArgumentParser) -> None:
                         metavar="NAME=COMMAND|NAME=URL",
                         help="mount an MCP server's tools as functions NAME.TOOL: a stdio server command "
                              "(e.g. weather='python weather.py') or a streamable HTTP URL; repeatable")
+
+
+def mount_problem(args: argparse.Namespace, robot: Robot) -> str | None:
+    """Why ``args.mount_mcp`` cannot be mounted on ``robot``'s shell, found without starting anything
+    (a NAME given twice, a NAME that is already a module or channel of the robot's shell), or None.
+
+    The same check :func:`host.mounts.mcp_mount.mounted` makes once the shell is up, made here so that
+    it refuses before the board starts or any file in ``--out`` is opened."""
+    specs = tuple(getattr(args, "mount_mcp", ()) or ())
+    if not specs:
+        return None
+    from host.mounts.mcp_mount import McpMountError, check_specs
+    from host.robot.binding import signature_registry
+
+    try:
+        check_specs(specs, signature_registry(robot, getattr(args, "vocabulary", None)))
+    except McpMountError as e:
+        return str(e)
+    return None
 
 
 def _number(text: str) -> float:
@@ -189,7 +210,11 @@ def check_run_args(args: argparse.Namespace) -> int | None:
     if scene is not None and scene not in robot.scenes:
         print(f"ghostshell: --scene {scene!r}: {robot.name} has {', '.join(robot.scenes)}", file=sys.stderr)
         return USAGE_STATUS
-    why = unreachable_link(args.link)
+    why = unreachable_link(args.link) or mount_problem(args, robot)
+    foxglove = getattr(args, "foxglove", None)
+    if why is None and foxglove:  # a taken port refuses before the board starts (0: any free port)
+        taken = tcp_port_taken(foxglove)
+        why = None if taken is None else f"--foxglove {foxglove}: {taken}"
     if why:
         print(f"ghostshell: {why}", file=sys.stderr)
         return USAGE_STATUS
@@ -203,6 +228,14 @@ def check_run_args(args: argparse.Namespace) -> int | None:
             args.loaded_policy = Policy.load(args.policy, known=function_params(robot))
             args.event_policy = EventPolicy.load(args.policy)
         except (PolicyError, EventFileError) as e:
+            print(f"ghostshell: {e}", file=sys.stderr)
+            return USAGE_STATUS
+    if "skills" in args:  # the skill library (--skills FILE, else the default one): read now, refused with status 2
+        from host.shell.skills import SkillError, SkillStore, skills_path
+
+        try:
+            args.skill_store = SkillStore(skills_path(args.skills))
+        except SkillError as e:
             print(f"ghostshell: {e}", file=sys.stderr)
             return USAGE_STATUS
     if getattr(args, "events", None):
@@ -295,14 +328,20 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     status = None if getattr(args, "run_args_checked", False) else check_run_args(args)
     if status is not None:
         return status
-    try:
-        skills = SkillStore(skills_path(getattr(args, "skills", None)))
-    except SkillError as e:
-        print(f"ghostshell: {e}", file=sys.stderr)
-        return 1
+    skills = getattr(args, "skill_store", None)
+    if skills is None:
+        try:
+            skills = SkillStore(skills_path(getattr(args, "skills", None)))
+        except SkillError as e:  # a skill library that cannot be read is bad input
+            print(f"ghostshell: {e}", file=sys.stderr)
+            return USAGE_STATUS
     policy = getattr(args, "loaded_policy", None)
     slug = label.replace(" ", "-")
     out = Path(args.out) if args.out else Path("runs") / slug
+    why = None if args.out else out_dir_problem(out)  # a given --out was checked when it was parsed
+    if why is not None:
+        print(f"ghostshell: the run folder {out} {why}; give another with --out DIR", file=sys.stderr)
+        return USAGE_STATUS
     opts = RunOptions(
         program=program, prompt=prompt, llm=getattr(args, "llm", "scripted"), task_label=label,
         robot=str(args.robot_value.root), robots_dir=getattr(args, "robots_dir", None), vocabulary=args.vocabulary, mode=args.mode, strict=resolve_strict(args), lockstep=args.lockstep,

@@ -23,6 +23,7 @@ from typing import Any
 
 from host.commands.inputs import seconds
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, preflight_link, unreachable_link
+from host.commands.outarg import out_dir
 from host.commands.robotarg import add_robot_argument, robot_from_args
 from host.link.board_process import BoardProcess, start_board
 from protocol.linkspec import LinkSpec
@@ -36,7 +37,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     mode.add_argument("--realtime", dest="lockstep", action="store_false", help="board paced to the wall clock (default)")
     mode.add_argument("--lockstep", dest="lockstep", action="store_true", help="board on virtual time, as fast as it goes")
     parser.set_defaults(lockstep=False)
-    parser.add_argument("--out", default=None, metavar="DIR",
+    parser.add_argument("--out", type=out_dir, default=None, metavar="DIR",
                         help="write the frame logs (board.jsonl, host.jsonl), board stderr and summary.json here")
     parser.add_argument("--duration", type=seconds, default=1.0, metavar="S", help="seconds per pose move (default 1.0)")
     add_link_argument(parser)

@@ -83,6 +83,9 @@ class SkillStore:
                     raise ValueError("not a JSON object")
                 for name, d in data.items():
                     self._skills[name] = Skill(name, str(d.get("description", "")), str(d["program"]))
+            except IsADirectoryError:
+                raise SkillError(f"cannot read the skill library {self.path}: it is a folder; give a skill "
+                                 "library file (JSON), e.g. skills.json in it") from None
             except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
                 raise SkillError(f"cannot read the skill library {self.path}: {exc} (fix or move the file; "
                                  "it was left untouched)") from None

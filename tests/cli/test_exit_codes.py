@@ -12,6 +12,7 @@ they are fast because nothing starts.
 from __future__ import annotations
 
 import os
+import socket
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -47,9 +48,10 @@ def _files(d: Path) -> dict[str, str]:
     (d / "bad_skills.json").write_text("[1, 2", encoding="utf-8")
     (d / "folder").mkdir(exist_ok=True)
     (d / "replies2.txt").write_text("<head_act/>\n---\n<wave/>\n", encoding="utf-8")
+    (d / "regular.txt").write_text(KEPT, encoding="utf-8")  # given as --out: refused, left as it was
     return {k: str(d / k) for k in ("empty.xml", "blank.xml", "latin1.xml", "prose.xml", "calls.xml", "garbage.log",
                                     "garbage.jsonl", "empty.jsonl", "empty.log", "bad_skills.json", "folder",
-                                    "replies2.txt")} | {"missing": str(d / "missing.xml")}
+                                    "replies2.txt", "regular.txt")} | {"missing": str(d / "missing.xml")}
 
 
 #: link specs that cannot be opened here, each refused before anything starts, in every command with --link
@@ -59,7 +61,11 @@ BAD_LINKS = {
     "/dev/null": "not a serial port or tty",
     "rfc2217://x": "needs HOST:PORT",
     "can:socketcan:vcan0": "cannot open CAN bus can:socketcan:vcan0",
+    "can:": "no interface given and none configured for python-can",  # python-can's config, read without a bus
 }
+
+KEPT = "a file that is not a run folder\n"
+TAKEN_PORT = "{TAKEN_PORT}"  # a localhost TCP port another socket listens on while the table runs
 
 
 def _rows(f: dict[str, str], out: str) -> list[Row]:
@@ -137,6 +143,25 @@ def _rows(f: dict[str, str], out: str) -> list[Row]:
         Row(("run", "--task", "1", "--max-log-mb", "lots", "--out", out), "expected a number"),
         Row(("run", "--task", "1", "--baud", "fast", "--out", out), "expected a whole number of bit/s"),
         Row(("run", "--task", "1", "--vocabulary", "klingon", "--out", out), "--vocabulary 'klingon'"),
+        # run: a skill library that cannot be read is bad input (it was exit status 1)
+        Row(("run", "--task", "1", "--skills", f["bad_skills.json"], "--out", out), "cannot read the skill library"),
+        Row(("run", "--task", "1", "--skills", f["folder"], "--out", out), "it is a folder"),
+        Row(("demo", "--skills", f["bad_skills.json"], "--out", out), "cannot read the skill library"),
+        # --mount-mcp NAMEs are checked against the robot's modules before the board starts (was: after it
+        # started and truncated the folder's frame logs)
+        Row(("run", "--task", "26", "--lockstep", "--no-live", "--out", out, "--mount-mcp", "head=x"),
+            "'head' is already a module or channel"),
+        Row(("run", "--task", "1", "--lockstep", "--no-live", "--out", out, "--mount-mcp", "a=x", "--mount-mcp", "a=y"),
+            "NAME given twice"),
+        Row(("chat", "--replies", f["replies2.txt"], "--out", out, "--mount-mcp", "face=x"),
+            "'face' is already a module or channel"),
+        Row(("mcp", "--lockstep", "--out", out, "--mount-mcp", "head=x"), "'head' is already a module or channel"),
+        Row(("eval", "--llm", "ground-truth", "--tasks", "1", "--out", out, "--mount-mcp", "a=x", "--mount-mcp", "a=y"),
+            "NAME given twice"),
+        # a port another server listens on: one line before the board starts (mcp was ~300 lines of tracebacks)
+        Row(("mcp", "--http", TAKEN_PORT, "--lockstep", "--out", out), f"port {TAKEN_PORT} is in use"),
+        Row(("run", "--task", "1", "--lockstep", "--no-live", "--foxglove", TAKEN_PORT, "--out", out),
+            f"port {TAKEN_PORT} is in use"),
         # chat
         Row(("chat", "--replies", f["missing"], "--out", out), "cannot read it"),
         Row(("chat", "--replies", f["empty.xml"], "--out", out), "is empty"),
@@ -181,6 +206,28 @@ def _rows(f: dict[str, str], out: str) -> list[Row]:
         Row(("vcan", "--timeout", "-1", "--", "true"), "above 0"),
         Row(("vcan", "--", "no-such-command-anywhere"), "command not found", status=127),
     ]
+    # --out that cannot be a folder of artefacts: every command's, one validator (host.commands.outarg)
+    regular = f["regular.txt"]
+    out_commands = {
+        "run": ["run", "--task", "1", "--lockstep", "--no-live"],
+        "demo": ["demo", "--lockstep", "--no-live", "--no-video"],
+        "chat": ["chat", "--replies", f["replies2.txt"], "--lockstep", "--no-live"],
+        "replay": ["replay", f["garbage.jsonl"]],
+        "tour": ["tour", "--lockstep"],
+        "mcp": ["mcp", "--lockstep"],
+        "eval": ["eval", "--llm", "ground-truth", "--tasks", "1", "--trials", "1"],
+        "fuzz": ["fuzz", "serial-decoder"],
+    }
+    for argv in out_commands.values():
+        rows.append(Row((*argv, "--out", regular), "is a regular file, not a folder"))
+    rows += [
+        Row((*out_commands["run"], "--out", "/dev/null"), "/dev/null is a device, not a folder"),
+        Row((*out_commands["run"], "--out", regular + "/sub"), "is a regular file, not a folder"),
+        Row((*out_commands["mcp"], "--out", "/proc/x"), "/proc/x cannot be created: /proc takes no new folder"),
+        Row((*out_commands["tour"], "--out", "/proc"), "/proc is a folder this process cannot write in"),
+        Row((*out_commands["eval"], "--out", "/dev/null"), "/dev/null is a device, not a folder"),
+        Row((*out_commands["fuzz"], "--corpus", regular), "is a regular file, not a folder"),
+    ]
     # every command: an unknown option is argparse's usage error (vcan hands what follows -- to COMMAND)
     rows += [Row((name, "--no-such-option"), "error:") for name in COMMANDS]
     return rows
@@ -198,21 +245,61 @@ class Result:
     out: Path
 
 
-def _run(row: Row, cwd: Path, out: Path) -> Result:
+def _run(row: Row, cwd: Path, out: Path, port: int) -> Result:
     env = dict(os.environ, OPENAI_API_KEY="", GHOSTSHELL_LLM_API_KEY="", ANTHROPIC_API_KEY="")
-    argv = [a.replace(OUT, str(out)) for a in row.argv]
+    for name in ("CAN_INTERFACE", "CAN_CHANNEL", "CAN_BITRATE", "CAN_CONFIG"):  # python-can's config: none
+        env.pop(name, None)
+    argv = [a.replace(OUT, str(out)).replace(TAKEN_PORT, str(port)) for a in row.argv]
     p = subprocess.run([sys.executable, "-m", "host", *argv], cwd=cwd, capture_output=True, text=True,
                        timeout=120, env=env, stdin=subprocess.DEVNULL)
-    return Result(row, p.returncode, p.stderr, p.stdout, out)
+    says = row.says.replace(TAKEN_PORT, str(port))
+    return Result(Row(row.argv, says, row.status), p.returncode, p.stderr, p.stdout, out)
 
 
 @pytest.fixture(scope="module")
-def results(tmp_path_factory: pytest.TempPathFactory) -> list[Result]:
+def inputs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, str]]:
     root = tmp_path_factory.mktemp("exit_codes")
-    files = _files(root / "in")
+    return root, _files(root / "in")
+
+
+@pytest.fixture(scope="module")
+def results(inputs: tuple[Path, dict[str, str]]) -> list[Result]:
+    root, files = inputs
     rows = _rows(files, OUT)
-    with ThreadPoolExecutor(max_workers=4) as pool:
-        return list(pool.map(lambda ir: _run(ir[1], root, root / "out" / str(ir[0])), enumerate(rows)))
+    with socket.socket() as taken, ThreadPoolExecutor(max_workers=4) as pool:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        return list(pool.map(lambda ir: _run(ir[1], root, root / "out" / str(ir[0]), port), enumerate(rows)))
+
+
+def test_a_refused_out_file_is_left_as_it_was(inputs: tuple[Path, dict[str, str]], results: list[Result]) -> None:
+    assert Path(inputs[1]["regular.txt"]).read_text(encoding="utf-8") == KEPT
+
+
+#: usage errors that were found only after the board started, each truncating the folder's frame logs
+LATE_USAGE_ERRORS = (
+    ("run", "--task", "26", "--lockstep", "--no-live", "--mount-mcp", "head=x"),
+    ("run", "--task", "26", "--lockstep", "--no-live", "--mount-mcp", "a=x", "--mount-mcp", "a=y"),
+    ("run", "--task", "1", "--lockstep", "--no-live", "--link", "can:"),
+    ("chat", "--replies", "{REPLIES}", "--lockstep", "--no-live", "--mount-mcp", "head=x"),
+)
+
+
+@pytest.mark.parametrize("argv", LATE_USAGE_ERRORS, ids=[" ".join(a) for a in LATE_USAGE_ERRORS])
+def test_a_usage_error_leaves_the_previous_run_folder_alone(argv: tuple[str, ...], tmp_path: Path,
+                                                            inputs: tuple[Path, dict[str, str]]) -> None:
+    run = tmp_path / "previous"
+    run.mkdir()
+    kept = {"host_frames.jsonl": '{"previous": "run"}\n', "board_frames.jsonl": '{"previous": "run"}\n',
+            "summary.json": "{}\n"}
+    for name, text in kept.items():
+        (run / name).write_text(text, encoding="utf-8")
+    argv = tuple(a.replace("{REPLIES}", inputs[1]["replies2.txt"]) for a in argv)
+    r = _run(Row((*argv, "--out", str(run)), ""), tmp_path, run, 0)
+    assert r.status == 2, r.stderr
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert {p.name: p.read_text(encoding="utf-8") for p in run.iterdir()} == kept
 
 
 def test_every_command_has_rows(results: list[Result]) -> None:
@@ -234,7 +321,7 @@ def _ids() -> list[str]:
 def _files_stub() -> dict[str, str]:
     return {k: k for k in ("empty.xml", "blank.xml", "latin1.xml", "prose.xml", "calls.xml", "garbage.log",
                            "garbage.jsonl", "empty.jsonl", "empty.log", "bad_skills.json", "folder", "replies2.txt",
-                           "missing")}
+                           "regular.txt", "missing")}
 
 
 @pytest.mark.parametrize("index", range(len(_ids())), ids=_ids())

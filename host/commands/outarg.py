@@ -1,0 +1,119 @@
+"""``--out DIR``, the artefact folder of every command that writes one, checked before anything starts.
+
+:func:`out_dir` is the argparse ``type=`` every command's ``--out`` folder uses (``run``, ``demo``,
+``chat``, ``replay``, ``tour``, ``mcp``, ``eval``, ``fuzz``): a path that is an existing file (a regular
+file, ``/dev/null``, a socket), lies under a file, or names a place this process cannot create or write
+a folder in (``/proc/x``, a read-only file system, a folder without write permission) is argparse's
+usage error, exit status 2, one line naming the path and why, before any board starts or any file
+is opened. Nothing is created: the folder itself is made when the command writes its first artefact.
+
+Whether a folder can be written is found by trying, not by :func:`os.access`: root passes every
+permission check, yet cannot make folders in ``/proc`` or ``/sys`` or on a read-only mount. The
+probe makes a uniquely named empty folder (:func:`tempfile.mkdtemp`) in the path, or in its nearest
+existing ancestor when the path does not exist yet, and removes it at once.
+
+:func:`tcp_port_taken` answers why a localhost TCP port cannot be listened on (``mcp --http PORT``),
+by binding it as the server would, before the board starts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import errno
+import os
+import socket
+import stat
+import tempfile
+from pathlib import Path
+
+__all__ = ["out_dir", "out_dir_problem", "tcp_port_taken"]
+
+_PROBE_PREFIX = ".ghostshell-write-probe-"
+
+
+def _kind(mode: int) -> str:
+    if stat.S_ISREG(mode):
+        return "a regular file"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return "not a folder"
+
+
+def _probe(folder: Path) -> str | None:
+    """Why no folder can be made in the existing folder ``folder`` (its ``strerror``), or None."""
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=_PROBE_PREFIX, dir=folder))
+    except OSError as e:
+        return e.strerror or str(e)
+    return None
+
+
+def out_dir_problem(path: str | Path) -> str | None:
+    """Why ``path`` cannot be (or become) a folder of artefacts, in a few words, or None when it can.
+
+    It can when it is a folder this process can write in, or when it does not exist and its nearest
+    existing ancestor is a folder this process can make folders in."""
+    p = Path(path)
+    if str(path) == "":
+        return "is empty; give a folder"
+    try:
+        mode = os.stat(p).st_mode
+    except FileNotFoundError:
+        mode = None
+    except NotADirectoryError:
+        mode = None  # a parent is a file: found below
+    except OSError as e:
+        return f"cannot be looked at ({e.strerror or e})"
+    if mode is not None:
+        if not stat.S_ISDIR(mode):
+            return f"is {_kind(mode)}, not a folder; give a folder (existing or new)"
+        why = _probe(p)
+        return None if why is None else f"is a folder this process cannot write in ({why})"
+    ancestor = p.absolute().parent
+    while True:
+        try:
+            amode = os.stat(ancestor).st_mode
+        except (FileNotFoundError, NotADirectoryError):
+            if ancestor.parent == ancestor:
+                return "cannot be created (no existing folder above it)"
+            ancestor = ancestor.parent
+            continue
+        except OSError as e:
+            return f"cannot be created: {ancestor} cannot be looked at ({e.strerror or e})"
+        break
+    if not stat.S_ISDIR(amode):
+        return f"cannot be created: {ancestor} is {_kind(amode)}, not a folder"
+    why = _probe(ancestor)
+    return None if why is None else f"cannot be created: {ancestor} takes no new folder ({why})"
+
+
+def out_dir(text: str) -> Path:
+    """argparse ``type=`` for ``--out DIR``: the path, or :class:`argparse.ArgumentTypeError` saying why
+    it cannot hold the artefacts (see :func:`out_dir_problem`)."""
+    why = out_dir_problem(text)
+    if why is not None:
+        raise argparse.ArgumentTypeError(f"{text} {why}")
+    return Path(text)
+
+
+def tcp_port_taken(port: int, host: str = "127.0.0.1") -> str | None:
+    """Why a server cannot listen on ``host:port`` (one phrase, e.g. ``"port 8000 is in use ..."``), or None.
+
+    Binds the port as the server would (``SO_REUSEADDR`` set, as uvicorn does on POSIX, so a port
+    left in TIME_WAIT is free) and closes it again."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        if os.name == "posix":
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((host, port))
+        except OSError as e:
+            if e.errno == errno.EADDRINUSE:
+                return f"port {port} is in use on {host} (another server listens there); pick another PORT"
+            if e.errno == errno.EACCES:
+                return f"port {port} on {host} needs privileges this process lacks; pick a port above 1023"
+            return f"cannot listen on {host}:{port} ({e.strerror or e})"
+    return None
