@@ -9,47 +9,16 @@ from __future__ import annotations
 import anyio
 import pytest
 
-from host.shell.context import current_call
 from host.shell.limits import Limits
-from host.shell.registry import Registry
 from host.shell.scheduler import MAX_DEPTH
 from host.shell.shell import Shell
 from host.shell.skills import SkillStore
-from host.shell.types import Module, shell_function
+from host.shell.types import shell_function
+
+from support.shell_fakes import LOG, fake, shell_with, timed_stream
 
 pytestmark = pytest.mark.anyio
 
-LOG: list[tuple[float, str]] = []
-
-
-def fake(name: str, seconds: float, *, reset_seconds: float | None = None):
-    """An async function that takes ``d`` seconds (forever when persistent) and logs (as in test_scheduler)."""
-
-    async def reset() -> None:
-        await anyio.sleep(reset_seconds or 0)
-        LOG.append((anyio.current_time(), f"{name}:reset"))
-
-    @shell_function(name=name, reset=reset if reset_seconds is not None else None)
-    async def fn(d: float = seconds) -> None:
-        ctx = current_call()
-        LOG.append((anyio.current_time(), f"{name}:start"))
-        if ctx is not None and ctx.persistent:
-            await anyio.sleep_forever()
-        await anyio.sleep(d)
-
-    return fn
-
-
-def shell_with(channels: dict[str, list], **kw) -> Shell:
-    return Shell(Registry([Module.from_functions(ch, *fns) for ch, fns in channels.items()]), **kw)
-
-
-async def timed_stream(parts: list[tuple[float, str]]):
-    """Yield each text at its virtual time (relative to the stream's start)."""
-    t0 = anyio.current_time()
-    for at, text in parts:
-        await anyio.sleep(max(0.0, t0 + at - anyio.current_time()))
-        yield text
 
 
 def _shell(**kw):
