@@ -6,6 +6,7 @@ import argparse
 import os
 import signal
 import sys
+import threading
 from collections.abc import Sequence
 
 from protocol.faults import push_arg, seed_arg
@@ -120,9 +121,16 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+#: exit status of a board a signal stopped (SIGINT, SIGTERM), after its clean shutdown: the CLI's
+#: exit status table's "interrupted" (128 + SIGINT, as a shell reports Ctrl-C)
+INTERRUPTED_STATUS = 130
+#: set when standard input closed (``--stop-on-stdin-eof``): that stop is the owner's normal end, exit 0
+_STDIN_CLOSED = threading.Event()
+
+
 def _stop_on_stdin_eof() -> None:
-    """Read standard input until it closes, then stop the board as SIGTERM does (in a daemon thread)."""
-    import threading
+    """Read standard input until it closes, then stop the board as SIGTERM does (in a daemon thread);
+    the board then exits 0, not :data:`INTERRUPTED_STATUS` (closing stdin is how its owner ends it)."""
 
     def watch() -> None:  # os.read on the fd: a thread blocked in sys.stdin would hold its lock at exit
         try:
@@ -130,6 +138,7 @@ def _stop_on_stdin_eof() -> None:
                 pass
         except OSError:
             pass
+        _STDIN_CLOSED.set()
         os.kill(os.getpid(), signal.SIGTERM)
 
     threading.Thread(target=watch, name="stdin-eof", daemon=True).start()
@@ -174,6 +183,15 @@ def _raise_stop(signum: int, frame: object) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the board until SIGINT/SIGTERM; 0 (stdin closed with ``--stop-on-stdin-eof``), 130 (stopped
+    by a signal, after a clean shutdown), 1 (the C firmware died) or 2 (bad arguments or link)."""
+    status = _main(argv)
+    if status == INTERRUPTED_STATUS and _STDIN_CLOSED.is_set():
+        return 0
+    return status
+
+
+def _main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     has_display = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
@@ -296,10 +314,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         if need > 0.8 * args.baud:
             print(f"board: warning: telemetry needs ~{need} bit/s, more than 80% of {args.baud} baud; "
                   "some reports will be dropped (lower --telemetry-rate)", file=sys.stderr, flush=True)
+    status = 0
     try:
         server.serve()
     except (_Stop, KeyboardInterrupt):
-        pass
+        status = INTERRUPTED_STATUS
     finally:
         if injectors and fault_spec is not None:
             from firmware_sim.transports.faulty import report_line
@@ -322,4 +341,4 @@ def main(argv: Sequence[str] | None = None) -> int:
         if objects_log is not None:
             objects_log.close()
         link.close()
-    return 0
+    return status
