@@ -185,7 +185,11 @@ def _raise_stop(signum: int, frame: object) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the board until SIGINT/SIGTERM; 0 (stdin closed with ``--stop-on-stdin-eof``), 130 (stopped
     by a signal, after a clean shutdown), 1 (the C firmware died) or 2 (bad arguments or link)."""
-    status = _main(argv)
+    try:
+        status = _main(argv)
+    except KeyboardInterrupt:  # Ctrl-C while loading, before the handlers: nothing was serving yet
+        print("board: interrupted while starting", file=sys.stderr, flush=True)
+        return INTERRUPTED_STATUS
     if status == INTERRUPTED_STATUS and _STDIN_CLOSED.is_set():
         return 0
     return status
@@ -297,25 +301,25 @@ def _main(argv: Sequence[str] | None = None) -> int:
             print(f"board: cannot write --objects-log {args.objects_log}: {e}", file=sys.stderr)
             return 2
     server = BoardServer(board, link, viewer=viewer, objects_log=objects_log)
-    signal.signal(signal.SIGTERM, _raise_stop)
-    signal.signal(signal.SIGINT, _raise_stop)
-    if args.stop_on_stdin_eof:
-        _stop_on_stdin_eof()
-    print(f"board: listening on {link.name}", flush=True)
-    mode = "lockstep" if cfg.lockstep else "realtime"
-    print(f"board: {robot.name} ({robot.servo_count} servos), {mode}, {cfg.rate_hz} Hz, dt {cfg.dt} s, "
-          f"telemetry {cfg.telemetry_rate_hz} Hz"
-          + (f", {args.baud} baud" if args.baud else ""), file=sys.stderr, flush=True)
-    if args.baud:
-        from protocol.framing import frame_size
-
-        need = cfg.telemetry_rate_hz * (frame_size(board.telemetry(), board.wire_schema)
-                                        + frame_size(board.sim_state(), board.wire_schema)) * 10
-        if need > 0.8 * args.baud:
-            print(f"board: warning: telemetry needs ~{need} bit/s, more than 80% of {args.baud} baud; "
-                  "some reports will be dropped (lower --telemetry-rate)", file=sys.stderr, flush=True)
     status = 0
-    try:
+    try:  # from the handlers on: a signal at any point after them ends in the clean shutdown below
+        signal.signal(signal.SIGTERM, _raise_stop)
+        signal.signal(signal.SIGINT, _raise_stop)
+        if args.stop_on_stdin_eof:
+            _stop_on_stdin_eof()
+        print(f"board: listening on {link.name}", flush=True)
+        mode = "lockstep" if cfg.lockstep else "realtime"
+        print(f"board: {robot.name} ({robot.servo_count} servos), {mode}, {cfg.rate_hz} Hz, dt {cfg.dt} s, "
+              f"telemetry {cfg.telemetry_rate_hz} Hz"
+              + (f", {args.baud} baud" if args.baud else ""), file=sys.stderr, flush=True)
+        if args.baud:
+            from protocol.framing import frame_size
+
+            need = cfg.telemetry_rate_hz * (frame_size(board.telemetry(), board.wire_schema)
+                                            + frame_size(board.sim_state(), board.wire_schema)) * 10
+            if need > 0.8 * args.baud:
+                print(f"board: warning: telemetry needs ~{need} bit/s, more than 80% of {args.baud} baud; "
+                      "some reports will be dropped (lower --telemetry-rate)", file=sys.stderr, flush=True)
         server.serve()
     except (_Stop, KeyboardInterrupt):
         status = INTERRUPTED_STATUS
