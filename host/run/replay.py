@@ -14,7 +14,14 @@ messages before it have covered, so the same message stream gives the same physi
 however it was paced (see :mod:`firmware_sim.server`). Pacing: after every ADVANCE the
 replay waits for its ACK (as the recording host did), so nothing piles up. The replay
 waits for the board to report ground truth at the board time of the last SIM_STATE the
-original host received (found in the log), which is what the original ``base_end`` was.
+original host received (found in the log), which is what the original ``base_end`` was; when
+that time lies past what the recorded messages cover (a realtime board runs on by itself after
+the host's last frame), one closing ADVANCE covers it, so the wait always has an end.
+
+Refused up front, before a board starts (:class:`ReplayInputError`, exit status 2): a log with
+nothing that moves the board (no SERVO_FRAME, no ADVANCE: a run stopped while starting), a
+``--robot`` other than the one the run's summary.json names, and servo frames addressing servos
+the robot lacks (a log of another robot: its board would refuse every frame and never move).
 """
 
 from __future__ import annotations
