@@ -6,6 +6,7 @@ import argparse
 import os
 import signal
 import sys
+import threading
 from collections.abc import Sequence
 
 from protocol.faults import push_arg, seed_arg
@@ -120,9 +121,16 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+#: exit status of a board a signal stopped (SIGINT, SIGTERM), after its clean shutdown: the CLI's
+#: exit status table's "interrupted" (128 + SIGINT, as a shell reports Ctrl-C)
+INTERRUPTED_STATUS = 130
+#: set when standard input closed (``--stop-on-stdin-eof``): that stop is the owner's normal end, exit 0
+_STDIN_CLOSED = threading.Event()
+
+
 def _stop_on_stdin_eof() -> None:
-    """Read standard input until it closes, then stop the board as SIGTERM does (in a daemon thread)."""
-    import threading
+    """Read standard input until it closes, then stop the board as SIGTERM does (in a daemon thread);
+    the board then exits 0, not :data:`INTERRUPTED_STATUS` (closing stdin is how its owner ends it)."""
 
     def watch() -> None:  # os.read on the fd: a thread blocked in sys.stdin would hold its lock at exit
         try:
@@ -130,6 +138,7 @@ def _stop_on_stdin_eof() -> None:
                 pass
         except OSError:
             pass
+        _STDIN_CLOSED.set()
         os.kill(os.getpid(), signal.SIGTERM)
 
     threading.Thread(target=watch, name="stdin-eof", daemon=True).start()
@@ -174,6 +183,19 @@ def _raise_stop(signum: int, frame: object) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the board until SIGINT/SIGTERM; 0 (stdin closed with ``--stop-on-stdin-eof``), 130 (stopped
+    by a signal, after a clean shutdown), 1 (the C firmware died) or 2 (bad arguments or link)."""
+    try:
+        status = _main(argv)
+    except KeyboardInterrupt:  # Ctrl-C while loading, before the handlers: nothing was serving yet
+        print("board: interrupted while starting", file=sys.stderr, flush=True)
+        return INTERRUPTED_STATUS
+    if status == INTERRUPTED_STATUS and _STDIN_CLOSED.is_set():
+        return 0
+    return status
+
+
+def _main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     has_display = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
@@ -279,27 +301,28 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"board: cannot write --objects-log {args.objects_log}: {e}", file=sys.stderr)
             return 2
     server = BoardServer(board, link, viewer=viewer, objects_log=objects_log)
-    signal.signal(signal.SIGTERM, _raise_stop)
-    signal.signal(signal.SIGINT, _raise_stop)
-    if args.stop_on_stdin_eof:
-        _stop_on_stdin_eof()
-    print(f"board: listening on {link.name}", flush=True)
-    mode = "lockstep" if cfg.lockstep else "realtime"
-    print(f"board: {robot.name} ({robot.servo_count} servos), {mode}, {cfg.rate_hz} Hz, dt {cfg.dt} s, "
-          f"telemetry {cfg.telemetry_rate_hz} Hz"
-          + (f", {args.baud} baud" if args.baud else ""), file=sys.stderr, flush=True)
-    if args.baud:
-        from protocol.framing import frame_size
+    status = 0
+    try:  # from the handlers on: a signal at any point after them ends in the clean shutdown below
+        signal.signal(signal.SIGTERM, _raise_stop)
+        signal.signal(signal.SIGINT, _raise_stop)
+        if args.stop_on_stdin_eof:
+            _stop_on_stdin_eof()
+        print(f"board: listening on {link.name}", flush=True)
+        mode = "lockstep" if cfg.lockstep else "realtime"
+        print(f"board: {robot.name} ({robot.servo_count} servos), {mode}, {cfg.rate_hz} Hz, dt {cfg.dt} s, "
+              f"telemetry {cfg.telemetry_rate_hz} Hz"
+              + (f", {args.baud} baud" if args.baud else ""), file=sys.stderr, flush=True)
+        if args.baud:
+            from protocol.framing import frame_size
 
-        need = cfg.telemetry_rate_hz * (frame_size(board.telemetry(), board.wire_schema)
-                                        + frame_size(board.sim_state(), board.wire_schema)) * 10
-        if need > 0.8 * args.baud:
-            print(f"board: warning: telemetry needs ~{need} bit/s, more than 80% of {args.baud} baud; "
-                  "some reports will be dropped (lower --telemetry-rate)", file=sys.stderr, flush=True)
-    try:
+            need = cfg.telemetry_rate_hz * (frame_size(board.telemetry(), board.wire_schema)
+                                            + frame_size(board.sim_state(), board.wire_schema)) * 10
+            if need > 0.8 * args.baud:
+                print(f"board: warning: telemetry needs ~{need} bit/s, more than 80% of {args.baud} baud; "
+                      "some reports will be dropped (lower --telemetry-rate)", file=sys.stderr, flush=True)
         server.serve()
     except (_Stop, KeyboardInterrupt):
-        pass
+        status = INTERRUPTED_STATUS
     finally:
         if injectors and fault_spec is not None:
             from firmware_sim.transports.faulty import report_line
@@ -322,4 +345,4 @@ def main(argv: Sequence[str] | None = None) -> int:
         if objects_log is not None:
             objects_log.close()
         link.close()
-    return 0
+    return status

@@ -81,6 +81,10 @@ class LaunchOptions:
     icount: bool = False  # qemu: -icount shift=0
 
 
+#: exit status of a board a signal stopped (SIGINT, SIGTERM): the CLI's "interrupted", 128 + SIGINT
+INTERRUPTED_STATUS = 130
+
+
 class _Stop(BaseException):
     pass
 
@@ -232,7 +236,8 @@ class _LogReader:
 
 
 def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
-    """Build, boot and serve until SIGTERM/SIGINT; 0, 1 (the firmware died) or 2 (cannot start)."""
+    """Build, boot and serve until SIGTERM/SIGINT; 130 (stopped by that signal, cleanly: the exit status
+    table's "interrupted"), 1 (the firmware died) or 2 (cannot start)."""
     err = sys.stderr if err is None else err
     link = opts.link
     kind = link_kind(link) if link is not None else None
@@ -338,12 +343,14 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
                 status = proc.returncode
                 break
     except (_Stop, KeyboardInterrupt):
-        pass
+        status = INTERRUPTED_STATUS
     finally:
         signal.signal(signal.SIGTERM, old[0])
         signal.signal(signal.SIGINT, old[1])
-        died = proc.poll() is not None
-        if not died:
+        exited = proc.poll() is not None
+        # a terminal's Ctrl-C reaches the firmware too (same process group): its exit then is no death
+        died = exited and status != INTERRUPTED_STATUS
+        if not exited:
             proc.send_signal(signal.SIGTERM)
             try:
                 proc.wait(5)

@@ -143,7 +143,7 @@ class _Chat:
 async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any, out: Path) -> int:
     from host.link import LinkError
     from host.run.session import RobotSession, SessionOptions
-    from host.run.stops import Interrupted, StopReason, StopSignals
+    from host.run.stops import StopSignals
 
     opts = SessionOptions(robot=str(args.robot_value.root), robots_dir=args.robots_dir, vocabulary=args.vocabulary,
                           mode=args.mode, strict=resolve_strict(args), lockstep=args.lockstep, link=args.link,
@@ -167,13 +167,13 @@ async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any,
             raise
     conv = chat.conv
     if signals.forced is not None:  # stopped at once: the step in progress and the transcript, no plots
-        stop = signals.first or StopReason("signal", signals.forced, f"interrupted by {signals.forced}")
-        ended = session.ended_turn(Interrupted(stop, signals.forced))
+        interrupted = signals.interrupted()
+        ended = session.ended_turn(interrupted)
         if ended is not None and session.turns:
             session.write_now(ended, plots=False)
         if conv is not None:
             conv.write_transcript(transcript)
-        print(f"ghostshell chat: {stop.message}, then {signals.forced} again: stopped at once; transcript and "
+        print(f"ghostshell chat: {interrupted.how}; transcript and "
               f"artefacts in {out}/", file=sys.stderr)
         return 130
     if session.stop is not None:

@@ -369,7 +369,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     except Interrupted as e:
         ended = ended_report(e)
         what = f"; {_counts(ended.summary.outcomes)}" if ended is not None else ""
-        print(f"ghostshell {command}: {e.stop.message}, then {e.forced_by} again: stopped at once{what}; "
+        print(f"ghostshell {command}: {e.how}{what}; "
               + (f"summary.json and timeline.json in {out}/" if ended is not None else "nothing ran"), file=sys.stderr)
         return 130
     except (LinkError, GhostError, RuntimeError, OSError) as e:

@@ -164,7 +164,7 @@ def main(args: argparse.Namespace) -> int:
     finally:
         if board is not None:
             rc = board.stop()
-    if rc not in (0, -signal.SIGTERM):
+    if rc not in (0, 130, -signal.SIGTERM):  # 130: the board stopped cleanly on the SIGTERM (interrupted)
         print(f"ghostshell tour: board exited with status {rc}", file=sys.stderr)
         code = code or 1
     if summary is not None:

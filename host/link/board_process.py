@@ -51,7 +51,8 @@ class BoardProcess:
         self.spec: LinkSpec = spec if spec is not None else parse_link_spec(port)
 
     def stop(self, timeout: float = 5.0) -> int:
-        """SIGTERM, wait (then SIGKILL); returns the exit code."""
+        """SIGTERM, wait (then SIGKILL); returns the exit code (130: the board stopped cleanly on the
+        signal, as ``python -m firmware_sim`` does; -9 after SIGKILL)."""
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
             try:

@@ -14,7 +14,14 @@ messages before it have covered, so the same message stream gives the same physi
 however it was paced (see :mod:`firmware_sim.server`). Pacing: after every ADVANCE the
 replay waits for its ACK (as the recording host did), so nothing piles up. The replay
 waits for the board to report ground truth at the board time of the last SIM_STATE the
-original host received (found in the log), which is what the original ``base_end`` was.
+original host received (found in the log), which is what the original ``base_end`` was; when
+that time lies past what the recorded messages cover (a realtime board runs on by itself after
+the host's last frame), one closing ADVANCE covers it, so the wait always has an end.
+
+Refused up front, before a board starts (:class:`ReplayInputError`, exit status 2): a log with
+nothing that moves the board (no SERVO_FRAME, no ADVANCE: a run stopped while starting), a
+``--robot`` other than the one the run's summary.json names, and servo frames addressing servos
+the robot lacks (a log of another robot: its board would refuse every frame and never move).
 """
 
 from __future__ import annotations
@@ -155,6 +162,21 @@ class ReplayResult:
     sim_states: list[SimState] = field(default_factory=list, repr=False)
 
 
+#: us a closing ADVANCE covers past the board time waited for: one 50 Hz telemetry period, so a report is due
+TAIL_US = 20_000
+
+
+def _check_servos(msgs: list[tuple[float, int, Message]], robot: Robot, log_path: Path) -> None:
+    """:class:`ReplayInputError` when the log's servo frames address servos ``robot`` lacks (a log of
+    another robot: the board would refuse every frame and never move)."""
+    for _, seq, msg in msgs:
+        if isinstance(msg, ServoFrame) and (msg.mask & ~robot.servos.all_mask or len(msg.targets) > robot.servo_count):
+            raise ReplayInputError(
+                f"{log_path} drives servos that robot {robot.name!r} ({robot.servo_count} servos) lacks "
+                f"(SERVO_FRAME seq {seq}: mask 0x{msg.mask:04x}, {len(msg.targets)} targets); "
+                f"give --robot the robot the run drove")
+
+
 def _replay_log(path: Path, robot: Robot, log_path: Path) -> RunLog | None:
     """The replay's own run.mcap (one warning line and none when it cannot be written)."""
     try:
@@ -168,10 +190,14 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
     msgs = list(read_host_to_board(log_path))
     if not msgs:
         raise ReplayInputError(f"{log_path} holds no host-to-board messages")
+    if not any(isinstance(m, (ServoFrame, Advance)) for _, _, m in msgs):
+        raise ReplayInputError(f"nothing to replay: {log_path} holds no servo frame and no ADVANCE "
+                               f"(the run stopped before it moved the robot)")
+    robot = load_robot(robot_name, robots_dir)
+    _check_servos(msgs, robot, log_path)
     out.mkdir(parents=True, exist_ok=True)  # only for a log that can be replayed
     last_fn = LAST_SIM_STATE.get(log_path.suffix.lower())
     original = last_fn(log_path) if last_fn is not None else None
-    robot = load_robot(robot_name, robots_dir)
     board = start_board(["--lockstep", "--robot", str(robot.root), "--log", str(out / "board_frames.jsonl")],
                         out / "board.stderr")
     transport = open_transport(board.spec, log_path=out / "host_frames.jsonl", servo_count=robot.servo_count)
@@ -234,6 +260,17 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
                 except TimeoutError:
                     raise ReplayError(f"the board did not acknowledge ADVANCE (seq {seq}) within {timeout_s} s") from None
         want_us = original.board_time_us if original is not None else end_us - 40_000
+        if want_us > end_us:  # e.g. a realtime run's board ran on past the host's last frame: cover it,
+            # or a lockstep board could never report that time (the last targets hold meanwhile, as they did)
+            seq = (max(s for _, s, _ in msgs) + 1) & 0xFFFF
+            fut = loop.create_future()
+            acks[seq] = fut
+            transport.send(Advance(want_us + TAIL_US), seq)
+            end_us = want_us + TAIL_US
+            try:
+                await asyncio.wait_for(fut, timeout_s)
+            except TimeoutError:
+                raise ReplayError(f"the board did not acknowledge the closing ADVANCE within {timeout_s} s") from None
         while not (sims and sims[-1].board_time_us >= want_us):
             if lost:
                 raise ReplayError(f"board link lost during the replay: {lost[0]}")
@@ -267,6 +304,14 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
     return ReplayResult(base_end, orig_end, err_mm, len(msgs), final.board_time_us / 1e6, out, sims)
 
 
+def _check_robot(run_dir: Path, recorded: str, asked: str, robots_dir: str | None) -> None:
+    """:class:`ReplayInputError` when the robot asked for is not the one the run drove (by name)."""
+    was, now = load_robot(recorded, robots_dir), load_robot(asked, robots_dir)
+    if was.name != now.name:
+        raise ReplayInputError(f"{run_dir} was recorded on robot {was.name!r} ({was.servo_count} servos): it cannot be "
+                               f"replayed on {now.name!r} ({now.servo_count} servos); leave out --robot")
+
+
 def replay(log: str | Path, out: str | Path, *, timeout_s: float = 30.0, robot: str | None = None,
            robots_dir: str | None = None) -> ReplayResult:
     """Replay the host log ``log`` (a file or a run folder) into a fresh lockstep board; artefacts in ``out``.
@@ -278,5 +323,8 @@ def replay(log: str | Path, out: str | Path, *, timeout_s: float = 30.0, robot: 
     """
     log_path = find_host_log(Path(log))
     out_dir = Path(out)
-    name = robot or recorded_robot(log_path.parent) or DEFAULT_ROBOT
+    recorded = recorded_robot(log_path.parent)
+    if robot is not None and recorded is not None:
+        _check_robot(log_path.parent, recorded, robot, robots_dir)
+    name = robot or recorded or DEFAULT_ROBOT
     return asyncio.run(_replay(log_path, out_dir, timeout_s, name, robots_dir))

@@ -36,7 +36,7 @@ from host.run.events import EventPolicy, ScriptedEvent
 from host.robot.runtime import RobotRuntime
 from host.run.pump import HISTORY, SETTLE_CHECKPOINTS, TELEMETRY_SILENCE_S
 from host.run.session import RobotSession, SessionOptions, TurnResult
-from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB, Interrupted, StopReason, StopSignals
+from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB, StopReason, StopSignals
 from host.shell import Shell
 from host.shell.skills import SkillStore
 from host.shell.policy import Policy
@@ -157,11 +157,11 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, RobotRuntime]
             raise
         # else the cancellation broke the link: not a loss; reported as the interruption it was, below
     if signals is not None and signals.forced is not None:  # cancelled at once: the JSON files, then out
-        stop = signals.first or StopReason("signal", signals.forced, f"interrupted by {signals.forced}")
-        interrupted = Interrupted(stop, signals.forced)
+        interrupted = signals.interrupted()
+        stop = interrupted.stop
         if turn is not None:  # the turn itself had ended (the second signal came while going to rest)
             turn.summary.outcome = "interrupted"
-            turn.summary.extra["stopped"] = {**stop.as_dict(), "forced_by": signals.forced, "rest_pose": None}
+            turn.summary.extra["stopped"] = {**interrupted.stopped_extra(), "rest_pose": None}
             ended: TurnResult | None = turn
         else:
             ended = session.ended_turn(interrupted, opts.task_label, opts.out)

@@ -820,7 +820,7 @@ def board_fault_report(stderr_path: Path) -> Any:
 
 
 def _stopped_extra(error: Interrupted) -> dict[str, Any]:
-    return {"stopped": {**error.stop.as_dict(), "forced_by": error.forced_by}}
+    return {"stopped": error.stopped_extra()}
 
 
 def _pose(b: Any) -> list[float]:

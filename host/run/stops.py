@@ -9,7 +9,8 @@ is written (summary.json with outcome ``interrupted``, timeline, plots, frame lo
 prints one line and exits 130. A second signal exits at once: the work is cancelled, summary.json
 and timeline.json of what ran are written (no plots, no rest pose), the emulated board is stopped,
 exit 130. A signal while the session is still starting (no turn yet to interrupt) is that second
-kind at once. Signals are taken with AnyIO's :func:`anyio.open_signal_receiver` (the main thread
+kind at once, and said so: "interrupted by SIGINT (Ctrl-C) while starting: stopped at once" (one
+signal, not two; ``while_starting`` in ``summary.json``'s ``extra.stopped``). Signals are taken with AnyIO's :func:`anyio.open_signal_receiver` (the main thread
 of the event loop), so they never arrive as a ``KeyboardInterrupt`` in the middle of a task.
 
 The emulated board does not see the terminal's Ctrl-C at all: the host starts it in its own
@@ -76,12 +77,30 @@ def signal_stop(signum: int) -> StopReason:
 
 class Interrupted(Exception):
     """Raised out of a command's work that a signal cancelled at once (a second signal, or one that
-    came while the session was still starting). ``stop`` is the first signal's reason."""
+    came while the session was still starting: ``while_starting``). ``stop`` is the first signal's
+    reason, ``forced_by`` the name of the signal that stopped the work at once (the same signal when
+    ``while_starting``); :attr:`how` is what happened, for the user's one line."""
 
-    def __init__(self, stop: StopReason, forced_by: str) -> None:
-        super().__init__(f"{stop.message}; stopped at once by {forced_by}")
+    def __init__(self, stop: StopReason, forced_by: str, while_starting: bool = False) -> None:
         self.stop = stop
         self.forced_by = forced_by
+        self.while_starting = while_starting
+        super().__init__(self.how)
+
+    @property
+    def how(self) -> str:
+        """``"interrupted by SIGINT (Ctrl-C) while starting: stopped at once"`` or
+        ``"interrupted by SIGINT (Ctrl-C), then SIGTERM again: stopped at once"``."""
+        if self.while_starting:
+            return f"{self.stop.message} while starting: stopped at once"
+        return f"{self.stop.message}, then {self.forced_by} again: stopped at once"
+
+    def stopped_extra(self) -> dict[str, object]:
+        """``summary.json``'s ``extra.stopped`` (without ``rest_pose``)."""
+        extra: dict[str, object] = {**self.stop.as_dict(), "forced_by": self.forced_by}
+        if self.while_starting:
+            extra["while_starting"] = True
+        return extra
 
 
 class StopSignals:
@@ -90,15 +109,24 @@ class StopSignals:
     ``on_first(stop) -> bool`` is called with the first signal; it returns True when it took the
     graceful road (a turn will end interrupted), False when there is nothing to interrupt yet, and
     the guarded work is then cancelled at once. A second signal always cancels it at once. After
-    :meth:`guard` exits, ``first`` is the first signal's :class:`StopReason` (or None) and
-    ``forced`` the name of the signal that cancelled the work (or None).
+    :meth:`guard` exits, ``first`` is the first signal's :class:`StopReason` (or None),
+    ``forced`` the name of the signal that cancelled the work (or None) and ``while_starting``
+    whether that was the first signal itself (nothing to interrupt yet); :meth:`interrupted` is the
+    :class:`Interrupted` that describes a forced stop.
     """
 
     def __init__(self, on_first: Callable[[StopReason], bool]) -> None:
         self.on_first = on_first
         self.first: StopReason | None = None
         self.forced: str | None = None
+        self.while_starting = False
         self._body: anyio.CancelScope | None = None
+
+    def interrupted(self) -> Interrupted:
+        """The forced stop as an :class:`Interrupted` (call only when ``forced`` is set)."""
+        assert self.forced is not None
+        stop = self.first or StopReason("signal", self.forced, f"interrupted by {self.forced}")
+        return Interrupted(stop, self.forced, self.while_starting)
 
     async def _watch(self, *, task_status: anyio.abc.TaskStatus[None] = anyio.TASK_STATUS_IGNORED) -> None:
         # asyncio resets a handler it removes to the default (SIGTERM: terminate at once), not to the one
@@ -114,6 +142,7 @@ class StopSignals:
                         self.first = stop
                         if self.on_first(stop):
                             continue
+                        self.while_starting = True
                     self.forced = stop.name
                     if self._body is not None:
                         self._body.cancel()

@@ -37,7 +37,7 @@ def board(request, tmp_path: Path):
     w = Wire(args, tmp_path / "board.stderr")
     w.firmware = request.param  # type: ignore[attr-defined]
     yield w
-    assert w.close() == 0, (tmp_path / "board.stderr").read_text()[-2000:]
+    assert w.close() == 130, (tmp_path / "board.stderr").read_text()[-2000:]
 
 
 def test_handshake_and_reports_as_the_python_board(board: Wire) -> None:

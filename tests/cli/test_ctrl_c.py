@@ -210,3 +210,21 @@ def test_ctrl_c_stops_a_tour_and_its_board(tmp_path: Path) -> None:
     err = cli.stderr.strip().splitlines()
     assert rc == 130 and err == ["ghostshell tour: interrupted by SIGINT (Ctrl-C)"], cli.stderr[-3000:]
     assert processes_mentioning(str(out)) == []
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_one_signal_while_starting_is_reported_as_one(tmp_path: Path, sig: signal.Signals) -> None:
+    """Reported: ``setsid ghostshell run ... & sleep 1; kill -INT $!`` said "then SIGINT again"."""
+    from support.cliproc import start_while_starting
+
+    out = tmp_path / "run"
+    cli = start_while_starting(["run", "--task", "26", "--no-live", "--out", str(out)], tmp_path / "logs")
+    cli.signal(sig)  # one signal, to the host alone, while its handshake waits for the board
+    rc = cli.wait()
+    err = cli.stderr.strip().splitlines()
+    assert rc == 130 and len(err) == 1, cli.stderr[-3000:]
+    how = "(Ctrl-C)" if sig == signal.SIGINT else ""
+    assert f"interrupted by {sig.name}{' ' + how if how else ''} while starting: stopped at once" in err[0], err
+    assert "again" not in err[0], err
+    stopped = json.loads((out / "summary.json").read_text())["extra"]["stopped"]
+    assert stopped["by"] == stopped["forced_by"] == sig.name and stopped["while_starting"] is True, stopped

@@ -20,7 +20,8 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-__all__ = ["Cli", "last_telemetry", "processes_mentioning", "sent_servo_frames_until", "start", "wait_until"]
+__all__ = ["Cli", "last_telemetry", "processes_mentioning", "sent_servo_frames_until", "start", "start_while_starting",
+           "wait_until"]
 
 
 class Cli:
@@ -36,6 +37,8 @@ class Cli:
                                      stdout=self._out, stderr=self._err, start_new_session=True,
                                      env=env if env is not None else dict(os.environ),
                                      preexec_fn=_as_a_foreground_job)
+        #: called once the command has been waited for (e.g. closing a pty it was given)
+        self.on_exit: list[Callable[[], None]] = []
 
     def ctrl_c(self, sig: int = signal.SIGINT) -> None:
         """What a terminal does on Ctrl-C: ``sig`` to the command's whole process group."""
@@ -49,6 +52,8 @@ class Cli:
         try:
             return self.proc.wait(timeout)
         finally:
+            while self.on_exit:
+                self.on_exit.pop()()
             self._out.close()
             self._err.close()
             if self.proc.stdin is not None:
@@ -66,6 +71,8 @@ class Cli:
         if self.proc.poll() is None:
             os.killpg(self.proc.pid, signal.SIGKILL)
             self.proc.wait()
+        while self.on_exit:
+            self.on_exit.pop()()
 
 
 def _as_a_foreground_job() -> None:
@@ -154,3 +161,32 @@ def processes_mentioning(text: str) -> list[str]:
         if text in cmd and state != "Z":
             found.append(f"{proc.name}: {cmd}")
     return found
+
+
+def start_while_starting(args: Sequence[str], logs: Path) -> Cli:
+    """``python -m host ARGS --link PTY`` where PTY is a pseudo-terminal this process holds and no board
+    answers: returned once the host has sent its HELLO (read from the pty), so the command is still
+    starting (its handshake waits for CAPS) for as long as the caller likes, with no race to win.
+    The pty stays open until the command exits (closing it would look like a lost link)."""
+    import select
+    import tty
+
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    cli = start([*args, "--link", os.ttyname(slave)], logs)
+    got = bytearray()
+
+    def hello_sent() -> bool:
+        while select.select([master], [], [], 0)[0]:
+            got.extend(os.read(master, 4096))
+        return b"\x00" in got[1:]  # a whole COBS frame (HELLO: the first thing the host sends)
+
+    try:
+        wait_until(hello_sent, "the host sends HELLO", proc=cli)
+    except BaseException:
+        cli.kill()
+        raise
+    finally:
+        os.close(slave)  # the command holds its own descriptor
+    cli.on_exit.append(lambda: os.close(master))
+    return cli
