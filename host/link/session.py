@@ -777,8 +777,8 @@ class BoardClient:
                     now = time.monotonic()
                     seen = self.board_now_estimate()
                     if until == 0 or seen >= until or now - raised_at >= self.NUDGE_RAISE_S:
-                        # first nudge; the board got there and its report went missing; or nothing for
-                        # NUDGE_RAISE_S: move the target one report period on. Otherwise the same
+                        # first nudge; a report reached the target without satisfying the predicate; or
+                        # none for NUDGE_RAISE_S (lost): move the target one report period on. Otherwise the same
                         # target again (a lost ADVANCE): a slow board (QEMU on a loaded machine) must
                         # not be pushed ahead of the frames the host is about to time from its report
                         until = max(until, seen) + self.report_period_us()
