@@ -6,7 +6,7 @@ for that robot: classic CAN by default, CAN FD with ``--fd``; one set of message
 ``--nodes`` (default 1,2). Printed on stdout by default.
 
 A robot may check its DBCs in next to its robot.toml (:func:`dbc_files`: ``NAME.dbc`` and
-``NAME_fd.dbc``; CoCo does). ``--check`` compares both files with the generated text (exit 1, one line
+``NAME_fd.dbc``; the built-in robots do). ``--check`` compares both files with the generated text (exit 1, one line
 per file that is missing or differs, on stderr); ``--write`` rewrites both (one ``wrote PATH`` line
 each). For a robot that checks its DBC in, plain output is that file, byte for byte.
 
