@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from collections import OrderedDict, deque
 from collections.abc import Callable
+from typing import Any, ClassVar
 
 import mujoco
 import numpy as np
@@ -68,9 +69,16 @@ from robots.motion import min_jerk
 from robots.registry import load_robot
 from robots.scenes import toppled
 
-__all__ = ["Board", "KEPT_IMAGES", "quat_to_rpy"]
+__all__ = ["Board", "HOST_BOUND", "KEPT_IMAGES", "quat_to_rpy"]
 
 KEPT_IMAGES = 2  # camera images the board keeps for CAMERA_RESEND
+
+#: messages only the board sends: one arriving from the host is refused (NACK UNSUPPORTED) before it
+#: counts as link traffic (it neither feeds the watchdog nor the sequence-gap counter)
+HOST_BOUND: tuple[type[Message], ...] = (Telemetry, SimState, Caps, TimeSyncReply, Ack, Nack)
+
+#: a received-message handler: ``(board, msg, seq, rx_us) -> replies``
+_Handler = Callable[["Board", Any, int, int], "list[Message]"]
 
 
 def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
@@ -276,10 +284,17 @@ class Board:
     # --- messages --------------------------------------------------------------------------
 
     def handle(self, msg: Message, seq: int = 0, rx_time_us: int | None = None) -> list[Message]:
-        """Consume one decoded host message (``seq`` = its frame sequence); return the replies."""
+        """Consume one decoded host message (``seq`` = its frame sequence); return the replies.
+
+        Dispatch is the table :attr:`_HANDLERS` (message class -> ``handler(self, msg, seq, rx_us)``).
+        A message the board sends itself (:data:`HOST_BOUND`) or an object that is no message is
+        refused before it counts as link traffic; any other message feeds the sequence-gap counter and
+        the watchdog first, and one without a handler is refused after that (NACK UNSUPPORTED).
+        """
         rx = self.board_time_us() if rx_time_us is None else rx_time_us
-        if isinstance(msg, (Telemetry, SimState, Caps, TimeSyncReply, Ack, Nack)) or not hasattr(msg, "__dataclass_fields__"):
-            return [self._nack(msg, seq, NackReason.UNSUPPORTED, f"board does not accept {type(msg).__name__}")]
+        handler = self._handler_for(type(msg))
+        if handler is None and (isinstance(msg, HOST_BOUND) or not hasattr(msg, "__dataclass_fields__")):
+            return [self._unsupported(msg, seq)]
         if isinstance(msg, Hello):
             self.rx_gaps = GapDetector()  # a (new) host numbers its messages from 0 again
         self.rx_gaps.feed(seq)
@@ -287,50 +302,99 @@ class Board:
         if self.safety.feed(self.now_us):
             self._resume()
             self.watchdog_events.append((self.now_us, "resume", held_since if held_since is not None else self.now_us))
-        if isinstance(msg, ServoFrame):
-            return self._servo_frame(msg, seq)
-        if isinstance(msg, Heartbeat):
-            return []
-        if isinstance(msg, TimeSyncRequest):
-            return [TimeSyncReply(msg.t1_host_us, rx, self.board_time_us())]
-        if isinstance(msg, Hello):
-            return [self._hello(msg, seq)]
-        if isinstance(msg, Advance):
-            if not self.cfg.lockstep:
-                return [self._nack(msg, seq, NackReason.NOT_LOCKSTEP, "ADVANCE needs a --lockstep board")]
-            self.advance_until = max(self.advance_until, int(msg.until_us))
-            return [Ack(seq, MsgType.ADVANCE)]
-        if isinstance(msg, Flush):
-            for i in self.buffer.flush(int(msg.from_us), int(msg.mask)):
-                self.anchor_t[i], self.anchor_v[i] = self.now_us, self.servo.cmd_of(i)
-                self._resume_from[i], self._blend_off[i] = None, 0.0  # the new stream starts from the command
-            self._recompute_cover()
-            return [Ack(seq, MsgType.FLUSH)]
-        if isinstance(msg, Estop):
-            if self._estop_rx_us is None and not self.safety.estopped:
-                self._estop_rx_us = rx  # reported by the first tick that holds (watchdog_events)
-            self.safety.estop()
-            self.buffer.clear()
-            self.hold_q = self.data.qpos[self.cm.qpos_adr].copy()
-            self.servo.reset(self.hold_q)
-            return [Ack(seq, MsgType.ESTOP)]
-        if isinstance(msg, EstopClear):
-            self.safety.clear(self.now_us)
-            self._resume()
-            return [Ack(seq, MsgType.ESTOP_CLEAR)]
-        if isinstance(msg, Config):
-            return [self._config(msg, seq)]
-        if isinstance(msg, ScreenCommand):
-            self.screen.command(msg)
-            return [Ack(seq, MsgType.SCREEN)]
-        if isinstance(msg, SpeakerCommand):
-            self.speaker.command(msg)
-            return [Ack(seq, MsgType.SPEAKER)]
-        if isinstance(msg, CameraCapture):
-            return self._capture(msg, seq)
-        if isinstance(msg, CameraResend):
-            return self._resend(msg, seq)
-        return [self._nack(msg, seq, NackReason.UNSUPPORTED, f"board does not accept {type(msg).__name__}")]
+        if handler is None:
+            return [self._unsupported(msg, seq)]
+        return handler(self, msg, seq, rx)
+
+    @classmethod
+    def _handler_for(cls, msg_cls: type) -> _Handler | None:
+        """The handler of ``msg_cls`` (or of its nearest base class in the table: a subclass dispatches
+        as its base does), None when the board has none."""
+        handler = cls._HANDLERS.get(msg_cls)
+        if handler is None:
+            for base in msg_cls.__mro__[1:]:
+                handler = cls._HANDLERS.get(base)
+                if handler is not None:
+                    break
+        return handler
+
+    def _unsupported(self, msg: object, seq: int) -> Nack:
+        return self._nack(msg, seq, NackReason.UNSUPPORTED, f"board does not accept {type(msg).__name__}")
+
+    def _on_servo_frame(self, msg: ServoFrame, seq: int, rx: int) -> list[Message]:
+        return self._servo_frame(msg, seq)
+
+    def _on_heartbeat(self, msg: Heartbeat, seq: int, rx: int) -> list[Message]:
+        return []
+
+    def _on_time_sync(self, msg: TimeSyncRequest, seq: int, rx: int) -> list[Message]:
+        return [TimeSyncReply(msg.t1_host_us, rx, self.board_time_us())]
+
+    def _on_hello(self, msg: Hello, seq: int, rx: int) -> list[Message]:
+        return [self._hello(msg, seq)]
+
+    def _on_advance(self, msg: Advance, seq: int, rx: int) -> list[Message]:
+        if not self.cfg.lockstep:
+            return [self._nack(msg, seq, NackReason.NOT_LOCKSTEP, "ADVANCE needs a --lockstep board")]
+        self.advance_until = max(self.advance_until, int(msg.until_us))
+        return [Ack(seq, MsgType.ADVANCE)]
+
+    def _on_flush(self, msg: Flush, seq: int, rx: int) -> list[Message]:
+        for i in self.buffer.flush(int(msg.from_us), int(msg.mask)):
+            self.anchor_t[i], self.anchor_v[i] = self.now_us, self.servo.cmd_of(i)
+            self._resume_from[i], self._blend_off[i] = None, 0.0  # the new stream starts from the command
+        self._recompute_cover()
+        return [Ack(seq, MsgType.FLUSH)]
+
+    def _on_estop(self, msg: Estop, seq: int, rx: int) -> list[Message]:
+        if self._estop_rx_us is None and not self.safety.estopped:
+            self._estop_rx_us = rx  # reported by the first tick that holds (watchdog_events)
+        self.safety.estop()
+        self.buffer.clear()
+        self.hold_q = self.data.qpos[self.cm.qpos_adr].copy()
+        self.servo.reset(self.hold_q)
+        return [Ack(seq, MsgType.ESTOP)]
+
+    def _on_estop_clear(self, msg: EstopClear, seq: int, rx: int) -> list[Message]:
+        self.safety.clear(self.now_us)
+        self._resume()
+        return [Ack(seq, MsgType.ESTOP_CLEAR)]
+
+    def _on_config(self, msg: Config, seq: int, rx: int) -> list[Message]:
+        return [self._config(msg, seq)]
+
+    def _on_screen(self, msg: ScreenCommand, seq: int, rx: int) -> list[Message]:
+        self.screen.command(msg)
+        return [Ack(seq, MsgType.SCREEN)]
+
+    def _on_speaker(self, msg: SpeakerCommand, seq: int, rx: int) -> list[Message]:
+        self.speaker.command(msg)
+        return [Ack(seq, MsgType.SPEAKER)]
+
+    def _on_capture(self, msg: CameraCapture, seq: int, rx: int) -> list[Message]:
+        return self._capture(msg, seq)
+
+    def _on_resend(self, msg: CameraResend, seq: int, rx: int) -> list[Message]:
+        return self._resend(msg, seq)
+
+    #: the received-message table: message class -> ``handler(self, msg, seq, rx_us) -> replies``. Built
+    #: once with the class, of plain functions: bound methods held by the instance would make every board a
+    #: reference cycle, freed only by the cyclic GC (harnesses make a board per input, see ``reuse``).
+    _HANDLERS: ClassVar[dict[type, _Handler]] = {
+        ServoFrame: _on_servo_frame,
+        Heartbeat: _on_heartbeat,
+        TimeSyncRequest: _on_time_sync,
+        Hello: _on_hello,
+        Advance: _on_advance,
+        Flush: _on_flush,
+        Estop: _on_estop,
+        EstopClear: _on_estop_clear,
+        Config: _on_config,
+        ScreenCommand: _on_screen,
+        SpeakerCommand: _on_speaker,
+        CameraCapture: _on_capture,
+        CameraResend: _on_resend,
+    }
 
     def _nack(self, msg: object, seq: int, reason: NackReason, detail: str) -> Nack:
         try:

@@ -27,9 +27,9 @@ from typing import IO
 from firmware_sim.board import Board
 from firmware_sim.clock import RealtimeClock
 from firmware_sim.objects_log import ObjectsLog
-from firmware_sim.transports.base import BoardTransport
+from firmware_sim.transports.base import PERIODIC_REPORTS, BoardTransport
 from protocol.framing import DecodeError, Frame
-from protocol.messages import Message, SimState, Telemetry
+from protocol.messages import Message
 
 __all__ = ["BoardServer"]
 
@@ -84,7 +84,7 @@ class BoardServer:
         now = time.monotonic()
         tr = self.transport
         for m in msgs:
-            periodic = isinstance(m, (Telemetry, SimState))
+            periodic = type(m) in PERIODIC_REPORTS
             if periodic and tr.tx_busy_s(now) > TELEMETRY_WIRE_BACKLOG_S:
                 self._dropped(now)
                 continue

@@ -13,9 +13,13 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable
 
 from protocol.framing import DecodeError, Frame
-from protocol.messages import Message
+from protocol.messages import Message, MsgType, SimState, Telemetry
 
-__all__ = ["BoardTransport"]
+__all__ = ["PERIODIC_REPORTS", "BoardTransport"]
+
+#: the board's periodic reports (message class -> its type): newer ones supersede older, so the server
+#: drops them first under backlog and the CAN transport keeps only the newest one waiting per type
+PERIODIC_REPORTS: dict[type[Message], MsgType] = {Telemetry: MsgType.TELEMETRY, SimState: MsgType.SIM_STATE}
 
 
 class BoardTransport(ABC):

@@ -34,7 +34,7 @@ from typing import Any
 
 import can
 
-from firmware_sim.transports.base import BoardTransport
+from firmware_sim.transports.base import PERIODIC_REPORTS, BoardTransport
 from protocol.can.engine import CanEngine
 from protocol.can.frame import CanFrame
 from protocol.can.ids import FunctionCode
@@ -46,7 +46,7 @@ from protocol.faults import FaultInjector
 from protocol.framing import DecodeError, DecodeErrorKind, Frame
 from protocol.linkspec import LinkSpec
 from protocol.logfile import FrameLogWriter, open_frame_log
-from protocol.messages import Message, MsgType, Nack, SimState, Telemetry
+from protocol.messages import Message, MsgType, Nack
 
 __all__ = [
     "BusBoardTransport",
@@ -190,12 +190,12 @@ class CanBoardTransport(BoardTransport):
             msg = dataclasses.replace(msg, detail="")
             self.nack_details_dropped += 1
         try:
+            kind = PERIODIC_REPORTS.get(type(msg))
             if self.engine.is_fixed(msg):
                 self.engine.send(msg, seq)
-            elif isinstance(msg, (SimState, Telemetry)):
+            elif kind is not None:
                 # periodic bulk (SIM_STATE; TELEMETRY too where it has no fixed layout): the newest
                 # report wins; it waits until the ISO-TP link is idle
-                kind = MsgType.SIM_STATE if isinstance(msg, SimState) else MsgType.TELEMETRY
                 if kind in self._periodic:
                     self.periodic_replaced += 1
                 self._periodic[kind] = self.engine.encode_bulk(msg, seq)
