@@ -26,10 +26,26 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
-from protocol.linkspec import LinkSpec
+__all__ = ["LINK_KINDS", "LinkKind", "SpecFields", "link_kind"]
 
-__all__ = ["LINK_KINDS", "LinkKind", "link_kind"]
+
+class SpecFields(Protocol):
+    """The fields of a link spec a kind decides by (:class:`protocol.linkspec.LinkSpec` has them).
+
+    A protocol, not the class: :mod:`protocol.linkspec` asks this module for a spec's kind
+    (``LinkSpec.implies_emulated_board``), so this one must not import it.
+    """
+
+    @property
+    def kind(self) -> str: ...
+    @property
+    def port(self) -> str: ...
+    @property
+    def interface(self) -> str: ...
+    @property
+    def channel(self) -> str: ...
 
 
 @dataclass(frozen=True)
@@ -50,7 +66,7 @@ class LinkKind:
     name: str
     wire: str
     log_suffix: str
-    matches: Callable[[LinkSpec], bool]
+    matches: Callable[[SpecFields], bool]
     needs: str
     board_creates: bool = False
     cross_process: bool = True
@@ -63,7 +79,7 @@ class LinkKind:
         return self.cross_process
 
 
-def _can(interface: str, channel: str | None = None) -> Callable[[LinkSpec], bool]:
+def _can(interface: str, channel: str | None = None) -> Callable[[SpecFields], bool]:
     return lambda s: s.kind == "can" and s.interface == interface and (channel is None or s.channel == channel)
 
 
@@ -87,7 +103,7 @@ LINK_KINDS: tuple[LinkKind, ...] = (
 )
 
 
-def link_kind(spec: LinkSpec) -> LinkKind:
+def link_kind(spec: SpecFields) -> LinkKind:
     """The kind of ``spec`` (every parsed spec has one)."""
     for kind in LINK_KINDS:
         if kind.matches(spec):

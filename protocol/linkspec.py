@@ -36,6 +36,8 @@ from dataclasses import dataclass, field
 from typing import Literal
 from urllib.parse import quote, unquote
 
+from protocol.linkkinds import link_kind
+
 __all__ = [
     "CAN_PASSTHROUGH_OPTIONS",
     "DEFAULT_NODE",
@@ -114,8 +116,6 @@ class LinkSpec:
     def implies_emulated_board(self) -> bool:
         """True where only an emulated board can serve the link, which it creates: ``pty`` and
         ``can:slcan:pty`` (:attr:`protocol.linkkinds.LinkKind.board_creates` of the spec's kind)."""
-        from protocol.linkkinds import link_kind  # the kinds table builds on this module
-
         return link_kind(self).board_creates
 
     def with_port(self, port: str) -> LinkSpec:

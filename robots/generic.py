@@ -18,8 +18,8 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from annotated_types import Interval
 
-from robots.description import Robot
-from robots.interface import stub
+from robots.datatypes import RobotData
+from robots.stubs import stub
 from robots.motion import Limits, Motion, check_finite, transition
 
 __all__ = ["GENERIC_CHANNEL", "generic_behaviours", "generic_module"]
@@ -39,7 +39,7 @@ def _hold_end(m: Motion) -> Motion:
     return Motion(m.servos, m.t, m.q, float(m.t[-1]))
 
 
-def generic_behaviours(robot: Robot) -> Mapping[str, Callable[..., Motion]]:
+def generic_behaviours(robot: RobotData) -> Mapping[str, Callable[..., Motion]]:
     """``pose`` and ``joint_move`` for ``robot``: ``gen(start, *, persistent=False, **params) -> Motion``."""
     limits = Limits.of_robot(robot)
     table = robot.servos
@@ -75,7 +75,7 @@ def generic_behaviours(robot: Robot) -> Mapping[str, Callable[..., Motion]]:
     return {"pose": pose, "joint_move": joint_move}
 
 
-def generic_module(robot: Robot) -> type:
+def generic_module(robot: RobotData) -> type:
     """The ``joints`` module class of ``robot``: the stubs ``pose`` and ``joint_move`` with its names."""
     table = robot.servos
     pose_names: Any = Literal.__getitem__(tuple(robot.poses))  # type: ignore[attr-defined]

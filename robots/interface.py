@@ -17,12 +17,11 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from types import ModuleType
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import Annotated, Any
 
-from robots.description import RobotDataError
-
-if TYPE_CHECKING:
-    from robots.description import Robot
+from robots.datatypes import RobotData, RobotDataError
+from robots.generic import generic_module
+from robots.stubs import StubInfo, class_stubs, stub, stub_info
 
 __all__ = [
     "Interface",
@@ -32,6 +31,7 @@ __all__ = [
     "PERIPHERAL_BEHAVIOURS",
     "StubInfo",
     "build_interface",
+    "class_stubs",
     "stub",
     "stub_info",
 ]
@@ -56,41 +56,6 @@ class MaxUtf8Bytes:
 NAME_BYTES = 32
 #: an open set of names in any language: voices, music clips
 Name = Annotated[str, MaxUtf8Bytes(NAME_BYTES)]
-
-
-@dataclass(frozen=True)
-class StubInfo:
-    """How a stub maps onto a behaviour."""
-
-    channel: str
-    behaviour: str
-    rename: dict[str, str] = field(default_factory=dict)  # stub param -> behaviour param
-    fixed: dict[str, Any] = field(default_factory=dict)  # behaviour params the stub pins
-
-
-_ATTR = "__stub_info__"
-
-
-def stub(channel: str, behaviour: str | None = None, *, rename: dict[str, str] | None = None,
-         fixed: dict[str, Any] | None = None) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
-    """Mark a function as an interface stub on ``channel`` implemented by ``behaviour`` (default: its name)."""
-
-    def mark(fn: Callable[..., Any]) -> Callable[..., Any]:
-        setattr(fn, _ATTR, StubInfo(channel, behaviour or fn.__name__, rename or {}, fixed or {}))
-        return fn
-
-    return mark
-
-
-def stub_info(fn: Any) -> StubInfo | None:
-    """The :class:`StubInfo` of a stub, None for anything else."""
-    info = getattr(fn, _ATTR, None)
-    return info if isinstance(info, StubInfo) else None
-
-
-def class_stubs(cls: type) -> dict[str, Callable[..., Any]]:
-    """The stubs a module class declares, by name (declaration order)."""
-    return {n: f for n, f in vars(cls).items() if stub_info(f) is not None}
 
 
 @dataclass(frozen=True)
@@ -124,11 +89,9 @@ class Interface:
         return out
 
 
-def build_interface(robot: Robot, module: ModuleType | None) -> Interface:
+def build_interface(robot: RobotData, module: ModuleType | None) -> Interface:
     """The robot's interface: its module's vocabularies (or one empty ``default``) plus ``joints``,
     stubs needing an absent peripheral left out, every stub's behaviour checked to exist."""
-    from robots.generic import generic_module
-
     where = robot.root / f"{robot.interface_module}.py" if robot.interface_module else robot.root / "robot.toml"
     declared = getattr(module, "VOCABULARIES", None) if module is not None else {robot.default_vocabulary: {}}
     if not isinstance(declared, Mapping) or not declared:

@@ -19,7 +19,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from robots.description import RobotDataError
+from robots.datatypes import RobotDataError
 
 __all__ = ["Element", "MjcfIndex", "index_mjcf"]
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from robots.description import Robot, ServoTable
+from robots.datatypes import RobotData, ServoTable
 from robots.scenes import SceneObject, build_model, scene_objects
 
 __all__ = ["RobotModel", "load_model"]
@@ -30,7 +30,7 @@ class RobotModel:
     body under the world).
     """
 
-    robot: Robot
+    robot: RobotData
     model: mujoco.MjModel
     table: ServoTable
     qpos_adr: np.ndarray  # qpos index of each servo's joint
@@ -92,7 +92,7 @@ class RobotModel:
         mujoco.mj_forward(self.model, data)
 
 
-def load_model(robot: Robot, scene: str | None = None) -> RobotModel:
+def load_model(robot: RobotData, scene: str | None = None) -> RobotModel:
     """Compile ``robot``'s MJCF with ``scene``'s objects and resolve every servo's joint and actuator."""
     table = robot.servos
     model = build_model(robot, scene)

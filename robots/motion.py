@@ -17,12 +17,11 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Self, TypeVar
+from typing import Self, TypeVar
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from robots.description import Robot, ServoTable
+from robots.datatypes import RobotData, ServoTable
 
 __all__ = [
     "DT",
@@ -62,7 +61,7 @@ class Limits:
                    np.array(table.neutral), table.names)
 
     @classmethod
-    def of_robot(cls, robot: Robot) -> Limits:
+    def of_robot(cls, robot: RobotData) -> Limits:
         """The limits of ``robot``'s servo table (cached on the robot)."""
         cached = robot.__dict__.get("_limits")
         if cached is None:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from robots.description import Robot, SceneSpec
+from robots.datatypes import RobotData, SceneSpec
 
 __all__ = ["SceneObject", "TOPPLE_DEG", "build_model", "scene_objects", "toppled"]
 
@@ -44,7 +44,7 @@ def _quat(euler_deg: Sequence[float]) -> list[float]:
     return q.tolist()
 
 
-def build_model(robot: Robot, scene: str | None = None) -> mujoco.MjModel:
+def build_model(robot: RobotData, scene: str | None = None) -> mujoco.MjModel:
     """``robot``'s model with the scene's objects added; KeyError names the valid scenes."""
     spec_scene: SceneSpec = robot.scene(scene)
     if not spec_scene.objects:

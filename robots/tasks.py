@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from robots.description import RobotDataError
+from robots.datatypes import RobotDataError
 
 __all__ = ["Task", "get_task", "load_tasks"]
 

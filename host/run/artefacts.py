@@ -202,3 +202,10 @@ def recorded_robot(run_dir: Path) -> str | None:
     if isinstance(folder, str) and folder and (Path(folder) / ROBOT_FILE).is_file():
         return folder
     return name if isinstance(name, str) and name else None
+
+
+def run_robot(run_dir: Path) -> str:
+    """The robot the run drove (:func:`recorded_robot`; the default robot if not recorded)."""
+    from robots.registry import DEFAULT_ROBOT
+
+    return recorded_robot(Path(run_dir)) or DEFAULT_ROBOT

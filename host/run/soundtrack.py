@@ -105,7 +105,7 @@ def _timeline(run_dir: Path) -> list[_Call]:
 def _music_functions(run_dir: Path, robots_dir: str | None) -> dict[str, tuple[dict[str, str], dict[str, Any]]]:
     """Function name -> (stub param -> behaviour param, pinned behaviour params) of every stub the
     recorded robot implements with the music behaviour (any vocabulary)."""
-    from host.run.video import run_robot
+    from host.run.artefacts import run_robot
 
     out: dict[str, tuple[dict[str, str], dict[str, Any]]] = {}
     try:

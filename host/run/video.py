@@ -235,14 +235,6 @@ def run_scene(run_dir: Path) -> str:
     return name if isinstance(name, str) and name else "empty"
 
 
-def run_robot(run_dir: Path) -> str:
-    """The robot the run drove (:func:`host.run.artefacts.recorded_robot`; the default robot if not recorded)."""
-    from host.run.artefacts import recorded_robot
-    from robots.registry import DEFAULT_ROBOT
-
-    return recorded_robot(Path(run_dir)) or DEFAULT_ROBOT
-
-
 def _init_worker(settings: VideoSettings, scene: str = "empty", robot: str | None = None,
                  robots_dir: str | None = None) -> None:
     """Set up one render process. Never raises: a Pool whose initializer raises respawns workers
@@ -373,6 +365,7 @@ def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings
     if tl.exists():
         t0 = json.loads(tl.read_text(encoding="utf-8")).get("t0")
     jobs = list(_jobs(states, calls, settings.fps, t0))
+    from host.run.artefacts import run_robot
     from robots.description import RobotDataError
     from robots.registry import load_robot
 

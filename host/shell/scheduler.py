@@ -64,7 +64,7 @@ import itertools
 import re
 from collections.abc import AsyncIterable, Awaitable, Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import anyio
 
@@ -80,14 +80,38 @@ from host.shell.parser import (
     StartTag,
     Text,
 )
-from host.shell.policy import PolicyError
-from host.shell.skills import SkillError, end_tag, start_tag, text
+from host.shell.policy import Policy, PolicyError
+from host.shell.registry import Registry
+from host.shell.skills import SkillError, SkillStore, end_tag, start_tag, text
 from host.shell.timeline import CallRecord, Observation, RunResult, Timeline
 from host.shell.types import MAIN_CHANNEL, FunctionSpec
 from host.speech.sentences import SentenceSplitter
 
-if TYPE_CHECKING:
-    from host.shell.shell import Shell
+
+class RunSettings(Protocol):
+    """What a run takes from its shell (:class:`host.shell.shell.Shell` has it; see its docstring).
+
+    A protocol rather than ``Shell`` itself: the shell module builds on this one.
+    """
+
+    @property
+    def registry(self) -> Registry: ...
+    @property
+    def mode(self) -> str: ...
+    @property
+    def strict(self) -> bool: ...
+    @property
+    def text_first_class(self) -> bool: ...
+    @property
+    def clock(self) -> Callable[[], float] | None: ...
+    @property
+    def sleep(self) -> Callable[[float], Awaitable[None]] | None: ...
+    @property
+    def skills(self) -> SkillStore: ...
+    @property
+    def limits(self) -> Limits: ...
+    @property
+    def policy(self) -> Policy | None: ...
 
 MODES = ("async-first", "sync-first")
 #: deepest element nesting the shell runs (deeper elements fail; their children attach above)
@@ -164,7 +188,7 @@ class _Recording:
 class ProgramRun:
     """The state of one run; created by :class:`~host.shell.shell.Shell`."""
 
-    def __init__(self, shell: Shell) -> None:
+    def __init__(self, shell: RunSettings) -> None:
         self.registry = shell.registry
         self.mode = shell.mode
         self.strict = shell.strict
