@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from firmware_sim.config import BoardConfig
+from protocol.generated import check_or_write
 from protocol.refdoc import BoardFacts, render
 
 __all__ = ["DOC", "facts", "main"]
@@ -32,19 +33,9 @@ def facts() -> BoardFacts:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m firmware_sim.refdoc", description=__doc__.splitlines()[0])
     p.add_argument("--out", type=Path, default=DOC)
-    p.add_argument("--check", action="store_true")
+    p.add_argument("--check", action="store_true", help="exit 1 when the page differs from the generated text")
     args = p.parse_args(argv)
-    text = render(facts())
-    if args.check:
-        if not args.out.is_file() or args.out.read_text(encoding="utf-8") != text:
-            print(f"{args.out} is stale: python -m firmware_sim.refdoc", file=sys.stderr)
-            return 1
-        return 0
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(text, encoding="utf-8")
-    print(f"wrote {args.out}")
-    return 0
-
+    return check_or_write({args.out: render(facts())}, check=args.check, command="python -m firmware_sim.refdoc")
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -27,6 +27,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from host.cli import COMMANDS, EXIT_CODES, build_parser
+from protocol.generated import check_or_write
 
 __all__ = ["DOC", "WIDTH", "render", "main"]
 
@@ -123,17 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=DOC, help=f"the page to write (default {DOC})")
     p.add_argument("--check", action="store_true", help="exit 1 when the page differs from what the parsers give")
     args = p.parse_args(argv)
-    text = render()
-    if args.check:
-        if not args.out.is_file() or args.out.read_text(encoding="utf-8") != text:
-            print(f"{args.out} is stale: python -m host.cli_reference", file=sys.stderr)
-            return 1
-        return 0
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(text, encoding="utf-8")
-    print(f"wrote {args.out}")
-    return 0
-
+    return check_or_write({args.out: render()}, check=args.check, command="python -m host.cli_reference")
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -45,6 +45,7 @@ from typing import Any
 
 from protocol import codec as c
 from protocol import framing
+from protocol.generated import check_or_write
 from protocol import messages as m
 from protocol.messages import MsgType
 
@@ -534,21 +535,8 @@ def main(argv: list[str] | None = None) -> int:
                    help=f"the C source root; each schema's codec goes to a folder in it (default {OUT_ROOT})")
     p.add_argument("--check", action="store_true", help="exit 1 when the files there differ from the generated text")
     args = p.parse_args(argv)
-    stale = []
-    for rel, text in generate_all().items():
-        path = args.out_dir / rel
-        if args.check:
-            if not path.is_file() or path.read_text(encoding="utf-8") != text:
-                stale.append(str(path))
-        else:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(text, encoding="utf-8")
-            print(f"wrote {path}")
-    if stale:
-        print(f"stale generated C (run python -m protocol.cgen): {', '.join(stale)}", file=sys.stderr)
-        return 1
-    return 0
-
+    files = {args.out_dir / rel: text for rel, text in generate_all().items()}
+    return check_or_write(files, check=args.check, command="python -m protocol.cgen")
 
 if __name__ == "__main__":
     sys.exit(main())
