@@ -16,8 +16,9 @@ turns that declaration into C99 text (pure: it returns strings, the ``__main__``
 * ``gs_dump_msg`` (compiled only with ``GS_PROTO_DUMP``): one canonical text line per message,
   identical to :func:`wire_text` here, so tests compare the two codecs field by field.
 
-Each field class has one emitter (:data:`EMITTERS`); a layout that uses a field class without one
-fails generation with its name, so a new wire variant is one more emitter.
+Each field class has one emitter (:data:`EMITTERS`; every scalar class is one parametrised
+:func:`_int_emitter`); a layout that uses a field class without one fails generation with its name,
+so a new wire variant is one more emitter.
 
 One codec per wire schema (:data:`protocol.codec.WIRE_SCHEMAS`), each in its own folder named by
 :func:`schema_dir`: ``firmware_sim/c/schema16/`` (u16 servo mask, robots of up to 16 servos) and
@@ -103,58 +104,39 @@ _CTYPE_U = {1: "uint8_t", 2: "uint16_t", 4: "uint32_t", 8: "uint64_t"}
 _CTYPE_S = {1: "int8_t", 2: "int16_t", 4: "int32_t", 8: "int64_t"}
 
 
-def _uint_emitter() -> Emitter:
-    return Emitter(
-        decl=lambda f, n: f"{_CTYPE_U[f.size]} {n};",
-        decode=lambda f, n: f"GS_NEED({f.size}, \"{n}\"); x->{n} = ({_CTYPE_U[f.size]})rd_le(r, {f.size});",
-        encode=lambda f, n: f"GS_ROOM({f.size}); wr_le(w, (uint64_t)x->{n}, {f.size});",
-        dump=lambda f, n: f"DUMP(\" {n}=%llu\", (unsigned long long)x->{n});",
-        py_text=lambda f, v: str(int(v)),
-    )
+def _int_emitter(ctype: Callable[[Any], str], *, size: Callable[[Any], int], signed: bool = False,
+                 comment: Callable[[Any], str] | None = None, check: Callable[[Any, str], tuple[str, str]] | None = None,
+                 check_on_encode: bool = True, value: str = "x->{n}", fmt: str = "%u", cast: str = "unsigned",
+                 py_text: Callable[[Any, Any], str] = lambda f, v: str(int(v))) -> Emitter:
+    """The emitter of a field that is one little-endian integer on the wire (every scalar field class).
 
+    ``ctype(field)``: the struct member's C type; ``size(field)``: bytes on the wire; ``signed``: sign-extend
+    on decode; ``comment(field)``: the declaration's comment; ``check(field, name) -> (C condition true when
+    the value is bad, reason)``: decode refuses it with ``GS_BAD`` and, with ``check_on_encode``, encode with
+    ``GS_E_VALUE``; ``value``: the C expression written (``{n}`` = the member); ``fmt``/``cast``: the dump.
+    """
 
-def _sint_emitter() -> Emitter:
-    return Emitter(
-        decl=lambda f, n: f"{_CTYPE_S[f.size]} {n};",
-        decode=lambda f, n: (f"GS_NEED({f.size}, \"{n}\"); x->{n} = ({_CTYPE_S[f.size]})sext(rd_le(r, {f.size}), "
-                             f"{f.size});"),
-        encode=lambda f, n: f"GS_ROOM({f.size}); wr_le(w, (uint64_t)(int64_t)x->{n}, {f.size});",
-        dump=lambda f, n: f"DUMP(\" {n}=%lld\", (long long)x->{n});",
-        py_text=lambda f, v: str(int(v)),
-    )
+    def decl(f: Any, n: str) -> str:
+        return f"{ctype(f)} {n};" + (f" /* {comment(f)} */" if comment is not None else "")
 
+    def decode(f: Any, n: str) -> str:
+        k = size(f)
+        read = f"sext(rd_le(r, {k}), {k})" if signed else f"rd_le(r, {k})"
+        text = f"GS_NEED({k}, \"{n}\"); x->{n} = ({ctype(f)}){read};"
+        if check is not None:
+            cond, why = check(f, n)
+            text += f" if ({cond}) {{ GS_BAD(\"{n}: {why}\"); }}"
+        return text
 
-def _bool_emitter() -> Emitter:
-    return Emitter(
-        decl=lambda f, n: f"uint8_t {n}; /* 0 or 1 */",
-        decode=lambda f, n: (f"GS_NEED(1, \"{n}\"); x->{n} = (uint8_t)rd_le(r, 1); "
-                             f"if (x->{n} > 1) {{ GS_BAD(\"{n}: boolean byte must be 0 or 1\"); }}"),
-        encode=lambda f, n: f"GS_ROOM(1); wr_le(w, x->{n} ? 1u : 0u, 1);",
-        dump=lambda f, n: f"DUMP(\" {n}=%u\", (unsigned)x->{n});",
-        py_text=lambda f, v: str(int(bool(v))),
-    )
+    def encode(f: Any, n: str) -> str:
+        k = size(f)
+        head = f"if ({check(f, n)[0]}) {{ return GS_E_VALUE; }} " if check is not None and check_on_encode else ""
+        return f"{head}GS_ROOM({k}); wr_le(w, {value.format(n=n)}, {k});"
 
+    def dump(f: Any, n: str) -> str:
+        return f"DUMP(\" {n}={fmt}\", ({cast})x->{n});"
 
-def _enum_emitter() -> Emitter:
-    return Emitter(
-        decl=lambda f, n: f"uint8_t {n}; /* {f.cls.__name__} */",
-        decode=lambda f, n: (f"GS_NEED(1, \"{n}\"); x->{n} = (uint8_t)rd_le(r, 1); "
-                             f"if (!is_{_snake(f.cls.__name__)}(x->{n})) {{ GS_BAD(\"{n}: unknown {f.cls.__name__}\"); }}"),
-        encode=lambda f, n: (f"if (!is_{_snake(f.cls.__name__)}(x->{n})) {{ return GS_E_VALUE; }} "
-                             f"GS_ROOM(1); wr_le(w, x->{n}, 1);"),
-        dump=lambda f, n: f"DUMP(\" {n}=%u\", (unsigned)x->{n});",
-        py_text=lambda f, v: str(int(v)),
-    )
-
-
-def _flags16_emitter() -> Emitter:
-    return Emitter(
-        decl=lambda f, n: f"uint16_t {n}; /* {f.cls.__name__} bits; unknown bits kept */",
-        decode=lambda f, n: f"GS_NEED(2, \"{n}\"); x->{n} = (uint16_t)rd_le(r, 2);",
-        encode=lambda f, n: f"GS_ROOM(2); wr_le(w, x->{n}, 2);",
-        dump=lambda f, n: f"DUMP(\" {n}=%u\", (unsigned)x->{n});",
-        py_text=lambda f, v: str(int(v)),
-    )
+    return Emitter(decl=decl, decode=decode, encode=encode, dump=dump, py_text=py_text)
 
 
 def _mask_bits_check(f: Any, n: str) -> str:
@@ -164,17 +146,12 @@ def _mask_bits_check(f: Any, n: str) -> str:
     return f"(((uint64_t)x->{n} >> {f.max_servos}u) != 0u)"
 
 
-def _mask_emitter() -> Emitter:
-    """The servo mask of a schema: u16 up to 16 servos, u32 up to 32 (protocol.codec.Mask)."""
-    return Emitter(
-        decl=lambda f, n: f"{_CTYPE_U[f.size]} {n}; /* bit i = servo i (id i+1), bits < {f.max_servos} */",
-        decode=lambda f, n: (f"GS_NEED({f.size}, \"{n}\"); x->{n} = ({_CTYPE_U[f.size]})rd_le(r, {f.size}); "
-                             f"if ({_mask_bits_check(f, n)}) {{ GS_BAD(\"{n}: bits outside the servos\"); }}"),
-        encode=lambda f, n: (f"if ({_mask_bits_check(f, n)}) {{ return GS_E_VALUE; }} "
-                             f"GS_ROOM({f.size}); wr_le(w, x->{n}, {f.size});"),
-        dump=lambda f, n: f"DUMP(\" {n}=%lu\", (unsigned long)x->{n});",
-        py_text=lambda f, v: str(int(v)),
-    )
+def _is_enum(f: Any, n: str) -> tuple[str, str]:
+    return f"!is_{_snake(f.cls.__name__)}(x->{n})", f"unknown {f.cls.__name__}"
+
+
+def _u8(f: Any) -> str:
+    return "uint8_t"
 
 
 def _q16_codes(f: Any, values: Any) -> list[int]:
@@ -271,12 +248,21 @@ def _rest_emitter() -> Emitter:
 
 #: field class -> its emitter (the one place a new wire field kind is added)
 EMITTERS: dict[type, Emitter] = {
-    c.UInt: _uint_emitter(),
-    c.SInt: _sint_emitter(),
-    c.Bool: _bool_emitter(),
-    c.EnumU8: _enum_emitter(),
-    c.Flags16: _flags16_emitter(),
-    c.Mask: _mask_emitter(),
+    c.UInt: _int_emitter(lambda f: _CTYPE_U[f.size], size=lambda f: f.size, value="(uint64_t)x->{n}",
+                         fmt="%llu", cast="unsigned long long"),
+    c.SInt: _int_emitter(lambda f: _CTYPE_S[f.size], size=lambda f: f.size, signed=True,
+                         value="(uint64_t)(int64_t)x->{n}", fmt="%lld", cast="long long"),
+    c.Bool: _int_emitter(_u8, size=lambda f: 1, comment=lambda f: "0 or 1",
+                         check=lambda f, n: (f"x->{n} > 1", "boolean byte must be 0 or 1"), check_on_encode=False,
+                         value="x->{n} ? 1u : 0u", py_text=lambda f, v: str(int(bool(v)))),
+    c.EnumU8: _int_emitter(_u8, size=lambda f: 1, comment=lambda f: f.cls.__name__, check=_is_enum),
+    c.Flags16: _int_emitter(lambda f: "uint16_t", size=lambda f: 2,
+                            comment=lambda f: f"{f.cls.__name__} bits; unknown bits kept"),
+    # the servo mask of a schema: u16 up to 16 servos, u32 up to 32 (protocol.codec.Mask)
+    c.Mask: _int_emitter(lambda f: _CTYPE_U[f.size], size=lambda f: f.size,
+                         comment=lambda f: f"bit i = servo i (id i+1), bits < {f.max_servos}",
+                         check=lambda f, n: (_mask_bits_check(f, n), "bits outside the servos"),
+                         fmt="%lu", cast="unsigned long"),
     c.Q16Array: _q16_emitter(),
     c.F32Array: _f32_emitter(),
     c.Str8: _str8_emitter(),
@@ -455,6 +441,27 @@ int gs_utf8_valid(const uint8_t *s, size_t n) {
 """
 
 
+def _cases(layouts: Any, part: str, *, const: bool = True, before: dict[MsgType, str] | None = None,
+           after: dict[MsgType, str] | None = None) -> list[str]:
+    """The ``case`` arms of one of ``gs_proto.c``'s switches over the message type: per type, ``x`` pointing
+    at its struct (``const`` but for decode), then ``before[t]``, every field's ``part`` statements
+    (``"decode"``, ``"encode"`` or ``"dump"`` of its :class:`Emitter`) and ``after[t]``."""
+    lines = []
+    for t in sorted(layouts, key=int):
+        lines.append(f"    case {_const(MsgType, t.name)}: {{")
+        fields = layouts[t]
+        if fields:
+            lines.append(f"        {'const ' if const else ''}{struct_name(t)} *x = &msg->u.{member_name(t)};")
+        if before and t in before:
+            lines.append(f"        {before[t]}")
+        for name, f in fields:
+            lines.append(f"        {getattr(_emitter(t, name, f), part)(f, name)}")
+        if after and t in after:
+            lines.append(f"        {after[t]}")
+        lines.append("        break;\n    }")
+    return lines
+
+
 def c_source(schema: c.WireSchema = c.WIRE_SCHEMA_16) -> str:
     """Text of ``gs_proto.c`` for ``schema``."""
     L = schema.layouts
@@ -472,32 +479,15 @@ def c_source(schema: c.WireSchema = c.WIRE_SCHEMA_16) -> str:
     out.append("int gs_decode_payload(uint8_t type, const uint8_t *payload, size_t n, gs_msg_t *msg, const char **why) {")
     out.append("    static const char *none_ = \"\";\n    if (why == NULL) why = &none_;\n    *why = \"\";")
     out.append("    rd_t rr = { payload, n, 0 };\n    rd_t *r = &rr;\n    msg->type = type;\n    switch (type) {")
-    for t in sorted(L, key=int):
-        out.append(f"    case {_const(MsgType, t.name)}: {{")
-        fields = L[t]
-        if fields:
-            out.append(f"        {struct_name(t)} *x = &msg->u.{member_name(t)};")
-        for name, f in fields:
-            out.append(f"        {_emitter(t, name, f).decode(f, name)}")
-        if t is MsgType.CAMERA_CHUNK:
-            out.append("        if (!(x->index < x->total)) { GS_BAD(\"CAMERA_CHUNK: index not below total\"); }")
-        out.append("        break;\n    }")
+    out += _cases(L, "decode", const=False,
+                  after={MsgType.CAMERA_CHUNK: "if (!(x->index < x->total)) { GS_BAD(\"CAMERA_CHUNK: index not below total\"); }"})
     out.append("    default:\n        *why = \"unknown message type\";\n        return GS_E_TYPE;\n    }")
     out.append("    if (r->pos != r->n) { *why = \"unexpected trailing bytes\"; return GS_E_TRAILING; }")
     out.append("    return GS_OK;\n}\n")
     # encode
     out.append("int gs_encode_payload(const gs_msg_t *msg, uint8_t *out, size_t cap) {")
     out.append("    wr_t ww = { out, cap, 0 };\n    wr_t *w = &ww;\n    switch (msg->type) {")
-    for t in sorted(L, key=int):
-        out.append(f"    case {_const(MsgType, t.name)}: {{")
-        fields = L[t]
-        if fields:
-            out.append(f"        const {struct_name(t)} *x = &msg->u.{member_name(t)};")
-        if t is MsgType.CAMERA_CHUNK:
-            out.append("        if (!(x->index < x->total)) { return GS_E_VALUE; }")
-        for name, f in fields:
-            out.append(f"        {_emitter(t, name, f).encode(f, name)}")
-        out.append("        break;\n    }")
+    out += _cases(L, "encode", before={MsgType.CAMERA_CHUNK: "if (!(x->index < x->total)) { return GS_E_VALUE; }"})
     out.append("    default:\n        return GS_E_TYPE;\n    }")
     out.append("    if (w->pos > GS_MAX_PAYLOAD) { return GS_E_SPACE; }\n    return (int)w->pos;\n}\n")
     # dump
@@ -506,14 +496,7 @@ def c_source(schema: c.WireSchema = c.WIRE_SCHEMA_16) -> str:
                "if (k_ < 0) return -1; len += (size_t)k_; } while (0)")
     out.append("int gs_dump_msg(const gs_msg_t *msg, char *out, size_t cap) {")
     out.append("    size_t len = 0;\n    DUMP(\"T=%u\", (unsigned)msg->type);\n    switch (msg->type) {")
-    for t in sorted(L, key=int):
-        out.append(f"    case {_const(MsgType, t.name)}: {{")
-        fields = L[t]
-        if fields:
-            out.append(f"        const {struct_name(t)} *x = &msg->u.{member_name(t)};")
-        for name, f in fields:
-            out.append(f"        {_emitter(t, name, f).dump(f, name)}")
-        out.append("        break;\n    }")
+    out += _cases(L, "dump")
     out.append("    default:\n        return -1;\n    }\n    return len < cap ? (int)len : -1;\n}")
     out.append("#endif /* GS_PROTO_DUMP */\n")
     return "\n".join(x for x in out if x is not None)

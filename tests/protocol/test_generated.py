@@ -33,7 +33,7 @@ def test_check_reports_every_stale_file_and_writes_nothing(tmp_path: Path) -> No
 
 
 def test_a_file_it_cannot_write_is_one_line_and_status_1(tmp_path: Path) -> None:
-    """A folder where the file should be (os.replace and root's permissions cannot help: it fails for root too)."""
+    """A folder where the file should be (unwritable for root too, unlike a read-only folder)."""
     (tmp_path / "x.txt").mkdir()
     status, out, err = run({tmp_path / "x.txt": "X\n"}, check=False)
     assert status == 1 and out == [] and len(err) == 1 and err[0].startswith(f"cannot write {tmp_path / 'x.txt'}: ")
