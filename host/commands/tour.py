@@ -25,7 +25,7 @@ from host.commands.inputs import seconds
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, preflight_link, unreachable_link
 from host.commands.outarg import out_dir
 from host.commands.robotarg import add_robot_argument, robot_from_args
-from host.link.board_process import BoardProcess, start_board
+from host.link.board_process import BoardProcess, dead_board_error, start_board
 from protocol.linkspec import LinkSpec
 from robots.description import Robot
 
@@ -124,7 +124,7 @@ async def _drive(port: LinkSpec, args: argparse.Namespace, out: Path | None, rob
 
 
 def main(args: argparse.Namespace) -> int:
-    from host.link import LinkError
+    from host.link import LinkConfigError, LinkError
 
     spec: LinkSpec = args.link
     why = unreachable_link(spec) or preflight_link(spec, emulated=args.emulate_board or spec.implies_emulated_board)
@@ -155,6 +155,9 @@ def main(args: argparse.Namespace) -> int:
     try:
         summary = asyncio.run(_drive(spec, args, out, robot))
     except LinkError as e:
+        dead = dead_board_error(board, e) if isinstance(e, LinkConfigError) else None
+        if dead is not None:  # the board it started died first: a lost link (1), not a usage error (2)
+            e = dead
         print(f"ghostshell tour: {e}", file=sys.stderr)
         code = link_exit_status(e)
         summary = None

@@ -24,10 +24,10 @@ import tempfile
 from pathlib import Path
 from typing import IO
 
-from host.link.errors import LinkConfigError
+from host.link.errors import LinkConfigError, LinkDown
 from protocol.linkspec import LinkSpec, parse_link_spec
 
-__all__ = ["BoardProcess", "start_board"]
+__all__ = ["BoardProcess", "dead_board_error", "start_board"]
 
 USAGE_STATUS = 2  # ``python -m firmware_sim`` exits 2 for a link spec it cannot serve (after one stderr line)
 
@@ -44,11 +44,14 @@ def _last_line(err: IO[str]) -> str:
 
 
 class BoardProcess:
-    """A board subprocess; ``port`` is what it announced, ``spec`` the link spec to connect to."""
+    """A board subprocess; ``port`` is what it announced, ``spec`` the link spec to connect to,
+    ``stderr_path`` the file its stderr goes to (None: a temporary file)."""
 
-    def __init__(self, proc: subprocess.Popen[str], port: str, stderr: IO[str], spec: LinkSpec | None = None) -> None:
+    def __init__(self, proc: subprocess.Popen[str], port: str, stderr: IO[str], spec: LinkSpec | None = None,
+                 stderr_path: Path | None = None) -> None:
         self.proc, self.port, self._stderr = proc, port, stderr
         self.spec: LinkSpec = spec if spec is not None else parse_link_spec(port)
+        self.stderr_path = stderr_path
 
     def stop(self, timeout: float = 5.0) -> int:
         """SIGTERM, wait (then SIGKILL); returns the exit code (130: the board stopped cleanly on the
@@ -116,4 +119,18 @@ def start_board(
         raise RuntimeError(f"the board did not start on {spec}: expected {prefix!r}..., got {line!r}{said}{hint}")
     port = line[len(prefix):]
     connect = spec.with_port(port) if spec.implies_emulated_board else spec
-    return BoardProcess(proc, port, err, connect)
+    return BoardProcess(proc, port, err, connect, stderr_path)
+
+
+def dead_board_error(board: BoardProcess | None, error: LinkConfigError) -> LinkDown | None:
+    """Classify ``error``, raised opening the link to ``board`` (the board the host started for it, or None).
+
+    When that board has exited, the link spec was fine: the board died before the host could open its
+    link (its pty is gone), which is a lost link (exit 1), not a usage error (exit 2). Returns the
+    :class:`LinkDown` to raise then (``raise dead from error``), naming the board's exit status and its
+    stderr file; None when there is no such board or it still runs (``error`` stands).
+    """
+    if board is None or board.proc.poll() is None:
+        return None
+    see = f"; see {board.stderr_path}" if board.stderr_path is not None else ""
+    return LinkDown(f"the emulated board exited (status {board.proc.returncode}) before the link came up{see}")

@@ -56,8 +56,8 @@ import numpy as np
 
 from host.ghost import GhostError
 from host.link import BoardClient, RobotIdentity
-from host.link.board_process import BoardProcess, start_board
-from host.link.errors import BoardFaulted, LinkConfigError, LinkDown, LinkError
+from host.link.board_process import BoardProcess, dead_board_error, start_board
+from host.link.errors import BoardFaulted, LinkConfigError, LinkError
 from host.link.faultcheck import LATCHED, clear_command, clear_leftover_fault
 from host.link.session import FaultEvent
 from host.run import artefacts
@@ -299,13 +299,10 @@ class RobotSession:
                 client = await BoardClient.connect(target, baud=opts.baud, log_path=self.out / f"host_frames{log_suffix}",
                                                    robot=identity)
             except LinkConfigError as e:
-                dead = self._board
-                if dead is None or dead.proc.poll() is None:
+                dead = dead_board_error(self._board, e)  # the board died first: a lost link, not a usage error
+                if dead is None:
                     raise
-                # the link the host was given is fine: the board it started died before the host could
-                # open it (its pty is gone), which is a lost link (exit 1), not a usage error (exit 2)
-                raise LinkDown(f"the emulated board exited (status {dead.proc.returncode}) before the link came "
-                               f"up; see {self.out / 'board.stderr'}") from e
+                raise dead from e
             self.client = await self._stack.enter_async_context(client)
             note = await clear_leftover_fault(client)
             if note:
