@@ -43,7 +43,7 @@ class BackgroundLoops:
 
     def __init__(self) -> None:
         self._task: asyncio.Task[None] | None = None
-        self._scope = anyio.CancelScope()
+        self._scope: anyio.CancelScope | None = None  # made in start(): anyio needs the running loop
         self._done: anyio.Event | None = None
 
     @property
@@ -53,10 +53,11 @@ class BackgroundLoops:
     def start(self, loops: dict[str, Loop]) -> None:
         """Start ``loops`` (name -> loop) in a task group of their own (call from the event loop)."""
         done = self._done = anyio.Event()
+        scope = self._scope = anyio.CancelScope()
 
         async def run() -> None:
             try:
-                with self._scope:
+                with scope:
                     async with anyio.create_task_group() as tg:
                         for name, loop in loops.items():
                             tg.start_soon(_guarded, loop, name=name)
@@ -67,7 +68,8 @@ class BackgroundLoops:
 
     async def stop(self) -> None:
         """Cancel the loops and wait until they ended (idempotent; a no-op when never started)."""
-        self._scope.cancel()
+        if self._scope is not None:
+            self._scope.cancel()
         if self._done is not None:
             await self._done.wait()
         self._task = None
