@@ -1,70 +1,46 @@
 """The link session: the host's client for a robot's board, written once above every transport.
 
-``BoardClient`` owns one :class:`host.link.transports.base.Transport` (serial, CAN; built
-from a link spec by :func:`host.link.transports.open_transport`), speaks protocol v1 over
-it and keeps the session alive:
+``BoardClient`` owns one :class:`host.link.transports.base.Transport` (serial, CAN; built from a link
+spec by :func:`host.link.transports.open_transport`) and speaks protocol v1 over it: handshake
+(HELLO -> CAPS; the robot's wire schema first, each other schema this build speaks after a
+SCHEMA_MISMATCH, :class:`RobotMismatch` when the board drives another robot), NTP-style time sync
+(realtime boards; a lockstep board's clock is virtual and moves on :meth:`advance`), timed servo
+frames (no reply when accepted; a NACK is recorded), control requests awaiting their ACK (a NACK
+raises :class:`NackError`), telemetry, fault edges and camera images in, a heartbeat whenever nothing
+else was sent for ``heartbeat_s``, and reconnection with exponential backoff when the wire goes away
+(calls made meanwhile raise :class:`LinkDown`). Undecodable frames are counted, never raised.
 
-* handshake: HELLO -> CAPS; a protocol-version or schema-hash mismatch (either
-  side noticing) raises :class:`HandshakeError` with both values and what to do.
-  The wire schema (:class:`protocol.codec.WireSchema`: u16 servo mask up to 16 servos, u32
-  above) is the robot's: a client started for a robot (``robot=RobotIdentity(...)``) speaks its
-  schema from the first frame. HELLO, CAPS and NACK are the same in every schema, so when the
-  board refuses the HELLO with SCHEMA_MISMATCH and the schema was not pinned (``schema_hash=``),
-  the client says HELLO once more with each other schema this build speaks: a client without a
-  robot (``ghostshell estop``) so reaches any board, and one started for another robot learns which
-  robot the board drives and raises :class:`RobotMismatch` naming both. After CAPS the transport
-  speaks the board's servo count (:meth:`Transport.set_servo_count`);
-* time sync: NTP-style TIME_SYNC exchanges feed :class:`host.link.timesync.ClockSync`
-  (offset + drift + uncertainty); :meth:`BoardClient.host_to_board` and
-  :meth:`BoardClient.board_now_estimate` turn host time into board time. A
-  lockstep board's clock is virtual: there the estimate is the latest board time
-  reported, and the host moves it on with :meth:`BoardClient.advance`;
-* sending: timed servo frames (no reply when accepted; a NACK is recorded and
-  reported), and control messages that await their ACK (a NACK raises
-  :class:`NackError` with the board's reason);
-* receiving: telemetry (``latest_telemetry``, ``async for t in client.telemetry()``
-  with a bounded drop-oldest stream, ``await client.wait_for(pred, timeout)``), fault
-  edges (estop / watchdog bits -> ``on_fault`` callbacks and a log line), camera
-  images reassembled from chunks. Undecodable frames are counted, never raised;
-* keep-alive: a heartbeat whenever nothing else was sent for ``heartbeat_s``;
-* reconnect: when the wire goes away the client retries with exponential backoff
-  (a serial port may be a callable re-resolved on every attempt), then re-handshakes
-  and re-syncs; calls made meanwhile raise :class:`LinkDown`.
-
-The parts are objects of their own, as python-can splits Bus, Notifier and Listener. This module
-is the session: it numbers and sends, routes every received message to its handler through a
-table, and keeps the link state. The rest is elsewhere:
+The parts are objects of their own, as python-can splits Bus, Notifier and Listener. This module is
+the session: it numbers and sends (16-bit sequence numbers that wrap; every map keyed by one forgets
+the number's old entry when it is sent again, so answers from one lap are never taken for the next),
+and keeps the link state (up, lost, closing). The rest:
 
 * :mod:`host.link.requests` (:class:`RequestTable`): pending requests by sequence number, ACK/NACK
   matching, retries, frame NACKs and their waiters;
-* :mod:`host.link.supervisor` (:class:`Supervisor`): handshake, time sync, heartbeat, reconnect;
-  its loops run in :mod:`host.link.background` (an anyio task group);
+* :mod:`host.link.supervisor` (:class:`Supervisor`): handshake, time sync, heartbeat, reconnect; it
+  knows the session as the Protocol ``SupervisedSession``; its loops run in
+  :mod:`host.link.background` (an anyio task group);
+* :mod:`host.link.receive` (:class:`ReceivePath`, the Notifier): received messages to their handler
+  through a table, then to the ``on_received`` listeners;
 * listeners: telemetry fan-out and fault edges (:class:`host.link.telemetry.TelemetryFanout`),
   camera reassembly (:class:`host.link.camera.CameraAssembler`), ``on_sent`` / ``on_received`` /
-  ``on_nack`` callbacks (a run's recorder and live view), the frame log (the transport's,
-  :mod:`protocol.logfile`);
+  ``on_nack`` / ``on_fault`` callbacks (a run's recorder and live view), the frame log (the
+  transport's, :mod:`protocol.logfile`, with ``log_path``);
 * mixins giving ``BoardClient`` its convenience API: :class:`host.link.board_commands.BoardCommands`
-  (frames, FLUSH, ESTOP, ADVANCE, CONFIG, SCREEN, SPEAKER, capture) and
+  (frames, FLUSH, ESTOP, ADVANCE, CONFIG, SCREEN, SPEAKER, capture),
   :class:`host.link.telemetry_waits.TelemetryWaits` (``wait_for`` with the lockstep nudge,
-  ``next_telemetry``, ``telemetry()``).
+  ``next_telemetry``, ``telemetry()``) and :class:`host.link.board_time.BoardTime` (board clock).
 
-Waiting is anyio (:mod:`host.link.waiting`); the session runs on anyio's asyncio backend (or plain
-``asyncio.run``). Call :meth:`BoardClient.open` / :meth:`BoardClient.close` (or ``async with``).
-
-Sequence numbers are 16-bit and wrap, one counter per direction. Every map keyed by
-a sequence number (pending ACKs, frame NACKs, NACK waiters, camera captures) forgets
-a sequence number's old entry when that number is sent again, so answers from one
-lap are never taken for the next. With ``log_path`` the transport logs every frame
-both ways in its own format (JSON Lines for serial, :mod:`protocol.framelog`).
+Waiting is anyio (:mod:`host.link.waiting`); the session runs on anyio's asyncio backend or under
+``asyncio.run`` (the transports sit on the asyncio loop). Open with ``await BoardClient.connect(...)``
+or ``async with``; :meth:`BoardClient.close` is idempotent.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from collections import deque
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -73,20 +49,19 @@ import anyio
 from host.link.background import BackgroundLoops
 from host.link.board_commands import BoardCommands
 from host.link.camera import CameraAssembler
-from host.link.errors import HandshakeError, LinkDown, LinkError, LinkTimeout, SchemaMismatch
+from host.link.errors import LinkDown, LinkError, LinkTimeout
+from host.link.receive import LinkStats, ReceivePath
 from host.link.requests import RequestTable
 from host.link.supervisor import RobotIdentity, Supervisor, host_now_us
 from host.link.telemetry import FAULT_BITS, FaultEvent, TelemetryFanout
 from host.link.telemetry_waits import TelemetryWaits
-from host.link.timesync import ClockEstimate, ClockSync
+from host.link.timesync import ClockSync
 from host.link.transports import Transport, open_transport
 from host.link.waiting import Flag
 from protocol.codec import WIRE_SCHEMA_16, WireBoundError, WireSchema, schema_for
 from protocol.faults import GapDetector
-from protocol.framing import DecodeError, Frame
 from protocol.linkspec import LinkSpec, parse_link_spec
-from protocol.messages import (PROTOCOL_VERSION, Ack, CameraChunk, Caps, FaultFlags, Message, MsgType, Nack,
-                               NackReason, SimState, Telemetry, TimeSyncReply)
+from protocol.messages import PROTOCOL_VERSION, Ack, Caps, Message, Nack, SimState
 
 __all__ = ["FAULT_BITS", "BoardClient", "FaultEvent", "LinkStats", "LinkTarget", "RobotIdentity", "host_now_us"]
 
@@ -98,22 +73,7 @@ LinkTarget = LinkSpec | str | Callable[[], LinkSpec | str]
 PortSpec = LinkTarget  # old name
 
 
-@dataclass
-class LinkStats:
-    """Counters since the client was created."""
-
-    tx_frames: int = 0
-    rx_frames: int = 0
-    decode_errors: int = 0
-    frame_nacks: int = 0
-    telemetry: int = 0
-    reconnects: int = 0
-    retries: int = 0  # requests re-sent because no ACK/NACK came in time (a lost frame either way)
-    seq_gaps: int = 0  # board messages never received (gaps in the board's sequence numbers), since the handshake
-    last_decode_error: str = ""  # kind and detail of the latest undecodable item, for reports
-
-
-class BoardClient(TelemetryWaits, BoardCommands):
+class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
     """Client for one board; create with ``await BoardClient.connect(spec)`` or ``async with``.
 
     ``link`` is a link spec (``"/dev/pts/3"``, ``"can:socketcan:vcan0?node=2"``, a
@@ -238,21 +198,6 @@ class BoardClient(TelemetryWaits, BoardCommands):
         """True between a completed handshake and the port going away."""
         return self._ready
 
-    @property
-    def faults(self) -> FaultFlags:
-        """The fault bits of :data:`FAULT_BITS` in the latest report."""
-        return self.fanout.faults
-
-    @property
-    def fault_events(self) -> deque[FaultEvent]:
-        """The latest 256 fault edges."""
-        return self.fanout.fault_events
-
-    @property
-    def on_fault(self) -> list[Callable[[FaultEvent], None]]:
-        """Callbacks called with every fault edge (append to it)."""
-        return self.fanout.on_fault
-
     async def wait_connected(self, timeout: float) -> None:
         """Wait until the link is up (e.g. after a reconnect); :class:`LinkTimeout` otherwise."""
         with anyio.move_on_after(timeout):
@@ -294,9 +239,6 @@ class BoardClient(TelemetryWaits, BoardCommands):
         self._board_time_seen = caps.board_time_us
         self.clock.clear()
         self._ready = True
-
-    def _saw_board_time(self, board_time_us: int) -> None:
-        self._board_time_seen = max(self._board_time_seen, board_time_us)
 
     def _count_retry(self) -> None:
         self.stats.retries += 1
@@ -391,114 +333,9 @@ class BoardClient(TelemetryWaits, BoardCommands):
         """The NACK for frame ``seq``, waiting up to ``timeout`` s; None if none came (or ``seq`` was reused)."""
         return await self.requests.wait_frame_nack(seq, timeout)
 
-    # --- time (the supervisor's) -----------------------------------------------------------
-
-    async def sync_once(self, timeout: float = 0.5) -> tuple[int, int, int, int]:
-        """One TIME_SYNC exchange; returns ``(t1, t2, t3, t4)`` and feeds the estimator (realtime)."""
-        return await self.supervisor.sync_once(timeout)
-
     async def _connect_once(self) -> None:
         """Connect, handshake and sync once (:meth:`host.link.supervisor.Supervisor.connect_once`)."""
         await self.supervisor.connect_once()
-
-    @property
-    def clock_estimate(self) -> ClockEstimate | None:
-        """Current offset/drift estimate (None before the first sync or in lockstep)."""
-        return self.clock.estimate
-
-    def host_to_board(self, t_host_us: int) -> int:
-        """Board time at host time ``t_host_us`` (realtime boards; see :meth:`board_now_estimate`)."""
-        if self.lockstep:
-            raise LinkError("the board runs in lockstep: its clock is virtual; use board_now_estimate() and advance()")
-        est = self.clock.estimate
-        if est is None:
-            raise LinkError("no time sync yet")
-        return est.host_to_board(t_host_us)
-
-    def board_now_estimate(self) -> int:
-        """Board time now: the synced estimate (realtime) or the latest board time reported (lockstep)."""
-        if self.lockstep:
-            return self._board_time_seen
-        return self.host_to_board(host_now_us())
-
-    # --- receiving -------------------------------------------------------------------------
-
-    def _on_items(self, items: Sequence[Frame | DecodeError]) -> None:
-        t4 = host_now_us()
-        for item in items:
-            if isinstance(item, DecodeError):
-                self.stats.decode_errors += 1
-                self.stats.last_decode_error = f"{item.kind.value}: {item.detail} ({len(item.raw)} bytes)"
-                log.debug("link: discarded %d bytes (%s: %s)", len(item.raw), item.kind.value, item.detail)
-                continue
-            self.stats.rx_frames += 1
-            self._rx_gaps.feed(item.seq)
-            self.stats.seq_gaps = self._rx_gaps.lost
-            try:
-                self._dispatch(item.msg, t4)
-                for cb in self.on_received:
-                    cb(item.msg)
-            except Exception:  # a bug in a callback must not kill the reader
-                log.exception("link: error handling %s", item.msg_type.name)
-
-    #: received message class -> the name of its handler, ``handler(msg, t4)`` (a table, not an isinstance
-    #: chain; looked up by name so a handler replaced on the instance or the class is the one called)
-    _HANDLERS: dict[type[Message], str] = {
-        Telemetry: "_handle_telemetry",
-        SimState: "_handle_sim_state",
-        Ack: "_handle_ack",
-        Nack: "_handle_nack",
-        TimeSyncReply: "_handle_time_sync",
-        Caps: "_handle_caps",
-        CameraChunk: "_handle_chunk",
-    }
-
-    def _dispatch(self, msg: Message, t4: int) -> None:
-        name = self._HANDLERS.get(type(msg))
-        if name is not None:
-            getattr(self, name)(msg, t4)
-
-    def _handle_telemetry(self, msg: Telemetry, t4: int) -> None:
-        self.stats.telemetry += 1
-        self._board_time_seen = max(self._board_time_seen, msg.board_time_us)
-        self.fanout.on_telemetry(msg)
-
-    def _handle_sim_state(self, msg: SimState, t4: int) -> None:
-        self.latest_sim_state = msg
-
-    def _handle_ack(self, msg: Ack, t4: int) -> None:
-        self.requests.on_ack(msg)
-
-    def _handle_time_sync(self, msg: TimeSyncReply, t4: int) -> None:
-        self.supervisor.on_sync_reply(msg, t4)
-
-    def _handle_caps(self, msg: Caps, t4: int) -> None:
-        self.supervisor.on_caps(msg)
-
-    def _handle_chunk(self, msg: CameraChunk, t4: int) -> None:
-        self._on_chunk(msg)
-
-    def _on_chunk(self, msg: CameraChunk) -> None:
-        done = self.camera.on_chunk(msg)
-        if done is not None:
-            self.requests.on_result(*done)
-
-    def _handle_nack(self, msg: Nack, t4: int) -> None:
-        if msg.reason == NackReason.SERVO_FAULT:
-            self.servo_fault = msg
-        if msg.msg_type == MsgType.HELLO:
-            reason = msg.reason.name if hasattr(msg.reason, "name") else str(msg.reason)
-            error = SchemaMismatch if msg.reason == NackReason.SCHEMA_MISMATCH else HandshakeError
-            if self.supervisor.refuse_hello(error(
-                f"board refused the handshake: {reason}: {msg.detail or 'no detail'}; "
-                "host and board must run the same protocol version and message schema"
-            )):
-                return
-        if self.requests.on_nack(msg):
-            return  # it answered a request
-        self.stats.frame_nacks += 1
-        for cb in list(self.on_nack):
-            cb(msg)
 
     # --- internals kept by name for tests and the fuzz harness (host.fuzz.session) ----------
 

@@ -1,4 +1,5 @@
-"""Telemetry waits of the session: ``wait_for`` (with the lockstep nudge), ``next_telemetry``, ``telemetry()``.
+"""Telemetry views and waits of the session: ``latest_telemetry``, fault bits and edges, ``wait_for`` (with
+the lockstep nudge), ``next_telemetry``, ``telemetry()``.
 
 :class:`TelemetryWaits` is a mixin of :class:`host.link.session.BoardClient`: it reads the session's
 :class:`host.link.telemetry.TelemetryFanout` (``fanout``) and, for a lockstep board whose clock only
@@ -9,34 +10,44 @@ runs when the host ADVANCEs it, sends ADVANCE through the session's ``_send``. W
 from __future__ import annotations
 
 import contextlib
+from collections import deque
 from collections.abc import AsyncIterator, Callable
 
 import anyio
 
+from host.link.board_time import BoardTime
 from host.link.errors import LinkError, LinkTimeout
-from host.link.telemetry import TelemetryFanout, flag_names
-from protocol.messages import Advance, Caps, Message, Telemetry
+from host.link.telemetry import FaultEvent, TelemetryFanout, flag_names
+from protocol.messages import Advance, FaultFlags, Message, Telemetry
 
 __all__ = ["TelemetryWaits"]
 
 
-class TelemetryWaits:
-    """Waits on the telemetry listener; the session provides the attributes annotated here."""
+class TelemetryWaits(BoardTime):
+    """Waits on the telemetry listener (and the board clock, :class:`BoardTime`); the session provides
+    the attributes annotated here."""
 
     fanout: TelemetryFanout
-    caps: Caps | None
-
-    @property
-    def lockstep(self) -> bool:
-        return bool(self.caps and self.caps.lockstep)
 
     @property
     def latest_telemetry(self) -> Telemetry | None:
         """The latest TELEMETRY report (None before the first)."""
         return self.fanout.latest
 
-    def board_now_estimate(self) -> int:  # the session's
-        raise NotImplementedError
+    @property
+    def faults(self) -> FaultFlags:
+        """The fault bits of :data:`FAULT_BITS` in the latest report."""
+        return self.fanout.faults
+
+    @property
+    def fault_events(self) -> deque[FaultEvent]:
+        """The latest 256 fault edges."""
+        return self.fanout.fault_events
+
+    @property
+    def on_fault(self) -> list[Callable[[FaultEvent], None]]:
+        """Callbacks called with every fault edge (append to it)."""
+        return self.fanout.on_fault
 
     def _send(self, msg: Message) -> int:  # the session's
         raise NotImplementedError
