@@ -1,4 +1,4 @@
-"""The link supervisor: handshake, time sync, heartbeat and reconnect for one :class:`BoardClient`.
+"""The link supervisor: handshake, time sync, heartbeat and reconnect for one session.
 
 A :class:`Supervisor` keeps a session's link alive; the session (``host.link.session``) sends,
 numbers and answers, the supervisor decides when and what to say to keep it up:
@@ -7,33 +7,37 @@ numbers and answers, the supervisor decides when and what to say to keep it up:
   robot's wire schema first, then after a SCHEMA_MISMATCH each other schema this build speaks, see
   the session's module docstring), then a burst of TIME_SYNC exchanges;
 * :meth:`Supervisor.supervise`: after a loss, reconnect with exponential backoff (0.05 s doubling
-  to ``reconnect_max_s``), then the ``on_reconnect`` callbacks;
+  to ``reconnect_max_s``), then the session's ``_reconnected`` (its ``on_reconnect`` callbacks);
 * :meth:`Supervisor.heartbeat_loop`: a HEARTBEAT whenever nothing else was sent for ``heartbeat_s``;
 * :meth:`Supervisor.sync_loop`: a TIME_SYNC exchange every ``sync_interval_s`` (realtime boards),
   feeding :class:`host.link.timesync.ClockSync` (NTP's four timestamps, RFC 5905 section 8).
 
-It owns the futures only it waits on: the HELLO's (answered by CAPS or a NACK) and the TIME_SYNC
-replies (by ``t1``). The loops run in the session's task group and never raise.
+It knows the session only as :class:`SupervisedSession` (a Protocol: what it reads, sets and calls),
+so this module does not import the session. It owns the replies only it waits on
+(:class:`host.link.waiting.Reply`): the HELLO's (answered by CAPS or a NACK) and the TIME_SYNC
+replies (by ``t1``). The loops run in the session's anyio task group and never raise.
 """
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import logging
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
+
+import anyio
 
 from host.link.errors import HandshakeError, LinkError, LinkTimeout, RobotMismatch, SchemaMismatch
-from protocol.codec import WIRE_SCHEMAS, WireBoundError, schema_by_hash, schema_for
-from protocol.faults import GapDetector
-from protocol.messages import Caps, Heartbeat, Hello, TimeSyncReply, TimeSyncRequest
+from host.link.timesync import ClockSync
+from host.link.transports.base import Transport
+from host.link.waiting import Flag, Reply
+from protocol.codec import WIRE_SCHEMAS, WireBoundError, WireSchema, schema_by_hash, schema_for
+from protocol.framing import DecodeError, Frame
+from protocol.messages import Caps, Heartbeat, Hello, Message, TimeSyncReply, TimeSyncRequest
 
-if TYPE_CHECKING:
-    from host.link.session import BoardClient
-
-__all__ = ["SYNC_ATTEMPTS", "RobotIdentity", "Supervisor", "host_now_us"]
+__all__ = ["SYNC_ATTEMPTS", "RobotIdentity", "SupervisedSession", "Supervisor", "host_now_us"]
 
 log = logging.getLogger("host.link")
 #: TIME_SYNC exchanges tried at connect before the link counts as failed (each waits 0.5, 1, then 2 s)
@@ -57,13 +61,53 @@ class RobotIdentity:
         return f"{self.name!r} ({self.servo_count} servos, servo table {self.servo_table_hash:#010x})"
 
 
-class Supervisor:
-    """Keeps ``client``'s link up (module docstring); ``hello_fut`` and ``sync_pending`` are its futures."""
+class SupervisedSession(Protocol):
+    """What the supervisor needs of the session (:class:`host.link.session.BoardClient` is one)."""
 
-    def __init__(self, client: BoardClient) -> None:
+    robot: RobotIdentity | None
+    port_name: str
+    link_spec: str
+    clock: ClockSync
+    protocol_version: int
+    handshake_timeout: float
+    schema: WireSchema
+    schema_hash: int
+    reconnect: bool
+    reconnect_max_s: float
+    sync_burst: int
+    heartbeat_s: float
+    sync_interval_s: float
+    keepalive: bool
+    last_reconnect_error: str
+    _schema_pinned: bool
+    _closing: bool
+    _ready: bool
+    _last_tx: float
+    _lost: Flag
+    _connected: Flag
+
+    @property
+    def lockstep(self) -> bool: ...
+    @property
+    def transport(self) -> Transport | None: ...
+    def _get_transport(self) -> Transport: ...
+    def _on_items(self, items: Sequence[Frame | DecodeError]) -> None: ...
+    def _on_lost(self, reason: str) -> None: ...
+    def _send(self, msg: Message) -> int: ...
+    def _link_up(self, caps: Caps) -> None: ...
+    def _saw_board_time(self, board_time_us: int) -> None: ...
+    def _count_retry(self) -> None: ...
+    def _reconnected(self) -> None: ...
+
+
+class Supervisor:
+    """Keeps ``client``'s link up (module docstring); ``hello_fut`` and ``sync_pending`` are its replies."""
+
+    def __init__(self, client: SupervisedSession) -> None:
         self.client = client
-        self.hello_fut: asyncio.Future[Caps] | None = None
-        self.sync_pending: dict[int, asyncio.Future[tuple[TimeSyncReply, int]]] = {}
+        self.hello_fut: Reply[Caps] | None = None
+        #: TIME_SYNC replies awaited, by ``t1`` (any object with a future's ``done``/``set_result`` fits)
+        self.sync_pending: dict[int, Any] = {}
 
     def on_caps(self, msg: Caps) -> None:
         """CAPS came: it answers the HELLO in flight, if any."""
@@ -83,12 +127,16 @@ class Supervisor:
         self.hello_fut.set_exception(error)
         return True
 
-    def waiting(self) -> list[asyncio.Future[object]]:
-        """Every future of this supervisor still pending (the session fails them when the link goes)."""
-        futs: list[asyncio.Future[object]] = [*self.sync_pending.values()]  # type: ignore[list-item]
+    def fail_all(self, exc: LinkError) -> None:
+        """The link went down: the HELLO and TIME_SYNC exchanges in flight fail with ``exc``."""
+        futs: list[Any] = [*self.sync_pending.values()]
         if self.hello_fut is not None:
-            futs.append(self.hello_fut)  # type: ignore[arg-type]
-        return futs
+            futs.append(self.hello_fut)
+        for fut in futs:
+            if not fut.done():
+                fut.set_exception(exc)
+                fut.exception()  # mark retrieved: nobody may be awaiting it
+        self.sync_pending.clear()
 
     async def connect_once(self) -> None:
         c = self.client
@@ -101,11 +149,7 @@ class Supervisor:
         c.link_spec = transport.link_spec
         try:
             caps = await self.handshake()
-            c.caps = caps
-            c._rx_gaps = GapDetector()  # the board's numbering as from this connection
-            c._board_time_seen = caps.board_time_us
-            c.clock.clear()
-            c._ready = True
+            c._link_up(caps)
             await self.sync_burst()
         except BaseException:
             c._ready = False
@@ -121,19 +165,15 @@ class Supervisor:
         """HELLO with ``schema_hash`` until CAPS (re-sent a few times within the timeout: one lost
         frame, either way, must not fail the handshake); a NACK raises (:class:`SchemaMismatch`)."""
         c = self.client
-        loop = asyncio.get_running_loop()
-        fut: asyncio.Future[Caps] = loop.create_future()
+        fut: Reply[Caps] = Reply()
         self.hello_fut = fut
         try:
             tries = 4
             for _ in range(tries):
                 c._send(Hello(c.protocol_version, schema_hash, host_now_us()))
-                try:
-                    return await asyncio.wait_for(asyncio.shield(fut), c.handshake_timeout / tries)
-                except TimeoutError:
-                    continue
-            if not fut.done():
-                fut.cancel()
+                if await fut.wait(c.handshake_timeout / tries):
+                    return fut.result()
+            fut.cancel()
             raise HandshakeError(
                 f"no CAPS from {c.port_name!r} within {c.handshake_timeout} s: "
                 "is a GhostShell board (ghostshell board, python -m firmware_sim) serving this port?"
@@ -182,8 +222,8 @@ class Supervisor:
         if schema_by_hash(h) not in (None, board_schema):
             raise HandshakeError(f"the board on {c.port_name} reports robot {board} but speaks the wire schema "
                                  f"{h:#010x} of another servo count ({board_schema!r} expected): a broken board build")
-        if c._transport is not None:
-            c._transport.set_servo_count(caps.servo_count)
+        if c.transport is not None:
+            c.transport.set_servo_count(caps.servo_count)
         c.schema_hash = h
         return caps
 
@@ -195,7 +235,7 @@ class Supervisor:
                 return
             delay = 0.05
             while not c._closing:
-                await asyncio.sleep(delay)  # backoff between attempts (not synchronisation)
+                await anyio.sleep(delay)  # backoff between attempts (not synchronisation)
                 try:
                     await self.connect_once()
                 except LinkError as e:
@@ -203,30 +243,27 @@ class Supervisor:
                     c.last_reconnect_error = str(e)  # the loss's own cause stays in last_disconnect_reason
                     delay = min(c.reconnect_max_s, delay * 2)
                     continue
-                c.stats.reconnects += 1
-                c.last_reconnect_error = ""
-                log.warning("link to %s re-established (reconnect #%d)", c.port_name, c.stats.reconnects)
-                for cb in list(c.on_reconnect):
-                    cb(c)
+                c._reconnected()
                 break
 
     async def sync_once(self, timeout: float = 0.5) -> tuple[int, int, int, int]:
         """One TIME_SYNC exchange; returns ``(t1, t2, t3, t4)`` and feeds the estimator (realtime)."""
         c = self.client
-        loop = asyncio.get_running_loop()
         t1 = host_now_us()
         while t1 in self.sync_pending:
             t1 += 1
-        fut: asyncio.Future[tuple[TimeSyncReply, int]] = loop.create_future()
+        fut: Reply[tuple[TimeSyncReply, int]] = Reply()
         self.sync_pending[t1] = fut
         try:
             c._send(TimeSyncRequest(t1))
-            reply, t4 = await asyncio.wait_for(fut, timeout)
+            reply, t4 = await fut.get(timeout)
         except TimeoutError:
             raise LinkTimeout(f"no TIME_SYNC reply within {timeout} s") from None
         finally:
-            self.sync_pending.pop(t1, None)
-        c._board_time_seen = max(c._board_time_seen, reply.t3_board_us)
+            if self.sync_pending.get(t1) is fut:
+                del self.sync_pending[t1]
+            fut.cancel()
+        c._saw_board_time(reply.t3_board_us)
         if not c.lockstep:
             c.clock.add(t1, reply.t2_board_us, reply.t3_board_us, t4)
         return t1, reply.t2_board_us, reply.t3_board_us, t4
@@ -244,12 +281,12 @@ class Supervisor:
                 except LinkTimeout:
                     if attempt == SYNC_ATTEMPTS - 1:
                         raise
-                    c.stats.retries += 1
+                    c._count_retry()
 
     async def heartbeat_loop(self) -> None:
         c = self.client
         while True:
-            await asyncio.sleep(c.heartbeat_s / 2)
+            await anyio.sleep(c.heartbeat_s / 2)
             if c._ready and c.keepalive and time.monotonic() - c._last_tx >= c.heartbeat_s:
                 with contextlib.suppress(LinkError):
                     c._send(Heartbeat(host_now_us()))
@@ -257,7 +294,7 @@ class Supervisor:
     async def sync_loop(self) -> None:
         c = self.client
         while True:
-            await asyncio.sleep(c.sync_interval_s)
+            await anyio.sleep(c.sync_interval_s)
             if c._ready and c.keepalive and not c.lockstep:
                 with contextlib.suppress(LinkError):
                     await self.sync_once()

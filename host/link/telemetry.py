@@ -4,19 +4,25 @@
 (:meth:`TelemetryFanout.on_telemetry`) and keeps what the rest of the host reads: the latest
 report, the fault bits of :data:`FAULT_BITS` and their edges (:class:`FaultEvent`, the last 256
 kept, ``on_fault`` callbacks and one log line each), bounded drop-oldest subscriber queues, and
-the futures of whoever waits for a report satisfying a predicate. No I/O and no sending: waits that
-must move a lockstep board's clock (``BoardClient.wait_for(..., nudge=True)``) stay with the session.
+the replies (:class:`host.link.waiting.Reply`) of whoever waits for a report satisfying a predicate.
+No I/O and no sending: the waits themselves, which may move a lockstep board's clock
+(``BoardClient.wait_for(..., nudge=True)``), are :class:`host.link.telemetry_waits.TelemetryWaits`.
+Subscribers read anyio memory object streams; the fan-out holds both ends of each, so a full stream
+loses its oldest report (``receive_nowait``) rather than blocking the receive path.
 """
 
 from __future__ import annotations
 
-import asyncio
 import logging
 import time
 from collections import deque
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
 
+import anyio
+from anyio.streams.memory import MemoryObjectReceiveStream, MemoryObjectSendStream
+
+from host.link.waiting import Reply
 from protocol.messages import FaultFlags, Telemetry
 
 __all__ = ["FAULT_BITS", "FaultEvent", "TelemetryFanout", "flag_names"]
@@ -51,7 +57,8 @@ def flag_names(f: FaultFlags | int) -> str:
     return "|".join(e.name or "" for e in FaultFlags if e.value and f & e) or "NONE"
 
 
-Waiter = tuple[Callable[[Telemetry], bool], "asyncio.Future[Telemetry]"]
+Waiter = tuple[Callable[[Telemetry], bool], Reply[Telemetry]]
+Subscriber = tuple[MemoryObjectSendStream[Telemetry], MemoryObjectReceiveStream[Telemetry]]
 
 
 class TelemetryFanout:
@@ -64,7 +71,7 @@ class TelemetryFanout:
         self.faults = FaultFlags.NONE
         self.fault_events: deque[FaultEvent] = deque(maxlen=MAX_FAULT_EVENTS)
         self.on_fault: list[Callable[[FaultEvent], None]] = []
-        self._subs: set[asyncio.Queue[Telemetry]] = set()
+        self._subs: list[Subscriber] = []
         self._waiters: list[Waiter] = []
 
     def on_telemetry(self, t: Telemetry) -> None:
@@ -82,10 +89,10 @@ class TelemetryFanout:
                 log.info("board fault cleared: %s (board time %.3f s)", flag_names(ev.cleared), t.board_time_us / 1e6)
             for cb in list(self.on_fault):
                 cb(ev)
-        for q in self._subs:
-            if q.full():
-                q.get_nowait()
-            q.put_nowait(t)
+        for send, receive in self._subs:
+            if send.statistics().current_buffer_used >= send.statistics().max_buffer_size:
+                receive.receive_nowait()  # drop the oldest
+            send.send_nowait(t)
         if self._waiters:
             keep = []
             for pred, fut in self._waiters:
@@ -99,20 +106,22 @@ class TelemetryFanout:
 
     async def subscribe(self, maxsize: int | None = None) -> AsyncIterator[Telemetry]:
         """Every report from now on, through a bounded drop-oldest queue."""
-        q: asyncio.Queue[Telemetry] = asyncio.Queue(maxsize or self.queue_size)
-        self._subs.add(q)
+        sub: Subscriber = anyio.create_memory_object_stream[Telemetry](maxsize or self.queue_size)
+        self._subs.append(sub)
+        send, receive = sub
         try:
-            while True:
-                yield await q.get()
+            with send, receive:
+                while True:
+                    yield await receive.receive()
         finally:
-            self._subs.discard(q)
+            self._subs = [s for s in self._subs if s is not sub]
 
-    def waiter(self, predicate: Callable[[Telemetry], bool]) -> asyncio.Future[Telemetry]:
-        """A future set with the next report satisfying ``predicate`` (drop it with :meth:`forget`)."""
-        fut: asyncio.Future[Telemetry] = asyncio.get_running_loop().create_future()
+    def waiter(self, predicate: Callable[[Telemetry], bool]) -> Reply[Telemetry]:
+        """A reply set with the next report satisfying ``predicate`` (drop it with :meth:`forget`)."""
+        fut: Reply[Telemetry] = Reply()
         self._waiters.append((predicate, fut))
         return fut
 
-    def forget(self, fut: asyncio.Future[Telemetry]) -> None:
+    def forget(self, fut: Reply[Telemetry]) -> None:
         """Stop feeding ``fut`` (a wait that ended)."""
         self._waiters = [(p, f) for p, f in self._waiters if f is not fut]

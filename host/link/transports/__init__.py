@@ -4,6 +4,19 @@
 the host's registry (:data:`host.link.kinds.HOST_TRANSPORTS`): serial kinds ->
 :class:`host.link.transports.serial.SerialLinkTransport`; CAN kinds ->
 :func:`host.link.transports.can.open_can_transport` (python-can is imported only for CAN links).
+
+The transport adapters are the one part of ``host.link`` written against asyncio's loop rather than
+anyio (the session, supervisor, requests and waits are anyio; the background loops' task is
+spawned in :mod:`host.link.background`, which says why). Why here: a transport has no task of its
+own; the :class:`Transport` contract is callbacks (``connect(on_receive, on_lost)``), and the bytes
+or frames are handled in the loop's readiness callback itself (``loop.add_reader`` /
+``add_writer`` on the port's or bus's fd), with no task switch per wake-up. anyio's
+``wait_readable`` would need a reader task per transport, spawned and cancelled across reconnects,
+for the same effect. python-can's :class:`can.Notifier`, the receive path of buses without a file
+descriptor (the virtual bus), takes an asyncio loop and hands frames over with
+``call_soon_threadsafe``; pyserial's thread transport (ports without an fd) does the same. The link
+therefore runs on anyio's asyncio backend (``anyio.run(..., backend="asyncio")``, as every host
+command that opens a link does) or under ``asyncio.run``; never under trio.
 """
 
 from __future__ import annotations

@@ -29,6 +29,10 @@ chosen by suffix (:func:`protocol.logfile.open_frame_log`: python-can's writers,
 the one this end knows, not python-can's ``is_rx``, which marks SocketCAN's vcan loop-back as sent;
 received and sent frames carry the same channel, the bus's python-can channel, e.g. the SLCAN
 adapter's tty, as the board's own log names it).
+
+asyncio stays here (the reader and writer callbacks, ``call_later`` for the ISO-TP tick and the tx
+retry, ``call_soon_threadsafe`` from python-can's Notifier thread), as in every transport adapter:
+see :mod:`host.link.transports` for why. Opening the bus is :func:`anyio.to_thread.run_sync`.
 """
 
 from __future__ import annotations
@@ -41,6 +45,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import anyio
+import anyio.to_thread
 import can
 
 from host.link.errors import LinkConfigError, LinkDown, LinkError
@@ -225,7 +231,8 @@ class CanLinkTransport(Transport):
             kw.setdefault("can_filters", [{"can_id": self.node, "can_mask": 0x7F, "extended": False}])
             if kw.get("interface") == "slcan":
                 kw.setdefault("sleep_after_open", 0)
-            bus = await asyncio.to_thread(_open_bus, self.spec, kw)
+            # a worker thread (an SLCAN open may block on its port); abandoned when cancelled, as Ctrl-C must not wait
+            bus = await anyio.to_thread.run_sync(_open_bus, self.spec, kw, abandon_on_cancel=True)
         self.bus = bus
         self._channel_name = _log_channel(self.spec, bus)
         if self.framelog is not None:

@@ -28,6 +28,9 @@ cannot be opened on the first connection (no such device, not a tty, in use by a
 pyserial URL it cannot parse) is a :class:`~host.link.errors.LinkConfigError` (the port as given
 cannot be used: exit status 2 in every command); after a connection, the same failure while
 reconnecting is a vanished port (:class:`~host.link.errors.LinkDown`, retried).
+
+The loop here is asyncio's (``add_reader``/``add_writer``, ``call_soon_threadsafe``), as in every
+transport adapter; :mod:`host.link.transports` says why.
 """
 
 from __future__ import annotations

@@ -1,0 +1,140 @@
+"""The session's receive path: decoded items in, each message to its handler through a table.
+
+:class:`ReceivePath` is a mixin of :class:`host.link.session.BoardClient` (python-can's Notifier role):
+the transport calls :meth:`ReceivePath._on_items` with what it decoded; undecodable items are
+counted, never raised; every message goes to its handler by type (``_HANDLERS``, looked up by name,
+so a handler replaced on the instance, as the fuzz harness ``host.fuzz.session`` does with
+``_on_chunk``, is the one called) and then to the ``on_received`` listeners. The handlers hand on:
+TELEMETRY to :class:`host.link.telemetry.TelemetryFanout`, ACK/NACK and images to
+:class:`host.link.requests.RequestTable`, CAPS and TIME_SYNC replies to
+:class:`host.link.supervisor.Supervisor`, CAMERA_CHUNKs to :class:`host.link.camera.CameraAssembler`.
+A bug in a handler or listener is logged and the reader goes on.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from host.link.camera import CameraAssembler
+from host.link.errors import HandshakeError, SchemaMismatch
+from host.link.requests import RequestTable
+from host.link.supervisor import Supervisor, host_now_us
+from host.link.telemetry import TelemetryFanout
+from protocol.faults import GapDetector
+from protocol.framing import DecodeError, Frame
+from protocol.messages import (Ack, CameraChunk, Caps, Message, MsgType, Nack, NackReason, SimState, Telemetry,
+                               TimeSyncReply)
+
+__all__ = ["LinkStats", "ReceivePath"]
+
+log = logging.getLogger("host.link")
+
+
+@dataclass
+class LinkStats:
+    """Counters since the client was created."""
+
+    tx_frames: int = 0
+    rx_frames: int = 0
+    decode_errors: int = 0
+    frame_nacks: int = 0
+    telemetry: int = 0
+    reconnects: int = 0
+    retries: int = 0  # requests re-sent because no ACK/NACK came in time (a lost frame either way)
+    seq_gaps: int = 0  # board messages never received (gaps in the board's sequence numbers), since the handshake
+    last_decode_error: str = ""  # kind and detail of the latest undecodable item, for reports
+
+
+class ReceivePath:
+    """Received items -> handlers -> listeners (module docstring); the session provides what is annotated."""
+
+    stats: LinkStats
+    fanout: TelemetryFanout
+    requests: RequestTable
+    supervisor: Supervisor
+    camera: CameraAssembler
+    latest_sim_state: SimState | None
+    servo_fault: Nack | None
+    on_nack: list[Callable[[Nack], None]]
+    on_received: list[Callable[[Message], None]]
+    _rx_gaps: GapDetector
+    _board_time_seen: int
+
+    def _on_items(self, items: Sequence[Frame | DecodeError]) -> None:
+        t4 = host_now_us()
+        for item in items:
+            if isinstance(item, DecodeError):
+                self.stats.decode_errors += 1
+                self.stats.last_decode_error = f"{item.kind.value}: {item.detail} ({len(item.raw)} bytes)"
+                log.debug("link: discarded %d bytes (%s: %s)", len(item.raw), item.kind.value, item.detail)
+                continue
+            self.stats.rx_frames += 1
+            self._rx_gaps.feed(item.seq)
+            self.stats.seq_gaps = self._rx_gaps.lost
+            try:
+                self._dispatch(item.msg, t4)
+                for cb in self.on_received:
+                    cb(item.msg)
+            except Exception:  # a bug in a callback must not kill the reader
+                log.exception("link: error handling %s", item.msg_type.name)
+
+    #: received message class -> the name of its handler, ``handler(msg, t4)`` (a table, not an isinstance
+    #: chain; looked up by name so a handler replaced on the instance or the class is the one called)
+    _HANDLERS: dict[type[Message], str] = {
+        Telemetry: "_handle_telemetry",
+        SimState: "_handle_sim_state",
+        Ack: "_handle_ack",
+        Nack: "_handle_nack",
+        TimeSyncReply: "_handle_time_sync",
+        Caps: "_handle_caps",
+        CameraChunk: "_handle_chunk",
+    }
+
+    def _dispatch(self, msg: Message, t4: int) -> None:
+        name = self._HANDLERS.get(type(msg))
+        if name is not None:
+            getattr(self, name)(msg, t4)
+
+    def _handle_telemetry(self, msg: Telemetry, t4: int) -> None:
+        self.stats.telemetry += 1
+        self._board_time_seen = max(self._board_time_seen, msg.board_time_us)
+        self.fanout.on_telemetry(msg)
+
+    def _handle_sim_state(self, msg: SimState, t4: int) -> None:
+        self.latest_sim_state = msg
+
+    def _handle_ack(self, msg: Ack, t4: int) -> None:
+        self.requests.on_ack(msg)
+
+    def _handle_time_sync(self, msg: TimeSyncReply, t4: int) -> None:
+        self.supervisor.on_sync_reply(msg, t4)
+
+    def _handle_caps(self, msg: Caps, t4: int) -> None:
+        self.supervisor.on_caps(msg)
+
+    def _handle_chunk(self, msg: CameraChunk, t4: int) -> None:
+        self._on_chunk(msg)
+
+    def _on_chunk(self, msg: CameraChunk) -> None:
+        done = self.camera.on_chunk(msg)
+        if done is not None:
+            self.requests.on_result(*done)
+
+    def _handle_nack(self, msg: Nack, t4: int) -> None:
+        if msg.reason == NackReason.SERVO_FAULT:
+            self.servo_fault = msg
+        if msg.msg_type == MsgType.HELLO:
+            reason = msg.reason.name if hasattr(msg.reason, "name") else str(msg.reason)
+            error = SchemaMismatch if msg.reason == NackReason.SCHEMA_MISMATCH else HandshakeError
+            if self.supervisor.refuse_hello(error(
+                f"board refused the handshake: {reason}: {msg.detail or 'no detail'}; "
+                "host and board must run the same protocol version and message schema"
+            )):
+                return
+        if self.requests.on_nack(msg):
+            return  # it answered a request
+        self.stats.frame_nacks += 1
+        for cb in list(self.on_nack):
+            cb(msg)

@@ -1,0 +1,167 @@
+"""Request/ACK bookkeeping: which sent message an ACK or NACK answers, retries, and frame NACKs.
+
+A :class:`RequestTable` holds, keyed by the 16-bit wire sequence number a message was sent with:
+
+* ``pending``: the :class:`host.link.waiting.Reply` of a request awaiting its ACK (or of a camera
+  capture awaiting its image); every copy of a re-sent request maps to the same reply, so the first
+  ACK/NACK to any copy answers;
+* ``frame_nacks``: the NACKs of messages nobody awaits (timed servo frames), the latest 1024 kept;
+* ``nack_waiters``: who waits for a given frame's NACK (:meth:`wait_frame_nack`).
+
+:meth:`RequestTable.request` is the retry loop: send, wait ``per_try`` s, send again with a new
+sequence number, ``attempts`` times in all. Sequence numbers wrap: :meth:`forget_seq` drops a number's
+old entries before it is sent again (an answer from one lap is never taken for the next). No I/O of
+its own: the session passes its send function.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import OrderedDict
+from collections.abc import Callable
+from typing import Any, Protocol
+
+from host.link.errors import LinkError, LinkTimeout, NackError
+from host.link.waiting import Reply
+from protocol.messages import Ack, Message, Nack
+
+__all__ = ["MAX_FRAME_NACKS", "AnswerSlot", "RequestTable"]
+
+log = logging.getLogger("host.link")
+#: frame NACKs kept (oldest dropped)
+MAX_FRAME_NACKS = 1024
+
+
+class AnswerSlot(Protocol):
+    """What the receive path needs of a pending answer (a :class:`Reply`; an :class:`asyncio.Future` fits too)."""
+
+    def done(self) -> bool: ...
+    def set_result(self, value: Any, /) -> None: ...
+    def set_exception(self, exc: BaseException, /) -> None: ...
+    def exception(self) -> BaseException | None: ...
+
+
+class RequestTable:
+    """Pending requests, frame NACKs and NACK waiters by wire sequence number (module docstring)."""
+
+    def __init__(self, on_retry: Callable[[], None] = lambda: None) -> None:
+        #: called once per re-sent request (the session counts them in ``stats.retries``)
+        self.on_retry = on_retry
+        self.pending: dict[int, AnswerSlot] = {}
+        self.frame_nacks: OrderedDict[int, Nack] = OrderedDict()
+        self.nack_waiters: list[tuple[int, Reply[Nack | None]]] = []
+
+    # --- answers (called by the session's receive path) -------------------------------------
+
+    def on_ack(self, msg: Ack) -> None:
+        """An ACK: it answers the request sent with ``msg.ack_seq``, if one waits."""
+        fut = self.pending.get(msg.ack_seq)
+        if fut is not None and not fut.done():
+            fut.set_result(msg)
+
+    def on_result(self, seq: int, value: object) -> None:
+        """Answer the request sent with ``seq`` with ``value`` (a camera image)."""
+        fut = self.pending.get(seq)
+        if fut is not None and not fut.done():
+            fut.set_result(value)
+
+    def on_nack(self, msg: Nack) -> bool:
+        """A NACK: fail the request it answers (True), else record it as a frame NACK, wake its
+        waiters and return False (the caller counts it and calls its ``on_nack`` listeners)."""
+        fut = self.pending.get(msg.ack_seq)
+        if fut is not None and not fut.done():
+            fut.set_exception(NackError(msg))
+            return True
+        self.frame_nacks[msg.ack_seq] = msg
+        while len(self.frame_nacks) > MAX_FRAME_NACKS:
+            self.frame_nacks.popitem(last=False)
+        log.debug("link: %s", NackError(msg))
+        self._answer_waiters(msg.ack_seq, msg)
+        return False
+
+    def _answer_waiters(self, seq: int, value: Nack | None) -> None:
+        if not self.nack_waiters:
+            return
+        for s, w in self.nack_waiters:
+            if s == seq and not w.done():
+                w.set_result(value)
+        self.nack_waiters = [(s, w) for s, w in self.nack_waiters if not w.done()]
+
+    # --- sequence numbers and link loss ------------------------------------------------------
+
+    def forget_seq(self, seq: int) -> None:
+        """``seq`` is about to be reused (16-bit wrap): drop everything keyed by its previous use.
+
+        An old NACK no longer describes the frame that will carry ``seq``; a waiter for the old
+        frame's NACK gets None (no NACK came in a whole lap); a request still awaiting the old
+        ACK fails, since an ACK from now on would be for the new message.
+        """
+        self.frame_nacks.pop(seq, None)
+        self._answer_waiters(seq, None)
+        old = self.pending.pop(seq, None)
+        if old is not None and not old.done():
+            old.set_exception(LinkTimeout(f"no reply for seq {seq} before the sequence number came round again"))
+            old.exception()
+
+    def fail_all(self, exc: LinkError) -> None:
+        """The link went down: every pending request and NACK waiter fails with ``exc``."""
+        for fut in [*self.pending.values(), *(w for _, w in self.nack_waiters)]:
+            if not fut.done():
+                fut.set_exception(exc)
+                fut.exception()  # mark retrieved: nobody may be awaiting it
+        self.pending.clear()
+        self.nack_waiters.clear()
+
+    # --- waiting -----------------------------------------------------------------------------
+
+    def frame_nack(self, seq: int) -> Nack | None:
+        """The NACK for the latest frame sent with sequence ``seq``, if any (last 1024 kept)."""
+        return self.frame_nacks.get(seq & 0xFFFF)
+
+    async def wait_frame_nack(self, seq: int, timeout: float) -> Nack | None:
+        """The NACK for frame ``seq``, waiting up to ``timeout`` s; None if none came (or ``seq`` was reused)."""
+        seq &= 0xFFFF
+        if seq in self.frame_nacks:
+            return self.frame_nacks[seq]
+        w: Reply[Nack | None] = Reply()
+        self.nack_waiters.append((seq, w))
+        try:
+            return await w.get(timeout)
+        except TimeoutError:
+            return None
+        finally:
+            self.nack_waiters = [(s, f) for s, f in self.nack_waiters if f is not w]
+
+    def expect(self, seq: int, reply: AnswerSlot) -> None:
+        """``reply`` answers the message sent with ``seq`` (another copy of a request maps to the same)."""
+        self.pending[seq] = reply
+
+    def release(self, seqs: list[int], reply: AnswerSlot) -> None:
+        """A request ended: drop its entries (those not already taken over by a reuse of the number)."""
+        for seq in seqs:
+            if self.pending.get(seq) is reply:
+                del self.pending[seq]
+
+    async def request(self, send: Callable[[Message], int], msg: Message, per_try: float, attempts: int) -> Ack:
+        """Send ``msg`` with ``send`` and await its ACK, re-sending it (new sequence number) after
+        each ``per_try`` s without a reply, ``attempts`` times in all; the first ACK/NACK to any copy
+        answers. Raises :class:`NackError`, :class:`LinkTimeout`, or what ``send`` raises."""
+        reply: Reply[Ack] = Reply()
+        n = max(1, attempts)
+        seqs: list[int] = []
+        try:
+            for k in range(n):
+                seq = send(msg)
+                seqs.append(seq)
+                self.expect(seq, reply)
+                if await reply.wait(per_try):
+                    return reply.result()
+                if k + 1 < n:
+                    self.on_retry()
+            raise LinkTimeout(
+                f"no ACK for {type(msg).__name__} (seq {', '.join(map(str, seqs))}) after {n} attempt(s) "
+                f"of {per_try} s"
+            )
+        finally:
+            reply.cancel()
+            self.release(seqs, reply)

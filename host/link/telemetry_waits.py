@@ -1,0 +1,130 @@
+"""Telemetry views and waits of the session: ``latest_telemetry``, fault bits and edges, ``wait_for`` (with
+the lockstep nudge), ``next_telemetry``, ``telemetry()``.
+
+:class:`TelemetryWaits` is a mixin of :class:`host.link.session.BoardClient`: it reads the session's
+:class:`host.link.telemetry.TelemetryFanout` (``fanout``) and, for a lockstep board whose clock only
+runs when the host ADVANCEs it, sends ADVANCE through the session's ``_send``. Waiting is anyio
+(:meth:`host.link.waiting.Reply.wait`, a deadline on :func:`anyio.current_time`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections import deque
+from collections.abc import AsyncIterator, Callable
+
+import anyio
+
+from host.link.board_time import BoardTime
+from host.link.errors import LinkError, LinkTimeout
+from host.link.telemetry import FaultEvent, TelemetryFanout, flag_names
+from protocol.messages import Advance, FaultFlags, Message, Telemetry
+
+__all__ = ["TelemetryWaits"]
+
+
+class TelemetryWaits(BoardTime):
+    """Waits on the telemetry listener (and the board clock, :class:`BoardTime`); the session provides
+    the attributes annotated here."""
+
+    fanout: TelemetryFanout
+
+    @property
+    def latest_telemetry(self) -> Telemetry | None:
+        """The latest TELEMETRY report (None before the first)."""
+        return self.fanout.latest
+
+    @property
+    def faults(self) -> FaultFlags:
+        """The fault bits of :data:`FAULT_BITS` in the latest report."""
+        return self.fanout.faults
+
+    @property
+    def fault_events(self) -> deque[FaultEvent]:
+        """The latest 256 fault edges."""
+        return self.fanout.fault_events
+
+    @property
+    def on_fault(self) -> list[Callable[[FaultEvent], None]]:
+        """Callbacks called with every fault edge (append to it)."""
+        return self.fanout.on_fault
+
+    def _send(self, msg: Message) -> int:  # the session's
+        raise NotImplementedError
+
+    #: wall seconds between the ADVANCEs of :meth:`wait_for` with ``nudge`` (a lockstep board answers in ~1 ms)
+    NUDGE_S = 0.1
+    #: wall seconds without a satisfying report before a nudge moves its ADVANCE target further (a
+    #: report lost on a lossy link); until then it repeats the target (it was pushed 5 periods ahead of
+    #: a slow QEMU board in 0.5 s, whose next frames then arrived LATE)
+    NUDGE_RAISE_S = 1.0
+
+    async def telemetry(self, maxsize: int | None = None) -> AsyncIterator[Telemetry]:
+        """Every telemetry report from now on; a slow consumer loses the oldest (bounded stream)."""
+        async for t in self.fanout.subscribe(maxsize):
+            yield t
+
+    async def wait_for(self, predicate: Callable[[Telemetry], bool], timeout: float, *, nudge: bool = False) -> Telemetry:
+        """The first telemetry (latest included) satisfying ``predicate``; :class:`LinkTimeout` after ``timeout`` s.
+
+        ``nudge`` (lockstep boards; ignored in realtime): a lockstep board only reports while its
+        clock runs, so ADVANCE it one report period past the latest board time known at once and
+        again every :attr:`NUDGE_S` s while no report satisfies ``predicate``: a lost ADVANCE or
+        a lost report (likely on a lossy CAN link, where a report is 17 frames) cannot stall the
+        wait. The target repeats until a report reaches it or :attr:`NUDGE_RAISE_S` passes, so a
+        slow board is not pushed ahead. The ADVANCEs are not awaited: the report is the
+        acknowledgement that matters.
+        """
+        t = self.latest_telemetry
+        if t is not None and predicate(t):
+            return t
+        fut = self.fanout.waiter(predicate)
+        deadline = anyio.current_time() + timeout
+        nudging = nudge and self.lockstep
+        until = 0
+        raised_at = 0.0
+        try:
+            while True:
+                if nudging:
+                    now = anyio.current_time()
+                    seen = self.board_now_estimate()
+                    if until == 0 or seen >= until or now - raised_at >= self.NUDGE_RAISE_S:
+                        # first nudge; a report reached the target without satisfying the predicate; or
+                        # none for NUDGE_RAISE_S (lost): move the target one report period on. Otherwise the same
+                        # target again (a lost ADVANCE): a slow board (QEMU on a loaded machine) must
+                        # not be pushed ahead of the frames the host is about to time from its report
+                        until = max(until, seen) + self.report_period_us()
+                        raised_at = now
+                    with contextlib.suppress(LinkError):
+                        self._send(Advance(until))
+                left = deadline - anyio.current_time()
+                if left <= 0:
+                    break
+                if await fut.wait(min(left, self.NUDGE_S) if nudging else left):
+                    return fut.result()
+                if not nudging:
+                    break
+            last = self.latest_telemetry
+            where = (f"; last telemetry at board time {last.board_time_us / 1e6:.3f} s, faults {flag_names(last.faults)}"
+                     if last else "; no telemetry received")
+            raise LinkTimeout(f"telemetry condition not met within {timeout} s{where}")
+        finally:
+            fut.cancel()
+            self.fanout.forget(fut)
+
+    def report_period_us(self) -> int:
+        """One telemetry period plus one control tick (us): an ADVANCE this far always yields a report."""
+        caps = self.caps
+        rate = caps.telemetry_rate_hz if caps is not None and caps.telemetry_rate_hz > 0 else 50
+        tick = caps.control_rate_hz if caps is not None and caps.control_rate_hz > 0 else 500
+        return 1_000_000 // rate + 1_000_000 // tick
+
+    async def next_telemetry(self, timeout: float) -> Telemetry:
+        """The next telemetry report received after this call."""
+        fut = self.fanout.waiter(lambda _t: True)
+        try:
+            return await fut.get(timeout)
+        except TimeoutError:
+            raise LinkTimeout(f"no telemetry within {timeout} s") from None
+        finally:
+            self.fanout.forget(fut)

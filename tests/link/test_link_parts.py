@@ -1,0 +1,152 @@
+"""The session's parts on their own: request bookkeeping, replies, telemetry fan-out (no board; no sleeps).
+
+The whole link with a real board is in test_e2e.py, test_seq_wrap.py and tests/can; these pin the
+contracts of host.link.requests, host.link.waiting and host.link.telemetry that the session relies on.
+Time never passes in them: a per-try timeout of 0 s expires at the first checkpoint, and a
+subscriber is known to wait once every task is blocked (anyio.wait_all_tasks_blocked).
+"""
+
+from __future__ import annotations
+
+import anyio
+import anyio.lowlevel
+import pytest
+
+
+from host.link.errors import LinkDown, LinkTimeout, NackError
+from host.link.requests import RequestTable
+from host.link.telemetry import TelemetryFanout
+from host.link.waiting import Flag, Reply
+from protocol.messages import Ack, Estop, FaultFlags, MsgType, Nack, NackReason, Telemetry
+
+pytestmark = pytest.mark.timeout(30)
+
+
+def _tel(t_us: int) -> Telemetry:
+    return Telemetry(t_us, (0.0,), (0.0,), (0.0,), (0.0, 0.0, 0.0), FaultFlags.NONE, 0, 0, 0, 0, 0)
+
+
+def test_a_request_is_answered_by_the_ack_to_any_copy_and_counts_its_retries() -> None:
+    async def main() -> None:
+        retries: list[int] = []
+        table = RequestTable(lambda: retries.append(1))
+        sent: list[int] = []
+
+        def send(msg: object) -> int:
+            seq = len(sent)
+            sent.append(seq)
+            if seq == 2:  # the third copy: the board acknowledges the FIRST one (its ACK was late)
+                table.on_ack(Ack(0, MsgType.ESTOP))
+            return seq
+
+        ack = await table.request(send, Estop(), per_try=0, attempts=5)
+        assert ack == Ack(0, MsgType.ESTOP) and sent == [0, 1, 2] and len(retries) == 2
+        assert table.pending == {}  # nothing left keyed by the copies
+
+    anyio.run(main, backend="asyncio")
+
+
+def test_a_nack_fails_the_request_and_no_reply_is_a_timeout() -> None:
+    async def main() -> None:
+        table = RequestTable()
+
+        seqs = iter([7, 8])
+
+        def refuse(msg: object) -> int:
+            seq = next(seqs)
+            if seq == 8:  # the second copy goes out as the board's refusal of the first comes in
+                table.on_nack(Nack(7, MsgType.ESTOP, NackReason.BAD_VALUE, "no"))
+            return seq
+
+        with pytest.raises(NackError) as e:
+            await table.request(refuse, Estop(), per_try=0, attempts=3)
+        assert e.value.reason == NackReason.BAD_VALUE and table.frame_nack(7) is None  # a request's NACK is no frame NACK
+        with pytest.raises(LinkTimeout, match=r"seq 1, 2\) after 2 attempt"):
+            more = iter([1, 2])
+            await table.request(lambda m: next(more), Estop(), per_try=0, attempts=2)
+
+    anyio.run(main, backend="asyncio")
+
+
+def test_reusing_a_sequence_number_forgets_its_old_nack_and_answers_its_waiter_with_none() -> None:
+    async def main() -> None:
+        table = RequestTable()
+        assert table.on_nack(Nack(5, MsgType.SERVO_FRAME, NackReason.LATE)) is False
+        assert table.frame_nack(5 + 0x10000) is not None  # 16-bit numbers
+        got: list[Nack | None] = []
+        async with anyio.create_task_group() as tg:
+            async def wait() -> None:
+                got.append(await table.wait_frame_nack(6, 60))
+
+            tg.start_soon(wait)
+            await anyio.wait_all_tasks_blocked()
+            table.forget_seq(5)
+            table.forget_seq(6)  # frame 6 never got a NACK in a whole lap
+        assert got == [None] and table.frame_nack(5) is None and table.nack_waiters == []
+
+    anyio.run(main, backend="asyncio")
+
+
+def test_a_lost_link_fails_what_waits_and_a_reply_takes_one_answer() -> None:
+    async def main() -> None:
+        table = RequestTable()
+        r: Reply[Ack] = Reply()
+        table.expect(3, r)
+        table.fail_all(LinkDown("gone"))
+        assert await r.wait(0) and isinstance(r.exception(), LinkDown) and table.pending == {}
+        with pytest.raises(LinkDown):
+            r.result()
+        r2: Reply[int] = Reply()
+        assert await r2.wait(0) is False  # no answer: a timeout, and waiting again is allowed
+        r2.set_result(4)
+        assert await r2.wait(0) and r2.result() == 4
+        with pytest.raises(RuntimeError):
+            r2.set_result(5)
+
+    anyio.run(main, backend="asyncio")
+
+
+def test_a_flag_can_be_cleared_and_waited_for_again() -> None:
+    async def main() -> None:
+        flag = Flag()
+        woke: list[bool] = []
+        async with anyio.create_task_group() as tg:
+            async def wait() -> None:
+                await flag.wait()
+                woke.append(flag.is_set())
+
+            tg.start_soon(wait)
+            await anyio.wait_all_tasks_blocked()
+            assert woke == []
+            flag.set()
+        flag.clear()
+        with anyio.move_on_after(0) as scope:
+            await flag.wait()
+        assert woke == [True] and scope.cancelled_caught
+
+    anyio.run(main, backend="asyncio")
+
+
+def test_a_slow_subscriber_loses_the_oldest_reports_and_waiters_get_the_first_match() -> None:
+    async def main() -> None:
+        fan = TelemetryFanout(queue_size=2)
+        got: list[int] = []
+        async with anyio.create_task_group() as tg:
+            async def consume() -> None:
+                async for t in fan.subscribe():
+                    got.append(t.board_time_us)
+                    if len(got) == 3:
+                        return
+
+            tg.start_soon(consume)
+            await anyio.wait_all_tasks_blocked()  # subscribed and waiting
+            w = fan.waiter(lambda t: t.board_time_us >= 3)
+            fan.on_telemetry(_tel(1))  # handed straight to the waiting subscriber
+            for t in (2, 3, 4):
+                fan.on_telemetry(_tel(t))  # the subscriber has not run: a stream of 2 keeps 3 and 4
+            assert w.done() and w.result().board_time_us == 3
+        assert got == [1, 3, 4] and fan.latest == _tel(4)
+        fan.forget(w)
+        await anyio.lowlevel.checkpoint()
+
+    anyio.run(main, backend="asyncio")
