@@ -476,13 +476,13 @@ class CanLinkTransport(Transport):
         deadline = time.monotonic() + LINGER_MAX_S
         while (left := deadline - time.monotonic()) > 0:
             try:
-                msg = bus.recv(timeout=min(LINGER_QUIET_S, left))
+                got = bus.recv(timeout=min(LINGER_QUIET_S, left))
             except (can.CanError, OSError, ValueError):
                 return
-            if msg is None:
+            if got is None:
                 return
-            if not msg.is_error_frame:
-                log.write_can("rx", from_can_message(msg), msg.timestamp or None)
+            if not got.is_error_frame:
+                log.write_can("rx", from_can_message(got), got.timestamp or None)
 
     def close(self) -> None:
         if self.bus is not None and self.framelog is not None:
