@@ -27,6 +27,6 @@ def command_of(args: argparse.Namespace, default: str = "run") -> str:
 
 
 def print_error(command: str | None, message: str, *, file: IO[str] | None = None) -> None:
-    """Print ``ghostshell COMMAND: message`` on ``file`` (default stderr) and flush it."""
+    """Print ``ghostshell COMMAND: message`` on ``file`` (default stderr; any object with ``write``)."""
     out = sys.stderr if file is None else file
-    print(error_prefix(command) + message, file=out, flush=True)
+    print(error_prefix(command) + message, file=out)
