@@ -654,7 +654,11 @@ class Board:
         speed_cap: float | None = None
         native = self.native
         if self._estop_rx_us is not None and mode is Mode.ESTOP:
-            self.watchdog_events.append((t, "estop", self._estop_rx_us))
+            # on the clock the ESTOP's arrival was stamped on (board_time_us: the fine-grained clock in
+            # realtime, virtual time in lockstep), not the tick's scheduled time t: a realtime board
+            # catching up on late ticks runs ticks whose t is before the arrival (it printed a negative
+            # latency under load); the hold takes effect when this tick runs
+            self.watchdog_events.append((self.board_time_us(), "estop", self._estop_rx_us))
             self._estop_rx_us = None
         if entered and mode in (Mode.HOLD, Mode.CROUCH):
             self.buffer.clear()

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 
 from protocol.faults import push_arg, seed_arg
 from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
-from robots.registry import DEFAULT_ROBOT
+from robots.registry import DEFAULT_ROBOT, robots_dir_arg
 
 __all__ = ["build_parser", "configure", "main"]
 
@@ -75,7 +75,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robot", default=DEFAULT_ROBOT, metavar="NAME",
                         help=f"the robot this board drives: a name (ghostshell robots list) or a robot folder "
                              f"(default {DEFAULT_ROBOT})")
-    parser.add_argument("--robots-dir", default=None, metavar="DIR", help="search this folder for --robot first")
+    parser.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg, help="search this folder for --robot first")
     parser.add_argument("--push", action="append", default=[], type=push_arg, metavar="S:FX,FY,FZ[:DUR]",
                         help="emulator only: push the robot's base with a force (N, world frame) at board time S "
                              "for DUR s (default 0.2); repeatable (a scripted disturbance, e.g. to test falls)")

@@ -9,7 +9,8 @@ dependency cannot take down every command.
 Exit status, the same in every command (:data:`EXIT_CODES`; ``tests/cli/test_exit_codes.py``
 checks each command): 0 success, 1 the run or operation failed, 2 usage or bad input (every
 argument is checked before anything starts: one line says what is wrong and what would be right),
-130 interrupted (Ctrl-C or SIGTERM). ``ghostshell vcan`` passes its COMMAND's status through.
+130 interrupted (Ctrl-C or SIGTERM). Every error line reads ``ghostshell COMMAND: message``
+(:func:`host.commands.errors.print_error`). ``ghostshell vcan`` passes its COMMAND's status through.
 SIGTERM is handled as Ctrl-C is: ``run``, ``demo`` and ``chat`` interrupt their turn
 (:mod:`host.run.stops`); elsewhere the command stops, cleans up and exits 130.
 """
@@ -23,6 +24,8 @@ import sys
 import threading
 from collections.abc import Sequence
 from types import FrameType
+
+from host.commands.errors import print_error
 
 #: subcommand -> (module under host.commands, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -98,11 +101,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args._main(args) or 0)
     except KeyboardInterrupt as e:  # Ctrl-C or SIGTERM where the command has no handling of its own
         what = "SIGTERM" if isinstance(e, Terminated) else "SIGINT (Ctrl-C)"
-        print(f"ghostshell{' ' + command if command in COMMANDS else ''}: interrupted by {what}", file=sys.stderr)
+        print_error(command if command in COMMANDS else None, f"interrupted by {what}")
         return 130
     except UnicodeDecodeError as e:  # a file the command read is not UTF-8: one clear line, not a traceback
-        print(f"ghostshell {command}: an input file is not UTF-8 text ({e.reason} at byte {e.start})",
-              file=sys.stderr)
+        print_error(command if command in COMMANDS else None,
+                    f"an input file is not UTF-8 text ({e.reason} at byte {e.start})")
         return 2
     finally:
         if in_main_thread:

@@ -71,6 +71,28 @@ class NackReason(IntEnum):
     SERVO_FAULT = 13  # a servo stopped answering on the board's servo bus (detail names it)
 
 
+#: what each reason means, for a NACK that carries no detail: the CAN board sends a NACK to a SERVO_FRAME
+#: as one fixed frame, reason code only (the text would need an ISO-TP transfer). Where the Python board's
+#: detail says nothing beyond the reason (ESTOPPED, FAULT_LATCHED, NOT_LOCKSTEP), the text is that detail,
+#: so a serial and a CAN link say the same.
+NACK_REASON_TEXT: dict[NackReason, str] = {
+    NackReason.UNSPECIFIED: "no reason given",
+    NackReason.VERSION_MISMATCH: "another protocol version",
+    NackReason.SCHEMA_MISMATCH: "another wire schema",
+    NackReason.LATE: "its due time had passed",
+    NackReason.TOO_FAR_FUTURE: "its due time is too far ahead",
+    NackReason.BUFFER_FULL: "jitter buffer full",
+    NackReason.ESTOPPED: "estop active; send ESTOP_CLEAR",
+    NackReason.FAULT_LATCHED: "watchdog fault latched; send ESTOP_CLEAR",
+    NackReason.BAD_VALUE: "a value out of range",
+    NackReason.UNSUPPORTED: "not accepted by this board",
+    NackReason.NO_RENDERER: "no camera renderer",
+    NackReason.BUSY: "busy",
+    NackReason.NOT_LOCKSTEP: "ADVANCE needs a --lockstep board",
+    NackReason.SERVO_FAULT: "a servo stopped answering on the servo bus",
+}
+
+
 class FaultFlags(IntFlag):
     """Fault and state bits reported in telemetry."""
 
@@ -246,6 +268,17 @@ class Nack:
     msg_type: MsgType
     reason: NackReason
     detail: str = ""  # short ASCII explanation, at most 64 bytes on the wire
+
+
+def nack_detail(nack: Nack) -> str:
+    """The NACK's detail text, else what its reason means (:data:`NACK_REASON_TEXT`; an unknown reason
+    code: ``"reason N"``): never empty, whichever link carried it."""
+    if nack.detail:
+        return nack.detail
+    try:
+        return NACK_REASON_TEXT[NackReason(nack.reason)]
+    except (ValueError, KeyError):
+        return f"reason {int(nack.reason)}"
 
 
 # --- peripherals ---------------------------------------------------------------------------

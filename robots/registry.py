@@ -26,7 +26,7 @@ from robots.description import Robot, RobotDataError
 from robots.loader import ROBOT_FILE, load_robot_dir
 
 __all__ = ["BUILTIN_DIR", "DEFAULT_ROBOT", "RobotEntry", "RobotNotFound", "find_robot", "list_robots", "load_robot",
-           "new_robots_dir", "search_path", "user_robots_dir"]
+           "new_robots_dir", "robots_dir_arg", "robots_dir_problem", "search_path", "user_robots_dir"]
 
 BUILTIN_DIR = Path(__file__).resolve().parent
 ENV_VAR = "GHOSTSHELL_ROBOTS"
@@ -57,6 +57,27 @@ def user_robots_dir() -> Path:
     import platformdirs
 
     return Path(platformdirs.user_data_dir("ghostshell")) / "robots"
+
+
+def robots_dir_problem(robots_dir: str | Path) -> str | None:
+    """Why ``robots_dir`` (a ``--robots-dir`` to search) cannot be searched, or None: it must be an existing
+    folder (a mistyped one would otherwise be passed over and the next folder's robot used)."""
+    p = Path(robots_dir).expanduser()
+    if not p.exists():
+        return f"{robots_dir}: no such folder (give a folder of robots, each NAME/robot.toml)"
+    if not p.is_dir():
+        return f"{robots_dir} is not a folder (give a folder of robots, each NAME/robot.toml)"
+    return None
+
+
+def robots_dir_arg(text: str) -> str:
+    """argparse ``type=`` for ``--robots-dir``: the folder, or a usage error (:func:`robots_dir_problem`)."""
+    import argparse
+
+    why = robots_dir_problem(text)
+    if why is not None:
+        raise argparse.ArgumentTypeError(why)
+    return text
 
 
 def new_robots_dir(robots_dir: str | Path | None = None) -> Path:

@@ -15,6 +15,7 @@ from __future__ import annotations
 from typing import IO
 
 from protocol import framelog
+from host.commands.errors import print_error
 
 __all__ = ["decode_can_file"]
 
@@ -27,7 +28,7 @@ def decode_can_file(path: str, out: IO[str], err: IO[str], types: list[str] | No
     if path.lower().endswith(".log"):
         problem = candump_problem(path)
         if problem is not None:
-            print(f"ghostshell log: {problem}", file=err)
+            print_error("log", str(problem), file=err)
             return 2
     from host.link.canlog import iter_can_log
     from protocol.can import CanItem
@@ -62,15 +63,15 @@ def decode_can_file(path: str, out: IO[str], err: IO[str], types: list[str] | No
     except BrokenPipeError:  # piped into head
         return 0
     except (OSError, ValueError, EOFError) as ex:  # python-can's readers: a damaged .asc/.blf
-        print(f"ghostshell log: cannot read {path} as a CAN log ({type(ex).__name__}: {ex})", file=err)
+        print_error("log", f"cannot read {path} as a CAN log ({type(ex).__name__}: {ex})", file=err)
         return 2
     except Exception as ex:  # noqa: BLE001 - python-can's BLF reader raises struct.error and others
-        print(f"ghostshell log: python-can cannot read {path} as a CAN log ({type(ex).__name__}: {ex})", file=err)
+        print_error("log", f"python-can cannot read {path} as a CAN log ({type(ex).__name__}: {ex})", file=err)
         return 2
     if not n:
-        print(f"ghostshell log: {path} holds no CAN frames: nothing to decode", file=err)
+        print_error("log", f"{path} holds no CAN frames: nothing to decode", file=err)
         return 2
     if unknown or errors:
-        print(f"ghostshell log: {n} frame(s), {unknown} not in the DBC, {errors} decode error(s)", file=err)
+        print_error("log", f"{n} frame(s), {unknown} not in the DBC, {errors} decode error(s)", file=err)
         return 1
     return 0

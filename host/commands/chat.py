@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from host.commands.errors import print_error
 from host.commands.outarg import out_dir_problem
 from host.commands.run import _push_text, add_run_options, check_run_args, resolve_strict
 
@@ -61,7 +62,7 @@ def main(args: argparse.Namespace) -> int:
     from host.shell.skills import SkillError, SkillStore, skills_path
 
     if args.max_steps < 1:
-        print("ghostshell chat: --max-steps must be >= 1", file=sys.stderr)
+        print_error("chat", "--max-steps must be >= 1")
         return 2
     scripted = args.llm == "scripted"
     try:
@@ -69,23 +70,23 @@ def main(args: argparse.Namespace) -> int:
         replies = parse_blocks(_read(args.replies, "--replies")) if args.replies else None
         skills = SkillStore(skills_path(args.skills))
     except (OSError, ValueError, ScriptError, SkillError) as e:  # InputError is a ValueError
-        print(f"ghostshell chat: {e}", file=sys.stderr)
+        print_error("chat", str(e))
         return 2
     if replies is not None and not scripted:
-        print("ghostshell chat: --replies needs --llm scripted", file=sys.stderr)
+        print_error("chat", "--replies needs --llm scripted")
         return 2
     if scripted and turns is not None and replies is None:
-        print("ghostshell chat: --llm scripted replays --replies FILE; for --turns use --llm openai:MODEL", file=sys.stderr)
+        print_error("chat", "--llm scripted replays --replies FILE; for --turns use --llm openai:MODEL")
         return 2
     if replies is not None and not replies:
-        print(f"ghostshell chat: {args.replies} holds no reply (blocks are separated by lines '---')", file=sys.stderr)
+        print_error("chat", f"{args.replies} holds no reply (blocks are separated by lines '---')")
         return 2
     if turns is not None and not turns:
-        print(f"ghostshell chat: {args.turns} holds no turn (blocks are separated by lines '---')", file=sys.stderr)
+        print_error("chat", f"{args.turns} holds no turn (blocks are separated by lines '---')")
         return 2
     if turns is not None and replies is not None and len(turns) > len(replies):
-        print(f"ghostshell chat: {len(turns)} turns in {args.turns} but only {len(replies)} replies in {args.replies}; "
-              "every turn needs at least one reply", file=sys.stderr)
+        print_error("chat", f"{len(turns)} turns in {args.turns} but only {len(replies)} replies in {args.replies}; "
+              "every turn needs at least one reply")
         return 2
     if not scripted:
         from host.ghost import make_ghost
@@ -93,7 +94,7 @@ def main(args: argparse.Namespace) -> int:
         try:
             make_ghost(args.llm, base_url=args.base_url, api_key=args.api_key)  # bad spec/no key: once, up front
         except GhostError as e:
-            print(f"ghostshell chat: {e}", file=sys.stderr)
+            print_error("chat", str(e))
             return 2
     from host.commands.linkarg import link_exit_status
 
@@ -106,17 +107,17 @@ def main(args: argparse.Namespace) -> int:
         for i, block in enumerate(blocks or [], 1):
             why = Limits().refuse_reply(block.text) if name == "--replies" else None
             if why is not None:  # refused before the board starts, not cut minutes into the turn
-                print(f"ghostshell chat: {name} {args.replies}: reply {i}: {why}; nothing was run", file=sys.stderr)
+                print_error("chat", f"{name} {args.replies}: reply {i}: {why}; nothing was run")
                 return 2
     out = Path(args.out) if args.out else Path("runs") / "chat"
     why = None if args.out else out_dir_problem(out)  # a given --out was checked when it was parsed
     if why is not None:
-        print(f"ghostshell chat: the run folder {out} {why}; give another with --out DIR", file=sys.stderr)
+        print_error("chat", f"the run folder {out} {why}; give another with --out DIR")
         return 2
     try:
         return anyio.run(_chat, args, turns, replies, skills, out, backend="asyncio")
     except (LinkError, GhostError, SkillError, RuntimeError, OSError) as e:
-        print(f"ghostshell chat: {e}", file=sys.stderr)
+        print_error("chat", str(e))
         return link_exit_status(e)
 
 
@@ -173,20 +174,20 @@ async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any,
             session.write_now(ended, plots=False)
         if conv is not None:
             conv.write_transcript(transcript)
-        print(f"ghostshell chat: {interrupted.how}; transcript and "
-              f"artefacts in {out}/", file=sys.stderr)
+        print_error("chat", f"{interrupted.how}; transcript and "
+              f"artefacts in {out}/")
         return 130
     if session.stop is not None:
         rest = (f"the robot went to its rest pose {session.robot.rest_pose!r}" if chat.rested else
                 "the robot could not be brought to its rest pose")
         n = len(conv.turns) if conv is not None else 0
-        print(f"ghostshell chat: {session.stop.message} after {n} turn{'s' if n != 1 else ''}; {rest}; "
-              f"transcript and artefacts in {out}/", file=sys.stderr)
+        print_error("chat", f"{session.stop.message} after {n} turn{'s' if n != 1 else ''}; {rest}; "
+              f"transcript and artefacts in {out}/")
         return int(session.stop.exit_status)
     print(f"transcript and artefacts in {out}/")
     steps = [s for t in conv.turns for s in t.steps] if conv is not None else []
     if steps and all(s.stream_error for s in steps):
-        print(f"ghostshell chat: every LLM request failed ({steps[-1].stream_error})", file=sys.stderr)
+        print_error("chat", f"every LLM request failed ({steps[-1].stream_error})")
         return 1
     return 0
 

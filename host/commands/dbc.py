@@ -21,6 +21,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from host.commands.errors import print_error
 from host.commands.robotarg import USAGE_STATUS, add_robot_argument, robot_from_args
 
 __all__ = ["configure", "dbc_files", "main", "parse_nodes"]
@@ -56,7 +57,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     if args.fd and (args.check or args.write):
-        print("ghostshell dbc: --check and --write handle both files (classic and FD); drop --fd", file=sys.stderr)
+        print_error("dbc", "--check and --write handle both files (classic and FD); drop --fd")
         return USAGE_STATUS
     robot = robot_from_args(args, "dbc")
     if isinstance(robot, int):
@@ -70,7 +71,7 @@ def main(args: argparse.Namespace) -> int:
         else:
             files = [(path, dbc_text(fd, tuple(args.nodes), robot=who)) for fd, path in dbc_files(robot.root, robot.name)]
     except ValueError as e:  # a servo count the wire cannot carry (the loader refuses it first)
-        print(f"ghostshell dbc: {robot.name}: {e}", file=sys.stderr)
+        print_error("dbc", f"{robot.name}: {e}")
         return USAGE_STATUS
     if args.check:
         return _check(files, robot.name)
@@ -93,7 +94,7 @@ def _check(files: list[tuple[Path, str]], name: str) -> int:
             why = "differs from the generated DBC"
         else:
             continue
-        print(f"ghostshell dbc: {path} {why} (ghostshell dbc --robot {name} --write)", file=sys.stderr)
+        print_error("dbc", f"{path} {why} (ghostshell dbc --robot {name} --write)")
         status = 1
     return status
 
@@ -103,7 +104,7 @@ def _write(files: list[tuple[Path, str]]) -> int:
         try:
             path.write_text(text, encoding="utf-8")
         except OSError as e:
-            print(f"ghostshell dbc: cannot write {path}: {e.strerror or e}", file=sys.stderr)
+            print_error("dbc", f"cannot write {path}: {e.strerror or e}")
             return 1
         print(f"wrote {path}")
     return 0

@@ -11,6 +11,7 @@ import argparse
 
 import sys
 
+from host.commands.errors import print_error
 from host.commands.run import add_run_options, check_run_args, run_with
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -30,13 +31,13 @@ def main(args: argparse.Namespace) -> int:
     robot = args.robot_value
     task_id = args.task if args.task is not None else robot.demo_task
     if task_id is None:
-        print(f"ghostshell demo: {robot.name} has no tasks to show; run a program with "
-              f"ghostshell run --robot {robot.name} --xml '<pose name=\"{robot.start_pose}\"/>'", file=sys.stderr)
+        print_error("demo", f"{robot.name} has no tasks to show; run a program with "
+              f"ghostshell run --robot {robot.name} --xml '<pose name=\"{robot.start_pose}\"/>'")
         return 2
     try:
         task = get_task(robot.tasks, task_id, robot.name)
     except ValueError as e:
-        print(f"ghostshell demo: {e}", file=sys.stderr)
+        print_error("demo", str(e))
         return 2
     return run_with(args, program=task.ground_truth, prompt=None, label=f"demo task {task.id}",
                     banner=f"task {task.id} ({task.category}): {task.instruction}\n  {task.ground_truth}\n")

@@ -11,6 +11,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
+from host.commands.errors import print_error
 from host.commands.inputs import InputError, read_text_input
 from host.eval.dsbc import dsbc_breakdown
 
@@ -42,7 +43,7 @@ def main(args: argparse.Namespace) -> int:
         gen = _load(args.generated, "GEN")
         result = dsbc_breakdown(gt, gen)
     except (OSError, ValueError) as exc:  # InputError is a ValueError; a malformed GT one too
-        print(f"ghostshell dsbc: {exc}", file=sys.stderr)
+        print_error("dsbc", str(exc))
         return 2
     if args.json:
         print(

@@ -16,6 +16,7 @@ import argparse
 import asyncio
 import sys
 
+from host.commands.errors import print_error
 from host.commands.inputs import baud_rate
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, refuse_unserved_link
 
@@ -40,10 +41,10 @@ async def _run(args: argparse.Namespace) -> int:
     try:
         client = await BoardClient.connect(args.link, baud=args.baud, log_path=args.log, reconnect=False)
     except LinkConfigError as e:  # the link cannot be opened as given
-        print(f"ghostshell estop: {e}", file=sys.stderr)
+        print_error("estop", str(e))
         return USAGE_STATUS
     except LinkError as e:
-        print(f"ghostshell estop: no board answered on {args.link}: {e}", file=sys.stderr)
+        print_error("estop", f"no board answered on {args.link}: {e}")
         return 1
     try:
         if args.clear:
@@ -53,8 +54,8 @@ async def _run(args: argparse.Namespace) -> int:
             at = client.board_now_estimate()
             tel = await client.wait_for(lambda t: t.board_time_us > at, timeout=5.0, nudge=True)
             if tel.faults & LATCHED:
-                print(f"ghostshell estop: ESTOP_CLEAR acknowledged but the board still reports "
-                      f"{_names(FaultFlags(tel.faults & LATCHED))}", file=sys.stderr)
+                print_error("estop", f"ESTOP_CLEAR acknowledged but the board still reports "
+                      f"{_names(FaultFlags(tel.faults & LATCHED))}")
                 return 1
             what = (f"cleared its {_names(latched)}; it takes motion again" if latched else
                     "nothing was latched (no estop, no watchdog fault)")
@@ -65,7 +66,7 @@ async def _run(args: argparse.Namespace) -> int:
                   f"`{clear_command(client.link_spec)}`")
     except LinkError as e:
         what = "ESTOP_CLEAR" if args.clear else "ESTOP"
-        print(f"ghostshell estop: {what} not acknowledged by the board on {args.link}: {e}", file=sys.stderr)
+        print_error("estop", f"{what} not acknowledged by the board on {args.link}: {e}")
         return 1
     finally:
         await client.close()

@@ -19,6 +19,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from host.commands.errors import print_error
 from host.commands.outarg import out_dir, out_dir_problem
 from host.commands.robotarg import add_robot_argument, robot_from_args
 
@@ -175,7 +176,7 @@ def main(args: argparse.Namespace) -> int:
             make_ghost(cfg.llm, base_url=cfg.base_url, api_key=cfg.api_key)  # bad spec/no key: once, up front
     except (ValueError, GhostError) as err:
         if str(err):
-            print(f"ghostshell eval: {err}", file=sys.stderr)
+            print_error("eval", str(err))
         return 2
 
     from host.progress import bar
@@ -207,23 +208,22 @@ def main(args: argparse.Namespace) -> int:
             else:
                 records = anyio.run(_sweep_until_signal, cfg, progress, stopped, backend="asyncio")
         except (ValueError, GhostError, ImportError) as err:
-            print(f"ghostshell eval: {err}", file=sys.stderr)
+            print_error("eval", str(err))
             return 2
         except RuntimeError as err:  # a --mount-mcp server that cannot be mounted: one line, usage error
             from host.commands.linkarg import link_exit_status
 
             if link_exit_status(err) != 2:
                 raise
-            print(f"ghostshell eval: {err}", file=sys.stderr)
+            print_error("eval", str(err))
             return 2
     config = {**asdict(cfg), "out": str(cfg.out), "api_key": None, "paper_model": args.paper_model}
     expected = len(cfg.tasks) * cfg.trials
     if stopped:  # Ctrl-C / SIGTERM: what finished is in results.jsonl; report it, resume later
         if records:
             write_reports(cfg.out, config, records)
-        print(f"ghostshell eval: {stopped[0]}: {len(records)} of {expected} jobs done (in {cfg.out / 'results.jsonl'}"
-              f"{'; reports for those written' if records else ''}); run the same command again to resume",
-              file=sys.stderr)
+        print_error("eval", f"{stopped[0]}: {len(records)} of {expected} jobs done (in {cfg.out / 'results.jsonl'}"
+              f"{'; reports for those written' if records else ''}); run the same command again to resume")
         return 130
     summary = write_reports(cfg.out, config, records)
     if cfg.suite == "ablation":
@@ -233,7 +233,7 @@ def main(args: argparse.Namespace) -> int:
               f"{summary['macro_std']:.2f}; ran clean {summary['ran_clean']}/{summary['runs']}")
     print(f"wrote {cfg.out / 'eval.json'}, eval.md, eval.png")
     if len(records) < expected:
-        print(f"ghostshell eval: {expected - len(records)} job(s) failed; run again to retry them", file=sys.stderr)
+        print_error("eval", f"{expected - len(records)} job(s) failed; run again to retry them")
         return 1
     return 0
 

@@ -25,6 +25,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from host.commands.errors import print_error
 from host.commands.outarg import out_dir
 from host.fuzz import TARGETS
 from host.fuzz.libfuzzer import FuzzStats, parse_output
@@ -114,13 +115,13 @@ def main(args: argparse.Namespace) -> int:
             return 2
         return 0
     if args.target not in TARGETS:
-        print(f"ghostshell fuzz: unknown target {args.target!r}; choose one of {', '.join(TARGETS)}", file=sys.stderr)
+        print_error("fuzz", f"unknown target {args.target!r}; choose one of {', '.join(TARGETS)}")
         return 2
     if importlib.util.find_spec("atheris") is None:
-        print("ghostshell fuzz: atheris is not installed; pip install -e '.[fuzz]'", file=sys.stderr)
+        print_error("fuzz", "atheris is not installed; pip install -e '.[fuzz]'")
         return 2
     if args.seconds < 1 or args.jobs < 1 or args.rss_limit_mb < 1 or args.max_len < 1:
-        print("ghostshell fuzz: --seconds, --jobs, --rss-limit-mb and --max-len must be at least 1", file=sys.stderr)
+        print_error("fuzz", "--seconds, --jobs, --rss-limit-mb and --max-len must be at least 1")
         return 2
     out = Path(args.out or Path("fuzz-out") / args.target)
     corpus = Path(args.corpus) if args.corpus else out / "corpus"
@@ -129,7 +130,7 @@ def main(args: argparse.Namespace) -> int:
         try:
             d.mkdir(parents=True, exist_ok=True)
         except OSError as e:
-            print(f"ghostshell fuzz: {what}: cannot create {d}: {e.strerror or e}", file=sys.stderr)
+            print_error("fuzz", f"{what}: cannot create {d}: {e.strerror or e}")
             return 2
     print(f"fuzzing {args.target} for {args.seconds} s ({args.jobs} job(s)); corpus {corpus}"
           + (f", seeds {', '.join(map(str, seeds))}" if seeds else ""), flush=True)

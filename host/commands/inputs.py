@@ -3,16 +3,21 @@
 :func:`read_text_input` reads a text file a command was given (``run --xml-file``, ``chat --turns``
 / ``--replies``, ``eval --replies``, ``dsbc @FILE``, ...): a missing or unreadable file, a folder, a
 file that is not UTF-8 text and an empty (or whitespace-only) file are each an :class:`InputError`
-naming the option, the file and what would be right.
+naming the option, the file and what would be right. ``-`` names standard input (:data:`STDIN`).
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import sys
 from pathlib import Path
 
-__all__ = ["InputError", "baud_rate", "port_number", "positive_seconds", "read_text_input", "seconds"]
+__all__ = ["STDIN", "InputError", "baud_rate", "port_number", "positive_seconds", "read_text_input", "seconds"]
+
+
+#: the file name that means standard input (``run --xml-file -``)
+STDIN = "-"
 
 
 class InputError(ValueError):
@@ -22,10 +27,16 @@ class InputError(ValueError):
 def read_text_input(path: str | Path, option: str, *, what: str = "text", allow_empty: bool = False) -> str:
     """The UTF-8 text of ``path``, given with ``option`` (e.g. ``"--xml-file"``); :class:`InputError`
     when it is missing, unreadable, not a file, not UTF-8, or (unless ``allow_empty``) holds only
-    whitespace."""
+    whitespace. ``path`` ``-`` reads standard input to its end."""
     p = Path(path)
     try:
-        data = p.read_bytes()
+        if str(path) == STDIN:
+            if sys.stdin is None:
+                raise InputError(f"{option} -: there is no standard input to read")
+            data = sys.stdin.buffer.read() if hasattr(sys.stdin, "buffer") else sys.stdin.read().encode("utf-8")
+            path = "- (standard input)"
+        else:
+            data = p.read_bytes()
     except IsADirectoryError:
         raise InputError(f"{option} {path} is a folder; give a file of {what}") from None
     except OSError as e:

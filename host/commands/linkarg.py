@@ -15,6 +15,7 @@ import os
 import stat
 import sys
 
+from host.commands.errors import print_error
 from protocol.linkkinds import link_kind
 from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
 
@@ -128,7 +129,7 @@ def refuse_unserved_link(command: str, spec: LinkSpec) -> int | None:
         why = preflight_link(spec)
     if why is None:
         return None
-    print(f"ghostshell {command}: {why}", file=sys.stderr)
+    print_error(command, str(why))
     return USAGE_STATUS
 
 

@@ -14,6 +14,7 @@ import argparse
 import sys
 from typing import IO
 
+from host.commands.errors import print_error
 from host.commands.linkarg import add_link_argument
 from protocol.linkkinds import link_kind
 
@@ -49,7 +50,7 @@ def decode_file(path: str, out: IO[str] | None = None, err: IO[str] | None = Non
     try:
         f = open(path, encoding="utf-8")
     except OSError as e:
-        print(f"ghostshell log: cannot read {path}: {e.strerror or e}", file=err)
+        print_error("log", f"cannot read {path}: {e.strerror or e}", file=err)
         return 2
     bad = good = 0
     held: list[str] = []  # bad lines before the first good record: said only if the file is a frame log at all
@@ -76,14 +77,14 @@ def decode_file(path: str, out: IO[str] | None = None, err: IO[str] | None = Non
             out.write(format_record(rec) + "\n")
     if bad and not good:
         first = held[0].replace(": not a frame-log record", "") if held else path
-        print(f"ghostshell log: {path} is not a frame log ({first}); give a file written with --log: .jsonl "
+        print_error("log", f"{path} is not a frame log ({first}); give a file written with --log: .jsonl "
               "for a serial link, .log/.asc/.blf for CAN", file=err)
         return 2
     if bad:
-        print(f"ghostshell log: {bad} bad line(s) skipped, {good} record(s) decoded", file=err)
+        print_error("log", f"{bad} bad line(s) skipped, {good} record(s) decoded", file=err)
         return 1
     if not good:
-        print(f"ghostshell log: {path} holds no records: nothing to decode", file=err)
+        print_error("log", f"{path} holds no records: nothing to decode", file=err)
         return 2
     return 0
 
@@ -99,7 +100,7 @@ def decode_mcap_file(path: str, out: IO[str] | None = None, err: IO[str] | None 
     try:
         run = McapRun(path)
     except McapReadError as e:
-        print(f"ghostshell log: {e}", file=err)
+        print_error("log", str(e), file=err)
         return 2
     wanted = {t.lower() for t in types} if types else None
     counts: dict[str, int] = {}
@@ -110,9 +111,9 @@ def decode_mcap_file(path: str, out: IO[str] | None = None, err: IO[str] | None 
         value = _shorten(m.value)
         text = json.dumps(value, ensure_ascii=False, separators=(",", ":"), default=str)
         out.write(f"{m.log_time_ns / 1e9:12.6f} {m.topic:<15} {text}\n")
-    print("ghostshell log: " + (", ".join(f"{t} {n}" for t, n in counts.items()) or "no messages"), file=err)
+    print_error("log", (", ".join(f"{t} {n}" for t, n in counts.items()) or "no messages"), file=err)
     if run.truncated:
-        print(f"ghostshell log: {run.truncated}", file=err)
+        print_error("log", str(run.truncated), file=err)
         return 1
     return 0
 
@@ -139,8 +140,8 @@ def main(args: argparse.Namespace) -> int:
         known = type_names()
         unknown = [t for t in args.type if t.upper() not in known]
         if unknown:
-            print(f"ghostshell log: --type {', '.join(unknown)}: no such message type; the types are "
-                  f"{', '.join(known)}", file=sys.stderr)
+            print_error("log", f"--type {', '.join(unknown)}: no such message type; the types are "
+                  f"{', '.join(known)}")
             return 2
 
     link_is_can = args.link is not None and link_kind(args.link).wire == "can"
@@ -156,5 +157,5 @@ def main(args: argparse.Namespace) -> int:
     except BrokenPipeError:  # e.g. piped into head
         return 0
     except UnicodeDecodeError as e:
-        print(f"ghostshell log: {args.file} is not a text frame log: {e}", file=sys.stderr)
+        print_error("log", f"{args.file} is not a text frame log: {e}")
         return 2

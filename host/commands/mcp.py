@@ -11,6 +11,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from host.commands.errors import print_error
 from host.commands.inputs import port_number
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, preflight_link, unreachable_link
 from host.commands.outarg import out_dir, out_dir_problem, tcp_port_taken
@@ -45,17 +46,16 @@ def main(args: argparse.Namespace) -> int:
     why = unreachable_link(args.link) or preflight_link(
         args.link, emulated=args.emulate_board or args.link.implies_emulated_board)
     if why:
-        print(f"ghostshell mcp: {why}", file=sys.stderr)
+        print_error("mcp", str(why))
         return USAGE_STATUS
     robot = robot_from_args(args, "mcp")
     if isinstance(robot, int):
         return robot
     if args.vocabulary is not None and args.vocabulary not in robot.interface.names:
-        print(f"ghostshell mcp: --vocabulary {args.vocabulary!r}: {robot.name} has {', '.join(robot.interface.names)}",
-              file=sys.stderr)
+        print_error("mcp", f"--vocabulary {args.vocabulary!r}: {robot.name} has {', '.join(robot.interface.names)}")
         return 2
     if args.scene is not None and args.scene not in robot.scenes:
-        print(f"ghostshell mcp: --scene {args.scene!r}: {robot.name} has {', '.join(robot.scenes)}", file=sys.stderr)
+        print_error("mcp", f"--scene {args.scene!r}: {robot.name} has {', '.join(robot.scenes)}")
         return 2
     from host.commands.run import mount_problem
 
@@ -69,12 +69,12 @@ def main(args: argparse.Namespace) -> int:
         problem = out_dir_problem(args.out)  # the default folder (a given --out was checked when parsed)
         why = None if problem is None else f"--out {args.out} {problem}"
     if why:
-        print(f"ghostshell mcp: {why}", file=sys.stderr)
+        print_error("mcp", str(why))
         return USAGE_STATUS
     try:
         from host.mcp_server.server import serve
     except ImportError as err:
-        print(f"ghostshell mcp: the MCP SDK is missing ({err}); pip install 'mcp>=2'", file=sys.stderr)
+        print_error("mcp", f"the MCP SDK is missing ({err}); pip install 'mcp>=2'")
         return 2
     from host.link import LinkError
     from host.run.session import SessionOptions
@@ -88,10 +88,9 @@ def main(args: argparse.Namespace) -> int:
     except (LinkError, RuntimeError, OSError) as e:
         from host.commands.linkarg import link_exit_status
 
-        print(f"ghostshell mcp: {e}", file=sys.stderr)
+        print_error("mcp", str(e))
         return link_exit_status(e)
     if stop is not None:
-        print(f"ghostshell mcp: {stop.message}; the server stopped and the board with it; session in {args.out}/",
-              file=sys.stderr)
+        print_error("mcp", f"{stop.message}; the server stopped and the board with it; session in {args.out}/")
         return 130
     return 0

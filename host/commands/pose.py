@@ -7,6 +7,7 @@ import asyncio
 import math
 import sys
 
+from host.commands.errors import print_error
 from host.commands.inputs import baud_rate, positive_seconds, seconds
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, refuse_unserved_link
 from host.commands.robotarg import add_robot_argument, robot_from_args
@@ -43,19 +44,19 @@ async def _run(args: argparse.Namespace, robot: Robot, target: tuple[float, ...]
         client = await BoardClient.connect(args.link, baud=args.baud, log_path=args.log, reconnect=False,
                                            robot=identity)
     except (LinkConfigError, RobotMismatch) as e:  # the link cannot be opened as given, or another robot
-        print(f"ghostshell pose: {e}", file=sys.stderr)
+        print_error("pose", str(e))
         return USAGE_STATUS
     except LinkError as e:  # the port opened but no board answered there as one should
-        print(f"ghostshell pose: no board answered on {args.link}: {e}", file=sys.stderr)
+        print_error("pose", f"no board answered on {args.link}: {e}")
         return 1
     try:
         note = await clear_leftover_fault(client)
         if note:
-            print(f"ghostshell pose: {note}", file=sys.stderr)
+            print_error("pose", str(note))
         res = await move_to(client, target, Limits.of_robot(robot), duration_s=args.duration, tolerance_deg=args.tolerance,
                             settle_timeout_s=args.timeout, wall_timeout_s=max(30.0, 4 * args.timeout))
     except LinkError as e:
-        print(f"ghostshell pose: pose {args.pose!r} not reached: {e}", file=sys.stderr)
+        print_error("pose", f"pose {args.pose!r} not reached: {e}")
         return 1
     finally:
         await client.close()
@@ -73,10 +74,9 @@ def main(args: argparse.Namespace) -> int:
         return robot
     poses = robot.poses
     if args.pose not in poses:
-        print(f"ghostshell pose: {robot.name} has no pose {args.pose!r}; valid poses: {', '.join(sorted(poses))}",
-              file=sys.stderr)
+        print_error("pose", f"{robot.name} has no pose {args.pose!r}; valid poses: {', '.join(sorted(poses))}")
         return 2
     if not (args.duration >= 0 and math.isfinite(args.duration)) or not args.timeout > 0:
-        print("ghostshell pose: --duration must be >= 0 and --timeout > 0", file=sys.stderr)
+        print_error("pose", "--duration must be >= 0 and --timeout > 0")
         return 2
     return asyncio.run(_run(args, robot, poses[args.pose]))

@@ -8,6 +8,7 @@ import sys
 from collections.abc import Iterable
 from typing import Any
 
+from host.commands.errors import print_error
 from host.commands.robotarg import add_robot_argument, robot_from_args
 
 
@@ -72,14 +73,14 @@ def main(args: argparse.Namespace) -> int:
     try:
         registry, _used = build_registry(args.interface, args.vocabulary, robot)
     except (ImportError, AttributeError, ValueError, TypeError) as exc:
-        print(f"ghostshell prompt: cannot load interface {args.interface!r}: {exc}", file=sys.stderr)
+        print_error("prompt", f"cannot load interface {args.interface!r}: {exc}")
         return 2
     from host.shell.skills import SkillError
 
     try:
         skills = SkillStore(args.skills) if args.skills else None
     except SkillError as exc:
-        print(f"ghostshell prompt: {exc}", file=sys.stderr)
+        print_error("prompt", str(exc))
         return 2
     sys.stdout.write(render_prompt(registry, format=args.format, mode=args.mode,
                                    text_first_class=args.text_first_class, skills=skills))

@@ -8,13 +8,16 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from host.commands.errors import print_error
+from robots.registry import robots_dir_arg
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run_dir", metavar="RUN_DIR", help="a run's artefact folder (ghostshell run/demo --out)")
     parser.add_argument("--out", default=None, metavar="FILE", help="video file (default RUN_DIR/run.mp4)")
     parser.add_argument("--fps", type=int, default=25, choices=range(10, 61), metavar="FPS", help="frames per second (default 25)")
     parser.add_argument("--workers", type=_positive_int, default=2, help="render processes (default 2: both cores)")
-    parser.add_argument("--robots-dir", default=None, metavar="DIR",
+    parser.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg,
                         help="search this folder first for the robot the run drove (its summary.json names it)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar (shown only on a terminal anyway)")
 
@@ -39,7 +42,7 @@ def main(args: argparse.Namespace) -> int:
     run_dir = Path(args.run_dir)
     if not run_dir.is_dir():
         what = "is not a folder" if run_dir.exists() else "does not exist"
-        print(f"ghostshell render: {run_dir} {what}; give a run's folder (ghostshell run/demo --out)", file=sys.stderr)
+        print_error("render", f"{run_dir} {what}; give a run's folder (ghostshell run/demo --out)")
         return 2
     t = time.monotonic()
     try:
@@ -48,10 +51,10 @@ def main(args: argparse.Namespace) -> int:
                                 VideoSettings(fps=args.fps, workers=max(1, args.workers)), robots_dir=args.robots_dir,
                                 progress=lambda done, total: shown.update(completed=done, total=total))
     except VideoInputError as e:  # nothing to render there: bad input
-        print(f"ghostshell render: {e}", file=sys.stderr)
+        print_error("render", str(e))
         return 2
     except VideoError as e:
-        print(f"ghostshell render: {e}", file=sys.stderr)
+        print_error("render", str(e))
         return 1
     print(f"video: {path} (rendered in {time.monotonic() - t:.1f} s)")
     return 0

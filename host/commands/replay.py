@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from host.commands.errors import print_error
+from robots.registry import robots_dir_arg
 from host.commands.outarg import out_dir, out_dir_problem
 
 __all__ = ["configure", "main"]
@@ -17,7 +19,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=out_dir, default=None, metavar="DIR", help="artefact folder (default runs/replay)")
     parser.add_argument("--robot", default=None, metavar="NAME",
                         help="the robot of the recorded run (default: the one its summary.json names)")
-    parser.add_argument("--robots-dir", default=None, metavar="DIR", help="search this folder for the robot first")
+    parser.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg, help="search this folder for the robot first")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -29,15 +31,15 @@ def main(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("runs") / "replay"
     why = None if args.out else out_dir_problem(out)  # a given --out was checked when it was parsed
     if why is not None:
-        print(f"ghostshell replay: the run folder {out} {why}; give another with --out DIR", file=sys.stderr)
+        print_error("replay", f"the run folder {out} {why}; give another with --out DIR")
         return 2
     try:
         res = replay(args.log, out, robot=args.robot, robots_dir=args.robots_dir)
     except (RobotDataError, ReplayInputError) as e:  # bad input: exit status 2
-        print(f"ghostshell replay: {e}", file=sys.stderr)
+        print_error("replay", str(e))
         return 2
     except (LinkError, FrameLogError, RuntimeError, OSError) as e:
-        print(f"ghostshell replay: {e}", file=sys.stderr)
+        print_error("replay", str(e))
         return 1
     print(f"replayed {res.messages} messages up to board time {res.board_time_s:.3f} s")
     print(f"base ends at {res.base_end} [x m, y m, yaw deg]"

@@ -12,8 +12,9 @@ from __future__ import annotations
 import argparse
 import sys
 
+from host.commands.errors import print_error
 from robots.description import Robot, RobotDataError
-from robots.registry import DEFAULT_ROBOT, load_robot
+from robots.registry import DEFAULT_ROBOT, load_robot, robots_dir_arg
 
 __all__ = ["add_robot_argument", "robot_from_args"]
 
@@ -24,7 +25,7 @@ def add_robot_argument(parser: argparse.ArgumentParser) -> None:
     """Add ``--robot`` (default :data:`robots.registry.DEFAULT_ROBOT`) and ``--robots-dir``."""
     parser.add_argument("--robot", default=DEFAULT_ROBOT, metavar="NAME",
                         help=f"the robot: a name (ghostshell robots list) or a robot folder (default {DEFAULT_ROBOT})")
-    parser.add_argument("--robots-dir", default=None, metavar="DIR",
+    parser.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg,
                         help="a folder of robots searched before the user robot folder and the built-in robots")
 
 
@@ -35,5 +36,5 @@ def robot_from_args(args: argparse.Namespace, command: str) -> Robot | int:
         robot.interface  # imports the package's interface and behaviours modules: their errors now, not mid-run
         return robot
     except RobotDataError as e:
-        print(f"ghostshell {command}: {e}", file=sys.stderr)
+        print_error(command, str(e))
         return USAGE_STATUS

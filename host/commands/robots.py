@@ -21,7 +21,9 @@ import inspect
 import sys
 from typing import Any, get_args, get_origin
 
+from host.commands.errors import print_error
 from robots.description import Robot, RobotDataError
+from robots.registry import robots_dir_arg
 
 __all__ = ["configure", "main"]
 
@@ -42,17 +44,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
                      help="every servo's speed limit in deg/s (default: robots.generate.DEFAULT_MAX_SPEED_DPS)")
     new.add_argument("--title", default=None, help="a title for people (default: the MJCF's model name)")
     lst = sub.add_parser("list", help="list built-in and user robots with their servo counts")
-    lst.add_argument("--robots-dir", default=None, metavar="DIR", help=dir_help)
+    lst.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg, help=dir_help)
     show = sub.add_parser("show", help="describe a robot and the functions it exposes")
     show.add_argument("name", metavar="NAME", help="a robot name or a robot folder")
-    show.add_argument("--robots-dir", default=None, metavar="DIR", help=dir_help)
+    show.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg, help=dir_help)
     path = sub.add_parser("path", help="print the user robot folder (where `new` writes), or robot NAME's folder")
     path.add_argument("name", nargs="?", default=None, metavar="NAME")
-    path.add_argument("--robots-dir", default=None, metavar="DIR", help=dir_help)
+    path.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg, help=dir_help)
 
 
 def _fail(message: str) -> int:
-    print(f"ghostshell robots: {message}", file=sys.stderr)
+    print_error("robots", str(message))
     return USAGE_STATUS
 
 

@@ -19,7 +19,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from host.commands.inputs import InputError, read_text_input
+from host.commands.errors import command_of, print_error
+from host.commands.inputs import STDIN, InputError, read_text_input
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, preflight_link, unreachable_link
 from host.commands.outarg import out_dir, out_dir_problem, tcp_port_taken
 from host.commands.robotarg import add_robot_argument, robot_from_args
@@ -34,7 +35,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     src.add_argument("--task", type=int, metavar="N",
                      help="one of the robot's tasks (ghostshell robots show NAME): replay its ground-truth tokens")
     src.add_argument("--xml", metavar="TEXT", help="function tokens to replay, e.g. '<head_act action=\"nod\"/>'")
-    src.add_argument("--xml-file", metavar="F", help="a file of function tokens to replay")
+    src.add_argument("--xml-file", metavar="F", help="a file of function tokens to replay (- reads standard input)")
     src.add_argument("--prompt", metavar="TEXT", help="an instruction for a real LLM (needs --llm openai:MODEL)")
     parser.add_argument("--video", action="store_true", help="also render run.mp4 after the run (MuJoCo offscreen, ffmpeg)")
     add_run_options(parser)
@@ -203,12 +204,11 @@ def check_run_args(args: argparse.Namespace) -> int | None:
     args.robot_value = robot
     vocabulary = getattr(args, "vocabulary", None)
     if vocabulary is not None and vocabulary not in robot.interface.names:
-        print(f"ghostshell: --vocabulary {vocabulary!r}: {robot.name} has {', '.join(robot.interface.names)}",
-              file=sys.stderr)
+        print_error(command_of(args), f"--vocabulary {vocabulary!r}: {robot.name} has {', '.join(robot.interface.names)}")
         return USAGE_STATUS
     scene = getattr(args, "scene", None)
     if scene is not None and scene not in robot.scenes:
-        print(f"ghostshell: --scene {scene!r}: {robot.name} has {', '.join(robot.scenes)}", file=sys.stderr)
+        print_error(command_of(args), f"--scene {scene!r}: {robot.name} has {', '.join(robot.scenes)}")
         return USAGE_STATUS
     why = unreachable_link(args.link) or mount_problem(args, robot)
     foxglove = getattr(args, "foxglove", None)
@@ -216,7 +216,7 @@ def check_run_args(args: argparse.Namespace) -> int | None:
         taken = tcp_port_taken(foxglove)
         why = None if taken is None else f"--foxglove {foxglove}: {taken}"
     if why:
-        print(f"ghostshell: {why}", file=sys.stderr)
+        print_error(command_of(args), f"{why}")
         return USAGE_STATUS
     if getattr(args, "policy", None):
         from host.run.events import EventFileError, EventPolicy
@@ -228,7 +228,7 @@ def check_run_args(args: argparse.Namespace) -> int | None:
             args.loaded_policy = Policy.load(args.policy, known=function_params(robot))
             args.event_policy = EventPolicy.load(args.policy)
         except (PolicyError, EventFileError) as e:
-            print(f"ghostshell: {e}", file=sys.stderr)
+            print_error(command_of(args), f"{e}")
             return USAGE_STATUS
     if "skills" in args:  # the skill library (--skills FILE, else the default one): read now, refused with status 2
         from host.shell.skills import SkillError, SkillStore, skills_path
@@ -236,7 +236,7 @@ def check_run_args(args: argparse.Namespace) -> int | None:
         try:
             args.skill_store = SkillStore(skills_path(args.skills))
         except SkillError as e:
-            print(f"ghostshell: {e}", file=sys.stderr)
+            print_error(command_of(args), f"{e}")
             return USAGE_STATUS
     if getattr(args, "events", None):
         from host.run.events import EventFileError, parse_event_file
@@ -244,11 +244,11 @@ def check_run_args(args: argparse.Namespace) -> int | None:
         try:
             args.scripted_events = tuple(parse_event_file(args.events))
         except EventFileError as e:
-            print(f"ghostshell: --events {e}", file=sys.stderr)
+            print_error(command_of(args), f"--events {e}")
             return USAGE_STATUS
     if getattr(args, "push", None) and not (args.emulate_board or _implies_emulated(args.link)):
-        print(f"ghostshell: --push acts in the emulated board a run starts, and {args.link} is a board you started: "
-              "give that board --push, or let this run start one (--emulate-board)", file=sys.stderr)
+        print_error(command_of(args), f"--push acts in the emulated board a run starts, and {args.link} is a board you started: "
+              "give that board --push, or let this run start one (--emulate-board)")
         return USAGE_STATUS
     faults, seed = getattr(args, "faults", None), getattr(args, "fault_seed", 0)
     if faults:
@@ -258,19 +258,19 @@ def check_run_args(args: argparse.Namespace) -> int | None:
         try:
             FaultSpec.parse(faults)
         except FaultSpecError as e:
-            print(f"ghostshell: --faults: {e}", file=sys.stderr)
+            print_error(command_of(args), f"--faults: {e}")
             return USAGE_STATUS
         try:
             emulated = bool(args.emulate_board) or parse_link_spec(args.link).implies_emulated_board
         except LinkSpecError:
             emulated = bool(args.emulate_board)  # the link's own error comes when it is opened
         if not emulated:
-            print(f"ghostshell: --faults is injected by the emulated board a run starts, and {args.link} is a board "
+            print_error(command_of(args), f"--faults is injected by the emulated board a run starts, and {args.link} is a board "
                   f"you started: give that board the faults (`ghostshell board --link ... --faults {faults}`), "
-                  "or let this run start one (--emulate-board)", file=sys.stderr)
+                  "or let this run start one (--emulate-board)")
             return USAGE_STATUS
     elif seed:
-        print("ghostshell: --fault-seed has no effect without --faults", file=sys.stderr)
+        print_error(command_of(args), "--fault-seed has no effect without --faults")
         return USAGE_STATUS
     firmware = getattr(args, "firmware", "python")
     if firmware != "python":
@@ -283,13 +283,13 @@ def check_run_args(args: argparse.Namespace) -> int | None:
             spec = None
         if spec is not None and not (firmware in link_kind(spec).firmwares
                                      and (args.emulate_board or spec.implies_emulated_board)):
-            print(f"ghostshell: --firmware {firmware} runs the emulated board this run starts on a serial link "
-                  f"(--link pty); {args.link} is not one", file=sys.stderr)
+            print_error(command_of(args), f"--firmware {firmware} runs the emulated board this run starts on a serial link "
+                  f"(--link pty); {args.link} is not one")
             return USAGE_STATUS
     emulate = bool(getattr(args, "emulate_board", False)) or args.link.implies_emulated_board
     why = preflight_link(args.link, emulated=emulate)  # last: it may open a CAN bus
     if why:
-        print(f"ghostshell: {why}", file=sys.stderr)
+        print_error(command_of(args), f"{why}")
         return USAGE_STATUS
     args.run_args_checked = True
     return None
@@ -333,14 +333,14 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         try:
             skills = SkillStore(skills_path(getattr(args, "skills", None)))
         except SkillError as e:  # a skill library that cannot be read is bad input
-            print(f"ghostshell: {e}", file=sys.stderr)
+            print_error(command_of(args), f"{e}")
             return USAGE_STATUS
     policy = getattr(args, "loaded_policy", None)
     slug = label.replace(" ", "-")
     out = Path(args.out) if args.out else Path("runs") / slug
     why = None if args.out else out_dir_problem(out)  # a given --out was checked when it was parsed
     if why is not None:
-        print(f"ghostshell: the run folder {out} {why}; give another with --out DIR", file=sys.stderr)
+        print_error(command_of(args), f"the run folder {out} {why}; give another with --out DIR")
         return USAGE_STATUS
     opts = RunOptions(
         program=program, prompt=prompt, llm=getattr(args, "llm", "scripted"), task_label=label,
@@ -359,7 +359,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         event_policy=getattr(args, "event_policy", None), events=getattr(args, "scripted_events", ()),
         pushes=tuple(_push_text(p) for p in getattr(args, "push", ())),
     )
-    command = getattr(args, "command", None) or "run"
+    command = command_of(args)
     def show_banner(*_: object) -> None:
         if banner is not None:
             print(banner, flush=True)
@@ -369,11 +369,11 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     except Interrupted as e:
         ended = ended_report(e)
         what = f"; {_counts(ended.summary.outcomes)}" if ended is not None else ""
-        print(f"ghostshell {command}: {e.how}{what}; "
-              + (f"summary.json and timeline.json in {out}/" if ended is not None else "nothing ran"), file=sys.stderr)
+        print_error(command, f"{e.how}{what}; "
+              + (f"summary.json and timeline.json in {out}/" if ended is not None else "nothing ran"))
         return 130
     except (LinkError, GhostError, RuntimeError, OSError) as e:
-        print(f"ghostshell: {e}", file=sys.stderr)
+        print_error(command_of(args), f"{e}")
         if ended_report(e) is not None:  # a run the link ended still left its report
             print(f"artefacts in {out}/: " + " ".join(n for n in ARTEFACTS if (out / n).exists()))
         return link_exit_status(e)
@@ -383,8 +383,8 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     if report.stop is not None:  # a signal or a bound stopped the run: one line says what and where
         rest = (f"the robot went to its rest pose {args.robot_value.rest_pose!r}" if report.rested else
                 "the robot could not be brought to its rest pose")
-        print(f"ghostshell {command}: {report.stop.message} at board time {s.duration_s:.2f} s; "
-              f"{_counts(s.outcomes)}; {rest}; artefacts in {out}/", file=sys.stderr)
+        print_error(command, f"{report.stop.message} at board time {s.duration_s:.2f} s; "
+              f"{_counts(s.outcomes)}; {rest}; artefacts in {out}/")
         return report.stop.exit_status
     print(calls_table(report.calls, report.board_t0))  # board-measured, as timeline.json
     mounted = {m.name for m in opts.mcp_mounts}
@@ -396,12 +396,12 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
           f"max tilt {s.max_tilt_deg:.1f} deg{'; FELL' if s.fell else ''}")
     print(f"base moved from {s.base_start} to {s.base_end} [x m, y m, yaw deg]")
     if s.extra.get("board_fault"):
-        print(f"ghostshell: {s.extra['board_fault']}", file=sys.stderr)
+        print_error(command_of(args), f"{s.extra['board_fault']}")
     scene = s.extra.get("scene") or {}
     if scene.get("objects"):
         print(f"scene {scene['name']}: {scene['toppled']} of {scene['objects']} toppled")
     if getattr(args, "video", False):
-        render_into(out, quiet=getattr(args, "quiet", False))
+        render_into(out, quiet=getattr(args, "quiet", False), command=command_of(args))
     print(f"artefacts in {out}/: " + " ".join(n for n in (*ARTEFACTS, "run.mp4") if (out / n).exists()))
     return 0 if s.outcome in ("done", "interrupted") else 1
 
@@ -421,7 +421,7 @@ def _first_action(ms: float | None) -> str:
     return "no action" if ms is None else f"first action after {ms} ms"
 
 
-def render_into(out: Path, quiet: bool = False) -> bool:
+def render_into(out: Path, quiet: bool = False, command: str = "run") -> bool:
     """Render ``out/run.mp4`` from the run's recorded state; print progress (a bar on a terminal) or why not."""
     import time
 
@@ -433,7 +433,7 @@ def render_into(out: Path, quiet: bool = False) -> bool:
         with bar("rendering run.mp4", None, quiet=quiet, transient=True) as shown:
             path = render_video(out, progress=lambda done, total: shown.update(completed=done, total=total))
     except VideoError as e:
-        print(f"ghostshell: no video: {e}", file=sys.stderr)
+        print_error(command, f"no video: {e}")
         return False
     print(f"video: {path} (rendered in {time.monotonic() - t:.1f} s)")
     return True
@@ -442,7 +442,7 @@ def render_into(out: Path, quiet: bool = False) -> bool:
 def main(args: argparse.Namespace) -> int:
     program, prompt, banner = None, args.prompt, None
     if args.task is None and args.xml is None and args.xml_file is None and args.prompt is None:
-        print("ghostshell run: one of the arguments --task --xml --xml-file --prompt is required", file=sys.stderr)
+        print_error("run", "one of the arguments --task --xml --xml-file --prompt is required")
         return 2
     status = check_run_args(args)
     if status is not None:
@@ -454,38 +454,36 @@ def main(args: argparse.Namespace) -> int:
         try:
             task = get_task(robot.tasks, args.task, robot.name)
         except ValueError as e:
-            print(f"ghostshell run: {e}", file=sys.stderr)
+            print_error("run", str(e))
             return 2
         program, label = task.ground_truth, f"task {task.id}"
         banner = f"task {task.id} ({task.category}): {task.instruction}\n  {task.ground_truth}"
     elif args.xml is not None:
         if not args.xml.strip():
-            print("ghostshell run: --xml is empty: give function tokens, e.g. --xml '<head_act action=\"nod\"/>'",
-                  file=sys.stderr)
+            print_error("run", "--xml is empty: give function tokens, e.g. --xml '<head_act action=\"nod\"/>'")
             return 2
         program, label = args.xml, "program"
     elif args.xml_file is not None:
         try:
             program = read_text_input(args.xml_file, "--xml-file", what="function tokens")
         except InputError as e:
-            print(f"ghostshell run: {e}", file=sys.stderr)
+            print_error("run", str(e))
             return 2
-        label = Path(args.xml_file).stem
+        label = "stdin" if args.xml_file == STDIN else Path(args.xml_file).stem
     else:
         label = "prompt"
         if not args.prompt.strip():
-            print("ghostshell run: --prompt is empty: give an instruction, e.g. --prompt 'Nod, then wave'",
-                  file=sys.stderr)
+            print_error("run", "--prompt is empty: give an instruction, e.g. --prompt 'Nod, then wave'")
             return 2
         if args.llm == "scripted":
-            print("ghostshell run: --prompt needs a real LLM, e.g. --llm openai:gpt-4o-mini", file=sys.stderr)
+            print_error("run", "--prompt needs a real LLM, e.g. --llm openai:gpt-4o-mini")
             return 2
         from host.ghost import GhostError, make_ghost
 
         try:
             make_ghost(args.llm, base_url=args.base_url, api_key=args.api_key)  # bad spec/no key: before the board
         except GhostError as e:
-            print(f"ghostshell run: {e}", file=sys.stderr)
+            print_error("run", str(e))
             return 2
     if program is not None:
         from host.shell.limits import Limits
@@ -493,6 +491,6 @@ def main(args: argparse.Namespace) -> int:
         why = Limits().refuse_reply(program)
         if why is not None:  # refused before the board starts, not cut minutes into the run
             source = f"--xml-file {args.xml_file}" if args.xml_file is not None else "the program"
-            print(f"ghostshell run: {source}: {why}; nothing was run", file=sys.stderr)
+            print_error("run", f"{source}: {why}; nothing was run")
             return 2
     return run_with(args, program=program, prompt=prompt, label=label, banner=banner)

@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from host.commands.errors import print_error
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--skills", default=None, metavar="FILE", help="skill library file (else $GHOSTSHELL_SKILLS, "
@@ -44,9 +46,9 @@ def main(args: argparse.Namespace) -> int:
             store.delete(args.name)
             print(f"deleted skill {args.name!r} from {path}")
     except SkillError as e:  # an unknown skill, an unreadable library file: bad input
-        print(f"ghostshell skills: {e}", file=sys.stderr)
+        print_error("skills", str(e))
         return 2
     except OSError as e:  # the library could not be written
-        print(f"ghostshell skills: {e}", file=sys.stderr)
+        print_error("skills", str(e))
         return 1
     return 0

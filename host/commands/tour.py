@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from host.commands.errors import print_error
 from host.commands.inputs import seconds
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, preflight_link, unreachable_link
 from host.commands.outarg import out_dir
@@ -98,7 +99,7 @@ async def _drive(port: LinkSpec, args: argparse.Namespace, out: Path | None, rob
                                              robot=identity) as client:
             note = await clear_leftover_fault(client)
             if note:
-                print(f"ghostshell tour: {note}", file=sys.stderr)
+                print_error("tour", str(note))
             printer = asyncio.create_task(_printer(client, names, state, live))
             try:
                 for name in robot.tour:
@@ -129,7 +130,7 @@ def main(args: argparse.Namespace) -> int:
     spec: LinkSpec = args.link
     why = unreachable_link(spec) or preflight_link(spec, emulated=args.emulate_board or spec.implies_emulated_board)
     if why:
-        print(f"ghostshell tour: {why}", file=sys.stderr)
+        print_error("tour", str(why))
         return USAGE_STATUS
     robot = robot_from_args(args, "tour")
     if isinstance(robot, int):
@@ -146,7 +147,7 @@ def main(args: argparse.Namespace) -> int:
         try:
             board = start_board(board_args, out / "board.stderr" if out else None, link=spec)
         except (LinkError, RuntimeError, OSError) as e:
-            print(f"ghostshell tour: {e}", file=sys.stderr)
+            print_error("tour", str(e))
             return USAGE_STATUS
         print(f"board running on {board.port} ({'lockstep' if args.lockstep else 'realtime'})", flush=True)
         spec = board.spec
@@ -158,7 +159,7 @@ def main(args: argparse.Namespace) -> int:
         dead = dead_board_error(board, e) if isinstance(e, LinkConfigError) else None
         if dead is not None:  # the board it started died first: a lost link (1), not a usage error (2)
             e = dead
-        print(f"ghostshell tour: {e}", file=sys.stderr)
+        print_error("tour", str(e))
         code = link_exit_status(e)
         summary = None
         if created and out is not None and code == USAGE_STATUS and board is None:
@@ -168,7 +169,7 @@ def main(args: argparse.Namespace) -> int:
         if board is not None:
             rc = board.stop()
     if rc not in (0, 130, -signal.SIGTERM):  # 130: the board stopped cleanly on the SIGTERM (interrupted)
-        print(f"ghostshell tour: board exited with status {rc}", file=sys.stderr)
+        print_error("tour", f"board exited with status {rc}")
         code = code or 1
     if summary is not None:
         if out is not None:

@@ -26,6 +26,8 @@ import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
+from host.commands.errors import print_error
+
 __all__ = ["configure", "main"]
 
 USAGE, HARNESS_FAILED, NOT_EXECUTABLE, NOT_FOUND = 2, 125, 126, 127
@@ -132,17 +134,16 @@ def main(args: argparse.Namespace) -> int:
 
     command = args.command[1:] if args.command[:1] == ["--"] else list(args.command)
     if not command:
-        print("ghostshell vcan: no COMMAND given; put it after --, e.g. ghostshell vcan -- candump vcan0",
-              file=sys.stderr)
+        print_error("vcan", "no COMMAND given; put it after --, e.g. ghostshell vcan -- candump vcan0")
         return USAGE
     cwd = Path.cwd()
     env = default_env()
     exe = _which(command[0], cwd, env["PATH"])
     if exe is None:
-        print(f"ghostshell vcan: {command[0]}: command not found", file=sys.stderr)
+        print_error("vcan", f"{command[0]}: command not found")
         return NOT_FOUND
     if not os.access(exe, os.X_OK) or os.path.isdir(exe):
-        print(f"ghostshell vcan: {command[0]}: not an executable file", file=sys.stderr)
+        print_error("vcan", f"{command[0]}: not an executable file")
         return NOT_EXECUTABLE
     plan = None if args.uml else native_plan(args.ifaces)
     if plan is not None:
@@ -150,15 +151,15 @@ def main(args: argparse.Namespace) -> int:
             return run_native(command, plan, fd=not args.classic, txqueuelen=args.txqueuelen, modules=args.modules,
                               cwd=cwd, env=env)
         except OSError as e:
-            print(f"ghostshell vcan: {e}", file=sys.stderr)
+            print_error("vcan", str(e))
             return HARNESS_FAILED
         except KeyboardInterrupt:
-            print("ghostshell vcan: interrupted", file=sys.stderr)
+            print_error("vcan", "interrupted")
             return 130
     why = uml_unavailable_reason()
     if why is not None:
-        print(f"ghostshell vcan: this kernel cannot create {', '.join(args.ifaces)} and User-Mode Linux is unusable: "
-              f"{why}", file=sys.stderr)
+        print_error("vcan", f"this kernel cannot create {', '.join(args.ifaces)} and User-Mode Linux is unusable: "
+              f"{why}")
         return HARNESS_FAILED
     temporary = args.run_dir is None
     run_dir = Path(tempfile.mkdtemp(prefix="uml_run_")) if temporary else Path(args.run_dir)
@@ -169,16 +170,16 @@ def main(args: argparse.Namespace) -> int:
                             on_output=_sink)
     except UmlError as e:
         first = str(e).partition("\n")[0]
-        print(f"ghostshell vcan: {first}" + (f" (details in {run_dir})" if not temporary else ""), file=sys.stderr)
+        print_error("vcan", f"{first}" + (f" (details in {run_dir})" if not temporary else ""))
         return HARNESS_FAILED
     except KeyboardInterrupt:
-        print("ghostshell vcan: interrupted; the User-Mode Linux guest was stopped", file=sys.stderr)
+        print_error("vcan", "interrupted; the User-Mode Linux guest was stopped")
         return 130
     finally:
         if temporary:
             shutil.rmtree(run_dir, ignore_errors=True)
     if result.returncode:
         kept = f"the guest's files are in {run_dir}" if not temporary else "--run-dir DIR keeps the guest's files"
-        print(f"ghostshell vcan: {command[0]} exited {result.returncode} after {result.seconds:.1f} s in User-Mode "
-              f"Linux ({kept})", file=sys.stderr)
+        print_error("vcan", f"{command[0]} exited {result.returncode} after {result.seconds:.1f} s in User-Mode "
+              f"Linux ({kept})")
     return result.returncode

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from protocol.messages import MsgType, Nack, NackReason
+from protocol.messages import MsgType, Nack, NackReason, nack_detail
 
 __all__ = ["BoardFaulted", "HandshakeError", "LinkConfigError", "LinkDown", "LinkError", "LinkTimeout", "NackError",
            "RobotMismatch", "SchemaMismatch"]
@@ -53,7 +53,7 @@ class NackError(LinkError):
         self.nack = nack
         mt = nack.msg_type.name if isinstance(nack.msg_type, MsgType) else str(nack.msg_type)
         reason = nack.reason.name if isinstance(nack.reason, NackReason) else str(nack.reason)
-        super().__init__(f"board refused {mt} (seq {nack.ack_seq}): {reason}" + (f": {nack.detail}" if nack.detail else ""))
+        super().__init__(f"board refused {mt} (seq {nack.ack_seq}): {reason}: {nack_detail(nack)}")
 
     @property
     def reason(self) -> NackReason:

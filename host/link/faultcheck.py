@@ -24,9 +24,9 @@ import shlex
 
 from host.link.errors import BoardFaulted, LinkTimeout
 from host.link.session import BoardClient
-from protocol.messages import FaultFlags
+from protocol.messages import FaultFlags, MsgType, Nack, NackReason, nack_detail
 
-__all__ = ["LATCHED", "clear_command", "clear_leftover_fault", "estop_message", "servo_fault_message"]
+__all__ = ["LATCHED", "clear_command", "clear_leftover_fault", "estop_message", "refusal_message", "servo_fault_message"]
 
 #: telemetry bits under which the board refuses every servo frame
 LATCHED = FaultFlags.ESTOP | FaultFlags.WATCHDOG_FAULT | FaultFlags.SERVO_FAULT
@@ -47,7 +47,7 @@ def estop_message(link: object) -> str:
 def servo_fault_message(client: BoardClient, board_time_us: int) -> str:
     """The one line for a board that latched SERVO_FAULT (a servo stopped answering on its bus)."""
     nack = client.servo_fault
-    which = nack.detail if nack is not None and nack.detail else "a servo stopped answering on the servo bus"
+    which = nack_detail(nack) if nack is not None else nack_detail(Nack(0, MsgType.SERVO_FRAME, NackReason.SERVO_FAULT))
     return (f"board fault: {which} (reported at board time {board_time_us / 1e6:.3f} s); the board holds every "
             f"servo and refuses motion. Check that servo's power and cable, then clear it with "
             f"`{clear_command(client.link_spec)}`")
@@ -77,3 +77,15 @@ async def clear_leftover_fault(client: BoardClient, timeout: float = 10.0) -> st
         raise BoardFaulted(f"the board on {client.port_name} still reports a fault after ESTOP_CLEAR: {e}") from None
     return (f"cleared the board's latched WATCHDOG_FAULT (left by the previous host's missing heartbeat, "
             f"board time {at / 1e6:.3f} s) with ESTOP_CLEAR")
+
+
+def refusal_message(nack: Nack, link: object) -> str | None:
+    """The one line a run fails with when the board refuses motion (a SERVO_FRAME NACKed ESTOPPED, or any
+    NACK SERVO_FAULT), else None; ``link``: its link spec. The reason's text comes from
+    :func:`protocol.messages.nack_detail`: the same over CAN, whose NACK to a servo frame has no detail."""
+    if nack.msg_type == MsgType.SERVO_FRAME and nack.reason == NackReason.ESTOPPED:
+        return f"the board refused servo frames (ESTOPPED: {nack_detail(nack)}); clear it with `{clear_command(link)}`"
+    if nack.reason == NackReason.SERVO_FAULT:
+        return (f"the board lost a servo ({nack_detail(nack)}) and refuses motion; "
+                f"clear it with `{clear_command(link)}`")
+    return None

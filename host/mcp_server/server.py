@@ -25,7 +25,10 @@ run); one that reaches the board-time bound (``SessionOptions.max_board_s``) is 
 interrupted through the lifecycle tree, the robot goes to its rest pose, the session closes (the
 board stops), exit 130; a second signal stops at once. Over stdio the requests are read by
 :class:`_StdinLines` (a reader the signal can abandon: the SDK's reader thread would block the
-exit until the client closed stdin).
+exit until the client closed stdin). A stdio line that is not a JSON-RPC message gets a JSON-RPC 2.0
+error reply (id null): -32700 Parse error for text that is not JSON, -32600 Invalid Request for JSON
+that is no message (:class:`_AnswerBadLines`; the SDK 2.3 would debug-log and drop it, leaving the
+client waiting); the server goes on.
 """
 
 from __future__ import annotations
@@ -222,6 +225,59 @@ class _StdinLines:
         return line.decode("utf-8", errors="replace")
 
 
+class _AnswerBadLines:
+    """The stdio transport's read stream, except that an item the SDK's reader could not parse (it passes
+    the exception on) is answered on ``write`` with a JSON-RPC error response and not passed on.
+
+    The SDK offers no hook on this path to the server (its dispatcher's ``on_stream_exception`` is not
+    reachable through ``Server.run``), so this wraps the stream it reads (the SDK's ``ReadStream``
+    protocol, ``last_context`` passed through)."""
+
+    def __init__(self, read: Any, write: Any) -> None:
+        self._read, self._write = read, write
+        self.bad_lines = 0
+
+    @property
+    def last_context(self) -> Any:
+        return getattr(self._read, "last_context", None)
+
+    async def _answer(self, exc: Exception) -> None:
+        from mcp.shared.message import SessionMessage
+        from mcp_types import INVALID_REQUEST, PARSE_ERROR, ErrorData, JSONRPCError
+
+        self.bad_lines += 1
+        kinds = {e.get("type") for e in exc.errors()} if hasattr(exc, "errors") else set()
+        code, text = (PARSE_ERROR, "Parse error") if "json_invalid" in kinds or not kinds else \
+            (INVALID_REQUEST, "Invalid Request")
+        await self._write.send(SessionMessage(JSONRPCError(jsonrpc="2.0", id=None,
+                                                           error=ErrorData(code=code, message=text))))
+
+    async def receive(self) -> Any:
+        while True:
+            item = await self._read.receive()
+            if not isinstance(item, Exception):
+                return item
+            await self._answer(item)
+
+    def __aiter__(self) -> _AnswerBadLines:
+        return self
+
+    async def __anext__(self) -> Any:
+        try:
+            return await self.receive()
+        except (anyio.EndOfStream, anyio.ClosedResourceError):
+            raise StopAsyncIteration from None
+
+    async def aclose(self) -> None:
+        await self._read.aclose()
+
+    async def __aenter__(self) -> _AnswerBadLines:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.aclose()
+
+
 async def _serve(opts: SessionOptions, http_port: int | None) -> StopReason | None:
     """Serve until the client goes away (stdio), or a signal; returns the signal's stop (None otherwise)."""
     state = ServerState()
@@ -244,7 +300,7 @@ async def _serve(opts: SessionOptions, http_port: int | None) -> StopReason | No
 
                 async with stdio_server(stdin=_StdinLines()) as (read, write):  # type: ignore[arg-type]
                     low = server._lowlevel_server
-                    await low.run(read, write, low.create_initialization_options())
+                    await low.run(_AnswerBadLines(read, write), write, low.create_initialization_options())
             else:
                 await server.run_streamable_http_async(host="127.0.0.1", port=http_port)
             tg.cancel_scope.cancel()

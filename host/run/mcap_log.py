@@ -65,7 +65,7 @@ from foxglove.messages import CompressedImage, Event, JointState, JointStates, K
 
 from host.run.scene3d import RobotScene, stamp
 from protocol.framing import encode_frame
-from protocol.messages import FaultFlags, Message, Nack, ServoFrame, SimState, Telemetry
+from protocol.messages import FaultFlags, Message, Nack, ServoFrame, SimState, Telemetry, nack_detail
 from robots.description import Robot
 
 __all__ = ["FLUSH_S", "McapError", "RunLog", "SCENE_EVERY_S", "TOPICS"]
@@ -329,7 +329,7 @@ class RunLog:
     def on_nack(self, nack: Nack, board_time_us: int) -> None:
         reason = getattr(nack.reason, "name", str(nack.reason))
         kind = getattr(nack.msg_type, "name", str(nack.msg_type))
-        self.link_note(f"NACK {kind} seq {nack.ack_seq}: {reason}{': ' + nack.detail if nack.detail else ''}",
+        self.link_note(f"NACK {kind} seq {nack.ack_seq}: {reason}: {nack_detail(nack)}",
                        board_time_us, LogLevel.Warning)
 
     def on_gap(self, board_time_us: int, lost: int, lost_total: int) -> None:

@@ -19,6 +19,7 @@ Errors: :class:`McapReadError` (a ``ValueError``; one line) for a file that is n
 from __future__ import annotations
 
 import json
+import struct
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +37,11 @@ from protocol.messages import Message as WireMessage
 from protocol.messages import SimState
 
 __all__ = ["McapMessage", "McapReadError", "McapRun", "mcap_last_sim_state", "read_mcap_host_to_board"]
+
+#: what the mcap package raises where a cut file ends: a record cut inside one of its fixed-size fields
+#: surfaces as ``struct.error`` from its stream reader ("unpack requires a buffer of 2 bytes"), which
+#: ended ``ghostshell log decode`` with a traceback instead of the one line
+_CUT_ERRORS = (McapError, ValueError, EOFError, struct.error)
 
 
 class McapReadError(ValueError):
@@ -100,7 +106,7 @@ class McapRun:
         try:
             with open(self.path, "rb") as f:
                 self._summary = SeekingReader(f).get_summary()
-        except (McapError, ValueError, EOFError, OSError):
+        except (*_CUT_ERRORS, OSError):
             self._summary = None
 
     @property
@@ -178,9 +184,9 @@ class McapRun:
                                         break
                             value = dec(rec.data) if dec is not None else rec.data
                         yield self._message(schema, ch, rec, value, decode)
-            except (McapError, ValueError, EOFError) as e:
-                self.truncated = (f"{self.path} ends early ({type(e).__name__}: {str(e) or 'cut mid-record'}): "
-                                  f"read up to its last complete chunk ({n} message(s)); its writer did not finish it")
+            except _CUT_ERRORS:
+                self.truncated = (f"{self.path} was cut mid-record (its writer did not finish it): read {n} "
+                                  f"message(s), up to its last complete chunk")
                 return
         if not self.complete:
             self.truncated = f"{self.path} has no summary (its writer did not finish it); read {n} message(s)"
@@ -196,7 +202,7 @@ class McapRun:
                 for rec in StreamReader(f, skip_magic=False, emit_chunks=False).records:
                     if type(rec).__name__ in want:
                         yield rec
-            except (McapError, ValueError, EOFError):
+            except _CUT_ERRORS:
                 return
 
 

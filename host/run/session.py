@@ -58,7 +58,7 @@ from host.ghost import GhostError
 from host.link import BoardClient, RobotIdentity
 from host.link.board_process import BoardProcess, dead_board_error, start_board
 from host.link.errors import BoardFaulted, LinkConfigError, LinkError
-from host.link.faultcheck import LATCHED, clear_command, clear_leftover_fault
+from host.link.faultcheck import LATCHED, clear_command, clear_leftover_fault, refusal_message
 from host.link.session import FaultEvent
 from host.run import artefacts
 from host.run.events import Event, EventMonitor, EventPolicy, ScriptedEvent, has_fallen
@@ -83,7 +83,7 @@ from host.shell.skills import SkillStore
 from host.shell.timeline import Observation, RunResult, Timeline
 from protocol.linkkinds import link_kind
 from protocol.linkspec import LinkSpec, parse_link_spec
-from protocol.messages import FaultFlags, MsgType, Nack, NackReason
+from protocol.messages import FaultFlags, Nack
 from robots.description import Robot
 from robots.generic import GENERIC_CHANNEL
 from robots.registry import DEFAULT_ROBOT, load_robot
@@ -514,12 +514,9 @@ class RobotSession:
 
     def _on_nack(self, nack: Nack) -> None:
         """Servo frames refused because of an ESTOP fail the turn at once (before telemetry shows it)."""
-        if nack.msg_type == MsgType.SERVO_FRAME and nack.reason == NackReason.ESTOPPED and self._runtime is not None:
-            self._runtime.streamer.fail(BoardFaulted(
-                f"the board refused servo frames (ESTOPPED: {nack.detail}); " + self._how_to_clear()))
-        if nack.reason == NackReason.SERVO_FAULT and self._runtime is not None:
-            self._runtime.streamer.fail(BoardFaulted(
-                f"the board lost a servo ({nack.detail}) and refuses motion; " + self._how_to_clear()))
+        message = refusal_message(nack, self.client.link_spec if self.client is not None else "SPEC")
+        if message is not None and self._runtime is not None:
+            self._runtime.streamer.fail(BoardFaulted(message))
 
     # -- turns -----------------------------------------------------------------------------------
     def pacer(self) -> BoardPacer:

@@ -135,8 +135,8 @@ def test_run_whose_slcan_board_dies_ends_with_one_clear_message(tmp_path: Path) 
             proc.kill()
             proc.communicate()
     assert proc.returncode == 1, out[-1500:] + err[-1500:]
-    lines = [ln for ln in err.splitlines() if ln.startswith("ghostshell:")]
+    lines = [ln for ln in err.splitlines() if ln.startswith("ghostshell run:")]
     assert len(lines) == 1 and "CAN" in lines[0] and "Traceback" not in err, err[-2000:]
     assert sum("lost" in ln for ln in err.splitlines()) <= 2, err[-2000:]  # the warning and the final message
     summary = json.loads((tmp_path / "summary.json").read_text())  # the partial run is still reported
-    assert summary["outcome"] == "link_lost" and f"ghostshell: {summary['extra']['link_error']}" == lines[0]
+    assert summary["outcome"] == "link_lost" and f"ghostshell run: {summary['extra']['link_error']}" == lines[0]

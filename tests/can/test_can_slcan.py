@@ -110,6 +110,10 @@ def test_short_task_over_slcan_logs_and_replays(tmp_path: Path) -> None:
     assert entries and all(e.dbc_name is not None for e in entries)  # no unknown frames
     kinds = {it.msg_type for e in entries for it in e.items if isinstance(it, CanItem)}
     assert {MsgType.HELLO, MsgType.CAPS, MsgType.SERVO_FRAME, MsgType.TELEMETRY, MsgType.SIM_STATE} <= kinds
+    # issue 17 item 7: the host's log no longer closes before the board's last frames arrive
+    from support.framelog_tail import last_frames
+
+    assert last_frames(host_log, 60, received=True) == last_frames(out / "board_frames.log", 60, received=False)
     res = replay(out, tmp_path / "replay")
     assert res.base_end_error_mm is not None and res.base_end_error_mm < 1.0
 

@@ -148,3 +148,23 @@ def test_watchdog_fires_when_the_host_goes_silent(virtual_board_factory, virtual
             await c.wait_for(lambda t: not t.faults & FaultFlags.WATCHDOG_HOLD, 3)
 
     asyncio.run(main())
+
+
+def test_host_log_ends_with_the_boards_last_frames(virtual_board_factory, virtual_channel: str,
+                                                   tmp_path: Path) -> None:
+    """Issue 17 item 7: the host closed its frame log while a lockstep board was still answering its last
+    frames (the last ~40 frames of the bus were in the board's log only). The host now closes it once
+    the bus is quiet: both logs end with the same frames, each way."""
+    from support.framelog_tail import last_frames
+
+    vb = virtual_board_factory(virtual_channel, log=str(tmp_path / "board_frames.log"))
+
+    async def main() -> None:
+        async with await BoardClient.connect(vb.spec, log_path=tmp_path / "host_frames.log") as c:
+            await move_to(c, POSES["sit"], duration_s=0.5)
+
+    asyncio.run(main())
+    vb.stop()
+    host, board = tmp_path / "host_frames.log", tmp_path / "board_frames.log"
+    assert last_frames(host, 60, received=True) == last_frames(board, 60, received=False)
+    assert last_frames(host, 10, received=False) == last_frames(board, 10, received=True)

@@ -147,7 +147,7 @@ def test_host_and_board_with_different_robots(tmp_path: Path) -> None:
         run = cli("run", "--robot", "coco", "--link", board.port, "--lockstep", "--no-live", "--out",
                   str(tmp_path / "run"), "--xml", '<pose name="stand"/>', data_home=tmp_path)
         line = one_line_error(run)
-        assert line.startswith("ghostshell: the board on") and "drives robot 'rig'" in line and "'coco'" in line, line
+        assert line.startswith("ghostshell run: the board on") and "drives robot 'rig'" in line and "'coco'" in line, line
         # the same board still serves its own robot
         ok = cli("pose", "--robot", "rig", "--robots-dir", str(robots), "--link", board.port, "--pose", "home",
                  data_home=tmp_path)

@@ -81,13 +81,13 @@ def test_demo_cut_by_the_link_prints_one_message_and_keeps_its_report(tmp_path: 
     cap = subprocess.run([sys.executable, "-m", "host.cli", "demo", "--no-video", "--no-live", "--faults", "cut=1.5+1.5",
                           "--out", str(out)], capture_output=True, text=True, timeout=120)
     assert cap.returncode == 1, cap.stderr
-    ours = [line for line in cap.stderr.splitlines() if line.startswith("ghostshell:")]
-    assert len(ours) == 1 and re.fullmatch(r"ghostshell: link lost: .*latched its watchdog fault.*", ours[0]), cap.stderr
+    ours = [line for line in cap.stderr.splitlines() if line.startswith("ghostshell demo:")]
+    assert len(ours) == 1 and re.fullmatch(r"ghostshell demo: link lost: .*latched its watchdog fault.*", ours[0]), cap.stderr
     assert cap.stderr.strip().splitlines() == ours, cap.stderr  # nothing else on stderr (a fault log line came first)
     assert "ghostshell estop --link" in ours[0] and ours[0].endswith("--clear`")
     assert f"artefacts in {out}/:" in cap.stdout and "summary.json" in cap.stdout
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["outcome"] == "link_lost" and ours[0] == f"ghostshell: {summary['extra']['link_error']}"
+    assert summary["outcome"] == "link_lost" and ours[0] == f"ghostshell demo: {summary['extra']['link_error']}"
     assert all(d["injected"]["cut"] > 0 for d in summary["extra"]["faults"]["board"]["injected"])
     calls = json.loads((out / "timeline.json").read_text())["calls"]
     assert calls and sum(summary["outcomes"].values()) == len(calls)

@@ -75,3 +75,40 @@ def test_a_message_during_hold_resumes_without_latching() -> None:
     assert board.mode is Mode.RUN and not board.safety.fault_latched
     # reported (board: watchdog resume ... line): when the hold ended and when it began
     assert list(board.watchdog_events) == [(resumed_at, "resume", held_at)]
+
+
+def test_estop_latency_is_measured_on_one_clock_when_the_board_runs_behind() -> None:
+    """Issue 17 item 7: a realtime board under load printed `estop in effect ... -0.042159 s after it
+    arrived`. The ESTOP's arrival is stamped on the fine-grained board clock, while a board catching up
+    runs ticks whose scheduled time is before it; the effect is now stamped on the same clock. The clock
+    here is a virtual one, 42 159 us ahead of the tick being run (the load that was seen)."""
+    from protocol.messages import Estop
+
+    wall = [0]
+    board = Board(BoardConfig(lockstep=False), clock_us=lambda: wall[0])
+    for _ in range(10):
+        wall[0] = board.now_us + 42_159  # behind: every tick runs late
+        board.tick()
+    arrived = wall[0]
+    assert isinstance(board.handle(Estop(), 1)[0], Ack)
+    wall[0] += 150  # the catching-up tick runs 150 us later, still scheduled before the arrival
+    assert board.now_us < arrived
+    board.tick()
+    events = [e for e in board.watchdog_events if e[1] == "estop"]
+    assert len(events) == 1
+    effect, _, rx = events[0]
+    assert rx == arrived and effect - rx == 150
+
+
+def test_estop_latency_in_lockstep_is_the_tick_it_waited() -> None:
+    from protocol.messages import Estop
+
+    board = Board(BoardConfig(lockstep=True))
+    board.handle(Advance(100_000), 1)
+    for _ in range(5):
+        board.tick()
+    arrived = board.now_us
+    assert isinstance(board.handle(Estop(), 2)[0], Ack)
+    board.tick()
+    (effect, _, rx), = [e for e in board.watchdog_events if e[1] == "estop"]
+    assert rx == arrived and 0 <= effect - rx <= board.tick_us

@@ -786,7 +786,9 @@ void gs_board_tick(gs_board_t *b) {
     gs_mode_t mode = safety_update(b, t, &entered);
     int32_t speed_cap = 0;
     if (b->estop_rx_us != GS_NO_TIME && mode == GS_MODE_ESTOP) {
-        log_event("estop in effect", t, b->estop_rx_us);
+        /* on the clock the arrival was stamped on (a realtime board catching up runs ticks whose t is
+           before the arrival: t would give a negative latency) */
+        log_event("estop in effect", gs_board_time_us(b), b->estop_rx_us);
         gs_log_str(" s after it arrived");
         gs_log_end();
         b->estop_rx_us = GS_NO_TIME;

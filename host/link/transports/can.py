@@ -28,7 +28,10 @@ chosen by suffix (:func:`protocol.logfile.open_frame_log`: python-can's writers,
 ``.asc``, ``.blf`` ...; wall-clock timestamps, the driver's for received frames; the direction is
 the one this end knows, not python-can's ``is_rx``, which marks SocketCAN's vcan loop-back as sent;
 received and sent frames carry the same channel, the bus's python-can channel, e.g. the SLCAN
-adapter's tty, as the board's own log names it).
+adapter's tty, as the board's own log names it). :meth:`close` closes the frame log only once the
+bus has been quiet for ``LINGER_QUIET_S`` (at most ``LINGER_MAX_S``): frames the board sends in answer
+to the host's last ones (a lockstep board's last telemetry, an ISO-TP transfer under way) are logged,
+so both ends' logs end with the same frames (issue 17 item 7); they are logged only, not decoded.
 
 asyncio stays here (the reader and writer callbacks, ``call_later`` for the ISO-TP tick and the tx
 retry, ``call_soon_threadsafe`` from python-can's Notifier thread), as in every transport adapter:
@@ -40,6 +43,7 @@ from __future__ import annotations
 import asyncio
 import errno
 import logging
+import time
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
@@ -72,6 +76,8 @@ BACKOFF_MAX_S = 0.02
 ISOTP_TICK_S = 0.002
 FRAME_COST = 16
 SLCAN_CHUNK = 1024  # bytes of SLCAN lines handed to the port at a time (the rest waits as frames)
+LINGER_QUIET_S = 0.05  # close: the bus counts as drained after this long without a frame for this node
+LINGER_MAX_S = 0.5  # close: at most this long (a realtime board reports until it is stopped)
 log = logging.getLogger(__name__)
 
 def _make_bus(kw: dict[str, Any]) -> can.BusABC:
@@ -143,8 +149,11 @@ class _Listener(can.Listener):
         self.loop, self.owner, self.generation = loop, owner, generation
 
     def on_message_received(self, msg: can.Message) -> None:
+        # through the owner's inbox, in order: what the loop has not taken when the transport closes
+        # still reaches the frame log
+        self.owner._inbox.append((msg, self.generation))
         try:
-            self.loop.call_soon_threadsafe(self.owner._on_can, msg, self.generation)
+            self.loop.call_soon_threadsafe(self.owner._from_inbox)
         except RuntimeError:  # loop closed
             pass
 
@@ -176,6 +185,7 @@ class CanLinkTransport(Transport):
         self._on_receive: ReceiveHandler | None = None
         self._on_lost: LossHandler | None = None
         self._txq: deque[CanFrame] = deque()
+        self._inbox: deque[tuple[can.Message, int]] = deque()  # from python-can's Notifier thread
         self._retry: asyncio.TimerHandle | None = None
         self._tick: asyncio.TimerHandle | None = None
         self._backoff = BACKOFF_MIN_S
@@ -254,7 +264,9 @@ class CanLinkTransport(Transport):
             loop.add_reader(fd, self._drain, self._generation)
             self._reader_fd = fd
         else:  # no fd (e.g. the virtual bus): python-can's Notifier reads in its thread
-            self._notifier = can.Notifier(bus, [_Listener(loop, self, self._generation)], timeout=0.05, loop=loop)
+            # no loop= here: python-can would queue each message on the loop itself, out of close()'s reach;
+            # the listener runs in the Notifier's thread and hands over through the inbox
+            self._notifier = can.Notifier(bus, [_Listener(loop, self, self._generation)], timeout=0.05)
 
     def _resolved(self) -> LinkSpec:
         assert self._resolve is not None
@@ -287,6 +299,13 @@ class CanLinkTransport(Transport):
             asyncio.get_running_loop().call_soon(self._drain, generation)
 
     # --- receiving ------------------------------------------------------------------------
+
+    def _from_inbox(self) -> None:
+        try:
+            msg, generation = self._inbox.popleft()
+        except IndexError:  # taken by close()
+            return
+        self._on_can(msg, generation)
 
     def _on_can(self, msg: can.Message, generation: int) -> None:
         if generation != self._generation or self.bus is None:
@@ -424,31 +443,58 @@ class CanLinkTransport(Transport):
         if self._on_lost is not None:
             self._on_lost(reason)
 
-    def disconnect(self) -> None:
-        self._generation += 1
-        for h in (self._retry, self._tick):
-            if h is not None:
-                h.cancel()
-        self._retry = self._tick = None
+    def _stop_reading(self) -> None:
+        """No more frames to the loop (the bus stays open)."""
         if self._reader_fd is not None:
             try:
                 asyncio.get_running_loop().remove_reader(self._reader_fd)
             except (RuntimeError, ValueError, OSError):
                 pass
             self._reader_fd = None
-        self._stop_waiting_writable()
-        self._slcan = None
         if self._notifier is not None:
             try:
                 self._notifier.stop(timeout=0.2)
             except Exception:
                 pass
             self._notifier = None
+
+    def disconnect(self) -> None:
+        self._generation += 1
+        for h in (self._retry, self._tick):
+            if h is not None:
+                h.cancel()
+        self._retry = self._tick = None
+        self._stop_reading()
+        self._stop_waiting_writable()
+        self._slcan = None
+        self._inbox.clear()
         if self.bus is not None and self.bus is not self._given_bus:
             _shutdown(self.bus)
         self.bus = None
 
+    def _linger(self, bus: can.BusABC, log: FrameLogWriter) -> None:
+        """Log what the loop has not taken yet, then every frame until the bus is quiet (see the module
+        docstring); python-can's errors end it."""
+        generation = self._generation
+        while self._inbox:
+            msg, gen = self._inbox.popleft()
+            if gen == generation and not msg.is_error_frame:
+                log.write_can("rx", from_can_message(msg), msg.timestamp or None)
+        deadline = time.monotonic() + LINGER_MAX_S
+        while (left := deadline - time.monotonic()) > 0:
+            try:
+                got = bus.recv(timeout=min(LINGER_QUIET_S, left))
+            except (can.CanError, OSError, ValueError):
+                return
+            if got is None:
+                return
+            if not got.is_error_frame:
+                log.write_can("rx", from_can_message(got), got.timestamp or None)
+
     def close(self) -> None:
+        if self.bus is not None and self.framelog is not None:
+            self._stop_reading()
+            self._linger(self.bus, self.framelog)
         self.disconnect()
         if self.framelog is not None:
             self.framelog.close()
