@@ -138,8 +138,8 @@ class SessionOptions:
 
 #: wall seconds between two checks of the frame logs' size (``max_log_mb``)
 LOG_CHECK_S = 0.25
-#: Wall seconds the session's teardown (its task group, mounts, the link client's close) may take before
-#: it is cancelled. The client's close cancels its background tasks once and waits for them; on Python
+#: Wall seconds the link client's close at the session's end may take before it is cancelled
+#: (:meth:`RobotSession._close_client`). The close cancels its background tasks once and waits for them; on Python
 #: 3.11 ``asyncio.wait_for`` drops a cancellation that arrives together with the awaited reply, so a
 #: TIME_SYNC exchange in flight could outlive the cancel and the close waited for ever (the run never
 #: wrote its summary: the task-12 hang). Cancelling the close makes asyncio's TaskGroup cancel its
