@@ -55,8 +55,9 @@ HANDOVER_LEAD_US = 200_000
 #: Wall seconds an interrupted motion's shielded stop (FLUSH, the stop's frames, its end) may take.
 #: It runs while the call is being cancelled, i.e. possibly after the session's pump, silence watchdog
 #: and board-time bound are gone: without a deadline a stop waiting on the frame lock or on telemetry
-#: that no longer comes kept the turn (and the run's summary) from ever ending.
-STOP_TIMEOUT_S = 8.0
+#: that no longer comes kept the turn (and the run's summary) from ever ending. Above the stop's own
+#: worst case on a lossy link: the FLUSH's 6 attempts of 1 s, then up to 5 s for its end.
+STOP_TIMEOUT_S = 12.0
 
 
 class RobotLink(FrameLink, Protocol):
