@@ -13,7 +13,7 @@ Figures:
 
 * ``bench/bench_board.py --robot coco --lockstep-only``: lockstep real-time factor of the board core
   (wall and CPU), over a pty, and the kernels' CPU time per tick (median of 7 rounds, load-independent-ish);
-* ``bench/bench_latency.py`` token -> servo p50/p99 over every paper task ``--repeat`` times (>= 200 calls),
+* ``bench/bench_latency.py`` token -> servo p50/p99 over every paper task 3 times (~290 calls; twice gave 196),
   realtime over a pty: quiet (as the machine is), ``--load`` (a busy loop per core), ``--baud 115200``;
 * ``bench/bench_fuzz.py`` when that file exists (every line of its output that names an n);
 * ``bench/bench_cfirmware.py --skip-fuzz``: the firmware image sizes (and its tick cost, lockstep speed).
@@ -106,7 +106,7 @@ def parse_generic(out: str) -> list[tuple[str, str, str]]:
 def plan(quick: bool) -> list[tuple[list[str], Parser]]:
     """(argv after the interpreter, parser) of every benchmark run."""
     py = ["bench/bench_latency.py"]
-    lat_sel = ["--tasks", "1,5,12,23"] if quick else ["--repeat", "2"]  # 30 tasks x 2: >= 200 calls
+    lat_sel = ["--tasks", "1,5,12,23"] if quick else ["--repeat", "3"]  # 30 tasks x 3: ~290 calls (x 2 gave 196)
     runs: list[tuple[list[str], Parser]] = [
         (["bench/bench_board.py", "--robot", "coco", "--lockstep-only"], parse_board),
         (py + lat_sel, parse_latency("quiet")),
