@@ -52,15 +52,39 @@ Run (realtime is the real measurement; ~4-5 min for all 30 tasks):
     python bench/bench_latency.py --link can:slcan:pty  # over CAN: the board is a SLCAN adapter on a pty
     python bench/bench_latency.py --json lat.json --out runs/bench_latency
 
+More calls, load and priority (issue 17):
+
+    python bench/bench_latency.py --repeat 2            # every task twice (>= 200 calls for the p99)
+    python bench/bench_latency.py --load                # a busy-loop subprocess per core meanwhile (said in the output)
+    python bench/bench_latency.py --nice 0              # leave host and board at their priority
+
+Every percentile is printed with its n; the header gives the 1-minute load average at the start.
+``--load`` starts ``os.cpu_count()`` ``while True: pass`` subprocesses before anything else (so they
+keep nice 0) and kills them at the end, also on Ctrl-C or an error.
+
+Where the tail comes from: on a loaded machine the host's event loop and the board's control loop
+are simply not running when a chunk arrives or a tick is due (a run queue of 5-10 on 2 cores: tens
+of ms per wait), which dwarfs the host's own work per call (parse, map, plan: ~1 ms) and adds to the
+link's measured uplink p99 that ``soonest_us`` plans with. The lever is priority: by default
+(``--nice -10``) this process (the host) lowers its nice value by 10 where permitted (root or
+``CAP_SYS_NICE``; otherwise it says so and runs as it is) and its board inherits that
+(``$GHOSTSHELL_BOARD_NICE=0``); a realtime board started any other way raises its own priority
+(:mod:`firmware_sim.priority`). Under CFS a nice -10 task gets ~10x the share of a nice 0 hog, so the
+hogs of ``--load`` mostly stop delaying ticks and the host's sends.
+
 Numbers depend on the machine and its load; they are printed, never asserted.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import os
+import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -227,6 +251,28 @@ def _line(name: str, s: dict[str, Any]) -> str:
             f"  min={fmt(s['min'])}  mean={fmt(s['mean'])}  ms")
 
 
+@contextlib.contextmanager
+def cpu_load(n: int) -> Iterator[list[subprocess.Popen[bytes]]]:
+    """``n`` busy-loop subprocesses (a CPU hog per core) for the span of the block, killed at its end
+    (also on an exception or Ctrl-C); yields them so the caller can say how many ran."""
+    procs: list[subprocess.Popen[bytes]] = []
+    try:
+        for _ in range(n):
+            procs.append(subprocess.Popen([sys.executable, "-c", "while True: pass"],
+                                          stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL))
+        yield procs
+    finally:
+        for p in procs:
+            p.kill()
+        for p in procs:
+            p.wait()
+
+
+def load_1min() -> float:
+    """The 1-minute load average (``os.getloadavg``)."""
+    return os.getloadavg()[0]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = task_arguments(__doc__.splitlines()[0], "also write every call and the summary as JSON")
     ap.add_argument("--lockstep", action="store_true", help="lockstep board instead of realtime")
@@ -234,13 +280,43 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--link", default="pty", metavar="SPEC",
                     help="link spec the board is started on (default pty; e.g. can:slcan:pty, 'can:slcan:pty?fd=1', "
                          "can:socketcan:vcan0 inside UML)")
+    ap.add_argument("--repeat", type=int, default=1, metavar="K",
+                    help="run the selected task set K times (more calls for the percentiles; default 1)")
+    ap.add_argument("--load", action="store_true",
+                    help="run a CPU hog (a busy-loop subprocess) on every core (os.cpu_count()) meanwhile")
+    ap.add_argument("--nice", type=int, default=-10, metavar="N",
+                    help="nice increment for this host process and its board (default -10; 0: leave as is)")
     args = ap.parse_args(argv)
+    if args.repeat < 1:
+        ap.error("--repeat: expected K >= 1")
+    with cpu_load((os.cpu_count() or 1) if args.load else 0) as hogs:  # the hogs keep nice 0
+        print(raise_host_priority(args.nice), flush=True)
+        return _run(args, len(hogs))
+
+
+def raise_host_priority(inc: int) -> str:
+    """Lower this process's nice value by ``-inc`` (the host; the board it starts inherits it and keeps
+    it: ``$GHOSTSHELL_BOARD_NICE=0``); returns what happened, also when it was not permitted."""
+    os.environ["GHOSTSHELL_BOARD_NICE"] = "0"
+    if inc == 0:
+        return f"priority: host and board at nice {os.nice(0)} (--nice 0)"
+    before = os.nice(0)
+    try:
+        after = os.nice(inc)
+    except PermissionError:
+        os.environ.pop("GHOSTSHELL_BOARD_NICE")  # the board tries on its own (and says what happened)
+        return f"priority: host at nice {before}: --nice {inc} not permitted (needs root or CAP_SYS_NICE)"
+    return f"priority: host and board at nice {after} (--nice {inc}; the --load hogs at {before})"
+
+
+def _run(args: Any, hogs: int) -> int:
     from protocol.linkspec import LinkSpecError, parse_link_spec
 
     try:
         parse_link_spec(args.link)
     except LinkSpecError as e:
-        ap.error(f"--link: {e}")
+        print(f"bench_latency: --link: {e}", file=sys.stderr)
+        return 2
 
     from robots.registry import load_robot
 
@@ -250,24 +326,27 @@ def main(argv: list[str] | None = None) -> int:
     registry = home_channels(robot=robot)
     motion_channels = frozenset(robot.channels) | {"joints"}  # the generic pose/joint_move channel
     mode = ("lockstep" if args.lockstep else "realtime") + (f", {args.baud} baud wire" if args.baud else "")
+    load = (f"under --load: {hogs} busy-loop processes (one per core)" if hogs else "no added load")
     print(f"token -> servo latency, {mode} board over {args.link}, {args.tokens_per_s:g} tokens/s, "
-          f"{len(programs)} task(s); artefacts in {root}", flush=True)
-    print(f"{'task':>4} {'calls':>5} {'queued':>6}  {'motion imm. p50':>15} {'max':>7}  "
-          f"{'periph imm. p50':>15} {'max':>7}  {'ready max':>9}  {'wall s':>6}  outcome", flush=True)
+          f"{len(programs)} task(s) x {args.repeat}; {load}; 1-min load average at start "
+          f"{load_1min():.2f} on {os.cpu_count()} cores; artefacts in {root}", flush=True)
+    print(f"{'task':>4} {'calls':>5} {'queued':>6}  {'motion imm. n':>13} {'p50':>7} {'max':>7}  "
+          f"{'periph imm. n':>13} {'p50':>7} {'max':>7}  {'ready max':>9}  {'wall s':>6}  outcome", flush=True)
     rows: list[CallLatency] = []
     notes: list[str] = []
-    for tid, program in programs:
+    for rep_i, (tid, program) in ((r, tp) for r in range(args.repeat) for tp in programs):
         w0 = time.monotonic()
-        rep = run_task(tid, program, lockstep=args.lockstep, out_root=root, tokens_per_s=args.tokens_per_s,
-                       seed=args.seed, wire_baud=args.baud, link=args.link, robot=str(robot.root))
+        rep = run_task(tid, program, lockstep=args.lockstep, out_root=root / f"r{rep_i}" if args.repeat > 1 else root,
+                       tokens_per_s=args.tokens_per_s, seed=args.seed, wire_baud=args.baud, link=args.link,
+                       robot=str(robot.root))
         got, why = task_latencies(tid, rep, registry, motion_channels)
         rows += got
         notes += why
         mi = stats_ms([c.token_ms for c in got if c.kind == "motion" and not c.queued])
         pi = stats_ms([c.token_ms for c in got if c.kind == "peripheral" and not c.queued])
         ready = max((c.ready_ms for c in got), default=None)
-        print(f"{tid:>4} {len(got):>5} {sum(c.queued for c in got):>6}  {fmt(mi['p50'], 15)} {fmt(mi['max'])}  "
-              f"{fmt(pi['p50'], 15)} {fmt(pi['max'])}  {fmt(ready, 9)}  {time.monotonic() - w0:6.1f}  "
+        print(f"{tid:>4} {len(got):>5} {sum(c.queued for c in got):>6}  {mi['n']:>13} {fmt(mi['p50'])} {fmt(mi['max'])}  "
+              f"{pi['n']:>13} {fmt(pi['p50'])} {fmt(pi['max'])}  {fmt(ready, 9)}  {time.monotonic() - w0:6.1f}  "
               f"{rep.summary.outcome}{' FELL' if rep.summary.fell else ''}", flush=True)
 
     summary = _summary(rows)
@@ -284,6 +363,7 @@ def main(argv: list[str] | None = None) -> int:
         print("note:", n)
     if args.json:
         Path(args.json).write_text(json.dumps({"mode": mode, "link": args.link, "tokens_per_s": args.tokens_per_s,
+                                               "repeat": args.repeat, "load_processes": hogs,
                                                "summary": summary, "notes": notes,
                                                "calls": [asdict(c) for c in rows]}, indent=1), encoding="utf-8")
         print(f"wrote {args.json}")

@@ -312,6 +312,10 @@ def _main(argv: Sequence[str] | None = None) -> int:
         print(f"board: {robot.name} ({robot.servo_count} servos), {mode}, {cfg.rate_hz} Hz, dt {cfg.dt} s, "
               f"telemetry {cfg.telemetry_rate_hz} Hz"
               + (f", {args.baud} baud" if args.baud else ""), file=sys.stderr, flush=True)
+        if not cfg.lockstep:  # a realtime board's ticks must not wait for other work (firmware_sim.priority)
+            from firmware_sim.priority import raise_priority
+
+            print(f"board: {raise_priority()}", file=sys.stderr, flush=True)
         if args.baud:
             from protocol.framing import frame_size
 

@@ -78,6 +78,9 @@ class FrameLink(Protocol):
         ...
 
 
+#: Wall seconds the shielded top-up that resumes a held lockstep board may take (see :meth:`FrameStreamer.hold`).
+RESUME_TIMEOUT_S = 8.0
+
 #: Wire bytes of a FLUSH and of a SERVO_FRAME for ``n`` servos (framing and COBS overhead included),
 #: from :func:`protocol.framing.encode_frame`, in the wire schema of a robot of up to 16 servos.
 FLUSH_WIRE_BYTES = len(encode_frame(Flush(0, 0xFFF), 0))
@@ -271,7 +274,9 @@ class FrameStreamer:
         finally:
             self._holds -= 1
             if self._holds == 0:  # resume the board however the held work ended
-                with anyio.CancelScope(shield=True):
+                # bounded: this runs while the caller may be cancelled, and the frame lock may be held
+                # by a cut waiting for an ACK; a resume that cannot happen must not hang the caller
+                with anyio.CancelScope(shield=True), anyio.move_on_after(RESUME_TIMEOUT_S):
                     await self.top_up()
 
     @property

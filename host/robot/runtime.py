@@ -52,6 +52,12 @@ from robots.motion import Limits, ease_in, transition
 #: How long (board µs) before the streamer's horizon reaches a motion's planned end the next
 #: call on its channel is let in, so that it is planned before that frame is sent.
 HANDOVER_LEAD_US = 200_000
+#: Wall seconds an interrupted motion's shielded stop (FLUSH, the stop's frames, its end) may take.
+#: It runs while the call is being cancelled, i.e. possibly after the session's pump, silence watchdog
+#: and board-time bound are gone: without a deadline a stop waiting on the frame lock or on telemetry
+#: that no longer comes kept the turn (and the run's summary) from ever ending. Above the stop's own
+#: worst case on a lossy link: the FLUSH's 6 attempts of 1 s, then up to 5 s for its end.
+STOP_TIMEOUT_S = 12.0
 
 
 class RobotLink(FrameLink, Protocol):
@@ -252,8 +258,10 @@ class RobotRuntime:
                 ctx.hand_over()
             end = await self.streamer.wait_ended(seg)
         except anyio.get_cancelled_exc_class():
-            with anyio.CancelScope(shield=True):
+            with anyio.CancelScope(shield=True), anyio.move_on_after(STOP_TIMEOUT_S) as scope:
                 await self._stop(seg, channel)
+            if scope.cancelled_caught:
+                self._mark(end=self.board_now_s())
             raise
         self._mark(end=end)
         return f"{behaviour} done"

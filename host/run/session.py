@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import json
 import logging
 from collections import deque
@@ -68,6 +69,7 @@ from host.robot.runtime import RobotRuntime
 from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB, Interrupted, StopReason
 from host.run.recording import Recording
 from host.run.pump import (
+    TELEMETRY_SILENCE_S,
     BoardPacer,
     Recorder,
     buffered,
@@ -136,6 +138,13 @@ class SessionOptions:
 
 #: wall seconds between two checks of the frame logs' size (``max_log_mb``)
 LOG_CHECK_S = 0.25
+#: Wall seconds the link client's close at the session's end may take before it is cancelled
+#: (:meth:`RobotSession._close_client`). The close cancels its background tasks once and waits for them; on Python
+#: 3.11 ``asyncio.wait_for`` drops a cancellation that arrives together with the awaited reply, so a
+#: TIME_SYNC exchange in flight could outlive the cancel and the close waited for ever (the run never
+#: wrote its summary: the task-12 hang). Cancelling the close makes asyncio's TaskGroup cancel its
+#: tasks a second time, which ends them.
+CLOSE_TIMEOUT_S = 5.0
 
 
 @dataclass
@@ -219,6 +228,8 @@ class RobotSession:
         self._link_tried = False  # a board link was attempted (a failure from then on has a report)
         #: why the session stops early (a signal, a bound), once :meth:`request_stop` was called
         self.stop: StopReason | None = None
+        #: the teardown had to be cancelled after CLOSE_TIMEOUT_S (see there)
+        self.close_timed_out = False
         self.recording: Recording | None = None  # run.mcap and the live view (host.run.recording)
         self.mounts: list[Any] = []  # the mounted MCP servers (host.mounts.McpMount)
         #: events handled so far (not the ignored ones), newest last, bounded; see :meth:`emit`
@@ -303,7 +314,8 @@ class RobotSession:
                 if dead is None:
                     raise
                 raise dead from e
-            self.client = await self._stack.enter_async_context(client)
+            self.client = await client.__aenter__()
+            self._stack.push_async_exit(functools.partial(self._close_client, client))
             note = await clear_leftover_fault(client)
             if note:
                 log.warning("%s", note)
@@ -370,6 +382,16 @@ class RobotSession:
                 self._board.stop()
                 self._board = None
         return None
+
+    async def _close_client(self, client: BoardClient, *exc: object) -> None:
+        """Close the link client within ``CLOSE_TIMEOUT_S`` wall seconds (see there); a close that
+        did not end by then is cancelled, which ends it, and noted (``close_timed_out``)."""
+        with anyio.move_on_after(CLOSE_TIMEOUT_S) as closing:
+            await client.__aexit__(*exc)
+        if closing.cancelled_caught:
+            log.warning("the link client did not close within %g s (a link task outlived its cancellation); "
+                        "cancelled its close", CLOSE_TIMEOUT_S)
+            self.close_timed_out = True
 
     async def _ends_the_run(self, task: Awaitable[None]) -> None:
         """Run a session task whose :class:`LinkError` ends the run (the pump, the silence watchdog,
@@ -564,15 +586,42 @@ class RobotSession:
                 tg.start_soon(self._board_time_bound, start.board_t0 + self.opts.max_board_s, self.opts.max_board_s)
             result = await shell.run(buffered(chunks) if buffer else chunks)
             tg.cancel_scope.cancel()
-        if settle_s > 0 and runtime.streamer.failure is None:
-            await runtime.sleep(settle_s)
+        settle_note = await self._settle(settle_s, start.board_t0) if settle_s > 0 else None
+        if settle_note is not None:
+            result.observations.append(Observation("warning", settle_note, None, runtime.board_now_s()))
         turn = self._turn_result(start, result)
+        if settle_note is not None:
+            turn.summary.extra["settle"] = settle_note
         self._turn = None
         if self.recording is not None:
             self.recording.on_turn_end(turn.calls)
         if write:
             await self.write(turn, label)
         return turn
+
+    async def _settle(self, settle_s: float, board_t0: float) -> str | None:
+        """Let motion settle ``settle_s`` board seconds after a turn; None when it did, else why not.
+
+        The turn's end must end: this runs after the turn's board-time bound was cancelled and may
+        run after the session's pump or silence watchdog are gone, so it is bounded twice: in board
+        time by the turn's bound (``max_board_s`` from ``board_t0``), in wall time by
+        ``settle_s + TELEMETRY_SILENCE_S`` (the silence watchdog's own tolerance: a board that
+        reports does reach the settle time sooner in lockstep and in realtime).
+        """
+        runtime = self.runtime
+        if runtime.streamer.failure is not None:
+            return None
+        target_s = runtime.board_now_s() + settle_s
+        if self.opts.max_board_s is not None:
+            target_s = min(target_s, board_t0 + self.opts.max_board_s)
+        wall_s = settle_s + TELEMETRY_SILENCE_S
+        with anyio.move_on_after(wall_s) as scope:
+            await runtime.streamer.wait_board_time(int(target_s * 1e6))
+        if scope.cancelled_caught:
+            log.warning("settling after the turn: board time did not reach %.3f s within %g s", target_s, wall_s)
+            return (f"settle cut: board time stayed at {runtime.board_now_s():.3f} s, short of {target_s:.3f} s, "
+                    f"for {wall_s:g} s (no telemetry handled)")
+        return None
 
     def _turn_result(self, start: _TurnStart, result: RunResult, link_error: BaseException | None = None) -> TurnResult:
         events, self._turn_events = self._turn_events, []

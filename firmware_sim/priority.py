@@ -1,0 +1,45 @@
+"""A realtime board raises its own CPU priority (a real board is a microcontroller nobody preempts).
+
+On a shared or loaded host the emulated board's control loop competes with everything else for the
+cores; a tick that starts late delays every frame it applies (the token -> servo tail of
+``bench/bench_latency.py``) and a long stall trips the watchdog. So a realtime board lowers its nice
+value (``os.nice``; Linux CFS gives a nice -10 process ~10x the CPU share of a nice 0 one under
+contention) where it is permitted: as root or with ``CAP_SYS_NICE``, or within ``RLIMIT_NICE``. Where
+it is not, the board says so in one line and runs at its current priority; nothing else changes.
+A lockstep board runs on virtual time and is left alone.
+
+``$GHOSTSHELL_BOARD_NICE`` sets the nice increment (default ``-10``; ``0`` leaves the priority
+alone; a value that is not an integer is refused with one line and ignored). Not a real-time
+scheduling class (``SCHED_FIFO``/``SCHED_RR``): a board stuck in a loop at such a priority could
+starve a 2-core machine's other work, while a nice value only weights the share.
+"""
+
+from __future__ import annotations
+
+import os
+
+#: the environment variable naming the nice increment a realtime board asks for
+NICE_ENV = "GHOSTSHELL_BOARD_NICE"
+DEFAULT_NICE = -10
+
+
+def raise_priority(env: dict[str, str] | None = None) -> str:
+    """Apply ``$GHOSTSHELL_BOARD_NICE`` (default -10) to this process; returns the one line to print.
+
+    Never raises: a refusal (``PermissionError``: not root, no ``CAP_SYS_NICE``) or an unusable value
+    is reported in the returned line and the process keeps its priority.
+    """
+    text = (os.environ if env is None else env).get(NICE_ENV, str(DEFAULT_NICE)).strip()
+    try:
+        inc = int(text)
+    except ValueError:
+        return f"priority unchanged: ${NICE_ENV}={text!r} is not an integer"
+    if inc == 0:
+        return f"priority unchanged (${NICE_ENV}=0), nice {os.nice(0)}"
+    before = os.nice(0)
+    try:
+        after = os.nice(inc)
+    except PermissionError:
+        return (f"priority unchanged at nice {before}: raising it by {inc} is not permitted "
+                f"(needs root or CAP_SYS_NICE; set ${NICE_ENV}=0 to silence this)")
+    return f"priority: nice {before} -> {after} (${NICE_ENV})"
