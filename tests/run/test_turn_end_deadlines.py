@@ -85,23 +85,26 @@ def test_a_link_task_that_outlives_its_cancel_does_not_hang_the_session_close(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The hang itself: the client's close cancelled its tasks once and waited; Python 3.11's
     ``asyncio.wait_for`` drops a cancel that arrives with the TIME_SYNC reply, so the sync loop ran on
-    (TIME_SYNC kept going, nothing else) and the close never returned. Here the sync loop drops the
-    first cancel the way that race does; the session's close is cut after CLOSE_TIMEOUT_S instead."""
+    (TIME_SYNC kept going, nothing else) and the close never returned. The link's loops now run under
+    an anyio cancel scope, which cancels again at every await, so one dropped cancel no longer matters;
+    here the sync loop ignores every cancel for 3 s (longer than CLOSE_TIMEOUT_S), and the session's
+    close is cut after CLOSE_TIMEOUT_S instead of waiting for it."""
     import asyncio
+    import time
 
     from host.link.supervisor import Supervisor
 
-    async def sync_loop_dropping_one_cancel(self: Supervisor) -> None:
-        dropped = False
+    async def sync_loop_ignoring_cancels(self: Supervisor) -> None:
+        deaf_until: float | None = None
         while True:
             try:
                 await asyncio.sleep(0.05)
             except asyncio.CancelledError:
-                if dropped:
-                    raise
-                dropped = True  # what wait_for does when the reply completes in the same loop iteration
+                deaf_until = deaf_until or time.monotonic() + 3.0
+                if time.monotonic() >= deaf_until:
+                    raise  # ends by itself after 3 s, so the event loop can finish after the test
 
-    monkeypatch.setattr(Supervisor, "sync_loop", sync_loop_dropping_one_cancel)
+    monkeypatch.setattr(Supervisor, "sync_loop", sync_loop_ignoring_cancels)
     monkeypatch.setattr(session_mod, "CLOSE_TIMEOUT_S", 1.0)
 
     async def main() -> tuple[TurnResult, RobotSession]:
