@@ -19,6 +19,11 @@ from e2e.conftest import TASKS, E2ERun, run_e2e
 from e2e.test_tasks_e2e import check_common, check_task
 
 TICK_S = 0.002
+#: a persistent call (background music) is ended by the host when the program ends, at its board-time
+#: estimate, which in lockstep is the last telemetry report it has read (50 Hz): whether the report
+#: of the program's last tick arrived before the end was processed depends on scheduling, so that end
+#: is compared to one report period (seen under a loaded machine: 5.33 s vs 5.35 s on QEMU)
+REPORT_S = 0.02
 _RUNS: dict[tuple[int, str], E2ERun] = {}
 
 
@@ -47,4 +52,5 @@ def test_task26_timeline_same_on_every_board(tmp_path_factory: pytest.TempPathFa
         assert [c.path for c in run.calls] == [c.path for c in ref.calls], fw
         for a, b in zip(run.calls, ref.calls):
             assert abs((a.start - run.t0) - (b.start - ref.t0)) <= TICK_S + 1e-9, (fw, a.path, a.start, b.start)
-            assert abs((a.end - run.t0) - (b.end - ref.t0)) <= TICK_S + 1e-9, (fw, a.path, a.end, b.end)
+            tol = REPORT_S if a.persistent and a.ended_by is None else TICK_S
+            assert abs((a.end - run.t0) - (b.end - ref.t0)) <= tol + 1e-9, (fw, a.path, a.end, b.end)
