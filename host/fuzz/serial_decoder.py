@@ -35,9 +35,9 @@ def chunks(data: bytes, seed: int, max_chunk: int = 300) -> list[bytes]:
 def load(instrument: bool = False) -> Callable[[bytes], None]:
     """Import the decoder (instrumented for coverage when ``instrument``) and return the one-input function."""
     if instrument:
-        import atheris  # type: ignore[import-not-found,unused-ignore]
+        from host.fuzz.harness import instrument_only
 
-        with atheris.instrument_imports(include=["protocol"]):
+        with instrument_only(["protocol.framing", "protocol.codec"]):  # not protocol.messages (declarations)
             from protocol import codec, framing  # noqa: F401
     import atheris  # type: ignore[import-not-found,unused-ignore]
 
