@@ -69,13 +69,14 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
 
     def remembered(block: bytes, raw: bytes, schema: WireSchema = framing.WIRE_SCHEMA_16) -> Frame | DecodeError:
         """``_decode_block`` once per distinct valid frame (``raw`` is always ``block + 0x00``)."""
-        item = decoded.get((block, schema))
-        if item is None:
-            item = decode_block(block, raw, schema)
-            if isinstance(item, Frame):  # not the errors: new garbage every input, cheap to find (COBS, CRC)
-                if len(decoded) >= MAX_REMEMBERED:
-                    decoded.clear()
-                decoded[(block, schema)] = item
+        known = decoded.get((block, schema))
+        if known is not None:
+            return known
+        item = decode_block(block, raw, schema)
+        if isinstance(item, Frame):  # not the errors: new garbage every input, cheap to find (COBS, CRC)
+            if len(decoded) >= MAX_REMEMBERED:
+                decoded.clear()
+            decoded[(block, schema)] = item
         return item
 
     def one_input(data: bytes) -> None:
