@@ -33,7 +33,7 @@ Invariants (an ``AssertionError`` names the one that broke):
 * ESTOP always wins: from its ACK until ESTOP_CLEAR every SERVO_FRAME is refused, nothing is
   applied, the buffer stays empty and every tick holds the e-stop pose.
 
-Throughput (23 exec/s before; the numbers are in docs/guides/fuzzing.md): the process compiles the
+Throughput (measured exec/s, with command, n and load: docs/guides/fuzzing.md#throughput): the process compiles the
 model and allocates ``MjData`` once (each input's fresh board reuses them and the loaded robot); an
 input runs at most :data:`TICKS_PER_INPUT` ticks; coverage instruments only the board core
 (:data:`UNDER_TEST`). Every invariant is checked on every tick of every input. Nothing is remembered
@@ -54,10 +54,9 @@ from contextlib import contextmanager
 
 __all__ = ["load", "Reader", "TICKS_PER_INPUT"]
 
-#: ticks one input may run (80 ms of board time at 500 Hz): a tick (a MuJoCo step and the board's
-#: own work, ~35 us of CPU here, and this target's checks) is a third of an input's time, so this
-#: bounds an input's cost. It still covers the fuzz config's watchdog: HOLD after 20 ms without a
-#: valid message (tick 11), CROUCH 40 ms later (tick 31). It was 400 (0.8 s): 23 exec/s.
+#: ticks one input may run (80 ms of board time at 500 Hz): ticks (a MuJoCo step, the board's own
+#: work and this target's checks each) are the largest part of an input's time, so this bounds it. It still covers the fuzz config's watchdog: HOLD after 20 ms without a
+#: valid message (tick 11), CROUCH 40 ms later (tick 31). It was 400 (0.8 s).
 TICKS_PER_INPUT = 40
 
 

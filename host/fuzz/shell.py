@@ -15,9 +15,10 @@ Each input runs twice:
    vocabulary bound to a recorder: no exception escapes the run, and every call that reaches an
    implementation has exactly the declared parameters, each one conforming.
 
-Throughput (220 exec/s before): the Shell runs in one Trio loop kept for the process
-(:class:`TrioLoop`) instead of a ``trio.run`` per input (1.2-1.6 ms of setup, more than the shell's
-own work on most inputs); coverage instruments ``host.shell`` and ``host.speech`` only. What is
+Throughput (measured exec/s, with command, n and load: docs/guides/fuzzing.md#throughput): the Shell
+runs in one Trio loop kept for the process
+(:class:`TrioLoop`) instead of a ``trio.run`` per input (whose setup and teardown cost more than the
+shell's own work on most inputs); coverage instruments ``host.shell`` and ``host.speech`` only. What is
 left is the code under test: the parser (twice: step 1 and inside the Shell), the scheduler's task
 per call (anyio on Trio) and the registry's did-you-mean (``difflib``) for unknown tags.
 """
