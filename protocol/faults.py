@@ -294,10 +294,18 @@ class GapDetector:
                 self.lost -= 1
             return 0
         gap = ahead - 1
-        for k in range(max(0, gap - self.window), gap):
-            self._missing[(self.highest + 1 + k) & 0xFFFF] = None
-        while len(self._missing) > self.window:
-            del self._missing[next(iter(self._missing))]
+        # the last ``window`` skipped numbers, in order: (highest + 1 + k) & 0xFFFF for k in range(lo, gap),
+        # as at most two runs of consecutive numbers (before and after the wrap) added in C, not per number
+        lo = max(0, gap - self.window)
+        first = (self.highest + 1 + lo) & 0xFFFF
+        end = first + gap - lo
+        self._missing.update(dict.fromkeys(range(first, min(end, 0x10000))))
+        if end > 0x10000:
+            self._missing.update(dict.fromkeys(range(end - 0x10000)))
+        excess = len(self._missing) - self.window
+        if excess > 0:  # the oldest, in one pass (``next(iter(d))`` per key rescans the deleted slots: quadratic)
+            for old in list(itertools.islice(self._missing, excess)):
+                del self._missing[old]
         self.lost += gap
         self.highest = seq
         return gap

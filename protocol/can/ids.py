@@ -105,15 +105,13 @@ def cob_id(fn: FunctionCode, node: int) -> int:
     return (int(fn) << 7) | check_node(node)
 
 
+_BY_CODE: dict[int, FunctionCode] = {int(f): f for f in FunctionCode}  # split_id runs for every received frame
+
+
 def split_id(arbitration_id: int) -> tuple[FunctionCode | None, int]:
     """(function code or None if unassigned, node id) of an 11-bit identifier; never raises."""
     aid = int(arbitration_id) & 0x7FF
-    code = aid >> 7
-    try:
-        fn: FunctionCode | None = FunctionCode(code)
-    except ValueError:
-        fn = None
-    return fn, aid & 0x7F
+    return _BY_CODE.get(aid >> 7), aid & 0x7F
 
 
 def bulk_ids(node: int) -> tuple[int, int]:
