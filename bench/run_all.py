@@ -2,6 +2,7 @@
 
     python bench/run_all.py            # the figures as quoted (tens of minutes: ~5 min per 30 realtime tasks)
     python bench/run_all.py --quick    # every figure once, small: a smoke run of the benches (a few minutes)
+    python bench/run_all.py --only board fuzz   # some benchmarks only (board, latency, fuzz, cfirmware)
 
 Each figure comes from one benchmark run as a subprocess (its full output is kept in ``--log-dir``, default
 a temporary folder, and echoed with ``--verbose``); the table gives, per figure: the value, n (what the
@@ -121,6 +122,14 @@ def plan(quick: bool) -> list[tuple[list[str], Parser]]:
     return runs
 
 
+#: the benchmarks :func:`plan` runs, by the name ``--only`` takes (the script's stem without ``bench_``)
+BENCHMARKS = ("board", "latency", "fuzz", "cfirmware")
+
+
+def _name(argv: list[str]) -> str:
+    return Path(argv[0]).stem.removeprefix("bench_")
+
+
 def _takes(script: Path, option: str) -> bool:
     return option in script.read_text(encoding="utf-8", errors="replace")
 
@@ -162,12 +171,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="small runs of every benchmark (a smoke run, minutes)")
     ap.add_argument("--log-dir", default=None, help="where each benchmark's full output goes (default: a temporary folder)")
     ap.add_argument("--verbose", action="store_true", help="echo each benchmark's output to stderr")
+    ap.add_argument("--only", nargs="+", choices=BENCHMARKS, metavar="NAME",
+                    help=f"run these benchmarks only ({', '.join(BENCHMARKS)})")
     args = ap.parse_args(argv)
     log_dir = Path(args.log_dir) if args.log_dir else Path(tempfile.mkdtemp(prefix="bench_run_all_"))
     log_dir.mkdir(parents=True, exist_ok=True)
     rows: list[Row] = []
     try:
         for argv_, parser in plan(args.quick):
+            if args.only and _name(argv_) not in args.only:
+                continue
             rows += run(argv_, parser, log_dir, args.verbose)
     except KeyboardInterrupt:
         print("[run_all] interrupted; the figures so far:", file=sys.stderr)
