@@ -131,6 +131,7 @@ def load(instrument: bool = False, *, persistent: bool = False) -> Callable[[byt
     from firmware_sim.config import BoardConfig
     from firmware_sim.jitter_buffer import BufferedFrame
     from firmware_sim.safety import Mode
+    from protocol.codec import quantize_apply_at, unwrap_time_us
     from protocol.framing import Frame, FrameDecoder, encode_frame, encode_raw_frame
     from protocol.messages import (
         Ack, Advance, Config, ConfigKey, Estop, EstopClear, Flush, Message, MsgType, Nack, NackReason, ServoFrame,
@@ -196,7 +197,8 @@ def load(instrument: bool = False, *, persistent: bool = False) -> Callable[[byt
             ok = mask and not mask & ~board.table.all_mask
             if not replies:
                 assert ok and not estopped and not latched, f"frame accepted: mask {mask:#x}, estop {estopped}"
-                t = msg.apply_at_us  # inputs stay far below the 2**32 us wrap
+                # the wire carries apply-at modulo 2**32: a RAW frame's 0xFFFFFFFF at board time 0 is 1 us late
+                t = unwrap_time_us(quantize_apply_at(int(msg.apply_at_us)), now)
                 assert now - board.cfg.max_late_us <= t <= now + board.cfg.max_future_us, f"frame due {t} accepted at {now}"
                 idx = idx_of(mask)
                 accepted.setdefault((seq, t), []).append((now, dict(zip(idx, msg.targets))))
