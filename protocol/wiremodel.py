@@ -5,7 +5,8 @@ delays every byte by its wire time: 10 bit times per byte (start + 8 data + stop
 are serialised: a chunk pushed while the line is still busy starts when the previous one ends.
 The caller passes the time (``now``, seconds on any monotonic clock) to every call; the model
 only orders and releases bytes. Used by the emulated board's serial transport (both directions)
-and by the C firmware launcher's relay between two ptys.
+and by the C firmware launcher's relay between two ptys; the host keeps one for its own sends
+(:attr:`host.link.session.BoardClient.tx_wire`) to know how long the line is busy.
 """
 
 from __future__ import annotations
@@ -31,13 +32,17 @@ class WireModel:
         self.queue: deque[tuple[float, bytes]] = deque()
         self.bytes_queued = 0
 
+    def occupy(self, now: float, nbytes: int) -> float:
+        """``nbytes`` enter the line at ``now`` (s) without being kept; returns when their last byte is
+        through (s). For a sender that only needs the line's timing (the host's model of its own UART)."""
+        if self.byte_time:
+            self.free_at = max(self.free_at, now) + nbytes * self.byte_time
+            return self.free_at
+        return now
+
     def push(self, now: float, data: bytes) -> None:
         """``data`` enters the line at ``now`` (s); it is released once its last byte is through."""
-        if self.byte_time:
-            self.free_at = max(self.free_at, now) + len(data) * self.byte_time
-            release = self.free_at
-        else:
-            release = now
+        release = self.occupy(now, len(data))
         self.queue.append((release, data))
         self.bytes_queued += len(data)
 
@@ -54,5 +59,5 @@ class WireModel:
         return bytes(out)
 
     def busy_s(self, now: float) -> float:
-        """Seconds of wire time already committed beyond ``now`` (0 without a model)."""
-        return self.free_at - now if self.byte_time else 0.0
+        """Seconds of wire time already committed beyond ``now`` (0 without a model, never negative)."""
+        return max(0.0, self.free_at - now) if self.byte_time else 0.0

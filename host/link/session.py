@@ -60,8 +60,10 @@ from host.link.transports import Transport, open_transport
 from host.link.waiting import Flag
 from protocol.codec import WIRE_SCHEMA_16, WireBoundError, WireSchema, schema_for
 from protocol.faults import GapDetector
+from protocol.framing import encode_frame
 from protocol.linkspec import LinkSpec, parse_link_spec
 from protocol.messages import PROTOCOL_VERSION, Ack, Caps, Message, Nack, SimState
+from protocol.wiremodel import WireModel
 
 __all__ = ["FAULT_BITS", "BoardClient", "FaultEvent", "LinkStats", "LinkTarget", "RobotIdentity", "host_now_us"]
 
@@ -83,6 +85,8 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
     ``transport_options`` go to :func:`host.link.transports.open_transport` (CAN settings).
     ``robot`` is the robot this host was started for (CAPS must report it; it also picks the wire
     schema); ``schema_hash`` pins the hash HELLO carries (tests), instead of the robot's schema's.
+    ``wire_baud``: the line's rate when the host should model it (:attr:`tx_wire`; a UART whose wire
+    time matters, such as the emulated board's ``--baud``), else None.
     """
 
     def __init__(
@@ -91,7 +95,7 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
         heartbeat_s: float = 0.05, sync_interval_s: float = 0.5, sync_burst: int = 8, reconnect: bool = True,
         reconnect_max_s: float = 1.0, telemetry_queue: int = 64, protocol_version: int = PROTOCOL_VERSION,
         schema_hash: int | None = None, force_thread: bool = False, transport_options: dict[str, Any] | None = None,
-        robot: RobotIdentity | None = None,
+        robot: RobotIdentity | None = None, wire_baud: int | None = None,
     ) -> None:
         self._port = link
         self.robot = robot
@@ -130,6 +134,10 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
         self.on_received: list[Callable[[Message], None]] = []
         self.on_reconnect: list[Callable[[BoardClient], None]] = []
         self.keepalive = True  # heartbeat + periodic sync; turn off to let the watchdog fire
+        #: the host's model of its own line (a UART of known baud; the emulated board's ``--baud``), or
+        #: None: every message sent occupies it for its wire bytes, so the streamer knows how long a
+        #: message sent now waits behind earlier ones (host.motion.board_link); set by whoever knows the rate
+        self.tx_wire: WireModel | None = WireModel(wire_baud) if wire_baud else None
 
         self._transport: Transport | None = transport
         self._tx_seq = 0
@@ -287,6 +295,8 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
         t.send(msg, seq)
         self._tx_seq = (seq + 1) & 0xFFFF
         self._last_tx = time.monotonic()
+        if self.tx_wire is not None:
+            self.tx_wire.occupy(self._last_tx, len(encode_frame(msg, seq, self.schema)))
         self.stats.tx_frames += 1
         for cb in self.on_sent:
             try:

@@ -256,6 +256,8 @@ class Supervisor:
         self.sync_pending[t1] = fut
         try:
             c._send(TimeSyncRequest(t1))
+            # the part of the uplink the host's line model accounts for (queue + the request's own bytes)
+            wire_us = c.tx_wire.busy_s(time.monotonic()) * 1e6 if c.tx_wire is not None else 0.0
             reply, t4 = await fut.get(timeout)
         except TimeoutError:
             raise LinkTimeout(f"no TIME_SYNC reply within {timeout} s") from None
@@ -265,7 +267,7 @@ class Supervisor:
             fut.cancel()
         c._saw_board_time(reply.t3_board_us)
         if not c.lockstep:
-            c.clock.add(t1, reply.t2_board_us, reply.t3_board_us, t4)
+            c.clock.add(t1, reply.t2_board_us, reply.t3_board_us, t4, wire_us=wire_us)
         return t1, reply.t2_board_us, reply.t3_board_us, t4
 
     async def sync_burst(self) -> None:

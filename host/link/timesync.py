@@ -17,6 +17,8 @@ that discipline the system clock, not estimators one can feed samples.
 
 from __future__ import annotations
 
+import dataclasses
+
 from collections import deque
 from dataclasses import dataclass
 
@@ -28,12 +30,15 @@ __all__ = ["ClockEstimate", "ClockSync", "SyncSample"]
 @dataclass(frozen=True)
 class SyncSample:
     """One exchange reduced to its midpoint host time, offset and round trip (all us); ``up_us`` is
-    ``t2 - t1`` (the host -> board leg plus the clock offset)."""
+    ``t2 - t1`` (the host -> board leg plus the clock offset); ``wire_us`` the part of that leg the
+    host's model of its line accounts for (waiting behind earlier bytes + the request's own wire
+    time, :attr:`host.link.session.BoardClient.tx_wire`; 0 without a model)."""
 
     host_mid_us: float
     offset_us: float
     rtt_us: float
     up_us: float = 0.0
+    wire_us: float = 0.0
 
     @classmethod
     def from_timestamps(cls, t1: int, t2: int, t3: int, t4: int) -> SyncSample:
@@ -84,9 +89,10 @@ class ClockSync:
         self._samples.clear()
         self._estimate = None
 
-    def add(self, t1: int, t2: int, t3: int, t4: int) -> ClockEstimate | None:
-        """Add one exchange and refit; samples with a negative round trip are ignored."""
-        s = SyncSample.from_timestamps(t1, t2, t3, t4)
+    def add(self, t1: int, t2: int, t3: int, t4: int, wire_us: float = 0.0) -> ClockEstimate | None:
+        """Add one exchange and refit; samples with a negative round trip are ignored. ``wire_us``: the
+        modelled wire time of the request's leg (see :class:`SyncSample`)."""
+        s = dataclasses.replace(SyncSample.from_timestamps(t1, t2, t3, t4), wire_us=max(0.0, float(wire_us)))
         if s.rtt_us < 0:
             return self._estimate
         self._samples.append(s)
@@ -101,11 +107,16 @@ class ClockSync:
         """The ``q`` quantile of the host -> board latency (µs) over the window: ``t2 - t1`` minus the
         estimated offset, None before an estimate. Measured against the same offset that maps host
         time to board time, so ``host_to_board(now) + uplink_quantile(q)`` is when a message sent
-        now reaches the board, even when the path is asymmetric (the offset's bias cancels)."""
+        now reaches the board, even when the path is asymmetric (the offset's bias cancels).
+
+        Samples that carry a modelled ``wire_us`` count without it: the quantile is then the latency
+        beyond the line (OS, pty, the board's reaction), and the sender adds the line's present
+        backlog and its message's own wire time (:meth:`host.motion.board_link.BoardFrameLink.latency_us`)."""
         est = self._estimate
         if est is None or not self._samples:
             return None
-        up = [s.up_us - (est.offset_us + est.drift * (s.host_mid_us - est.ref_host_us)) for s in self._samples]
+        up = [s.up_us - s.wire_us - (est.offset_us + est.drift * (s.host_mid_us - est.ref_host_us))
+              for s in self._samples]
         return max(0.0, float(np.quantile(up, q)))
 
     def rtt_quantile(self, q: float) -> float | None:

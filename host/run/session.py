@@ -308,7 +308,7 @@ class RobotSession:
             identity = RobotIdentity(self.robot.name, self.robot.servo_count, self.robot.servo_table_hash)
             try:
                 client = await BoardClient.connect(target, baud=opts.baud, log_path=self.out / f"host_frames{log_suffix}",
-                                                   robot=identity)
+                                                   robot=identity, wire_baud=opts.wire_baud)
             except LinkConfigError as e:
                 dead = dead_board_error(self._board, e)  # the board died first: a lost link, not a usage error
                 if dead is None:

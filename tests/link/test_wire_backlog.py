@@ -1,0 +1,85 @@
+"""The host's model of its own line (``BoardClient.tx_wire``) and what the streamer plans with.
+
+Over a UART of known baud (the emulated board's ``--baud``), a message sent now waits behind the
+bytes sent before it; the host knows those bytes, so :meth:`BoardFrameLink.latency_us` adds the
+line's present backlog instead of a p99 of past queues, and the TIME_SYNC samples count only the
+latency beyond the line. Real pty, real serial transport; the board end is the pty's master fd.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import anyio
+import pytest
+
+from host.link.session import BoardClient
+from host.link.timesync import ClockSync
+from host.link.transports.serial import SerialLinkTransport
+from host.motion.board_link import BoardFrameLink
+from protocol.framing import encode_frame
+from protocol.messages import ServoFrame
+from protocol.wiremodel import WireModel
+
+BAUD = 115_200
+
+
+def test_a_sync_sample_counts_only_the_latency_beyond_the_modelled_line() -> None:
+    """Exchanges whose uplink was 1 ms beyond the line plus 0..4 ms on it (and say so): host_to_board
+    + uplink p99 is when a message sent on an idle line arrives, 1 ms on, not 4 ms later."""
+    true_offset = 5_000_000
+    sync = ClockSync()
+    for k in range(64):
+        t1 = 1_000_000 + k * 50_000
+        wire = (k % 5) * 1_000
+        t2 = t1 + true_offset + 1_000 + wire
+        sync.add(t1, t2, t2 + 20, t2 + 20 - true_offset + 1_000, wire_us=float(wire))
+    est, up = sync.estimate, sync.uplink_quantile(0.99)
+    assert est is not None and up is not None
+    send = 5_000_000
+    assert abs(est.host_to_board(send) + up - (send + true_offset + 1_000)) < 100
+
+
+def test_the_line_model_occupies_and_frees_like_the_wire() -> None:
+    line = WireModel(BAUD)
+    end = line.occupy(10.0, 39)  # a 12-servo SERVO_FRAME at 115200 8N1: 3.39 ms
+    assert end == pytest.approx(10.0 + 39 * 10 / BAUD)
+    assert line.busy_s(10.001) == pytest.approx(end - 10.001)
+    assert line.occupy(10.002, 17) == pytest.approx(end + 17 * 10 / BAUD)  # queued behind the frame
+    assert line.busy_s(11.0) == 0.0  # idle: never negative
+    assert WireModel(None).busy_s(10.0) == 0.0
+
+
+def test_every_send_occupies_the_hosts_line_and_the_streamer_plans_behind_it() -> None:
+    async def main() -> None:
+        master, slave = os.openpty()
+        try:
+            transport = SerialLinkTransport(os.ttyname(slave))
+            await transport.connect(lambda items: None, lambda reason: None)
+            client = BoardClient(os.ttyname(slave), transport=transport, wire_baud=BAUD)
+            link = BoardFrameLink(client, wire_baud=BAUD)
+            assert client.tx_wire is not None and link.client.tx_wire is client.tx_wire
+            idle = link.latency_us(31)
+            frame = ServoFrame(1_000_000, 0xFFF, tuple(0.1 * i for i in range(12)))
+            sent_at = time.monotonic()
+            seq = client._send(frame)
+            nbytes = len(encode_frame(frame, seq, client.schema))
+            busy = client.tx_wire.busy_s(sent_at)
+            assert busy == pytest.approx(nbytes * 10 / BAUD, abs=2e-3)  # the frame's wire time, less what passed
+            # a message sent right after waits behind it: planned later by about that much
+            assert link.latency_us(31) - idle == pytest.approx(busy * 1e6, abs=2_500)
+            os.read(master, 4096)  # the bytes really went out
+            transport.close()
+        finally:
+            os.close(master)
+            os.close(slave)
+
+    anyio.run(main)
+
+
+def test_without_a_baud_nothing_is_modelled() -> None:
+    client = BoardClient("/dev/null")
+    link = BoardFrameLink(client)
+    assert client.tx_wire is None
+    assert link.latency_us(1_000) == link.latency_us(0)  # a pty: no wire time at all
