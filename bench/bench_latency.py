@@ -300,12 +300,13 @@ def raise_host_priority(inc: int) -> str:
     os.environ["GHOSTSHELL_BOARD_NICE"] = "0"
     if inc == 0:
         return f"priority: host and board at nice {os.nice(0)} (--nice 0)"
-    before = os.nice(0)
+    from firmware_sim.priority import lower_nice
+
     try:
-        after = os.nice(inc)
+        before, after = lower_nice(inc)
     except PermissionError:
         os.environ.pop("GHOSTSHELL_BOARD_NICE")  # the board tries on its own (and says what happened)
-        return f"priority: host at nice {before}: --nice {inc} not permitted (needs root or CAP_SYS_NICE)"
+        return f"priority: host at nice {os.nice(0)}: --nice {inc} not permitted (needs root or CAP_SYS_NICE)"
     return f"priority: host and board at nice {after} (--nice {inc}; the --load hogs at {before})"
 
 

@@ -23,6 +23,14 @@ NICE_ENV = "GHOSTSHELL_BOARD_NICE"
 DEFAULT_NICE = -10
 
 
+def lower_nice(inc: int) -> tuple[int, int]:
+    """Apply the nice increment ``inc`` (negative raises the priority) to this process; returns
+    ``(before, after)``. Raises ``PermissionError`` where that is not permitted (not root, no
+    ``CAP_SYS_NICE``, beyond ``RLIMIT_NICE``); the priority is then unchanged."""
+    before = os.nice(0)
+    return before, os.nice(inc)
+
+
 def raise_priority(env: dict[str, str] | None = None) -> str:
     """Apply ``$GHOSTSHELL_BOARD_NICE`` (default -10) to this process; returns the one line to print.
 
@@ -36,10 +44,9 @@ def raise_priority(env: dict[str, str] | None = None) -> str:
         return f"priority unchanged: ${NICE_ENV}={text!r} is not an integer"
     if inc == 0:
         return f"priority unchanged (${NICE_ENV}=0), nice {os.nice(0)}"
-    before = os.nice(0)
     try:
-        after = os.nice(inc)
+        before, after = lower_nice(inc)
     except PermissionError:
-        return (f"priority unchanged at nice {before}: raising it by {inc} is not permitted "
+        return (f"priority unchanged at nice {os.nice(0)}: raising it by {inc} is not permitted "
                 f"(needs root or CAP_SYS_NICE; set ${NICE_ENV}=0 to silence this)")
     return f"priority: nice {before} -> {after} (${NICE_ENV})"
