@@ -132,6 +132,7 @@ class Board:
         self.cm: RobotModel = reuse.cm if reuse is not None else self.robot.model(self.scene)
         self.scene_objects = self.cm.objects
         self._all_mask = self.table.all_mask
+        self._all_idx = list(range(len(self.table)))  # the servos of a frame with every mask bit set
         self.model = self.cm.model
         self.model.opt.timestep = self.cfg.dt
         self.data: mujoco.MjData = reuse.data if reuse is not None else self.cm.new_data()
@@ -430,11 +431,11 @@ class Board:
 
     def _servo_frame(self, msg: ServoFrame, seq: int) -> list[Message]:
         mask = int(msg.mask)
-        idx = [i for i in range(self.n) if mask >> i & 1]
+        idx = self._all_idx if mask == self._all_mask else [i for i in range(self.n) if mask >> i & 1]
         if not mask or mask & ~self._all_mask:
             self.dropped_count += 1
             return [self._nack(msg, seq, NackReason.BAD_VALUE, f"mask {mask:#06x} must cover servos 1..{self.n} only")]
-        if len(msg.targets) != len(idx) or not all(math.isfinite(v) for v in msg.targets):
+        if len(msg.targets) != len(idx) or not all(map(math.isfinite, msg.targets)):
             self.dropped_count += 1
             return [self._nack(msg, seq, NackReason.BAD_VALUE, "targets must be finite, one per mask bit")]
         if self.safety.estopped:
@@ -451,9 +452,12 @@ class Board:
         if t > now + self.cfg.max_future_us:
             self.dropped_count += 1
             return [self._nack(msg, seq, NackReason.TOO_FAR_FUTURE, f"due {t} us, board at {now} us (> {self.cfg.max_future_us} us ahead)")]
-        values = {i: float(v) for i, v in zip(idx, msg.targets)}
-        nxt, anchors, gap = self.buffer.next_all(), self.anchor_t.tolist(), self.cfg.resume_gap_us
-        resume = [i for i in idx if nxt[i] is None and now - anchors[i] > gap]  # idle: nothing buffered for it
+        values = dict(zip(idx, map(float, msg.targets)))
+        nxt = self.buffer.next_all()
+        resume: list[int] = []
+        if None in nxt:  # a servo with nothing buffered that was idle longer than the resume gap
+            anchors, gap = self.anchor_t.tolist(), self.cfg.resume_gap_us
+            resume = [i for i in idx if nxt[i] is None and now - anchors[i] > gap]
         if not self.buffer.push(t, seq, values):
             self.dropped_count += 1
             return [self._nack(msg, seq, NackReason.BUFFER_FULL, f"jitter buffer full ({self.cfg.buffer_depth} frames)")]
@@ -708,6 +712,68 @@ class Board:
         if self.ticks % self._telemetry_every == 0:
             out += [self.telemetry(), self.sim_state()]
         return out
+
+    def run(self, max_ticks: int) -> tuple[int, list[Message]]:
+        """Lockstep: run up to ``max_ticks`` ticks while :meth:`can_tick`; stop after the first tick
+        that returns something or records a watchdog event. Returns (ticks run, that tick's messages).
+
+        The same ticks and reports as calling :meth:`tick` that often, tick by tick: with the native
+        kernel, a run of *quiet* ticks (see :meth:`_quiet_ticks`: the Python around them would change
+        nothing but the time) goes to C in one call (:meth:`firmware_sim.native.NativeTick.run`); any
+        other tick runs through :meth:`tick`. A realtime board's pacer calls :meth:`tick` instead.
+        """
+        ran = 0
+        while ran < max_ticks and self.can_tick():
+            n = self._quiet_ticks(max_ticks - ran)
+            if n > 1:
+                out = self._run_quiet(n)
+                ran += n
+            else:
+                out = self.tick()
+                ran += 1
+            if out or self.watchdog_events:
+                return ran, out
+        return ran, []
+
+    def _quiet_ticks(self, limit: int) -> int:
+        """How many ticks from ``now_us`` on (at most ``limit``) are quiet: each runs in RUN mode and
+        stays there (watchdog fed: no ESTOP, hold or latched fault, armed only with its last feed within
+        ``watchdog_us``), no frame falls due (pop_due would find nothing), no resume blend, scripted
+        push or camera worker, the native kernel, lockstep and :meth:`can_tick`; and no report is due
+        before the last of them. 0 when the next tick is not quiet. Such a tick is exactly
+        ``native.tick(t, GS_INTERP)`` plus the clock (:meth:`tick` with nothing else to do)."""
+        if (self.native is None or not self.cfg.lockstep or self._blending or self._pushes
+                or self.camera_worker is not None or self._estop_rx_us is not None):
+            return 0
+        sf = self.safety
+        if sf.estopped or sf.fault_latched or sf.hold_since_us is not None:
+            return 0
+        now, dt = self.now_us, self._tick_us
+        n = min(limit, self._telemetry_every - self.ticks % self._telemetry_every)
+        last = max(self.advance_until - 1, self.covered_until)  # the last tick time can_tick allows
+        n = min(n, (last - now) // dt + 1)
+        if sf.armed:  # tick k (0-based) at now + k dt stays fed while now + k dt - last_feed <= watchdog
+            n = min(n, (sf.last_feed_us + sf.watchdog_us - now) // dt + 1)
+        first = self.buffer.first_apply_at
+        if first is not None:  # tick k sees no frame due while now + k dt < first
+            n = min(n, -((now - first) // dt))
+        return max(0, n)
+
+    def _run_quiet(self, n: int) -> list[Message]:
+        """``n`` quiet ticks (:meth:`_quiet_ticks`) in one native call; the reports of the last one."""
+        native = self.native
+        assert native is not None
+        self._refresh_next()
+        t = self.now_us
+        clamped = native.run(t, n, self._tick_us, GS_INTERP)
+        if clamped:
+            self._flags_since |= FaultFlags.CLAMPED
+            self.clamped_ticks += clamped
+        self.now_us = t + n * self._tick_us
+        self.ticks += n
+        if self.ticks % self._telemetry_every == 0:
+            return [self.telemetry(), self.sim_state()]
+        return []
 
     def _python_tick(self, desired: list[float], speed_cap: float | None) -> bool:
         """The reference path of one tick after interpolation: servo model, ctrl, ``mj_step``; True if clamped."""

@@ -41,6 +41,11 @@ class JitterBuffer:
         """Apply-at time of the last buffered frame (None when empty)."""
         return self._frames[-1].apply_at_us if self._frames else None
 
+    @property
+    def first_apply_at(self) -> int | None:
+        """Apply-at time of the earliest buffered frame (None when empty): nothing is due before it."""
+        return self._frames[0].apply_at_us if self._frames else None
+
     def pending_for(self, servo: int) -> bool:
         return self.next_for(servo) is not None
 
