@@ -670,17 +670,7 @@ class Board:
             self.watchdog_events.append((t, mode.value, self.safety.last_feed_us))
         desired: list[float] | np.ndarray | None = None  # None: the native tick interpolates
         if mode is Mode.RUN:
-            due = self.buffer.pop_due(t)
-            if due:
-                at, av = self.anchor_t, self.anchor_v
-                for f in due:
-                    when = f.apply_at_us
-                    for i, v in f.values.items():
-                        at[i] = when
-                        av[i] = v
-                    self.last_applied_seq = f.seq
-                    if self.cfg.lockstep:
-                        self.safety.feed(when)
+            self._apply_due(t)
             if self._blending:
                 desired = self._blend(t)
             elif native is None:
@@ -718,62 +708,74 @@ class Board:
         that returns something or records a watchdog event. Returns (ticks run, that tick's messages).
 
         The same ticks and reports as calling :meth:`tick` that often, tick by tick: with the native
-        kernel, a run of *quiet* ticks (see :meth:`_quiet_ticks`: the Python around them would change
-        nothing but the time) goes to C in one call (:meth:`firmware_sim.native.NativeTick.run`); any
-        other tick runs through :meth:`tick`. A realtime board's pacer calls :meth:`tick` instead.
+        kernel a run of *quiet* ticks (:meth:`_run_quiet`: the Python around each would only move the
+        clock) goes to C in one call (:meth:`firmware_sim.native.NativeTick.run`); any other tick runs
+        through :meth:`tick`. A realtime board's pacer calls :meth:`tick` instead.
         """
         ran = 0
         while ran < max_ticks and self.can_tick():
-            n = self._quiet_ticks(max_ticks - ran)
-            if n > 1:
-                out = self._run_quiet(n)
-                ran += n
+            quiet = self._run_quiet(max_ticks - ran)
+            if quiet is None:
+                n, out = 1, self.tick()
             else:
-                out = self.tick()
-                ran += 1
+                n, out = quiet
+            ran += n
             if out or self.watchdog_events:
                 return ran, out
         return ran, []
 
-    def _quiet_ticks(self, limit: int) -> int:
-        """How many ticks from ``now_us`` on (at most ``limit``) are quiet: each runs in RUN mode and
-        stays there (watchdog fed: no ESTOP, hold or latched fault, armed only with its last feed within
-        ``watchdog_us``), no frame falls due (pop_due would find nothing), no resume blend, scripted
-        push or camera worker, the native kernel, lockstep and :meth:`can_tick`; and no report is due
-        before the last of them. 0 when the next tick is not quiet. Such a tick is exactly
-        ``native.tick(t, GS_INTERP)`` plus the clock (:meth:`tick` with nothing else to do)."""
+    def _run_quiet(self, limit: int) -> tuple[int, list[Message]] | None:
+        """Run the quiet ticks from ``now_us`` on (at most ``limit``, at least 1) in one native call and
+        return (how many, the last one's reports); None (nothing run) when the next tick is not quiet.
+
+        A tick is quiet when it runs in RUN mode and stays there (no ESTOP, hold or latched fault; the
+        watchdog, once armed, fed within ``watchdog_us`` of it), with no resume blend, scripted push
+        or camera worker, the native kernel, lockstep and :meth:`can_tick`, and no frame due at it,
+        except at the first (applied here, as :meth:`tick` would, before the C runs); a report may be
+        due only at the last. :meth:`tick` would do nothing else for it than
+        ``native.tick(t, GS_INTERP)`` and move the clock."""
         if (self.native is None or not self.cfg.lockstep or self._blending or self._pushes
                 or self.camera_worker is not None or self._estop_rx_us is not None):
-            return 0
+            return None
         sf = self.safety
-        if sf.estopped or sf.fault_latched or sf.hold_since_us is not None:
-            return 0
         now, dt = self.now_us, self._tick_us
+        if (sf.estopped or sf.fault_latched or sf.hold_since_us is not None
+                or (sf.armed and now - sf.last_feed_us > sf.watchdog_us)):
+            return None  # safety.update(now) would not say RUN without a change
+        self._apply_due(now)  # what tick() does first in RUN mode (it may feed the watchdog)
         n = min(limit, self._telemetry_every - self.ticks % self._telemetry_every)
-        last = max(self.advance_until - 1, self.covered_until)  # the last tick time can_tick allows
-        n = min(n, (last - now) // dt + 1)
-        if sf.armed:  # tick k (0-based) at now + k dt stays fed while now + k dt - last_feed <= watchdog
+        n = min(n, (max(self.advance_until - 1, self.covered_until) - now) // dt + 1)  # can_tick
+        if sf.armed:  # tick k (at now + k dt) stays fed while now + k dt - last_feed <= watchdog
             n = min(n, (sf.last_feed_us + sf.watchdog_us - now) // dt + 1)
         first = self.buffer.first_apply_at
-        if first is not None:  # tick k sees no frame due while now + k dt < first
+        if first is not None:  # tick k >= 1 sees no frame due while now + k dt < first (> now here)
             n = min(n, -((now - first) // dt))
-        return max(0, n)
-
-    def _run_quiet(self, n: int) -> list[Message]:
-        """``n`` quiet ticks (:meth:`_quiet_ticks`) in one native call; the reports of the last one."""
-        native = self.native
-        assert native is not None
+        n = max(1, n)  # tick 0 itself: can_tick held, the watchdog was fed, its frames are applied
         self._refresh_next()
-        t = self.now_us
-        clamped = native.run(t, n, self._tick_us, GS_INTERP)
+        clamped = self.native.run(now, n, dt, GS_INTERP)
         if clamped:
             self._flags_since |= FaultFlags.CLAMPED
             self.clamped_ticks += clamped
-        self.now_us = t + n * self._tick_us
+        self.now_us = now + n * dt
         self.ticks += n
         if self.ticks % self._telemetry_every == 0:
-            return [self.telemetry(), self.sim_state()]
-        return []
+            return n, [self.telemetry(), self.sim_state()]
+        return n, []
+
+    def _apply_due(self, t: int) -> None:
+        """A RUN tick at ``t`` starts here: the frames due by ``t`` leave the buffer and their targets
+        become their servos' interpolation anchors (in lockstep an applied frame feeds the watchdog)."""
+        due = self.buffer.pop_due(t)
+        if due:
+            at, av = self.anchor_t, self.anchor_v
+            for f in due:
+                when = f.apply_at_us
+                for i, v in f.values.items():
+                    at[i] = when
+                    av[i] = v
+                self.last_applied_seq = f.seq
+                if self.cfg.lockstep:
+                    self.safety.feed(when)
 
     def _python_tick(self, desired: list[float], speed_cap: float | None) -> bool:
         """The reference path of one tick after interpolation: servo model, ctrl, ``mj_step``; True if clamped."""
