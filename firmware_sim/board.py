@@ -795,8 +795,8 @@ class Board:
 
     def telemetry(self) -> Telemetry:
         """TELEMETRY for the current state (clears the since-last-report flags)."""
-        d, cm = self.data, self.cm
-        w, x, y, z = cm.base_pose(d)[1]
+        d = self.data
+        w, x, y, z = self._base_pose()[1]
         faults = self.safety.flags | self._flags_since if self._flags_since else self.safety.flags
         self._flags_since = FaultFlags.NONE
         return Telemetry(
@@ -813,9 +813,18 @@ class Board:
             link_errors=self.link_errors,
         )
 
+    def _base_pose(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """:meth:`robots.model.RobotModel.base_pose` (position m, quaternion w x y z), the floating base's
+        seven qpos read in one slice (a report's hot spot: ~3 µs element by element)."""
+        r = self.cm.root_qpos
+        if r is None:
+            return self.cm.base_pose(self.data)
+        q = self.data.qpos[r:r + 7].tolist()
+        return tuple(q[:3]), tuple(q[3:])
+
     def sim_state(self) -> SimState:
         """Ground truth of the floating base (emulator only)."""
-        pos, quat = self.cm.base_pose(self.data)
+        pos, quat = self._base_pose()
         return SimState(
             self.now_us, pos, quat,
             objects=len(self.scene_objects),
