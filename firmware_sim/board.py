@@ -135,6 +135,11 @@ class Board:
         self._all_idx = list(range(len(self.table)))  # the servos of a frame with every mask bit set
         self.model = self.cm.model
         self.model.opt.timestep = self.cfg.dt
+        if self.model.ntree <= 1:
+            # one kinematic tree (the robot alone): every constraint is in the one island, so MuJoCo's
+            # island discovery (~5 % of CoCo's mj_step) changes nothing but the cost; with scene objects
+            # (several trees) it changes how the solver splits the problem, so it stays on
+            self.model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_ISLAND)
         self.data: mujoco.MjData = reuse.data if reuse is not None else self.cm.new_data()
         self.n = len(self.table)
         #: the wire schema of this robot (u16 servo mask up to 16 servos, u32 above): HELLO must name it
