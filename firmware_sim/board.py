@@ -818,14 +818,14 @@ class Board:
             link_errors=self.link_errors,
         )
 
-    def _base_pose(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    def _base_pose(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
         """:meth:`robots.model.RobotModel.base_pose` (position m, quaternion w x y z), the floating base's
         seven qpos read in one slice (a report's hot spot: ~3 µs element by element)."""
         r = self.cm.root_qpos
         if r is None:
             return self.cm.base_pose(self.data)
-        q = self.data.qpos[r:r + 7].tolist()
-        return tuple(q[:3]), tuple(q[3:])
+        x, y, z, qw, qx, qy, qz = self.data.qpos[r:r + 7].tolist()
+        return (x, y, z), (qw, qx, qy, qz)
 
     def sim_state(self) -> SimState:
         """Ground truth of the floating base (emulator only)."""
