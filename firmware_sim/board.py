@@ -132,8 +132,14 @@ class Board:
         self.cm: RobotModel = reuse.cm if reuse is not None else self.robot.model(self.scene)
         self.scene_objects = self.cm.objects
         self._all_mask = self.table.all_mask
+        self._all_idx = list(range(len(self.table)))  # the servos of a frame with every mask bit set
         self.model = self.cm.model
         self.model.opt.timestep = self.cfg.dt
+        if self.model.ntree <= 1:
+            # one kinematic tree (the robot alone): every constraint is in the one island, so MuJoCo's
+            # island discovery (~5 % of CoCo's mj_step) changes nothing but the cost; with scene objects
+            # (several trees) it changes how the solver splits the problem, so it stays on
+            self.model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_ISLAND)
         self.data: mujoco.MjData = reuse.data if reuse is not None else self.cm.new_data()
         self.n = len(self.table)
         #: the wire schema of this robot (u16 servo mask up to 16 servos, u32 above): HELLO must name it
@@ -430,11 +436,11 @@ class Board:
 
     def _servo_frame(self, msg: ServoFrame, seq: int) -> list[Message]:
         mask = int(msg.mask)
-        idx = [i for i in range(self.n) if mask >> i & 1]
+        idx = self._all_idx if mask == self._all_mask else [i for i in range(self.n) if mask >> i & 1]
         if not mask or mask & ~self._all_mask:
             self.dropped_count += 1
             return [self._nack(msg, seq, NackReason.BAD_VALUE, f"mask {mask:#06x} must cover servos 1..{self.n} only")]
-        if len(msg.targets) != len(idx) or not all(math.isfinite(v) for v in msg.targets):
+        if len(msg.targets) != len(idx) or not all(map(math.isfinite, msg.targets)):
             self.dropped_count += 1
             return [self._nack(msg, seq, NackReason.BAD_VALUE, "targets must be finite, one per mask bit")]
         if self.safety.estopped:
@@ -451,9 +457,12 @@ class Board:
         if t > now + self.cfg.max_future_us:
             self.dropped_count += 1
             return [self._nack(msg, seq, NackReason.TOO_FAR_FUTURE, f"due {t} us, board at {now} us (> {self.cfg.max_future_us} us ahead)")]
-        values = {i: float(v) for i, v in zip(idx, msg.targets)}
-        nxt, anchors, gap = self.buffer.next_all(), self.anchor_t.tolist(), self.cfg.resume_gap_us
-        resume = [i for i in idx if nxt[i] is None and now - anchors[i] > gap]  # idle: nothing buffered for it
+        values = dict(zip(idx, map(float, msg.targets)))
+        nxt = self.buffer.next_all()
+        resume: list[int] = []
+        if None in nxt:  # a servo with nothing buffered that was idle longer than the resume gap
+            anchors, gap = self.anchor_t.tolist(), self.cfg.resume_gap_us
+            resume = [i for i in idx if nxt[i] is None and now - anchors[i] > gap]
         if not self.buffer.push(t, seq, values):
             self.dropped_count += 1
             return [self._nack(msg, seq, NackReason.BUFFER_FULL, f"jitter buffer full ({self.cfg.buffer_depth} frames)")]
@@ -666,17 +675,7 @@ class Board:
             self.watchdog_events.append((t, mode.value, self.safety.last_feed_us))
         desired: list[float] | np.ndarray | None = None  # None: the native tick interpolates
         if mode is Mode.RUN:
-            due = self.buffer.pop_due(t)
-            if due:
-                at, av = self.anchor_t, self.anchor_v
-                for f in due:
-                    when = f.apply_at_us
-                    for i, v in f.values.items():
-                        at[i] = when
-                        av[i] = v
-                    self.last_applied_seq = f.seq
-                    if self.cfg.lockstep:
-                        self.safety.feed(when)
+            self._apply_due(t)
             if self._blending:
                 desired = self._blend(t)
             elif native is None:
@@ -709,6 +708,80 @@ class Board:
             out += [self.telemetry(), self.sim_state()]
         return out
 
+    def run(self, max_ticks: int) -> tuple[int, list[Message]]:
+        """Lockstep: run up to ``max_ticks`` ticks while :meth:`can_tick`; stop after the first tick
+        that returns something or records a watchdog event. Returns (ticks run, that tick's messages).
+
+        The same ticks and reports as calling :meth:`tick` that often, tick by tick: with the native
+        kernel a run of *quiet* ticks (:meth:`_run_quiet`: the Python around each would only move the
+        clock) goes to C in one call (:meth:`firmware_sim.native.NativeTick.run`); any other tick runs
+        through :meth:`tick`. A realtime board's pacer calls :meth:`tick` instead.
+        """
+        ran = 0
+        while ran < max_ticks and self.can_tick():
+            quiet = self._run_quiet(max_ticks - ran)
+            if quiet is None:
+                n, out = 1, self.tick()
+            else:
+                n, out = quiet
+            ran += n
+            if out or self.watchdog_events:
+                return ran, out
+        return ran, []
+
+    def _run_quiet(self, limit: int) -> tuple[int, list[Message]] | None:
+        """Run the quiet ticks from ``now_us`` on (at most ``limit``, at least 1) in one native call and
+        return (how many, the last one's reports); None (nothing run) when the next tick is not quiet.
+
+        A tick is quiet when it runs in RUN mode and stays there (no ESTOP, hold or latched fault; the
+        watchdog, once armed, fed within ``watchdog_us`` of it), with no resume blend, scripted push
+        or camera worker, the native kernel, lockstep and :meth:`can_tick`, and no frame due at it,
+        except at the first (applied here, as :meth:`tick` would, before the C runs); a report may be
+        due only at the last. :meth:`tick` would do nothing else for it than
+        ``native.tick(t, GS_INTERP)`` and move the clock."""
+        if (self.native is None or not self.cfg.lockstep or self._blending or self._pushes
+                or self.camera_worker is not None or self._estop_rx_us is not None):
+            return None
+        sf = self.safety
+        now, dt = self.now_us, self._tick_us
+        if (sf.estopped or sf.fault_latched or sf.hold_since_us is not None
+                or (sf.armed and now - sf.last_feed_us > sf.watchdog_us)):
+            return None  # safety.update(now) would not say RUN without a change
+        self._apply_due(now)  # what tick() does first in RUN mode (it may feed the watchdog)
+        n = min(limit, self._telemetry_every - self.ticks % self._telemetry_every)
+        n = min(n, (max(self.advance_until - 1, self.covered_until) - now) // dt + 1)  # can_tick
+        if sf.armed:  # tick k (at now + k dt) stays fed while now + k dt - last_feed <= watchdog
+            n = min(n, (sf.last_feed_us + sf.watchdog_us - now) // dt + 1)
+        first = self.buffer.first_apply_at
+        if first is not None:  # tick k >= 1 sees no frame due while now + k dt < first (> now here)
+            n = min(n, -((now - first) // dt))
+        n = max(1, n)  # tick 0 itself: can_tick held, the watchdog was fed, its frames are applied
+        self._refresh_next()
+        clamped = self.native.run(now, n, dt, GS_INTERP)
+        if clamped:
+            self._flags_since |= FaultFlags.CLAMPED
+            self.clamped_ticks += clamped
+        self.now_us = now + n * dt
+        self.ticks += n
+        if self.ticks % self._telemetry_every == 0:
+            return n, [self.telemetry(), self.sim_state()]
+        return n, []
+
+    def _apply_due(self, t: int) -> None:
+        """A RUN tick at ``t`` starts here: the frames due by ``t`` leave the buffer and their targets
+        become their servos' interpolation anchors (in lockstep an applied frame feeds the watchdog)."""
+        due = self.buffer.pop_due(t)
+        if due:
+            at, av = self.anchor_t, self.anchor_v
+            for f in due:
+                when = f.apply_at_us
+                for i, v in f.values.items():
+                    at[i] = when
+                    av[i] = v
+                self.last_applied_seq = f.seq
+                if self.cfg.lockstep:
+                    self.safety.feed(when)
+
     def _python_tick(self, desired: list[float], speed_cap: float | None) -> bool:
         """The reference path of one tick after interpolation: servo model, ctrl, ``mj_step``; True if clamped."""
         data = self.data
@@ -727,8 +800,8 @@ class Board:
 
     def telemetry(self) -> Telemetry:
         """TELEMETRY for the current state (clears the since-last-report flags)."""
-        d, cm = self.data, self.cm
-        w, x, y, z = cm.base_pose(d)[1]
+        d = self.data
+        w, x, y, z = self._base_pose()[1]
         faults = self.safety.flags | self._flags_since if self._flags_since else self.safety.flags
         self._flags_since = FaultFlags.NONE
         return Telemetry(
@@ -745,9 +818,18 @@ class Board:
             link_errors=self.link_errors,
         )
 
+    def _base_pose(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+        """:meth:`robots.model.RobotModel.base_pose` (position m, quaternion w x y z), the floating base's
+        seven qpos read in one slice (a report's hot spot: ~3 µs element by element)."""
+        r = self.cm.root_qpos
+        if r is None:
+            return self.cm.base_pose(self.data)
+        x, y, z, qw, qx, qy, qz = self.data.qpos[r:r + 7].tolist()
+        return (x, y, z), (qw, qx, qy, qz)
+
     def sim_state(self) -> SimState:
         """Ground truth of the floating base (emulator only)."""
-        pos, quat = self.cm.base_pose(self.data)
+        pos, quat = self._base_pose()
         return SimState(
             self.now_us, pos, quat,
             objects=len(self.scene_objects),

@@ -41,6 +41,11 @@ class JitterBuffer:
         """Apply-at time of the last buffered frame (None when empty)."""
         return self._frames[-1].apply_at_us if self._frames else None
 
+    @property
+    def first_apply_at(self) -> int | None:
+        """Apply-at time of the earliest buffered frame (None when empty): nothing is due before it."""
+        return self._frames[0].apply_at_us if self._frames else None
+
     def pending_for(self, servo: int) -> bool:
         return self.next_for(servo) is not None
 
@@ -49,7 +54,11 @@ class JitterBuffer:
         if len(self._frames) >= self.capacity:
             return False
         self._order += 1
-        bisect.insort(self._frames, BufferedFrame(apply_at_us, self._order, seq, dict(values)))
+        frame = BufferedFrame(apply_at_us, self._order, seq, dict(values))
+        if not self._frames or apply_at_us >= self._frames[-1].apply_at_us:
+            self._frames.append(frame)  # in time order (the usual stream): where insort would put it
+        else:
+            bisect.insort(self._frames, frame)
         self._next_cache = None
         return True
 

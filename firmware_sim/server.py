@@ -196,16 +196,23 @@ class BoardServer:
     def _serve_lockstep(self) -> None:
         """Virtual time. Each received message takes effect at the board time the messages
         before it have covered: the board handles the next message only when it cannot tick.
-        So the same byte stream gives the same telemetry, however the bytes were chunked."""
+        So the same byte stream gives the same telemetry, however the bytes were chunked. Ticks run
+        through :meth:`Board.run` (the ticks up to the next report, the quiet ones in one C call);
+        the backlog is checked before each such run, and a run sends at most one tick's reports."""
         while self.running:
-            ran = 0
+            ran = flushed = 0
             while self.running and self.board.can_tick() and self.backlog < LOCKSTEP_BACKLOG and ran < 256:
-                self._tick()
+                n, out = self.board.run(256 - ran)  # up to the next tick with reports, several per C call
+                if out:
+                    if self.objects_log is not None:
+                        self.objects_log.record(out)
+                    self.send(out)
                 if self.board.watchdog_events:
                     self._report_watchdog()
-                ran += 1
-                if ran % 16 == 0:
+                ran += n
+                if ran - flushed >= 16:
                     self._flush_tx()
+                    flushed = ran
             self._sync_viewer()
             handled = 0
             while self.inbox and not self.board.can_tick() and handled < 256:

@@ -3,7 +3,9 @@
 Why: a lockstep tick is MuJoCo's ``mj_step`` plus the board's own per-tick work (interpolation, the
 servo model, writing ctrl). In Python that work cost ~20 µs per tick for a 12-servo robot, more
 than ``mj_step`` itself for a robot standing still (~15 µs); in C it is well under a microsecond
-plus one ctypes call. The C does the same IEEE double operations in the same order as the Python
+plus one ctypes call. ``gs_run`` / :meth:`NativeTick.run` runs several ticks per call: the board's
+Python around a tick (safety, jitter buffer, reports; ~5 µs) then runs once per batch of quiet ticks
+(:meth:`firmware_sim.board.Board.run`). The C does the same IEEE double operations in the same order as the Python
 reference (:meth:`firmware_sim.board.Board._interpolate`, :meth:`firmware_sim.servo_model.ServoModel.step_list`),
 so the board's state is bit-identical whichever runs (``tests/firmware/test_native_tick.py`` compares
 both tick by tick over long random streams). ``mj_step`` is called from C through a function pointer
@@ -31,6 +33,12 @@ A MuJoCo fatal error (``mju_error``) inside a native ``mj_step`` ends the proces
 handler instead of raising ``mujoco.FatalError``; with the Python path that exception ends the board
 too (nothing catches it), so only the message's form differs.
 
+MuJoCo's stage timers (``MjData.timer``) read the system clock twice per stage, ~30 times per
+``mj_step`` (~1 µs of a ~21 µs CoCo step); the board never reads them. When the library loads, MuJoCo's
+timer callback ``mjcb_time`` (process-wide) is set to ``gs_no_clock`` (returns 0: every timer reads 0)
+unless another callback is already installed or ``$GHOSTSHELL_MJ_TIMERS=1`` (keep them, for profiling
+with ``MjData.timer``). The physics does not depend on them (trajectories bit-identical either way).
+
 Cache folder: ``$GHOSTSHELL_NATIVE_CACHE`` or the user cache dir (platformdirs) ``/native``.
 """
 
@@ -53,7 +61,7 @@ import platformdirs
 
 from firmware_sim.config import KERNEL_ENV, kernel_choice
 
-__all__ = ["FLAGS", "GS_CAP", "GS_INTERP", "KERNEL_ENV", "NativeTick", "NativeUnavailable", "TickState",
+__all__ = ["FLAGS", "GS_CAP", "GS_INTERP", "KERNEL_ENV", "TIMERS_ENV", "NativeTick", "NativeUnavailable", "TickState",
            "build", "cache_root", "kernel_choice", "load", "native_reason", "note_fallback"]
 
 SOURCE = Path(__file__).with_name("tick.c")
@@ -61,6 +69,8 @@ SOURCE = Path(__file__).with_name("tick.c")
 FLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-ffp-contract=off", "-fno-fast-math", "-Wall", "-Wextra")
 GS_INTERP = 1
 GS_CAP = 2
+#: ``1`` keeps MuJoCo's stage timers (``MjData.timer``) running in a process that loads the C tick
+TIMERS_ENV = "GHOSTSHELL_MJ_TIMERS"
 
 _ptr_t = ctypes.c_void_p  # every array pointer (int64_t* / double* in tick.c: the same ABI)
 
@@ -153,6 +163,10 @@ def _open(path: Path) -> ctypes.CDLL:
     fn = lib.gs_tick
     fn.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_int64, ctypes.c_double]
     fn.restype = ctypes.c_int
+    lib.gs_no_clock.restype = ctypes.c_double
+    run = lib.gs_run
+    run.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64, ctypes.c_double]
+    run.restype = ctypes.c_int64
     return lib
 
 
@@ -174,10 +188,24 @@ def load() -> tuple[ctypes.CDLL, int]:
             if not step:
                 raise NativeUnavailable("libmujoco has no mj_step")
             _loaded = (lib, step)
+            _quiet_timers(lib)
             return _loaded
         except Exception as e:  # noqa: BLE001 - whatever it is, the board runs the Python path instead
             _failure = str(e) if isinstance(e, NativeUnavailable) else f"{type(e).__name__}: {e}"
             raise NativeUnavailable(_failure) from None
+
+
+_no_clock: object = None  # the ctypes function object MuJoCo holds (kept alive here)
+
+
+def _quiet_timers(lib: ctypes.CDLL) -> None:
+    """Stop MuJoCo's stage timers (``mjcb_time`` := ``gs_no_clock``) unless $GHOSTSHELL_MJ_TIMERS=1 or a
+    timer callback is already installed (see the module docstring)."""
+    global _no_clock
+    if os.environ.get(TIMERS_ENV) == "1" or mujoco.get_mjcb_time() is not None:
+        return
+    _no_clock = ctypes.cast(lib.gs_no_clock, ctypes.CFUNCTYPE(ctypes.c_double))
+    mujoco.set_mjcb_time(_no_clock)
 
 
 def native_reason() -> str | None:
@@ -238,10 +266,16 @@ class NativeTick:
         self.state = s
         self._addr = ctypes.addressof(s)
         self._fn = lib.gs_tick
+        self._run = lib.gs_run
 
     def tick(self, t: int, flags: int, cap: float = 0.0) -> bool:
         """One tick at board time ``t`` (µs); ``flags``: :data:`GS_INTERP` | :data:`GS_CAP`. True if clamped."""
         return bool(self._fn(self._addr, t, flags, cap))
+
+    def run(self, t: int, n: int, tick_us: int, flags: int, cap: float = 0.0) -> int:
+        """``n`` ticks at board times ``t``, ``t + tick_us``, ... (µs), each exactly :meth:`tick` with
+        ``flags``; returns how many of them clamped a servo."""
+        return int(self._run(self._addr, t, n, tick_us, flags, cap))
 
     @property
     def limit_clamps(self) -> int:

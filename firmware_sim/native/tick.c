@@ -12,6 +12,11 @@
  *   - min(s, cap) keeps s unless cap < s;
  *   - compiled with -ffp-contract=off (no fused multiply-add) and without -ffast-math.
  *
+ * gs_run runs n consecutive ticks in one call (t, t + tick_us, ...) with the same flags: the board
+ * uses it for a run of "quiet" lockstep ticks, where its Python around each tick would change nothing
+ * (no frame due, watchdog fed, no report due before the last one; see Board.run), so a batch leaves
+ * exactly the state n gs_tick calls leave.
+ *
  * No MuJoCo header is needed: mj_step comes in as a function pointer taken from the libmujoco the
  * mujoco wheel ships (already loaded by the Python bindings), and qpos/ctrl as the addresses of
  * the MjData arrays the bindings expose. Built and loaded by firmware_sim/native/__init__.py.
@@ -103,4 +108,21 @@ int gs_tick(gs_tick_state *s, int64_t t, int64_t flags, double cap)
     for (int64_t k = 0; k < s->substeps; k++)
         s->mj_step(s->model, s->data);
     return (limit_hits || speed_hits) ? 1 : 0;
+}
+
+/* n ticks at board times t, t + tick_us, ... (each exactly gs_tick). Returns how many were clamped. */
+int64_t gs_run(gs_tick_state *s, int64_t t, int64_t n, int64_t tick_us, int64_t flags, double cap)
+{
+    int64_t clamped = 0;
+    for (int64_t k = 0; k < n; k++)
+        clamped += gs_tick(s, t + k * tick_us, flags, cap);
+    return clamped;
+}
+
+/* A clock for MuJoCo's mjcb_time that always says 0: MuJoCo then skips reading the system clock at
+ * the start and end of each of its ~15 timed stages per mj_step (d->timer, which the board never
+ * reads; ~1 us per mj_step here). Installed by firmware_sim/native/__init__.py. */
+double gs_no_clock(void)
+{
+    return 0.0;
 }

@@ -147,3 +147,115 @@ def test_python_is_the_reference_and_native_the_default(monkeypatch: pytest.Monk
     assert Board(BoardConfig(lockstep=True)).native is None
     with pytest.raises(ValueError, match="board kernel must be native, native! or python"):
         Board(BoardConfig(lockstep=True, kernel="fortran"))
+
+
+def _run_batched(cfg: dict[str, object], seed: int, ticks: int, robot: str | None = None) -> tuple[int, int]:
+    """The Python reference ticking one tick at a time against the native kernel through ``Board.run``
+    (quiet ticks batched into one C call): after every run both boards agree to the bit, the reference's
+    ticks before the run's last returned nothing, and the last returned what the run did. Returns (ticks
+    run, ticks that went through a batch of more than one)."""
+    boards = [Board(BoardConfig(lockstep=True, kernel=k, **({"robot": robot} if robot else {}), **cfg))  # type: ignore[arg-type]
+              for k in ("python", "native!")]
+    py, nat = boards
+    batched = [0]
+    quiet = nat._run_quiet
+
+    def counting(limit: int) -> tuple[int, list[Message]] | None:
+        got = quiet(limit)
+        if got is not None and got[0] > 1:
+            batched[0] += got[0]
+        return got
+
+    nat._run_quiet = counting  # type: ignore[method-assign]
+    for b in boards:
+        assert b.handle(Hello(PROTOCOL_VERSION, b.wire_schema.hash, 0), 0)
+    stream = _Stream(seed, py.n, list(py.table.neutral), 0.4)
+    rng = random.Random(seed)
+    ran = 0
+    full = (1 << py.n) - 1
+    while ran < ticks:
+        # half the time a steady host (every servo, 50 Hz on the grid, 100 ms ahead), so quiet runs occur
+        if rng.random() < 0.5:
+            stream.seq += 1
+            op = (ServoFrame((py.now_us // 20_000 + 5) * 20_000, full, stream._targets(full)), stream.seq)
+        else:
+            op = stream.next(py.now_us)
+        if op[0] == "push":
+            at, force, dur = op[1]  # type: ignore[misc]
+            for b in boards:
+                b.push(at, force, dur)
+            continue
+        msg, seq = op  # type: ignore[misc]
+        assert py.handle(msg, seq) == nat.handle(msg, seq)  # type: ignore[arg-type]
+        while nat.can_tick() and ran < ticks:
+            n, out = nat.run(rng.choice([1, 3, 40, 256]))
+            assert n >= 1
+            for k in range(n):
+                assert py.can_tick()
+                ref = py.tick()
+                assert ref == (out if k == n - 1 else []), f"seed {seed} tick {ran + k + 1}: reports differ"
+                assert (k == n - 1) or not py.watchdog_events
+            ran += n
+            assert list(py.watchdog_events) == list(nat.watchdog_events), f"seed {seed} tick {ran}"
+            py.watchdog_events.clear()
+            nat.watchdog_events.clear()
+            assert _state(py) == _state(nat), f"seed {seed} tick {ran} (t = {py.now_us} us): state differs"
+        assert nat.can_tick() == py.can_tick()
+    return ran, batched[0]
+
+
+@pytest.mark.parametrize("seed", [4, 5])
+def test_batched_native_ticks_are_the_reference_tick_by_tick(seed: int) -> None:
+    _require_native()
+    ran, batched = _run_batched({}, seed, 12_000)
+    assert ran >= 12_000 and batched > 50  # the stream's quiet stretches went through batches
+
+
+def test_batched_ticks_with_substeps_a_short_watchdog_and_other_robots(tmp_path: Path) -> None:
+    _require_native()
+    ran, batched = _run_batched({"rate_hz": 250, "dt": 0.002, "watchdog_ms": 30, "crouch_after_ms": 60}, 8, 4_000)
+    assert ran >= 4_000 and batched > 0
+    ran, batched = _run_batched({}, 21, 3_000, robot=str(write_chain_robot(tmp_path, 20)))
+    assert ran >= 3_000 and batched > 0
+
+
+def test_a_quiet_stream_runs_a_report_period_per_call() -> None:
+    """Frames every 20 ms, telemetry every 10 ticks: the ticks between reports run as one C call."""
+    _require_native()
+    b = Board(BoardConfig(lockstep=True, kernel="native!"))
+    b.handle(Hello(PROTOCOL_VERSION, b.wire_schema.hash, 0), 0)
+    neutral = tuple(b.table.neutral)
+    for k in range(1, 51):
+        assert b.handle(ServoFrame(k * 20_000, b.table.all_mask, neutral), k) == []
+    runs = []
+    while b.can_tick():
+        n, out = b.run(256)
+        runs.append((n, [type(m).__name__ for m in out]))
+    assert sum(n for n, _ in runs) == 501 and b.now_us == 1_002_000
+    # ticks 0..9 (a report after tick 9), then each frame's tick and the 9 after it (no frame due there)
+    assert all(r == (10, ["Telemetry", "SimState"]) for r in runs[:-1]) and runs[-1] == (1, [])
+    assert b.last_applied_seq == 50
+
+
+def test_mujoco_timers_are_off_with_the_native_kernel_unless_asked() -> None:
+    """MuJoCo's stage timers cost ~1 µs per step; a process that loads the C tick stops them
+    (GHOSTSHELL_MJ_TIMERS=1 keeps them), and the physics is the same bit for bit either way."""
+    _require_native()
+    import os
+    import subprocess
+    import sys
+
+    code = ("from firmware_sim.board import Board; from firmware_sim.config import BoardConfig\n"
+            "b = Board(BoardConfig(lockstep=True, kernel='native!')); b.advance_until = 400_000\n"
+            "while b.can_tick(): b.run(256)\n"
+            "import hashlib; print(b.data.timer[0].number, b.data.timer[0].duration > 0,"
+            " hashlib.sha256(b.data.qpos.tobytes() + b.data.qvel.tobytes()).hexdigest())")
+    got = {}
+    for keep in ("0", "1"):
+        env = dict(os.environ, GHOSTSHELL_MJ_TIMERS=keep)
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120,
+                           cwd=Path(__file__).resolve().parents[2])
+        assert r.returncode == 0, r.stderr
+        got[keep] = r.stdout.split()
+    assert got["0"][:2] == ["200", "False"] and got["1"][:2] == ["200", "True"]
+    assert got["0"][2] == got["1"][2]
