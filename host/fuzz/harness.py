@@ -23,7 +23,7 @@ import types
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 __all__ = ["instrument_only", "package_modules", "run_atheris", "without_hooks"]
 
@@ -52,6 +52,8 @@ def instrument_only(modules: Sequence[str]) -> Iterator[None]:
     """Instrument, among the modules imported in the ``with`` block, exactly ``modules`` and their submodules.
 
     A module already imported stays as it is (import the code under test first, inside the block).
+    Each instrumented code object gets its real stack size (:mod:`host.fuzz.stackdepth`): atheris'
+    estimate made every call of a long function allocate a fresh frame chunk.
     """
     import atheris  # type: ignore[import-not-found,unused-ignore]
 
@@ -61,8 +63,21 @@ def instrument_only(modules: Sequence[str]) -> Iterator[None]:
         name for top in tops for name in package_modules(top)
         if not any(name == w or name.startswith(w + ".") for w in wanted)
     ]
-    with atheris.instrument_imports(include=tops, exclude=others):
-        yield
+    from atheris import import_hook  # type: ignore[import-not-found,unused-ignore]
+
+    from host.fuzz.stackdepth import fit_stacksize
+
+    patch = import_hook.patch_code
+
+    def patch_and_fit(code: Any, *args: Any, **kwargs: Any) -> Any:
+        return fit_stacksize(patch(code, *args, **kwargs))
+
+    import_hook.patch_code = patch_and_fit  # atheris' loaders call it by this name
+    try:
+        with atheris.instrument_imports(include=tops, exclude=others):
+            yield
+    finally:
+        import_hook.patch_code = patch
 
 
 def without_hooks(cls: C) -> C:
