@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import inspect
 import math
+import threading
 from collections.abc import Awaitable, Callable
 from types import SimpleNamespace
 from typing import Any
@@ -95,13 +96,15 @@ class GuestLoop:
     nothing runs (the next pending callback waits in the queue), so the clock can autojump at all
     times (threshold 0): with a MockClock and no runnable task, Trio never waits on I/O in guest
     mode and never starts its I/O thread. Trio leaves the process's SIGINT handler and wakeup fd
-    alone (libFuzzer's).
+    alone (libFuzzer's). One per thread (:meth:`shared`): a thread holds one Trio run at a time, and
+    while the guest run lives its thread counts as inside it (``trio.run`` there fails), so only the
+    fuzzing process uses it; ``load(False)`` (pytest, which runs other Trio code on its thread) keeps
+    :class:`TrioLoop`.
     """
 
     def __init__(self) -> None:
         import queue
         import signal
-        import threading
 
         import outcome
         import trio
@@ -119,7 +122,7 @@ class GuestLoop:
                 self._token, self._nursery = trio.lowlevel.current_trio_token(), nursery
                 await trio.sleep_forever()
 
-        def ended(result: Any) -> None:  # only if the guest run itself fails: report it from run()
+        def ended(result: Any) -> None:  # closed, or the guest run itself failed: reported from run()
             self._result = result if isinstance(result, outcome.Error) else outcome.Error(RuntimeError("trio ended"))
             self._token = None
 
@@ -136,6 +139,16 @@ class GuestLoop:
         if self._result is not None:
             self._result.unwrap()
 
+    _per_thread = threading.local()
+
+    @classmethod
+    def shared(cls) -> GuestLoop:
+        """The calling thread's guest run (one per thread: Trio runs one run per thread at a time)."""
+        loop: GuestLoop | None = getattr(cls._per_thread, "loop", None)
+        if loop is None or loop._token is None:
+            loop = cls._per_thread.loop = cls()
+        return loop
+
     def run(self, afn: Callable[..., Awaitable[Any]], *args: Any) -> Any:
         """``await afn(*args)`` in the guest run; its result, or its exception raised here."""
         if self._token is None or self._nursery is None:
@@ -147,6 +160,18 @@ class GuestLoop:
             get()()
         result, self._result = self._result, None
         return result.unwrap()
+
+    def close(self) -> None:
+        """End the guest run (cancel what it serves, run it to its end on this thread)."""
+        if self._token is None or self._nursery is None:
+            return
+        self._result = None
+        self._token.run_sync_soon(self._nursery.cancel_scope.cancel)
+        while self._result is None:
+            self._callbacks.get()()
+        self._result = None
+        if getattr(self._per_thread, "loop", None) is self:
+            del self._per_thread.loop
 
     async def _job(self, afn: Callable[..., Awaitable[Any]], args: tuple[Any, ...]) -> None:
         self._result = await self._outcome.acapture(afn, *args)
@@ -217,7 +242,7 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
                 raise
 
     registry = FuzzRegistry(modules)
-    loop = GuestLoop()
+    loop: GuestLoop | TrioLoop = GuestLoop.shared() if instrument else TrioLoop()
     # the direct parse (step 1) runs the parser's source without coverage hooks: the Shell parses the
     # same pieces with the same strictness (step 2), instrumented, and that is the input's coverage
     Parser = without_hooks(FunctionTokenParser) if instrument else FunctionTokenParser
