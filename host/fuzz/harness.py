@@ -96,11 +96,12 @@ def without_hooks(cls: C) -> C:
         raise LookupError(f"class {cls.__qualname__} not found at the top level of {path}")
     plain = {(c.co_name, c.co_firstlineno): c for c in body.co_consts if isinstance(c, types.CodeType)}
 
-    def rebuilt(f: object) -> object:
-        key = (f.__code__.co_name, f.__code__.co_firstlineno) if isinstance(f, types.FunctionType) else None
-        if key not in plain or f.__closure__:  # type: ignore[union-attr]
+    def rebuilt(f: Any) -> Any:
+        if not isinstance(f, types.FunctionType) or f.__closure__:
             return f
-        assert isinstance(f, types.FunctionType)
+        key = (f.__code__.co_name, f.__code__.co_firstlineno)
+        if key not in plain:
+            return f
         g = types.FunctionType(plain[key], module.__dict__, f.__name__, f.__defaults__)
         g.__kwdefaults__, g.__qualname__, g.__doc__ = f.__kwdefaults__, f.__qualname__, f.__doc__
         return g
