@@ -242,6 +242,7 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
                 raise
 
     registry = FuzzRegistry(modules)
+    from trio import current_time as trio_now
     loop: GuestLoop | TrioLoop = GuestLoop.shared() if instrument else TrioLoop()
     # the direct parse (step 1) runs the parser's source without coverage hooks: the Shell parses the
     # same pieces with the same strictness (step 2), instrumented, and that is the input's coverage
@@ -299,7 +300,7 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
         pieces = [p for p in pieces if p]
         check_parser(pieces, strict)
         calls.clear()
-        shell = Shell(registry, strict=strict)
+        shell = Shell(registry, strict=strict, clock=trio_now)  # anyio.current_time on Trio, without the backend lookup
         loop.run(shell.run_text, pieces)
         for name, kwargs in calls:
             if name == "speak":

@@ -24,7 +24,7 @@ from __future__ import annotations
 import dis
 import types
 
-__all__ = ["MARGIN", "fit_stacksize", "max_stack_depth"]
+__all__ = ["MARGIN", "SMALL", "fit_stacksize", "max_stack_depth"]
 
 #: slots added to the computed depth (the largest shortfall seen against the compiler is 2)
 MARGIN = 8
@@ -71,11 +71,16 @@ def max_stack_depth(code: types.CodeType) -> int:
     return deepest
 
 
+#: a code object with at most this many slots is left as it is (256 bytes: walking it costs more at
+#: start-up than its frames cost later)
+SMALL = 32
+
+
 def fit_stacksize(code: types.CodeType) -> types.CodeType:
     """``code`` and the code objects nested in it with ``co_stacksize`` = computed depth + :data:`MARGIN`
-    (never more than it was)."""
+    (never more than it was; those of at most :data:`SMALL` slots as they are)."""
     consts = tuple(fit_stacksize(c) if isinstance(c, types.CodeType) else c for c in code.co_consts)
-    size = min(code.co_stacksize, max_stack_depth(code) + MARGIN)
+    size = code.co_stacksize if code.co_stacksize <= SMALL else min(code.co_stacksize, max_stack_depth(code) + MARGIN)
     if size == code.co_stacksize and consts == code.co_consts:
         return code
     return code.replace(co_consts=consts, co_stacksize=size)
