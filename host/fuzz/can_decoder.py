@@ -13,8 +13,11 @@ mode) and every completed ISO-TP unit through :meth:`CanDecoder.feed_bulk`. Fram
 
 The two ISO-TP links (one per receiver) are built once per process and reset before each input
 (can-isotp's parameter check sleeps 1 ms twice per link built: more than the rest of an input); coverage
-instruments the decoder, its layouts, ids and codec and the ISO-TP link only. Measured exec/s
-(command, n, load): docs/guides/fuzzing.md#throughput.
+instruments the decoder, its layouts, ids and codec and the ISO-TP link only. The decoder's state
+bounds (assemblies per function code) are checked after every frame the decoder took (not counted
+``foreign``: a frame it ignores leaves its state alone) and at the end of the input; the ISO-TP
+queue after every frame fed to it. "Only frames it was given" is looked up by identity first.
+Measured exec/s (command, n, load): docs/guides/fuzzing.md#throughput.
 
 Invariants: no internal error is ever reported; every surfaced fixed message was carried by
 exactly its layout's parts, all fed, all of one sequence and one frame kind (no partial frame

@@ -14,13 +14,17 @@ Invariants (an ``AssertionError`` names the one that broke):
 Throughput: the block between two delimiters is decoded by ``protocol.framing._decode_block``, a
 function of the block's bytes (and the schema) alone; most blocks of an input are the seeds' frames
 again (a mutation inside a frame breaks its CRC), and decoding them (the codec, instrumented) was
-most of an input's time, twice (chunked and whole). While an input runs, the process therefore
-remembers each distinct valid frame's decode result (up to :data:`MAX_REMEMBERED`, then it starts
-again; blocks that fail COBS or the CRC, new garbage on every input, are decoded each time) and
-each distinct frame shown to re-encode to its own bytes: every invariant is still checked on every
-input, and a new frame is decoded and re-encoded for real the first time it appears, so a failure
-reproduces from its input alone. ``FrameDecoder``'s own work (delimiters, buffering, OVERSIZE,
-counters) runs in full for both feeds. Measured exec/s (command, n, load): docs/guides/fuzzing.md#throughput.
+most of an input's time, twice (chunked and whole). The process therefore remembers each distinct
+block that passed the CRC (a frame, or an intact frame's VERSION/LENGTH/UNKNOWN_TYPE/PAYLOAD error)
+with its decode result, up to :data:`MAX_REMEMBERED` (then it starts again), and each distinct
+frame shown to re-encode to its own bytes; every block of the input running is remembered for that
+input (the whole feed meets the chunked feed's blocks again, garbage included). Every invariant is
+still checked on every input, and a new block is decoded (and a new frame re-encoded) for real the
+first time it appears, so a failure reproduces from its input alone. ``FrameDecoder``'s own work
+(delimiters, buffering, OVERSIZE, counters) runs in full for both feeds; the whole feed runs the
+same ``FrameDecoder`` source without coverage hooks (:func:`host.fuzz.harness.without_hooks`; the
+chunked feed's coverage is the input's). Measured exec/s (command, n, load):
+docs/guides/fuzzing.md#throughput.
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ from collections.abc import Callable
 
 __all__ = ["load", "chunks"]
 
-#: distinct valid frames remembered (decoded; re-encode checked), each; a frame is at most 266 B on the
+#: distinct intact blocks remembered (decoded; frames re-encode checked), each; a block is at most 512 B on the
 #: wire, so a few MB at most
 MAX_REMEMBERED = 4096
 

@@ -15,12 +15,16 @@ Each input runs twice:
    vocabulary bound to a recorder: no exception escapes the run, and every call that reaches an
    implementation has exactly the declared parameters, each one conforming.
 
-Throughput (measured exec/s, with command, n and load: docs/guides/fuzzing.md#throughput): the Shell
-runs in one Trio loop kept for the process
-(:class:`TrioLoop`) instead of a ``trio.run`` per input (whose setup and teardown cost more than the
-shell's own work on most inputs); coverage instruments ``host.shell`` and ``host.speech`` only. What is
-left is the code under test: the parser (twice: step 1 and inside the Shell), the scheduler's task
-per call (anyio on Trio) and the registry's did-you-mean (``difflib``) for unknown tags.
+Throughput (measured exec/s, with command, n and load: docs/guides/fuzzing.md#throughput): when
+fuzzing, the Shell runs in one Trio run in guest mode on the fuzzing thread (:class:`GuestLoop`: no
+thread hand-off; ``load(False)`` uses the threaded :class:`TrioLoop`, one Trio loop kept for the
+process); coverage instruments ``host.shell`` and ``host.speech`` only, with real stack sizes
+(:mod:`host.fuzz.stackdepth`). Step 1 parses with the parser's source without coverage hooks (step 2
+parses the same pieces with the same strictness, instrumented: that is the input's coverage), and
+maps each distinct (element, attributes) once per process (mapped and checked for real the first
+time, so a failure reproduces from its input alone); the registry works out an unknown name's
+did-you-mean (``difflib``) once per name. What is left is the code under test: the instrumented
+parser and the scheduler's task per call (anyio on Trio).
 """
 
 from __future__ import annotations
