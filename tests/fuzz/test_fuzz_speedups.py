@@ -201,3 +201,14 @@ def test_can_target_still_bounds_assemblies(monkeypatch: pytest.MonkeyPatch) -> 
     monkeypatch.setattr(decoder, "MAX_ASSEMBLIES", 3)
     with pytest.raises(AssertionError):
         one_input(data)
+
+
+def test_can_decoder_set_lookup_is_is_mine() -> None:
+    """The decoder's one-lookup "mine" test accepts exactly the ids :meth:`CanDecoder.is_mine` does."""
+    from protocol.can.decoder import CanDecoder
+    from protocol.can.frame import CanFrame
+
+    for node in (1, 5, 6, 127):
+        for receiver in ("board", "host"):
+            dec = CanDecoder(node, receiver)
+            assert dec._mine == {aid for aid in range(0x800) if dec.is_mine(CanFrame(aid, b""))}
