@@ -14,13 +14,17 @@ Invariants (an ``AssertionError`` names the one that broke):
 Throughput: the block between two delimiters is decoded by ``protocol.framing._decode_block``, a
 function of the block's bytes (and the schema) alone; most blocks of an input are the seeds' frames
 again (a mutation inside a frame breaks its CRC), and decoding them (the codec, instrumented) was
-most of an input's time, twice (chunked and whole). While an input runs, the process therefore
-remembers each distinct valid frame's decode result (up to :data:`MAX_REMEMBERED`, then it starts
-again; blocks that fail COBS or the CRC, new garbage on every input, are decoded each time) and
-each distinct frame shown to re-encode to its own bytes: every invariant is still checked on every
-input, and a new frame is decoded and re-encoded for real the first time it appears, so a failure
-reproduces from its input alone. ``FrameDecoder``'s own work (delimiters, buffering, OVERSIZE,
-counters) runs in full for both feeds. Measured exec/s (command, n, load): docs/guides/fuzzing.md#throughput.
+most of an input's time, twice (chunked and whole). The process therefore remembers each distinct
+block that passed the CRC (a frame, or an intact frame's VERSION/LENGTH/UNKNOWN_TYPE/PAYLOAD error)
+with its decode result, up to :data:`MAX_REMEMBERED` (then it starts again), and each distinct
+frame shown to re-encode to its own bytes; every block of the input running is remembered for that
+input (the whole feed meets the chunked feed's blocks again, garbage included). Every invariant is
+still checked on every input, and a new block is decoded (and a new frame re-encoded) for real the
+first time it appears, so a failure reproduces from its input alone. ``FrameDecoder``'s own work
+(delimiters, buffering, OVERSIZE, counters) runs in full for both feeds; the whole feed runs the
+same ``FrameDecoder`` source without coverage hooks (:func:`host.fuzz.harness.without_hooks`; the
+chunked feed's coverage is the input's). Measured exec/s (command, n, load):
+docs/guides/fuzzing.md#throughput.
 """
 
 from __future__ import annotations
@@ -30,18 +34,26 @@ from collections.abc import Callable
 
 __all__ = ["load", "chunks"]
 
-#: distinct valid frames remembered (decoded; re-encode checked), each; a frame is at most 266 B on the
+#: distinct intact blocks remembered (decoded; frames re-encode checked), each; a block is at most 512 B on the
 #: wire, so a few MB at most
 MAX_REMEMBERED = 4096
 
 
 def chunks(data: bytes, seed: int, max_chunk: int = 300) -> list[bytes]:
     """Split ``data`` into pieces of pseudo-random length 0..``max_chunk`` (deterministic in ``seed``)."""
-    rng = random.Random(seed)
+    # ``random.Random(seed).randint(0, max_chunk)`` per piece, inlined (the same numbers: randint draws
+    # ``getrandbits(bit_length)`` until below the bound); randint's three Python calls per piece were a
+    # few per cent of an input
+    bits = random.Random(seed).getrandbits
+    bound = max_chunk + 1
+    k = bound.bit_length()
     out: list[bytes] = []
     i = 0
-    while i < len(data):
-        n = rng.randint(0, max_chunk)
+    n_data = len(data)
+    while i < n_data:
+        n = bits(k)
+        while n >= bound:
+            n = bits(k)
         out.append(data[i : i + n])
         i += n
     return out
@@ -54,33 +66,45 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
 
         with instrument_only(["protocol.framing", "protocol.codec"]):  # not protocol.messages (declarations)
             from protocol import codec, framing  # noqa: F401
+    from host.fuzz.harness import without_hooks
     import atheris  # type: ignore[import-not-found,unused-ignore]
 
     from protocol import framing
     from protocol.codec import WireSchema
-    from protocol.framing import DecodeError, Frame, FrameDecoder, encode_frame
+    from protocol.framing import DecodeError, DecodeErrorKind, Frame, FrameDecoder, encode_frame
     from protocol.messages import Heartbeat
 
     decode_block = framing._decode_block
-    decoded: dict[tuple[bytes, WireSchema], Frame] = {}
+    # the whole feed, compared with the chunked one, runs the same FrameDecoder source without coverage
+    # hooks (the chunked feed's coverage is the input's); uninstrumented, it is the class itself
+    WholeDecoder = without_hooks(FrameDecoder) if instrument else FrameDecoder
+    decoded: dict[tuple[bytes, WireSchema], Frame | DecodeError] = {}
+    # blocks failing COBS or the CRC are new garbage on every input: remembered for the input only
+    NOT_REMEMBERED = frozenset((DecodeErrorKind.COBS, DecodeErrorKind.CRC))
     reencoded: set[bytes] = set()  # wire bytes of frames shown to re-encode to themselves
     probe_msg = Heartbeat(123_456)
     probe = encode_frame(probe_msg, 4242)
 
+    this_input: dict[tuple[bytes, WireSchema], Frame | DecodeError] = {}  # every block of the input running
+
     def remembered(block: bytes, raw: bytes, schema: WireSchema = framing.WIRE_SCHEMA_16) -> Frame | DecodeError:
-        """``_decode_block`` once per distinct valid frame (``raw`` is always ``block + 0x00``)."""
-        known = decoded.get((block, schema))
+        """``_decode_block`` once per distinct valid frame, and once per distinct block of one input
+        (``raw`` is always ``block + 0x00``)."""
+        key = (block, schema)
+        known = this_input.get(key) or decoded.get(key)
         if known is not None:
             return known
         item = decode_block(block, raw, schema)
-        if isinstance(item, Frame):  # not the errors: new garbage every input, cheap to find (COBS, CRC)
+        this_input[key] = item  # the whole feed decodes the chunked feed's blocks again: errors too
+        if isinstance(item, Frame) or item.kind not in NOT_REMEMBERED:
             if len(decoded) >= MAX_REMEMBERED:
                 decoded.clear()
-            decoded[(block, schema)] = item
+            decoded[key] = item
         return item
 
     def one_input(data: bytes) -> None:
         framing._decode_block = remembered  # only while the input runs: nothing else in the process sees it
+        this_input.clear()
         try:
             check(data)
         finally:
@@ -96,7 +120,7 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
         for piece in chunks(stream, seed):
             events += dec.feed(piece)
             assert dec.pending <= dec.max_frame_bytes, f"decoder holds {dec.pending} bytes"
-        whole = FrameDecoder().feed(stream)
+        whole = WholeDecoder().feed(stream)
         key = [(type(e).__name__, e.raw if isinstance(e, Frame) else e.kind) for e in events]
         key_whole = [(type(e).__name__, e.raw if isinstance(e, Frame) else e.kind) for e in whole]
         assert key == key_whole, f"chunking changed the result: {key} vs {key_whole}"

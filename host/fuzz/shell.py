@@ -15,25 +15,33 @@ Each input runs twice:
    vocabulary bound to a recorder: no exception escapes the run, and every call that reaches an
    implementation has exactly the declared parameters, each one conforming.
 
-Throughput (measured exec/s, with command, n and load: docs/guides/fuzzing.md#throughput): the Shell
-runs in one Trio loop kept for the process
-(:class:`TrioLoop`) instead of a ``trio.run`` per input (whose setup and teardown cost more than the
-shell's own work on most inputs); coverage instruments ``host.shell`` and ``host.speech`` only. What is
-left is the code under test: the parser (twice: step 1 and inside the Shell), the scheduler's task
-per call (anyio on Trio) and the registry's did-you-mean (``difflib``) for unknown tags.
+Throughput (measured exec/s, with command, n and load: docs/guides/fuzzing.md#throughput): when
+fuzzing, the Shell runs in one Trio run in guest mode on the fuzzing thread (:class:`GuestLoop`: no
+thread hand-off; ``load(False)`` uses the threaded :class:`TrioLoop`, one Trio loop kept for the
+process); coverage instruments ``host.shell`` and ``host.speech`` only, with real stack sizes
+(:mod:`host.fuzz.stackdepth`). Step 1 parses with the parser's source without coverage hooks (step 2
+parses the same pieces with the same strictness, instrumented: that is the input's coverage), and
+maps each distinct (element, attributes) once per process (mapped and checked for real the first
+time, so a failure reproduces from its input alone); the registry works out an unknown name's
+did-you-mean (``difflib``) once per name. What is left is the code under test: the instrumented
+parser and the scheduler's task per call (anyio on Trio).
 """
 
 from __future__ import annotations
 
 import inspect
 import math
+import threading
 from collections.abc import Awaitable, Callable
 from types import SimpleNamespace
 from typing import Any
 
 from host.fuzz.serial_decoder import chunks as byte_chunks
 
-__all__ = ["TrioLoop", "load"]
+__all__ = ["GuestLoop", "TrioLoop", "load"]
+
+#: element names whose did-you-mean, and elements whose mapping, are remembered (each; then it starts again)
+MAX_REMEMBERED = 4096
 
 
 class TrioLoop:
@@ -82,6 +90,97 @@ class TrioLoop:
             self.clock.autojump_threshold = math.inf
 
 
+class GuestLoop:
+    """One Trio run on a ``MockClock`` in *guest mode* on the caller's thread, kept for the process.
+
+    :class:`TrioLoop` hands each input to a Trio thread and waits for its answer: two thread wake-ups
+    per input and the GIL passed back and forth. Here Trio runs as a guest
+    (``trio.lowlevel.start_guest_run``) of a "host loop" that is just :meth:`run` pumping Trio's
+    callbacks on the calling thread until the submitted function has finished; between calls
+    nothing runs (the next pending callback waits in the queue), so the clock can autojump at all
+    times (threshold 0): with a MockClock and no runnable task, Trio never waits on I/O in guest
+    mode and never starts its I/O thread. Trio leaves the process's SIGINT handler and wakeup fd
+    alone (libFuzzer's). One per thread (:meth:`shared`): a thread holds one Trio run at a time, and
+    while the guest run lives its thread counts as inside it (``trio.run`` there fails), so only the
+    fuzzing process uses it; ``load(False)`` (pytest, which runs other Trio code on its thread) keeps
+    :class:`TrioLoop`.
+    """
+
+    def __init__(self) -> None:
+        import queue
+        import signal
+
+        import outcome
+        import trio
+        from trio.testing import MockClock
+
+        self._outcome = outcome
+        self.clock = MockClock(autojump_threshold=0)
+        self._callbacks: queue.SimpleQueue[Callable[[], object]] = queue.SimpleQueue()
+        self._result: Any = None
+        self._nursery: trio.Nursery | None = None
+        self._token: trio.lowlevel.TrioToken | None = None
+
+        async def serve() -> None:
+            async with trio.open_nursery() as nursery:
+                self._token, self._nursery = trio.lowlevel.current_trio_token(), nursery
+                await trio.sleep_forever()
+
+        def ended(result: Any) -> None:  # closed, or the guest run itself failed: reported from run()
+            self._result = result if isinstance(result, outcome.Error) else outcome.Error(RuntimeError("trio ended"))
+            self._token = None
+
+        main = threading.current_thread() is threading.main_thread()
+        sigint = signal.getsignal(signal.SIGINT) if main else None
+        trio.lowlevel.start_guest_run(
+            serve, run_sync_soon_threadsafe=self._callbacks.put, run_sync_soon_not_threadsafe=self._callbacks.put,
+            done_callback=ended, clock=self.clock, host_uses_signal_set_wakeup_fd=True,
+        )
+        if main and signal.getsignal(signal.SIGINT) is not sigint:  # trio's KeyboardInterrupt handler: not here
+            signal.signal(signal.SIGINT, sigint)
+        while self._nursery is None and self._result is None:
+            self._callbacks.get()()
+        if self._result is not None:
+            self._result.unwrap()
+
+    _per_thread = threading.local()
+
+    @classmethod
+    def shared(cls) -> GuestLoop:
+        """The calling thread's guest run (one per thread: Trio runs one run per thread at a time)."""
+        loop: GuestLoop | None = getattr(cls._per_thread, "loop", None)
+        if loop is None or loop._token is None:
+            loop = cls._per_thread.loop = cls()
+        return loop
+
+    def run(self, afn: Callable[..., Awaitable[Any]], *args: Any) -> Any:
+        """``await afn(*args)`` in the guest run; its result, or its exception raised here."""
+        if self._token is None or self._nursery is None:
+            raise RuntimeError("the guest Trio run has ended")
+        self._result = None
+        self._token.run_sync_soon(self._nursery.start_soon, self._job, afn, args)
+        get = self._callbacks.get
+        while self._result is None:
+            get()()
+        result, self._result = self._result, None
+        return result.unwrap()
+
+    def close(self) -> None:
+        """End the guest run (cancel what it serves, run it to its end on this thread)."""
+        if self._token is None or self._nursery is None:
+            return
+        self._result = None
+        self._token.run_sync_soon(self._nursery.cancel_scope.cancel)
+        while self._result is None:
+            self._callbacks.get()()
+        self._result = None
+        if getattr(self._per_thread, "loop", None) is self:
+            del self._per_thread.loop
+
+    async def _job(self, afn: Callable[..., Awaitable[Any]], args: tuple[Any, ...]) -> None:
+        self._result = await self._outcome.acapture(afn, *args)
+
+
 def load(instrument: bool = False) -> Callable[[bytes], None]:
     """Import the shell (instrumented when ``instrument``) and return the one-input function."""
     if instrument:
@@ -91,10 +190,11 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
             import host.shell.shell  # noqa: F401
     import atheris  # type: ignore[import-not-found,unused-ignore]
 
+    from host.fuzz.harness import without_hooks
     from host.fuzz.validate import conforms
     from host.shell.mapper import MappingError, map_element
     from host.shell.parser import MAX_TOKEN, EmptyTag, EndTag, FunctionTokenParser, ParseError, StartTag
-    from host.shell.registry import Registry
+    from host.shell.registry import Registry, UnknownFunction
     from host.shell.shell import Shell
     from host.shell.types import Module, params_of, shell_function
     from robots.interface import class_stubs, stub_info
@@ -126,11 +226,37 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
         modules.append(Module.bind(module_name, view, impl, channel=channel))
         for n, f in stubs.items():
             params[n] = {p.name: p.annotation for p in params_of(f)}
-    registry = Registry(modules)
-    loop = TrioLoop()
+    class FuzzRegistry(Registry):
+        """The registry, with an unknown name's did-you-mean (``difflib``, a tenth of an input) worked
+        out once per name: the answer depends on the name and the mounted functions only, and no
+        mount changes here; found for real the first time a name appears (so per input alone)."""
+
+        unknown: dict[str, list[str]] = {}
+
+        def resolve(self, name: str):  # type: ignore[no-untyped-def]
+            known = self.unknown.get(name)
+            if known is not None:
+                raise UnknownFunction(name, list(known))
+            try:
+                return super().resolve(name)
+            except UnknownFunction as e:
+                if len(self.unknown) >= MAX_REMEMBERED:
+                    self.unknown.clear()
+                self.unknown[name] = list(e.suggestions)
+                raise
+
+    registry = FuzzRegistry(modules)
+    from trio import current_time as trio_now
+    loop: GuestLoop | TrioLoop = GuestLoop.shared() if instrument else TrioLoop()
+    # the direct parse (step 1) runs the parser's source without coverage hooks: the Shell parses the
+    # same pieces with the same strictness (step 2), instrumented, and that is the input's coverage
+    Parser = without_hooks(FunctionTokenParser) if instrument else FunctionTokenParser
+    # (element name, attributes) already mapped and checked in step 1: map_element is a function of
+    # them and the (fixed) registry; a new element is mapped and checked for real
+    mapped_ok: set[tuple[str, tuple[tuple[str, str], ...]]] = set()
 
     def check_parser(pieces: list[str], strict: bool) -> None:
-        p = FunctionTokenParser(strict=strict)
+        p = Parser(strict=strict)
         stack: list[str] = []
         events = []
         try:
@@ -154,13 +280,20 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
                 assert stack and stack[-1] == ev.name, f"end-tag {ev.name} does not close {stack}"
                 stack.pop()
             if isinstance(ev, (StartTag, EmptyTag)):
+                key = (ev.name, tuple(ev.attrs.items()))
+                if key in mapped_ok:
+                    continue
                 try:
                     mapped = map_element(registry, ev.name, dict(ev.attrs))
                 except MappingError:
-                    continue
-                for k, v in mapped.args.items():
-                    ann = mapped.spec.param(k)
-                    assert ann is not None and conforms(v, ann.annotation), f"<{ev.name}> {k}={v!r} mapped"
+                    mapped = None
+                if mapped is not None:
+                    for k, v in mapped.args.items():
+                        ann = mapped.spec.param(k)
+                        assert ann is not None and conforms(v, ann.annotation), f"<{ev.name}> {k}={v!r} mapped"
+                if len(mapped_ok) >= MAX_REMEMBERED:
+                    mapped_ok.clear()
+                mapped_ok.add(key)
 
     def one_input(data: bytes) -> None:
         fdp = atheris.FuzzedDataProvider(data)
@@ -171,7 +304,7 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
         pieces = [p for p in pieces if p]
         check_parser(pieces, strict)
         calls.clear()
-        shell = Shell(registry, strict=strict)
+        shell = Shell(registry, strict=strict, clock=trio_now)  # anyio.current_time on Trio, without the backend lookup
         loop.run(shell.run_text, pieces)
         for name, kwargs in calls:
             if name == "speak":

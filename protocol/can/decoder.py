@@ -30,6 +30,7 @@ from __future__ import annotations
 from collections import Counter, deque
 from dataclasses import dataclass, field
 from enum import Enum
+from functools import lru_cache
 
 from protocol.can.codec import decode_bulk, fixed_crc, raw_to_message, unpack_part
 from protocol.can.frame import CanFrame
@@ -86,6 +87,17 @@ class _Assembly:
     born: int = 0  # the decoder's frame count when its first part arrived
 
 
+@lru_cache(maxsize=None)
+def _consumed_ids(node: int, receiver: str) -> frozenset[int]:
+    """The 11-bit ids :meth:`CanDecoder.is_mine` accepts for ``node`` and ``receiver``: the node's own
+    ids of the receiver's function codes (bulk excepted) and the broadcast ESTOP."""
+    accept = HOST_TO_BOARD if receiver == "board" else BOARD_TO_HOST
+    ids = {(int(fn) << 7) | node for fn in accept if fn not in _BULK}
+    if FunctionCode.ESTOP in accept:
+        ids.add((int(FunctionCode.ESTOP) << 7) | BROADCAST_NODE)
+    return frozenset(ids)
+
+
 class CanDecoder:
     """Reassembles fixed-layout messages for one receiver of one node; counts every problem."""
 
@@ -96,6 +108,7 @@ class CanDecoder:
         self.receiver = receiver
         self.layouts = can_layouts() if layouts is None else layouts
         self._accept = HOST_TO_BOARD if receiver == "board" else BOARD_TO_HOST
+        self._mine = _consumed_ids(self.node, receiver)
         #: per function code, the assemblies in progress, oldest first (at most ``MAX_ASSEMBLIES``)
         self._assemblies: dict[FunctionCode, list[_Assembly]] = {}
         self.last_seq = 0  # 16-bit reference for unwrapping 11-bit sequences
@@ -136,17 +149,18 @@ class CanDecoder:
     def _feed(self, frame: CanFrame) -> list[CanItem | CanDecodeError]:
         self.frames += 1
         aid = int(frame.arbitration_id)
-        fn, node = split_id(aid)
-        if frame.is_extended_id or aid > 0x7FF or aid < 0:
+        if frame.is_extended_id or aid >> 11:  # 29-bit, or outside 0..0x7FF (a negative id shifts to -1)
             # another protocol's frame may share the bus: only count it as an error if it would
             # have been ours as a standard frame
+            fn, node = split_id(aid)
             if fn is not None and node == self.node and fn in self._accept and 0 <= aid <= 0x7FF:
                 return [self._error(CanErrorKind.EXTENDED_ID, f"29-bit identifier {aid:#x}", frame)]
             self.foreign += 1
             return []
-        if not self.is_mine(frame):
+        if aid not in self._mine:  # is_mine(frame) as one set lookup: every frame on the bus comes here
             self.foreign += 1
             return []
+        fn, node = split_id(aid)
         assert fn is not None
         if frame.is_remote:
             return [self._error(CanErrorKind.REMOTE, f"remote frame on {aid:#05x}", frame)]
