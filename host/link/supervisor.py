@@ -36,6 +36,7 @@ from host.link.waiting import Flag, Reply
 from protocol.codec import WIRE_SCHEMAS, WireBoundError, WireSchema, schema_by_hash, schema_for
 from protocol.framing import DecodeError, Frame
 from protocol.messages import Caps, Heartbeat, Hello, Message, TimeSyncReply, TimeSyncRequest
+from protocol.wiremodel import WireModel
 
 __all__ = ["SYNC_ATTEMPTS", "RobotIdentity", "SupervisedSession", "Supervisor", "host_now_us"]
 
@@ -78,6 +79,7 @@ class SupervisedSession(Protocol):
     heartbeat_s: float
     sync_interval_s: float
     keepalive: bool
+    tx_wire: WireModel | None
     last_reconnect_error: str
     _schema_pinned: bool
     _closing: bool
