@@ -114,6 +114,24 @@ class RobotRuntime:
         self._speech_synth = speech_synth
         self._playing_bgm: dict[int, str] = {}
 
+    def warm_up(self) -> int:
+        """Plan every motion behaviour once from the rest pose with its defaults and drop the plans.
+
+        A behaviour's first call pays one-time costs (CoCo's gaits read their calibration file, NumPy
+        takes its first path through each function): ~10 ms for the first ``rotate`` of a process,
+        measured on the token -> servo path of that call (``bench/bench_latency.py``). Called once per
+        session before the first turn. A behaviour that needs arguments, or refuses its defaults, is
+        skipped (planned when called). Returns how many were planned.
+        """
+        planned = 0
+        for fn in self.robot.behaviours.values():
+            try:
+                ease_in(fn(self._rest.copy()))
+            except Exception:  # noqa: BLE001 - a robot's own code; it is called for real later
+                continue
+            planned += 1
+        return planned
+
     # -- helpers -------------------------------------------------------------------------------
     def _soonest(self, msg: ScreenCommand | SpeakerCommand) -> int:
         """Board time a peripheral command sent now can start at (see ``FrameStreamer.soonest_us``)."""

@@ -323,6 +323,7 @@ class RobotSession:
             runtime = RobotRuntime(self.robot, ClientLink(client, wire_baud=opts.wire_baud), self.out,
                                    initial=np.asarray(tel.positions))
             self._runtime = runtime
+            runtime.warm_up()  # one-time planning costs now, not on the first call's token -> servo path
             client.on_fault.append(self._on_fault)
             client.on_nack.append(self._on_nack)
             registry = robot_registry(self.robot, runtime, self.vocabulary)

@@ -48,3 +48,19 @@ def test_interrupted_turn_keeps_only_what_ran(tmp_path: Path) -> None:
     assert "Never said" not in text
     assert turn.received_text == program
 
+
+
+def test_a_session_plans_every_behaviour_once_before_its_first_turn(tmp_path: Path) -> None:
+    """One-time planning costs (CoCo's gait calibration file) are paid at connect, not by the first
+    call's token -> servo path; the warm-up plans every behaviour that has defaults."""
+    from robots.coco.gaits import load_calibration
+
+    load_calibration.cache_clear()
+
+    async def main() -> int:
+        async with _session(tmp_path) as s:
+            assert load_calibration.cache_info().currsize == 1  # read before any turn
+            return s.runtime.warm_up()
+
+    planned = anyio.run(main, backend="asyncio")
+    assert planned >= 20  # CoCo: all 24 but joint_move, which needs its joints
