@@ -115,13 +115,15 @@ def test_unwritable_mcap_is_one_line_and_the_run_goes_on(tmp_path: Path, caplog:
 
 
 def test_killed_run_leaves_an_mcap_readable_up_to_its_last_chunk(tmp_path: Path) -> None:
-    """SIGKILL a lockstep run once the live view shows board time past 2.5 s: chunks end every FLUSH_S
-    board seconds, so the cut file holds at least the first 2 s (synchronised on the run's own messages)."""
+    """SIGKILL a realtime run once the live view shows board time past 2.5 s: chunks end every FLUSH_S
+    board seconds, so the cut file holds at least the first 2 s (synchronised on the run's own messages).
+    Realtime, not lockstep: task 26 runs ~6 board-s, so the kill lands while it runs; a lockstep board
+    (84x real time since its ticks are batched) can finish the task before the signal is sent (CI saw it)."""
     import anyio
 
     out = tmp_path / "run"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([sys.executable, "-m", "host", "run", "--xml", TASK26, "--lockstep", "--no-live",
+    proc = subprocess.Popen([sys.executable, "-m", "host", "run", "--xml", TASK26, "--realtime", "--no-live",
                              "--out", str(out), "--foxglove", "0"], cwd=ROOT, env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
