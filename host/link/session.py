@@ -60,7 +60,6 @@ from host.link.transports import Transport, open_transport
 from host.link.waiting import Flag
 from protocol.codec import WIRE_SCHEMA_16, WireBoundError, WireSchema, schema_for
 from protocol.faults import GapDetector
-from protocol.framing import encode_frame
 from protocol.linkspec import LinkSpec, parse_link_spec
 from protocol.messages import PROTOCOL_VERSION, Ack, Caps, Message, Nack, SimState
 from protocol.wiremodel import WireModel
@@ -292,11 +291,11 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
         seq = self._tx_seq
         self.requests.forget_seq(seq)  # 16-bit wrap: nothing keyed by seq's previous use survives
         self.camera.forget_seq(seq)
-        t.send(msg, seq)
+        nbytes = t.send(msg, seq)
         self._tx_seq = (seq + 1) & 0xFFFF
         self._last_tx = time.monotonic()
         if self.tx_wire is not None:
-            self.tx_wire.occupy(self._last_tx, len(encode_frame(msg, seq, self.schema)))
+            self.tx_wire.occupy(self._last_tx, nbytes)
         self.stats.tx_frames += 1
         for cb in self.on_sent:
             try:

@@ -2,14 +2,23 @@
 
 from __future__ import annotations
 
+import contextlib
 import time
 
-from host.link import BoardClient
+import anyio
+
+from host.link import BoardClient, LinkError
+from host.motion.txqueue import EdfFrameQueue, SeqCallback
 from protocol.messages import Flush, ServoFrame
 from protocol.wiremodel import WireModel
 
 #: One-way latency (µs) assumed before any TIME_SYNC round trip was measured.
 DEFAULT_LATENCY_US = 2_000
+
+#: :meth:`BoardFrameLink.pace` writes the next held frame once the modelled line has at most this
+#: much left to send (s): the line does not idle for the host's wake-up, and a message written
+#: directly waits behind at most this plus the frame being written.
+PACE_SLACK_S = 0.0005
 
 
 class BoardFrameLink:
@@ -17,6 +26,13 @@ class BoardFrameLink:
 
     ``wire_baud``: the baud rate the board models wire time at (its ``--baud``), or None for a
     plain pty; it adds ``10 * nbytes / wire_baud`` to :meth:`latency_us`.
+
+    Two ways to send a frame: :meth:`send_frame` writes it at once (a new motion's first frame), and
+    :meth:`queue_frame` (lookahead, re-sent grid) writes it at once too, unless :meth:`pace` runs:
+    then it waits in :attr:`queue` (earliest apply time first, :mod:`host.motion.txqueue`) and is
+    written when the modelled line (``client.tx_wire``) has drained, so what is written at once
+    never waits behind it. A FLUSH (:meth:`flush`, :meth:`send_flush`) is written at once and acts
+    on the held frames as the board's would.
     """
 
     def __init__(self, client: BoardClient, wire_baud: int | None = None) -> None:
@@ -24,6 +40,10 @@ class BoardFrameLink:
         self.wire_baud = wire_baud
         if wire_baud and client.tx_wire is None:  # the host models its own line from now on
             client.tx_wire = WireModel(wire_baud)
+        #: frames held while :meth:`pace` runs
+        self.queue = EdfFrameQueue()
+        self._pacing = False
+        self._wake: anyio.Event | None = None
 
     @property
     def lockstep(self) -> bool:
@@ -51,10 +71,69 @@ class BoardFrameLink:
         return int(one_way + backlog + wire)
 
     async def send_frame(self, frame: ServoFrame) -> int:
-        return self.client.send_frame(frame)
+        """Write ``frame`` now, ahead of any held frame; returns its sequence number."""
+        return self._write(frame, [])
+
+    def queue_frame(self, frame: ServoFrame, on_sent: SeqCallback | None = None) -> None:
+        """Send ``frame`` when the line allows: at once, unless :meth:`pace` runs (then held, earliest
+        apply time first). ``on_sent`` gets its sequence number when it is written."""
+        if self._pacing and self.queue.push(frame, on_sent):
+            if self._wake is not None:
+                self._wake.set()
+            return
+        self._write(frame, [on_sent] if on_sent else [])
+
+    def _write(self, frame: ServoFrame, callbacks: list[SeqCallback]) -> int:
+        seq = self.client.send_frame(frame)
+        for cb in callbacks + self.queue.take_orphans():
+            cb(seq)
+        return seq
 
     async def flush(self, from_us: int, mask: int) -> None:
+        """FLUSH (awaiting the board's ACK); the held frames are flushed the same way at once."""
+        self.queue.flush(from_us, mask)
         await self.client.flush(from_us, mask)
 
     def send_flush(self, from_us: int, mask: int) -> None:
+        """FLUSH without waiting for the ACK; the held frames are flushed the same way at once."""
+        self.queue.flush(from_us, mask)
         self.client.send(Flush(int(from_us), int(mask)))
+
+    @property
+    def paced(self) -> bool:
+        """True while :meth:`pace` runs (frames from :meth:`queue_frame` are held)."""
+        return self._pacing
+
+    async def pace(self) -> None:
+        """Write held frames one at a time as the modelled line drains, until cancelled.
+
+        Runs only over a realtime link whose line the host models (``client.tx_wire``, a board with
+        ``--baud``); otherwise it returns at once and frames are written when queued. A lockstep
+        board's time does not run with the wall clock, so its frames are never held. On the way out
+        (cancelled, or the link failed) the frames still held are written as an unpaced link would
+        have written them. Raises what the link raises (:class:`host.link.LinkDown`).
+        """
+        line = self.client.tx_wire
+        if line is None or self.client.lockstep or self._pacing:
+            return
+        self._pacing = True
+        self._wake = anyio.Event()
+        try:
+            while True:
+                if not len(self.queue):
+                    await self._wake.wait()
+                    self._wake = anyio.Event()
+                    continue
+                busy = line.busy_s(time.monotonic())
+                if busy > PACE_SLACK_S:
+                    await anyio.sleep(busy - PACE_SLACK_S)
+                    continue
+                item = self.queue.pop()
+                if item is not None:
+                    self._write(*item)
+        finally:
+            self._pacing = False
+            self._wake = None
+            for frame, callbacks in self.queue.drain():
+                with contextlib.suppress(LinkError):
+                    self._write(frame, callbacks)

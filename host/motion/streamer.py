@@ -18,7 +18,10 @@ board times are what the run's timeline records.
 frame, and the frames already sent for its servos from that time on (the hold, or what the
 segment it overrides planned) are replaced: FLUSH of those servos from the first frame's time,
 then the first frame, then the servos' frames re-sent for the part of the grid already sent.
-Later frames keep the full lookahead. On a lockstep board nothing of the grid has been simulated
+Later frames keep the full lookahead. The re-sent frames, and every lookahead frame, go through
+:meth:`FrameLink.queue_frame`: over a slow line whose host paces it they are held and written
+earliest apply time first (:mod:`host.motion.txqueue`), so the next motion's FLUSH and first frame
+(written at once) do not wait behind them on the wire. On a lockstep board nothing of the grid has been simulated
 beyond the first unsent frame's predecessor, so that frame is the soonest.
 
 :meth:`FrameStreamer.fail` records that the board will not apply the frames (it raised ESTOP or
@@ -60,7 +63,14 @@ class FrameLink(Protocol):
 
     def board_now_us(self) -> int: ...
 
-    async def send_frame(self, frame: ServoFrame) -> int: ...
+    async def send_frame(self, frame: ServoFrame) -> int:
+        """Write ``frame`` now (a new motion's first frame: nothing held may delay it); its sequence number."""
+        ...
+
+    def queue_frame(self, frame: ServoFrame, on_sent: Callable[[int], None] | None = None) -> None:
+        """Send ``frame`` when the line allows (at once, or held earliest apply time first over a paced
+        slow line: :class:`host.motion.board_link.BoardFrameLink`); ``on_sent`` gets its sequence number."""
+        ...
 
     async def flush(self, from_us: int, mask: int) -> None: ...
 
@@ -107,8 +117,11 @@ def mask_of(servos: Sequence[int]) -> int:
 
 @dataclass
 class _Sent:
-    seq: int
+    seq: int | None  # None while the link holds the frame unwritten (see FrameLink.queue_frame)
     frame: MixedFrame
+
+    def written(self, seq: int) -> None:
+        self.seq = seq
 
 
 @dataclass
@@ -253,7 +266,7 @@ class FrameStreamer:
             self._in_flight.append(_Sent(seq, MixedFrame(t0, first, (seg,), ())))
             for t in range(self.grid(t0 + 1), self.next_us, self.period_us):
                 q = self.mixer.sample_servo_targets(t)[idx]
-                await self.link.send_frame(ServoFrame(t, mask, tuple(float(x) for x in q)))
+                self.link.queue_frame(ServoFrame(t, mask, tuple(float(x) for x in q)))
             return seg
 
     # -- sending -------------------------------------------------------------------------------
@@ -292,16 +305,18 @@ class FrameStreamer:
             now = self.link.board_now_us() if board_now_us is None else board_now_us
             horizon = now + self.lookahead_us
             while self.next_us <= horizon:
-                await self._send(self.mixer.frame(self.next_us))
+                self._send(self.mixer.frame(self.next_us))
                 self.next_us += self.period_us
 
-    async def _send(self, mixed: MixedFrame) -> None:
+    def _send(self, mixed: MixedFrame) -> None:
         n = self.mixer.n_servos
-        seq = await self.link.send_frame(ServoFrame(mixed.t_us, (1 << n) - 1, tuple(float(x) for x in mixed.targets)))
+        sent = _Sent(None, mixed) if mixed.started or mixed.ended else None
+        frame = ServoFrame(mixed.t_us, (1 << n) - 1, tuple(float(x) for x in mixed.targets))
+        self.link.queue_frame(frame, sent.written if sent is not None else None)  # LinkDown: nothing recorded
+        if sent is not None:
+            self._in_flight.append(sent)
         self.frames_sent += 1
         self.history.append((mixed.t_us, mixed.targets))
-        if mixed.started or mixed.ended:
-            self._in_flight.append(_Sent(seq, mixed))
 
     async def cut(self, segments: Sequence[Segment], servos: Sequence[int],
                   make_replacement: Callable[[np.ndarray], MotionLike | None], label: str = "",
@@ -333,7 +348,7 @@ class FrameStreamer:
                 idx = np.asarray(sorted(servos), dtype=int)
                 for t in range(cut_us, self.next_us, self.period_us):
                     q = self.mixer.sample_servo_targets(t)[idx]
-                    await self.link.send_frame(ServoFrame(t, mask, tuple(float(x) for x in q)))
+                    self.link.queue_frame(ServoFrame(t, mask, tuple(float(x) for x in q)))
             return new
 
     # -- board time ----------------------------------------------------------------------------
@@ -367,6 +382,8 @@ class FrameStreamer:
             heapq.heappop(self._time_waiters)[2].set()
         while self._in_flight:
             sent = self._in_flight[0]
+            if sent.seq is None:  # still held by the link: not on the board yet
+                break
             applied = ((tel.last_applied_seq - sent.seq) & 0xFFFF) < 0x8000
             if not (applied and tel.board_time_us >= sent.frame.t_us):
                 break

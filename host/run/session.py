@@ -320,7 +320,8 @@ class RobotSession:
             if note:
                 log.warning("%s", note)
             tel = await client.wait_for(lambda t: True, timeout=10, nudge=True)
-            runtime = RobotRuntime(self.robot, ClientLink(client, wire_baud=opts.wire_baud), self.out,
+            frame_link = ClientLink(client, wire_baud=opts.wire_baud)
+            runtime = RobotRuntime(self.robot, frame_link, self.out,
                                    initial=np.asarray(tel.positions))
             self._runtime = runtime
             runtime.warm_up()  # one-time planning costs now, not on the first call's token -> servo path
@@ -352,6 +353,8 @@ class RobotSession:
             tg.start_soon(self._ends_the_run, silence_watchdog(runtime, self.rec, client))
             if not client.lockstep:
                 tg.start_soon(self._ends_the_run, realtime_topper(runtime))
+                if client.tx_wire is not None:  # a slow line the host models: lookahead frames yield to new calls
+                    tg.start_soon(self._ends_the_run, frame_link.pace())
             if opts.max_log_mb is not None:
                 tg.start_soon(self._log_bound, opts.max_log_mb)
             await runtime.streamer.top_up()

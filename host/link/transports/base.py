@@ -58,8 +58,10 @@ class Transport(ABC):
         """
 
     @abstractmethod
-    def send(self, msg: Message, seq: int) -> None:
-        """Encode ``msg`` with sequence number ``seq`` (0..65535), queue it for the wire and log it.
+    def send(self, msg: Message, seq: int) -> int:
+        """Encode ``msg`` with sequence number ``seq`` (0..65535), queue it for the wire and log it;
+        returns the wire bytes it takes on a serial line (the encoded frame, for the session's model of
+        the line, ``BoardClient.tx_wire``), 0 on a CAN bus (whose timing the host does not model).
 
         Never blocks. Raises :class:`host.link.errors.LinkDown` when not connected (or the write
         found the wire gone) and :class:`host.link.errors.LinkError` when the transmit backlog

@@ -196,7 +196,7 @@ class CanLinkTransport(Transport):
 
     # --- sending --------------------------------------------------------------------------
 
-    def send(self, msg: Message, seq: int) -> None:
+    def send(self, msg: Message, seq: int) -> int:
         if self.bus is None:
             raise LinkDown(f"CAN link {self.spec} is not connected")
         if len(self._tx.queue) >= MAX_TX_FRAMES:
@@ -215,6 +215,7 @@ class CanLinkTransport(Transport):
         except BufferError as e:
             raise LinkError(str(e)) from None
         self._tx.pump()
+        return 0
 
     def _log_sent(self, frame: CanFrame) -> None:
         if self.framelog is not None:

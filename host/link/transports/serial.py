@@ -312,7 +312,7 @@ class SerialLinkTransport(Transport):
         if items and self._on_receive is not None:
             self._on_receive(items)
 
-    def send(self, msg: Message, seq: int) -> None:
+    def send(self, msg: Message, seq: int) -> int:
         port = self._port
         if port is None or port.closed:
             raise LinkDown(f"link to {self.url!r} is down")
@@ -325,6 +325,7 @@ class SerialLinkTransport(Transport):
             raise LinkDown(f"link to {self.url!r} is down: {e}") from None
         if self.framelog is not None:
             self.framelog.write_serial("tx", time.monotonic(), raw)  # decoded from the wire bytes (quantised)
+        return len(raw)
 
     def disconnect(self) -> None:
         if self._port is not None:
