@@ -6,6 +6,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import pytest  # noqa: E402
 
+#: under pytest-xdist, tests marked ``realtime`` run alone (tests/support/realtime_lock.py)
+pytest_plugins = ["support.realtime_lock"]
+
 
 @pytest.fixture(autouse=True)
 def _private_skill_library(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:

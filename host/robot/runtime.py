@@ -88,6 +88,28 @@ class Voice:
         return max(0.0, 1.0 + self.loudness_rate / 100.0)
 
 
+
+def warm_up_behaviours(robot: Robot) -> int:
+    """Plan every motion behaviour of ``robot`` once from its rest pose with its defaults and drop the plans.
+
+    A behaviour's first call pays one-time costs (CoCo's gaits read their calibration file, NumPy
+    takes its first path through each function): ~10 ms for the first ``rotate`` of a process,
+    measured on the token -> servo path of that call (``bench/bench_latency.py``). A session calls it
+    once, before its link connects: it is CPU work that holds the event loop (tens of ms, more on a
+    busy machine), and once the link is up a stalled loop sends no heartbeat, so the board's watchdog
+    would trip. A behaviour that needs arguments, or refuses its defaults, is skipped (planned when
+    called). Returns how many were planned.
+    """
+    rest = np.asarray(robot.pose(robot.rest_pose))
+    planned = 0
+    for fn in robot.behaviours.values():
+        try:
+            ease_in(fn(rest.copy()))
+        except Exception:  # noqa: BLE001 - a robot's own code; it is called for real later
+            continue
+        planned += 1
+    return planned
+
 class RobotRuntime:
     """Implements every behaviour of ``robot``'s interface on a board behind ``link``."""
 
@@ -115,22 +137,8 @@ class RobotRuntime:
         self._playing_bgm: dict[int, str] = {}
 
     def warm_up(self) -> int:
-        """Plan every motion behaviour once from the rest pose with its defaults and drop the plans.
-
-        A behaviour's first call pays one-time costs (CoCo's gaits read their calibration file, NumPy
-        takes its first path through each function): ~10 ms for the first ``rotate`` of a process,
-        measured on the token -> servo path of that call (``bench/bench_latency.py``). Called once per
-        session before the first turn. A behaviour that needs arguments, or refuses its defaults, is
-        skipped (planned when called). Returns how many were planned.
-        """
-        planned = 0
-        for fn in self.robot.behaviours.values():
-            try:
-                ease_in(fn(self._rest.copy()))
-            except Exception:  # noqa: BLE001 - a robot's own code; it is called for real later
-                continue
-            planned += 1
-        return planned
+        """:func:`warm_up_behaviours` of this runtime's robot."""
+        return warm_up_behaviours(self.robot)
 
     # -- helpers -------------------------------------------------------------------------------
     def _soonest(self, msg: ScreenCommand | SpeakerCommand) -> int:

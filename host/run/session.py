@@ -65,7 +65,7 @@ from host.run import artefacts
 from host.run.events import Event, EventMonitor, EventPolicy, ScriptedEvent, has_fallen
 from host.robot.binding import robot_registry
 from host.robot.link import ClientLink
-from host.robot.runtime import RobotRuntime
+from host.robot.runtime import RobotRuntime, warm_up_behaviours
 from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB, Interrupted, StopReason
 from host.run.recording import Recording
 from host.run.pump import (
@@ -305,6 +305,9 @@ class RobotSession:
                     raise
                 target = self._board.spec
             self._link_tried = True
+            # one-time planning costs now, not on the first call's token -> servo path; before the link is
+            # up, because it holds the event loop and a board whose link is up expects heartbeats
+            warm_up_behaviours(self.robot)
             identity = RobotIdentity(self.robot.name, self.robot.servo_count, self.robot.servo_table_hash)
             try:
                 client = await BoardClient.connect(target, baud=opts.baud, log_path=self.out / f"host_frames{log_suffix}",
@@ -324,7 +327,6 @@ class RobotSession:
             runtime = RobotRuntime(self.robot, frame_link, self.out,
                                    initial=np.asarray(tel.positions))
             self._runtime = runtime
-            runtime.warm_up()  # one-time planning costs now, not on the first call's token -> servo path
             client.on_fault.append(self._on_fault)
             client.on_nack.append(self._on_nack)
             registry = robot_registry(self.robot, runtime, self.vocabulary)

@@ -29,7 +29,12 @@ CASES = {
 }
 
 
-@pytest.mark.parametrize("script", sorted(CASES))
+#: cases that run a board on the wall clock (under xdist they run alone: tests/support/realtime_lock.py)
+REALTIME = {"bench_board.py", "bench_roundtrip.py", "bench_foxglove.py", "bench_recovery.py"}
+
+
+@pytest.mark.parametrize("script", [pytest.param(s, marks=pytest.mark.realtime) if s in REALTIME else s
+                                    for s in sorted(CASES)])
 def test_benchmark_runs(script: str, tmp_path: Path) -> None:
     env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
     r = subprocess.run([sys.executable, str(BENCH / script), *CASES[script]], cwd=tmp_path, env=env,
@@ -50,6 +55,7 @@ SLCAN_CASES = {
 }
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize("script", sorted(SLCAN_CASES))
 def test_benchmark_runs_over_slcan(script: str, tmp_path: Path) -> None:
     r = subprocess.run([sys.executable, str(BENCH / script), *SLCAN_CASES[script]], cwd=tmp_path,

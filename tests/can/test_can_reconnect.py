@@ -30,6 +30,7 @@ pytestmark = pytest.mark.timeout(120)
 POSES = load_poses()
 
 
+@pytest.mark.realtime
 def test_lost_slcan_board_is_reported_once_and_a_new_one_is_found(tmp_path: Path, caplog) -> None:
     boards: list[BoardProcess] = [start_board(["--realtime"], tmp_path / "board0.stderr", link="can:slcan:pty")]
     current: dict[str, LinkSpec] = {"spec": boards[0].spec}
@@ -114,6 +115,7 @@ def _children(pid: int) -> list[int]:
     return found
 
 
+@pytest.mark.realtime
 @pytest.mark.slow
 def test_run_whose_slcan_board_dies_ends_with_one_clear_message(tmp_path: Path) -> None:
     proc = subprocess.Popen([sys.executable, "-m", "host.cli", "run", "--task", "26", "--link", "can:slcan:pty",

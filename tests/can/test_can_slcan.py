@@ -78,6 +78,7 @@ def test_handshake_pose_estop_and_garbage(tmp_path: Path) -> None:
         assert needle in text, needle
 
 
+@pytest.mark.realtime
 def test_watchdog_over_slcan(tmp_path: Path) -> None:
     board = start_board(["--realtime", "--watchdog-ms", "100"], tmp_path / "board.stderr", link="can:slcan:pty")
     try:

@@ -114,6 +114,7 @@ def test_two_boards_on_one_bus_only_the_addressed_one_moves(virtual_board_factor
     asyncio.run(main())
 
 
+@pytest.mark.realtime
 def test_garbage_frames_are_counted_never_fatal(virtual_board_factory, virtual_channel: str) -> None:
     import can
 
@@ -136,6 +137,7 @@ def test_garbage_frames_are_counted_never_fatal(virtual_board_factory, virtual_c
     asyncio.run(main())
 
 
+@pytest.mark.realtime
 def test_watchdog_fires_when_the_host_goes_silent(virtual_board_factory, virtual_channel: str) -> None:
     vb = virtual_board_factory(virtual_channel, lockstep=False, watchdog_ms=100)
 

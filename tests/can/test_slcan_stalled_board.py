@@ -19,7 +19,7 @@ import pytest
 from host.link.errors import LinkError
 from host.run.session import RobotSession, SessionOptions
 
-pytestmark = pytest.mark.timeout(120, method="thread")
+pytestmark = [pytest.mark.timeout(120, method="thread"), pytest.mark.realtime]
 
 
 def test_a_board_that_stops_reading_ends_the_run(tmp_path: Path) -> None:

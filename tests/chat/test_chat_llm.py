@@ -17,6 +17,7 @@ from typing import Any
 
 from host.cli import main as cli_main
 from support.fake_llm import FakeLLM, Handler, fake_llm, replay, stream_body  # noqa: F401  (fixture)
+import pytest
 
 REPLIES = [
     ['<head_act action="nod" ', 'duration="1"/>Hello', ' there.'],
@@ -82,6 +83,7 @@ def test_batch_chat_history_reaches_the_llm(fake_llm: FakeLLM, tmp_path: Path) -
     assert (out / "turn_01" / "step_1" / "timeline.json").exists()
 
 
+@pytest.mark.realtime
 def test_interrupt_cancels_the_llm_stream_and_trims_the_reply(fake_llm: FakeLLM, tmp_path: Path) -> None:  # noqa: F811
     """Realtime board: ``--- interrupt-after 1`` cuts a reply still streaming; the server sees the client go."""
     from support.fake_llm import chunk, sse

@@ -86,6 +86,7 @@ def test_ctrl_c_lockstep_serial(tmp_path: Path) -> None:
     assert "link" not in (out / "board.stderr").read_text().lower().replace("board: ", "")
 
 
+@pytest.mark.realtime
 def test_ctrl_c_realtime_serial(tmp_path: Path) -> None:
     cli, out = _run(tmp_path, "--realtime")
     cli.ctrl_c()
@@ -99,6 +100,7 @@ def test_ctrl_c_lockstep_can(tmp_path: Path) -> None:
     _check_interrupted(cli, out, cli.wait())
 
 
+@pytest.mark.realtime
 @pytest.mark.slow
 def test_ctrl_c_realtime_can(tmp_path: Path) -> None:
     cli, out = _run(tmp_path, "--realtime", "--link", "can:slcan:pty")
@@ -122,6 +124,7 @@ def _delivered(pid: int, sig: int) -> bool:
     return not pending & (1 << (sig - 1))
 
 
+@pytest.mark.realtime
 def test_second_ctrl_c_stops_at_once_and_leaves_a_readable_summary(tmp_path: Path) -> None:
     cli, out = _run(tmp_path, "--realtime")
     cli.ctrl_c()

@@ -88,6 +88,7 @@ def test_serial_port_read_by_another_program_is_named() -> None:
     assert _read_failed("/dev/pts/0", OSError(5, "Input/output error")).startswith("read failed:")
 
 
+@pytest.mark.realtime
 def test_a_standalone_board_nobody_reads_does_not_blame_the_link(tmp_path: Path) -> None:
     # 9600 baud of modelled wire cannot carry 50 Hz reports: from the second report on they are dropped
     log = tmp_path / "board.jsonl"

@@ -61,6 +61,7 @@ def test_a_run_stopped_while_starting_has_nothing_to_replay(tmp_path: Path) -> N
     assert not out.exists()
 
 
+@pytest.mark.realtime
 def test_a_realtime_run_replays_to_its_last_report(tmp_path: Path) -> None:
     run = _record(tmp_path, "--realtime")
     out = tmp_path / "replay"

@@ -35,7 +35,7 @@ PAGE = ROOT / "docs" / "getting-started.md"
 #: commands CI runs itself (.ci/run), with the reason they do not run inside the test suite
 RUN_BY_CI = {
     "bash .ci/setup": "installed the environment this suite runs in (.ci/run runs it first)",
-    ".venv/bin/python -m pytest": "the test suite this test is part of (.ci/run runs it after setup)",
+    ".venv/bin/python -m pytest -n 2 --dist loadfile": "the test suite this test is part of (.ci/run runs it after setup)",
 }
 
 
@@ -48,6 +48,12 @@ def page_commands() -> list[str]:
                 assert not line.rstrip().endswith("\\"), f"one command per line: {line!r}"
                 commands.append(line.rstrip())
     return commands
+
+
+def realtime(command: str) -> bool:
+    """A run on a realtime board (the CLI's default clock): under xdist it runs alone
+    (tests/support/realtime_lock.py)."""
+    return any(f"ghostshell {c}" in command for c in ("demo", "run", "chat")) and "--lockstep" not in command
 
 
 def bare(command: str) -> str:
@@ -157,7 +163,8 @@ def test_setup_already_ran() -> None:
 
 
 @pytest.mark.timeout(600)
-@pytest.mark.parametrize("command", [c for c in page_commands() if bare(c) not in RUN_BY_CI],
+@pytest.mark.parametrize("command", [pytest.param(c, marks=pytest.mark.realtime) if realtime(c) else c
+                                     for c in page_commands() if bare(c) not in RUN_BY_CI],
                          ids=lambda c: bare(c)[:70])
 def test_command_as_written(command: str, checkout: Path) -> None:
     r = subprocess.run(["bash", "-c", command], cwd=checkout, capture_output=True, text=True,

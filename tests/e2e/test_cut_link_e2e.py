@@ -28,6 +28,7 @@ def _events(out: Path) -> list[tuple[str, float, float]]:
     return [(m[1], float(m[2]), float(m[3])) for m in EVENT.finditer((out / "board.stderr").read_text())]
 
 
+@pytest.mark.realtime
 def test_long_cut_holds_crouches_latches_and_ends_the_run(tmp_path: Path) -> None:
     cfg = BoardConfig()
     tick_s = 1.0 / cfg.rate_hz
@@ -63,6 +64,7 @@ def test_long_cut_holds_crouches_latches_and_ends_the_run(tmp_path: Path) -> Non
     assert summary["outcomes"]["failed"] + summary["outcomes"]["cancelled"] == 1 and summary["outcomes"]["done"] == 0
 
 
+@pytest.mark.realtime
 def test_short_cut_only_holds_and_the_run_resumes(tmp_path: Path) -> None:
     run = run_e2e(PROGRAM, tmp_path, lockstep=False, faults="cut=2+0.6")
     summary = json.loads((tmp_path / "summary.json").read_text())
@@ -72,6 +74,7 @@ def test_short_cut_only_holds_and_the_run_resumes(tmp_path: Path) -> None:
     assert summary["extra"]["faults"]["board"]["board_detected"]["watchdog_trips"] == 1
 
 
+@pytest.mark.realtime
 def test_demo_cut_by_the_link_prints_one_message_and_keeps_its_report(tmp_path: Path) -> None:
     import subprocess
     import sys

@@ -87,6 +87,7 @@ async def joint_state_times(port: int, until_s: float) -> list[float]:
     return seen
 
 
+@pytest.mark.realtime
 def test_live_view_streams_joint_states_of_a_realtime_run(tmp_path: Path) -> None:
     servos = list(load_robot("coco").servos.names)
 

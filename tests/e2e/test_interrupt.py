@@ -16,6 +16,7 @@ import numpy as np
 from robots.coco.motions import channel_servos
 
 from .conftest import E2ERun, mask_of, run_e2e
+import pytest
 
 PROGRAM = '<head_act action="nod"><move_strides direction="forward" times="6"/></head_act><wave/>'
 INTERRUPT_AT = 1.5  # board seconds after the stream starts: the strides are under way, the wave is queued
@@ -52,6 +53,7 @@ def test_interrupt_lockstep(tmp_path) -> None:
     assert [c["outcome"] for c in doc["calls"]] == ["interrupted"] * 3
 
 
+@pytest.mark.realtime
 def test_interrupt_realtime_flushes(tmp_path) -> None:
     """Same run on the wall clock (about 3 s): the buffered frames of the head and body are flushed."""
     run = run_e2e(PROGRAM, tmp_path, interrupt_at=INTERRUPT_AT, lockstep=False)

@@ -114,6 +114,7 @@ def test_unwritable_mcap_is_one_line_and_the_run_goes_on(tmp_path: Path, caplog:
     assert (tmp_path / "summary.json").exists() and (tmp_path / "run.mcap").is_dir()
 
 
+@pytest.mark.realtime
 def test_killed_run_leaves_an_mcap_readable_up_to_its_last_chunk(tmp_path: Path) -> None:
     """SIGKILL a realtime run once the live view shows board time past 2.5 s: chunks end every FLUSH_S
     board seconds, so the cut file holds at least the first 2 s (synchronised on the run's own messages).

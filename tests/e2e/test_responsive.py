@@ -15,6 +15,10 @@ from robots.coco.motions import channel_servos
 
 from .conftest import mask_of, run_e2e
 
+import pytest
+
+pytestmark = pytest.mark.realtime  # tests/support/realtime_lock.py
+
 
 def test_new_call_replaces_the_hold_instead_of_waiting_out_the_lookahead(tmp_path) -> None:
     run = run_e2e('<head_act action="nod"/>', tmp_path, lockstep=False, settle_s=0.2)

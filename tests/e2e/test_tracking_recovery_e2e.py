@@ -27,6 +27,8 @@ from protocol.messages import FaultFlags
 
 from .conftest import run_e2e
 
+pytestmark = pytest.mark.realtime  # tests/support/realtime_lock.py
+
 PROGRAM = '<move_strides direction="forward" times="8"/>'  # ~5.5 s of walking: the cut falls inside it
 CUT_START_S, CUT_LEN_S = 3.0, 0.6
 BOUND_DEG = 3.0

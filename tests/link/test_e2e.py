@@ -91,6 +91,7 @@ def test_schema_mismatch_is_refused_with_a_clear_message(board_factory) -> None:
     asyncio.run(main())
 
 
+@pytest.mark.realtime
 def test_watchdog_hold_then_latched_fault_then_clear(board_factory) -> None:
     board = board_factory("--realtime", "--watchdog-ms", "100")
 
@@ -148,6 +149,7 @@ def test_estop_nacks_frames_until_cleared(board_factory) -> None:
     asyncio.run(main())
 
 
+@pytest.mark.realtime
 def test_garbage_on_the_line_does_not_break_the_session(board_factory) -> None:
     board = board_factory("--realtime")
     garbage = bytes(range(1, 256)) * 3 + b"\x7e\x00\x01\x02\xff"
@@ -172,6 +174,7 @@ def test_garbage_on_the_line_does_not_break_the_session(board_factory) -> None:
     asyncio.run(main())
 
 
+@pytest.mark.realtime
 def test_reconnects_after_the_board_restarts(board_factory) -> None:
     first = board_factory("--realtime")
     current = {"port": first.port}

@@ -25,12 +25,12 @@ from protocol.messages import Nack
 from robots.motion import Limits, transition
 from robots.registry import load_robot
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.timeout(60), pytest.mark.realtime]
 BAUD = 115_200
 
 
 def test_a_new_motion_overtakes_held_lookahead_frames_and_lands(board_factory) -> None:
-    board = board_factory("--baud", str(BAUD))
+    board = board_factory("--realtime", "--baud", str(BAUD))
 
     async def main() -> None:
         async with await BoardClient.connect(board.port, wire_baud=BAUD) as client:

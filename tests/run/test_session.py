@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import anyio
+import pytest
 
 from host.run.session import RobotSession, SessionOptions, TurnResult
 from host.shell.skills import SkillStore
@@ -50,17 +51,27 @@ def test_interrupted_turn_keeps_only_what_ran(tmp_path: Path) -> None:
 
 
 
-def test_a_session_plans_every_behaviour_once_before_its_first_turn(tmp_path: Path) -> None:
-    """One-time planning costs (CoCo's gait calibration file) are paid at connect, not by the first
+def test_a_session_plans_every_behaviour_once_before_its_first_turn(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """One-time planning costs (CoCo's gait calibration file) are paid before the link connects (CPU
+    work that would hold the heartbeat back once the board's watchdog is armed), not by the first
     call's token -> servo path; the warm-up plans every behaviour that has defaults."""
+    import host.run.session as session_module
     from robots.coco.gaits import load_calibration
 
     load_calibration.cache_clear()
+    at_connect: list[int] = []
+    connect = session_module.BoardClient.connect
+
+    async def connect_and_note(*args: object, **kw: object) -> object:
+        at_connect.append(load_calibration.cache_info().currsize)
+        return await connect(*args, **kw)  # type: ignore[arg-type]
 
     async def main() -> int:
         async with _session(tmp_path) as s:
             assert load_calibration.cache_info().currsize == 1  # read before any turn
             return s.runtime.warm_up()
 
+    monkeypatch.setattr(session_module.BoardClient, "connect", connect_and_note)
     planned = anyio.run(main, backend="asyncio")
+    assert at_connect == [1]  # planned before the link came up
     assert planned >= 20  # CoCo: all 24 but joint_move, which needs its joints

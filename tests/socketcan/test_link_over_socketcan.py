@@ -236,6 +236,7 @@ def test_interruption_over_socketcan_flushes_and_settles(tmp_path: Path) -> None
 WATCHDOG = FaultFlags.WATCHDOG_HOLD | FaultFlags.WATCHDOG_FAULT
 
 
+@pytest.mark.realtime
 def test_watchdog_over_socketcan(boards: Any) -> None:
     """A realtime board on vcan0: the host goes silent, the watchdog holds; it speaks again, it resumes."""
     board = boards(f"can:socketcan:{CHANNEL}", "--realtime", "--watchdog-ms", "100")

@@ -1,0 +1,102 @@
+"""Under pytest-xdist, a test marked ``realtime`` runs alone: the other workers wait between tests.
+
+A realtime test's board runs on the wall clock (a control tick every 2 ms, a 200 ms watchdog) and
+its host must keep up. On a 2-core machine two xdist workers already fill both cores; a third and
+fourth process (the realtime test's host and board) then miss ticks: one late frame in four
+two-worker runs of the whole suite, a watchdog hold right after connect in another. Lockstep boards
+and pure tests do not care how slowly they run, so only the realtime ones are kept apart.
+
+How: every test of a worker holds a ``flock`` on one file of the run (named by xdist's
+``testrunuid``, shared by all workers of one run), shared for an ordinary test and exclusive for a
+``realtime`` one, from its setup to its teardown (``pytest_runtest_protocol``). A turnstile lock
+taken before the main one keeps a worker that starts test after test from starving a realtime test
+that waits (the readers-writer pattern with a turnstile). Without xdist (one process, CI's default
+before, a pytest started inside a test) nothing is locked.
+
+Written here rather than taken from a plugin: pytest-xdist groups tests onto one worker
+(``xdist_group``) but has no way to keep other workers idle meanwhile.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+import tempfile
+from collections.abc import Generator, Iterator
+from pathlib import Path
+from typing import IO
+
+import pytest
+
+MARKER = "realtime"
+
+
+class _RunLock:
+    """The run's readers-writer lock: ``hold(exclusive)`` around one test."""
+
+    def __init__(self, run_id: str) -> None:
+        base = Path(tempfile.gettempdir())
+        self._main: IO[bytes] = open(base / f"ghostshell-pytest-{run_id}.lock", "ab")  # noqa: SIM115 - held for the session
+        self._turn: IO[bytes] = open(base / f"ghostshell-pytest-{run_id}.turn", "ab")  # noqa: SIM115
+
+        self._exclusive_held = False
+
+    @contextlib.contextmanager
+    def hold(self, exclusive: bool, keep: bool = False) -> Iterator[None]:
+        """Hold the lock around one test; ``keep``: an exclusive holder whose next test is realtime
+        too keeps it (the other workers would otherwise start a long test in between)."""
+        main, turn = self._main.fileno(), self._turn.fileno()
+        if not (exclusive and self._exclusive_held):
+            fcntl.flock(turn, fcntl.LOCK_EX)  # wait behind a realtime test that is waiting for the main lock
+            if exclusive:
+                fcntl.flock(main, fcntl.LOCK_EX)
+                fcntl.flock(turn, fcntl.LOCK_UN)
+            else:
+                fcntl.flock(turn, fcntl.LOCK_UN)
+                fcntl.flock(main, fcntl.LOCK_SH)
+        self._exclusive_held = exclusive
+        released = False
+        try:
+            yield
+        except BaseException:
+            released = True
+            raise
+        finally:
+            if released or not (exclusive and keep):
+                fcntl.flock(main, fcntl.LOCK_UN)
+                self._exclusive_held = False
+
+    def close(self) -> None:
+        self._main.close()
+        self._turn.close()
+
+
+_lock: _RunLock | None = None
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    global _lock
+    config.addinivalue_line("markers", f"{MARKER}: runs a board on the wall clock; under xdist it runs alone "
+                                       "(tests/support/realtime_lock.py)")
+    workerinput = getattr(config, "workerinput", None)  # set only inside an xdist worker
+    if workerinput is not None and os.name == "posix":
+        _lock = _RunLock(str(workerinput["testrunuid"]))
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    global _lock
+    if _lock is not None:
+        _lock.close()
+        _lock = None
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Generator[None, None, None]:
+    if _lock is None:
+        yield
+        return
+    exclusive = item.get_closest_marker(MARKER) is not None
+    keep = exclusive and nextitem is not None and nextitem.get_closest_marker(MARKER) is not None
+    with _lock.hold(exclusive, keep):
+        yield

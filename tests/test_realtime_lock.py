@@ -1,0 +1,64 @@
+"""The suite's readers-writer lock (tests/support/realtime_lock.py): a realtime test holds the run's
+lock exclusively, so another worker can neither start a test beside it nor pass the turnstile while
+it waits; ordinary tests share it. Real flocks between real processes, synchronised on pipes."""
+
+from __future__ import annotations
+
+import fcntl
+import subprocess
+import sys
+import uuid
+from pathlib import Path
+
+from support.realtime_lock import _RunLock
+
+HOLDER = """
+import sys
+sys.path.insert(0, {tests!r})
+from support.realtime_lock import _RunLock
+lock = _RunLock({run!r})
+with lock.hold({exclusive}):
+    print("held", flush=True)
+    sys.stdin.readline()
+"""
+
+
+def _holder(run: str, exclusive: bool) -> subprocess.Popen[str]:
+    tests = str(Path(__file__).resolve().parent)
+    proc = subprocess.Popen([sys.executable, "-c", HOLDER.format(tests=tests, run=run, exclusive=exclusive)],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None and proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def _try(fd: int, op: int) -> bool:
+    try:
+        fcntl.flock(fd, op | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    fcntl.flock(fd, fcntl.LOCK_UN)
+    return True
+
+
+def test_a_realtime_holder_keeps_everyone_out_and_shared_holders_coexist() -> None:
+    run = f"test-{uuid.uuid4().hex}"
+    mine = _RunLock(run)
+    try:
+        realtime = _holder(run, exclusive=True)
+        try:
+            assert not _try(mine._main.fileno(), fcntl.LOCK_SH)  # no ordinary test beside it
+        finally:
+            realtime.communicate("\n", timeout=30)
+        assert _try(mine._main.fileno(), fcntl.LOCK_SH)  # released when it ended
+
+        ordinary = _holder(run, exclusive=False)
+        try:
+            assert _try(mine._main.fileno(), fcntl.LOCK_SH)  # ordinary tests run side by side
+            assert not _try(mine._main.fileno(), fcntl.LOCK_EX)  # a realtime test waits for them
+        finally:
+            ordinary.communicate("\n", timeout=30)
+        assert _try(mine._main.fileno(), fcntl.LOCK_EX)
+    finally:
+        mine.close()
+        for suffix in (".lock", ".turn"):
+            Path(mine._main.name).with_suffix(suffix).unlink(missing_ok=True)
