@@ -90,6 +90,7 @@ from pathlib import Path
 from typing import Any
 
 from _tasks_common import fmt, home_channels, out_root, parse_ids, run_task, stats_ms, task_arguments, task_programs
+from host.link import LinkError
 from host.run.runner import RunReport
 from host.speech.sentences import SentenceSplitter
 from host.shell.parser import EmptyTag, EndTag, FunctionTokenParser, StartTag, Text
@@ -335,11 +336,17 @@ def _run(args: Any, hogs: int) -> int:
           f"{'periph imm. n':>13} {'p50':>7} {'max':>7}  {'ready max':>9}  {'wall s':>6}  outcome", flush=True)
     rows: list[CallLatency] = []
     notes: list[str] = []
+    failed: list[str] = []
     for rep_i, (tid, program) in ((r, tp) for r in range(args.repeat) for tp in programs):
         w0 = time.monotonic()
-        rep = run_task(tid, program, lockstep=args.lockstep, out_root=root / f"r{rep_i}" if args.repeat > 1 else root,
-                       tokens_per_s=args.tokens_per_s, seed=args.seed, wire_baud=args.baud, link=args.link,
-                       robot=str(robot.root))
+        try:
+            rep = run_task(tid, program, lockstep=args.lockstep,
+                           out_root=root / f"r{rep_i}" if args.repeat > 1 else root, tokens_per_s=args.tokens_per_s,
+                           seed=args.seed, wire_baud=args.baud, link=args.link, robot=str(robot.root))
+        except LinkError as e:  # the run ended (its board latched a fault, the link went): say so, measure the rest
+            failed.append(f"task {tid} (repetition {rep_i + 1}): {e}")
+            print(f"{tid:>4} failed: {e}", flush=True)
+            continue
         got, why = task_latencies(tid, rep, registry, motion_channels)
         rows += got
         notes += why
@@ -362,13 +369,15 @@ def _run(args: Any, hogs: int) -> int:
     print(f"max |scheduler dispatch - chunk arrival| = {summary['max_abs_dispatch_skew_ms']} ms (consistency check)")
     for n in notes:
         print("note:", n)
+    for f in failed:
+        print("FAILED:", f)
     if args.json:
         Path(args.json).write_text(json.dumps({"mode": mode, "link": args.link, "tokens_per_s": args.tokens_per_s,
                                                "repeat": args.repeat, "load_processes": hogs,
-                                               "summary": summary, "notes": notes,
+                                               "summary": summary, "notes": notes, "failed": failed,
                                                "calls": [asdict(c) for c in rows]}, indent=1), encoding="utf-8")
         print(f"wrote {args.json}")
-    return 0
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":
