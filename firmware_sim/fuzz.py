@@ -12,7 +12,8 @@ Input layout (little-endian; a short read ends the input)::
     op u8 (mod 8), then
     0 RAW      type u8, seq u16, len u8, payload[len]   any message type, fuzzed payload bytes
     1 SERVO    seq u16, dt i16 (x 100 us from board now), mask u16, popcount(mask) x i16 (x 1e-4 rad)
-    2 TICKS    n u8                                      ADVANCE by n ticks
+    2 TICKS    n u8                                      ADVANCE by n mod 128 ticks; n >= 128: the
+                                                         ticks it covers run batched (Board.run)
     3 FLUSH    seq u16, dt i16 (x 100 us), mask u16
     4 ESTOP    seq u16
     5 CLEAR    seq u16                                    ESTOP_CLEAR
@@ -32,6 +33,11 @@ Invariants (an ``AssertionError`` names the one that broke):
 * the jitter buffer never exceeds its capacity;
 * ESTOP always wins: from its ACK until ESTOP_CLEAR every SERVO_FRAME is refused, nothing is
   applied, the buffer stays empty and every tick holds the e-stop pose.
+
+Ticks run one by one (:meth:`Board.tick`), as a realtime board's pacer runs them, except after a
+TICKS op with n >= 128: those run through :meth:`Board.run`, as the lockstep server runs them (quiet
+stretches in one native call). A batch is checked at its end: the same limits, a step of at most
+the ticks' worth of speed, the applied frames, ESTOP's pose and the buffer's bound.
 
 Throughput (measured exec/s, with command, n and load: docs/guides/fuzzing.md#throughput): the process compiles the
 model and allocates ``MjData`` once (each input's fresh board reuses them and the loaded robot); an
@@ -172,11 +178,16 @@ def load(instrument: bool = False, *, persistent: bool = False) -> Callable[[byt
         max_step = board.servo.max_speeds * period + 1e-9
         budget = [TICKS_PER_INPUT]  # so one input cannot run for long
 
+        batched = [False]  # after a TICKS op with n >= 128 until the next message: Board.run
+
         def drain() -> None:
             """Lockstep as the server runs it: the next message is handled only when no tick may run."""
             while budget[0] > 0 and board.can_tick():
-                budget[0] -= 1
-                tick()
+                if batched[0]:
+                    run_batch()
+                else:
+                    budget[0] -= 1
+                    tick()
 
         def deliver(wire: bytes) -> list[Message]:
             replies: list[Message] = []
@@ -244,9 +255,34 @@ def load(instrument: bool = False, *, persistent: bool = False) -> Callable[[byt
                 assert np.array_equal(board.desired, board.hold_q), "ESTOP pose not held"
             assert len(board.buffer) <= board.buffer.capacity
 
-        def advance(n: int) -> None:
+        def run_batch() -> None:
+            """What :meth:`Board.run` ran, checked at its end (a batch has no tick in between to check)."""
+            before = board.servo.cmd.copy()
+            estopped = board.safety.estopped
+            applied.clear()
+            n, _ = board.run(budget[0])
+            assert 1 <= n <= budget[0], f"Board.run ran {n} ticks of {budget[0]}"
+            budget[0] -= n
+            cmd, ctrl = board.servo.cmd, board.ctrl
+            assert not ((cmd < lo).any() or (cmd > hi).any()), f"command outside joint limits: {cmd}"
+            assert not ((ctrl < lo).any() or (ctrl > hi).any()), f"ctrl outside joint limits: {ctrl}"
+            assert not (np.abs(cmd - before) > n * max_step).any(), f"speed limit broken over {n} ticks"
+            t = board.now_us - board.tick_us
+            for f in applied:
+                assert (f.seq, f.apply_at_us) in accepted, f"applied a frame never accepted: seq {f.seq}"
+                assert f.apply_at_us <= t, f"frame due {f.apply_at_us} applied early (by {t})"
+            if estopped:
+                assert not applied, "a frame was applied during ESTOP"
+                assert np.array_equal(board.desired, board.hold_q), "ESTOP pose not held"
+            assert len(board.buffer) <= board.buffer.capacity
+
+        def advance(n: int, batch: bool = False) -> None:
             send(Advance(board.now_us + n * board.tick_us), 0xFFFF)
-            drain()
+            batched[0] = batch
+            try:
+                drain()
+            finally:
+                batched[0] = False
 
         if persistent:  # frames the previous input left in the buffer are not this input's to check
             send(Flush(0, board.table.all_mask), 0xFFFF)
@@ -262,7 +298,8 @@ def load(instrument: bool = False, *, persistent: bool = False) -> Callable[[byt
                     targets = tuple(r.take("h") * 1e-4 for _ in range(bin(mask).count("1")))
                     send(ServoFrame(max(0, board.now_us + dt * 100), mask, targets), seq)
                 elif op == 2:
-                    advance(r.take("B"))
+                    n = r.take("B")
+                    advance(n & 0x7F, batch=n >= 0x80)
                 elif op == 3:
                     seq, dt, mask = r.take("H"), r.take("h"), r.take("H")
                     send(Flush(max(0, board.now_us + dt * 100), mask), seq)

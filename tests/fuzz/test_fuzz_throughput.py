@@ -125,6 +125,6 @@ def test_board_target_reaches_hold_and_crouch_within_its_tick_budget(monkeypatch
     monkeypatch.setattr(Board, "tick", recording_tick)
     one_input = fuzz.load(False)
     seq = struct.pack("<BHhH", 1, 1, 10, 1) + struct.pack("<h", 0)  # one SERVO frame arms the watchdog
-    one_input(seq + bytes([2, 255]))  # then TICKS: ADVANCE by 255 ticks
+    one_input(seq + bytes([2, 127]))  # then TICKS: ADVANCE by 127 ticks, one by one (>= 128 would batch them)
     assert len(modes) == fuzz.TICKS_PER_INPUT
     assert Mode.HOLD in modes and modes[-1] is Mode.CROUCH, modes
