@@ -77,11 +77,16 @@ class BoardFrameLink:
     def queue_frame(self, frame: ServoFrame, on_sent: SeqCallback | None = None) -> None:
         """Send ``frame`` when the line allows: at once, unless :meth:`pace` runs (then held, earliest
         apply time first). ``on_sent`` gets its sequence number when it is written."""
-        if self._pacing and self.queue.push(frame, on_sent):
-            if self._wake is not None:
-                self._wake.set()
+        if not self._pacing:
+            self._write(frame, [on_sent] if on_sent else [])
             return
-        self._write(frame, [on_sent] if on_sent else [])
+        while not self.queue.push(frame, on_sent):  # full (the line cannot keep up): the head goes now
+            head = self.queue.pop()
+            if head is None:  # only emptied frames fill it: pop() just removed them all
+                continue
+            self._write(*head)
+        if self._wake is not None:
+            self._wake.set()
 
     def _write(self, frame: ServoFrame, callbacks: list[SeqCallback]) -> int:
         seq = self.client.send_frame(frame)

@@ -3,10 +3,10 @@
 Sans-I/O (no clock, no link): :class:`host.motion.board_link.BoardFrameLink` holds frames here and
 writes them one at a time as its model of the line drains (``BoardClient.tx_wire``).
 
-Why: over a UART of 115 200 baud (the emulated board's ``--baud``) a 12-servo SERVO_FRAME is
-~2.7 ms of wire. Written at once, the frames the streamer sends ahead (the 60 ms lookahead, and the
-grid a just-started motion re-sends for its servos) sit in the line's FIFO, and a new call's FLUSH
-and first frame wait behind up to ~16 ms of them. Held here, unwritten, a message that is due
+Why: over a UART of 115 200 baud (the emulated board's ``--baud``) a 12-servo SERVO_FRAME (39
+bytes) is 3.4 ms of wire. Written at once, the frames the streamer sends ahead (the 60 ms lookahead,
+and the grid a just-started motion re-sends for its servos) sit in the line's FIFO, and a new call's
+FLUSH and first frame wait behind up to ~20 ms of them. Held here, unwritten, a message that is due
 sooner (the new call's FLUSH and first frame, which the link writes at once) overtakes them.
 
 Why the board ends up with the same frames as if every frame had been written when it was queued
@@ -24,8 +24,9 @@ A frame's ``on_sent`` callback gets its number; a dropped frame's callback gets 
 next frame written (the board is past the dropped frame once it applied that one, as it would be past
 a frame it flushed).
 
-Bounded: :meth:`EdfFrameQueue.push` refuses a frame when ``capacity`` frames are held (the caller
-writes it at once instead, as without a queue; nothing is lost).
+Bounded: :meth:`EdfFrameQueue.push` refuses a frame when ``capacity`` frames are held; the caller
+then writes the held frame due first (what the pacing would write next) and pushes again, so nothing
+is lost and the order argument above still holds.
 """
 
 from __future__ import annotations
@@ -78,11 +79,6 @@ class EdfFrameQueue:
         heapq.heappush(self._heap, (held.apply_at_us, next(self._order), held))
         self._live += 1
         return True
-
-    def next_apply_at(self) -> int | None:
-        """Apply time (µs) of the frame :meth:`pop` would give, None when none is held."""
-        self._drop_empty_head()
-        return self._heap[0][0] if self._heap else None
 
     def pop(self) -> tuple[ServoFrame, list[SeqCallback]] | None:
         """The held frame due first and the callbacks to call with the number it is written with
