@@ -90,7 +90,7 @@ from pathlib import Path
 from typing import Any
 
 from _tasks_common import fmt, home_channels, out_root, parse_ids, run_task, stats_ms, task_arguments, task_programs
-from host.link import LinkError
+from host.link import HandshakeError, LinkConfigError, LinkError
 from host.run.runner import RunReport
 from host.speech.sentences import SentenceSplitter
 from host.shell.parser import EmptyTag, EndTag, FunctionTokenParser, StartTag, Text
@@ -343,6 +343,8 @@ def _run(args: Any, hogs: int) -> int:
             rep = run_task(tid, program, lockstep=args.lockstep,
                            out_root=root / f"r{rep_i}" if args.repeat > 1 else root, tokens_per_s=args.tokens_per_s,
                            seed=args.seed, wire_baud=args.baud, link=args.link, robot=str(robot.root))
+        except (HandshakeError, LinkConfigError):  # no run can work (wrong link, wrong robot): stop here
+            raise
         except LinkError as e:  # the run ended (its board latched a fault, the link went): say so, measure the rest
             failed.append(f"task {tid} (repetition {rep_i + 1}): {e}")
             print(f"{tid:>4} failed: {e}", flush=True)

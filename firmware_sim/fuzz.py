@@ -257,8 +257,9 @@ def load(instrument: bool = False, *, persistent: bool = False) -> Callable[[byt
 
         def run_batch() -> None:
             """What :meth:`Board.run` ran, checked at its end (a batch has no tick in between to check)."""
-            before = board.servo.cmd.copy()
+            before = board.servo.cmd  # a copy
             estopped = board.safety.estopped
+            mode_before = board.mode
             applied.clear()
             n, _ = board.run(budget[0])
             assert 1 <= n <= budget[0], f"Board.run ran {n} ticks of {budget[0]}"
@@ -269,9 +270,14 @@ def load(instrument: bool = False, *, persistent: bool = False) -> Callable[[byt
             assert not (np.abs(cmd - before) > n * max_step).any(), f"speed limit broken over {n} ticks"
             t = board.now_us - board.tick_us
             for f in applied:
-                assert (f.seq, f.apply_at_us) in accepted, f"applied a frame never accepted: seq {f.seq}"
+                key = (f.seq, f.apply_at_us)
+                assert key in accepted, f"applied a frame never accepted: seq {f.seq}"
+                assert any(
+                    f.values == {i: v for i, v in values.items() if i in f.values} for _, values in accepted[key]
+                ), f"applied targets {f.values} differ from every frame sent as seq {f.seq}"
                 assert f.apply_at_us <= t, f"frame due {f.apply_at_us} applied early (by {t})"
             if estopped:
+                assert mode_before is Mode.ESTOP and board.mode is Mode.ESTOP
                 assert not applied, "a frame was applied during ESTOP"
                 assert np.array_equal(board.desired, board.hold_q), "ESTOP pose not held"
             assert len(board.buffer) <= board.buffer.capacity

@@ -58,6 +58,27 @@ def test_a_realtime_holder_keeps_everyone_out_and_shared_holders_coexist() -> No
         finally:
             ordinary.communicate("\n", timeout=30)
         assert _try(mine._main.fileno(), fcntl.LOCK_EX)
+
+        # a realtime test waiting behind an ordinary one holds the turnstile: no new ordinary test starts
+        ordinary = _holder(run, exclusive=False)
+        waiting = subprocess.Popen([sys.executable, "-c", HOLDER.format(
+            tests=str(Path(__file__).resolve().parent), run=run, exclusive=True)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        try:
+            turnstile_taken = False
+            for _ in range(2_000):  # until the waiter is inside the turnstile (it blocks there on main)
+                if not _try(mine._turn.fileno(), fcntl.LOCK_EX):
+                    turnstile_taken = True
+                    break
+                waiting.poll()
+                assert waiting.returncode is None
+                subprocess.run([sys.executable, "-c", ""], check=True)  # let the waiter run; no sleep
+            # an ordinary test passes the turnstile before it takes the main lock, so none starts now
+            assert turnstile_taken, "the waiting realtime holder never took the turnstile"
+        finally:
+            ordinary.communicate("\n", timeout=30)
+            assert waiting.stdout is not None and waiting.stdout.readline().strip() == "held"
+            waiting.communicate("\n", timeout=30)
     finally:
         mine.close()
         for suffix in (".lock", ".turn"):

@@ -20,6 +20,12 @@ DEFAULT_LATENCY_US = 2_000
 #: directly waits behind at most this plus the frame being written.
 PACE_SLACK_S = 0.0005
 
+#: ... unless the held frame due first would then risk being late: once its apply time is within the
+#: link's latency (line backlog included) plus this margin (µs) of the board clock, it is written at
+#: once. The pacing writes one frame per wake-up, so on a loaded machine late wake-ups would add up;
+#: after a stall, the frames that are due soon go out together.
+PACE_MARGIN_US = 10_000
+
 
 class BoardFrameLink:
     """Frames, flushes and the board clock of a :class:`BoardClient`, as the streamer needs them.
@@ -71,7 +77,9 @@ class BoardFrameLink:
         return int(one_way + backlog + wire)
 
     async def send_frame(self, frame: ServoFrame) -> int:
-        """Write ``frame`` now, ahead of any held frame; returns its sequence number."""
+        """Write ``frame`` now, ahead of any held frame; returns its sequence number. Call it only right
+        after a FLUSH of ``frame``'s servos from its apply time (as ``FrameStreamer.start_now`` does):
+        otherwise a held frame with the same apply time, written later, would override it."""
         return self._write(frame, [])
 
     def queue_frame(self, frame: ServoFrame, on_sent: SeqCallback | None = None) -> None:
@@ -89,20 +97,27 @@ class BoardFrameLink:
             self._wake.set()
 
     def _write(self, frame: ServoFrame, callbacks: list[SeqCallback]) -> int:
-        seq = self.client.send_frame(frame)
-        for cb in callbacks + self.queue.take_orphans():
+        callbacks = callbacks + self.queue.take_orphans()
+        try:
+            seq = self.client.send_frame(frame)
+        except BaseException:  # not written (the link is down): the next frame written confirms past it
+            self.queue.adopt(callbacks)
+            raise
+        for cb in callbacks:
             cb(seq)
         return seq
 
     async def flush(self, from_us: int, mask: int) -> None:
-        """FLUSH (awaiting the board's ACK); the held frames are flushed the same way at once."""
+        """FLUSH (awaiting the board's ACK); the held frames are flushed the same way at once, before the
+        wait (the pacing may write them meanwhile). A FLUSH that then fails (NACK, no ACK) raises, and
+        the caller (``FrameStreamer.cut``) fails with it; the held frames stay trimmed."""
         self.queue.flush(from_us, mask)
         await self.client.flush(from_us, mask)
 
     def send_flush(self, from_us: int, mask: int) -> None:
-        """FLUSH without waiting for the ACK; the held frames are flushed the same way at once."""
-        self.queue.flush(from_us, mask)
+        """FLUSH without waiting for the ACK; once it is written, the held frames are flushed the same way."""
         self.client.send(Flush(int(from_us), int(mask)))
+        self.queue.flush(from_us, mask)
 
     @property
     def paced(self) -> bool:
@@ -114,7 +129,9 @@ class BoardFrameLink:
 
         Runs only over a realtime link whose line the host models (``client.tx_wire``, a board with
         ``--baud``); otherwise it returns at once and frames are written when queued. A lockstep
-        board's time does not run with the wall clock, so its frames are never held. On the way out
+        board's time does not run with the wall clock, so its frames are never held. It measures the line
+        on ``time.monotonic()`` and sleeps on the event loop's clock, so it needs a real-time loop (under
+        Trio's autojumping ``MockClock`` it would spin). On the way out
         (cancelled, or the link failed) the frames still held are written as an unpaced link would
         have written them. Raises what the link raises (:class:`host.link.LinkDown`).
         """
@@ -125,13 +142,15 @@ class BoardFrameLink:
         self._wake = anyio.Event()
         try:
             while True:
-                if not len(self.queue):
+                due = self.queue.next_apply_at()
+                if due is None:
                     await self._wake.wait()
                     self._wake = anyio.Event()
                     continue
                 busy = line.busy_s(time.monotonic())
-                if busy > PACE_SLACK_S:
-                    await anyio.sleep(busy - PACE_SLACK_S)
+                spare_s = (due - self.board_now_us() - self.latency_us(0) - PACE_MARGIN_US) * 1e-6
+                if busy > PACE_SLACK_S and spare_s > 0:
+                    await anyio.sleep(min(busy - PACE_SLACK_S, spare_s))
                     continue
                 item = self.queue.pop()
                 if item is not None:

@@ -64,7 +64,8 @@ class FrameLink(Protocol):
     def board_now_us(self) -> int: ...
 
     async def send_frame(self, frame: ServoFrame) -> int:
-        """Write ``frame`` now (a new motion's first frame: nothing held may delay it); its sequence number."""
+        """Write ``frame`` now (a new motion's first frame: nothing held may delay it); its sequence number.
+        Only right after a FLUSH of its servos from its apply time (see :mod:`host.motion.txqueue`)."""
         ...
 
     def queue_frame(self, frame: ServoFrame, on_sent: Callable[[int], None] | None = None) -> None:

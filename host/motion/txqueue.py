@@ -18,8 +18,17 @@ done to them had they been written first: it removes the masked servos from ever
 at or after ``from_us`` (a frame left with no servo is dropped). Frames queued after the FLUSH are
 not touched, as on the board.
 
-Sequence numbers are given when a frame is written, so they rise with apply time and the board's
-``last_applied_seq`` confirms frames in order (``host.motion.streamer.FrameStreamer.on_telemetry``).
+What is equal is the buffer's contents: frames written later than a FIFO would have written them
+still have to arrive before their apply time (the pacing writes the one due first, and the streamer
+plans a new motion behind the line's backlog), or the board answers LATE as it would to any late
+frame. The argument needs one rule of the link: a frame written at once, past the held ones
+(``BoardFrameLink.send_frame``), comes right after a FLUSH of its servos from its apply time, so no
+held frame of the same apply time can later override it.
+
+Sequence numbers are given when a frame is written, so among held frames they rise with apply time
+(a frame written at once may overtake held ones due earlier); the streamer confirms a frame only
+once the board's ``last_applied_seq`` has passed it *and* board time has reached it
+(``host.motion.streamer.FrameStreamer.on_telemetry``).
 A frame's ``on_sent`` callback gets its number; a dropped frame's callback gets the number of the
 next frame written (the board is past the dropped frame once it applied that one, as it would be past
 a frame it flushed).
@@ -59,6 +68,8 @@ class EdfFrameQueue:
     """Servo frames held unwritten, popped earliest ``apply_at_us`` first (ties: in queue order)."""
 
     def __init__(self, capacity: int = DEFAULT_CAPACITY) -> None:
+        if capacity < 1:
+            raise ValueError(f"capacity must be >= 1, got {capacity}")
         self.capacity = capacity
         self._heap: list[tuple[int, int, _Held]] = []
         self._order = itertools.count()
@@ -79,6 +90,11 @@ class EdfFrameQueue:
         heapq.heappush(self._heap, (held.apply_at_us, next(self._order), held))
         self._live += 1
         return True
+
+    def next_apply_at(self) -> int | None:
+        """Apply time (µs) of the frame :meth:`pop` would give, None when none is held."""
+        self._drop_empty_head()
+        return self._heap[0][0] if self._heap else None
 
     def pop(self) -> tuple[ServoFrame, list[SeqCallback]] | None:
         """The held frame due first and the callbacks to call with the number it is written with
@@ -124,6 +140,10 @@ class EdfFrameQueue:
         while (item := self.pop()) is not None:
             out.append(item)
         return out
+
+    def adopt(self, callbacks: list[SeqCallback]) -> None:
+        """Hand ``callbacks`` (of a frame that could not be written) to the next frame written."""
+        self._orphans.extend(callbacks)
 
     def take_orphans(self) -> list[SeqCallback]:
         """Callbacks of dropped frames not yet handed to a written frame (the queue forgets them)."""

@@ -88,7 +88,6 @@ class Voice:
         return max(0.0, 1.0 + self.loudness_rate / 100.0)
 
 
-
 def warm_up_behaviours(robot: Robot) -> int:
     """Plan every motion behaviour of ``robot`` once from its rest pose with its defaults and drop the plans.
 
@@ -109,6 +108,7 @@ def warm_up_behaviours(robot: Robot) -> int:
             continue
         planned += 1
     return planned
+
 
 class RobotRuntime:
     """Implements every behaviour of ``robot``'s interface on a board behind ``link``."""

@@ -81,3 +81,34 @@ def test_wire_model_holds_bytes_for_their_wire_time() -> None:
     finally:
         os.close(host)
         t.close()
+
+
+def test_a_time_sync_reply_is_stamped_for_when_it_goes_on_the_wire() -> None:
+    """Over a modelled line a TIME_SYNC_REPLY queues behind what is already on the wire; its t3 is
+    the board time its first byte goes out (transmit timestamping), so the host's NTP offset does
+    not take the queue for path asymmetry. A realtime board over a real pty at 9 600 baud."""
+    import time
+
+    from firmware_sim.board import Board
+    from firmware_sim.config import BoardConfig
+    from firmware_sim.server import BoardServer
+    from protocol.messages import TimeSyncReply
+
+    t = SerialBoardTransport("pty", baud=9_600)
+    host = _open_slave(t)
+    try:
+        server = BoardServer(Board(BoardConfig(lockstep=False)), t)
+        server.send([Heartbeat(i) for i in range(10)])  # ~120 B: ~125 ms of wire
+        busy = t.tx_busy_s(time.monotonic())
+        assert busy > 0.1
+        server.send([TimeSyncReply(1, 1_000, 2_000)])
+        t.flush(time.monotonic() + 10.0)  # release everything the model holds, as if 10 s had passed
+        frames = [i for i in FrameDecoder().feed(_read_all(host)) if isinstance(i, Frame)]
+        (reply,) = [f.msg for f in frames if isinstance(f.msg, TimeSyncReply)]
+        shift = reply.t3_board_us - 2_000
+        assert 0.5 * busy * 1e6 < shift <= busy * 1e6 + 1_000  # the queue it waited behind, not 0
+        assert reply.t2_board_us == 1_000  # the receive stamp is left alone
+        assert t.tx_busy_s(time.monotonic() + 100.0) == 0.0  # an idle line is never "negatively" busy
+    finally:
+        os.close(host)
+        t.close()

@@ -10,7 +10,8 @@ How: every test of a worker holds a ``flock`` on one file of the run (named by x
 ``testrunuid``, shared by all workers of one run), shared for an ordinary test and exclusive for a
 ``realtime`` one, from its setup to its teardown (``pytest_runtest_protocol``). A turnstile lock
 taken before the main one keeps a worker that starts test after test from starving a realtime test
-that waits (the readers-writer pattern with a turnstile). Without xdist (one process, CI's default
+that waits (the readers-writer pattern with a turnstile). The two lock files (a few bytes, under the
+temp dir) are left behind: a worker cannot tell whether the others still hold them. Without xdist (one process, CI's default
 before, a pytest started inside a test) nothing is locked.
 
 Written here rather than taken from a plugin: pytest-xdist groups tests onto one worker
@@ -56,14 +57,10 @@ class _RunLock:
                 fcntl.flock(turn, fcntl.LOCK_UN)
                 fcntl.flock(main, fcntl.LOCK_SH)
         self._exclusive_held = exclusive
-        released = False
         try:
             yield
-        except BaseException:
-            released = True
-            raise
         finally:
-            if released or not (exclusive and keep):
+            if not (exclusive and keep):
                 fcntl.flock(main, fcntl.LOCK_UN)
                 self._exclusive_held = False
 
@@ -91,7 +88,7 @@ def pytest_unconfigure(config: pytest.Config) -> None:
         _lock = None
 
 
-@pytest.hookimpl(hookwrapper=True)
+@pytest.hookimpl(hookwrapper=True, tryfirst=True)  # outermost: the wait is not charged to a test's timeout
 def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Generator[None, None, None]:
     if _lock is None:
         yield
