@@ -8,24 +8,27 @@ import fcntl
 import subprocess
 import sys
 import uuid
+from types import SimpleNamespace
 from pathlib import Path
 
-from support.realtime_lock import _RunLock
+from support.realtime_lock import _RunLock, _run_dir
 
 HOLDER = """
 import sys
 sys.path.insert(0, {tests!r})
+from pathlib import Path
 from support.realtime_lock import _RunLock
-lock = _RunLock({run!r})
+lock = _RunLock({run!r}, Path({base!r}))
 with lock.hold({exclusive}):
     print("held", flush=True)
     sys.stdin.readline()
 """
 
 
-def _holder(run: str, exclusive: bool) -> subprocess.Popen[str]:
+def _holder(run: str, base: Path, exclusive: bool) -> subprocess.Popen[str]:
     tests = str(Path(__file__).resolve().parent)
-    proc = subprocess.Popen([sys.executable, "-c", HOLDER.format(tests=tests, run=run, exclusive=exclusive)],
+    proc = subprocess.Popen([sys.executable, "-c", HOLDER.format(tests=tests, run=run, base=str(base),
+                                                                  exclusive=exclusive)],
                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     assert proc.stdout is not None and proc.stdout.readline().strip() == "held"
     return proc
@@ -40,18 +43,18 @@ def _try(fd: int, op: int) -> bool:
     return True
 
 
-def test_a_realtime_holder_keeps_everyone_out_and_shared_holders_coexist() -> None:
+def test_a_realtime_holder_keeps_everyone_out_and_shared_holders_coexist(tmp_path: Path) -> None:
     run = f"test-{uuid.uuid4().hex}"
-    mine = _RunLock(run)
+    mine = _RunLock(run, tmp_path)
     try:
-        realtime = _holder(run, exclusive=True)
+        realtime = _holder(run, tmp_path, exclusive=True)
         try:
             assert not _try(mine._main.fileno(), fcntl.LOCK_SH)  # no ordinary test beside it
         finally:
             realtime.communicate("\n", timeout=30)
         assert _try(mine._main.fileno(), fcntl.LOCK_SH)  # released when it ended
 
-        ordinary = _holder(run, exclusive=False)
+        ordinary = _holder(run, tmp_path, exclusive=False)
         try:
             assert _try(mine._main.fileno(), fcntl.LOCK_SH)  # ordinary tests run side by side
             assert not _try(mine._main.fileno(), fcntl.LOCK_EX)  # a realtime test waits for them
@@ -60,9 +63,9 @@ def test_a_realtime_holder_keeps_everyone_out_and_shared_holders_coexist() -> No
         assert _try(mine._main.fileno(), fcntl.LOCK_EX)
 
         # a realtime test waiting behind an ordinary one holds the turnstile: no new ordinary test starts
-        ordinary = _holder(run, exclusive=False)
+        ordinary = _holder(run, tmp_path, exclusive=False)
         waiting = subprocess.Popen([sys.executable, "-c", HOLDER.format(
-            tests=str(Path(__file__).resolve().parent), run=run, exclusive=True)],
+            tests=str(Path(__file__).resolve().parent), run=run, base=str(tmp_path), exclusive=True)],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
         try:
             turnstile_taken = False
@@ -81,5 +84,10 @@ def test_a_realtime_holder_keeps_everyone_out_and_shared_holders_coexist() -> No
             waiting.communicate("\n", timeout=30)
     finally:
         mine.close()
-        for suffix in (".lock", ".turn"):
-            Path(mine._main.name).with_suffix(suffix).unlink(missing_ok=True)
+
+
+def test_the_lock_files_live_in_the_runs_base_temp_folder() -> None:
+    """xdist gives each worker ``<run's basetemp>/<worker id>``: the run's folder is its parent, which
+    pytest's retention of old runs removes (the files are never left in the system temp dir)."""
+    config = SimpleNamespace(option=SimpleNamespace(basetemp="/tmp/pytest-of-ci/pytest-7/popen-gw1"))
+    assert _run_dir(config) == Path("/tmp/pytest-of-ci/pytest-7")  # type: ignore[arg-type]

@@ -33,10 +33,16 @@ CASES = {
 REALTIME = {"bench_board.py", "bench_roundtrip.py", "bench_foxglove.py", "bench_recovery.py"}
 
 
+def _env(tmp_path: Path) -> dict[str, str]:
+    """The benchmark's environment: its default artefact folders (``tempfile.mkdtemp``, kept for the
+    user to read) go under the test's own temporary folder, not into the system's."""
+    return dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"), TMPDIR=str(tmp_path))
+
+
 @pytest.mark.parametrize("script", [pytest.param(s, marks=pytest.mark.realtime) if s in REALTIME else s
                                     for s in sorted(CASES)])
 def test_benchmark_runs(script: str, tmp_path: Path) -> None:
-    env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
+    env = _env(tmp_path)
     r = subprocess.run([sys.executable, str(BENCH / script), *CASES[script]], cwd=tmp_path, env=env,
                        capture_output=True, text=True, timeout=240)
     assert r.returncode == 0, f"{script} failed:\n{r.stdout[-2000:]}\n{r.stderr[-2000:]}"
@@ -59,6 +65,6 @@ SLCAN_CASES = {
 @pytest.mark.parametrize("script", sorted(SLCAN_CASES))
 def test_benchmark_runs_over_slcan(script: str, tmp_path: Path) -> None:
     r = subprocess.run([sys.executable, str(BENCH / script), *SLCAN_CASES[script]], cwd=tmp_path,
-                       capture_output=True, text=True, timeout=240)
+                       env=_env(tmp_path), capture_output=True, text=True, timeout=240)
     assert r.returncode == 0, f"{script} failed:\n{r.stdout[-2000:]}\n{r.stderr[-2000:]}"
     assert "can:slcan:pty" in r.stdout and "p50=" in r.stdout, r.stdout[-2000:]

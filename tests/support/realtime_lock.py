@@ -10,9 +10,10 @@ How: every test of a worker holds a ``flock`` on one file of the run (named by x
 ``testrunuid``, shared by all workers of one run), shared for an ordinary test and exclusive for a
 ``realtime`` one, from its setup to its teardown (``pytest_runtest_protocol``). A turnstile lock
 taken before the main one keeps a worker that starts test after test from starving a realtime test
-that waits (the readers-writer pattern with a turnstile). The two lock files (a few bytes, under the
-temp dir) are left behind: a worker cannot tell whether the others still hold them. Without xdist (one process, CI's default
-before, a pytest started inside a test) nothing is locked.
+that waits (the readers-writer pattern with a turnstile). The two lock files (empty) live in the
+run's base temporary folder, the parent of every worker's ``--basetemp``, so pytest's own retention
+of old runs removes them (no worker can tell when the others are done with them). Without xdist
+(one process, a pytest started inside a test) nothing is locked.
 
 Written here rather than taken from a plugin: pytest-xdist groups tests onto one worker
 (``xdist_group``) but has no way to keep other workers idle meanwhile.
@@ -36,8 +37,7 @@ MARKER = "realtime"
 class _RunLock:
     """The run's readers-writer lock: ``hold(exclusive)`` around one test."""
 
-    def __init__(self, run_id: str) -> None:
-        base = Path(tempfile.gettempdir())
+    def __init__(self, run_id: str, base: Path) -> None:
         self._main: IO[bytes] = open(base / f"ghostshell-pytest-{run_id}.lock", "ab")  # noqa: SIM115 - held for the session
         self._turn: IO[bytes] = open(base / f"ghostshell-pytest-{run_id}.turn", "ab")  # noqa: SIM115
 
@@ -72,13 +72,20 @@ class _RunLock:
 _lock: _RunLock | None = None
 
 
+def _run_dir(config: pytest.Config) -> Path:
+    """The folder all workers of this run share: xdist hands each worker ``<run's basetemp>/<worker
+    id>`` as its ``--basetemp`` (the system temp dir if a worker somehow has none)."""
+    basetemp = getattr(config.option, "basetemp", None)
+    return Path(basetemp).parent if basetemp else Path(tempfile.gettempdir())
+
+
 def pytest_configure(config: pytest.Config) -> None:
     global _lock
     config.addinivalue_line("markers", f"{MARKER}: runs a board on the wall clock; under xdist it runs alone "
                                        "(tests/support/realtime_lock.py)")
     workerinput = getattr(config, "workerinput", None)  # set only inside an xdist worker
     if workerinput is not None and os.name == "posix":
-        _lock = _RunLock(str(workerinput["testrunuid"]))
+        _lock = _RunLock(str(workerinput["testrunuid"]), _run_dir(config))
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
