@@ -27,6 +27,7 @@ to 16 servos (every log written before robots became data) decode exactly as bef
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 from collections.abc import Iterable, Iterator
@@ -58,11 +59,18 @@ class FrameLogError(ValueError):
 
 
 def _jsonable(value: Any) -> Any:
+    t = type(value)
+    if t is float:  # the common cases first, by exact type (a frame's targets, a report's positions)
+        return value if math.isfinite(value) else None
+    if t is int or t is str or value is None:
+        return value
+    if t is tuple or t is list:
+        return [_jsonable(v) for v in value]
     if isinstance(value, IntFlag):
-        return "|".join(e.name for e in type(value) if e.name is not None and e.value and (value & e) == e) or "NONE"
+        return _flag_names(value)
     if isinstance(value, Enum):
         return value.name
-    if isinstance(value, bool) or value is None or isinstance(value, (int, str)):
+    if isinstance(value, bool) or isinstance(value, (int, str)):
         return value
     if isinstance(value, float):
         return None if not math.isfinite(value) else value
@@ -73,9 +81,22 @@ def _jsonable(value: Any) -> Any:
     return str(value)
 
 
+@functools.lru_cache(maxsize=4096)
+def _flag_names(value: IntFlag) -> str:
+    """``"A|B"``: the named members set in ``value`` (``"NONE"`` for none); cached, a log repeats few."""
+    return "|".join(e.name for e in type(value) if e.name is not None and e.value and (value & e) == e) or "NONE"
+
+
+_FIELD_NAMES: dict[type, tuple[str, ...]] = {}  # one entry per message class
+
+
 def message_fields(msg: Any) -> dict[str, Any]:
     """A message dataclass as a JSON-ready dict (enums by name, bytes as hex, NaN as None)."""
-    return {f.name: _jsonable(getattr(msg, f.name)) for f in dataclasses.fields(msg)}
+    cls = type(msg)
+    names = _FIELD_NAMES.get(cls)
+    if names is None:
+        names = _FIELD_NAMES[cls] = tuple(f.name for f in dataclasses.fields(msg))
+    return {name: _jsonable(getattr(msg, name)) for name in names}
 
 
 def decode_raw(raw: str | bytes, schema: WireSchema | None = None) -> Frame | DecodeError:
