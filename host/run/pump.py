@@ -6,15 +6,17 @@ Everything here runs inside a :class:`~host.run.session.RobotSession`'s task gro
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import time
 from collections import deque
-from collections.abc import AsyncIterable, AsyncIterator, Callable, Sequence
+from collections.abc import AsyncIterable, AsyncIterator, Callable, Sequence, Sized
 from typing import Any
 
 import anyio
 import anyio.lowlevel
 import numpy as np
+import sniffio
 
 from host.link import BoardClient
 from host.link.errors import BoardFaulted, LinkError
@@ -50,8 +52,9 @@ class Recorder:
             self.max_tilt = max(self.max_tilt, artefacts.tilt_deg(s.base_quat))
 
 
-#: checkpoints the lockstep pump yields before topping up, so that everything the last
-#: telemetry woke (token pacing, dispatch, new segments) is placed before board time moves on
+#: at most this many checkpoints the lockstep pump yields before topping up, so that everything the
+#: last telemetry woke (token pacing, dispatch, new segments) is placed before board time moves on;
+#: on asyncio it stops as soon as no other task is ready to run (:func:`settle`)
 SETTLE_CHECKPOINTS = 32
 #: wall seconds without telemetry after which a run fails (the board died or the link hung)
 TELEMETRY_SILENCE_S = 10.0
@@ -100,11 +103,36 @@ async def pump(client: BoardClient, runtime: RobotRuntime, rec: Recorder,
         if tel.faults & FaultFlags.SERVO_FAULT:  # a servo stopped answering on the board's bus (C firmware)
             raise BoardFaulted(servo_fault_message(client, tel.board_time_us))
         if lockstep:
-            for _ in range(SETTLE_CHECKPOINTS):
-                await anyio.lowlevel.checkpoint()
+            await settle()
             await runtime.streamer.top_up(tel.board_time_us)
         else:
             await runtime.streamer.top_up()
+
+
+async def settle(limit: int = SETTLE_CHECKPOINTS) -> int:
+    """Yield to the event loop until no other task is ready to run, at most ``limit`` times; returns
+    the checkpoints taken (>= 1).
+
+    On asyncio "ready" is the loop's queue of callbacks due now (``loop._ready``, private: asyncio has
+    no public way to ask; a task woken by an event or a finished future is queued there until it
+    runs). A task blocked on I/O, a timer or a thread is not ready, and is not waited for. On another
+    backend (Trio) all ``limit`` checkpoints are taken. Before, the pump always took 32: ~42 000 idle
+    turns of the loop (an ``epoll`` each) in a 26-s lockstep run, a third of its wall time.
+    """
+    ready = _ready_queue()
+    for n in range(1, limit + 1):
+        await anyio.lowlevel.checkpoint()
+        if ready is not None and not ready:
+            return n
+    return limit
+
+
+def _ready_queue() -> Sized | None:
+    """The running asyncio loop's ready queue, None on another backend (or another loop class)."""
+    if sniffio.current_async_library() != "asyncio":
+        return None
+    ready = getattr(asyncio.get_running_loop(), "_ready", None)
+    return ready if isinstance(ready, Sized) else None
 
 
 async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardClient | None = None) -> None:
