@@ -21,6 +21,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import IO
 
@@ -52,6 +53,30 @@ class BoardProcess:
         self.proc, self.port, self._stderr = proc, port, stderr
         self.spec: LinkSpec = spec if spec is not None else parse_link_spec(port)
         self.stderr_path = stderr_path
+
+    def exit_reason(self) -> str | None:
+        """None while the board runs; once it has exited, one line: its status, the last line it wrote
+        to stderr, and where its stderr is."""
+        status = self.proc.poll()
+        if status is None:
+            return None
+        said = _last_line(self._stderr) if not self._stderr.closed else ""
+        see = f"; see {self.stderr_path}" if self.stderr_path is not None else ""
+        return f"the emulated board exited (status {status}){f': {said}' if said else ''}{see}"
+
+    def link_target(self) -> Callable[[], LinkSpec]:
+        """What a client connects to (``BoardClient.connect(board.link_target())``): this board's link
+        spec while it runs. Once it has exited, every (re)connect fails with :class:`LinkDown` and
+        :meth:`exit_reason`: its pty is gone, and the kernel may hand the same pty name to another
+        program, even another board, which a reconnecting host must not take over."""
+
+        def target() -> LinkSpec:
+            why = self.exit_reason()
+            if why is not None:
+                raise LinkDown(why)
+            return self.spec
+
+        return target
 
     def stop(self, timeout: float = 5.0) -> int:
         """SIGTERM, wait (then SIGKILL); returns the exit code (130: the board stopped cleanly on the

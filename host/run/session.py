@@ -60,7 +60,7 @@ from host.link import BoardClient, RobotIdentity
 from host.link.board_process import BoardProcess, dead_board_error, start_board
 from host.link.errors import BoardFaulted, LinkConfigError, LinkError
 from host.link.faultcheck import LATCHED, clear_command, clear_leftover_fault, refusal_message
-from host.link.session import FaultEvent
+from host.link.session import FaultEvent, LinkTarget
 from host.run import artefacts
 from host.run.events import Event, EventMonitor, EventPolicy, ScriptedEvent, has_fallen
 from host.robot.binding import robot_registry
@@ -266,7 +266,7 @@ class RobotSession:
         created = not self.out.exists()
         self.out.mkdir(parents=True, exist_ok=True)
         spec = parse_link_spec(opts.link) if isinstance(opts.link, str) else opts.link
-        target = spec
+        target: LinkTarget = spec
         emulate = opts.emulate_board if opts.emulate_board is not None else spec.implies_emulated_board
         try:
             if spec.implies_emulated_board and not emulate:
@@ -303,7 +303,7 @@ class RobotSession:
                     for board in started:  # cancelled while it started: it must not be left behind
                         board.stop()
                     raise
-                target = self._board.spec
+                target = self._board.link_target()  # never reconnects to the pty of a board that died
             self._link_tried = True
             # one-time planning costs now, not on the first call's token -> servo path; before the link is
             # up, because it holds the event loop and a board whose link is up expects heartbeats
