@@ -1,6 +1,6 @@
 """The C firmware as a Cortex-M3 image on QEMU (``--firmware qemu``: ``qemu-system-arm -M mps2-an385``,
 UART0 the host's pty, UART1 the servo-bus plant): tasks 1, 23 and 26 end to end, checked as the
-Python board's runs are (tests/e2e/test_tasks_e2e.py), and task 26's call timeline is the Python
+Python board's runs are (tests/e2e/test_tasks_e2e.py, checks in tests/e2e/task_checks.py), and task 26's call timeline is the Python
 board's and the native C firmware's (board-measured starts and ends within one control tick).
 
 Lockstep, not realtime: the board's virtual clock advances only with the host's frames and ADVANCE,
@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from e2e.conftest import TASKS, E2ERun, run_e2e
-from e2e.test_tasks_e2e import check_common, check_task
+from e2e.task_checks import check_common, check_task
 
 TICK_S = 0.002
 #: a persistent call (background music) is ended by the host when the program ends, at its board-time

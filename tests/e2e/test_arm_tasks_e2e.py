@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from e2e.test_tasks_e2e import before, check_common, count_swings, follows, lasts, overlap, together
+from e2e.task_checks import before, check_common, count_swings, follows, lasts, overlap, together
 from robots.arm.behaviours import geometry, places
 from robots.registry import load_robot
 from support.board_replay import replay_in_process

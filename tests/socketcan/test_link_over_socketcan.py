@@ -35,7 +35,7 @@ from support.candump import CandumpCapture
 from e2e.conftest import TASKS, E2ERun, mask_of, run_e2e
 from e2e.test_interrupt import INTERRUPT_AT, check_interrupted
 from e2e.test_interrupt import PROGRAM as INTERRUPT_PROGRAM
-from e2e.test_tasks_e2e import check_common
+from e2e.task_checks import check_common
 
 pytestmark = pytest.mark.timeout(240)
 CHANNEL = "vcan0"

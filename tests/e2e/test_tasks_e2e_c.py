@@ -1,0 +1,19 @@
+"""The 30 ground-truth programs of the paper end to end on the C firmware (built natively, its servos
+on a Feetech bus the plant emulates), over the same pty and with the same checks as on the Python
+board (tests/e2e/task_checks.py); a file of its own so the suite's two workers run both halves at once."""
+
+from __future__ import annotations
+
+import pytest
+
+from .conftest import FIRMWARES, TASKS
+from .task_checks import check_common, check_task
+
+assert "c" in FIRMWARES
+
+
+@pytest.mark.parametrize("tid", sorted(TASKS))
+def test_ground_truth_end_to_end_on_the_c_firmware(tid: int, task_run) -> None:
+    run = task_run(tid, "c")
+    check_common(run, "c")
+    check_task(tid, run, "c")
