@@ -81,7 +81,7 @@ def _jsonable(value: Any) -> Any:
     return str(value)
 
 
-@functools.lru_cache(maxsize=4096)
+@functools.lru_cache(maxsize=4096, typed=True)  # typed: equal values of two flag classes differ
 def _flag_names(value: IntFlag) -> str:
     """``"A|B"``: the named members set in ``value`` (``"NONE"`` for none); cached, a log repeats few."""
     return "|".join(e.name for e in type(value) if e.name is not None and e.value and (value & e) == e) or "NONE"

@@ -8,8 +8,10 @@ import fcntl
 import subprocess
 import sys
 import uuid
-from types import SimpleNamespace
 from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
 
 from support.realtime_lock import _RunLock, _run_dir
 
@@ -91,3 +93,17 @@ def test_the_lock_files_live_in_the_runs_base_temp_folder() -> None:
     pytest's retention of old runs removes (the files are never left in the system temp dir)."""
     config = SimpleNamespace(option=SimpleNamespace(basetemp="/tmp/pytest-of-ci/pytest-7/popen-gw1"))
     assert _run_dir(config) == Path("/tmp/pytest-of-ci/pytest-7")  # type: ignore[arg-type]
+
+
+def test_this_runs_lock_files_are_in_its_base_temp_folder(request: pytest.FixtureRequest) -> None:
+    """The lock the plugin really took in this run: under xdist, in the parent of this worker's
+    ``--basetemp`` (xdist's own layout); in one process, none at all."""
+    from support import realtime_lock
+
+    if getattr(request.config, "workerinput", None) is None:
+        assert realtime_lock._lock is None
+        return
+    lock = realtime_lock._lock
+    assert lock is not None
+    main = Path(lock._main.name)
+    assert main.is_file() and main.parent == Path(request.config.option.basetemp).parent

@@ -34,13 +34,16 @@ USAGE_STATUS = 2  # ``python -m firmware_sim`` exits 2 for a link spec it cannot
 
 
 def _last_line(err: IO[str]) -> str:
-    """The last non-empty line the board wrote to ``err`` (a file opened for reading too)."""
+    """The last non-empty line the board wrote to ``err`` (its stderr file, opened for reading too),
+    read at an offset (``os.pread``): the file position, which the board and any child of it (the C
+    firmware, QEMU) share and may still write at, does not move."""
     try:
-        err.flush()
-        err.seek(0)
-        lines = [ln.strip() for ln in err.read()[-4000:].splitlines() if ln.strip()]
+        fd = err.fileno()
+        size = os.fstat(fd).st_size
+        text = os.pread(fd, 4000, max(0, size - 4000)).decode("utf-8", "replace")
     except (OSError, ValueError):
         return ""
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
     return lines[-1] if lines else ""
 
 
@@ -53,16 +56,19 @@ class BoardProcess:
         self.proc, self.port, self._stderr = proc, port, stderr
         self.spec: LinkSpec = spec if spec is not None else parse_link_spec(port)
         self.stderr_path = stderr_path
+        self._exit_reason: str | None = None
 
     def exit_reason(self) -> str | None:
-        """None while the board runs; once it has exited, one line: its status, the last line it wrote
-        to stderr, and where its stderr is."""
-        status = self.proc.poll()
-        if status is None:
-            return None
-        said = _last_line(self._stderr) if not self._stderr.closed else ""
-        see = f"; see {self.stderr_path}" if self.stderr_path is not None else ""
-        return f"the emulated board exited (status {status}){f': {said}' if said else ''}{see}"
+        """None while the board runs; once it has exited, one line (worked out once): its status, the
+        last line it wrote to stderr, and where its stderr is."""
+        if self._exit_reason is None:
+            status = self.proc.poll()
+            if status is None:
+                return None
+            said = _last_line(self._stderr) if not self._stderr.closed else ""
+            see = f"; see {self.stderr_path}" if self.stderr_path is not None else ""
+            self._exit_reason = f"the emulated board exited (status {status}){f': {said}' if said else ''}{see}"
+        return self._exit_reason
 
     def link_target(self) -> Callable[[], LinkSpec]:
         """What a client connects to (``BoardClient.connect(board.link_target())``): this board's link

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -167,3 +168,24 @@ def test_fast_field_rendering_equals_the_reference_on_random_messages() -> None:
         assert [type(v) for v in got.values()] == [type(v) for v in want.values()]
 
     check()
+
+
+def test_flag_names_of_two_flag_classes_with_equal_values_stay_apart() -> None:
+    """The rendering caches a flag value's names: ``A.X == B.Y`` (both 1) must not share an entry."""
+    from enum import IntFlag
+
+    from protocol.framelog import message_fields
+
+    class A(IntFlag):
+        X = 1
+
+    class B(IntFlag):
+        Y = 1
+
+    @dataclasses.dataclass
+    class Both:
+        a: A
+        b: B
+
+    assert message_fields(Both(A.X, B.Y)) == {"a": "X", "b": "Y"}
+    assert message_fields(Both(A(0), B.Y)) == {"a": "NONE", "b": "Y"}

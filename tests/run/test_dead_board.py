@@ -7,7 +7,7 @@ from pathlib import Path
 
 from host.commands.linkarg import link_exit_status
 from host.link.board_process import dead_board_error, start_board
-from host.link.errors import LinkConfigError, LinkDown
+from host.link.errors import LinkConfigError, LinkDown, LinkTimeout
 
 
 def test_a_dead_board_turns_a_link_config_error_into_a_lost_link(tmp_path: Path) -> None:
@@ -52,7 +52,7 @@ def test_a_client_never_reconnects_to_the_pty_of_a_board_that_died(tmp_path: Pat
             assert await c.wait_disconnected(5)
             # the next pty opened (often under the dead board's name): a live board the client must not take
             others.append(start_board(["--lockstep"], tmp_path / "other.stderr", link="pty"))
-            with pytest.raises(Exception):
+            with pytest.raises(LinkTimeout):
                 await c.wait_connected(1.0)
             assert not c.connected and c.stats.reconnects == 0
             assert c.last_reconnect_error.startswith(f"the emulated board exited (status {status})"), c.last_reconnect_error
@@ -67,3 +67,25 @@ def test_a_client_never_reconnects_to_the_pty_of_a_board_that_died(tmp_path: Pat
         board.stop()
         for other in others:
             other.stop()
+
+
+def test_a_board_dead_before_the_first_connect_is_a_lost_link_naming_its_exit(tmp_path: Path) -> None:
+    import anyio
+    import pytest
+
+    from host.link import BoardClient
+
+    board = start_board(["--lockstep"], tmp_path / "board.stderr", link="pty")
+    try:
+        board.proc.kill()
+        status = board.proc.wait()
+
+        async def main() -> None:
+            await BoardClient.connect(board.link_target())
+
+        with pytest.raises(LinkDown) as e:
+            anyio.run(main, backend="asyncio")
+        assert not isinstance(e.value, LinkConfigError) and link_exit_status(e.value) == 1
+        assert str(e.value).startswith(f"the emulated board exited (status {status})"), e.value
+    finally:
+        board.stop()
