@@ -21,15 +21,56 @@ from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any, Protocol
 
+import anyio
+
 from host.link.errors import LinkError, LinkTimeout, NackError
 from host.link.waiting import Reply
 from protocol.messages import Ack, Message, Nack
 
-__all__ = ["MAX_FRAME_NACKS", "AnswerSlot", "RequestTable"]
+__all__ = ["MAX_FRAME_NACKS", "AnswerSlot", "RequestTable", "RetransmitTimeout"]
 
 log = logging.getLogger("host.link")
 #: frame NACKs kept (oldest dropped)
 MAX_FRAME_NACKS = 1024
+
+
+class RetransmitTimeout:
+    """The wait before a request is sent again, from the link's measured request -> ACK round trips.
+
+    RFC 6298 (TCP's retransmission timer): the first sample R sets SRTT = R and RTTVAR = R/2; each
+    later one RTTVAR = (1 - 1/4)·RTTVAR + 1/4·|SRTT - R|, SRTT = (1 - 1/8)·SRTT + 1/8·R; the timeout
+    is SRTT + max(G, 4·RTTVAR) with clock granularity G = 1 ms, clamped to [``min_s``, ``max_s``]
+    (``max_s`` before the first sample, as the RFC's initial 1 s). Only answers to a request's first
+    copy are samples (Karn's rule: after a re-send, which copy was answered is unknown). ``min_s`` is
+    0.1 s, not the RFC's 1 s: a board answers in ~1 ms over a pty or SLCAN and in tens of ms under
+    QEMU, and a re-send that was not needed costs one duplicate the board applies to the same effect.
+    """
+
+    ALPHA, BETA, K, G = 1 / 8, 1 / 4, 4, 0.001
+
+    def __init__(self, min_s: float = 0.1, max_s: float = 1.0) -> None:
+        if not 0 < min_s <= max_s:
+            raise ValueError(f"need 0 < min_s <= max_s, got {min_s}, {max_s}")
+        self.min_s, self.max_s = min_s, max_s
+        self.srtt: float | None = None
+        self.rttvar = 0.0
+        self.samples = 0
+
+    def sample(self, rtt_s: float) -> None:
+        """One measured round trip (s) of a request answered on its first copy."""
+        r = max(0.0, float(rtt_s))
+        if self.srtt is None:
+            self.srtt, self.rttvar = r, r / 2
+        else:
+            self.rttvar = (1 - self.BETA) * self.rttvar + self.BETA * abs(self.srtt - r)
+            self.srtt = (1 - self.ALPHA) * self.srtt + self.ALPHA * r
+        self.samples += 1
+
+    def timeout_s(self) -> float:
+        """The wait (s) before the first re-send of the next request."""
+        if self.srtt is None:
+            return self.max_s
+        return min(self.max_s, max(self.min_s, self.srtt + max(self.G, self.K * self.rttvar)))
 
 
 class AnswerSlot(Protocol):
@@ -142,26 +183,44 @@ class RequestTable:
             if self.pending.get(seq) is reply:
                 del self.pending[seq]
 
-    async def request(self, send: Callable[[Message], int], msg: Message, per_try: float, attempts: int) -> Ack:
+    async def request(self, send: Callable[[Message], int], msg: Message, per_try: float, attempts: int,
+                      rto: RetransmitTimeout | None = None) -> Ack:
         """Send ``msg`` with ``send`` and await its ACK, re-sending it (new sequence number) after
         each ``per_try`` s without a reply, ``attempts`` times in all; the first ACK/NACK to any copy
-        answers. Raises :class:`NackError`, :class:`LinkTimeout`, or what ``send`` raises."""
+        answers. Raises :class:`NackError`, :class:`LinkTimeout`, or what ``send`` raises.
+
+        With ``rto`` (the link's :class:`RetransmitTimeout`) the first wait is ``rto.timeout_s()``
+        (at most ``per_try``), each later one twice the one before up to ``per_try`` (RFC 6298's
+        back-off), and copies go out until ``attempts × per_try`` s have passed: the same patience,
+        with a lost frame costing about one round-trip timeout instead of ``per_try``. An answer to the
+        first copy is a round-trip sample for ``rto``."""
         reply: Reply[Ack] = Reply()
         n = max(1, attempts)
         seqs: list[int] = []
+        budget = n * per_try
+        start = anyio.current_time()
+        wait = per_try if rto is None else min(per_try, rto.timeout_s())
         try:
-            for k in range(n):
+            while True:
+                sent_at = anyio.current_time()
                 seq = send(msg)
                 seqs.append(seq)
                 self.expect(seq, reply)
-                if await reply.wait(per_try):
+                if await reply.wait(wait):
+                    if rto is not None and len(seqs) == 1:
+                        rto.sample(anyio.current_time() - sent_at)
                     return reply.result()
-                if k + 1 < n:
-                    self.on_retry()
-            raise LinkTimeout(
-                f"no ACK for {type(msg).__name__} (seq {', '.join(map(str, seqs))}) after {n} attempt(s) "
-                f"of {per_try} s"
-            )
+                left = budget - (anyio.current_time() - start)
+                if len(seqs) >= n and (rto is None or left <= 0):
+                    break
+                if rto is not None:
+                    wait = min(per_try, 2 * wait)
+                    if len(seqs) >= n:  # the attempts are used up: the rest of the patience only
+                        wait = min(wait, left)
+                self.on_retry()
+            tries = (f"{n} attempt(s) of {per_try} s" if rto is None
+                     else f"{len(seqs)} attempt(s) in {anyio.current_time() - start:.2f} s")
+            raise LinkTimeout(f"no ACK for {type(msg).__name__} (seq {', '.join(map(str, seqs))}) after {tries}")
         finally:
             reply.cancel()
             self.release(seqs, reply)

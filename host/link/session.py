@@ -51,7 +51,7 @@ from host.link.board_commands import BoardCommands
 from host.link.camera import CameraAssembler
 from host.link.errors import LinkDown, LinkError, LinkTimeout
 from host.link.receive import LinkStats, ReceivePath
-from host.link.requests import RequestTable
+from host.link.requests import RequestTable, RetransmitTimeout
 from host.link.supervisor import RobotIdentity, Supervisor, host_now_us
 from host.link.telemetry import FAULT_BITS, FaultEvent, TelemetryFanout
 from host.link.telemetry_waits import TelemetryWaits
@@ -146,6 +146,8 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
         self._board_time_seen = 0
         #: pending requests, frame NACKs and their waiters by sequence number (host.link.requests)
         self.requests = RequestTable(self._count_retry)
+        #: the wait before a request is re-sent, from this link's measured round trips (at most ``reply_timeout``)
+        self.rto = RetransmitTimeout(min_s=min(0.1, reply_timeout), max_s=reply_timeout)
         self.camera = CameraAssembler()  # camera captures in progress (host.link.camera)
         #: handshake, time sync, heartbeat, reconnect (host.link.supervisor)
         self.supervisor = Supervisor(self)
@@ -315,8 +317,11 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
 
     async def request(self, msg: Message, timeout: float | None = None, attempts: int | None = None) -> Ack:
         """Send ``msg`` and await its ACK, re-sending it (new sequence number) after each
-        ``timeout`` s (default ``reply_timeout``) without a reply, ``attempts`` times in all
-        (default :attr:`request_attempts`); the first ACK/NACK to any copy answers.
+        ``timeout`` s without a reply, ``attempts`` times in all (default :attr:`request_attempts`);
+        the first ACK/NACK to any copy answers. Without ``timeout`` the first re-send comes after the
+        link's measured round-trip timeout (:attr:`rto`, 0.1 s to ``reply_timeout``), later ones
+        after twice the wait before, up to ``reply_timeout``, for ``attempts × reply_timeout`` s in
+        all (:meth:`host.link.requests.RequestTable.request`).
 
         Raises :class:`NackError` (the board's reason) on a NACK, :class:`LinkTimeout` without
         a reply, :class:`LinkDown` when the link is not up. For messages the board answers
@@ -325,7 +330,8 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
         """
         self._require_ready()
         return await self.requests.request(self._send, msg, timeout or self.reply_timeout,
-                                           attempts or self.request_attempts)
+                                           attempts or self.request_attempts,
+                                           rto=self.rto if timeout is None else None)
 
     _request = request
 

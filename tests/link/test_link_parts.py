@@ -14,7 +14,7 @@ import pytest
 
 
 from host.link.errors import LinkDown, LinkTimeout, NackError
-from host.link.requests import RequestTable
+from host.link.requests import RequestTable, RetransmitTimeout
 from host.link.telemetry import TelemetryFanout
 from host.link.waiting import Flag, Reply
 from protocol.messages import Ack, Estop, FaultFlags, MsgType, Nack, NackReason, Telemetry
@@ -150,3 +150,68 @@ def test_a_slow_subscriber_loses_the_oldest_reports_and_waiters_get_the_first_ma
         await anyio.lowlevel.checkpoint()
 
     anyio.run(main, backend="asyncio")
+
+
+def test_the_retransmit_timeout_follows_rfc_6298() -> None:
+    rto = RetransmitTimeout(min_s=0.001, max_s=1.0)
+    assert rto.timeout_s() == 1.0  # before any sample: the longest wait
+    rto.sample(0.010)  # SRTT = R, RTTVAR = R/2
+    assert (rto.srtt, rto.rttvar) == pytest.approx((0.010, 0.005)) and rto.timeout_s() == pytest.approx(0.030)
+    rto.sample(0.020)  # RTTVAR = 3/4·0.005 + 1/4·|0.010 - 0.020|, SRTT = 7/8·0.010 + 1/8·0.020
+    assert (rto.srtt, rto.rttvar) == pytest.approx((0.01125, 0.00625))
+    assert rto.timeout_s() == pytest.approx(0.01125 + 4 * 0.00625)
+    assert RetransmitTimeout(min_s=0.1).timeout_s() == 1.0
+    clamped = RetransmitTimeout(min_s=0.1, max_s=1.0)
+    clamped.sample(0.002)
+    assert clamped.timeout_s() == 0.1  # a ~2 ms link still waits 0.1 s
+    clamped.sample(30.0)
+    assert clamped.timeout_s() == 1.0
+    with pytest.raises(ValueError):
+        RetransmitTimeout(min_s=0.0)
+
+
+def test_with_a_measured_round_trip_a_lost_request_is_re_sent_soon_and_backs_off_within_the_same_patience() -> None:
+    """Trio's MockClock (virtual time, jumping whenever every task waits): the copies of a request nobody
+    answers go out 0.1, 0.2, 0.4, 0.8, 1.0 s apart, and it fails after attempts × per_try = 3 s, as
+    without the timer; an answer to a first copy is a round-trip sample, one after a re-send is not."""
+    import trio.testing
+
+    async def main() -> None:
+        table = RequestTable()
+        rto = RetransmitTimeout(min_s=0.1, max_s=1.0)
+        rto.sample(0.002)
+        sent_at: list[float] = []
+
+        def lost(msg: object) -> int:
+            sent_at.append(anyio.current_time())
+            return len(sent_at) - 1
+
+        t0 = anyio.current_time()
+        with pytest.raises(LinkTimeout, match=r"after 6 attempt\(s\) in 3.00 s"):
+            await table.request(lost, Estop(), per_try=1.0, attempts=3, rto=rto)
+        assert [round(t - t0, 6) for t in sent_at] == [0.0, 0.1, 0.3, 0.7, 1.5, 2.5]
+        assert anyio.current_time() - t0 == pytest.approx(3.0)
+
+        copies: list[int] = []
+        async with anyio.create_task_group() as tg:
+            async def ack_after(seq: int, delay: float) -> None:
+                await anyio.sleep(delay)
+                table.on_ack(Ack(seq, MsgType.ESTOP))
+
+            def answered_in_4_ms(msg: object) -> int:
+                tg.start_soon(ack_after, 0, 0.004)
+                return 0
+
+            await table.request(answered_in_4_ms, Estop(), per_try=1.0, attempts=3, rto=rto)
+            assert rto.samples == 2 and rto.srtt == pytest.approx(7 / 8 * 0.002 + 1 / 8 * 0.004)
+
+            def second_copy_answered(msg: object) -> int:
+                copies.append(len(copies))
+                if len(copies) == 2:
+                    tg.start_soon(ack_after, 1, 0.004)
+                return copies[-1]
+
+            await table.request(second_copy_answered, Estop(), per_try=1.0, attempts=3, rto=rto)
+        assert copies == [0, 1] and rto.samples == 2  # Karn: an answer after a re-send is no sample
+
+    anyio.run(main, backend="trio", backend_options={"clock": trio.testing.MockClock(autojump_threshold=0)})
