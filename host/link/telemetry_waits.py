@@ -54,10 +54,30 @@ class TelemetryWaits(BoardTime):
 
     #: wall seconds between the ADVANCEs of :meth:`wait_for` with ``nudge`` (a lockstep board answers in ~1 ms)
     NUDGE_S = 0.1
-    #: wall seconds without a satisfying report before a nudge moves its ADVANCE target further (a
-    #: report lost on a lossy link); until then it repeats the target (it was pushed 5 periods ahead of
-    #: a slow QEMU board in 0.5 s, whose next frames then arrived LATE)
+    #: the longest a nudge waits for a report before it moves its ADVANCE target further (a report lost
+    #: on a lossy link); until then it repeats the target (it was pushed 5 periods ahead of a slow QEMU
+    #: board in 0.5 s, whose next frames then arrived LATE). The wait itself is :meth:`nudge_raise_s`.
     NUDGE_RAISE_S = 1.0
+    #: a nudge's target is raised after this many times the slowest recent report (see nudge_raise_s)
+    NUDGE_RAISE_FACTOR = 4
+
+    _report_latencies: deque[float] | None = None
+
+    def nudge_raise_s(self) -> float:
+        """Wall seconds a nudge waits for the report its ADVANCE asked for before it takes the report as
+        lost and moves the target on: ``NUDGE_RAISE_FACTOR`` × the slowest of the last 16 such reports
+        (from the first ADVANCE of a target to the report that reached it and ended the wait), between ``2 × NUDGE_S``
+        and ``NUDGE_RAISE_S``; ``NUDGE_RAISE_S`` before any was measured. A native board reports in
+        ~2 ms, so a lost report costs 0.2 s instead of 1 s; a slow board (QEMU) keeps up to 1 s."""
+        lat = self._report_latencies
+        if not lat:
+            return self.NUDGE_RAISE_S
+        return min(self.NUDGE_RAISE_S, max(2 * self.NUDGE_S, self.NUDGE_RAISE_FACTOR * max(lat)))
+
+    def _report_latency(self, seconds: float) -> None:
+        if self._report_latencies is None:
+            self._report_latencies = deque(maxlen=16)
+        self._report_latencies.append(max(0.0, seconds))
 
     async def telemetry(self, maxsize: int | None = None) -> AsyncIterator[Telemetry]:
         """Every telemetry report from now on; a slow consumer loses the oldest (bounded stream)."""
@@ -71,7 +91,7 @@ class TelemetryWaits(BoardTime):
         clock runs, so ADVANCE it one report period past the latest board time known at once and
         again every :attr:`NUDGE_S` s while no report satisfies ``predicate``: a lost ADVANCE or
         a lost report (likely on a lossy CAN link, where a report is 17 frames) cannot stall the
-        wait. The target repeats until a report reaches it or :attr:`NUDGE_RAISE_S` passes, so a
+        wait. The target repeats until a report reaches it or :meth:`nudge_raise_s` passes, so a
         slow board is not pushed ahead. The ADVANCEs are not awaited: the report is the
         acknowledgement that matters.
         """
@@ -82,26 +102,29 @@ class TelemetryWaits(BoardTime):
         deadline = anyio.current_time() + timeout
         nudging = nudge and self.lockstep
         until = 0
-        raised_at = 0.0
+        raised_at, raised_from = 0.0, 0  # when the target was set, and the board time seen then
         try:
             while True:
                 if nudging:
                     now = anyio.current_time()
                     seen = self.board_now_estimate()
-                    if until == 0 or seen >= until or now - raised_at >= self.NUDGE_RAISE_S:
+                    if until == 0 or seen >= until or now - raised_at >= self.nudge_raise_s():
                         # first nudge; a report reached the target without satisfying the predicate; or
-                        # none for NUDGE_RAISE_S (lost): move the target one report period on. Otherwise the same
+                        # none for nudge_raise_s() (lost): move the target one report period on. Otherwise the same
                         # target again (a lost ADVANCE): a slow board (QEMU on a loaded machine) must
                         # not be pushed ahead of the frames the host is about to time from its report
                         until = max(until, seen) + self.report_period_us()
-                        raised_at = now
+                        raised_at, raised_from = now, seen
                     with contextlib.suppress(LinkError):
                         self._send(Advance(until))
                 left = deadline - anyio.current_time()
                 if left <= 0:
                     break
                 if await fut.wait(min(left, self.NUDGE_S) if nudging else left):
-                    return fut.result()
+                    got = fut.result()
+                    if nudging and until and got.board_time_us > raised_from:  # a report this target brought
+                        self._report_latency(anyio.current_time() - raised_at)
+                    return got
                 if not nudging:
                     break
             last = self.latest_telemetry

@@ -215,3 +215,19 @@ def test_with_a_measured_round_trip_a_lost_request_is_re_sent_soon_and_backs_off
         assert copies == [0, 1] and rto.samples == 2  # Karn: an answer after a re-send is no sample
 
     anyio.run(main, backend="trio", backend_options={"clock": trio.testing.MockClock(autojump_threshold=0)})
+
+
+def test_a_nudge_takes_a_report_as_lost_after_four_times_the_slowest_recent_one() -> None:
+    from host.link.telemetry_waits import TelemetryWaits
+
+    w = object.__new__(TelemetryWaits)
+    assert w.nudge_raise_s() == TelemetryWaits.NUDGE_RAISE_S == 1.0  # nothing measured yet
+    w._report_latency(0.002)  # a native board: 2 ms
+    assert w.nudge_raise_s() == 2 * TelemetryWaits.NUDGE_S  # never under two nudges
+    w._report_latency(0.15)  # a slow one (QEMU) among the recent reports
+    assert w.nudge_raise_s() == pytest.approx(0.6)
+    w._report_latency(0.9)
+    assert w.nudge_raise_s() == 1.0  # never over NUDGE_RAISE_S
+    for _ in range(16):  # the slow reports fall out of the last 16
+        w._report_latency(0.002)
+    assert w.nudge_raise_s() == 0.2
