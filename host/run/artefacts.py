@@ -102,6 +102,29 @@ _COLOURS = {"done": "#4c9be8", "failed": "#e05050", "cancelled": "#aaaaaa", "int
             "pending": "#dddddd", "timeout": "#b07cd8"}
 
 
+def warm_up_plotting() -> None:
+    """Import matplotlib (Agg) and draw one tiny figure, once per process, before a session's link is up.
+
+    The artefact writer plots in a worker thread while the link is live. Its first plot of a process
+    imported matplotlib and set up the Agg renderer and fonts there: hundreds of ms in which the event
+    loop thread got the GIL only in stretches (loading C extensions holds it), so heartbeats and
+    frames stalled. Measured on a realtime run's live view (bench/bench_foxglove.py --n 1 --task 1):
+    /joint_states gaps of 104-208 ms on a quiet machine; in one CI run the stall reached 1.2 s and the
+    board's watchdog latched."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(1, 1))
+    ax.barh(0, 1.0)
+    ax.text(0, 0, "warm", fontsize=7)
+    fig.savefig(io.BytesIO(), format="png", dpi=20)
+    plt.close(fig)
+
+
 def plot_timeline(path: Path, calls: Sequence[BoardCall], title: str = "") -> None:
     """A Gantt chart of the calls, one row per channel."""
     import matplotlib

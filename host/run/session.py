@@ -308,6 +308,7 @@ class RobotSession:
             # one-time planning costs now, not on the first call's token -> servo path; before the link is
             # up, because it holds the event loop and a board whose link is up expects heartbeats
             warm_up_behaviours(self.robot)
+            artefacts.warm_up_plotting()  # the turn's plots run in a thread while the link is live
             identity = RobotIdentity(self.robot.name, self.robot.servo_count, self.robot.servo_table_hash)
             try:
                 client = await BoardClient.connect(target, baud=opts.baud, log_path=self.out / f"host_frames{log_suffix}",

@@ -3,18 +3,8 @@ end to end): what every run must show (:func:`check_common`) and what each task'
 (:func:`check_task`). Two test files share them so the suite's workers (``--dist loadfile``) run the
 Python board's half and the C firmware's half side by side.
 
-All 30 ground-truth programs of the paper end to end on the emulated CoCo, in lockstep over a real pty.
-
-Times are the board's, measured from telemetry (a motion call starts with its
-first applied frame and ends with its last; peripherals start/end on the board
-clock). Where the virtual-clock shell tests (tests/shell/test_tasks.py) had
-exact equalities, these allow a frame period or two (``SAME_S``); a call that a
-previous one releases starts on the 10 ms frame grid after the streamer's
-lookahead, so "b follows a" means ``a.end <= b.start <= a.end + PROMPT_S``; calls on one
-motion channel flow into each other (Task 26: no gap beyond a frame period).
-Task 23's "stops within 0.2 s" is measured at the END of the nod's smooth
-return (its last applied frame), the strictest reading; the cut itself (the
-FLUSH of the head servos in the host's frame log) is checked too, within 0.15 s.
+How times are read (the board's, from telemetry) and how close "together" or "follows" must be:
+the docstring of tests/e2e/test_tasks_e2e.py.
 """
 
 from __future__ import annotations

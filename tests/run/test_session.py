@@ -75,3 +75,32 @@ def test_a_session_plans_every_behaviour_once_before_its_first_turn(tmp_path: Pa
     planned = anyio.run(main, backend="asyncio")
     assert at_connect == [1]  # planned before the link came up
     assert planned >= 20  # CoCo: all 24 but joint_move, which needs its joints
+
+
+def test_a_session_sets_up_plotting_before_its_link_connects(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The turn's plots are drawn in a worker thread while the link is live; matplotlib's import and
+    first draw (hundreds of ms in which the loop thread barely got the GIL: a realtime board's
+    watchdog latched in CI) happen before the link connects (``artefacts.warm_up_plotting``)."""
+    import host.run.session as session_module
+
+    order: list[str] = []
+    connect = session_module.BoardClient.connect
+    warm = session_module.artefacts.warm_up_plotting
+
+    def warm_and_note() -> None:
+        order.append("plotting")
+        warm()
+
+    async def connect_and_note(*args: object, **kw: object) -> object:
+        order.append("connect")
+        return await connect(*args, **kw)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(session_module.artefacts, "warm_up_plotting", warm_and_note)
+    monkeypatch.setattr(session_module.BoardClient, "connect", connect_and_note)
+
+    async def main() -> None:
+        async with _session(tmp_path):
+            pass
+
+    anyio.run(main, backend="asyncio")
+    assert order == ["plotting", "connect"]
