@@ -84,7 +84,8 @@ class BoardCommands:
     async def estop(self) -> Ack:
         """Emergency stop: the board holds where it is and refuses frames until :meth:`estop_clear`.
 
-        Re-sent until acknowledged (up to 20 times, ``reply_timeout`` apart), also under loss.
+        Re-sent until acknowledged, also under loss: the first re-send after the link's measured
+        round-trip timeout, for ``20 × reply_timeout`` s in all (:meth:`request`).
         """
         return await self.request(Estop(), attempts=20)
 

@@ -40,8 +40,10 @@ class RetransmitTimeout:
     RFC 6298 (TCP's retransmission timer): the first sample R sets SRTT = R and RTTVAR = R/2; each
     later one RTTVAR = (1 - 1/4)·RTTVAR + 1/4·|SRTT - R|, SRTT = (1 - 1/8)·SRTT + 1/8·R; the timeout
     is SRTT + max(G, 4·RTTVAR) with clock granularity G = 1 ms, clamped to [``min_s``, ``max_s``]
-    (``max_s`` before the first sample, as the RFC's initial 1 s). Only answers to a request's first
-    copy are samples (Karn's rule: after a re-send, which copy was answered is unknown). ``min_s`` is
+    (``max_s`` before the first sample, as the RFC's initial 1 s). Samples come from answers timed
+    from the copy they name (each copy has its own sequence number, so, unlike TCP's, no answer is
+    ambiguous and Karn's rule is not needed; a timer that fired early is corrected by the next
+    answer to a late copy). ``min_s`` is
     0.1 s, not the RFC's 1 s: a board answers in ~1 ms over a pty or SLCAN and in tens of ms under
     QEMU, and a re-send that was not needed costs one duplicate the board applies to the same effect.
     """
@@ -128,6 +130,21 @@ class RequestTable:
                 w.set_result(value)
         self.nack_waiters = [(s, w) for s, w in self.nack_waiters if not w.done()]
 
+    @staticmethod
+    def _sample(rto: RetransmitTimeout, reply: Reply[Ack], sent_at: dict[int, float]) -> None:
+        """A round-trip sample from the copy the board answered: every copy has its own sequence
+        number and the ACK (or NACK) names it, so no answer is ambiguous (what Karn's rule guards
+        against in TCP). A request ended by the link going down is no sample."""
+        try:
+            answer: Ack | Nack = reply.result()
+        except NackError as e:
+            answer = e.nack
+        except Exception:
+            return
+        t = sent_at.get(answer.ack_seq & 0xFFFF)
+        if t is not None:
+            rto.sample(anyio.current_time() - t)
+
     # --- sequence numbers and link loss ------------------------------------------------------
 
     def forget_seq(self, seq: int) -> None:
@@ -192,26 +209,28 @@ class RequestTable:
         With ``rto`` (the link's :class:`RetransmitTimeout`) the first wait is ``rto.timeout_s()``
         (at most ``per_try``), each later one twice the one before up to ``per_try`` (RFC 6298's
         back-off), and copies go out until ``attempts × per_try`` s have passed: the same patience,
-        with a lost frame costing about one round-trip timeout instead of ``per_try``. An answer to the
-        first copy is a round-trip sample for ``rto``."""
+        with a lost frame costing about one round-trip timeout instead of ``per_try``. Every answer is
+        a round-trip sample for ``rto``, timed from the copy it names (:meth:`_sample`)."""
         reply: Reply[Ack] = Reply()
         n = max(1, attempts)
         seqs: list[int] = []
+        sent_at: dict[int, float] = {}  # each copy's send time, by its sequence number
         budget = n * per_try
         start = anyio.current_time()
         wait = per_try if rto is None else min(per_try, rto.timeout_s())
         try:
             while True:
-                sent_at = anyio.current_time()
+                t_send = anyio.current_time()
                 seq = send(msg)
                 seqs.append(seq)
+                sent_at[seq & 0xFFFF] = t_send
                 self.expect(seq, reply)
                 if await reply.wait(wait):
-                    if rto is not None and len(seqs) == 1:
-                        rto.sample(anyio.current_time() - sent_at)
+                    if rto is not None:
+                        self._sample(rto, reply, sent_at)
                     return reply.result()
                 left = budget - (anyio.current_time() - start)
-                if len(seqs) >= n and (rto is None or left <= 0):
+                if len(seqs) >= n and (rto is None or left < rto.min_s):
                     break
                 if rto is not None:
                     wait = min(per_try, 2 * wait)

@@ -146,7 +146,10 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
         self._board_time_seen = 0
         #: pending requests, frame NACKs and their waiters by sequence number (host.link.requests)
         self.requests = RequestTable(self._count_retry)
-        #: the wait before a request is re-sent, from this link's measured round trips (at most ``reply_timeout``)
+        if not reply_timeout > 0:
+            raise ValueError(f"reply_timeout must be > 0 s, got {reply_timeout}")
+        #: the wait before a request is re-sent, from this connection's measured round trips (at most
+        #: ``reply_timeout``; measured anew after every handshake)
         self.rto = RetransmitTimeout(min_s=min(0.1, reply_timeout), max_s=reply_timeout)
         self.camera = CameraAssembler()  # camera captures in progress (host.link.camera)
         #: handshake, time sync, heartbeat, reconnect (host.link.supervisor)
@@ -247,6 +250,9 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
         self._rx_gaps = GapDetector()  # the board's numbering as from this connection
         self._board_time_seen = caps.board_time_us
         self.clock.clear()
+        # a board after a reconnect may be another (a slower one, QEMU): its round trips are measured anew
+        self.rto = RetransmitTimeout(min_s=self.rto.min_s, max_s=self.rto.max_s)
+        self._report_latencies = None
         self._ready = True
 
     def _count_retry(self) -> None:

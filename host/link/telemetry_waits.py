@@ -66,7 +66,8 @@ class TelemetryWaits(BoardTime):
     def nudge_raise_s(self) -> float:
         """Wall seconds a nudge waits for the report its ADVANCE asked for before it takes the report as
         lost and moves the target on: ``NUDGE_RAISE_FACTOR`` × the slowest of the last 16 such reports
-        (from the first ADVANCE of a target to the report that reached it and ended the wait), between ``2 × NUDGE_S``
+        (from a wait's first ADVANCE to the report that ended it, when no other target was needed; the
+        slowest, so a report already on its way does not lower it), between ``2 × NUDGE_S``
         and ``NUDGE_RAISE_S``; ``NUDGE_RAISE_S`` before any was measured. A native board reports in
         ~2 ms, so a lost report costs 0.2 s instead of 1 s; a slow board (QEMU) keeps up to 1 s."""
         lat = self._report_latencies
@@ -103,6 +104,7 @@ class TelemetryWaits(BoardTime):
         nudging = nudge and self.lockstep
         until = 0
         raised_at, raised_from = 0.0, 0  # when the target was set, and the board time seen then
+        targets = 0  # targets this wait has set (a latency is sampled only when the first one was met)
         try:
             while True:
                 if nudging:
@@ -115,6 +117,7 @@ class TelemetryWaits(BoardTime):
                         # not be pushed ahead of the frames the host is about to time from its report
                         until = max(until, seen) + self.report_period_us()
                         raised_at, raised_from = now, seen
+                        targets += 1
                     with contextlib.suppress(LinkError):
                         self._send(Advance(until))
                 left = deadline - anyio.current_time()
@@ -122,7 +125,7 @@ class TelemetryWaits(BoardTime):
                     break
                 if await fut.wait(min(left, self.NUDGE_S) if nudging else left):
                     got = fut.result()
-                    if nudging and until and got.board_time_us > raised_from:  # a report this target brought
+                    if nudging and targets == 1 and got.board_time_us > raised_from:  # the first target's report
                         self._report_latency(anyio.current_time() - raised_at)
                     return got
                 if not nudging:

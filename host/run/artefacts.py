@@ -102,6 +102,9 @@ _COLOURS = {"done": "#4c9be8", "failed": "#e05050", "cancelled": "#aaaaaa", "int
             "pending": "#dddddd", "timeout": "#b07cd8"}
 
 
+_plotting_warm = False
+
+
 def warm_up_plotting() -> None:
     """Import matplotlib (Agg) and draw one tiny figure, once per process, before a session's link is up.
 
@@ -110,19 +113,27 @@ def warm_up_plotting() -> None:
     loop thread got the GIL only in stretches (loading C extensions holds it), so heartbeats and
     frames stalled. Measured on a realtime run's live view (bench/bench_foxglove.py --n 1 --task 1):
     /joint_states gaps of 104-208 ms on a quiet machine; in one CI run the stall reached 1.2 s and the
-    board's watchdog latched."""
+    board's watchdog latched. Draws on its own ``Figure`` (not pyplot's global state, which another
+    session's writer thread may be using); only the first call does anything."""
+    global _plotting_warm
+    if _plotting_warm:
+        return
     import io
 
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot  # noqa: F401  (the import the writer's first plot would pay)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
-    fig, ax = plt.subplots(figsize=(1, 1))
+    fig = Figure(figsize=(1, 1))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
     ax.barh(0, 1.0)
     ax.text(0, 0, "warm", fontsize=7)
     fig.savefig(io.BytesIO(), format="png", dpi=20)
-    plt.close(fig)
+    _plotting_warm = True
 
 
 def plot_timeline(path: Path, calls: Sequence[BoardCall], title: str = "") -> None:

@@ -173,7 +173,7 @@ def test_the_retransmit_timeout_follows_rfc_6298() -> None:
 def test_with_a_measured_round_trip_a_lost_request_is_re_sent_soon_and_backs_off_within_the_same_patience() -> None:
     """Trio's MockClock (virtual time, jumping whenever every task waits): the copies of a request nobody
     answers go out 0.1, 0.2, 0.4, 0.8, 1.0 s apart, and it fails after attempts × per_try = 3 s, as
-    without the timer; an answer to a first copy is a round-trip sample, one after a re-send is not."""
+    without the timer; every answer is a round-trip sample timed from the copy it names."""
     import trio.testing
 
     async def main() -> None:
@@ -205,14 +205,18 @@ def test_with_a_measured_round_trip_a_lost_request_is_re_sent_soon_and_backs_off
             await table.request(answered_in_4_ms, Estop(), per_try=1.0, attempts=3, rto=rto)
             assert rto.samples == 2 and rto.srtt == pytest.approx(7 / 8 * 0.002 + 1 / 8 * 0.004)
 
-            def second_copy_answered(msg: object) -> int:
+            def first_copy_answered_late(msg: object) -> int:
                 copies.append(len(copies))
-                if len(copies) == 2:
-                    tg.start_soon(ack_after, 1, 0.004)
+                if len(copies) == 1:  # its ACK takes 0.3 s: after the re-send at ~0.1 s
+                    tg.start_soon(ack_after, 0, 0.3)
                 return copies[-1]
 
-            await table.request(second_copy_answered, Estop(), per_try=1.0, attempts=3, rto=rto)
-        assert copies == [0, 1] and rto.samples == 2  # Karn: an answer after a re-send is no sample
+            await table.request(first_copy_answered_late, Estop(), per_try=1.0, attempts=3, rto=rto)
+        # two copies went out; the ACK names the first, so the sample is its 0.3 s, not the 0.2 s since
+        # the second: a timer that fired too early grows with the next answer
+        assert copies == [0, 1] and rto.samples == 3
+        assert rto.srtt == pytest.approx(7 / 8 * (7 / 8 * 0.002 + 1 / 8 * 0.004) + 1 / 8 * 0.3)
+        assert rto.timeout_s() > 0.1
 
     anyio.run(main, backend="trio", backend_options={"clock": trio.testing.MockClock(autojump_threshold=0)})
 
