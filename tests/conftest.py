@@ -6,8 +6,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import pytest  # noqa: E402
 
-#: under pytest-xdist, tests marked ``realtime`` run alone (tests/support/realtime_lock.py)
-pytest_plugins = ["support.realtime_lock"]
+#: under pytest-xdist, tests marked ``realtime`` run alone (tests/support/realtime_lock.py) and the
+#: longest files start first (tests/support/file_order.py)
+pytest_plugins = ["support.realtime_lock", "support.file_order"]
 
 
 @pytest.fixture(autouse=True)

@@ -36,16 +36,12 @@ class FaultyWire:
         self._partial = bytearray()
 
     @property
-    def byte_time(self) -> float:
-        return float(self.inner.byte_time)
-
-    @property
-    def free_at(self) -> float:
-        return float(self.inner.free_at)
-
-    @property
     def bytes_queued(self) -> int:
         return int(self.inner.bytes_queued) + len(self._partial)
+
+    def busy_s(self, now: float) -> float:
+        """Seconds until the wrapped line is idle (:meth:`WireModel.busy_s`); faults do not change it."""
+        return float(self.inner.busy_s(now))
 
     def push(self, now: float, data: bytes) -> None:
         self.inner.push(now, data)

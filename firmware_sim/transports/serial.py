@@ -99,8 +99,7 @@ class SerialBoardTransport(BoardTransport):
         return bool(self.tx_pending)
 
     def tx_busy_s(self, now: float) -> float:
-        # free_at / byte_time, not WireModel.busy_s: tx_wire may be a fault wrapper (transports/faulty.py)
-        return max(0.0, self.tx_wire.free_at - now) if self.tx_wire.byte_time else 0.0
+        return float(self.tx_wire.busy_s(now))
 
     def next_io_time(self) -> float | None:
         times = [t for t in (self.rx_wire.next_release(), self.tx_wire.next_release()) if t is not None]

@@ -158,10 +158,8 @@ def dead_board_error(board: BoardProcess | None, error: LinkConfigError) -> Link
 
     When that board has exited, the link spec was fine: the board died before the host could open its
     link (its pty is gone), which is a lost link (exit 1), not a usage error (exit 2). Returns the
-    :class:`LinkDown` to raise then (``raise dead from error``), naming the board's exit status and its
-    stderr file; None when there is no such board or it still runs (``error`` stands).
+    :class:`LinkDown` to raise then (``raise dead from error``), with :meth:`BoardProcess.exit_reason`
+    (exit status, last stderr line, stderr file); None when there is no such board or it still runs (``error`` stands).
     """
-    if board is None or board.proc.poll() is None:
-        return None
-    see = f"; see {board.stderr_path}" if board.stderr_path is not None else ""
-    return LinkDown(f"the emulated board exited (status {board.proc.returncode}) before the link came up{see}")
+    why = board.exit_reason() if board is not None else None
+    return None if why is None else LinkDown(f"before the link came up, {why}")

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -151,6 +152,7 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
         #: the wait before a request is re-sent, from this connection's measured round trips (at most
         #: ``reply_timeout``; measured anew after every handshake)
         self.rto = RetransmitTimeout(min_s=min(0.1, reply_timeout), max_s=reply_timeout)
+        self.report_latencies = deque(maxlen=16)  # what the lockstep nudge waits (TelemetryWaits.nudge_raise_s)
         self.camera = CameraAssembler()  # camera captures in progress (host.link.camera)
         #: handshake, time sync, heartbeat, reconnect (host.link.supervisor)
         self.supervisor = Supervisor(self)
@@ -252,7 +254,7 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
         self.clock.clear()
         # a board after a reconnect may be another (a slower one, QEMU): its round trips are measured anew
         self.rto = RetransmitTimeout(min_s=self.rto.min_s, max_s=self.rto.max_s)
-        self._report_latencies = None
+        self.report_latencies.clear()
         self._ready = True
 
     def _count_retry(self) -> None:

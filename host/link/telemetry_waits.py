@@ -61,7 +61,9 @@ class TelemetryWaits(BoardTime):
     #: a nudge's target is raised after this many times the slowest recent report (see nudge_raise_s)
     NUDGE_RAISE_FACTOR = 4
 
-    _report_latencies: deque[float] | None = None
+    #: the latest 16 report latencies nudge_raise_s works from (the session makes it, and empties it
+    #: on every handshake)
+    report_latencies: deque[float]
 
     def nudge_raise_s(self) -> float:
         """Wall seconds a nudge waits for the report its ADVANCE asked for before it takes the report as
@@ -70,15 +72,13 @@ class TelemetryWaits(BoardTime):
         slowest, so a report already on its way does not lower it), between ``2 × NUDGE_S``
         and ``NUDGE_RAISE_S``; ``NUDGE_RAISE_S`` before any was measured. A native board reports in
         ~2 ms, so a lost report costs 0.2 s instead of 1 s; a slow board (QEMU) keeps up to 1 s."""
-        lat = self._report_latencies
+        lat = self.report_latencies
         if not lat:
             return self.NUDGE_RAISE_S
         return min(self.NUDGE_RAISE_S, max(2 * self.NUDGE_S, self.NUDGE_RAISE_FACTOR * max(lat)))
 
     def _report_latency(self, seconds: float) -> None:
-        if self._report_latencies is None:
-            self._report_latencies = deque(maxlen=16)
-        self._report_latencies.append(max(0.0, seconds))
+        self.report_latencies.append(max(0.0, seconds))
 
     async def telemetry(self, maxsize: int | None = None) -> AsyncIterator[Telemetry]:
         """Every telemetry report from now on; a slow consumer loses the oldest (bounded stream)."""

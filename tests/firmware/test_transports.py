@@ -83,6 +83,23 @@ def test_wire_model_holds_bytes_for_their_wire_time() -> None:
         t.close()
 
 
+def test_a_fault_wrapped_line_reports_the_same_wire_time() -> None:
+    """``--faults`` wraps both wire models; the transmit backlog the board stamps TIME_SYNC replies
+    and drops periodic telemetry by must still be the line's, not 0."""
+    from firmware_sim.transports.faulty import install_faults
+    from protocol.faults import FaultSpec
+
+    t = SerialBoardTransport("pty", baud=10_000)  # 1 ms per byte
+    try:
+        install_faults(t, FaultSpec.parse("drop=0.5"), seed=3)
+        raw = encode_frame(Heartbeat(1), 0)
+        t.queue(Heartbeat(1), 0, 100.0)
+        assert t.tx_busy_s(100.0) == pytest.approx(len(raw) * 1e-3)
+        assert t.tx_busy_s(100.0 + len(raw) * 1e-3 + 1.0) == 0.0
+    finally:
+        t.close()
+
+
 def test_a_time_sync_reply_is_stamped_for_when_it_goes_on_the_wire() -> None:
     """Over a modelled line a TIME_SYNC_REPLY queues behind what is already on the wire; its t3 is
     the board time its first byte goes out (transmit timestamping), so the host's NTP offset does

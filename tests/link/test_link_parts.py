@@ -8,6 +8,8 @@ subscriber is known to wait once every task is blocked (anyio.wait_all_tasks_blo
 
 from __future__ import annotations
 
+from collections import deque
+
 import anyio
 import anyio.lowlevel
 import pytest
@@ -225,6 +227,7 @@ def test_a_nudge_takes_a_report_as_lost_after_four_times_the_slowest_recent_one(
     from host.link.telemetry_waits import TelemetryWaits
 
     w = object.__new__(TelemetryWaits)
+    w.report_latencies = deque(maxlen=16)  # as BoardClient makes it
     assert w.nudge_raise_s() == TelemetryWaits.NUDGE_RAISE_S == 1.0  # nothing measured yet
     w._report_latency(0.002)  # a native board: 2 ms
     assert w.nudge_raise_s() == 2 * TelemetryWaits.NUDGE_S  # never under two nudges

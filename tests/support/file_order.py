@@ -1,0 +1,91 @@
+"""Under pytest-xdist, test files run longest first (LPT scheduling), from measured durations.
+
+The suite runs with ``--dist loadfile``: a file is one work unit, handed to whichever worker runs
+low. xdist's default queue order puts files with many tests first (``--loadscope-reorder``), so a
+file of three long tests (SocketCAN in User-Mode Linux, ~100 s) or one (the type check, ~40 s) went
+last and ran on one worker while the other had nothing left: ~100 s of a 1 000-s run on one core.
+Longest-processing-time-first ordering (Graham 1969: within 4/3 of the best makespan) starts the long
+files first and leaves short ones to fill the end. ``pyproject.toml`` turns xdist's reorder off
+(``--no-loadscope-reorder``) so the queue keeps the order this hook gives the collection.
+
+The durations are data: ``tests/durations.json`` maps a test file (relative to the repository) to
+the seconds its tests took in a two-worker run (the sum of the JUnit ``time`` of its tests, setup
+and teardown included). A file not in it weighs :data:`DEFAULT_S_PER_TEST` per test. Remake the
+table after adding or moving heavy tests::
+
+    .venv/bin/python -m pytest -n 2 --dist loadfile --junitxml=/tmp/junit.xml
+    .venv/bin/python tests/support/file_order.py /tmp/junit.xml > tests/durations.json
+
+Only xdist workers reorder (they must all collect the same order, and do: the hook is a pure
+function of the collection); a one-process run keeps pytest's order.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import xml.etree.ElementTree as ET
+from collections import Counter
+from pathlib import Path
+
+import pytest
+
+#: the table, next to the tests it describes (relative to the run's root folder)
+DURATIONS = Path("tests") / "durations.json"
+#: seconds per test of a file the table does not know (about the suite's median file rate)
+DEFAULT_S_PER_TEST = 0.3
+
+
+def load_durations(path: Path) -> dict[str, float]:
+    """``{"tests/x/test_y.py": seconds}``; empty when the file is missing or unreadable."""
+    try:
+        table = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return {str(k): float(v) for k, v in table.items()} if isinstance(table, dict) else {}
+
+
+def file_of(nodeid: str) -> str:
+    """The test file of a node id (``tests/a/test_b.py::test_c[1]`` -> ``tests/a/test_b.py``)."""
+    return nodeid.split("::", 1)[0]
+
+
+def longest_first(nodeids: list[str], durations: dict[str, float]) -> list[str]:
+    """``nodeids`` grouped by file, files by descending weight (measured seconds, else
+    :data:`DEFAULT_S_PER_TEST` per test), ties and each file's own tests in collection order."""
+    counts = Counter(file_of(n) for n in nodeids)
+    first_seen = {f: i for i, f in reversed(list(enumerate(file_of(n) for n in nodeids)))}
+
+    def weight(f: str) -> float:
+        return durations.get(f, DEFAULT_S_PER_TEST * counts[f])
+
+    rank = {f: r for r, f in enumerate(sorted(counts, key=lambda f: (-weight(f), first_seen[f])))}
+    return sorted(nodeids, key=lambda n: rank[file_of(n)])  # stable: a file's tests keep their order
+
+
+def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config, items: list[pytest.Item]) -> None:
+    if getattr(config, "workerinput", None) is None:  # not an xdist worker
+        return
+    order = {n: i for i, n in enumerate(longest_first([it.nodeid for it in items], load_durations(config.rootpath / DURATIONS)))}
+    items.sort(key=lambda it: order[it.nodeid])
+
+
+def durations_from_junit(xml_path: Path, root: Path) -> dict[str, float]:
+    """Seconds per test file from a JUnit XML report (pytest's ``--junitxml``): the ``time`` of its
+    test cases summed, keyed by the file's path relative to ``root``, largest first."""
+    totals: Counter[str] = Counter()
+    for case in ET.parse(xml_path).iter("testcase"):
+        parts = (case.get("classname") or "").split(".")
+        for cut in range(len(parts), 0, -1):  # tests.a.test_b[.Class] -> tests/a/test_b.py
+            candidate = "/".join(parts[:cut]) + ".py"
+            if (root / candidate).is_file():
+                totals[candidate] += float(case.get("time") or 0.0)
+                break
+    return {f: round(s, 1) for f, s in totals.most_common()}
+
+
+if __name__ == "__main__":
+    if len(sys.argv) != 2:
+        sys.exit("usage: file_order.py JUNIT_XML   (prints tests/durations.json)")
+    repo = Path(__file__).resolve().parents[2]
+    print(json.dumps(durations_from_junit(Path(sys.argv[1]), repo), indent=1))
