@@ -8,7 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from support.file_order import DEFAULT_S_PER_TEST, DURATIONS, durations_from_junit, file_of, longest_first
+from support.file_order import DEFAULT_S_PER_TEST, DURATIONS, durations_from_junit, file_of, run_order
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -17,10 +17,13 @@ def test_files_go_longest_first_and_keep_their_tests_in_order() -> None:
     ids = ["t/a.py::x", "t/a.py::y", "t/b.py::z", "t/c.py::p", "t/c.py::q", "t/c.py::r", "t/d.py::s"]
     table = {"t/b.py": 50.0, "t/d.py": 0.1}
     # b is measured longest; c (3 unknown tests) outweighs a (2); d is measured short
-    assert longest_first(ids, table) == ["t/b.py::z", "t/c.py::p", "t/c.py::q", "t/c.py::r",
-                                         "t/a.py::x", "t/a.py::y", "t/d.py::s"]
+    assert run_order(ids, table) == ["t/b.py::z", "t/c.py::p", "t/c.py::q", "t/c.py::r",
+                                     "t/a.py::x", "t/a.py::y", "t/d.py::s"]
     same = {"t/a.py": 3.0, "t/b.py": 3.0}
-    assert longest_first(["t/b.py::1", "t/a.py::1", "t/b.py::2"], same) == ["t/b.py::1", "t/b.py::2", "t/a.py::1"]
+    assert run_order(["t/b.py::1", "t/a.py::1", "t/b.py::2"], same) == ["t/b.py::1", "t/b.py::2", "t/a.py::1"]
+    # files with realtime tests first (longest first among them), however short
+    assert run_order(ids, table, first={"t/d.py", "t/a.py"}) == ["t/a.py::x", "t/a.py::y", "t/d.py::s", "t/b.py::z",
+                                                                "t/c.py::p", "t/c.py::q", "t/c.py::r"]
     assert file_of("tests/x/test_y.py::test_z[a::b]") == "tests/x/test_y.py"
     assert DEFAULT_S_PER_TEST > 0
 
@@ -46,23 +49,26 @@ def test_the_table_names_only_test_files_that_exist() -> None:
     assert not missing, f"tests/durations.json names files that are gone (remake it: tests/support/file_order.py): {missing}"
 
 
-def test_an_xdist_run_starts_the_longest_file_first(tmp_path: Path) -> None:
-    """A real two-file suite under ``-n 1 --dist loadfile`` with the project's options: the file with
-    one measured-long test runs before the file with many short ones (xdist's own order is the reverse)."""
+def test_an_xdist_run_starts_realtime_files_then_the_longest(tmp_path: Path) -> None:
+    """A real three-file suite under ``-n 1 --dist loadfile`` with the project's options: the short file
+    with a realtime test first, then the file with one measured-long test, then the file with many
+    short ones (xdist's own order is the reverse)."""
     tests = tmp_path / "tests"
     tests.mkdir()
     (tests / "conftest.py").write_text(f"import sys\nsys.path.insert(0, {str(REPO / 'tests')!r})\n"
                                        "pytest_plugins = ['support.file_order']\n")
     (tests / "test_many.py").write_text("".join(f"def test_short_{i}():\n    pass\n" for i in range(5)))
     (tests / "test_one.py").write_text("def test_long():\n    pass\n")
+    (tests / "test_rt.py").write_text("import pytest\n\n@pytest.mark.realtime\ndef test_wall_clock():\n    pass\n")
     (tests / "durations.json").write_text(json.dumps({"tests/test_one.py": 100.0, "tests/test_many.py": 1.0}))
-    (tmp_path / "pyproject.toml").write_text('[tool.pytest.ini_options]\naddopts = "--no-loadscope-reorder"\n')
+    (tmp_path / "pyproject.toml").write_text('[tool.pytest.ini_options]\naddopts = "--no-loadscope-reorder"\n'
+                                            'markers = ["realtime: runs alone"]\n')
     out = subprocess.run([sys.executable, "-m", "pytest", "-n", "1", "--dist", "loadfile", "-v", "-p", "no:cacheprovider"],
                          cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stdout + out.stderr
     ran = [line.split()[-1] for line in out.stdout.splitlines() if "PASSED" in line and "::" in line]
-    assert len(ran) == 6 and ran[0] == "tests/test_one.py::test_long", ran
-    assert all("test_many" in r for r in ran[1:])
+    assert len(ran) == 7 and ran[:2] == ["tests/test_rt.py::test_wall_clock", "tests/test_one.py::test_long"], ran
+    assert all("test_many" in r for r in ran[2:])
 
 
 def test_the_project_turns_xdists_reorder_off() -> None:

@@ -1,4 +1,4 @@
-"""Under pytest-xdist, test files run longest first (LPT scheduling), from measured durations.
+"""Under pytest-xdist, the files with realtime tests run first, then the rest longest first.
 
 The suite runs with ``--dist loadfile``: a file is one work unit, handed to whichever worker runs
 low. xdist's default queue order puts files with many tests first (``--loadscope-reorder``), so a
@@ -7,6 +7,14 @@ last and ran on one worker while the other had nothing left: ~100 s of a 1 000-s
 Longest-processing-time-first ordering (Graham 1969: within 4/3 of the best makespan) starts the long
 files first and leaves short ones to fill the end. ``pyproject.toml`` turns xdist's reorder off
 (``--no-loadscope-reorder``) so the queue keeps the order this hook gives the collection.
+
+A ``realtime`` test runs alone (tests/support/realtime_lock.py): it waits until the other worker's
+current test ends, however long (the SocketCAN run in UML is one 84-s test). The 18 files with
+realtime tests therefore go first, longest first among themselves, while both workers run such
+files and each one's other tests are short; the LPT order of the rest follows. A simulation of the
+two-worker schedule with the lock, from one run's per-test times (n = 1 run of 2 076 tests, 1 617 s
+of test time, 167 s of it realtime): xdist's order 995 s (that run took 1 000 s), longest first 973 s,
+realtime files first 914 s; the bound ((1 617 - 167) / 2 + 167) is 892 s.
 
 The durations are data: ``tests/durations.json`` maps a test file (relative to the repository) to
 the seconds its tests took in a two-worker run (the sum of the JUnit ``time`` of its tests, setup
@@ -26,12 +34,15 @@ import json
 import sys
 import xml.etree.ElementTree as ET
 from collections import Counter
+from collections.abc import Collection
 from pathlib import Path
 
 import pytest
 
 #: the table, next to the tests it describes (relative to the run's root folder)
 DURATIONS = Path("tests") / "durations.json"
+#: the marker of a test that runs alone (tests/support/realtime_lock.py)
+REALTIME = "realtime"
 #: seconds per test of a file the table does not know (about the suite's median file rate)
 DEFAULT_S_PER_TEST = 0.3
 
@@ -50,23 +61,26 @@ def file_of(nodeid: str) -> str:
     return nodeid.split("::", 1)[0]
 
 
-def longest_first(nodeids: list[str], durations: dict[str, float]) -> list[str]:
-    """``nodeids`` grouped by file, files by descending weight (measured seconds, else
-    :data:`DEFAULT_S_PER_TEST` per test), ties and each file's own tests in collection order."""
+def run_order(nodeids: list[str], durations: dict[str, float], first: Collection[str] = ()) -> list[str]:
+    """``nodeids`` grouped by file: the files in ``first`` (those with realtime tests), then the others,
+    each group by descending weight (measured seconds, else :data:`DEFAULT_S_PER_TEST` per test);
+    ties and each file's own tests keep their collection order."""
     counts = Counter(file_of(n) for n in nodeids)
     first_seen = {f: i for i, f in reversed(list(enumerate(file_of(n) for n in nodeids)))}
 
-    def weight(f: str) -> float:
-        return durations.get(f, DEFAULT_S_PER_TEST * counts[f])
+    def key(f: str) -> tuple[bool, float, int]:
+        return f not in first, -durations.get(f, DEFAULT_S_PER_TEST * counts[f]), first_seen[f]
 
-    rank = {f: r for r, f in enumerate(sorted(counts, key=lambda f: (-weight(f), first_seen[f])))}
+    rank = {f: r for r, f in enumerate(sorted(counts, key=key))}
     return sorted(nodeids, key=lambda n: rank[file_of(n)])  # stable: a file's tests keep their order
 
 
 def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config, items: list[pytest.Item]) -> None:
     if getattr(config, "workerinput", None) is None:  # not an xdist worker
         return
-    order = {n: i for i, n in enumerate(longest_first([it.nodeid for it in items], load_durations(config.rootpath / DURATIONS)))}
+    realtime = {file_of(it.nodeid) for it in items if it.get_closest_marker(REALTIME) is not None}
+    ids = run_order([it.nodeid for it in items], load_durations(config.rootpath / DURATIONS), realtime)
+    order = {n: i for i, n in enumerate(ids)}
     items.sort(key=lambda it: order[it.nodeid])
 
 
