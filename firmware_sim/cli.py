@@ -274,10 +274,14 @@ def _main(argv: Sequence[str] | None = None) -> int:
     board = Board(cfg, robot=robot)
     for at, force, dur in args.push:
         board.push(at, force, dur)
-    # Lockstep renders in the loop (deterministic and free: virtual time waits); realtime in a thread.
+    # Realtime renders in a thread, its GL context made (and checked) before the link comes up: the first
+    # capture would otherwise stall the control loop. Lockstep renders in the loop (deterministic) and
+    # makes the renderer at the first capture: virtual time waits for it, and most runs never capture,
+    # so no lockstep boot pays the ~0.4 s of GL setup and first render (a capture that cannot render is
+    # refused with the reason then).
     why = None
-    if robot.peripherals.camera is not None:
-        why = board.camera.warm_up() if cfg.lockstep else board.start_camera_worker()
+    if robot.peripherals.camera is not None and not cfg.lockstep:
+        why = board.start_camera_worker()
     if why is not None:
         print(f"board: camera captures will be refused: {why}", file=sys.stderr)
     viewer = None
