@@ -277,8 +277,8 @@ def _main(argv: Sequence[str] | None = None) -> int:
     # Realtime renders in a thread, its GL context made (and checked) before the link comes up: the first
     # capture would otherwise stall the control loop. Lockstep renders in the loop (deterministic) and
     # makes the renderer at the first capture: virtual time waits for it, and most runs never capture,
-    # so no lockstep boot pays the ~0.4 s of GL setup and first render (a capture that cannot render is
-    # refused with the reason then).
+    # so no lockstep boot pays the GL setup and first render (0.7 -> 0.45 s per boot; a capture that
+    # cannot render is refused with the reason then, NO_RENDERER).
     why = None
     if robot.peripherals.camera is not None and not cfg.lockstep:
         why = board.start_camera_worker()

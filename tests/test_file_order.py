@@ -28,6 +28,17 @@ def test_files_go_longest_first_and_keep_their_tests_in_order() -> None:
     assert DEFAULT_S_PER_TEST > 0
 
 
+def test_a_missing_or_malformed_table_means_no_measurements(tmp_path: Path) -> None:
+    from support.file_order import load_durations
+
+    assert load_durations(tmp_path / "absent.json") == {}
+    for text in ("{", "[1, 2]", '{"tests/a.py": null}', '{"tests/a.py": [1]}', '{"tests/a.py": "abc"}'):
+        (tmp_path / "d.json").write_text(text)
+        assert load_durations(tmp_path / "d.json") == {}, text
+    (tmp_path / "d.json").write_text('{"tests/a.py": 2, "tests/b.py": "3.5"}')
+    assert load_durations(tmp_path / "d.json") == {"tests/a.py": 2.0, "tests/b.py": 3.5}
+
+
 def test_junit_times_sum_per_file(tmp_path: Path) -> None:
     (tmp_path / "tests" / "sub").mkdir(parents=True)
     (tmp_path / "tests" / "sub" / "test_k.py").write_text("")
@@ -52,7 +63,7 @@ def test_the_table_names_only_test_files_that_exist() -> None:
 def test_an_xdist_run_starts_realtime_files_then_the_longest(tmp_path: Path) -> None:
     """A real three-file suite under ``-n 1 --dist loadfile`` with the project's options: the short file
     with a realtime test first, then the file with one measured-long test, then the file with many
-    short ones (xdist's own order is the reverse)."""
+    short ones (xdist's own order runs the file with most tests first)."""
     tests = tmp_path / "tests"
     tests.mkdir()
     (tests / "conftest.py").write_text(f"import sys\nsys.path.insert(0, {str(REPO / 'tests')!r})\n"

@@ -123,12 +123,16 @@ class BoardCommands:
 
     #: wall seconds without a new camera chunk before the host asks again (a render takes ~0.1 s)
     CAPTURE_STALL_S = 0.4
+    #: the same before the capture's first chunk: a lockstep board makes its renderer (GL context, first
+    #: render: ~0.35 s quiet, more under load) at its first capture, and a request asked again meanwhile
+    #: would have it send the whole image twice
+    CAPTURE_FIRST_S = 1.0
 
     async def capture(self, width: int, height: int, timeout: float = 10.0) -> bytes:
         """One head-camera image as PNG bytes (reassembled from CAMERA_CHUNKs).
 
         Selective repeat over a lossy link: when no new chunk came for :attr:`CAPTURE_STALL_S`
-        s, the host asks again, with CAMERA_RESEND for the chunks still missing once it knows
+        s (:attr:`CAPTURE_FIRST_S` before the first), the host asks again, with CAMERA_RESEND for the chunks still missing once it knows
         how many there are, else with the same CAMERA_CAPTURE (the board answers a request id it
         already rendered with the same image). Raises :class:`LinkTimeout` after ``timeout`` s
         without the whole image, :class:`NackError` when the board refuses the capture
@@ -149,7 +153,8 @@ class BoardCommands:
                 if left <= 0:
                     raise LinkTimeout(f"camera image {rid} incomplete after {timeout} s ({self.camera.describe(rid)})")
                 have = len(parts)
-                if await fut.wait(min(left, self.CAPTURE_STALL_S)):
+                stall = self.CAPTURE_STALL_S if have else self.CAPTURE_FIRST_S
+                if await fut.wait(min(left, stall)):
                     return fut.result()
                 if len(parts) != have:
                     continue  # chunks are still arriving

@@ -48,12 +48,13 @@ DEFAULT_S_PER_TEST = 0.3
 
 
 def load_durations(path: Path) -> dict[str, float]:
-    """``{"tests/x/test_y.py": seconds}``; empty when the file is missing or unreadable."""
+    """``{"tests/x/test_y.py": seconds}``; empty when the file is missing or unreadable or holds a
+    value that is not a number (the order is then by test count: collection never fails over it)."""
     try:
         table = json.loads(path.read_text())
-    except (OSError, ValueError):
+        return {str(k): float(v) for k, v in table.items()} if isinstance(table, dict) else {}
+    except (OSError, ValueError, TypeError):  # unreadable, not JSON, a value that is not a number
         return {}
-    return {str(k): float(v) for k, v in table.items()} if isinstance(table, dict) else {}
 
 
 def file_of(nodeid: str) -> str:
