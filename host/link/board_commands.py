@@ -131,10 +131,10 @@ class BoardCommands:
     async def capture(self, width: int, height: int, timeout: float = 10.0) -> bytes:
         """One head-camera image as PNG bytes (reassembled from CAMERA_CHUNKs).
 
-        Selective repeat over a lossy link: when no new chunk came for :attr:`CAPTURE_STALL_S`
-        s (:attr:`CAPTURE_FIRST_S` before the first), the host asks again, with CAMERA_RESEND for the chunks still missing once it knows
-        how many there are, else with the same CAMERA_CAPTURE (the board answers a request id it
-        already rendered with the same image). Raises :class:`LinkTimeout` after ``timeout`` s
+        Selective repeat over a lossy link: when no new chunk came for :attr:`CAPTURE_STALL_S` s
+        (:attr:`CAPTURE_FIRST_S` before the first), the host asks again, with CAMERA_RESEND for the
+        chunks still missing once it knows how many there are, else with the same CAMERA_CAPTURE (the
+        board answers a request id it already rendered with the same image). Raises :class:`LinkTimeout` after ``timeout`` s
         without the whole image, :class:`NackError` when the board refuses the capture
         (NO_RENDERER, BAD_VALUE, BUSY).
         """

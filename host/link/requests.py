@@ -43,8 +43,9 @@ class RetransmitTimeout:
     (``max_s`` before the first sample, as the RFC's initial 1 s). Samples come from answers timed
     from the copy they name (each copy has its own sequence number, so, unlike TCP's, no answer is
     ambiguous and Karn's rule is not needed; a timer that fired early is corrected by the next
-    answer to a late copy). ``min_s`` is 0.1 s, not the RFC's 1 s: a board answers in ~1 ms over a pty or SLCAN and in tens of ms under
-    QEMU, and a re-send that was not needed costs one duplicate the board applies to the same effect.
+    answer to a late copy). ``min_s`` is 0.1 s, not the RFC's 1 s: a board answers in ~1 ms over a
+    pty or SLCAN and in tens of ms under QEMU, and a re-send that was not needed costs one duplicate
+    the board applies to the same effect.
     """
 
     ALPHA, BETA, K, G = 1 / 8, 1 / 4, 4, 0.001
