@@ -1,6 +1,9 @@
 """Files a run leaves behind: timeline.json/png, joints.png and summary.json.
 
-Plots use matplotlib's Agg backend (no display needed).
+Plots use matplotlib's Agg backend (no display needed). They are laid out with fixed margins in
+inches (:func:`_place_axes`), not ``tight_layout``, and written at zlib level 1 (:data:`PNG_OPTIONS`):
+on CoCo's joints.png those two halve the time per plot (0.48 -> 0.25 s, 3 runs each, quiet) for a
+file ~10 % larger. Every run writes both plots, so the test suite's ~150 runs paid it too.
 """
 
 from __future__ import annotations
@@ -104,6 +107,18 @@ _COLOURS = {"done": "#4c9be8", "failed": "#e05050", "cancelled": "#aaaaaa", "int
 
 _plotting_warm = False
 
+#: PNG encoder options for the plots: zlib level 1 (Pillow's default, 6, took ~40 % of a joints plot)
+PNG_OPTIONS: dict[str, Any] = {"compress_level": 1}
+
+
+def _place_axes(fig: Any, *, left_in: float, bottom_in: float, top_in: float, right_in: float = 0.15,
+                hspace: float = 0.08) -> None:
+    """Margins of ``fig``'s subplots in inches, whatever its size (``tight_layout`` measured every
+    label on a dry draw first: ~40 % of a plot's time)."""
+    w, h = fig.get_size_inches()
+    fig.subplots_adjust(left=left_in / w, right=1 - right_in / w, bottom=bottom_in / h, top=1 - top_in / h,
+                        hspace=hspace)
+
 
 def warm_up_plotting() -> None:
     """Import matplotlib (Agg) and draw one tiny figure, once per process, before a session's link is up.
@@ -162,8 +177,9 @@ def plot_timeline(path: Path, calls: Sequence[BoardCall], title: str = "") -> No
     ax.set_xlabel("board time (s)")
     ax.set_title(title or "timeline")
     ax.grid(axis="x", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    # the channel names are the y tick labels (10 pt, ~0.09 in a character)
+    _place_axes(fig, left_in=0.25 + 0.09 * max(len(c) for c in channels), bottom_in=0.55, top_in=0.35)
+    fig.savefig(path, dpi=110, pil_kwargs=PNG_OPTIONS)
     plt.close(fig)
 
 
@@ -198,8 +214,8 @@ def plot_joints(path: Path, times: np.ndarray, positions: np.ndarray, names: Seq
         ax.grid(alpha=0.3)
     axes = axes[:, 0]
     axes[-1].set_xlabel("board time (s)  (solid: measured, dashed: commanded)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    _place_axes(fig, left_in=0.85, bottom_in=0.5, top_in=0.15)  # two-line panel labels, 4-digit ticks
+    fig.savefig(path, dpi=110, pil_kwargs=PNG_OPTIONS)
     plt.close(fig)
 
 

@@ -70,7 +70,8 @@ static void serve_lockstep(gs_app_t *app) {
     gs_rx_item_t item;
     while (!hal_should_stop()) {
         unsigned ran = 0;
-        while (gs_board_can_tick(b) && gs_link_backlog(l) < GS_LOCKSTEP_BACKLOG && ran < 256u) {
+        /* (a stop ends the batch: each tick of a stopping board would wait out its bus reads) */
+        while (gs_board_can_tick(b) && gs_link_backlog(l) < GS_LOCKSTEP_BACKLOG && ran < 256u && !hal_should_stop()) {
             gs_app_tick(app);
             if (++ran % 16u == 0) gs_link_flush(l);
         }
@@ -103,7 +104,7 @@ static void serve_realtime(gs_app_t *app) {
         if (hal_now_us() < deadline) hal_wait(deadline, gs_link_backlog(l) > 0);
         gs_link_pump_rx(l);
         while (gs_link_next(l, &item)) gs_app_process(app, &item);
-        while (start + next_tick * b->tick_us <= hal_now_us()) {
+        while (start + next_tick * b->tick_us <= hal_now_us() && !hal_should_stop()) {
             uint64_t due = start + next_tick * b->tick_us;
             uint64_t late = hal_now_us() - due;
             uint64_t before = next_tick;

@@ -69,13 +69,19 @@ static int parse_status(uint8_t *params, size_t cap, size_t *n_params) {
     }
 }
 
-/* Wait for the next status packet until `deadline`; its id, or -1 on timeout. */
+#define GS_BUS_TIMEOUT (-1)
+#define GS_BUS_STOPPING (-2)
+
+/* Wait for the next status packet until `deadline`; its id, GS_BUS_TIMEOUT, or GS_BUS_STOPPING
+ * when the port was asked to stop: a stopping board does not wait out its bus timeouts (1 s each
+ * in lockstep) for a plant that may already be gone, and a stop is not counted as a timeout. */
 static int next_status(uint64_t deadline, uint8_t *params, size_t cap, size_t *n_params) {
     for (;;) {
         int id = parse_status(params, cap, n_params);
         if (id >= 0) return id;
+        if (hal_should_stop()) return GS_BUS_STOPPING;
         uint64_t now = hal_now_us();
-        if (now >= deadline) return -1;
+        if (now >= deadline) return GS_BUS_TIMEOUT;
         if (rx_len >= sizeof rx) rx_len = 0; /* cannot happen with sane packets; never overflow */
         size_t got = hal_bus_read(&rx[rx_len], sizeof rx - rx_len, (uint32_t)(deadline - now));
         rx_len += got;
@@ -109,7 +115,7 @@ uint32_t gs_bus_sync_read(uint8_t addr, uint8_t len, const uint8_t *ids, size_t 
         size_t np = 0;
         int id = next_status(deadline, p, sizeof p, &np);
         if (id < 0) {
-            gs_bus_stats.timeouts++;
+            if (id == GS_BUS_TIMEOUT) gs_bus_stats.timeouts++;
             break;
         }
         for (size_t i = 0; i < n; i++) {
@@ -131,7 +137,7 @@ int gs_bus_read(uint8_t id, uint8_t addr, uint8_t len, uint8_t *data, uint32_t t
         size_t np = 0;
         int got = next_status(deadline, p, sizeof p, &np);
         if (got < 0) {
-            gs_bus_stats.timeouts++;
+            if (got == GS_BUS_TIMEOUT) gs_bus_stats.timeouts++;
             return 0;
         }
         if (got == id && np == len) {
@@ -149,7 +155,7 @@ int gs_bus_ping(uint8_t id, uint32_t timeout_us) {
         size_t np = 0;
         int got = next_status(deadline, p, sizeof p, &np);
         if (got < 0) {
-            gs_bus_stats.timeouts++;
+            if (got == GS_BUS_TIMEOUT) gs_bus_stats.timeouts++;
             return 0;
         }
         if (got == id) return 1;

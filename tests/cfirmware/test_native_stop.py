@@ -1,0 +1,52 @@
+"""A native C board asked to stop (SIGTERM) stops at once, even while it waits on a silent servo bus.
+
+Found in the e2e runs on the C firmware: when the host stopped the board, the launcher (the plant)
+stopped answering the bus and the firmware, mid-way through a batch of lockstep ticks, waited out
+its bus reads (1 s each in lockstep) tick after tick: ~4 s of exit in about one run in three. The
+stop now ends every bus wait and the tick batch (firmware_sim/c/core/gs_bus.c, gs_app.c).
+
+Here the bus is a pty this test holds and never answers: the board's boot pings its 12 servos, the
+IMU and the probe, 1 s each in lockstep, so a firmware that waited them out would take ~14 s to
+exit; the bound below is a third of that.
+"""
+
+from __future__ import annotations
+
+import select
+import signal
+import subprocess
+from pathlib import Path
+
+from firmware_sim.cfirmware.build import build
+from firmware_sim.transports.ports import PtyPort
+
+PING_SERVO_1 = bytes([0xFF, 0xFF, 0x01, 0x02, 0x01])  # the boot's first instruction: PING id 1 (no checksum)
+EXIT_BOUND_S = 5.0  # liveness bound (14 s without the fix), not a speed target
+
+
+def _wait_readable(fd: int, timeout: float) -> bool:
+    return bool(select.select([fd], [], [], timeout)[0])
+
+
+def test_sigterm_during_bus_waits_ends_the_board_at_once(coco, tmp_path: Path) -> None:
+    exe = build("native", coco)
+    bus = PtyPort()
+    proc = subprocess.Popen([str(exe), "--bus", bus.name, "--host", "pty", "--lockstep"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        seen = b""
+        while PING_SERVO_1 not in seen:  # the boot is now waiting for servo 1's answer
+            assert _wait_readable(bus.master, 10.0), f"no PING on the bus; got {seen.hex()}"
+            seen += bus.read()
+        proc.send_signal(signal.SIGTERM)
+        try:
+            rc = proc.wait(EXIT_BOUND_S)
+        except subprocess.TimeoutExpired:
+            raise AssertionError(f"the firmware still ran {EXIT_BOUND_S} s after SIGTERM "
+                                 "(waiting out its bus timeouts?)") from None
+        assert rc == 0, proc.stderr.read().decode(errors="replace") if proc.stderr else rc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        bus.close()
