@@ -41,8 +41,17 @@ from protocol.wiremodel import WireModel
 __all__ = ["SYNC_ATTEMPTS", "RobotIdentity", "SupervisedSession", "Supervisor", "host_now_us"]
 
 log = logging.getLogger("host.link")
-#: TIME_SYNC exchanges tried at connect before the link counts as failed (each waits 0.5, 1, then 2 s)
-SYNC_ATTEMPTS = 6
+#: TIME_SYNC exchanges tried at connect before the link counts as failed; the first waits
+#: ``SYNC_FIRST_WAIT_S``, each next one twice the one before, at most ``SYNC_WAIT_MAX_S`` (9.1 s in all).
+#: The board has just answered a HELLO, so it is up: a native one answers in ~1 ms, a slow one (QEMU,
+#: User-Mode Linux, a loaded machine) costs a retry or two. With a fixed 0.5, 1, then 2 s each, a lost
+#: probe or reply cost 0.5-2 s: seeded drop=0.05 over SLCAN lost 5 in a row, 7.5 s of connect (now 3.1).
+SYNC_ATTEMPTS = 8
+SYNC_FIRST_WAIT_S = 0.1
+SYNC_WAIT_MAX_S = 2.0
+#: HELLO is sent again after this, then after twice the wait before, until the handshake timeout: any
+#: CAPS answers it (HELLO is stateless on the board), so an early re-send costs one frame, never a reply
+HELLO_FIRST_RETRY_S = 0.25
 
 
 def host_now_us() -> int:
@@ -170,11 +179,13 @@ class Supervisor:
         fut: Reply[Caps] = Reply()
         self.hello_fut = fut
         try:
-            tries = 4
-            for _ in range(tries):
+            deadline = anyio.current_time() + c.handshake_timeout
+            wait = HELLO_FIRST_RETRY_S
+            while (left := deadline - anyio.current_time()) > 0:
                 c._send(Hello(c.protocol_version, schema_hash, host_now_us()))
-                if await fut.wait(c.handshake_timeout / tries):
+                if await fut.wait(min(wait, left)):
                     return fut.result()
+                wait *= 2
             fut.cancel()
             raise HandshakeError(
                 f"no CAPS from {c.port_name!r} within {c.handshake_timeout} s: "
@@ -277,10 +288,10 @@ class Supervisor:
         for _ in range(c.sync_burst if not c.lockstep else 1):
             # a lost probe or reply costs a retry, not the connection (at 5 % frame loss a classic-CAN
             # exchange of 6 frames fails 1 time in 4, three in a row 1 in 50); a board slow to answer (a
-            # loaded machine, a board still loading its model) gets longer each time: 0.5, 1, 2, 2, 2, 2 s
+            # loaded machine) gets longer each time (SYNC_ATTEMPTS)
             for attempt in range(SYNC_ATTEMPTS):
                 try:
-                    await self.sync_once(timeout=min(2.0, 0.5 * 2**attempt))
+                    await self.sync_once(timeout=min(SYNC_WAIT_MAX_S, SYNC_FIRST_WAIT_S * 2**attempt))
                     break
                 except LinkTimeout:
                     if attempt == SYNC_ATTEMPTS - 1:
