@@ -102,8 +102,8 @@ class BoardServer:
                 continue
             if isinstance(m, TimeSyncReply) and self.clock is not None:  # transmit timestamp (module doc)
                 m = dataclasses.replace(m, t3_board_us=m.t3_board_us + int(tr.tx_busy_s(now) * 1e6))
-            tr.queue(m, self.tx_seq, now)
-            self.tx_seq = (self.tx_seq + 1) & 0xFFFF
+            if tr.queue(m, self.tx_seq, now):  # (not when it replaced a waiting report: BoardTransport.queue)
+                self.tx_seq = (self.tx_seq + 1) & 0xFFFF
 
     def _tick(self) -> None:
         """One control tick; its reports go out (and the object poses into the objects log)."""

@@ -45,8 +45,13 @@ class BoardTransport(ABC):
         """
 
     @abstractmethod
-    def queue(self, msg: Message, seq: int, now: float) -> None:
-        """Encode ``msg`` with ``seq`` (0..65535), log it and queue it for the wire (never blocks)."""
+    def queue(self, msg: Message, seq: int, now: float) -> bool:
+        """Encode ``msg`` with ``seq`` (0..65535), log it and queue it for the wire (never blocks).
+
+        Returns whether ``seq`` was used. False: the message could not be encoded (nothing sent), or
+        it took the place of an older periodic report still waiting and kept that one's sequence
+        number (the CAN transport's newest-report-wins). A number the board consumed and never sent
+        would be a gap the host counts as a lost message: a false "the link is degrading"."""
 
     @abstractmethod
     def flush(self, now: float) -> None:

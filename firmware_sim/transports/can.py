@@ -82,8 +82,8 @@ class CanBoardTransport(BoardTransport):
         self.tx_retries = 0
         self.tx_frames = 0
         #: per message type, the newest periodic bulk report (SIM_STATE; TELEMETRY where it has no fixed
-        #: layout) not yet handed to ISO-TP; they take turns (insertion order)
-        self._periodic: dict[MsgType, bytes] = {}
+        #: layout) not yet handed to ISO-TP, with its sequence number; they take turns (insertion order)
+        self._periodic: dict[MsgType, tuple[int, bytes]] = {}
         self._periodic_in_flight = False  # the ISO-TP transfer under way is a periodic SIM_STATE
         self.host_heard = False  # a frame came from a host since the start, or since a periodic report went unanswered
         self.periodic_unheard = 0  # SIM_STATE reports not sent: no host heard yet (or it went away)
@@ -184,7 +184,7 @@ class CanBoardTransport(BoardTransport):
         taken, self._items = self._items, []
         return errors + taken + items
 
-    def queue(self, msg: Message, seq: int, now: float) -> None:
+    def queue(self, msg: Message, seq: int, now: float) -> bool:
         if isinstance(msg, Nack) and msg.detail and self._nack_fixed(msg):
             # the reason code says it all; the detail text would take a multi-frame ISO-TP transfer
             msg = dataclasses.replace(msg, detail="")
@@ -195,16 +195,22 @@ class CanBoardTransport(BoardTransport):
                 self.engine.send(msg, seq)
             elif kind is not None:
                 # periodic bulk (SIM_STATE; TELEMETRY too where it has no fixed layout): the newest
-                # report wins; it waits until the ISO-TP link is idle
-                if kind in self._periodic:
+                # report wins, under the sequence number of the one it replaces (no gap for the host to
+                # count as lost); it waits until the ISO-TP link is idle
+                waiting = self._periodic.get(kind)
+                if waiting is not None:
                     self.periodic_replaced += 1
-                self._periodic[kind] = self.engine.encode_bulk(msg, seq)
+                    seq = waiting[0]
+                self._periodic[kind] = (seq, self.engine.encode_bulk(msg, seq))
                 self._start_periodic()
+                return waiting is None
             else:
                 self.engine.send(msg, seq)
                 self._poll()
         except (PayloadError, BufferError) as e:
             print(f"board: cannot send {type(msg).__name__} on CAN: {e}", file=sys.stderr, flush=True)
+            return False
+        return True
 
     def _nack_fixed(self, msg: Nack) -> bool:
         """Send this NACK as one fixed frame, without its detail text? Yes for a refused SERVO_FRAME
@@ -221,7 +227,7 @@ class CanBoardTransport(BoardTransport):
             return
         layer = self.engine.isotp.layer
         if self._periodic and not layer.transmitting() and layer.tx_queue.empty():
-            sdu = self._periodic.pop(next(iter(self._periodic)))
+            _, sdu = self._periodic.pop(next(iter(self._periodic)))
             self.engine.send_bulk(sdu)
             self._periodic_in_flight = True
             self._poll()

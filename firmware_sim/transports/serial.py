@@ -68,7 +68,7 @@ class SerialBoardTransport(BoardTransport):
                 self.framelog.write_serial("rx", t, item.raw, item)
         return items
 
-    def queue(self, msg: Message, seq: int, now: float) -> None:
+    def queue(self, msg: Message, seq: int, now: float) -> bool:
         try:
             raw = encode_frame(msg, seq, self.schema)
         except PayloadError as e:  # nothing the board sends may take it down: say so (once), send nothing
@@ -76,10 +76,11 @@ class SerialBoardTransport(BoardTransport):
             if self.unsendable == 1:
                 print(f"board: cannot send {type(msg).__name__}: {e} (further ones counted at exit)",
                       file=sys.stderr, flush=True)
-            return
+            return False
         if self.framelog is not None:
             self.framelog.write_serial("tx", self.log_time(), raw)  # as the wire bytes decode
         self.tx_wire.push(now, raw)
+        return True
 
     def exit_note(self) -> str | None:
         return f"{self.unsendable} message(s) could not be encoded and were not sent" if self.unsendable else None

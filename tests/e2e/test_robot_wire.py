@@ -7,6 +7,7 @@ a host and a board for different robots find out in the handshake, whatever thei
 from __future__ import annotations
 
 import asyncio
+import json
 import math
 import subprocess
 import sys
@@ -63,6 +64,9 @@ def test_generated_robot_runs_over_the_link(tmp_path: Path, n: int, link: str) -
                     "--link", LINKS[link], "--out", str(out), cwd=tmp_path)
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
     assert "program: done" in r.stdout and "failed" not in r.stdout.split("program: done")[1].splitlines()[0], r.stdout
+    # a clean link loses nothing: no gap in the board's numbering (a CAN board's superseded SIM_STATE was one)
+    link_stats = json.loads((out / "summary.json").read_text())["extra"]["link"]
+    assert link_stats["seq_gaps"] == 0 and "the link is degrading" not in r.stdout, (link_stats, r.stdout)
     mask = (1 << n) - 1
     if link == "serial":
         tel, frames = _serial_log(out / "board_frames.jsonl", n)
