@@ -131,7 +131,7 @@ class ReceivePath:
             if self.supervisor.refuse_hello(error(
                 f"board refused the handshake: {reason}: {msg.detail or 'no detail'}; "
                 "host and board must run the same protocol version and message schema"
-            )):
+            ), msg.ack_seq):
                 return
         if self.requests.on_nack(msg):
             return  # it answered a request

@@ -117,6 +117,8 @@ class Supervisor:
     def __init__(self, client: SupervisedSession) -> None:
         self.client = client
         self.hello_fut: Reply[Caps] | None = None
+        self.hello_seqs: set[int] = set()  # the sequence numbers of the HELLO in flight (re-sends included)
+        self.stale_hello_seqs: set[int] = set()  # every HELLO of the current handshake, all schema hashes
         #: TIME_SYNC replies awaited, by ``t1`` (any object with a future's ``done``/``set_result`` fits)
         self.sync_pending: dict[int, Any] = {}
 
@@ -131,12 +133,15 @@ class Supervisor:
         if fut is not None and not fut.done():
             fut.set_result((msg, t4))
 
-    def refuse_hello(self, error: LinkError) -> bool:
-        """The board NACKed a HELLO: fail the HELLO in flight with ``error``; False when none was."""
-        if self.hello_fut is None or self.hello_fut.done():
-            return False
-        self.hello_fut.set_exception(error)
-        return True
+    def refuse_hello(self, error: LinkError, ack_seq: int) -> bool:
+        """The board NACKed the HELLO sent as ``ack_seq``: fail the HELLO in flight with ``error`` when it
+        is one of its sends. A NACK of an earlier HELLO of this handshake (a re-send the board answered
+        late, for a schema hash already refused) is ignored: it must not fail the next hash's HELLO.
+        True when the NACK was a HELLO's of this handshake (handled here); False otherwise."""
+        if ack_seq in self.hello_seqs and self.hello_fut is not None and not self.hello_fut.done():
+            self.hello_fut.set_exception(error)
+            return True
+        return ack_seq in self.stale_hello_seqs
 
     def fail_all(self, exc: LinkError) -> None:
         """The link went down: the HELLO and TIME_SYNC exchanges in flight fail with ``exc``."""
@@ -178,11 +183,17 @@ class Supervisor:
         c = self.client
         fut: Reply[Caps] = Reply()
         self.hello_fut = fut
+        self.hello_seqs = set()  # only a NACK of one of these fails this HELLO (refuse_hello)
         try:
             deadline = anyio.current_time() + c.handshake_timeout
             wait = HELLO_FIRST_RETRY_S
-            while (left := deadline - anyio.current_time()) > 0:
-                c._send(Hello(c.protocol_version, schema_hash, host_now_us()))
+            while True:
+                seq = c._send(Hello(c.protocol_version, schema_hash, host_now_us()))
+                self.hello_seqs.add(seq)
+                self.stale_hello_seqs.add(seq)
+                left = deadline - anyio.current_time()
+                if left <= 0:
+                    break
                 if await fut.wait(min(wait, left)):
                     return fut.result()
                 wait *= 2
@@ -196,6 +207,7 @@ class Supervisor:
 
     async def handshake(self) -> Caps:
         c = self.client
+        self.stale_hello_seqs.clear()
         # the robot's schema first (pinned: only it); then, after a SCHEMA_MISMATCH, every other one
         # this build speaks (module docstring)
         first = c.schema_hash if c._schema_pinned else c.schema.hash

@@ -68,7 +68,8 @@ class TelemetryWaits(BoardTime):
     def nudge_raise_s(self) -> float:
         """Wall seconds a nudge waits for the report its ADVANCE asked for before it takes the report as
         lost and moves the target on: ``NUDGE_RAISE_FACTOR`` × the slowest of the last 16 such reports
-        (from a wait's first ADVANCE to the report that ended it, when no other target was needed; the
+        (from the ADVANCE to a target to the report that met it, when that report can only have come
+        from that ADVANCE and the previous target's report was lost, not late: see :meth:`wait_for`; the
         slowest, so a report already on its way does not lower it), between ``2 × NUDGE_S``
         and ``NUDGE_RAISE_S``; ``NUDGE_RAISE_S`` before any was measured. A native board reports in
         ~2 ms, so a lost report costs 0.2 s instead of 1 s; a slow board (QEMU) keeps up to 1 s."""
@@ -99,16 +100,26 @@ class TelemetryWaits(BoardTime):
         t = self.latest_telemetry
         if t is not None and predicate(t):
             return t
-        fut = self.fanout.waiter(predicate)
-        deadline = anyio.current_time() + timeout
         nudging = nudge and self.lockstep
         until = 0
         raised_at, raised_from = 0.0, 0  # when the target was set, and the board time seen then
-        # a report later than both raised_from and this wait's previous target can only have come from
-        # the ADVANCE to the current one (the board runs no further than it was told): its wait is a
-        # report latency. Before, only the first target's report counted, so on a lossy link (CAN's
-        # 17-frame report: ~58 % lost at drop=0.05) the 1-s default lasted for several reports.
+        # A report later than both raised_from and this wait's previous target (``floor``) can only have
+        # come from the ADVANCE to the current one (the board runs no further than it was told): its
+        # wait is a report latency. Before, only the first target's report counted, so on a lossy link
+        # (CAN's 17-frame report: ~58 % lost at drop=0.05) the 1-s default lasted for several reports.
+        # Not when the previous target's report came after all (``late``: it was slow, not lost): the
+        # board was busy since that ADVANCE, so the wait from raised_at would understate its latency.
         floor = 0
+        late = False
+
+        def watch(t: Telemetry) -> bool:
+            nonlocal late
+            if floor and raised_from < t.board_time_us <= floor:
+                late = True
+            return predicate(t)
+
+        fut = self.fanout.waiter(watch if nudging else predicate)
+        deadline = anyio.current_time() + timeout
         try:
             while True:
                 if nudging:
@@ -119,7 +130,7 @@ class TelemetryWaits(BoardTime):
                         # none for nudge_raise_s() (lost): move the target one report period on. Otherwise the same
                         # target again (a lost ADVANCE): a slow board (QEMU on a loaded machine) must
                         # not be pushed ahead of the frames the host is about to time from its report
-                        floor = until
+                        floor, late = until, False
                         until = max(until, seen) + self.report_period_us()
                         raised_at, raised_from = now, seen
                     with contextlib.suppress(LinkError):
@@ -129,7 +140,7 @@ class TelemetryWaits(BoardTime):
                     break
                 if await fut.wait(min(left, self.NUDGE_S) if nudging else left):
                     got = fut.result()
-                    if nudging and got.board_time_us > max(raised_from, floor):  # the current target's report
+                    if nudging and not late and got.board_time_us > max(raised_from, floor):  # the current target's
                         self._report_latency(anyio.current_time() - raised_at)
                     return got
                 if not nudging:

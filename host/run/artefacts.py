@@ -214,7 +214,7 @@ def plot_joints(path: Path, times: np.ndarray, positions: np.ndarray, names: Seq
         ax.grid(alpha=0.3)
     axes = axes[:, 0]
     axes[-1].set_xlabel("board time (s)  (solid: measured, dashed: commanded)")
-    _place_axes(fig, left_in=0.85, bottom_in=0.5, top_in=0.15)  # two-line panel labels, 4-digit ticks
+    _place_axes(fig, left_in=1.0, bottom_in=0.5, top_in=0.15)  # two-line panel labels, ticks to "-1000"
     fig.savefig(path, dpi=110, pil_kwargs=PNG_OPTIONS)
     plt.close(fig)
 

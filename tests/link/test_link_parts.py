@@ -238,3 +238,59 @@ def test_a_nudge_takes_a_report_as_lost_after_four_times_the_slowest_recent_one(
     for _ in range(16):  # the slow reports fall out of the last 16
         w._report_latency(0.002)
     assert w.nudge_raise_s() == 0.2
+
+
+@pytest.mark.parametrize("reply_after_s", [0.1, 0.3, 1.0])
+def test_a_late_nack_of_a_refused_hash_does_not_fail_the_next_hashs_hello(reply_after_s: float) -> None:
+    """A host without a robot tries the 16-servo schema's hash, then the 32-servo one's. HELLO is re-sent
+    after 0.25 s, so a board slower than that gets two HELLOs of the refused hash and NACKs both; the
+    second NACK came while the next hash's HELLO was in flight and failed it (the reviewer's case: a
+    32-servo board unreachable by ``ghostshell estop``). Only a NACK of the HELLO in flight counts.
+    Virtual time (trio's MockClock): the board answers every HELLO ``reply_after_s`` later."""
+    import trio.testing
+
+    from host.link.errors import SchemaMismatch
+    from host.link.supervisor import Supervisor
+    from protocol.codec import WIRE_SCHEMA_16, WIRE_SCHEMA_32
+    from protocol.messages import PROTOCOL_VERSION, Caps, Hello
+
+    sent: list[int] = []
+    sups: list[Supervisor] = []
+
+    class Client:  # what Supervisor.handshake reads of a session
+        robot = None
+        port_name = "fake"
+        protocol_version = PROTOCOL_VERSION
+        handshake_timeout = 3.0
+        schema = WIRE_SCHEMA_16
+        schema_hash = WIRE_SCHEMA_16.hash
+        _schema_pinned = False
+        transport = None
+
+        def __init__(self, tg: anyio.abc.TaskGroup) -> None:
+            self.tg = tg
+
+        def _send(self, msg: Hello) -> int:
+            seq = len(sent)
+            sent.append(msg.schema_hash)
+
+            async def answer() -> None:
+                await anyio.sleep(reply_after_s)
+                if msg.schema_hash == WIRE_SCHEMA_32.hash:
+                    sups[0].on_caps(Caps(PROTOCOL_VERSION, WIRE_SCHEMA_32.hash, 17, 500, 64, 50, 0, True, "big", 1))
+                else:
+                    sups[0].refuse_hello(SchemaMismatch("board refused the handshake: SCHEMA_MISMATCH"), seq)
+
+            self.tg.start_soon(answer)
+            return seq
+
+    async def main() -> Caps:
+        async with anyio.create_task_group() as tg:
+            sups.append(Supervisor(Client(tg)))  # type: ignore[arg-type]
+            caps = await sups[0].handshake()
+            tg.cancel_scope.cancel()
+        return caps
+
+    caps = anyio.run(main, backend="trio", backend_options={"clock": trio.testing.MockClock(autojump_threshold=0)})
+    assert caps.schema_hash == WIRE_SCHEMA_32.hash and caps.robot == "big"
+    assert sent.count(WIRE_SCHEMA_16.hash) >= (2 if reply_after_s > 0.25 else 1), sent  # the case did arise

@@ -248,6 +248,7 @@ def test_watchdog_over_socketcan(boards: Any) -> None:
             # one CPU with the other test worker outside, and a stall of the guest over 1.1 s (the
             # default 100 + 1 000 ms) latched WATCHDOG_FAULT in CI before the test began
             await c.configure(ConfigKey.CROUCH_AFTER_MS, 60_000)
+            await c.estop_clear()  # (a crouch latched before the line above, during the connect, ends here)
             # (TICK_OVERRUN may show: a realtime board inside UML is slower than real time)
             await c.wait_for(lambda t: not t.faults & WATCHDOG, 5)
             c.keepalive = False

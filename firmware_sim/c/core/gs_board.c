@@ -239,7 +239,7 @@ static void read_group(gs_board_t *b, unsigned first, unsigned n, int all) {
     for (unsigned j = 0; j < k; j++) {
         unsigned i = idx[j];
         if (!(ok >> j & 1u)) {
-            if (++b->miss[i] >= b->miss_limit) servo_lost(b, i);
+            if (!hal_should_stop() && ++b->miss[i] >= b->miss_limit) servo_lost(b, i); /* a stop is no miss */
             continue;
         }
         b->miss[i] = 0;
@@ -362,8 +362,10 @@ void gs_board_init(gs_board_t *b, const gs_settings_t *cfg, gs_send_fn sendfn, v
 }
 
 void gs_board_boot(gs_board_t *b) {
+    if (hal_should_stop()) return; /* stopped before it found its bus: nothing to report missing */
     for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
         if (!gs_bus_ping(gs_servos[i].id, b->bus_timeout_us)) {
+            if (hal_should_stop()) return; /* a stop, not a missing servo */
             b->miss[i] = b->miss_limit;
             servo_lost(b, i);
         }
