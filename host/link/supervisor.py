@@ -117,8 +117,9 @@ class Supervisor:
     def __init__(self, client: SupervisedSession) -> None:
         self.client = client
         self.hello_fut: Reply[Caps] | None = None
-        self.hello_seqs: set[int] = set()  # the sequence numbers of the HELLO in flight (re-sends included)
-        self.stale_hello_seqs: set[int] = set()  # every HELLO of the current handshake, all schema hashes
+        #: every HELLO of the current handshake (re-sends included): sequence number -> its schema hash
+        self.hellos_sent: dict[int, int] = {}
+        self.hello_hash: int | None = None  # the schema hash of the HELLO in flight
         #: TIME_SYNC replies awaited, by ``t1`` (any object with a future's ``done``/``set_result`` fits)
         self.sync_pending: dict[int, Any] = {}
 
@@ -138,10 +139,12 @@ class Supervisor:
         is one of its sends. A NACK of an earlier HELLO of this handshake (a re-send the board answered
         late, for a schema hash already refused) is ignored: it must not fail the next hash's HELLO.
         True when the NACK was a HELLO's of this handshake (handled here); False otherwise."""
-        if ack_seq in self.hello_seqs and self.hello_fut is not None and not self.hello_fut.done():
+        refused = self.hellos_sent.get(ack_seq)
+        if refused is None:
+            return False
+        if refused == self.hello_hash and self.hello_fut is not None and not self.hello_fut.done():
             self.hello_fut.set_exception(error)
-            return True
-        return ack_seq in self.stale_hello_seqs
+        return True
 
     def fail_all(self, exc: LinkError) -> None:
         """The link went down: the HELLO and TIME_SYNC exchanges in flight fail with ``exc``."""
@@ -183,14 +186,12 @@ class Supervisor:
         c = self.client
         fut: Reply[Caps] = Reply()
         self.hello_fut = fut
-        self.hello_seqs = set()  # only a NACK of one of these fails this HELLO (refuse_hello)
+        self.hello_hash = schema_hash  # only a NACK of a HELLO with this hash fails it (refuse_hello)
         try:
             deadline = anyio.current_time() + c.handshake_timeout
             wait = HELLO_FIRST_RETRY_S
             while True:
-                seq = c._send(Hello(c.protocol_version, schema_hash, host_now_us()))
-                self.hello_seqs.add(seq)
-                self.stale_hello_seqs.add(seq)
+                self.hellos_sent[c._send(Hello(c.protocol_version, schema_hash, host_now_us()))] = schema_hash
                 left = deadline - anyio.current_time()
                 if left <= 0:
                     break
@@ -207,7 +208,7 @@ class Supervisor:
 
     async def handshake(self) -> Caps:
         c = self.client
-        self.stale_hello_seqs.clear()
+        self.hellos_sent.clear()
         # the robot's schema first (pinned: only it); then, after a SCHEMA_MISMATCH, every other one
         # this build speaks (module docstring)
         first = c.schema_hash if c._schema_pinned else c.schema.hash

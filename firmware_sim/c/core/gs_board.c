@@ -209,6 +209,7 @@ static const char *servo_text(unsigned i, const char *what) {
 }
 
 static void servo_lost(gs_board_t *b, unsigned i) {
+    if (hal_should_stop()) return; /* a stop ends the bus waits (gs_bus.c): no servo was lost */
     b->answering &= ~((gs_mask_t)1 << i);
     if (b->servo_fault) return;
     b->servo_fault = 1;
@@ -239,7 +240,7 @@ static void read_group(gs_board_t *b, unsigned first, unsigned n, int all) {
     for (unsigned j = 0; j < k; j++) {
         unsigned i = idx[j];
         if (!(ok >> j & 1u)) {
-            if (!hal_should_stop() && ++b->miss[i] >= b->miss_limit) servo_lost(b, i); /* a stop is no miss */
+            if (++b->miss[i] >= b->miss_limit) servo_lost(b, i);
             continue;
         }
         b->miss[i] = 0;
@@ -362,14 +363,13 @@ void gs_board_init(gs_board_t *b, const gs_settings_t *cfg, gs_send_fn sendfn, v
 }
 
 void gs_board_boot(gs_board_t *b) {
-    if (hal_should_stop()) return; /* stopped before it found its bus: nothing to report missing */
     for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
         if (!gs_bus_ping(gs_servos[i].id, b->bus_timeout_us)) {
-            if (hal_should_stop()) return; /* a stop, not a missing servo */
             b->miss[i] = b->miss_limit;
             servo_lost(b, i);
         }
     }
+    if (hal_should_stop()) return; /* stopped while it looked for its bus: no "absent" devices to report */
     b->imu_present = (uint8_t)gs_bus_ping(GS_IMU_ID, b->bus_timeout_us);
     b->probe_present = (uint8_t)gs_bus_ping(GS_PROBE_ID, b->bus_timeout_us);
     uint8_t ids[GS_SERVO_COUNT], on[GS_SERVO_COUNT];
