@@ -128,14 +128,12 @@ def _markdown(config: dict[str, Any], paper_model: str | None, s: dict[str, Any]
 
 
 def _plot(path: Path, config: dict[str, Any], paper_model: str | None, s: dict[str, Any]) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from host.run.artefacts import new_figure
 
     rows = s.get("per_task", {})
     ids = list(rows)
-    fig, ax = plt.subplots(figsize=(max(6.0, 0.35 * len(ids) + 2), 3.6))
+    fig = new_figure((max(6.0, 0.35 * len(ids) + 2), 3.6))
+    ax = fig.subplots()
     x = np.arange(len(ids))
     if config["suite"] == "ablation":
         ours = [rows[t]["passed"] / max(rows[t]["trials"], 1) for t in ids]
@@ -156,4 +154,3 @@ def _plot(path: Path, config: dict[str, Any], paper_model: str | None, s: dict[s
     ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)

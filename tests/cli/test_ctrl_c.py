@@ -17,11 +17,12 @@ from pathlib import Path
 
 import pytest
 
-from support.cliproc import Cli, processes_mentioning, sent_servo_frames_until, start, wait_until
+from support.cliproc import Cli, processes_mentioning, servo_frames_span, start, wait_until
 
 pytestmark = pytest.mark.timeout(240)
 
-#: board seconds of servo frames sent before the signal: the turn (task 9 starts at ~0.2 s) is moving
+#: board seconds spanned by the servo frames sent before the signal (from the first, the move to the start
+#: pose): the turn (task 9 starts ~0.2 s after that first frame) is moving
 UNDER_WAY_S = 1.5
 
 
@@ -54,7 +55,7 @@ def _last_positions_deg(run: Path) -> list[float]:
 def _run(tmp_path: Path, *extra: str) -> tuple[Cli, Path]:
     out = tmp_path / "run"
     cli = start(["run", "--task", "9", "--no-live", "--out", str(out), *extra], tmp_path / "logs")
-    wait_until(lambda: sent_servo_frames_until(out) > UNDER_WAY_S, "the run is under way", proc=cli)
+    wait_until(lambda: servo_frames_span(out) > UNDER_WAY_S, "the run is under way", proc=cli)
     return cli, out
 
 
@@ -168,7 +169,7 @@ def test_ctrl_c_ends_a_chat_at_rest_with_its_transcript(tmp_path: Path) -> None:
     replies.write_text(f"{square}\n---\n{square}\n", encoding="utf-8")
     out = tmp_path / "chat"
     cli = start(["chat", "--replies", str(replies), "--lockstep", "--no-live", "--out", str(out)], tmp_path / "logs")
-    wait_until(lambda: sent_servo_frames_until(out) > UNDER_WAY_S, "the first turn is under way", proc=cli)
+    wait_until(lambda: servo_frames_span(out) > UNDER_WAY_S, "the first turn is under way", proc=cli)
     cli.ctrl_c()
     rc = cli.wait()
     err = cli.stderr.strip().splitlines()

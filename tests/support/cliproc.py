@@ -20,7 +20,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-__all__ = ["Cli", "last_telemetry", "processes_mentioning", "sent_servo_frames_until", "start", "start_while_starting",
+__all__ = ["Cli", "last_telemetry", "processes_mentioning", "servo_frames_span", "start", "start_while_starting",
            "wait_until"]
 
 
@@ -114,30 +114,38 @@ def _json_records(path: Path) -> list[dict]:
     return records
 
 
-def sent_servo_frames_until(run_dir: Path) -> float:
-    """The latest board time (s) of a SERVO_FRAME the host has sent so far (its frame log: ``.jsonl``
-    serial or ``.log`` CAN), or -1 before the first."""
+def servo_frames_span(run_dir: Path) -> float:
+    """Board seconds spanned by the SERVO_FRAMEs the host has sent so far (the latest one's time minus
+    the first one's: its frame log, ``.jsonl`` serial or ``.log`` CAN), or -1 before the first.
+
+    Relative to the first frame, not board time zero: a realtime board's clock runs from its boot,
+    and on a loaded machine connecting can take longer than any fixed board time, so the first frames
+    (the move to the start pose, ~0.2 s) would already pass an absolute mark."""
+    times = _sent_servo_frame_times(run_dir)
+    return max(times) - min(times) if times else -1.0
+
+
+def _sent_servo_frame_times(run_dir: Path) -> list[float]:
     jsonl = run_dir / "host_frames.jsonl"
     if jsonl.exists():
-        times = [r["fields"]["apply_at_us"] for r in _json_records(jsonl)
-                 if r.get("dir") == "tx" and r.get("type") == "SERVO_FRAME"]
-        return max(times) / 1e6 if times else -1.0
+        return [r["fields"]["apply_at_us"] / 1e6 for r in _json_records(jsonl)
+                if r.get("dir") == "tx" and r.get("type") == "SERVO_FRAME"]
     can_log = run_dir / "host_frames.log"
     if not can_log.exists():
-        return -1.0
+        return []
     from host.link.canlog import iter_can_log
     from protocol.can import CanItem
     from protocol.messages import ServoFrame
 
-    latest = -1.0
+    times: list[float] = []
     try:
         for e in iter_can_log(can_log):
             for it in e.items:
                 if isinstance(it, CanItem) and isinstance(it.msg, ServoFrame) and e.direction == "h>b":
-                    latest = max(latest, it.msg.apply_at_us / 1e6)
+                    times.append(it.msg.apply_at_us / 1e6)
     except (OSError, ValueError):  # the line being written
         pass
-    return latest
+    return times
 
 
 def last_telemetry(run_dir: Path) -> dict:
