@@ -21,6 +21,11 @@
 static int host_fd = -1, host_slave_fd = -1, bus_fd = -1;
 static volatile sig_atomic_t stop_flag;
 static uint64_t t0_ns;
+/* The self-pipe: SIGTERM/SIGINT write a byte here and every wait polls its read end, so a signal that
+ * lands after a hal_should_stop() check but before ppoll still ends that wait at once (without it the
+ * wait ran to its timeout: up to 1 s of a lockstep bus read). Never drained: once stopping, every
+ * later wait returns at once too. */
+static int wake_fd[2] = {-1, -1};
 
 static uint64_t mono_ns(void) {
     struct timespec ts;
@@ -30,7 +35,20 @@ static uint64_t mono_ns(void) {
 
 static void on_signal(int sig) {
     (void)sig;
+    int saved = errno;
     stop_flag = 1;
+    if (wake_fd[1] >= 0 && write(wake_fd[1], "", 1) < 0) {
+        /* full (a stop is already signalled) or closed: nothing more to say */
+    }
+    errno = saved;
+}
+
+/* ppoll on `fd` for `events` and on the self-pipe, for at most `timeout_us`; 1 when `fd` is ready. */
+static int wait_fd(int fd, short events, uint64_t timeout_us) {
+    struct pollfd p[2] = {{fd, events, 0}, {wake_fd[0], POLLIN, 0}};
+    struct timespec ts = {(time_t)(timeout_us / 1000000u), (long)(timeout_us % 1000000u) * 1000L};
+    if (stop_flag || ppoll(p, wake_fd[0] >= 0 ? 2 : 1, &ts, NULL) <= 0) return 0;
+    return (p[0].revents & (events | POLLERR | POLLHUP)) != 0;
 }
 
 static int make_raw(int fd) {
@@ -71,6 +89,7 @@ int native_open_bus(const char *path) {
 
 void native_init(void) {
     t0_ns = mono_ns();
+    if (pipe2(wake_fd, O_NONBLOCK | O_CLOEXEC) != 0) wake_fd[0] = wake_fd[1] = -1; /* then EINTR alone */
     struct sigaction sa;
     memset(&sa, 0, sizeof sa);
     sa.sa_handler = on_signal;
@@ -84,6 +103,7 @@ void native_close(void) {
     if (host_fd >= 0) close(host_fd);
     if (host_slave_fd >= 0) close(host_slave_fd);
     if (bus_fd >= 0) close(bus_fd);
+    /* the self-pipe stays open: a late signal's handler may still write to it */
 }
 
 uint64_t hal_now_us(void) { return (mono_ns() - t0_ns) / 1000u; }
@@ -107,8 +127,7 @@ void hal_bus_write(const uint8_t *buf, size_t n) {
         } else if (k < 0 && errno != EAGAIN && errno != EINTR) {
             return;
         } else {
-            struct pollfd p = {bus_fd, POLLOUT, 0};
-            poll(&p, 1, 10);
+            wait_fd(bus_fd, POLLOUT, 10000u);
         }
     }
 }
@@ -116,9 +135,7 @@ void hal_bus_write(const uint8_t *buf, size_t n) {
 size_t hal_bus_read(uint8_t *buf, size_t cap, uint32_t timeout_us) {
     ssize_t n = read(bus_fd, buf, cap);
     if (n > 0) return (size_t)n;
-    struct pollfd p = {bus_fd, POLLIN, 0};
-    struct timespec ts = {(time_t)(timeout_us / 1000000u), (long)(timeout_us % 1000000u) * 1000L};
-    if (ppoll(&p, 1, &ts, NULL) <= 0) return 0;
+    if (!wait_fd(bus_fd, POLLIN, timeout_us)) return 0;
     n = read(bus_fd, buf, cap);
     return n > 0 ? (size_t)n : 0;
 }
@@ -132,10 +149,7 @@ void hal_bus_drain(void) {
 void hal_wait(uint64_t until_us, int want_write) {
     uint64_t now = hal_now_us();
     if (until_us <= now || stop_flag) return;
-    uint64_t d = until_us - now;
-    struct pollfd p = {host_fd, (short)(POLLIN | (want_write ? POLLOUT : 0)), 0};
-    struct timespec ts = {(time_t)(d / 1000000u), (long)(d % 1000000u) * 1000L};
-    ppoll(&p, 1, &ts, NULL);
+    wait_fd(host_fd, (short)(POLLIN | (want_write ? POLLOUT : 0)), until_us - now);
 }
 
 void hal_log_write(const char *s, size_t n) { fwrite(s, 1, n, stderr); }
