@@ -125,7 +125,8 @@ def new_figure(size_in: tuple[float, float]) -> Any:
 
     Not pyplot: its import (~0.1 s of CPU, backend selection, the global figure manager) buys nothing
     for a file that is saved once, and its global state is shared between the threads that write
-    artefacts; a ``Figure`` is freed with its last reference."""
+    artefacts. No registry keeps the ``Figure``: the garbage collector frees it (figure, canvas and
+    axes refer to each other) once the caller drops it."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

@@ -4,8 +4,8 @@ A terminal's Ctrl-C signals the foreground process group: :meth:`support.cliproc
 exactly that (the command leads its own group). The emulated board runs in a group of its own, so
 it never sees the Ctrl-C; the host interrupts the turn through the lifecycle tree, moves the robot
 to its rest pose, writes everything, prints one line and exits 130. Each test waits for the run to
-be under way by watching the host's frame log (servo frames past the start of the turn), never by
-a guessed sleep.
+be under way by watching the host's frame log (servo frames that walk the robot away from its start
+pose), never by a guessed sleep.
 """
 
 from __future__ import annotations
@@ -17,13 +17,20 @@ from pathlib import Path
 
 import pytest
 
-from support.cliproc import Cli, processes_mentioning, servo_frames_span, start, wait_until
+from support.cliproc import Cli, processes_mentioning, servo_frames_moving_s, start, wait_until
 
 pytestmark = pytest.mark.timeout(240)
 
-#: board seconds spanned by the servo frames sent before the signal (from the first, the move to the start
-#: pose): the turn (task 9 starts ~0.2 s after that first frame) is moving
+#: board seconds of servo frames sent before the signal that move the robot away from its start pose: task 9
+#: walks, so its turn is under way
 UNDER_WAY_S = 1.5
+
+
+def _start_pose() -> tuple[float, ...]:
+    from robots.registry import load_robot
+
+    robot = load_robot()
+    return robot.pose(robot.start_pose)
 
 
 def _stand_deg() -> list[float]:
@@ -55,7 +62,7 @@ def _last_positions_deg(run: Path) -> list[float]:
 def _run(tmp_path: Path, *extra: str) -> tuple[Cli, Path]:
     out = tmp_path / "run"
     cli = start(["run", "--task", "9", "--no-live", "--out", str(out), *extra], tmp_path / "logs")
-    wait_until(lambda: servo_frames_span(out) > UNDER_WAY_S, "the run is under way", proc=cli)
+    wait_until(lambda: servo_frames_moving_s(out, _start_pose()) > UNDER_WAY_S, "the run is under way", proc=cli)
     return cli, out
 
 
@@ -169,7 +176,7 @@ def test_ctrl_c_ends_a_chat_at_rest_with_its_transcript(tmp_path: Path) -> None:
     replies.write_text(f"{square}\n---\n{square}\n", encoding="utf-8")
     out = tmp_path / "chat"
     cli = start(["chat", "--replies", str(replies), "--lockstep", "--no-live", "--out", str(out)], tmp_path / "logs")
-    wait_until(lambda: servo_frames_span(out) > UNDER_WAY_S, "the first turn is under way", proc=cli)
+    wait_until(lambda: servo_frames_moving_s(out, _start_pose()) > UNDER_WAY_S, "the first turn is under way", proc=cli)
     cli.ctrl_c()
     rc = cli.wait()
     err = cli.stderr.strip().splitlines()

@@ -20,7 +20,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-__all__ = ["Cli", "last_telemetry", "processes_mentioning", "servo_frames_span", "start", "start_while_starting",
+__all__ = ["Cli", "last_telemetry", "processes_mentioning", "servo_frames_moving_s", "start", "start_while_starting",
            "wait_until"]
 
 
@@ -114,22 +114,39 @@ def _json_records(path: Path) -> list[dict]:
     return records
 
 
-def servo_frames_span(run_dir: Path) -> float:
-    """Board seconds spanned by the SERVO_FRAMEs the host has sent so far (the latest one's time minus
-    the first one's: its frame log, ``.jsonl`` serial or ``.log`` CAN), or -1 before the first.
+def servo_frames_moving_s(run_dir: Path, pose: Sequence[float], tol_rad: float = 0.05) -> float:
+    """Board seconds of the SERVO_FRAMEs the host has sent so far (its frame log, ``.jsonl`` serial or
+    ``.log`` CAN) that take some servo more than ``tol_rad`` away from both ``pose`` (radians per
+    servo: the start pose) and the first frame's target: each such frame counts the time since the
+    frame before it. 0 before any.
 
-    Relative to the first frame, not board time zero: a realtime board's clock runs from its boot,
-    and on a loaded machine connecting can take longer than any fixed board time, so the first frames
-    (the move to the start pose, ~0.2 s) would already pass an absolute mark."""
-    times = _sent_servo_frame_times(run_dir)
-    return max(times) - min(times) if times else -1.0
+    "The turn is under way" for a program that moves (a walk). The frames before the turn hold the
+    robot where it booted (the first frame's targets), then take it to the start pose in a short
+    transition. Neither board time nor the span of the frames says that: a realtime board's clock
+    runs from its boot and the host streams hold frames from the connect on, so on a loaded machine
+    both pass any mark before the turn begins."""
+    frames = sorted(_sent_servo_frames(run_dir, len(pose)), key=lambda f: f[0])
+    if not frames:
+        return 0.0
+    booted = frames[0][1]
+    moving = 0.0
+    for (t0, _), (t1, targets) in zip(frames, frames[1:]):
+        if any(abs(v - pose[i]) > tol_rad and abs(v - booted.get(i, v)) > tol_rad for i, v in targets.items()):
+            moving += t1 - t0
+    return moving
 
 
-def _sent_servo_frame_times(run_dir: Path) -> list[float]:
+def _sent_servo_frames(run_dir: Path, n_servos: int) -> list[tuple[float, dict[int, float]]]:
+    """(board time s, {servo index: target rad}) of each SERVO_FRAME the host has sent so far."""
+    def by_servo(mask: int, targets: Sequence[float]) -> dict[int, float]:
+        if len(targets) == n_servos:  # every servo's slot, the mask picks those that count
+            return {i: float(targets[i]) for i in range(n_servos) if mask >> i & 1}
+        return dict(zip((i for i in range(n_servos) if mask >> i & 1), (float(v) for v in targets)))
+
     jsonl = run_dir / "host_frames.jsonl"
     if jsonl.exists():
-        return [r["fields"]["apply_at_us"] / 1e6 for r in _json_records(jsonl)
-                if r.get("dir") == "tx" and r.get("type") == "SERVO_FRAME"]
+        return [(r["fields"]["apply_at_us"] / 1e6, by_servo(r["fields"]["mask"], r["fields"]["targets"]))
+                for r in _json_records(jsonl) if r.get("dir") == "tx" and r.get("type") == "SERVO_FRAME"]
     can_log = run_dir / "host_frames.log"
     if not can_log.exists():
         return []
@@ -137,15 +154,15 @@ def _sent_servo_frame_times(run_dir: Path) -> list[float]:
     from protocol.can import CanItem
     from protocol.messages import ServoFrame
 
-    times: list[float] = []
+    frames: list[tuple[float, dict[int, float]]] = []
     try:
         for e in iter_can_log(can_log):
             for it in e.items:
                 if isinstance(it, CanItem) and isinstance(it.msg, ServoFrame) and e.direction == "h>b":
-                    times.append(it.msg.apply_at_us / 1e6)
+                    frames.append((it.msg.apply_at_us / 1e6, by_servo(it.msg.mask, it.msg.targets)))
     except (OSError, ValueError):  # the line being written
         pass
-    return times
+    return frames
 
 
 def last_telemetry(run_dir: Path) -> dict:
