@@ -138,9 +138,7 @@ def servo_frames_moving_s(run_dir: Path, pose: Sequence[float], tol_rad: float =
 
 def _sent_servo_frames(run_dir: Path, n_servos: int) -> list[tuple[float, dict[int, float]]]:
     """(board time s, {servo index: target rad}) of each SERVO_FRAME the host has sent so far."""
-    def by_servo(mask: int, targets: Sequence[float]) -> dict[int, float]:
-        if len(targets) == n_servos:  # every servo's slot, the mask picks those that count
-            return {i: float(targets[i]) for i in range(n_servos) if mask >> i & 1}
+    def by_servo(mask: int, targets: Sequence[float]) -> dict[int, float]:  # one target per mask bit (popcount)
         return dict(zip((i for i in range(n_servos) if mask >> i & 1), (float(v) for v in targets)))
 
     jsonl = run_dir / "host_frames.jsonl"
