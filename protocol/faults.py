@@ -33,7 +33,7 @@ import itertools
 import argparse
 import math
 import random
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
@@ -269,10 +269,18 @@ class GapDetector:
     next one). A sequence number behind the highest seen (within half the 16-bit range) is counted
     as ``late`` (reordered or duplicated) and, if it filled a gap, taken back off ``lost``. Memory
     is bounded: only the last ``window`` missing numbers are remembered.
+
+    ``restart_from(seq)`` starts counting afresh at a point in the sender's numbering (a handshake
+    reply): the last :data:`RECENT` numbers fed are replayed, so the units that overtook that point
+    (a fixed CAN frame passing a slow ISO-TP transfer) still count as received.
     """
+
+    #: numbers fed that :meth:`restart_from` can replay (units that may overtake the restart point)
+    RECENT = 64
 
     def __init__(self, window: int = 1024, first: int | None = None) -> None:
         self.window = window
+        self._recent: deque[int] = deque(maxlen=self.RECENT)
         #: with ``first`` (the sequence a sender starts at, e.g. 0) a loss of the very first units counts too
         self.highest: int | None = None if first is None else (first - 1) & 0xFFFF
         self.lost = 0
@@ -280,9 +288,24 @@ class GapDetector:
         self.received = 0
         self._missing: dict[int, None] = {}
 
+    def restart_from(self, seq: int) -> None:
+        """Count from ``seq`` on, as a fresh detector seeded with ``seq`` would, and replay (in arrival
+        order) the numbers among the last :data:`RECENT` fed that lie after ``seq`` (within ``RECENT``):
+        they arrived before the restart point was known. Numbers before ``seq`` then arrive as late,
+        never as lost; a sender that restarted its numbering (a new board) leaves nothing behind."""
+        seq &= 0xFFFF
+        recent = [s for s in self._recent if 0 < (s - seq) & 0xFFFF <= self.RECENT]
+        self.highest, self.lost, self.late, self.received = seq, 0, 0, 1
+        self._missing.clear()
+        self._recent.clear()
+        self._recent.append(seq)
+        for s in recent:
+            self.feed(s)
+
     def feed(self, seq: int) -> int:
         seq &= 0xFFFF
         self.received += 1
+        self._recent.append(seq)
         if self.highest is None:
             self.highest = seq
             return 0
@@ -309,6 +332,18 @@ class GapDetector:
         self.lost += gap
         self.highest = seq
         return gap
+
+    def settled_lost(self, depth: int) -> int:
+        """``lost`` without the missing numbers within ``depth`` of the highest: those may still be in
+        flight on a link that reorders (over CAN an ISO-TP transfer is overtaken by the fixed frames sent
+        during it), so a number counts as lost once ``depth`` later ones have arrived. O(``depth``)."""
+        pending = 0
+        if self.highest is not None:
+            for m in reversed(self._missing):
+                if (self.highest - m) & 0xFFFF > depth:
+                    break
+                pending += 1
+        return self.lost - pending
 
 
 def seed_arg(text: str) -> int:

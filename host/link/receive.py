@@ -27,9 +27,15 @@ from protocol.framing import DecodeError, Frame
 from protocol.messages import (Ack, CameraChunk, Caps, Message, MsgType, Nack, NackReason, SimState, Telemetry,
                                TimeSyncReply)
 
-__all__ = ["LinkStats", "ReceivePath"]
+__all__ = ["REORDER_DEPTH", "LinkStats", "ReceivePath"]
 
 log = logging.getLogger("host.link")
+
+
+#: how many later board messages may overtake one before it counts as lost: over CAN a bulk ISO-TP transfer
+#: (SIM_STATE, CAPS) waits behind the fixed TELEMETRY frames sent during it (4 seen on a loaded machine over
+#: SLCAN, where counting at once reported 1-2 gaps for a link that lost nothing)
+REORDER_DEPTH = 32
 
 
 @dataclass
@@ -43,7 +49,9 @@ class LinkStats:
     telemetry: int = 0
     reconnects: int = 0
     retries: int = 0  # requests re-sent because no ACK/NACK came in time (a lost frame either way)
-    seq_gaps: int = 0  # board messages never received (gaps in the board's sequence numbers), since the handshake
+    #: board messages lost (gaps in the board's sequence numbers) since the handshake: a number counts once
+    #: :data:`REORDER_DEPTH` later ones have arrived (before that it may still be on its way)
+    seq_gaps: int = 0
     last_decode_error: str = ""  # kind and detail of the latest undecodable item, for reports
 
 
@@ -71,8 +79,13 @@ class ReceivePath:
                 log.debug("link: discarded %d bytes (%s: %s)", len(item.raw), item.kind.value, item.detail)
                 continue
             self.stats.rx_frames += 1
-            self._rx_gaps.feed(item.seq)
-            self.stats.seq_gaps = self._rx_gaps.lost
+            if type(item.msg) is Caps and self.supervisor.awaiting_caps():
+                # the answer to the HELLO in flight: the board's numbering counts from here (a new board
+                # numbers afresh); TELEMETRY frames that overtook this ISO-TP transfer still count
+                self._rx_gaps.restart_from(item.seq)
+            else:
+                self._rx_gaps.feed(item.seq)
+            self.stats.seq_gaps = self._rx_gaps.settled_lost(REORDER_DEPTH)
             try:
                 self._dispatch(item.msg, t4)
                 for cb in self.on_received:

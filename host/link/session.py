@@ -247,9 +247,9 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
     # --- link state (the supervisor's calls; host.link.supervisor.SupervisedSession) --------
 
     def _link_up(self, caps: Caps) -> None:
-        """The handshake succeeded with ``caps``: the board's numbering and clock start afresh."""
+        """The handshake succeeded with ``caps``: the board's clock starts afresh (its numbering did when
+        the CAPS arrived: :meth:`host.link.receive.ReceivePath._on_items`)."""
         self.caps = caps
-        self._rx_gaps = GapDetector()  # the board's numbering as from this connection
         self._board_time_seen = caps.board_time_us
         self.clock.clear()
         # a board after a reconnect may be another (a slower one, QEMU): its round trips are measured anew

@@ -123,6 +123,10 @@ class Supervisor:
         #: TIME_SYNC replies awaited, by ``t1`` (any object with a future's ``done``/``set_result`` fits)
         self.sync_pending: dict[int, Any] = {}
 
+    def awaiting_caps(self) -> bool:
+        """A HELLO is in flight: the next CAPS answers it."""
+        return self.hello_fut is not None and not self.hello_fut.done()
+
     def on_caps(self, msg: Caps) -> None:
         """CAPS came: it answers the HELLO in flight, if any."""
         if self.hello_fut is not None and not self.hello_fut.done():

@@ -294,3 +294,36 @@ def test_a_late_nack_of_a_refused_hash_does_not_fail_the_next_hashs_hello(reply_
     caps = anyio.run(main, backend="trio", backend_options={"clock": trio.testing.MockClock(autojump_threshold=0)})
     assert caps.schema_hash == WIRE_SCHEMA_32.hash and caps.robot == "big"
     assert sent.count(WIRE_SCHEMA_16.hash) >= (2 if reply_after_s > 0.25 else 1), sent  # the case did arise
+
+
+def test_the_boards_numbering_restarts_at_the_caps_so_frames_that_overtook_it_are_no_gap() -> None:
+    """Over CAN a CAPS is an ISO-TP transfer that fixed TELEMETRY frames overtake, and the SIM_STATE
+    before it can come after it. The host restarted its gap count when the handshake finished (later,
+    under load), from whatever came next: a late SIM_STATE made the TELEMETRY already received look
+    lost. It now restarts at the CAPS itself."""
+    from host.link import BoardClient
+    from host.link.receive import REORDER_DEPTH
+    from protocol.framing import Frame
+    from protocol.messages import PROTOCOL_VERSION, Caps, SimState
+
+    def tel(seq: int) -> Frame:
+        msg = Telemetry(seq * 1000, (0.0,), (0.0,), (0.0,), (0.0, 0.0, 0.0), FaultFlags(0), 0, 0, 0, 0, 0)
+        return Frame(seq, MsgType.TELEMETRY, msg, b"")
+
+    caps = Caps(PROTOCOL_VERSION, 0, 1, 500, 64, 50, 10_000, True, "chain1", 0)
+    client = BoardClient("pty")
+    client.supervisor.hello_fut = Reply()
+    client._on_items([tel(7), tel(8), tel(11), Frame(10, MsgType.CAPS, caps, b"")])
+    assert client.supervisor.hello_fut.done() and client.supervisor.hello_fut.result() is caps
+    client._link_up(caps)  # the handshake's end, after the frames above were counted
+    sim = SimState(9000, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))
+    client._on_items([Frame(9, MsgType.SIM_STATE, sim, b""), tel(12), tel(13)])
+    assert client.stats.seq_gaps == 0
+    # a SIM_STATE overtaken at the end of a run is no loss while it may still come; a real loss counts
+    # once REORDER_DEPTH later messages have come
+    client._on_items([tel(15)])
+    assert client.stats.seq_gaps == 0
+    client._on_items([tel(s) for s in range(16, 16 + REORDER_DEPTH)])
+    assert client.stats.seq_gaps == 1
+    client._on_items([Frame(14, MsgType.SIM_STATE, sim, b"")])  # it was late after all
+    assert client.stats.seq_gaps == 0

@@ -131,3 +131,53 @@ def test_can_frames_keep_their_identity() -> None:
     assert all(isinstance(f, CanFrame) and f.arbitration_id == 0x085 and f.is_fd for f in out)
     changed = sum(1 for f, g in zip(frames, out) if f != g)
     assert changed > 500
+
+
+def test_gap_detector_restart_keeps_what_overtook_the_restart_point() -> None:
+    # a CAN board's CAPS (seq 10, an ISO-TP transfer) is overtaken by fixed TELEMETRY 11 and 12, and the
+    # SIM_STATE 9 before it arrives last: restarting at the CAPS loses nothing (a CI run counted 1 here)
+    g = GapDetector()
+    for s in (7, 8, 11, 12):
+        g.feed(s)
+    g.restart_from(10)
+    for s in (9, 13, 14):
+        g.feed(s)
+    assert (g.lost, g.late, g.highest) == (0, 1, 14)
+    # a fresh detector at the CAPS (what the host did) counted 11 and 12 as lost
+    fresh = GapDetector()
+    for s in (10, 9, 13, 14):
+        fresh.feed(s)
+    assert fresh.lost == 2
+    # a gap after the restart point still counts; one the restart point precedes is forgotten
+    g2 = GapDetector()
+    for s in (1, 5, 40, 42):
+        g2.feed(s)
+    g2.restart_from(39)
+    assert (g2.lost, g2.highest) == (1, 42)
+    # a board that restarted its numbering: what the old board sent is not replayed
+    g3 = GapDetector()
+    for s in (5000, 5001, 0, 1):
+        g3.feed(s)
+    g3.restart_from(2)
+    g3.feed(3)
+    assert (g3.lost, g3.highest) == (0, 3)
+    # memory stays bounded
+    assert len(g._recent) <= GapDetector.RECENT
+
+
+def test_a_gap_settles_as_lost_once_depth_later_numbers_came() -> None:
+    # the CI failure (``seq_gaps`` 1 on a clean SLCAN link): the last SIM_STATE, overtaken by TELEMETRY,
+    # was still in its ISO-TP transfer when the run's summary read the count
+    g = GapDetector()
+    for s in (260, 262, 261, 264, 266, 263):
+        g.feed(s)
+    assert (g.lost, g.settled_lost(32)) == (1, 0)  # 265 may still come
+    for s in range(267, 267 + 32):
+        g.feed(s)
+    assert g.settled_lost(32) == 1  # 32 later numbers came: 265 is lost
+    g.feed(65534)  # long behind: late, no change
+    assert g.settled_lost(32) == 1
+    w = GapDetector()
+    for s in (65530, 65535, 2):  # across the wrap: 65531-65534, 0, 1 missing
+        w.feed(s)
+    assert (w.lost, w.settled_lost(2), w.settled_lost(0)) == (6, 4, 6)
