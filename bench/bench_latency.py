@@ -16,7 +16,11 @@ time of the segment's first frame once telemetry shows that frame applied (the
 board applies a frame at the first 2 ms control tick at or after its time; frames
 are on a 10 ms grid, so that tick is the frame time); for face / music / speech
 the board time the peripheral command was scheduled at (and the board reached);
-for the camera the board time the capture was requested.
+for the camera the board time the capture was requested. A message that reached the board after
+its due time (the board's frame log, ``board_frames.jsonl``, stamps every received message with the
+board time it arrived) took effect at the first tick after it arrived, not at its due time: the
+start is then ``tick_of(arrival)`` and the call counts as *arrived late* (printed with its n). A link
+whose board log is not JSON Lines (CAN) is not checked, and the output says so.
 
 Calls that the scheduler holds back (same channel busy, ``<wait>`` barriers) do
 not start when their token completes; their token -> servo time is mostly the
@@ -27,7 +31,8 @@ released the call). The headline p50/p99 is over *immediate* motion calls.
 What it is made of (host/motion/streamer.py, host/robot/runtime.py, firmware_sim):
 
 * a new call's first frame is due at the board's now + the link's measured latency p99 (TIME_SYNC
-  round trips; with ``--baud`` the frame's wire time too) + one 2 ms control tick: the frames
+  round trips; with ``--baud`` the frame's wire time too) + the host's own send path (planning the
+  start to writing it, ``FrameStreamer.send_path_us``), rounded up to the 2 ms control tick: the frames
   already sent for its servos (the 60 ms lookahead) are FLUSHed and re-sent, not waited out; the
   board applies it at the first tick at or after that time (``tick_of``);
 * host work between the chunk and the first frame (parse, map, plan the trajectory in numpy; about
@@ -116,6 +121,32 @@ class CallLatency:
     token_ms: float  # t_board - t_chunk
     ready_ms: float  # t_board - max(t_chunk, scheduler release)
     dispatch_skew_ms: float  # scheduler dispatch time - t_chunk (consistency check, ~0)
+    arrived_late: bool = False  # the board received its first message after its due time (started at the next tick)
+
+
+#: the fields of a received message that say when it is due on the board (µs): a SERVO_FRAME, a FLUSH,
+#: a peripheral command (protocol.messages)
+DUE_FIELDS = ("apply_at_us", "from_us", "start_at_us")
+
+
+def board_arrivals(run_dir: Path) -> dict[int, float] | None:
+    """Due time (board µs) -> the latest board time (s) a message due then reached the board, from the
+    board's JSON Lines frame log in ``run_dir``; None when the run has none (a CAN link logs in a CAN format)."""
+    log = run_dir / "board_frames.jsonl"
+    if not log.exists():
+        return None
+    out: dict[int, float] = {}
+    with log.open(encoding="utf-8") as f:
+        for line in f:
+            rec = json.loads(line)
+            fields = rec.get("fields")
+            if rec.get("dir") != "rx" or not fields:
+                continue
+            for name in DUE_FIELDS:
+                due = fields.get(name)
+                if isinstance(due, int):
+                    out[due] = max(out.get(due, 0.0), float(rec["t"]))
+    return out
 
 
 def completing_chunks(chunks: list[str], speech_name: str = "speak") -> dict[str, int]:
@@ -198,12 +229,15 @@ def tick_of(t: float) -> float:
 
 def task_latencies(task: int, rep: RunReport, registry: Registry,
                    motion: frozenset[str] = frozenset()) -> tuple[list[CallLatency], list[str]]:
-    """The latency of every function token of one run, and notes about calls left out."""
+    """The latency of every function token of one run, and notes about calls left out. A call whose
+    message reached the board after its due time starts at the first tick after it arrived
+    (:func:`board_arrivals`, from the run's folder ``rep.out``)."""
+    arrivals = board_arrivals(rep.out)
+    notes: list[str] = []
     speech = registry.speech
     done = completing_chunks([c for _, c in rep.token_times], speech.name if speech else "speak")
     board = {c.path: c for c in rep.calls}
     out: list[CallLatency] = []
-    notes: list[str] = []
     queued = queued_paths(list(rep.result.timeline))
     for r in rep.result.timeline:
         if r.function in NOT_CALLS:
@@ -222,12 +256,14 @@ def task_latencies(task: int, rep: RunReport, registry: Registry,
             channel = r.channel or "?"
         t_chunk = rep.token_times[k][0]
         t_ready = rep.result.t0 + r.start
+        arrived = arrivals.get(round(call.start * 1e6), 0.0) if arrivals is not None else 0.0
+        start = tick_of(max(call.start, arrived))
         out.append(CallLatency(
             task=task, path=r.path, function=r.function, channel=channel,
-            kind="motion" if channel in motion else "peripheral", chunk=k, t_chunk=t_chunk, t_board=tick_of(call.start),
-            queued=r.path in queued, host_ms=(t_ready - t_chunk) * 1e3, token_ms=(tick_of(call.start) - t_chunk) * 1e3,
-            ready_ms=(tick_of(call.start) - max(t_chunk, t_ready)) * 1e3,
-            dispatch_skew_ms=(rep.result.t0 + r.dispatch - t_chunk) * 1e3))
+            kind="motion" if channel in motion else "peripheral", chunk=k, t_chunk=t_chunk, t_board=start,
+            queued=r.path in queued, host_ms=(t_ready - t_chunk) * 1e3, token_ms=(start - t_chunk) * 1e3,
+            ready_ms=(start - max(t_chunk, t_ready)) * 1e3,
+            dispatch_skew_ms=(rep.result.t0 + r.dispatch - t_chunk) * 1e3, arrived_late=arrived > call.start))
     return out, notes
 
 
@@ -243,6 +279,7 @@ def _summary(rows: list[CallLatency]) -> dict[str, Any]:
         "peripheral_all_ready_ms": stats_ms([c.ready_ms for c in pick("peripheral", None)]),
         "by_channel_ready_ms": {ch: stats_ms([c.ready_ms for c in rows if c.channel == ch])
                                 for ch in sorted({c.channel for c in rows})},
+        "immediate_arrived_late": sum(c.arrived_late for c in rows if not c.queued),
         "max_abs_dispatch_skew_ms": round(max((abs(c.dispatch_skew_ms) for c in rows), default=0.0), 3),
     }
 
@@ -337,6 +374,7 @@ def _run(args: Any, hogs: int) -> int:
     rows: list[CallLatency] = []
     notes: list[str] = []
     failed: list[str] = []
+    unchecked = 0  # runs whose board log cannot show late arrivals
     for rep_i, (tid, program) in ((r, tp) for r in range(args.repeat) for tp in programs):
         w0 = time.monotonic()
         try:
@@ -350,6 +388,7 @@ def _run(args: Any, hogs: int) -> int:
             print(f"{tid:>4} failed: {e}", flush=True)
             continue
         got, why = task_latencies(tid, rep, registry, motion_channels)
+        unchecked += not (rep.out / "board_frames.jsonl").exists()
         rows += got
         notes += why
         mi = stats_ms([c.token_ms for c in got if c.kind == "motion" and not c.queued])
@@ -368,6 +407,10 @@ def _run(args: Any, hogs: int) -> int:
     print(_line("peripheral, all: ready -> start", summary["peripheral_all_ready_ms"]))
     for ch, s in summary["by_channel_ready_ms"].items():
         print(_line(f"  {ch}: ready -> start", s))
+    immediate = sum(not c.queued for c in rows)
+    print(f"immediate calls whose message reached the board after its due time: {summary['immediate_arrived_late']} "
+          f"of n={immediate} (counted from the first tick after arrival)"
+          + ("" if unchecked == 0 else f"; not checked in {unchecked} run(s) without a board_frames.jsonl (a CAN link)"))
     print(f"max |scheduler dispatch - chunk arrival| = {summary['max_abs_dispatch_skew_ms']} ms (consistency check)")
     for n in notes:
         print("note:", n)

@@ -33,12 +33,12 @@ class BoardFrameLink:
     ``wire_baud``: the baud rate the board models wire time at (its ``--baud``), or None for a
     plain pty; it adds ``10 * nbytes / wire_baud`` to :meth:`latency_us`.
 
-    Two ways to send a frame: :meth:`send_frame` writes it at once (a new motion's first frame), and
-    :meth:`queue_frame` (lookahead, re-sent grid) writes it at once too, unless :meth:`pace` runs:
-    then it waits in :attr:`queue` (earliest apply time first, :mod:`host.motion.txqueue`) and is
-    written when the modelled line (``client.tx_wire``) has drained, so what is written at once
-    never waits behind it. A FLUSH (:meth:`flush`, :meth:`send_flush`) is written at once and acts
-    on the held frames as the board's would.
+    Two ways to send a frame: :meth:`send_start` writes it at once after a FLUSH of its servos (a new
+    motion's first frame), and :meth:`queue_frame` (lookahead, re-sent grid) writes it at once too,
+    unless :meth:`pace` runs: then it waits in :attr:`queue` (earliest apply time first,
+    :mod:`host.motion.txqueue`) and is written when the modelled line (``client.tx_wire``) has
+    drained, so what is written at once never waits behind it. A FLUSH (:meth:`flush`,
+    :meth:`send_start`) is written at once and acts on the held frames as the board's would.
     """
 
     def __init__(self, client: BoardClient, wire_baud: int | None = None) -> None:
@@ -76,11 +76,15 @@ class BoardFrameLink:
         backlog = line.busy_s(time.monotonic()) * 1e6 if line is not None else 0.0
         return int(one_way + backlog + wire)
 
-    async def send_frame(self, frame: ServoFrame) -> int:
-        """Write ``frame`` now, ahead of any held frame; returns its sequence number. Call it only right
-        after a FLUSH of ``frame``'s servos from its apply time (as ``FrameStreamer.start_now`` does):
-        otherwise a held frame with the same apply time, written later, would override it."""
-        return self._write(frame, [])
+    def send_start(self, frame: ServoFrame) -> int:
+        """FLUSH ``frame``'s servos from its apply time (not awaiting the ACK: a start may not cost a round
+        trip; the held frames are flushed the same way), then write ``frame``, ahead of any held frame;
+        returns its sequence number. Both are on the wire before either is logged
+        (``BoardClient.burst``)."""
+        with self.client.burst():
+            self.client.send(Flush(int(frame.apply_at_us), int(frame.mask)))
+            self.queue.flush(frame.apply_at_us, frame.mask)  # its orphaned callbacks go with ``frame``
+            return self._write(frame, [])
 
     def queue_frame(self, frame: ServoFrame, on_sent: SeqCallback | None = None) -> None:
         """Send ``frame`` when the line allows: at once, unless :meth:`pace` runs (then held, earliest
@@ -113,11 +117,6 @@ class BoardFrameLink:
         the caller (``FrameStreamer.cut``) fails with it; the held frames stay trimmed."""
         self.queue.flush(from_us, mask)
         await self.client.flush(from_us, mask)
-
-    def send_flush(self, from_us: int, mask: int) -> None:
-        """FLUSH without waiting for the ACK; once it is written, the held frames are flushed the same way."""
-        self.client.send(Flush(int(from_us), int(mask)))
-        self.queue.flush(from_us, mask)
 
     @property
     def paced(self) -> bool:

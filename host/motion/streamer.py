@@ -14,7 +14,8 @@ board times are what the run's timeline records.
 
 :meth:`FrameStreamer.start_now` starts a motion on a realtime board as soon as the link allows
 (token to servo within a few ms): its first frame is due at :meth:`FrameStreamer.soonest_us`
-(board now + the link's measured latency p99 + one control tick) instead of at the first unsent
+(board now + the link's measured latency p99 + the host's own send path, rounded up to the control
+tick grid) instead of at the first unsent
 frame, and the frames already sent for its servos from that time on (the hold, or what the
 segment it overrides planned) are replaced: FLUSH of those servos from the first frame's time,
 then the first frame, then the servos' frames re-sent for the part of the grid already sent.
@@ -40,6 +41,7 @@ from __future__ import annotations
 import contextlib
 import heapq
 import itertools
+import time
 import weakref
 from collections import deque
 from collections.abc import AsyncIterator, Callable, Sequence
@@ -55,6 +57,16 @@ from protocol.framing import encode_frame
 from protocol.messages import Flush, ServoFrame, Telemetry
 
 
+#: The host's own send path: from :meth:`FrameStreamer.soonest_us` planning a start to its first frame
+#: written (sampling the mix, the FLUSH, encoding). Measured on every realtime :meth:`FrameStreamer.start_now`
+#: (a window of the last ``SEND_PATH_WINDOW``; the ``SEND_PATH_QUANTILE`` of it is the margin), this default
+#: before the first: 0.4-0.8 ms on a quiet 2-core machine (a probe around ``start_now``, 25 calls). Without
+#: it 6 of 56 first frames reached the board after their due time (the TIME_SYNC uplink does not include it).
+SEND_PATH_DEFAULT_US = 400
+SEND_PATH_WINDOW = 32
+SEND_PATH_QUANTILE = 0.9
+
+
 class FrameLink(Protocol):
     """What the streamer needs from the link."""
 
@@ -63,9 +75,10 @@ class FrameLink(Protocol):
 
     def board_now_us(self) -> int: ...
 
-    async def send_frame(self, frame: ServoFrame) -> int:
-        """Write ``frame`` now (a new motion's first frame: nothing held may delay it); its sequence number.
-        Only right after a FLUSH of its servos from its apply time (see :mod:`host.motion.txqueue`)."""
+    def send_start(self, frame: ServoFrame) -> int:
+        """FLUSH ``frame``'s servos from its apply time without waiting for the board's ACK (a start may
+        not cost a round trip), then write ``frame`` at once (nothing held may delay it); its sequence
+        number (see :mod:`host.motion.txqueue`)."""
         ...
 
     def queue_frame(self, frame: ServoFrame, on_sent: Callable[[int], None] | None = None) -> None:
@@ -74,10 +87,6 @@ class FrameLink(Protocol):
         ...
 
     async def flush(self, from_us: int, mask: int) -> None: ...
-
-    def send_flush(self, from_us: int, mask: int) -> None:
-        """FLUSH without waiting for the board's ACK (what precedes a frame may not cost a round trip)."""
-        ...
 
     def latency_us(self, nbytes: int) -> int:
         """How long after it is sent a message of ``nbytes`` wire bytes is surely on the board (p99, µs)."""
@@ -160,6 +169,7 @@ class FrameStreamer:
         self.history: deque[tuple[int, np.ndarray]] = deque(maxlen=history)  # (t_us, targets) sent
         self.failure: Exception | None = None  # why the board will not apply our frames (see fail())
         self._last_failure: Exception | None = None
+        self._send_path_s: deque[float] = deque(maxlen=SEND_PATH_WINDOW)  # measured by start_now (s)
 
     def grid(self, t_us: int) -> int:
         """The first frame time on the grid at or after ``t_us``."""
@@ -231,25 +241,36 @@ class FrameStreamer:
         """Forget a failure (after the board's fault was cleared); segments woken by it stay failed."""
         self.failure = None
 
+    def send_path_us(self) -> int:
+        """The host's own send path (µs): the :data:`SEND_PATH_QUANTILE` of the last :data:`SEND_PATH_WINDOW`
+        realtime starts, from planning the start to its first frame written; :data:`SEND_PATH_DEFAULT_US`
+        before the first."""
+        window = sorted(self._send_path_s)
+        if not window:
+            return SEND_PATH_DEFAULT_US
+        return round(window[min(len(window) - 1, int(SEND_PATH_QUANTILE * len(window)))] * 1e6)
+
     def soonest_us(self, nbytes: int = 0) -> int:
         """Earliest board time (µs) a message of ``nbytes`` sent now can be due at without being late.
 
         Realtime: the board clock estimate + the link's measured latency p99 (wire time of
-        ``nbytes`` included), rounded up to the board's control-tick grid (ticks run at whole
-        multiples of ``tick_us``), so the message is due exactly at the first tick it can reach in
-        time: a margin of up to one tick beyond the latency p99, and no extra tick of waiting for
-        the board to apply it. Never later than the first unsent frame. Lockstep: the first unsent
-        frame.
+        ``nbytes`` included) + the host's own send path (:meth:`send_path_us`: the uplink is measured
+        from the moment a TIME_SYNC is written, a start still has to be sampled and encoded), rounded
+        up to the board's control-tick grid (ticks run at whole multiples of ``tick_us``), so the
+        message is due exactly at the first tick it can reach in time: a margin of up to one tick
+        beyond that, and no extra tick of waiting for the board to apply it. Never later than the
+        first unsent frame. Lockstep: the first unsent frame.
         """
         if self.link.lockstep:
             return self.next_us
         tick = self.link.tick_us
-        t = self.link.board_now_us() + self.link.latency_us(nbytes)
+        t = self.link.board_now_us() + self.link.latency_us(nbytes) + self.send_path_us()
         return min(-(-t // tick) * tick, self.next_us)
 
     async def start_now(self, motion: MotionLike, label: str = "") -> Segment:
         """Start ``motion`` at :meth:`soonest_us`, replacing the frames already sent for its servos."""
         async with self._lock:
+            began = time.perf_counter()
             servos = sorted(int(i) for i in motion.servos)
             mask = mask_of(servos)
             t0 = self.soonest_us(self._flush_bytes + frame_wire_bytes(len(servos), self.schema))
@@ -260,9 +281,11 @@ class FrameStreamer:
             seg = self.mixer.add(motion, t0, label)
             self._times[seg] = SegmentTimes()
             idx = np.asarray(servos, dtype=int)
-            self.link.send_flush(t0, mask)  # nothing buffered for these servos survives from t0 on
             first = self.mixer.sample_servo_targets(t0)
-            seq = await self.link.send_frame(ServoFrame(t0, mask, tuple(float(x) for x in first[idx])))
+            frame = ServoFrame(t0, mask, tuple(float(x) for x in first[idx]))
+            # the send path ends where the write begins: the uplink measured by TIME_SYNC starts there too
+            self._send_path_s.append(time.perf_counter() - began)
+            seq = self.link.send_start(frame)  # FLUSH: nothing buffered for these servos survives from t0 on
             seg.first_frame_us = t0
             self._in_flight.append(_Sent(seq, MixedFrame(t0, first, (seg,), ())))
             for t in range(self.grid(t0 + 1), self.next_us, self.period_us):

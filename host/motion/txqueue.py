@@ -22,7 +22,7 @@ What is equal is the buffer's contents: frames written later than a FIFO would h
 still have to arrive before their apply time (the pacing writes the one due first, and the streamer
 plans a new motion behind the line's backlog), or the board answers LATE as it would to any late
 frame. The argument needs one rule of the link: a frame written at once, past the held ones
-(``BoardFrameLink.send_frame``), comes right after a FLUSH of its servos from its apply time, so no
+(``BoardFrameLink.send_start``), comes right after a FLUSH of its servos from its apply time, so no
 held frame of the same apply time can later override it.
 
 Sequence numbers are given when a frame is written, so among held frames they rise with apply time

@@ -15,6 +15,7 @@ run on the event loop thread.
 
 from __future__ import annotations
 
+import contextlib
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 
@@ -67,6 +68,13 @@ class Transport(ABC):
         found the wire gone) and :class:`host.link.errors.LinkError` when the transmit backlog
         is full (the board stopped reading); nothing is logged then.
         """
+
+    def deferred_log(self) -> contextlib.AbstractContextManager[None]:
+        """A block whose sends go on the wire at once and whose frame-log records are written when it
+        ends, in send order, with the times they were sent (``BoardClient.burst``: a start's FLUSH and
+        first frame, neither waiting on the other's logging). This default logs as it sends (the CAN
+        transports: their frames go out from a transmit queue, logged as they leave it)."""
+        return contextlib.nullcontext()
 
     def set_servo_count(self, servo_count: int) -> None:
         """Speak the wire form of a robot of ``servo_count`` servos from now on: serial, its wire

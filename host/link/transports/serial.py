@@ -36,11 +36,12 @@ transport adapter; :mod:`host.link.transports` says why.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import errno
 import os
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 from pathlib import Path
 
@@ -261,10 +262,24 @@ class SerialLinkTransport(Transport):
         self._port: SerialPort | None = None
         self._on_receive: ReceiveHandler | None = None
         self._ever_connected = False
+        self._log_held: list[tuple[float, bytes]] | None = None  # sent inside deferred_log(), not yet logged
 
     @property
     def name(self) -> str:
         return self.url
+
+    @contextlib.contextmanager
+    def deferred_log(self) -> Iterator[None]:
+        if self.framelog is None or self._log_held is not None:  # nothing to log, or nested: the outer block logs
+            yield
+            return
+        self._log_held = []
+        try:
+            yield
+        finally:
+            held, self._log_held = self._log_held, None
+            for t, raw in held:
+                self.framelog.write_serial("tx", t, raw)
 
     def set_servo_count(self, servo_count: int) -> None:
         self.schema = self._decoder.schema = schema_for(servo_count)
@@ -323,7 +338,9 @@ class SerialLinkTransport(Transport):
             raise LinkError(str(e)) from None
         except ConnectionError as e:
             raise LinkDown(f"link to {self.url!r} is down: {e}") from None
-        if self.framelog is not None:
+        if self._log_held is not None:
+            self._log_held.append((time.monotonic(), raw))
+        elif self.framelog is not None:
             self.framelog.write_serial("tx", time.monotonic(), raw)  # decoded from the wire bytes (quantised)
         return len(raw)
 
