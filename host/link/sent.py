@@ -2,8 +2,8 @@
 
 python-can's ``Listener`` model for the transmit side: a run's recorder, a live view or a test
 registers ``callback(seq, message)``; a failing listener is logged and never fails the send. Inside
-:meth:`SentFanout.burst` the sends go on the wire at once and the listeners, like the transport's
-frame log (:meth:`host.link.transports.base.Transport.deferred_log`), hear of them when the block
+:meth:`SentFanout.burst` the sends go on the wire together when the block ends, and the listeners, like the transport's
+frame log (:meth:`host.link.transports.base.Transport.burst`), hear of them when the block
 ends, in send order.
 """
 
@@ -47,14 +47,15 @@ class SentFanout:
 
     @contextlib.contextmanager
     def burst(self, transport: Transport | None) -> Iterator[None]:
-        """Hold back the listeners and ``transport``'s frame log until the block ends (nested blocks
-        are one block; the held records are written however the block ends)."""
+        """Hold back the listeners and ``transport``'s writes and frame log until the block ends
+        (:meth:`host.link.transports.base.Transport.burst`; nested blocks are one block; what was
+        sent is written, logged and told however the block ends)."""
         if self._held is not None:
             yield
             return
         self._held = []
         try:
-            with transport.deferred_log() if transport is not None else contextlib.nullcontext():
+            with transport.burst() if transport is not None else contextlib.nullcontext():
                 yield
         finally:
             held, self._held = self._held, None

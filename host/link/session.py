@@ -24,7 +24,7 @@ and keeps the link state (up, lost, closing). The rest:
   through a table, then to the ``on_received`` listeners;
 * listeners: telemetry fan-out and fault edges (:class:`host.link.telemetry.TelemetryFanout`),
   camera reassembly (:class:`host.link.camera.CameraAssembler`), ``on_sent`` (:class:`host.link.sent.SentFanout`,
-  held back with the frame log inside :meth:`BoardClient.burst`) / ``on_received`` /
+  held back with the writes and the frame log inside :meth:`BoardClient.burst`) / ``on_received`` /
   ``on_nack`` / ``on_fault`` callbacks (a run's recorder and live view), the frame log (the
   transport's, :mod:`protocol.logfile`, with ``log_path``);
 * mixins giving ``BoardClient`` its convenience API: :class:`host.link.board_commands.BoardCommands`
@@ -315,11 +315,11 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
         return seq
 
     def burst(self) -> contextlib.AbstractContextManager[None]:
-        """Messages sent inside go on the wire at once; the frame log's records of them and the
-        ``on_sent`` listeners follow when the block ends, in send order, with the times they were sent
-        (:meth:`host.link.transports.base.Transport.deferred_log`). For sends that must follow each
-        other closely (a start's FLUSH and first frame: ~0.2 ms of logging apart otherwise). Nested
-        blocks are one block. Nothing inside may await (:class:`host.link.sent.SentFanout`)."""
+        """Messages sent inside go on the wire together when the block ends (serial: one write, so the
+        board reads them at once), then the frame log's records of them and the ``on_sent`` listeners,
+        in send order. For sends that must follow each other closely: a start's FLUSH and first frame
+        (otherwise the board handled the FLUSH alone, one read and ~0.2 ms before the frame).
+        Nested blocks are one block. Nothing inside may await (:class:`host.link.sent.SentFanout`)."""
         return self._sent.burst(self._transport)
 
     #: sends of one request before :class:`LinkTimeout` (a frame lost either way costs a retry).

@@ -1,9 +1,9 @@
-"""``BoardClient.burst``: sends go on the wire at once, their logging follows the block.
+"""``BoardClient.burst``: sends go on the wire together when the block ends, then are logged.
 
-A start's FLUSH and first frame are written back to back; the frame log's records of them (JSON
-Lines: decode, render, write) and the ``on_sent`` listeners (a run's recorder) wait for the end of
-the block, in send order, with the times the frames were written. A real board over a real pty
-receives both and answers the FLUSH.
+A start's FLUSH and first frame go out in one write (the board reads them in one read and handles
+the frame right after the FLUSH); the frame log's records of them (JSON Lines: decode, render,
+write) and the ``on_sent`` listeners (a run's recorder) follow, in send order, stamped with the
+time of that write. A real board over a real pty receives both and answers the FLUSH.
 """
 
 from __future__ import annotations
@@ -26,8 +26,9 @@ def _tx(log: Path) -> list[dict]:
         return [r for r in iter_records(f) if r["dir"] == "tx"]
 
 
-def test_a_burst_logs_and_tells_listeners_after_its_writes(board_factory, tmp_path: Path) -> None:
-    board = board_factory("--lockstep")
+@pytest.mark.realtime  # tests/support/realtime_lock.py
+def test_a_burst_is_one_write_logged_and_told_after_it(board_factory, tmp_path: Path) -> None:
+    board = board_factory("--log", str(tmp_path / "board.jsonl"))
     log = tmp_path / "host.jsonl"
     told: list[tuple[int, str]] = []
 
@@ -35,19 +36,23 @@ def test_a_burst_logs_and_tells_listeners_after_its_writes(board_factory, tmp_pa
         async with await BoardClient.connect(board.port, log_path=log) as c:
             c.on_sent.append(lambda seq, msg: told.append((seq, type(msg).__name__)))
             before = len(_tx(log))
-            due = c.board_now_estimate() + 20_000
+            due = c.board_now_estimate() + 50_000
             with c.burst():
                 flush_seq = c.send(Flush(due, 0b1))
                 frame_seq = c.send_frame(ServoFrame(due, 0b1, (0.1,)))
-                assert len(_tx(log)) == before and told == []  # written, not yet logged or told
-                written = time.monotonic()
+                assert len(_tx(log)) == before and told == []  # not yet written, logged or told
+                inside = time.monotonic()
+            after = time.monotonic()
             sent = _tx(log)[before:]
             assert [(r["seq"], r["type"]) for r in sent] == [(flush_seq, "FLUSH"), (frame_seq, "SERVO_FRAME")]
-            assert sent[0]["t"] <= sent[1]["t"] <= written  # the times they were written, not logged
+            assert inside <= sent[0]["t"] == sent[1]["t"] <= after  # the time of their one write
             assert told == [(flush_seq, "Flush"), (frame_seq, "ServoFrame")]
-            with anyio.fail_after(10):  # the board got both: it answers the FLUSH
-                await c.advance(due + 20_000)
+            # the board got both, and applied the frame (LinkTimeout otherwise)
+            await c.wait_for(lambda t: t.last_applied_seq == frame_seq and t.board_time_us >= due, timeout=10)
             assert c.stats.frame_nacks == 0 and c.stats.decode_errors == 0
+        with open(tmp_path / "board.jsonl", encoding="utf-8") as f:
+            got = {r["seq"]: r["t"] for r in iter_records(f) if r["dir"] == "rx" and r["seq"] in (flush_seq, frame_seq)}
+        assert got[flush_seq] == got[frame_seq]  # the board read them in one read
 
     anyio.run(main)
 

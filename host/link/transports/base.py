@@ -69,11 +69,14 @@ class Transport(ABC):
         is full (the board stopped reading); nothing is logged then.
         """
 
-    def deferred_log(self) -> contextlib.AbstractContextManager[None]:
-        """A block whose sends go on the wire at once and whose frame-log records are written when it
-        ends, in send order, with the times they were sent (``BoardClient.burst``: a start's FLUSH and
-        first frame, neither waiting on the other's logging). This default logs as it sends (the CAN
-        transports: their frames go out from a transmit queue, logged as they leave it)."""
+    def burst(self) -> contextlib.AbstractContextManager[None]:
+        """A block of sends that go out together when it ends, then are logged (``BoardClient.burst``: a
+        start's FLUSH and first frame). Serial: one write (the board reads both at once and handles
+        the frame right after the FLUSH, not an event-loop turn later), then the frame log's records,
+        stamped with the time of that write. This default sends and logs each at once (the CAN
+        transports: their frames go out from a transmit queue, logged as they leave it). Errors are
+        raised as :meth:`send` raises them; a write failing when the block ends is a lost link.
+        """
         return contextlib.nullcontext()
 
     def set_servo_count(self, servo_count: int) -> None:

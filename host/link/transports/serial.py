@@ -88,6 +88,7 @@ class SerialPort:
         self._on_lost = on_lost
         self._closed = False
         self._tx = bytearray()
+        self._corked = False
         self._thread: threading.Thread | None = None
         self._writer_added = False
         # a device is opened for this host alone (pyserial's exclusive: flock): a second host on the same
@@ -162,7 +163,22 @@ class SerialPort:
                 raise ConnectionError(str(e)) from None
             return
         self._tx += data
-        self._write_ready()
+        if not self._corked:
+            self._write_ready()
+
+    @contextlib.contextmanager
+    def corked(self) -> Iterator[None]:
+        """Writes inside are queued and go out in one ``os.write`` when the block ends (TCP_CORK's idea),
+        so the far end reads them together. A port without a file descriptor writes at once."""
+        if self._corked or self.fd is None:
+            yield
+            return
+        self._corked = True
+        try:
+            yield
+        finally:
+            self._corked = False
+            self._write_ready()
 
     def _write_ready(self) -> None:
         if self._closed or self.fd is None:
@@ -262,24 +278,28 @@ class SerialLinkTransport(Transport):
         self._port: SerialPort | None = None
         self._on_receive: ReceiveHandler | None = None
         self._ever_connected = False
-        self._log_held: list[tuple[float, bytes]] | None = None  # sent inside deferred_log(), not yet logged
+        self._log_held: list[bytes] | None = None  # sent inside burst(), not yet logged
 
     @property
     def name(self) -> str:
         return self.url
 
     @contextlib.contextmanager
-    def deferred_log(self) -> Iterator[None]:
-        if self.framelog is None or self._log_held is not None:  # nothing to log, or nested: the outer block logs
+    def burst(self) -> Iterator[None]:
+        if self._log_held is not None:  # nested: the outer block writes and logs
             yield
             return
         self._log_held = []
+        port = self._port
         try:
-            yield
+            with port.corked() if port is not None else contextlib.nullcontext():
+                yield
         finally:
             held, self._log_held = self._log_held, None
-            for t, raw in held:
-                self.framelog.write_serial("tx", t, raw)
+            if self.framelog is not None:
+                t = time.monotonic()  # when the one write went out
+                for raw in held:
+                    self.framelog.write_serial("tx", t, raw)
 
     def set_servo_count(self, servo_count: int) -> None:
         self.schema = self._decoder.schema = schema_for(servo_count)
@@ -339,7 +359,7 @@ class SerialLinkTransport(Transport):
         except ConnectionError as e:
             raise LinkDown(f"link to {self.url!r} is down: {e}") from None
         if self._log_held is not None:
-            self._log_held.append((time.monotonic(), raw))
+            self._log_held.append(raw)
         elif self.framelog is not None:
             self.framelog.write_serial("tx", time.monotonic(), raw)  # decoded from the wire bytes (quantised)
         return len(raw)
