@@ -124,28 +124,39 @@ class CallLatency:
     arrived_late: bool = False  # the board received its first message after its due time (started at the next tick)
 
 
-#: the fields of a received message that say when it is due on the board (µs): a SERVO_FRAME, a FLUSH,
-#: a peripheral command (protocol.messages)
-DUE_FIELDS = ("apply_at_us", "from_us", "start_at_us")
+#: the fields of a received message that say when it is due on the board (µs), by message type
+#: (protocol.messages); a motion's start is its FLUSH and first frame, a peripheral's its command
+DUE_FIELDS = {"SERVO_FRAME": "apply_at_us", "FLUSH": "from_us", "SPEAKER": "start_at_us", "SCREEN": "start_at_us"}
+MOTION_TYPES = frozenset({"SERVO_FRAME", "FLUSH"})
 
 
-def board_arrivals(run_dir: Path) -> dict[int, float] | None:
-    """Due time (board µs) -> the latest board time (s) a message due then reached the board, from the
-    board's JSON Lines frame log in ``run_dir``; None when the run has none (a CAN link logs in a CAN format)."""
+def board_arrivals(run_dir: Path) -> dict[tuple[int, str], float] | None:
+    """``(due time in board µs, "motion" | "peripheral")`` -> the board time (s) by which the messages
+    due then had reached the board, from the board's JSON Lines frame log in ``run_dir``; None when the
+    run has none (a CAN link logs in a CAN format). Motion: the latest FLUSH or SERVO_FRAME due then (a
+    start's FLUSH and first frame; the lookahead frames due then came long before). Peripheral: per
+    command type the first copy (the board acts on the first; a re-sent request is a later copy), then
+    the latest over the types. Two starts due at the same tick share one value."""
     log = run_dir / "board_frames.jsonl"
     if not log.exists():
         return None
-    out: dict[int, float] = {}
+    motion: dict[int, float] = {}
+    first_copy: dict[tuple[int, str], float] = {}
     with log.open(encoding="utf-8") as f:
         for line in f:
             rec = json.loads(line)
-            fields = rec.get("fields")
-            if rec.get("dir") != "rx" or not fields:
+            name = DUE_FIELDS.get(rec.get("type", ""))
+            due = rec["fields"].get(name) if name is not None and rec.get("dir") == "rx" else None
+            if not isinstance(due, int):
                 continue
-            for name in DUE_FIELDS:
-                due = fields.get(name)
-                if isinstance(due, int):
-                    out[due] = max(out.get(due, 0.0), float(rec["t"]))
+            t = float(rec["t"])
+            if rec["type"] in MOTION_TYPES:
+                motion[due] = max(motion.get(due, 0.0), t)
+            else:
+                first_copy.setdefault((due, rec["type"]), t)
+    out = {(due, "motion"): t for due, t in motion.items()}
+    for (due, _), t in first_copy.items():
+        out[due, "peripheral"] = max(out.get((due, "peripheral"), 0.0), t)
     return out
 
 
@@ -256,11 +267,12 @@ def task_latencies(task: int, rep: RunReport, registry: Registry,
             channel = r.channel or "?"
         t_chunk = rep.token_times[k][0]
         t_ready = rep.result.t0 + r.start
-        arrived = arrivals.get(round(call.start * 1e6), 0.0) if arrivals is not None else 0.0
+        kind = "motion" if channel in motion else "peripheral"
+        arrived = arrivals.get((round(call.start * 1e6), kind), 0.0) if arrivals is not None else 0.0
         start = tick_of(max(call.start, arrived))
         out.append(CallLatency(
             task=task, path=r.path, function=r.function, channel=channel,
-            kind="motion" if channel in motion else "peripheral", chunk=k, t_chunk=t_chunk, t_board=start,
+            kind=kind, chunk=k, t_chunk=t_chunk, t_board=start,
             queued=r.path in queued, host_ms=(t_ready - t_chunk) * 1e3, token_ms=(start - t_chunk) * 1e3,
             ready_ms=(start - max(t_chunk, t_ready)) * 1e3,
             dispatch_skew_ms=(rep.result.t0 + r.dispatch - t_chunk) * 1e3, arrived_late=arrived > call.start))

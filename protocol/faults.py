@@ -317,6 +317,9 @@ class GapDetector:
                 self.lost -= 1
             return 0
         gap = ahead - 1
+        # a number missing a lap (65 536 numbers) ago and not yet evicted: that unit stays lost, and its
+        # entry goes, so ``_missing`` stays in arrival order (``settled_lost`` walks it from the end)
+        self._missing.pop(seq, None)
         # the last ``window`` skipped numbers, in order: (highest + 1 + k) & 0xFFFF for k in range(lo, gap),
         # as at most two runs of consecutive numbers (before and after the wrap) added in C, not per number
         lo = max(0, gap - self.window)

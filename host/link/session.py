@@ -131,10 +131,9 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
         self.on_nack: list[Callable[[Nack], None]] = []
         #: the board's latest NACK SERVO_FAULT (its detail names the servo that stopped answering on its bus)
         self.servo_fault: Nack | None = None
-        #: called with (seq, message) after every message handed to the transport, and with every message
-        #: received, after the client handled it (listeners, e.g. a run's recorder; python-can's Listener model)
-        self._sent = SentFanout()
-        self.on_sent: list[SentListener] = self._sent.listeners
+        self._sent = SentFanout()  # the on_sent listeners
+        #: called with every message received, after the client handled it (listeners, e.g. a run's
+        #: recorder; python-can's Listener model)
         self.on_received: list[Callable[[Message], None]] = []
         self.on_reconnect: list[Callable[[BoardClient], None]] = []
         self.keepalive = True  # heartbeat + periodic sync; turn off to let the watchdog fire
@@ -313,6 +312,13 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
         self.stats.tx_frames += 1
         self._sent.sent(seq, msg)
         return seq
+
+    @property
+    def on_sent(self) -> list[SentListener]:
+        """Called with (seq, message) after every message handed to the transport (inside :meth:`burst`,
+        when the block ends): listeners, e.g. a run's recorder (python-can's Listener model). Append to
+        it; the list itself is the fan-out's and cannot be replaced."""
+        return self._sent.listeners
 
     def burst(self) -> contextlib.AbstractContextManager[None]:
         """Messages sent inside go on the wire together when the block ends (serial: one write, so the

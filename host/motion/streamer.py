@@ -57,11 +57,13 @@ from protocol.framing import encode_frame
 from protocol.messages import Flush, ServoFrame, Telemetry
 
 
-#: The host's own send path: from :meth:`FrameStreamer.soonest_us` planning a start to its first frame
-#: written (sampling the mix, the FLUSH, encoding). Measured on every realtime :meth:`FrameStreamer.start_now`
-#: (a window of the last ``SEND_PATH_WINDOW``; the ``SEND_PATH_QUANTILE`` of it is the margin), this default
-#: before the first: 0.4-0.8 ms on a quiet 2-core machine (a probe around ``start_now``, 25 calls). Without
-#: it 6 of 56 first frames reached the board after their due time (the TIME_SYNC uplink does not include it).
+#: The host's own send path: from :meth:`FrameStreamer.soonest_us` planning a start to the moment its
+#: FLUSH and first frame are handed to the link (adding the segment, sampling the mix, building the frame;
+#: encoding and the write are in the TIME_SYNC uplink, measured from its own write). Measured on every
+#: realtime :meth:`FrameStreamer.start_now` (a window of the last ``SEND_PATH_WINDOW``; the
+#: ``SEND_PATH_QUANTILE`` of it is the margin); this default before the first: 0.24 ms p50, 0.45 ms max on a
+#: quiet 2-core machine (``bench/bench_latency.py``, n = 49). Without it 13 of 51 first messages reached
+#: the board after their due time (one quiet pass of the same bench).
 SEND_PATH_DEFAULT_US = 400
 SEND_PATH_WINDOW = 32
 SEND_PATH_QUANTILE = 0.9

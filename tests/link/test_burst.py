@@ -57,7 +57,7 @@ def test_a_burst_is_one_write_logged_and_told_after_it(board_factory, tmp_path: 
     anyio.run(main)
 
 
-def test_a_send_that_fails_inside_a_burst_still_logs_what_went_out(board_factory, tmp_path: Path) -> None:
+def test_a_burst_the_caller_leaves_with_an_error_still_writes_and_logs(board_factory, tmp_path: Path) -> None:
     board = board_factory("--lockstep")
     log = tmp_path / "host.jsonl"
     told: list[Message] = []
@@ -73,5 +73,8 @@ def test_a_send_that_fails_inside_a_burst_still_logs_what_went_out(board_factory
             with c.burst(), c.burst():  # nested: one block
                 c.send(Flush(c.board_now_estimate() + 20_000, 0b1))
             assert len(_tx(log)) == before + 2 and len(told) == 2
+            # the port is not left corked: a FLUSH outside any block reaches the board, which ACKs it
+            # (NackError / LinkTimeout otherwise)
+            await c.flush(c.board_now_estimate() + 20_000, 0b1)
 
     anyio.run(main)

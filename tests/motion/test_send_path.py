@@ -1,8 +1,8 @@
 """A start's first frame is due after the host's own send path too (``FrameStreamer.send_path_us``).
 
 The TIME_SYNC uplink is measured from the moment a request is written; a new call's first frame is
-still to be sampled and encoded after its due time is chosen. A bench probe found 6 of 56 first
-frames on the board after their due time (applied a tick late) before the send path counted. These
+still to be sampled and built after its due time is chosen. ``bench/bench_latency.py`` found 13 of
+51 first messages on the board after their due time (applied a tick late) before the send path counted. These
 drive the streamer through a recording link with a fixed board clock, so the arithmetic is exact.
 """
 

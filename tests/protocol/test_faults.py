@@ -161,8 +161,26 @@ def test_gap_detector_restart_keeps_what_overtook_the_restart_point() -> None:
     g3.restart_from(2)
     g3.feed(3)
     assert (g3.lost, g3.highest) == (0, 3)
-    # memory stays bounded
-    assert len(g._recent) <= GapDetector.RECENT
+    # bounded: only the last RECENT numbers fed (47..110 of 11..110), and of those only the ones within
+    # RECENT after the restart point (47..74), are replayed; 11..46 then read as lost
+    g4 = GapDetector()
+    for s in range(11, 111):
+        g4.feed(s)
+    g4.restart_from(10)
+    assert (g4.highest, g4.lost, g4.received) == (74, 36, 1 + 28)
+
+
+def test_a_number_from_an_earlier_lap_leaves_the_missing_list_when_it_comes_again() -> None:
+    g = GapDetector()
+    g.feed(0)
+    g.feed(2)  # 1 missing
+    for s in range(3, 0x10000):  # a lap on with no other gap: 1 is still remembered as missing
+        g.feed(s)
+    g.feed(0)
+    g.feed(1)  # the new 1 arrives as the highest: that earlier unit stays lost, its entry goes
+    assert g.lost == 1 and 1 not in g._missing
+    g.feed(4)  # 2 and 3 missing now: the entries are in arrival order again
+    assert g.lost == 3 and g.settled_lost(1) == 2 and g.settled_lost(3) == 1
 
 
 def test_a_gap_settles_as_lost_once_depth_later_numbers_came() -> None:

@@ -71,8 +71,9 @@ class Transport(ABC):
 
     def burst(self) -> contextlib.AbstractContextManager[None]:
         """A block of sends that go out together when it ends, then are logged (``BoardClient.burst``: a
-        start's FLUSH and first frame). Serial: one write (the board reads both at once and handles
-        the frame right after the FLUSH, not an event-loop turn later), then the frame log's records,
+        start's FLUSH and first frame). Serial: one write where the port has a file descriptor (a pty,
+        a tty; the board reads both at once and handles the frame right after the FLUSH, not a loop
+        turn later; a port written from a thread writes each at once), then the frame log's records,
         stamped with the time of that write. This default sends and logs each at once (the CAN
         transports: their frames go out from a transmit queue, logged as they leave it). Errors are
         raised as :meth:`send` raises them; a write failing when the block ends is a lost link.
