@@ -245,8 +245,8 @@ class FrameStreamer:
 
     def send_path_us(self) -> int:
         """The host's own send path (µs): the :data:`SEND_PATH_QUANTILE` of the last :data:`SEND_PATH_WINDOW`
-        realtime starts, from planning the start to its first frame written; :data:`SEND_PATH_DEFAULT_US`
-        before the first."""
+        realtime starts, from planning the start to handing its FLUSH and first frame to the link;
+        :data:`SEND_PATH_DEFAULT_US` before the first."""
         window = sorted(self._send_path_s)
         if not window:
             return SEND_PATH_DEFAULT_US
@@ -257,7 +257,7 @@ class FrameStreamer:
 
         Realtime: the board clock estimate + the link's measured latency p99 (wire time of
         ``nbytes`` included) + the host's own send path (:meth:`send_path_us`: the uplink is measured
-        from the moment a TIME_SYNC is written, a start still has to be sampled and encoded), rounded
+        from the moment a TIME_SYNC is written, a start still has to be sampled and built), rounded
         up to the board's control-tick grid (ticks run at whole multiples of ``tick_us``), so the
         message is due exactly at the first tick it can reach in time: a margin of up to one tick
         beyond that, and no extra tick of waiting for the board to apply it. Never later than the
