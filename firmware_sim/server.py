@@ -4,8 +4,8 @@ The server works only against :class:`firmware_sim.transports.base.BoardTranspor
 (serial, CAN, ...): the transport owns framing, the wire model and the frame log.
 
 One thread, one ``select`` loop. Realtime: ticks are paced by
-:class:`firmware_sim.clock.RealtimeClock`; received frames are handled between
-ticks. Lockstep: the board ticks as fast as it can while the host has covered
+:class:`firmware_sim.clock.RealtimeClock`; received frames are handled and output flushed between
+ticks, also while the loop catches up on late ones. Lockstep: the board ticks as fast as it can while the host has covered
 the next tick, and waits on the link otherwise; it also waits while the
 outgoing backlog is large, so a slow reader never loses telemetry.
 Outgoing bytes are bounded: telemetry is dropped (counted in ``tx_dropped``) when the
@@ -189,7 +189,7 @@ class BoardServer:
             if self.transport.wants_write:
                 timeout = min(timeout, 0.001)
             self._deliver(read=self._wait(max(0.0, timeout)))
-            while clock.deadline() <= time.monotonic():
+            while self.running and clock.deadline() <= time.monotonic():
                 before = clock.next_tick
                 _, overran = clock.begin_tick()
                 skipped = clock.next_tick - before - 1
@@ -201,7 +201,12 @@ class BoardServer:
                 if overran:
                     self.board.note_overrun()
                 self._sync_viewer()
-                self._deliver()
+                # the link is served after every tick, caught up or not: a board behind real time (a
+                # loaded machine, a guest VM) that only read and wrote once caught up went silent for as
+                # long as it stayed behind, up to ``max_behind_s`` and beyond, which is longer than a
+                # flow-control wait (ISO-TP's 200 ms) or a reply timeout
+                self._flush_tx()
+                self._deliver(read=self._wait(0.0))
             self._flush_tx()
 
     def _serve_lockstep(self) -> None:
