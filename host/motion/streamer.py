@@ -165,6 +165,7 @@ class FrameStreamer:
         self._last_telemetry: Telemetry | None = None
         self._lock = anyio.Lock()
         self.frames_sent = 0
+        self.frames_skipped = 0  # grid frames left unsent: they could no longer arrive in time (_skip_late)
         self._holds = 0
         self._time_waiters: list[tuple[int, int, anyio.Event]] = []
         self._waiter_ids = itertools.count()
@@ -329,10 +330,28 @@ class FrameStreamer:
             return
         async with self._lock:
             now = self.link.board_now_us() if board_now_us is None else board_now_us
+            if not self.link.lockstep:
+                self._skip_late(now)
             horizon = now + self.lookahead_us
             while self.next_us <= horizon:
                 self._send(self.mixer.frame(self.next_us))
                 self.next_us += self.period_us
+
+    def _skip_late(self, now_us: int) -> None:
+        """Realtime: move the first unsent frame past the grid times a frame sent now would miss.
+
+        Those would reach the board after their due time and be NACKed LATE. They are left unsent
+        after a stall of the host longer than the lookahead (or, for the first frame, longer than one
+        period between making the streamer and its first top-up; seen in CI under overload). The mix
+        is sampled at the first time still in reach: a segment that began or ended in the gap is
+        started (ended) by that frame, and the board moves there from where it was. Counted in
+        ``frames_skipped``.
+        """
+        reach = now_us + self.link.latency_us(frame_wire_bytes(self.mixer.n_servos, self.schema)) + self.send_path_us()
+        if self.next_us < reach:
+            first = self._grid(reach)
+            self.frames_skipped += (first - self.next_us) // self.period_us
+            self.next_us = first
 
     def _send(self, mixed: MixedFrame) -> None:
         n = self.mixer.n_servos

@@ -771,7 +771,7 @@ class RobotSession:
         fell = _fell(self.robot, max_tilt, min((b[1][2] for b in base), default=None), rec.base_z0)
         client = self.client
         tel = client.latest_telemetry if client is not None else None
-        stats = {"frames_sent": streamer.frames_sent, "late": tel.late_count if tel else None,
+        stats = {"frames_sent": streamer.frames_sent, "frames_skipped": streamer.frames_skipped, "late": tel.late_count if tel else None,
                  "dropped": tel.dropped_count if tel else None,
                  "frame_nacks": client.stats.frame_nacks if client else None,
                  "decode_errors": client.stats.decode_errors if client else None,

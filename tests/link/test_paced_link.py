@@ -19,7 +19,7 @@ from host.motion.board_link import PACE_MARGIN_US, BoardFrameLink
 from host.motion.mixer import Mixer
 from host.motion.moves import max_error_deg
 from host.motion.streamer import FrameStreamer
-from protocol.messages import Nack
+from protocol.messages import Nack, ServoFrame
 from robots.motion import Limits, transition
 from robots.registry import load_robot
 
@@ -43,6 +43,16 @@ def test_a_new_motion_overtakes_held_lookahead_frames_and_lands(board_factory) -
             streamer = FrameStreamer(link, Mixer(q0))
             nacks: list[Nack] = []
             client.on_nack.append(nacks.append)
+            # A busy wait here made this process a CPU hog; on a loaded machine the kernel then held it off
+            # the CPU for ~30 ms at a time, with the first frames planned and not yet written (they
+            # reached the board 22-30 ms late, 1 run in 4 under two busy loops). Waits are on events.
+            written = [anyio.Event()]
+
+            def on_sent(seq: int, msg: object) -> None:
+                if isinstance(msg, ServoFrame):
+                    written[0].set()
+
+            client.on_sent.append(on_sent)
 
             async def confirm() -> None:  # as host.run.pump does
                 async for t in client.telemetry(maxsize=256):
@@ -73,8 +83,9 @@ def test_a_new_motion_overtakes_held_lookahead_frames_and_lands(board_factory) -
                     return due is not None and due <= client.board_now_estimate() + link.latency_us(0) + PACE_MARGIN_US
 
                 with anyio.fail_after(2):  # the pacing writes what is due soon; the rest stays held
-                    while due_soon():
-                        await anyio.lowlevel.checkpoint()
+                    while due_soon():  # (only a write makes it false: wait for the next, not a spin)
+                        written[0] = anyio.Event()
+                        await written[0].wait()
                 assert len(link.queue) >= 1  # the far end of the 60 ms lookahead is still held
 
                 seg = await streamer.start_now(motion, "nudge")

@@ -5,7 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from host.link.timesync import ClockSync, SyncSample
+from hypothesis import given
+from hypothesis import strategies as st
+
+from host.link.timesync import ClockSync, SyncSample, quantile_sorted
 
 
 def _exchange(rng: np.random.Generator, t1: float, offset: float, drift: float, queued: bool) -> tuple[int, int, int, int]:
@@ -99,3 +102,33 @@ def test_uplink_quantile_cancels_the_offset_bias_of_an_asymmetric_path() -> None
     send = 5_000_000
     arrival = est.host_to_board(send) + sync.uplink_quantile(0.99)
     assert abs(arrival - (send + true_offset + 1_500)) < 100
+
+
+@given(st.lists(st.floats(-1e7, 1e7, allow_nan=False), min_size=1, max_size=80), st.floats(0.0, 1.0))
+def test_quantile_sorted_is_numpys_default_quantile(values: list[float], q: float) -> None:
+    """The hand-written quantile on the hot path (uplink latency) agrees with ``np.quantile``."""
+    ordered = sorted(values)
+    assert quantile_sorted(ordered, q) == pytest.approx(float(np.quantile(values, q)), rel=1e-9, abs=1e-6)
+
+
+def test_quantile_sorted_refuses_what_has_no_quantile() -> None:
+    with pytest.raises(ValueError):
+        quantile_sorted([], 0.5)
+    with pytest.raises(ValueError):
+        quantile_sorted([1.0], 1.5)
+
+
+def test_the_uplink_quantile_follows_every_new_sample() -> None:
+    """The sorted uplinks are kept between samples (asked on every frame sent): a new sample must
+    replace them, or the margin would stay where the first call left it."""
+    cs = ClockSync()
+    for i in range(8):
+        t1 = 1_000_000 + i * 20_000
+        cs.add(t1, t1 + 500, t1 + 600, t1 + 1_100)  # 500 us up, 500 us down
+    before = cs.uplink_quantile(0.99)
+    t1 = 2_000_000
+    cs.add(t1, t1 + 9_500, t1 + 9_600, t1 + 10_100)  # a slow uplink (a long round trip)
+    after = cs.uplink_quantile(0.99)
+    assert before is not None and after is not None and after > before + 1_000
+    cs.clear()
+    assert cs.uplink_quantile(0.99) is None

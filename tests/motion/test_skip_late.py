@@ -1,0 +1,65 @@
+"""A realtime streamer never sends a grid frame that can no longer reach the board in time.
+
+The streamer fixes its first frame time when it is made; a host that stalls longer than one period
+before its first top-up (or longer than the lookahead later) used to send the frames it had missed,
+and the board NACKed them LATE (``tests/link/test_paced_link.py`` failed so under overload in CI).
+Now a top-up starts at the first grid time a frame sent now can reach (board clock + uplink p99 +
+the send path), samples the mix there and counts the rest in ``frames_skipped``. Driven through
+the recording link of ``test_send_path.py`` with a fixed board clock, so the arithmetic is exact.
+"""
+
+from __future__ import annotations
+
+import anyio
+import numpy as np
+
+from host.motion.mixer import Mixer
+from host.motion.streamer import SEND_PATH_DEFAULT_US, FrameStreamer
+from protocol.messages import ServoFrame
+
+from motion.test_send_path import _Link, _Ramp
+
+PERIOD_US = 10_000
+
+
+def _frames(link: _Link) -> list[ServoFrame]:
+    return [m for m in link.sent if isinstance(m, ServoFrame)]
+
+
+def test_after_a_stall_the_first_frame_sent_is_the_first_still_in_reach() -> None:
+    link = _Link(now_us=1_000_000)
+    s = FrameStreamer(link, Mixer(np.zeros(4)))  # type: ignore[arg-type]
+    first_planned = s.first_free_us
+    assert first_planned == 1_010_000
+    seg = s.add(_Ramp(), "ramp", start_us=1_020_000)  # begins inside the stall
+    link.now_us = 1_095_000  # the host stalled 95 ms before its first top-up
+    anyio.run(s.top_up)
+    sent = _frames(link)
+    reach = link.now_us + link.uplink_us + SEND_PATH_DEFAULT_US
+    assert sent and sent[0].apply_at_us == -(-reach // PERIOD_US) * PERIOD_US == 1_100_000
+    assert all(f.apply_at_us >= reach for f in sent)  # nothing the board would NACK LATE
+    assert s.frames_skipped == (1_100_000 - first_planned) // PERIOD_US == 9
+    # the segment that began in the gap is started by the first frame sent, sampled where it stands then
+    assert seg.first_frame_us == 1_100_000
+    np.testing.assert_allclose(sent[0].targets[:2], [0.5 * 0.08 / 0.2] * 2)
+    assert [f.apply_at_us for f in sent] == list(range(1_100_000, link.now_us + 60_000 + 1, PERIOD_US))
+
+
+def test_without_a_stall_nothing_is_skipped() -> None:
+    link = _Link(now_us=1_000_000)
+    s = FrameStreamer(link, Mixer(np.zeros(4)))  # type: ignore[arg-type]
+    anyio.run(s.top_up)
+    link.now_us += 30_000
+    anyio.run(s.top_up)
+    times = [f.apply_at_us for f in _frames(link)]
+    assert s.frames_skipped == 0
+    assert times == list(range(1_010_000, 1_090_001, PERIOD_US))
+
+
+def test_a_lockstep_board_is_never_skipped_ahead() -> None:
+    """In lockstep the board runs only as far as the frames reach: nothing is ever late."""
+    link = _Link(now_us=1_000_000, lockstep=True)
+    s = FrameStreamer(link, Mixer(np.zeros(4)))  # type: ignore[arg-type]
+    link.now_us = 1_500_000
+    anyio.run(s.top_up)
+    assert s.frames_skipped == 0 and _frames(link)[0].apply_at_us == 1_010_000
