@@ -4,8 +4,7 @@ A :class:`Recording` listens to the session the way a python-can ``Listener`` li
 touches nothing else:
 
 * board-to-host and host-to-board messages: the client's ``on_received`` (message) and ``on_sent``
-  (seq, message) callbacks, called as each message is handled (no queue, so nothing is dropped and
-  the order is the wire's; TELEMETRY and SIM_STATE go to :meth:`RunLog.on_message`);
+  (seq, message) callbacks (TELEMETRY and SIM_STATE go to :meth:`RunLog.on_message`);
 * board faults and NACKs: the client's ``on_fault`` / ``on_nack`` callbacks;
 * calls and speech: at most every :data:`POLL_S` board seconds, on a report, the shell's live
   timeline (``Shell.last_result``; board-measured start/end from ``RobotRuntime.board_times`` where
@@ -16,14 +15,25 @@ touches nothing else:
 * sequence gaps, decode errors, re-sent requests, reconnects: the client's ``LinkStats`` counters,
   compared on every report.
 
+Every callback only notes what happened (with the board time it happened at) in one FIFO; the
+recording's work runs from the event loop right after the callback that noted it (one ``call_soon``
+per batch), in the order noted, nothing dropped. A profile of a realtime run showed why: writing the
+MCAP inside the link's read callback (forward kinematics for the transforms, JSON for the channels)
+was half of that callback, which ran over 0.5 ms hundreds of times per pass of the 30 tasks while a
+token chunk waited behind it (``bench/bench_latency.py``). Past ``MAX_DEFERRED`` noted items, or with
+no running loop, the work is done at once. :meth:`Recording.on_turn_end` and :meth:`Recording.close`
+do what is still noted first.
+
 Nothing here can end a run: a failure of the recording is one warning line and the recording stops.
 """
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import sys
-from collections.abc import Mapping, Sequence
+from collections import deque
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +51,8 @@ log = logging.getLogger("host.run")
 
 #: board seconds between looks at the shell's timeline and the runtime's captures
 POLL_S = 0.05
+#: noted callbacks waiting for the loop beyond which the recording's work is done at once
+MAX_DEFERRED = 4096
 
 
 class Recording:
@@ -61,6 +73,8 @@ class Recording:
         self._stats = (s.seq_gaps, s.decode_errors, s.retries, s.reconnects)
         self._failed = False
         self._chunk_us: int | None = None  # board time the latest camera chunk arrived
+        self._noted: deque[tuple[Callable[..., Any], tuple[Any, ...]]] = deque()  # work not yet done, in order
+        self._drain_armed = False
         client.on_fault.append(self._on_fault)
         client.on_nack.append(self._on_nack)
         client.on_sent.append(self._on_sent)
@@ -103,13 +117,41 @@ class Recording:
         return rec
 
     # -- listening ------------------------------------------------------------------------------
+    def _note(self, fn: Callable[..., Any], *args: Any) -> None:
+        """Do ``fn(*args)`` (guarded) from the loop soon, after the work noted before it."""
+        if self._failed:
+            return
+        self._noted.append((fn, args))
+        if self._drain_armed:
+            if len(self._noted) >= MAX_DEFERRED:
+                self._drain()
+            return
+        try:
+            asyncio.get_running_loop().call_soon(self._drain)
+        except RuntimeError:  # no loop running (a caller outside the session): at once
+            self._drain()
+            return
+        self._drain_armed = True
+
+    def _drain(self) -> None:
+        """Do all the noted work, in order."""
+        self._drain_armed = False
+        noted = self._noted
+        while noted:
+            fn, args = noted.popleft()
+            self._guard(fn, *args)
+
     def _on_received(self, msg: Message) -> None:
         if isinstance(msg, CameraChunk):  # a photo is complete when its last chunk came: that is its time
             self._chunk_us = self.client.board_now_estimate()
-        if isinstance(msg, (Telemetry, SimState)):
-            self._guard(self.run_log.on_message, msg)
-            if isinstance(msg, Telemetry):
-                self._guard(self._after_report, msg)
+        if isinstance(msg, Telemetry):
+            self._note(self._on_report, msg, self._chunk_us)
+        elif isinstance(msg, SimState):
+            self._note(self.run_log.on_message, msg)
+
+    def _on_report(self, tel: Telemetry, chunk_us: int | None) -> None:
+        self.run_log.on_message(tel)
+        self._after_report(tel, chunk_us)
 
     def _guard(self, fn: Any, *args: Any) -> None:
         if self._failed:
@@ -122,11 +164,11 @@ class Recording:
             self.notes.append(note)
             log.warning("%s", note)
 
-    def _after_report(self, tel: Telemetry) -> None:
+    def _after_report(self, tel: Telemetry, chunk_us: int | None) -> None:
         self._link_stats(tel.board_time_us)
         t = tel.board_time_us * 1e-6
         if len(self.runtime.captures) > self._captures:
-            self._poll_captures(t if self._chunk_us is None else self._chunk_us * 1e-6)
+            self._poll_captures(t if chunk_us is None else chunk_us * 1e-6)
         if t - self._poll_at >= POLL_S:
             self._poll_at = t
             self._poll_calls()
@@ -181,17 +223,18 @@ class Recording:
 
     # -- callbacks --------------------------------------------------------------------------------
     def _on_sent(self, seq: int, msg: Message) -> None:
-        self._guard(self.run_log.on_frame_sent, seq, msg, self.client.board_now_estimate())
+        self._note(self.run_log.on_frame_sent, seq, msg, self.client.board_now_estimate())
 
     def _on_fault(self, ev: FaultEvent) -> None:
-        self._guard(self.run_log.on_fault, ev.board_time_us, int(ev.raised), int(ev.cleared))
+        self._note(self.run_log.on_fault, ev.board_time_us, int(ev.raised), int(ev.cleared))
 
     def _on_nack(self, nack: Nack) -> None:
-        self._guard(self.run_log.on_nack, nack, self.client.board_now_estimate())
+        self._note(self.run_log.on_nack, nack, self.client.board_now_estimate())
 
     def on_turn_end(self, calls: Sequence[Any]) -> None:
         """The turn's board-measured calls (``host.run.artefacts.BoardCall``) as Events; the timeline's
-        last changes first."""
+        last changes first (after the work still noted)."""
+        self._drain()
         self._guard(self._poll_calls)
         for c in calls:
             self._guard(self.run_log.on_call, c)
@@ -205,6 +248,7 @@ class Recording:
         for lst, cb in listeners:
             if cb in lst:
                 lst.remove(cb)
+        self._drain()
         if self.live is not None:
             self.live.stop()
             self.live = None

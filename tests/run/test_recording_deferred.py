@@ -1,0 +1,85 @@
+"""The recording does its work from the loop, after the link callback that noted it, in order.
+
+A profile of a realtime run showed the MCAP writes inside the link's read callback (forward
+kinematics, JSON) as half of that callback, while a token chunk waited behind it. Now the callbacks
+only note what happened; the work follows from the loop. Checked here: the callback itself writes
+nothing; the work comes in the order noted, nothing dropped; with no running loop it is done at
+once; ``close`` does what is still noted. A real ``RunLog`` (no MCAP file: its calls are recorded)
+behind the listener seam; the client is the callbacks' lists and counters the recording reads.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from types import SimpleNamespace
+from typing import Any
+
+from host.link.receive import LinkStats
+from host.run.mcap_log import RunLog
+from host.run.recording import Recording
+from protocol.messages import FaultFlags, ServoFrame, SimState, Telemetry
+from robots.registry import load_robot
+
+
+class _Log(RunLog):
+    """A RunLog that records what the recording asked of it (and does it)."""
+
+    def __init__(self) -> None:
+        super().__init__(load_robot("coco"))
+        self.asked: list[tuple[str, Any]] = []
+
+    def on_message(self, msg: Any) -> None:
+        self.asked.append(("message", msg.board_time_us))
+        super().on_message(msg)
+
+    def on_frame_sent(self, seq: int, msg: Any, board_time_us: int) -> None:
+        self.asked.append(("sent", seq))
+        super().on_frame_sent(seq, msg, board_time_us)
+
+
+def _recording() -> tuple[Recording, _Log]:
+    client = SimpleNamespace(on_fault=[], on_nack=[], on_sent=[], on_received=[], stats=LinkStats(),
+                             board_now_estimate=lambda: 1_000)
+    runtime = SimpleNamespace(captures=[], board_times={}, robot=load_robot("coco"))
+    shell = SimpleNamespace(last_result=None)
+    log = _Log()
+    return Recording(log, client, runtime, shell), log  # type: ignore[arg-type]
+
+
+def _tel(t_us: int) -> Telemetry:
+    n = 12
+    return Telemetry(t_us, (0.0,) * n, (0.0,) * n, (0.0,) * n, (0.0, 0.0, 0.0), FaultFlags.NONE, 0, 0, 0, 0, 0)
+
+
+def _sim(t_us: int) -> SimState:
+    return SimState(t_us, (0.0, 0.0, 0.3), (1.0, 0.0, 0.0, 0.0))
+
+
+def test_the_link_callback_only_notes_and_the_loop_does_it_in_order() -> None:
+    rec, log = _recording()
+
+    async def main() -> None:
+        rec.client.on_received[0](_tel(10_000))
+        rec.client.on_sent[0](7, ServoFrame(20_000, 1, (0.1,)))
+        rec.client.on_received[0](_sim(10_000))
+        rec.client.on_received[0](_tel(30_000))
+        assert log.asked == []  # inside the callback: nothing written yet
+        await asyncio.sleep(0)
+        assert log.asked == [("message", 10_000), ("sent", 7), ("message", 10_000), ("message", 30_000)]
+
+    asyncio.run(main())
+    rec.close()
+
+
+def test_without_a_loop_it_is_done_at_once_and_close_does_what_is_left() -> None:
+    rec, log = _recording()
+    rec.client.on_received[0](_tel(10_000))
+    assert log.asked == [("message", 10_000)]
+
+    async def main() -> None:
+        rec.client.on_received[0](_tel(20_000))
+        rec.close()  # before the loop came round to it
+        assert log.asked == [("message", 10_000), ("message", 20_000)]
+        assert rec.client.on_received == []
+
+    asyncio.run(main())
