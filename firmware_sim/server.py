@@ -201,12 +201,16 @@ class BoardServer:
                 if overran:
                     self.board.note_overrun()
                 self._sync_viewer()
-                # the link is served after every tick, caught up or not: a board behind real time (a
-                # loaded machine, a guest VM) that only read and wrote once caught up went silent for as
-                # long as it stayed behind, up to ``max_behind_s`` and beyond, which is longer than a
-                # flow-control wait (ISO-TP's 200 ms) or a reply timeout
-                self._flush_tx()
-                self._deliver(read=self._wait(0.0))
+                if clock.deadline() <= time.monotonic():
+                    # another tick is due at once: serve the link first. A board behind real time (a
+                    # loaded machine, a guest VM) that read and wrote only once caught up went silent for
+                    # as long as it stayed behind, with no bound when every tick costs more than a period
+                    # (re-anchoring does not end the catch-up then): longer than ISO-TP's 200 ms
+                    # flow-control wait or a reply timeout
+                    self._flush_tx()
+                    self._deliver(read=self._wait(0.0))
+                else:
+                    self._deliver()
             self._flush_tx()
 
     def _serve_lockstep(self) -> None:

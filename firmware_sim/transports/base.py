@@ -41,7 +41,8 @@ class BoardTransport(ABC):
 
         With ``read=False`` nothing new is read from the OS (only bytes already read and
         held back by the wire model are released): the realtime loop calls it that way
-        between ticks. Received items are logged here.
+        between ticks (it reads when another tick is due at once: a board catching up still
+        serves its link). Received items are logged here.
         """
 
     @abstractmethod

@@ -18,8 +18,8 @@ that discipline the system clock, not estimators one can feed samples.
 from __future__ import annotations
 
 import dataclasses
-
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,7 +27,7 @@ import numpy as np
 __all__ = ["ClockEstimate", "ClockSync", "SyncSample", "quantile_sorted"]
 
 
-def quantile_sorted(values: list[float], q: float) -> float:
+def quantile_sorted(values: Sequence[float], q: float) -> float:
     """The ``q`` quantile (0..1) of a non-empty ascending list, interpolated linearly between the
     closest ranks: numpy's default method (``np.quantile(values, q)``, Hyndman & Fan's type 7).
 

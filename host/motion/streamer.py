@@ -338,14 +338,17 @@ class FrameStreamer:
                 self.next_us += self.period_us
 
     def _skip_late(self, now_us: int) -> None:
-        """Realtime: move the first unsent frame past the grid times a frame sent now would miss.
+        """Realtime: move the first unsent frame past the grid times a frame sent now would miss, by the
+        link's own estimate (board now + :meth:`FrameLink.latency_us` of a full frame, i.e. the uplink
+        p99, the line's backlog and the frame's wire time, + :meth:`send_path_us`).
 
-        Those would reach the board after their due time and be NACKed LATE. They are left unsent
-        after a stall of the host longer than the lookahead (or, for the first frame, longer than one
-        period between making the streamer and its first top-up; seen in CI under overload). The mix
-        is sampled at the first time still in reach: a segment that began or ended in the gap is
-        started (ended) by that frame, and the board moves there from where it was. Counted in
-        ``frames_skipped``.
+        Those frames would reach the board after their due time and be NACKed LATE. This happens after
+        a stall of the host longer than the lookahead, or when the first top-up comes over a period
+        after the streamer was made (a slow session start, a loaded machine). The mix is sampled at
+        the first time still in reach: a segment that began or ended in the gap is started (ended) by
+        that frame, and the board moves there from where it was. Counted in ``frames_skipped``. (On a
+        paced line, frames already held with earlier apply times still go first:
+        :mod:`host.motion.txqueue`.)
         """
         reach = now_us + self.link.latency_us(frame_wire_bytes(self.mixer.n_servos, self.schema)) + self.send_path_us()
         if self.next_us < reach:

@@ -74,7 +74,7 @@ class Recording:
         self._failed = False
         self._chunk_us: int | None = None  # board time the latest camera chunk arrived
         self._noted: deque[tuple[Callable[..., Any], tuple[Any, ...]]] = deque()  # work not yet done, in order
-        self._drain_armed = False
+        self._armed_on: asyncio.AbstractEventLoop | None = None  # the loop a drain is scheduled on
         client.on_fault.append(self._on_fault)
         client.on_nack.append(self._on_nack)
         client.on_sent.append(self._on_sent)
@@ -122,20 +122,21 @@ class Recording:
         if self._failed:
             return
         self._noted.append((fn, args))
-        if self._drain_armed:
-            if len(self._noted) >= MAX_DEFERRED:
-                self._drain()
-            return
         try:
-            asyncio.get_running_loop().call_soon(self._drain)
+            loop = asyncio.get_running_loop()
         except RuntimeError:  # no loop running (a caller outside the session): at once
             self._drain()
             return
-        self._drain_armed = True
+        if self._armed_on is loop:  # a drain is on its way (on a loop that has stopped, one is scheduled here)
+            if len(self._noted) >= MAX_DEFERRED:
+                self._drain()
+            return
+        loop.call_soon(self._drain)
+        self._armed_on = loop
 
     def _drain(self) -> None:
         """Do all the noted work, in order."""
-        self._drain_armed = False
+        self._armed_on = None
         noted = self._noted
         while noted:
             fn, args = noted.popleft()
@@ -144,14 +145,15 @@ class Recording:
     def _on_received(self, msg: Message) -> None:
         if isinstance(msg, CameraChunk):  # a photo is complete when its last chunk came: that is its time
             self._chunk_us = self.client.board_now_estimate()
-        if isinstance(msg, Telemetry):
-            self._note(self._on_report, msg, self._chunk_us)
+        if isinstance(msg, Telemetry):  # (the link's counters as of this report: later messages change them)
+            s = self.client.stats
+            self._note(self._on_report, msg, self._chunk_us, (s.seq_gaps, s.decode_errors, s.retries, s.reconnects))
         elif isinstance(msg, SimState):
             self._note(self.run_log.on_message, msg)
 
-    def _on_report(self, tel: Telemetry, chunk_us: int | None) -> None:
+    def _on_report(self, tel: Telemetry, chunk_us: int | None, counters: tuple[int, int, int, int]) -> None:
         self.run_log.on_message(tel)
-        self._after_report(tel, chunk_us)
+        self._after_report(tel, chunk_us, counters)
 
     def _guard(self, fn: Any, *args: Any) -> None:
         if self._failed:
@@ -164,8 +166,8 @@ class Recording:
             self.notes.append(note)
             log.warning("%s", note)
 
-    def _after_report(self, tel: Telemetry, chunk_us: int | None) -> None:
-        self._link_stats(tel.board_time_us)
+    def _after_report(self, tel: Telemetry, chunk_us: int | None, counters: tuple[int, int, int, int]) -> None:
+        self._link_stats(tel.board_time_us, counters)
         t = tel.board_time_us * 1e-6
         if len(self.runtime.captures) > self._captures:
             self._poll_captures(t if chunk_us is None else chunk_us * 1e-6)
@@ -173,21 +175,21 @@ class Recording:
             self._poll_at = t
             self._poll_calls()
 
-    def _link_stats(self, board_time_us: int) -> None:
-        s = self.client.stats
-        now = (s.seq_gaps, s.decode_errors, s.retries, s.reconnects)
+    def _link_stats(self, board_time_us: int, now: tuple[int, int, int, int]) -> None:
+        """``now``: the link's (seq_gaps, decode_errors, retries, reconnects) when the report arrived."""
         if now == self._stats:
             return
         gaps, errors, retries, reconnects = (a - b for a, b in zip(now, self._stats))
         self._stats = now
+        s = self.client.stats
         if gaps > 0:
-            self.run_log.on_gap(board_time_us, gaps, s.seq_gaps)
+            self.run_log.on_gap(board_time_us, gaps, now[0])
         if errors > 0:
             self.run_log.link_note(f"{errors} undecodable frame(s) discarded ({s.last_decode_error})", board_time_us)
         if retries > 0:
             self.run_log.link_note(f"{retries} request(s) re-sent (no ACK/NACK in time)", board_time_us)
         if reconnects > 0:
-            self.run_log.link_note(f"link re-established (reconnect #{s.reconnects})", board_time_us)
+            self.run_log.link_note(f"link re-established (reconnect #{now[3]})", board_time_us)
 
     def _poll_calls(self) -> None:
         result = self.shell.last_result

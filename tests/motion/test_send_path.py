@@ -8,56 +8,16 @@ drive the streamer through a recording link with a fixed board clock, so the ari
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field
-
 import anyio
 import numpy as np
 
 from host.motion.mixer import Mixer
 from host.motion.streamer import SEND_PATH_DEFAULT_US, SEND_PATH_WINDOW, FrameStreamer
 from protocol.messages import ServoFrame
-
-TICK_US = 2_000
-
-
-@dataclass
-class _Link:
-    """The streamer's link: board time stands at ``now_us``; messages are recorded, not sent."""
-
-    now_us: int = 1_000_000
-    uplink_us: int = 300
-    lockstep: bool = False
-    sent: list[object] = field(default_factory=list)
-
-    @property
-    def tick_us(self) -> int:
-        return TICK_US
-
-    def board_now_us(self) -> int:
-        return self.now_us
-
-    def latency_us(self, nbytes: int = 0) -> int:
-        return self.uplink_us
-
-    def send_start(self, frame: ServoFrame) -> int:
-        self.sent += [("FLUSH", frame.apply_at_us, frame.mask), frame]
-        return len(self.sent)
-
-    def queue_frame(self, frame: ServoFrame, on_sent: Callable[[int], None] | None = None) -> None:
-        self.sent.append(frame)
+from support.frame_link import TICK_US, Ramp, RecordingLink
 
 
-
-@dataclass(frozen=True)
-class _Ramp:
-    servos: tuple[int, ...] = (0, 1)
-    t: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.2]))
-    q: np.ndarray = field(default_factory=lambda: np.array([[0.0, 0.0], [0.5, 0.5]]))
-    loop_from: float | None = None
-
-
-def _streamer(link: _Link) -> FrameStreamer:
+def _streamer(link: RecordingLink) -> FrameStreamer:
     s = FrameStreamer(link, Mixer(np.zeros(4)))  # type: ignore[arg-type]
     s.next_us = link.now_us + 60_000  # the 60 ms lookahead already sent
     return s
@@ -68,14 +28,14 @@ def _ceil_tick(t: int) -> int:
 
 
 def test_before_any_start_the_default_send_path_is_in_the_margin() -> None:
-    link = _Link()
+    link = RecordingLink()
     s = _streamer(link)
     assert s.send_path_us() == SEND_PATH_DEFAULT_US
     assert s.soonest_us() == _ceil_tick(link.now_us + link.uplink_us + SEND_PATH_DEFAULT_US)
 
 
 def test_the_margin_is_a_high_quantile_of_the_measured_send_paths() -> None:
-    link = _Link()
+    link = RecordingLink()
     s = _streamer(link)
     for us in range(100, 100 + 100 * SEND_PATH_WINDOW, 100):  # 32 starts of 0.1 .. 3.2 ms
         s._send_path_s.append(us * 1e-6)
@@ -88,11 +48,11 @@ def test_the_margin_is_a_high_quantile_of_the_measured_send_paths() -> None:
 
 
 def test_a_start_measures_its_send_path_and_is_due_after_it() -> None:
-    link = _Link()
+    link = RecordingLink()
     s = _streamer(link)
 
     async def main() -> None:
-        seg = await s.start_now(_Ramp(), "nod")
+        seg = await s.start_now(Ramp(), "nod")
         assert seg.first_frame_us == _ceil_tick(link.now_us + link.uplink_us + SEND_PATH_DEFAULT_US)
         assert link.sent[0] == ("FLUSH", seg.first_frame_us, 0b11)  # then the first frame, due then
         assert isinstance(link.sent[1], ServoFrame) and link.sent[1].apply_at_us == seg.first_frame_us

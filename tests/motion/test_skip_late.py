@@ -5,7 +5,7 @@ before its first top-up (or longer than the lookahead later) used to send the fr
 and the board NACKed them LATE (``tests/link/test_paced_link.py`` failed so under overload in CI).
 Now a top-up starts at the first grid time a frame sent now can reach (board clock + uplink p99 +
 the send path), samples the mix there and counts the rest in ``frames_skipped``. Driven through
-the recording link of ``test_send_path.py`` with a fixed board clock, so the arithmetic is exact.
+a recording link (``tests/support/frame_link.py``) with a fixed board clock, so the arithmetic is exact.
 """
 
 from __future__ import annotations
@@ -14,24 +14,24 @@ import anyio
 import numpy as np
 
 from host.motion.mixer import Mixer
-from host.motion.streamer import SEND_PATH_DEFAULT_US, FrameStreamer
+from host.motion.streamer import SEND_PATH_DEFAULT_US, FrameStreamer, frame_wire_bytes
 from protocol.messages import ServoFrame
 
-from motion.test_send_path import _Link, _Ramp
+from support.frame_link import Ramp, RecordingLink
 
 PERIOD_US = 10_000
 
 
-def _frames(link: _Link) -> list[ServoFrame]:
+def _frames(link: RecordingLink) -> list[ServoFrame]:
     return [m for m in link.sent if isinstance(m, ServoFrame)]
 
 
 def test_after_a_stall_the_first_frame_sent_is_the_first_still_in_reach() -> None:
-    link = _Link(now_us=1_000_000)
+    link = RecordingLink(now_us=1_000_000)
     s = FrameStreamer(link, Mixer(np.zeros(4)))  # type: ignore[arg-type]
     first_planned = s.first_free_us
     assert first_planned == 1_010_000
-    seg = s.add(_Ramp(), "ramp", start_us=1_020_000)  # begins inside the stall
+    seg = s.add(Ramp(), "ramp", start_us=1_020_000)  # begins inside the stall
     link.now_us = 1_095_000  # the host stalled 95 ms before its first top-up
     anyio.run(s.top_up)
     sent = _frames(link)
@@ -46,7 +46,7 @@ def test_after_a_stall_the_first_frame_sent_is_the_first_still_in_reach() -> Non
 
 
 def test_without_a_stall_nothing_is_skipped() -> None:
-    link = _Link(now_us=1_000_000)
+    link = RecordingLink(now_us=1_000_000)
     s = FrameStreamer(link, Mixer(np.zeros(4)))  # type: ignore[arg-type]
     anyio.run(s.top_up)
     link.now_us += 30_000
@@ -58,8 +58,23 @@ def test_without_a_stall_nothing_is_skipped() -> None:
 
 def test_a_lockstep_board_is_never_skipped_ahead() -> None:
     """In lockstep the board runs only as far as the frames reach: nothing is ever late."""
-    link = _Link(now_us=1_000_000, lockstep=True)
+    link = RecordingLink(now_us=1_000_000, lockstep=True)
     s = FrameStreamer(link, Mixer(np.zeros(4)))  # type: ignore[arg-type]
     link.now_us = 1_500_000
     anyio.run(s.top_up)
     assert s.frames_skipped == 0 and _frames(link)[0].apply_at_us == 1_010_000
+
+
+def test_the_reach_counts_the_frames_own_wire_time() -> None:
+    """Over a modelled line the link's latency grows with the message: a full frame's wire time moves
+    the first frame still in reach."""
+    link = RecordingLink(now_us=1_000_000, us_per_byte=100.0)  # 100 us a byte: 1 ms per 10 bytes
+    s = FrameStreamer(link, Mixer(np.zeros(4)))  # type: ignore[arg-type]
+    nbytes = frame_wire_bytes(4, s.schema)
+    link.now_us = 1_050_000
+    anyio.run(s.top_up)
+    reach = link.now_us + link.uplink_us + round(100.0 * nbytes) + SEND_PATH_DEFAULT_US
+    first = _frames(link)[0].apply_at_us
+    assert first == -(-reach // PERIOD_US) * PERIOD_US
+    assert first - PERIOD_US < reach  # the one before it could not have made it
+    assert s.frames_skipped == (first - 1_010_000) // PERIOD_US

@@ -83,3 +83,23 @@ def test_without_a_loop_it_is_done_at_once_and_close_does_what_is_left() -> None
         assert rec.client.on_received == []
 
     asyncio.run(main())
+
+
+def test_past_max_deferred_the_work_is_done_at_once(monkeypatch: Any) -> None:
+    """A loop that never comes round (a callback flood) must not let the noted work grow without bound."""
+    import host.run.recording as recording
+
+    monkeypatch.setattr(recording, "MAX_DEFERRED", 3)
+    rec, log = _recording()
+
+    async def main() -> None:
+        for t in (10_000, 20_000):
+            rec.client.on_received[0](_tel(t))
+        assert log.asked == []
+        rec.client.on_received[0](_tel(30_000))  # the third: done now, all three in order
+        assert log.asked == [("message", 10_000), ("message", 20_000), ("message", 30_000)]
+        await asyncio.sleep(0)
+        assert len(log.asked) == 3  # the drain still scheduled finds nothing left
+
+    asyncio.run(main())
+    rec.close()

@@ -114,10 +114,10 @@ static void serve_realtime(gs_app_t *app) {
             gs_app_tick(app);
             if (skipped) gs_board_skip(b, skipped);
             if (late > b->tick_us) gs_board_note_overrun(b);
-            /* serve the link after every tick, caught up or not: a board behind real time must not
-             * hold its replies and reports until it has caught up (up to RESYNC_BEHIND_US, longer
-             * than a host's flow-control wait) */
-            gs_link_flush(l);
+            /* another tick due at once: flush first. A board behind real time must not hold its
+             * replies and reports until it has caught up: with every tick over its period,
+             * re-anchoring does not end this loop, and the silence has no bound */
+            if (start + next_tick * b->tick_us <= hal_now_us()) gs_link_flush(l);
             gs_link_pump_rx(l);
             while (gs_link_next(l, &item)) gs_app_process(app, &item);
         }
