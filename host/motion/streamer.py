@@ -156,6 +156,7 @@ class FrameStreamer:
         #: the robot's wire schema (the mask's width): what a FLUSH and a frame cost on the wire
         self.schema = schema_for(max(1, mixer.n_servos))
         self._flush_bytes = flush_wire_bytes(self.schema)
+        self._frame_bytes = frame_wire_bytes(max(1, mixer.n_servos), self.schema)  # a full-body grid frame
         self.period_us = period_us
         self.lookahead_us = lookahead_us
         now = link.board_now_us() if start_us is None else start_us
@@ -350,7 +351,7 @@ class FrameStreamer:
         paced line, frames already held with earlier apply times still go first:
         :mod:`host.motion.txqueue`.)
         """
-        reach = now_us + self.link.latency_us(frame_wire_bytes(self.mixer.n_servos, self.schema)) + self.send_path_us()
+        reach = now_us + self.link.latency_us(self._frame_bytes) + self.send_path_us()
         if self.next_us < reach:
             first = self._grid(reach)
             self.frames_skipped += (first - self.next_us) // self.period_us
