@@ -63,6 +63,7 @@ from host.link.faultcheck import LATCHED, clear_command, clear_leftover_fault, r
 from host.link.session import FaultEvent, LinkTarget
 from host.run import artefacts
 from host.run.events import Event, EventMonitor, EventPolicy, ScriptedEvent, has_fallen
+from host.run.heap import frozen_heap
 from host.robot.binding import robot_registry
 from host.robot.link import ClientLink
 from host.robot.runtime import RobotRuntime, warm_up_behaviours
@@ -584,16 +585,17 @@ class RobotSession:
                                         n_captures)
         stream: AsyncIterable[str] = _one(source) if isinstance(source, str) else source
         chunks = timed_chunks(stream, runtime.board_now_s, start.token_times, runtime.streamer.hold if hold else None)
-        async with anyio.create_task_group() as tg:
-            if interrupt_after is not None:
-                tg.start_soon(self._interrupt_at, start.board_t0 + interrupt_after)
-            if self.stop is not None:  # the session is stopping: this turn is cut at once
-                tg.start_soon(self._interrupt_at, start.board_t0)
-            if self.opts.max_board_s is not None:
-                tg.start_soon(self._board_time_bound, start.board_t0 + self.opts.max_board_s, self.opts.max_board_s)
-            result = await shell.run(buffered(chunks) if buffer else chunks)
-            tg.cancel_scope.cancel()
-        settle_note = await self._settle(settle_s, start.board_t0) if settle_s > 0 else None
+        with frozen_heap():  # no full GC pass over the loaded host inside the turn (host.run.heap)
+            async with anyio.create_task_group() as tg:
+                if interrupt_after is not None:
+                    tg.start_soon(self._interrupt_at, start.board_t0 + interrupt_after)
+                if self.stop is not None:  # the session is stopping: this turn is cut at once
+                    tg.start_soon(self._interrupt_at, start.board_t0)
+                if self.opts.max_board_s is not None:
+                    tg.start_soon(self._board_time_bound, start.board_t0 + self.opts.max_board_s, self.opts.max_board_s)
+                result = await shell.run(buffered(chunks) if buffer else chunks)
+                tg.cancel_scope.cancel()
+            settle_note = await self._settle(settle_s, start.board_t0) if settle_s > 0 else None
         if settle_note is not None:
             result.observations.append(Observation("warning", settle_note, None, runtime.board_now_s()))
         turn = self._turn_result(start, result)
