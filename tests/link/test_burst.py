@@ -78,3 +78,45 @@ def test_a_burst_the_caller_leaves_with_an_error_still_writes_and_logs(board_fac
             await c.flush(c.board_now_estimate() + 20_000, 0b1)
 
     anyio.run(main)
+
+
+def test_an_await_inside_a_burst_is_refused_after_the_sends_are_told() -> None:
+    from host.link.sent import AwaitInBurst, SentFanout
+
+    fanout, told = SentFanout(), []
+    fanout.listeners.append(lambda seq, msg: told.append(seq))
+
+    async def awaits() -> None:
+        with fanout.burst(None):
+            fanout.sent(1, Flush(0, 1))
+            await anyio.sleep(0)  # gives the loop a turn: another task could send in between
+            fanout.sent(2, Flush(0, 1))
+
+    with pytest.raises(AwaitInBurst, match="2 message"):
+        anyio.run(awaits, backend="asyncio")
+    assert told == [1, 2]  # nothing sent is lost
+
+
+def test_a_burst_without_an_await_and_one_outside_a_loop_pass(monkeypatch: pytest.MonkeyPatch) -> None:
+    import host.link.sent as sent
+
+    markers: list = []
+    make = sent._loop_marker
+    monkeypatch.setattr(sent, "_loop_marker", lambda: markers.append(make()) or markers[-1])
+    fanout, told = sent.SentFanout(), []
+    fanout.listeners.append(lambda seq, msg: told.append(seq))
+
+    async def plain() -> None:
+        with fanout.burst(None):
+            fanout.sent(1, Flush(0, 1))
+            with fanout.burst(None):  # nested: one block, one marker
+                fanout.sent(2, Flush(0, 1))
+        await anyio.sleep(0)  # the loop runs: the marker was cancelled, so it does not fire now either
+
+    anyio.run(plain, backend="asyncio")
+    assert len(markers) == 1 and markers[0] is not None
+    handle, ran = markers[0]
+    assert handle.cancelled() and ran == []
+    with fanout.burst(None):  # no running loop: nothing to check
+        fanout.sent(3, Flush(0, 1))
+    assert told == [1, 2, 3]
