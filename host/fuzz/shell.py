@@ -4,27 +4,33 @@ Input layout (atheris ``FuzzedDataProvider``): byte 0 picks strict (even) or len
 last 4 bytes seed the chunking, the bytes between are the LLM output (UTF-8, errors replaced). A seed
 file is therefore ``b"\\x00" + program + 4 bytes`` (see ``host.fuzz.seeds``).
 
-Each input runs twice:
+Each input runs once, through :class:`host.shell.shell.Shell` on Trio's ``MockClock`` (virtual time)
+with the default robot's vocabulary bound to a recorder, and the Shell's own stream parser is watched
+(:func:`watched_parser`, the Shell's ``parser_class``). Checked on every input:
 
-1. through :class:`host.shell.parser.FunctionTokenParser` and :func:`host.shell.mapper.map_element`
-   directly: only :class:`ParseError` (strict) escapes the parser, and it stays dead afterwards; tags
-   nest properly; held-back input stays under ``MAX_TOKEN``; the mapper raises only
-   :class:`MappingError`; every mapped argument satisfies its annotation
-   (:func:`host.fuzz.validate.conforms`);
-2. through :class:`host.shell.shell.Shell` on Trio's ``MockClock`` (virtual time) with the default robot's
-   vocabulary bound to a recorder: no exception escapes the run, and every call that reaches an
-   implementation has exactly the declared parameters, each one conforming.
+1. the parse (:class:`host.shell.parser.FunctionTokenParser`, the pieces the Shell was given): only
+   :class:`ParseError` (strict) escapes the parser (the Shell would report anything else as "the
+   output stream failed"; here it is raised), and it stays dead afterwards; tags nest properly;
+   held-back input stays under ``MAX_TOKEN`` after every piece; :func:`host.shell.mapper.map_element`
+   raises only :class:`MappingError` on every start or empty tag, and every argument it maps
+   satisfies its annotation (:func:`host.fuzz.validate.conforms`). Should the Shell stop reading
+   before the end (its run aborted), the rest of the pieces are fed to the same parser here;
+2. the run: no exception escapes it, and every call that reaches an implementation has exactly the
+   declared parameters, each one conforming.
 
 Throughput (measured exec/s, with command, n and load: docs/guides/fuzzing.md#throughput): when
 fuzzing, the Shell runs in one Trio run in guest mode on the fuzzing thread (:class:`GuestLoop`: no
-thread hand-off; ``load(False)`` uses the threaded :class:`TrioLoop`, one Trio loop kept for the
-process); coverage instruments ``host.shell`` and ``host.speech`` only, with real stack sizes
-(:mod:`host.fuzz.stackdepth`). Step 1 parses with the parser's source without coverage hooks (step 2
-parses the same pieces with the same strictness, instrumented: that is the input's coverage), and
-maps each distinct (element, attributes) once per process (mapped and checked for real the first
-time, so a failure reproduces from its input alone); the registry works out an unknown name's
-did-you-mean (``difflib``) once per name. What is left is the code under test: the instrumented
-parser and the scheduler's task per call (anyio on Trio).
+thread hand-off, one task that runs each call at its first tick; ``load(False)`` uses the threaded
+:class:`TrioLoop`, one Trio loop kept for the process); coverage instruments ``host.shell`` and
+``host.speech`` only, with real stack sizes (:mod:`host.fuzz.stackdepth`); start-up's objects are
+frozen out of the garbage collector (:func:`host.fuzz.harness.run_atheris`). The parser checks read
+the Shell's parse (instrumented: that is the input's coverage) instead of parsing the input a second
+time; the watch reads ``pending``, and probes a dead parser's ``feed``, with that source compiled
+without coverage hooks. Each distinct (element, attributes) is mapped once per process (mapped and
+checked for real the first time, so a failure reproduces from its input alone); the registry works
+out an unknown name's did-you-mean (``difflib``) once per name. No check is sampled (every Nth input)
+or deferred to the end of a run: every check above runs on every input. What is left is the code
+under test: the instrumented parser and the scheduler's task per call (anyio on Trio).
 """
 
 from __future__ import annotations
@@ -33,12 +39,16 @@ import inspect
 import math
 import threading
 from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
 from types import SimpleNamespace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from host.fuzz.serial_decoder import chunks as byte_chunks
 
-__all__ = ["GuestLoop", "TrioLoop", "load"]
+if TYPE_CHECKING:
+    from host.shell.parser import Event, FunctionTokenParser, ParseError
+
+__all__ = ["GuestLoop", "ParseWatch", "TrioLoop", "load", "watched_parser"]
 
 #: element names whose did-you-mean, and elements whose mapping, are remembered (each; then it starts again)
 MAX_REMEMBERED = 4096
@@ -104,6 +114,12 @@ class GuestLoop:
     while the guest run lives its thread counts as inside it (``trio.run`` there fails), so only the
     fuzzing process uses it; ``load(False)`` (pytest, which runs other Trio code on its thread) keeps
     :class:`TrioLoop`.
+
+    A submitted function is run by the run's one task (:meth:`_serve`), which between calls waits in
+    a checkpoint for :meth:`run` to leave it the next one: the first Trio tick of a call runs it.
+    (Handing it over through ``TrioToken.run_sync_soon`` and starting a task for it took three
+    ticks, with a write and two reads on Trio's wake-up socket.) The task is runnable between calls,
+    so the run is never idle there (no autojump, no I/O wait), but nothing pumps it then either.
     """
 
     def __init__(self) -> None:
@@ -115,16 +131,13 @@ class GuestLoop:
         from trio.testing import MockClock
 
         self._outcome = outcome
+        self._checkpoint = trio.lowlevel.checkpoint
         self.clock = MockClock(autojump_threshold=0)
         self._callbacks: queue.SimpleQueue[Callable[[], object]] = queue.SimpleQueue()
         self._result: Any = None
-        self._nursery: trio.Nursery | None = None
+        #: the call :meth:`_serve` runs next: (function, its arguments), or ``_STOP``
+        self._job: tuple[Callable[..., Awaitable[Any]], tuple[Any, ...]] | None = None
         self._token: trio.lowlevel.TrioToken | None = None
-
-        async def serve() -> None:
-            async with trio.open_nursery() as nursery:
-                self._token, self._nursery = trio.lowlevel.current_trio_token(), nursery
-                await trio.sleep_forever()
 
         def ended(result: Any) -> None:  # closed, or the guest run itself failed: reported from run()
             self._result = result if isinstance(result, outcome.Error) else outcome.Error(RuntimeError("trio ended"))
@@ -133,12 +146,13 @@ class GuestLoop:
         main = threading.current_thread() is threading.main_thread()
         sigint = signal.getsignal(signal.SIGINT) if main else None
         trio.lowlevel.start_guest_run(
-            serve, run_sync_soon_threadsafe=self._callbacks.put, run_sync_soon_not_threadsafe=self._callbacks.put,
+            self._serve, run_sync_soon_threadsafe=self._callbacks.put,
+            run_sync_soon_not_threadsafe=self._callbacks.put,
             done_callback=ended, clock=self.clock, host_uses_signal_set_wakeup_fd=True,
         )
         if main and signal.getsignal(signal.SIGINT) is not sigint:  # trio's KeyboardInterrupt handler: not here
             signal.signal(signal.SIGINT, sigint)
-        while self._nursery is None and self._result is None:
+        while self._token is None and self._result is None:
             self._callbacks.get()()
         if self._result is not None:
             self._result.unwrap()
@@ -155,10 +169,10 @@ class GuestLoop:
 
     def run(self, afn: Callable[..., Awaitable[Any]], *args: Any) -> Any:
         """``await afn(*args)`` in the guest run; its result, or its exception raised here."""
-        if self._token is None or self._nursery is None:
+        if self._token is None:
             raise RuntimeError("the guest Trio run has ended")
         self._result = None
-        self._token.run_sync_soon(self._nursery.start_soon, self._job, afn, args)
+        self._job = (afn, args)
         get = self._callbacks.get
         while self._result is None:
             get()()
@@ -166,19 +180,96 @@ class GuestLoop:
         return result.unwrap()
 
     def close(self) -> None:
-        """End the guest run (cancel what it serves, run it to its end on this thread)."""
-        if self._token is None or self._nursery is None:
+        """End the guest run (its task returns; the run ends on this thread)."""
+        if self._token is None:
             return
         self._result = None
-        self._token.run_sync_soon(self._nursery.cancel_scope.cancel)
+        self._job = _STOP
         while self._result is None:
             self._callbacks.get()()
         self._result = None
         if getattr(self._per_thread, "loop", None) is self:
             del self._per_thread.loop
 
-    async def _job(self, afn: Callable[..., Awaitable[Any]], args: tuple[Any, ...]) -> None:
-        self._result = await self._outcome.acapture(afn, *args)
+    async def _serve(self) -> None:
+        """The run's task: run each call :meth:`run` leaves in ``_job`` and keep its outcome."""
+        import trio
+
+        self._token = trio.lowlevel.current_trio_token()
+        checkpoint, acapture = self._checkpoint, self._outcome.acapture
+        while True:
+            job = self._job
+            if job is None:
+                await checkpoint()
+                continue
+            self._job = None
+            if job is _STOP:
+                return
+            self._result = await acapture(job[0], *job[1])
+
+
+async def _stop() -> None:
+    """Never called: the marker that tells :meth:`GuestLoop._serve` to return."""
+
+
+#: ``GuestLoop._job`` value that ends the run
+_STOP: tuple[Callable[..., Awaitable[Any]], tuple[Any, ...]] = (_stop, ())
+
+
+@dataclass
+class ParseWatch:
+    """What one watched parser (:func:`watched_parser`) did: ``events`` it returned (with a
+    ``ParseError``'s events), pieces ``fed`` (calls of ``feed``), whether it was ``closed``, the
+    ``error`` it raised (a ``ParseError``), any other exception it raised (``failure``), and the most
+    input it held back after a ``feed`` (``held``, characters)."""
+
+    events: list[Event] = field(default_factory=list)
+    fed: int = 0
+    closed: bool = False
+    error: ParseError | None = None
+    failure: Exception | None = None
+    held: int = 0
+
+
+def watched_parser(
+    base: type[FunctionTokenParser], pending: Callable[[FunctionTokenParser], str], made: list[Any]
+) -> type[FunctionTokenParser]:
+    """A subclass of ``base`` whose instances keep a :class:`ParseWatch` (``.watch``) and append
+    themselves to ``made``; ``pending(parser)`` reads the held-back input (the property's source
+    without coverage hooks when fuzzing). Parsing itself is ``base``'s, unchanged."""
+    from host.shell.parser import ParseError
+
+    class Watched(base):  # type: ignore[valid-type,misc]
+        def __init__(self, strict: bool = True) -> None:
+            super().__init__(strict)
+            self.watch = ParseWatch()
+            made.append(self)
+
+        def feed(self, text: str) -> list[Event]:
+            self.watch.fed += 1
+            events = self._watched(super().feed, text)
+            self.watch.held = max(self.watch.held, len(pending(self)))
+            return events
+
+        def close(self) -> list[Event]:
+            self.watch.closed = True
+            return self._watched(super().close)
+
+        def _watched(self, step: Callable[..., list[Event]], *args: str) -> list[Event]:
+            watch = self.watch
+            try:
+                events = step(*args)
+            except ParseError as e:
+                watch.error = e
+                watch.events += e.events
+                raise
+            except Exception as e:
+                watch.failure = e
+                raise
+            watch.events += events
+            return events
+
+    return Watched
 
 
 def load(instrument: bool = False) -> Callable[[bytes], None]:
@@ -193,7 +284,7 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
     from host.fuzz.harness import without_hooks
     from host.fuzz.validate import conforms
     from host.shell.mapper import MappingError, map_element
-    from host.shell.parser import MAX_TOKEN, EmptyTag, EndTag, FunctionTokenParser, ParseError, StartTag
+    from host.shell.parser import MAX_TOKEN, EmptyTag, EndTag, Event, FunctionTokenParser, ParseError, StartTag
     from host.shell.registry import Registry, UnknownFunction
     from host.shell.shell import Shell
     from host.shell.types import Module, params_of, shell_function
@@ -246,33 +337,48 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
                 raise
 
     registry = FuzzRegistry(modules)
-    from trio import current_time as trio_now
     loop: GuestLoop | TrioLoop = GuestLoop.shared() if instrument else TrioLoop()
-    # the direct parse (step 1) runs the parser's source without coverage hooks: the Shell parses the
-    # same pieces with the same strictness (step 2), instrumented, and that is the input's coverage
-    Parser = without_hooks(FunctionTokenParser) if instrument else FunctionTokenParser
-    # (element name, attributes) already mapped and checked in step 1: map_element is a function of
-    # them and the (fixed) registry; a new element is mapped and checked for real
+    # the Shell's stream parser, watched; its pending and a dead-parser probe run without coverage hooks
+    plain = without_hooks(FunctionTokenParser) if instrument else FunctionTokenParser
+    made: list[Any] = []
+    pending = vars(plain)["pending"].fget  # the property's getter
+
+    class WatchedShell(Shell):
+        parser_class = watched_parser(FunctionTokenParser, pending, made)
+
+    # (element name, attributes) already mapped and checked: map_element is a function of them and the
+    # (fixed) registry; a new element is mapped and checked for real
     mapped_ok: set[tuple[str, tuple[tuple[str, str], ...]]] = set()
 
-    def check_parser(pieces: list[str], strict: bool) -> None:
-        p = Parser(strict=strict)
-        stack: list[str] = []
-        events = []
-        try:
-            for piece in pieces:
-                events += p.feed(piece)
-                assert len(p.pending) <= MAX_TOKEN + 16, f"parser holds {len(p.pending)} characters"
-            events += p.close()
-        except ParseError as e:
-            assert strict, f"lenient parser raised {e}"
-            events += e.events
+    def parsed(pieces: list[str], strict: bool) -> list[Event]:
+        """The events of the Shell's parse of ``pieces``, its parser's invariants checked."""
+        assert len(made) == 1, f"the Shell made {len(made)} watched stream parsers, not 1"
+        p = made[0]
+        w: ParseWatch = p.watch
+        if w.error is None and w.failure is None:  # the run stopped reading early: the rest, here
             try:
-                p.feed("x")
+                for piece in pieces[w.fed:]:
+                    p.feed(piece)
+                if not w.closed:
+                    p.close()
+            except Exception:  # kept in the watch, checked below
+                pass
+        if w.failure is not None:
+            raise w.failure  # only ParseError may escape the parser
+        assert w.held <= MAX_TOKEN + 16, f"parser holds {w.held} characters"
+        if w.error is not None:
+            assert strict, f"lenient parser raised {w.error}"
+            try:
+                plain.feed(p, "x")
             except ParseError:
                 pass
             else:
                 raise AssertionError("a dead strict parser accepted more input")
+        return w.events
+
+    def check_events(events: list[Event]) -> None:
+        """Tags nest; every start or empty tag maps (or fails with MappingError) to conforming args."""
+        stack: list[str] = []
         for ev in events:
             if isinstance(ev, StartTag):
                 stack.append(ev.name)
@@ -302,10 +408,12 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
         text = fdp.ConsumeBytes(fdp.remaining_bytes()).decode("utf-8", "replace")
         pieces = [b.decode("utf-8", "replace") for b in byte_chunks(text.encode(), seed, 64)]
         pieces = [p for p in pieces if p]
-        check_parser(pieces, strict)
         calls.clear()
-        shell = Shell(registry, strict=strict, clock=trio_now)  # anyio.current_time on Trio, without the backend lookup
+        made.clear()
+        # the loop's MockClock: what anyio.current_time reads, without the backend and run lookups
+        shell = WatchedShell(registry, strict=strict, clock=loop.clock.current_time)
         loop.run(shell.run_text, pieces)
+        check_events(parsed(pieces, strict))
         for name, kwargs in calls:
             if name == "speak":
                 assert isinstance(kwargs["text"], str)

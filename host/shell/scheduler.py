@@ -59,7 +59,6 @@ still run (a failed start-tag still scopes its children and is reset).
 
 from __future__ import annotations
 
-import contextlib
 import itertools
 import re
 from collections.abc import AsyncIterable, Awaitable, Callable
@@ -112,6 +111,8 @@ class RunSettings(Protocol):
     def limits(self) -> Limits: ...
     @property
     def policy(self) -> Policy | None: ...
+    @property
+    def parser_class(self) -> type[FunctionTokenParser]: ...
 
 MODES = ("async-first", "sync-first")
 #: deepest element nesting the shell runs (deeper elements fail; their children attach above)
@@ -206,6 +207,7 @@ class ProgramRun:
         self._by_channel: dict[str | None, dict[int, _Call]] = {}  # pending calls per channel, in order
         self._stack: list[_Frame] = [_Frame("", None, "", self.mode == "async-first")]
         self._text = SentenceSplitter()
+        self._text_fed = False  # text reached the splitter since its last flush (else flushing is a no-op)
         self._recording: _Recording | None = None
         self._skill_stack: list[str] = []
         self._tg: anyio.abc.TaskGroup | None = None
@@ -221,22 +223,25 @@ class ProgramRun:
         self._calls = 0  # elements this turn
         self._refused_calls = 0  # elements refused for exceeding max_calls
         self._full_channels: set[str | None] = set()  # channels whose queue overflowed (reported once)
+        self._parser_class: type[FunctionTokenParser] = getattr(shell, "parser_class", FunctionTokenParser)
 
     # ------------------------------------------------------------------ API
     async def run(self, chunks: AsyncIterable[str]) -> RunResult:
         """Consume ``chunks``, dispatching calls as events complete; return when every call ended."""
         self.t0 = self.clock()
-        parser = FunctionTokenParser(strict=self.strict)
+        parser = self._parser_class(strict=self.strict)
         async with anyio.create_task_group() as tg:
             self._tg = tg
             with self._consumer:
                 try:
                     aiter_ = chunks.__aiter__()
-                    async with _aclosing(aiter_):
+                    try:
                         async for chunk in aiter_:
                             self._feed(parser.feed(chunk))
                             if self._stopped:
                                 break
+                    finally:
+                        await _aclose(aiter_)
                     if not self._stopped:
                         self._feed(parser.close())
                         self._end_of_stream()
@@ -285,7 +290,7 @@ class ProgramRun:
     def _stop(self, reason: str) -> None:
         self._stopped = True
         self._consumer.cancel()
-        self._text = SentenceSplitter()
+        self._text, self._text_fed = SentenceSplitter(), False
         if self._recording is not None:  # an unfinished SAVE is not part of what was executed
             del self._executed[self._save_mark:]
         self._recording = None
@@ -342,6 +347,8 @@ class ProgramRun:
             return
         if isinstance(ev, Text):
             self._text_in(ev.text)
+        elif isinstance(ev, ParseWarning):  # the commonest event of malformed output: tested before the tags
+            self._observe("warning", f"parse warning at {getattr(ev, 'pos', '?')}: {ev.message}")
         elif isinstance(ev, (StartTag, EmptyTag)) and ev.refused is not None:
             self._flush_text()  # a malformed call (duplicated attribute): refused, its children still scoped
             self._mapping_failed(ev.name, dict(ev.attrs), f"<{ev.name}> refused: {ev.refused}",
@@ -355,8 +362,6 @@ class ProgramRun:
         elif isinstance(ev, EndTag):
             self._flush_text()
             self._end(ev.name)
-        elif isinstance(ev, ParseWarning):
-            self._observe("warning", f"parse warning at {getattr(ev, 'pos', '?')}: {ev.message}")
 
     def _keep(self, ev: Any) -> None:
         if isinstance(ev, EmptyTag):
@@ -411,10 +416,15 @@ class ProgramRun:
         self._text_chars += len(data)
         if not data:
             return
+        self._text_fed = True
         for seg in self._text.feed(data):
             self._speak(seg)
 
     def _flush_text(self) -> None:
+        """Speak what the splitter holds (called before every element; a no-op unless text came since the last)."""
+        if not self._text_fed:  # a flushed splitter holds nothing: flushing it again returns nothing
+            return
+        self._text_fed = False
         for seg in self._text.flush():
             self._speak(seg)
 
@@ -837,12 +847,14 @@ class ProgramRun:
                 c.parent.subtree_done.set()
 
 
-@contextlib.asynccontextmanager
-async def _aclosing(it: Any) -> Any:
-    try:
-        yield it
-    finally:
-        aclose = getattr(it, "aclose", None)
-        if aclose is not None:
-            with anyio.CancelScope(shield=True):
-                await aclose()
+async def _aclose(it: Any) -> None:
+    """Close the async iterator ``it`` if it has ``aclose``, shielded (also when the run is cancelled).
+
+    An async generator that has finished (``ag_frame`` is None) has nothing left to close: its
+    ``aclose`` would return at once, so neither it nor the shielded scope is needed.
+    """
+    aclose = getattr(it, "aclose", None)
+    if aclose is None or getattr(it, "ag_frame", True) is None:
+        return
+    with anyio.CancelScope(shield=True):
+        await aclose()

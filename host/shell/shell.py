@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import AsyncIterable, AsyncIterator, Awaitable, Callable, Iterable
 
 from host.shell.limits import Limits
+from host.shell.parser import FunctionTokenParser
 from host.shell.policy import Policy
 from host.shell.registry import Registry
 from host.shell.scheduler import MODES, ProgramRun
@@ -31,7 +32,12 @@ class Shell:
     ``timeout``; default ``anyio.sleep``, right for the default clock); ``skills`` is the skill memory (default: an
     in-memory store); ``limits`` caps what one turn may do (:class:`Limits`); ``policy``
     refuses calls it does not allow before they are dispatched (:class:`Policy`).
+
+    ``parser_class`` (class attribute) is the type of each run's stream parser; a subclass may watch
+    the parse (the shell fuzz target checks the parser's invariants on the Shell's own parse).
     """
+
+    parser_class: type[FunctionTokenParser] = FunctionTokenParser
 
     def __init__(
         self,

@@ -295,3 +295,65 @@ async def test_interrupt_cancels_a_call_started_by_hand_over():
 
     r = await sh.run(stream())
     assert r.timeline.one("F2").start == 1.5 and r.timeline.one("F2").outcome == "interrupted"
+
+
+async def test_parser_class_parses_the_stream_and_only_the_stream():
+    """``Shell.parser_class`` is the type of the run's stream parser (made once per run, with the
+    shell's strictness); a skill's program is still parsed by the plain strict parser."""
+    from host.shell.parser import FunctionTokenParser
+
+    made: list[tuple[str, bool]] = []
+
+    class Counting(FunctionTokenParser):
+        def __init__(self, strict: bool = True) -> None:
+            super().__init__(strict)
+            made.append(("Counting", strict))
+
+    class CountingShell(Shell):
+        parser_class = Counting
+
+    program = '<SAVE name="twice"><A/><A/></SAVE><RUN id="twice"/>'
+    sh = CountingShell(Registry([Module.from_functions("C1", fake("A", 1))]), strict=False)
+    r = await sh.run_text(program)
+    assert made == [("Counting", False)]
+    assert [x.outcome for x in r.timeline.find("A")] == ["done", "done"]
+    plain = await shell_with({"C1": [fake("A", 1)]}, strict=False).run_text(program)
+    assert [(x.path, x.start, x.end) for x in r.timeline] == [(x.path, x.start, x.end) for x in plain.timeline]
+
+
+async def test_the_stream_is_closed_when_the_run_stops_reading_early():
+    """A stream the run stops reading (a strict parse error) is closed, shielded; an exhausted async
+    generator has nothing to close; any other async iterator is closed at the end as before."""
+    events: list[str] = []
+
+    async def stream():
+        try:
+            yield "<A/>"
+            yield "<B></C>"
+            yield "<A/>"
+        finally:
+            events.append("generator closed")
+
+    class Stream:
+        def __init__(self, parts: list[str]) -> None:
+            self.parts = parts
+
+        def __aiter__(self):
+            return self
+
+        async def __anext__(self) -> str:
+            if not self.parts:
+                raise StopAsyncIteration
+            return self.parts.pop(0)
+
+        async def aclose(self) -> None:
+            await anyio.sleep(1)  # shielded: the run's cancellation does not cut it short
+            events.append("iterator closed")
+
+    sh = shell_with({"C1": [fake("A", 1), fake("B", 1)]})
+    r = await sh.run(stream())
+    assert r.error is not None and events == ["generator closed"]
+    r = await sh.run(Stream(["<A/>", "<B></C>", "<A/>"]))
+    assert r.error is not None and events == ["generator closed", "iterator closed"]
+    r = await sh.run(Stream(["<A/>"]))
+    assert r.error is None and events[-1] == "iterator closed" and len(events) == 3
