@@ -27,6 +27,36 @@ with lock.hold({exclusive}):
 """
 
 
+#: a realtime test that calls realtime_part_done() (its lock's share()) once told to: prints what came of it
+SHARER = """
+import sys
+sys.path.insert(0, {tests!r})
+from pathlib import Path
+from support.realtime_lock import _RunLock
+lock = _RunLock({run!r}, Path({base!r}))
+with lock.hold(True, keep={keep}):
+    print("held", flush=True)
+    sys.stdin.readline()
+    print("shared" if lock.share() else "kept", flush=True)
+    sys.stdin.readline()
+"""
+
+
+def _sharer(run: str, base: Path, keep: bool = False) -> subprocess.Popen[str]:
+    tests = str(Path(__file__).resolve().parent)
+    proc = subprocess.Popen([sys.executable, "-c", SHARER.format(tests=tests, run=run, base=str(base), keep=keep)],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None and proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def _share(proc: subprocess.Popen[str]) -> str:
+    assert proc.stdin is not None and proc.stdout is not None
+    proc.stdin.write("\n")
+    proc.stdin.flush()
+    return proc.stdout.readline().strip()
+
+
 def _holder(run: str, base: Path, exclusive: bool) -> subprocess.Popen[str]:
     tests = str(Path(__file__).resolve().parent)
     proc = subprocess.Popen([sys.executable, "-c", HOLDER.format(tests=tests, run=run, base=str(base),
@@ -107,3 +137,62 @@ def test_this_runs_lock_files_are_in_its_base_temp_folder(request: pytest.Fixtur
     assert lock is not None
     main = Path(lock._main.name)
     assert main.is_file() and main.parent == Path(request.config.option.basetemp).parent
+
+
+def test_a_realtime_test_done_with_the_wall_clock_lets_ordinary_tests_run_beside_it(tmp_path: Path) -> None:
+    run = f"test-{uuid.uuid4().hex}"
+    mine = _RunLock(run, tmp_path)
+    try:
+        sharer = _sharer(run, tmp_path)
+        try:
+            assert not _try(mine._main.fileno(), fcntl.LOCK_SH)  # its realtime part: alone
+            assert _share(sharer) == "shared"
+            assert _try(mine._main.fileno(), fcntl.LOCK_SH)  # an ordinary test may start beside the rest
+            assert not _try(mine._main.fileno(), fcntl.LOCK_EX)  # a realtime one still waits for its end
+        finally:
+            sharer.communicate("\n", timeout=30)
+        assert _try(mine._main.fileno(), fcntl.LOCK_EX)
+
+        # its next test is realtime too (the lock is kept between them): it keeps the lock
+        sharer = _sharer(run, tmp_path, keep=True)
+        try:
+            assert _share(sharer) == "kept"
+            assert not _try(mine._main.fileno(), fcntl.LOCK_SH)
+        finally:
+            sharer.communicate("\n", timeout=30)
+    finally:
+        mine.close()
+
+
+def test_a_realtime_test_waiting_for_the_lock_keeps_it_exclusive(tmp_path: Path) -> None:
+    """flock converts by dropping the lock first: a realtime test already waiting would start beside the
+    rest of the sharing one, so the lock is then kept to that test's end."""
+    run = f"test-{uuid.uuid4().hex}"
+    mine = _RunLock(run, tmp_path)
+    sharer = _sharer(run, tmp_path)
+    waiting = subprocess.Popen([sys.executable, "-c", HOLDER.format(
+        tests=str(Path(__file__).resolve().parent), run=run, base=str(tmp_path), exclusive=True)],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        for _ in range(2_000):  # until the waiter is inside the turnstile (it blocks there on main)
+            if not _try(mine._turn.fileno(), fcntl.LOCK_EX):
+                break
+            waiting.poll()
+            assert waiting.returncode is None
+            subprocess.run([sys.executable, "-c", ""], check=True)  # let the waiter run; no sleep
+        else:
+            raise AssertionError("the waiting realtime holder never took the turnstile")
+        assert _share(sharer) == "kept"
+        assert not _try(mine._main.fileno(), fcntl.LOCK_SH)
+    finally:
+        sharer.communicate("\n", timeout=30)
+        assert waiting.stdout is not None and waiting.stdout.readline().strip() == "held"  # then the waiter
+        waiting.communicate("\n", timeout=30)
+        mine.close()
+
+
+def test_realtime_part_done_in_an_ordinary_test_changes_nothing() -> None:
+    """Without xdist there is no lock; under xdist this ordinary test holds it shared already."""
+    from support import realtime_lock
+
+    assert realtime_lock.realtime_part_done() is False

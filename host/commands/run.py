@@ -127,7 +127,7 @@ def mount_problem(args: argparse.Namespace, robot: Robot) -> str | None:
     specs = tuple(getattr(args, "mount_mcp", ()) or ())
     if not specs:
         return None
-    from host.mounts.mcp_mount import McpMountError, check_specs
+    from host.mounts.spec import McpMountError, check_specs  # not mcp_mount: no MCP SDK for a usage error
     from host.robot.binding import signature_registry
 
     try:

@@ -4,11 +4,12 @@ A mount is a *source* of :class:`~host.shell.types.Module` s, like :func:`host.r
 a robot's functions: the shell (``host/shell``) stays free of the MCP SDK and of subprocess I/O, and
 another kind of mount (another robot's shell, item 5) goes beside it.
 
-* :mod:`host.mounts.spec`: ``parse_mount_arg(text) -> MountSpec`` (``MountSpecError``);
+* :mod:`host.mounts.spec`: ``parse_mount_arg(text) -> MountSpec`` (``MountSpecError``), ``check_specs``
+  (``McpMountError``: names refused before anything starts, without the SDK);
 * :mod:`host.mounts.schema`: JSON Schema -> typed parameters (pure; the mapping table);
 * :mod:`host.mounts.stdio`: the bounded stdio transport for the SDK's ``Client``;
 * :mod:`host.mounts.mcp_mount`: ``mounted(specs, registry=..., options=...)``, ``McpMount``,
-  ``McpMountError``, ``McpCallError``, ``MountOptions``.
+  ``McpCallError``, ``MountOptions`` (and ``McpMountError``, ``check_specs`` again).
 
 Public names are imported lazily (the SDK loads only when a server is mounted).
 """
@@ -23,9 +24,9 @@ _EXPORTS = {
     "MountSpecError": "host.mounts.spec",
     "parse_mount_arg": "host.mounts.spec",
     "mounted": "host.mounts.mcp_mount",
-    "check_specs": "host.mounts.mcp_mount",
+    "check_specs": "host.mounts.spec",
     "McpMount": "host.mounts.mcp_mount",
-    "McpMountError": "host.mounts.mcp_mount",
+    "McpMountError": "host.mounts.spec",
     "McpCallError": "host.mounts.mcp_mount",
     "MountOptions": "host.mounts.mcp_mount",
 }

@@ -58,7 +58,7 @@ import mcp_types as types
 from mcp_types import CONNECTION_CLOSED
 
 from host.mounts.schema import ToolInterface, Unsupported, clip, function_names, tool_interface
-from host.mounts.spec import MountSpec, MountSpecError
+from host.mounts.spec import McpMountError, MountSpec, MountSpecError, check_specs
 from host.mounts.stdio import MAX_LINE, StdioServer, describe_exit
 from host.shell.registry import Registry, RegistryError
 from host.shell.types import FunctionSpec, Module
@@ -67,10 +67,6 @@ log = logging.getLogger(__name__)
 
 #: pages of ``tools/list`` read at most
 MAX_PAGES = 20
-
-
-class McpMountError(RuntimeError):
-    """A server that cannot be mounted; the message is one line naming it and the reason."""
 
 
 class McpCallError(RuntimeError):
@@ -321,20 +317,6 @@ def _describe(exc: BaseException) -> str:
         exc = exc.exceptions[0]
     text = " ".join(str(exc).split())
     return clip(f"{type(exc).__name__}: {text}" if text else type(exc).__name__, 500)
-
-
-def check_specs(specs: Sequence[MountSpec], registry: Registry | None = None) -> None:
-    """Raise :class:`McpMountError` when two specs share a NAME or a NAME is already a module."""
-    seen: set[str] = set()
-    modules = sorted(m.name for m in registry.modules()) if registry is not None else []
-    taken = set(modules) | (set(registry.channels()) if registry is not None else set())
-    for spec in specs:
-        if spec.name in seen:
-            raise McpMountError(f"--mount-mcp {spec.name}: NAME given twice; each server needs its own NAME")
-        if spec.name in taken:
-            raise McpMountError(f"--mount-mcp {spec.name}: {spec.name!r} is already a module or channel of this "
-                                f"shell (modules: {', '.join(modules)}); choose another NAME")
-        seen.add(spec.name)
 
 
 @contextlib.asynccontextmanager

@@ -22,10 +22,15 @@ from __future__ import annotations
 import argparse
 import re
 import shlex
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
 from host.shell.types import BUILTINS, MAIN_CHANNEL
+
+if TYPE_CHECKING:
+    from host.shell.registry import Registry
 
 FORMS = "NAME=COMMAND [ARGS...] (stdio) or NAME=http(s)://HOST[:PORT]/PATH (streamable HTTP)"
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]{0,39}")
@@ -95,3 +100,24 @@ def parse_mount_arg(text: str) -> MountSpec:
     if not argv:
         raise MountSpecError(f"--mount-mcp {name}: empty command; forms: {FORMS}")
     return MountSpec(name, command=tuple(argv))
+
+
+class McpMountError(RuntimeError):
+    """A server that cannot be mounted; the message is one line naming it and the reason.
+
+    Here, not in :mod:`host.mounts.mcp_mount` (which re-exports it with :func:`check_specs`): a command
+    refuses a ``--mount-mcp`` NAME before anything starts without importing the MCP SDK (~1 s of CPU)."""
+
+
+def check_specs(specs: Sequence[MountSpec], registry: Registry | None = None) -> None:
+    """Raise :class:`McpMountError` when two specs share a NAME or a NAME is already a module."""
+    seen: set[str] = set()
+    modules = sorted(m.name for m in registry.modules()) if registry is not None else []
+    taken = set(modules) | (set(registry.channels()) if registry is not None else set())
+    for spec in specs:
+        if spec.name in seen:
+            raise McpMountError(f"--mount-mcp {spec.name}: NAME given twice; each server needs its own NAME")
+        if spec.name in taken:
+            raise McpMountError(f"--mount-mcp {spec.name}: {spec.name!r} is already a module or channel of this "
+                                f"shell (modules: {', '.join(modules)}); choose another NAME")
+        seen.add(spec.name)

@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from support.cliproc import Cli, start, start_while_starting
+from support.realtime_lock import realtime_part_done
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -64,6 +65,7 @@ def test_a_run_stopped_while_starting_has_nothing_to_replay(tmp_path: Path) -> N
 @pytest.mark.realtime
 def test_a_realtime_run_replays_to_its_last_report(tmp_path: Path) -> None:
     run = _record(tmp_path, "--realtime")
+    realtime_part_done()  # the realtime run (and its board) has ended; the replays are lockstep
     out = tmp_path / "replay"
     rc, err = _finish(start(["replay", str(run), "--out", str(out)], tmp_path / "r"))
     assert rc == 0, err

@@ -24,10 +24,14 @@ import re
 import tomllib
 import subprocess
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+
+from support.cliproc import wait_until
+from support.realtime_lock import realtime_part_done
 
 ROOT = Path(__file__).resolve().parents[2]
 PAGE = ROOT / "docs" / "getting-started.md"
@@ -117,6 +121,37 @@ CHECKS: dict[str, Callable[[Path, Result], None]] = {
 }
 
 
+TIMEOUT_S = 540
+
+
+def _run(command: str, cwd: Path, tmp_path: Path) -> Result:
+    return subprocess.run(["bash", "-c", command], cwd=cwd, capture_output=True, text=True, timeout=TIMEOUT_S,
+                          stdin=subprocess.DEVNULL)
+
+
+def _run_realtime(command: str, cwd: Path, tmp_path: Path) -> Result:
+    """:func:`_run` for a command whose run is realtime: the run's ``summary.json`` is written after its
+    board has stopped (:func:`host.run.runner.run_program`), and what the command does after that (the
+    demo renders ``run.mp4``) needs no machine to itself, so from then on the other workers run their
+    ordinary tests beside it (tests/support/realtime_lock.py). Output goes to files, read at the end."""
+    before = set(cwd.glob("runs/*/summary.json"))
+    out, err = tmp_path / "stdout", tmp_path / "stderr"
+    deadline = time.monotonic() + TIMEOUT_S
+    with open(out, "wb") as o, open(err, "wb") as e:
+        proc = subprocess.Popen(["bash", "-c", command], cwd=cwd, stdout=o, stderr=e, stdin=subprocess.DEVNULL)
+        try:
+            wait_until(lambda: proc.poll() is not None or bool(set(cwd.glob("runs/*/summary.json")) - before),
+                       "the run writes its summary.json", timeout=TIMEOUT_S)
+            realtime_part_done()
+            returncode = proc.wait(max(0.0, deadline - time.monotonic()))
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    return subprocess.CompletedProcess(proc.args, returncode, out.read_text(errors="replace"),
+                                       err.read_text(errors="replace"))
+
+
 @pytest.fixture(scope="module")
 def checkout(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A scratch folder that looks like the checkout's root, with ``.venv`` the running venv."""
@@ -166,9 +201,8 @@ def test_setup_already_ran() -> None:
 @pytest.mark.parametrize("command", [pytest.param(c, marks=pytest.mark.realtime) if realtime(c) else c
                                      for c in page_commands() if bare(c) not in RUN_BY_CI],
                          ids=lambda c: bare(c)[:70])
-def test_command_as_written(command: str, checkout: Path) -> None:
-    r = subprocess.run(["bash", "-c", command], cwd=checkout, capture_output=True, text=True,
-                       timeout=540, stdin=subprocess.DEVNULL)
+def test_command_as_written(command: str, checkout: Path, tmp_path: Path) -> None:
+    r = (_run_realtime if realtime(command) else _run)(command, checkout, tmp_path)
     why = f"{command}\n--- exit {r.returncode}\n--- stdout (tail)\n{r.stdout[-4000:]}\n--- stderr (tail)\n{r.stderr[-3000:]}"
     assert r.returncode == 0, why
     assert "Traceback" not in r.stderr, why

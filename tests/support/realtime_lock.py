@@ -15,6 +15,11 @@ run's base temporary folder, the parent of every worker's ``--basetemp``, so pyt
 of old runs removes them (no worker can tell when the others are done with them). Without xdist
 (one process, a pytest started inside a test) nothing is locked.
 
+A realtime test whose wall-clock part ends before the test does (a realtime recording followed by
+lockstep replays, a board stopped for good whose loss the host is left to detect) calls
+:func:`realtime_part_done`: from then on it holds the lock shared, so the other workers run their
+ordinary tests beside the rest of it instead of idling to its end.
+
 Written here rather than taken from a plugin: pytest-xdist groups tests onto one worker
 (``xdist_group``) but has no way to keep other workers idle meanwhile.
 """
@@ -42,6 +47,7 @@ class _RunLock:
         self._turn: IO[bytes] = open(base / f"ghostshell-pytest-{run_id}.turn", "ab")  # noqa: SIM115
 
         self._exclusive_held = False
+        self._keep = False
 
     @contextlib.contextmanager
     def hold(self, exclusive: bool, keep: bool = False) -> Iterator[None]:
@@ -57,6 +63,7 @@ class _RunLock:
                 fcntl.flock(turn, fcntl.LOCK_UN)
                 fcntl.flock(main, fcntl.LOCK_SH)
         self._exclusive_held = exclusive
+        self._keep = exclusive and keep
         try:
             yield
         finally:
@@ -64,12 +71,43 @@ class _RunLock:
                 fcntl.flock(main, fcntl.LOCK_UN)
                 self._exclusive_held = False
 
+    def share(self) -> bool:
+        """Trade the exclusive lock this worker holds for a shared one, until its test ends; True if it did.
+
+        Kept instead (to the end of the test, as without this call) when this worker's next test is
+        realtime too (:meth:`hold`'s ``keep``: another worker's long test would start in between), or
+        while a realtime test of another worker waits for the lock (it holds the turnstile): flock
+        converts a lock by dropping it and then taking the new one, so that waiter would start between
+        the two, beside the rest of this test. Holding the turnstile across the conversion keeps a
+        realtime test that comes later out until it is done; ordinary tests waiting for the main lock
+        start at once."""
+        if not self._exclusive_held or self._keep:
+            return False
+        try:
+            fcntl.flock(self._turn.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:  # a realtime test is waiting for the main lock
+            return False
+        try:
+            fcntl.flock(self._main.fileno(), fcntl.LOCK_SH)  # never waits: only shared requests can be queued
+        finally:
+            fcntl.flock(self._turn.fileno(), fcntl.LOCK_UN)
+        self._exclusive_held = False
+        return True
+
     def close(self) -> None:
         self._main.close()
         self._turn.close()
 
 
 _lock: _RunLock | None = None
+
+
+def realtime_part_done() -> bool:
+    """Called by a ``realtime`` test once no board of its own runs on the wall clock any more (its realtime
+    run has ended, or its board is stopped for good): the other workers may start ordinary tests beside
+    what is left of it (lockstep replays, rendering, checks), which needs no core to itself. Best effort
+    (:meth:`_RunLock.share`): True if the lock is now shared; a no-op without xdist or in an ordinary test."""
+    return _lock is not None and _lock.share()
 
 
 def _run_dir(config: pytest.Config) -> Path:
