@@ -36,10 +36,11 @@ def test_overlapping_turns_share_one_frozen_period() -> None:
 def test_a_heap_frozen_for_good_before_is_left_frozen() -> None:
     gc.freeze()  # e.g. a fuzz harness after its start-up
     try:
-        before = gc.get_freeze_count()
         with frozen_heap():
             assert turns_frozen() == 1
-        assert gc.get_freeze_count() == before  # not given back by the turn
+        # not given back by the turn (gc.unfreeze would leave 0; the count itself may shrink a little:
+        # frozen objects still die by reference count)
+        assert gc.get_freeze_count() > 0
     finally:
         gc.unfreeze()
 
