@@ -326,19 +326,27 @@ class FrameStreamer:
         return self._holds > 0
 
     async def top_up(self, board_now_us: int | None = None) -> None:
-        """Send frames up to the board clock (or ``board_now_us``) plus the lookahead."""
+        """Send frames up to the board clock (or ``board_now_us``) plus the lookahead.
+
+        Realtime, on a link slower than the lookahead (uplink p99 + send path > ``lookahead_us``: a
+        ``delay=`` fault, an overloaded board whose TIME_SYNC replies came late), the horizon is the
+        first grid time a frame sent now can reach (:meth:`_skip_late`) plus one period: frames keep
+        going out, each in time by the link's own p99, instead of every top-up skipping past its own
+        horizon and sending nothing (the run then ended with "the host sent no servo frame for 10 s").
+        """
         if self._holds:
             return
         async with self._lock:
             now = self.link.board_now_us() if board_now_us is None else board_now_us
-            if not self.link.lockstep:
-                self._skip_late(now)
             horizon = now + self.lookahead_us
+            if not self.link.lockstep:
+                reach = self._skip_late(now)
+                horizon = max(horizon, reach + self.period_us)
             while self.next_us <= horizon:
                 self._send(self.mixer.frame(self.next_us))
                 self.next_us += self.period_us
 
-    def _skip_late(self, now_us: int) -> None:
+    def _skip_late(self, now_us: int) -> int:
         """Realtime: move the first unsent frame past the grid times a frame sent now would miss, by the
         link's own estimate (board now + :meth:`FrameLink.latency_us` of a full frame, i.e. the uplink
         p99, the line's backlog and the frame's wire time, + :meth:`send_path_us`).
@@ -349,13 +357,14 @@ class FrameStreamer:
         the first time still in reach: a segment that began or ended in the gap is started (ended) by
         that frame, and the board moves there from where it was. Counted in ``frames_skipped``. (On a
         paced line, frames already held with earlier apply times still go first:
-        :mod:`host.motion.txqueue`.)
+        :mod:`host.motion.txqueue`.) Returns that reach (board µs).
         """
         reach = now_us + self.link.latency_us(self._frame_bytes) + self.send_path_us()
         if self.next_us < reach:
             first = self._grid(reach)
             self.frames_skipped += (first - self.next_us) // self.period_us
             self.next_us = first
+        return reach
 
     def _send(self, mixed: MixedFrame) -> None:
         n = self.mixer.n_servos

@@ -78,3 +78,26 @@ def test_the_reach_counts_the_frames_own_wire_time() -> None:
     assert first == -(-reach // PERIOD_US) * PERIOD_US
     assert first - PERIOD_US < reach  # the one before it could not have made it
     assert s.frames_skipped == (first - 1_010_000) // PERIOD_US
+
+
+def test_a_link_slower_than_the_lookahead_still_gets_frames() -> None:
+    """Uplink p99 120 ms against a 60 ms lookahead (a ``delay=`` fault; an overloaded board's late
+    TIME_SYNC replies). Every top-up used to skip past its own horizon and send nothing, and the run
+    ended with "the host sent no servo frame for 10 s" (seen under load 5 on this machine). Now each
+    top-up sends up to one period beyond the first time still in reach, so the board's buffer never
+    runs dry while the link is slow, and nothing sent is due before it can arrive."""
+    link = RecordingLink(now_us=1_000_000, uplink_us=120_000)
+    s = FrameStreamer(link, Mixer(np.zeros(4)))  # type: ignore[arg-type]
+    assert s.lookahead_us < link.uplink_us
+    for step in range(20):  # 20 top-ups, one period apart, as the realtime topper runs them
+        link.now_us = 1_000_000 + step * PERIOD_US
+        before = len(_frames(link))
+        anyio.run(s.top_up)
+        new = _frames(link)[before:]
+        reach = link.now_us + link.uplink_us + SEND_PATH_DEFAULT_US
+        assert new, f"top-up {step} sent nothing"
+        assert all(f.apply_at_us >= reach for f in new)  # none the board would NACK LATE
+        assert s.first_free_us > reach + PERIOD_US  # sent through one period beyond the reach
+    times = [f.apply_at_us for f in _frames(link)]
+    assert times == sorted(set(times))  # each grid time once, in order: no gaps once streaming
+    assert times == list(range(times[0], times[-1] + 1, PERIOD_US))
