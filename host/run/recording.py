@@ -15,29 +15,29 @@ touches nothing else:
 * sequence gaps, decode errors, re-sent requests, reconnects: the client's ``LinkStats`` counters,
   compared on every report.
 
-Every callback only notes what happened (with the board time it happened at) in one FIFO; the
-recording's work runs from the event loop right after the callback that noted it (one ``call_soon``
-per batch), in the order noted, nothing dropped. A profile of a realtime run showed why: writing the
-MCAP inside the link's read callback (forward kinematics for the transforms, JSON for the channels)
-was half of that callback, which ran over 0.5 ms hundreds of times per pass of the 30 tasks while a
-token chunk waited behind it (``bench/bench_latency.py``). Past ``MAX_DEFERRED`` noted items, or with
-no running loop, the work is done at once. :meth:`Recording.on_turn_end` and :meth:`Recording.close`
-do what is still noted first.
+Every callback only notes what happened (with the board time it happened at) in one FIFO
+(:class:`host.link.deferred.DeferredWork`); the recording's work runs from the event loop after the
+callback that noted it, in the order noted, nothing dropped, in slices of about
+:data:`DRAIN_SLICE_S` (what else became ready runs between two slices). A profile of a realtime run
+showed why: writing the MCAP inside the link's read callback (forward kinematics for the
+transforms, JSON for the channels) was half of that callback, which ran over 0.5 ms hundreds of
+times per pass of the 30 tasks while a token chunk waited behind it (``bench/bench_latency.py``).
+Past ``MAX_DEFERRED`` noted items, or with no running loop, the work is done at once.
+:meth:`Recording.on_turn_end` and :meth:`Recording.close` do what is still noted first.
 
 Nothing here can end a run: a failure of the recording is one warning line and the recording stops.
 """
 
 from __future__ import annotations
 
-import asyncio
 import logging
 import sys
-from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from host.link import BoardClient
+from host.link.deferred import DeferredWork
 from host.link.session import FaultEvent
 from host.robot.runtime import RobotRuntime
 from host.run.mcap_log import McapError, RunLog
@@ -45,7 +45,7 @@ from host.shell import Shell
 from protocol.messages import CameraChunk, Message, Nack, SimState, Telemetry
 from robots.description import Robot
 
-__all__ = ["POLL_S", "Recording"]
+__all__ = ["DRAIN_SLICE_S", "POLL_S", "Recording"]
 
 log = logging.getLogger("host.run")
 
@@ -53,6 +53,8 @@ log = logging.getLogger("host.run")
 POLL_S = 0.05
 #: noted callbacks waiting for the loop beyond which the recording's work is done at once
 MAX_DEFERRED = 4096
+#: wall seconds of noted work per pass of the event loop; the rest waits for the next pass
+DRAIN_SLICE_S = 0.0005
 
 
 class Recording:
@@ -73,8 +75,7 @@ class Recording:
         self._stats = (s.seq_gaps, s.decode_errors, s.retries, s.reconnects)
         self._failed = False
         self._chunk_us: int | None = None  # board time the latest camera chunk arrived
-        self._noted: deque[tuple[Callable[..., Any], tuple[Any, ...]]] = deque()  # work not yet done, in order
-        self._armed_on: asyncio.AbstractEventLoop | None = None  # the loop a drain is scheduled on
+        self._work = DeferredWork(slice_s=DRAIN_SLICE_S, max_deferred=MAX_DEFERRED)  # work not yet done, in order
         client.on_fault.append(self._on_fault)
         client.on_nack.append(self._on_nack)
         client.on_sent.append(self._on_sent)
@@ -119,28 +120,12 @@ class Recording:
     # -- listening ------------------------------------------------------------------------------
     def _note(self, fn: Callable[..., Any], *args: Any) -> None:
         """Do ``fn(*args)`` (guarded) from the loop soon, after the work noted before it."""
-        if self._failed:
-            return
-        self._noted.append((fn, args))
-        try:
-            loop = asyncio.get_running_loop()
-        except RuntimeError:  # no loop running (a caller outside the session): at once
-            self._drain()
-            return
-        if self._armed_on is loop:  # a drain is on its way (on a loop that has stopped, one is scheduled here)
-            if len(self._noted) >= MAX_DEFERRED:
-                self._drain()
-            return
-        loop.call_soon(self._drain)
-        self._armed_on = loop
+        if not self._failed:
+            self._work.note(self._guard, fn, *args)
 
     def _drain(self) -> None:
-        """Do all the noted work, in order."""
-        self._armed_on = None
-        noted = self._noted
-        while noted:
-            fn, args = noted.popleft()
-            self._guard(fn, *args)
+        """Do all the noted work now, in order."""
+        self._work.drain()
 
     def _on_received(self, msg: Message) -> None:
         if isinstance(msg, CameraChunk):  # a photo is complete when its last chunk came: that is its time

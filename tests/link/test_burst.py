@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Any
 
 import anyio
 import pytest
@@ -24,6 +25,16 @@ pytestmark = pytest.mark.timeout(60)
 def _tx(log: Path) -> list[dict]:
     with open(log, encoding="utf-8") as f:
         return [r for r in iter_records(f) if r["dir"] == "tx"]
+
+
+async def _tx_settled(log: Path, n: int) -> list[dict[str, Any]]:
+    """The log's sent records once it holds ``n`` of them (or after 100 passes of the loop): its lines
+    are written from the loop after the send (``host.link.deferred.DeferredWork``), not inside it."""
+    for _ in range(100):
+        if len(_tx(log)) >= n:
+            break
+        await anyio.sleep(0)
+    return _tx(log)
 
 
 @pytest.mark.realtime  # tests/support/realtime_lock.py
@@ -43,7 +54,7 @@ def test_a_burst_is_one_write_logged_and_told_after_it(board_factory, tmp_path: 
                 assert len(_tx(log)) == before and told == []  # not yet written, logged or told
                 inside = time.monotonic()
             after = time.monotonic()
-            sent = _tx(log)[before:]
+            sent = (await _tx_settled(log, before + 2))[before:]
             assert [(r["seq"], r["type"]) for r in sent] == [(flush_seq, "FLUSH"), (frame_seq, "SERVO_FRAME")]
             assert inside <= sent[0]["t"] == sent[1]["t"] <= after  # the time of their one write
             assert told == [(flush_seq, "Flush"), (frame_seq, "ServoFrame")]
@@ -69,10 +80,10 @@ def test_a_burst_the_caller_leaves_with_an_error_still_writes_and_logs(board_fac
             with pytest.raises(RuntimeError), c.burst():
                 c.send(Flush(c.board_now_estimate() + 20_000, 0b1))
                 raise RuntimeError("the caller failed half-way")
-            assert [r["type"] for r in _tx(log)[before:]] == ["FLUSH"] and len(told) == 1
+            assert [r["type"] for r in (await _tx_settled(log, before + 1))[before:]] == ["FLUSH"] and len(told) == 1
             with c.burst(), c.burst():  # nested: one block
                 c.send(Flush(c.board_now_estimate() + 20_000, 0b1))
-            assert len(_tx(log)) == before + 2 and len(told) == 2
+            assert len(await _tx_settled(log, before + 2)) == before + 2 and len(told) == 2
             # the port is not left corked: a FLUSH outside any block reaches the board, which ACKs it
             # (NackError / LinkTimeout otherwise)
             await c.flush(c.board_now_estimate() + 20_000, 0b1)
@@ -120,3 +131,22 @@ def test_a_burst_without_an_await_and_one_outside_a_loop_pass(monkeypatch: pytes
     with fanout.burst(None):  # no running loop: nothing to check
         fanout.sent(3, Flush(0, 1))
     assert told == [1, 2, 3]
+
+
+def test_a_frame_log_that_cannot_be_written_is_one_warning_and_the_link_goes_on(
+        board_factory, caplog: pytest.LogCaptureFixture) -> None:
+    """The host's frame log on a full disk (/dev/full: every line's write fails with ENOSPC). Its
+    records are written from the loop after the send; the first that fails is one warning line, the
+    log stops, and sending and receiving go on (the FLUSH below still gets its ACK)."""
+    board = board_factory("--lockstep")
+
+    async def main() -> None:
+        async with await BoardClient.connect(board.port, log_path="/dev/full") as c:
+            for _ in range(3):
+                await c.flush(c.board_now_estimate() + 20_000, 0b1)  # NackError / LinkTimeout otherwise
+
+    with caplog.at_level("WARNING", logger="host.link"):
+        anyio.run(main)
+    stopped = [r.getMessage() for r in caplog.records if "frame log" in r.getMessage()]
+    assert len(stopped) == 1, stopped
+    assert "/dev/full stopped" in stopped[0] and "No space left" in stopped[0]

@@ -55,6 +55,12 @@ def _sim(t_us: int) -> SimState:
     return SimState(t_us, (0.0, 0.0, 0.3), (1.0, 0.0, 0.0, 0.0))
 
 
+async def _passes(n: int = 50) -> None:
+    """Let the loop come round ``n`` times (the work goes in slices of ``DRAIN_SLICE_S``, one per pass)."""
+    for _ in range(n):
+        await asyncio.sleep(0)
+
+
 def test_the_link_callback_only_notes_and_the_loop_does_it_in_order() -> None:
     rec, log = _recording()
 
@@ -64,7 +70,7 @@ def test_the_link_callback_only_notes_and_the_loop_does_it_in_order() -> None:
         rec.client.on_received[0](_sim(10_000))
         rec.client.on_received[0](_tel(30_000))
         assert log.asked == []  # inside the callback: nothing written yet
-        await asyncio.sleep(0)
+        await _passes()
         assert log.asked == [("message", 10_000), ("sent", 7), ("message", 10_000), ("message", 30_000)]
 
     asyncio.run(main())
@@ -100,6 +106,27 @@ def test_past_max_deferred_the_work_is_done_at_once(monkeypatch: Any) -> None:
         assert log.asked == [("message", 10_000), ("message", 20_000), ("message", 30_000)]
         await asyncio.sleep(0)
         assert len(log.asked) == 3  # the drain still scheduled finds nothing left
+
+    asyncio.run(main())
+    rec.close()
+
+
+def test_the_loop_does_the_work_in_slices_and_other_callbacks_run_between(monkeypatch: Any) -> None:
+    """A slice of 0 s: one noted item per pass of the loop. A callback that became ready meanwhile (a
+    token chunk, a frame to send) runs after the first item, not after all of them: the MCAP chunk
+    compressed inside one item's ``log()`` took 4-5 ms, and a token waited behind the whole batch."""
+    import host.run.recording as recording
+
+    monkeypatch.setattr(recording, "DRAIN_SLICE_S", 0.0)
+    rec, log = _recording()
+
+    async def main() -> None:
+        for t in (10_000, 20_000, 30_000, 40_000):
+            rec.client.on_received[0](_tel(t))
+        asyncio.get_running_loop().call_soon(lambda: log.asked.append(("other", 0)))
+        await _passes()
+        assert log.asked == [("message", 10_000), ("other", 0), ("message", 20_000), ("message", 30_000),
+                             ("message", 40_000)]
 
     asyncio.run(main())
     rec.close()

@@ -38,6 +38,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
+import logging
 import os
 import threading
 import time
@@ -47,14 +48,17 @@ from pathlib import Path
 
 import serial
 
+from host.link.deferred import DeferredWork
 from host.link.errors import LinkConfigError, LinkDown, LinkError
 from host.link.transports.base import LossHandler, ReceiveHandler, Transport
 from protocol.codec import WIRE_SCHEMA_16, WireSchema, schema_for
-from protocol.framing import FrameDecoder, encode_frame
+from protocol.framing import DecodeError, Frame, FrameDecoder, encode_frame
 from protocol.logfile import FrameLogWriter, JsonlFrameLog, open_frame_log
 from protocol.messages import Message
 
 __all__ = ["MAX_TX_BACKLOG", "SerialLinkTransport", "SerialPort"]
+
+_log = logging.getLogger("host.link")
 
 MAX_TX_BACKLOG = 256 * 1024  # bytes waiting for the port before writes are refused
 _NO_DATA = "readiness to read but returned no data"  # pyserial's text for select-ready + an empty read
@@ -279,6 +283,9 @@ class SerialLinkTransport(Transport):
         self._on_receive: ReceiveHandler | None = None
         self._ever_connected = False
         self._log_held: list[bytes] | None = None  # sent inside burst(), not yet logged
+        #: the frame log's records are written from the loop after the send or read that made them
+        #: (decoding a sent frame and its JSON line cost p50 0.12 ms, p99 0.5 ms, max 5.8 ms inside the send)
+        self._log_work = DeferredWork()
 
     @property
     def name(self) -> str:
@@ -296,11 +303,26 @@ class SerialLinkTransport(Transport):
             if self.framelog is not None:
                 t = time.monotonic()  # when the one write went out
                 for raw in held:
-                    self.framelog.write_serial("tx", t, raw)
+                    self._log_work.note(self._log_record, "tx", t, raw)
+
+    def _log_record(self, direction: str, t: float, raw: bytes, item: Frame | DecodeError | None = None) -> None:
+        """One frame log record, from the loop (:class:`DeferredWork`). A log that cannot be written (disk
+        full, the folder gone) is one warning line; the link goes on without it."""
+        log = self.framelog
+        if log is None:
+            return
+        try:
+            log.write_serial(direction, t, raw, item)
+        except OSError as e:
+            self.framelog = None
+            _log.warning("ghostshell: the frame log %s stopped: %s; the link goes on without it", log.path, e)
+            with contextlib.suppress(OSError):
+                log.close()
 
     def set_servo_count(self, servo_count: int) -> None:
         self.schema = self._decoder.schema = schema_for(servo_count)
         if isinstance(self.framelog, JsonlFrameLog):
+            self._log_work.drain()  # frames noted before the switch decode with the schema they were sent in
             self.framelog.schema = self.schema
 
     @property
@@ -339,8 +361,9 @@ class SerialLinkTransport(Transport):
     def _on_data(self, data: bytes) -> None:
         items = self._decoder.feed(data)
         if self.framelog is not None:
+            t = time.monotonic()
             for item in items:
-                self.framelog.write_serial("rx", time.monotonic(), item.raw, item)
+                self._log_work.note(self._log_record, "rx", t, item.raw, item)
         if items and self._on_receive is not None:
             self._on_receive(items)
 
@@ -357,8 +380,8 @@ class SerialLinkTransport(Transport):
             raise LinkDown(f"link to {self.url!r} is down: {e}") from None
         if self._log_held is not None:
             self._log_held.append(raw)
-        elif self.framelog is not None:
-            self.framelog.write_serial("tx", time.monotonic(), raw)  # decoded from the wire bytes (quantised)
+        elif self.framelog is not None:  # decoded from the wire bytes (quantised), from the loop
+            self._log_work.note(self._log_record, "tx", time.monotonic(), raw)
         return len(raw)
 
     def disconnect(self) -> None:
@@ -369,4 +392,5 @@ class SerialLinkTransport(Transport):
     def close(self) -> None:
         self.disconnect()
         if self.framelog is not None:
+            self._log_work.drain()
             self.framelog.close()
