@@ -65,7 +65,8 @@ class FrameLogWriter(ABC):
 
 
 class JsonlFrameLog(FrameLogWriter):
-    """JSON Lines (:mod:`protocol.framelog`), line-buffered: a crash loses at most the line being written.
+    """JSON Lines (:mod:`protocol.framelog`), line-buffered: a crash loses at most the line being written
+    (and, on the host's serial link, the records noted but not yet handed to it: ``host.link.deferred``).
 
     ``schema`` is the wire schema sent frames are decoded with (settable: a session switches it
     after CAPS). ``lazy``: the file is created with the first record, so a link that never opened

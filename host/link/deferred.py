@@ -12,7 +12,8 @@ run's MCAP) does not need to be done at that moment, only in order and completel
   that never comes round), the calls are done at once: the backlog is bounded;
 * :meth:`drain` does what is left now (before a close, at a turn's end). Nothing is dropped.
 
-Exceptions from a call propagate to whoever runs it (the loop's exception handler from a slice):
+Loop thread only (not thread-safe): a thread hands its callbacks to the loop first
+(``call_soon_threadsafe``, as the serial transport's reader thread does). Exceptions from a call propagate to whoever runs it (the loop's exception handler from a slice):
 wrap ``fn`` when a failure must not escape (``host.run.recording.Recording`` does).
 
 Why: with the host's frame log written inside the send, a sent frame cost p50 0.36 ms and p99
@@ -78,7 +79,7 @@ class DeferredWork:
                 if noted:  # the rest still gets done, on the next pass
                     self._rearm()
                 raise
-            if noted and time.perf_counter() > until and self._rearm():
+            if noted and time.perf_counter() >= until and self._rearm():
                 return
 
     def _rearm(self) -> bool:

@@ -27,14 +27,15 @@ def _tx(log: Path) -> list[dict]:
         return [r for r in iter_records(f) if r["dir"] == "tx"]
 
 
-async def _tx_settled(log: Path, n: int) -> list[dict[str, Any]]:
-    """The log's sent records once it holds ``n`` of them (or after 100 passes of the loop): its lines
-    are written from the loop after the send (``host.link.deferred.DeferredWork``), not inside it."""
+async def _logged(log: Path, *seqs: int) -> list[dict[str, Any]]:
+    """The log's sent records of ``seqs``, in the log's order, once all are there (or after 100 passes of
+    the loop): its lines are written from the loop after the send (``host.link.deferred.DeferredWork``),
+    not inside it, and the link's own messages (TIME_SYNC, HEARTBEAT) may come between."""
     for _ in range(100):
-        if len(_tx(log)) >= n:
+        if set(seqs) <= {r["seq"] for r in _tx(log)}:
             break
         await anyio.sleep(0)
-    return _tx(log)
+    return [r for r in _tx(log) if r["seq"] in seqs]
 
 
 @pytest.mark.realtime  # tests/support/realtime_lock.py
@@ -54,7 +55,7 @@ def test_a_burst_is_one_write_logged_and_told_after_it(board_factory, tmp_path: 
                 assert len(_tx(log)) == before and told == []  # not yet written, logged or told
                 inside = time.monotonic()
             after = time.monotonic()
-            sent = (await _tx_settled(log, before + 2))[before:]
+            sent = await _logged(log, flush_seq, frame_seq)
             assert [(r["seq"], r["type"]) for r in sent] == [(flush_seq, "FLUSH"), (frame_seq, "SERVO_FRAME")]
             assert inside <= sent[0]["t"] == sent[1]["t"] <= after  # the time of their one write
             assert told == [(flush_seq, "Flush"), (frame_seq, "ServoFrame")]
@@ -76,14 +77,14 @@ def test_a_burst_the_caller_leaves_with_an_error_still_writes_and_logs(board_fac
     async def main() -> None:
         async with await BoardClient.connect(board.port, log_path=log) as c:
             c.on_sent.append(lambda seq, msg: told.append(msg))
-            before = len(_tx(log))
+            seqs: list[int] = []
             with pytest.raises(RuntimeError), c.burst():
-                c.send(Flush(c.board_now_estimate() + 20_000, 0b1))
+                seqs.append(c.send(Flush(c.board_now_estimate() + 20_000, 0b1)))
                 raise RuntimeError("the caller failed half-way")
-            assert [r["type"] for r in (await _tx_settled(log, before + 1))[before:]] == ["FLUSH"] and len(told) == 1
+            assert [r["type"] for r in await _logged(log, *seqs)] == ["FLUSH"] and len(told) == 1
             with c.burst(), c.burst():  # nested: one block
-                c.send(Flush(c.board_now_estimate() + 20_000, 0b1))
-            assert len(await _tx_settled(log, before + 2)) == before + 2 and len(told) == 2
+                seqs.append(c.send(Flush(c.board_now_estimate() + 20_000, 0b1)))
+            assert [r["seq"] for r in await _logged(log, *seqs)] == seqs and len(told) == 2
             # the port is not left corked: a FLUSH outside any block reaches the board, which ACKs it
             # (NackError / LinkTimeout otherwise)
             await c.flush(c.board_now_estimate() + 20_000, 0b1)

@@ -137,15 +137,18 @@ class SerialPort:
             self._on_data(bytes(data))
 
     def _reader_thread(self) -> None:
-        while not self._closed:
-            try:
-                data = self.ser.read(max(1, self.ser.in_waiting))
-            except Exception as e:  # the port vanished
-                if not self._closed:
-                    self._loop.call_soon_threadsafe(self._lose, _read_failed(self.url, e))
-                return
-            if data:
-                self._loop.call_soon_threadsafe(self._deliver, bytes(data))
+        try:
+            while not self._closed:
+                try:
+                    data = self.ser.read(max(1, self.ser.in_waiting))
+                except Exception as e:  # the port vanished
+                    if not self._closed:
+                        self._loop.call_soon_threadsafe(self._lose, _read_failed(self.url, e))
+                    return
+                if data:
+                    self._loop.call_soon_threadsafe(self._deliver, bytes(data))
+        except RuntimeError:  # the loop closed while a read was in progress (the port's close raced it)
+            return
 
     def _deliver(self, data: bytes) -> None:
         if not self._closed:
@@ -313,16 +316,16 @@ class SerialLinkTransport(Transport):
             return
         try:
             log.write_serial(direction, t, raw, item)
-        except OSError as e:
+        except Exception as e:  # OSError (disk full, folder gone) or a record the writer refused
             self.framelog = None
             _log.warning("ghostshell: the frame log %s stopped: %s; the link goes on without it", log.path, e)
-            with contextlib.suppress(OSError):
+            with contextlib.suppress(Exception):
                 log.close()
 
     def set_servo_count(self, servo_count: int) -> None:
         self.schema = self._decoder.schema = schema_for(servo_count)
-        if isinstance(self.framelog, JsonlFrameLog):
-            self._log_work.drain()  # frames noted before the switch decode with the schema they were sent in
+        self._log_work.drain()  # frames noted before the switch decode with the schema they were sent in
+        if isinstance(self.framelog, JsonlFrameLog):  # (the drain may have stopped a failing log)
             self.framelog.schema = self.schema
 
     @property
@@ -391,6 +394,7 @@ class SerialLinkTransport(Transport):
 
     def close(self) -> None:
         self.disconnect()
-        if self.framelog is not None:
-            self._log_work.drain()
-            self.framelog.close()
+        self._log_work.drain()  # a log that fails meanwhile stops itself (one warning)
+        log, self.framelog = self.framelog, None
+        if log is not None:
+            log.close()
