@@ -2,7 +2,8 @@
 
 The streamer owns the frame grid: every ``period_us`` of board time there is
 one full-body SERVO_FRAME, sent while it is still at most ``lookahead_us``
-ahead of the board. It tops up whenever telemetry arrives (and, on a realtime
+ahead of the board (on a realtime link slower than that, as far ahead as the link's latency
+needs, up to ``max_lead_us``: :meth:`FrameStreamer.top_up`). It tops up whenever telemetry arrives (and, on a realtime
 board, on its own every period). In lockstep the board only runs as far as the
 frames reach, so topping up on telemetry is what moves board time forward, and
 the host can never fall behind it.
@@ -150,7 +151,7 @@ class FrameStreamer:
     """Keeps the board fed with frames from a :class:`Mixer`."""
 
     def __init__(self, link: FrameLink, mixer: Mixer, *, period_us: int = 10_000, lookahead_us: int = 60_000,
-                 start_us: int | None = None, history: int = 720_000) -> None:
+                 start_us: int | None = None, history: int = 720_000, max_lead_us: int = 2_000_000) -> None:
         self.link = link
         self.mixer = mixer
         #: the robot's wire schema (the mask's width): what a FLUSH and a frame cost on the wire
@@ -159,6 +160,8 @@ class FrameStreamer:
         self._frame_bytes = frame_wire_bytes(max(1, mixer.n_servos), self.schema)  # a full-body grid frame
         self.period_us = period_us
         self.lookahead_us = lookahead_us
+        #: realtime: the farthest ahead of board now a top-up sends, however slow the link (top_up)
+        self.max_lead_us = max_lead_us
         now = link.board_now_us() if start_us is None else start_us
         self.next_us = self._grid(now + period_us)
         self._in_flight: deque[_Sent] = deque()
@@ -333,6 +336,11 @@ class FrameStreamer:
         first grid time a frame sent now can reach (:meth:`_skip_late`) plus one period: frames keep
         going out, each in time by the link's own p99, instead of every top-up skipping past its own
         horizon and sending nothing (the run then ended with "the host sent no servo frame for 10 s").
+        Never more than ``max_lead_us`` ahead of board now: a bogus latency estimate must not fill the
+        board's jitter buffer (256 frames, 2.56 s at 100 Hz) nor reach past its ``max_future_us`` (5 s),
+        and a line that cannot carry the frame rate (its backlog is part of the latency) must not
+        queue without bound; beyond that lead nothing is sent, and the run's silence check ends it
+        naming the latency.
         """
         if self._holds:
             return
@@ -341,7 +349,7 @@ class FrameStreamer:
             horizon = now + self.lookahead_us
             if not self.link.lockstep:
                 reach = self._skip_late(now)
-                horizon = max(horizon, reach + self.period_us)
+                horizon = max(horizon, min(reach + self.period_us, now + self.max_lead_us))
             while self.next_us <= horizon:
                 self._send(self.mixer.frame(self.next_us))
                 self.next_us += self.period_us
@@ -391,7 +399,10 @@ class FrameStreamer:
                 cut_us = self.next_us
             else:
                 margin = 2 * self.period_us if margin_us is None else margin_us
-                cut_us = min(self._grid(self.link.board_now_us() + margin), self.next_us)
+                now = self.link.board_now_us()
+                # not before the FLUSH can reach the board (a link slower than the margin: delay= faults)
+                reach = now + self.link.latency_us(self._flush_bytes) + self.send_path_us()
+                cut_us = min(self._grid(max(now + margin, reach)), self.next_us)
             q_cut = self.mixer.sample_servo_targets(cut_us)
             for seg in segments:
                 self.mixer.release(seg, cut_us)

@@ -177,9 +177,11 @@ async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardCl
         elif silent > TELEMETRY_SILENCE_S:
             raise LinkError(f"no telemetry from the board for {TELEMETRY_SILENCE_S:g} s; giving up the run")
         elif now - since > TELEMETRY_SILENCE_S:
+            streamer = runtime.streamer
             raise LinkError(f"the host sent no servo frame for {TELEMETRY_SILENCE_S:g} s "
-                            f"(board clock estimate {runtime.streamer.board_now_us()} us, next frame "
-                            f"{runtime.streamer.first_free_us} us); giving up the run")
+                            f"(board clock estimate {streamer.board_now_us()} us, next frame "
+                            f"{streamer.first_free_us} us, link latency p99 {streamer.link.latency_us(0) / 1000:.1f} ms, "
+                            f"lead limit {streamer.max_lead_us / 1000:.0f} ms); giving up the run")
         elif client is not None and lockstep:
             lossy = client.stats.decode_errors > 0 or client.stats.retries > 0
             wait = LOSSY_NUDGE_S if lossy else LOCKSTEP_NUDGE_S

@@ -101,3 +101,40 @@ def test_a_link_slower_than_the_lookahead_still_gets_frames() -> None:
     times = [f.apply_at_us for f in _frames(link)]
     assert times == sorted(set(times))  # each grid time once, in order: no gaps once streaming
     assert times == list(range(times[0], times[-1] + 1, PERIOD_US))
+
+
+def test_the_lead_stays_within_max_lead_however_slow_the_link_says_it_is() -> None:
+    """A latency estimate of 1.5 s: frames go out up to 1.5 s + a period ahead. Of 3 s (a bogus
+    estimate, or a line that cannot carry the frame rate: its backlog is part of the latency):
+    nothing beyond ``max_lead_us`` (2 s), so the board's 256-frame jitter buffer and its 5 s
+    ``max_future_us`` are safe; the run's silence check then ends the run, naming the latency."""
+    for uplink_us, sends in ((1_500_000, True), (3_000_000, False)):
+        link = RecordingLink(now_us=1_000_000, uplink_us=uplink_us)
+        s = FrameStreamer(link, Mixer(np.zeros(4)))  # type: ignore[arg-type]
+        anyio.run(s.top_up)
+        times = [f.apply_at_us for f in _frames(link)]
+        assert bool(times) is sends, (uplink_us, len(times))
+        assert all(t <= link.now_us + s.max_lead_us for t in times)
+        if sends:
+            assert min(times) >= link.now_us + uplink_us  # none the board would NACK LATE
+
+
+def test_a_cut_on_a_slow_link_is_not_before_its_flush_can_arrive() -> None:
+    """A realtime cut stops the motion two periods from board now, unless the FLUSH cannot get there
+    by then (uplink 80 ms: a ``delay=80`` fault): then at the first grid time it can reach, so the
+    board does not NACK the re-sent frames LATE."""
+    link = RecordingLink(now_us=1_000_000, uplink_us=80_000)
+    s = FrameStreamer(link, Mixer(np.zeros(4)))  # type: ignore[arg-type]
+    seg = s.add(Ramp(), "ramp")
+    anyio.run(s.top_up)
+    anyio.run(s.cut, [seg], [0, 1], lambda q: None)
+    flushes = [m for m in link.sent if isinstance(m, tuple) and m[0] == "FLUSH"]
+    reach = link.now_us + link.uplink_us + SEND_PATH_DEFAULT_US
+    assert flushes and flushes[-1][1] >= reach and flushes[-1][1] % PERIOD_US == 0
+
+    fast = RecordingLink(now_us=1_000_000)  # a pty's 0.3 ms: the usual two periods
+    s = FrameStreamer(fast, Mixer(np.zeros(4)))  # type: ignore[arg-type]
+    seg = s.add(Ramp(), "ramp")
+    anyio.run(s.top_up)
+    anyio.run(s.cut, [seg], [0, 1], lambda q: None)
+    assert [m for m in fast.sent if isinstance(m, tuple) and m[0] == "FLUSH"][-1][1] == 1_000_000 + 2 * PERIOD_US

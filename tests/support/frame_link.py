@@ -45,6 +45,10 @@ class RecordingLink:
     def queue_frame(self, frame: ServoFrame, on_sent: Callable[[int], None] | None = None) -> None:
         self.sent.append(frame)
 
+    async def flush(self, from_us: int, mask: int) -> None:
+        """An awaited FLUSH (a cut's): recorded, ACKed at once."""
+        self.sent.append(("FLUSH", from_us, mask))
+
 
 @dataclass(frozen=True)
 class Ramp:
