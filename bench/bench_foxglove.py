@@ -25,6 +25,7 @@ import struct
 import tempfile
 import time
 from pathlib import Path
+from collections.abc import Callable
 from typing import Any
 
 import anyio
@@ -71,6 +72,19 @@ async def live_once(program: str, out: Path) -> dict[str, Any]:
             "max_gap_ms": 1000 * max(gaps), "recorded": len(recorded)}
 
 
+def _ranged(kind: Callable[[str], Any], lo: float, hi: float) -> Callable[[str], Any]:
+    """An argparse type: ``kind(text)`` within [lo, hi] (finite), else a one-line usage error."""
+    def parse(text: str) -> Any:
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a {kind.__name__}") from None
+        if not lo <= v <= hi:  # NaN fails this too
+            raise argparse.ArgumentTypeError(f"{text} is outside {lo:g}..{hi:g}")
+        return v
+    return parse
+
+
 def log_cost(robot: str, seconds: float, chunk_kib: int | None, zstd_level: int | None, out: Path) -> list[float]:
     """Per-call wall time (s) of RunLog's on_message / on_frame_sent over ``seconds`` of a synthetic run."""
     import numpy as np
@@ -111,10 +125,14 @@ def main() -> int:
     ap.add_argument("--robot", default=DEFAULT_ROBOT)
     ap.add_argument("--task", type=int, default=26)
     ap.add_argument("--n", type=int, default=3)
-    ap.add_argument("--log-cost", type=float, metavar="SECONDS", help="time the recorder's calls instead (board s)")
-    ap.add_argument("--chunk-kib", type=int, help="with --log-cost: MCAP chunk size (default: the recorder's)")
-    ap.add_argument("--zstd-level", type=int, help="with --log-cost: zstd level (0: zstd's default; default: the recorder's)")
+    ap.add_argument("--log-cost", type=_ranged(float, 0.1, 3600.0), metavar="SECONDS",
+                    help="time the recorder's calls instead (board s, 0.1-3600)")
+    ap.add_argument("--chunk-kib", type=_ranged(int, 1, 65536), help="with --log-cost: MCAP chunk size (default: the recorder's)")
+    ap.add_argument("--zstd-level", type=_ranged(int, 0, 22),
+                    help="with --log-cost: zstd level 0-22 (0: zstd's default; default: the recorder's)")
     args = ap.parse_args()
+    if args.log_cost is None and (args.chunk_kib is not None or args.zstd_level is not None):
+        ap.error("--chunk-kib and --zstd-level need --log-cost")
     if args.log_cost is not None:
         import host.run.mcap_log as mcap_log
 

@@ -15,7 +15,8 @@ Spec syntax (``--faults``), comma-separated, each key at most once::
     dup=P           deliver it twice
     reorder=P       hold it back until after the next unit (or ``REORDER_HOLD_S``)
     truncate=P      cut its data short at a random length (serial: delimiter lost too)
-    delay=MEAN[±J]  add MEAN ms (uniform ±J ms) latency; "+-" may replace "±"
+    delay=MEAN[±J]  add MEAN ms (uniform ±J ms) latency; "+-" may replace "±";
+                    MEAN + J <= MAX_DELAY_MS (250); jitter also reorders units
     cut=START+LEN   from START s after the first unit, for LEN s, nothing gets through
 
 Example: ``drop=0.01,corrupt=0.01,dup=0.005,reorder=0.005``. Each direction gets its own injector
@@ -37,10 +38,17 @@ from collections import Counter, deque
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
-__all__ = ["FaultInjector", "FaultSpec", "FaultSpecError", "GapDetector", "REORDER_HOLD_S", "seed_arg"]
+__all__ = ["MAX_DELAY_MS", "FaultInjector", "FaultSpec", "FaultSpecError", "GapDetector", "REORDER_HOLD_S", "seed_arg"]
 
 #: longest a reordered unit waits for a successor before it is released anyway (seconds)
 REORDER_HOLD_S = 0.05
+#: largest one-way delay (mean + jitter, ms) a spec may ask for: at 250 ms a realtime run still ends
+#: ``done`` (the board HOLDs while the host's connect-time TIME_SYNC exchanges, one round trip each,
+#: leave it without messages); at 900 ms the board latched a watchdog fault before the program began,
+#: at 1 000 ms the link never came up (n = 1 each, quiet)
+MAX_DELAY_MS = 250.0
+#: a value each key takes, for the "needs a value" error
+_EXAMPLES = {"delay": "delay=80±20 (ms)", "cut": "cut=3+1.5 (s)"}
 
 _PROB_KEYS = ("drop", "corrupt", "dup", "reorder", "truncate")
 _KEYS = (*_PROB_KEYS, "delay", "cut")
@@ -84,7 +92,7 @@ class FaultSpec:
             key, sep, val = item.partition("=")
             key, val = key.strip().lower(), val.strip()
             if not sep or not val:
-                raise FaultSpecError(f"fault {item!r} needs a value, e.g. {key or 'drop'}=0.01")
+                raise FaultSpecError(f"fault {item!r} needs a value, e.g. {_EXAMPLES.get(key, 'drop=0.01')}")
             if key not in _KEYS:
                 near = difflib.get_close_matches(key, _KEYS, n=1)
                 hint = f"; did you mean {near[0]}?" if near else ""
@@ -98,11 +106,17 @@ class FaultSpec:
                 values[key] = p
             elif key == "delay":
                 mean, jitter = _split_pm(val)
+                if jitter is not None and not jitter:
+                    raise FaultSpecError(f"delay={val}: a jitter after '±' is missing, e.g. delay=80±20")
                 values["delay_ms"], values["jitter_ms"] = _number("delay", mean), _number("delay jitter", jitter or "0")
                 if values["delay_ms"] < 0 or values["jitter_ms"] < 0:
                     raise FaultSpecError(f"delay={val}: mean and jitter must be >= 0 ms")
                 if values["jitter_ms"] > values["delay_ms"]:
                     raise FaultSpecError(f"delay={val}: jitter larger than the mean would make negative delays")
+                if values["delay_ms"] + values["jitter_ms"] > MAX_DELAY_MS:
+                    raise FaultSpecError(f"delay={val}: mean + jitter must be <= {MAX_DELAY_MS:g} ms (the link's "
+                                         "handshake, clock sync and the board's 200 ms watchdog expect round trips "
+                                         "well under a second)")
             else:
                 start, plus, length = val.partition("+")
                 if not plus:
@@ -138,12 +152,13 @@ def _number(what: str, text: str) -> float:
     return v
 
 
-def _split_pm(text: str) -> tuple[str, str]:
+def _split_pm(text: str) -> tuple[str, str | None]:
+    """``MEAN±JITTER`` -> (mean, jitter); (text, None) without a ``±`` / ``+-``."""
     for sep in ("±", "+-"):
         if sep in text:
             a, _, b = text.partition(sep)
             return a.strip(), b.strip()
-    return text, ""
+    return text, None
 
 
 def _data_of(unit: Any) -> bytes:

@@ -48,6 +48,12 @@ def test_parse_and_canonical_form() -> None:
     ("cut=3", "START\\+LENGTH"),
     ("cut=3+0", "LENGTH > 0"),
     ("drop=nan", "finite"),
+    # a delay the link cannot live with (1e9 ms was accepted and failed as "no CAPS within 3 s"), a
+    # dangling jitter (was silently none), and an example in the delay's own unit (was "delay=0.01")
+    ("delay=1e9", "<= 250 ms"),
+    ("delay=200±60", "<= 250 ms"),
+    ("delay=80±", "jitter after"),
+    ("delay=", r"e\.g\. delay=80±20 \(ms\)"),
 ])
 def test_parse_errors(text: str, match: str) -> None:
     with pytest.raises(FaultSpecError, match=match):
