@@ -80,8 +80,8 @@ SCENE_EVERY_S = 2.0
 #: target uncompressed chunk size; small, so chunks end often and a cut file loses little. A chunk is
 #: compressed inside the ``log()`` call that fills it, on the host's event loop: with 256 KiB at zstd's
 #: default level that call took 4-5 ms (a token chunk waiting behind it was that much later), with
-#: 64 KiB at level 1 (``ZSTD_LEVEL``) at most 0.56 ms, the file no larger (20 000 12-joint JointStates,
-#: foxglove-sdk 0.30.3: max 4.87 -> 0.56 ms per log(), 3.16 -> 3.14 MB; /tmp/mcapbench-style probe, quiet)
+#: 64 KiB at level 1 (``ZSTD_LEVEL``) at most 0.56 ms (20 000 12-joint JointStates through foxglove-sdk
+#: 0.30.3 alone, quiet). A run's mix makes a ~7 % larger file: ``bench/bench_foxglove.py --log-cost``
 CHUNK_BYTES = 64 * 1024
 #: zstd level of the chunks (1: the fastest; zstd's default is 3)
 ZSTD_LEVEL = 1
