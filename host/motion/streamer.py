@@ -400,8 +400,11 @@ class FrameStreamer:
             else:
                 margin = 2 * self.period_us if margin_us is None else margin_us
                 now = self.link.board_now_us()
-                # not before the FLUSH can reach the board (a link slower than the margin: delay= faults)
-                reach = now + self.link.latency_us(self._flush_bytes) + self.send_path_us()
+                # the frames re-sent from the cut go out after the FLUSH's ACK: not before the FLUSH, its
+                # ACK and then a frame can make the trip (the downlink taken as long as the uplink's
+                # p99; a link slower than the margin: delay= faults. On a pty this is ~1 ms: the margin)
+                up = self.link.latency_us(self._flush_bytes)
+                reach = now + 2 * up + self.link.latency_us(self._frame_bytes) + self.send_path_us()
                 cut_us = min(self._grid(max(now + margin, reach)), self.next_us)
             q_cut = self.mixer.sample_servo_targets(cut_us)
             for seg in segments:

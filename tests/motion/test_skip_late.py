@@ -120,17 +120,23 @@ def test_the_lead_stays_within_max_lead_however_slow_the_link_says_it_is() -> No
 
 
 def test_a_cut_on_a_slow_link_is_not_before_its_flush_can_arrive() -> None:
-    """A realtime cut stops the motion two periods from board now, unless the FLUSH cannot get there
-    by then (uplink 80 ms: a ``delay=80`` fault): then at the first grid time it can reach, so the
-    board does not NACK the re-sent frames LATE."""
+    """A realtime cut stops the motion two periods from board now, unless its re-sent frames cannot get
+    there by then (uplink 80 ms: a ``delay=80`` fault; they go out after the FLUSH's ACK, so a FLUSH,
+    its ACK and a frame must make the trip): then at the first grid time they can reach, so the
+    board does not NACK them LATE (a live run NACKed one 154 ms late when only the FLUSH was counted)."""
     link = RecordingLink(now_us=1_000_000, uplink_us=80_000)
     s = FrameStreamer(link, Mixer(np.zeros(4)))  # type: ignore[arg-type]
     seg = s.add(Ramp(), "ramp")
     anyio.run(s.top_up)
     anyio.run(s.cut, [seg], [0, 1], lambda q: None)
-    flushes = [m for m in link.sent if isinstance(m, tuple) and m[0] == "FLUSH"]
-    reach = link.now_us + link.uplink_us + SEND_PATH_DEFAULT_US
-    assert flushes and flushes[-1][1] >= reach and flushes[-1][1] % PERIOD_US == 0
+    i = next(k for k, m in enumerate(link.sent) if isinstance(m, tuple) and m[0] == "FLUSH")
+    cut_us = link.sent[i][1]
+    resent = [m.apply_at_us for m in link.sent[i + 1:] if isinstance(m, ServoFrame)]
+    reach = link.now_us + 3 * link.uplink_us + SEND_PATH_DEFAULT_US
+    # at the first unsent frame (nothing sent after it to replace) or where the re-sent frames can reach
+    assert cut_us % PERIOD_US == 0 and (cut_us == s.first_free_us or cut_us >= reach)
+    assert cut_us > link.now_us + 2 * PERIOD_US  # not the fast link's two periods
+    assert all(t >= reach for t in resent), resent  # none the board would NACK LATE
 
     fast = RecordingLink(now_us=1_000_000)  # a pty's 0.3 ms: the usual two periods
     s = FrameStreamer(fast, Mixer(np.zeros(4)))  # type: ignore[arg-type]
