@@ -31,6 +31,7 @@ from typing import Any
 import anyio
 import websockets
 
+from host.commands.inputs import positive_seconds
 from host.run.runner import RunOptions, run_program
 from host.run.session import RobotSession, SessionOptions
 from robots.registry import DEFAULT_ROBOT, load_robot
@@ -72,15 +73,15 @@ async def live_once(program: str, out: Path) -> dict[str, Any]:
             "max_gap_ms": 1000 * max(gaps), "recorded": len(recorded)}
 
 
-def _ranged(kind: Callable[[str], Any], lo: float, hi: float) -> Callable[[str], Any]:
-    """An argparse type: ``kind(text)`` within [lo, hi] (finite), else a one-line usage error."""
-    def parse(text: str) -> Any:
+def _int_in(lo: int, hi: int) -> Callable[[str], int]:
+    """An argparse type: a whole number within [lo, hi], else a one-line usage error."""
+    def parse(text: str) -> int:
         try:
-            v = kind(text)
+            v = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a {kind.__name__}") from None
-        if not lo <= v <= hi:  # NaN fails this too
-            raise argparse.ArgumentTypeError(f"{text} is outside {lo:g}..{hi:g}")
+            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"must be {lo}..{hi}, got {v}")
         return v
     return parse
 
@@ -102,7 +103,7 @@ def log_cost(robot: str, seconds: float, chunk_kib: int | None, zstd_level: int 
     run_log = mcap_log.RunLog.create(out, r)
     took: list[float] = []
     try:
-        for k in range(int(seconds * 100)):
+        for k in range(max(1, int(seconds * 100))):
             t_us = k * 10_000
             q = tuple(float(v) for v in rng.normal(0.0, 0.3, n))
             calls: list[tuple[Any, tuple[Any, ...]]] = [
@@ -125,10 +126,10 @@ def main() -> int:
     ap.add_argument("--robot", default=DEFAULT_ROBOT)
     ap.add_argument("--task", type=int, default=26)
     ap.add_argument("--n", type=int, default=3)
-    ap.add_argument("--log-cost", type=_ranged(float, 0.1, 3600.0), metavar="SECONDS",
-                    help="time the recorder's calls instead (board s, 0.1-3600)")
-    ap.add_argument("--chunk-kib", type=_ranged(int, 1, 65536), help="with --log-cost: MCAP chunk size (default: the recorder's)")
-    ap.add_argument("--zstd-level", type=_ranged(int, 0, 22),
+    ap.add_argument("--log-cost", type=positive_seconds, metavar="SECONDS",
+                    help="time the recorder's calls instead (board s)")
+    ap.add_argument("--chunk-kib", type=_int_in(1, 65536), help="with --log-cost: MCAP chunk size (default: the recorder's)")
+    ap.add_argument("--zstd-level", type=_int_in(0, 22),
                     help="with --log-cost: zstd level 0-22 (0: zstd's default; default: the recorder's)")
     args = ap.parse_args()
     if args.log_cost is None and (args.chunk_kib is not None or args.zstd_level is not None):
