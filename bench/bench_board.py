@@ -17,7 +17,7 @@
 ``--robot NAME`` (default: the default robot) picks whose board runs; the moving stream moves every
 servo of that robot (a 1 Hz sine of 0.2 rad around its neutral pose, clipped to the servo table's ranges).
 
-Run: ``.venv/bin/python bench/bench_board.py [--seconds 10] [--lockstep-only] [--robot NAME]``
+Run: ``.venv/bin/python bench/bench_board.py [--seconds 10] [--lockstep-only | --realtime-only] [--robot NAME]``
 (``GHOSTSHELL_BOARD_KERNEL=python`` for the reference path; ``--profile FILE`` writes the pty board
 process's cProfile stats, timed by CPU time).
 """
@@ -203,13 +203,18 @@ def main() -> None:
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=10.0)
-    ap.add_argument("--lockstep-only", action="store_true", help="skip the realtime pacing and round-trip parts")
+    parts = ap.add_mutually_exclusive_group()
+    parts.add_argument("--lockstep-only", action="store_true", help="skip the realtime pacing and round-trip parts")
+    parts.add_argument("--realtime-only", action="store_true", help="only the realtime pacing and round-trip parts")
     ap.add_argument("--profile", metavar="FILE", help="cProfile stats of the pty lockstep board process")
     ap.add_argument("--robot", default=DEFAULT_ROBOT, help=f"whose board runs (default {DEFAULT_ROBOT})")
     args = ap.parse_args()
-    bench_lockstep(args.robot)
-    bench_lockstep_pty(args.robot, profile=args.profile)
-    bench_kernels_ab(args.robot)
+    if args.realtime_only and args.profile:
+        ap.error("--profile profiles the lockstep pty board: not with --realtime-only")
+    if not args.realtime_only:
+        bench_lockstep(args.robot)
+        bench_lockstep_pty(args.robot, profile=args.profile)
+        bench_kernels_ab(args.robot)
     if not args.lockstep_only:
         bench_realtime(args.robot, args.seconds)
 

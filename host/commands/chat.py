@@ -155,7 +155,7 @@ async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any,
                           event_policy=getattr(args, "event_policy", None),
                           events=getattr(args, "scripted_events", ()),
                           pushes=tuple(_push_text(p) for p in args.push), max_board_s=args.max_board_s,
-                          max_log_mb=args.max_log_mb)
+                          max_log_mb=args.max_log_mb, plots=not args.no_plots)
     session = RobotSession(opts)
     chat = _Chat(session)
     signals = StopSignals(chat.on_first_stop)

@@ -84,6 +84,7 @@ class RunOptions:
     fault_seed: int = 0
     firmware: str = "python"  # the emulated board's firmware: python, c or qemu (SessionOptions.firmware)
     mcap: bool = True  # record the run to <out>/run.mcap
+    plots: bool = True  # draw timeline.png and joints.png (SessionOptions.plots); --no-plots
     foxglove: int | None = None  # serve the live view on this localhost port; None: off
     mcp_mounts: tuple[Any, ...] = ()  # MCP servers mounted as shell modules (host.mounts.MountSpec)
     mount_options: Any = None  # host.mounts.MountOptions (None: its defaults)

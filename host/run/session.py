@@ -124,6 +124,9 @@ class SessionOptions:
     #: firmware on an emulated Cortex-M3); python -m firmware_sim --firmware
     firmware: str = "python"
     mcap: bool = True  # record the session to <out>/run.mcap (host.run.mcap_log)
+    #: draw timeline.png and joints.png with each turn's artefacts (matplotlib, ~0.3 s of CPU per turn in
+    #: a worker thread); False: the JSON files only, and matplotlib is never imported
+    plots: bool = True
     foxglove: int | None = None  # serve the live view on this localhost port (host.run.foxglove_live); None: off
     #: MCP servers mounted as shell modules (``--mount-mcp NAME=COMMAND|URL``, :mod:`host.mounts`)
     mcp_mounts: tuple[Any, ...] = ()
@@ -309,7 +312,8 @@ class RobotSession:
             # one-time planning costs now, not on the first call's token -> servo path; before the link is
             # up, because it holds the event loop and a board whose link is up expects heartbeats
             warm_up_behaviours(self.robot)
-            artefacts.warm_up_plotting()  # the turn's plots run in a thread while the link is live
+            if opts.plots:
+                artefacts.warm_up_plotting()  # the turn's plots run in a thread while the link is live
             identity = RobotIdentity(self.robot.name, self.robot.servo_count, self.robot.servo_table_hash)
             try:
                 client = await BoardClient.connect(target, baud=opts.baud, log_path=self.out / f"host_frames{log_suffix}",
@@ -803,11 +807,14 @@ class RobotSession:
                    "captures": [p.name for p in captures], "scene": self.scene_report(),
                    **({"faults": {"host_detected": host_detected}} if opts.faults else {})})
 
-    def writer(self, turn: TurnResult, label: str, *, plots: bool = True) -> Callable[[], None]:
+    def writer(self, turn: TurnResult, label: str, *, plots: bool | None = None) -> Callable[[], None]:
         """Snapshot what the turn's artefacts need (on the loop) and return the writer (thread-safe).
 
-        The writer writes timeline.json and summary.json first, then (``plots``) timeline.png and
-        joints.png, so a process stopped while plotting still leaves both JSON files."""
+        The writer writes timeline.json and summary.json first, then (``plots``; None: the session's
+        :attr:`SessionOptions.plots`) timeline.png and joints.png, so a process stopped while plotting
+        still leaves both JSON files."""
+        if plots is None:
+            plots = self.opts.plots
         rec, runtime = self.rec, self._runtime
         times = np.asarray(rec.t)
         q = np.asarray(rec.q)
@@ -835,7 +842,7 @@ class RobotSession:
 
         return write
 
-    def write_now(self, turn: TurnResult, label: str | None = None, *, plots: bool = True) -> None:
+    def write_now(self, turn: TurnResult, label: str | None = None, *, plots: bool | None = None) -> None:
         """Write a turn's artefacts in this thread (e.g. after the session ended; ``plots=False``: the
         JSON files only, for a process that must exit at once)."""
         self.writer(turn, label or turn.summary.task, plots=plots)()

@@ -139,13 +139,21 @@ def mask_of(servos: Any) -> int:
 
 
 def run_e2e(program: str, out: Path, **options: Any) -> E2ERun:
-    """Run ``program`` end to end (lockstep unless told otherwise) and write the artefacts to ``out``."""
+    """Run ``program`` end to end (lockstep unless told otherwise) and write the artefacts to ``out``.
+
+    No plots unless asked (``plots=True``): the JSON artefacts and frame logs are what the checks read,
+    and drawing timeline.png and joints.png costs ~0.25 s of CPU per run (the suite makes ~200 runs;
+    tests/e2e/test_artefacts.py checks the plots of :data:`PLOTTED_TASKS`)."""
     options.setdefault("lockstep", True)
+    options.setdefault("plots", False)
     opts = RunOptions(program=program, out=out, **options)
     return E2ERun(anyio.run(run_program, opts, backend="asyncio"))
 
 
 _TASK_RUNS: dict[tuple[int, str], E2ERun] = {}
+
+#: the ground-truth runs that also draw timeline.png and joints.png (tests/e2e/test_artefacts.py reads them)
+PLOTTED_TASKS = frozenset({26})
 
 #: the boards a task runs on: the Python emulator and the C firmware (native, over the same pty);
 #: ``qemu`` (the C firmware on an emulated Cortex-M3) runs a few tasks in tests/cfirmware
@@ -160,6 +168,7 @@ def task_run(tmp_path_factory: pytest.TempPathFactory):
         key = (tid, firmware)
         if key not in _TASK_RUNS:
             out = tmp_path_factory.mktemp(f"task{tid}-{firmware}")
-            _TASK_RUNS[key] = run_e2e(TASKS[tid].ground_truth, out, task_label=f"task {tid}", firmware=firmware)
+            _TASK_RUNS[key] = run_e2e(TASKS[tid].ground_truth, out, task_label=f"task {tid}", firmware=firmware,
+                                      plots=tid in PLOTTED_TASKS)
         return _TASK_RUNS[key]
     return get

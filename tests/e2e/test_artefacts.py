@@ -14,7 +14,7 @@ SUMMARY_KEYS = {"task", "outcome", "fell", "base_start", "base_end", "max_tilt_d
 
 
 def test_artefacts_well_formed(task_run) -> None:
-    run: E2ERun = task_run(26)  # music, ears, head and body: most channels in one run
+    run: E2ERun = task_run(26)  # music, ears, head and body: most channels in one run (one of PLOTTED_TASKS)
     out = run.out
     doc = json.loads((out / "timeline.json").read_text(encoding="utf-8"))
     assert doc["clock"] == "board"

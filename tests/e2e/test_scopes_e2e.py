@@ -68,7 +68,7 @@ def check_stopped_at_the_cut(run: E2ERun, channel: str, after: float) -> float:
 
 def test_wait_until_any_ends_with_the_ear_flap_and_stops_the_nod(tmp_path) -> None:
     run = run_e2e('<wait until="any"><head_act action="nod" duration="3"/><shake_ear duration="0.5"/></wait>',
-                  tmp_path, buffer_response=True)
+                  tmp_path, buffer_response=True, plots=True)
     scope, nod, ear = run.one("wait"), run.one("head_act"), run.one("shake_ear")
     assert (scope.outcome, scope.ended_by, scope.args) == ("done", "wait[0]/shake_ear[0]", {"until": "any"}), run.table()
     assert ear.outcome == "done" and nod.outcome == "cancelled", run.table()
