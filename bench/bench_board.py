@@ -40,6 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from firmware_sim.board import Board  # noqa: E402
+from host.commands.inputs import positive_seconds  # noqa: E402
 from firmware_sim.config import BoardConfig  # noqa: E402
 from protocol.codec import SCHEMA_HASH  # noqa: E402
 from protocol.framing import Frame, FrameDecoder, encode_frame  # noqa: E402
@@ -192,7 +193,7 @@ def bench_realtime(robot: str, seconds: float) -> None:
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=10)
     summary = [line for line in err.splitlines() if "lateness" in line]
-    print(f"realtime 500 Hz ({robot}) for {seconds:.0f} s: {summary[-1] if summary else err}")
+    print(f"realtime 500 Hz ({robot}) for {seconds:g} s: {summary[-1] if summary else err}")
     print(f"  telemetry received: {tel} ({tel / seconds:.1f}/s)")
     r = np.array(rtts) * 1e3
     print(f"  TIME_SYNC round trip over pty: p50 {np.percentile(r, 50):.2f} ms, p99 {np.percentile(r, 99):.2f} ms, max {r.max():.2f} ms")
@@ -202,7 +203,8 @@ def main() -> None:
     from robots.registry import DEFAULT_ROBOT
 
     ap = argparse.ArgumentParser()
-    ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--seconds", type=positive_seconds, default=10.0,
+                    help="wall-clock seconds of the realtime pacing part (default 10)")
     parts = ap.add_mutually_exclusive_group()
     parts.add_argument("--lockstep-only", action="store_true", help="skip the realtime pacing and round-trip parts")
     parts.add_argument("--realtime-only", action="store_true", help="only the realtime pacing and round-trip parts")

@@ -63,12 +63,12 @@ More calls, load and priority (issue 17):
     python bench/bench_latency.py --load                # a busy-loop subprocess per core meanwhile (said in the output)
     python bench/bench_latency.py --nice 0              # leave host and board at their priority
 
-Every percentile is printed with its n; the header gives the 1-minute load average at the start and,
-for a realtime run, the machine floor (``--floor N``, :mod:`_machine`): how late N 2-ms sleeps of this
-process wake at its priority. The end gives the CPU steal of the runs (``/proc/stat``): on a virtual
-machine the hypervisor's other guests take the CPUs now and then, which no priority inside the guest
-wins back. On the development VM the floor's p99 was 0.2 ms in one quiet hour and 0.9-2.3 ms in another
-(a C loop, also quiet), which is most of the spread of the token -> servo p99 between runs there.
+Every percentile is printed with its n; the header gives the 1-minute load average at the start.
+A realtime run also prints the machine floor before and after its runs (``--floor N``, :mod:`_machine`):
+how late N 2-ms sleeps of this process wake at its priority, the kind of wait the board's loop does
+between ticks; and the CPU steal of its runs (``/proc/stat``): on a virtual machine the hypervisor's
+other guests take the CPUs now and then, which no priority inside the guest wins back. Both could
+account for some of the spread of the token -> servo p99 from run to run; that was not measured.
 ``--load`` starts ``os.cpu_count()`` ``while True: pass`` subprocesses before anything else (so they
 keep nice 0) and kills them at the end, also on Ctrl-C or an error.
 
@@ -99,7 +99,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from _machine import cpu_steal_s, wakeup_lateness_ms
+from _machine import MAX_FLOOR_N, MIN_FLOOR_N, cpu_steal_s, floor_line, floor_stats, steal_line, wakeup_lateness_ms
 from _tasks_common import fmt, home_channels, out_root, parse_ids, run_task, stats_ms, task_arguments, task_programs
 from host.link import HandshakeError, LinkConfigError, LinkError
 from host.run.runner import RunReport
@@ -324,6 +324,10 @@ def cpu_load(n: int) -> Iterator[list[subprocess.Popen[bytes]]]:
             p.wait()
 
 
+#: 2-ms sleeps per floor measurement (``--floor``)
+DEFAULT_FLOOR_N = 2000
+
+
 def load_1min() -> float:
     """The 1-minute load average (``os.getloadavg``)."""
     return os.getloadavg()[0]
@@ -342,17 +346,23 @@ def main(argv: list[str] | None = None) -> int:
                     help="run a CPU hog (a busy-loop subprocess) on every core (os.cpu_count()) meanwhile")
     ap.add_argument("--nice", type=int, default=-10, metavar="N",
                     help="nice increment for this host process and its board (default -10; 0: leave as is)")
-    ap.add_argument("--floor", type=int, default=2000, metavar="N",
-                    help="before a realtime run, time N 2-ms sleeps at this priority: the machine's wake-up "
-                         "lateness (default 2000, ~4 s; 0: skip)")
+    ap.add_argument("--floor", type=int, default=None, metavar="N",
+                    help="before and after a realtime run, time N 2-ms sleeps at this priority: the machine's "
+                         f"wake-up lateness (default {DEFAULT_FLOOR_N}, ~4 s each; 0: skip; {MIN_FLOOR_N}-{MAX_FLOOR_N})")
     args = ap.parse_args(argv)
     if args.repeat < 1:
         ap.error("--repeat: expected K >= 1")
-    if args.floor < 0:
-        ap.error("--floor: expected N >= 0")
-    with cpu_load((os.cpu_count() or 1) if args.load else 0) as hogs:  # the hogs keep nice 0
-        print(raise_host_priority(args.nice), flush=True)
-        return _run(args, len(hogs))
+    if args.floor is not None and args.lockstep:
+        ap.error("--floor: a lockstep board does not wait on the wall clock; give --floor only for a realtime run")
+    if args.floor is not None and args.floor != 0 and not MIN_FLOOR_N <= args.floor <= MAX_FLOOR_N:
+        ap.error(f"--floor: expected 0 (skip) or {MIN_FLOOR_N} <= N <= {MAX_FLOOR_N}, got {args.floor}")
+    try:
+        with cpu_load((os.cpu_count() or 1) if args.load else 0) as hogs:  # the hogs keep nice 0
+            print(raise_host_priority(args.nice), flush=True)
+            return _run(args, len(hogs))
+    except KeyboardInterrupt:  # the hogs are gone (cpu_load), a run's board stopped with its session
+        print("bench_latency: interrupted; no summary (the runs so far are in their folders)", file=sys.stderr)
+        return 130
 
 
 def raise_host_priority(inc: int) -> str:
@@ -392,10 +402,11 @@ def _run(args: Any, hogs: int) -> int:
     print(f"token -> servo latency, {mode} board over {args.link}, {args.tokens_per_s:g} tokens/s, "
           f"{len(programs)} task(s) x {args.repeat}; {load}; 1-min load average at start "
           f"{load_1min():.2f} on {os.cpu_count()} cores; artefacts in {root}", flush=True)
-    floor = None
-    if args.floor and not args.lockstep:  # a lockstep board does not wait on the wall clock
-        floor = stats_ms(list(wakeup_lateness_ms(args.floor)))
-        print(_line("machine floor: a 2 ms sleep wakes late by", floor), flush=True)
+    floor_n = 0 if args.lockstep else (DEFAULT_FLOOR_N if args.floor is None else args.floor)
+    floors: dict[str, Any] = {}
+    if floor_n:
+        floors["start"] = floor_stats(wakeup_lateness_ms(floor_n))
+        print(floor_line("start", floors["start"]), flush=True)
     steal0, wall0 = cpu_steal_s(), time.monotonic()
     print(f"{'task':>4} {'calls':>5} {'queued':>6}  {'motion imm. n':>13} {'p50':>7} {'max':>7}  "
           f"{'periph imm. n':>13} {'p50':>7} {'max':>7}  {'ready max':>9}  {'wall s':>6}  outcome", flush=True)
@@ -427,8 +438,10 @@ def _run(args: Any, hogs: int) -> int:
               f"{rep.summary.outcome}{' FELL' if rep.summary.fell else ''}", flush=True)
 
     summary = _summary(rows)
-    steal1 = cpu_steal_s()
+    steal1, wall = cpu_steal_s(), time.monotonic() - wall0
     steal = None if steal0 is None or steal1 is None else round(steal1 - steal0, 2)
+    if floor_n:
+        floors["end"] = floor_stats(wakeup_lateness_ms(floor_n))
     print()
     print(_line("motion, immediate: token -> servo", summary["motion_immediate_token_ms"]))
     print(_line("motion, queued: token -> servo", summary["motion_queued_token_ms"]))
@@ -442,9 +455,10 @@ def _run(args: Any, hogs: int) -> int:
           f"of n={immediate} (counted from the first tick after arrival)"
           + ("" if unchecked == 0 else f"; not checked in {unchecked} run(s) without a board_frames.jsonl (a CAN link)"))
     print(f"max |scheduler dispatch - chunk arrival| = {summary['max_abs_dispatch_skew_ms']} ms (consistency check)")
+    if "end" in floors:
+        print(floor_line("end", floors["end"]))
     if steal is not None:
-        print(f"CPU steal during the runs: {steal:.2f} s over {time.monotonic() - wall0:.0f} s of wall time "
-              "(/proc/stat: the hypervisor ran something else while this machine's CPUs wanted to run)")
+        print(steal_line(steal, wall, os.cpu_count() or 1))
     for n in notes:
         print("note:", n)
     for f in failed:
@@ -452,7 +466,9 @@ def _run(args: Any, hogs: int) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps({"mode": mode, "link": args.link, "tokens_per_s": args.tokens_per_s,
                                                "repeat": args.repeat, "load_processes": hogs,
-                                               "machine_floor_wakeup_late_ms": floor, "cpu_steal_s": steal,
+                                               "machine_floor_wakeup_late_ms": floors or None,
+                                               "cpu_steal_cpu_s": steal, "wall_s": round(wall, 1),
+                                               "cpu_count": os.cpu_count(),
                                                "summary": summary, "notes": notes, "failed": failed,
                                                "calls": [asdict(c) for c in rows]}, indent=1), encoding="utf-8")
         print(f"wrote {args.json}")

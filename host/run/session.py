@@ -124,8 +124,9 @@ class SessionOptions:
     #: firmware on an emulated Cortex-M3); python -m firmware_sim --firmware
     firmware: str = "python"
     mcap: bool = True  # record the session to <out>/run.mcap (host.run.mcap_log)
-    #: draw timeline.png and joints.png with each turn's artefacts (matplotlib, ~0.3 s of CPU per turn in
-    #: a worker thread); False: the JSON files only, and matplotlib is never imported
+    #: draw timeline.png and joints.png with each turn's artefacts (matplotlib, ~0.25 s of CPU per turn in
+    #: a worker thread, and its import and warm-up once per process); False: neither plot is drawn and
+    #: matplotlib is never imported (the other artefacts are written as before)
     plots: bool = True
     foxglove: int | None = None  # serve the live view on this localhost port (host.run.foxglove_live); None: off
     #: MCP servers mounted as shell modules (``--mount-mcp NAME=COMMAND|URL``, :mod:`host.mounts`)
@@ -812,18 +813,14 @@ class RobotSession:
 
         The writer writes timeline.json and summary.json first, then (``plots``; None: the session's
         :attr:`SessionOptions.plots`) timeline.png and joints.png, so a process stopped while plotting
-        still leaves both JSON files."""
+        still leaves both JSON files. ``plots=True`` on a session made without plots draws without the
+        warm-up of :meth:`__aenter__` (no caller does: its first plot holds the GIL for a while). Without
+        plots the joint history is not copied either (the whole run's samples, on the loop)."""
         if plots is None:
             plots = self.opts.plots
-        rec, runtime = self.rec, self._runtime
-        times = np.asarray(rec.t)
-        q = np.asarray(rec.q)
-        keep = times >= turn.board_t0 - 1e-9
-        history = list(runtime.streamer.history) if runtime is not None else []
-        sent = [(t, q_) for t, q_ in history if t * 1e-6 >= turn.board_t0 - 1e-9]
-        names = self.robot.servos.names
         out, calls, summary, t0 = turn.out, list(turn.calls), turn.summary, turn.board_t0
         board_stderr = self.out / "board.stderr"
+        plot = self._plotter(turn, label) if plots else None
 
         def write() -> None:
             out.mkdir(parents=True, exist_ok=True)
@@ -832,19 +829,35 @@ class RobotSession:
                 faults["board"] = board_fault_report(board_stderr)
             artefacts.write_timeline_json(out / "timeline.json", calls, t0=t0)
             artefacts.write_summary_json(out / "summary.json", summary)
-            if not plots:
-                return
+            if plot is not None:
+                plot()
+
+        return write
+
+    def _plotter(self, turn: TurnResult, label: str) -> Callable[[], None]:
+        """Snapshot the joint history a turn's plots need (on the loop); the returned call draws
+        timeline.png and joints.png into ``turn.out`` (thread-safe)."""
+        rec, runtime = self.rec, self._runtime
+        times = np.asarray(rec.t)
+        q = np.asarray(rec.q)
+        keep = times >= turn.board_t0 - 1e-9
+        history = list(runtime.streamer.history) if runtime is not None else []
+        sent = [(t, q_) for t, q_ in history if t * 1e-6 >= turn.board_t0 - 1e-9]
+        names = self.robot.servos.names
+        out, calls = turn.out, list(turn.calls)
+
+        def plot() -> None:
             artefacts.plot_timeline(out / "timeline.png", calls, title=f"{label}: calls on the board clock")
             if len(times) and keep.any():
                 targets = (np.asarray([t for t, _ in sent]) * 1e-6, np.asarray([q_ for _, q_ in sent])) if sent else None
                 artefacts.plot_joints(out / "joints.png", times[keep], q[keep], names, targets,
                                       groups=artefacts.joint_groups(self.robot))
 
-        return write
+        return plot
 
     def write_now(self, turn: TurnResult, label: str | None = None, *, plots: bool | None = None) -> None:
-        """Write a turn's artefacts in this thread (e.g. after the session ended; ``plots=False``: the
-        JSON files only, for a process that must exit at once)."""
+        """Write a turn's artefacts in this thread (e.g. after the session ended; ``plots=False``: no
+        timeline.png / joints.png, for a process that must exit at once; None: the session's setting)."""
         self.writer(turn, label or turn.summary.task, plots=plots)()
 
     async def write(self, turn: TurnResult, label: str | None = None) -> None:
