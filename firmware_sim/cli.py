@@ -319,9 +319,9 @@ def _main(argv: Sequence[str] | None = None) -> int:
               f"telemetry {cfg.telemetry_rate_hz} Hz"
               + (f", {args.baud} baud" if args.baud else ""), file=sys.stderr, flush=True)
         if not cfg.lockstep:  # a realtime board's ticks must not wait for other work (firmware_sim.priority)
-            from firmware_sim.priority import raise_priority
+            from firmware_sim.priority import raise_priority, tighten_timer_slack
 
-            print(f"board: {raise_priority()}", file=sys.stderr, flush=True)
+            print(f"board: {raise_priority()}; {tighten_timer_slack()}", file=sys.stderr, flush=True)
         if args.baud:
             from protocol.framing import frame_size
 
