@@ -40,8 +40,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from firmware_sim.board import Board  # noqa: E402
-from host.commands.inputs import positive_seconds  # noqa: E402
 from firmware_sim.config import BoardConfig  # noqa: E402
+from host.commands.inputs import positive_seconds  # noqa: E402
 from protocol.codec import SCHEMA_HASH  # noqa: E402
 from protocol.framing import Frame, FrameDecoder, encode_frame  # noqa: E402
 from protocol.messages import PROTOCOL_VERSION, Heartbeat, Hello, Telemetry, TimeSyncReply, TimeSyncRequest  # noqa: E402

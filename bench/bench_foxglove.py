@@ -25,13 +25,12 @@ import struct
 import tempfile
 import time
 from pathlib import Path
-from collections.abc import Callable
 from typing import Any
 
 import anyio
 import websockets
 
-from host.commands.inputs import positive_seconds
+from host.commands.inputs import positive_seconds, whole_number
 from host.run.runner import RunOptions, run_program
 from host.run.session import RobotSession, SessionOptions
 from robots.registry import DEFAULT_ROBOT, load_robot
@@ -71,19 +70,6 @@ async def live_once(program: str, out: Path) -> dict[str, Any]:
                 if got[0][1] <= m.log_time_ns <= got[-1][1]]
     return {"messages": len(got), "board_hz": (len(got) - 1) / board, "wall_hz": (len(got) - 1) / wall,
             "max_gap_ms": 1000 * max(gaps), "recorded": len(recorded)}
-
-
-def _int_in(lo: int, hi: int) -> Callable[[str], int]:
-    """An argparse type: a whole number within [lo, hi], else a one-line usage error."""
-    def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-        if not lo <= v <= hi:
-            raise argparse.ArgumentTypeError(f"must be {lo}..{hi}, got {v}")
-        return v
-    return parse
 
 
 def log_cost(robot: str, seconds: float, chunk_kib: int | None, zstd_level: int | None, out: Path) -> list[float]:
@@ -128,8 +114,8 @@ def main() -> int:
     ap.add_argument("--n", type=int, default=3)
     ap.add_argument("--log-cost", type=positive_seconds, metavar="SECONDS",
                     help="time the recorder's calls instead (board s)")
-    ap.add_argument("--chunk-kib", type=_int_in(1, 65536), help="with --log-cost: MCAP chunk size (default: the recorder's)")
-    ap.add_argument("--zstd-level", type=_int_in(0, 22),
+    ap.add_argument("--chunk-kib", type=whole_number(1, 65536), help="with --log-cost: MCAP chunk size (default: the recorder's)")
+    ap.add_argument("--zstd-level", type=whole_number(0, 22),
                     help="with --log-cost: zstd level 0-22 (0: zstd's default; default: the recorder's)")
     args = ap.parse_args()
     if args.log_cost is None and (args.chunk_kib is not None or args.zstd_level is not None):

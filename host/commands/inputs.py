@@ -11,9 +11,11 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
-__all__ = ["STDIN", "InputError", "baud_rate", "port_number", "positive_seconds", "read_text_input", "seconds"]
+__all__ = ["STDIN", "InputError", "baud_rate", "port_number", "positive_seconds", "read_text_input", "seconds",
+           "whole_number"]
 
 
 #: the file name that means standard input (``run --xml-file -``)
@@ -86,6 +88,20 @@ def positive_seconds(text: str) -> float:
     if v <= 0:
         raise argparse.ArgumentTypeError(f"must be > 0 seconds, got {text}")
     return v
+
+
+def whole_number(lo: int, hi: int | None = None) -> Callable[[str], int]:
+    """argparse ``type=`` for a whole number ``>= lo`` (and ``<= hi`` if given), e.g. ``--workers``."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+        if v < lo or hi is not None and v > hi:
+            raise argparse.ArgumentTypeError(f"must be >= {lo}, got {text}" if hi is None else
+                                             f"must be {lo}..{hi}, got {v}")
+        return v
+    return parse
 
 
 def baud_rate(text: str) -> int:

@@ -9,6 +9,7 @@ import argparse
 from pathlib import Path
 
 from host.commands.errors import print_error
+from host.commands.inputs import whole_number
 from robots.registry import robots_dir_arg
 
 
@@ -16,20 +17,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run_dir", metavar="RUN_DIR", help="a run's artefact folder (ghostshell run/demo --out)")
     parser.add_argument("--out", default=None, metavar="FILE", help="video file (default RUN_DIR/run.mp4)")
     parser.add_argument("--fps", type=int, default=25, choices=range(10, 61), metavar="FPS", help="frames per second (default 25)")
-    parser.add_argument("--workers", type=_positive_int, default=2, help="render processes (default 2: both cores)")
+    parser.add_argument("--workers", type=whole_number(1), default=2, help="render processes (default 2: both cores)")
     parser.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg,
                         help="search this folder first for the robot the run drove (its summary.json names it)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar (shown only on a terminal anyway)")
-
-
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {text}")
-    return v
 
 
 def main(args: argparse.Namespace) -> int:
