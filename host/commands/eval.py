@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from host.commands.errors import print_error
-from host.commands.outarg import out_dir, out_dir_problem
+from host.commands.outarg import add_no_plots_argument, out_dir, out_dir_problem
 from host.commands.robotarg import add_robot_argument, robot_from_args
 
 
@@ -47,6 +47,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="native tool calls of one response: dispatched together after the speech (parallel "
                         "tool calls; one module's calls queue in order) or each to completion in turn")
     parser.add_argument("--no-run", action="store_true", help="score only; do not execute replies on the board")
+    add_no_plots_argument(parser, "executed reply")
     parser.add_argument("--vocabulary", default=None, metavar="NAME",
                         help="the robot's vocabulary in the prompt (default: the robot's; ghostshell robots show NAME lists them)")
     parser.add_argument("--mode", choices=("async-first", "sync-first"), default="async-first")
@@ -154,7 +155,7 @@ def build_config(args: argparse.Namespace) -> Any:
                        base_url=args.base_url, api_key=args.api_key, workers=args.workers, out=out,
                        vocabulary=args.vocabulary, mode=args.mode, prompt_format=args.format,
                        execute=not args.no_run, temperature=args.temperature, native_exec=args.native_exec,
-                       replies=replies, mcp_mounts=tuple(args.mount_mcp))
+                       replies=replies, mcp_mounts=tuple(args.mount_mcp), plots=not args.no_plots)
 
 
 def main(args: argparse.Namespace) -> int:

@@ -14,7 +14,7 @@ from pathlib import Path
 from host.commands.errors import print_error
 from host.commands.inputs import port_number
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, preflight_link, unreachable_link
-from host.commands.outarg import out_dir, out_dir_problem, tcp_port_taken
+from host.commands.outarg import add_no_plots_argument, out_dir, out_dir_problem, tcp_port_taken
 from host.commands.robotarg import add_robot_argument, robot_from_args
 
 
@@ -39,6 +39,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--emulate-board", action="store_true",
                         help="start the emulated board on --link first (implied for pty and can:slcan:pty)")
     parser.add_argument("--out", type=out_dir, default=Path("runs/mcp"), help="session folder (frame logs, turns)")
+    add_no_plots_argument(parser, "turn")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -82,7 +83,7 @@ def main(args: argparse.Namespace) -> int:
     opts = SessionOptions(robot=str(robot.root), robots_dir=args.robots_dir, vocabulary=args.vocabulary,
                           mode=args.mode, lockstep=args.lockstep, link=args.link,
                           emulate_board=args.emulate_board or None, out=args.out, label="mcp", scene=args.scene,
-                          mcp_mounts=tuple(args.mount_mcp))
+                          mcp_mounts=tuple(args.mount_mcp), plots=not args.no_plots)
     try:
         stop = serve(opts, args.http)
     except (LinkError, RuntimeError, OSError) as e:

@@ -22,7 +22,7 @@ from pathlib import Path
 from host.commands.errors import command_of, print_error
 from host.commands.inputs import STDIN, InputError, read_text_input
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, preflight_link, unreachable_link
-from host.commands.outarg import out_dir, out_dir_problem, tcp_port_taken
+from host.commands.outarg import add_no_plots_argument, out_dir, out_dir_problem, tcp_port_taken
 from host.commands.robotarg import add_robot_argument, robot_from_args
 from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB
 from robots.description import Robot
@@ -75,9 +75,7 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--baud", type=_baud, default=115200, help="baud rate for a real serial port")
     parser.add_argument("--out", type=out_dir, default=None, metavar="DIR", help="artefact folder (default runs/<label>)")
     parser.add_argument("--no-live", action="store_true", help="no live channel view")
-    parser.add_argument("--no-plots", action="store_true",
-                        help="draw no timeline.png / joints.png (the other artefacts are written; saves "
-                             "~0.25 s of CPU per run and matplotlib's import)")
+    add_no_plots_argument(parser)
     parser.add_argument("--scene", default=None, metavar="NAME",
                         help="objects in the board's world: one of the robot's scenes (default: the robot's); "
                              "summary.json reports how many toppled")

@@ -80,6 +80,7 @@ class SweepConfig:
     native_exec: str = "parallel"  # how one response's tool calls run (host.eval.native.NATIVE_EXEC)
     replies: dict[int, str] | None = None  # llm SCRIPTED: the reply to each task
     mcp_mounts: tuple[Any, ...] = ()  # MCP servers mounted as modules in the prompt and every run (host.mounts)
+    plots: bool = True  # each executed reply's run draws timeline.png and joints.png (--no-plots: not)
 
     def identity(self) -> dict[str, Any]:
         """What must match for a resumed sweep to continue this one."""
@@ -218,7 +219,8 @@ async def execute(cfg: SweepConfig, program: str, out: Path, label: str) -> dict
 
     opts = RunOptions(program=program, llm="scripted", task_label=label, robot=str(cfg.bot.root),
                       robots_dir=cfg.robots_dir, vocabulary=cfg.vocabulary, mcp_mounts=cfg.mcp_mounts,
-                      mode=cfg.mode, strict=True, lockstep=True, out=out, tokens_per_s=cfg.tokens_per_s)
+                      mode=cfg.mode, strict=True, lockstep=True, out=out, tokens_per_s=cfg.tokens_per_s,
+                      plots=cfg.plots)
     try:
         report = await run_program(opts)
     except Exception as err:  # a board or link failure is this job's result, not the sweep's end

@@ -30,11 +30,15 @@ def _report(out: Path) -> dict:
 
 def test_ground_truth_scores_one(tmp_path: Path) -> None:
     out = tmp_path / "gt"
-    r = _eval("--llm", "ground-truth", "--tasks", "1,9,26", "--trials", "1", "--workers", "2", "--out", str(out))
+    r = _eval("--llm", "ground-truth", "--tasks", "1,9,26", "--trials", "1", "--workers", "2", "--out", str(out),
+              "--no-plots")
     assert r.returncode == 0, r.stderr[-3000:]
     s = _report(out)["summary"]
     assert s["micro"] == 1.0 and s["macro"] == 1.0, s
     assert s["ran_clean"] == s["runs"] == 3, s
+    runs = sorted((out / "runs").iterdir())
+    assert len(runs) == 3 and all((r / "summary.json").is_file() for r in runs), runs
+    assert not list((out / "runs").glob("*/*.png")), "--no-plots: the runs draw no plots"
     assert "micro 1.00 ± 0.00, macro 1.00 ± 0.00; ran clean 3/3" in r.stdout, r.stdout
 
 
@@ -57,6 +61,7 @@ def test_scripted_replies_are_scored_and_run(headed: bool, tmp_path: Path) -> No
     assert by_task[1]["dsbc"] == 1.0 and by_task[1]["reply"] == right
     assert by_task[2]["dsbc"] < 1.0 and by_task[2]["reply"] == wrong
     assert all(rec["run"]["outcome"] == "done" for rec in doc["records"])  # both ran on the board
+    assert len(list((out / "runs").glob("*/joints.png"))) == 2  # each run draws its plots by default
     assert doc["summary"]["micro"] == pytest.approx((1.0 + by_task[2]["dsbc"]) / 2)
 
 
