@@ -51,6 +51,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from robots import mjcf_check_cache
 from robots.description import (
     MAX_WIRE_SERVOS,
     Base,
@@ -259,8 +260,9 @@ def position_kp(model: Any, aid: int) -> float | None:
 
 def check_against_mjcf(mjcf: Path, table: ServoTable, servo_path: Path, servo_text: str,
                        camera: str | None = None, feet: Sequence[str] = (), *, camera_at: str | None = None,
-                       feet_at: str | None = None) -> None:
-    """Compile ``mjcf`` and check the servo table (and camera, foot sites) against it.
+                       feet_at: str | None = None) -> list[Path]:
+    """Compile ``mjcf`` and check the servo table (and camera, foot sites) against it; returns the XML
+    files read (the MJCF and its includes).
 
     ``camera_at``/``feet_at``: where robot.toml names them (file:line), for the messages. MJCF places
     come from :func:`robots.mjcf_index.index_mjcf` (includes followed)."""
@@ -308,6 +310,7 @@ def check_against_mjcf(mjcf: Path, table: ServoTable, servo_path: Path, servo_te
         if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, site) < 0:
             raise RobotDataError(f"{feet_at or 'robot.toml [base]'}: feet names site {site!r}, which {mjcf.name} "
                                  "does not have")
+    return list(index.files)
 
 
 # --- robot.toml -----------------------------------------------------------------------------------
@@ -453,10 +456,12 @@ def _load_robot_dir(root: Path, *, builtin: bool, check_mjcf: bool) -> Robot:
             raise RobotDataError(f"{where}: {key} = {mod!r}: no {mod}.py in {root}")
     data = {k: root / str(v) for k, v in (doc.get("data") or {}).items()}
     view = {str(k): _num(v, f"view {k}", str(path)) for k, v in (doc.get("view") or {}).items()}
-    if check_mjcf:
-        check_against_mjcf(mjcf, table, servo_path, servo_path.read_text(encoding="utf-8"),
-                           peripherals.camera, base.feet, camera_at=_at(path, _line(text, r"^camera\s*=")),
-                           feet_at=base_at["feet"])
+    inputs = (table, peripherals.camera, tuple(base.feet))
+    if check_mjcf and not mjcf_check_cache.passed(mjcf, inputs):  # a pass is recorded: MuJoCo is not imported again
+        read = check_against_mjcf(mjcf, table, servo_path, servo_path.read_text(encoding="utf-8"),
+                                  peripherals.camera, base.feet, camera_at=_at(path, _line(text, r"^camera\s*=")),
+                                  feet_at=base_at["feet"])
+        mjcf_check_cache.record(mjcf, inputs, read)
     return Robot(
         name=name, title=str(doc.get("title", name)), description=str(doc.get("description", "")), root=root,
         mjcf=mjcf, servos=table, poses=poses, channels=channels, peripherals=peripherals, scenes=scenes,

@@ -1,0 +1,111 @@
+"""A robot whose MJCF passed the loader's check loads again without MuJoCo (robots.mjcf_check_cache),
+and any change to what the check read checks again: an edit of the same size right after the last
+load, an included file outside the robot's folder, a failing robot (never recorded)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from robots import loader, mjcf_check_cache
+from robots.description import RobotDataError
+from robots.loader import load_robot_dir
+
+COCO = Path(__file__).resolve().parents[2] / "robots" / "coco"
+
+
+@pytest.fixture
+def robot(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    monkeypatch.setenv(mjcf_check_cache.CACHE_ENV, str(tmp_path / "cache"))
+    folder = tmp_path / "coco"
+    shutil.copytree(COCO, folder, ignore=shutil.ignore_patterns("__pycache__"))
+    return folder
+
+
+@pytest.fixture
+def checks(monkeypatch: pytest.MonkeyPatch) -> list[Path]:
+    """The MJCFs the loader compiled, in order."""
+    seen: list[Path] = []
+    real = loader.check_against_mjcf
+
+    def counting(mjcf: Path, *args: object, **kw: object) -> list[Path]:
+        seen.append(mjcf)
+        return real(mjcf, *args, **kw)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(loader, "check_against_mjcf", counting)
+    return seen
+
+
+def _entries(robot: Path) -> list[Path]:
+    return sorted((robot.parent / "cache").glob("*.json"))
+
+
+def test_a_pass_is_recorded_and_the_next_load_skips_the_check(robot: Path, checks: list[Path]) -> None:
+    load_robot_dir(robot)
+    assert len(checks) == 1 and len(_entries(robot)) == 1
+    load_robot_dir(robot)
+    assert len(checks) == 1, "the second load compiled the MJCF again"
+
+
+def test_an_edit_of_the_same_size_at_once_is_checked(robot: Path, checks: list[Path]) -> None:
+    load_robot_dir(robot)
+    xml = robot / "coco.xml"
+    text = xml.read_text()
+    assert text.count('range="-1.0472 1.0472"') == 1
+    xml.write_text(text.replace('range="-1.0472 1.0472"', 'range="-1.4472 1.0472"'))  # same size, same second
+    with pytest.raises(RobotDataError, match="fr_hip.*-82.92"):
+        load_robot_dir(robot)
+    assert len(checks) == 2
+    with pytest.raises(RobotDataError):  # a failure is not recorded: refused every time
+        load_robot_dir(robot)
+    assert len(checks) == 3 and len(_entries(robot)) == 1
+
+
+def test_a_servo_table_edit_is_checked(robot: Path, checks: list[Path]) -> None:
+    load_robot_dir(robot)
+    servos = robot / "servos.toml"
+    text = servos.read_text()
+    servos.write_text(text.replace("min_deg = -60.0", "min_deg = -61.0", 1))
+    assert servos.read_text() != text
+    with pytest.raises(RobotDataError, match="the table says"):
+        load_robot_dir(robot)
+    assert len(checks) == 2
+
+
+def test_an_include_outside_the_folder_is_followed(robot: Path, checks: list[Path]) -> None:
+    xml = robot / "coco.xml"
+    text = xml.read_text()
+    start, end = text.index("  <actuator>"), text.index("</actuator>") + len("</actuator>")
+    shared = robot.parent / "shared"
+    shared.mkdir()
+    (shared / "coco_actuators.xml").write_text(f"<mujoco>\n{text[start:end]}\n</mujoco>\n")
+    xml.write_text(text[:start] + '  <include file="../shared/coco_actuators.xml"/>' + text[end:])
+    load_robot_dir(robot)
+    load_robot_dir(robot)
+    assert len(checks) == 1
+    acts = shared / "coco_actuators.xml"
+    acts.write_text(acts.read_text().replace('joint="fr_hip"', 'joint="fr_knee"', 1))
+    with pytest.raises(RobotDataError, match="does not drive joint 'fr_hip'"):
+        load_robot_dir(robot)
+
+
+def test_off_checks_every_time(robot: Path, checks: list[Path], monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(mjcf_check_cache.CACHE_ENV, "off")
+    load_robot_dir(robot)
+    load_robot_dir(robot)
+    assert len(checks) == 2 and not _entries(robot)
+
+
+def test_a_recorded_robot_loads_without_importing_mujoco(robot: Path) -> None:
+    load_robot_dir(robot)
+    probe = ("import sys; from robots.loader import load_robot_dir; r = load_robot_dir(sys.argv[1]); "
+             "print(r.name, 'mujoco imported:', 'mujoco' in sys.modules)")
+    r = subprocess.run([sys.executable, "-c", probe, str(robot)], capture_output=True, text=True, timeout=60,
+                       env=dict(os.environ))
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["coco", "mujoco", "imported:", "False"], r.stdout
