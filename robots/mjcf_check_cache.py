@@ -49,9 +49,9 @@ MAX_BYTES = 64 << 20
 def cache_folder() -> Path | None:
     """Where entries live; None when ``$GHOSTSHELL_MJCF_CHECK_CACHE`` is ``off``."""
     env = os.environ.get(CACHE_ENV)
-    if env is not None and env.strip().lower() in ("off", "0", "no", "false", ""):
+    if env and env.strip().lower() in ("off", "0", "no", "false"):
         return None
-    if env:
+    if env and env.strip():
         return Path(env)
     import platformdirs
 
@@ -109,9 +109,13 @@ def _digest(mjcf: Path, outside: Iterable[str]) -> str | None:
         for p in files:
             h.update(str(p.relative_to(folder)).encode("utf-8", "surrogateescape") + b"\0")
             h.update(p.read_bytes())
-        for name in outside:
+        total = 0
+        for name in outside:  # the entry's list: only regular files, within the same byte bound
+            p = Path(name)
+            if not p.is_file() or (total := total + p.stat().st_size) > MAX_BYTES:
+                return None
             h.update(name.encode("utf-8", "surrogateescape") + b"\0")
-            h.update(Path(name).read_bytes())
+            h.update(p.read_bytes())
     except OSError:
         return None
     return h.hexdigest()

@@ -109,3 +109,26 @@ def test_a_recorded_robot_loads_without_importing_mujoco(robot: Path) -> None:
                        env=dict(os.environ))
     assert r.returncode == 0, r.stderr
     assert r.stdout.split() == ["coco", "mujoco", "imported:", "False"], r.stdout
+
+
+@pytest.mark.parametrize("entry", ["{not json", '{"outside": 3, "digest": "x"}', '{"outside": ["/dev/zero"], "digest": "x"}',
+                                   '{"outside": [], "digest": "0"}', '[]'],
+                         ids=["not-json", "wrong-type", "device", "stale-digest", "wrong-shape"])
+def test_a_damaged_entry_means_check_again(robot: Path, checks: list[Path], entry: str) -> None:
+    load_robot_dir(robot)
+    (path,) = _entries(robot)
+    path.write_text(entry)
+    load_robot_dir(robot)  # no hang on a device, no exception: the check runs and records a good entry
+    assert len(checks) == 2
+    load_robot_dir(robot)
+    assert len(checks) == 2
+
+
+def test_an_unusable_cache_folder_only_costs_the_check(robot: Path, checks: list[Path],
+                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    blocker = robot.parent / "a-file"
+    blocker.write_text("not a folder")
+    monkeypatch.setenv(mjcf_check_cache.CACHE_ENV, str(blocker))
+    load_robot_dir(robot)
+    load_robot_dir(robot)
+    assert len(checks) == 2 and blocker.read_text() == "not a folder"
