@@ -260,9 +260,8 @@ def position_kp(model: Any, aid: int) -> float | None:
 
 def check_against_mjcf(mjcf: Path, table: ServoTable, servo_path: Path, servo_text: str,
                        camera: str | None = None, feet: Sequence[str] = (), *, camera_at: str | None = None,
-                       feet_at: str | None = None) -> list[Path]:
-    """Compile ``mjcf`` and check the servo table (and camera, foot sites) against it; returns the XML
-    files read (the MJCF and its includes).
+                       feet_at: str | None = None) -> None:
+    """Compile ``mjcf`` and check the servo table (and camera, foot sites) against it.
 
     ``camera_at``/``feet_at``: where robot.toml names them (file:line), for the messages. MJCF places
     come from :func:`robots.mjcf_index.index_mjcf` (includes followed)."""
@@ -310,7 +309,6 @@ def check_against_mjcf(mjcf: Path, table: ServoTable, servo_path: Path, servo_te
         if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, site) < 0:
             raise RobotDataError(f"{feet_at or 'robot.toml [base]'}: feet names site {site!r}, which {mjcf.name} "
                                  "does not have")
-    return list(index.files)
 
 
 # --- robot.toml -----------------------------------------------------------------------------------
@@ -458,10 +456,11 @@ def _load_robot_dir(root: Path, *, builtin: bool, check_mjcf: bool) -> Robot:
     view = {str(k): _num(v, f"view {k}", str(path)) for k, v in (doc.get("view") or {}).items()}
     inputs = (table, peripherals.camera, tuple(base.feet))
     if check_mjcf and not mjcf_check_cache.passed(mjcf, inputs):  # a pass is recorded: MuJoCo is not imported again
-        read = check_against_mjcf(mjcf, table, servo_path, servo_path.read_text(encoding="utf-8"),
-                                  peripherals.camera, base.feet, camera_at=_at(path, _line(text, r"^camera\s*=")),
-                                  feet_at=base_at["feet"])
-        mjcf_check_cache.record(mjcf, inputs, read)
+        before = mjcf_check_cache.snapshot(mjcf)
+        check_against_mjcf(mjcf, table, servo_path, servo_path.read_text(encoding="utf-8"),
+                           peripherals.camera, base.feet, camera_at=_at(path, _line(text, r"^camera\s*=")),
+                           feet_at=base_at["feet"])
+        mjcf_check_cache.record(mjcf, inputs, before)
     return Robot(
         name=name, title=str(doc.get("title", name)), description=str(doc.get("description", "")), root=root,
         mjcf=mjcf, servos=table, poses=poses, channels=channels, peripherals=peripherals, scenes=scenes,

@@ -7,21 +7,37 @@ command. Now a pass is recorded and the next load with the same inputs skips it.
 
 An entry's name is a SHA-256 over what the check is given and what does it: the checking code's
 source files (:data:`CHECKER_SOURCES`, so a new check rechecks every robot), :data:`CHECK_VERSION`,
-MuJoCo's version (from its package metadata, without importing it), the MJCF's resolved path, the
-servo table, the camera and the foot sites. It holds a SHA-256 over the *contents* of every file the check may
-depend on: every file under the MJCF's folder (meshes and textures included; ``__pycache__`` and
-hidden folders left out) and the included XML files outside it that the check read. A hit needs
-that digest unchanged, so any edit, however quick after the last load, checks again (contents,
-not modification times: a coarse file-system clock cannot hide an edit). Only passes are recorded;
-a failing robot is checked, and refused, every time. A folder of more than :data:`MAX_FILES` files
-or :data:`MAX_BYTES` bytes is not recorded (hashing it could cost more than the check).
+MuJoCo's version (from its package metadata, without importing it), the MJCF's absolute path, the
+servo table, the camera and the foot sites. It holds a SHA-256 over the names, sizes and *contents*
+of every file under the MJCF's folder (meshes and textures included; only ``__pycache__`` and
+``.git`` are left out). A hit needs that digest unchanged, so any edit, however quick after the last
+load, checks again: contents, not modification times, which a coarse file-system clock can hide.
 
-Folder: ``$GHOSTSHELL_MJCF_CHECK_CACHE``, else platformdirs' user cache folder ``ghostshell/mjcf-checks``;
-``GHOSTSHELL_MJCF_CHECK_CACHE=off`` checks every time. Entries are written to a temporary file and
-renamed into place (parallel processes never read half an entry); a cache that cannot be read or
-written is ignored and the check runs.
+Only a **self-contained** robot is recorded, one whose every input the digest covers; any other is
+checked every time:
 
-The scheme is make's (a target and what it was built from), with content digests as in ccache.
+- nothing under the folder is a symbolic link, and the MJCF is not one (MuJoCo resolves relative
+  paths from the link's folder, the digest would read the target's);
+- no XML file under the folder (any file starting with ``<``) names a file or folder by an absolute
+  path, ``~`` or through ``..`` (``file=`` and a cube texture's ``fileup=`` etc., ``meshdir=``,
+  ``texturedir=``, ``assetdir=``: includes, attached models, meshes and textures all stay inside);
+- the folder holds at most :data:`MAX_FILES` entries and :data:`MAX_BYTES` bytes, all regular
+  files or folders (hashing more could cost more than the check);
+- the digest taken before the check equals the one taken after it (an edit saved while MuJoCo read
+  the files is not recorded as a pass).
+
+Failures are never recorded: a broken robot is checked, and refused, every time. At most
+:data:`MAX_ENTRIES` entries are kept (the oldest are removed when one is written).
+
+Folder: ``$GHOSTSHELL_MJCF_CHECK_CACHE``, else platformdirs' user cache folder
+``ghostshell/mjcf-checks`` (``~/.cache/ghostshell/mjcf-checks`` on Linux);
+``GHOSTSHELL_MJCF_CHECK_CACHE=off`` (or ``0``, ``no``, ``false``) checks every time. Entries are
+written to a temporary file and renamed into place, so parallel processes never read half an entry;
+a cache that cannot be read or written is ignored and the check runs.
+
+Written here rather than taken from a library: none caches a validation result keyed on file
+contents. The scheme is make's (a target and what it was made from), with content digests as in
+ccache.
 """
 
 from __future__ import annotations
@@ -30,28 +46,42 @@ import contextlib
 import hashlib
 import json
 import os
+import re
+import stat
 import tempfile
-from collections.abc import Iterable, Sequence
+import time
+from collections.abc import Sequence
 from pathlib import Path
 
-__all__ = ["CACHE_ENV", "CHECK_VERSION", "MAX_BYTES", "MAX_FILES", "cache_folder", "passed", "record"]
+__all__ = ["CACHE_ENV", "CHECKER_SOURCES", "CHECK_VERSION", "MAX_BYTES", "MAX_ENTRIES", "MAX_FILES", "Snapshot",
+           "cache_folder", "passed", "record", "snapshot"]
 
 #: bump to check every recorded robot again (a change of CHECKER_SOURCES does that by itself)
-CHECK_VERSION = 1
+CHECK_VERSION = 2
 #: the checking code (robots/): its bytes are part of every entry's name
 CHECKER_SOURCES = ("loader.py", "mjcf_index.py", "mjcf_check_cache.py")
 CACHE_ENV = "GHOSTSHELL_MJCF_CHECK_CACHE"
-#: a folder bigger than this (files, bytes) is checked every time
+#: a folder with more entries (files and folders) or bytes than this is checked every time
 MAX_FILES = 2_000
 MAX_BYTES = 64 << 20
+#: entries kept; writing one more removes the oldest
+MAX_ENTRIES = 256
+#: an entry file is a few hundred bytes; a bigger one is damaged and ignored
+MAX_ENTRY_BYTES = 4_096
+_SKIP_DIRS = frozenset({"__pycache__", ".git"})
+#: an XML attribute naming a file or folder: the file itself, an include, an attached model, a mesh/texture folder
+_PATH_ATTR = re.compile(rb"""\b(?:file[a-z]*|meshdir|texturedir|assetdir)\s*=\s*(["'])(.*?)\1""", re.S)
+
+#: the folder's digest, or None when the robot is not self-contained
+Snapshot = str | None
 
 
 def cache_folder() -> Path | None:
-    """Where entries live; None when ``$GHOSTSHELL_MJCF_CHECK_CACHE`` is ``off``."""
-    env = os.environ.get(CACHE_ENV)
-    if env and env.strip().lower() in ("off", "0", "no", "false"):
+    """Where entries live; None when ``$GHOSTSHELL_MJCF_CHECK_CACHE`` is ``off`` / ``0`` / ``no`` / ``false``."""
+    env = (os.environ.get(CACHE_ENV) or "").strip()
+    if env.lower() in ("off", "0", "no", "false"):
         return None
-    if env and env.strip():
+    if env:
         return Path(env)
     import platformdirs
 
@@ -72,91 +102,123 @@ def _key(mjcf: Path, inputs: Sequence[object]) -> str:
     here = Path(__file__).resolve().parent
     for name in CHECKER_SOURCES:
         h.update((here / name).read_bytes())
-    for part in (CHECK_VERSION, _mujoco_version(), str(mjcf.resolve()), *inputs):
+    for part in (CHECK_VERSION, _mujoco_version(), str(mjcf.absolute()), *inputs):
         h.update(repr(part).encode("utf-8", "surrogatepass"))
         h.update(b"\0")
     return h.hexdigest()
 
 
-def _folder_files(folder: Path) -> list[Path] | None:
-    """Every regular file under ``folder`` (sorted), or None past :data:`MAX_FILES` / :data:`MAX_BYTES`."""
-    out: list[Path] = []
-    total = 0
-    for root, dirs, files in os.walk(folder):
-        dirs[:] = sorted(d for d in dirs if d != "__pycache__" and not d.startswith("."))
-        for name in files:
-            p = Path(root) / name
-            try:
-                if not p.is_file():
-                    continue
-                total += p.stat().st_size
-            except OSError:
-                continue
-            out.append(p)
-            if len(out) > MAX_FILES or total > MAX_BYTES:
-                return None
-    return sorted(out)
-
-
-def _digest(mjcf: Path, outside: Iterable[str]) -> str | None:
-    """SHA-256 over the relative names and contents of the MJCF folder's files and ``outside``."""
-    folder = mjcf.resolve().parent
-    files = _folder_files(folder)
-    if files is None:
-        return None
-    h = hashlib.sha256()
+def _read_regular(path: Path, size: int) -> bytes | None:
+    """``path``'s bytes if it is still a regular file of ``size`` bytes (never blocks on a FIFO)."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOFOLLOW", 0))
     try:
-        for p in files:
-            h.update(str(p.relative_to(folder)).encode("utf-8", "surrogateescape") + b"\0")
-            h.update(p.read_bytes())
-        total = 0
-        for name in outside:  # the entry's list: only regular files, within the same byte bound
-            p = Path(name)
-            if not p.is_file() or (total := total + p.stat().st_size) > MAX_BYTES:
-                return None
-            h.update(name.encode("utf-8", "surrogateescape") + b"\0")
-            h.update(p.read_bytes())
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode) or st.st_size != size:
+            return None
+        data = os.read(fd, size + 1)
+        while len(data) <= size:
+            more = os.read(fd, size + 1 - len(data))
+            if not more:
+                break
+            data += more
+        return data if len(data) == size else None
+    finally:
+        os.close(fd)
+
+
+def _outside(value: bytes) -> bool:
+    """True when an attribute value names a place outside the folder (absolute, ``~``, or through ``..``)."""
+    text = value.decode("utf-8", "replace").strip().replace("\\", "/")
+    return text.startswith(("/", "~")) or re.match(r"^[A-Za-z]:", text) is not None or ".." in text.split("/")
+
+
+def snapshot(mjcf: Path) -> Snapshot:
+    """SHA-256 over the names, sizes and contents of every file under ``mjcf``'s folder, or None when
+    the robot is not self-contained (see the module docstring) or something cannot be read."""
+    try:
+        if mjcf.is_symlink():
+            return None
+        folder = mjcf.absolute().parent
+        h = hashlib.sha256()
+        entries = total = 0
+        for root, dirs, files in os.walk(folder):
+            dirs[:] = sorted(d for d in dirs if d not in _SKIP_DIRS)
+            for name in [*dirs, *sorted(files)]:
+                entries += 1
+                p = Path(root) / name
+                st = os.lstat(p)
+                if entries > MAX_FILES or stat.S_ISLNK(st.st_mode):
+                    return None
+                if stat.S_ISDIR(st.st_mode):
+                    continue
+                if not stat.S_ISREG(st.st_mode) or (total := total + st.st_size) > MAX_BYTES:
+                    return None
+                data = _read_regular(p, st.st_size)
+                if data is None:
+                    return None
+                xml = data.lstrip(b"\xef\xbb\xbf \t\r\n").startswith(b"<")  # any XML, whatever its suffix
+                if xml and any(_outside(m.group(2)) for m in _PATH_ATTR.finditer(data)):
+                    return None
+                h.update(f"{p.relative_to(folder)}\0{len(data)}\0".encode("utf-8", "surrogateescape"))
+                h.update(data)
+        return h.hexdigest()
     except OSError:
         return None
-    return h.hexdigest()
 
 
 def passed(mjcf: Path, inputs: Sequence[object]) -> bool:
     """True when this MJCF with these check ``inputs`` (servo table, camera, feet) passed before and
-    none of the files it depends on changed since."""
+    no file under its folder changed since."""
     folder = cache_folder()
     if folder is None:
         return False
     try:
-        entry = json.loads((folder / f"{_key(mjcf, inputs)}.json").read_text(encoding="utf-8"))  # OSError: no entry
-        outside = [str(x) for x in entry["outside"]]
-        want = str(entry["digest"])
+        with open(folder / f"{_key(mjcf, inputs)}.json", "rb") as f:
+            raw = f.read(MAX_ENTRY_BYTES + 1)
+        if len(raw) > MAX_ENTRY_BYTES:
+            return False
+        want = json.loads(raw)["digest"]
     except (OSError, ValueError, KeyError, TypeError):
         return False
-    return _digest(mjcf, outside) == want
+    return isinstance(want, str) and snapshot(mjcf) == want
 
 
-def record(mjcf: Path, inputs: Sequence[object], read: Iterable[Path]) -> None:
-    """Record that the check passed; ``read``: the XML files it read (the MJCF and its includes)."""
+def record(mjcf: Path, inputs: Sequence[object], before: Snapshot) -> None:
+    """Record that the check passed; ``before``: :func:`snapshot` taken before the check ran (recorded
+    only when the folder is self-contained and unchanged since)."""
     folder = cache_folder()
-    if folder is None:
-        return
-    inside = mjcf.resolve().parent
-    outside = sorted({str(p.resolve()) for p in read if not p.resolve().is_relative_to(inside)})
-    digest = _digest(mjcf, outside)
-    if digest is None:
+    if folder is None or before is None or snapshot(mjcf) != before:
         return
     tmp: str | None = None
     try:
         folder.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=folder, prefix=".entry-", suffix=".tmp")
         with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump({"mjcf": str(mjcf.resolve()), "outside": outside, "digest": digest}, f)
-        os.replace(tmp, folder / f"{_key(mjcf, inputs)}.json")  # OSError (sources unreadable too): not recorded
+            json.dump({"mjcf": str(mjcf.absolute()), "digest": before}, f)
+        os.replace(tmp, folder / f"{_key(mjcf, inputs)}.json")
         tmp = None
+        _prune(folder)
     except OSError:
         pass
     finally:
         if tmp is not None:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
+
+
+def _prune(folder: Path) -> None:
+    """Keep the newest :data:`MAX_ENTRIES` entries; remove temporary files over an hour old (a writer
+    killed between create and rename)."""
+    now = time.time()
+    entries: list[tuple[float, Path]] = []
+    for p in folder.iterdir():
+        with contextlib.suppress(OSError):
+            mtime = p.stat().st_mtime
+            if p.name.startswith(".entry-") and now - mtime > 3600:
+                p.unlink()
+            elif p.suffix == ".json":
+                entries.append((mtime, p))
+    entries.sort(reverse=True)
+    for _, p in entries[MAX_ENTRIES:]:
+        with contextlib.suppress(OSError):
+            p.unlink()

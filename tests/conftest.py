@@ -15,3 +15,15 @@ pytest_plugins = ["support.realtime_lock", "support.file_order"]
 def _private_skill_library(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
     """Never read or write the user's real skill library (subprocesses inherit the variable)."""
     monkeypatch.setenv("GHOSTSHELL_SKILLS", str(tmp_path_factory.mktemp("skills") / "skills.json"))
+
+
+@pytest.fixture(scope="session")
+def _mjcf_check_folder(tmp_path_factory: pytest.TempPathFactory) -> str:
+    return str(tmp_path_factory.mktemp("mjcf-checks"))
+
+
+@pytest.fixture(autouse=True)
+def _private_mjcf_check_cache(_mjcf_check_folder: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Never read or write the user's record of checked robots (robots.mjcf_check_cache); one folder per
+    test process, so its subprocesses load a robot its earlier tests checked without MuJoCo."""
+    monkeypatch.setenv("GHOSTSHELL_MJCF_CHECK_CACHE", _mjcf_check_folder)

@@ -33,6 +33,7 @@ __all__ = ["World"]
 #: registers 9..43 of a servo as one block: min angle, max angle, (29 bytes), goal position
 _GOAL_LO, _GOAL_HI = REG.MIN_ANGLE, REG.GOAL_POSITION + 2
 _GOAL_FMT = f"HH{REG.GOAL_POSITION - REG.MIN_ANGLE - 4}xH"
+assert REG.MAX_ANGLE == REG.MIN_ANGLE + 2 < REG.GOAL_POSITION, "the goal block reads min, max, ..., goal"
 #: present position, speed and load (registers 56..61)
 _PRESENT = struct.Struct("<3H")
 
@@ -96,8 +97,10 @@ class World:
     def step(self) -> None:
         """One control period: goals -> ctrl (with the deadband) -> physics -> registers.
 
-        Per servo: ``goal = clip(neutral + direction * (steps - centre) * step, min, max)`` and
-        ``ctrl = q`` while ``|goal - q| < deadband``. The goal registers of all servos are read in one
+        Per servo: ``steps`` is the goal position register (sign-magnitude at bit 15) held to the
+        angle-limit registers 9..12 (:attr:`ServoDevice.goal`); ``goal = clip(neutral + direction *
+        (steps - centre) * step, min, max)`` (rad, the joint's range) and ``ctrl = q`` while
+        ``|goal - q| < deadband``. The goal registers of all servos are read in one
         ``struct`` call and the loop runs over precomputed per-servo constants (~11 us a period for
         CoCo's 12 servos; numpy's per-call overhead made a vectorised form slower at this size).
         """
@@ -126,8 +129,9 @@ class World:
         """Present registers of every device from the current state.
 
         Per servo: position ``clip(centre + direction * round((q - neutral) / step), 0, 4095)``
-        steps; speed ``round(direction * qvel / step)`` steps/s, sign-magnitude at bit 15; load
-        ``round(direction * force / full * 1000)`` (0.1 % of full torque), sign-magnitude at bit 10;
+        steps; speed ``round(direction * qvel / step)`` steps/s held to +-32767, sign-magnitude at bit
+        15; load ``round(direction * force / full * 1000)`` (0.1 % of full torque) held to +-1000,
+        sign-magnitude at bit 10;
         moving while ``|speed| > 2`` steps/s.
         """
         self.stale = False

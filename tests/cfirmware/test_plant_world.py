@@ -46,7 +46,7 @@ def test_world_matches_the_per_servo_formulas(robot: str) -> None:
     w = World(load_robot(robot))
     rng = np.random.default_rng(7)
     ctrl_adr = w.cm.act_id
-    held = clamped = 0
+    held = clamped = joint_clamped = 0
     for k in range(300):
         for dev in w.servos:
             if k % 3 == 0:  # anywhere in the register, sign bit included: the limits must hold
@@ -57,7 +57,12 @@ def test_world_matches_the_per_servo_formulas(robot: str) -> None:
         if k % 50 == 49:  # the firmware may narrow a servo's angle limits
             dev = w.servos[int(rng.integers(0, w.n))]
             dev.set_u16(REG.MIN_ANGLE, dev.u16(REG.MIN_ANGLE) + 5)
+        if k % 50 == 24:  # ... or widen them to the whole turn: then the joint's own range must hold
+            dev = w.servos[int(rng.integers(0, w.n))]
+            dev.set_u16(REG.MIN_ANGLE, 0)
+            dev.set_u16(REG.MAX_ANGLE, 4095)
         want = _reference_ctrl(w)
+        joint_clamped += sum(c in (s.min, s.max) for c, s in zip(want, w.table))
         held += int(np.sum(np.array(want) == w.data.qpos[w.cm.qpos_adr]))
         clamped += sum(dev.goal != dev.u16(REG.GOAL_POSITION) for dev in w.servos)  # held to the angle limits
         w.step()
@@ -67,4 +72,27 @@ def test_world_matches_the_per_servo_formulas(robot: str) -> None:
         present = [bytes(dev.table[REG.PRESENT_POSITION:REG.PRESENT_LOAD + 2]) + bytes([dev.table[REG.MOVING]])
                    for dev in w.servos]
         assert present == _reference_present(w), f"period {k}: present registers differ"
-    assert held > 0 and clamped > 0, f"the stream did not reach the deadband ({held}) or the limits ({clamped})"
+    assert held > 0 and clamped > 0 and joint_clamped > 0, \
+        f"the stream did not reach the deadband ({held}), the register limits ({clamped}) or a joint's range ({joint_clamped})"
+
+
+@pytest.mark.parametrize("robot", ["coco", "arm"])
+def test_present_registers_saturate_as_the_formulas_say(robot: str) -> None:
+    """Joint angles past a whole turn, speeds and forces past the registers' ranges: each register
+    holds its limit (position 0..4095, speed +-32767, load +-1000), signs in the sign bit."""
+    w = World(load_robot(robot))
+    d, cm = w.data, w.cm
+    for sign in (1.0, -1.0):
+        d.qpos[cm.qpos_adr] = sign * 20.0
+        d.qvel[cm.dof_adr] = sign * 1e4
+        d.actuator_force[cm.act_id] = sign * 1e3
+        w.refresh()
+        present = [bytes(dev.table[REG.PRESENT_POSITION:REG.PRESENT_LOAD + 2]) + bytes([dev.table[REG.MOVING]])
+                   for dev in w.servos]
+        assert present == _reference_present(w)
+        for dev, s in zip(w.servos, w.table):
+            pos, speed, load = struct.unpack("<3H", dev.table[REG.PRESENT_POSITION:REG.PRESENT_LOAD + 2])
+            outward = sign * s.direction > 0
+            assert pos == (4095 if outward else 0)
+            assert speed == (32767 if outward else 32767 | 0x8000)
+            assert load == (1000 if outward else 1000 | 0x400)

@@ -1,6 +1,7 @@
 """A robot whose MJCF passed the loader's check loads again without MuJoCo (robots.mjcf_check_cache),
 and any change to what the check read checks again: an edit of the same size right after the last
-load, an included file outside the robot's folder, a failing robot (never recorded)."""
+load, a failing robot (never recorded). A robot the folder's digest cannot cover (an include or a
+mesh folder outside it, a symbolic link, a FIFO, an edit while the check ran) is checked every time."""
 
 from __future__ import annotations
 
@@ -77,7 +78,8 @@ def test_a_servo_table_edit_is_checked(robot: Path, checks: list[Path]) -> None:
     assert len(checks) == 2
 
 
-def test_an_include_outside_the_folder_is_followed(robot: Path, checks: list[Path]) -> None:
+def _share_actuators(robot: Path) -> Path:
+    """Move CoCo's <actuator> block to ../shared/coco_actuators.xml, included from there."""
     xml = robot / "coco.xml"
     text = xml.read_text()
     start, end = text.index("  <actuator>"), text.index("</actuator>") + len("</actuator>")
@@ -85,13 +87,77 @@ def test_an_include_outside_the_folder_is_followed(robot: Path, checks: list[Pat
     shared.mkdir()
     (shared / "coco_actuators.xml").write_text(f"<mujoco>\n{text[start:end]}\n</mujoco>\n")
     xml.write_text(text[:start] + '  <include file="../shared/coco_actuators.xml"/>' + text[end:])
+    return shared / "coco_actuators.xml"
+
+
+def test_an_include_outside_the_folder_is_checked_every_time(robot: Path, checks: list[Path]) -> None:
+    acts = _share_actuators(robot)
     load_robot_dir(robot)
     load_robot_dir(robot)
-    assert len(checks) == 1
-    acts = shared / "coco_actuators.xml"
+    assert len(checks) == 2 and not _entries(robot)
     acts.write_text(acts.read_text().replace('joint="fr_hip"', 'joint="fr_knee"', 1))
     with pytest.raises(RobotDataError, match="does not drive joint 'fr_hip'"):
         load_robot_dir(robot)
+
+
+@pytest.mark.parametrize("attr", ['meshdir="../meshes"', 'texturedir="/usr/share"', 'assetdir="~/assets"'])
+def test_a_folder_named_outside_is_checked_every_time(robot: Path, checks: list[Path], attr: str) -> None:
+    xml = robot / "coco.xml"
+    xml.write_text(xml.read_text().replace('<compiler angle="radian"', f'<compiler {attr} angle="radian"', 1))
+    load_robot_dir(robot)
+    load_robot_dir(robot)
+    assert len(checks) == 2 and not _entries(robot)
+
+
+@pytest.mark.parametrize("kind", ["linked-folder", "linked-mjcf", "fifo"])
+def test_links_and_special_files_are_checked_every_time(robot: Path, checks: list[Path], kind: str) -> None:
+    if kind == "linked-folder":
+        (robot.parent / "elsewhere").mkdir()
+        (robot / "meshes").symlink_to(robot.parent / "elsewhere")
+    elif kind == "linked-mjcf":
+        (robot / "coco_real.xml").write_bytes((robot / "coco.xml").read_bytes())
+        (robot / "coco.xml").unlink()
+        (robot / "coco.xml").symlink_to(robot / "coco_real.xml")
+    else:
+        os.mkfifo(robot / "a-fifo")  # never opened for reading: a hash must not block on it
+    load_robot_dir(robot)
+    load_robot_dir(robot)
+    assert len(checks) == 2 and not _entries(robot)
+
+
+def test_an_edit_while_the_check_runs_is_not_recorded(robot: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    real = loader.check_against_mjcf
+    calls: list[int] = []
+
+    def check_then_edit(*args: object, **kw: object) -> None:
+        real(*args, **kw)  # type: ignore[arg-type]
+        calls.append(1)
+        if len(calls) == 1:  # saved after MuJoCo read the file, before the pass is recorded
+            poses = robot / "poses.toml"
+            poses.write_text(poses.read_text() + "\n")
+
+    monkeypatch.setattr(loader, "check_against_mjcf", check_then_edit)
+    load_robot_dir(robot)
+    assert not _entries(robot)
+    load_robot_dir(robot)
+    assert len(calls) == 2 and len(_entries(robot)) == 1
+
+
+def test_old_entries_and_stale_temporary_files_are_removed(robot: Path, checks: list[Path],
+                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(mjcf_check_cache, "MAX_ENTRIES", 2)
+    cache = robot.parent / "cache"
+    cache.mkdir()
+    stale = cache / ".entry-dead.tmp"
+    stale.write_text("{")
+    os.utime(stale, (1, 1))
+    for k in range(3):  # three servo tables: three entries, the oldest goes
+        servos = robot / "servos.toml"
+        text = servos.read_text()
+        servos.write_text(text.replace(f"max_speed_dps = {400 + k}.0", f"max_speed_dps = {401 + k}.0", 1))
+        assert servos.read_text() != text
+        load_robot_dir(robot)
+    assert len(checks) == 3 and len(_entries(robot)) == 2 and not stale.exists()
 
 
 def test_off_checks_every_time(robot: Path, checks: list[Path], monkeypatch: pytest.MonkeyPatch) -> None:
@@ -111,9 +177,9 @@ def test_a_recorded_robot_loads_without_importing_mujoco(robot: Path) -> None:
     assert r.stdout.split() == ["coco", "mujoco", "imported:", "False"], r.stdout
 
 
-@pytest.mark.parametrize("entry", ["{not json", '{"outside": 3, "digest": "x"}', '{"outside": ["/dev/zero"], "digest": "x"}',
-                                   '{"outside": [], "digest": "0"}', '[]'],
-                         ids=["not-json", "wrong-type", "device", "stale-digest", "wrong-shape"])
+@pytest.mark.parametrize("entry", ["{not json", '{"digest": 3}', '{"digest": "0"}', '[]',
+                                   '{"digest": "' + "0" * 10_000 + '"}'],
+                         ids=["not-json", "wrong-type", "stale-digest", "wrong-shape", "oversized"])
 def test_a_damaged_entry_means_check_again(robot: Path, checks: list[Path], entry: str) -> None:
     load_robot_dir(robot)
     (path,) = _entries(robot)
