@@ -29,9 +29,10 @@ checked every time:
 Failures are never recorded: a broken robot is checked, and refused, every time. At most
 :data:`MAX_ENTRIES` entries are kept (the oldest are removed when one is written).
 
-Folder: ``$GHOSTSHELL_MJCF_CHECK_CACHE``, else platformdirs' user cache folder
-``ghostshell/mjcf-checks`` (``~/.cache/ghostshell/mjcf-checks`` on Linux);
-``GHOSTSHELL_MJCF_CHECK_CACHE=off`` (or ``0``, ``no``, ``false``) checks every time. Entries are
+Folder: ``$GHOSTSHELL_MJCF_CHECK_CACHE`` when it is an absolute path (``~`` expanded), else (unset or
+empty) platformdirs' user cache folder ``ghostshell/mjcf-checks`` (``~/.cache/ghostshell/mjcf-checks``
+on Linux); ``off``, or any value that is not an absolute path, checks every time. Entries are named
+``mjcf-check-<sha256>.json``; nothing else in the folder is read or removed. Entries are
 written to a temporary file and renamed into place, so parallel processes never read half an entry;
 a cache that cannot be read or written is ignored and the check runs.
 
@@ -68,21 +69,24 @@ MAX_BYTES = 64 << 20
 MAX_ENTRIES = 256
 #: an entry file is a few hundred bytes; a bigger one is damaged and ignored
 MAX_ENTRY_BYTES = 4_096
+#: the names this module writes, and the only ones it ever removes (the folder may be a user's own)
+_ENTRY = re.compile(r"^mjcf-check-[0-9a-f]{64}\.json$")
+_TEMP = re.compile(r"^\.mjcf-check-.*\.tmp$")
 _SKIP_DIRS = frozenset({"__pycache__", ".git"})
 #: an XML attribute naming a file or folder: the file itself, an include, an attached model, a mesh/texture folder
-_PATH_ATTR = re.compile(rb"""\b(?:file[a-z]*|meshdir|texturedir|assetdir)\s*=\s*(["'])(.*?)\1""", re.S)
+_PATH_ATTR = re.compile(r"^(?:file[a-z]*|meshdir|texturedir|assetdir)$")
 
 #: the folder's digest, or None when the robot is not self-contained
 Snapshot = str | None
 
 
 def cache_folder() -> Path | None:
-    """Where entries live; None when ``$GHOSTSHELL_MJCF_CHECK_CACHE`` is ``off`` / ``0`` / ``no`` / ``false``."""
-    env = (os.environ.get(CACHE_ENV) or "").strip()
-    if env.lower() in ("off", "0", "no", "false"):
-        return None
+    """Where entries live: ``$GHOSTSHELL_MJCF_CHECK_CACHE`` when it is an absolute path (``~`` expanded),
+    else platformdirs' user cache folder when it is unset or empty; None (check every time) for ``off``
+    and for any other value (a relative path would put a folder wherever the command runs)."""
+    env = os.path.expanduser((os.environ.get(CACHE_ENV) or "").strip())
     if env:
-        return Path(env)
+        return Path(env) if os.path.isabs(env) else None
     import platformdirs
 
     return Path(platformdirs.user_cache_dir("ghostshell", appauthor=False)) / "mjcf-checks"
@@ -95,6 +99,10 @@ def _mujoco_version() -> str:
         return version("mujoco")
     except PackageNotFoundError:
         return "?"
+
+
+def _entry(folder: Path, mjcf: Path, inputs: Sequence[object]) -> Path:
+    return folder / f"mjcf-check-{_key(mjcf, inputs)}.json"
 
 
 def _key(mjcf: Path, inputs: Sequence[object]) -> str:
@@ -126,10 +134,23 @@ def _read_regular(path: Path, size: int) -> bytes | None:
         os.close(fd)
 
 
-def _outside(value: bytes) -> bool:
+def _outside(value: str) -> bool:
     """True when an attribute value names a place outside the folder (absolute, ``~``, or through ``..``)."""
-    text = value.decode("utf-8", "replace").strip().replace("\\", "/")
+    text = value.strip().replace("\\", "/")
     return text.startswith(("/", "~")) or re.match(r"^[A-Za-z]:", text) is not None or ".." in text.split("/")
+
+
+def _paths_inside(xml: bytes) -> bool:
+    """True when the XML document parses and none of its path attributes (``file``, ``file*`` of a cube
+    texture, ``meshdir``, ``texturedir``, ``assetdir``; values decoded, character references included)
+    names a place outside the folder."""
+    from xml.etree import ElementTree
+
+    try:
+        root = ElementTree.fromstring(xml)
+    except (ElementTree.ParseError, ValueError):  # not one well-formed document: MuJoCo's reading is unknown
+        return False
+    return not any(_PATH_ATTR.match(name) and _outside(value) for el in root.iter() for name, value in el.attrib.items())
 
 
 def snapshot(mjcf: Path) -> Snapshot:
@@ -157,7 +178,7 @@ def snapshot(mjcf: Path) -> Snapshot:
                 if data is None:
                     return None
                 xml = data.lstrip(b"\xef\xbb\xbf \t\r\n").startswith(b"<")  # any XML, whatever its suffix
-                if xml and any(_outside(m.group(2)) for m in _PATH_ATTR.finditer(data)):
+                if xml and not _paths_inside(data):
                     return None
                 h.update(f"{p.relative_to(folder)}\0{len(data)}\0".encode("utf-8", "surrogateescape"))
                 h.update(data)
@@ -173,9 +194,12 @@ def passed(mjcf: Path, inputs: Sequence[object]) -> bool:
     if folder is None:
         return False
     try:
-        with open(folder / f"{_key(mjcf, inputs)}.json", "rb") as f:
-            raw = f.read(MAX_ENTRY_BYTES + 1)
-        if len(raw) > MAX_ENTRY_BYTES:
+        path = _entry(folder, mjcf, inputs)
+        st = os.lstat(path)
+        if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_ENTRY_BYTES:  # a link, FIFO or device: never opened
+            return False
+        raw = _read_regular(path, st.st_size)
+        if raw is None:
             return False
         want = json.loads(raw)["digest"]
     except (OSError, ValueError, KeyError, TypeError):
@@ -192,10 +216,10 @@ def record(mjcf: Path, inputs: Sequence[object], before: Snapshot) -> None:
     tmp: str | None = None
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".entry-", suffix=".tmp")
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".mjcf-check-", suffix=".tmp")
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             json.dump({"mjcf": str(mjcf.absolute()), "digest": before}, f)
-        os.replace(tmp, folder / f"{_key(mjcf, inputs)}.json")
+        os.replace(tmp, _entry(folder, mjcf, inputs))
         tmp = None
         _prune(folder)
     except OSError:
@@ -207,16 +231,16 @@ def record(mjcf: Path, inputs: Sequence[object], before: Snapshot) -> None:
 
 
 def _prune(folder: Path) -> None:
-    """Keep the newest :data:`MAX_ENTRIES` entries; remove temporary files over an hour old (a writer
-    killed between create and rename)."""
+    """Keep the newest :data:`MAX_ENTRIES` entries; remove this module's temporary files over an hour old
+    (a writer killed between create and rename). Files of any other name are never touched."""
     now = time.time()
     entries: list[tuple[float, Path]] = []
     for p in folder.iterdir():
         with contextlib.suppress(OSError):
-            mtime = p.stat().st_mtime
-            if p.name.startswith(".entry-") and now - mtime > 3600:
+            mtime = os.lstat(p).st_mtime
+            if _TEMP.match(p.name) and now - mtime > 3600:
                 p.unlink()
-            elif p.suffix == ".json":
+            elif _ENTRY.match(p.name):
                 entries.append((mtime, p))
     entries.sort(reverse=True)
     for _, p in entries[MAX_ENTRIES:]:

@@ -47,7 +47,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="native tool calls of one response: dispatched together after the speech (parallel "
                         "tool calls; one module's calls queue in order) or each to completion in turn")
     parser.add_argument("--no-run", action="store_true", help="score only; do not execute replies on the board")
-    add_no_plots_argument(parser, "executed reply")
+    add_no_plots_argument(parser, "executed reply", skips_matplotlib=False)
     parser.add_argument("--vocabulary", default=None, metavar="NAME",
                         help="the robot's vocabulary in the prompt (default: the robot's; ghostshell robots show NAME lists them)")
     parser.add_argument("--mode", choices=("async-first", "sync-first"), default="async-first")

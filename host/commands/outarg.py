@@ -119,9 +119,11 @@ def tcp_port_taken(port: int, host: str = "127.0.0.1") -> str | None:
     return None
 
 
-def add_no_plots_argument(parser: argparse.ArgumentParser, what: str = "run") -> None:
+def add_no_plots_argument(parser: argparse.ArgumentParser, what: str = "run", *, skips_matplotlib: bool = True) -> None:
     """``--no-plots`` (``args.no_plots``) of every command whose runs draw timeline.png and joints.png
-    (``run``, ``demo``, ``chat``, ``eval``, ``mcp``); ``what`` names what one run is in the help."""
+    (``run``, ``demo``, ``chat``, ``eval``, ``mcp``); ``what`` names what one run is in the help;
+    ``skips_matplotlib``: the command then never imports matplotlib (``eval`` still draws eval.png)."""
+    also = " and matplotlib's import" if skips_matplotlib else ""
     parser.add_argument("--no-plots", action="store_true",
                         help=f"draw no timeline.png / joints.png (the other artefacts are written; saves "
-                             f"~0.25 s of CPU per {what} and matplotlib's import)")
+                             f"~0.25 s of CPU per {what}{also})")

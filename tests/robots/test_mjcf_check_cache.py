@@ -78,20 +78,22 @@ def test_a_servo_table_edit_is_checked(robot: Path, checks: list[Path]) -> None:
     assert len(checks) == 2
 
 
-def _share_actuators(robot: Path) -> Path:
-    """Move CoCo's <actuator> block to ../shared/coco_actuators.xml, included from there."""
+def _share_actuators(robot: Path, name: str = "../shared/coco_actuators.xml") -> Path:
+    """Move CoCo's <actuator> block to ../shared/coco_actuators.xml, included from there as ``name``."""
     xml = robot / "coco.xml"
     text = xml.read_text()
     start, end = text.index("  <actuator>"), text.index("</actuator>") + len("</actuator>")
     shared = robot.parent / "shared"
     shared.mkdir()
     (shared / "coco_actuators.xml").write_text(f"<mujoco>\n{text[start:end]}\n</mujoco>\n")
-    xml.write_text(text[:start] + '  <include file="../shared/coco_actuators.xml"/>' + text[end:])
+    xml.write_text(text[:start] + f'  <include file="{name}"/>' + text[end:])
     return shared / "coco_actuators.xml"
 
 
-def test_an_include_outside_the_folder_is_checked_every_time(robot: Path, checks: list[Path]) -> None:
-    acts = _share_actuators(robot)
+@pytest.mark.parametrize("name", ["../shared/coco_actuators.xml", "&#46;&#46;/shared/coco_actuators.xml"],
+                         ids=["plain", "character-references"])
+def test_an_include_outside_the_folder_is_checked_every_time(robot: Path, checks: list[Path], name: str) -> None:
+    acts = _share_actuators(robot, name)
     load_robot_dir(robot)
     load_robot_dir(robot)
     assert len(checks) == 2 and not _entries(robot)
@@ -148,7 +150,11 @@ def test_old_entries_and_stale_temporary_files_are_removed(robot: Path, checks: 
     monkeypatch.setattr(mjcf_check_cache, "MAX_ENTRIES", 2)
     cache = robot.parent / "cache"
     cache.mkdir()
-    stale = cache / ".entry-dead.tmp"
+    stale = cache / ".mjcf-check-dead.tmp"
+    theirs = [cache / "r1.json", cache / ".entry-old.tmp", cache / "mjcf-check-notours.json"]  # a user's own files
+    for p in theirs:
+        p.write_text("{}")
+        os.utime(p, (1, 1))
     stale.write_text("{")
     os.utime(stale, (1, 1))
     for k in range(3):  # three servo tables: three entries, the oldest goes
@@ -157,7 +163,9 @@ def test_old_entries_and_stale_temporary_files_are_removed(robot: Path, checks: 
         servos.write_text(text.replace(f"max_speed_dps = {400 + k}.0", f"max_speed_dps = {401 + k}.0", 1))
         assert servos.read_text() != text
         load_robot_dir(robot)
-    assert len(checks) == 3 and len(_entries(robot)) == 2 and not stale.exists()
+    ours = sorted(cache.glob("mjcf-check-" + "[0-9a-f]" * 64 + ".json"))
+    assert len(checks) == 3 and len(ours) == 2 and not stale.exists()
+    assert all(p.exists() for p in theirs), "removed a file this cache did not write"
 
 
 def test_off_checks_every_time(robot: Path, checks: list[Path], monkeypatch: pytest.MonkeyPatch) -> None:
@@ -198,3 +206,33 @@ def test_an_unusable_cache_folder_only_costs_the_check(robot: Path, checks: list
     load_robot_dir(robot)
     load_robot_dir(robot)
     assert len(checks) == 2 and blocker.read_text() == "not a folder"
+
+
+@pytest.mark.timeout(60, method="thread")
+@pytest.mark.parametrize("kind", ["fifo", "link-to-stdin"])
+def test_an_entry_that_is_not_a_regular_file_is_never_opened(robot: Path, checks: list[Path], kind: str) -> None:
+    load_robot_dir(robot)
+    (path,) = _entries(robot)
+    path.unlink()
+    if kind == "fifo":
+        os.mkfifo(path)
+    else:
+        path.symlink_to("/dev/stdin")
+    load_robot_dir(robot)  # would block in open() or read() of the entry
+    assert len(checks) == 2
+
+
+@pytest.mark.parametrize("value", ["off", "OFF", " none ", "disabled", "relative/folder", "~/x"])
+def test_off_and_relative_values_check_every_time(robot: Path, checks: list[Path], monkeypatch: pytest.MonkeyPatch,
+                                                  value: str) -> None:
+    home = robot.parent / "home"
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.chdir(robot.parent)
+    monkeypatch.setenv(mjcf_check_cache.CACHE_ENV, value)
+    load_robot_dir(robot)
+    load_robot_dir(robot)
+    if value == "~/x":  # an absolute path after ~ is expanded
+        assert len(checks) == 1 and len(list((home / "x").glob("*.json"))) == 1
+    else:
+        assert len(checks) == 2
+        assert sorted(p.name for p in robot.parent.iterdir()) == ["coco"], "a folder was made where the command ran"
