@@ -301,9 +301,7 @@ class Board:
         handler = self._handler_for(type(msg))
         if handler is None and (isinstance(msg, HOST_BOUND) or not hasattr(msg, "__dataclass_fields__")):
             return [self._unsupported(msg, seq)]
-        if isinstance(msg, Hello):
-            self.rx_gaps = GapDetector()  # a (new) host numbers its messages from 0 again
-        self.rx_gaps.feed(seq)
+        self._count(msg, seq)
         held_since = self.safety.hold_since_us
         if self.safety.feed(self.now_us):
             self._resume()
@@ -311,6 +309,20 @@ class Board:
         if handler is None:
             return [self._unsupported(msg, seq)]
         return handler(self, msg, seq, rx)
+
+    def _count(self, msg: Message, seq: int) -> None:
+        if isinstance(msg, Hello):
+            self.rx_gaps = GapDetector()  # a (new) host numbers its messages from 0 again
+        self.rx_gaps.feed(seq)
+
+    def count_unhandled(self, msg: Message, seq: int) -> None:
+        """Feed the sequence-gap counter with a message that was received (and logged) but will never be
+        handled: a lockstep board stopped with messages still queued. So ``seq_gaps`` agrees with the
+        board's frame log, as :meth:`handle` would have counted it (a message the board sends itself, or
+        an object that is no message, is not link traffic and is not counted)."""
+        if isinstance(msg, HOST_BOUND) or not hasattr(msg, "__dataclass_fields__"):
+            return
+        self._count(msg, seq)
 
     @classmethod
     def _handler_for(cls, msg_cls: type) -> _Handler | None:

@@ -165,13 +165,21 @@ class BoardServer:
         self.running = False
 
     def serve(self) -> None:
-        """Run until :meth:`stop` (or an exception such as KeyboardInterrupt)."""
+        """Run until :meth:`stop` (or an exception such as KeyboardInterrupt). A lockstep board stopped
+        with messages still queued (received and logged, not yet due) counts their sequence numbers
+        (:meth:`Board.count_unhandled`) and its bad frames, and handles none of them."""
         try:
             if self.clock is None:
                 self._serve_lockstep()
             else:
                 self._serve_realtime()
         finally:
+            while self.inbox:
+                item = self.inbox.popleft()
+                if isinstance(item, Frame):
+                    self.board.count_unhandled(item.msg, item.seq)
+                else:
+                    self.board.on_link_error()  # logged as a bad frame: counted as one, as _process would
             # a lockstep board renders captures in this thread: free its GL contexts here, the thread
             # that made them (a board served in a thread would otherwise free them from another one)
             self.board.camera.close()
