@@ -1,14 +1,19 @@
 """The suite's file order under xdist (tests/support/file_order.py): longest files first, from the
-measured table tests/durations.json, so no long file is left to run alone at the end."""
+measured table tests/durations.json, so no long file is left to run alone at the end; files with
+realtime tests before them unless the realtime lock runs in background mode."""
 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from support.file_order import DEFAULT_S_PER_TEST, DURATIONS, durations_from_junit, file_of, run_order
+from support.realtime_lock import background_possible
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -80,6 +85,25 @@ def test_an_xdist_run_starts_realtime_files_then_the_longest(tmp_path: Path) -> 
     ran = [line.split()[-1] for line in out.stdout.splitlines() if "PASSED" in line and "::" in line]
     assert len(ran) == 7 and ran[:2] == ["tests/test_rt.py::test_wall_clock", "tests/test_one.py::test_long"], ran
     assert all("test_many" in r for r in ran[2:])
+
+
+@pytest.mark.skipif(not background_possible({}), reason="background mode needs root or CAP_SYS_NICE")
+def test_in_background_mode_the_longest_file_goes_first_realtime_or_not(tmp_path: Path) -> None:
+    """The same suite with the realtime lock loaded too, in background mode: weight alone decides."""
+    tests = tmp_path / "tests"
+    tests.mkdir()
+    (tests / "conftest.py").write_text(f"import sys\nsys.path.insert(0, {str(REPO / 'tests')!r})\n"
+                                       "pytest_plugins = ['support.realtime_lock', 'support.file_order']\n")
+    (tests / "test_one.py").write_text("def test_long():\n    pass\n")
+    (tests / "test_rt.py").write_text("import pytest\n\n@pytest.mark.realtime\ndef test_wall_clock():\n    pass\n")
+    (tests / "durations.json").write_text(json.dumps({"tests/test_one.py": 100.0, "tests/test_rt.py": 1.0}))
+    (tmp_path / "pyproject.toml").write_text('[tool.pytest.ini_options]\naddopts = "--no-loadscope-reorder"\n')
+    env = {k: v for k, v in os.environ.items() if k != "GHOSTSHELL_TESTS_REALTIME_ALONE"}
+    out = subprocess.run([sys.executable, "-m", "pytest", "-n", "1", "--dist", "loadfile", "-v", "-p", "no:cacheprovider"],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=120, env=env)
+    assert out.returncode == 0, out.stdout + out.stderr
+    ran = [line.split()[-1] for line in out.stdout.splitlines() if "PASSED" in line and "::" in line]
+    assert ran == ["tests/test_one.py::test_long", "tests/test_rt.py::test_wall_clock"], ran
 
 
 def test_the_project_turns_xdists_reorder_off() -> None:

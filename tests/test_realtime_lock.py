@@ -1,10 +1,13 @@
 """The suite's readers-writer lock (tests/support/realtime_lock.py): a realtime test holds the run's
 lock exclusively, so another worker can neither start a test beside it nor pass the turnstile while
-it waits; ordinary tests share it. Real flocks between real processes, synchronised on pipes."""
+it waits; ordinary tests share it. In background mode ordinary tests take no lock and run at nice
+19, and a realtime test's process tree at the worker's first nice value. Real flocks and nice values
+of real processes, synchronised on pipes."""
 
 from __future__ import annotations
 
 import fcntl
+import os
 import subprocess
 import sys
 import uuid
@@ -13,7 +16,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from support.realtime_lock import _RunLock, _run_dir
+from support.realtime_lock import BACKGROUND_NICE, _RunLock, _run_dir, background_possible, set_tree_nice
 
 HOLDER = """
 import sys
@@ -196,3 +199,116 @@ def test_realtime_part_done_in_an_ordinary_test_changes_nothing() -> None:
     from support import realtime_lock
 
     assert realtime_lock.realtime_part_done() is False
+
+
+#: a worker in background mode: holds the lock around one test and reports its own nice value
+BACKGROUND = """
+import os, sys
+sys.path.insert(0, {tests!r})
+from pathlib import Path
+from support.realtime_lock import BACKGROUND_NICE, _RunLock, set_tree_nice
+set_tree_nice(os.getpid(), BACKGROUND_NICE)  # as pytest_configure leaves a worker
+lock = _RunLock({run!r}, Path({base!r}), background=True, base_nice={base_nice})
+with lock.hold({exclusive}):
+    print("held", os.getpriority(os.PRIO_PROCESS, 0), flush=True)
+    sys.stdin.readline()
+    print("shared" if lock.share() else "kept", os.getpriority(os.PRIO_PROCESS, 0), flush=True)
+    sys.stdin.readline()
+print("done", os.getpriority(os.PRIO_PROCESS, 0), flush=True)
+sys.stdin.readline()
+"""
+
+needs_background = pytest.mark.skipif(not background_possible({}),
+                                      reason="needs root or CAP_SYS_NICE to lower a nice value")
+#: the first nice value of the holders' workers (not 19, whatever this test process runs at)
+BASE = 5
+IDLE = BACKGROUND_NICE
+
+
+def _background(run: str, base: Path, exclusive: bool) -> subprocess.Popen[str]:
+    tests = str(Path(__file__).resolve().parent)
+    return subprocess.Popen([sys.executable, "-c", BACKGROUND.format(tests=tests, run=run, base=str(base),
+                                                                      exclusive=exclusive, base_nice=BASE)],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+
+
+def _said(proc: subprocess.Popen[str]) -> tuple[str, int]:
+    assert proc.stdout is not None
+    word, nice = proc.stdout.readline().split()
+    return word, int(nice)
+
+
+def _step(proc: subprocess.Popen[str]) -> tuple[str, int]:
+    assert proc.stdin is not None
+    proc.stdin.write("\n")
+    proc.stdin.flush()
+    return _said(proc)
+
+
+def test_alone_is_kept_when_asked_for() -> None:
+    assert background_possible({"GHOSTSHELL_TESTS_REALTIME_ALONE": "1"}) is False
+
+
+@needs_background
+def test_a_process_tree_changes_nice_value_together() -> None:
+    """The worker, its child and the child's own thread (a host that started a board) all move."""
+    parent = subprocess.Popen(
+        [sys.executable, "-c", "import subprocess, sys, threading; c = subprocess.Popen([sys.executable, '-c', "
+                               "'import sys; print(1, flush=True); sys.stdin.readline()'], stdin=subprocess.PIPE, "
+                               "stdout=subprocess.PIPE, text=True); t = threading.Thread(target=sys.stdin.readline); "
+                               "t.start(); print(c.pid, t.native_id, c.stdout.readline().strip(), flush=True); "
+                               "t.join(); c.communicate('x')"],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    before = os.getpriority(os.PRIO_PROCESS, 0)
+    try:
+        assert parent.stdout is not None
+        child_pid, thread_id, ready = parent.stdout.readline().split()
+        assert ready == "1"
+        ids = [parent.pid, int(child_pid), int(thread_id)]
+        set_tree_nice(parent.pid, IDLE)
+        assert [os.getpriority(os.PRIO_PROCESS, i) for i in ids] == [IDLE] * 3
+        assert os.getpriority(os.PRIO_PROCESS, 0) == before  # the caller is not below the root
+        set_tree_nice(parent.pid, BASE)
+        assert [os.getpriority(os.PRIO_PROCESS, i) for i in ids] == [BASE] * 3
+    finally:
+        parent.communicate("\n", timeout=30)
+
+
+@needs_background
+def test_background_mode_lets_ordinary_tests_run_beside_a_realtime_one_at_nice_19(tmp_path: Path) -> None:
+    run = f"test-{uuid.uuid4().hex}"
+    mine = _RunLock(run, tmp_path, background=True)
+    realtime = _background(run, tmp_path, exclusive=True)
+    ordinary = _background(run, tmp_path, exclusive=False)
+    try:
+        assert _said(realtime) == ("held", BASE)  # its tree back at the worker's first nice value
+        assert _said(ordinary) == ("held", IDLE)  # started beside it, at nice 19
+        assert not _try(mine._main.fileno(), fcntl.LOCK_EX)  # another realtime test waits
+        assert _step(ordinary) == ("kept", IDLE)  # realtime_part_done in an ordinary test: nothing
+        # realtime_part_done: the rest of the test at nice 19, and the next realtime test may start
+        assert _step(realtime) == ("shared", IDLE)
+        assert _try(mine._main.fileno(), fcntl.LOCK_EX)
+        assert _step(realtime) == ("done", IDLE)
+    finally:
+        for proc in (realtime, ordinary):
+            proc.communicate("\n\n\n", timeout=30)
+        mine.close()
+
+
+@needs_background
+def test_background_mode_returns_a_realtime_worker_to_nice_19_when_the_test_ends(tmp_path: Path) -> None:
+    run = f"test-{uuid.uuid4().hex}"
+    mine = _RunLock(run, tmp_path, background=True)
+    first = _background(run, tmp_path, exclusive=True)
+    assert _said(first) == ("held", BASE)
+    second = _background(run, tmp_path, exclusive=True)  # waits for the first to let go
+    try:
+        assert _step(first) == ("shared", IDLE)
+        assert _said(second) == ("held", BASE)
+        assert _step(first) == ("done", IDLE)
+        assert _step(second) == ("shared", IDLE)
+        assert _step(second) == ("done", IDLE)
+    finally:
+        for proc in (first, second):
+            proc.communicate("\n\n\n", timeout=30)
+        mine.close()

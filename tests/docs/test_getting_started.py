@@ -39,7 +39,7 @@ PAGE = ROOT / "docs" / "getting-started.md"
 #: commands CI runs itself (.ci/run), with the reason they do not run inside the test suite
 RUN_BY_CI = {
     "bash .ci/setup": "installed the environment this suite runs in (.ci/run runs it first)",
-    ".venv/bin/python -m pytest -n 2 --dist loadfile": "the test suite this test is part of (.ci/run runs it after setup)",
+    ".venv/bin/python -m pytest -n 3 --dist loadfile": "the test suite this test is part of (.ci/run runs it after setup)",
 }
 
 

@@ -48,7 +48,7 @@ def test_readme_is_short_and_opens_with_the_two_commands() -> None:
     first = re.search(r"```sh\n(.*?)```", text, re.S)
     assert first, "no sh block"
     commands = [re.split(r"\s+#", ln)[0].strip() for ln in first[1].splitlines() if ln.strip()]
-    assert commands == ["bash .ci/setup && .venv/bin/ghostshell demo", ".venv/bin/python -m pytest -n 2 --dist loadfile"], commands
+    assert commands == ["bash .ci/setup && .venv/bin/ghostshell demo", ".venv/bin/python -m pytest -n 3 --dist loadfile"], commands
     images = re.findall(r"!\[[^\]]*\]\(([^)\s]+)", text)
     assert images, "no picture"
     for image in images:

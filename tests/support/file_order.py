@@ -1,4 +1,5 @@
-"""Under pytest-xdist, the files with realtime tests run first, then the rest longest first.
+"""Under pytest-xdist, files run longest first (the files with realtime tests before them unless the
+realtime lock runs in background mode).
 
 The suite runs with ``--dist loadfile``: a file is one work unit, handed to whichever worker runs
 low. xdist's default queue order puts files with many tests first (``--loadscope-reorder``), so a
@@ -16,12 +17,17 @@ two-worker schedule with the lock, from one run's per-test times (n = 1 run of 2
 of test time, 167 s of it realtime): xdist's order 995 s (that run took 1 000 s), longest first 973 s,
 realtime files first 914 s; the bound ((1 617 - 167) / 2 + 167) is 892 s.
 
+In the lock's background mode (ordinary tests go on beside a realtime one, in the idle scheduling
+class) nothing idles for a realtime test, so every file goes by weight alone: the same simulation on
+two later runs' times (n = 2 runs, 2 213 tests each, with the ordinary worker at 0.7x speed during a
+realtime test) gave 662 and 719 s for longest first against 687 and 728 s for realtime files first.
+
 The durations are data: ``tests/durations.json`` maps a test file (relative to the repository) to
 the seconds its tests took in a two-worker run (the sum of the JUnit ``time`` of its tests, setup
 and teardown included). A file not in it weighs :data:`DEFAULT_S_PER_TEST` per test. Remake the
 table after adding or moving heavy tests::
 
-    .venv/bin/python -m pytest -n 2 --dist loadfile --junitxml=/tmp/junit.xml
+    .venv/bin/python -m pytest -n 3 --dist loadfile --junitxml=/tmp/junit.xml
     .venv/bin/python tests/support/file_order.py /tmp/junit.xml > tests/durations.json
 
 Only xdist workers reorder (they must all collect the same order, and do: the hook is a pure
@@ -76,10 +82,19 @@ def run_order(nodeids: list[str], durations: dict[str, float], first: Collection
     return sorted(nodeids, key=lambda n: rank[file_of(n)])  # stable: a file's tests keep their order
 
 
+def _background_mode() -> bool:
+    """True if the realtime lock (tests/support/realtime_lock.py) runs in background mode in this worker."""
+    lock_module = sys.modules.get("support.realtime_lock")
+    lock = getattr(lock_module, "_lock", None)
+    return bool(getattr(lock, "background", False))
+
+
 def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config, items: list[pytest.Item]) -> None:
     if getattr(config, "workerinput", None) is None:  # not an xdist worker
         return
     realtime = {file_of(it.nodeid) for it in items if it.get_closest_marker(REALTIME) is not None}
+    if _background_mode():
+        realtime = set()
     ids = run_order([it.nodeid for it in items], load_durations(config.rootpath / DURATIONS), realtime)
     order = {n: i for i, n in enumerate(ids)}
     items.sort(key=lambda it: order[it.nodeid])
