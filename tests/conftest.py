@@ -6,7 +6,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import pytest  # noqa: E402
 
-#: under pytest-xdist, tests marked ``realtime`` run alone (tests/support/realtime_lock.py) and the
+#: under pytest-xdist, tests marked ``realtime`` run one at a time and first in line for the cores
+#: (tests/support/realtime_lock.py) and the
 #: longest files start first (tests/support/file_order.py)
 pytest_plugins = ["support.realtime_lock", "support.file_order"]
 

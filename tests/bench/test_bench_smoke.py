@@ -29,7 +29,7 @@ CASES = {
 }
 
 
-#: cases that run a board on the wall clock (under xdist they run alone: tests/support/realtime_lock.py)
+#: cases that run a board on the wall clock (under xdist, one at a time and first in line for the cores: tests/support/realtime_lock.py)
 REALTIME = {"bench_roundtrip.py", "bench_foxglove.py", "bench_recovery.py"}
 
 #: a benchmark's wall-clock parts run as a case of their own, so its lockstep parts (most of its time)

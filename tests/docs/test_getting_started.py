@@ -55,7 +55,7 @@ def page_commands() -> list[str]:
 
 
 def realtime(command: str) -> bool:
-    """A run on a realtime board (the CLI's default clock): under xdist it runs alone
+    """A run on a realtime board (the CLI's default clock): under xdist it is marked realtime
     (tests/support/realtime_lock.py)."""
     return any(f"ghostshell {c}" in command for c in ("demo", "run", "chat")) and "--lockstep" not in command
 

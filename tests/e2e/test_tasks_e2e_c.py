@@ -1,6 +1,6 @@
 """The 30 ground-truth programs of the paper end to end on the C firmware (built natively, its servos
 on a Feetech bus the plant emulates), over the same pty and with the same checks as on the Python
-board (tests/e2e/task_checks.py); a file of its own so the suite's two workers run both halves at once."""
+board (tests/e2e/task_checks.py); a file of its own so two of the suite's workers run both halves at once."""
 
 from __future__ import annotations
 

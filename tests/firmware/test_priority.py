@@ -8,14 +8,19 @@ import sys
 
 import pytest
 
+from support.realtime_lock import _may_lower_nice_to, background_possible
+
 CODE = "from firmware_sim.priority import raise_priority; print(raise_priority())"
 
 
-def _run(value: str | None) -> str:
+def _run(value: str | None, start_nice: int | None = None) -> str:
+    """``raise_priority()``'s line in a child; ``start_nice``: the child's nice value before it (needs the
+    right to set it, e.g. to come back from the suite's nice 19 in background mode)."""
     env = {k: v for k, v in os.environ.items() if k != "GHOSTSHELL_BOARD_NICE"}
     if value is not None:
         env["GHOSTSHELL_BOARD_NICE"] = value
-    out = subprocess.run([sys.executable, "-c", CODE], env=env, capture_output=True, text=True, timeout=60)
+    code = CODE if start_nice is None else f"import os; os.setpriority(os.PRIO_PROCESS, 0, {start_nice}); {CODE}"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     return out.stdout.strip()
 
@@ -26,9 +31,15 @@ def test_a_value_that_is_not_an_integer_or_zero_changes_nothing() -> None:
 
 
 def test_a_permitted_increment_is_applied_and_said() -> None:
-    line = _run("3")  # lowering the priority is always permitted
     before = os.nice(0)
-    assert line == f"priority: nice {before} -> {min(19, before + 3)} ($GHOSTSHELL_BOARD_NICE)"
+    if before + 3 > 19:  # e.g. a suite worker in background mode (tests/support/realtime_lock.py)
+        if not background_possible({}) and not _may_lower_nice_to(10):
+            pytest.skip(f"this process runs at nice {before} and may not come back below 17")
+        before = 10
+        line = _run("3", start_nice=before)
+    else:
+        line = _run("3")  # raising a nice value (lowering the priority) is always permitted
+    assert line == f"priority: nice {before} -> {before + 3} ($GHOSTSHELL_BOARD_NICE)"
 
 
 SLACK = ("from firmware_sim.priority import tighten_timer_slack; line = tighten_timer_slack({ns}); "

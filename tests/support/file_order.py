@@ -9,21 +9,21 @@ Longest-processing-time-first ordering (Graham 1969: within 4/3 of the best make
 files first and leaves short ones to fill the end. ``pyproject.toml`` turns xdist's reorder off
 (``--no-loadscope-reorder``) so the queue keeps the order this hook gives the collection.
 
-A ``realtime`` test runs alone (tests/support/realtime_lock.py): it waits until the other worker's
-current test ends, however long (the SocketCAN run in UML is one 84-s test). The 18 files with
+Outside the lock's background mode a ``realtime`` test runs alone (tests/support/realtime_lock.py): it
+waits until the other workers' current tests end, however long (the SocketCAN run in UML is one 84-s test). The 18 files with
 realtime tests therefore go first, longest first among themselves, while both workers run such
 files and each one's other tests are short; the LPT order of the rest follows. A simulation of the
 two-worker schedule with the lock, from one run's per-test times (n = 1 run of 2 076 tests, 1 617 s
 of test time, 167 s of it realtime): xdist's order 995 s (that run took 1 000 s), longest first 973 s,
 realtime files first 914 s; the bound ((1 617 - 167) / 2 + 167) is 892 s.
 
-In the lock's background mode (ordinary tests go on beside a realtime one, in the idle scheduling
-class) nothing idles for a realtime test, so every file goes by weight alone: the same simulation on
-two later runs' times (n = 2 runs, 2 213 tests each, with the ordinary worker at 0.7x speed during a
+In the lock's background mode (ordinary tests go on beside a realtime one, at nice 19) nothing
+idles for a realtime test, so every file goes by weight alone: the same simulation on two later runs'
+times (n = 2 runs, 2 213 tests each, with the ordinary worker at 0.7x speed during a
 realtime test) gave 662 and 719 s for longest first against 687 and 728 s for realtime files first.
 
 The durations are data: ``tests/durations.json`` maps a test file (relative to the repository) to
-the seconds its tests took in a two-worker run (the sum of the JUnit ``time`` of its tests, setup
+the seconds its tests took in a run of the suite (made on two workers; the sum of the JUnit ``time`` of its tests, setup
 and teardown included). A file not in it weighs :data:`DEFAULT_S_PER_TEST` per test. Remake the
 table after adding or moving heavy tests::
 
@@ -47,7 +47,7 @@ import pytest
 
 #: the table, next to the tests it describes (relative to the run's root folder)
 DURATIONS = Path("tests") / "durations.json"
-#: the marker of a test that runs alone (tests/support/realtime_lock.py)
+#: the marker of a test whose board runs on the wall clock (tests/support/realtime_lock.py)
 REALTIME = "realtime"
 #: seconds per test of a file the table does not know (about the suite's median file rate)
 DEFAULT_S_PER_TEST = 0.3

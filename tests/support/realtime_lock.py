@@ -42,6 +42,8 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import os
+import resource
+import sys
 import tempfile
 from collections.abc import Generator, Iterator
 from pathlib import Path
@@ -82,33 +84,62 @@ BACKGROUND_NICE = 19
 
 def set_tree_nice(root: int, nice: int) -> None:
     """Give every thread of ``root`` and of each process below it the nice value ``nice`` (Linux keeps
-    one per thread; ``setpriority(PRIO_PROCESS, tid)``). Processes and threads that end meanwhile, or
-    that may not be changed (another user's), are left alone."""
-    for pid in _tree(root):
-        try:
-            tids = os.listdir(f"/proc/{pid}/task")
-        except OSError:
-            continue
-        for tid in tids:
+    one per thread; ``setpriority(PRIO_PROCESS, tid)``). The tree is scanned again until a scan finds no
+    thread it has not set (at most 5 scans): a process or thread started meanwhile by one not yet
+    changed is changed too. Processes and threads that end meanwhile, or that may not be changed
+    (another user's), are left alone; a process that left the tree (a daemon that double-forked) is
+    not found."""
+    done: set[int] = set()
+    for _ in range(5):
+        new = False
+        for pid in _tree(root):
             try:
-                os.setpriority(os.PRIO_PROCESS, int(tid), nice)
-            except (ProcessLookupError, PermissionError):
-                pass
+                tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+            except OSError:
+                continue
+            for tid in tids:
+                if tid in done:
+                    continue
+                done.add(tid)
+                new = True
+                try:
+                    os.setpriority(os.PRIO_PROCESS, tid, nice)
+                except (ProcessLookupError, PermissionError):
+                    pass
+        if not new:
+            return
+
+
+#: CAP_SYS_NICE's bit in /proc/PID/status's CapEff (linux/capability.h)
+CAP_SYS_NICE = 23
+
+
+def _may_lower_nice_to(nice: int) -> bool:
+    """True if this process may set a nice value as low as ``nice``: ``CAP_SYS_NICE`` in its effective
+    set, or a soft ``RLIMIT_NICE`` that allows it (the limit ``r`` allows down to ``20 - r``). Asks
+    without changing anything."""
+    try:
+        with open("/proc/self/status") as f:
+            caps = next((line.split()[1] for line in f if line.startswith("CapEff:")), "0")
+        if int(caps, 16) >> CAP_SYS_NICE & 1:
+            return True
+    except (OSError, ValueError):
+        pass
+    soft, _hard = resource.getrlimit(resource.RLIMIT_NICE)
+    return soft == resource.RLIM_INFINITY or 20 - soft <= nice
 
 
 def background_possible(env: dict[str, str] | None = None) -> bool:
-    """True if this thread may raise its nice value to :data:`BACKGROUND_NICE` and lower it back (root
-    or ``CAP_SYS_NICE``; lowering is otherwise refused) and ``$GHOSTSHELL_TESTS_REALTIME_ALONE`` is not
-    ``1``. Leaves the thread at the nice value it had."""
+    """True if background mode can work here: Linux (``/proc``), ``$GHOSTSHELL_TESTS_REALTIME_ALONE`` is
+    not ``1``, this process runs below :data:`BACKGROUND_NICE` (a realtime test must be able to rank
+    above the rest) and may come back to its nice value from there (root or ``CAP_SYS_NICE``, or
+    ``RLIMIT_NICE``; otherwise lowering a nice value is refused). Changes nothing."""
     if (os.environ if env is None else env).get(ALONE_ENV, "").strip() == "1":
         return False
-    before = os.getpriority(os.PRIO_PROCESS, 0)
-    try:
-        os.setpriority(os.PRIO_PROCESS, 0, BACKGROUND_NICE)
-        os.setpriority(os.PRIO_PROCESS, 0, before)
-    except OSError:
+    if not sys.platform.startswith("linux") or not os.path.isdir("/proc/self/task"):
         return False
-    return True
+    nice = os.getpriority(os.PRIO_PROCESS, 0)
+    return nice < BACKGROUND_NICE and _may_lower_nice_to(nice)
 
 
 class _RunLock:
@@ -159,9 +190,9 @@ class _RunLock:
             yield
             return
         fcntl.flock(self._main.fileno(), fcntl.LOCK_EX)
-        set_tree_nice(os.getpid(), self.base_nice)
         self._exclusive_held = True
         try:
+            set_tree_nice(os.getpid(), self.base_nice)
             yield
         finally:
             self._release_background()
@@ -170,9 +201,11 @@ class _RunLock:
         """Back to nice 19, then let the next realtime test start; False if nothing was held."""
         if not self._exclusive_held:
             return False
-        set_tree_nice(os.getpid(), BACKGROUND_NICE)
-        fcntl.flock(self._main.fileno(), fcntl.LOCK_UN)
-        self._exclusive_held = False
+        try:
+            set_tree_nice(os.getpid(), BACKGROUND_NICE)
+        finally:
+            fcntl.flock(self._main.fileno(), fcntl.LOCK_UN)
+            self._exclusive_held = False
         return True
 
     def share(self) -> bool:
