@@ -31,7 +31,11 @@ tests use what the realtime ones leave (~1.3 of 2 cores: 164 s of realtime tests
 one run). Realtime tests still exclude one another (the main lock, exclusive only). Not the
 ``SCHED_IDLE`` class: idle-class tasks do not preempt one another on wake-up, so a lockstep host and
 board waking each other every period waited out whole time slices (a run went at a third of its
-speed). ``GHOSTSHELL_TESTS_REALTIME_ALONE=1`` keeps the lock of every mode above instead.
+speed). ``GHOSTSHELL_TESTS_REALTIME_ALONE`` set to anything but empty or ``0`` turns background mode off. So
+does a worker that may not lower a nice value again (no root, no ``CAP_SYS_NICE``, ``RLIMIT_NICE``
+too small) or that already runs at nice 19: realtime tests then run alone as above, and the suite
+takes longer (12 min 9 s on two workers before background mode, n = 1). The run's header says
+which mode it uses.
 
 Written here rather than taken from a plugin: pytest-xdist groups tests onto one worker
 (``xdist_group``) but has no way to keep other workers idle meanwhile.
@@ -52,7 +56,8 @@ from typing import IO
 import pytest
 
 MARKER = "realtime"
-#: set to 1: realtime tests run alone even where background mode is possible
+#: set to anything but empty or 0 (as GHOSTSHELL_ALL_TASKS): realtime tests run alone even where background mode
+#: is possible
 ALONE_ENV = "GHOSTSHELL_TESTS_REALTIME_ALONE"
 
 
@@ -131,10 +136,10 @@ def _may_lower_nice_to(nice: int) -> bool:
 
 def background_possible(env: dict[str, str] | None = None) -> bool:
     """True if background mode can work here: Linux (``/proc``), ``$GHOSTSHELL_TESTS_REALTIME_ALONE`` is
-    not ``1``, this process runs below :data:`BACKGROUND_NICE` (a realtime test must be able to rank
+    empty or ``0``, this process runs below :data:`BACKGROUND_NICE` (a realtime test must be able to rank
     above the rest) and may come back to its nice value from there (root or ``CAP_SYS_NICE``, or
     ``RLIMIT_NICE``; otherwise lowering a nice value is refused). Changes nothing."""
-    if (os.environ if env is None else env).get(ALONE_ENV, "").strip() == "1":
+    if (os.environ if env is None else env).get(ALONE_ENV, "").strip() not in ("", "0"):
         return False
     if not sys.platform.startswith("linux") or not os.path.isdir("/proc/self/task"):
         return False
@@ -272,6 +277,14 @@ def pytest_configure(config: pytest.Config) -> None:
                          os.getpriority(os.PRIO_PROCESS, 0))
         if background:
             set_tree_nice(os.getpid(), BACKGROUND_NICE)
+
+
+def pytest_report_header(config: pytest.Config) -> str:
+    """One header line: how realtime tests run (the workers inherit this process's nice value and rights)."""
+    if background_possible():
+        return f"realtime tests: one at a time, the others beside them at nice {BACKGROUND_NICE} (background mode)"
+    return ("realtime tests: alone under xdist (background mode off: needs Linux, the right to lower a nice value "
+            f"again, a nice value below {BACKGROUND_NICE}, and ${ALONE_ENV} empty or 0)")
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
