@@ -2,6 +2,6 @@
 
 import sys
 
-from host.cli import main
+from host.cli import entry
 
-sys.exit(main())
+sys.exit(entry())

@@ -18,7 +18,9 @@ SIGTERM is handled as Ctrl-C is: ``run``, ``demo`` and ``chat`` interrupt their 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import os
 import signal
 import sys
 import threading
@@ -112,5 +114,22 @@ def main(argv: Sequence[str] | None = None) -> int:
             signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
 
 
+def entry() -> int:
+    """The ``ghostshell`` console script and ``python -m host``: :func:`main`; then, while the
+    interpreter shuts down, a Ctrl-C ends the process at once with the command's own status. The
+    command has finished and printed its last line by then; a Ctrl-C in those few hundred
+    milliseconds used to leave it with status 0 or kill it by the signal, without a word, depending
+    on where it landed. (Python puts SIGINT back to its default in the last ~20 ms of its
+    finalisation, after this handler; a Ctrl-C there still ends the process by the signal, which a
+    shell reports as status 130.)"""
+    status = main()
+    if threading.current_thread() is threading.main_thread():
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):
+                stream.flush()
+        signal.signal(signal.SIGINT, lambda signum, frame: os._exit(status))
+    return status
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(entry())

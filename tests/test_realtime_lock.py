@@ -334,3 +334,33 @@ def test_background_mode_returns_a_realtime_worker_to_nice_19_when_the_test_ends
         for proc in (first, second):
             proc.communicate("\n\n\n", timeout=30)
         mine.close()
+
+
+@needs_background
+def test_a_waiting_thread_polls_at_the_base_value_and_its_subprocesses_stay_at_19(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import threading
+
+    from support import realtime_lock
+
+    lock = _RunLock(uuid.uuid4().hex, tmp_path, background=True, base_nice=BASE)
+    monkeypatch.setattr(realtime_lock, "_lock", lock)
+    seen: dict[str, int] = {}
+
+    def in_an_ordinary_test() -> None:  # a thread of its own: the value moves back and forth on it alone
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, 19)
+        child = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE)
+        try:
+            with realtime_lock.attentive():
+                seen["polling"] = os.getpriority(os.PRIO_PROCESS, tid)
+                seen["child"] = os.getpriority(os.PRIO_PROCESS, child.pid)  # started at 19, from this thread
+            seen["after"] = os.getpriority(os.PRIO_PROCESS, tid)
+        finally:
+            child.communicate(b"")
+
+    t = threading.Thread(target=in_an_ordinary_test)
+    t.start()
+    t.join()
+    assert seen == {"polling": BASE, "child": 19, "after": 19}
+    lock.close()

@@ -24,7 +24,7 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import anyio
 import anyio.to_thread
@@ -158,23 +158,37 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, RobotRuntime]
             raise
         # else the cancellation broke the link: not a loss; reported as the interruption it was, below
     if signals is not None and signals.forced is not None:  # cancelled at once: the JSON files, then out
-        interrupted = signals.interrupted()
-        stop = interrupted.stop
-        if turn is not None:  # the turn itself had ended (the second signal came while going to rest)
-            turn.summary.outcome = "interrupted"
-            turn.summary.extra["stopped"] = {**interrupted.stopped_extra(), "rest_pose": None}
-            ended: TurnResult | None = turn
-        else:
-            ended = session.ended_turn(interrupted, opts.task_label, opts.out)
-        if ended is not None:
-            session.write_now(ended, opts.task_label, plots=False)
-            setattr(interrupted, _REPORT_ATTR, RunReport(ended.result, ended.calls, ended.summary, ended.out,
-                                                         ended.token_times, ended.board_t0, stop))
-        raise interrupted
+        _raise_forced(session, signals, turn, opts)
     assert turn is not None  # the session ran its turn (every other way out raised above)
-    await anyio.to_thread.run_sync(write)  # plotting takes a second: other runs in this loop go on meanwhile
+    # Plotting takes a second: other runs in this loop go on meanwhile. Signals stay handled while the
+    # artefacts are written, which always finishes: a first signal now has no turn left to interrupt
+    # (session.request_stop only records it: the command then exits 130 and says the turn had ended), a
+    # second one after the writing is a forced stop as above.
+    async with (signals.guard() if signals is not None else contextlib.nullcontext()):
+        with anyio.CancelScope(shield=True):
+            await anyio.to_thread.run_sync(write)
+    if signals is not None and signals.forced is not None:
+        _raise_forced(session, signals, turn, opts)
     return RunReport(turn.result, turn.calls, turn.summary, turn.out, turn.token_times, turn.board_t0,
                      session.stop, rested)
+
+
+def _raise_forced(session: RobotSession, signals: StopSignals, turn: TurnResult | None, opts: RunOptions) -> NoReturn:
+    """A forced stop (the second signal): summary.json and timeline.json of what ran, then
+    :class:`Interrupted` carrying their :class:`RunReport`."""
+    interrupted = signals.interrupted()
+    stop = interrupted.stop
+    if turn is not None:  # the turn itself had ended (the second signal came while going to rest or writing)
+        turn.summary.outcome = "interrupted"
+        turn.summary.extra["stopped"] = {**interrupted.stopped_extra(), "rest_pose": None}
+        ended: TurnResult | None = turn
+    else:
+        ended = session.ended_turn(interrupted, opts.task_label, opts.out)
+    if ended is not None:
+        session.write_now(ended, opts.task_label, plots=False)
+        setattr(interrupted, _REPORT_ATTR, RunReport(ended.result, ended.calls, ended.summary, ended.out,
+                                                     ended.token_times, ended.board_t0, stop))
+    raise interrupted
 
 
 def _end_on_link_error(session: RobotSession, exc: LinkError, opts: RunOptions) -> None:

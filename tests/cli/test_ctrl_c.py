@@ -6,6 +6,15 @@ it never sees the Ctrl-C; the host interrupts the turn through the lifecycle tre
 to its rest pose, writes everything, prints one line and exits 130. Each test waits for the run to
 be under way by watching the host's frame log (servo frames that walk the robot away from its start
 pose), never by a guessed sleep.
+
+A lockstep run goes as fast as the CPU lets it, so a test that waits for it to be under way may see
+it only after it ended (CI, 2026-12-04: task 9 over SLCAN ended with status 0 before the Ctrl-C).
+The lockstep runs here therefore take their reply from a local OpenAI-compatible server
+(:mod:`support.fake_llm`) that sends the program and then holds the stream open until the test is
+done: a lockstep board stands still while the host waits for the LLM's next chunk
+(:meth:`host.motion.streamer.FrameStreamer.hold`), so the turn cannot end before the signal, whatever
+the machine's load. The realtime runs keep the scripted LLM: they are marked ``realtime`` (their
+poller is not starved) and last 26 wall seconds.
 """
 
 from __future__ import annotations
@@ -13,11 +22,13 @@ from __future__ import annotations
 import json
 import math
 import signal
+import threading
 from pathlib import Path
 
 import pytest
 
 from support.cliproc import Cli, processes_mentioning, servo_frames_moving_s, start, wait_until
+from support.fake_llm import DONE, FakeLLM, Handler, chunk, fake_llm, sse  # noqa: F401  (fake_llm: a fixture)
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -60,9 +71,81 @@ def _last_positions_deg(run: Path) -> list[float]:
 
 
 def _run(tmp_path: Path, *extra: str) -> tuple[Cli, Path]:
+    """``ghostshell run --task 9`` (scripted, realtime), once its walk is under way."""
     out = tmp_path / "run"
     cli = start(["run", "--task", "9", "--no-live", "--out", str(out), *extra], tmp_path / "logs")
     wait_until(lambda: servo_frames_moving_s(out, _start_pose()) > UNDER_WAY_S, "the run is under way", proc=cli)
+    return cli, out
+
+
+def _square() -> str:
+    from robots.registry import load_robot
+    from robots.tasks import get_task
+
+    return get_task(load_robot().tasks, 9).ground_truth
+
+
+class _HeldReply:
+    """Every request to ``fake`` is answered with ``program`` as one streamed chunk, once the test
+    lets it go, then by one-space chunks, each only when the test asks for it (:meth:`walk_under_way`),
+    and then the stream is held open until the test's end (the fixture opens the gate) or the client
+    hangs up.
+
+    A lockstep board stands still while the host waits for the LLM's next chunk and runs one
+    lookahead further (60 ms) after each, so the test itself paces the walk: a poller that gets
+    little CPU sees the walk slowly, never after the turn ended."""
+
+    def __init__(self, fake: FakeLLM, program: str) -> None:
+        self.asked, self._go, self._more = threading.Event(), threading.Event(), threading.Semaphore(0)
+        self._enough = False
+
+        def respond(h: Handler, f: FakeLLM) -> None:
+            h.start_sse()
+            h.write_piece(sse(chunk("", role="assistant")))
+            self.asked.set()
+            if not self._go.wait(timeout=300) or not h.write_piece(sse(chunk(program))):
+                return
+            while self._more.acquire(timeout=300) and not self._enough:
+                if not h.write_piece(sse(chunk(" "))):
+                    return
+            f.wait_gate(timeout=300)
+            if h.write_piece(sse(chunk(None, finish="stop"))) and h.write_piece(DONE):
+                h.end_chunked()
+
+        fake.responder = respond
+
+    def walk_under_way(self, cli: Cli, out: Path) -> None:
+        """Wait for the request (the turn has begun: the move to the start pose is in the frame log),
+        then let the program go and one more chunk per poll until servo frames spanning
+        ``UNDER_WAY_S`` board seconds moved the robot away from its start pose beyond those sent
+        before the turn; from then on the reply is held."""
+        wait_until(self.asked.is_set, "the host asks the LLM", proc=cli)
+        before = servo_frames_moving_s(out, _start_pose())
+        self._go.set()
+
+        def under_way() -> bool:
+            if servo_frames_moving_s(out, _start_pose()) > before + UNDER_WAY_S:
+                self._enough = True
+                self._more.release()
+                return True
+            self._more.release()
+            return False
+
+        wait_until(under_way, "the walk is under way", proc=cli)
+
+
+def _llm_args(fake: FakeLLM) -> list[str]:
+    return ["--llm", "openai:test-model", "--base-url", fake.base_url, "--api-key", "test-key"]
+
+
+def _run_held(tmp_path: Path, fake: FakeLLM, *extra: str) -> tuple[Cli, Path]:
+    """``ghostshell run --lockstep`` of task 9's program from a reply held open (:class:`_HeldReply`),
+    once the walk is under way; the turn cannot end before the test's signal."""
+    held = _HeldReply(fake, _square())
+    out = tmp_path / "run"
+    cli = start(["run", "--prompt", "Walk in a square with 20cm sides", *_llm_args(fake), "--lockstep", "--no-live",
+                 "--out", str(out), *extra], tmp_path / "logs")
+    held.walk_under_way(cli, out)
     return cli, out
 
 
@@ -87,8 +170,8 @@ def _check_interrupted(cli: Cli, out: Path, rc: int, by: str = "SIGINT") -> dict
     return summary
 
 
-def test_ctrl_c_lockstep_serial(tmp_path: Path) -> None:
-    cli, out = _run(tmp_path, "--lockstep")
+def test_ctrl_c_lockstep_serial(tmp_path: Path, fake_llm: FakeLLM) -> None:
+    cli, out = _run_held(tmp_path, fake_llm)
     cli.ctrl_c()
     _check_interrupted(cli, out, cli.wait())
     assert "link" not in (out / "board.stderr").read_text().lower().replace("board: ", "")
@@ -102,8 +185,8 @@ def test_ctrl_c_realtime_serial(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_ctrl_c_lockstep_can(tmp_path: Path) -> None:
-    cli, out = _run(tmp_path, "--lockstep", "--link", "can:slcan:pty")
+def test_ctrl_c_lockstep_can(tmp_path: Path, fake_llm: FakeLLM) -> None:
+    cli, out = _run_held(tmp_path, fake_llm, "--link", "can:slcan:pty")
     cli.ctrl_c()
     _check_interrupted(cli, out, cli.wait())
 
@@ -116,8 +199,8 @@ def test_ctrl_c_realtime_can(tmp_path: Path) -> None:
     _check_interrupted(cli, out, cli.wait())
 
 
-def test_sigterm_to_the_host_alone_is_the_same(tmp_path: Path) -> None:
-    cli, out = _run(tmp_path, "--lockstep")
+def test_sigterm_to_the_host_alone_is_the_same(tmp_path: Path, fake_llm: FakeLLM) -> None:
+    cli, out = _run_held(tmp_path, fake_llm)
     cli.signal(signal.SIGTERM)  # `kill PID`: the host only, not its group
     _check_interrupted(cli, out, cli.wait(), by="SIGTERM")
 
@@ -166,17 +249,14 @@ def test_ctrl_c_while_the_demo_renders_leaves_no_video(tmp_path: Path) -> None:
     assert processes_mentioning(str(out)) == []
 
 
-def test_ctrl_c_ends_a_chat_at_rest_with_its_transcript(tmp_path: Path) -> None:
-    from robots.registry import load_robot
-    from robots.tasks import get_task
-
-    robot = load_robot()
-    square = get_task(robot.tasks, 9).ground_truth
-    replies = tmp_path / "replies.txt"
-    replies.write_text(f"{square}\n---\n{square}\n", encoding="utf-8")
+def test_ctrl_c_ends_a_chat_at_rest_with_its_transcript(tmp_path: Path, fake_llm: FakeLLM) -> None:
+    held = _HeldReply(fake_llm, _square())  # the first turn's reply is held open: the second turn never comes
+    turns = tmp_path / "turns.txt"
+    turns.write_text("Walk in a square with 20cm sides\n---\nAnd again\n", encoding="utf-8")
     out = tmp_path / "chat"
-    cli = start(["chat", "--replies", str(replies), "--lockstep", "--no-live", "--out", str(out)], tmp_path / "logs")
-    wait_until(lambda: servo_frames_moving_s(out, _start_pose()) > UNDER_WAY_S, "the first turn is under way", proc=cli)
+    cli = start(["chat", "--turns", str(turns), *_llm_args(fake_llm), "--lockstep", "--no-live", "--out", str(out)],
+                tmp_path / "logs")
+    held.walk_under_way(cli, out)
     cli.ctrl_c()
     rc = cli.wait()
     err = cli.stderr.strip().splitlines()
@@ -212,9 +292,11 @@ def test_ctrl_c_stops_the_mcp_server_and_its_board(tmp_path: Path) -> None:
     assert processes_mentioning(str(out)) == []
 
 
+@pytest.mark.realtime
 def test_ctrl_c_stops_a_tour_and_its_board(tmp_path: Path) -> None:
+    # realtime: a lockstep tour went through all six poses in under a second after the first one
     out = tmp_path / "tour"
-    cli = start(["tour", "--lockstep", "--duration", "5", "--out", str(out)], tmp_path / "logs")
+    cli = start(["tour", "--realtime", "--duration", "2", "--out", str(out)], tmp_path / "logs")
     wait_until(lambda: "reached" in cli.stdout, "the tour reached its first pose", proc=cli)
     cli.ctrl_c()
     rc = cli.wait()

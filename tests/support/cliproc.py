@@ -90,14 +90,20 @@ def start(args: Sequence[str], logs: Path, env: dict[str, str] | None = None, st
 
 def wait_until(cond: Callable[[], bool], what: str, timeout: float = 60.0, proc: Cli | None = None) -> None:
     """Poll ``cond`` every 20 ms until it holds; AssertionError naming ``what`` after ``timeout`` s (or
-    at once when ``proc`` exits first)."""
+    at once when ``proc`` exits first). The polling thread runs at the worker's base nice value
+    (:func:`support.realtime_lock.attentive`), so it sees the event soon after it happens even when
+    the suite holds ordinary tests at nice 19; keep ``cond`` cheap."""
+    from support.realtime_lock import attentive
+
     deadline = time.monotonic() + timeout
-    while not cond():
-        if proc is not None and proc.proc.poll() is not None:
-            raise AssertionError(f"the command exited ({proc.proc.returncode}) before {what}:\n{proc.stderr[-3000:]}")
-        if time.monotonic() > deadline:
-            raise AssertionError(f"{what}: not within {timeout} s")
-        time.sleep(0.02)
+    with attentive():
+        while not cond():
+            if proc is not None and proc.proc.poll() is not None:
+                raise AssertionError(f"the command exited ({proc.proc.returncode}) before {what}:\n"
+                                     f"{proc.stderr[-3000:]}")
+            if time.monotonic() > deadline:
+                raise AssertionError(f"{what}: not within {timeout} s")
+            time.sleep(0.02)
 
 
 def _json_records(path: Path) -> list[dict]:

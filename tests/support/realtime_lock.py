@@ -21,8 +21,8 @@ lockstep replays, a board stopped for good whose loss the host is left to detect
 :func:`realtime_part_done`: from then on it holds the lock shared, so the other workers run their
 ordinary tests beside the rest of it instead of idling to its end.
 
-Where the worker may raise its nice value and lower it again (root or ``CAP_SYS_NICE``, as in CI),
-the other workers need not idle at all (*background mode*): every ordinary test runs at nice 19,
+Where the worker may raise its nice value and lower it again (root, ``CAP_SYS_NICE`` or a large
+enough ``RLIMIT_NICE``; Linux; below nice 19: :func:`background_possible`), the other workers need not idle at all (*background mode*): every ordinary test runs at nice 19,
 with every process its worker has started, and a realtime test's worker moves its whole process tree
 back to the nice value it started with for that test. Linux gives a nice-0 task ~68 times the CPU
 share of a nice-19 one (weights 1 024 and 15, sched(7)) and lets it preempt one on wake-up, so the
@@ -35,7 +35,9 @@ speed). ``GHOSTSHELL_TESTS_REALTIME_ALONE`` set to anything but empty or ``0`` t
 does a worker that may not lower a nice value again (no root, no ``CAP_SYS_NICE``, ``RLIMIT_NICE``
 too small) or that already runs at nice 19: realtime tests then run alone as above, and the suite
 takes longer (12 min 9 s on two workers before background mode, n = 1). The run's header says
-which mode it uses.
+which mode it uses. An ordinary test that waits for what its subprocess does (a frame in a log, before
+it sends a signal) polls through :func:`attentive`, at the base value: at nice 19, next to a realtime
+board, the poller saw a fast lockstep run only after it had ended (CI, 2026-12-04).
 
 Written here rather than taken from a plugin: pytest-xdist groups tests onto one worker
 (``xdist_group``) but has no way to keep other workers idle meanwhile.
@@ -49,6 +51,7 @@ import os
 import resource
 import sys
 import tempfile
+import threading
 from collections.abc import Generator, Iterator
 from pathlib import Path
 from typing import IO
@@ -256,6 +259,32 @@ def realtime_part_done() -> bool:
     (:meth:`_RunLock.share`): True if the lock is now shared (in background mode: released, and the rest
     of the test runs at nice 19); a no-op without xdist or in an ordinary test."""
     return _lock is not None and _lock.share()
+
+
+@contextlib.contextmanager
+def attentive() -> Iterator[None]:
+    """The calling thread at the worker's base nice value for the block, then back where it was: for a
+    test that *waits* for something a subprocess does (:func:`support.cliproc.wait_until` polling a
+    frame log before it sends a signal). In background mode an ordinary test runs at nice 19; a
+    waiting thread on the same core as a realtime test's board (nice 0 or lower) then gets well
+    under 1 % of that core and may see a lockstep run only after it ended. Only this thread moves
+    (``setpriority`` on its thread id), so the subprocesses it watches stay at 19. A no-op outside
+    background mode, in a realtime test (already at the base value) and when the value cannot be set."""
+    lock = _lock
+    if lock is None or not lock.background or lock._exclusive_held:
+        yield
+        return
+    tid = threading.get_native_id()
+    before = os.getpriority(os.PRIO_PROCESS, tid)
+    try:
+        os.setpriority(os.PRIO_PROCESS, tid, lock.base_nice)
+    except OSError:
+        yield
+        return
+    try:
+        yield
+    finally:
+        os.setpriority(os.PRIO_PROCESS, tid, before)
 
 
 def _run_dir(config: pytest.Config) -> Path:
