@@ -21,8 +21,10 @@ import argparse
 import contextlib
 import importlib
 import os
+import shutil
 import signal
 import sys
+import textwrap
 import threading
 from collections.abc import Sequence
 from types import FrameType
@@ -61,15 +63,37 @@ EXIT_CODES: dict[int, str] = {
     130: "interrupted (Ctrl-C or SIGTERM); run, demo and chat still write what ran",
 }
 
+#: environment variables the commands read (name -> what it does), listed in ``ghostshell --help``;
+#: tests/cli/test_environment_help.py fails while the code reads a ``GHOSTSHELL_*`` variable not named here
+ENVIRONMENT: dict[str, str] = {
+    "GHOSTSHELL_LLM_BASE_URL": "LLM endpoint when --base-url is not given (else OPENAI_BASE_URL / ANTHROPIC_BASE_URL)",
+    "GHOSTSHELL_LLM_API_KEY": "LLM key when --api-key is not given (else OPENAI_API_KEY / ANTHROPIC_API_KEY)",
+    "GHOSTSHELL_LLM_MODEL": "model for an --llm spec without one (openai: / anthropic:)",
+    "GHOSTSHELL_ROBOTS": "more robot folders to search, separated by ':' (after --robots-dir, before the user's)",
+    "GHOSTSHELL_SKILLS": "the skill library file (default in the user data folder)",
+    "GHOSTSHELL_BOARD_NICE": "nice increment a realtime emulated board asks for (default -10; 0: unchanged)",
+    "GHOSTSHELL_BOARD_KERNEL": "the emulated board's per-tick servo path: native (default), native! or python",
+    "GHOSTSHELL_MJCF_CHECK_CACHE": "folder for recorded robot-model checks ('off': check every time)",
+    "GHOSTSHELL_NATIVE_CACHE": "folder for the board's compiled per-tick library (default: the user cache)",
+    "GHOSTSHELL_CFIRMWARE_CACHE": "folder for the built C firmware (default: the user cache)",
+    "GHOSTSHELL_MJ_TIMERS": "1 keeps MuJoCo's stage timers running beside the native tick (profiling)",
+    "MUJOCO_GL": "MuJoCo's offscreen renderer for the video and the board's camera: egl (the default) or osmesa",
+}
+
 DESCRIPTION = ("GhostShell: an LLM drives a robot while it is still talking. Its streamed function tokens run "
                "through the shell onto the robot's emulated board (MuJoCo) or a real one, over a serial link or CAN.")
 
 
 def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     """Build the top-level parser; only the chosen subcommand's module is imported."""
-    epilog = "exit status: " + "; ".join(f"{k} {v}" for k, v in EXIT_CODES.items()) + \
+    status = "exit status: " + "; ".join(f"{k} {v}" for k, v in EXIT_CODES.items()) + \
         " (ghostshell vcan: its COMMAND's status)."
-    parser = argparse.ArgumentParser(prog="ghostshell", description=DESCRIPTION, epilog=epilog)
+    width = max(40, min(shutil.get_terminal_size().columns, 100) - 2)
+    env = [f"  {name}\n" + textwrap.fill(what, width, initial_indent=" " * 6, subsequent_indent=" " * 6)
+           for name, what in ENVIRONMENT.items()]
+    epilog = textwrap.fill(status, width) + "\n\nenvironment:\n" + "\n".join(env)
+    parser = argparse.ArgumentParser(prog="ghostshell", description=textwrap.fill(DESCRIPTION, width), epilog=epilog,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     chosen = next((a for a in argv if not a.startswith("-")), None)
     for name, (module, help_text) in COMMANDS.items():

@@ -132,6 +132,9 @@ def build_config(args: argparse.Namespace) -> Any:
         if not valid:
             raise ValueError(f"{robot.name} has no tasks with a ground truth to evaluate")
         tasks = parse_task_spec(args.tasks or "all", valid)
+    if args.no_run and args.no_plots:  # not silently: a user who gave both expected --no-plots to do something
+        raise ValueError("--no-plots with --no-run: no reply runs on the board, so no timeline.png / joints.png "
+                         "would be drawn anyway; give one of them")
     if args.native_tools and suite != "ablation":
         raise ValueError("--native-tools is the ablation: use it with --tasks ablation")
     if args.trials < 1 or args.workers < 1:

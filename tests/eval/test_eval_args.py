@@ -65,3 +65,11 @@ def test_other_tasks_or_fewer_trials_into_the_same_out_are_refused(
     lines = [x for x in capsys.readouterr().out.splitlines() if x.startswith("[")]
     assert [x.split("]")[0] for x in lines] == ["[5/6", "[6/6"]
     assert json.loads((out / "config.json").read_text())["trials"] == 3
+
+
+def test_no_plots_with_no_run_is_refused_not_ignored(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli(["eval", "--llm", "ground-truth", "--tasks", "1", "--no-run", "--no-plots",
+                "--out", str(tmp_path / "e")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--no-plots with --no-run" in err[0], err
+    assert not (tmp_path / "e").exists()
