@@ -114,7 +114,8 @@ def _on_sigterm(signum: int, frame: FrameType | None) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``ghostshell`` console script."""
+    """Run the ``ghostshell`` command ``argv`` (default ``sys.argv[1:]``); returns its exit status (the console
+    script calls :func:`entry`, which calls this)."""
     args_list = list(sys.argv[1:] if argv is None else argv)
     command = next((a for a in args_list if not a.startswith("-")), "")
     previous = signal.getsignal(signal.SIGTERM)
@@ -140,18 +141,19 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def entry() -> int:
     """The ``ghostshell`` console script and ``python -m host``: :func:`main`; then, while the
-    interpreter shuts down, a Ctrl-C ends the process at once with the command's own status. The
+    interpreter shuts down, a Ctrl-C or SIGTERM ends the process at once with the command's own status. The
     command has finished and printed its last line by then; a Ctrl-C in those few hundred
     milliseconds used to leave it with status 0 or kill it by the signal, without a word, depending
-    on where it landed. (Python puts SIGINT back to its default in the last ~20 ms of its
-    finalisation, after this handler; a Ctrl-C there still ends the process by the signal, which a
-    shell reports as status 130.)"""
+    on where it landed. (Python puts both back to their defaults in the last ~20 ms of its
+    finalisation, after this handler; a signal there still ends the process by the signal, which a
+    shell reports as status 130 or 143.)"""
     status = main()
     if threading.current_thread() is threading.main_thread():
         for stream in (sys.stdout, sys.stderr):
             with contextlib.suppress(Exception):
                 stream.flush()
-        signal.signal(signal.SIGINT, lambda signum, frame: os._exit(status))
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda signum, frame: os._exit(status))
     return status
 
 

@@ -382,7 +382,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
 
     s = report.summary
     if report.stop is not None:  # a signal or a bound stopped the run: one line says what and where
-        rest = ("the turn had already ended (its artefacts were being written)" if report.rested is None else
+        rest = ("the turn had already ended" if report.rested is None else
                 f"the robot went to its rest pose {args.robot_value.rest_pose!r}" if report.rested else
                 "the robot could not be brought to its rest pose")
         print_error(command, f"{report.stop.message} at board time {s.duration_s:.2f} s; "

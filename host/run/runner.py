@@ -107,7 +107,7 @@ class RunReport:
     token_times: list[tuple[float, str]] = field(default_factory=list)
     board_t0: float = 0.0
     stop: StopReason | None = None  # why the run stopped early (a signal, a bound), else None
-    rested: bool | None = None  # after a stop: the robot reached its rest pose (None: no stop)
+    rested: bool | None = None  # after a stop: the robot reached its rest pose (None: no stop, or it came after the turn)
 
 
 def session_options(opts: RunOptions) -> SessionOptions:
@@ -129,48 +129,55 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, RobotRuntime]
     signals = StopSignals(session.request_stop) if opts.handle_signals else None
     rested: bool | None = None
     turn: TurnResult | None = None
-    try:
-        async with (signals.guard() if signals is not None else contextlib.nullcontext()), session:
-            messages = [{"role": "system", "content": session.prompt(format="xml")},
-                        {"role": "user", "content": opts.prompt or ""}]
-            if opts.llm == "scripted":  # paced on the board clock, so lockstep runs are reproducible
-                ghost = make_ghost("scripted", program=opts.program, tokens_per_s=opts.tokens_per_s,
-                                   seed=opts.seed, sleep=session.pacer())
-            else:
-                ghost = make_ghost(opts.llm, base_url=opts.llm_base_url, api_key=opts.llm_api_key)
-            if on_start is not None:
-                on_start(session.shell, session.runtime)
-            if opts.live:
-                from host.run.live import live_view
+    written = False
+    # One guard over the session and the writing of its artefacts: between two guards a signal met the
+    # event loop's own SIGINT handler and cancelled the run before anything was written.
+    async with (signals.guard() if signals is not None else contextlib.nullcontext()):
+        try:
+            async with session:
+                messages = [{"role": "system", "content": session.prompt(format="xml")},
+                            {"role": "user", "content": opts.prompt or ""}]
+                if opts.llm == "scripted":  # paced on the board clock, so lockstep runs are reproducible
+                    ghost = make_ghost("scripted", program=opts.program, tokens_per_s=opts.tokens_per_s,
+                                       seed=opts.seed, sleep=session.pacer())
+                else:
+                    ghost = make_ghost(opts.llm, base_url=opts.llm_base_url, api_key=opts.llm_api_key)
+                if on_start is not None:
+                    on_start(session.shell, session.runtime)
+                if opts.live:
+                    from host.run.live import live_view
 
-                session.background().start_soon(live_view, session.shell, session.runtime, opts.task_label)
-            turn = await session.run_turn(ghost.stream(messages), label=opts.task_label, out=opts.out,
-                                          hold=opts.llm != "scripted", buffer=opts.buffer_response,
-                                          interrupt_after=opts.interrupt_at, settle_s=opts.settle_s, write=False)
-            if session.stop is not None:  # a signal or a bound cut the run: end at the rest pose
-                rested = await session.go_to_rest()
-                turn.summary.extra.setdefault("stopped", {})["rest_pose"] = (
-                    session.robot.rest_pose if rested else None)
-            write = session.writer(turn, opts.task_label)  # snapshot now, plot after the board stopped
-    except LinkError as exc:
-        if signals is None or signals.forced is None:
-            _end_on_link_error(session, exc, opts)
-            raise
-        # else the cancellation broke the link: not a loss; reported as the interruption it was, below
-    if signals is not None and signals.forced is not None:  # cancelled at once: the JSON files, then out
+                    session.background().start_soon(live_view, session.shell, session.runtime, opts.task_label)
+                turn = await session.run_turn(ghost.stream(messages), label=opts.task_label, out=opts.out,
+                                              hold=opts.llm != "scripted", buffer=opts.buffer_response,
+                                              interrupt_after=opts.interrupt_at, settle_s=opts.settle_s,
+                                              write=False)
+                if session.stop is not None:  # a signal or a bound cut the run: end at the rest pose
+                    rested = await session.go_to_rest()
+                    turn.summary.extra.setdefault("stopped", {})["rest_pose"] = (
+                        session.robot.rest_pose if rested else None)
+                write = session.writer(turn, opts.task_label)  # snapshot now, plot after the board stopped
+        except LinkError as exc:
+            if signals is None or signals.forced is None:
+                _end_on_link_error(session, exc, opts)
+                raise
+            # else the cancellation broke the link: not a loss; reported as the interruption it was, below
+        else:
+            # The artefacts of a finished turn are always written whole (plotting takes a fraction of a
+            # second, in a worker thread: other runs in this loop go on meanwhile). A first signal now has
+            # no turn left to interrupt (session.request_stop records it; the command exits 130 and says
+            # the turn had ended); a second one waits for the writing too.
+            with anyio.CancelScope(shield=True):
+                await anyio.to_thread.run_sync(write)
+            written = True
+    if signals is not None and signals.forced is not None and not written:  # at once: the JSON files, then out
         _raise_forced(session, signals, turn, opts)
     assert turn is not None  # the session ran its turn (every other way out raised above)
-    # Plotting takes a second: other runs in this loop go on meanwhile. Signals stay handled while the
-    # artefacts are written, which always finishes: a first signal now has no turn left to interrupt
-    # (session.request_stop only records it: the command then exits 130 and says the turn had ended), a
-    # second one after the writing is a forced stop as above.
-    async with (signals.guard() if signals is not None else contextlib.nullcontext()):
-        with anyio.CancelScope(shield=True):
-            await anyio.to_thread.run_sync(write)
-    if signals is not None and signals.forced is not None:
-        _raise_forced(session, signals, turn, opts)
+    stop = session.stop
+    if signals is not None and signals.first is not None and stop is not None and stop.kind != "signal":
+        stop = signals.first  # a bound cut the turn, then the user interrupted the rest: exit 130
     return RunReport(turn.result, turn.calls, turn.summary, turn.out, turn.token_times, turn.board_t0,
-                     session.stop, rested)
+                     stop, rested)
 
 
 def _raise_forced(session: RobotSession, signals: StopSignals, turn: TurnResult | None, opts: RunOptions) -> NoReturn:
@@ -178,7 +185,7 @@ def _raise_forced(session: RobotSession, signals: StopSignals, turn: TurnResult 
     :class:`Interrupted` carrying their :class:`RunReport`."""
     interrupted = signals.interrupted()
     stop = interrupted.stop
-    if turn is not None:  # the turn itself had ended (the second signal came while going to rest or writing)
+    if turn is not None:  # the turn itself had ended (the second signal came while going to rest)
         turn.summary.outcome = "interrupted"
         turn.summary.extra["stopped"] = {**interrupted.stopped_extra(), "rest_pose": None}
         ended: TurnResult | None = turn

@@ -10,10 +10,9 @@ prints one line and exits 130. A second signal exits at once: the work is cancel
 and timeline.json of what ran are written (no plots, no rest pose), the emulated board is stopped,
 exit 130. A signal while the session is still starting (no turn yet to interrupt) is that second
 kind at once, and said so: "interrupted by SIGINT (Ctrl-C) while starting: stopped at once" (one
-signal, not two; ``while_starting`` in ``summary.json``'s ``extra.stopped``). ``run`` keeps its
-signals handled while it writes a finished turn's artefacts (:meth:`StopSignals.guard` entered a
-second time, so a signal there counts as the second when one came before): the writing finishes,
-and the command exits 130 saying the turn had already ended. Signals are taken with AnyIO's :func:`anyio.open_signal_receiver` (the main thread
+signal, not two; ``while_starting`` in ``summary.json``'s ``extra.stopped``). ``run``'s guard
+also covers the writing of a finished turn's artefacts, which always finishes (a second signal
+waits for it too); a signal there exits 130 and the line says the turn had already ended. Signals are taken with AnyIO's :func:`anyio.open_signal_receiver` (the main thread
 of the event loop), so they never arrive as a ``KeyboardInterrupt`` in the middle of a task.
 
 The emulated board does not see the terminal's Ctrl-C at all: the host starts it in its own

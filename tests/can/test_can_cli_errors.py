@@ -2,7 +2,7 @@
 
 One line on stderr naming the spec and what to do, no library text passed through raw, exit
 status 2 (a usage/configuration error) in ``run``, ``demo``, ``pose``, ``estop`` and ``tour``
-alike. The commands run in-process through :func:`host.cli.main` (what the console script calls);
+alike. The commands run in-process through :func:`host.cli.main` (what the console script runs, through host.cli.entry);
 the CAN buses are opened with python-can's own drivers, the emulated board is a real subprocess.
 """
 

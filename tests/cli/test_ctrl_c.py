@@ -119,10 +119,6 @@ class _HeldReply:
         then let the program go and one more chunk per poll until servo frames spanning
         ``UNDER_WAY_S`` board seconds moved the robot away from its start pose beyond those sent
         before the turn; from then on the reply is held."""
-        wait_until(self.asked.is_set, "the host asks the LLM", proc=cli)
-        before = servo_frames_moving_s(out, _start_pose())
-        self._go.set()
-
         def under_way() -> bool:
             if servo_frames_moving_s(out, _start_pose()) > before + UNDER_WAY_S:
                 self._enough = True
@@ -131,7 +127,17 @@ class _HeldReply:
             self._more.release()
             return False
 
-        wait_until(under_way, "the walk is under way", proc=cli)
+        try:
+            wait_until(self.asked.is_set, "the host asks the LLM", proc=cli)
+            before = servo_frames_moving_s(out, _start_pose())
+            self._go.set()
+            wait_until(under_way, "the walk is under way", proc=cli)
+        except BaseException:  # the test fails here: end the stream and the command now, not in 5 minutes
+            self._enough = True
+            self._go.set()
+            self._more.release()
+            cli.kill()
+            raise
 
 
 def _llm_args(fake: FakeLLM) -> list[str]:
