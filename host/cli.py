@@ -18,9 +18,7 @@ SIGTERM is handled as Ctrl-C is: ``run``, ``demo`` and ``chat`` interrupt their 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import importlib
-import os
 import shutil
 import signal
 import sys
@@ -130,6 +128,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         what = "SIGTERM" if isinstance(e, Terminated) else "SIGINT (Ctrl-C)"
         print_error(command if command in COMMANDS else None, f"interrupted by {what}")
         return 130
+    except ImportError as e:  # Ctrl-C while an extension module initialises (seen: ``import mujoco``)
+        interrupt = _interrupt_behind(e)
+        if interrupt is None:
+            raise
+        what = "SIGTERM" if isinstance(interrupt, Terminated) else "SIGINT (Ctrl-C)"
+        print_error(command if command in COMMANDS else None, f"interrupted by {what}")
+        return 130
     except UnicodeDecodeError as e:  # a file the command read is not UTF-8: one clear line, not a traceback
         print_error(command if command in COMMANDS else None,
                     f"an input file is not UTF-8 text ({e.reason} at byte {e.start})")
@@ -139,21 +144,30 @@ def main(argv: Sequence[str] | None = None) -> int:
             signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
 
 
+def _interrupt_behind(error: BaseException) -> KeyboardInterrupt | None:
+    """The KeyboardInterrupt (Ctrl-C, or SIGTERM as :class:`Terminated`) an error was raised while
+    handling, if any: a C extension whose initialisation a signal cut short reports ``ImportError:
+    initialization failed`` with the KeyboardInterrupt as its context."""
+    seen: set[int] = set()
+    e: BaseException | None = error
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return e
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return None
+
+
 def entry() -> int:
-    """The ``ghostshell`` console script and ``python -m host``: :func:`main`; then, while the
-    interpreter shuts down, a Ctrl-C or SIGTERM ends the process at once with the command's own status. The
-    command has finished and printed its last line by then; a Ctrl-C in those few hundred
-    milliseconds used to leave it with status 0 or kill it by the signal, without a word, depending
-    on where it landed. (Python puts both back to their defaults in the last ~20 ms of its
-    finalisation, after this handler; a signal there still ends the process by the signal, which a
-    shell reports as status 130 or 143.)"""
+    """The ``ghostshell`` console script and ``python -m host``: :func:`main`; then SIGINT and SIGTERM are
+    ignored while the interpreter shuts down (~150 ms). The command has finished and printed its last
+    line by then; a Ctrl-C there used to kill the process by the signal (a shell shows 130 after a run
+    that succeeded). Ignored rather than handled: Python puts the handlers it installed back to the
+    default before it unloads its modules, so a handler would cover only the first moments."""
     status = main()
     if threading.current_thread() is threading.main_thread():
-        for stream in (sys.stdout, sys.stderr):
-            with contextlib.suppress(Exception):
-                stream.flush()
         for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda signum, frame: os._exit(status))
+            signal.signal(sig, signal.SIG_IGN)
     return status
 
 

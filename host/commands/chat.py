@@ -169,13 +169,14 @@ async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any,
     conv = chat.conv
     if signals.forced is not None:  # stopped at once: the step in progress and the transcript, no plots
         interrupted = signals.interrupted()
-        ended = session.ended_turn(interrupted)
-        if ended is not None and session.turns:
+        # the step in progress, if one was (between steps there is none: no empty report beside the turns)
+        ended = session.ended_turn(interrupted) if session.turn_running else None
+        if ended is not None:
             session.write_now(ended, plots=False)
         if conv is not None:
             conv.write_transcript(transcript)
-        print_error("chat", f"{interrupted.how}; transcript and "
-              f"artefacts in {out}/")
+        what = "transcript and artefacts" if conv is not None else "no turn began; the frame logs"
+        print_error("chat", f"{interrupted.how}; {what} in {out}/")
         return 130
     if session.stop is not None:
         rest = (f"the robot went to its rest pose {session.robot.rest_pose!r}" if chat.rested else

@@ -558,6 +558,11 @@ class RobotSession:
         """A sleep on the board clock for a scripted LLM (absolute deadlines; fresh per turn)."""
         return BoardPacer(self.runtime)
 
+    @property
+    def turn_running(self) -> bool:
+        """True while a turn runs (:meth:`run_turn` started it and has not returned)."""
+        return self._turn is not None
+
     def background(self) -> anyio.abc.TaskGroup:
         """The session's task group (for a live view or other session-long tasks)."""
         if self._tg is None:

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import anyio
 import anyio.abc
+import anyio.lowlevel
 
 __all__ = ["DEFAULT_MAX_BOARD_S", "DEFAULT_MAX_LOG_MB", "Interrupted", "StopReason", "StopSignals", "signal_stop"]
 
@@ -43,6 +44,12 @@ DEFAULT_MAX_BOARD_S = 120.0
 #: Megabytes the session's frame logs (host and board, both directions) may reach: 50 Hz telemetry
 #: and 100 Hz servo frames log ~0.2 MB per board second, so ~40 minutes of a session.
 DEFAULT_MAX_LOG_MB = 500.0
+
+
+#: event-loop passes the guard gives a signal that arrived as its body ended: asyncio reads the wakeup
+#: pipe in one pass, runs the signal's callback in the next and AnyIO's receiver wakes the watcher in the
+#: one after, so 3 are needed (20 of 20 taken with 3, none with 2; tests/run/test_stops_drain.py); 6 to spare
+DRAIN_PASSES = 6
 
 
 @dataclass(frozen=True)
@@ -165,6 +172,13 @@ class StopSignals:
                         yield self
                 finally:
                     self._body = None
+                    # a signal that came while the body ended in blocking work (stopping the board: a
+                    # SIGTERM and a wait) is in the loop's wakeup pipe, not yet with the watcher: let the
+                    # loop hand it over (read the pipe, run the handler, wake the watcher) before the
+                    # watcher goes, or it was lost (status 0, no word)
+                    with anyio.CancelScope(shield=True):
+                        for _ in range(DRAIN_PASSES):
+                            await anyio.lowlevel.checkpoint()
                     tg.cancel_scope.cancel()
         except BaseExceptionGroup as group:  # the body's own error, not a group: the watcher never fails
             if len(group.exceptions) == 1 and not isinstance(group.exceptions[0], BaseExceptionGroup):

@@ -405,6 +405,7 @@ def render_video(run_dir: Path, out: Path | None = None, settings: VideoSettings
                 writer.close()
             except Exception:
                 pass
-            partial.unlink(missing_ok=True)
+            finally:  # also when a second Ctrl-C cuts the close short (it left a 48-byte file)
+                partial.unlink(missing_ok=True)
     os.replace(partial, out)
     return out
