@@ -176,6 +176,8 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, RobotRuntime]
     stop = session.stop
     if signals is not None and signals.first is not None and stop is not None and stop.kind != "signal":
         stop = signals.first  # a bound cut the turn, then the user interrupted the rest: exit 130
+    if signals is not None and signals.late is not None and (stop is None or stop.kind != "signal"):
+        stop = signals.late  # as the command finished: reported, not lost
     return RunReport(turn.result, turn.calls, turn.summary, turn.out, turn.token_times, turn.board_t0,
                      stop, rested)
 

@@ -27,10 +27,12 @@ with outcome ``limit`` and the reason in ``summary.json`` (``extra.stopped``); t
 
 from __future__ import annotations
 
+import asyncio.events
 import signal
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
+from types import FrameType
 
 import anyio
 import anyio.abc
@@ -50,6 +52,12 @@ DEFAULT_MAX_LOG_MB = 500.0
 #: pipe in one pass, runs the signal's callback in the next and AnyIO's receiver wakes the watcher in the
 #: one after, so 3 are needed (20 of 20 taken with 3, none with 2; tests/run/test_stops_drain.py); 6 to spare
 DRAIN_PASSES = 6
+
+
+def _is_asyncio_runner_handler(handler: object) -> bool:
+    """True for the SIGINT handler :class:`asyncio.Runner` installs (a partial of ``Runner._on_sigint``)."""
+    func = getattr(handler, "func", None)
+    return getattr(func, "__name__", "") == "_on_sigint" and "asyncio" in getattr(func, "__module__", "")
 
 
 @dataclass(frozen=True)
@@ -129,6 +137,8 @@ class StopSignals:
         self.first: StopReason | None = None
         self.forced: str | None = None
         self.while_starting = False
+        #: a SIGINT after the guard, before the command returned (see :meth:`_late_sigint`)
+        self.late: StopReason | None = None
         self._body: anyio.CancelScope | None = None
 
     def interrupted(self) -> Interrupted:
@@ -157,7 +167,20 @@ class StopSignals:
                         self._body.cancel()
         finally:
             for sig, handler in previous.items():
+                if sig == signal.SIGINT and _is_asyncio_runner_handler(handler):
+                    handler = self._late_sigint
                 signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+
+    def _late_sigint(self, signum: int, frame: FrameType | None) -> None:
+        """SIGINT after the guard, while the command finishes inside the event loop. asyncio's runner
+        would cancel the main task, and a task with no await left returns as if nothing came: the
+        signal was lost (status 0). The first is recorded in ``late`` for the command to report; a
+        second, or one once the event loop has returned (the command reads ``late`` no more), raises
+        KeyboardInterrupt, as Python's own handler does."""
+        if self.late is None and asyncio.events._get_running_loop() is not None:
+            self.late = signal_stop(signum)
+            return
+        raise KeyboardInterrupt
 
     @asynccontextmanager
     async def guard(self) -> AsyncIterator[StopSignals]:

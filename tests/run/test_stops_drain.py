@@ -50,3 +50,24 @@ def test_the_drain_is_what_takes_it(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(stops_module, "DRAIN_PASSES", 0)
     assert _guarded(1, graceful=True).first is None  # lost without it: the test above can fail
     assert DRAIN_PASSES >= 3
+
+
+def test_a_sigint_after_the_guard_inside_the_loop_is_recorded_not_lost() -> None:
+    """After the guard, asyncio's runner handler used to take SIGINT: it cancelled the main task, and a
+    task with no await left returned normally (chat: status 0, no word)."""
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a command: the runner installs its own
+    stops = StopSignals(lambda stop: True)
+
+    async def main() -> str:
+        async with stops.guard():
+            await anyio.lowlevel.checkpoint()
+        os.kill(os.getpid(), signal.SIGINT)  # the command finishing, no await left
+        time.sleep(0.01)
+        return "finished"
+
+    assert anyio.run(main, backend="asyncio") == "finished"
+    assert stops.first is None and stops.late is not None and stops.late.name == "SIGINT"
+    with pytest.raises(KeyboardInterrupt):  # a second one is a KeyboardInterrupt, as Python's own handler
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.01)
+    signal.signal(signal.SIGINT, before)
