@@ -178,17 +178,15 @@ async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any,
         what = "transcript and artefacts" if conv is not None else "no turn began; the frame logs"
         print_error("chat", f"{interrupted.how}; {what} in {out}/")
         return 130
-    if session.stop is None and signals.late is not None:  # as the chat ended: it ended all the same
-        print_error("chat", f"{signals.late.message} as the chat ended; transcript and artefacts in {out}/")
-        return 130
-    if session.stop is not None:
+    stop = signals.reported(session.stop)
+    if stop is not None:
         rest = ("the chat had already ended" if chat.rested is None else
                 f"the robot went to its rest pose {session.robot.rest_pose!r}" if chat.rested else
                 "the robot could not be brought to its rest pose")
         n = len(conv.turns) if conv is not None else 0
-        print_error("chat", f"{session.stop.message} after {n} turn{'s' if n != 1 else ''}; {rest}; "
+        print_error("chat", f"{stop.message} after {n} turn{'s' if n != 1 else ''}; {rest}; "
               f"transcript and artefacts in {out}/")
-        return int(session.stop.exit_status)
+        return int(stop.exit_status)
     print(f"transcript and artefacts in {out}/")
     steps = [s for t in conv.turns for s in t.steps] if conv is not None else []
     if steps and all(s.stream_error for s in steps):

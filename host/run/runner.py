@@ -173,11 +173,7 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, RobotRuntime]
     if signals is not None and signals.forced is not None and not written:  # at once: the JSON files, then out
         _raise_forced(session, signals, turn, opts)
     assert turn is not None  # the session ran its turn (every other way out raised above)
-    stop = session.stop
-    if signals is not None and signals.first is not None and stop is not None and stop.kind != "signal":
-        stop = signals.first  # a bound cut the turn, then the user interrupted the rest: exit 130
-    if signals is not None and signals.late is not None and (stop is None or stop.kind != "signal"):
-        stop = signals.late  # as the command finished: reported, not lost
+    stop = signals.reported(session.stop) if signals is not None else session.stop
     return RunReport(turn.result, turn.calls, turn.summary, turn.out, turn.token_times, turn.board_t0,
                      stop, rested)
 

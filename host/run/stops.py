@@ -141,6 +141,15 @@ class StopSignals:
         self.late: StopReason | None = None
         self._body: anyio.CancelScope | None = None
 
+    def reported(self, stop: StopReason | None) -> StopReason | None:
+        """The stop a command reports, given its session's first reason ``stop``: that one, unless it was
+        a bound (or none) and a signal came as well, during the guarded work (``first``) or after it
+        (``late``): the user interrupted, so the command exits 130."""
+        for signalled in (self.first, self.late):
+            if signalled is not None and (stop is None or stop.kind != "signal"):
+                return signalled
+        return stop
+
     def interrupted(self) -> Interrupted:
         """The forced stop as an :class:`Interrupted` (call only when ``forced`` is set)."""
         assert self.forced is not None

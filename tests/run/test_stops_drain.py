@@ -71,3 +71,15 @@ def test_a_sigint_after_the_guard_inside_the_loop_is_recorded_not_lost() -> None
         os.kill(os.getpid(), signal.SIGINT)
         time.sleep(0.01)
     signal.signal(signal.SIGINT, before)
+
+
+def test_the_reported_stop_is_the_users_signal_over_a_bound() -> None:
+    from host.run.stops import StopReason, signal_stop
+
+    bound = StopReason("limit", "max_board_s", "the turn reached its board-time bound")
+    stops = StopSignals(lambda stop: True)
+    assert stops.reported(bound) is bound and stops.reported(None) is None
+    stops.late = signal_stop(signal.SIGINT)
+    assert stops.reported(bound) is stops.late and stops.reported(None) is stops.late
+    first = signal_stop(signal.SIGTERM)
+    assert stops.reported(first) is first  # a signal during the work stays the reason
