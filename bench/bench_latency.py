@@ -30,11 +30,13 @@ released the call). The headline p50/p99 is over *immediate* motion calls.
 
 What it is made of (host/motion/streamer.py, host/robot/runtime.py, firmware_sim):
 
-* a new call's first frame is due at the board's now + the link's measured latency p99 (TIME_SYNC
+* a new call's first frame is due at the board's now + the link's measured latency (TIME_SYNC
   round trips; with ``--baud`` the frame's wire time too) + the host's own send path (planning the
-  start to writing it, ``FrameStreamer.send_path_us``), rounded up to the 2 ms control tick: the frames
+  start to writing it, ``FrameStreamer.send_path_us``), both for a quick arrival (their 0.1 quantile,
+  ``FrameStreamer.start_due_us``), rounded up to the 2 ms control tick: the frames
   already sent for its servos (the 60 ms lookahead) are FLUSHed and re-sent, not waited out; the
-  board applies it at the first tick at or after that time (``tick_of``);
+  board applies it at the first tick at or after that time, or, when it arrives later (most do), at
+  the first tick after it arrived;
 * host work between the chunk and the first frame (parse, map, plan the trajectory in numpy; about
   a millisecond on a quiet machine, several when the cores are shared);
 * face / music / speech commands start at the same "soonest" time; speech is synthesised (espeak-ng,

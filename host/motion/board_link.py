@@ -63,13 +63,14 @@ class BoardFrameLink:
     def board_now_us(self) -> int:
         return self.client.board_now_estimate()
 
-    def latency_us(self, nbytes: int = 0) -> int:
-        """Host -> board latency p99 (µs) for a message of ``nbytes`` sent now: the p99 of the TIME_SYNC
-        requests' measured uplink beyond the line (``ClockSync.uplink_quantile``), plus, with
+    def latency_us(self, nbytes: int = 0, q: float = 0.99) -> int:
+        """Host -> board latency (µs) for a message of ``nbytes`` sent now, by default its p99: the ``q``
+        quantile (0..1) of the TIME_SYNC requests' measured uplink beyond the line
+        (``ClockSync.uplink_quantile``), plus, with
         ``wire_baud``, how long the line is still busy with bytes sent before (the host's model of it,
         ``BoardClient.tx_wire``: known now, not a p99 of past queues) and the message's own wire time
         (``10 * nbytes / wire_baud``, 8N1)."""
-        up = self.client.clock.uplink_quantile(0.99)
+        up = self.client.clock.uplink_quantile(q)
         one_way = DEFAULT_LATENCY_US if up is None else up
         wire = 10e6 * nbytes / self.wire_baud if self.wire_baud else 0.0
         line = self.client.tx_wire

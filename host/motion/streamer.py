@@ -14,9 +14,10 @@ frame's sequence number and the board clock has reached its apply time. Those
 board times are what the run's timeline records.
 
 :meth:`FrameStreamer.start_now` starts a motion on a realtime board as soon as the link allows
-(token to servo within a few ms): its first frame is due at :meth:`FrameStreamer.soonest_us`
-(board now + the link's measured latency p99 + the host's own send path, rounded up to the control
-tick grid) instead of at the first unsent
+(token to servo within a few ms): its first frame is due at :meth:`FrameStreamer.start_due_us`
+(board now + a quick uplink and send path, rounded up to the control tick grid: the board applies a
+frame that arrives after its due time at its next tick, so a start is not planned for the slowest
+arrival) instead of at the first unsent
 frame, and the frames already sent for its servos from that time on (the hold, or what the
 segment it overrides planned) are replaced: FLUSH of those servos from the first frame's time,
 then the first frame, then the servos' frames re-sent for the part of the grid already sent.
@@ -69,6 +70,15 @@ SEND_PATH_DEFAULT_US = 400
 SEND_PATH_WINDOW = 32
 SEND_PATH_QUANTILE = 0.9
 
+#: The quantile of the measured uplink and send path a start's first message is planned for
+#: (:meth:`FrameStreamer.start_due_us`). The board applies a frame or peripheral command that arrives
+#: after its due time (up to its ``max_late_us``, 20 ms) at its first tick after the arrival, the
+#: earliest any due time could give; one planned for the p99 made the other 98 % wait at the board
+#: for the slowest (the planned margin was p50 1.8, p99 2.8 ms of a 5.6 ms token -> servo p99,
+#: ``bench/bench_latency.py``, quiet). Planned for a quick arrival instead, a start is applied at
+#: the first tick after it arrives and at most about one tick (2 ms) after its due time.
+START_QUANTILE = 0.1
+
 
 class FrameLink(Protocol):
     """What the streamer needs from the link."""
@@ -91,8 +101,9 @@ class FrameLink(Protocol):
 
     async def flush(self, from_us: int, mask: int) -> None: ...
 
-    def latency_us(self, nbytes: int) -> int:
-        """How long after it is sent a message of ``nbytes`` wire bytes is surely on the board (p99, µs)."""
+    def latency_us(self, nbytes: int, q: float = 0.99) -> int:
+        """How long after it is sent a message of ``nbytes`` wire bytes is on the board (µs): its ``q``
+        quantile (0..1; by default the p99: surely there)."""
         ...
 
     @property
@@ -248,14 +259,14 @@ class FrameStreamer:
         """Forget a failure (after the board's fault was cleared); segments woken by it stay failed."""
         self.failure = None
 
-    def send_path_us(self) -> int:
-        """The host's own send path (µs): the :data:`SEND_PATH_QUANTILE` of the last :data:`SEND_PATH_WINDOW`
-        realtime starts, from planning the start to handing its FLUSH and first frame to the link;
-        :data:`SEND_PATH_DEFAULT_US` before the first."""
+    def send_path_us(self, q: float = SEND_PATH_QUANTILE) -> int:
+        """The host's own send path (µs): the ``q`` quantile (0..1, by default :data:`SEND_PATH_QUANTILE`)
+        of the last :data:`SEND_PATH_WINDOW` realtime starts, from planning the start to handing its FLUSH
+        and first frame to the link; :data:`SEND_PATH_DEFAULT_US` before the first."""
         window = sorted(self._send_path_s)
         if not window:
             return SEND_PATH_DEFAULT_US
-        return round(window[min(len(window) - 1, int(SEND_PATH_QUANTILE * len(window)))] * 1e6)
+        return round(window[min(len(window) - 1, int(q * len(window)))] * 1e6)
 
     def soonest_us(self, nbytes: int = 0) -> int:
         """Earliest board time (µs) a message of ``nbytes`` sent now can be due at without being late.
@@ -274,13 +285,27 @@ class FrameStreamer:
         t = self.link.board_now_us() + self.link.latency_us(nbytes) + self.send_path_us()
         return min(-(-t // tick) * tick, self.next_us)
 
+    def start_due_us(self, nbytes: int = 0) -> int:
+        """Board time (µs) a start's first message of ``nbytes`` sent now is due at: as :meth:`soonest_us`,
+        but for a quick arrival (the :data:`START_QUANTILE` of the measured uplink and of the send path)
+        rather than a sure one. The board applies a message that arrives after its due time at its first
+        tick after the arrival, so the start takes effect as soon as the message is there; one that
+        arrives early waits at most until the tick at or after the quick arrival. Lockstep: the first
+        unsent frame."""
+        if self.link.lockstep:
+            return self.next_us
+        tick = self.link.tick_us
+        t = (self.link.board_now_us() + self.link.latency_us(nbytes, START_QUANTILE)
+             + self.send_path_us(START_QUANTILE))
+        return min(-(-t // tick) * tick, self.next_us)
+
     async def start_now(self, motion: MotionLike, label: str = "") -> Segment:
-        """Start ``motion`` at :meth:`soonest_us`, replacing the frames already sent for its servos."""
+        """Start ``motion`` at :meth:`start_due_us`, replacing the frames already sent for its servos."""
         async with self._lock:
             began = time.perf_counter()
             servos = sorted(int(i) for i in motion.servos)
             mask = mask_of(servos)
-            t0 = self.soonest_us(self._flush_bytes + frame_wire_bytes(len(servos), self.schema))
+            t0 = self.start_due_us(self._flush_bytes + frame_wire_bytes(len(servos), self.schema))
             if t0 >= self.next_us:
                 seg = self.mixer.add(motion, self.next_us, label)
                 self._times[seg] = SegmentTimes()

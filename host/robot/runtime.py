@@ -142,8 +142,8 @@ class RobotRuntime:
 
     # -- helpers -------------------------------------------------------------------------------
     def _soonest(self, msg: ScreenCommand | SpeakerCommand) -> int:
-        """Board time a peripheral command sent now can start at (see ``FrameStreamer.soonest_us``)."""
-        return self.streamer.soonest_us(len(encode_frame(msg, 0)) + 4)  # + 4: a larger start time's varint
+        """Board time a peripheral command sent now starts at (see ``FrameStreamer.start_due_us``)."""
+        return self.streamer.start_due_us(len(encode_frame(msg, 0)) + 4)  # + 4: a larger start time's varint
 
     def _mark(self, start: float | None = None, end: float | None = None) -> None:
         ctx = current_call()
@@ -263,7 +263,7 @@ class RobotRuntime:
         at_us, from_us = self._plan_start(channel)
         label = ctx.path if ctx else behaviour
         if at_us is None:  # a fresh start: as soon as the link allows, from rest (minimum-jerk start)
-            start = self.streamer.planned_targets(self.streamer.soonest_us())
+            start = self.streamer.planned_targets(self.streamer.start_due_us())
             motion = ease_in(self.robot.behaviours[behaviour](start, persistent=persistent, **args))
             seg = await self.streamer.start_now(motion, label=label)
         else:  # flowing on from the previous call on this channel

@@ -310,3 +310,19 @@ def test_link_errors_counted() -> None:
     tel = b.telemetry()
     assert tel.link_errors == 1 and tel.faults & FaultFlags.LINK_ERRORS
     assert not b.telemetry().faults & FaultFlags.LINK_ERRORS
+
+
+def test_a_frame_that_arrives_after_its_due_time_is_applied_at_the_next_tick(board: Board) -> None:
+    """What a realtime start counts on (``FrameStreamer.start_due_us`` plans for a quick arrival, not a
+    sure one): a frame up to ``max_late_us`` late takes effect at the first tick after it arrives,
+    anchored at its due time, and is not counted as late."""
+    board.handle(Advance(100_000), 1)
+    run(board)
+    now = board.now_us
+    assert board.handle(frame(now - 1_000, {HEAD_YAW: 0.2}), 2) == []
+    assert board.buffer.next_for(HEAD_YAW) == (now - 1_000, 0.2)
+    board.handle(Advance(now + board.tick_us), 3)
+    board.tick()
+    assert board.buffer.next_for(HEAD_YAW) is None  # left the buffer at this tick
+    assert (int(board.anchor_t[HEAD_YAW]), float(board.anchor_v[HEAD_YAW])) == (now - 1_000, 0.2)
+    assert board.telemetry().late_count == 0

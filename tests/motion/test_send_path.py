@@ -12,7 +12,7 @@ import anyio
 import numpy as np
 
 from host.motion.mixer import Mixer
-from host.motion.streamer import SEND_PATH_DEFAULT_US, SEND_PATH_WINDOW, FrameStreamer
+from host.motion.streamer import SEND_PATH_DEFAULT_US, SEND_PATH_WINDOW, START_QUANTILE, FrameStreamer
 from protocol.messages import ServoFrame
 from support.frame_link import TICK_US, Ramp, RecordingLink
 
@@ -60,3 +60,33 @@ def test_a_start_measures_its_send_path_and_is_due_after_it() -> None:
     anyio.run(main)
     assert len(s._send_path_s) == 1 and 0 < s._send_path_s[0] < 1.0  # measured on the wall clock
     assert s.send_path_us() == round(s._send_path_s[0] * 1e6)
+
+
+class _SpreadLink(RecordingLink):
+    """An uplink of 200 µs at the 0th quantile rising to 1 200 µs at the 100th."""
+
+    def latency_us(self, nbytes: int = 0, q: float = 0.99) -> int:
+        return 200 + round(1_000 * q)
+
+
+def test_a_start_is_planned_for_a_quick_arrival_not_a_sure_one() -> None:
+    """``soonest_us`` (what surely arrives: the p99 uplink, the 0.9 send path) stays for the grid; a start
+    is due at the tick after a quick arrival (``START_QUANTILE`` of both), since the board applies a
+    later arrival at its next tick anyway (tests/firmware/test_board_core.py)."""
+    link = _SpreadLink()
+    s = _streamer(link)
+    for us in range(100, 100 + 100 * SEND_PATH_WINDOW, 100):  # 32 starts of 0.1 .. 3.2 ms
+        s._send_path_s.append(us * 1e-6)
+    quick_send = round(s._send_path_s[int(START_QUANTILE * SEND_PATH_WINDOW)] * 1e6)
+    assert s.send_path_us(START_QUANTILE) == quick_send < s.send_path_us()
+    due = s.start_due_us()
+    assert due == _ceil_tick(link.now_us + 200 + round(1_000 * START_QUANTILE) + quick_send)
+    assert due < s.soonest_us() == _ceil_tick(link.now_us + 200 + 990 + 2_900)
+
+    async def main() -> None:
+        seg = await s.start_now(Ramp(), "nod")
+        assert seg.first_frame_us == link.sent[0][1] == due  # type: ignore[index]
+
+    anyio.run(main)
+    link.lockstep = True
+    assert s.start_due_us() == s.next_us

@@ -35,7 +35,8 @@ class RecordingLink:
     #: wire time per byte (µs) added to the latency, as a modelled line's (0: none)
     us_per_byte: float = 0.0
 
-    def latency_us(self, nbytes: int = 0) -> int:
+    def latency_us(self, nbytes: int = 0, q: float = 0.99) -> int:
+        """The same for every quantile ``q``: this link's uplink does not vary."""
         return self.uplink_us + round(self.us_per_byte * nbytes)
 
     def send_start(self, frame: ServoFrame) -> int:
