@@ -35,11 +35,11 @@ What it is made of (host/motion/streamer.py, host/robot/runtime.py, firmware_sim
   start to writing it, ``FrameStreamer.send_path_us``), both for a quick arrival (their 0.1 quantile,
   ``FrameStreamer.start_due_us``), rounded up to the 2 ms control tick: the frames
   already sent for its servos (the 60 ms lookahead) are FLUSHed and re-sent, not waited out; the
-  board applies it at the first tick at or after that time, or, when it arrives later (most do), at
-  the first tick after it arrived;
+  board applies it at the first tick at or after that time, or, when it arrives later, at the first
+  tick after it arrived;
 * host work between the chunk and the first frame (parse, map, plan the trajectory in numpy; about
   a millisecond on a quiet machine, several when the cores are shared);
-* face / music / speech commands start at the same "soonest" time; speech is synthesised (espeak-ng,
+* face / music / speech commands start at the same time a motion would; speech is synthesised (espeak-ng,
   in a worker thread) before it is scheduled, so its latency adds the synthesis time;
 * telemetry (50 Hz) does *not* add to this latency - it only delays when the host *learns* the
   frame was applied;
@@ -77,7 +77,7 @@ keep nice 0) and kills them at the end, also on Ctrl-C or an error.
 Where the tail comes from: on a loaded machine the host's event loop and the board's control loop
 are simply not running when a chunk arrives or a tick is due (a run queue of 5-10 on 2 cores: tens
 of ms per wait), which dwarfs the host's own work per call (parse, map, plan: ~1 ms) and adds to the
-link's measured uplink p99 that ``soonest_us`` plans with. The lever is priority: by default
+link's measured uplink that a start is planned with. The lever is priority: by default
 (``--nice -10``) this process (the host) lowers its nice value by 10 where permitted (root or
 ``CAP_SYS_NICE``; otherwise it says so and runs as it is) and its board inherits that
 (``$GHOSTSHELL_BOARD_NICE=0``); a realtime board started any other way raises its own priority

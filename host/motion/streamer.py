@@ -59,25 +59,30 @@ from protocol.framing import encode_frame
 from protocol.messages import Flush, ServoFrame, Telemetry
 
 
-#: The host's own send path: from :meth:`FrameStreamer.soonest_us` planning a start to the moment its
+#: The host's own send path: from planning a start (:meth:`FrameStreamer.start_due_us`) to the moment its
 #: FLUSH and first frame are handed to the link (adding the segment, sampling the mix, building the frame;
 #: encoding and the write are in the TIME_SYNC uplink, measured from its own write). Measured on every
-#: realtime :meth:`FrameStreamer.start_now` (a window of the last ``SEND_PATH_WINDOW``; the
-#: ``SEND_PATH_QUANTILE`` of it is the margin); this default before the first: 0.24 ms p50, 0.45 ms max on a
-#: quiet 2-core machine (``bench/bench_latency.py``, n = 49). Without it 13 of 51 first messages reached
-#: the board after their due time (one quiet pass of the same bench).
+#: realtime :meth:`FrameStreamer.start_now` (a window of the last ``SEND_PATH_WINDOW``; a sure estimate,
+#: :meth:`FrameStreamer.soonest_us`, takes its ``SEND_PATH_QUANTILE``); this default before the first:
+#: 0.24 ms p50, 0.45 ms max on a quiet 2-core machine (``bench/bench_latency.py``, n = 49).
 SEND_PATH_DEFAULT_US = 400
 SEND_PATH_WINDOW = 32
 SEND_PATH_QUANTILE = 0.9
 
-#: The quantile of the measured uplink and send path a start's first message is planned for
-#: (:meth:`FrameStreamer.start_due_us`). The board applies a frame or peripheral command that arrives
-#: after its due time (up to its ``max_late_us``, 20 ms) at its first tick after the arrival, the
-#: earliest any due time could give; one planned for the p99 made the other 98 % wait at the board
-#: for the slowest (the planned margin was p50 1.8, p99 2.8 ms of a 5.6 ms token -> servo p99,
-#: ``bench/bench_latency.py``, quiet). Planned for a quick arrival instead, a start is applied at
-#: the first tick after it arrives and at most about one tick (2 ms) after its due time.
+#: The quantile of the measured uplink and of the send path a start's first message is planned for
+#: (:meth:`FrameStreamer.start_due_us`). The board applies a SERVO_FRAME that arrives after its due time
+#: (up to its ``max_late_us``, 20 ms; later ones it refuses as LATE) at its first tick after the arrival,
+#: anchored at its due time: the earliest any due time could give. Planned for the sure arrival (the
+#: uplink p99 and the send path's 0.9 quantile), a start that arrived sooner waited at the board for
+#: it. Peripheral commands start at the same time; the board takes those at any lateness, backdated. Measured (interleaved A/B, ``bench/bench_latency.py``, n = 34 motion calls each, nearly quiet):
+#: motion p50 3.4 -> 2.5 ms.
 START_QUANTILE = 0.1
+
+#: ... but never planned more than this (µs) before the sure arrival (:meth:`FrameStreamer.soonest_us`):
+#: over a link whose delay jitters by more than the board's ``max_late_us`` (a ``delay=80±20`` fault)
+#: a quick-arrival plan would be refused as LATE for every slow arrival; within one control tick of the
+#: sure plan a start is at most that much later than planned when it arrives by the p99.
+START_SLACK_US = 2_000
 
 
 class FrameLink(Protocol):
@@ -288,15 +293,16 @@ class FrameStreamer:
     def start_due_us(self, nbytes: int = 0) -> int:
         """Board time (µs) a start's first message of ``nbytes`` sent now is due at: as :meth:`soonest_us`,
         but for a quick arrival (the :data:`START_QUANTILE` of the measured uplink and of the send path)
-        rather than a sure one. The board applies a message that arrives after its due time at its first
-        tick after the arrival, so the start takes effect as soon as the message is there; one that
-        arrives early waits at most until the tick at or after the quick arrival. Lockstep: the first
-        unsent frame."""
+        rather than a sure one, and never more than :data:`START_SLACK_US` before the sure one. The
+        board applies a frame that arrives after its due time at its first tick after the arrival, so
+        the start takes effect as soon as the message is there; one that arrives sooner waits until the
+        tick at or after its due time. Lockstep: the first unsent frame."""
         if self.link.lockstep:
             return self.next_us
-        tick = self.link.tick_us
-        t = (self.link.board_now_us() + self.link.latency_us(nbytes, START_QUANTILE)
-             + self.send_path_us(START_QUANTILE))
+        tick, now = self.link.tick_us, self.link.board_now_us()
+        quick = now + self.link.latency_us(nbytes, START_QUANTILE) + self.send_path_us(START_QUANTILE)
+        sure = now + self.link.latency_us(nbytes) + self.send_path_us()
+        t = max(quick, sure - START_SLACK_US)
         return min(-(-t // tick) * tick, self.next_us)
 
     async def start_now(self, motion: MotionLike, label: str = "") -> Segment:

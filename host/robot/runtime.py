@@ -211,8 +211,8 @@ class RobotRuntime:
             self._mark(end=t * 1e-6)
 
     async def speak(self, text: str) -> str:
-        """Say one sentence at once: PLAY at the soonest board time (with a generous bound on its
-        length), synthesise meanwhile, then a STOP timed at start + the synthesised duration."""
+        """Say one sentence at once: PLAY when a start would be due (``start_due_us``; with a generous bound
+        on its length), synthesise meanwhile, then a STOP timed at start + the synthesised duration."""
         from host.speech.tts import estimate_duration_s
 
         payload = text.encode("utf-8")[:200].decode("utf-8", "ignore")

@@ -1,4 +1,5 @@
-"""A start's first frame is due after the host's own send path too (``FrameStreamer.send_path_us``).
+"""A start's first frame is due after the host's own send path too (``FrameStreamer.send_path_us``), planned
+for a quick arrival (``FrameStreamer.start_due_us``) within a slack of the sure one (``soonest_us``).
 
 The TIME_SYNC uplink is measured from the moment a request is written; a new call's first frame is
 still to be sampled and built after its due time is chosen. ``bench/bench_latency.py`` found 13 of
@@ -8,11 +9,19 @@ drive the streamer through a recording link with a fixed board clock, so the ari
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import anyio
 import numpy as np
 
 from host.motion.mixer import Mixer
-from host.motion.streamer import SEND_PATH_DEFAULT_US, SEND_PATH_WINDOW, START_QUANTILE, FrameStreamer
+from host.motion.streamer import (
+    SEND_PATH_DEFAULT_US,
+    SEND_PATH_WINDOW,
+    START_QUANTILE,
+    START_SLACK_US,
+    FrameStreamer,
+)
 from protocol.messages import ServoFrame
 from support.frame_link import TICK_US, Ramp, RecordingLink
 
@@ -62,26 +71,34 @@ def test_a_start_measures_its_send_path_and_is_due_after_it() -> None:
     assert s.send_path_us() == round(s._send_path_s[0] * 1e6)
 
 
+@dataclass
 class _SpreadLink(RecordingLink):
-    """An uplink of 200 µs at the 0th quantile rising to 1 200 µs at the 100th."""
+    """An uplink of 200 µs at the 0th quantile rising by ``spread_us`` to the 100th."""
+
+    spread_us: int = 1_000
 
     def latency_us(self, nbytes: int = 0, q: float = 0.99) -> int:
-        return 200 + round(1_000 * q)
+        return 200 + round(self.spread_us * q)
+
+
+def _quick_streamer(link: RecordingLink) -> FrameStreamer:
+    s = _streamer(link)
+    for k in range(SEND_PATH_WINDOW):  # 32 starts of 0.20 .. 0.51 ms
+        s._send_path_s.append((200 + 10 * k) * 1e-6)
+    return s
 
 
 def test_a_start_is_planned_for_a_quick_arrival_not_a_sure_one() -> None:
     """``soonest_us`` (what surely arrives: the p99 uplink, the 0.9 send path) stays for the grid; a start
     is due at the tick after a quick arrival (``START_QUANTILE`` of both), since the board applies a
     later arrival at its next tick anyway (tests/firmware/test_board_core.py)."""
-    link = _SpreadLink()
-    s = _streamer(link)
-    for us in range(100, 100 + 100 * SEND_PATH_WINDOW, 100):  # 32 starts of 0.1 .. 3.2 ms
-        s._send_path_s.append(us * 1e-6)
-    quick_send = round(s._send_path_s[int(START_QUANTILE * SEND_PATH_WINDOW)] * 1e6)
-    assert s.send_path_us(START_QUANTILE) == quick_send < s.send_path_us()
+    link = _SpreadLink(now_us=1_001_000)  # the two plans fall on different ticks
+    s = _quick_streamer(link)
+    quick_send = 200 + 10 * int(START_QUANTILE * SEND_PATH_WINDOW)
+    assert s.send_path_us(START_QUANTILE) == quick_send < s.send_path_us() == 200 + 10 * 28
     due = s.start_due_us()
     assert due == _ceil_tick(link.now_us + 200 + round(1_000 * START_QUANTILE) + quick_send)
-    assert due < s.soonest_us() == _ceil_tick(link.now_us + 200 + 990 + 2_900)
+    assert due < s.soonest_us() == _ceil_tick(link.now_us + 200 + 990 + 480)
 
     async def main() -> None:
         seg = await s.start_now(Ramp(), "nod")
@@ -90,3 +107,14 @@ def test_a_start_is_planned_for_a_quick_arrival_not_a_sure_one() -> None:
     anyio.run(main)
     link.lockstep = True
     assert s.start_due_us() == s.next_us
+
+
+def test_over_a_jittery_link_a_start_is_planned_at_most_a_slack_before_the_sure_arrival() -> None:
+    """A ``delay=80±20`` fault spreads arrivals over 40 ms, twice the board's ``max_late_us``: planned for
+    the quick arrival, every slow one would be refused as LATE. The plan stays within
+    ``START_SLACK_US`` of the sure one."""
+    link = _SpreadLink(spread_us=40_000)
+    s = _quick_streamer(link)
+    sure = link.now_us + 200 + round(40_000 * 0.99) + s.send_path_us()
+    assert s.soonest_us() == _ceil_tick(sure)
+    assert s.start_due_us() == _ceil_tick(sure - START_SLACK_US)
