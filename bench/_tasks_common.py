@@ -8,10 +8,11 @@ fed by the scripted LLM replaying the task's ground-truth program (``--robot``: 
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import anyio
 import numpy as np
@@ -43,13 +44,21 @@ def task_programs(ids: Sequence[int] | None = None, robot: Robot | None = None) 
         return [(i, str(tasks[i].ground_truth)) for i in runnable]
     bad = [i for i in ids if i not in runnable]
     if bad:
-        raise SystemExit(f"no ground truth for task(s) {bad}; runnable: {runnable[0]}-{runnable[-1]}")
+        usage_error(f"--tasks: no ground truth for task(s) {bad}; runnable: {runnable[0]}-{runnable[-1]}")
     return [(i, str(tasks[i].ground_truth)) for i in ids]
 
 
+def usage_error(message: str) -> NoReturn:
+    """One line on stderr (``<script>: <message>``) and exit status 2, as argparse does for a bad option."""
+    print(f"{Path(sys.argv[0]).name}: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
 def parse_ids(text: str | None) -> list[int] | None:
-    """``"1,5,23"`` or ``"1-10,23"`` -> ``[1, 5, 23]``; None or empty -> None (all tasks)."""
-    if not text:
+    """``"1,5,23"`` or ``"1-10,23"`` -> ``[1, 5, 23]``; None (not given) -> None (all tasks). Anything
+    else (an empty list, a range that runs backwards, a part that is not a number) is a usage error
+    (:func:`usage_error`: exit status 2)."""
+    if text is None:
         return None
     out: list[int] = []
     for part in text.split(","):
@@ -59,11 +68,16 @@ def parse_ids(text: str | None) -> list[int] | None:
         try:
             if "-" in part:
                 a, b = part.split("-", 1)
-                out.extend(range(int(a), int(b) + 1))
+                lo, hi = int(a), int(b)
+                if hi < lo:
+                    usage_error(f"--tasks: the range {part!r} runs backwards; expected e.g. 1-10")
+                out.extend(range(lo, hi + 1))
             else:
                 out.append(int(part))
         except ValueError:
-            raise SystemExit(f"--tasks: expected ids like 1,5,23 or 1-10, got {text!r}") from None
+            usage_error(f"--tasks: expected ids like 1,5,23 or 1-10, got {text!r}")
+    if not out:
+        usage_error(f"--tasks: no task ids in {text!r}; expected ids like 1,5,23 or 1-10 (leave it out for all)")
     return out
 
 

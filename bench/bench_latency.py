@@ -354,6 +354,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.repeat < 1:
         ap.error("--repeat: expected K >= 1")
+    if args.baud is not None and args.baud < 1:
+        ap.error(f"--baud: expected a baud rate >= 1, got {args.baud}")
     if args.floor is not None and args.lockstep:
         ap.error("--floor: a lockstep board does not wait on the wall clock; give --floor only for a realtime run")
     if args.floor is not None and args.floor != 0 and not MIN_FLOOR_N <= args.floor <= MAX_FLOOR_N:
