@@ -74,8 +74,10 @@ SEND_PATH_QUANTILE = 0.9
 #: (up to its ``max_late_us``, 20 ms; later ones it refuses as LATE) at its first tick after the arrival,
 #: anchored at its due time: the earliest any due time could give. Planned for the sure arrival (the
 #: uplink p99 and the send path's 0.9 quantile), a start that arrived sooner waited at the board for
-#: it. Peripheral commands start at the same time; the board takes those at any lateness, backdated. Measured (interleaved A/B, ``bench/bench_latency.py``, n = 34 motion calls each, nearly quiet):
-#: motion p50 3.4 -> 2.5 ms.
+#: it. Peripheral commands start at the same time; the board takes those at any lateness, backdated.
+#: Measured with ``bench/bench_latency.py``: an interleaved A/B moved the motion p50 3.4 -> 2.5 ms (n = 34
+#: each, nearly quiet), but a quiet ``--repeat 4`` (n = 136) found p50 3.7, p99 6.0 ms, where the old plan
+#: was: what a start waits for at the board is mostly the round-up to the 2 ms tick.
 START_QUANTILE = 0.1
 
 #: ... but never planned more than this (µs) before the sure arrival (:meth:`FrameStreamer.soonest_us`):
