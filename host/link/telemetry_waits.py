@@ -20,7 +20,35 @@ from host.link.errors import LinkError, LinkTimeout
 from host.link.telemetry import FaultEvent, TelemetryFanout, flag_names
 from protocol.messages import Advance, FaultFlags, Message, Telemetry
 
-__all__ = ["TelemetryWaits"]
+__all__ = ["NudgeTarget", "TelemetryWaits"]
+
+
+class NudgeTarget:
+    """The board time (us) a lockstep nudge ADVANCEs to, held until the board reported reaching it or
+    the wait for that report ran out.
+
+    A lockstep board reports only while its clock runs; a nudge ADVANCEs a silent one a report period
+    further. Moving the target on every nudge pushes a board that is merely slow past the frames the
+    host sends next, and the board refuses those as LATE: so the target moves on (:meth:`raise_to`)
+    only when :meth:`due` says so, and is otherwise repeated (a lost ADVANCE costs nothing more).
+    Used by :meth:`TelemetryWaits.wait_for` and by the run's silence watchdog
+    (:func:`host.run.pump.silence_watchdog`). Times are wall seconds on the caller's one clock."""
+
+    def __init__(self) -> None:
+        #: the board time (us) ADVANCEd to; 0 before the first nudge
+        self.target = 0
+        #: when (wall s) the target was last moved
+        self.raised_at = 0.0
+
+    def due(self, seen_us: int, now: float, raise_after_s: float) -> bool:
+        """Whether the target may move on: no target yet; a report reached it (``seen_us``, the board
+        time known now); or none came for ``raise_after_s`` (lost; :meth:`TelemetryWaits.nudge_raise_s`)."""
+        return self.target == 0 or seen_us >= self.target or now - self.raised_at >= raise_after_s
+
+    def raise_to(self, target_us: int, now: float) -> int:
+        """Move the target to ``target_us`` (never back) at ``now``; returns the target."""
+        self.target, self.raised_at = max(self.target, int(target_us)), now
+        return self.target
 
 
 class TelemetryWaits(BoardTime):
@@ -101,14 +129,14 @@ class TelemetryWaits(BoardTime):
         if t is not None and predicate(t):
             return t
         nudging = nudge and self.lockstep
-        until = 0
-        raised_at, raised_from = 0.0, 0  # when the target was set, and the board time seen then
+        goal = NudgeTarget()
+        raised_from = 0  # the board time seen when the target was set
         # A report later than both raised_from and this wait's previous target (``floor``) can only have
         # come from the ADVANCE to the current one (the board runs no further than it was told): its
         # wait is a report latency. Before, only the first target's report counted, so on a lossy link
         # (CAN's 17-frame report: ~58 % lost at drop=0.05) the 1-s default lasted for several reports.
         # Not when the previous target's report came after all (``late``: it was slow, not lost): the
-        # board was busy since that ADVANCE, so the wait from raised_at would understate its latency.
+        # board was busy since that ADVANCE, so the wait from the raise would understate its latency.
         floor = 0
         late = False
 
@@ -125,23 +153,23 @@ class TelemetryWaits(BoardTime):
                 if nudging:
                     now = anyio.current_time()
                     seen = self.board_now_estimate()
-                    if until == 0 or seen >= until or now - raised_at >= self.nudge_raise_s():
+                    if goal.due(seen, now, self.nudge_raise_s()):
                         # first nudge; a report reached the target without satisfying the predicate; or
                         # none for nudge_raise_s() (lost): move the target one report period on. Otherwise the same
                         # target again (a lost ADVANCE): a slow board (QEMU on a loaded machine) must
                         # not be pushed ahead of the frames the host is about to time from its report
-                        floor, late = until, False
-                        until = max(until, seen) + self.report_period_us()
-                        raised_at, raised_from = now, seen
+                        floor, late = goal.target, False
+                        goal.raise_to(max(goal.target, seen) + self.report_period_us(), now)
+                        raised_from = seen
                     with contextlib.suppress(LinkError):
-                        self._send(Advance(until))
+                        self._send(Advance(goal.target))
                 left = deadline - anyio.current_time()
                 if left <= 0:
                     break
                 if await fut.wait(min(left, self.NUDGE_S) if nudging else left):
                     got = fut.result()
                     if nudging and not late and got.board_time_us > max(raised_from, floor):  # the current target's
-                        self._report_latency(anyio.current_time() - raised_at)
+                        self._report_latency(anyio.current_time() - goal.raised_at)
                     return got
                 if not nudging:
                     break

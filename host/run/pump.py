@@ -21,6 +21,7 @@ import sniffio
 from host.link import BoardClient
 from host.link.errors import BoardFaulted, LinkError
 from host.link.faultcheck import clear_command, servo_fault_message
+from host.link.telemetry_waits import NudgeTarget
 from host.robot.runtime import RobotRuntime
 from host.run import artefacts
 from protocol.messages import FaultFlags
@@ -137,7 +138,8 @@ def _ready_queue() -> Sized | None:
     return ready if isinstance(ready, Sized) else None
 
 
-async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardClient | None = None) -> None:
+async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardClient | None = None,
+                           clock: Callable[[], float] = time.monotonic) -> None:
     """Fail the run when the board stops reporting (it died, or the link hung), or when the host
     stops streaming frames to it (a stalled streamer must end the run, not hang it).
 
@@ -149,21 +151,28 @@ async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardCl
     silence (``LOSSY_NUDGE_S`` once the link has lost something) the host ADVANCEs the board one
     report period plus a tick past the end of the frames it has sent, which is where a board whose
     reports were lost stands, so one nudge brings the next report (frames due in that gap are late
-    or missing, as they would be after any loss). Each further nudge reaches one period further.
+    or missing, as they would be after any loss). A further nudge reaches one period further only
+    once a report reached the target or :meth:`~host.link.telemetry_waits.TelemetryWaits.nudge_raise_s`
+    passed without one (:class:`~host.link.telemetry_waits.NudgeTarget`); until then it repeats the
+    target. A QEMU board starved for over a second on a loaded CI machine made the host re-send a
+    FLUSH (so the link counted as lossy) and was pushed one period further every 50 ms meanwhile; the
+    frames sent after the FLUSH's ACK arrived LATE.
+
+    ``clock``: wall seconds, the clock of ``rec.last_rx`` (tests pass a virtual one).
     """
-    sent, since = runtime.streamer.frames_sent, time.monotonic()
+    sent, since = runtime.streamer.frames_sent, clock()
     # silence counts from now, not from when the Recorder was made: before the session's first report
     # the board was still starting (seconds, ~12 s inside User-Mode Linux on a loaded machine), which
     # ended every such run at the first check with "no telemetry for 10 s"
     rec.last_rx = max(rec.last_rx, since)
     lockstep = client is not None and client.lockstep
     nudged_at = 0.0
-    target = 0
+    goal = NudgeTarget()
     step = 0.02 if lockstep else 0.25
     woke = since
     while True:
         await anyio.sleep(step)
-        now = time.monotonic()
+        now = clock()
         stalled = now - woke - step
         woke = now
         if stalled > STALL_S:  # this process did not run (an overloaded machine, a blocked loop): not silence
@@ -187,9 +196,10 @@ async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardCl
             wait = LOSSY_NUDGE_S if lossy else LOCKSTEP_NUDGE_S
             if silent > wait and now - nudged_at > wait:
                 nudged_at = now
-                target = lockstep_nudge_target(client, runtime, target)
+                if goal.due(client.board_now_estimate(), now, client.nudge_raise_s()):
+                    goal.raise_to(lockstep_nudge_target(client, runtime, goal.target), now)
                 with contextlib.suppress(LinkError):
-                    await client.advance(target)
+                    await client.advance(goal.target)
 
 
 def lockstep_nudge_target(client: BoardClient, runtime: RobotRuntime, previous: int) -> int:

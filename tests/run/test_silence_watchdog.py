@@ -69,3 +69,60 @@ async def test_silence_it_watched_still_ends_the_run() -> None:
             for _ in range(20):
                 runtime.streamer.frames_sent += 1
                 await anyio.sleep(0.25)
+
+
+@dataclass
+class _Stats:
+    decode_errors: int = 0
+    retries: int = 1  # a request was re-sent (its ACK was slow or lost): the link counts as lossy
+
+
+@dataclass
+class _LockstepClient:  # what the watchdog reads of a lockstep BoardClient, and the ADVANCEs it sends
+    seen_us: int = 20_000  # the board time of the latest report: a slow board, still far behind
+    raise_after_s: float = 1.0
+    lockstep: bool = True
+    stats: _Stats = field(default_factory=_Stats)
+    targets: list[int] = field(default_factory=list)
+
+    def board_now_estimate(self) -> int:
+        return self.seen_us
+
+    def nudge_raise_s(self) -> float:
+        return self.raise_after_s
+
+    def report_period_us(self) -> int:
+        return 22_000
+
+    async def advance(self, until_us: int) -> None:
+        self.targets.append(until_us)
+
+
+@dataclass
+class _SentStreamer(_Streamer):
+    next_us: int = 90_000  # frames sent up to 80 ms (one 10-ms period before the next)
+    period_us: int = 10_000
+
+
+@pytest.mark.anyio
+async def test_a_lockstep_nudge_repeats_its_target_until_a_report_reaches_it_or_the_wait_runs_out() -> None:
+    """A QEMU board starved for over a second on a loaded CI machine: a FLUSH was re-sent (the link
+    counts as lossy, nudges every 50 ms), the streamer waited for its ACK, and each nudge ADVANCEd the
+    board one report period further; the frames sent after the ACK arrived LATE (2 NACKs). Now the
+    target stays one period past the frames sent until the board reports reaching it, or until
+    ``nudge_raise_s`` passed without a report (lost)."""
+    runtime = _Runtime(streamer=_SentStreamer())
+    client = _LockstepClient()
+    rec = Recorder()
+    rec.last_rx = anyio.current_time()  # the last report came just now; none follows
+    async with anyio.create_task_group() as tg:
+        tg.start_soon(silence_watchdog, runtime, rec, client, anyio.current_time)
+        await anyio.sleep(0.9)  # a slow board: no report for 0.9 s
+        assert len(client.targets) >= 10 and set(client.targets) == {102_000}, client.targets  # 80 + 22 ms, repeated
+        await anyio.sleep(0.3)  # past nudge_raise_s (1 s): the report is taken as lost, one period further
+        assert sorted(set(client.targets)) == [102_000, 124_000], client.targets
+        client.seen_us = 124_000  # a report reached the target (and none since): the next nudge moves on at once
+        n = len(client.targets)
+        await anyio.sleep(0.1)
+        assert client.targets[n] == 146_000, client.targets[n:]
+        tg.cancel_scope.cancel()
