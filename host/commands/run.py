@@ -379,6 +379,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
             print(f"artefacts in {out}/: " + " ".join(n for n in ARTEFACTS if (out / n).exists()))
         return link_exit_status(e)
     from host.run.artefacts import calls_table
+    from host.run.link_health import link_health_line
 
     s = report.summary
     if report.stop is not None:  # a signal or a bound stopped the run: one line says what and where
@@ -397,6 +398,9 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
           f"board time {s.duration_s:.2f} s; {_first_action(s.first_action_latency_ms)}; "
           f"max tilt {s.max_tilt_deg:.1f} deg{'; FELL' if s.fell else ''}")
     print(f"base moved from {s.base_start} to {s.base_end} [x m, y m, yaw deg]")
+    health = link_health_line(s.extra)
+    if health is not None:
+        print(health)
     if s.extra.get("board_fault"):
         print_error(command_of(args), f"{s.extra['board_fault']}")
     scene = s.extra.get("scene") or {}

@@ -16,6 +16,7 @@ import pytest
 
 from firmware_sim.config import BoardConfig
 from host.link.errors import LinkError
+from host.run.link_health import link_health_line
 from host.run.runner import ended_report
 
 from .conftest import run_e2e
@@ -72,6 +73,10 @@ def test_short_cut_only_holds_and_the_run_resumes(tmp_path: Path) -> None:
     ev = _events(tmp_path)
     assert [k for k, _, _ in ev] == ["hold"], ev  # held, never crouched: the next frame ended the hold
     assert summary["extra"]["faults"]["board"]["board_detected"]["watchdog_trips"] == 1
+    # ``ghostshell run`` ends with a line that says so (the run itself is "done")
+    health = link_health_line(summary["extra"])
+    assert health is not None and health.startswith("link: 1 board watchdog trip (servos held)"), health
+    assert "faults injected: cut=2+0.6" in health, health
 
 
 @pytest.mark.realtime

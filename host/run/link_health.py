@@ -1,0 +1,42 @@
+"""One line on what the link went through during a run, for the end of ``ghostshell run``.
+
+A run can end "done" while the board's watchdog held the servos, frames arrived too late to be
+applied, or requests had to be sent again (a slow or lossy link, ``--faults``): summary.json counts
+all of it, and this line says so in the terminal. Built from summary.json's ``extra``: ``link`` (the
+host's counts and the board's refusal counters from its last report) and, with ``--faults``,
+``faults.board`` (what the board injected and detected, read from its stderr when it stopped).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+__all__ = ["link_health_line"]
+
+
+def _count(n: object, one: str, many: str) -> str | None:
+    return None if not isinstance(n, int) or n <= 0 else f"{n} {one if n == 1 else many}"
+
+
+def link_health_line(extra: Mapping[str, Any]) -> str | None:
+    """``"link: 13 board watchdog trips (servos held), 1 servo frame refused as late, 18 requests re-sent;
+    faults injected: delay=200±50 (counts in summary.json)"``, or None when the link had nothing to
+    report. Counts that are missing (a run that never reached the board) or zero are left out."""
+    link = extra.get("link") or {}
+    board = (extra.get("faults") or {}).get("board") or {}
+    detected = board.get("board_detected") or {}
+    parts = [p for p in (
+        _count(detected.get("watchdog_trips"), "board watchdog trip (servos held)", "board watchdog trips (servos held)"),
+        _count(link.get("late"), "servo frame refused as late", "servo frames refused as late"),
+        _count(link.get("dropped"), "servo frame refused (full, future or e-stop)",
+               "servo frames refused (full, future or e-stop)"),
+        _count(link.get("retries"), "request re-sent", "requests re-sent"),
+        _count(link.get("decode_errors"), "bad frame from the board", "bad frames from the board"),
+        _count(detected.get("link_errors"), "bad frame at the board", "bad frames at the board"),
+        _count(link.get("seq_gaps"), "gap in the board's sequence numbers", "gaps in the board's sequence numbers"),
+    ) if p is not None]
+    if not parts:
+        return None
+    spec = board.get("spec")
+    return "link: " + ", ".join(parts) + (f"; faults injected: {spec}" if spec else "") + " (counts in summary.json)"

@@ -1,0 +1,35 @@
+"""The line ``ghostshell run`` ends with when the link had trouble (``host.run.link_health``).
+
+A realtime run over ``--faults 'delay=200±50'`` ended "task 23: done", exit 0, with nothing else in
+the terminal, while its summary.json counted 17 board watchdog trips and 18 re-sent requests. The
+extras below are that summary's shape (summary.json's ``extra``)."""
+
+from __future__ import annotations
+
+from host.run.link_health import link_health_line
+
+CLEAN = {"frames_sent": 362, "frames_skipped": 0, "late": 0, "dropped": 0, "frame_nacks": 0,
+         "decode_errors": 0, "retries": 0, "seq_gaps": 0}
+
+
+def test_a_clean_link_adds_no_line() -> None:
+    assert link_health_line({"link": CLEAN}) is None
+    assert link_health_line({"link": {}}) is None  # a run the link ended before the runtime existed
+    assert link_health_line({}) is None
+
+
+def test_what_the_link_went_through_is_one_line_with_the_injected_faults() -> None:
+    extra = {"link": {**CLEAN, "late": 1, "frame_nacks": 1, "retries": 18},
+             "faults": {"host_detected": {}, "board": {"spec": "delay=200±50", "board_detected": {
+                 "link_errors": 0, "late_frames": 1, "dropped_frames": 0, "watchdog_trips": 17, "seq_gaps": 2}}}}
+    assert link_health_line(extra) == (
+        "link: 17 board watchdog trips (servos held), 1 servo frame refused as late, 18 requests re-sent; "
+        "faults injected: delay=200±50 (counts in summary.json)")
+
+
+def test_counts_a_board_did_not_report_are_left_out() -> None:
+    """A board that stopped before printing its fault report leaves ``faults.board`` None; a run that
+    never got a report leaves the board's counters None."""
+    extra = {"link": {**CLEAN, "late": None, "dropped": None, "decode_errors": 3},
+             "faults": {"host_detected": {}, "board": None}}
+    assert link_health_line(extra) == "link: 3 bad frames from the board (counts in summary.json)"
