@@ -8,11 +8,10 @@ fed by the scripted LLM replaying the task's ground-truth program (``--robot``: 
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
 import anyio
 import numpy as np
@@ -20,6 +19,7 @@ import numpy as np
 from host.robot.binding import signature_registry
 from host.run.runner import RunOptions, RunReport, run_program
 from host.shell.registry import Registry
+from robots.datatypes import RobotDataError
 from robots.description import Robot
 from robots.registry import DEFAULT_ROBOT, load_robot
 
@@ -27,7 +27,8 @@ from robots.registry import DEFAULT_ROBOT, load_robot
 def task_arguments(description: str, json_help: str) -> argparse.ArgumentParser:
     """The options every task benchmark takes (the clock switch is added by each script)."""
     ap = argparse.ArgumentParser(description=description)
-    ap.add_argument("--tasks", default=None, help="task ids, e.g. 1,5,23 or 1-10 (default: all of the robot's)")
+    ap.add_argument("--tasks", type=task_ids, default=None,
+                    help="task ids, e.g. 1,5,23 or 1-10 (default: all of the robot's)")
     ap.add_argument("--robot", default=DEFAULT_ROBOT, help=f"whose tasks run (default {DEFAULT_ROBOT})")
     ap.add_argument("--tokens-per-s", type=float, default=30.0)
     ap.add_argument("--seed", type=int, default=0)
@@ -36,30 +37,38 @@ def task_arguments(description: str, json_help: str) -> argparse.ArgumentParser:
     return ap
 
 
-def task_programs(ids: Sequence[int] | None = None, robot: Robot | None = None) -> list[tuple[int, str]]:
-    """``(id, ground-truth program)`` of the robot's selected tasks (default: every task with ground truth)."""
+def task_programs(ids: Sequence[int] | None = None, robot: Robot | None = None,
+                  parser: argparse.ArgumentParser | None = None) -> list[tuple[int, str]]:
+    """``(id, ground-truth program)`` of the robot's selected tasks (default: every task with ground truth).
+    An id without a ground truth is a usage error through ``parser`` (``parser.error``: exit status 2),
+    or ValueError without one."""
     tasks = (robot or load_robot()).tasks
     runnable = sorted(i for i, t in tasks.items() if t.ground_truth)
     if not ids:
         return [(i, str(tasks[i].ground_truth)) for i in runnable]
     bad = [i for i in ids if i not in runnable]
     if bad:
-        usage_error(f"--tasks: no ground truth for task(s) {bad}; runnable: {runnable[0]}-{runnable[-1]}")
+        message = f"--tasks: no ground truth for task(s) {bad}; runnable: {runnable[0]}-{runnable[-1]}"
+        if parser is None:
+            raise ValueError(message)
+        parser.error(message)
     return [(i, str(tasks[i].ground_truth)) for i in ids]
 
 
-def usage_error(message: str) -> NoReturn:
-    """One line on stderr (``<script>: <message>``) and exit status 2, as argparse does for a bad option."""
-    print(f"{Path(sys.argv[0]).name}: {message}", file=sys.stderr)
-    raise SystemExit(2)
+def selected_tasks(parser: argparse.ArgumentParser, args: argparse.Namespace) -> tuple[Robot, list[tuple[int, str]]]:
+    """The robot of ``--robot`` and the ``(id, program)`` of its ``--tasks``; a robot that cannot be
+    loaded or an id without a ground truth is a usage error (``parser.error``: exit status 2)."""
+    try:
+        robot = load_robot(args.robot)
+    except RobotDataError as e:
+        parser.error(f"--robot: {e}")
+    return robot, task_programs(args.tasks, robot, parser=parser)
 
 
-def parse_ids(text: str | None) -> list[int] | None:
-    """``"1,5,23"`` or ``"1-10,23"`` -> ``[1, 5, 23]``; None (not given) -> None (all tasks). Anything
-    else (an empty list, a range that runs backwards, a part that is not a number) is a usage error
-    (:func:`usage_error`: exit status 2)."""
-    if text is None:
-        return None
+def task_ids(text: str) -> list[int]:
+    """``--tasks``'s type: ``"1,5,23"`` or ``"1-10,23"`` -> ``[1, 5, 23]``. Anything else (an empty list, a
+    range that runs backwards, a part that is not a number) raises :class:`argparse.ArgumentTypeError`,
+    which argparse reports as a usage error (exit status 2)."""
     out: list[int] = []
     for part in text.split(","):
         part = part.strip()
@@ -70,14 +79,14 @@ def parse_ids(text: str | None) -> list[int] | None:
                 a, b = part.split("-", 1)
                 lo, hi = int(a), int(b)
                 if hi < lo:
-                    usage_error(f"--tasks: the range {part!r} runs backwards; expected e.g. 1-10")
+                    raise argparse.ArgumentTypeError(f"the range {part!r} runs backwards; expected e.g. 1-10")
                 out.extend(range(lo, hi + 1))
             else:
                 out.append(int(part))
         except ValueError:
-            usage_error(f"--tasks: expected ids like 1,5,23 or 1-10, got {text!r}")
+            raise argparse.ArgumentTypeError(f"expected ids like 1,5,23 or 1-10, got {text!r}") from None
     if not out:
-        usage_error(f"--tasks: no task ids in {text!r}; expected ids like 1,5,23 or 1-10 (leave it out for all)")
+        raise argparse.ArgumentTypeError(f"no task ids in {text!r}; expected ids like 1,5,23 or 1-10 (leave it out for all)")
     return out
 
 

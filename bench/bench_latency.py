@@ -102,12 +102,13 @@ from pathlib import Path
 from typing import Any
 
 from _machine import MAX_FLOOR_N, MIN_FLOOR_N, cpu_steal_s, floor_line, floor_stats, steal_line, wakeup_lateness_ms
-from _tasks_common import fmt, home_channels, out_root, parse_ids, run_task, stats_ms, task_arguments, task_programs
+from _tasks_common import fmt, home_channels, out_root, run_task, selected_tasks, stats_ms, task_arguments
 from host.link import HandshakeError, LinkConfigError, LinkError
 from host.run.runner import RunReport
 from host.speech.sentences import SentenceSplitter
 from host.shell.parser import EmptyTag, EndTag, FunctionTokenParser, StartTag, Text
 from host.shell.registry import Registry
+from robots.description import Robot
 
 NOT_CALLS = ("wait", "async", "RUN", "SAVE")
 
@@ -360,10 +361,11 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--floor: a lockstep board does not wait on the wall clock; give --floor only for a realtime run")
     if args.floor is not None and args.floor != 0 and not MIN_FLOOR_N <= args.floor <= MAX_FLOOR_N:
         ap.error(f"--floor: expected 0 (skip) or {MIN_FLOOR_N} <= N <= {MAX_FLOOR_N}, got {args.floor}")
+    robot, programs = selected_tasks(ap, args)  # a bad --robot or --tasks: a usage error before any run
     try:
         with cpu_load((os.cpu_count() or 1) if args.load else 0) as hogs:  # the hogs keep nice 0
             print(raise_host_priority(args.nice), flush=True)
-            return _run(args, len(hogs))
+            return _run(args, len(hogs), robot, programs)
     except KeyboardInterrupt:  # the hogs are gone (cpu_load), a run's board stopped with its session
         print("bench_latency: interrupted; no summary (the runs so far are in their folders)", file=sys.stderr)
         return 130
@@ -385,7 +387,7 @@ def raise_host_priority(inc: int) -> str:
     return f"priority: host and board at nice {after} (--nice {inc}; the --load hogs at {before})"
 
 
-def _run(args: Any, hogs: int) -> int:
+def _run(args: Any, hogs: int, robot: Robot, programs: list[tuple[int, str]]) -> int:
     from protocol.linkspec import LinkSpecError, parse_link_spec
 
     try:
@@ -394,10 +396,6 @@ def _run(args: Any, hogs: int) -> int:
         print(f"bench_latency: --link: {e}", file=sys.stderr)
         return 2
 
-    from robots.registry import load_robot
-
-    robot = load_robot(args.robot)
-    programs = task_programs(parse_ids(args.tasks), robot)
     root = out_root(args.out, "bench_latency_")
     registry = home_channels(robot=robot)
     motion_channels = frozenset(robot.channels) | {"joints"}  # the generic pose/joint_move channel

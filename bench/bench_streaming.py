@@ -36,7 +36,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from _tasks_common import fmt, out_root, parse_ids, run_task, task_arguments, task_programs
+from _tasks_common import fmt, out_root, run_task, selected_tasks, task_arguments
 from host.run.runner import RunReport
 
 NOT_ACTIONS = ("wait", "async", "RUN")
@@ -58,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--realtime", action="store_true", help="realtime board instead of lockstep")
     args = ap.parse_args(argv)
 
-    programs = task_programs(parse_ids(args.tasks))
+    robot, programs = selected_tasks(ap, args)
     root = out_root(args.out, "bench_streaming_")
     lockstep = not args.realtime
     print(f"time to first action, streaming vs buffered, {'lockstep' if lockstep else 'realtime'} board over a pty, "
@@ -67,9 +67,10 @@ def main(argv: list[str] | None = None) -> int:
           f"{'buffered ms':>11} {'advantage ms':>12}  first call", flush=True)
     rows: list[dict[str, Any]] = []
     for tid, program in programs:
-        s = run_task(tid, program, lockstep=lockstep, out_root=root, tokens_per_s=args.tokens_per_s, seed=args.seed)
+        s = run_task(tid, program, lockstep=lockstep, out_root=root, tokens_per_s=args.tokens_per_s, seed=args.seed,
+                     robot=str(robot.root))
         b = run_task(tid, program, lockstep=lockstep, out_root=root, tokens_per_s=args.tokens_per_s, seed=args.seed,
-                     buffer_response=True)
+                     buffer_response=True, robot=str(robot.root))
         ts, tb = first_action_ms(s), first_action_ms(b)
         reply, reply_b = reply_ms(s), reply_ms(b)
         rate = None if not reply else len(s.token_times) / (reply * 1e-3)

@@ -288,9 +288,7 @@ class FrameStreamer:
         """
         if self.link.lockstep:
             return self.next_us
-        tick = self.link.tick_us
-        t = self.link.board_now_us() + self.link.latency_us(nbytes) + self.send_path_us()
-        return min(-(-t // tick) * tick, self.next_us)
+        return self._on_grid(self.link.board_now_us() + self.link.latency_us(nbytes) + self.send_path_us())
 
     def start_due_us(self, nbytes: int = 0) -> int:
         """Board time (µs) a start's first message of ``nbytes`` sent now is due at: as :meth:`soonest_us`,
@@ -301,10 +299,14 @@ class FrameStreamer:
         tick at or after its due time. Lockstep: the first unsent frame."""
         if self.link.lockstep:
             return self.next_us
-        tick, now = self.link.tick_us, self.link.board_now_us()
+        now = self.link.board_now_us()
         quick = now + self.link.latency_us(nbytes, START_QUANTILE) + self.send_path_us(START_QUANTILE)
         sure = now + self.link.latency_us(nbytes) + self.send_path_us()
-        t = max(quick, sure - START_SLACK_US)
+        return self._on_grid(max(quick, sure - START_SLACK_US))
+
+    def _on_grid(self, t: int) -> int:
+        """Board time ``t`` (µs) rounded up to the control-tick grid, and never after the first unsent frame."""
+        tick = self.link.tick_us
         return min(-(-t // tick) * tick, self.next_us)
 
     async def start_now(self, motion: MotionLike, label: str = "") -> Segment:

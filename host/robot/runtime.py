@@ -141,7 +141,7 @@ class RobotRuntime:
         return warm_up_behaviours(self.robot)
 
     # -- helpers -------------------------------------------------------------------------------
-    def _soonest(self, msg: ScreenCommand | SpeakerCommand) -> int:
+    def _start_due(self, msg: ScreenCommand | SpeakerCommand) -> int:
         """Board time a peripheral command sent now starts at (see ``FrameStreamer.start_due_us``)."""
         return self.streamer.start_due_us(len(encode_frame(msg, 0)) + 4)  # + 4: a larger start time's varint
 
@@ -199,13 +199,13 @@ class RobotRuntime:
             if new is not None:
                 self._mark(end=await self.streamer.wait_ended(new))
         elif behaviour == "face_emo":
-            t = self._soonest(ScreenCommand(ScreenTarget.FACE, "neutral", 0, 0))
+            t = self._start_due(ScreenCommand(ScreenTarget.FACE, "neutral", 0, 0))
             await self.link.send_peripheral(ScreenCommand(ScreenTarget.FACE, "neutral", t, 0))
             await self.streamer.wait_board_time(t)
             self._mark(end=t * 1e-6)
         elif behaviour == "play_bgm":
             stop = SpeakerCommand(SpeakerAction.STOP, SoundKind.CLIP, 0, 0, 0, name=self._playing_bgm.pop(ctx.element_id, ""))
-            t = self._soonest(stop)
+            t = self._start_due(stop)
             await self.link.send_peripheral(dataclasses.replace(stop, start_at_us=t))
             await self.streamer.wait_board_time(t)
             self._mark(end=t * 1e-6)
@@ -219,7 +219,7 @@ class RobotRuntime:
         volume = int(max(0, min(100, 70 * self.voice.loudness_factor)))
         bound_s = 2.0 * estimate_duration_s(text, self._rate_wpm()) + 2.0
         play = SpeakerCommand(SpeakerAction.PLAY, SoundKind.SPEECH, 0, int(bound_s * 1000), volume, text=payload)
-        start = self._soonest(play)
+        start = self._start_due(play)
         await self.link.send_peripheral(dataclasses.replace(play, start_at_us=start))
         async with self._stop_on_cancel(SpeakerCommand(SpeakerAction.STOP, SoundKind.SPEECH, 0, 0, 0)):
             duration = min(await self._speech_duration(text), bound_s)
@@ -238,7 +238,7 @@ class RobotRuntime:
             yield
         except anyio.get_cancelled_exc_class():
             with anyio.CancelScope(shield=True), anyio.move_on_after(5):
-                now = self._soonest(stop)
+                now = self._start_due(stop)
                 await self.link.send_peripheral(dataclasses.replace(stop, start_at_us=now))
                 self._mark(end=now * 1e-6)
             raise
@@ -332,7 +332,7 @@ class RobotRuntime:
         persistent = bool(ctx and ctx.persistent)
         duration = 0.0 if persistent else float(args.get("duration", 2.0))
         show = ScreenCommand(ScreenTarget.FACE, str(args["emo"]), 0, int(duration * 1000))
-        start = self._soonest(show)
+        start = self._start_due(show)
         await self.link.send_peripheral(dataclasses.replace(show, start_at_us=start))
         await self.streamer.wait_board_time(start)
         self._mark(start=start * 1e-6)
@@ -355,7 +355,7 @@ class RobotRuntime:
             name = "happy"
         play = SpeakerCommand(SpeakerAction.PLAY, SoundKind.CLIP, 0, int(duration * 1000), int(args.get("volume", 60)),
                               name=name)
-        start = self._soonest(play)
+        start = self._start_due(play)
         await self.link.send_peripheral(dataclasses.replace(play, start_at_us=start))
         await self.streamer.wait_board_time(start)
         self._mark(start=start * 1e-6)
