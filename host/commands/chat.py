@@ -29,7 +29,7 @@ from typing import Any
 
 from host.commands.errors import print_error
 from host.commands.outarg import out_dir_problem
-from host.commands.run import _push_text, add_run_options, check_run_args, resolve_strict
+from host.commands.run import _push_text, add_run_options, check_run_args, line_rates, resolve_strict
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -148,7 +148,8 @@ async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any,
 
     opts = SessionOptions(robot=str(args.robot_value.root), robots_dir=args.robots_dir, vocabulary=args.vocabulary,
                           mode=args.mode, strict=resolve_strict(args), lockstep=args.lockstep, link=args.link,
-                          emulate_board=args.emulate_board or None, baud=args.baud, out=out, skills=skills,
+                          emulate_board=args.emulate_board or None, baud=line_rates(args)[0],
+                          wire_baud=line_rates(args)[1], out=out, skills=skills,
                           label="chat", scene=args.scene, policy=getattr(args, "loaded_policy", None),
                           faults=args.faults, fault_seed=args.fault_seed, foxglove=args.foxglove,
                           mcp_mounts=tuple(args.mount_mcp),

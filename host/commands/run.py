@@ -72,7 +72,10 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
                         help="skill library file (else $GHOSTSHELL_SKILLS, else the user data directory)")
     parser.add_argument("--tokens-per-s", type=_positive, default=30.0, help="scripted LLM speed (default 30)")
     parser.add_argument("--seed", type=int, default=0, help="scripted LLM jitter seed")
-    parser.add_argument("--baud", type=_baud, default=115200, help="baud rate for a real serial port")
+    parser.add_argument("--baud", type=_baud, default=None, metavar="N",
+                        help="the serial line's rate in bit/s: a real port opens at it (default 115200); the "
+                             "emulated board over a pty models its wire time at it, as `ghostshell board --baud` "
+                             "does (default: not modelled, a pty is as fast as the machine)")
     parser.add_argument("--out", type=out_dir, default=None, metavar="DIR", help="artefact folder (default runs/<label>)")
     parser.add_argument("--no-live", action="store_true", help="no live channel view")
     add_no_plots_argument(parser)
@@ -176,6 +179,20 @@ def _bound(text: str) -> float | None:
     """A bound: a number > 0, or 0 for none (None)."""
     v = _non_negative(text)
     return v or None
+
+
+#: the rate a real serial port opens at when ``--baud`` is not given
+DEFAULT_PORT_BAUD = 115200
+
+
+def line_rates(args: argparse.Namespace) -> tuple[int, int | None]:
+    """``(baud, wire_baud)`` for a run's or a chat's session from ``--baud``: the rate a real port opens at,
+    and the rate the emulated board models its wire at (its ``--baud``), set only when ``--baud`` was given
+    and the command starts that board on a serial link (a pty, or ``--emulate-board``); a CAN link has
+    no serial line to model."""
+    emulated = args.emulate_board or args.link.implies_emulated_board
+    wire = args.baud if args.baud is not None and emulated and args.link.kind == "serial" else None
+    return (args.baud or DEFAULT_PORT_BAUD), wire
 
 
 def _baud(text: str) -> int:
@@ -346,7 +363,8 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     opts = RunOptions(
         program=program, prompt=prompt, llm=getattr(args, "llm", "scripted"), task_label=label,
         robot=str(args.robot_value.root), robots_dir=getattr(args, "robots_dir", None), vocabulary=args.vocabulary, mode=args.mode, strict=resolve_strict(args), lockstep=args.lockstep,
-        link=args.link, emulate_board=args.emulate_board or None, baud=args.baud, out=out,
+        link=args.link, emulate_board=args.emulate_board or None, baud=line_rates(args)[0],
+        wire_baud=line_rates(args)[1], out=out,
         tokens_per_s=args.tokens_per_s, seed=args.seed,
         llm_base_url=getattr(args, "base_url", None), llm_api_key=getattr(args, "api_key", None),
         interrupt_at=getattr(args, "interrupt_at", None), live=not args.no_live and sys.stdout.isatty(),

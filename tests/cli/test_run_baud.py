@@ -1,0 +1,38 @@
+"""``--baud`` on ``run`` and ``chat`` is the serial line's rate, whichever end makes the line: a real port
+opens at it, and the emulated board the command starts on a pty models its wire time at it (as
+``ghostshell board --baud`` and ``bench/bench_latency.py --baud`` do). It used to set only a real
+port's rate, so on the default pty it silently did nothing."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from host.cli import build_parser
+from host.commands.run import DEFAULT_PORT_BAUD, line_rates
+
+
+@pytest.mark.parametrize(("extra", "rates"), [
+    ([], (DEFAULT_PORT_BAUD, None)),  # a pty is as fast as the machine unless asked
+    (["--baud", "9600"], (9600, 9600)),  # the emulated board on the pty models 9600 baud
+    (["--baud", "9600", "--link", "/dev/ttyUSB0"], (9600, None)),  # a real port: the port's own rate
+    (["--baud", "9600", "--link", "/dev/ttyUSB0", "--emulate-board"], (9600, 9600)),
+    (["--baud", "9600", "--link", "can:slcan:pty"], (9600, None)),  # CAN: no serial line to model
+])
+@pytest.mark.parametrize("command", [["run", "--xml", "<wave/>"], ["chat", "--llm", "openai:m"]])
+def test_baud_is_the_lines_rate_at_whichever_end_makes_it(command: list[str], extra: list[str],
+                                                          rates: tuple[int, int | None]) -> None:
+    argv = [*command, *extra]
+    assert line_rates(build_parser(argv).parse_args(argv)) == rates
+
+
+def test_a_run_on_the_pty_at_a_given_baud_models_it(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    r = subprocess.run([sys.executable, "-m", "host", "run", "--xml", '<head_act action="nod"/>', "--lockstep",
+                        "--baud", "57600", "--out", str(out), "--no-plots", "--no-live"],
+                       capture_output=True, text=True, timeout=180)
+    assert r.returncode == 0, r.stderr
+    assert "57600 baud" in (out / "board.stderr").read_text(), (out / "board.stderr").read_text()
