@@ -93,6 +93,7 @@ import contextlib
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -367,6 +368,7 @@ def main(argv: list[str] | None = None) -> int:
             print(raise_host_priority(args.nice), flush=True)
             return _run(args, len(hogs), robot, programs)
     except KeyboardInterrupt:  # the hogs are gone (cpu_load), a run's board stopped with its session
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C while reporting: no traceback
         print("bench_latency: interrupted; no summary (the runs so far are in their folders)", file=sys.stderr)
         return 130
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import signal
 import subprocess
 import sys
 import tempfile
@@ -183,6 +184,7 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             rows += run(argv_, parser, log_dir, args.verbose)
     except KeyboardInterrupt:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C while reporting: no traceback
         print("[run_all] interrupted; the figures so far:", file=sys.stderr)
         print(table(rows))
         return 130
