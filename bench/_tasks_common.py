@@ -48,7 +48,8 @@ def task_programs(ids: Sequence[int] | None = None, robot: Robot | None = None,
         return [(i, str(tasks[i].ground_truth)) for i in runnable]
     bad = [i for i in ids if i not in runnable]
     if bad:
-        message = f"--tasks: no ground truth for task(s) {bad}; runnable: {runnable[0]}-{runnable[-1]}"
+        message = (f"--tasks: no ground truth for task(s) {bad}; "
+                   + (f"runnable: {runnable[0]}-{runnable[-1]}" if runnable else "this robot has no task with one"))
         if parser is None:
             raise ValueError(message)
         parser.error(message)

@@ -318,8 +318,10 @@ def cpu_load(n: int) -> Iterator[list[subprocess.Popen[bytes]]]:
     procs: list[subprocess.Popen[bytes]] = []
     try:
         for _ in range(n):
-            procs.append(subprocess.Popen([sys.executable, "-c", "while True: pass"],
-                                          stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL))
+            # stderr too: a Ctrl-C reaches the hogs (the terminal's process group) before they are
+            # killed, and each printed its KeyboardInterrupt traceback under the bench's own line
+            procs.append(subprocess.Popen([sys.executable, "-c", "while True: pass"], stdin=subprocess.DEVNULL,
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
         yield procs
     finally:
         for p in procs:

@@ -146,10 +146,11 @@ async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any,
     from host.run.session import RobotSession, SessionOptions
     from host.run.stops import StopSignals
 
+    baud, wire_baud = line_rates(args)
     opts = SessionOptions(robot=str(args.robot_value.root), robots_dir=args.robots_dir, vocabulary=args.vocabulary,
                           mode=args.mode, strict=resolve_strict(args), lockstep=args.lockstep, link=args.link,
-                          emulate_board=args.emulate_board or None, baud=line_rates(args)[0],
-                          wire_baud=line_rates(args)[1], out=out, skills=skills,
+                          emulate_board=args.emulate_board or None, baud=baud, wire_baud=wire_baud,
+                          out=out, skills=skills,
                           label="chat", scene=args.scene, policy=getattr(args, "loaded_policy", None),
                           faults=args.faults, fault_seed=args.fault_seed, foxglove=args.foxglove,
                           mcp_mounts=tuple(args.mount_mcp),

@@ -188,10 +188,10 @@ DEFAULT_PORT_BAUD = 115200
 def line_rates(args: argparse.Namespace) -> tuple[int, int | None]:
     """``(baud, wire_baud)`` for a run's or a chat's session from ``--baud``: the rate a real port opens at,
     and the rate the emulated board models its wire at (its ``--baud``), set only when ``--baud`` was given
-    and the command starts that board on a serial link (a pty, or ``--emulate-board``); a CAN link has
-    no serial line to model."""
-    emulated = args.emulate_board or args.link.implies_emulated_board
-    wire = args.baud if args.baud is not None and emulated and args.link.kind == "serial" else None
+    and the command starts that board on a pty (``--link pty``): a real port's line has its own timing,
+    and a CAN link has no serial line to model."""
+    on_pty = args.link.kind == "serial" and args.link.port == "pty"
+    wire = args.baud if args.baud is not None and on_pty else None
     return (args.baud or DEFAULT_PORT_BAUD), wire
 
 
@@ -360,11 +360,11 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     if why is not None:
         print_error(command_of(args), f"the run folder {out} {why}; give another with --out DIR")
         return USAGE_STATUS
+    baud, wire_baud = line_rates(args)
     opts = RunOptions(
         program=program, prompt=prompt, llm=getattr(args, "llm", "scripted"), task_label=label,
         robot=str(args.robot_value.root), robots_dir=getattr(args, "robots_dir", None), vocabulary=args.vocabulary, mode=args.mode, strict=resolve_strict(args), lockstep=args.lockstep,
-        link=args.link, emulate_board=args.emulate_board or None, baud=line_rates(args)[0],
-        wire_baud=line_rates(args)[1], out=out,
+        link=args.link, emulate_board=args.emulate_board or None, baud=baud, wire_baud=wire_baud, out=out,
         tokens_per_s=args.tokens_per_s, seed=args.seed,
         llm_base_url=getattr(args, "base_url", None), llm_api_key=getattr(args, "api_key", None),
         interrupt_at=getattr(args, "interrupt_at", None), live=not args.no_live and sys.stdout.isatty(),

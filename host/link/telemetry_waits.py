@@ -40,10 +40,15 @@ class NudgeTarget:
         #: when (wall s) the target was last moved
         self.raised_at = 0.0
 
+    def reached(self, seen_us: int) -> bool:
+        """Whether the target may move on because it was met: no target yet, or the board time known now
+        (``seen_us``, µs) is at or past it."""
+        return self.target == 0 or seen_us >= self.target
+
     def due(self, seen_us: int, now: float, raise_after_s: float) -> bool:
-        """Whether the target may move on: no target yet; a report reached it (``seen_us``, the board
-        time known now); or none came for ``raise_after_s`` (lost; :meth:`TelemetryWaits.nudge_raise_s`)."""
-        return self.target == 0 or seen_us >= self.target or now - self.raised_at >= raise_after_s
+        """Whether the target may move on: :meth:`reached`, or no report came for ``raise_after_s``
+        (taken as lost; :meth:`TelemetryWaits.nudge_raise_s`)."""
+        return self.reached(seen_us) or now - self.raised_at >= raise_after_s
 
     def raise_to(self, target_us: int, now: float) -> int:
         """Move the target to ``target_us`` (never back) at ``now``; returns the target."""
@@ -108,6 +113,18 @@ class TelemetryWaits(BoardTime):
 
     def _report_latency(self, seconds: float) -> None:
         self.report_latencies.append(max(0.0, seconds))
+
+    async def board_reached(self, t_us: int, timeout: float) -> bool:
+        """Whether the board's clock has reached ``t_us`` (board µs): known from its reports, or else asked
+        with one TIME_SYNC, whose reply carries the board time it was sent at (a lockstep board's too:
+        an ADVANCE target's report that was lost, not late, shows as a board already there). False
+        when the board is behind, or when no reply came within ``timeout`` s (a slow board, or a lost
+        message: ask again later)."""
+        if self.board_now_estimate() >= t_us:
+            return True
+        with contextlib.suppress(LinkError):  # LinkTimeout or LinkDown: not known to be there
+            await self.sync_once(timeout)
+        return self.board_now_estimate() >= t_us
 
     async def telemetry(self, maxsize: int | None = None) -> AsyncIterator[Telemetry]:
         """Every telemetry report from now on; a slow consumer loses the oldest (bounded stream)."""

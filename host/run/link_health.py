@@ -1,10 +1,12 @@
 """One line on what the link went through during a run, for the end of ``ghostshell run``.
 
-A run can end "done" while the board's watchdog held the servos, frames arrived too late to be
-applied, or requests had to be sent again (a slow or lossy link, ``--faults``): summary.json counts
-all of it, and this line says so in the terminal. Built from summary.json's ``extra``: ``link`` (the
-host's counts and the board's refusal counters from its last report) and, with ``--faults``,
-``faults.board`` (what the board injected and detected, read from its stderr when it stopped).
+A run can end "done" while the board's watchdog held the servos, frames were refused, or requests had
+to be sent again (a slow or lossy link, ``--faults``): summary.json counts all of it, and this line
+says so in the terminal. Built from summary.json's ``extra``: ``link`` (what this session's host
+counted: the NACKs of its servo frames, re-sent requests, undecodable frames, gaps in the board's
+sequence numbers) and, with ``--faults``, ``faults.board`` (what the board injected and detected, read from
+its stderr when it stopped). The board's own ``late``/``dropped`` counters are left out: they count
+since the board started, so against a board you started yourself they include earlier runs.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ def _count(n: object, one: str, many: str) -> str | None:
 
 
 def link_health_line(extra: Mapping[str, Any]) -> str | None:
-    """``"link: 13 board watchdog trips (servos held), 1 servo frame refused as late, 18 requests re-sent;
+    """``"link: 13 board watchdog trips (servos held), 1 servo frame refused (NACK), 18 requests re-sent;
     faults injected: delay=200±50 (counts in summary.json)"``, or None when the link had nothing to
     report. Counts that are missing (a run that never reached the board) or zero are left out."""
     link = extra.get("link") or {}
@@ -28,13 +30,13 @@ def link_health_line(extra: Mapping[str, Any]) -> str | None:
     detected = board.get("board_detected") or {}
     parts = [p for p in (
         _count(detected.get("watchdog_trips"), "board watchdog trip (servos held)", "board watchdog trips (servos held)"),
-        _count(link.get("late"), "servo frame refused as late", "servo frames refused as late"),
-        _count(link.get("dropped"), "servo frame refused (full, future or e-stop)",
-               "servo frames refused (full, future or e-stop)"),
+        _count(link.get("frame_nacks"), "servo frame refused (NACK)", "servo frames refused (NACK)"),
         _count(link.get("retries"), "request re-sent", "requests re-sent"),
         _count(link.get("decode_errors"), "bad frame from the board", "bad frames from the board"),
         _count(detected.get("link_errors"), "bad frame at the board", "bad frames at the board"),
-        _count(link.get("seq_gaps"), "gap in the board's sequence numbers", "gaps in the board's sequence numbers"),
+        _count(link.get("seq_gaps"), "sequence gap at the host (a board message lost)",
+               "sequence gaps at the host (board messages lost)"),
+        _count(detected.get("seq_gaps"), "sequence gap at the board", "sequence gaps at the board"),
     ) if p is not None]
     if not parts:
         return None

@@ -67,6 +67,9 @@ STALL_S = 1.0
 #: the same once the link has shown losses (decode errors, re-sent requests): a lost report, not a
 #: slow board, is then the likely reason for the silence
 LOSSY_NUDGE_S = 0.05
+#: how long a lockstep nudge waits for the TIME_SYNC reply that says whether the board reached its
+#: target (no reply in time: the target is repeated, and the next nudge asks again)
+LOCKSTEP_PROBE_S = 0.5
 
 
 def watchdog_fault_message(client: BoardClient, board_time_us: int) -> str:
@@ -152,13 +155,15 @@ async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardCl
     report period plus a tick past the end of the frames it has sent, which is where a board whose
     reports were lost stands, so one nudge brings the next report (frames due in that gap are late
     or missing, as they would be after any loss). A further nudge reaches one period further only
-    once a report reached the target or :meth:`~host.link.telemetry_waits.TelemetryWaits.nudge_raise_s`
-    passed without one (:class:`~host.link.telemetry_waits.NudgeTarget`); until then it repeats the
-    target. A QEMU board starved for over a second on a loaded CI machine made the host re-send a
-    FLUSH (so the link counted as lossy) and was pushed one period further every 50 ms meanwhile; the
-    frames sent after the FLUSH's ACK arrived LATE.
+    once a report reached the target, or the board answers a TIME_SYNC with a time at or past it (its
+    report was lost: :meth:`~host.link.telemetry_waits.TelemetryWaits.board_reached`); otherwise it
+    repeats the target (:class:`~host.link.telemetry_waits.NudgeTarget`). A QEMU board starved for over
+    a second on a loaded CI machine made the host re-send a FLUSH (so the link counted as lossy) and was
+    pushed one period further every 50 ms meanwhile; the frames sent after the FLUSH's ACK arrived LATE.
+    No timer can tell such a board from a lost report; the board's own clock can.
 
-    ``clock``: wall seconds, the clock of ``rec.last_rx`` (tests pass a virtual one).
+    ``clock``: wall seconds, the clock ``rec.last_rx`` is kept on; a caller that passes another (tests:
+    a virtual one) sets ``rec.last_rx`` on it too.
     """
     sent, since = runtime.streamer.frames_sent, clock()
     # silence counts from now, not from when the Recorder was made: before the session's first report
@@ -196,8 +201,11 @@ async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardCl
             wait = LOSSY_NUDGE_S if lossy else LOCKSTEP_NUDGE_S
             if silent > wait and now - nudged_at > wait:
                 nudged_at = now
-                if goal.due(client.board_now_estimate(), now, client.nudge_raise_s()):
-                    goal.raise_to(lockstep_nudge_target(client, runtime, goal.target), now)
+                # move on once a report met the target, or the board says it is there (its report was
+                # lost); a board that is behind (slow, or its answer is) gets the same target again
+                if (goal.reached(client.board_now_estimate())
+                        or await client.board_reached(goal.target, LOCKSTEP_PROBE_S)):
+                    goal.raise_to(lockstep_nudge_target(client, runtime, goal.target), clock())
                 with contextlib.suppress(LinkError):
                     await client.advance(goal.target)
 

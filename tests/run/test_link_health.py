@@ -23,13 +23,19 @@ def test_what_the_link_went_through_is_one_line_with_the_injected_faults() -> No
              "faults": {"host_detected": {}, "board": {"spec": "delay=200±50", "board_detected": {
                  "link_errors": 0, "late_frames": 1, "dropped_frames": 0, "watchdog_trips": 17, "seq_gaps": 2}}}}
     assert link_health_line(extra) == (
-        "link: 17 board watchdog trips (servos held), 1 servo frame refused as late, 18 requests re-sent; "
-        "faults injected: delay=200±50 (counts in summary.json)")
+        "link: 17 board watchdog trips (servos held), 1 servo frame refused (NACK), 18 requests re-sent, "
+        "2 sequence gaps at the board; faults injected: delay=200±50 (counts in summary.json)")
+
+
+def test_the_boards_counters_since_it_started_are_not_this_runs() -> None:
+    """``late``/``dropped`` come from the board's reports and count since it started (a board you started
+    yourself keeps earlier runs' refusals): only this session's NACKs are counted."""
+    assert link_health_line({"link": {**CLEAN, "late": 40, "dropped": 3}}) is None
 
 
 def test_counts_a_board_did_not_report_are_left_out() -> None:
     """A board that stopped before printing its fault report leaves ``faults.board`` None; a run that
     never got a report leaves the board's counters None."""
-    extra = {"link": {**CLEAN, "late": None, "dropped": None, "decode_errors": 3},
+    extra = {"link": {**CLEAN, "frame_nacks": None, "decode_errors": 3},
              "faults": {"host_detected": {}, "board": None}}
     assert link_health_line(extra) == "link: 3 bad frames from the board (counts in summary.json)"
