@@ -8,6 +8,7 @@ fed by the scripted LLM replaying the task's ground-truth program (``--robot``: 
 from __future__ import annotations
 
 import argparse
+import math
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -30,7 +31,7 @@ def task_arguments(description: str, json_help: str) -> argparse.ArgumentParser:
     ap.add_argument("--tasks", type=task_ids, default=None,
                     help="task ids, e.g. 1,5,23 or 1-10 (default: all of the robot's)")
     ap.add_argument("--robot", default=DEFAULT_ROBOT, help=f"whose tasks run (default {DEFAULT_ROBOT})")
-    ap.add_argument("--tokens-per-s", type=float, default=30.0)
+    ap.add_argument("--tokens-per-s", type=_rate, default=30.0, help="scripted LLM speed (default 30)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=None, help="folder for the runs' artefacts (default: a temporary folder)")
     ap.add_argument("--json", default=None, metavar="FILE", help=json_help)
@@ -66,6 +67,21 @@ def selected_tasks(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
     return robot, task_programs(args.tasks, robot, parser=parser)
 
 
+def _rate(text: str) -> float:
+    """``--tokens-per-s``'s type: a finite number > 0."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected tokens per second, e.g. 30, got {text!r}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return v
+
+
+#: the most task ids ``--tasks`` may name (a range like 1-100000000000 used to fill the memory)
+MAX_TASK_IDS = 1000
+
+
 def task_ids(text: str) -> list[int]:
     """``--tasks``'s type: ``"1,5,23"`` or ``"1-10,23"`` -> ``[1, 5, 23]``. Anything else (an empty list, a
     range that runs backwards, a part that is not a number) raises :class:`argparse.ArgumentTypeError`,
@@ -81,11 +97,15 @@ def task_ids(text: str) -> list[int]:
                 lo, hi = int(a), int(b)
                 if hi < lo:
                     raise argparse.ArgumentTypeError(f"the range {part!r} runs backwards; expected e.g. 1-10")
+                if hi - lo + 1 > MAX_TASK_IDS:
+                    raise argparse.ArgumentTypeError(f"the range {part!r} names more than {MAX_TASK_IDS} tasks")
                 out.extend(range(lo, hi + 1))
             else:
                 out.append(int(part))
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected ids like 1,5,23 or 1-10, got {text!r}") from None
+    if len(out) > MAX_TASK_IDS:
+        raise argparse.ArgumentTypeError(f"more than {MAX_TASK_IDS} task ids in {text[:40]!r}...")
     if not out:
         raise argparse.ArgumentTypeError(f"no task ids in {text!r}; expected ids like 1,5,23 or 1-10 (leave it out for all)")
     return out
@@ -105,12 +125,24 @@ def run_task(task_id: int, program: str, *, lockstep: bool, out_root: Path, buff
 
 
 def out_root(arg: str | None, prefix: str) -> Path:
-    """The folder the runs' artefacts go to (a fresh temporary one unless given)."""
+    """The folder the runs' artefacts go to (a fresh temporary one unless given). Raises OSError."""
     if arg:
         p = Path(arg)
         p.mkdir(parents=True, exist_ok=True)
         return p
     return Path(tempfile.mkdtemp(prefix=prefix))
+
+
+def output_folder(parser: argparse.ArgumentParser, args: argparse.Namespace, prefix: str) -> Path:
+    """:func:`out_root` of ``--out``, and a ``--json`` whose folder exists, before any run: a folder
+    that cannot be made or a missing one is a usage error (``parser.error``), not a traceback at the
+    start or after the whole run."""
+    if args.json is not None and not Path(args.json).resolve().parent.is_dir():
+        parser.error(f"--json: no folder {str(Path(args.json).resolve().parent)!r} to write {args.json!r} into")
+    try:
+        return out_root(args.out, prefix)
+    except OSError as e:
+        parser.error(f"--out: cannot make the folder {args.out!r}: {e.strerror or e}")
 
 
 def home_channels(vocabulary: str | None = None, robot: Robot | None = None) -> Registry:

@@ -103,7 +103,7 @@ from pathlib import Path
 from typing import Any
 
 from _machine import MAX_FLOOR_N, MIN_FLOOR_N, cpu_steal_s, floor_line, floor_stats, steal_line, wakeup_lateness_ms
-from _tasks_common import fmt, home_channels, out_root, run_task, selected_tasks, stats_ms, task_arguments
+from _tasks_common import fmt, home_channels, output_folder, run_task, selected_tasks, stats_ms, task_arguments
 from host.link import HandshakeError, LinkConfigError, LinkError
 from host.run.runner import RunReport
 from host.speech.sentences import SentenceSplitter
@@ -364,13 +364,20 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--floor: a lockstep board does not wait on the wall clock; give --floor only for a realtime run")
     if args.floor is not None and args.floor != 0 and not MIN_FLOOR_N <= args.floor <= MAX_FLOOR_N:
         ap.error(f"--floor: expected 0 (skip) or {MIN_FLOOR_N} <= N <= {MAX_FLOOR_N}, got {args.floor}")
+    from protocol.linkspec import LinkSpecError, parse_link_spec
+
+    try:
+        parse_link_spec(args.link)
+    except LinkSpecError as e:
+        ap.error(f"--link: {e}")
     robot, programs = selected_tasks(ap, args)  # a bad --robot or --tasks: a usage error before any run
+    root = output_folder(ap, args, "bench_latency_")
     try:
         with cpu_load((os.cpu_count() or 1) if args.load else 0) as hogs:  # the hogs keep nice 0
             print(raise_host_priority(args.nice), flush=True)
-            return _run(args, len(hogs), robot, programs)
+            return _run(args, len(hogs), robot, programs, root)
     except KeyboardInterrupt:  # the hogs are gone (cpu_load), a run's board stopped with its session
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C while reporting: no traceback
+        signal.signal(signal.SIGINT, signal.SIG_DFL)  # a further Ctrl-C ends the process: no traceback, no hang
         print("bench_latency: interrupted; no summary (the runs so far are in their folders)", file=sys.stderr)
         return 130
 
@@ -391,16 +398,7 @@ def raise_host_priority(inc: int) -> str:
     return f"priority: host and board at nice {after} (--nice {inc}; the --load hogs at {before})"
 
 
-def _run(args: Any, hogs: int, robot: Robot, programs: list[tuple[int, str]]) -> int:
-    from protocol.linkspec import LinkSpecError, parse_link_spec
-
-    try:
-        parse_link_spec(args.link)
-    except LinkSpecError as e:
-        print(f"bench_latency: --link: {e}", file=sys.stderr)
-        return 2
-
-    root = out_root(args.out, "bench_latency_")
+def _run(args: Any, hogs: int, robot: Robot, programs: list[tuple[int, str]], root: Path) -> int:
     registry = home_channels(robot=robot)
     motion_channels = frozenset(robot.channels) | {"joints"}  # the generic pose/joint_move channel
     mode = ("lockstep" if args.lockstep else "realtime") + (f", {args.baud} baud wire" if args.baud else "")
@@ -426,8 +424,9 @@ def _run(args: Any, hogs: int, robot: Robot, programs: list[tuple[int, str]]) ->
             rep = run_task(tid, program, lockstep=args.lockstep,
                            out_root=root / f"r{rep_i}" if args.repeat > 1 else root, tokens_per_s=args.tokens_per_s,
                            seed=args.seed, wire_baud=args.baud, link=args.link, robot=str(robot.root))
-        except (HandshakeError, LinkConfigError):  # no run can work (wrong link, wrong robot): stop here
-            raise
+        except (HandshakeError, LinkConfigError) as e:  # no run can work (wrong link, wrong robot): stop here
+            print(f"bench_latency: {e}", file=sys.stderr)
+            return 1 if isinstance(e, HandshakeError) else 2
         except LinkError as e:  # the run ended (its board latched a fault, the link went): say so, measure the rest
             failed.append(f"task {tid} (repetition {rep_i + 1}): {e}")
             print(f"{tid:>4} failed: {e}", flush=True)

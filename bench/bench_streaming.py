@@ -30,14 +30,17 @@ Numbers are printed, never asserted.
 
 from __future__ import annotations
 
+import argparse
 import json
+import signal
 import statistics
 import sys
 from pathlib import Path
 from typing import Any
 
-from _tasks_common import fmt, out_root, run_task, selected_tasks, task_arguments
+from _tasks_common import fmt, output_folder, run_task, selected_tasks, task_arguments
 from host.run.runner import RunReport
+from robots.description import Robot
 
 NOT_ACTIONS = ("wait", "async", "RUN")
 
@@ -59,7 +62,16 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     robot, programs = selected_tasks(ap, args)
-    root = out_root(args.out, "bench_streaming_")
+    root = output_folder(ap, args, "bench_streaming_")
+    try:
+        return _run(args, robot, programs, root)
+    except KeyboardInterrupt:  # a run's board stopped with its session
+        signal.signal(signal.SIGINT, signal.SIG_DFL)  # a further Ctrl-C ends the process: no traceback, no hang
+        print("bench_streaming: interrupted; no summary (the runs so far are in their folders)", file=sys.stderr)
+        return 130
+
+
+def _run(args: argparse.Namespace, robot: Robot, programs: list[tuple[int, str]], root: Path) -> int:
     lockstep = not args.realtime
     print(f"time to first action, streaming vs buffered, {'lockstep' if lockstep else 'realtime'} board over a pty, "
           f"{args.tokens_per_s:g} tokens/s, {len(programs)} task(s); artefacts in {root}", flush=True)

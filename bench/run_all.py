@@ -184,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             rows += run(argv_, parser, log_dir, args.verbose)
     except KeyboardInterrupt:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C while reporting: no traceback
+        signal.signal(signal.SIGINT, signal.SIG_DFL)  # a further Ctrl-C ends the process: no traceback, no hang
         print("[run_all] interrupted; the figures so far:", file=sys.stderr)
         print(table(rows))
         return 130

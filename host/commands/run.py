@@ -188,10 +188,9 @@ DEFAULT_PORT_BAUD = 115200
 def line_rates(args: argparse.Namespace) -> tuple[int, int | None]:
     """``(baud, wire_baud)`` for a run's or a chat's session from ``--baud``: the rate a real port opens at,
     and the rate the emulated board models its wire at (its ``--baud``), set only when ``--baud`` was given
-    and the command starts that board on a pty (``--link pty``): a real port's line has its own timing,
-    and a CAN link has no serial line to model."""
-    on_pty = args.link.kind == "serial" and args.link.port == "pty"
-    wire = args.baud if args.baud is not None and on_pty else None
+    and the command starts that board on a pty it creates (``--link pty``, or ``can:slcan:pty``: SLCAN's
+    serial line): a real port's line has its own timing, and a CAN bus is not a serial line."""
+    wire = args.baud if args.baud is not None and args.link.implies_emulated_board else None
     return (args.baud or DEFAULT_PORT_BAUD), wire
 
 
@@ -397,7 +396,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
             print(f"artefacts in {out}/: " + " ".join(n for n in ARTEFACTS if (out / n).exists()))
         return link_exit_status(e)
     from host.run.artefacts import calls_table
-    from host.run.link_health import link_health_line
+    from host.run.link_health import board_warnings, link_health_line
 
     s = report.summary
     if report.stop is not None:  # a signal or a bound stopped the run: one line says what and where
@@ -419,6 +418,8 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     health = link_health_line(s.extra)
     if health is not None:
         print(health)
+    for warning in board_warnings(out / "board.stderr"):  # e.g. a --baud too slow for the telemetry
+        print(warning)
     if s.extra.get("board_fault"):
         print_error(command_of(args), f"{s.extra['board_fault']}")
     scene = s.extra.get("scene") or {}

@@ -70,6 +70,8 @@ class TelemetryFanout:
         self.latest: Telemetry | None = None
         self.faults = FaultFlags.NONE
         self.fault_events: deque[FaultEvent] = deque(maxlen=MAX_FAULT_EVENTS)
+        #: WATCHDOG_HOLD edges raised (the board held its servos after a silent link), since this fan-out began
+        self.watchdog_holds = 0
         self.on_fault: list[Callable[[FaultEvent], None]] = []
         self._subs: list[Subscriber] = []
         self._waiters: list[Waiter] = []
@@ -82,6 +84,8 @@ class TelemetryFanout:
             ev = FaultEvent(t.board_time_us, time.monotonic(), self.faults, now_faults)
             self.faults = now_faults
             self.fault_events.append(ev)
+            if ev.raised & FaultFlags.WATCHDOG_HOLD:
+                self.watchdog_holds += 1
             if ev.raised:
                 # info, not warning: the application reports faults (on_fault); a run ends with one message
                 log.info("board fault raised: %s (board time %.3f s)", flag_names(ev.raised), t.board_time_us / 1e6)

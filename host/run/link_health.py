@@ -3,8 +3,8 @@
 A run can end "done" while the board's watchdog held the servos, frames were refused, or requests had
 to be sent again (a slow or lossy link, ``--faults``): summary.json counts all of it, and this line
 says so in the terminal. Built from summary.json's ``extra``: ``link`` (what this session's host
-counted: the NACKs of its servo frames, re-sent requests, undecodable frames, gaps in the board's
-sequence numbers) and, with ``--faults``, ``faults.board`` (what the board injected and detected, read from
+counted: the board's watchdog holds in its reports, the NACKs of its servo frames, re-sent requests,
+undecodable frames, gaps in the board's sequence numbers) and, with ``--faults``, ``faults.board`` (what the board injected and detected, read from
 its stderr when it stopped). The board's own ``late``/``dropped`` counters are left out: they count
 since the board started, so against a board you started yourself they include earlier runs.
 """
@@ -12,9 +12,10 @@ since the board started, so against a board you started yourself they include ea
 from __future__ import annotations
 
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
-__all__ = ["link_health_line"]
+__all__ = ["MAX_BOARD_WARNINGS", "board_warnings", "link_health_line"]
 
 
 def _count(n: object, one: str, many: str) -> str | None:
@@ -29,7 +30,9 @@ def link_health_line(extra: Mapping[str, Any]) -> str | None:
     board = (extra.get("faults") or {}).get("board") or {}
     detected = board.get("board_detected") or {}
     parts = [p for p in (
-        _count(detected.get("watchdog_trips"), "board watchdog trip (servos held)", "board watchdog trips (servos held)"),
+        # the board's own count with --faults; else the WATCHDOG_HOLD edges in the reports the host read
+        _count(detected.get("watchdog_trips", link.get("watchdog_holds")), "board watchdog trip (servos held)",
+               "board watchdog trips (servos held)"),
         _count(link.get("frame_nacks"), "servo frame refused (NACK)", "servo frames refused (NACK)"),
         _count(link.get("retries"), "request re-sent", "requests re-sent"),
         _count(link.get("decode_errors"), "bad frame from the board", "bad frames from the board"),
@@ -42,3 +45,25 @@ def link_health_line(extra: Mapping[str, Any]) -> str | None:
         return None
     spec = board.get("spec")
     return "link: " + ", ".join(parts) + (f"; faults injected: {spec}" if spec else "") + " (counts in summary.json)"
+
+
+#: at most this many of the board's warning lines are repeated (the rest stay in board.stderr)
+MAX_BOARD_WARNINGS = 5
+
+
+def board_warnings(stderr_path: Path) -> list[str]:
+    """The distinct ``board: warning: ...`` lines of an emulated board's stderr (the run folder's
+    ``board.stderr``), at most :data:`MAX_BOARD_WARNINGS`, in order; [] when there is none or no file.
+    E.g. a ``--baud`` too slow for the telemetry: ``board: warning: telemetry needs ~81500 bit/s, more
+    than 80% of 57600 baud; some reports will be dropped``."""
+    try:
+        text = stderr_path.read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return []
+    seen: list[str] = []
+    for line in text.splitlines():
+        if line.startswith("board: warning:") and line not in seen:
+            seen.append(line)
+            if len(seen) == MAX_BOARD_WARNINGS:
+                break
+    return seen

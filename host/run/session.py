@@ -789,6 +789,7 @@ class RobotSession:
                  "decode_errors": client.stats.decode_errors if client else None,
                  "retries": client.stats.retries if client else None,
                  "seq_gaps": client.stats.seq_gaps if client else None,
+                 "watchdog_holds": client.fanout.watchdog_holds if client else None,
                  **({"last_decode_error": client.stats.last_decode_error}
                     if client and client.stats.last_decode_error else {})}
         end_t = rec.t[-1] if rec.t else turn.board_t0

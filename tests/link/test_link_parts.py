@@ -327,3 +327,15 @@ def test_the_boards_numbering_restarts_at_the_caps_so_frames_that_overtook_it_ar
     assert client.stats.seq_gaps == 1
     client._on_items([Frame(14, MsgType.SIM_STATE, sim, b"")])  # it was late after all
     assert client.stats.seq_gaps == 0
+
+
+def test_the_fanout_counts_each_watchdog_hold_the_reports_raise() -> None:
+    """``TelemetryFanout.watchdog_holds``: rising WATCHDOG_HOLD edges only (a hold that lasts several
+    reports is one; another fault bit changing during it is not a new one)."""
+    import dataclasses
+
+    fan = TelemetryFanout()
+    hold, estop = FaultFlags.WATCHDOG_HOLD, FaultFlags.ESTOP
+    for t, flags in enumerate([FaultFlags.NONE, hold, hold, hold | estop, FaultFlags.NONE, hold, FaultFlags.NONE]):
+        fan.on_telemetry(dataclasses.replace(_tel(t * 20_000), faults=flags))
+    assert fan.watchdog_holds == 2

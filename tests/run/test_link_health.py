@@ -6,7 +6,9 @@ extras below are that summary's shape (summary.json's ``extra``)."""
 
 from __future__ import annotations
 
-from host.run.link_health import link_health_line
+from pathlib import Path
+
+from host.run.link_health import MAX_BOARD_WARNINGS, board_warnings, link_health_line
 
 CLEAN = {"frames_sent": 362, "frames_skipped": 0, "late": 0, "dropped": 0, "frame_nacks": 0,
          "decode_errors": 0, "retries": 0, "seq_gaps": 0}
@@ -39,3 +41,22 @@ def test_counts_a_board_did_not_report_are_left_out() -> None:
     extra = {"link": {**CLEAN, "frame_nacks": None, "decode_errors": 3},
              "faults": {"host_detected": {}, "board": None}}
     assert link_health_line(extra) == "link: 3 bad frames from the board (counts in summary.json)"
+
+
+def test_a_watchdog_hold_is_said_without_faults_too() -> None:
+    """A host stalled for 0.5 s (``kill -STOP``) on a run without ``--faults``: the board held its servos,
+    the run ended "done", and only the reports' WATCHDOG_HOLD edge (``extra.link.watchdog_holds``) knew."""
+    assert link_health_line({"link": {**CLEAN, "watchdog_holds": 1}}) == (
+        "link: 1 board watchdog trip (servos held) (counts in summary.json)")
+    both = {"link": {**CLEAN, "watchdog_holds": 2}, "faults": {"board": {"board_detected": {"watchdog_trips": 3}}}}
+    assert link_health_line(both) == "link: 3 board watchdog trips (servos held) (counts in summary.json)"
+
+
+def test_the_boards_warnings_are_repeated_once_each_and_bounded(tmp_path: Path) -> None:
+    stderr = tmp_path / "board.stderr"
+    assert board_warnings(stderr) == []  # no file (a board you started yourself)
+    slow = "board: warning: telemetry needs ~81500 bit/s, more than 80% of 57600 baud; some reports will be dropped"
+    stderr.write_text("board: coco (12 servos), realtime\n" + slow + "\n" + slow + "\n"
+                      + "".join(f"board: warning: w{i}\n" for i in range(20)))
+    got = board_warnings(stderr)
+    assert got[0] == slow and len(got) == MAX_BOARD_WARNINGS and len(set(got)) == len(got)
