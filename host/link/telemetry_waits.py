@@ -24,15 +24,16 @@ __all__ = ["NudgeTarget", "TelemetryWaits"]
 
 
 class NudgeTarget:
-    """The board time (us) a lockstep nudge ADVANCEs to, held until the board reported reaching it or
-    the wait for that report ran out.
+    """The board time (µs) a lockstep nudge ADVANCEs to, held until it may move on.
 
     A lockstep board reports only while its clock runs; a nudge ADVANCEs a silent one a report period
     further. Moving the target on every nudge pushes a board that is merely slow past the frames the
     host sends next, and the board refuses those as LATE: so the target moves on (:meth:`raise_to`)
-    only when :meth:`due` says so, and is otherwise repeated (a lost ADVANCE costs nothing more).
-    Used by :meth:`TelemetryWaits.wait_for` and by the run's silence watchdog
-    (:func:`host.run.pump.silence_watchdog`). Times are wall seconds on the caller's one clock."""
+    only once it was :meth:`reached` (a report met it; the run's silence watchdog,
+    :func:`host.run.pump.silence_watchdog`, also asks the board's clock:
+    :meth:`TelemetryWaits.board_reached`) or, in :meth:`TelemetryWaits.wait_for`, once :meth:`due`
+    (no report for a while), and is otherwise repeated (a lost ADVANCE costs nothing more). Times are
+    wall seconds on the caller's one clock."""
 
     def __init__(self) -> None:
         #: the board time (us) ADVANCEd to; 0 before the first nudge

@@ -4,9 +4,10 @@ A run can end "done" while the board's watchdog held the servos, frames were ref
 to be sent again (a slow or lossy link, ``--faults``): summary.json counts all of it, and this line
 says so in the terminal. Built from summary.json's ``extra``: ``link`` (what this session's host
 counted: the board's watchdog holds in its reports, the NACKs of its servo frames, re-sent requests,
-undecodable frames, gaps in the board's sequence numbers) and, with ``--faults``, ``faults.board`` (what the board injected and detected, read from
-its stderr when it stopped). The board's own ``late``/``dropped`` counters are left out: they count
-since the board started, so against a board you started yourself they include earlier runs.
+undecodable frames, gaps in the board's sequence numbers) and, with ``--faults``, ``faults.board``
+(what the board injected and detected, read from its stderr when it stopped). The board's own
+``late``/``dropped`` counters are left out: they count since the board started, so against a board
+you started yourself they include earlier runs.
 """
 
 from __future__ import annotations
