@@ -160,7 +160,7 @@ async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any,
                           max_log_mb=args.max_log_mb, plots=not args.no_plots)
     session = RobotSession(opts)
     chat = _Chat(session)
-    signals = StopSignals(chat.on_first_stop)
+    signals = StopSignals(chat.on_first_stop, session.abort_cleanups)
     transcript = out / "transcript.json"
     try:
         async with signals.guard(), session:

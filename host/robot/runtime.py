@@ -135,6 +135,8 @@ class RobotRuntime:
         self._rest = np.asarray(robot.pose(robot.rest_pose))
         self._speech_synth = speech_synth
         self._playing_bgm: dict[int, str] = {}
+        self._stop_shields: set[anyio.CancelScope] = set()  # peripheral stops of cancelled calls, running now
+        self._aborted = False  # abort_cleanups() was called
 
     def warm_up(self) -> int:
         """:func:`warm_up_behaviours` of this runtime's robot."""
@@ -237,11 +239,24 @@ class RobotRuntime:
         try:
             yield
         except anyio.get_cancelled_exc_class():
-            with anyio.CancelScope(shield=True), anyio.move_on_after(5):
-                now = self._start_due(stop)
-                await self.link.send_peripheral(dataclasses.replace(stop, start_at_us=now))
-                self._mark(end=now * 1e-6)
+            if not self._aborted:
+                with anyio.CancelScope(shield=True) as shield, anyio.move_on_after(5):
+                    self._stop_shields.add(shield)
+                    try:
+                        now = self._start_due(stop)
+                        await self.link.send_peripheral(dataclasses.replace(stop, start_at_us=now))
+                        self._mark(end=now * 1e-6)
+                    finally:
+                        self._stop_shields.discard(shield)
             raise
+
+    def abort_cleanups(self) -> None:
+        """Stop at once (a second Ctrl-C): the smooth stops of cancelled motions (shielded for
+        ``STOP_TIMEOUT_S``) and the peripheral stops of cancelled calls (5 s) running now are cut short,
+        and later ones skipped. The caller cancels the calls themselves."""
+        self._aborted = True
+        for shield in list(self._stop_shields):
+            shield.cancel()
 
     # -- behaviours ----------------------------------------------------------------------------
     def _rate_wpm(self) -> int:
@@ -284,9 +299,16 @@ class RobotRuntime:
                 ctx.hand_over()
             end = await self.streamer.wait_ended(seg)
         except anyio.get_cancelled_exc_class():
-            with anyio.CancelScope(shield=True), anyio.move_on_after(STOP_TIMEOUT_S) as scope:
-                await self._stop(seg, channel)
-            if scope.cancelled_caught:
+            if self._aborted:  # stopped at once: no smooth stop to wait for
+                self._mark(end=self.board_now_s())
+                raise
+            with anyio.CancelScope(shield=True) as shield, anyio.move_on_after(STOP_TIMEOUT_S) as scope:
+                self._stop_shields.add(shield)
+                try:
+                    await self._stop(seg, channel)
+                finally:
+                    self._stop_shields.discard(shield)
+            if scope.cancelled_caught or shield.cancel_called:
                 self._mark(end=self.board_now_s())
             raise
         self._mark(end=end)

@@ -126,7 +126,7 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, RobotRuntime]
     gives the :class:`RunReport` it wrote.
     """
     session = RobotSession(session_options(opts))
-    signals = StopSignals(session.request_stop) if opts.handle_signals else None
+    signals = StopSignals(session.request_stop, session.abort_cleanups) if opts.handle_signals else None
     rested: bool | None = None
     turn: TurnResult | None = None
     written = False

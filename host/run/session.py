@@ -436,6 +436,15 @@ class RobotSession:
             self._shell.interrupt()
         return True
 
+    def abort_cleanups(self) -> None:
+        """A forced stop (a second signal): the shell's resets and the runtime's peripheral stops that the
+        cancelled turn is still running are cut short, so the command exits at once instead of after
+        their shielded timeouts (5 s each). The caller cancels the turn itself."""
+        if self._shell is not None:
+            self._shell.abort_cleanups()
+        if self._runtime is not None:
+            self._runtime.abort_cleanups()
+
     def clear_stop(self) -> None:
         """Forget a stop (e.g. a board-time bound that ended one MCP program): later turns run again."""
         self.stop = None

@@ -132,8 +132,11 @@ class StopSignals:
     :class:`Interrupted` that describes a forced stop.
     """
 
-    def __init__(self, on_first: Callable[[StopReason], bool]) -> None:
+    def __init__(self, on_first: Callable[[StopReason], bool], on_forced: Callable[[], None] | None = None) -> None:
         self.on_first = on_first
+        #: called when a signal forces the stop, as the body is cancelled (e.g. the session's
+        #: ``abort_cleanups``: shielded cleanups would otherwise outlive the cancellation)
+        self.on_forced = on_forced
         self.first: StopReason | None = None
         self.forced: str | None = None
         self.while_starting = False
@@ -174,6 +177,8 @@ class StopSignals:
                     self.forced = stop.name
                     if self._body is not None:
                         self._body.cancel()
+                    if self.on_forced is not None:
+                        self.on_forced()
         finally:
             for sig, handler in previous.items():
                 if sig == signal.SIGINT and _is_asyncio_runner_handler(handler):

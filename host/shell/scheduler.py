@@ -224,6 +224,8 @@ class ProgramRun:
         self._refused_calls = 0  # elements refused for exceeding max_calls
         self._full_channels: set[str | None] = set()  # channels whose queue overflowed (reported once)
         self._parser_class: type[FunctionTokenParser] = getattr(shell, "parser_class", FunctionTokenParser)
+        self._reset_shields: set[anyio.CancelScope] = set()  # the shielded resets running now
+        self._aborted = False  # abort_cleanups() was called: resets are cut short or skipped
 
     # ------------------------------------------------------------------ API
     async def run(self, chunks: AsyncIterable[str]) -> RunResult:
@@ -802,17 +804,31 @@ class ProgramRun:
         ctx = c.ctx
         assert ctx is not None
         ctx.phase = "reset"
+        if self._aborted:  # stopped at once: the call keeps its interruption as its outcome
+            return
         token = _current.set(ctx)
         try:
-            with anyio.CancelScope(shield=True), anyio.move_on_after(RESET_TIMEOUT) as timeout:
+            with anyio.CancelScope(shield=True) as shield, anyio.move_on_after(RESET_TIMEOUT) as timeout:
+                self._reset_shields.add(shield)
                 try:
                     await c.spec.reset()
                 except Exception as exc:
                     c.error = c.error or f"reset failed: {type(exc).__name__}: {exc}"
-            if timeout.cancelled_caught:
+                finally:
+                    self._reset_shields.discard(shield)
+            if timeout.cancelled_caught and not shield.cancel_called:
                 c.error = c.error or f"reset timed out after {RESET_TIMEOUT:g}s"
         finally:
             _current.reset(token)
+
+    def abort_cleanups(self) -> None:
+        """Stop at once (a second Ctrl-C): the resets running now are cut short and later ones skipped,
+        instead of each getting its shielded ``RESET_TIMEOUT`` (their calls keep the interruption as
+        their outcome: the stop was asked for). The caller cancels the run itself; this only lifts the
+        shields that would outlive it."""
+        self._aborted = True
+        for shield in list(self._reset_shields):
+            shield.cancel()
 
     def _close(self, c: _Call) -> None:
         c.closed = True

@@ -106,6 +106,12 @@ class Shell:
             return 0
         return self._run.interrupt(None if channels is None else tuple(channels))
 
+    def abort_cleanups(self) -> None:
+        """Cut short the current run's resets (:meth:`ProgramRun.abort_cleanups`): a forced stop, not an
+        interruption. Nothing when no run is in progress."""
+        if self._run is not None:
+            self._run.abort_cleanups()
+
     def prompt(self, format: str = "code") -> str:
         """The system prompt for the mounted functions, this mode and the saved skills."""
         from host.shell.prompt import render_prompt

@@ -357,3 +357,29 @@ async def test_the_stream_is_closed_when_the_run_stops_reading_early():
     assert r.error is not None and events == ["generator closed", "iterator closed"]
     r = await sh.run(Stream(["<A/>"]))
     assert r.error is None and events[-1] == "iterator closed" and len(events) == 3
+
+
+async def test_a_forced_stop_cuts_the_shielded_resets_short():
+    """A second Ctrl-C 50 ms after the first waited ~5 s (``RESET_TIMEOUT``) on ``ghostshell run --task
+    26``: the first had interrupted the turn, whose resets run shielded, and the second cancelled the
+    turn but not them. ``Shell.abort_cleanups`` cuts the running resets short and skips later ones."""
+    from host.shell.scheduler import RESET_TIMEOUT
+
+    LOG.clear()
+    sh = shell_with({"C1": [fake("P", 1, reset_seconds=60.0), fake("A", 3)]})
+    async with anyio.create_task_group() as tg:
+        out = {}
+
+        async def run():
+            out["r"] = await sh.run_text("<P><A/></P>")
+
+        tg.start_soon(run)
+        await anyio.sleep(1)
+        assert sh.interrupt() == 2  # the first signal: P's reset starts (60 s, shielded)
+        await anyio.sleep(0.05)
+        t_forced = anyio.current_time()
+        sh.abort_cleanups()  # the second, 50 ms later
+    p = out["r"].timeline.one("P")
+    assert anyio.current_time() - t_forced < 0.01 < RESET_TIMEOUT  # the run ended at once
+    assert p.outcome == "interrupted" and p.error is None and p.end == pytest.approx(1.05), p  # not "failed"
+    assert not any(e == "P:reset" for _, e in LOG)  # the reset never finished
