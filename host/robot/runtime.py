@@ -135,7 +135,7 @@ class RobotRuntime:
         self._rest = np.asarray(robot.pose(robot.rest_pose))
         self._speech_synth = speech_synth
         self._playing_bgm: dict[int, str] = {}
-        self._stop_shields: set[anyio.CancelScope] = set()  # peripheral stops of cancelled calls, running now
+        self._stop_shields: set[anyio.CancelScope] = set()  # the shielded stops of cancelled calls, running now
         self._aborted = False  # abort_cleanups() was called
 
     def warm_up(self) -> int:
