@@ -37,6 +37,7 @@ import numpy as np
 
 from host.motion.mixer import Mixer, Segment
 from host.motion.streamer import FrameLink, FrameStreamer
+from host.shell.cleanups import Cleanups
 from host.shell.context import current_call
 from protocol.messages import (
     ScreenCommand,
@@ -135,8 +136,7 @@ class RobotRuntime:
         self._rest = np.asarray(robot.pose(robot.rest_pose))
         self._speech_synth = speech_synth
         self._playing_bgm: dict[int, str] = {}
-        self._stop_shields: set[anyio.CancelScope] = set()  # the shielded stops of cancelled calls, running now
-        self._aborted = False  # abort_cleanups() was called
+        self._cleanups = Cleanups()  # the shielded stops of cancelled calls (abort_cleanups cuts them short)
 
     def warm_up(self) -> int:
         """:func:`warm_up_behaviours` of this runtime's robot."""
@@ -239,24 +239,18 @@ class RobotRuntime:
         try:
             yield
         except anyio.get_cancelled_exc_class():
-            if not self._aborted:
-                with anyio.CancelScope(shield=True) as shield, anyio.move_on_after(5):
-                    self._stop_shields.add(shield)
-                    try:
-                        now = self._start_due(stop)
-                        await self.link.send_peripheral(dataclasses.replace(stop, start_at_us=now))
-                        self._mark(end=now * 1e-6)
-                    finally:
-                        self._stop_shields.discard(shield)
+            if not self._cleanups.aborted:
+                with self._cleanups.shielded(5):
+                    now = self._start_due(stop)
+                    await self.link.send_peripheral(dataclasses.replace(stop, start_at_us=now))
+                    self._mark(end=now * 1e-6)
             raise
 
     def abort_cleanups(self) -> None:
         """Stop at once (a second Ctrl-C): the smooth stops of cancelled motions (shielded for
         ``STOP_TIMEOUT_S``) and the peripheral stops of cancelled calls (5 s) running now are cut short,
         and later ones skipped. The caller cancels the calls themselves."""
-        self._aborted = True
-        for shield in list(self._stop_shields):
-            shield.cancel()
+        self._cleanups.abort()
 
     # -- behaviours ----------------------------------------------------------------------------
     def _rate_wpm(self) -> int:
@@ -299,15 +293,11 @@ class RobotRuntime:
                 ctx.hand_over()
             end = await self.streamer.wait_ended(seg)
         except anyio.get_cancelled_exc_class():
-            if self._aborted:  # stopped at once: no smooth stop to wait for
+            if self._cleanups.aborted:  # stopped at once: no smooth stop to wait for
                 self._mark(end=self.board_now_s())
                 raise
-            with anyio.CancelScope(shield=True) as shield, anyio.move_on_after(STOP_TIMEOUT_S) as scope:
-                self._stop_shields.add(shield)
-                try:
-                    await self._stop(seg, channel)
-                finally:
-                    self._stop_shields.discard(shield)
+            with self._cleanups.shielded(STOP_TIMEOUT_S) as (shield, scope):
+                await self._stop(seg, channel)
             if scope.cancelled_caught or shield.cancel_called:
                 self._mark(end=self.board_now_s())
             raise

@@ -67,6 +67,7 @@ from typing import Any, Protocol
 
 import anyio
 
+from host.shell.cleanups import Cleanups
 from host.shell.context import CallContext, _current
 from host.shell.mapper import MappingError, map_element, map_scope, split_sync
 from host.shell.limits import Limits
@@ -224,8 +225,7 @@ class ProgramRun:
         self._refused_calls = 0  # elements refused for exceeding max_calls
         self._full_channels: set[str | None] = set()  # channels whose queue overflowed (reported once)
         self._parser_class: type[FunctionTokenParser] = getattr(shell, "parser_class", FunctionTokenParser)
-        self._reset_shields: set[anyio.CancelScope] = set()  # the shielded resets running now
-        self._aborted = False  # abort_cleanups() was called: resets are cut short or skipped
+        self._cleanups = Cleanups()  # the shielded resets running now (abort_cleanups cuts them short)
 
     # ------------------------------------------------------------------ API
     async def run(self, chunks: AsyncIterable[str]) -> RunResult:
@@ -804,18 +804,15 @@ class ProgramRun:
         ctx = c.ctx
         assert ctx is not None
         ctx.phase = "reset"
-        if self._aborted:  # stopped at once: the call keeps its interruption as its outcome
+        if self._cleanups.aborted:  # stopped at once: the call keeps its interruption as its outcome
             return
         token = _current.set(ctx)
         try:
-            with anyio.CancelScope(shield=True) as shield, anyio.move_on_after(RESET_TIMEOUT) as timeout:
-                self._reset_shields.add(shield)
+            with self._cleanups.shielded(RESET_TIMEOUT) as (shield, timeout):
                 try:
                     await c.spec.reset()
                 except Exception as exc:
                     c.error = c.error or f"reset failed: {type(exc).__name__}: {exc}"
-                finally:
-                    self._reset_shields.discard(shield)
             if timeout.cancelled_caught and not shield.cancel_called:
                 c.error = c.error or f"reset timed out after {RESET_TIMEOUT:g}s"
         finally:
@@ -826,9 +823,7 @@ class ProgramRun:
         instead of each getting its shielded ``RESET_TIMEOUT`` (their calls keep the interruption as
         their outcome: the stop was asked for). The caller cancels the run itself; this only lifts the
         shields that would outlive it."""
-        self._aborted = True
-        for shield in list(self._reset_shields):
-            shield.cancel()
+        self._cleanups.abort()
 
     def _close(self, c: _Call) -> None:
         c.closed = True
