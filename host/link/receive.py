@@ -69,6 +69,7 @@ class ReceivePath:
     on_received: list[Callable[[Message], None]]
     _rx_gaps: GapDetector
     _board_time_seen: int
+    _rx_nbytes: int
 
     def _on_items(self, items: Sequence[Frame | DecodeError]) -> None:
         t4 = host_now_us()
@@ -79,6 +80,7 @@ class ReceivePath:
                 log.debug("link: discarded %d bytes (%s: %s)", len(item.raw), item.kind.value, item.detail)
                 continue
             self.stats.rx_frames += 1
+            self._rx_nbytes = len(item.raw)  # the frame being handled: its wire bytes (serial)
             if type(item.msg) is Caps and self.supervisor.awaiting_caps():
                 # the answer to the HELLO in flight: the board's numbering counts from here (a new board
                 # numbers afresh); TELEMETRY frames that overtook this ISO-TP transfer still count
@@ -122,7 +124,7 @@ class ReceivePath:
         self.requests.on_ack(msg)
 
     def _handle_time_sync(self, msg: TimeSyncReply, t4: int) -> None:
-        self.supervisor.on_sync_reply(msg, t4)
+        self.supervisor.on_sync_reply(msg, t4, self._rx_nbytes)
 
     def _handle_caps(self, msg: Caps, t4: int) -> None:
         self.supervisor.on_caps(msg)

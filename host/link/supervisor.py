@@ -132,11 +132,11 @@ class Supervisor:
         if self.hello_fut is not None and not self.hello_fut.done():
             self.hello_fut.set_result(msg)
 
-    def on_sync_reply(self, msg: TimeSyncReply, t4: int) -> None:
-        """A TIME_SYNC reply came at host time ``t4`` (us)."""
+    def on_sync_reply(self, msg: TimeSyncReply, t4: int, nbytes: int = 0) -> None:
+        """A TIME_SYNC reply of ``nbytes`` wire bytes came at host time ``t4`` (us)."""
         fut = self.sync_pending.get(msg.t1_host_us)
         if fut is not None and not fut.done():
-            fut.set_result((msg, t4))
+            fut.set_result((msg, t4, nbytes))
 
     def refuse_hello(self, error: LinkError, ack_seq: int) -> bool:
         """The board NACKed the HELLO sent as ``ack_seq``: fail the HELLO in flight with ``error`` when it
@@ -282,13 +282,13 @@ class Supervisor:
         t1 = host_now_us()
         while t1 in self.sync_pending:
             t1 += 1
-        fut: Reply[tuple[TimeSyncReply, int]] = Reply()
+        fut: Reply[tuple[TimeSyncReply, int, int]] = Reply()
         self.sync_pending[t1] = fut
         try:
             c._send(TimeSyncRequest(t1))
             # the part of the uplink the host's line model accounts for (queue + the request's own bytes)
             wire_us = c.tx_wire.busy_s(time.monotonic()) * 1e6 if c.tx_wire is not None else 0.0
-            reply, t4 = await fut.get(timeout)
+            reply, t4, reply_bytes = await fut.get(timeout)
         except TimeoutError:
             raise LinkTimeout(f"no TIME_SYNC reply within {timeout} s") from None
         finally:
@@ -297,7 +297,12 @@ class Supervisor:
             fut.cancel()
         c._saw_board_time(reply.t3_board_us)
         if not c.lockstep:
-            c.clock.add(t1, reply.t2_board_us, reply.t3_board_us, t4, wire_us=wire_us)
+            # the board models its line at the same rate both ways: the reply's own bytes took their wire
+            # time too. Its wait behind the board's earlier bytes is not in the leg: the emulated board
+            # stamps t3 as the reply's first byte goes on its line (firmware_sim.server); a board that
+            # stamps it sooner adds that wait, and such a sample's longer round trip ranks it low in the fit
+            down_us = reply_bytes * c.tx_wire.byte_time * 1e6 if c.tx_wire is not None and wire_us > 0 else 0.0
+            c.clock.add(t1, reply.t2_board_us, reply.t3_board_us, t4, wire_us=wire_us, wire_down_us=down_us)
         return t1, reply.t2_board_us, reply.t3_board_us, t4
 
     async def sync_burst(self) -> None:
