@@ -47,6 +47,7 @@ __all__ = [
     "DecodeError",
     "DecodeErrorKind",
     "DEFAULT_MAX_FRAME_BYTES",
+    "FRAME_DELIMITER",
     "Frame",
     "FrameDecoder",
     "HEADER_SIZE",
@@ -58,6 +59,9 @@ __all__ = [
     "encode_raw_frame",
     "frame_size",
 ]
+
+#: the byte that ends every frame on the wire (COBS leaves no other 0x00 in it)
+FRAME_DELIMITER = 0
 
 CRC_NAME = "x-25"
 #: CRC of b"123456789" for :data:`CRC_NAME` (the catalogue's check value).

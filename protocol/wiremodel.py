@@ -23,11 +23,16 @@ class WireModel:
     """Serialises bytes on a modelled UART: each chunk finishes ``10 * n / baud`` s after the previous.
 
     ``baud`` None (or 0): no model, every chunk is released at the time it was pushed.
+    ``delimiter``: the byte that ends a frame (:data:`protocol.framing.FRAME_DELIMITER`), or None. With
+    it a chunk is released frame by frame, each once its own last byte is through, as a UART delivers
+    bytes one after another: of two frames read from a pty in one read, the first is there when its own
+    bytes are, not when the second's are. Without it a chunk is released whole.
     ``free_at``: the time the line becomes idle; ``bytes_queued``: bytes pushed, not yet released.
     """
 
-    def __init__(self, baud: int | None) -> None:
+    def __init__(self, baud: int | None, delimiter: int | None = None) -> None:
         self.byte_time = BITS_PER_BYTE / baud if baud else 0.0
+        self.delimiter = delimiter
         self.free_at = 0.0
         self.queue: deque[tuple[float, bytes]] = deque()
         self.bytes_queued = 0
@@ -41,9 +46,14 @@ class WireModel:
         return now
 
     def push(self, now: float, data: bytes) -> None:
-        """``data`` enters the line at ``now`` (s); it is released once its last byte is through."""
-        release = self.occupy(now, len(data))
-        self.queue.append((release, data))
+        """``data`` enters the line at ``now`` (s); it is released once its last byte is through (with a
+        ``delimiter``: each frame of it once that frame's last byte is through)."""
+        start = 0
+        if self.delimiter is not None and self.byte_time:
+            while (end := data.find(self.delimiter, start) + 1) and end < len(data):
+                self.queue.append((self.occupy(now, end - start), data[start:end]))
+                start = end
+        self.queue.append((self.occupy(now, len(data) - start), data[start:] if start else data))
         self.bytes_queued += len(data)
 
     def next_release(self) -> float | None:

@@ -46,6 +46,7 @@ from firmware_sim.plant.world import World
 from firmware_sim.transports.ports import PtyPort
 from protocol.codec import WireSchema, schema_for
 from protocol.faults import FaultInjector, FaultSpec
+from protocol.framing import FRAME_DELIMITER
 from protocol.linkkinds import link_kind
 from protocol.linkspec import LinkSpec
 from protocol.logfile import FrameLogWriter, open_frame_log
@@ -127,8 +128,9 @@ class _Relay:
 
         self.host = PtyPort()  # the host connects to host.name
         self.fw = PtyPort()  # the firmware's UART opens fw.name
-        self.to_fw: Any = WireModel(baud)
-        self.to_host: Any = WireModel(baud)
+        # released frame by frame, as a UART delivers: one read may hold several
+        self.to_fw: Any = WireModel(baud, FRAME_DELIMITER)
+        self.to_host: Any = WireModel(baud, FRAME_DELIMITER)
         self.injectors: list[FaultInjector[bytes]] = []
         if faults is not None and faults.active:
             rx: FaultInjector[bytes] = FaultInjector(faults, seed, "host->board")

@@ -15,7 +15,7 @@ import sys
 from firmware_sim.transports.base import BoardTransport
 from firmware_sim.transports.ports import open_port
 from protocol.codec import WIRE_SCHEMA_16, PayloadError, WireSchema, schema_for
-from protocol.framing import DecodeError, Frame, FrameDecoder, encode_frame
+from protocol.framing import FRAME_DELIMITER, DecodeError, Frame, FrameDecoder, encode_frame
 from protocol.logfile import FrameLogWriter, open_frame_log
 from protocol.messages import Message
 from protocol.wiremodel import WireModel
@@ -38,7 +38,7 @@ class SerialBoardTransport(BoardTransport):
         self.port = open_port(port, baud)
         self.name = self.port.name
         self.decoder = FrameDecoder(schema=self.schema)
-        self.rx_wire = WireModel(baud)
+        self.rx_wire = WireModel(baud, FRAME_DELIMITER)  # frame by frame: one read may hold several
         self.tx_wire = WireModel(baud)
         self.tx_pending = bytearray()
         self.unsendable = 0  # messages that did not encode (reported on stderr, not sent)

@@ -19,12 +19,12 @@ board times are what the run's timeline records.
 frame that arrives after its due time at its next tick, so a start is not planned for the slowest
 arrival) instead of at the first unsent
 frame, and the frames already sent for its servos from that time on (the hold, or what the
-segment it overrides planned) are replaced: FLUSH of those servos from the first frame's time,
-then the first frame, then the servos' frames re-sent for the part of the grid already sent.
+segment it overrides planned) are replaced: the first frame, then a FLUSH of those servos from just
+after its time, then the servos' frames re-sent for the part of the grid already sent.
 Later frames keep the full lookahead. The re-sent frames, and every lookahead frame, go through
 :meth:`FrameLink.queue_frame`: over a slow line whose host paces it they are held and written
-earliest apply time first (:mod:`host.motion.txqueue`), so the next motion's FLUSH and first frame
-(written at once) do not wait behind them on the wire. On a lockstep board nothing of the grid has been simulated
+earliest apply time first (:mod:`host.motion.txqueue`), a few servos at a time, so the next motion's
+first frame and FLUSH (written at once) wait behind at most one such piece on the wire. On a lockstep board nothing of the grid has been simulated
 beyond the first unsent frame's predecessor, so that frame is the soonest.
 
 :meth:`FrameStreamer.fail` records that the board will not apply the frames (it raised ESTOP or
@@ -96,9 +96,9 @@ class FrameLink(Protocol):
     def board_now_us(self) -> int: ...
 
     def send_start(self, frame: ServoFrame) -> int:
-        """FLUSH ``frame``'s servos from its apply time without waiting for the board's ACK (a start may
-        not cost a round trip), then write ``frame`` at once (nothing held may delay it); its sequence
-        number (see :mod:`host.motion.txqueue`)."""
+        """Write ``frame`` at once (nothing held may delay it), then FLUSH its servos from just after its
+        apply time (``apply_at_us + 1``) without waiting for the board's ACK (a start may not cost a round
+        trip); its sequence number (see :mod:`host.motion.txqueue`)."""
         ...
 
     def queue_frame(self, frame: ServoFrame, on_sent: Callable[[int], None] | None = None) -> None:
@@ -315,7 +315,10 @@ class FrameStreamer:
             began = time.perf_counter()
             servos = sorted(int(i) for i in motion.servos)
             mask = mask_of(servos)
-            t0 = self.start_due_us(self._flush_bytes + frame_wire_bytes(len(servos), self.schema))
+            # the first frame goes on the wire before its FLUSH (FrameLink.send_start): planned for the
+            # frame's arrival, and for the FLUSH's by the tick after it (when the old plan would go on)
+            nbytes = frame_wire_bytes(len(servos), self.schema)
+            t0 = max(self.start_due_us(nbytes), self.start_due_us(nbytes + self._flush_bytes) - self.link.tick_us)
             if t0 >= self.next_us:
                 seg = self.mixer.add(motion, self.next_us, label)
                 self._times[seg] = SegmentTimes()
@@ -327,7 +330,7 @@ class FrameStreamer:
             frame = ServoFrame(t0, mask, tuple(float(x) for x in first[idx]))
             # the send path ends where the write begins: the uplink measured by TIME_SYNC starts there too
             self._send_path_s.append(time.perf_counter() - began)
-            seq = self.link.send_start(frame)  # FLUSH: nothing buffered for these servos survives from t0 on
+            seq = self.link.send_start(frame)  # then FLUSH: nothing buffered for these servos survives after t0
             seg.first_frame_us = t0
             self._in_flight.append(_Sent(seq, MixedFrame(t0, first, (seg,), ())))
             for t in range(self.grid(t0 + 1), self.next_us, self.period_us):

@@ -29,11 +29,12 @@ def test_new_call_replaces_the_hold_instead_of_waiting_out_the_lookahead(tmp_pat
     with open(run.out / "host_frames.jsonl", encoding="utf-8") as f:
         sent = [r for r in iter_records(f) if r["dir"] == "tx" and r.get("type") in ("FLUSH", "SERVO_FRAME")]
     i = next(k for k, r in enumerate(sent) if r["type"] == "FLUSH" and r["fields"]["mask"] == head)
-    cut = sent[i]["fields"]["from_us"]
-    first = sent[i + 1]["fields"]
-    assert sent[i + 1]["type"] == "SERVO_FRAME" and first["mask"] == head and first["apply_at_us"] == cut
-    horizon = max(r["fields"]["apply_at_us"] for r in sent[:i] if r["type"] == "SERVO_FRAME")
+    # the first frame, then the FLUSH of its servos from just after its time (BoardFrameLink.send_start)
+    first = sent[i - 1]["fields"]
+    cut = first["apply_at_us"]
+    assert sent[i - 1]["type"] == "SERVO_FRAME" and first["mask"] == head and sent[i]["fields"]["from_us"] == cut + 1
+    horizon = max(r["fields"]["apply_at_us"] for r in sent[:i - 1] if r["type"] == "SERVO_FRAME")
     assert cut < horizon, "the call waited for the frames already sent instead of replacing them"
-    resent = [r["fields"] for r in sent[i + 2:] if r["type"] == "SERVO_FRAME" and r["fields"]["mask"] == head]
+    resent = [r["fields"] for r in sent[i + 1:] if r["type"] == "SERVO_FRAME" and r["fields"]["mask"] == head]
     assert resent and all(cut < r["apply_at_us"] <= horizon for r in resent)
     assert abs(nod.start - cut * 1e-6) < 1e-6  # the call's measured start is that first frame

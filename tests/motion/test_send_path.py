@@ -63,8 +63,9 @@ def test_a_start_measures_its_send_path_and_is_due_after_it() -> None:
     async def main() -> None:
         seg = await s.start_now(Ramp(), "nod")
         assert seg.first_frame_us == _ceil_tick(link.now_us + link.uplink_us + SEND_PATH_DEFAULT_US)
-        assert link.sent[0] == ("FLUSH", seg.first_frame_us, 0b11)  # then the first frame, due then
-        assert isinstance(link.sent[1], ServoFrame) and link.sent[1].apply_at_us == seg.first_frame_us
+        # the first frame, due then, and after it a FLUSH of its servos from just after that time
+        assert isinstance(link.sent[0], ServoFrame) and link.sent[0].apply_at_us == seg.first_frame_us
+        assert link.sent[1] == ("FLUSH", seg.first_frame_us + 1, 0b11)
 
     anyio.run(main)
     assert len(s._send_path_s) == 1 and 0 < s._send_path_s[0] < 1.0  # measured on the wall clock
@@ -102,7 +103,7 @@ def test_a_start_is_planned_for_a_quick_arrival_not_a_sure_one() -> None:
 
     async def main() -> None:
         seg = await s.start_now(Ramp(), "nod")
-        assert seg.first_frame_us == link.sent[0][1] == due  # type: ignore[index]
+        assert seg.first_frame_us == link.sent[0].apply_at_us == due  # type: ignore[union-attr]
 
     anyio.run(main)
     link.lockstep = True

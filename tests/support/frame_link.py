@@ -40,8 +40,8 @@ class RecordingLink:
         return self.uplink_us + round(self.us_per_byte * nbytes)
 
     def send_start(self, frame: ServoFrame) -> int:
-        self.sent += [("FLUSH", frame.apply_at_us, frame.mask), frame]
-        return len(self.sent)
+        self.sent += [frame, ("FLUSH", frame.apply_at_us + 1, frame.mask)]
+        return len(self.sent) - 1
 
     def queue_frame(self, frame: ServoFrame, on_sent: Callable[[int], None] | None = None) -> None:
         self.sent.append(frame)
