@@ -104,6 +104,7 @@ from typing import Any
 
 from _machine import MAX_FLOOR_N, MIN_FLOOR_N, cpu_steal_s, floor_line, floor_stats, steal_line, wakeup_lateness_ms
 from _tasks_common import fmt, home_channels, output_folder, run_task, selected_tasks, stats_ms, task_arguments
+from host.commands.inputs import baud_rate
 from host.link import HandshakeError, LinkConfigError, LinkError
 from host.run.runner import RunReport
 from host.speech.sentences import SentenceSplitter
@@ -342,7 +343,7 @@ def load_1min() -> float:
 def main(argv: list[str] | None = None) -> int:
     ap = task_arguments(__doc__.splitlines()[0], "also write every call and the summary as JSON")
     ap.add_argument("--lockstep", action="store_true", help="lockstep board instead of realtime")
-    ap.add_argument("--baud", type=int, default=None, help="the board models wire time at this baud rate")
+    ap.add_argument("--baud", type=baud_rate, default=None, help="the board models wire time at this baud rate")
     ap.add_argument("--link", default="pty", metavar="SPEC",
                     help="link spec the board is started on (default pty; e.g. can:slcan:pty, 'can:slcan:pty?fd=1', "
                          "can:socketcan:vcan0 inside UML)")
@@ -358,8 +359,6 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.repeat < 1:
         ap.error("--repeat: expected K >= 1")
-    if args.baud is not None and args.baud < 1:
-        ap.error(f"--baud: expected a baud rate >= 1, got {args.baud}")
     if args.floor is not None and args.lockstep:
         ap.error("--floor: a lockstep board does not wait on the wall clock; give --floor only for a realtime run")
     if args.floor is not None and args.floor != 0 and not MIN_FLOOR_N <= args.floor <= MAX_FLOOR_N:

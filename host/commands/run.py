@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 
 from host.commands.errors import command_of, print_error
-from host.commands.inputs import STDIN, InputError, read_text_input
+from host.commands.inputs import STDIN, InputError, baud_rate, read_text_input
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, preflight_link, unreachable_link
 from host.commands.outarg import add_no_plots_argument, out_dir, out_dir_problem, tcp_port_taken
 from host.commands.robotarg import add_robot_argument, robot_from_args
@@ -72,7 +72,7 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
                         help="skill library file (else $GHOSTSHELL_SKILLS, else the user data directory)")
     parser.add_argument("--tokens-per-s", type=_positive, default=30.0, help="scripted LLM speed (default 30)")
     parser.add_argument("--seed", type=int, default=0, help="scripted LLM jitter seed")
-    parser.add_argument("--baud", type=_baud, default=None, metavar="N",
+    parser.add_argument("--baud", type=baud_rate, default=None, metavar="N",
                         help="the serial line's rate in bit/s: a real port opens at it (default 115200); the "
                              "emulated board over a pty models its wire time at it, as `ghostshell board --baud` "
                              "does (default: not modelled, a pty is as fast as the machine)")
@@ -192,16 +192,6 @@ def line_rates(args: argparse.Namespace) -> tuple[int, int | None]:
     serial line): a real port's line has its own timing, and a CAN bus is not a serial line."""
     wire = args.baud if args.baud is not None and args.link.implies_emulated_board else None
     return (args.baud or DEFAULT_PORT_BAUD), wire
-
-
-def _baud(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number of bit/s, e.g. 115200, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
-    return v
 
 
 def resolve_strict(args: argparse.Namespace) -> bool:

@@ -26,12 +26,6 @@ PACE_SLACK_S = 0.0005
 #: after a stall, the frames that are due soon go out together.
 PACE_MARGIN_US = 10_000
 
-#: :meth:`BoardFrameLink.pace` writes a held frame at most this many servos at a time over a UART
-#: (``Transport.byte_line``): a start written at once waits behind one piece, not a whole frame. For
-#: CoCo at 115 200 baud a 12-servo SERVO_FRAME is 39 bytes (3.4 ms on the line), a 4-servo piece 23
-#: (2.0 ms); three pieces take 69 bytes, so the 50 Hz grid fills 30 % of the line instead of 17 %.
-PACE_PIECE_SERVOS = 4
-
 
 class BoardFrameLink:
     """Frames, flushes and the board clock of a :class:`BoardClient`, as the streamer needs them.
@@ -43,8 +37,7 @@ class BoardFrameLink:
     motion's first frame), and :meth:`queue_frame` (lookahead, re-sent grid) writes it at once too,
     unless :meth:`pace` runs: then it waits in :attr:`queue` (earliest apply time first,
     :mod:`host.motion.txqueue`) and is written when the modelled line (``client.tx_wire``) has
-    drained, at most :data:`PACE_PIECE_SERVOS` servos at a time over a UART, so what is written at once
-    waits behind at most one such piece. A FLUSH (:meth:`flush`,
+    drained, so what is written at once waits behind at most one frame. A FLUSH (:meth:`flush`,
     :meth:`send_start`) is written at once and acts on the held frames as the board's would.
     """
 
@@ -167,8 +160,7 @@ class BoardFrameLink:
                 if busy > PACE_SLACK_S and spare_s > 0:
                     await anyio.sleep(min(busy - PACE_SLACK_S, spare_s))
                     continue
-                transport = self.client.transport
-                item = self.queue.pop(PACE_PIECE_SERVOS if transport is not None and transport.byte_line else None)
+                item = self.queue.pop()
                 if item is not None:
                     self._write(*item)
         finally:

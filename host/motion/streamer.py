@@ -23,8 +23,8 @@ segment it overrides planned) are replaced: the first frame, then a FLUSH of tho
 after its time, then the servos' frames re-sent for the part of the grid already sent.
 Later frames keep the full lookahead. The re-sent frames, and every lookahead frame, go through
 :meth:`FrameLink.queue_frame`: over a slow line whose host paces it they are held and written
-earliest apply time first (:mod:`host.motion.txqueue`), a few servos at a time, so the next motion's
-first frame and FLUSH (written at once) wait behind at most one such piece on the wire. On a lockstep board nothing of the grid has been simulated
+earliest apply time first (:mod:`host.motion.txqueue`), so the next motion's first frame and FLUSH
+(written at once) wait behind at most one frame on the wire. On a lockstep board nothing of the grid has been simulated
 beyond the first unsent frame's predecessor, so that frame is the soonest.
 
 :meth:`FrameStreamer.fail` records that the board will not apply the frames (it raised ESTOP or

@@ -26,11 +26,6 @@ frame. The argument needs one rule of the link: before a frame is written at onc
 that follows it on the wire starts just after that time, so it leaves the frame alone), so no held
 frame of the same apply time can later override it.
 
-:meth:`EdfFrameQueue.pop` with ``max_servos`` gives the frame due first a piece at a time (its first
-``max_servos`` servos; the rest stays held, first in line, and keeps the frame's callbacks for its last
-piece): over a slow UART a message written at once then waits behind one short piece, not a whole
-frame (``BoardFrameLink.pace``). The board applies the pieces of one apply time at the same tick.
-
 Sequence numbers are given when a frame is written, so among held frames they rise with apply time
 (a frame written at once may overtake held ones due earlier); the streamer confirms a frame only
 once the board's ``last_applied_seq`` has passed it *and* board time has reached it
@@ -102,29 +97,13 @@ class EdfFrameQueue:
         self._drop_empty_head()
         return self._heap[0][0] if self._heap else None
 
-    def pop(self, max_servos: int | None = None) -> tuple[ServoFrame, list[SeqCallback]] | None:
+    def pop(self) -> tuple[ServoFrame, list[SeqCallback]] | None:
         """The held frame due first and the callbacks to call with the number it is written with
-        (its own, then those of frames dropped since the last pop); None when none is held.
-
-        ``max_servos``: a frame of more servos gives only its first ``max_servos`` (lowest servo indices)
-        and the callbacks of dropped frames; the rest stays held, still first in line (same apply time
-        and place in the queue), with the frame's own callbacks. Raises ``ValueError`` below 1."""
-        if max_servos is not None and max_servos < 1:
-            raise ValueError(f"max_servos must be >= 1, got {max_servos}")
+        (its own, then those of frames dropped since the last pop); None when none is held."""
         self._drop_empty_head()
         if not self._heap:
             return None
-        held = self._heap[0][2]
-        if max_servos is not None and held.mask.bit_count() > max_servos:
-            part, bits = 0, held.mask
-            for _ in range(max_servos):
-                bit = bits & -bits
-                part |= bit
-                bits ^= bit
-            targets, held.mask, held.targets = held.targets[:max_servos], bits, held.targets[max_servos:]
-            orphans, self._orphans = self._orphans, []
-            return ServoFrame(held.apply_at_us, part, tuple(targets)), orphans
-        heapq.heappop(self._heap)
+        _, _, held = heapq.heappop(self._heap)
         self._live -= 1
         callbacks = held.on_sent + self._orphans
         self._orphans = []

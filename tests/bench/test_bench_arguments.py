@@ -21,8 +21,9 @@ BENCH = Path(__file__).resolve().parents[2] / "bench"
     (["--tasks", "1,x"], "expected ids like"),
     (["--tasks", "0"], "no ground truth for task(s) [0]"),
     (["--tasks", "99"], "no ground truth for task(s) [99]"),
-    (["--tasks", "1", "--baud", "-1"], "--baud: expected a baud rate >= 1"),
-    (["--tasks", "1", "--baud", "0"], "--baud: expected a baud rate >= 1"),
+    (["--tasks", "1", "--baud", "-1"], "--baud: must be 1..12000000 bit/s"),
+    (["--tasks", "1", "--baud", "0"], "--baud: must be 1..12000000 bit/s"),
+    (["--tasks", "1", "--baud", "99999999999"], "--baud: must be 1..12000000 bit/s"),
     (["--robot", "nosuch"], "--robot: no robot 'nosuch'"),
     (["--tasks", "1-100000000000"], "names more than 1000 tasks"),  # was a MemoryError
     (["--tasks", "3", "--tokens-per-s", "-3"], "--tokens-per-s: expected a finite number > 0"),

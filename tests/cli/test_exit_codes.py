@@ -95,7 +95,9 @@ def _rows(f: dict[str, str], out: str) -> list[Row]:
         Row(("pose", "--link", "pty", "--pose", "stand"), "a link the emulated board creates"),
         Row(("pose", "--link", "/dev/null", "--pose", "moonwalk"), "no pose 'moonwalk'"),
         Row(("pose", "--link", "/dev/null", "--pose", "stand", "--duration", "-1"), "must be >= 0 seconds"),
-        Row(("pose", "--link", "/dev/null", "--pose", "stand", "--baud", "0"), "at least 1 bit/s"),
+        Row(("pose", "--link", "/dev/null", "--pose", "stand", "--baud", "0"), "must be 1..12000000 bit/s"),
+        # was pyserial's OverflowError traceback once the run opened the port
+        Row(("run", "--task", "14", "--baud", "99999999999", "--out", out), "must be 1..12000000 bit/s"),
         Row(("estop", "--link", "pty"), "a link the emulated board creates"),
         # demo / tour
         Row(("demo", "--task", "999", "--lockstep", "--out", out), "no runnable task 999"),

@@ -9,7 +9,6 @@ pacing writes them.
 
 from __future__ import annotations
 
-import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -71,32 +70,6 @@ def test_the_queue_is_bounded_and_refuses_rather_than_loses() -> None:
     assert [f.apply_at_us for f, _ in q.drain()] == [5, 6, 7]
 
 
-def test_a_frame_leaves_a_piece_at_a_time_and_its_callback_goes_with_the_last() -> None:
-    """``pop(max_servos)``: the first servos of the frame due first; the rest stays first in line (ahead of
-    a frame pushed before it but due later, behind none) and keeps the frame's callback."""
-    q = EdfFrameQueue()
-    got: list[tuple[str, int]] = []
-    q.push(frame(20, 0b1), lambda seq: got.append(("dropped", seq)))
-    q.push(frame(30, 0b11))
-    q.push(frame(10, 0b111101, 1.0), lambda seq: got.append(("whole", seq)))
-    q.flush(20, 0b1)
-    pieces = []
-    for seq in range(4):
-        item = q.pop(2)
-        assert item is not None
-        piece, callbacks = item
-        pieces.append(piece)
-        for cb in callbacks:
-            cb(seq)
-    assert pieces[:3] == [ServoFrame(10, 0b000101, (1.0, 3.0)), ServoFrame(10, 0b011000, (4.0, 5.0)),
-                          ServoFrame(10, 0b100000, (6.0,))]
-    assert pieces[3] == ServoFrame(30, 0b10, (1.0,))  # servo 0 flushed from 20 on; one left: whole
-    assert got == [("dropped", 0), ("whole", 2)]  # orphans with the first piece, its own with the last
-    assert len(q) == 0 and q.pop(2) is None
-    with pytest.raises(ValueError):
-        q.pop(0)
-
-
 def _effective(buf: JitterBuffer) -> dict[tuple[int, int], float]:
     """What the board would apply: per (apply time, servo) the value of the last frame to set it."""
     out: dict[tuple[int, int], float] = {}
@@ -115,8 +88,7 @@ op = st.one_of(
     st.tuples(st.just("queue"), st.integers(0, 12), st.integers(1, (1 << N) - 1)),
     st.tuples(st.just("start"), st.integers(0, 12), st.integers(1, (1 << N) - 1)),  # a direct frame, then FLUSH
     st.tuples(st.just("flush"), st.integers(0, 12), st.integers(1, (1 << N) - 1)),
-    # the pacing writes up to k held frames or pieces of at most m servos (0: whole frames)
-    st.tuples(st.just("write"), st.integers(1, 3), st.integers(0, 3)),
+    st.tuples(st.just("write"), st.integers(1, 3), st.just(0)),  # the pacing writes up to k held frames
 )
 
 
@@ -145,7 +117,7 @@ def test_the_board_ends_up_as_if_every_message_had_been_written_in_order(ops: li
             paced.flush(t, mask)
         else:
             for _ in range(slot):
-                item = q.pop(mask or None)  # the pacing over a UART writes a few servos at a time
+                item = q.pop()
                 if item is not None:
                     _push(paced, item[0])
     for held, _ in q.drain():

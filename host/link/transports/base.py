@@ -33,11 +33,6 @@ LossHandler = Callable[[str], None]
 class Transport(ABC):
     """One wire to one board. Subclasses: :class:`host.link.transports.serial.SerialLinkTransport`, CAN."""
 
-    #: True when every message is its own bytes on one byte-serial line (a UART: :meth:`send` returns
-    #: them, and a long message holds up the ones written after it); False on a CAN bus, whose frames
-    #: are arbitrated by priority
-    byte_line: bool = False
-
     @property
     @abstractmethod
     def name(self) -> str:

@@ -272,8 +272,6 @@ class SerialLinkTransport(Transport):
     none known: the u16 schema) picks the wire schema frames are encoded and decoded with.
     """
 
-    byte_line = True
-
     def __init__(self, url: str | Callable[[], str], *, baud: int = 115200, log_path: str | Path | None = None,
                  force_thread: bool = False, servo_count: int | None = None) -> None:
         self._url = url
