@@ -368,6 +368,8 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         pushes=tuple(_push_text(p) for p in getattr(args, "push", ())),
     )
     command = command_of(args)
+    from host.run.link_health import board_warnings
+
     def show_banner(*_: object) -> None:
         if banner is not None:
             print(banner, flush=True)
@@ -382,11 +384,13 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         return 130
     except (LinkError, GhostError, RuntimeError, OSError) as e:
         print_error(command_of(args), f"{e}")
+        for warning in board_warnings(out / "board.stderr"):  # e.g. a --baud too slow for the handshake
+            print(warning)
         if ended_report(e) is not None:  # a run the link ended still left its report
             print(f"artefacts in {out}/: " + " ".join(n for n in ARTEFACTS if (out / n).exists()))
         return link_exit_status(e)
     from host.run.artefacts import calls_table
-    from host.run.link_health import board_warnings, link_health_line
+    from host.run.link_health import link_health_line
 
     s = report.summary
     if report.stop is not None:  # a signal or a bound stopped the run: one line says what and where

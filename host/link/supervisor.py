@@ -36,7 +36,7 @@ from host.link.waiting import Flag, Reply
 from protocol.codec import WIRE_SCHEMAS, WireBoundError, WireSchema, schema_by_hash, schema_for
 from protocol.framing import DecodeError, Frame
 from protocol.messages import Caps, Heartbeat, Hello, Message, TimeSyncReply, TimeSyncRequest
-from protocol.wiremodel import WireModel
+from protocol.wiremodel import BITS_PER_BYTE, WireModel
 
 __all__ = ["SYNC_ATTEMPTS", "RobotIdentity", "SupervisedSession", "Supervisor", "host_now_us"]
 
@@ -132,6 +132,16 @@ class Supervisor:
         if self.hello_fut is not None and not self.hello_fut.done():
             self.hello_fut.set_result(msg)
 
+    def slow_line_note(self) -> str:
+        """Why a reply may not have come over a line the host models (``BoardClient(wire_baud=...)``, the
+        emulated board's ``--baud``): its rate, which may be too slow for the handshake and the board's
+        reports; "" without a model (a reply that does not come then has other causes)."""
+        line = self.client.tx_wire
+        if line is None or not line.byte_time:
+            return ""
+        return (f"the line is modelled at {round(BITS_PER_BYTE / line.byte_time)} baud, which may be too slow to "
+                "carry the handshake and the board's reports in time (the board's warnings say whether they fit)")
+
     def on_sync_reply(self, msg: TimeSyncReply, t4: int, nbytes: int = 0) -> None:
         """A TIME_SYNC reply of ``nbytes`` wire bytes came at host time ``t4`` (us)."""
         fut = self.sync_pending.get(msg.t1_host_us)
@@ -203,10 +213,8 @@ class Supervisor:
                     return fut.result()
                 wait *= 2
             fut.cancel()
-            raise HandshakeError(
-                f"no CAPS from {c.port_name!r} within {c.handshake_timeout} s: "
-                "is a GhostShell board (ghostshell board, python -m firmware_sim) serving this port?"
-            ) from None
+            why = self.slow_line_note() or "is a GhostShell board (ghostshell board, python -m firmware_sim) serving this port?"
+            raise HandshakeError(f"no CAPS from {c.port_name!r} within {c.handshake_timeout} s: {why}") from None
         finally:
             self.hello_fut = None
 
@@ -290,7 +298,8 @@ class Supervisor:
             wire_us = c.tx_wire.busy_s(time.monotonic()) * 1e6 if c.tx_wire is not None else 0.0
             reply, t4, reply_bytes = await fut.get(timeout)
         except TimeoutError:
-            raise LinkTimeout(f"no TIME_SYNC reply within {timeout} s") from None
+            note = self.slow_line_note()
+            raise LinkTimeout(f"no TIME_SYNC reply within {timeout} s" + (f": {note}" if note else "")) from None
         finally:
             if self.sync_pending.get(t1) is fut:
                 del self.sync_pending[t1]

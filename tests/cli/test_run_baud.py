@@ -40,3 +40,18 @@ def test_a_run_on_the_pty_at_a_given_baud_models_it(tmp_path: Path) -> None:
     # too slow for CoCo's 50 Hz reports (~81 500 bit/s): the board's warning is repeated at the end, not
     # left in board.stderr while the run reports a robot that never moved
     assert "board: warning: telemetry needs" in r.stdout, r.stdout
+
+
+def test_a_line_too_slow_for_the_handshake_says_so(tmp_path: Path) -> None:
+    """At 300 baud the handshake's messages take seconds on the line: the run ends with the handshake's
+    error (no CAPS on a realtime board; no TIME_SYNC reply in lockstep), which names the modelled rate
+    instead of asking whether a board is there at all (it is), and with the board's warning that its
+    reports do not fit (a new user's find: before, only "no CAPS ... is a board serving this port?")."""
+    out = tmp_path / "run"
+    r = subprocess.run([sys.executable, "-m", "host", "run", "--xml", '<head_act action="nod"/>', "--lockstep",
+                        "--baud", "300", "--out", str(out), "--no-plots", "--no-live"],
+                       capture_output=True, text=True, timeout=180)
+    assert r.returncode not in (0, 2), r.stderr  # a lost link, not a usage error
+    assert "modelled at 300 baud" in r.stderr, r.stderr
+    assert "serving this port" not in r.stderr
+    assert "board: warning: telemetry needs" in r.stdout, r.stdout
