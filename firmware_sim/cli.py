@@ -329,7 +329,7 @@ def _main(argv: Sequence[str] | None = None) -> int:
                                             + frame_size(board.sim_state(), board.wire_schema)) * 10
             if need > 0.8 * args.baud:
                 print(f"board: warning: telemetry needs ~{need} bit/s, more than 80% of {args.baud} baud; "
-                      "some reports will be dropped (lower --telemetry-rate)", file=sys.stderr, flush=True)
+                      "some reports will be dropped (raise --baud, or lower the board's --telemetry-rate)", file=sys.stderr, flush=True)
         server.serve()
     except (_Stop, KeyboardInterrupt):
         status = INTERRUPTED_STATUS

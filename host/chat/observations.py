@@ -56,8 +56,11 @@ def _call(function: str, args: dict[str, Any]) -> str:
 
 
 def telemetry_line(turn: TurnResult) -> str:
-    """``robot: upright|FELL, max tilt D deg; base moved M m (from ... to ...)``."""
+    """``robot: upright|FELL, max tilt D deg; base moved M m (from ... to ...)``; ``robot: pose unknown ...``
+    when no SIM_STATE report reached the host (a line too slow for them): not a robot that stood still."""
     s = turn.summary
+    if s.extra.get("base_reports") == 0:
+        return "robot: pose unknown (no SIM_STATE report reached the host)"
     (x0, y0, w0), (x1, y1, w1) = s.base_start, s.base_end
     moved = math.hypot(x1 - x0, y1 - y0)
     x0, y0, x1, y1 = (round(v, 2) + 0.0 for v in (x0, y0, x1, y1))  # no "-0.00"

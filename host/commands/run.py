@@ -405,10 +405,12 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     for o in report.result.observations:  # results of mounted tools are news; the robot's own are in the table
         if o.kind != "result" or (o.path or "").split(".", 1)[0].split("/")[-1] in mounted:
             print(o)
+    seen = s.extra.get("base_reports") != 0  # a line too slow for the reports leaves the pose unknown
     print(f"\n{label}: {s.outcome}; {sum(s.outcomes.values())} calls {dict((k, v) for k, v in s.outcomes.items() if v)}; "
           f"board time {s.duration_s:.2f} s; {_first_action(s.first_action_latency_ms)}; "
-          f"max tilt {s.max_tilt_deg:.1f} deg{'; FELL' if s.fell else ''}")
-    print(f"base moved from {s.base_start} to {s.base_end} [x m, y m, yaw deg]")
+          + (f"max tilt {s.max_tilt_deg:.1f} deg{'; FELL' if s.fell else ''}" if seen else "max tilt unknown"))
+    print(f"base moved from {s.base_start} to {s.base_end} [x m, y m, yaw deg]" if seen else
+          "base pose unknown: no SIM_STATE report reached the host (a line too slow for the board's reports drops them)")
     health = link_health_line(s.extra)
     if health is not None:
         print(health)

@@ -818,6 +818,8 @@ class RobotSession:
                    **stopped,
                    **({"board_fault": str(board_fault)} if board_fault is not None else {}),
                    "observations": [str(o) for o in result.observations], "link": stats,
+                   # SIM_STATE reports the base pose and tilt came from (0: both are unknown, not zero)
+                   "base_reports": len(base),
                    "events": [str(e) for e in turn.events],
                    **({"interrupted_by": str(turn.interrupted_by)} if turn.interrupted_by is not None else {}),
                    "captures": [p.name for p in captures], "scene": self.scene_report(),

@@ -48,9 +48,13 @@ def test_task_on_qemu(tid: int, tmp_path_factory: pytest.TempPathFactory) -> Non
 def test_task26_timeline_same_on_every_board(tmp_path_factory: pytest.TempPathFactory) -> None:
     runs = {fw: _run(26, fw, tmp_path_factory) for fw in ("python", "c", "qemu")}
     ref = runs["python"]
+    # a call released by a persistent call's end (the next <wait> block after one) starts when that end
+    # is seen, so within the same report period (a CI run: play_bgm[0]/wait[2] at 3.82 s vs 3.80 s on QEMU)
+    ends = [b.end for b in ref.calls if b.persistent and b.ended_by is None and b.end is not None]
     for fw, run in runs.items():
         assert [c.path for c in run.calls] == [c.path for c in ref.calls], fw
         for a, b in zip(run.calls, ref.calls):
-            assert abs((a.start - run.t0) - (b.start - ref.t0)) <= TICK_S + 1e-9, (fw, a.path, a.start, b.start)
+            tol = REPORT_S if any(abs(b.start - e) < 1e-9 for e in ends) else TICK_S
+            assert abs((a.start - run.t0) - (b.start - ref.t0)) <= tol + 1e-9, (fw, a.path, a.start, b.start)
             tol = REPORT_S if a.persistent and a.ended_by is None else TICK_S
             assert abs((a.end - run.t0) - (b.end - ref.t0)) <= tol + 1e-9, (fw, a.path, a.end, b.end)

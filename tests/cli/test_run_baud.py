@@ -40,6 +40,9 @@ def test_a_run_on_the_pty_at_a_given_baud_models_it(tmp_path: Path) -> None:
     # too slow for CoCo's 50 Hz reports (~81 500 bit/s): the board's warning is repeated at the end, not
     # left in board.stderr while the run reports a robot that never moved
     assert "board: warning: telemetry needs" in r.stdout, r.stdout
+    # no SIM_STATE reached the host: the pose and tilt are unknown, not printed as zeros
+    assert "base pose unknown" in r.stdout and "max tilt unknown" in r.stdout, r.stdout
+    assert "base moved from" not in r.stdout
 
 
 def test_a_line_too_slow_for_the_handshake_says_so(tmp_path: Path) -> None:
