@@ -8,6 +8,7 @@ import signal
 import sys
 import threading
 from collections.abc import Sequence
+from typing import NoReturn
 
 from protocol.faults import push_arg, seed_arg
 from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
@@ -114,8 +115,16 @@ def _dead_servo(text: str) -> tuple[int, float]:
     return v
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """A usage error is one line, ``PROG: error: WHY (PROG --help: usage)``, exit status 2, without
+    argparse's usage block before it (as ``host.cli.OneLineParser``; the board imports nothing of the host)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} ({self.prog} --help: usage)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=os.environ.get(PROG_ENV) or "python -m firmware_sim",
+    p = _OneLineParser(prog=os.environ.get(PROG_ENV) or "python -m firmware_sim",
                                 description="A robot's emulated board (MuJoCo).")
     configure(p)
     return p

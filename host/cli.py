@@ -26,6 +26,7 @@ import textwrap
 import threading
 from collections.abc import Sequence
 from types import FrameType
+from typing import NoReturn
 
 from host.commands.errors import print_error
 
@@ -82,6 +83,15 @@ DESCRIPTION = ("GhostShell: an LLM drives a robot while it is still talking. Its
                "through the shell onto the robot's emulated board (MuJoCo) or a real one, over a serial link or CAN.")
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An argparse parser whose usage error is one line on stderr, exit status 2: ``PROG: error: WHY
+    (PROG --help: usage)``, without argparse's usage block before it (17 lines for ``ghostshell run``,
+    which hid the line that says what was wrong). Its subcommands' parsers are of the same class."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} ({self.prog} --help: usage)\n")
+
+
 def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     """Build the top-level parser; only the chosen subcommand's module is imported."""
     status = "exit status: " + "; ".join(f"{k} {v}" for k, v in EXIT_CODES.items()) + \
@@ -90,7 +100,7 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     env = [f"  {name}\n" + textwrap.fill(what, width, initial_indent=" " * 6, subsequent_indent=" " * 6)
            for name, what in ENVIRONMENT.items()]
     epilog = textwrap.fill(status, width) + "\n\nenvironment:\n" + "\n".join(env)
-    parser = argparse.ArgumentParser(prog="ghostshell", description=textwrap.fill(DESCRIPTION, width), epilog=epilog,
+    parser = OneLineParser(prog="ghostshell", description=textwrap.fill(DESCRIPTION, width), epilog=epilog,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     chosen = next((a for a in argv if not a.startswith("-")), None)

@@ -69,7 +69,6 @@ class ReceivePath:
     on_received: list[Callable[[Message], None]]
     _rx_gaps: GapDetector
     _board_time_seen: int
-    _rx_nbytes: int
 
     def _on_items(self, items: Sequence[Frame | DecodeError]) -> None:
         t4 = host_now_us()
@@ -80,7 +79,6 @@ class ReceivePath:
                 log.debug("link: discarded %d bytes (%s: %s)", len(item.raw), item.kind.value, item.detail)
                 continue
             self.stats.rx_frames += 1
-            self._rx_nbytes = len(item.raw)  # the frame being handled: its wire bytes (serial)
             if type(item.msg) is Caps and self.supervisor.awaiting_caps():
                 # the answer to the HELLO in flight: the board's numbering counts from here (a new board
                 # numbers afresh); TELEMETRY frames that overtook this ISO-TP transfer still count
@@ -89,14 +87,15 @@ class ReceivePath:
                 self._rx_gaps.feed(item.seq)
             self.stats.seq_gaps = self._rx_gaps.settled_lost(REORDER_DEPTH)
             try:
-                self._dispatch(item.msg, t4)
+                self._dispatch(item.msg, t4, len(item.raw))
                 for cb in self.on_received:
                     cb(item.msg)
             except Exception:  # a bug in a callback must not kill the reader
                 log.exception("link: error handling %s", item.msg_type.name)
 
-    #: received message class -> the name of its handler, ``handler(msg, t4)`` (a table, not an isinstance
-    #: chain; looked up by name so a handler replaced on the instance or the class is the one called)
+    #: received message class -> the name of its handler, ``handler(msg, t4, nbytes)``: the message, the
+    #: host time (µs) its read was taken, and the frame's wire bytes (a table, not an isinstance chain;
+    #: looked up by name so a handler replaced on the instance or the class is the one called)
     _HANDLERS: dict[type[Message], str] = {
         Telemetry: "_handle_telemetry",
         SimState: "_handle_sim_state",
@@ -107,29 +106,29 @@ class ReceivePath:
         CameraChunk: "_handle_chunk",
     }
 
-    def _dispatch(self, msg: Message, t4: int) -> None:
+    def _dispatch(self, msg: Message, t4: int, nbytes: int) -> None:
         name = self._HANDLERS.get(type(msg))
         if name is not None:
-            getattr(self, name)(msg, t4)
+            getattr(self, name)(msg, t4, nbytes)
 
-    def _handle_telemetry(self, msg: Telemetry, t4: int) -> None:
+    def _handle_telemetry(self, msg: Telemetry, t4: int, nbytes: int) -> None:
         self.stats.telemetry += 1
         self._board_time_seen = max(self._board_time_seen, msg.board_time_us)
         self.fanout.on_telemetry(msg)
 
-    def _handle_sim_state(self, msg: SimState, t4: int) -> None:
+    def _handle_sim_state(self, msg: SimState, t4: int, nbytes: int) -> None:
         self.latest_sim_state = msg
 
-    def _handle_ack(self, msg: Ack, t4: int) -> None:
+    def _handle_ack(self, msg: Ack, t4: int, nbytes: int) -> None:
         self.requests.on_ack(msg)
 
-    def _handle_time_sync(self, msg: TimeSyncReply, t4: int) -> None:
-        self.supervisor.on_sync_reply(msg, t4, self._rx_nbytes)
+    def _handle_time_sync(self, msg: TimeSyncReply, t4: int, nbytes: int) -> None:
+        self.supervisor.on_sync_reply(msg, t4, nbytes)
 
-    def _handle_caps(self, msg: Caps, t4: int) -> None:
+    def _handle_caps(self, msg: Caps, t4: int, nbytes: int) -> None:
         self.supervisor.on_caps(msg)
 
-    def _handle_chunk(self, msg: CameraChunk, t4: int) -> None:
+    def _handle_chunk(self, msg: CameraChunk, t4: int, nbytes: int) -> None:
         self._on_chunk(msg)
 
     def _on_chunk(self, msg: CameraChunk) -> None:
@@ -137,7 +136,7 @@ class ReceivePath:
         if done is not None:
             self.requests.on_result(*done)
 
-    def _handle_nack(self, msg: Nack, t4: int) -> None:
+    def _handle_nack(self, msg: Nack, t4: int, nbytes: int) -> None:
         if msg.reason == NackReason.SERVO_FAULT:
             self.servo_fault = msg
         if msg.msg_type == MsgType.HELLO:

@@ -148,7 +148,6 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
         self._closing = False
         self._last_tx = 0.0
         self._board_time_seen = 0
-        self._rx_nbytes = 0  # wire bytes of the frame being handled (host.link.receive)
         #: pending requests, frame NACKs and their waiters by sequence number (host.link.requests)
         self.requests = RequestTable(self._count_retry)
         if not reply_timeout > 0:

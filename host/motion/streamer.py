@@ -82,9 +82,16 @@ START_QUANTILE = 0.1
 
 #: ... but never planned more than this (µs) before the sure arrival (:meth:`FrameStreamer.soonest_us`):
 #: over a link whose delay jitters by more than the board's ``max_late_us`` (a ``delay=80±20`` fault)
-#: a quick-arrival plan would be refused as LATE for every slow arrival; within one control tick of the
-#: sure plan a start is at most that much later than planned when it arrives by the p99.
-START_SLACK_US = 2_000
+#: a quick-arrival plan would be refused as LATE for every slow arrival. Half the board's ``max_late_us``
+#: (20 ms, the protocol's SERVO_FRAME window): a start that arrives by the measured p99 is at most this
+#: late, and arrivals up to 10 ms beyond that p99 are still taken. It was one tick (2 ms) until
+#: 2026-12-04, which made a window whose p99 is one slow sample (a board's first second: 8-9 TIME_SYNC
+#: samples, their p99 about their largest; a loaded machine's stalls) plan every start up to that sample
+#: late: ``bench/bench_latency.py --baud 115200 --repeat 2`` (n = 68, CPU steal 6.4 %) had its 5 slowest
+#: motion starts (16-21 ms) in a task's first second, planned ~12 ms after their quick arrival. A start
+#: that arrives after its due time costs nothing beyond its lateness: the board applies it at its first
+#: tick after the arrival.
+START_SLACK_US = 10_000
 
 
 class FrameLink(Protocol):
@@ -290,19 +297,30 @@ class FrameStreamer:
             return self.next_us
         return self._on_grid(self.link.board_now_us() + self.link.latency_us(nbytes) + self.send_path_us())
 
-    def start_due_us(self, nbytes: int = 0) -> int:
+    def start_due_us(self, nbytes: int = 0, then_nbytes: int = 0) -> int:
         """Board time (µs) a start's first message of ``nbytes`` sent now is due at: as :meth:`soonest_us`,
         but for a quick arrival (the :data:`START_QUANTILE` of the measured uplink and of the send path)
         rather than a sure one, and never more than :data:`START_SLACK_US` before the sure one. The
         board applies a frame that arrives after its due time at its first tick after the arrival, so
         the start takes effect as soon as the message is there; one that arrives sooner waits until the
-        tick at or after its due time. Lockstep: the first unsent frame."""
+        tick at or after its due time. With ``then_nbytes`` > 0, a second message of that size written
+        right behind the first (a start's FLUSH, :meth:`start_now`) must also be there by the tick after
+        the due time. Lockstep: the first unsent frame."""
         if self.link.lockstep:
             return self.next_us
         now = self.link.board_now_us()
-        quick = now + self.link.latency_us(nbytes, START_QUANTILE) + self.send_path_us(START_QUANTILE)
-        sure = now + self.link.latency_us(nbytes) + self.send_path_us()
-        return self._on_grid(max(quick, sure - START_SLACK_US))
+        path_quick = self.send_path_us(START_QUANTILE)
+        path_sure = self.send_path_us()
+
+        def due(n: int) -> int:
+            quick = now + self.link.latency_us(n, START_QUANTILE) + path_quick
+            sure = now + self.link.latency_us(n) + path_sure
+            return max(quick, sure - START_SLACK_US)
+
+        t = due(nbytes)
+        if then_nbytes > 0:
+            t = max(t, due(nbytes + then_nbytes) - self.link.tick_us)
+        return self._on_grid(t)
 
     def _on_grid(self, t: int) -> int:
         """Board time ``t`` (µs) rounded up to the control-tick grid, and never after the first unsent frame."""
@@ -317,8 +335,7 @@ class FrameStreamer:
             mask = mask_of(servos)
             # the first frame goes on the wire before its FLUSH (FrameLink.send_start): planned for the
             # frame's arrival, and for the FLUSH's by the tick after it (when the old plan would go on)
-            nbytes = frame_wire_bytes(len(servos), self.schema)
-            t0 = max(self.start_due_us(nbytes), self.start_due_us(nbytes + self._flush_bytes) - self.link.tick_us)
+            t0 = self.start_due_us(frame_wire_bytes(len(servos), self.schema), self._flush_bytes)
             if t0 >= self.next_us:
                 seg = self.mixer.add(motion, self.next_us, label)
                 self._times[seg] = SegmentTimes()

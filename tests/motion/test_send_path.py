@@ -119,3 +119,12 @@ def test_over_a_jittery_link_a_start_is_planned_at_most_a_slack_before_the_sure_
     sure = link.now_us + 200 + round(40_000 * 0.99) + s.send_path_us()
     assert s.soonest_us() == _ceil_tick(sure)
     assert s.start_due_us() == _ceil_tick(sure - START_SLACK_US)
+
+
+def test_the_start_slack_leaves_half_the_boards_late_window_beyond_the_p99() -> None:
+    """A start planned ``START_SLACK_US`` before the sure arrival and arriving by the uplink p99 is at most
+    that late; the board's ``max_late_us`` must leave as much again for arrivals beyond the p99, or the
+    first slow one is refused as LATE (the Python board's and the C firmware's default, 20 ms)."""
+    from firmware_sim.config import BoardConfig
+
+    assert 0 < START_SLACK_US <= BoardConfig().max_late_us // 2
