@@ -337,8 +337,11 @@ def _main(argv: Sequence[str] | None = None) -> int:
             need = cfg.telemetry_rate_hz * (frame_size(board.telemetry(), board.wire_schema)
                                             + frame_size(board.sim_state(), board.wire_schema)) * 10
             if need > 0.8 * args.baud:
-                print(f"board: warning: telemetry needs ~{need} bit/s, more than 80% of {args.baud} baud; "
-                      "some reports will be dropped (raise --baud, or lower the board's --telemetry-rate)", file=sys.stderr, flush=True)
+                # each period's TELEMETRY goes first, and a report that finds the line still busy is dropped
+                # (firmware_sim.server): the SIM_STATE behind it goes first (at 57 600 baud every one of them)
+                print(f"board: warning: telemetry needs ~{need} bit/s, more than 80% of {args.baud} baud; reports "
+                      "will be dropped, SIM_STATE (the base pose and tilt) first, up to all of them (raise --baud, "
+                      "or lower the board's --telemetry-rate)", file=sys.stderr, flush=True)
         server.serve()
     except (_Stop, KeyboardInterrupt):
         status = INTERRUPTED_STATUS

@@ -91,6 +91,16 @@ class OneLineParser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} ({self.prog} --help: usage)\n")
 
+    def parse_args(self, args: Sequence[str] | None = None,  # type: ignore[override]
+                   namespace: argparse.Namespace | None = None) -> argparse.Namespace:
+        """As argparse's, but an unknown option is reported by the subcommand's parser, so its line names
+        that command (``ghostshell run: error: unrecognized arguments: --bogus``), not ``ghostshell``."""
+        ns, extra = self.parse_known_args(args, namespace)
+        if extra:
+            owner: argparse.ArgumentParser = getattr(ns, "_parser", self)
+            owner.error("unrecognized arguments: " + " ".join(extra))
+        return ns
+
 
 def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     """Build the top-level parser; only the chosen subcommand's module is imported."""
@@ -109,7 +119,7 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
         if name == chosen:
             mod = importlib.import_module(f"host.commands.{module}")
             mod.configure(p)
-            p.set_defaults(_main=mod.main)
+            p.set_defaults(_main=mod.main, _parser=p)
     return parser
 
 

@@ -59,7 +59,7 @@ def telemetry_line(turn: TurnResult) -> str:
     """``robot: upright|FELL, max tilt D deg; base moved M m (from ... to ...)``; ``robot: pose unknown ...``
     when no SIM_STATE report reached the host (a line too slow for them): not a robot that stood still."""
     s = turn.summary
-    if s.extra.get("base_reports") == 0:
+    if s.extra.get("base_reports") == 0 or s.base_start is None or s.base_end is None or s.max_tilt_deg is None:
         return "robot: pose unknown (no SIM_STATE report reached the host)"
     (x0, y0, w0), (x1, y1, w1) = s.base_start, s.base_end
     moved = math.hypot(x1 - x0, y1 - y0)

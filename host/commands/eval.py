@@ -177,7 +177,12 @@ def main(args: argparse.Namespace) -> int:
         if cfg.llm not in OFFLINE:
             from host.ghost import make_ghost
 
-            make_ghost(cfg.llm, base_url=cfg.base_url, api_key=cfg.api_key)  # bad spec/no key: once, up front
+            try:
+                make_ghost(cfg.llm, base_url=cfg.base_url, api_key=cfg.api_key)  # bad spec/no key: once, up front
+            except GhostError as err:
+                if str(err).startswith("unknown LLM spec"):  # eval also takes its offline answerers
+                    raise GhostError(f"{err}, or {GROUND_TRUTH} (offline)") from None
+                raise
     except (ValueError, GhostError) as err:
         if str(err):
             print_error("eval", str(err))

@@ -61,7 +61,7 @@ def unreachable_link(spec: LinkSpec) -> str | None:
     return None
 
 
-def preflight_link(spec: LinkSpec, *, emulated: bool = False) -> str | None:
+def preflight_link(spec: LinkSpec, *, emulated: bool = False, can_start_board: bool = True) -> str | None:
     """Why ``spec`` cannot be opened (one line, for the user), found without disturbing a device, or None.
 
     * a serial device path must exist and be a character device; it is not opened here (opening a
@@ -71,7 +71,9 @@ def preflight_link(spec: LinkSpec, *, emulated: bool = False) -> str | None:
     * ``can:`` (no interface) must find one in python-can's configuration (read, no bus opened);
     * SocketCAN (``can:socketcan:...``) is opened and closed again: a raw CAN socket has no effect on
       the bus, and this is where a kernel without SocketCAN or a missing interface shows;
-    * ``emulated``: the emulated board creates or opens the link and reports its own refusal.
+    * ``emulated``: the emulated board creates or opens the link and reports its own refusal;
+    * ``can_start_board``: False for commands that only talk to a running board (``pose``, ``estop``),
+      whose advice then leaves out ``pty`` (which starts one).
     """
     if emulated:
         return None
@@ -82,8 +84,8 @@ def preflight_link(spec: LinkSpec, *, emulated: bool = False) -> str | None:
             mode = os.stat(path).st_mode
         except FileNotFoundError:
             return (f"--link {spec}: there is no device {path!r}; give the port a running board announced "
-                    "(`ghostshell board --link pty` prints /dev/pts/N), a serial device such as /dev/ttyUSB0, a "
-                    "pyserial URL, or pty to start the emulated board")
+                    "(`ghostshell board --link pty` prints /dev/pts/N), a serial device such as /dev/ttyUSB0"
+                    + (", a pyserial URL, or pty to start the emulated board" if can_start_board else " or a pyserial URL"))
         except OSError as e:
             return f"--link {spec}: cannot look at {path!r}: {e.strerror or e}"
         if not stat.S_ISCHR(mode):
@@ -126,7 +128,7 @@ def refuse_unserved_link(command: str, spec: LinkSpec) -> int | None:
         why = (f"--link {spec} names a link the emulated board creates; give the port a running board "
                "announced (ghostshell board --link pty prints it)")
     if why is None:
-        why = preflight_link(spec)
+        why = preflight_link(spec, can_start_board=False)
     if why is None:
         return None
     print_error(command, str(why))

@@ -277,7 +277,8 @@ def check_run_args(args: argparse.Namespace) -> int | None:
                   "or let this run start one (--emulate-board)")
             return USAGE_STATUS
     elif seed:
-        print_error(command_of(args), "--fault-seed has no effect without --faults")
+        print_error(command_of(args), "--fault-seed has no effect without a fault to inject (--faults SPEC; "
+                    f"{faults!r} injects none)" if faults is not None else "--fault-seed has no effect without --faults")
         return USAGE_STATUS
     firmware = getattr(args, "firmware", "python")
     if firmware != "python":
@@ -405,7 +406,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     for o in report.result.observations:  # results of mounted tools are news; the robot's own are in the table
         if o.kind != "result" or (o.path or "").split(".", 1)[0].split("/")[-1] in mounted:
             print(o)
-    seen = s.extra.get("base_reports") != 0  # a line too slow for the reports leaves the pose unknown
+    seen = s.max_tilt_deg is not None and s.base_end is not None  # no SIM_STATE report: the pose is unknown
     print(f"\n{label}: {s.outcome}; {sum(s.outcomes.values())} calls {dict((k, v) for k, v in s.outcomes.items() if v)}; "
           f"board time {s.duration_s:.2f} s; {_first_action(s.first_action_latency_ms)}; "
           + (f"max tilt {s.max_tilt_deg:.1f} deg{'; FELL' if s.fell else ''}" if seen else "max tilt unknown"))
@@ -424,7 +425,15 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     if getattr(args, "video", False):
         render_into(out, quiet=getattr(args, "quiet", False), command=command_of(args))
     print(f"artefacts in {out}/: " + " ".join(n for n in (*ARTEFACTS, "run.mp4") if (out / n).exists()))
-    return 0 if s.outcome in ("done", "interrupted") else 1
+    if s.outcome in ("done", "interrupted"):
+        return 0
+    if not s.extra.get("board_fault"):  # (printed above) the reason on stderr too, for whoever reads only that
+        failed = [c for c in report.calls if c.outcome == "failed"]
+        first = next((f"{c.path}: {c.error}" for c in failed if c.error), None)
+        why = (s.extra.get("error") or s.extra.get("link_error")
+               or f"{len(failed)} of {len(report.calls)} calls failed" + (f", first {first}" if first else ""))
+        print_error(command_of(args), f"the run ended {s.outcome}: {why}")
+    return 1
 
 
 ARTEFACTS = ("timeline.json", "timeline.png", "joints.png", "summary.json", "host_frames.jsonl", "board_frames.jsonl",

@@ -44,14 +44,17 @@ class BoardCall:
 
 @dataclass
 class Summary:
-    """``summary.json``: how the run went, in numbers."""
+    """``summary.json``: how the run went, in numbers. ``base_start`` / ``base_end`` are ``[x m, y m, yaw deg]``
+    from the board's SIM_STATE reports; they, ``fell`` and ``max_tilt_deg`` are None (``null``) when no such
+    report reached the host (``extra.base_reports`` 0: a line too slow for them, a link lost before the
+    first), never zeros that would read as "upright, did not move"."""
 
     task: str
     outcome: str
-    fell: bool
-    base_start: list[float]
-    base_end: list[float]
-    max_tilt_deg: float
+    fell: bool | None
+    base_start: list[float] | None
+    base_end: list[float] | None
+    max_tilt_deg: float | None
     first_action_latency_ms: float | None
     outcomes: dict[str, int] = field(default_factory=dict)
     duration_s: float = 0.0

@@ -56,7 +56,7 @@ def board_warnings(stderr_path: Path) -> list[str]:
     """The distinct ``board: warning: ...`` lines of an emulated board's stderr (the run folder's
     ``board.stderr``), at most :data:`MAX_BOARD_WARNINGS`, in order; [] when there is none or no file.
     E.g. a ``--baud`` too slow for the telemetry: ``board: warning: telemetry needs ~81500 bit/s, more
-    than 80% of 57600 baud; some reports will be dropped``."""
+    than 80% of 57600 baud; reports will be dropped, SIM_STATE (the base pose and tilt) first, up to all of them (...)``."""
     try:
         text = stderr_path.read_text(encoding="utf-8", errors="replace")
     except OSError:

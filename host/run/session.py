@@ -713,8 +713,8 @@ class RobotSession:
                          "seq_gaps": stats.seq_gaps if stats else None, "link_lost": str(error)}
         stopped = isinstance(error, Interrupted)
         summary = artefacts.Summary(
-            task=label, outcome="interrupted" if stopped else "link_lost", fell=False, base_start=_pose(None),
-            base_end=_pose(None), max_tilt_deg=0.0, first_action_latency_ms=None, outcomes=artefacts.count_outcomes([]),
+            task=label, outcome="interrupted" if stopped else "link_lost", fell=None, base_start=None,
+            base_end=None, max_tilt_deg=None, first_action_latency_ms=None, outcomes=artefacts.count_outcomes([]),
             extra={"clock": "lockstep" if self.opts.lockstep else "realtime", "robot": self.robot.name,
                    "robot_folder": str(self.robot.root),
                    "vocabulary": self.vocabulary,
@@ -808,8 +808,8 @@ class RobotSession:
             host_detected["link_lost"] = str(link_error)
             host_detected["last_report_board_s"] = rec.t[-1] if rec.t else None
         return artefacts.Summary(
-            task=label, outcome=outcome, fell=fell, base_start=_pose(b0), base_end=_pose(b1),
-            max_tilt_deg=round(max_tilt, 2), first_action_latency_ms=None if first is None else round(first, 1),
+            task=label, outcome=outcome, fell=fell if base else None, base_start=_pose(b0), base_end=_pose(b1),
+            max_tilt_deg=round(max_tilt, 2) if base else None, first_action_latency_ms=None if first is None else round(first, 1),
             outcomes=counts, duration_s=round(end_t - turn.board_t0, 3),
             extra={"clock": "lockstep" if opts.lockstep else "realtime", "robot": self.robot.name, "robot_folder": str(self.robot.root),
                    "vocabulary": self.vocabulary,
@@ -912,8 +912,9 @@ def _stopped_extra(error: Interrupted) -> dict[str, Any]:
     return {"stopped": error.stopped_extra()}
 
 
-def _pose(b: Any) -> list[float]:
-    return [round(b[1][0], 4), round(b[1][1], 4), round(artefacts.yaw_deg(b[2]), 2)] if b else [0.0, 0.0, 0.0]
+def _pose(b: Any) -> list[float] | None:
+    """A ground-truth report's base pose as ``[x m, y m, yaw deg]``; None without a report."""
+    return [round(b[1][0], 4), round(b[1][1], 4), round(artefacts.yaw_deg(b[2]), 2)] if b else None
 
 
 def _fell(robot: Robot, tilt: float, z: float | None, z0: float | None) -> bool:

@@ -230,8 +230,11 @@ def _rows(f: dict[str, str], out: str) -> list[Row]:
         Row((*out_commands["eval"], "--out", "/dev/null"), "/dev/null is a device, not a folder"),
         Row((*out_commands["fuzz"], "--corpus", regular), "is a regular file, not a folder"),
     ]
-    # every command: an unknown option is argparse's usage error (vcan hands what follows -- to COMMAND)
-    rows += [Row((name, "--no-such-option"), "error:") for name in COMMANDS]
+    # every command: an unknown option is argparse's usage error (vcan hands what follows -- to COMMAND), on
+    # a line that names the command (it named only "ghostshell" before host.cli.OneLineParser.parse_args)
+    rows += [Row((name, "--no-such-option"), f"ghostshell {name}: error:") for name in COMMANDS]
+    rows += [Row(("eval", "--llm", "nonsense"), "or ground-truth (offline)"),
+             Row(("pose", "--link", "/dev/no-such-tty", "--pose", "stand"), "/dev/ttyUSB0 or a pyserial URL")]
     return rows
 
 

@@ -5,6 +5,7 @@ port's rate, so on the default pty it silently did nothing."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -43,6 +44,11 @@ def test_a_run_on_the_pty_at_a_given_baud_models_it(tmp_path: Path) -> None:
     # no SIM_STATE reached the host: the pose and tilt are unknown, not printed as zeros
     assert "base pose unknown" in r.stdout and "max tilt unknown" in r.stdout, r.stdout
     assert "base moved from" not in r.stdout
+    assert "SIM_STATE (the base pose and tilt) first" in r.stdout, r.stdout
+    # ... and summary.json says so with nulls, not "fell: false, max tilt 0, base at [0, 0, 0]"
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["extra"]["base_reports"] == 0
+    assert [summary[k] for k in ("fell", "base_start", "base_end", "max_tilt_deg")] == [None] * 4, summary
 
 
 def test_a_line_too_slow_for_the_handshake_says_so(tmp_path: Path) -> None:
@@ -58,3 +64,6 @@ def test_a_line_too_slow_for_the_handshake_says_so(tmp_path: Path) -> None:
     assert "modelled at 300 baud" in r.stderr, r.stderr
     assert "serving this port" not in r.stderr
     assert "board: warning: telemetry needs" in r.stdout, r.stdout
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["outcome"] == "link_lost"
+    assert [summary[k] for k in ("fell", "base_start", "base_end", "max_tilt_deg")] == [None] * 4, summary

@@ -55,7 +55,7 @@ def test_a_watchdog_hold_is_said_without_faults_too() -> None:
 def test_the_boards_warnings_are_repeated_once_each_and_bounded(tmp_path: Path) -> None:
     stderr = tmp_path / "board.stderr"
     assert board_warnings(stderr) == []  # no file (a board you started yourself)
-    slow = "board: warning: telemetry needs ~81500 bit/s, more than 80% of 57600 baud; some reports will be dropped"
+    slow = "board: warning: telemetry needs ~81500 bit/s, more than 80% of 57600 baud; reports will be dropped, SIM_STATE (the base pose and tilt) first, up to all of them"
     stderr.write_text("board: coco (12 servos), realtime\n" + slow + "\n" + slow + "\n"
                       + "".join(f"board: warning: w{i}\n" for i in range(20)))
     got = board_warnings(stderr)
