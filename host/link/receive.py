@@ -43,6 +43,9 @@ class LinkStats:
     """Counters since the client was created."""
 
     tx_frames: int = 0
+    #: SERVO_FRAMEs handed to the transport (each is one record in the host's frame log): a start's first
+    #: frame and its re-sent ones included, unlike ``FrameStreamer.frames_sent`` (the grid's frames)
+    servo_frames_sent: int = 0
     rx_frames: int = 0
     decode_errors: int = 0
     frame_nacks: int = 0

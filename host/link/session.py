@@ -65,7 +65,7 @@ from host.link.waiting import Flag
 from protocol.codec import WIRE_SCHEMA_16, WireBoundError, WireSchema, schema_for
 from protocol.faults import GapDetector
 from protocol.linkspec import LinkSpec, parse_link_spec
-from protocol.messages import PROTOCOL_VERSION, Ack, Caps, Message, Nack, SimState
+from protocol.messages import PROTOCOL_VERSION, Ack, Caps, Message, Nack, ServoFrame, SimState
 from protocol.wiremodel import WireModel
 
 __all__ = ["FAULT_BITS", "BoardClient", "FaultEvent", "LinkStats", "LinkTarget", "RobotIdentity", "host_now_us"]
@@ -310,6 +310,8 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
         if self.tx_wire is not None:
             self.tx_wire.occupy(self._last_tx, nbytes)
         self.stats.tx_frames += 1
+        if type(msg) is ServoFrame:
+            self.stats.servo_frames_sent += 1
         self._sent.sent(seq, msg)
         return seq
 

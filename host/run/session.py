@@ -792,7 +792,8 @@ class RobotSession:
         fell = _fell(self.robot, max_tilt, min((b[1][2] for b in base), default=None), rec.base_z0)
         client = self.client
         tel = client.latest_telemetry if client is not None else None
-        stats = {"frames_sent": streamer.frames_sent, "frames_skipped": streamer.frames_skipped, "late": tel.late_count if tel else None,
+        # frames_sent: the SERVO_FRAMEs the link wrote (the host frame log's count), not the streamer's grid frames
+        stats = {"frames_sent": client.stats.servo_frames_sent if client else streamer.frames_sent, "frames_skipped": streamer.frames_skipped, "late": tel.late_count if tel else None,
                  "dropped": tel.dropped_count if tel else None,
                  "frame_nacks": client.stats.frame_nacks if client else None,
                  "decode_errors": client.stats.decode_errors if client else None,

@@ -49,6 +49,11 @@ def test_a_run_on_the_pty_at_a_given_baud_models_it(tmp_path: Path) -> None:
     summary = json.loads((out / "summary.json").read_text())
     assert summary["extra"]["base_reports"] == 0
     assert [summary[k] for k in ("fell", "base_start", "base_end", "max_tilt_deg")] == [None] * 4, summary
+    # frames_sent is what the host's frame log holds: a start's first and re-sent frames too (a new user
+    # found 419 against 435 SERVO_FRAMEs when it counted only the streamer's grid frames)
+    records = [json.loads(line) for line in (out / "host_frames.jsonl").read_text().splitlines()]
+    written = sum(r["dir"] == "tx" and r["type"] == "SERVO_FRAME" for r in records)
+    assert summary["extra"]["link"]["frames_sent"] == written > 0, (summary["extra"]["link"], written)
 
 
 def test_a_line_too_slow_for_the_handshake_says_so(tmp_path: Path) -> None:
