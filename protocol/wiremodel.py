@@ -31,17 +31,22 @@ class WireModel:
     """
 
     def __init__(self, baud: int | None, delimiter: int | None = None) -> None:
+        self.baud = baud or None  # bit/s, None: no model
         self.byte_time = BITS_PER_BYTE / baud if baud else 0.0
         self.delimiter = delimiter
         self.free_at = 0.0
         self.queue: deque[tuple[float, bytes]] = deque()
         self.bytes_queued = 0
 
+    def wire_s(self, nbytes: int) -> float:
+        """How long ``nbytes`` take on the line (s): ``10 * nbytes / baud`` (8N1); 0 without a model."""
+        return nbytes * self.byte_time
+
     def occupy(self, now: float, nbytes: int) -> float:
         """``nbytes`` enter the line at ``now`` (s) without being kept; returns when their last byte is
         through (s). For a sender that only needs the line's timing (the host's model of its own UART)."""
         if self.byte_time:
-            self.free_at = max(self.free_at, now) + nbytes * self.byte_time
+            self.free_at = max(self.free_at, now) + self.wire_s(nbytes)
             return self.free_at
         return now
 

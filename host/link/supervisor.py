@@ -36,7 +36,7 @@ from host.link.waiting import Flag, Reply
 from protocol.codec import WIRE_SCHEMAS, WireBoundError, WireSchema, schema_by_hash, schema_for
 from protocol.framing import DecodeError, Frame
 from protocol.messages import Caps, Heartbeat, Hello, Message, TimeSyncReply, TimeSyncRequest
-from protocol.wiremodel import BITS_PER_BYTE, WireModel
+from protocol.wiremodel import WireModel
 
 __all__ = ["SYNC_ATTEMPTS", "RobotIdentity", "SupervisedSession", "Supervisor", "host_now_us"]
 
@@ -137,9 +137,9 @@ class Supervisor:
         emulated board's ``--baud``): its rate, which may be too slow for the handshake and the board's
         reports; "" without a model (a reply that does not come then has other causes)."""
         line = self.client.tx_wire
-        if line is None or not line.byte_time:
+        if line is None or line.baud is None:
             return ""
-        return (f"the line is modelled at {round(BITS_PER_BYTE / line.byte_time)} baud, which may be too slow to "
+        return (f"the line is modelled at {line.baud} baud, which may be too slow to "
                 "carry the handshake and the board's reports in time (the board's warnings say whether they fit)")
 
     def on_sync_reply(self, msg: TimeSyncReply, t4: int, nbytes: int = 0) -> None:
@@ -310,7 +310,7 @@ class Supervisor:
             # time too. Its wait behind the board's earlier bytes is not in the leg: the emulated board
             # stamps t3 as the reply's first byte goes on its line (firmware_sim.server); a board that
             # stamps it sooner adds that wait, and such a sample's longer round trip ranks it low in the fit
-            down_us = reply_bytes * c.tx_wire.byte_time * 1e6 if c.tx_wire is not None and wire_us > 0 else 0.0
+            down_us = c.tx_wire.wire_s(reply_bytes) * 1e6 if c.tx_wire is not None and wire_us > 0 else 0.0
             c.clock.add(t1, reply.t2_board_us, reply.t3_board_us, t4, wire_us=wire_us, wire_down_us=down_us)
         return t1, reply.t2_board_us, reply.t3_board_us, t4
 
