@@ -31,7 +31,8 @@ class BoardFrameLink:
     """Frames, flushes and the board clock of a :class:`BoardClient`, as the streamer needs them.
 
     ``wire_baud``: the baud rate the board models wire time at (its ``--baud``), or None for a
-    plain pty; it adds ``10 * nbytes / wire_baud`` to :meth:`latency_us`.
+    plain pty; the client models its line at that rate from then on (``client.tx_wire``, unless it
+    already does), and :meth:`latency_us` takes the line's wire time from that one model.
 
     Two ways to send a frame: :meth:`send_start` writes it at once, then a FLUSH of its servos (a new
     motion's first frame), and :meth:`queue_frame` (lookahead, re-sent grid) writes it at once too,
@@ -43,7 +44,6 @@ class BoardFrameLink:
 
     def __init__(self, client: BoardClient, wire_baud: int | None = None) -> None:
         self.client = client
-        self.wire_baud = wire_baud
         if wire_baud and client.tx_wire is None:  # the host models its own line from now on
             client.tx_wire = WireModel(wire_baud)
         #: frames held while :meth:`pace` runs
@@ -69,13 +69,13 @@ class BoardFrameLink:
         (``ClockSync.uplink_quantile``), plus, with
         ``wire_baud``, how long the line is still busy with bytes sent before (the host's model of it,
         ``BoardClient.tx_wire``: known now, not a p99 of past queues) and the message's own wire time
-        (``10 * nbytes / wire_baud``, 8N1)."""
+        (``WireModel.wire_s``: ``10 * nbytes / baud``, 8N1)."""
         up = self.client.clock.uplink_quantile(q)
         one_way = DEFAULT_LATENCY_US if up is None else up
-        wire = 10e6 * nbytes / self.wire_baud if self.wire_baud else 0.0
         line = self.client.tx_wire
-        backlog = line.busy_s(time.monotonic()) * 1e6 if line is not None else 0.0
-        return int(one_way + backlog + wire)
+        if line is None:
+            return int(one_way)
+        return int(one_way + (line.busy_s(time.monotonic()) + line.wire_s(nbytes)) * 1e6)
 
     def send_start(self, frame: ServoFrame) -> int:
         """Write ``frame`` ahead of any held frame, then FLUSH its servos from just after its apply time
