@@ -68,15 +68,34 @@ class ReplayInputError(ReplayError):
     unreadable, nothing sent): a bad input, found before the board starts (exit status 2)."""
 
 
+#: message types only a host sends (protocol v1, :class:`protocol.messages.MsgType` names): the ``dir`` of
+#: such a record says which way host-to-board traffic runs in a serial frame log
+HOST_SENT_TYPES = frozenset({"HELLO", "TIME_SYNC_REQUEST", "CONFIG", "ADVANCE", "SERVO_FRAME", "FLUSH", "ESTOP",
+                             "ESTOP_CLEAR", "SCREEN", "SPEAKER", "CAMERA_CAPTURE", "CAMERA_RESEND"})
+
+
+def host_to_board_dir(path: Path) -> str:
+    """``"tx"`` when the serial frame log at ``path`` is the host's (it sent the host's messages), ``"rx"``
+    when it is the board's: the ``dir`` of its first record of a type only a host sends
+    (:data:`HOST_SENT_TYPES`); ``"tx"`` when it has none."""
+    with open(path, encoding="utf-8") as f:
+        for rec in framelog.iter_records(f):
+            if rec.get("type") in HOST_SENT_TYPES:
+                return str(rec["dir"])
+    return "tx"
+
+
 def read_serial_log(path: Path) -> Iterator[tuple[float, int, Message]]:
-    """Host-to-board messages (``tx`` records) of a serial JSON-Lines frame log, re-decoded from raw bytes
-    (in the log's own wire schema, :class:`protocol.framelog.LogDecoder`)."""
+    """Host-to-board messages of a serial JSON-Lines frame log, the host's (``tx`` records) or the
+    board's (``rx``; :func:`host_to_board_dir`), re-decoded from raw bytes (in the log's own wire schema,
+    :class:`protocol.framelog.LogDecoder`)."""
+    h2b = host_to_board_dir(path)
     dec = framelog.LogDecoder()
     with open(path, encoding="utf-8") as f:
         for rec in framelog.iter_records(f):
             if "error" in rec:
                 continue
-            if rec["dir"] != "tx":
+            if rec["dir"] != h2b:
                 if rec.get("type") == "CAPS":
                     dec.decode(rec["raw"])  # the board's answer names the schema too
                 continue
@@ -86,10 +105,11 @@ def read_serial_log(path: Path) -> Iterator[tuple[float, int, Message]]:
 
 
 def _serial_last_sim_state(path: Path) -> SimState | None:
+    b2h = "rx" if host_to_board_dir(path) == "tx" else "tx"  # the host received it / the board sent it
     last: SimState | None = None
     with open(path, encoding="utf-8") as f:
         for rec in framelog.iter_records(f):
-            if rec["dir"] == "rx" and rec.get("type") == "SIM_STATE":
+            if rec["dir"] == b2h and rec.get("type") == "SIM_STATE":
                 item = framelog.decode_raw(rec["raw"])  # SIM_STATE is the same in every wire schema
                 if isinstance(item, Frame) and isinstance(item.msg, SimState):
                     last = item.msg

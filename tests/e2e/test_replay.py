@@ -50,6 +50,26 @@ def test_replay_ends_where_the_original_run_ended(tmp_path: Path) -> None:
     assert len(replayed) == sum(isinstance(m, ServoFrame) for _, _, m in sent)
 
 
+def test_replay_of_the_boards_own_log_ends_where_the_original_run_ended(tmp_path: Path) -> None:
+    """The board's serial log holds the host's messages as ``rx`` records (the host's holds them as ``tx``):
+    ``replay`` takes them from either, as docs/guides/faults.md tells a user to after a faulted run. Found by
+    a new user: the board's log was refused as "nothing to replay"."""
+    run = run_e2e('<move_forward times="1"/>', tmp_path / "run", task_label="walk")
+    board_log = tmp_path / "run" / "board_frames.jsonl"
+    received = list(read_host_to_board(board_log))
+    assert isinstance(received[0][2], Hello)
+    frames = [m for _, _, m in received if isinstance(m, ServoFrame)]
+    assert len(frames) > 50 and len(frames) == len(_servo_frames_received(board_log))
+
+    out = tmp_path / "replay"
+    assert cli_main(["replay", str(board_log), "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["messages"] == len(received)
+    original = run.report.summary.base_end
+    assert summary["original_base_end"] == original  # the last SIM_STATE the board sent, from its own log
+    assert summary["base_end_error_mm"] is not None and summary["base_end_error_mm"] <= 1.0
+
+
 def test_replay_refuses_what_it_cannot_read(tmp_path: Path) -> None:
     with pytest.raises(ReplayError, match="no host frame log"):
         replay(tmp_path, tmp_path / "out")
