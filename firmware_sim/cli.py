@@ -246,6 +246,9 @@ def _main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as e:
         parser.error(str(e))
     kind = link_kind(args.link)
+    if args.baud is not None and not kind.models_baud:
+        parser.error(f"--baud: the board does not model a serial line's rate on {args.link} (a CAN link: its "
+                     f"rate is the bus's, ?bitrate=); leave --baud out, or use --link pty")
     if not kind.cross_process:
         print(f"board: {args.link} is python-can's in-process virtual bus: a board process serving it could "
               "never be reached by a host in another process; use can:slcan:pty or can:socketcan:vcan0 "
@@ -336,7 +339,11 @@ def _main(argv: Sequence[str] | None = None) -> int:
 
             need = cfg.telemetry_rate_hz * (frame_size(board.telemetry(), board.wire_schema)
                                             + frame_size(board.sim_state(), board.wire_schema)) * 10
-            if need > 0.8 * args.baud:
+            if need > 0.8 * args.baud and cfg.lockstep:  # it waits for the line (firmware_sim.server)
+                print(f"board: warning: telemetry needs ~{need} bit/s of board time, more than 80% of {args.baud} baud; "
+                      f"this lockstep board keeps every report and runs no faster than the line carries them "
+                      f"(~{args.baud / need:.1f}x real time)", file=sys.stderr, flush=True)
+            elif need > 0.8 * args.baud:
                 # each period's TELEMETRY goes first, and a report that finds the line still busy is dropped
                 # (firmware_sim.server): the SIM_STATE behind it goes first (at 57 600 baud every one of them)
                 print(f"board: warning: telemetry needs ~{need} bit/s, more than 80% of {args.baud} baud; reports "

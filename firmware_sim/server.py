@@ -9,9 +9,11 @@ ticks, also while the loop catches up on late ones. Lockstep: the board ticks as
 the next tick, and waits on the link otherwise; it also waits while the
 outgoing backlog is large, so a slow reader never loses telemetry.
 Outgoing bytes are bounded: telemetry is dropped (counted in ``tx_dropped``) when the
-backlog passes ``TELEMETRY_BACKLOG`` or, with a modelled wire rate, when the wire is
-already busy for more than 20 ms (so replies never queue behind telemetry the line
-cannot carry); replies are dropped only past ``MAX_BACKLOG``. Reports dropped while no host has
+backlog passes ``TELEMETRY_BACKLOG`` or, with a modelled wire rate on a realtime board, when the
+wire is already busy for more than 20 ms (so replies never queue behind telemetry the line
+cannot carry); a lockstep board waits for such a line instead (its time is its own: dropping
+there lost reports only because it ran faster than real time); replies are dropped only past
+``MAX_BACKLOG``. Reports dropped while no host has
 been heard for ``NO_HOST_S`` are counted apart (``tx_dropped_no_host``): nobody was reading then,
 which is not a slow link.
 
@@ -94,7 +96,7 @@ class BoardServer:
         tr = self.transport
         for m in msgs:
             periodic = type(m) in PERIODIC_REPORTS
-            if periodic and tr.tx_busy_s(now) > TELEMETRY_WIRE_BACKLOG_S:
+            if periodic and self.clock is not None and tr.tx_busy_s(now) > TELEMETRY_WIRE_BACKLOG_S:
                 self._dropped(now)
                 continue
             if tr.backlog > (TELEMETRY_BACKLOG if periodic else MAX_BACKLOG):
@@ -229,7 +231,8 @@ class BoardServer:
         the backlog is checked before each such run, and a run sends at most one tick's reports."""
         while self.running:
             ran = flushed = 0
-            while self.running and self.board.can_tick() and self.backlog < LOCKSTEP_BACKLOG and ran < 256:
+            while (self.running and self.board.can_tick() and self.backlog < LOCKSTEP_BACKLOG and ran < 256
+                   and self._line_has_room()):
                 n, out = self.board.run(256 - ran)  # up to the next tick with reports, several per C call
                 if out:
                     if self.objects_log is not None:
@@ -247,7 +250,8 @@ class BoardServer:
                 self._process(self.inbox.popleft())
                 handled += 1
             self._flush_tx()
-            blocked = (not self.board.can_tick() and not self.inbox) or self.backlog >= LOCKSTEP_BACKLOG
+            blocked = ((not self.board.can_tick() and not self.inbox) or self.backlog >= LOCKSTEP_BACKLOG
+                       or not self._line_has_room())
             timeout: float = 0.5 if blocked else 0.0
             io_t = self._next_io_time()
             if io_t is not None:
@@ -260,6 +264,12 @@ class BoardServer:
             elif timeout:
                 time.sleep(min(timeout, 0.001))
             self._deliver(read=readable)
+
+    def _line_has_room(self) -> bool:
+        """False while a modelled line (``--baud``) has more than ``TELEMETRY_WIRE_BACKLOG_S`` of wire time
+        queued: a lockstep board then waits for it instead of dropping its reports, so it runs no faster
+        than the line carries them, and lockstep at a given baud loses no report that realtime would keep."""
+        return self.transport.tx_busy_s(time.monotonic()) <= TELEMETRY_WIRE_BACKLOG_S
 
     def _report_watchdog(self) -> None:
         """One stderr line per watchdog transition and ESTOP (the runner and the fault tests read them)."""

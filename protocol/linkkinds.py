@@ -60,7 +60,9 @@ class LinkKind:
     ``needs``: one line for messages; ``matches(spec)``: whether ``spec`` is of this kind;
     ``preflight``: how a command checks the link before starting anything (``"device"``: the port
     path must be a character device, not opened; ``"open"``: open and close it again, harmless for a
-    raw SocketCAN socket; ``""``: no check, opening it says).
+    raw SocketCAN socket; ``""``: no check, opening it says); ``models_baud``: the emulated board models
+    wire time at its ``--baud`` on this link (a serial line; the SLCAN board on a pty does not, so a
+    ``--baud`` for it is refused rather than ignored).
     """
 
     name: str
@@ -72,6 +74,7 @@ class LinkKind:
     cross_process: bool = True
     firmwares: tuple[str, ...] = ("python",)
     preflight: str = ""
+    models_baud: bool = False
 
     @property
     def host_may_start_board(self) -> bool:
@@ -87,10 +90,10 @@ def _can(interface: str, channel: str | None = None) -> Callable[[SpecFields], b
 LINK_KINDS: tuple[LinkKind, ...] = (
     LinkKind("pty", "serial", ".jsonl", lambda s: s.kind == "serial" and s.port == "pty",
              "the emulated board, which creates the pty and announces it", board_creates=True,
-             firmwares=("python", "c", "qemu")),
+             firmwares=("python", "c", "qemu"), models_baud=True),
     LinkKind("serial", "serial", ".jsonl", lambda s: s.kind == "serial",
              "a serial device (a character device) or a pyserial URL a board serves",
-             firmwares=("python", "c", "qemu"), preflight="device"),
+             firmwares=("python", "c", "qemu"), preflight="device", models_baud=True),
     LinkKind("slcan-pty", "can", ".log", _can("slcan", "pty"),
              "the emulated board as an SLCAN adapter on a pty it creates and announces", board_creates=True),
     LinkKind("slcan", "can", ".log", _can("slcan"), "an SLCAN (Lawicel) USB-CAN adapter on a serial port"),

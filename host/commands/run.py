@@ -27,6 +27,7 @@ from host.commands.robotarg import add_robot_argument, robot_from_args
 from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB
 from robots.description import Robot
 from protocol.faults import push_arg, seed_arg
+from protocol.linkkinds import link_kind
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -188,9 +189,11 @@ DEFAULT_PORT_BAUD = 115200
 def line_rates(args: argparse.Namespace) -> tuple[int, int | None]:
     """``(baud, wire_baud)`` for a run's or a chat's session from ``--baud``: the rate a real port opens at,
     and the rate the emulated board models its wire at (its ``--baud``), set only when ``--baud`` was given
-    and the command starts that board on a pty it creates (``--link pty``, or ``can:slcan:pty``: SLCAN's
-    serial line): a real port's line has its own timing, and a CAN bus is not a serial line."""
-    wire = args.baud if args.baud is not None and args.link.implies_emulated_board else None
+    and the command starts that board on a pty it creates and models (``--link pty``;
+    :attr:`protocol.linkkinds.LinkKind.models_baud`): a real port's line has its own timing, and a CAN bus
+    is not a serial line (:func:`check_run_args` refuses ``--baud`` with ``can:slcan:pty``)."""
+    kind = link_kind(args.link)
+    wire = args.baud if args.baud is not None and kind.board_creates and kind.models_baud else None
     return (args.baud or DEFAULT_PORT_BAUD), wire
 
 
@@ -209,6 +212,12 @@ def check_run_args(args: argparse.Namespace) -> int | None:
     if isinstance(robot, int):
         return robot
     args.robot_value = robot
+    link = getattr(args, "link", None)
+    if getattr(args, "baud", None) is not None and link is not None and link.implies_emulated_board \
+            and not link_kind(link).models_baud:
+        print_error(command_of(args), f"--baud: the emulated board on {link} does not model a serial line's rate "
+                    f"(an SLCAN adapter's limit is the CAN bus's ?bitrate=); leave --baud out, or use --link pty")
+        return USAGE_STATUS
     vocabulary = getattr(args, "vocabulary", None)
     if vocabulary is not None and vocabulary not in robot.interface.names:
         print_error(command_of(args), f"--vocabulary {vocabulary!r}: {robot.name} has {', '.join(robot.interface.names)}")
@@ -282,7 +291,6 @@ def check_run_args(args: argparse.Namespace) -> int | None:
         return USAGE_STATUS
     firmware = getattr(args, "firmware", "python")
     if firmware != "python":
-        from protocol.linkkinds import link_kind
         from protocol.linkspec import LinkSpecError, parse_link_spec
 
         try:

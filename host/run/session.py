@@ -792,7 +792,9 @@ class RobotSession:
         fell = _fell(self.robot, max_tilt, min((b[1][2] for b in base), default=None), rec.base_z0)
         client = self.client
         tel = client.latest_telemetry if client is not None else None
-        # frames_sent: the SERVO_FRAMEs the link wrote (the host frame log's count), not the streamer's grid frames
+        # frames_sent: the SERVO_FRAMEs the link wrote by the turn's end (the host frame log's count then; a
+        # realtime streamer holds the pose until the link closes, so the log may end a few frames later),
+        # not the streamer's grid frames
         stats = {"frames_sent": client.stats.servo_frames_sent if client else streamer.frames_sent, "frames_skipped": streamer.frames_skipped, "late": tel.late_count if tel else None,
                  "dropped": tel.dropped_count if tel else None,
                  "frame_nacks": client.stats.frame_nacks if client else None,
