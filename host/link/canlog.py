@@ -38,6 +38,10 @@ __all__ = ["CAN_LOG_SUFFIXES", "CanLogEntry", "can_last_sim_state", "candump_pro
 
 #: a candump -L line: "(1700000000.123456) vcan0 123#DEADBEEF" (CAN FD: ID##F DATA; remote: ID#R)
 _CANDUMP_LINE = re.compile(r"^\(\d+(\.\d+)?\)\s+\S+\s+[0-9A-Fa-f]{1,8}#")
+#: characters a candump -L line of one frame can have: a CAN FD frame's 64 data bytes are 128 hex digits,
+#: with the time stamp, an interface name (at most 15 characters, IFNAMSIZ), a 29-bit id, ``##`` and its flag
+#: digit and a direction mark that is under 200; longer is no frame (a new user's 25 MB line was taken as one)
+CANDUMP_MAX_LINE = 256
 
 
 def candump_problem(path: str | Path) -> str | None:
@@ -48,6 +52,9 @@ def candump_problem(path: str | Path) -> str | None:
         with open(path, encoding="utf-8", errors="replace") as f:
             for lineno, line in enumerate(f, 1):
                 text = line.strip()
+                if len(text) > CANDUMP_MAX_LINE:
+                    return (f"{path}:{lineno} is not a candump -L line: {len(text)} characters, more than one CAN "
+                            f"frame's line can have ({CANDUMP_MAX_LINE})")
                 if text and not text.startswith("#") and not _CANDUMP_LINE.match(text):
                     return (f"{path}:{lineno} is not a candump -L line (expected '(TIMESTAMP) CHANNEL ID#DATA'): "
                             f"{text[:60]!r}")

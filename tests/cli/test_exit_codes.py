@@ -42,6 +42,8 @@ def _files(d: Path) -> dict[str, str]:
     (d / "prose.xml").write_text("All work and no play makes the robot a dull robot. " * 40_000, encoding="utf-8")
     (d / "calls.xml").write_text('<head_act action="nod"/>' * 20_000, encoding="utf-8")
     (d / "garbage.log").write_text("this is not a candump\nat all\n", encoding="utf-8")
+    # a candump line with a 1 MB payload: no CAN frame (a new user's 25 MB one was decoded as one, 400 MB RSS)
+    (d / "huge_line.log").write_text("(1.000000) vcan0 123#" + "AB" * 500_000 + "\n", encoding="utf-8")
     (d / "garbage.jsonl").write_text("{not json\n", encoding="utf-8")
     (d / "empty.jsonl").write_text("", encoding="utf-8")
     (d / "empty.log").write_text("", encoding="utf-8")
@@ -49,7 +51,7 @@ def _files(d: Path) -> dict[str, str]:
     (d / "folder").mkdir(exist_ok=True)
     (d / "replies2.txt").write_text("<head_act/>\n---\n<wave/>\n", encoding="utf-8")
     (d / "regular.txt").write_text(KEPT, encoding="utf-8")  # given as --out: refused, left as it was
-    return {k: str(d / k) for k in ("empty.xml", "blank.xml", "latin1.xml", "prose.xml", "calls.xml", "garbage.log",
+    return {k: str(d / k) for k in ("empty.xml", "blank.xml", "latin1.xml", "prose.xml", "calls.xml", "garbage.log", "huge_line.log",
                                     "garbage.jsonl", "empty.jsonl", "empty.log", "bad_skills.json", "folder",
                                     "replies2.txt", "regular.txt")} | {"missing": str(d / "missing.xml")}
 
@@ -109,6 +111,8 @@ def _rows(f: dict[str, str], out: str) -> list[Row]:
         Row(("log", "decode", f["missing"]), "cannot read"),
         Row(("log", "decode", f["garbage.jsonl"], "--type", "BOGUS"), "--type BOGUS: no such message type"),
         Row(("log", "decode", f["garbage.log"]), "is not a candump -L line"),
+        Row(("log", "decode", f["huge_line.log"]), "more than one CAN frame's line can have"),
+        Row(("replay", f["huge_line.log"]), "more than one CAN frame's line can have"),
         Row(("log", "decode", f["garbage.jsonl"]), "is not a frame log"),
         Row(("log", "decode", f["empty.jsonl"]), "holds no records"),
         Row(("log", "decode", f["empty.log"]), "holds no CAN frames"),
@@ -324,7 +328,7 @@ def _ids() -> list[str]:
 
 
 def _files_stub() -> dict[str, str]:
-    return {k: k for k in ("empty.xml", "blank.xml", "latin1.xml", "prose.xml", "calls.xml", "garbage.log",
+    return {k: k for k in ("empty.xml", "blank.xml", "latin1.xml", "prose.xml", "calls.xml", "garbage.log", "huge_line.log",
                            "garbage.jsonl", "empty.jsonl", "empty.log", "bad_skills.json", "folder", "replies2.txt",
                            "regular.txt", "missing")}
 
