@@ -175,14 +175,12 @@ def main(args: argparse.Namespace) -> int:
         if cfg.llm == GROUND_TRUTH and cfg.suite != "hri":
             raise ValueError("--llm ground-truth answers tasks with their ground truth; the ablation has none")
         if cfg.llm not in OFFLINE:
-            from host.ghost import make_ghost
+            from host.ghost import UnknownSpecError, make_ghost
 
             try:
                 make_ghost(cfg.llm, base_url=cfg.base_url, api_key=cfg.api_key)  # bad spec/no key: once, up front
-            except GhostError as err:
-                if str(err).startswith("unknown LLM spec"):  # eval also takes its offline answerers
-                    raise GhostError(f"{err}, or {GROUND_TRUTH} (offline)") from None
-                raise
+            except UnknownSpecError as err:  # eval also takes its offline answerers
+                raise GhostError(f"{err}, or {GROUND_TRUTH} (offline)") from None
     except (ValueError, GhostError) as err:
         if str(err):
             print_error("eval", str(err))

@@ -10,14 +10,14 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from host.ghost.base import Ghost, GhostError, Message
-from host.ghost.factory import SPECS, make_ghost
+from host.ghost.factory import SPECS, UnknownSpecError, make_ghost
 from host.ghost.scripted import ScriptedGhost
 from host.ghost.tokenize import tokenize
 
 if TYPE_CHECKING:
     from host.ghost.openai_client import OpenAIGhost
 
-__all__ = ["SPECS", "Ghost", "GhostError", "Message", "OpenAIGhost", "ScriptedGhost", "make_ghost", "tokenize"]
+__all__ = ["SPECS", "Ghost", "GhostError", "Message", "OpenAIGhost", "ScriptedGhost", "UnknownSpecError", "make_ghost", "tokenize"]
 
 
 def __getattr__(name: str) -> Any:

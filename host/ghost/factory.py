@@ -11,6 +11,11 @@ from host.ghost.base import Ghost, GhostError
 SPECS = ("scripted", "openai:MODEL", "anthropic:MODEL")
 
 
+class UnknownSpecError(GhostError):
+    """The spec names no LLM backend (its kind is none of :data:`SPECS`): a command that takes other
+    answerers too (``eval``'s offline ones) adds them to the message."""
+
+
 def make_ghost(spec: str, **kw: Any) -> Ghost:
     """Build a ghost from ``spec``.
 
@@ -53,4 +58,4 @@ def make_ghost(spec: str, **kw: Any) -> Ghost:
         if not model:
             raise GhostError(f"ghost spec {spec!r}: no model; use anthropic:MODEL (e.g. anthropic:claude-sonnet-4-0)")
         return AnthropicGhost(model, **kw)
-    raise GhostError(f"unknown LLM spec {spec!r}; expected one of: {', '.join(SPECS)}")
+    raise UnknownSpecError(f"unknown LLM spec {spec!r}; expected one of: {', '.join(SPECS)}")
