@@ -64,7 +64,7 @@ def bench_lockstep(robot: str, sim_seconds: float = 30.0) -> None:
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     n = b.ticks
     kernel = "native (C)" if b.native is not None else "python"
-    print(f"lockstep core ({robot}, {b.n} servos, scene {b.scene}), {kernel} kernel: {n} ticks in {wall:.2f} s = {n / wall:,.0f} ticks/s, real-time factor {n * 0.002 / wall:.1f}x"
+    print(f"lockstep core ({robot}, {b.n} servos, scene {b.scene}), {kernel} kernel, n = 1 run: {n} ticks in {wall:.2f} s = {n / wall:,.0f} ticks/s, real-time factor {n * 0.002 / wall:.1f}x"
           f" (CPU time {cpu:.2f} s = {n / cpu:,.0f} ticks/s, {n * 0.002 / cpu:.1f}x: what a busy machine hides)")
 
 
@@ -126,7 +126,7 @@ def bench_lockstep_pty(robot: str, sim_seconds: float = 30.0, profile: str | Non
     finally:
         proc.send_signal(signal.SIGTERM)
         proc.communicate(timeout=60)
-    print(f"lockstep over pty ({robot}): {board_us / 1e6:.1f} s simulated in {wall:.2f} s wall = {board_us / 1e6 / wall:.1f}x"
+    print(f"lockstep over pty ({robot}), n = 1 run: {board_us / 1e6:.1f} s simulated in {wall:.2f} s wall = {board_us / 1e6 / wall:.1f}x"
           f" real time ({tel} TELEMETRY read; board process CPU time {cpu:.2f} s = {board_us / 1e6 / cpu:.1f}x)"
           f"{'; profile in ' + profile if profile else ''}")
 
@@ -196,7 +196,7 @@ def bench_realtime(robot: str, seconds: float) -> None:
     print(f"realtime 500 Hz ({robot}) for {seconds:g} s: {summary[-1] if summary else err}")
     print(f"  telemetry received: {tel} ({tel / seconds:.1f}/s)")
     r = np.array(rtts) * 1e3
-    print(f"  TIME_SYNC round trip over pty: p50 {np.percentile(r, 50):.2f} ms, p99 {np.percentile(r, 99):.2f} ms, max {r.max():.2f} ms")
+    print(f"  TIME_SYNC round trip over pty (n = {len(r)}): p50 {np.percentile(r, 50):.2f} ms, p99 {np.percentile(r, 99):.2f} ms, max {r.max():.2f} ms")
 
 
 def main() -> None:

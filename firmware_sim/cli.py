@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from typing import NoReturn
 
 from protocol.faults import push_arg, seed_arg
+from protocol.wiremodel import baud_arg
 from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
 from robots.registry import DEFAULT_ROBOT, robots_dir_arg
 
@@ -49,7 +50,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--link", required=True, type=_link_spec, metavar="SPEC",
                         help="'pty' creates a pty pair and prints its name; a serial port or pyserial URL; "
                              "or can:INTERFACE:CHANNEL[?node=N&fd=1...] (see DEVELOPERS.md)")
-    parser.add_argument("--baud", type=_positive_int, default=None,
+    parser.add_argument("--baud", type=baud_arg, default=None,
                         help="model wire time at this baud rate (10 bits/byte, both directions)")
     parser.add_argument("--rate", type=_positive_int, default=500, metavar="HZ", help="control loop rate (default 500)")
     parser.add_argument("--dt", type=_positive_float, default=0.002, metavar="S", help="physics step (default 0.002)")

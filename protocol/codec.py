@@ -814,7 +814,7 @@ def _encode(layouts: Mapping[MsgType, Layout], msg: Message) -> bytes:
 
 def _decode(layouts: Mapping[MsgType, Layout], msg_type: MsgType, payload: bytes) -> Message:
     try:
-        t = MsgType(msg_type)
+        t = msg_type if msg_type.__class__ is MsgType else MsgType(msg_type)  # no Enum call for a member
     except ValueError:
         raise PayloadError(f"unknown message type {msg_type!r}") from None
     r = _Reader(bytes(payload))

@@ -338,6 +338,8 @@ class GapDetector:
         # the last ``window`` skipped numbers, in order: (highest + 1 + k) & 0xFFFF for k in range(lo, gap),
         # as at most two runs of consecutive numbers (before and after the wrap) added in C, not per number
         lo = max(0, gap - self.window)
+        if gap - lo >= self.window:  # the new run alone fills the window: every older entry would be evicted
+            self._missing.clear()
         first = (self.highest + 1 + lo) & 0xFFFF
         end = first + gap - lo
         self._missing.update(dict.fromkeys(range(first, min(end, 0x10000))))

@@ -161,9 +161,8 @@ def _decode_block(block: bytes, raw: bytes, schema: WireSchema = WIRE_SCHEMA_16)
         return DecodeError(
             DecodeErrorKind.LENGTH, f"length field says {length} payload byte(s), frame has {n_payload}", raw
         )
-    try:
-        msg_type = MsgType(type_byte)
-    except ValueError:
+    msg_type = _MSG_TYPES.get(type_byte)
+    if msg_type is None:
         return DecodeError(DecodeErrorKind.UNKNOWN_TYPE, f"unknown message type {type_byte:#04x} (seq {seq})", raw)
     try:
         msg = schema.decode_payload(msg_type, body[HEADER_SIZE:-CRC_SIZE])
@@ -171,6 +170,9 @@ def _decode_block(block: bytes, raw: bytes, schema: WireSchema = WIRE_SCHEMA_16)
         return DecodeError(DecodeErrorKind.PAYLOAD, f"seq {seq}: {e}", raw)
     return Frame(seq=seq, msg_type=msg_type, msg=msg, raw=raw)
 
+
+#: type byte -> MsgType: a dict lookup (calling an Enum class runs its metaclass's Python ``__call__``: 0.47 us, the lookup 0.03)
+_MSG_TYPES: dict[int, MsgType] = {t.value: t for t in MsgType}
 
 _ERROR_KINDS = tuple(DecodeErrorKind)  # iterating an Enum runs Python code; a decoder per input (fuzzing) pays it
 

@@ -11,12 +11,29 @@ and by the C firmware launcher's relay between two ptys; the host keeps one for 
 
 from __future__ import annotations
 
+import argparse
 from collections import deque
 
-__all__ = ["BITS_PER_BYTE", "WireModel"]
+__all__ = ["BITS_PER_BYTE", "MAX_BAUD", "WireModel", "baud_arg"]
 
 #: UART 8N1: start bit + 8 data bits + stop bit
 BITS_PER_BYTE = 10
+
+#: the highest ``--baud`` either end takes (bit/s): the fastest common USB UART bridges run at 12 Mbaud
+#: (FTDI FT232H); far larger values reached pyserial's termios call and ended in an OverflowError traceback
+MAX_BAUD = 12_000_000
+
+
+def baud_arg(text: str) -> int:
+    """argparse ``type=`` for ``--baud`` on both ends' command lines: a whole number of bit/s,
+    1 .. :data:`MAX_BAUD` (``argparse.ArgumentTypeError`` otherwise)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of bit/s, e.g. 115200, got {text!r}") from None
+    if not 1 <= v <= MAX_BAUD:
+        raise argparse.ArgumentTypeError(f"must be 1..{MAX_BAUD} bit/s, got {v}")
+    return v
 
 
 class WireModel:

@@ -35,12 +35,18 @@ def decode_can_file(path: str, out: IO[str], err: IO[str], types: list[str] | No
     from protocol.can.ids import split_id
 
     wanted = {t.upper() for t in types} if types else None
-    n = unknown = errors = 0
+    n = kept = unknown = errors = 0
+    nodes: set[int] = set()  # the node ids of the frames ?node= left out
     try:
         for e in iter_can_log(path):
             n += 1
-            if node is not None and split_id(e.frame.arbitration_id)[1] not in (node, 0):
-                continue
+            if node is not None:
+                frame_node = split_id(e.frame.arbitration_id)[1]
+                if frame_node not in (node, 0):
+                    if len(nodes) < 128:
+                        nodes.add(frame_node)
+                    continue
+            kept += 1
             if e.dbc_name is None:
                 unknown += 1
             if frames and wanted is None:
@@ -70,6 +76,10 @@ def decode_can_file(path: str, out: IO[str], err: IO[str], types: list[str] | No
         return 2
     if not n:
         print_error("log", f"{path} holds no CAN frames: nothing to decode", file=err)
+        return 2
+    if not kept:  # ?node= matched nothing: it printed nothing and said nothing
+        print_error("log", f"?node={node}: none of the {n} frame(s) of {path} is node {node}'s; it holds node(s) "
+                    f"{', '.join(map(str, sorted(nodes)))}", file=err)
         return 2
     if unknown or errors:
         print_error("log", f"{n} frame(s), {unknown} not in the DBC, {errors} decode error(s)", file=err)

@@ -14,6 +14,8 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+from protocol.wiremodel import MAX_BAUD, baud_arg
+
 __all__ = ["MAX_BAUD", "STDIN", "InputError", "baud_rate", "port_number", "positive_seconds", "read_text_input", "seconds",
            "whole_number"]
 
@@ -104,17 +106,5 @@ def whole_number(lo: int, hi: int | None = None) -> Callable[[str], int]:
     return parse
 
 
-#: the highest ``--baud`` taken (bit/s): the fastest common USB UART bridges run at 12 Mbaud (FTDI FT232H);
-#: far larger values reached pyserial's termios call and ended in an OverflowError traceback
-MAX_BAUD = 12_000_000
-
-
-def baud_rate(text: str) -> int:
-    """argparse ``type=`` for a serial baud rate: a whole number of bit/s, 1 .. :data:`MAX_BAUD`."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number of bit/s, e.g. 115200, got {text!r}") from None
-    if not 1 <= v <= MAX_BAUD:
-        raise argparse.ArgumentTypeError(f"must be 1..{MAX_BAUD} bit/s, got {v}")
-    return v
+#: ``--baud``'s parser and bound are shared with the board's command line (protocol.wiremodel)
+baud_rate = baud_arg

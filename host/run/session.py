@@ -58,7 +58,7 @@ import numpy as np
 from host.ghost import GhostError
 from host.link import BoardClient, RobotIdentity
 from host.link.board_process import BoardProcess, dead_board_error, start_board
-from host.link.errors import BoardFaulted, LinkConfigError, LinkError
+from host.link.errors import BoardFaulted, HandshakeError, LinkConfigError, LinkError, RobotMismatch, SchemaMismatch
 from host.link.faultcheck import LATCHED, clear_command, clear_leftover_fault, refusal_message
 from host.link.session import FaultEvent, LinkTarget
 from host.run import artefacts
@@ -324,8 +324,19 @@ class RobotSession:
                 if dead is None:
                     raise
                 raise dead from e
+            except HandshakeError as e:
+                if not (emulate and opts.faults) or isinstance(e, (SchemaMismatch, RobotMismatch)):
+                    raise
+                # the board this run started injects the faults from its first message on: it is there, and
+                # the question the error ends with would send the user looking for one
+                raise HandshakeError(f"{e} (the board this run started is there: its --faults {opts.faults} "
+                                     "lost the HELLO/CAPS exchange)") from e
             self.client = await client.__aenter__()
             self._stack.push_async_exit(functools.partial(self._close_client, client))
+            if not emulate and opts.lockstep and not client.lockstep:
+                # a board you started keeps its own clock: --lockstep here starts no board that would honour it
+                log.warning("--lockstep: the board on %s runs in realtime (its CAPS); this run follows the board's "
+                            "clock (start the board with `ghostshell board --lockstep`)", spec)
             note = await clear_leftover_fault(client)
             if note:
                 log.warning("%s", note)
@@ -492,9 +503,15 @@ class RobotSession:
         self.request_stop(StopReason("limit", "max_board_s", (
             f"the turn reached its board-time bound of {max_s:g} s (--max-board-s)")))
 
+    def _clock_mode(self) -> str:
+        """"lockstep" or "realtime": the board's clock as its CAPS said once connected (a board you started
+        keeps its own, whatever ``--lockstep`` says), else the one asked for."""
+        lockstep = self.client.lockstep if self.client is not None else self.opts.lockstep
+        return "lockstep" if lockstep else "realtime"
+
     def _mcap_meta(self, spec: LinkSpec) -> dict[str, str]:
         return {"scene": self.scene, "vocabulary": self.vocabulary, "link": str(spec), "label": self.opts.label,
-                "clock_mode": "lockstep" if self.opts.lockstep else "realtime"}
+                "clock_mode": self._clock_mode()}
 
     # -- events (host.run.events) ----------------------------------------------------------------
     def _on_report(self, tel: Any) -> None:
@@ -715,7 +732,7 @@ class RobotSession:
         summary = artefacts.Summary(
             task=label, outcome="interrupted" if stopped else "link_lost", fell=None, base_start=None,
             base_end=None, max_tilt_deg=None, first_action_latency_ms=None, outcomes=artefacts.count_outcomes([]),
-            extra={"clock": "lockstep" if self.opts.lockstep else "realtime", "robot": self.robot.name,
+            extra={"clock": self._clock_mode(), "robot": self.robot.name,
                    "robot_folder": str(self.robot.root),
                    "vocabulary": self.vocabulary,
                    "mode": self.opts.mode, "error": None,
@@ -814,7 +831,7 @@ class RobotSession:
             task=label, outcome=outcome, fell=fell if base else None, base_start=_pose(b0), base_end=_pose(b1),
             max_tilt_deg=round(max_tilt, 2) if base else None, first_action_latency_ms=None if first is None else round(first, 1),
             outcomes=counts, duration_s=round(end_t - turn.board_t0, 3),
-            extra={"clock": "lockstep" if opts.lockstep else "realtime", "robot": self.robot.name, "robot_folder": str(self.robot.root),
+            extra={"clock": self._clock_mode(), "robot": self.robot.name, "robot_folder": str(self.robot.root),
                    "vocabulary": self.vocabulary,
                    "mode": opts.mode, "error": None if result.error is None else str(result.error),
                    **({"link_error": str(link_error)} if link_error is not None else {}),

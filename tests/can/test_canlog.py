@@ -49,6 +49,11 @@ def test_two_nodes_in_one_capture(tmp_path: Path, suffix: str) -> None:
     out, err = _Sink(), _Sink()
     assert decode_can_file(str(path), out, err, node=2) == 0
     assert "SERVO_FRAME_N2" in out.text and "SERVO_FRAME_N1" not in out.text and "TELEMETRY" in out.text
+    # a node the capture does not hold: one line and exit 2 (it printed nothing, said nothing and exited 0)
+    out, err = _Sink(), _Sink()
+    assert decode_can_file(str(path), out, err, node=5) == 2
+    assert out.text == ""
+    assert err.text.count("\n") == 1 and f"none of the {len(frames)} frame(s)" in err.text and "it holds node(s) 1, 2" in err.text
 
 
 def test_unknown_and_partial_frames_are_reported(tmp_path: Path) -> None:

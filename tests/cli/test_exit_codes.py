@@ -92,6 +92,8 @@ def _rows(f: dict[str, str], out: str) -> list[Row]:
         Row(("board", "--link", "bogus", "--lockstep"), "cannot open link 'bogus'"),
         Row(("board", "--link", "pty", "--rate", "0"), "must be > 0"),
         Row(("board", "--link", "pty", "--scene", "moon"), "no scene 'moon'"),
+        # the board modelled any --baud it was given (run's bound, shared through protocol.wiremodel)
+        Row(("board", "--link", "pty", "--baud", "99999999999"), "must be 1..12000000 bit/s"),
         Row(("board", "--link", "can:socketcan:vcan0"), "cannot open CAN bus can:socketcan:vcan0"),
         # pose / estop
         Row(("pose", "--link", "pty", "--pose", "stand"), "a link the emulated board creates"),

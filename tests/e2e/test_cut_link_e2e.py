@@ -108,6 +108,9 @@ def test_a_link_cut_from_the_start_still_reports_what_was_injected(tmp_path: Pat
     # lockstep: the board clock stays at 0 until the host reaches it, so a cut from 0 holds for good
     with pytest.raises(LinkError, match="no CAPS") as e:
         run_e2e(PROGRAM, tmp_path, faults="cut=0+5")
+    # the board is there: the message says the run's own faults lost the handshake (it asked whether a
+    # board was serving the port, as for a port nobody serves)
+    assert "the board this run started is there: its --faults cut=0+5 lost the HELLO/CAPS exchange" in str(e.value)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["outcome"] == "link_lost" and summary["extra"]["link_error"] == str(e.value)
     assert sum(summary["outcomes"].values()) == 0  # nothing ran

@@ -33,3 +33,32 @@ def test_pty_without_the_emulated_board_is_refused(tmp_path: Path) -> None:
                       emulate_board=False)
     with pytest.raises(LinkError, match="emulated board creates"):
         anyio.run(run_program, opts, backend="asyncio")
+
+
+def test_a_run_records_the_clock_of_the_board_it_found(tmp_path: Path) -> None:
+    """A board you started keeps its own clock: the summary says what its CAPS said, not the run's flag
+    (it said "realtime" for this lockstep board, since the run was not given --lockstep)."""
+    board = start_board(["--lockstep"], tmp_path / "board.stderr")
+    try:
+        opts = RunOptions(program='<face_emo emo="happy"/>', out=tmp_path / "run", lockstep=False, link=board.port)
+        report = anyio.run(run_program, opts, backend="asyncio")
+    finally:
+        board.stop()
+    assert report.summary.outcome == "done"
+    assert report.summary.extra["clock"] == "lockstep"
+
+
+@pytest.mark.realtime
+def test_lockstep_asked_of_a_realtime_board_you_started_is_said(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """``--lockstep`` against a realtime board the run did not start was silently moot."""
+    board = start_board(["--realtime"], tmp_path / "board.stderr")
+    try:
+        opts = RunOptions(program='<face_emo emo="happy"/>', out=tmp_path / "run", lockstep=True, link=board.port)
+        with caplog.at_level("WARNING"):
+            report = anyio.run(run_program, opts, backend="asyncio")
+    finally:
+        board.stop()
+    assert report.summary.outcome == "done"
+    assert report.summary.extra["clock"] == "realtime"
+    assert any("--lockstep: the board on" in r.getMessage() and "runs in realtime" in r.getMessage()
+               for r in caplog.records)

@@ -60,3 +60,34 @@ def test_a_batch_that_breaks_the_speed_limit_is_caught(monkeypatch: pytest.Monke
     monkeypatch.setattr(board_module.Board, "run", jumping_run)
     with pytest.raises(AssertionError, match="speed limit broken"):
         one_input(_input(batched=True))
+
+
+@pytest.mark.parametrize("broken, message", [
+    ("speed", "speed limit broken over 1 tick"),
+    ("cmd", "command outside joint limits"),
+    ("ctrl", "ctrl outside joint limits"),
+])
+def test_a_single_tick_that_breaks_a_limit_is_caught(broken: str, message: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The per-tick limits are checked at the input's end, over every tick at once: a tick that broke
+    one, anywhere in the input, still fails it and is named (not only the last tick)."""
+    one_input = load()
+    tick = board_module.Board.tick
+    ticks = [0]
+
+    def bad_tick(self: board_module.Board) -> list:
+        out = tick(self)
+        ticks[0] += 1
+        if ticks[0] == 3:  # an early tick: later ticks run on from where it left the servo
+            lo, hi = self.servo.mins[0], self.servo.maxs[0]
+            if broken == "speed":
+                self.servo._cmd[0] = lo if self.servo._cmd[0] - lo > hi - self.servo._cmd[0] else hi
+            elif broken == "cmd":
+                self.servo._cmd[0] = hi + 0.1
+            else:
+                self._ctrl[0] = lo - 0.1
+        return out
+
+    monkeypatch.setattr(board_module.Board, "tick", bad_tick)
+    with pytest.raises(AssertionError, match=message):
+        one_input(_input(batched=False))
+    assert ticks[0] > 3
