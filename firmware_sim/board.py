@@ -33,9 +33,10 @@ from firmware_sim.native import GS_CAP, GS_INTERP, NativeTick, NativeUnavailable
 from firmware_sim.peripherals import MAX_IMAGE_SIDE, Camera, CameraUnavailable, CameraWorker, Screen, Speaker
 from firmware_sim.safety import Mode, Safety
 from firmware_sim.servo_model import ServoModel
-from protocol.codec import msg_type_of, quantize_apply_at, schema_for, unwrap_time_us
+from protocol.codec import MESSAGE_CLASSES, msg_type_of, quantize_apply_at, schema_for, unwrap_time_us
 from protocol.faults import GapDetector
 from protocol.messages import (
+    BOARD_TO_HOST,
     PROTOCOL_VERSION,
     Ack,
     Advance,
@@ -73,9 +74,10 @@ __all__ = ["Board", "HOST_BOUND", "KEPT_IMAGES", "quat_to_rpy"]
 
 KEPT_IMAGES = 2  # camera images the board keeps for CAMERA_RESEND
 
-#: messages only the board sends: one arriving from the host is refused (NACK UNSUPPORTED) before it
-#: counts as link traffic (it neither feeds the watchdog nor the sequence-gap counter)
-HOST_BOUND: tuple[type[Message], ...] = (Telemetry, SimState, Caps, TimeSyncReply, Ack, Nack)
+#: messages only the board sends (:data:`protocol.messages.BOARD_TO_HOST`): one arriving from the host is
+#: refused (NACK UNSUPPORTED) before it counts as link traffic (it neither feeds the watchdog nor the
+#: sequence-gap counter)
+HOST_BOUND: tuple[type[Message], ...] = tuple(MESSAGE_CLASSES[t] for t in sorted(BOARD_TO_HOST))
 
 #: a received-message handler: ``(board, msg, seq, rx_us) -> replies``
 _Handler = Callable[["Board", Any, int, int], "list[Message]"]

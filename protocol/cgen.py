@@ -342,6 +342,9 @@ def c_header(schema: c.WireSchema = c.WIRE_SCHEMA_16) -> str:
     out.append("#define GS_E_TYPE (-4)\n#define GS_E_SPACE (-5)\n#define GS_E_STRUCT (-6)\n")
     for cls in enum_classes(schema):
         out.append(_enum_block(cls) + "\n")
+    board_sent = " || \\\n     ".join(f"(t) == GS_MSG_TYPE_{t.name}" for t in sorted(m.BOARD_TO_HOST))
+    out.append("/* Message types only a board sends (protocol.messages.BOARD_TO_HOST): a board refuses one it receives. */")
+    out.append(f"#define GS_MSG_BOARD_SENT(t) \\\n    ({board_sent})\n")
     for t in sorted(L, key=int):
         cls = c.MESSAGE_CLASSES[t]
         doc = (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""

@@ -52,6 +52,20 @@ class MsgType(IntEnum):
     CAMERA_RESEND = 0x34
 
 
+#: the message types a host sends and a board receives; the others (:data:`BOARD_TO_HOST`) only a board
+#: sends. Each message's sender is declared here once, as a DBC names a message's transmitter: the
+#: board refuses a board-sent type it receives (``firmware_sim.board.HOST_BOUND``) and a replay tells
+#: which end wrote a serial frame log by it (``host.run.replay.host_to_board_dir``).
+HOST_TO_BOARD: frozenset[MsgType] = frozenset({
+    MsgType.HELLO, MsgType.TIME_SYNC_REQUEST, MsgType.CONFIG, MsgType.HEARTBEAT, MsgType.ADVANCE,
+    MsgType.SERVO_FRAME, MsgType.FLUSH, MsgType.ESTOP, MsgType.ESTOP_CLEAR, MsgType.SCREEN, MsgType.SPEAKER,
+    MsgType.CAMERA_CAPTURE, MsgType.CAMERA_RESEND,
+})
+
+#: the message types only a board sends (every type not in :data:`HOST_TO_BOARD`)
+BOARD_TO_HOST: frozenset[MsgType] = frozenset(MsgType) - HOST_TO_BOARD
+
+
 class NackReason(IntEnum):
     """Why the board refused a message."""
 

@@ -46,7 +46,7 @@ from host.run.mcap_log import McapError, RunLog
 from host.run.mcap_read import mcap_last_sim_state, read_mcap_host_to_board
 from protocol import framelog
 from protocol.framing import DecodeError, Frame
-from protocol.messages import Ack, Advance, Message, Nack, ServoFrame, SimState, Telemetry
+from protocol.messages import HOST_TO_BOARD, Ack, Advance, Message, Nack, ServoFrame, SimState, Telemetry
 from robots.description import Robot
 from robots.registry import DEFAULT_ROBOT, load_robot
 
@@ -68,10 +68,9 @@ class ReplayInputError(ReplayError):
     unreadable, nothing sent): a bad input, found before the board starts (exit status 2)."""
 
 
-#: message types only a host sends (protocol v1, :class:`protocol.messages.MsgType` names): the ``dir`` of
+#: message types only a host sends (names of :data:`protocol.messages.HOST_TO_BOARD`): the ``dir`` of
 #: such a record says which way host-to-board traffic runs in a serial frame log
-HOST_SENT_TYPES = frozenset({"HELLO", "TIME_SYNC_REQUEST", "CONFIG", "ADVANCE", "SERVO_FRAME", "FLUSH", "ESTOP",
-                             "ESTOP_CLEAR", "SCREEN", "SPEAKER", "CAMERA_CAPTURE", "CAMERA_RESEND"})
+HOST_SENT_TYPES = frozenset(t.name for t in HOST_TO_BOARD)
 
 
 def host_to_board_dir(path: Path) -> str:

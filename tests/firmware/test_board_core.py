@@ -326,3 +326,27 @@ def test_a_frame_that_arrives_after_its_due_time_is_applied_at_the_next_tick(boa
     assert board.buffer.next_for(HEAD_YAW) is None  # left the buffer at this tick
     assert (int(board.anchor_t[HEAD_YAW]), float(board.anchor_v[HEAD_YAW])) == (now - 1_000, 0.2)
     assert board.telemetry().late_count == 0
+
+
+def test_each_message_type_has_one_sender_and_the_board_handles_exactly_the_hosts() -> None:
+    """``protocol.messages.HOST_TO_BOARD`` / ``BOARD_TO_HOST`` split the types; the board's handler table
+    covers exactly the host's, and refuses every board-sent one (``HOST_BOUND``, derived from them)."""
+    from firmware_sim.board import HOST_BOUND
+    from protocol.codec import MESSAGE_CLASSES
+    from protocol.messages import BOARD_TO_HOST, HOST_TO_BOARD, MsgType
+
+    assert HOST_TO_BOARD | BOARD_TO_HOST == set(MsgType) and not HOST_TO_BOARD & BOARD_TO_HOST
+    assert set(Board._HANDLERS) == {MESSAGE_CLASSES[t] for t in HOST_TO_BOARD}
+    assert set(HOST_BOUND) == {MESSAGE_CLASSES[t] for t in BOARD_TO_HOST}
+
+
+def test_a_camera_chunk_from_the_host_is_refused_before_it_counts_as_traffic() -> None:
+    """CAMERA_CHUNK is board-sent; the board's hand-written list of such types had left it out, so one
+    from the host fed the sequence-gap counter before it was refused."""
+    from protocol.messages import CameraChunk
+
+    b = Board(BoardConfig(lockstep=True))
+    received = b.rx_gaps.received
+    (n,) = b.handle(CameraChunk(request_id=1, index=0, total=1, data=b"x"), 9)
+    assert n.reason is NackReason.UNSUPPORTED
+    assert b.rx_gaps.received == received

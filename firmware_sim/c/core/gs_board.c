@@ -550,9 +550,7 @@ bad:
 
 void gs_board_handle(gs_board_t *b, const gs_msg_t *m, uint16_t seq, int64_t rx) {
     uint8_t t = m->type;
-    if (t == GS_MSG_TYPE_TELEMETRY || t == GS_MSG_TYPE_SIM_STATE || t == GS_MSG_TYPE_CAPS ||
-        t == GS_MSG_TYPE_TIME_SYNC_REPLY || t == GS_MSG_TYPE_ACK || t == GS_MSG_TYPE_NACK ||
-        t == GS_MSG_TYPE_CAMERA_CHUNK) {
+    if (GS_MSG_BOARD_SENT(t)) {
         nack(b, seq, t, GS_NACK_REASON_UNSUPPORTED, "board does not accept ", gs_msg_type_name(t));
         return;
     }

@@ -94,6 +94,16 @@
 #define GS_SOUND_KIND_SPEECH 0x0u
 #define GS_SOUND_KIND_CLIP 0x1u
 
+/* Message types only a board sends (protocol.messages.BOARD_TO_HOST): a board refuses one it receives. */
+#define GS_MSG_BOARD_SENT(t) \
+    ((t) == GS_MSG_TYPE_CAPS || \
+     (t) == GS_MSG_TYPE_TIME_SYNC_REPLY || \
+     (t) == GS_MSG_TYPE_TELEMETRY || \
+     (t) == GS_MSG_TYPE_SIM_STATE || \
+     (t) == GS_MSG_TYPE_ACK || \
+     (t) == GS_MSG_TYPE_NACK || \
+     (t) == GS_MSG_TYPE_CAMERA_CHUNK)
+
 /* HELLO = 0x01: Host -> board: first message of a session. */
 typedef struct {
     uint8_t protocol_version; /* u8 */
