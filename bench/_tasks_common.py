@@ -38,11 +38,10 @@ def task_arguments(description: str, json_help: str) -> argparse.ArgumentParser:
     return ap
 
 
-def task_programs(ids: Sequence[int] | None = None, robot: Robot | None = None,
-                  parser: argparse.ArgumentParser | None = None) -> list[tuple[int, str]]:
+def task_programs(parser: argparse.ArgumentParser, ids: Sequence[int] | None = None,
+                  robot: Robot | None = None) -> list[tuple[int, str]]:
     """``(id, ground-truth program)`` of the robot's selected tasks (default: every task with ground truth).
-    An id without a ground truth is a usage error through ``parser`` (``parser.error``: exit status 2),
-    or ValueError without one."""
+    An id without a ground truth is a usage error through ``parser`` (``parser.error``: exit status 2)."""
     tasks = (robot or load_robot()).tasks
     runnable = sorted(i for i, t in tasks.items() if t.ground_truth)
     if not ids:
@@ -51,8 +50,6 @@ def task_programs(ids: Sequence[int] | None = None, robot: Robot | None = None,
     if bad:
         message = (f"--tasks: no ground truth for task(s) {bad}; "
                    + (f"runnable: {runnable[0]}-{runnable[-1]}" if runnable else "this robot has no task with one"))
-        if parser is None:
-            raise ValueError(message)
         parser.error(message)
     return [(i, str(tasks[i].ground_truth)) for i in ids]
 
@@ -64,7 +61,7 @@ def selected_tasks(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         robot = load_robot(args.robot)
     except RobotDataError as e:
         parser.error(f"--robot: {e}")
-    return robot, task_programs(args.tasks, robot, parser=parser)
+    return robot, task_programs(parser, args.tasks, robot)
 
 
 def _rate(text: str) -> float:
@@ -83,7 +80,7 @@ MAX_TASK_IDS = 1000
 
 
 def task_ids(text: str) -> list[int]:
-    """``--tasks``'s type: ``"1,5,23"`` or ``"1-10,23"`` -> ``[1, 5, 23]``. Anything else (an empty list, a
+    """``--tasks``'s type: ``"1,5,23"`` or ``"1-10,23"`` -> ``[1, 5, 23]``, each id once in its first place. Anything else (an empty list, a
     range that runs backwards, a part that is not a number) raises :class:`argparse.ArgumentTypeError`,
     which argparse reports as a usage error (exit status 2)."""
     out: list[int] = []
@@ -108,7 +105,7 @@ def task_ids(text: str) -> list[int]:
         raise argparse.ArgumentTypeError(f"more than {MAX_TASK_IDS} task ids in {text[:40]!r}...")
     if not out:
         raise argparse.ArgumentTypeError(f"no task ids in {text!r}; expected ids like 1,5,23 or 1-10 (leave it out for all)")
-    return out
+    return list(dict.fromkeys(out))  # "1,1" or "1-3,2": each task once (a second run overwrote the first's folder)
 
 
 def run_task(task_id: int, program: str, *, lockstep: bool, out_root: Path, buffer_response: bool = False,

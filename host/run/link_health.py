@@ -42,10 +42,26 @@ def link_health_line(extra: Mapping[str, Any]) -> str | None:
                "sequence gaps at the host (board messages lost)"),
         _count(detected.get("seq_gaps"), "sequence gap at the board", "sequence gaps at the board"),
     ) if p is not None]
-    if not parts:
-        return None
     spec = board.get("spec")
+    if not parts:
+        hit = _units_hit(board)
+        if not spec or not hit:
+            return None
+        # faults that cost nothing the host or board counts (reorder=, dup=, a short delay=): the run still
+        # went through them, and said nothing
+        return (f"link: nothing lost or refused; faults injected: {spec}, {hit} message(s) hit "
+                "(counts in summary.json)")
     return "link: " + ", ".join(parts) + (f"; faults injected: {spec}" if spec else "") + " (counts in summary.json)"
+
+
+def _units_hit(board: Mapping[str, Any]) -> int:
+    """How many units (messages or frames) the board's injector changed, both directions together."""
+    total = 0
+    for direction in board.get("injected") or []:
+        for n in ((direction or {}).get("injected") or {}).values():
+            if isinstance(n, int) and n > 0:
+                total += n
+    return total
 
 
 #: at most this many of the board's warning lines are repeated (the rest stay in board.stderr)

@@ -70,3 +70,14 @@ def test_a_link_no_board_can_serve_is_one_line_and_status_2(tmp_path: Path) -> N
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2, (r.stdout, r.stderr)
     assert "bench_latency: the emulated board cannot serve" in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+def test_a_task_named_twice_runs_once() -> None:
+    """``--tasks 1,1`` ran task 1 twice (the second run overwrote the first's folder and counted twice)."""
+    sys.path.insert(0, str(BENCH))
+    try:
+        from _tasks_common import task_ids
+    finally:
+        sys.path.remove(str(BENCH))
+    assert task_ids("1,1") == [1]
+    assert task_ids("3-5,4,1,3") == [3, 4, 5, 1]

@@ -60,3 +60,17 @@ def test_the_boards_warnings_are_repeated_once_each_and_bounded(tmp_path: Path) 
                       + "".join(f"board: warning: w{i}\n" for i in range(20)))
     got = board_warnings(stderr)
     assert got[0] == slow and len(got) == MAX_BOARD_WARNINGS and len(set(got)) == len(got)
+
+
+def test_faults_that_cost_nothing_counted_are_still_said() -> None:
+    """``--faults reorder=0.3`` swapped 139 messages and the run ended with no ``link:`` line at all: no
+    counter of the host or the board moves when nothing is lost (``late`` counts are not in the line)."""
+    injected = [{"direction": "host->board", "units_in": 308, "units_out": 308, "injected": {"drop": 0, "reorder": 70}},
+                {"direction": "board->host", "units_in": 308, "units_out": 308, "injected": {"drop": 0, "reorder": 69}}]
+    extra = {"link": CLEAN, "faults": {"host_detected": {}, "board": {
+        "spec": "reorder=0.3", "injected": injected, "board_detected": {"link_errors": 0, "seq_gaps": 0}}}}
+    assert link_health_line(extra) == (
+        "link: nothing lost or refused; faults injected: reorder=0.3, 139 message(s) hit (counts in summary.json)")
+    none_hit = {"link": CLEAN, "faults": {"board": {"spec": "drop=0.0001", "injected": [
+        {"direction": "host->board", "injected": {"drop": 0}}]}}}
+    assert link_health_line(none_hit) is None  # nothing injected, nothing seen
