@@ -278,9 +278,10 @@ def load(instrument: bool = False, *, persistent: bool = False) -> Callable[[byt
             bad = ((cmd < lo) | (cmd > hi) | (ctrl < lo) | (ctrl > hi) | (step > bound)).any(axis=1)
             if bad.any():
                 i = int(np.argmax(bad))
-                assert not ((cmd[i] < lo).any() or (cmd[i] > hi).any()), f"command outside joint limits: {cmd[i]}"
-                assert not ((ctrl[i] < lo).any() or (ctrl[i] > hi).any()), f"ctrl outside joint limits: {ctrl[i]}"
-                raise AssertionError(f"speed limit broken over {ticks_of[i]} tick(s): step {step[i]}")
+                at = f"(the input's tick or batch {i + 1} of {k})"
+                assert not ((cmd[i] < lo).any() or (cmd[i] > hi).any()), f"command outside joint limits {at}: {cmd[i]}"
+                assert not ((ctrl[i] < lo).any() or (ctrl[i] > hi).any()), f"ctrl outside joint limits {at}: {ctrl[i]}"
+                raise AssertionError(f"speed limit broken over {ticks_of[i]} tick(s) {at}: step {step[i]}")
 
         def check(estopped: bool, mode_before: Mode) -> None:
             """The invariants after a tick or batch (joint and speed limits: :func:`limits_ok`)."""

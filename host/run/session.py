@@ -325,7 +325,8 @@ class RobotSession:
                     raise
                 raise dead from e
             except HandshakeError as e:
-                if not (emulate and opts.faults) or isinstance(e, (SchemaMismatch, RobotMismatch)):
+                if (not (emulate and opts.faults) or isinstance(e, (SchemaMismatch, RobotMismatch))
+                        or self._board is None or self._board.exit_reason() is not None):
                     raise
                 # the board this run started injects the faults from its first message on: it is there, and
                 # the question the error ends with would send the user looking for one

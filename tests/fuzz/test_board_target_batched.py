@@ -63,9 +63,9 @@ def test_a_batch_that_breaks_the_speed_limit_is_caught(monkeypatch: pytest.Monke
 
 
 @pytest.mark.parametrize("broken, message", [
-    ("speed", "speed limit broken over 1 tick"),
-    ("cmd", "command outside joint limits"),
-    ("ctrl", "ctrl outside joint limits"),
+    ("speed", r"speed limit broken over 1 tick\(s\) \(the input's tick or batch 3 of "),
+    ("cmd", r"command outside joint limits \(the input's tick or batch 3 of "),
+    ("ctrl", r"ctrl outside joint limits \(the input's tick or batch 3 of "),
 ])
 def test_a_single_tick_that_breaks_a_limit_is_caught(broken: str, message: str, monkeypatch: pytest.MonkeyPatch) -> None:
     """The per-tick limits are checked at the input's end, over every tick at once: a tick that broke
