@@ -343,7 +343,7 @@ def _main(argv: Sequence[str] | None = None) -> int:
             if need > 0.8 * args.baud and cfg.lockstep:  # it waits for the line (firmware_sim.server)
                 print(f"board: warning: telemetry needs ~{need} bit/s of board time, more than 80% of {args.baud} baud; "
                       f"this lockstep board keeps every report and runs no faster than the line carries them "
-                      f"(~{args.baud / need:.1f}x real time)", file=sys.stderr, flush=True)
+                      f"(~{args.baud / need:.2g}x real time)", file=sys.stderr, flush=True)
             elif need > 0.8 * args.baud:
                 # each period's TELEMETRY goes first, and a report that finds the line still busy is dropped
                 # (firmware_sim.server): the SIM_STATE behind it goes first (at 57 600 baud every one of them)

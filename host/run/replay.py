@@ -196,6 +196,30 @@ def _check_servos(msgs: list[tuple[float, int, Message]], robot: Robot, log_path
                 f"give --robot the robot the run drove")
 
 
+#: the latest board time (s) a replayable log's first servo frame or ADVANCE may name: the replay's board
+#: is fresh (its clock at 0, its robot standing where a board starts it), as is the board a run starts
+#: for itself (its first frame is due within the lookahead, or the realtime board's start-up, of 0)
+MAX_FIRST_BOARD_S = 2.0
+
+
+def _check_fresh_board(msgs: list[tuple[float, int, Message]], log_path: Path) -> None:
+    """:class:`ReplayInputError` when the log was recorded on a board that had been running before its
+    run (a board you started, a second run on one): its first frame is due seconds into the board's
+    time. A fresh board would run to that time without a frame, hold and latch its watchdog fault, and
+    refuse every frame; the replay then waited out its timeout and blamed the board."""
+    for _, _, msg in msgs:
+        t_us = msg.apply_at_us if isinstance(msg, ServoFrame) else msg.until_us if isinstance(msg, Advance) else None
+        if t_us is None:
+            continue
+        if t_us > MAX_FIRST_BOARD_S * 1e6:
+            raise ReplayInputError(
+                f"cannot replay {log_path}: its first frame is due at board time {t_us / 1e6:.3f} s, so it was "
+                f"recorded on a board that had been running before the run (one you started, or a second run on "
+                f"one); the robot's state when the run began is not in the log, and a fresh board would hold its "
+                f"servos until then. Replay a run that started its own board")
+        return
+
+
 def _replay_log(path: Path, robot: Robot, log_path: Path) -> RunLog | None:
     """The replay's own run.mcap (one warning line and none when it cannot be written)."""
     try:
@@ -214,6 +238,7 @@ async def _replay(log_path: Path, out: Path, timeout_s: float, robot_name: str, 
                                f"(the run stopped before it moved the robot)")
     robot = load_robot(robot_name, robots_dir)
     _check_servos(msgs, robot, log_path)
+    _check_fresh_board(msgs, log_path)
     out.mkdir(parents=True, exist_ok=True)  # only for a log that can be replayed
     last_fn = LAST_SIM_STATE.get(log_path.suffix.lower())
     original = last_fn(log_path) if last_fn is not None else None

@@ -86,3 +86,22 @@ def test_replay_refuses_what_it_cannot_read(tmp_path: Path) -> None:
     with pytest.raises(ReplayError, match=r"text\.log:1 is not a candump -L line"):
         list(read_host_to_board(text))
     assert cli_main(["replay", str(text), "--out", str(tmp_path / "r")]) == 2
+
+
+def test_replay_refuses_a_log_of_a_board_that_was_already_running(tmp_path: Path) -> None:
+    """A run on a board you started (or a second run on one) begins seconds into the board's time. The
+    replay's fresh board ran to that time without a frame, latched its watchdog fault, refused every
+    frame, and after 30 s said "the board did not reach board time 6.040 s": refused at once now."""
+    from protocol import framelog
+    from protocol.framing import Frame, encode_frame
+    from protocol.messages import MsgType
+
+    msg = ServoFrame(apply_at_us=3_064_000, mask=0x0FFF, targets=(0.0,) * 12)
+    raw = encode_frame(msg, 7)
+    log = tmp_path / "host_frames.jsonl"
+    log.write_text(framelog.to_line(framelog.record("tx", 1.0, raw, Frame(7, MsgType.SERVO_FRAME, msg, raw))) + "\n")
+    with pytest.raises(ReplayError, match=r"first frame is due at board time 3\.064 s, so it was recorded on a board "
+                                          r"that had been running before the run"):
+        replay(log, tmp_path / "out")
+    assert not (tmp_path / "out").exists()  # refused before any board started
+    assert cli_main(["replay", str(log), "--out", str(tmp_path / "out2")]) == 2

@@ -61,6 +61,16 @@ __all__ = ["MAX_TX_BACKLOG", "SerialLinkTransport", "SerialPort"]
 _log = logging.getLogger("host.link")
 
 MAX_TX_BACKLOG = 256 * 1024  # bytes waiting for the port before writes are refused
+
+#: After a corked burst (a motion start's frame and FLUSH) is written, the writer sleeps this long (s;
+#: the kernel rounds it up to the thread's timer slack, ~55 us by default): it blocks, so whatever the
+#: write made runnable on this CPU runs first. A pty write only queues the hand-over to the reader
+#: (the tty layer's flip-buffer work item, run by a kernel worker that the wake-up usually puts on the
+#: writer's CPU); a writer that goes on computing (the start's frame-log records, its listeners, the
+#: re-sent grid) held that worker, and the board, back for as long: at the board the start read
+#: p50 0.10, p90 1.31, max 4.46 ms after the fastest message (bench_latency --repeat 4, 196 starts,
+#: quiet). ``os.sched_yield`` did not help there: it need not give the CPU to a nice-0 worker.
+BURST_HANDOFF_S = 1e-6
 _NO_DATA = "readiness to read but returned no data"  # pyserial's text for select-ready + an empty read
 
 
@@ -185,7 +195,10 @@ class SerialPort:
             yield
         finally:
             self._corked = False
+            wrote = bool(self._tx)
             self._write_ready()
+            if wrote and not self._closed:
+                time.sleep(BURST_HANDOFF_S)  # let the pty's hand-over to the board run now (BURST_HANDOFF_S)
 
     def _write_ready(self) -> None:
         if self._closed or self.fd is None:
