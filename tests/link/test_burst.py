@@ -151,3 +151,28 @@ def test_a_frame_log_that_cannot_be_written_is_one_warning_and_the_link_goes_on(
     stopped = [r.getMessage() for r in caplog.records if "frame log" in r.getMessage()]
     assert len(stopped) == 1, stopped
     assert "/dev/full stopped" in stopped[0] and "No space left" in stopped[0]
+
+
+def test_a_bursts_writer_hands_the_cpu_over_once_after_the_write(board_factory, tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """After a corked burst is written the writer blocks (``BURST_HANDOFF_S``), so the pty's hand-over
+    to the board, queued on this CPU by the write, runs before the host's logging: once per burst,
+    after the bytes went out, and never for a plain send."""
+    import host.link.transports.serial as serial_module
+
+    board = board_factory("--lockstep")
+    waiting: list[int] = []  # bytes still waiting for the port at each hand-over
+
+    async def main() -> None:
+        async with await BoardClient.connect(board.port, log_path=tmp_path / "host.jsonl") as c:
+            port = c._transport._port  # type: ignore[attr-defined]
+            monkeypatch.setattr(serial_module, "_hand_over", lambda: waiting.append(len(port._tx)))
+            c.send(Flush(0, 0b1))
+            assert waiting == []  # a plain send does not hand over
+            with c.burst():
+                c.send(Flush(0, 0b1))
+                c.send(Flush(0, 0b10))
+                assert waiting == []
+            assert waiting == [0]  # once, with the burst's bytes written
+
+    anyio.run(main)

@@ -69,8 +69,16 @@ MAX_TX_BACKLOG = 256 * 1024  # bytes waiting for the port before writes are refu
 #: writer's CPU); a writer that goes on computing (the start's frame-log records, its listeners, the
 #: re-sent grid) held that worker, and the board, back for as long: at the board the start read
 #: p50 0.10, p90 1.31, max 4.46 ms after the fastest message (bench_latency --repeat 4, 196 starts,
-#: quiet). ``os.sched_yield`` did not help there: it need not give the CPU to a nice-0 worker.
+#: quiet); with this sleep p50 0.01, p90 1.01 and 0.42, max 3.84 and 3.43 ms (two such runs), and the
+#: motion token -> servo p99 5.3 -> 4.7 and 4.5 ms (n = 136 each; docs/reference/benchmarks.md).
+#: ``os.sched_yield`` did not help there: it need not give the CPU to a nice-0 worker.
 BURST_HANDOFF_S = 1e-6
+
+
+def _hand_over() -> None:
+    """Block for :data:`BURST_HANDOFF_S`: the pty's hand-over of what was just written runs now."""
+    time.sleep(BURST_HANDOFF_S)
+
 _NO_DATA = "readiness to read but returned no data"  # pyserial's text for select-ready + an empty read
 
 
@@ -198,7 +206,7 @@ class SerialPort:
             wrote = bool(self._tx)
             self._write_ready()
             if wrote and not self._closed:
-                time.sleep(BURST_HANDOFF_S)  # let the pty's hand-over to the board run now (BURST_HANDOFF_S)
+                _hand_over()
 
     def _write_ready(self) -> None:
         if self._closed or self.fd is None:
