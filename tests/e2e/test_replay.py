@@ -11,7 +11,7 @@ import pytest
 from host.cli import main as cli_main
 from host.run.replay import ReplayError, read_host_to_board, replay
 from protocol.framelog import iter_records
-from protocol.messages import Hello, ServoFrame
+from protocol.messages import Advance, Hello, ServoFrame
 
 from .conftest import run_e2e
 
@@ -88,20 +88,33 @@ def test_replay_refuses_what_it_cannot_read(tmp_path: Path) -> None:
     assert cli_main(["replay", str(text), "--out", str(tmp_path / "r")]) == 2
 
 
-def test_replay_refuses_a_log_of_a_board_that_was_already_running(tmp_path: Path) -> None:
-    """A run on a board you started (or a second run on one) begins seconds into the board's time. The
-    replay's fresh board ran to that time without a frame, latched its watchdog fault, refused every
-    frame, and after 30 s said "the board did not reach board time 6.040 s": refused at once now."""
+def _host_log(path: Path, *msgs: object) -> Path:
+    """A host frame log (JSON Lines) of ``msgs`` sent in order."""
     from protocol import framelog
     from protocol.framing import Frame, encode_frame
     from protocol.messages import MsgType
 
-    msg = ServoFrame(apply_at_us=3_064_000, mask=0x0FFF, targets=(0.0,) * 12)
-    raw = encode_frame(msg, 7)
-    log = tmp_path / "host_frames.jsonl"
-    log.write_text(framelog.to_line(framelog.record("tx", 1.0, raw, Frame(7, MsgType.SERVO_FRAME, msg, raw))) + "\n")
+    lines = []
+    for seq, msg in enumerate(msgs):
+        raw = encode_frame(msg, seq)  # type: ignore[arg-type]
+        t = MsgType.ADVANCE if isinstance(msg, Advance) else MsgType.SERVO_FRAME
+        lines.append(framelog.to_line(framelog.record("tx", 1.0 + seq, raw, Frame(seq, t, msg, raw))))  # type: ignore[arg-type]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_replay_refuses_a_log_of_a_board_that_was_already_running(tmp_path: Path) -> None:
+    """A run on a board you started (or a second run on one) begins seconds into the board's time. The
+    replay's fresh board ran to that time without a frame, latched its watchdog fault, refused every
+    frame, and after 30 s said "the board did not reach board time 6.040 s": refused at once now. A
+    lockstep log (ADVANCEs) may start within 1 s of board time 0, a realtime one within 10 s."""
+    frame = ServoFrame(apply_at_us=3_064_000, mask=0x0FFF, targets=(0.0,) * 12)
+    lockstep = _host_log(tmp_path / "lockstep.jsonl", Advance(3_064_000), frame)
     with pytest.raises(ReplayError, match=r"first frame is due at board time 3\.064 s, so it was recorded on a board "
                                           r"that had been running before the run"):
-        replay(log, tmp_path / "out")
+        replay(lockstep, tmp_path / "out")
     assert not (tmp_path / "out").exists()  # refused before any board started
-    assert cli_main(["replay", str(log), "--out", str(tmp_path / "out2")]) == 2
+    assert cli_main(["replay", str(lockstep), "--out", str(tmp_path / "out2")]) == 2
+    late = ServoFrame(apply_at_us=14_450_000, mask=0x0FFF, targets=(0.0,) * 12)
+    with pytest.raises(ReplayError, match=r"board time 14\.450 s"):
+        replay(_host_log(tmp_path / "realtime.jsonl", late), tmp_path / "out3")
