@@ -132,6 +132,8 @@ def main(args: argparse.Namespace) -> int:
     from host.link.canlog import CAN_LOG_SUFFIXES
 
     if args.file.lower().endswith(".mcap"):
+        if args.link is not None:  # a run.mcap holds one run with one board: nothing to pick
+            print_error("log", "note: --link is not used for an MCAP file (a run.mcap holds one board's run)")
         try:
             return decode_mcap_file(args.file, types=args.type)
         except BrokenPipeError:
@@ -145,8 +147,13 @@ def main(args: argparse.Namespace) -> int:
             return 2
 
     link_is_can = args.link is not None and link_kind(args.link).wire == "can"
-    is_can = link_is_can or (
-        args.link is None and args.file.lower().endswith(CAN_LOG_SUFFIXES))
+    file_is_can = args.file.lower().endswith(CAN_LOG_SUFFIXES)
+    if args.link is not None and link_is_can != file_is_can:  # the link's log format is not the file's
+        wants = f"a CAN log ({', '.join(CAN_LOG_SUFFIXES)})" if link_is_can else "a serial JSON Lines log (.jsonl)"
+        print_error("log", f"--link {args.link} records {wants}, and {args.file} is not one by its suffix; "
+                    "without --link the suffix picks the format")
+        return 2
+    is_can = link_is_can or (args.link is None and file_is_can)
     try:
         if is_can:
             from host.commands.canlog_decode import decode_can_file

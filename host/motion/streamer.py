@@ -43,6 +43,7 @@ from __future__ import annotations
 import contextlib
 import heapq
 import itertools
+import math
 import time
 import weakref
 from collections import deque
@@ -57,6 +58,7 @@ from host.motion.mixer import MixedFrame, Mixer, MotionLike, Segment
 from protocol.codec import WireSchema, schema_for
 from protocol.framing import encode_frame
 from protocol.messages import Flush, ServoFrame, Telemetry
+from protocol.wiremodel import BITS_PER_BYTE
 
 
 #: The host's own send path: from planning a start (:meth:`FrameStreamer.start_due_us`) to the moment its
@@ -141,6 +143,31 @@ def frame_wire_bytes(n_servos: int, schema: WireSchema | None = None) -> int:
     return len(encode_frame(ServoFrame(0, (1 << n_servos) - 1, (0.0,) * n_servos), 0, schema))
 
 
+#: How far ahead of the board the grid is sent (µs) when the link is quick (:class:`FrameStreamer`)
+LOOKAHEAD_US = 60_000
+#: The frame grid's period (µs) when the line is fast enough: 100 frames/s, five control ticks per frame.
+GRID_PERIOD_US = 10_000
+#: The share of a modelled line's time the frame grid may fill (:func:`grid_period_us`); the rest carries
+#: a motion start's first frame and FLUSH, re-sent frames, requests, heartbeats and TIME_SYNCs.
+GRID_LINE_SHARE = 0.5
+
+
+def grid_period_us(n_servos: int, baud: int | None, schema: WireSchema | None = None) -> int:
+    """The frame grid's period (µs) over a line of ``baud`` bit/s (8N1): the smallest multiple of
+    :data:`GRID_PERIOD_US` whose full-body SERVO_FRAME (:func:`frame_wire_bytes`) fills at most
+    :data:`GRID_LINE_SHARE` of it; :data:`GRID_PERIOD_US` for None (a line the host does not model).
+
+    12 servos (39 wire bytes): 10 ms down to 78 000 baud, 20 ms at 57 600, 90 ms at 9 600, 330 ms at
+    2 400. A grid the line cannot carry (100 frames/s at 2 400 baud needs 39 000 bit/s) queued frames
+    until the lead limit stopped the run ("the host sent no servo frame for 10 s"); a slower grid
+    moves the servos in coarser straight segments (the board interpolates between frames)."""
+    if not baud:
+        return GRID_PERIOD_US
+    frame_s = frame_wire_bytes(n_servos, schema) * BITS_PER_BYTE / baud
+    steps = max(1, math.ceil(frame_s / GRID_LINE_SHARE / (GRID_PERIOD_US * 1e-6) - 1e-9))
+    return steps * GRID_PERIOD_US
+
+
 def flush_wire_bytes(schema: WireSchema | None = None) -> int:
     """Wire bytes of a FLUSH in ``schema`` (default: the u16 schema)."""
     return len(encode_frame(Flush(0, 1), 0, schema))
@@ -175,7 +202,7 @@ class SegmentTimes:
 class FrameStreamer:
     """Keeps the board fed with frames from a :class:`Mixer`."""
 
-    def __init__(self, link: FrameLink, mixer: Mixer, *, period_us: int = 10_000, lookahead_us: int = 60_000,
+    def __init__(self, link: FrameLink, mixer: Mixer, *, period_us: int = GRID_PERIOD_US, lookahead_us: int = LOOKAHEAD_US,
                  start_us: int | None = None, history: int = 720_000, max_lead_us: int = 2_000_000) -> None:
         self.link = link
         self.mixer = mixer

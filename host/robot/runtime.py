@@ -36,7 +36,7 @@ import anyio
 import numpy as np
 
 from host.motion.mixer import Mixer, Segment
-from host.motion.streamer import FrameLink, FrameStreamer
+from host.motion.streamer import GRID_PERIOD_US, LOOKAHEAD_US, FrameLink, FrameStreamer
 from host.shell.cleanups import Cleanups
 from host.shell.context import current_call
 from protocol.messages import (
@@ -115,8 +115,8 @@ class RobotRuntime:
     """Implements every behaviour of ``robot``'s interface on a board behind ``link``."""
 
     def __init__(self, robot: Robot, link: RobotLink, run_dir: Path, *, initial: np.ndarray,
-                 speech_synth: Callable[..., Any] | None = None, period_us: int = 10_000,
-                 lookahead_us: int = 60_000, voices: tuple[str, ...] | None = None,
+                 speech_synth: Callable[..., Any] | None = None, period_us: int = GRID_PERIOD_US,
+                 lookahead_us: int = LOOKAHEAD_US, voices: tuple[str, ...] | None = None,
                  clips: tuple[str, ...] | None = None) -> None:
         self.robot = robot
         self.limits = Limits.of_robot(robot)

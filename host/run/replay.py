@@ -57,6 +57,8 @@ __all__ = ["LOG_READERS", "ReplayError", "ReplayInputError", "ReplayResult", "fi
 
 #: host log file names looked for in a run folder, in order
 HOST_LOG_NAMES = ("host_frames.jsonl", "host.jsonl", "host_frames.log", "host_frames.asc", "host_frames.blf", "run.mcap")
+#: the files a replay writes into its ``out`` folder
+ARTEFACTS = ("board_frames.jsonl", "board.stderr", "host_frames.jsonl", "run.mcap", "joints.png", "summary.json")
 
 
 class ReplayError(LinkError):
@@ -142,6 +144,19 @@ def find_host_log(path: Path) -> Path:
     if not path.is_file():
         raise ReplayInputError(f"no such log: {path}")
     return path
+
+
+def _check_not_over_the_recording(log_path: Path, out: Path) -> None:
+    """:class:`ReplayInputError` when writing the replay's artefacts into ``out`` would overwrite the recording.
+
+    That is when ``out`` is the folder of the log replayed and already holds one of :data:`ARTEFACTS`
+    (a run folder: its logs, summary and plots; the log itself may be one of them)."""
+    if not out.is_dir() or not out.resolve() == log_path.parent.resolve():
+        return
+    clash = [name for name in ARTEFACTS if (out / name).exists()]
+    if clash:
+        raise ReplayInputError(f"the replay would write its artefacts into {out}, the folder of the log it replays, "
+                               f"over the recording's {', '.join(clash)}; give another folder with --out DIR")
 
 
 def read_host_to_board(path: Path) -> Iterator[tuple[float, int, Message]]:
@@ -371,6 +386,7 @@ def replay(log: str | Path, out: str | Path, *, timeout_s: float = 30.0, robot: 
     """
     log_path = find_host_log(Path(log))
     out_dir = Path(out)
+    _check_not_over_the_recording(log_path, out_dir)
     recorded = recorded_robot(log_path.parent)
     if robot is not None and recorded is not None:
         _check_robot(log_path.parent, recorded, robot, robots_dir)

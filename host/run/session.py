@@ -64,6 +64,7 @@ from host.link.session import FaultEvent, LinkTarget
 from host.run import artefacts
 from host.run.events import Event, EventMonitor, EventPolicy, ScriptedEvent, has_fallen
 from host.run.heap import frozen_heap
+from host.motion.streamer import GRID_PERIOD_US, LOOKAHEAD_US, frame_wire_bytes, grid_period_us
 from host.robot.binding import robot_registry
 from host.robot.link import ClientLink
 from host.robot.runtime import RobotRuntime, warm_up_behaviours
@@ -87,6 +88,7 @@ from host.shell.timeline import Observation, RunResult, Timeline
 from protocol.linkkinds import link_kind
 from protocol.linkspec import LinkSpec, parse_link_spec
 from protocol.messages import FaultFlags, Nack
+from protocol.wiremodel import BITS_PER_BYTE
 from robots.description import Robot
 from robots.generic import GENERIC_CHANNEL
 from robots.registry import DEFAULT_ROBOT, load_robot
@@ -343,8 +345,15 @@ class RobotSession:
                 log.warning("%s", note)
             tel = await client.wait_for(lambda t: True, timeout=10, nudge=True)
             frame_link = ClientLink(client, wire_baud=opts.wire_baud)
-            runtime = RobotRuntime(self.robot, frame_link, self.out,
-                                   initial=np.asarray(tel.positions))
+            period_us = grid_period_us(self.robot.servo_count, opts.wire_baud)
+            if period_us != GRID_PERIOD_US:
+                log.warning("--baud %d: one %d-servo frame takes %.0f ms on the line, so the host sends one every "
+                            "%.0f ms instead of %.0f (the board moves the servos in straight lines between them)",
+                            opts.wire_baud, self.robot.servo_count,
+                            1e3 * frame_wire_bytes(self.robot.servo_count) * BITS_PER_BYTE / (opts.wire_baud or 1),
+                            period_us / 1e3, GRID_PERIOD_US / 1e3)
+            runtime = RobotRuntime(self.robot, frame_link, self.out, initial=np.asarray(tel.positions),
+                                   period_us=period_us, lookahead_us=max(LOOKAHEAD_US, 3 * period_us))
             self._runtime = runtime
             client.on_fault.append(self._on_fault)
             client.on_nack.append(self._on_nack)

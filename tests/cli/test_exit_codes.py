@@ -119,6 +119,9 @@ def _rows(f: dict[str, str], out: str) -> list[Row]:
         Row(("log", "decode", f["empty.jsonl"]), "holds no records"),
         Row(("log", "decode", f["empty.log"]), "holds no CAN frames"),
         Row(("log",), "required"),
+        # a --link whose log format is not the file's: was python-can's "No read support" ValueError
+        Row(("log", "decode", f["garbage.jsonl"], "--link", "can:virtual"), "records a CAN log (.log, .asc"),
+        Row(("log", "decode", f["garbage.log"], "--link", "pty"), "records a serial JSON Lines log (.jsonl)"),
         # replay
         Row(("replay", f["missing"]), "no such log"),
         Row(("replay", f["folder"]), "no host frame log"),

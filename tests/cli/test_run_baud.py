@@ -108,3 +108,20 @@ def test_a_line_too_slow_for_the_handshake_says_so(tmp_path: Path) -> None:
     summary = json.loads((out / "summary.json").read_text())
     assert summary["outcome"] == "link_lost"
     assert [summary[k] for k in ("fell", "base_start", "base_end", "max_tilt_deg")] == [None] * 4, summary
+
+
+def test_a_slow_line_gets_a_frame_grid_it_can_carry(tmp_path: Path) -> None:
+    """At 9 600 baud a 12-servo SERVO_FRAME takes 41 ms on the line: the 100 frames/s grid needed four
+    times the line, queued, went late, and a run with a motion ended "link lost" (966 grid frames
+    skipped, 147 NACKed; paper Task 26). The grid now follows the line (``grid_period_us``: one frame
+    every 90 ms here, said in one line), and the same motion runs to its end with no frame refused."""
+    out = tmp_path / "run"
+    r = subprocess.run([sys.executable, "-m", "host", "run", "--xml",
+                        '<wait><head_act action="nod"/><move_strides direction="forward" times="1"/></wait>',
+                        "--baud", "9600", "--out", str(out), "--no-plots", "--no-live"],
+                       capture_output=True, text=True, timeout=180)
+    assert r.returncode == 0, (r.stdout, r.stderr)
+    assert "--baud 9600: one 12-servo frame takes 41 ms on the line, so the host sends one every 90 ms" in r.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    link = summary["extra"]["link"]
+    assert summary["outcome"] == "done" and link["frame_nacks"] == 0 and link["frames_skipped"] == 0, link

@@ -118,3 +118,20 @@ def test_replay_refuses_a_log_of_a_board_that_was_already_running(tmp_path: Path
     late = ServoFrame(apply_at_us=14_450_000, mask=0x0FFF, targets=(0.0,) * 12)
     with pytest.raises(ReplayError, match=r"board time 14\.450 s"):
         replay(_host_log(tmp_path / "realtime.jsonl", late), tmp_path / "out3")
+
+
+def test_replay_refuses_to_write_over_the_recording_it_replays(tmp_path: Path) -> None:
+    """``replay runs/x --out runs/x`` (or ``replay runs/replay`` with the default ``--out``) wrote the
+    replay's host_frames.jsonl, board log and summary over the run it read: the recording was lost.
+    Found by a new user. Refused now, before any board starts, and the recording is unchanged."""
+    run = tmp_path / "run"
+    run.mkdir()
+    log = _host_log(run / "host_frames.jsonl", Advance(20_000), ServoFrame(20_000, 0x0FFF, (0.0,) * 12))
+    (run / "summary.json").write_text('{"robot": "coco"}\n')
+    before = {p.name: p.read_bytes() for p in run.iterdir()}
+    for source in (run, log):
+        with pytest.raises(ReplayError, match=r"over the recording's host_frames\.jsonl, summary\.json; give another "
+                                              r"folder with --out DIR"):
+            replay(source, run)
+        assert cli_main(["replay", str(source), "--out", str(run)]) == 2
+    assert {p.name: p.read_bytes() for p in run.iterdir()} == before
