@@ -75,6 +75,7 @@ A 33rd servo would need a second mask word; TELEMETRY would still fit up to 36 s
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import math
 import struct
@@ -221,6 +222,8 @@ def unwrap_time_us(wrapped: int, reference_us: int, bits: int = 32) -> int:
 
 def _as_int(name: str, value: Any, lo: int, hi: int) -> int:
     """An integer field value: ints (numpy too) as is, floats rounded, +-inf clamped; else PayloadError."""
+    if value.__class__ is int:  # the common case, without the checks below (a hot path: every message field)
+        return value  # type: ignore[no-any-return]
     if isinstance(value, (str, bytes, bytearray)) or value is None:
         raise PayloadError(f"{name}: expected an integer, got {value!r}")
     if isinstance(value, float) or (not hasattr(value, "__index__") and hasattr(value, "__float__")):
@@ -395,6 +398,12 @@ def _seq_of_floats(name: str, value: Any) -> Sequence[float]:
     return value  # type: ignore[no-any-return]
 
 
+@functools.lru_cache(maxsize=None)
+def _q16_struct(n: int) -> struct.Struct:
+    """The packer of ``n`` little-endian i16 codes (n is at most the wire's servo count, so few are made)."""
+    return struct.Struct(f"<{n}h")
+
+
 class Q16Array(Field):
     """Array of q16 values with one of three length rules.
 
@@ -430,7 +439,7 @@ class Q16Array(Field):
         return None
 
     def encode(self, name: str, value: Any, out: bytearray, ctx: Mapping[str, Any]) -> None:
-        vals = _seq_of_floats(name, value)
+        vals = value if value.__class__ is tuple or value.__class__ is list else _seq_of_floats(name, value)
         n = len(vals)
         expected = self._expected(name, ctx)
         if expected is not None and n != expected:
@@ -440,13 +449,24 @@ class Q16Array(Field):
             if n > self.max_count:
                 raise PayloadError(f"{name}: {n} values, at most {self.max_count} allowed")
             out.append(n)
+        cpu = self.cpu
         try:
-            codes = [_q16_encode(v, self.cpu) for v in vals]
+            floats = list(map(float, vals))
+            scaled = [f * cpu for f in floats]
+            # every value inside the code range: round each (the codes _q16_encode gives) with no Python call
+            # per value (a hot path: every TELEMETRY and SERVO_FRAME); else, or for a NaN that min/max passed
+            # over (round raises), value by value with its clamps and the NaN code
+            try:
+                if not (scaled and -_Q16_MAX < min(scaled) and max(scaled) < _Q16_MAX):
+                    raise ValueError
+                codes = list(map(round, scaled))
+            except ValueError:
+                codes = [_q16_encode(v, cpu) for v in floats]
         except (TypeError, ValueError):
             raise PayloadError(f"{name}: values must be numbers, got {list(vals)!r}") from None
         if not self.allow_nan and _Q16_NAN in codes:
             raise PayloadError(f"{name}: NaN is not allowed here")
-        out += struct.pack(f"<{n}h", *codes)
+        out += _q16_struct(n).pack(*codes)
 
     def decode(self, name: str, r: _Reader, ctx: Mapping[str, Any]) -> Any:
         n = self._expected(name, ctx)
@@ -478,7 +498,13 @@ class F32Array(Field):
         if len(vals) != self.n:
             raise PayloadError(f"{name}: {len(vals)} value(s), expected {self.n}")
         try:
-            out += self.st.pack(*(quantize_f32(v) for v in vals))
+            floats = list(map(float, vals))
+            # within float32's range (min/max: a NaN first makes them NaN and fails the test): packing rounds
+            # each to float32 as quantize_f32 does; beyond it (or +-inf) quantize_f32 clamps each
+            if floats and -_F32_MAX <= min(floats) and max(floats) <= _F32_MAX:
+                out += self.st.pack(*floats)
+            else:
+                out += self.st.pack(*map(quantize_f32, floats))
         except (TypeError, ValueError):
             raise PayloadError(f"{name}: values must be numbers, got {list(vals)!r}") from None
 
