@@ -22,8 +22,9 @@ __all__ = ["decode_can_file"]
 
 def decode_can_file(path: str, out: IO[str], err: IO[str], types: list[str] | None = None,
                     node: int | None = None, frames: bool = True) -> int:
-    """Print a python-can log; exit code 0, 1 (unknown or undecodable frames) or 2 (not a CAN log, no frames)."""
-    from host.link.canlog import candump_problem
+    """Print a python-can log; exit code 0, 1 (unknown or undecodable frames, or a candump's last line cut
+    off: the rest is printed) or 2 (not a CAN log, no frames)."""
+    from host.link.canlog import candump_cut_line, candump_problem
 
     if path.lower().endswith(".log"):
         problem = candump_problem(path)
@@ -81,7 +82,11 @@ def decode_can_file(path: str, out: IO[str], err: IO[str], types: list[str] | No
         print_error("log", f"?node={node}: none of the {n} frame(s) of {path} is node {node}'s; it holds node(s) "
                     f"{', '.join(map(str, sorted(nodes)))}", file=err)
         return 2
+    cut = candump_cut_line(path) if path.lower().endswith(".log") else None
+    if cut is not None:  # as a .jsonl's bad line or a cut run.mcap: the rest printed, exit status 1
+        print_error("log", f"{path}:{cut} is cut off (no newline at its end: the logger stopped while writing it); "
+                    f"skipped, {n} whole frame(s) read", file=err)
     if unknown or errors:
         print_error("log", f"{n} frame(s), {unknown} not in the DBC, {errors} decode error(s)", file=err)
         return 1
-    return 0
+    return 1 if cut is not None else 0

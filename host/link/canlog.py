@@ -33,7 +33,7 @@ from protocol.can.layouts import DEFAULT_SERVO_COUNT, CanLayouts, can_layouts
 from protocol.codec import PayloadError
 from protocol.messages import MAX_WIRE_SERVOS, Caps, Message, SimState
 
-__all__ = ["CAN_LOG_SUFFIXES", "CanLogEntry", "can_last_sim_state", "candump_problem", "iter_can_log", "load_dbc",
+__all__ = ["CAN_LOG_SUFFIXES", "CanLogEntry", "can_last_sim_state", "candump_cut_line", "candump_problem", "iter_can_log", "load_dbc",
            "log_servo_count", "read_can_host_to_board"]
 
 #: a candump -L line: "(1700000000.123456) vcan0 123#DEADBEEF" (CAN FD: ID##F DATA; remote: ID#R)
@@ -44,13 +44,61 @@ _CANDUMP_LINE = re.compile(r"^\(\d+(\.\d+)?\)\s+\S+\s+[0-9A-Fa-f]{1,8}#")
 CANDUMP_MAX_LINE = 256
 
 
+def _is_cut(line: str) -> bool:
+    """A file's last line that a logger stopped in the middle of: text with no newline at its end (candump
+    and python-can's writer end every line with one; a line cut inside its data can still look whole)."""
+    return not line.endswith("\n") and bool(line.strip())
+
+
+class _WholeLines:
+    """A candump text file's lines, without a last line cut off mid-frame (``cut_line``: its number, once
+    iterated; None when there was none). A logger killed while writing (``kill -9``, a power cut) leaves
+    such a line; python-can's reader fails on it and with it on the whole capture."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.file = open(path, encoding="utf-8", errors="replace")  # noqa: SIM115 - closed by close()
+        self.cut_line: int | None = None
+
+    def __iter__(self) -> Iterator[str]:
+        for lineno, line in enumerate(self.file, 1):
+            if _is_cut(line):
+                self.cut_line = lineno
+                return
+            yield line
+
+    def close(self) -> None:
+        self.file.close()
+
+
+def candump_cut_line(path: str | Path) -> int | None:
+    """The number of a ``.log``'s last line when a logger stopped in the middle of it (skipped by the
+    readers here, :func:`iter_can_log`), or None."""
+    lines = _WholeLines(path)
+    try:
+        for _ in lines:
+            pass
+    finally:
+        lines.close()
+    return lines.cut_line
+
+
+def _reader(path: str | Path) -> Any:
+    """python-can's reader for ``path`` (by suffix); a candump ``.log`` without a cut-off last line."""
+    if str(path).lower().endswith(".log"):
+        return can.CanutilsLogReader(_WholeLines(path))  # type: ignore[arg-type]
+    return can.LogReader(str(path))  # type: ignore[no-untyped-call]
+
+
 def candump_problem(path: str | Path) -> str | None:
     """Why ``path`` (a ``.log``) is not a candump ``-L`` log python-can reads (one line naming the first
     bad line), or None. python-can's reader fails on such a line with an unpacking error that names
-    neither the file nor the line ("not enough values to unpack (expected 3, got 1)")."""
+    neither the file nor the line ("not enough values to unpack (expected 3, got 1)"). A last line cut
+    off mid-frame is no problem: the readers here skip it (:func:`candump_cut_line`)."""
     try:
         with open(path, encoding="utf-8", errors="replace") as f:
             for lineno, line in enumerate(f, 1):
+                if _is_cut(line):
+                    break  # the last line (no newline after it)
                 text = line.strip()
                 if len(text) > CANDUMP_MAX_LINE:
                     return (f"{path}:{lineno} is not a candump -L line: {len(text)} characters, more than one CAN "
@@ -79,7 +127,7 @@ def log_servo_count(path: str | Path) -> int | None:
     """The servo count the first CAPS in a CAN capture reports (None: the capture holds no CAPS).
     Reads only up to that CAPS; ``ValueError`` for a format python-can cannot read."""
     bulk: dict[int, IsoTpLink] = {}
-    for msg in can.LogReader(str(path)):  # type: ignore[no-untyped-call]
+    for msg in _reader(path):
         if msg.is_error_frame or msg.is_extended_id:
             continue
         fn, node = split_id(int(msg.arbitration_id))
@@ -129,7 +177,7 @@ def iter_can_log(path: str | Path, *, dbc: bool = True, servos: int | None = Non
     servo_count = servos if servos is not None else (log_servo_count(path) or DEFAULT_SERVO_COUNT)
     layouts = can_layouts(servo_count)
     nodes: dict[int, _Node] = {}
-    for msg in can.LogReader(str(path)):  # type: ignore[no-untyped-call]
+    for msg in _reader(path):
         if msg.is_error_frame:
             continue
         frame = CanFrame(int(msg.arbitration_id), bytes(msg.data or b""), bool(msg.is_fd),

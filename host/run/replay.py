@@ -166,11 +166,15 @@ def read_host_to_board(path: Path) -> Iterator[tuple[float, int, Message]]:
         raise ReplayInputError(f"cannot replay {path.name}: unknown log format {path.suffix!r} "
                           f"(known: {', '.join(sorted(LOG_READERS))})")
     if path.suffix.lower() == ".log":
-        from host.link.canlog import candump_problem
+        from host.link.canlog import candump_cut_line, candump_problem
 
         problem = candump_problem(path)
         if problem is not None:
             raise ReplayInputError(f"cannot replay it: {problem}")
+        cut = candump_cut_line(path)
+        if cut is not None:  # what came before it replays; the cut frame is not guessed at
+            log.warning("%s:%d is cut off (no newline at its end: the logger stopped while writing it); "
+                        "replaying the whole frames before it", path, cut)
     try:
         yield from reader(path)
     except (ValueError, UnicodeDecodeError) as e:  # a file with a log's name that is not that log

@@ -8,7 +8,7 @@ import can
 import pytest
 
 from host.commands.canlog_decode import decode_can_file
-from host.link.canlog import iter_can_log, read_can_host_to_board
+from host.link.canlog import candump_cut_line, candump_problem, iter_can_log, read_can_host_to_board
 from protocol.can import CanItem, encode_fixed
 from protocol.can.codec import Sender
 from protocol.messages import MsgType
@@ -135,3 +135,29 @@ def test_a_capture_names_its_robot_in_caps(tmp_path: Path) -> None:
     done = [it.msg for e in entries for it in e.items if isinstance(it, CanItem)]
     assert [type(m).__name__ for m in done] == ["Caps", "ServoFrame", "Estop", "Telemetry"]
     assert done[1].mask == (1 << 17) - 1 and len(done[3].positions) == 17  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize("cut_at", [1, 12, 25, -3])
+def test_a_candump_cut_off_in_its_last_line_keeps_every_whole_frame(tmp_path: Path, cut_at: int) -> None:
+    """A logger killed while writing (``kill -9``, a power cut) leaves a last line without its newline.
+    python-can's reader failed on it (or, cut inside the data, read a shorter frame as if whole), so the
+    capture was refused whole. The whole frames before it are read; the cut line is named (exit 1, as a
+    .jsonl's bad line or a cut run.mcap) and never guessed at. Cut at its time stamp, its id, its data."""
+    frames = [(f.arbitration_id, f.data, f.is_fd) for f in encode_fixed(servo_frame_12(), 7, 1)]
+    frames += [(f.arbitration_id, f.data, f.is_fd) for f in encode_fixed(servo_frame_12(5000), 8, 1)]
+    path = tmp_path / "host_frames.log"
+    _write(path, frames)
+    text = path.read_text()
+    last = text.rstrip("\n").rsplit("\n", 1)[-1]
+    cut = tmp_path / "cut.log"
+    cut.write_text(text[: len(text) - 1 - len(last)] + last[:cut_at])  # the last line, cut inside it
+    assert candump_problem(cut) is None and candump_cut_line(cut) == len(frames)
+    assert [e.frame.data for e in iter_can_log(cut)] == [f[1] for f in frames[:-1]]
+    assert [(s, type(m).__name__) for _, s, m in read_can_host_to_board(cut)] == [(7, "ServoFrame")]  # the 2nd is cut
+    out, err = _Sink(), _Sink()
+    assert decode_can_file(str(cut), out, err) == 1
+    assert err.text.count("\n") == 1 and f"cut.log:{len(frames)} is cut off" in err.text
+    assert f"skipped, {len(frames) - 1} whole frame(s) read" in err.text
+    assert candump_cut_line(path) is None  # the whole capture: nothing cut
+    out, err = _Sink(), _Sink()
+    assert decode_can_file(str(path), out, err) == 0 and err.text == ""
