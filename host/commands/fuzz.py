@@ -120,9 +120,11 @@ def main(args: argparse.Namespace) -> int:
     if importlib.util.find_spec("atheris") is None:
         print_error("fuzz", "atheris is not installed; pip install -e '.[fuzz]'")
         return 2
-    if args.seconds < 1 or args.jobs < 1 or args.rss_limit_mb < 1 or args.max_len < 1:
-        print_error("fuzz", "--seconds, --jobs, --rss-limit-mb and --max-len must be at least 1")
-        return 2
+    for option, value in (("--seconds", args.seconds), ("--jobs", args.jobs), ("--rss-limit-mb", args.rss_limit_mb),
+                          ("--max-len", args.max_len)):
+        if value < 1:  # the one option that is wrong (all four were named for any of them)
+            print_error("fuzz", f"{option} must be at least 1, got {value}")
+            return 2
     out = Path(args.out or Path("fuzz-out") / args.target)
     corpus = Path(args.corpus) if args.corpus else out / "corpus"
     seeds = [] if args.no_seeds else seed_dirs(args.target)

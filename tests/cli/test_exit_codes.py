@@ -205,7 +205,8 @@ def _rows(f: dict[str, str], out: str) -> list[Row]:
         Row(("render", f["folder"], "--workers", "0"), "must be >= 1"),
         # fuzz
         Row(("fuzz", "no-such-target"), "unknown target 'no-such-target'"),
-        Row(("fuzz", "serial-decoder", "--seconds", "0"), "must be at least 1"),
+        Row(("fuzz", "serial-decoder", "--seconds", "0"), "--seconds must be at least 1, got 0"),
+        Row(("fuzz", "serial-decoder", "--jobs", "-2"), "--jobs must be at least 1, got -2"),
         # dbc, robots
         Row(("dbc", "--robot", "no-such-robot"), "no robot 'no-such-robot'"),
         Row(("robots", "show", "no-such-robot"), "no robot 'no-such-robot'"),
