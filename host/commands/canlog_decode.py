@@ -24,9 +24,9 @@ def decode_can_file(path: str, out: IO[str], err: IO[str], types: list[str] | No
                     node: int | None = None, frames: bool = True) -> int:
     """Print a python-can log; exit code 0, 1 (unknown or undecodable frames, or a candump's last line cut
     off: the rest is printed) or 2 (not a CAN log, no frames)."""
-    from host.link.canlog import candump_cut_line, candump_problem
+    from host.link.canlog import candump_cut_line, candump_problem, is_candump
 
-    if path.lower().endswith(".log"):
+    if is_candump(path):
         problem = candump_problem(path)
         if problem is not None:
             print_error("log", str(problem), file=err)
@@ -82,7 +82,7 @@ def decode_can_file(path: str, out: IO[str], err: IO[str], types: list[str] | No
         print_error("log", f"?node={node}: none of the {n} frame(s) of {path} is node {node}'s; it holds node(s) "
                     f"{', '.join(map(str, sorted(nodes)))}", file=err)
         return 2
-    cut = candump_cut_line(path) if path.lower().endswith(".log") else None
+    cut = candump_cut_line(path) if is_candump(path) else None
     if cut is not None:  # as a .jsonl's bad line or a cut run.mcap: the rest printed, exit status 1
         print_error("log", f"{path}:{cut} is cut off (no newline at its end: the logger stopped while writing it); "
                     f"skipped, {n} whole frame(s) read", file=err)

@@ -11,6 +11,7 @@ message type (the valid names are listed).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from typing import IO
 
@@ -148,9 +149,13 @@ def main(args: argparse.Namespace) -> int:
 
     link_is_can = args.link is not None and link_kind(args.link).wire == "can"
     file_is_can = args.file.lower().endswith(CAN_LOG_SUFFIXES)
-    if args.link is not None and link_is_can != file_is_can:  # the link's log format is not the file's
+    file_is_serial = args.file.lower().endswith(".jsonl")
+    # a --link whose log format the file's suffix contradicts (a file with another suffix, or none, is
+    # read in the link's format: candump text on CAN); a missing file or a folder gets the readers' line
+    if args.link is not None and (file_is_serial if link_is_can else file_is_can) and os.path.isfile(args.file):
         wants = f"a CAN log ({', '.join(CAN_LOG_SUFFIXES)})" if link_is_can else "a serial JSON Lines log (.jsonl)"
-        print_error("log", f"--link {args.link} records {wants}, and {args.file} is not one by its suffix; "
+        print_error("log", f"--link {args.link} records {wants}, and {args.file} is "
+                    f"{'a serial JSON Lines log' if link_is_can else 'a CAN log'} by its suffix; "
                     "without --link the suffix picks the format")
         return 2
     is_can = link_is_can or (args.link is None and file_is_can)

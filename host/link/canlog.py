@@ -33,7 +33,7 @@ from protocol.can.layouts import DEFAULT_SERVO_COUNT, CanLayouts, can_layouts
 from protocol.codec import PayloadError
 from protocol.messages import MAX_WIRE_SERVOS, Caps, Message, SimState
 
-__all__ = ["CAN_LOG_SUFFIXES", "CanLogEntry", "can_last_sim_state", "candump_cut_line", "candump_problem", "iter_can_log", "load_dbc",
+__all__ = ["CAN_LOG_SUFFIXES", "CanLogEntry", "can_last_sim_state", "candump_cut_line", "candump_problem", "is_candump", "iter_can_log", "load_dbc",
            "log_servo_count", "read_can_host_to_board"]
 
 #: a candump -L line: "(1700000000.123456) vcan0 123#DEADBEEF" (CAN FD: ID##F DATA; remote: ID#R)
@@ -82,9 +82,17 @@ def candump_cut_line(path: str | Path) -> int | None:
     return lines.cut_line
 
 
+def is_candump(path: str | Path) -> bool:
+    """Whether ``path`` is read as candump ``-L`` text: a ``.log``, or a name with no suffix python-can
+    reads (``log decode FILE --link can:…`` of a capture saved as ``capture.txt``)."""
+    name = str(path).lower()
+    return name.endswith(".log") or not name.endswith(CAN_LOG_SUFFIXES)
+
+
 def _reader(path: str | Path) -> Any:
-    """python-can's reader for ``path`` (by suffix); a candump ``.log`` without a cut-off last line."""
-    if str(path).lower().endswith(".log"):
+    """python-can's reader for ``path`` (by suffix); candump text (:func:`is_candump`) without a cut-off
+    last line."""
+    if is_candump(path):
         return can.CanutilsLogReader(_WholeLines(path))  # type: ignore[arg-type]
     return can.LogReader(str(path))  # type: ignore[no-untyped-call]
 

@@ -30,6 +30,7 @@ import asyncio
 import json
 import logging
 import math
+import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -149,14 +150,19 @@ def find_host_log(path: Path) -> Path:
 def _check_not_over_the_recording(log_path: Path, out: Path) -> None:
     """:class:`ReplayInputError` when writing the replay's artefacts into ``out`` would overwrite the recording.
 
-    That is when ``out`` is the folder of the log replayed and already holds one of :data:`ARTEFACTS`
-    (a run folder: its logs, summary and plots; the log itself may be one of them)."""
-    if not out.is_dir() or not out.resolve() == log_path.parent.resolve():
+    That is when ``out`` is the folder of the log replayed (as named, or the folder of the file a
+    symbolic link names) and already holds one of :data:`ARTEFACTS` (a run folder: its logs, summary and
+    plots; the log itself may be one of them), or when one of those files in ``out`` is the log itself
+    (a hard link). Found by new users: ``replay runs/x --out runs/x``, then through a symbolic link."""
+    if not out.is_dir():
         return
-    clash = [name for name in ARTEFACTS if (out / name).exists()]
-    if clash:
+    existing = [out / name for name in ARTEFACTS if (out / name).exists()]
+    folders = {log_path.parent.resolve(), log_path.resolve().parent}
+    same = [p for p in existing if os.path.samefile(p, log_path)]
+    if out.resolve() in folders and existing or same:
+        clash = ", ".join(p.name for p in (existing if out.resolve() in folders else same))
         raise ReplayInputError(f"the replay would write its artefacts into {out}, the folder of the log it replays, "
-                               f"over the recording's {', '.join(clash)}; give another folder with --out DIR")
+                               f"over the recording's {clash}; give another folder with --out DIR")
 
 
 def read_host_to_board(path: Path) -> Iterator[tuple[float, int, Message]]:

@@ -43,6 +43,7 @@ import dataclasses
 import functools
 import json
 import logging
+import math
 from collections import deque
 from collections.abc import AsyncIterable, AsyncIterator, Awaitable, Callable, Iterable
 from dataclasses import dataclass, field
@@ -87,7 +88,8 @@ from host.shell.skills import SkillStore
 from host.shell.timeline import Observation, RunResult, Timeline
 from protocol.linkkinds import link_kind
 from protocol.linkspec import LinkSpec, parse_link_spec
-from protocol.messages import FaultFlags, Nack
+from protocol.framing import encode_frame
+from protocol.messages import FaultFlags, Heartbeat, Nack
 from protocol.wiremodel import BITS_PER_BYTE
 from robots.description import Robot
 from robots.generic import GENERIC_CHANNEL
@@ -212,6 +214,44 @@ def _first_cause(group: BaseExceptionGroup) -> Exception | None:
     return None
 
 
+#: a HEARTBEAT whenever nothing else was sent for this long (s): four per 200 ms of the board's default watchdog
+HEARTBEAT_S = 0.05
+#: ... at most this long (s) over a line whose frame grid is slower: half the board's default watchdog
+HEARTBEAT_MAX_S = 0.1
+
+
+def heartbeat_for_grid(period_us: int) -> float:
+    """The session's heartbeat interval (s) for a frame grid of ``period_us``: :data:`HEARTBEAT_S`, or over a
+    slow line (:func:`host.motion.streamer.grid_period_us`) 0.6 of the grid period up to
+    :data:`HEARTBEAT_MAX_S`. A realtime streamer sends a frame every period, and every valid message
+    feeds the board's watchdog; a heartbeat only fills the gaps. At 4 800 baud (a 12-servo frame every
+    170 ms) 50 ms heartbeats came three per gap, 18 per second: with the frames and TIME_SYNCs more than
+    the line carries, so frames arrived late and were refused (574 NACKed as LATE in a 2-minute run)."""
+    return min(HEARTBEAT_MAX_S, max(HEARTBEAT_S, 0.6 * period_us * 1e-6))
+
+
+#: the share of a modelled line past which :func:`line_load_note` warns (as the board's telemetry warning)
+LINE_WARN_SHARE = 0.8
+
+
+def line_load_note(n_servos: int, baud: int | None, period_us: int, heartbeat_s: float) -> str | None:
+    """One line when the host's steady traffic over a modelled line of ``baud`` (8N1) needs more than
+    :data:`LINE_WARN_SHARE` of it, else None. Steady traffic: one full-body frame per grid period and the
+    heartbeats that fill each period's gap (one per ``heartbeat_s`` after the frame). At 2 400 baud a
+    12-servo robot's frame every 330 ms and two heartbeats need ~2 700 bit/s: frames queue, arrive late
+    and are refused, and calls do not finish."""
+    if not baud:
+        return None
+    hb_bytes = len(encode_frame(Heartbeat(0), 0))
+    beats = max(0, math.ceil(period_us * 1e-6 / heartbeat_s - 1e-9) - 1)
+    need = (frame_wire_bytes(n_servos) + beats * hb_bytes) * BITS_PER_BYTE / (period_us * 1e-6)
+    if need <= LINE_WARN_SHARE * baud:
+        return None
+    return (f"--baud {baud}: the frames and heartbeats alone need ~{need:,.0f} bit/s, more than "
+            f"{LINE_WARN_SHARE:.0%} of the line; frames will arrive late and be refused, and calls may not finish "
+            "(raise --baud)")
+
+
 class RobotSession:
     """One robot, one shell, many turns (see the module docstring)."""
 
@@ -318,9 +358,15 @@ class RobotSession:
             if opts.plots:
                 artefacts.warm_up_plotting()  # the turn's plots run in a thread while the link is live
             identity = RobotIdentity(self.robot.name, self.robot.servo_count, self.robot.servo_table_hash)
+            period_us = grid_period_us(self.robot.servo_count, opts.wire_baud)
+            heartbeat_s = heartbeat_for_grid(period_us)
+            overload = line_load_note(self.robot.servo_count, opts.wire_baud, period_us, heartbeat_s)
+            if overload:
+                log.warning("%s", overload)
             try:
                 client = await BoardClient.connect(target, baud=opts.baud, log_path=self.out / f"host_frames{log_suffix}",
-                                                   robot=identity, wire_baud=opts.wire_baud)
+                                                   robot=identity, wire_baud=opts.wire_baud,
+                                                   heartbeat_s=heartbeat_s)
             except LinkConfigError as e:
                 dead = dead_board_error(self._board, e)  # the board died first: a lost link, not a usage error
                 if dead is None:
@@ -345,10 +391,9 @@ class RobotSession:
                 log.warning("%s", note)
             tel = await client.wait_for(lambda t: True, timeout=10, nudge=True)
             frame_link = ClientLink(client, wire_baud=opts.wire_baud)
-            period_us = grid_period_us(self.robot.servo_count, opts.wire_baud)
             if period_us != GRID_PERIOD_US:
                 log.warning("--baud %d: one %d-servo frame takes %.0f ms on the line, so the host sends one every "
-                            "%.0f ms instead of %.0f (the board moves the servos in straight lines between them)",
+                            "%.0f ms instead of every %.0f ms (the board moves the servos in straight lines between them)",
                             opts.wire_baud, self.robot.servo_count,
                             1e3 * frame_wire_bytes(self.robot.servo_count) * BITS_PER_BYTE / (opts.wire_baud or 1),
                             period_us / 1e3, GRID_PERIOD_US / 1e3)

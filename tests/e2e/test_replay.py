@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import pytest
@@ -134,4 +135,14 @@ def test_replay_refuses_to_write_over_the_recording_it_replays(tmp_path: Path) -
                                               r"folder with --out DIR"):
             replay(source, run)
         assert cli_main(["replay", str(source), "--out", str(run)]) == 2
+    assert {p.name: p.read_bytes() for p in run.iterdir()} == before
+    # ... nor through a link: a symbolic link to the log (its own folder is elsewhere), a hard link to it
+    (tmp_path / "elsewhere").mkdir()
+    sym = tmp_path / "elsewhere" / "hf.jsonl"
+    sym.symlink_to(log)
+    hard = tmp_path / "elsewhere" / "host_frames.jsonl"
+    os.link(log, hard)
+    for source, out in ((sym, run), (hard, tmp_path / "elsewhere"), (log, tmp_path / "elsewhere")):
+        with pytest.raises(ReplayError, match=r"over the recording's host_frames\.jsonl"):
+            replay(source, out)
     assert {p.name: p.read_bytes() for p in run.iterdir()} == before
