@@ -79,7 +79,7 @@ def decode_file(path: str, out: IO[str] | None = None, err: IO[str] | None = Non
     if bad and not good:
         first = held[0].replace(": not a frame-log record", "") if held else path
         print_error("log", f"{path} is not a frame log ({first}); give a file written with --log: .jsonl "
-              "for a serial link, .log/.asc/.blf for CAN", file=err)
+              "for a serial link, .log/.asc/.blf for CAN (a CAN capture under another name: --link can:…)", file=err)
         return 2
     if bad:
         print_error("log", f"{bad} bad line(s) skipped, {good} record(s) decoded", file=err)

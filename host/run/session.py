@@ -238,8 +238,8 @@ def line_load_note(n_servos: int, baud: int | None, period_us: int, heartbeat_s:
     """One line when the host's steady traffic over a modelled line of ``baud`` (8N1) needs more than
     :data:`LINE_WARN_SHARE` of it, else None. Steady traffic: one full-body frame per grid period and the
     heartbeats that fill each period's gap (one per ``heartbeat_s`` after the frame). At 2 400 baud a
-    12-servo robot's frame every 330 ms and two heartbeats need ~2 700 bit/s: frames queue, arrive late
-    and are refused, and calls do not finish."""
+    12-servo robot's frame every 330 ms and three heartbeats need ~2 700 bit/s, 114 % of the line:
+    frames queue, arrive late and are refused, and calls do not finish."""
     if not baud:
         return None
     hb_bytes = len(encode_frame(Heartbeat(0), 0))
@@ -247,9 +247,9 @@ def line_load_note(n_servos: int, baud: int | None, period_us: int, heartbeat_s:
     need = (frame_wire_bytes(n_servos) + beats * hb_bytes) * BITS_PER_BYTE / (period_us * 1e-6)
     if need <= LINE_WARN_SHARE * baud:
         return None
-    return (f"--baud {baud}: the frames and heartbeats alone need ~{need:,.0f} bit/s, more than "
-            f"{LINE_WARN_SHARE:.0%} of the line; frames will arrive late and be refused, and calls may not finish "
-            "(raise --baud)")
+    return (f"--baud {baud}: the frames and heartbeats alone need ~{need:,.0f} bit/s, {need / baud:.0%} of the "
+            f"line (more than {LINE_WARN_SHARE:.0%}); frames will arrive late and be refused, and calls may not "
+            "finish (raise --baud)")
 
 
 class RobotSession:

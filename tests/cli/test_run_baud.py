@@ -149,4 +149,4 @@ def test_heartbeats_fill_only_the_gaps_of_a_slow_grid_and_an_overloaded_line_is_
         assert line_load_note(12, baud, period, heartbeat_for_grid(period)) is None
     period = grid_period_us(12, 2_400)
     note = line_load_note(12, 2_400, period, heartbeat_for_grid(period))
-    assert note is not None and note.startswith("--baud 2400: the frames and heartbeats alone need ~2,727 bit/s")
+    assert note is not None and note.startswith("--baud 2400: the frames and heartbeats alone need ~2,727 bit/s, 114% of the line")
