@@ -68,9 +68,11 @@ from protocol.linkspec import LinkSpec, parse_link_spec
 from protocol.messages import PROTOCOL_VERSION, Ack, Caps, Message, Nack, ServoFrame, SimState
 from protocol.wiremodel import WireModel
 
-__all__ = ["FAULT_BITS", "BoardClient", "FaultEvent", "LinkStats", "LinkTarget", "RobotIdentity", "host_now_us"]
+__all__ = ["FAULT_BITS", "HEARTBEAT_S", "BoardClient", "FaultEvent", "LinkStats", "LinkTarget", "RobotIdentity", "host_now_us"]
 
 log = logging.getLogger("host.link")
+#: a HEARTBEAT whenever nothing else was sent for this long (s): four per 200 ms of the board's default watchdog
+HEARTBEAT_S = 0.05
 
 #: what a client connects to: a link spec (text or parsed), or a callable giving one, re-resolved on
 #: every reconnect attempt (serial links: a board that comes back on another pty)
@@ -95,7 +97,7 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
     def __init__(
         self, link: LinkTarget, *, transport: Transport | None = None, baud: int = 115200,
         log_path: str | Path | None = None, reply_timeout: float = 1.0, handshake_timeout: float = 3.0,
-        heartbeat_s: float = 0.05, sync_interval_s: float = 0.5, sync_burst: int = 8, reconnect: bool = True,
+        heartbeat_s: float = HEARTBEAT_S, sync_interval_s: float = 0.5, sync_burst: int = 8, reconnect: bool = True,
         reconnect_max_s: float = 1.0, telemetry_queue: int = 64, protocol_version: int = PROTOCOL_VERSION,
         schema_hash: int | None = None, force_thread: bool = False, transport_options: dict[str, Any] | None = None,
         robot: RobotIdentity | None = None, wire_baud: int | None = None,

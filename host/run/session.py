@@ -61,7 +61,7 @@ from host.link import BoardClient, RobotIdentity
 from host.link.board_process import BoardProcess, dead_board_error, start_board
 from host.link.errors import BoardFaulted, HandshakeError, LinkConfigError, LinkError, RobotMismatch, SchemaMismatch
 from host.link.faultcheck import LATCHED, clear_command, clear_leftover_fault, refusal_message
-from host.link.session import FaultEvent, LinkTarget
+from host.link.session import HEARTBEAT_S, FaultEvent, LinkTarget
 from host.run import artefacts
 from host.run.events import Event, EventMonitor, EventPolicy, ScriptedEvent, has_fallen
 from host.run.heap import frozen_heap
@@ -214,9 +214,7 @@ def _first_cause(group: BaseExceptionGroup) -> Exception | None:
     return None
 
 
-#: a HEARTBEAT whenever nothing else was sent for this long (s): four per 200 ms of the board's default watchdog
-HEARTBEAT_S = 0.05
-#: ... at most this long (s) over a line whose frame grid is slower: half the board's default watchdog
+#: the longest heartbeat interval (s), over a line whose frame grid is slow: half the board's default watchdog
 HEARTBEAT_MAX_S = 0.1
 
 
