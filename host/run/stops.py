@@ -23,6 +23,13 @@ link never looks "lost" because of the user's Ctrl-C.
 that reaches its board-time bound, or a session whose frame logs reach their size bound, is stopped
 the same way as by a first signal (interrupted through the lifecycle tree, rest pose, artefacts),
 with outcome ``limit`` and the reason in ``summary.json`` (``extra.stopped``); the command exits 1.
+A session whose work makes no progress for :data:`host.run.progress_guard.PROGRESS_LIMIT_S` wall
+seconds is stopped the same way with outcome ``stalled`` (kind ``"stall"``), exit 1.
+
+**Deadline** (:data:`STOP_GRACE_S`): whatever stopped it, a session's graceful stop (the turn's end,
+the settle, the rest pose) has that many wall seconds from the first stop; what is still running then
+is cut (the rest pose is skipped or cut), so the first signal ends a run within ``STOP_GRACE_S`` plus
+the teardown (:meth:`host.run.session.RobotSession.request_stop`), whatever the link's speed.
 """
 
 from __future__ import annotations
@@ -38,7 +45,8 @@ import anyio
 import anyio.abc
 import anyio.lowlevel
 
-__all__ = ["DEFAULT_MAX_BOARD_S", "DEFAULT_MAX_LOG_MB", "Interrupted", "StopReason", "StopSignals", "signal_stop"]
+__all__ = ["DEFAULT_MAX_BOARD_S", "DEFAULT_MAX_LOG_MB", "STOP_GRACE_S", "Interrupted", "StopReason", "StopSignals",
+           "signal_stop"]
 
 #: Board seconds one turn (one ``run``, one chat step) may last: a paper task takes at most ~30 s;
 #: a reply that would speak or move for longer is cut here (lockstep reaches it in seconds).
@@ -46,6 +54,11 @@ DEFAULT_MAX_BOARD_S = 120.0
 #: Megabytes the session's frame logs (host and board, both directions) may reach: 50 Hz telemetry
 #: and 100 Hz servo frames log ~0.2 MB per board second, so ~40 minutes of a session.
 DEFAULT_MAX_LOG_MB = 500.0
+#: Wall seconds a session's graceful stop may take from its first stop (a signal, a bound, a stall) until
+#: the running turn, its settle and the rest-pose move are cut short (the rest pose gets what is left of
+#: it, at most its own 10 s). The link's close (<= 5 s) and the board's stop (<= 5 s, usually < 0.1 s)
+#: come after: a first Ctrl-C ends ``ghostshell run`` within ~8 s on a working link, 18 s at worst.
+STOP_GRACE_S = 8.0
 
 
 #: event-loop passes the guard gives a signal that arrived as its body ended: asyncio reads the wakeup
@@ -64,9 +77,10 @@ def _is_asyncio_runner_handler(handler: object) -> bool:
 class StopReason:
     """Why the session stopped early.
 
-    ``kind``: ``"signal"`` (outcome ``interrupted``, exit 130) or ``"limit"`` (outcome ``limit``,
-    exit 1); ``name``: the signal (``"SIGINT"``, ``"SIGTERM"``) or the bound (``"max_board_s"``,
-    ``"max_log_mb"``); ``message``: one line for the user and ``summary.json``.
+    ``kind``: ``"signal"`` (outcome ``interrupted``, exit 130), ``"limit"`` (outcome ``limit``,
+    exit 1) or ``"stall"`` (no progress, :mod:`host.run.progress_guard`: outcome ``stalled``, exit 1);
+    ``name``: the signal (``"SIGINT"``, ``"SIGTERM"``), the bound (``"max_board_s"``, ``"max_log_mb"``)
+    or ``"no_progress"``; ``message``: one line for the user and ``summary.json``.
     """
 
     kind: str
@@ -75,7 +89,7 @@ class StopReason:
 
     @property
     def outcome(self) -> str:
-        return "interrupted" if self.kind == "signal" else "limit"
+        return {"signal": "interrupted", "stall": "stalled"}.get(self.kind, "limit")
 
     @property
     def exit_status(self) -> int:
