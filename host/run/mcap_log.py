@@ -18,7 +18,7 @@ topic                        schema (encoding)            what, when
 ``/joint_states``            foxglove.JointStates (pb)    measured position, velocity, effort per servo; each TELEMETRY
 ``/joint_targets``           foxglove.JointStates (pb)    commanded targets per servo; each SERVO_FRAME sent, at its apply time
 ``/tf``                      foxglove.FrameTransforms     every MJCF body in its parent's frame (:mod:`host.run.scene3d`); each TELEMETRY
-``/scene``                   foxglove.SceneUpdate         the robot's geoms as primitives; at the first report, then every :data:`SCENE_EVERY_S`
+``/scene``                   foxglove.SceneUpdate         the robot's geoms as primitives, meshes as STL models; at the first report, then every :data:`SCENE_EVERY_S`
 ``/telemetry``               ghostshell.Telemetry (json)  every TELEMETRY field decoded (faults by name)
 ``/sim_state``               ghostshell.SimState (json)   the emulator's ground truth (base pose, scene objects); each new SIM_STATE
 ``/link/tx``                 ghostshell.LinkFrame (json)  every host-to-board message: seq, type, decoded fields, serial wire bytes (hex)
@@ -31,6 +31,11 @@ topic                        schema (encoding)            what, when
 ==========================  ===========================  ===================================================
 
 (pb = protobuf, the SDK's encoding for its typed channels; json = a JSON channel with a JSON schema.)
+``/scene``'s entities are ``frame_locked`` with no lifetime: Foxglove draws them in their body's frame as
+``/tf`` moves it, until replaced. Playing a file, Foxglove shows on a seek the last message of each topic
+before that time, so one ``/scene`` would do; it is re-sent every :data:`SCENE_EVERY_S` for a live viewer
+that connects late. Its primitives are built once (:mod:`host.run.scene3d`): a re-send costs the SDK's
+encoding and the chunk's compression of its bytes (~5 MB for an arm with ~100 000 mesh triangles).
 The MCAP also holds a ``run`` metadata record (robot, scene, link, clock) and the robot's MJCF as an
 attachment. Everything goes through the SDK; the ``mcap`` package is used only to read files back
 (:mod:`host.run.mcap_read`).
@@ -75,8 +80,9 @@ log = logging.getLogger("host.run")
 #: board seconds between forced chunk ends: a killed run loses at most the last FLUSH_S of board time
 #: (board time, not wall time, so where a lockstep run's file can be cut is reproducible)
 FLUSH_S = 1.0
-#: board seconds between re-sent scene primitives (so a viewer that joins or seeks late still has them)
-SCENE_EVERY_S = 2.0
+#: board seconds between re-sent scene primitives (so a live viewer that connects late gets them; a file
+#: needs them once, see the module docstring). 5 s: a mesh robot's scene is megabytes per message
+SCENE_EVERY_S = 5.0
 #: target uncompressed chunk size; small, so chunks end often and a cut file loses little. A chunk is
 #: compressed inside the ``log()`` call that fills it, on the host's event loop: with 256 KiB at zstd's
 #: default level that call took 4-5 ms (a token chunk waiting behind it was that much later), with
@@ -150,15 +156,18 @@ class RunLog:
     """The run's Foxglove channels on one context (see the module docstring for topics and timing).
 
     ``RunLog(robot)`` creates the channels; :meth:`open` adds the MCAP sink (or create it with
-    :meth:`create`). Feed it with the ``on_*`` methods from the event loop's thread; :meth:`close`
-    finishes the file. ``time_listeners`` get the board time (ns) of every report (the live server
-    broadcasts it as the viewer's clock).
+    :meth:`create`). Feed it with the ``on_*`` methods from one thread at a time (a session's
+    :class:`host.run.recording.Recording` feeds it from its writer thread, :mod:`host.run.log_writer`);
+    :meth:`close` finishes the file. ``time_listeners`` get the board time (ns) of every report, on
+    the feeding thread (the live server broadcasts it as the viewer's clock; the SDK's server is
+    thread-safe). The robot's :class:`RobotScene` (its MJCF compiled: 0.15-0.9 s with meshes) is built
+    on first use (:attr:`scene`, or :meth:`prepare`), on the feeding thread.
     """
 
     def __init__(self, robot: Robot) -> None:
         self.robot = robot
         self.context = foxglove.Context()
-        self.scene = RobotScene(robot)
+        self._scene: RobotScene | None = None
         self.names = list(robot.servos.names)
         ctx = self.context
         self.joint_states = JointStatesChannel("/joint_states", context=ctx)
@@ -183,6 +192,17 @@ class RunLog:
         self._pending: Telemetry | None = None  # a report waiting for its SIM_STATE (on_message)
         self._flushed_us = 0
         self.closed = False
+
+    @property
+    def scene(self) -> RobotScene:
+        """The robot's 3D scene (built on first use)."""
+        if self._scene is None:
+            self._scene = RobotScene(self.robot)
+        return self._scene
+
+    def prepare(self) -> None:
+        """Build the scene now (a recording does this first thing on its writer thread)."""
+        _ = self.scene
 
     @classmethod
     def create(cls, path: Path, robot: Robot, meta: Mapping[str, str] | None = None) -> RunLog:

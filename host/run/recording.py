@@ -15,15 +15,25 @@ touches nothing else:
 * sequence gaps, decode errors, re-sent requests, reconnects: the client's ``LinkStats`` counters,
   compared on every report.
 
-Every callback only notes what happened (with the board time it happened at) in one FIFO
-(:class:`host.link.deferred.DeferredWork`); the recording's work runs from the event loop after the
-callback that noted it, in the order noted, nothing dropped, in slices of about
-:data:`DRAIN_SLICE_S` (what else became ready runs between two slices). A profile of a realtime run
-showed why: writing the MCAP inside the link's read callback (forward kinematics for the
-transforms, JSON for the channels) was half of that callback, which ran over 0.5 ms hundreds of
-times per pass of the 30 tasks while a token chunk waited behind it (``bench/bench_latency.py``).
-Past ``MAX_DEFERRED`` noted items, or with no running loop, the work is done at once.
-:meth:`Recording.on_turn_end` and :meth:`Recording.close` do what is still noted first.
+Two threads share the work. The link's callbacks (on the event loop) only hand what happened, with
+the board time it happened at, to the recording's writer thread (:class:`host.run.log_writer.LogWriter`:
+one consumer, a bounded FIFO, so the MCAP gets it in the order it happened); the thread does every
+:class:`RunLog` call: forward kinematics for ``/tf``, JSON, the chunks' compression, building the
+robot's scene (first thing, while the session starts) and reading photos. What reads the shell's
+and the runtime's state (the timeline, the captures list, the link's counters) stays on the loop,
+noted from the callback and done after it in slices of about :data:`DRAIN_SLICE_S`
+(:class:`host.link.deferred.DeferredWork`), and hands its findings to the thread the same way.
+
+Why: the per-vertex scene message of an arm with meshes took 0.25-0.3 s on the loop, and the board's
+200 ms watchdog tripped (``ghostshell run --robot mesh_arm``: 2 trips); before that a profile of a
+realtime run had shown the MCAP writes inside the link's read callback as half of that callback
+(``bench/bench_latency.py``). Now the loop's share of a report is a few queue puts
+(``bench/bench_recording.py`` measures both sides).
+
+Bounded: past :data:`host.run.log_writer.MAX_QUEUED` calls waiting, a call is dropped and counted
+(:attr:`Recording.dropped`, for the run's summary); :meth:`Recording.close` waits at most
+:data:`CLOSE_TIMEOUT_S` wall seconds for the thread to finish the file (longer: one warning, and the
+MCAP is cut where the thread was; its chunks up to there are readable).
 
 Nothing here can end a run: a failure of the recording is one warning line and the recording stops.
 """
@@ -40,12 +50,13 @@ from host.link import BoardClient
 from host.link.deferred import DeferredWork
 from host.link.session import FaultEvent
 from host.robot.runtime import RobotRuntime
+from host.run.log_writer import LogWriter
 from host.run.mcap_log import McapError, RunLog
 from host.shell import Shell
 from protocol.messages import CameraChunk, Message, Nack, SimState, Telemetry
 from robots.description import Robot
 
-__all__ = ["DRAIN_SLICE_S", "POLL_S", "Recording"]
+__all__ = ["CLOSE_TIMEOUT_S", "DRAIN_SLICE_S", "POLL_S", "Recording"]
 
 log = logging.getLogger("host.run")
 
@@ -55,6 +66,8 @@ POLL_S = 0.05
 MAX_DEFERRED = 4096
 #: wall seconds of noted work per pass of the event loop; the rest waits for the next pass
 DRAIN_SLICE_S = 0.0005
+#: wall seconds :meth:`Recording.close` waits for the writer thread to finish the MCAP
+CLOSE_TIMEOUT_S = 10.0
 
 
 class Recording:
@@ -75,7 +88,9 @@ class Recording:
         self._stats = (s.seq_gaps, s.decode_errors, s.retries, s.reconnects)
         self._failed = False
         self._chunk_us: int | None = None  # board time the latest camera chunk arrived
-        self._work = DeferredWork(slice_s=DRAIN_SLICE_S, max_deferred=MAX_DEFERRED)  # work not yet done, in order
+        self._work = DeferredWork(slice_s=DRAIN_SLICE_S, max_deferred=MAX_DEFERRED)  # loop-side bookkeeping
+        self.writer = LogWriter().start()  # every RunLog call, in order (module docstring)
+        self.writer.submit(self._guard, run_log.prepare)  # the scene (MJCF compile) first, off the loop
         client.on_fault.append(self._on_fault)
         client.on_nack.append(self._on_nack)
         client.on_sent.append(self._on_sent)
@@ -117,9 +132,20 @@ class Recording:
                   file=sys.stderr, flush=True)
         return rec
 
+    @property
+    def dropped(self) -> int:
+        """Recording calls dropped because the writer thread had :data:`~host.run.log_writer.MAX_QUEUED`
+        waiting (0 in a healthy run; the run's summary can show it)."""
+        return self.writer.dropped
+
     # -- listening ------------------------------------------------------------------------------
+    def _log(self, fn: Callable[..., Any], *args: Any) -> None:
+        """Do ``fn(*args)`` (a RunLog call, guarded) on the writer thread, after everything handed before."""
+        if not self._failed:
+            self.writer.submit(self._guard, fn, *args)
+
     def _note(self, fn: Callable[..., Any], *args: Any) -> None:
-        """Do ``fn(*args)`` (guarded) from the loop soon, after the work noted before it."""
+        """Do ``fn(*args)`` (loop-side bookkeeping, guarded) from the loop soon, after what was noted before."""
         if not self._failed:
             self._work.note(self._guard, fn, *args)
 
@@ -131,14 +157,11 @@ class Recording:
         if isinstance(msg, CameraChunk):  # a photo is complete when its last chunk came: that is its time
             self._chunk_us = self.client.board_now_estimate()
         if isinstance(msg, Telemetry):  # (the link's counters as of this report: later messages change them)
+            self._log(self.run_log.on_message, msg)
             s = self.client.stats
-            self._note(self._on_report, msg, self._chunk_us, (s.seq_gaps, s.decode_errors, s.retries, s.reconnects))
+            self._note(self._after_report, msg, self._chunk_us, (s.seq_gaps, s.decode_errors, s.retries, s.reconnects))
         elif isinstance(msg, SimState):
-            self._note(self.run_log.on_message, msg)
-
-    def _on_report(self, tel: Telemetry, chunk_us: int | None, counters: tuple[int, int, int, int]) -> None:
-        self.run_log.on_message(tel)
-        self._after_report(tel, chunk_us, counters)
+            self._log(self.run_log.on_message, msg)
 
     def _guard(self, fn: Any, *args: Any) -> None:
         if self._failed:
@@ -168,13 +191,14 @@ class Recording:
         self._stats = now
         s = self.client.stats
         if gaps > 0:
-            self.run_log.on_gap(board_time_us, gaps, now[0])
+            self._log(self.run_log.on_gap, board_time_us, gaps, now[0])
         if errors > 0:
-            self.run_log.link_note(f"{errors} undecodable frame(s) discarded ({s.last_decode_error})", board_time_us)
+            self._log(self.run_log.link_note, f"{errors} undecodable frame(s) discarded ({s.last_decode_error})",
+                      board_time_us)
         if retries > 0:
-            self.run_log.link_note(f"{retries} request(s) re-sent (no ACK/NACK in time)", board_time_us)
+            self._log(self.run_log.link_note, f"{retries} request(s) re-sent (no ACK/NACK in time)", board_time_us)
         if reconnects > 0:
-            self.run_log.link_note(f"link re-established (reconnect #{now[3]})", board_time_us)
+            self._log(self.run_log.link_note, f"link re-established (reconnect #{now[3]})", board_time_us)
 
     def _poll_calls(self) -> None:
         result = self.shell.last_result
@@ -188,44 +212,49 @@ class Recording:
             if r.start is not None and key not in self._started:
                 self._started.add(key)
                 start = measured[0] if measured[0] is not None else t0 + r.start
-                self.run_log.on_call_start(r.path, r.function, r.channel, r.args, start)
+                self._log(self.run_log.on_call_start, r.path, r.function, r.channel, dict(r.args), start)
             if r.end is not None and r.outcome != "pending" and key not in self._ended:
                 self._ended.add(key)
                 end = measured[1] if measured[1] is not None else t0 + r.end
-                self.run_log.on_call_end(r.path, r.function, r.channel, r.outcome, r.error, end)
+                self._log(self.run_log.on_call_end, r.path, r.function, r.channel, r.outcome, r.error, end)
                 if r.function == "speak" and r.start is not None:
                     start = measured[0] if measured[0] is not None else t0 + r.start
-                    self.run_log.on_speech(str(r.args.get("text", "")), start, end, r.outcome, r.path)
+                    self._log(self.run_log.on_speech, str(r.args.get("text", "")), start, end, r.outcome, r.path)
 
     def _poll_captures(self, t: float) -> None:
         caps = self.runtime.captures
+        frame_id = self.runtime.robot.peripherals.camera or "camera"
         while self._captures < len(caps):
             path = caps[self._captures]
             self._captures += 1
-            try:
-                png = Path(path).read_bytes()
-            except OSError:
-                continue
-            self.run_log.on_image(t, png, frame_id=self.runtime.robot.peripherals.camera or "camera")
+            self._log(self._image, t, Path(path), frame_id)
+
+    def _image(self, t: float, path: Path, frame_id: str) -> None:
+        """(writer thread) A photo's PNG read from ``path`` and logged; a file gone since is skipped."""
+        try:
+            png = path.read_bytes()
+        except OSError:
+            return
+        self.run_log.on_image(t, png, frame_id=frame_id)
 
     # -- callbacks --------------------------------------------------------------------------------
     def _on_sent(self, seq: int, msg: Message) -> None:
-        self._note(self.run_log.on_frame_sent, seq, msg, self.client.board_now_estimate())
+        self._log(self.run_log.on_frame_sent, seq, msg, self.client.board_now_estimate())
 
     def _on_fault(self, ev: FaultEvent) -> None:
-        self._note(self.run_log.on_fault, ev.board_time_us, int(ev.raised), int(ev.cleared))
+        self._log(self.run_log.on_fault, ev.board_time_us, int(ev.raised), int(ev.cleared))
 
     def _on_nack(self, nack: Nack) -> None:
-        self._note(self.run_log.on_nack, nack, self.client.board_now_estimate())
+        self._log(self.run_log.on_nack, nack, self.client.board_now_estimate())
 
     def on_turn_end(self, calls: Sequence[Any]) -> None:
         """The turn's board-measured calls (``host.run.artefacts.BoardCall``) as Events; the timeline's
-        last changes first (after the work still noted)."""
+        last changes first (after the work still noted). Handed to the writer thread; returns at once."""
         self._drain()
         self._guard(self._poll_calls)
         for c in calls:
-            self._guard(self.run_log.on_call, c)
-        self._guard(self.run_log.flush)
+            self._log(self.run_log.on_call, c)
+        self._log(self.run_log.flush)
 
     def close(self) -> None:
         """Stop the live view, finish the MCAP, drop the callbacks. Idempotent."""
@@ -236,7 +265,19 @@ class Recording:
             if cb in lst:
                 lst.remove(cb)
         self._drain()
+        self._log(self.run_log.close)  # on the writer thread, after everything handed before it
+        finished = self.writer.close(CLOSE_TIMEOUT_S)
+        if not finished:
+            note = (f"ghostshell: the recording did not finish within {CLOSE_TIMEOUT_S:g} s "
+                    f"({self.writer.waiting()} call(s) left); run.mcap ends where it got to")
+            self.notes.append(note)
+            log.warning("%s", note)
+        if self.writer.dropped:
+            note = f"ghostshell: the recording dropped {self.writer.dropped} call(s) (its writer thread fell behind)"
+            self.notes.append(note)
+            log.warning("%s", note)
         if self.live is not None:
             self.live.stop()
             self.live = None
-        self.run_log.close()
+        if finished:
+            self.run_log.close()  # (done already on the thread; idempotent)

@@ -13,15 +13,27 @@ floating base, or the MJCF's placement for a fixed one.
 Geoms become :class:`foxglove.messages.SceneEntity` primitives in their body's frame
 (:meth:`RobotScene.scene_update`): box -> cube (full extents = 2 x MuJoCo's half sizes), sphere,
 ellipsoid -> sphere (diameters), cylinder -> cylinder (z axis, height = 2 x half length), capsule ->
-cylinder + two end spheres, mesh -> triangle list (the compiled mesh's vertices in the geom frame; a mesh
-over :data:`MAX_MESH_TRIANGLES` becomes its bounding box). Planes (the floor) and height fields are left out:
-Foxglove's 3D panel draws its own grid. Colour: the geom's material colour, else its ``rgba``.
+cylinder + two end spheres, mesh -> a ``ModelPrimitive`` holding the compiled mesh as binary STL
+(``media_type`` ``model/stl``, the vertices in the geom frame, m; colour overridden with the geom's).
+Planes (the floor) and height fields are left out: Foxglove's 3D panel draws its own grid. Colour: the
+geom's material colour, else its ``rgba``.
+
+Cost: every mesh is converted once per :class:`RobotScene` (numpy: ``mesh_vert[mesh_face]`` into STL
+records; a mesh used by several geoms once), and the entities are built once, at construction;
+:meth:`RobotScene.scene_update` only restamps them (one ``SceneEntity`` per body around the same
+primitive objects). Before, one ``Point3`` per vertex took ~0.3-1 s per scene for an arm with ~100 000
+triangles of meshes, on the host's event loop. Caps: a mesh over :data:`MAX_MESH_TRIANGLES` triangles,
+or one that would take the scene's STL past :data:`MAX_SCENE_MESH_BYTES`, is drawn as its bounding box
+(a cube; :attr:`RobotScene.boxed_meshes` names them). The robot loader already refuses
+mesh files over its own byte caps (:mod:`robots.loader`); these caps keep the one ``/scene`` message
+bounded whatever MuJoCo made of the files.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -31,25 +43,48 @@ from foxglove.messages import (
     CylinderPrimitive,
     FrameTransform,
     FrameTransforms,
-    Point3,
+    ModelPrimitive,
     Pose,
     Quaternion,
     SceneEntity,
     SceneUpdate,
     SpherePrimitive,
     Timestamp,
-    TriangleListPrimitive,
     Vector3,
 )
 
 from robots.description import Robot
 from robots.model import RobotModel, load_model
 
-__all__ = ["MAX_MESH_TRIANGLES", "RobotScene", "stamp"]
+__all__ = ["MAX_MESH_TRIANGLES", "MAX_SCENE_MESH_BYTES", "STL_MEDIA_TYPE", "RobotScene", "stamp", "stl_bytes"]
 
-#: a mesh with more triangles than this is drawn as its bounding box (keeps the scene message small)
-MAX_MESH_TRIANGLES = 20_000
+#: a mesh with more triangles than this is drawn as its bounding box (1 000 000 triangles: 50 MB of STL)
+MAX_MESH_TRIANGLES = 1_000_000
+#: the scene's meshes together carry at most this many STL bytes; a mesh that would go past it is drawn
+#: as its bounding box (the meshes are taken in geom order)
+MAX_SCENE_MESH_BYTES = 64 * 1024 * 1024
+#: the media type of the meshes' ``ModelPrimitive.data``
+STL_MEDIA_TYPE = "model/stl"
 WORLD = "world"
+
+#: one binary STL record: normal, three vertices (float32 LE), attribute byte count (u16)
+_STL_RECORD = np.dtype([("normal", "<f4", (3,)), ("v", "<f4", (3, 3)), ("attr", "<u2")])
+
+
+def stl_bytes(vertices: np.ndarray, faces: np.ndarray, header: bytes = b"ghostshell mesh") -> bytes:
+    """Binary STL of a triangle mesh: ``vertices`` (n, 3) float (m), ``faces`` (k, 3) vertex indices.
+
+    80-byte header, u32 triangle count, then 50 bytes per triangle (unit normal from the winding, the
+    three vertices, attribute 0): ``84 + 50 k`` bytes. numpy only, no per-vertex Python objects.
+    Raises ``IndexError`` for a face index outside ``vertices``.
+    """
+    tri = np.asarray(vertices, dtype=np.float32)[np.asarray(faces, dtype=np.intp).reshape(-1, 3)]
+    rec = np.zeros(len(tri), dtype=_STL_RECORD)
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    rec["normal"] = n / np.where(norm > 0, norm, 1)
+    rec["v"] = tri
+    return header[:80].ljust(80, b"\0") + np.uint32(len(tri)).tobytes() + rec.tobytes()
 
 
 def stamp(board_time_us: int) -> Timestamp:
@@ -116,6 +151,18 @@ class RobotScene:
                                tuple(float(v) for v in m.geom_pos[g]), tuple(float(v) for v in m.geom_quat[g]),  # type: ignore[arg-type]
                                tuple(float(v) for v in rgba), int(m.geom_dataid[g])))  # type: ignore[arg-type]
         self.geoms = geoms
+        self.boxed_meshes: list[str] = []  # meshes drawn as their bounding box (over a cap)
+        self._stl: dict[int, bytes] = {}  # mesh id -> binary STL (each mesh converted once)
+        self._stl_total = 0
+        self._bodies: list[tuple[str, str, dict[str, list[Any]]]] = []  # (frame, entity id, primitives)
+        per_body: dict[int, list[_Geom]] = {}
+        for g in self.geoms:
+            per_body.setdefault(g.body, []).append(g)
+        for body, body_geoms in per_body.items():
+            prims: dict[str, list[Any]] = {"cubes": [], "spheres": [], "cylinders": [], "models": []}
+            for g in body_geoms:
+                self._primitive(g, prims)
+            self._bodies.append((self.names[body], f"{robot.name}/{self.names[body]}", prims))
 
     @property
     def frame_ids(self) -> list[str]:
@@ -149,28 +196,38 @@ class RobotScene:
         return FrameTransforms(transforms=out)
 
     # -- primitives ---------------------------------------------------------------------------
-    def scene_update(self, board_time_us: int) -> SceneUpdate:
-        """One entity per body that has visible geoms, in that body's frame (``frame_locked``)."""
-        per_body: dict[int, list[_Geom]] = {}
-        for g in self.geoms:
-            per_body.setdefault(g.body, []).append(g)
-        ts = stamp(board_time_us)
-        entities = []
-        for body, geoms in per_body.items():
-            cubes: list[CubePrimitive] = []
-            spheres: list[SpherePrimitive] = []
-            cylinders: list[CylinderPrimitive] = []
-            triangles: list[TriangleListPrimitive] = []
-            for g in geoms:
-                self._primitive(g, cubes, spheres, cylinders, triangles)
-            entities.append(SceneEntity(timestamp=ts, frame_id=self.names[body], id=f"{self.robot.name}/{self.names[body]}",
-                                        frame_locked=True, cubes=cubes, spheres=spheres, cylinders=cylinders,
-                                        triangles=triangles))
-        return SceneUpdate(entities=entities)
+    @property
+    def mesh_bytes(self) -> int:
+        """STL bytes the scene's meshes carry (each mesh once, however many geoms use it)."""
+        return self._stl_total
 
-    def _primitive(self, g: _Geom, cubes: list[CubePrimitive], spheres: list[SpherePrimitive],
-                   cylinders: list[CylinderPrimitive], triangles: list[TriangleListPrimitive]) -> None:
+    def scene_update(self, board_time_us: int) -> SceneUpdate:
+        """One entity per body that has visible geoms, in that body's frame (``frame_locked``, no
+        lifetime: it stays until replaced), stamped ``board_time_us``. The primitives were built at
+        construction; this only wraps them in new entities (a few µs per body)."""
+        ts = stamp(board_time_us)
+        return SceneUpdate(entities=[SceneEntity(timestamp=ts, frame_id=frame, id=eid, frame_locked=True, **prims)
+                                     for frame, eid, prims in self._bodies])
+
+    def _mesh_stl(self, mesh: int) -> bytes | None:
+        """Mesh ``mesh``'s binary STL (cached), or None when it is over a cap (see the module docstring)."""
+        if mesh in self._stl:
+            return self._stl[mesh]
+        m = self.model
+        nface = int(m.mesh_facenum[mesh])
+        size = 84 + 50 * nface
+        if nface > MAX_MESH_TRIANGLES or self._stl_total + size > MAX_SCENE_MESH_BYTES:
+            return None
+        v0, f0 = int(m.mesh_vertadr[mesh]), int(m.mesh_faceadr[mesh])
+        data = stl_bytes(m.mesh_vert[v0:v0 + int(m.mesh_vertnum[mesh])], m.mesh_face[f0:f0 + nface],
+                         header=f"ghostshell {m.mesh(mesh).name}".encode()[:80])
+        self._stl[mesh] = data
+        self._stl_total += len(data)
+        return data
+
+    def _primitive(self, g: _Geom, prims: dict[str, list[Any]]) -> None:
         T = mujoco.mjtGeom
+        cubes, spheres, cylinders = prims["cubes"], prims["spheres"], prims["cylinders"]
         colour = Color(r=g.rgba[0], g=g.rgba[1], b=g.rgba[2], a=g.rgba[3])
         pose = _pose(g.pos, g.quat)
         sx, sy, sz = g.size
@@ -193,24 +250,22 @@ class RobotScene:
                 spheres.append(SpherePrimitive(pose=_pose(np.asarray(g.pos) + sign * axis, g.quat),
                                                size=Vector3(x=2 * sx, y=2 * sx, z=2 * sx), color=colour))
         elif g.kind == T.mjGEOM_MESH and g.mesh >= 0:
-            m = self.model
-            nface = int(m.mesh_facenum[g.mesh])
-            if nface <= MAX_MESH_TRIANGLES:
-                v0, f0 = int(m.mesh_vertadr[g.mesh]), int(m.mesh_faceadr[g.mesh])
-                verts = m.mesh_vert[v0:v0 + int(m.mesh_vertnum[g.mesh])]
-                faces = m.mesh_face[f0:f0 + nface].reshape(-1)
-                points = [Point3(x=float(x), y=float(y), z=float(z)) for x, y, z in verts[faces]]
-                triangles.append(TriangleListPrimitive(pose=pose, points=points, color=colour))
-            else:  # too big for one message: its bounding box (centred where the vertices are)
-                v0 = int(m.mesh_vertadr[g.mesh])
-                verts = m.mesh_vert[v0:v0 + int(m.mesh_vertnum[g.mesh])]
-                lo, hi = verts.min(axis=0), verts.max(axis=0)
-                rot = np.zeros(9)
-                mujoco.mju_quat2Mat(rot, np.asarray(g.quat))
-                centre = np.asarray(g.pos) + rot.reshape(3, 3) @ ((lo + hi) / 2)
-                cubes.append(CubePrimitive(pose=_pose(centre, g.quat), color=colour,
-                                           size=Vector3(x=float(hi[0] - lo[0]), y=float(hi[1] - lo[1]),
-                                                        z=float(hi[2] - lo[2]))))
+            data = self._mesh_stl(g.mesh)
+            if data is not None:
+                prims["models"].append(ModelPrimitive(pose=pose, scale=Vector3(x=1.0, y=1.0, z=1.0), color=colour,
+                                                      override_color=True, media_type=STL_MEDIA_TYPE, data=data))
+                return
+            m = self.model  # over a cap: its bounding box (centred where the vertices are)
+            self.boxed_meshes.append(m.mesh(g.mesh).name or f"mesh{g.mesh}")
+            v0 = int(m.mesh_vertadr[g.mesh])
+            verts = m.mesh_vert[v0:v0 + int(m.mesh_vertnum[g.mesh])]
+            lo, hi = verts.min(axis=0), verts.max(axis=0)
+            rot = np.zeros(9)
+            mujoco.mju_quat2Mat(rot, np.asarray(g.quat))
+            centre = np.asarray(g.pos) + rot.reshape(3, 3) @ ((lo + hi) / 2)
+            cubes.append(CubePrimitive(pose=_pose(centre, g.quat), color=colour,
+                                       size=Vector3(x=float(hi[0] - lo[0]), y=float(hi[1] - lo[1]),
+                                                    z=float(hi[2] - lo[2]))))
 
     def root_pose(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
         """The root body's pose in the MJCF's placement (position m, quaternion w x y z)."""

@@ -1,48 +1,57 @@
-"""The recording does its work from the loop, after the link callback that noted it, in order.
+"""The recording's work runs on its writer thread, in the order the link's callbacks handed it over.
 
-A profile of a realtime run showed the MCAP writes inside the link's read callback (forward
-kinematics, JSON) as half of that callback, while a token chunk waited behind it. Now the callbacks
-only note what happened; the work follows from the loop. Checked here: the callback itself writes
-nothing; the work comes in the order noted, nothing dropped; with no running loop it is done at
-once; ``close`` does what is still noted. A real ``RunLog`` (no MCAP file: its calls are recorded)
-behind the listener seam; the client is the callbacks' lists and counters the recording reads.
+The scene of an arm with meshes built on the event loop tripped the board's 200 ms watchdog; the MCAP
+writes inside the link's read callback were half of that callback. Now the callbacks only hand the
+messages over (a bounded queue); one thread does every RunLog call. Checked here: nothing is written on
+the callback's thread; the order is the order handed over; a full queue drops and counts, never blocks;
+``close`` finishes the file on the thread and waits a bounded time. A real ``RunLog`` writing a real
+MCAP behind the listener seam; the client is the callbacks' lists and counters the recording reads.
+Synchronisation: :meth:`LogWriter.wait_idle` and ``threading.Event`` (no sleeps).
 """
 
 from __future__ import annotations
 
 import asyncio
+import threading
+from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
 from host.link.receive import LinkStats
+from host.run.log_writer import LogWriter
 from host.run.mcap_log import RunLog
+from host.run.mcap_read import McapRun
 from host.run.recording import Recording
 from protocol.messages import FaultFlags, ServoFrame, SimState, Telemetry
 from robots.registry import load_robot
 
 
 class _Log(RunLog):
-    """A RunLog that records what the recording asked of it (and does it)."""
+    """A RunLog that records what the recording asked of it, and on which thread (and does it)."""
 
     def __init__(self) -> None:
         super().__init__(load_robot("coco"))
         self.asked: list[tuple[str, Any]] = []
+        self.threads: set[int] = set()
 
     def on_message(self, msg: Any) -> None:
+        self.threads.add(threading.get_ident())
         self.asked.append(("message", msg.board_time_us))
         super().on_message(msg)
 
     def on_frame_sent(self, seq: int, msg: Any, board_time_us: int) -> None:
+        self.threads.add(threading.get_ident())
         self.asked.append(("sent", seq))
         super().on_frame_sent(seq, msg, board_time_us)
 
 
-def _recording() -> tuple[Recording, _Log]:
+def _recording(tmp_path: Path) -> tuple[Recording, _Log]:
     client = SimpleNamespace(on_fault=[], on_nack=[], on_sent=[], on_received=[], stats=LinkStats(),
                              board_now_estimate=lambda: 1_000)
     runtime = SimpleNamespace(captures=[], board_times={}, robot=load_robot("coco"))
     shell = SimpleNamespace(last_result=None)
     log = _Log()
+    log.open(tmp_path / "run.mcap")
     return Recording(log, client, runtime, shell), log  # type: ignore[arg-type]
 
 
@@ -55,78 +64,73 @@ def _sim(t_us: int) -> SimState:
     return SimState(t_us, (0.0, 0.0, 0.3), (1.0, 0.0, 0.0, 0.0))
 
 
-async def _passes(n: int = 50) -> None:
-    """Let the loop come round ``n`` times (the work goes in slices of ``DRAIN_SLICE_S``, one per pass)."""
-    for _ in range(n):
-        await asyncio.sleep(0)
-
-
-def test_the_link_callback_only_notes_and_the_loop_does_it_in_order() -> None:
-    rec, log = _recording()
+def test_the_callbacks_hand_over_and_the_writer_thread_logs_in_order(tmp_path: Path) -> None:
+    rec, log = _recording(tmp_path)
+    gate = threading.Event()
+    rec.writer.submit(gate.wait)  # the thread waits here: whatever follows is only queued
 
     async def main() -> None:
         rec.client.on_received[0](_tel(10_000))
         rec.client.on_sent[0](7, ServoFrame(20_000, 1, (0.1,)))
         rec.client.on_received[0](_sim(10_000))
         rec.client.on_received[0](_tel(30_000))
-        assert log.asked == []  # inside the callback: nothing written yet
-        await _passes()
-        assert log.asked == [("message", 10_000), ("sent", 7), ("message", 10_000), ("message", 30_000)]
-
-    asyncio.run(main())
-    rec.close()
-
-
-def test_without_a_loop_it_is_done_at_once_and_close_does_what_is_left() -> None:
-    rec, log = _recording()
-    rec.client.on_received[0](_tel(10_000))
-    assert log.asked == [("message", 10_000)]
-
-    async def main() -> None:
-        rec.client.on_received[0](_tel(20_000))
-        rec.close()  # before the loop came round to it
-        assert log.asked == [("message", 10_000), ("message", 20_000)]
-        assert rec.client.on_received == []
-
-    asyncio.run(main())
-
-
-def test_past_max_deferred_the_work_is_done_at_once(monkeypatch: Any) -> None:
-    """A loop that never comes round (a callback flood) must not let the noted work grow without bound."""
-    import host.run.recording as recording
-
-    monkeypatch.setattr(recording, "MAX_DEFERRED", 3)
-    rec, log = _recording()
-
-    async def main() -> None:
-        for t in (10_000, 20_000):
-            rec.client.on_received[0](_tel(t))
+        for _ in range(20):  # the loop's own bookkeeping (slices) runs; it writes nothing
+            await asyncio.sleep(0)
         assert log.asked == []
-        rec.client.on_received[0](_tel(30_000))  # the third: done now, all three in order
-        assert log.asked == [("message", 10_000), ("message", 20_000), ("message", 30_000)]
-        await asyncio.sleep(0)
-        assert len(log.asked) == 3  # the drain still scheduled finds nothing left
 
     asyncio.run(main())
+    gate.set()
+    assert rec.writer.wait_idle(30)
+    assert log.asked == [("message", 10_000), ("sent", 7), ("message", 10_000), ("message", 30_000)]
+    assert log.threads == {rec.writer._thread.ident} and threading.get_ident() not in log.threads
     rec.close()
+    assert rec.client.on_received == [] and rec.dropped == 0
+    counts = McapRun(tmp_path / "run.mcap").counts()
+    assert counts["/joint_states"] == 2 and counts["/link/tx"] == 1 and counts["/scene"] == 1
 
 
-def test_the_loop_does_the_work_in_slices_and_other_callbacks_run_between(monkeypatch: Any) -> None:
-    """A slice of 0 s: one noted item per pass of the loop. A callback that became ready meanwhile (a
-    token chunk, a frame to send) runs after the first item, not after all of them: the MCAP chunk
-    compressed inside one item's ``log()`` took 4-5 ms, and a token waited behind the whole batch."""
-    import host.run.recording as recording
+def test_a_full_queue_drops_and_counts_and_never_blocks_the_caller() -> None:
+    w = LogWriter(max_queued=5).start()
+    started, gate = threading.Event(), threading.Event()
+    got: list[int] = []
+    assert w.submit(lambda: (started.set(), gate.wait()))
+    assert started.wait(30)  # the thread is inside that call: the queue is empty and stays unserved
+    accepted = [w.submit(got.append, i) for i in range(8)]
+    assert accepted == [True] * 5 + [False] * 3
+    assert w.dropped == 3 and w.waiting() == 6 and w.max_waiting == 6
+    gate.set()
+    assert w.close(30)
+    assert got == [0, 1, 2, 3, 4]  # FIFO, nothing reordered
+    assert w.submit(got.append, 99) is False and w.dropped == 4  # closed: dropped too
 
-    monkeypatch.setattr(recording, "DRAIN_SLICE_S", 0.0)
-    rec, log = _recording()
 
-    async def main() -> None:
-        for t in (10_000, 20_000, 30_000, 40_000):
-            rec.client.on_received[0](_tel(t))
-        asyncio.get_running_loop().call_soon(lambda: log.asked.append(("other", 0)))
-        await _passes()
-        assert log.asked == [("message", 10_000), ("other", 0), ("message", 20_000), ("message", 30_000),
-                             ("message", 40_000)]
+def test_close_waits_a_bounded_time_for_a_stuck_thread() -> None:
+    w = LogWriter().start()
+    gate = threading.Event()
+    w.submit(gate.wait)
+    assert w.close(0.01) is False  # the thread is stuck: close returns after its timeout
+    gate.set()
+    assert w.close(30) is True
 
-    asyncio.run(main())
+
+def test_a_call_that_raises_is_counted_and_the_thread_goes_on() -> None:
+    w = LogWriter().start()
+    got: list[int] = []
+    w.submit(lambda: 1 / 0)
+    w.submit(got.append, 1)
+    assert w.close(30)
+    assert got == [1] and w.errors == 1 and isinstance(w.first_error, ZeroDivisionError)
+
+
+def test_a_failing_run_log_is_one_note_and_the_run_goes_on(tmp_path: Path) -> None:
+    rec, log = _recording(tmp_path)
+
+    def broken(msg: Any) -> None:
+        raise RuntimeError("sink gone")
+
+    log.on_message = broken  # type: ignore[method-assign]
+    rec.client.on_received[0](_tel(10_000))
+    rec.client.on_received[0](_tel(20_000))
+    assert rec.writer.wait_idle(30)
     rec.close()
+    assert rec.notes == ["ghostshell: the recording stopped: RuntimeError: sink gone"]
