@@ -3,6 +3,12 @@ a CAN log in a python-can format (``.log`` candump, ``.asc``, ``.blf``: through 
 :mod:`host.commands.canlog_decode`), or a run's ``run.mcap`` (:mod:`host.run.mcap_read`: one line per
 message, ``board-time topic {decoded fields}``, then a per-topic count on stderr).
 
+Big MCAP messages are summarised, not printed: one whose payload is over :data:`SUMMARISE_OVER_BYTES`
+(not even turned into a dict) or whose line would be over :data:`MAX_LINE_CHARS` prints
+``board-time topic <schema: N B; entities 7, models 13, ...>`` (the element count of each repeated
+field). A robot's ``/scene`` with meshes is megabytes: printed whole it was a line of tens of MB and
+took seconds. Bytes fields (a photo's PNG, a mesh's STL) print as ``<N B>``.
+
 Exit status: 0 every record decoded; 1 some records could not be decoded (each named with its line;
 the rest are printed); 2 the file is missing, empty, not a frame log at all, or ``--type`` names no
 message type (the valid names are listed).
@@ -19,7 +25,12 @@ from host.commands.errors import print_error
 from host.commands.linkarg import add_link_argument
 from protocol.linkkinds import link_kind
 
-__all__ = ["configure", "decode_file", "decode_mcap_file", "main"]
+__all__ = ["MAX_LINE_CHARS", "SUMMARISE_OVER_BYTES", "configure", "decode_file", "decode_mcap_file", "main"]
+
+#: an MCAP message whose encoded payload is over this many bytes is summarised without decoding it to text
+SUMMARISE_OVER_BYTES = 1024 * 1024
+#: a decoded MCAP message whose line would be longer than this (characters) is summarised instead
+MAX_LINE_CHARS = 16 * 1024
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -96,7 +107,7 @@ def decode_mcap_file(path: str, out: IO[str] | None = None, err: IO[str] | None 
     err = sys.stderr if err is None else err  # the stream of whoever imported first (pytest's capture, a redirect)
     import json
 
-    from host.run.mcap_read import McapReadError, McapRun
+    from host.run.mcap_read import McapReadError, McapRun, MessageSummary
 
     try:
         run = McapRun(path)
@@ -105,12 +116,16 @@ def decode_mcap_file(path: str, out: IO[str] | None = None, err: IO[str] | None 
         return 2
     wanted = {t.lower() for t in types} if types else None
     counts: dict[str, int] = {}
-    for m in run.messages():
+    for m in run.messages(summarise_over=SUMMARISE_OVER_BYTES):
         if wanted and m.topic.lower() not in wanted and m.schema.lower() not in wanted:
             continue
         counts[m.topic] = counts.get(m.topic, 0) + 1
-        value = _shorten(m.value)
-        text = json.dumps(value, ensure_ascii=False, separators=(",", ":"), default=str)
+        if isinstance(m.value, MessageSummary):
+            text = str(m.value)
+        else:
+            text = json.dumps(_shorten(m.value), ensure_ascii=False, separators=(",", ":"), default=str)
+            if len(text) > MAX_LINE_CHARS:
+                text = str(MessageSummary(m.schema, m.size, _list_counts(m.value, {})))
         out.write(f"{m.log_time_ns / 1e9:12.6f} {m.topic:<15} {text}\n")
     print_error("log", (", ".join(f"{t} {n}" for t, n in counts.items()) or "no messages"), file=err)
     if run.truncated:
@@ -127,6 +142,20 @@ def _shorten(value):
     if isinstance(value, list):
         return [_shorten(v) for v in value]
     return value
+
+
+def _list_counts(value: object, counts: dict[str, int]) -> dict[str, int]:
+    """Element counts of every list in a decoded message, by its field name (summed)."""
+    if isinstance(value, dict):
+        for k, v in value.items():
+            if isinstance(v, list):
+                counts[k] = counts.get(k, 0) + len(v)
+            _list_counts(v, counts)
+    elif isinstance(value, list):
+        for v in value:
+            if isinstance(v, (dict, list)):
+                _list_counts(v, counts)
+    return counts
 
 
 def main(args: argparse.Namespace) -> int:

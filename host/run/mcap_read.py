@@ -10,6 +10,12 @@
 * :attr:`McapRun.truncated` -> None, or one line saying where a cut file ends (its writer was killed:
   everything up to the last complete chunk is read, as the format allows).
 
+Big messages: with ``summarise_over=N`` a message whose encoded payload is over N bytes is not turned into
+a dict (a robot's ``/scene`` is megabytes: as a dict and then JSON, one took seconds and printed a line
+of tens of MB); its value is a :class:`MessageSummary` instead: schema, payload bytes, and how many
+elements each repeated message field holds (``entities``, ``models``, ``points``...), counted on the
+decoded protobuf without converting it (a JSON channel: its top-level lists' lengths).
+
 For replay: :func:`read_mcap_host_to_board` yields the ``/link/tx`` messages (re-decoded from their
 serial wire bytes) in send order, :func:`mcap_last_sim_state` the last ``/sim_state``.
 
@@ -36,7 +42,8 @@ from protocol.framing import Frame
 from protocol.messages import Message as WireMessage
 from protocol.messages import SimState
 
-__all__ = ["McapMessage", "McapReadError", "McapRun", "mcap_last_sim_state", "read_mcap_host_to_board"]
+__all__ = ["McapMessage", "McapReadError", "McapRun", "MessageSummary", "mcap_last_sim_state", "read_mcap_host_to_board",
+           "summarise"]
 
 #: what the mcap package raises where a cut file ends: a record cut inside one of its fixed-size fields
 #: surfaces as ``struct.error`` from its stream reader ("unpack requires a buffer of 2 bytes"), which
@@ -54,6 +61,59 @@ class McapMessage:
     schema: str
     log_time_ns: int
     value: Any
+    size: int = 0  # the encoded payload's bytes
+
+
+@dataclass(frozen=True)
+class MessageSummary:
+    """A message too big to show: its schema, its encoded payload's size (bytes) and element counts per
+    repeated field name (summed over the whole message, e.g. ``{"entities": 7, "models": 13}``)."""
+
+    schema: str
+    size: int
+    counts: dict[str, int]
+
+    def __str__(self) -> str:
+        counts = ", ".join(f"{k} {v}" for k, v in self.counts.items())
+        return f"<{self.schema or 'message'}: {self.size} B{'; ' + counts if counts else ''}>"
+
+
+def _has_repeated_messages(descriptor: Any, seen: dict[Any, bool]) -> bool:
+    """Whether messages of ``descriptor`` hold a repeated message field anywhere below (cached)."""
+    if descriptor in seen:
+        return seen[descriptor]
+    seen[descriptor] = False  # (a recursive schema: no deeper than this)
+    out = False
+    for fd in descriptor.fields:
+        if fd.message_type is not None and (fd.is_repeated
+                                             or _has_repeated_messages(fd.message_type, seen)):
+            out = True
+            break
+    seen[descriptor] = out
+    return out
+
+
+def _count_protobuf(msg: Any, counts: dict[str, int], seen: dict[Any, bool]) -> None:
+    for fd, v in msg.ListFields():
+        if fd.message_type is None:
+            continue
+        if fd.is_repeated:
+            counts[fd.name] = counts.get(fd.name, 0) + len(v)
+            if _has_repeated_messages(fd.message_type, seen):  # (a list of points: its length is enough)
+                for item in v:
+                    _count_protobuf(item, counts, seen)
+        elif _has_repeated_messages(fd.message_type, seen):
+            _count_protobuf(v, counts, seen)
+
+
+def summarise(value: Any, schema: str, size: int) -> MessageSummary:
+    """``value`` (a decoded protobuf message, a JSON channel's dict, or bytes) as a :class:`MessageSummary`."""
+    counts: dict[str, int] = {}
+    if hasattr(value, "DESCRIPTOR"):
+        _count_protobuf(value, counts, {})
+    elif isinstance(value, dict):
+        counts = {k: len(v) for k, v in value.items() if isinstance(v, (list, dict, str))}
+    return MessageSummary(schema, size, counts)
 
 
 class _JsonDecoderFactory(McapDecoderFactory):
@@ -132,28 +192,36 @@ class McapRun:
         return out
 
     def messages(self, topics: Iterable[str] | None = None, *, decode: bool = True,
-                 log_time_order: bool = True) -> Iterator[McapMessage]:
-        """The messages on ``topics`` (all when None); see the module docstring for the order."""
+                 log_time_order: bool = True, summarise_over: int | None = None) -> Iterator[McapMessage]:
+        """The messages on ``topics`` (all when None); see the module docstring for the order, and for
+        ``summarise_over`` (bytes; None: every message in full)."""
         wanted = set(topics) if topics is not None else None
         factories = _factories() if decode else []
         if self.complete:
+            decoders: dict[int, Any] = {}
             with open(self.path, "rb") as f:
-                reader = SeekingReader(f, decoder_factories=factories)
-                it = reader.iter_decoded_messages(topics=list(wanted) if wanted else None,
-                                                  log_time_order=log_time_order) if decode else \
-                    ((s, c, m, None) for s, c, m in reader.iter_messages(topics=list(wanted) if wanted else None,
-                                                                         log_time_order=log_time_order))
-                for schema, channel, message, value in it:
-                    yield self._message(schema, channel, message, value, decode)
+                reader = SeekingReader(f)
+                for schema, channel, message in reader.iter_messages(topics=list(wanted) if wanted else None,
+                                                                     log_time_order=log_time_order):
+                    value = _decode(decoders, factories, channel, schema, message.data) if decode else None
+                    yield self._message(schema, channel, message, value, decode, summarise_over)
             return
-        yield from self._stream(wanted, factories, decode)
+        yield from self._stream(wanted, factories, decode, summarise_over)
 
     def _message(self, schema: Schema | None, channel: Channel, message: Message, value: Any,
-                 decode: bool) -> McapMessage:
-        return McapMessage(channel.topic, schema.name if schema else "", message.log_time,
-                           _to_plain(value) if decode else message.data)
+                 decode: bool, summarise_over: int | None = None) -> McapMessage:
+        name = schema.name if schema else ""
+        size = len(message.data)
+        if not decode:
+            value = message.data
+        elif summarise_over is not None and size > summarise_over:
+            value = summarise(value, name, size)
+        else:
+            value = _to_plain(value)
+        return McapMessage(channel.topic, name, message.log_time, value, size)
 
-    def _stream(self, wanted: set[str] | None, factories: list[Any], decode: bool) -> Iterator[McapMessage]:
+    def _stream(self, wanted: set[str] | None, factories: list[Any], decode: bool,
+                summarise_over: int | None = None) -> Iterator[McapMessage]:
         """Every message of a cut file in file order, up to where it ends."""
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
@@ -173,17 +241,8 @@ class McapRun:
                             continue
                         n += 1
                         schema = schemas.get(ch.schema_id)
-                        value: Any = None
-                        if decode:
-                            dec = decoders.get(ch.id)
-                            if dec is None:
-                                for fac in factories:
-                                    dec = fac.decoder_for(ch.message_encoding, schema)
-                                    if dec is not None:
-                                        decoders[ch.id] = dec
-                                        break
-                            value = dec(rec.data) if dec is not None else rec.data
-                        yield self._message(schema, ch, rec, value, decode)
+                        value = _decode(decoders, factories, ch, schema, rec.data) if decode else None
+                        yield self._message(schema, ch, rec, value, decode, summarise_over)
             except _CUT_ERRORS:
                 self.truncated = (f"{self.path} was cut mid-record (its writer did not finish it): read {n} "
                                   f"message(s), up to its last complete chunk")
@@ -204,6 +263,19 @@ class McapRun:
                         yield rec
             except _CUT_ERRORS:
                 return
+
+
+def _decode(decoders: dict[int, Any], factories: list[Any], channel: Channel, schema: Schema | None,
+            data: bytes) -> Any:
+    """``data`` decoded by the first factory that knows the channel's encoding (cached per channel)."""
+    dec = decoders.get(channel.id)
+    if dec is None:
+        for fac in factories:
+            dec = fac.decoder_for(channel.message_encoding, schema)
+            if dec is not None:
+                decoders[channel.id] = dec
+                break
+    return dec(data) if dec is not None else data
 
 
 def read_mcap_host_to_board(path: Path) -> Iterator[tuple[float, int, WireMessage]]:
