@@ -15,7 +15,9 @@ This process is the servo-bus plant (:mod:`firmware_sim.plant`: the robot's MuJo
 Feetech SCS/STS devices on a pty) and reads the firmware's log channel: ``board: ...`` lines go to
 stderr as the Python board prints them, ``F rx|tx T HEX`` records become the JSON-Lines frame log
 (``--log``; decoded here with :mod:`protocol.framelog`, the raw bytes are the firmware's),
-``S key=value`` records are its counters (the ``board: faults {json}`` line at exit).
+``S key=value`` records are its counters (the ``board: faults {json}`` line at exit; in realtime also
+``board: realtime lateness {json}``, :func:`lateness_record`: how far the firmware and the plant fell
+behind the wall clock, told as lateness rather than as a dead servo).
 
 The host link is the firmware's own UART pty (native), except with ``--faults`` or ``--baud``: then the
 line between host and firmware is modelled here (the Python board's
@@ -53,7 +55,7 @@ from protocol.logfile import FrameLogWriter, open_frame_log
 from protocol.wiremodel import WireModel
 from robots.description import Robot
 
-__all__ = ["LaunchOptions", "run_firmware"]
+__all__ = ["LATENESS_PREFIX", "LaunchOptions", "lateness_record", "run_firmware"]
 
 QEMU_MACHINE = "mps2-an385"
 BOOT_CFG_ADDR = 0x20000000  # the image's .bootcfg block (firmware_sim/c/ports/mps2/mps2_an385.ld)
@@ -378,6 +380,8 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
                                                  "injected": [i.summary() for i in relay.injectors],
                                                  "board_detected": detected}), file=err, flush=True)
         print(f"board: {plant.stats.line(world.period_us)}", file=err, flush=True)
+        if not opts.lockstep:
+            print(f"{LATENESS_PREFIX}{json.dumps(lateness_record(logr.stats, plant))}", file=err, flush=True)
         if "tick_cycles_mean" in logr.stats:
             print(f"board: tick cost (virtual-time cycles at 25 MHz, bus waits excluded): mean "
                   f"{logr.stats['tick_cycles_mean']}, max {logr.stats.get('tick_cycles_max', 0)}, "
@@ -388,6 +392,27 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
             os.close(fd)
         bus.close()
     return status
+
+
+#: the line the launcher ends a realtime run's stderr with: ``board: realtime lateness {json}``
+LATENESS_PREFIX = "board: realtime lateness "
+#: the firmware's "S" counters that tell lateness (gs_board_log_stats), as the record names them
+_FW_LATENESS = {"bus_late_replies": "bus_late_replies", "bus_stalls": "bus_stalls", "ticks_skipped": "board_ticks_skipped",
+                "overruns": "board_overruns", "late_frames": "late_frames"}
+
+
+def lateness_record(fw_stats: dict[str, int], plant: PlantBus) -> dict[str, int]:
+    """How far a realtime run's board and plant fell behind the wall clock (all ints):
+    ``bus_late_replies`` (servo answers that came after the firmware's 10 ms bus deadline),
+    ``bus_stalls`` (servo reads nothing answered: the plant or the board was descheduled; not counted
+    towards a dead servo), ``bus_silent_max_ms`` (longest silence of the whole bus), ``board_ticks_skipped``
+    and ``board_overruns`` (the firmware fell >100 ms / >1 tick behind), ``late_frames`` (frames the board
+    refused as LATE) and the plant's :meth:`~firmware_sim.plant.bus.PlantLateness.as_dict`. The firmware's
+    counters are its last "S" record (QEMU's image is killed, so up to 1 s old); missing ones are 0."""
+    rec = {name: int(fw_stats.get(key, 0)) for key, name in _FW_LATENESS.items()}
+    rec["bus_silent_max_ms"] = int(round(fw_stats.get("bus_silent_max_us", 0) / 1000))
+    rec.update(plant.lateness.as_dict())
+    return rec
 
 
 def _die_with_parent() -> None:

@@ -15,6 +15,11 @@ status packets are also released no earlier than their modelled end time.
 
 Faults: ``kill(servo_id, at_us)`` makes a device stop answering from world time ``at_us``
 (``--dead-servo ID@SECONDS`` on the board's command line).
+
+Lateness (realtime): the plant tells when it fell behind the wall clock (its process descheduled, a
+loaded machine): :class:`PlantLateness` counts the physics steps run later than one period after
+they were due, the largest lag (us) and the steps skipped when it re-anchored. A late plant answers
+late; it never stops answering (that is the board's to tell apart from a dead servo).
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ from firmware_sim.plant.devices import REG, Device
 from firmware_sim.plant.feetech import BROADCAST_ID, Inst, Instruction, InstructionParser, status_packet
 from firmware_sim.plant.world import World
 
-__all__ = ["BusStats", "PlantBus"]
+__all__ = ["BusStats", "PlantBus", "PlantLateness"]
 
 BYTE_BITS = 10
 
@@ -47,6 +52,21 @@ class BusStats:
                 f"of {period_us} us ({self.over_budget} ticks over), {self.packets_in} packets in, {self.packets_out} out")
 
 
+@dataclass
+class PlantLateness:
+    """Realtime: how far the plant's physics fell behind the wall clock (counts; times in us)."""
+
+    late_steps: int = 0  # steps run more than one control period after they were due
+    behind_max_us: float = 0.0  # largest lag of a step behind its due time
+    steps_skipped: int = 0  # steps dropped when re-anchoring after falling far behind (not simulated)
+    resyncs: int = 0  # how many times it re-anchored
+
+    def as_dict(self) -> dict[str, int]:
+        """``{"plant_late_steps", "plant_behind_max_ms", "plant_steps_skipped", "plant_resyncs"}`` (ints)."""
+        return {"plant_late_steps": self.late_steps, "plant_behind_max_ms": int(round(self.behind_max_us / 1000)),
+                "plant_steps_skipped": self.steps_skipped, "plant_resyncs": self.resyncs}
+
+
 class PlantBus:
     """Device side of the bus over a :class:`World`."""
 
@@ -64,6 +84,7 @@ class PlantBus:
         self._free_at = 0.0
         self.t0 = time.monotonic()
         self.steps_wall = 0
+        self.lateness = PlantLateness()
 
     def kill(self, dev_id: int, at_us: int) -> None:
         self._dead.append((dev_id, at_us))
@@ -98,14 +119,24 @@ class PlantBus:
         return self.t0 + (self.steps_wall + 1) * self.world.period_us / 1e6
 
     def step_due(self, now: float) -> int:
-        """Realtime: run the physics steps due by ``now`` (at most a few; returns how many ran)."""
+        """Realtime: run the physics steps due by ``now`` (at most a few; returns how many ran). Lateness
+        (a step run more than a period after it was due, a re-anchoring) is counted in :attr:`lateness`."""
         ran = 0
-        while not self.lockstep and now >= self.t0 + (self.steps_wall + 1) * self.world.period_us / 1e6 and ran < 5:
+        period_s = self.world.period_us / 1e6
+        while not self.lockstep and now >= self.t0 + (self.steps_wall + 1) * period_s and ran < 5:
+            behind_us = (now - (self.t0 + (self.steps_wall + 1) * period_s)) * 1e6
+            if behind_us > self.world.period_us:
+                self.lateness.late_steps += 1
+            self.lateness.behind_max_us = max(self.lateness.behind_max_us, behind_us)
             self.world.step()
             self.steps_wall += 1
             ran += 1
         if not self.lockstep and ran == 5:  # far behind: re-anchor instead of bursting
-            self.steps_wall = int((now - self.t0) * 1e6 / self.world.period_us)
+            anchor = int((now - self.t0) / period_s)
+            if anchor > self.steps_wall:
+                self.lateness.steps_skipped += anchor - self.steps_wall
+                self.lateness.resyncs += 1
+            self.steps_wall = anchor
         return ran
 
     # -- packets --------------------------------------------------------------------------------

@@ -10,6 +10,10 @@
 
 #define MISS_LIMIT_LOCKSTEP 3u
 #define MISS_LIMIT_REALTIME 5u
+/* a bus on which nothing answers for this long (board clock) loses its silent servos even without
+ * another device's answer to prove the plant runs: a cut bus or a dead plant, not a descheduled one */
+#define GS_BUS_SILENT_LIMIT_US 2000000u
+#define BOOT_PING_ROUNDS_REALTIME 5u /* realtime: a servo silent at boot is asked again (a slow plant) */
 #define READ_GROUP 6u /* servos per SYNC READ: one read job fits a 2 ms tick at 1 Mbaud */
 
 static const gs_mask_t ALL = (gs_mask_t)((1ull << GS_SERVO_COUNT) - 1u);
@@ -237,9 +241,25 @@ static void read_group(gs_board_t *b, unsigned first, unsigned n, int all) {
     }
     if (!k) return;
     uint32_t ok = gs_bus_sync_read(GS_REG_PRESENT, GS_PRESENT_LEN, ids, k, data, b->bus_timeout_us);
+    uint64_t clock = hal_now_us();
+    if (gs_bus_answers != b->answers_seen) {
+        b->answers_seen = gs_bus_answers;
+        b->last_answer_clock_us = clock;
+    }
+    uint64_t silent = clock - b->last_answer_clock_us;
+    if (silent > b->silent_max_us) b->silent_max_us = silent;
     for (unsigned j = 0; j < k; j++) {
         unsigned i = idx[j];
         if (!(ok >> j & 1u)) {
+            if (gs_bus_heard_late(ids[j])) { /* it answered an earlier read late: alive, behind (late_replies) */
+                b->miss[i] = 0;
+                continue;
+            }
+            if (b->miss_epoch[i] == gs_bus_answers && silent < GS_BUS_SILENT_LIMIT_US) {
+                b->bus_stalls++; /* nothing answered since its last miss: the plant is not running, not proof */
+                continue;
+            }
+            b->miss_epoch[i] = gs_bus_answers;
             if (++b->miss[i] >= b->miss_limit) servo_lost(b, i);
             continue;
         }
@@ -355,6 +375,11 @@ void gs_board_init(gs_board_t *b, const gs_settings_t *cfg, gs_send_fn sendfn, v
     b->servo_fault = 0;
     b->fault_servo = 0;
     b->servo_fault_t = 0;
+    for (unsigned i = 0; i < GS_SERVO_COUNT; i++) b->miss_epoch[i] = 0;
+    b->answers_seen = gs_bus_answers;
+    b->last_answer_clock_us = hal_now_us();
+    b->silent_max_us = 0;
+    b->bus_stalls = b->ticks_skipped = b->overruns = 0;
     for (unsigned k = 0; k < 3; k++) b->screen_last[k].name_len = 0;
     b->speaker_action = b->speaker_kind = 0;
     b->speaker_start_us = 0;
@@ -363,12 +388,28 @@ void gs_board_init(gs_board_t *b, const gs_settings_t *cfg, gs_send_fn sendfn, v
 }
 
 void gs_board_boot(gs_board_t *b) {
+    /* realtime: a servo silent at boot is pinged again in later rounds (a plant still starting or
+     * descheduled answers late: gs_bus_heard_late); lockstep's 1 s timeout is one round's worth */
+    gs_mask_t silent = 0;
+    unsigned rounds = b->cfg.lockstep ? 1u : BOOT_PING_ROUNDS_REALTIME;
+    for (unsigned r = 0; r < rounds && !hal_should_stop(); r++) {
+        for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
+            if (r && !(silent >> i & 1u)) continue;
+            if (gs_bus_ping(gs_servos[i].id, b->bus_timeout_us)) silent &= ~((gs_mask_t)1 << i);
+            else silent |= (gs_mask_t)1 << i;
+        }
+        for (unsigned i = 0; i < GS_SERVO_COUNT; i++)
+            if (gs_bus_heard_late(gs_servos[i].id)) silent &= ~((gs_mask_t)1 << i);
+        if (!silent) break;
+    }
     for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
-        if (!gs_bus_ping(gs_servos[i].id, b->bus_timeout_us)) {
+        if (silent >> i & 1u) {
             b->miss[i] = b->miss_limit;
             servo_lost(b, i);
         }
     }
+    b->answers_seen = gs_bus_answers;
+    b->last_answer_clock_us = hal_now_us();
     if (hal_should_stop()) return; /* stopped while it looked for its bus: no "absent" devices to report */
     b->imu_present = (uint8_t)gs_bus_ping(GS_IMU_ID, b->bus_timeout_us);
     b->probe_present = (uint8_t)gs_bus_ping(GS_PROBE_ID, b->bus_timeout_us);
@@ -405,9 +446,13 @@ int gs_board_can_tick(const gs_board_t *b) {
 void gs_board_skip(gs_board_t *b, uint64_t n) {
     b->now_us += (int64_t)n * b->tick_us;
     b->ticks += n;
+    b->ticks_skipped += (uint32_t)n;
 }
 
-void gs_board_note_overrun(gs_board_t *b) { b->flags_since |= GS_FAULT_FLAGS_TICK_OVERRUN; }
+void gs_board_note_overrun(gs_board_t *b) {
+    b->flags_since |= GS_FAULT_FLAGS_TICK_OVERRUN;
+    b->overruns++;
+}
 
 void gs_board_on_link_error(gs_board_t *b) {
     b->link_errors++;
@@ -863,6 +908,16 @@ void gs_board_log_stats(const gs_board_t *b) {
     gs_log_u64(gs_bus_stats.bytes_in);
     gs_log_str(" bus_timeouts=");
     gs_log_u64(gs_bus_stats.timeouts);
+    gs_log_str(" bus_late_replies=");
+    gs_log_u64(gs_bus_stats.late_replies);
+    gs_log_str(" bus_stalls=");
+    gs_log_u64(b->bus_stalls);
+    gs_log_str(" bus_silent_max_us=");
+    gs_log_u64(b->silent_max_us);
+    gs_log_str(" ticks_skipped=");
+    gs_log_u64(b->ticks_skipped);
+    gs_log_str(" overruns=");
+    gs_log_u64(b->overruns);
     if (b->tick_cycles_n) {
         gs_log_str(" tick_cycles_mean=");
         gs_log_u64(b->tick_cycles_sum / b->tick_cycles_n);

@@ -83,9 +83,19 @@ struct gs_board {
     uint8_t imu_present, probe_present, probe_fresh;
     uint8_t probe[GS_PROBE_LEN];
     int64_t probe_t_us;
-    /* servo-bus health */
+    /* servo-bus health: a read a servo missed counts towards its loss (miss_limit in a row) only when the
+     * plant demonstrably ran meanwhile: another device answered since that servo's previous counted miss
+     * (gs_bus_answers moved past miss_epoch), or the whole bus has been silent for GS_BUS_SILENT_LIMIT_US
+     * of board clock. A read nobody answered is a stall (the plant or this board was descheduled:
+     * lateness, counted in bus_stalls); a late answer (gs_bus_heard_late) clears the servo's misses. */
     uint8_t miss[GS_SERVO_COUNT];
     uint8_t miss_limit;
+    uint32_t miss_epoch[GS_SERVO_COUNT];
+    uint32_t answers_seen;   /* gs_bus_answers at the last read */
+    uint64_t last_answer_clock_us; /* hal_now_us when a read last found new answers */
+    uint64_t silent_max_us;  /* longest bus silence seen (hal clock) */
+    uint32_t bus_stalls;     /* servo reads nobody answered, not counted as misses */
+    uint32_t ticks_skipped, overruns; /* realtime: ticks skipped to catch up, ticks started a period late */
     gs_mask_t answering;   /* servos included in reads */
     uint8_t servo_fault;   /* latched */
     uint8_t fault_servo;   /* index of the first servo that stopped answering */

@@ -3,10 +3,44 @@
 #include "gs_hal.h"
 
 gs_bus_stats_t gs_bus_stats;
+uint32_t gs_bus_answers;
 
 /* received bytes not yet parsed (a status packet may arrive in pieces) */
 static uint8_t rx[2u * (GS_BUS_MAX_PARAMS + 6u)];
 static size_t rx_len;
+/* ids heard late (a bit per id 0..255) since gs_bus_heard_late() last asked */
+static uint8_t heard_late[32];
+
+static int parse_status(uint8_t *params, size_t cap, size_t *n_params);
+
+int gs_bus_heard_late(uint8_t id) {
+    int heard = heard_late[id >> 3] >> (id & 7u) & 1u;
+    heard_late[id >> 3] &= (uint8_t)~(1u << (id & 7u));
+    return heard;
+}
+
+/* Before a request: whatever is waiting on the bus answered an earlier request after its deadline. Each
+ * whole status packet in it is a late reply (counted, its id remembered); the rest is dropped, so a late
+ * answer is never taken for the new request's. Bounded: at most one buffer's worth per round, and the
+ * plant sends nothing unasked. */
+static void collect_late(void) {
+    for (unsigned round = 0; round < 64u; round++) {
+        if (rx_len >= sizeof rx) rx_len = 0;
+        size_t got = hal_bus_read(&rx[rx_len], sizeof rx - rx_len, 0);
+        rx_len += got;
+        for (;;) {
+            uint8_t p[GS_BUS_MAX_PARAMS];
+            size_t np = 0;
+            int id = parse_status(p, sizeof p, &np);
+            if (id < 0) break;
+            gs_bus_stats.late_replies++;
+            heard_late[(unsigned)id >> 3] |= (uint8_t)(1u << ((unsigned)id & 7u));
+        }
+        if (!got) break;
+    }
+    hal_bus_drain();
+    rx_len = 0;
+}
 
 static void send_packet(uint8_t id, uint8_t inst, const uint8_t *params, size_t n) {
     uint8_t pkt[GS_BUS_MAX_PARAMS + 6u];
@@ -22,8 +56,7 @@ static void send_packet(uint8_t id, uint8_t inst, const uint8_t *params, size_t 
         sum += params[i];
     }
     pkt[5 + n] = (uint8_t)(~sum & 0xFFu);
-    hal_bus_drain(); /* a late answer to an earlier request must not be taken for this one's */
-    rx_len = 0;
+    collect_late(); /* a late answer to an earlier request must not be taken for this one's */
     hal_bus_write(pkt, n + 6u);
     gs_bus_stats.packets_out++;
     gs_bus_stats.bytes_out += n + 6u;
@@ -63,6 +96,7 @@ static int parse_status(uint8_t *params, size_t cap, size_t *n_params) {
         if (ok) {
             gs_bus_stats.packets_in++;
             gs_bus_stats.bytes_in += total;
+            gs_bus_answers++;
             return id;
         }
         gs_bus_stats.bad_packets++;
@@ -74,17 +108,19 @@ static int parse_status(uint8_t *params, size_t cap, size_t *n_params) {
 
 /* Wait for the next status packet until `deadline`; its id, GS_BUS_TIMEOUT, or GS_BUS_STOPPING
  * when the port was asked to stop: a stopping board does not wait out its bus timeouts (1 s each
- * in lockstep) for a plant that may already be gone, and a stop is not counted as a timeout. */
+ * in lockstep) for a plant that may already be gone, and a stop is not counted as a timeout.
+ * Past the deadline the bus is still read once without waiting: a board process that was itself
+ * descheduled past its deadline finds the answer that came meanwhile instead of calling it a miss. */
 static int next_status(uint64_t deadline, uint8_t *params, size_t cap, size_t *n_params) {
     for (;;) {
         int id = parse_status(params, cap, n_params);
         if (id >= 0) return id;
         if (hal_should_stop()) return GS_BUS_STOPPING;
         uint64_t now = hal_now_us();
-        if (now >= deadline) return GS_BUS_TIMEOUT;
         if (rx_len >= sizeof rx) rx_len = 0; /* cannot happen with sane packets; never overflow */
-        size_t got = hal_bus_read(&rx[rx_len], sizeof rx - rx_len, (uint32_t)(deadline - now));
+        size_t got = hal_bus_read(&rx[rx_len], sizeof rx - rx_len, now >= deadline ? 0u : (uint32_t)(deadline - now));
         rx_len += got;
+        if (!got && now >= deadline) return GS_BUS_TIMEOUT;
     }
 }
 

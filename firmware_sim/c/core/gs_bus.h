@@ -46,10 +46,21 @@
 
 typedef struct {
     uint32_t packets_out, packets_in, timeouts, bad_packets;
+    uint32_t late_replies; /* status packets that came after their request's deadline (found before the next send) */
     uint64_t bytes_out, bytes_in;
 } gs_bus_stats_t;
 
 extern gs_bus_stats_t gs_bus_stats;
+
+/* Lateness versus silence. A status packet that arrives after its request's deadline (the plant, or this
+ * board's own process, was descheduled) is not thrown away unread: before each new request the bytes
+ * waiting on the bus are parsed, every whole status packet among them counts in `late_replies`, and its
+ * id is remembered until gs_bus_heard_late() asks for it. `gs_bus_answers` counts every status packet
+ * received, on time or late: a caller compares it between two reads to tell "this device stayed silent
+ * while others answered" (a device gone) from "nothing answered at all" (the plant is not running). */
+extern uint32_t gs_bus_answers;
+/* 1 when a late status packet from `id` was seen since the last call for that id (and forgets it). */
+int gs_bus_heard_late(uint8_t id);
 
 /* SYNC WRITE `len` bytes at `addr` to each of `n` ids (`data`: n * len bytes, id order). */
 void gs_bus_sync_write(uint8_t addr, uint8_t len, const uint8_t *ids, size_t n, const uint8_t *data);
