@@ -8,7 +8,9 @@ numbers and answers, the supervisor decides when and what to say to keep it up:
   the session's module docstring), then a burst of TIME_SYNC exchanges;
 * :meth:`Supervisor.supervise`: after a loss, reconnect with exponential backoff (0.05 s doubling
   to ``reconnect_max_s``), then the session's ``_reconnected`` (its ``on_reconnect`` callbacks);
-* :meth:`Supervisor.heartbeat_loop`: a HEARTBEAT whenever nothing else was sent for ``heartbeat_s``;
+* :meth:`Supervisor.heartbeat_loop`: a HEARTBEAT whenever nothing else was sent for ``heartbeat_s``
+  (realtime boards: a lockstep board's watchdog runs on its own clock, which only the host's frames and
+  ADVANCEs move, and a message sent on wall time would make the run depend on the host's timing);
 * :meth:`Supervisor.sync_loop`: a TIME_SYNC exchange every ``sync_interval_s`` (realtime boards),
   feeding :class:`host.link.timesync.ClockSync` (NTP's four timestamps, RFC 5905 section 8).
 
@@ -330,10 +332,13 @@ class Supervisor:
                     c._count_retry()
 
     async def heartbeat_loop(self) -> None:
+        """A HEARTBEAT whenever nothing else was sent for ``heartbeat_s`` (realtime boards only: in lockstep
+        nothing is sent on wall time, see the module docstring)."""
         c = self.client
         while True:
             await anyio.sleep(c.heartbeat_s / 2)
-            if c._ready and c.keepalive and time.monotonic() - c._last_tx >= c.heartbeat_s:
+            if (c._ready and c.keepalive and not c.lockstep
+                    and time.monotonic() - c._last_tx >= c.heartbeat_s):
                 with contextlib.suppress(LinkError):
                     c._send(Heartbeat(host_now_us()))
 

@@ -17,6 +17,7 @@ import anyio
 
 from host.link.board_time import BoardTime
 from host.link.errors import LinkError, LinkTimeout
+from host.link.receive import LinkStats
 from host.link.telemetry import FaultEvent, TelemetryFanout, flag_names
 from protocol.messages import Advance, FaultFlags, Message, Telemetry
 
@@ -62,6 +63,7 @@ class TelemetryWaits(BoardTime):
     the attributes annotated here."""
 
     fanout: TelemetryFanout
+    stats: LinkStats
 
     @property
     def latest_telemetry(self) -> Telemetry | None:
@@ -112,6 +114,18 @@ class TelemetryWaits(BoardTime):
             return self.NUDGE_RAISE_S
         return min(self.NUDGE_RAISE_S, max(2 * self.NUDGE_S, self.NUDGE_RAISE_FACTOR * max(lat)))
 
+    #: lockstep, a link that has lost nothing: wall seconds :meth:`wait_for` waits for the report its
+    #: ADVANCE asked for before it takes the ADVANCE or the report as lost all the same and repeats it
+    #: (or moves the target on). A healthy board answers in milliseconds; a repeat is one more message
+    #: in the board's stream, sent at a wall-clock moment, so it is kept for real silence.
+    QUIET_LOST_S = 2.0
+
+    def link_lossy(self) -> bool:
+        """Whether the link has shown a loss: a frame that failed to decode, or a request re-sent for want
+        of its ACK. Lockstep nudges (:meth:`wait_for`, :func:`host.run.pump.silence_watchdog`) act on
+        wall-clock silence quickly only then."""
+        return self.stats.decode_errors > 0 or self.stats.retries > 0
+
     def _report_latency(self, seconds: float) -> None:
         self.report_latencies.append(max(0.0, seconds))
 
@@ -136,11 +150,14 @@ class TelemetryWaits(BoardTime):
         """The first telemetry (latest included) satisfying ``predicate``; :class:`LinkTimeout` after ``timeout`` s.
 
         ``nudge`` (lockstep boards; ignored in realtime): a lockstep board only reports while its
-        clock runs, so ADVANCE it one report period past the latest board time known at once and
-        again every :attr:`NUDGE_S` s while no report satisfies ``predicate``: a lost ADVANCE or
-        a lost report (likely on a lossy CAN link, where a report is 17 frames) cannot stall the
-        wait. The target repeats until a report reaches it or :meth:`nudge_raise_s` passes, so a
-        slow board is not pushed ahead. The ADVANCEs are not awaited: the report is the
+        clock runs, so ADVANCE it one report period past the latest board time known. On a link that
+        has lost something (:meth:`link_lossy`: a lost ADVANCE or a lost report, likely on a lossy CAN
+        link, where a report is 17 frames) the ADVANCE is repeated every :attr:`NUDGE_S` s while no
+        report satisfies ``predicate``; the target repeats until a report reaches it or
+        :meth:`nudge_raise_s` passes, so a slow board is not pushed ahead. On a link that has lost
+        nothing, the message stream must not depend on wall time (a lockstep run is a function of its
+        input): the target moves on only once a report from it came (later than the board time it was
+        set from), and a repeat comes only after :attr:`QUIET_LOST_S` without one. The ADVANCEs are not awaited: the report is the
         acknowledgement that matters.
         """
         t = self.latest_telemetry
@@ -157,6 +174,7 @@ class TelemetryWaits(BoardTime):
         # board was busy since that ADVANCE, so the wait from the raise would understate its latency.
         floor = 0
         late = False
+        sent_at = 0.0  # when (anyio time) the last ADVANCE went out
 
         def watch(t: Telemetry) -> bool:
             nonlocal late
@@ -171,7 +189,12 @@ class TelemetryWaits(BoardTime):
                 if nudging:
                     now = anyio.current_time()
                     seen = self.board_now_estimate()
-                    if goal.due(seen, now, self.nudge_raise_s()):
+                    lossy = self.link_lossy()
+                    quiet = now - sent_at >= self.QUIET_LOST_S
+                    # healthy link: a report from the current target (later than the time it was set from)
+                    # is the evidence that the board ran to it
+                    moved_on = seen > raised_from or quiet
+                    if goal.reached(seen) or (goal.due(seen, now, self.nudge_raise_s()) if lossy else moved_on):
                         # first nudge; a report reached the target without satisfying the predicate; or
                         # none for nudge_raise_s() (lost): move the target one report period on. Otherwise the same
                         # target again (a lost ADVANCE): a slow board (QEMU on a loaded machine) must
@@ -179,8 +202,13 @@ class TelemetryWaits(BoardTime):
                         floor, late = goal.target, False
                         goal.raise_to(max(goal.target, seen) + self.report_period_us(), now)
                         raised_from = seen
-                    with contextlib.suppress(LinkError):
-                        self._send(Advance(goal.target))
+                        resend = True
+                    else:
+                        resend = lossy or quiet
+                    if resend:
+                        sent_at = now
+                        with contextlib.suppress(LinkError):
+                            self._send(Advance(goal.target))
                 left = deadline - anyio.current_time()
                 if left <= 0:
                     break

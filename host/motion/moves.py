@@ -4,8 +4,9 @@ The same road to the servos as a run: a minimum-jerk :func:`robots.motion.transi
 placed on a :class:`~host.motion.mixer.Mixer` and streamed by a
 :class:`~host.motion.streamer.FrameStreamer` over a :class:`~host.motion.board_link.BoardFrameLink`
 (one frame every ``1 / rate_hz`` s, ``lookahead`` ahead of the board). Telemetry confirms the
-frames and, on a lockstep board, moves board time on; after the last frame the streamer keeps
-sending hold frames while the servos settle.
+frames and, on a lockstep board, moves board time on (the one telemetry driver of a run's pump,
+:func:`host.motion.driver.drive`); after the last frame the streamer keeps sending hold frames while
+the servos settle.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import numpy as np
 from host.link import FAULT_BITS, BoardClient
 from host.link.errors import LinkError, LinkTimeout, NackError
 from host.motion.board_link import BoardFrameLink
+from host.motion.driver import drive, realtime_topper
 from host.motion.mixer import Mixer
 from host.motion.streamer import FrameStreamer
 from protocol.messages import FaultFlags, Nack, Telemetry
@@ -104,30 +106,32 @@ async def move_to(
     seg = streamer.add(motion, label="move_to")
     nacks: list[Nack] = []
     client.on_nack.append(nacks.append)
-    result: MoveResult | None = None
+    goal_reached: list[MoveResult] = []
+
+    def on_report(tel: Telemetry) -> bool:
+        if nacks:
+            raise NackError(nacks[0])
+        if tel.faults & (FaultFlags.ESTOP | FaultFlags.WATCHDOG_FAULT):
+            raise LinkError(f"board faulted during the move: {FaultFlags(tel.faults & FAULT_BITS)!r}")
+        end = streamer.times(seg).end
+        if end is None:
+            return False
+        err, idx = max_error_deg(tel, goal)
+        if err <= tolerance_deg:
+            goal_reached.append(MoveResult(err, idx, streamer.frames_sent, motion.duration, tel.board_time_us))
+            return True
+        if tel.board_time_us >= int((end + settle_timeout_s) * 1e6):
+            raise LinkTimeout(f"servos not within {tolerance_deg} deg of the target {settle_timeout_s} s after the "
+                              f"move: largest error {err:.2f} deg on servo index {idx}")
+        return False
+
     try:
         with anyio.fail_after(wall_timeout_s):
             async with anyio.create_task_group() as tg:
                 if not client.lockstep:
-                    tg.start_soon(_topper, streamer)
+                    tg.start_soon(realtime_topper, streamer)
                 await streamer.top_up(start.board_time_us if client.lockstep else None)
-                async for tel in client.telemetry(maxsize=256):
-                    streamer.on_telemetry(tel)
-                    if nacks:
-                        raise NackError(nacks[0])
-                    if tel.faults & (FaultFlags.ESTOP | FaultFlags.WATCHDOG_FAULT):
-                        raise LinkError(f"board faulted during the move: {FaultFlags(tel.faults & FAULT_BITS)!r}")
-                    end = streamer.times(seg).end
-                    if end is not None:
-                        err, idx = max_error_deg(tel, goal)
-                        if err <= tolerance_deg:
-                            result = MoveResult(err, idx, streamer.frames_sent, motion.duration, tel.board_time_us)
-                            break
-                        if tel.board_time_us >= int((end + settle_timeout_s) * 1e6):
-                            raise LinkTimeout(
-                                f"servos not within {tolerance_deg} deg of the target {settle_timeout_s} s after the "
-                                f"move: largest error {err:.2f} deg on servo index {idx}")
-                    await streamer.top_up(tel.board_time_us if client.lockstep else None)
+                await drive(streamer, client.telemetry(maxsize=256), lockstep=client.lockstep, on_report=on_report)
                 tg.cancel_scope.cancel()
     except TimeoutError:
         raise LinkTimeout(f"move did not finish within {wall_timeout_s} s of wall time") from None
@@ -139,13 +143,7 @@ async def move_to(
     finally:
         client.on_nack.remove(nacks.append)
         _SENT_UNTIL[client] = streamer.first_free_us
-    if result is None:
+    if not goal_reached:
         raise LinkError("telemetry stopped before the move was confirmed")
-    return result
+    return goal_reached[0]
 
-
-async def _topper(streamer: FrameStreamer) -> None:
-    """Realtime: keep the frames flowing every period, whatever telemetry does."""
-    while True:
-        await streamer.top_up()
-        await anyio.sleep(streamer.period_us * 1e-6)

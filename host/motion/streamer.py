@@ -55,6 +55,7 @@ import anyio
 import numpy as np
 
 from host.motion.mixer import MixedFrame, Mixer, MotionLike, Segment
+from host.motion.stalls import STALLS, maybe_stall
 from protocol.codec import WireSchema, schema_for
 from protocol.framing import encode_frame
 from protocol.messages import Flush, ServoFrame, Telemetry
@@ -229,6 +230,8 @@ class FrameStreamer:
         self.failure: Exception | None = None  # why the board will not apply our frames (see fail())
         self._last_failure: Exception | None = None
         self._send_path_s: deque[float] = deque(maxlen=SEND_PATH_WINDOW)  # measured by start_now (s)
+        self._busy = 0  # control work under way that a lockstep top-up waits for (busy())
+        self._not_busy = anyio.Event()
 
     def grid(self, t_us: int) -> int:
         """The first frame time on the grid at or after ``t_us``."""
@@ -263,6 +266,7 @@ class FrameStreamer:
         if not t.started.is_set():
             self._raise_failure()
             await t.started.wait()
+            await self._resumed("wait_started")
         if t.start is None:
             raise self._last_failure or RuntimeError("segment woken without a start")
         return t.start
@@ -273,6 +277,7 @@ class FrameStreamer:
         if not t.ended.is_set():
             self._raise_failure()
             await t.ended.wait()
+            await self._resumed("wait_ended")
         if t.end is None:
             raise self._last_failure or RuntimeError("segment woken without an end")
         return t.end
@@ -410,6 +415,37 @@ class FrameStreamer:
         """True while a lockstep board is held still (see :meth:`hold`)."""
         return self._holds > 0
 
+    @contextlib.asynccontextmanager
+    async def busy(self) -> AsyncIterator[None]:
+        """Mark control work that reacts to a report and waits on something other than board time (a
+        thread, a reply, wall time): in lockstep the telemetry driver tops up only once no such work is
+        under way (:func:`host.motion.driver.react`), so what the work sends precedes the frames that
+        move board time on. Work inside must not wait for board time itself (it would wait for ever)."""
+        self._busy += 1
+        try:
+            yield
+        finally:
+            self._busy -= 1
+            if self._busy == 0:
+                self._not_busy.set()
+                self._not_busy = anyio.Event()
+
+    @property
+    def busy_count(self) -> int:
+        """How many :meth:`busy` sections are under way."""
+        return self._busy
+
+    async def wait_not_busy(self) -> None:
+        """Return once no :meth:`busy` section is under way."""
+        if self._busy:
+            await self._not_busy.wait()
+
+    async def _resumed(self, point: str) -> None:
+        """A task woken by a report resumes: the stall-injection point of :mod:`host.motion.stalls`."""
+        if STALLS is not None:
+            async with self.busy():
+                await maybe_stall(point)
+
     async def top_up(self, board_now_us: int | None = None) -> None:
         """Send frames up to the board clock (or ``board_now_us``) plus the lookahead.
 
@@ -525,6 +561,7 @@ class FrameStreamer:
         event = anyio.Event()
         heapq.heappush(self._time_waiters, (int(t_us), next(self._waiter_ids), event))
         await event.wait()
+        await self._resumed("wait_board_time")
         if self._last_telemetry is None or self._last_telemetry.board_time_us < t_us:
             raise self._last_failure or RuntimeError("board-time waiter woken early")
 

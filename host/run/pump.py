@@ -6,22 +6,22 @@ Everything here runs inside a :class:`~host.run.session.RobotSession`'s task gro
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import time
 from collections import deque
-from collections.abc import AsyncIterable, AsyncIterator, Callable, Sequence, Sized
+from collections.abc import AsyncIterable, AsyncIterator, Callable, Sequence
 from typing import Any
 
 import anyio
-import anyio.lowlevel
 import numpy as np
-import sniffio
 
 from host.link import BoardClient
 from host.link.errors import BoardFaulted, LinkError
 from host.link.faultcheck import clear_command, servo_fault_message
-from host.link.telemetry_waits import NudgeTarget
+from host.motion.driver import SETTLE_CHECKPOINTS as SETTLE_CHECKPOINTS  # re-exported (host.run.runner)
+from host.motion.driver import drive
+from host.motion.driver import settle as settle  # re-exported (tests)
+from host.motion.driver import realtime_topper as driver_topper
 from host.robot.runtime import RobotRuntime
 from host.run import artefacts
 from protocol.messages import FaultFlags
@@ -53,13 +53,14 @@ class Recorder:
             self.max_tilt = max(self.max_tilt, artefacts.tilt_deg(s.base_quat))
 
 
-#: at most this many checkpoints the lockstep pump yields before topping up, so that everything the
-#: last telemetry woke (token pacing, dispatch, new segments) is placed before board time moves on;
-#: on asyncio it stops as soon as no other task is ready to run (:func:`settle`)
-SETTLE_CHECKPOINTS = 32
 #: wall seconds without telemetry after which a run fails (the board died or the link hung)
 TELEMETRY_SILENCE_S = 10.0
-LOCKSTEP_NUDGE_S = 0.5  # lockstep: wall seconds without telemetry before the host ADVANCEs the board
+#: lockstep over a link that has lost nothing: wall seconds of silence (counted from the host's last top-up,
+#: while this process runs) before a lost message is assumed all the same and the pump's recovery
+#: (:func:`lockstep_recover`) runs. A healthy lockstep board answers a top-up within milliseconds; the
+#: host's own stalls do not count (the pump is not waiting then). Before 2026-12-07 it was 0.5 s and
+#: ADVANCEd the board past the frames the host was about to send (issue 41).
+LOCKSTEP_LOST_S = 2.0
 #: wall seconds the silence watchdog may oversleep before it takes the gap as its own process not running
 #: (a starved or suspended host: a User-Mode Linux guest on an overloaded machine stood still for ~10 s),
 #: which is not the board's silence: the gap is not counted
@@ -67,8 +68,8 @@ STALL_S = 1.0
 #: the same once the link has shown losses (decode errors, re-sent requests): a lost report, not a
 #: slow board, is then the likely reason for the silence
 LOSSY_NUDGE_S = 0.05
-#: how long a lockstep nudge waits for the TIME_SYNC reply that says whether the board reached its
-#: target (no reply in time: the target is repeated, and the next nudge asks again)
+#: how long a lockstep recovery waits for the TIME_SYNC reply that says whether the board reached the
+#: last frame sent (no reply in time: the next recovery asks again)
 LOCKSTEP_PROBE_S = 0.5
 
 
@@ -84,7 +85,7 @@ def watchdog_fault_message(client: BoardClient, board_time_us: int) -> str:
 
 async def pump(client: BoardClient, runtime: RobotRuntime, rec: Recorder,
                listeners: Sequence[Callable[[Any], None]] = ()) -> None:
-    """Telemetry -> confirmations, top-ups and the history.
+    """Telemetry -> confirmations, top-ups and the history, through :func:`host.motion.driver.drive`.
 
     A latched watchdog fault (the link was cut for longer than watchdog + crouch delay) ends the
     run with :class:`LinkError` and one message (:func:`watchdog_fault_message`): the board
@@ -92,13 +93,14 @@ async def pump(client: BoardClient, runtime: RobotRuntime, rec: Recorder,
     A shorter cut (the board only held) resumes by itself: the next frame ends the hold.
 
     In lockstep each report is handled in order and the board is advanced only
-    from that report's time, after the host has reacted to it, so board time
-    steps with the host instead of running ahead of it.
+    from that report's time, after everything the report woke has reacted
+    (:func:`host.motion.driver.react`), so board time steps with the host instead of running ahead
+    of it. ``rec.last_rx`` is set when a report arrives and again once its top-up went out: the
+    silence watchdog counts only the time the host waited for the board.
     """
-    lockstep = client.lockstep
-    async for tel in client.telemetry(maxsize=1024):
+
+    def on_report(tel: Any) -> bool:
         rec.last_rx = time.monotonic()
-        runtime.streamer.on_telemetry(tel)
         rec.add(client, tel)
         for listener in listeners:  # e.g. the session's event monitor (host.run.events)
             listener(tel)
@@ -106,39 +108,18 @@ async def pump(client: BoardClient, runtime: RobotRuntime, rec: Recorder,
             raise LinkError(watchdog_fault_message(client, tel.board_time_us))
         if tel.faults & FaultFlags.SERVO_FAULT:  # a servo stopped answering on the board's bus (C firmware)
             raise BoardFaulted(servo_fault_message(client, tel.board_time_us))
-        if lockstep:
-            await settle()
-            await runtime.streamer.top_up(tel.board_time_us)
-        else:
-            await runtime.streamer.top_up()
+        return False
+
+    streamer = runtime.streamer
+    reports = _stamped(client.telemetry(maxsize=1024), rec)
+    await drive(streamer, reports, lockstep=client.lockstep, on_report=on_report)
 
 
-async def settle(limit: int = SETTLE_CHECKPOINTS) -> int:
-    """Yield to the event loop until no other task is ready to run, at most ``limit`` times; returns
-    the checkpoints taken (>= 1).
-
-    On asyncio "ready" is the loop's queue of callbacks due now (``loop._ready``, private: asyncio has
-    no public way to ask; a task woken by an event or a finished future is queued there until it
-    runs). A task blocked on I/O, a timer or a thread is not ready, and is not waited for: bytes still
-    on their way (a CAN notifier thread's ``call_soon_threadsafe``) were not waited for before either
-    (32 turns take well under a millisecond). On another backend (Trio) all ``limit`` checkpoints are
-    taken. Before, the pump always took 32: ~42 000 idle
-    turns of the loop (an ``epoll`` each) in a 26-s lockstep run, a third of its wall time.
-    """
-    ready = _ready_queue()
-    for n in range(1, limit + 1):
-        await anyio.lowlevel.checkpoint()
-        if ready is not None and not ready:
-            return n
-    return limit
-
-
-def _ready_queue() -> Sized | None:
-    """The running asyncio loop's ready queue, None on another backend (or another loop class)."""
-    if sniffio.current_async_library() != "asyncio":
-        return None
-    ready = getattr(asyncio.get_running_loop(), "_ready", None)
-    return ready if isinstance(ready, Sized) else None
+async def _stamped(reports: AsyncIterator[Any], rec: Recorder) -> AsyncIterator[Any]:
+    """``reports``, setting ``rec.last_rx`` when the consumer asks for the next one (its top-up is out)."""
+    async for tel in reports:
+        yield tel
+        rec.last_rx = time.monotonic()
 
 
 async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardClient | None = None,
@@ -149,18 +130,14 @@ async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardCl
     Silence is counted only while this process runs: a gap in which the watchdog itself did not
     run (``STALL_S``) is the host's stall, not the board's silence.
 
-    Lockstep over a lossy link: when the frame that would have let the board reach its next report
-    (or that report itself) was lost, both ends wait for each other. After ``LOCKSTEP_NUDGE_S`` of
-    silence (``LOSSY_NUDGE_S`` once the link has lost something) the host ADVANCEs the board one
-    report period plus a tick past the end of the frames it has sent, which is where a board whose
-    reports were lost stands, so one nudge brings the next report (frames due in that gap are late
-    or missing, as they would be after any loss). A further nudge reaches one period further only
-    once a report reached the target, or the board answers a TIME_SYNC with a time at or past it (its
-    report was lost: :meth:`~host.link.telemetry_waits.TelemetryWaits.board_reached`); otherwise it
-    repeats the target (:class:`~host.link.telemetry_waits.NudgeTarget`). A QEMU board starved for over
-    a second on a loaded CI machine made the host re-send a FLUSH (so the link counted as lossy) and was
-    pushed one period further every 50 ms meanwhile; the frames sent after the FLUSH's ACK arrived LATE.
-    No timer can tell such a board from a lost report; the board's own clock can.
+    Lockstep: a healthy lockstep run sends nothing on wall-clock time (what the host sends, and at
+    which board time it arrives, must depend only on the host's input and the board's reports).
+    Silence is evidence of a lost message only once the link has lost something (decode errors,
+    re-sent requests: after ``LOSSY_NUDGE_S``) or after ``LOCKSTEP_LOST_S`` (counted from the pump's
+    last top-up); then :func:`lockstep_recover` lets the board reach the last frame sent, and sends
+    more frames once it is there, never an ADVANCE past a frame the host has not sent. (Before, a
+    nudge after 0.5 s of wall silence ADVANCEd one report period past the last frame sent: a host
+    stalled ~1 s on mesh work had the board run past the frames due next, with a stale target.)
 
     ``clock``: wall seconds, the clock ``rec.last_rx`` is kept on; a caller that passes another (tests:
     a virtual one) sets ``rec.last_rx`` on it too.
@@ -172,7 +149,6 @@ async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardCl
     rec.last_rx = max(rec.last_rx, since)
     lockstep = client is not None and client.lockstep
     nudged_at = 0.0
-    goal = NudgeTarget()
     step = 0.02 if lockstep else 0.25
     woke = since
     while True:
@@ -197,31 +173,36 @@ async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardCl
                             f"{streamer.first_free_us} us, link latency p99 {streamer.link.latency_us(0) / 1000:.1f} ms, "
                             f"lead limit {streamer.max_lead_us / 1000:.0f} ms); giving up the run")
         elif client is not None and lockstep:
-            lossy = client.stats.decode_errors > 0 or client.stats.retries > 0
-            wait = LOSSY_NUDGE_S if lossy else LOCKSTEP_NUDGE_S
+            lossy = client.link_lossy()
+            wait = LOSSY_NUDGE_S if lossy else LOCKSTEP_LOST_S
             if silent > wait and now - nudged_at > wait:
                 nudged_at = now
-                # move on once a report met the target, or the board says it is there (its report was
-                # lost); a board that is behind (slow, or its answer is) gets the same target again
-                if (goal.reached(client.board_now_estimate())
-                        or await client.board_reached(goal.target, LOCKSTEP_PROBE_S)):
-                    goal.raise_to(lockstep_nudge_target(client, runtime, goal.target), clock())
                 with contextlib.suppress(LinkError):
-                    await client.advance(goal.target)
+                    await lockstep_recover(client, runtime)
 
 
-def lockstep_nudge_target(client: BoardClient, runtime: RobotRuntime, previous: int) -> int:
-    """Board time (us) a lockstep nudge ADVANCEs to: one report period and one tick past the last
-    frame sent (or past the previous nudge, or the link's estimate, whichever is latest)."""
-    covered = runtime.streamer.next_us - runtime.streamer.period_us
-    return max(client.board_now_estimate(), covered, previous) + client.report_period_us()
+async def lockstep_recover(client: BoardClient, runtime: RobotRuntime) -> int:
+    """A silent lockstep board after a loss: let it reach the last frame sent, or, once it is there (its
+    reports, or the frames that would have brought them, were lost), send the frames of one lookahead
+    from there. Board time never passes a frame the host has not sent. Returns the board time (µs) the
+    board was let run to (an ADVANCE to the tick after the last frame sent, a lost frame's gap
+    included) or topped up from.
+
+    Whether the board is there is known from its reports or asked with one TIME_SYNC
+    (:meth:`~host.link.telemetry_waits.TelemetryWaits.board_reached`, waiting up to ``LOCKSTEP_PROBE_S``).
+    """
+    streamer = runtime.streamer
+    last = streamer.next_us - streamer.period_us  # the last frame sent
+    if await client.board_reached(last, LOCKSTEP_PROBE_S):
+        await streamer.top_up(last)
+    else:
+        await client.advance(last + 1)  # ticks up to and including the last frame's run, lost frames or not
+    return last
 
 
 async def realtime_topper(runtime: RobotRuntime) -> None:
-    period = runtime.streamer.period_us * 1e-6
-    while True:
-        await runtime.streamer.top_up()
-        await anyio.sleep(period)
+    """Realtime: top up every frame period (:func:`host.motion.driver.realtime_topper`)."""
+    await driver_topper(runtime.streamer)
 
 
 async def timed_chunks(stream: AsyncIterable[str], clock: Callable[[], float], log_to: list[tuple[float, str]],

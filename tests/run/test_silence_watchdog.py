@@ -15,7 +15,7 @@ import anyio
 import pytest
 
 from host.link.errors import LinkError
-from host.run.pump import TELEMETRY_SILENCE_S, Recorder, silence_watchdog
+from host.run.pump import LOCKSTEP_LOST_S, TELEMETRY_SILENCE_S, Recorder, silence_watchdog
 
 
 @dataclass
@@ -86,6 +86,9 @@ class _LockstepClient:  # what the watchdog reads of a lockstep BoardClient, and
     targets: list[int] = field(default_factory=list)
     probes: int = 0
 
+    def link_lossy(self) -> bool:
+        return self.stats.decode_errors > 0 or self.stats.retries > 0
+
     def board_now_estimate(self) -> int:
         return self.seen_us
 
@@ -104,30 +107,53 @@ class _LockstepClient:  # what the watchdog reads of a lockstep BoardClient, and
 class _SentStreamer(_Streamer):
     next_us: int = 90_000  # frames sent up to 80 ms (one 10-ms period before the next)
     period_us: int = 10_000
+    top_ups: list[int] = field(default_factory=list)
+
+    async def top_up(self, board_now_us: int | None = None) -> None:
+        assert board_now_us is not None
+        self.top_ups.append(board_now_us)
+        self.next_us = board_now_us + 60_000 + self.period_us  # one lookahead of frames from there
+        self.frames_sent += 6
 
 
 @pytest.mark.anyio
-async def test_a_lockstep_nudge_moves_its_target_on_only_once_the_board_is_there() -> None:
+async def test_a_lossy_lockstep_recovery_never_runs_the_board_past_the_frames_sent() -> None:
     """A QEMU board starved for over a second on a loaded CI machine: a FLUSH was re-sent (the link
-    counts as lossy, nudges every 50 ms), the streamer waited for its ACK, and each nudge ADVANCEd the
-    board one report period further; the frames sent after the ACK arrived LATE (2 NACKs). Now the
-    target stays one period past the frames sent while the board is behind it, however long that
-    lasts, and moves on once a report reached it or the board says it is there (its report was lost)."""
+    counts as lossy, recoveries every 50 ms). Before, each nudge ADVANCEd the board a report period past
+    the frames sent, and the frames sent next arrived LATE. Now, while the board is short of the last
+    frame sent, it is only let run to there (lost frames or not); once it is there (its reports were
+    lost), the host sends the next lookahead of frames from there instead of an ADVANCE past them."""
     runtime = _Runtime(streamer=_SentStreamer())
     client = _LockstepClient()
     rec = Recorder()
     rec.last_rx = anyio.current_time()  # the last report came just now; none follows
     async with anyio.create_task_group() as tg:
         tg.start_soon(silence_watchdog, runtime, rec, client, anyio.current_time)
-        await anyio.sleep(3.0)  # a slow board: no report, and its clock still short of the target, for 3 s
-        assert len(client.targets) >= 30 and set(client.targets) == {102_000}, client.targets  # 80 + 22 ms, repeated
-        assert client.probes >= 30  # it asked every time
-        client.board_us = 102_000  # the board got there, and that report was lost: one period further
-        n = len(client.targets)
-        await anyio.sleep(0.2)
-        assert client.targets[n] == 124_000 and set(client.targets[n:]) == {124_000}, client.targets[n:]
-        client.seen_us = 124_000  # a report reached the target (and none since): the next nudge moves on
+        await anyio.sleep(3.0)  # a slow board: no report, and its clock short of the last frame, for 3 s
+        assert len(client.targets) >= 30 and set(client.targets) == {80_001}, client.targets  # the last frame's tick
+        assert client.probes >= 30 and runtime.streamer.top_ups == []  # it asked every time
+        client.board_us = 80_000  # the board got there, and its report was lost: frames from there
         n = len(client.targets)
         await anyio.sleep(0.1)
-        assert client.targets[n] == 146_000, client.targets[n:]
+        assert runtime.streamer.top_ups[:1] == [80_000], runtime.streamer.top_ups
+        last_sent = runtime.streamer.next_us - runtime.streamer.period_us
+        assert all(t <= last_sent + 1 for t in client.targets[n:]), (client.targets[n:], last_sent)
+        tg.cancel_scope.cancel()
+
+
+@pytest.mark.anyio
+async def test_a_healthy_lockstep_link_sends_nothing_on_wall_time() -> None:
+    """A link that lost nothing: a host stalled on its own work, or a slow board, is no reason to send the
+    board anything (the message stream of a lockstep run is a function of its input). Only after
+    ``LOCKSTEP_LOST_S`` of silence is a loss assumed all the same."""
+    runtime = _Runtime(streamer=_SentStreamer())
+    client = _LockstepClient(stats=_Stats(retries=0))
+    rec = Recorder()
+    rec.last_rx = anyio.current_time()
+    async with anyio.create_task_group() as tg:
+        tg.start_soon(silence_watchdog, runtime, rec, client, anyio.current_time)
+        await anyio.sleep(LOCKSTEP_LOST_S - 0.1)
+        assert client.targets == [] and client.probes == 0 and runtime.streamer.top_ups == []
+        await anyio.sleep(0.2)
+        assert client.targets == [80_001] and client.probes == 1
         tg.cancel_scope.cancel()
