@@ -377,7 +377,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         pushes=tuple(_push_text(p) for p in getattr(args, "push", ())),
     )
     command = command_of(args)
-    from host.run.link_health import board_warnings
+    from host.run.link_health import board_warnings, timing_health_line
 
     def show_banner(*_: object) -> None:
         if banner is not None:
@@ -408,6 +408,9 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
                 "the robot could not be brought to its rest pose")
         print_error(command, f"{report.stop.message} at board time {s.duration_s:.2f} s; "
               f"{_counts(s.outcomes)}; {rest}; artefacts in {out}/")
+        timing = timing_health_line(s.extra)
+        if timing is not None:
+            print(timing)
         return report.stop.exit_status
     print(calls_table(report.calls, report.board_t0))  # board-measured, as timeline.json
     mounted = {m.name for m in opts.mcp_mounts}
@@ -423,6 +426,9 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     health = link_health_line(s.extra)
     if health is not None:
         print(health)
+    timing = timing_health_line(s.extra)
+    if timing is not None:
+        print(timing)
     for warning in board_warnings(out / "board.stderr"):  # e.g. a --baud too slow for the telemetry
         print(warning)
     if s.extra.get("board_fault"):

@@ -36,7 +36,8 @@ from host.run.events import EventPolicy, ScriptedEvent
 from host.robot.runtime import RobotRuntime
 from host.run.pump import HISTORY, SETTLE_CHECKPOINTS, TELEMETRY_SILENCE_S
 from host.run.session import RobotSession, SessionOptions, TurnResult
-from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB, StopReason, StopSignals
+from host.run.progress_guard import PROGRESS_LIMIT_S
+from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB, STOP_GRACE_S, StopReason, StopSignals
 from host.shell import Shell
 from host.shell.skills import SkillStore
 from host.shell.policy import Policy
@@ -93,6 +94,8 @@ class RunOptions:
     pushes: tuple[str, ...] = ()  # emulated board: pushes on the base (board --push S:FX,FY,FZ[:DUR])
     max_board_s: float | None = DEFAULT_MAX_BOARD_S  # board seconds the run may last (None: no bound)
     max_log_mb: float | None = DEFAULT_MAX_LOG_MB  # megabytes its frame logs may reach (None: no bound)
+    progress_limit_s: float | None = PROGRESS_LIMIT_S  # wall s without progress: outcome stalled (None: off)
+    stop_grace_s: float = STOP_GRACE_S  # wall s a stop's graceful end may take (host.run.stops)
     handle_signals: bool = False  # SIGINT/SIGTERM interrupt the run (the CLI; main thread only)
 
 

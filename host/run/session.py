@@ -34,6 +34,18 @@ through the shell's lifecycle tree (and every later turn at its start) for a sig
 :meth:`RobotSession.go_to_rest` then moves the robot smoothly to its rest pose. Bounds:
 ``SessionOptions.max_board_s`` per turn (board seconds from the turn's start) and
 ``max_log_mb`` for the session's frame logs (checked every 0.25 s of wall time).
+
+Deadlines: every wait of the session's work ends by telemetry or by a deadline. A stop (signal,
+bound, stall) gives the graceful rest ``SessionOptions.stop_grace_s`` wall seconds
+(:data:`host.run.stops.STOP_GRACE_S`): then the turn still running is cut (its resets aborted, its
+calls as far as they got), the settle and the rest pose get only what is left of it, and a stop while
+the session starts cuts the start-pose move at once. The no-progress guard
+(:mod:`host.run.progress_guard`, ``SessionOptions.progress_limit_s``) stops work that moves nothing
+(board time, frames, calls) with outcome ``stalled`` and a line naming what it waited for.
+
+Timing health: each turn's ``summary.json`` has ``extra.timing`` (:meth:`RobotSession.timing`): the
+event loop's lag p50/p99/max (:mod:`host.run.loop_lag`), frames late and skipped, watchdog trips and
+the recording's dropped messages.
 """
 
 from __future__ import annotations
@@ -44,8 +56,9 @@ import functools
 import json
 import logging
 import math
+import time
 from collections import deque
-from collections.abc import AsyncIterable, AsyncIterator, Awaitable, Callable, Iterable
+from collections.abc import AsyncIterable, AsyncIterator, Awaitable, Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -69,7 +82,9 @@ from host.motion.streamer import GRID_PERIOD_US, LOOKAHEAD_US, frame_wire_bytes,
 from host.robot.binding import robot_registry
 from host.robot.link import ClientLink
 from host.robot.runtime import RobotRuntime, warm_up_behaviours
-from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB, Interrupted, StopReason
+from host.run.loop_lag import LagMonitor
+from host.run.progress_guard import PROGRESS_LIMIT_S, ProgressGuard, Stall
+from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB, STOP_GRACE_S, Interrupted, StopReason
 from host.run.recording import Recording
 from host.run.pump import (
     TELEMETRY_SILENCE_S,
@@ -143,6 +158,11 @@ class SessionOptions:
     pushes: tuple[str, ...] = ()
     max_board_s: float | None = DEFAULT_MAX_BOARD_S  # board seconds one turn may last (None: no bound)
     max_log_mb: float | None = DEFAULT_MAX_LOG_MB  # megabytes the session's frame logs may reach (None: no bound)
+    #: wall seconds the session's work may go without progress before it stops as ``stalled``
+    #: (host.run.progress_guard; None: not guarded)
+    progress_limit_s: float | None = PROGRESS_LIMIT_S
+    #: wall seconds from the first stop until the graceful stop's remaining work is cut (host.run.stops)
+    stop_grace_s: float = STOP_GRACE_S
 
 
 #: wall seconds between two checks of the frame logs' size (``max_log_mb``)
@@ -285,6 +305,19 @@ class RobotSession:
         self._turn_events: list[Event] = []  # events during the running turn (or since the last one)
         self._interrupted_by: Event | None = None
         self._monitor: EventMonitor | None = None
+        self._up = False  # __aenter__ finished (the start pose reached or cut)
+        #: what the session's work is doing now, for the progress guard (None: nothing to guard)
+        self._phase: str | None = None
+        #: the work a stop's deadline cuts: the start-pose move or the running turn
+        self._work_scope: anyio.CancelScope | None = None
+        self._stop_wall: float | None = None  # time.monotonic() of the first stop
+        #: the stop's deadline passed: what remains of the graceful stop is cut or skipped
+        self.stop_overdue = False
+        #: the event loop's scheduling delay, sampled while the session runs (reset at each turn's start)
+        self.lag = LagMonitor()
+        self.guard: ProgressGuard | None = None
+        self._board_s0: float | None = None  # the board time of the session's first report (s)
+        self._late0 = 0  # the board's late count at the turn's start
 
     # -- life cycle ------------------------------------------------------------------------------
     @property
@@ -388,6 +421,8 @@ class RobotSession:
             if note:
                 log.warning("%s", note)
             tel = await client.wait_for(lambda t: True, timeout=10, nudge=True)
+            self._board_s0 = tel.board_time_us * 1e-6
+            self._late0 = tel.late_count
             frame_link = ClientLink(client, wire_baud=opts.wire_baud)
             if period_us != GRID_PERIOD_US:
                 log.warning("--baud %d: one %d-servo frame takes %.0f ms on the line, so the host sends one every "
@@ -430,8 +465,17 @@ class RobotSession:
                     tg.start_soon(self._ends_the_run, frame_link.pace())
             if opts.max_log_mb is not None:
                 tg.start_soon(self._log_bound, opts.max_log_mb)
+            tg.start_soon(self.lag.run)
+            if opts.progress_limit_s is not None:
+                self.guard = self._progress_guard(opts.progress_limit_s)
+                tg.start_soon(self.guard.run)
             await runtime.streamer.top_up()
-            await go_to_pose(runtime, opts.start_pose or self.robot.start_pose)
+            pose = opts.start_pose or self.robot.start_pose
+            with self._work(f"moving to the start pose {pose!r}") as scope:
+                await go_to_pose(runtime, pose)
+            if scope.cancelled_caught:  # a stop while starting: the turn is cut at its start
+                log.warning("the move to the start pose %r was cut: %s", pose, self.stop.message if self.stop else "")
+            self._up = True
         except BaseException as exc:
             await self.__aexit__(type(exc), exc, exc.__traceback__)
             if created and isinstance(exc, LinkConfigError):  # nothing ran: leave no empty run folder behind
@@ -488,17 +532,96 @@ class RobotSession:
 
     # -- stops -----------------------------------------------------------------------------------
     def request_stop(self, stop: StopReason) -> bool:
-        """Stop the session's work early (a signal, a bound): the running turn is interrupted through
-        the shell's lifecycle tree, as an external interruption is, and any later turn is interrupted
-        at its start. The first reason is kept. Returns False while the session is still starting
-        (no shell yet: nothing to interrupt gracefully), else True."""
+        """Stop the session's work early (a signal, a bound, a stall): the running turn is interrupted
+        through the shell's lifecycle tree, as an external interruption is, and any later turn is
+        interrupted at its start. The first reason is kept, and starts the stop's deadline
+        (``SessionOptions.stop_grace_s`` wall seconds, :meth:`_stop_deadline`). Returns False while the
+        session is still starting (nothing to interrupt gracefully: the move to the start pose is cut
+        at once), else True."""
         if self.stop is None:
             self.stop = stop
-        if self._shell is None:
+            self._stop_wall = time.monotonic()
+            if self._tg is not None:
+                self._tg.start_soon(self._stop_deadline)
+        if not self._up:
+            if self._work_scope is not None:
+                self._work_scope.cancel()
             return False
-        if self._shell.running:
+        if self._shell is not None and self._shell.running:
             self._shell.interrupt()
         return True
+
+    def stop_left_s(self) -> float:
+        """Wall seconds left until the stop's deadline (``inf`` while no stop was requested, 0 once it passed)."""
+        if self._stop_wall is None:
+            return math.inf
+        return max(0.0, self.opts.stop_grace_s - (time.monotonic() - self._stop_wall))
+
+    async def _stop_deadline(self) -> None:
+        """At the stop's deadline, cut what still runs: the turn (its resets aborted; its calls are
+        reported as far as they got) or the start-pose move; later waits see :attr:`stop_overdue`."""
+        await anyio.sleep(self.stop_left_s())
+        self.stop_overdue = True
+        if self._work_scope is not None:
+            log.warning("the stop did not end the work within %g s (%s): cutting it", self.opts.stop_grace_s,
+                        self._phase or "ending")
+            self.abort_cleanups()
+            self._work_scope.cancel()
+
+    @contextlib.contextmanager
+    def _work(self, phase: str) -> Iterator[anyio.CancelScope]:
+        """The scope of one piece of the session's work (``phase`` names it for the progress guard)
+        that the stop's deadline cuts; cut at once when the deadline has already passed."""
+        with anyio.CancelScope() as scope:
+            self._work_scope, self._phase = scope, phase
+            if self.stop_overdue or (self.stop is not None and not self._up):
+                scope.cancel()
+            try:
+                yield scope
+            finally:
+                self._work_scope, self._phase = None, None
+
+    def _progress_guard(self, limit_s: float) -> ProgressGuard:
+        """The session's no-progress guard (:mod:`host.run.progress_guard`) over board time, frames and calls."""
+        rec = self.rec
+
+        def board_time() -> float | None:
+            return rec.t[-1] if rec.t else None
+
+        def frames() -> int:
+            return self.client.stats.servo_frames_sent if self.client is not None else 0
+
+        return ProgressGuard({"board time": board_time, "frames sent": frames, "calls started/ended": self._call_states},
+                             lambda: self._phase, self._waiting_for, self._on_stall, limit_s=limit_s)
+
+    def _call_states(self) -> tuple[int, int, int]:
+        """(calls, started, ended) of the running turn (zeros when none runs)."""
+        tl = self._shell.timeline if self._shell is not None else None
+        if tl is None:
+            return (0, 0, 0)
+        records = list(tl)
+        return (len(records), sum(r.start is not None for r in records), sum(r.end is not None for r in records))
+
+    def _waiting_for(self) -> str:
+        """What the session's work waits for now, for the stall's one line."""
+        runtime = self._runtime
+        if runtime is not None and runtime.streamer.held:
+            return "the LLM's next chunk (the board held still)"
+        tl = self._shell.timeline if self._shell is not None else None
+        if tl is not None:
+            running = [r.path for r in tl if r.start is not None and r.end is None]
+            queued = [r.path for r in tl if r.start is None and r.end is None]
+            if running or queued:
+                shown = ", ".join(running[:3]) + (" ..." if len(running) > 3 else "")
+                return (f"{len(running)} running call(s) to end ({shown})" if running
+                        else f"{len(queued)} queued call(s) to start")
+        if runtime is not None:
+            return f"board time and the motion's end (next frame at board time {runtime.streamer.first_free_us / 1e6:.3f} s)"
+        return "the board"
+
+    def _on_stall(self, stall: Stall) -> None:
+        log.warning("%s", stall.message)
+        self.request_stop(StopReason("stall", "no_progress", stall.message))
 
     def abort_cleanups(self) -> None:
         """A forced stop (a second signal): the shell's resets and the runtime's peripheral stops that the
@@ -515,17 +638,24 @@ class RobotSession:
 
     async def go_to_rest(self, timeout_s: float = 10.0) -> bool:
         """Move every servo smoothly to the robot's rest pose (``robot.toml`` ``rest_pose``), e.g. after a
-        stop; returns False when it could not within ``timeout_s`` wall seconds (the link is down, the
-        board refuses motion, ...)."""
+        stop; returns False when it could not within ``timeout_s`` wall seconds, or within what is left
+        of a stop's deadline (:meth:`stop_left_s`; none left: not tried), or the link is down, the board
+        refuses motion, ..."""
         runtime, client = self._runtime, self.client
         if runtime is None or client is None or not client.connected or runtime.streamer.failure is not None:
             return False
-        with anyio.move_on_after(timeout_s):
+        timeout_s = min(timeout_s, self.stop_left_s())
+        if timeout_s <= 0:
+            log.warning("no time left of the stop's %g s for the rest pose: not tried", self.opts.stop_grace_s)
+            return False
+        with anyio.move_on_after(timeout_s) as scope, self._work(f"moving to the rest pose {self.robot.rest_pose!r}"):
             try:
                 await go_to_pose(runtime, self.robot.rest_pose)
             except (LinkError, BoardFaulted):
                 return False
             return True
+        if scope.cancelled_caught:
+            log.warning("the rest pose %r was not reached within %.1f s", self.robot.rest_pose, timeout_s)
         return False
 
     def log_bytes(self) -> int:
@@ -674,16 +804,22 @@ class RobotSession:
                                         n_captures)
         stream: AsyncIterable[str] = _one(source) if isinstance(source, str) else source
         chunks = timed_chunks(stream, runtime.board_now_s, start.token_times, runtime.streamer.hold if hold else None)
+        self.lag.reset()  # the turn's timing health covers the turn
+        tel = self.client.latest_telemetry if self.client is not None else None
+        self._late0 = tel.late_count if tel is not None else self._late0
         with frozen_heap():  # no full GC pass over the loaded host inside the turn (host.run.heap)
-            async with anyio.create_task_group() as tg:
-                if interrupt_after is not None:
-                    tg.start_soon(self._interrupt_at, start.board_t0 + interrupt_after)
-                if self.stop is not None:  # the session is stopping: this turn is cut at once
-                    tg.start_soon(self._interrupt_at, start.board_t0)
-                if self.opts.max_board_s is not None:
-                    tg.start_soon(self._board_time_bound, start.board_t0 + self.opts.max_board_s, self.opts.max_board_s)
-                result = await shell.run(buffered(chunks) if buffer else chunks)
-                tg.cancel_scope.cancel()
+            with self._work("running the turn") as work:
+                async with anyio.create_task_group() as tg:
+                    if interrupt_after is not None:
+                        tg.start_soon(self._interrupt_at, start.board_t0 + interrupt_after)
+                    if self.stop is not None:  # the session is stopping: this turn is cut at once
+                        tg.start_soon(self._interrupt_at, start.board_t0)
+                    if self.opts.max_board_s is not None:
+                        tg.start_soon(self._board_time_bound, start.board_t0 + self.opts.max_board_s, self.opts.max_board_s)
+                    result = await shell.run(buffered(chunks) if buffer else chunks)
+                    tg.cancel_scope.cancel()
+            if work.cancelled_caught:  # the stop's deadline cut the turn: its calls as far as they got
+                result = _cut_result(shell.last_result, start.board_t0, self.opts.stop_grace_s)
             settle_note = await self._settle(settle_s, start.board_t0) if settle_s > 0 else None
         if settle_note is not None:
             result.observations.append(Observation("warning", settle_note, None, runtime.board_now_s()))
@@ -700,21 +836,26 @@ class RobotSession:
     async def _settle(self, settle_s: float, board_t0: float) -> str | None:
         """Let motion settle ``settle_s`` board seconds after a turn; None when it did, else why not.
 
-        The turn's end must end: this runs after the turn's board-time bound was cancelled and may
+        A stopped session does not settle (the rest pose it moves to next is its settle). The turn's end
+        must end: this runs after the turn's board-time bound was cancelled and may
         run after the session's pump or silence watchdog are gone, so it is bounded twice: in board
         time by the turn's bound (``max_board_s`` from ``board_t0``), in wall time by
         ``settle_s + TELEMETRY_SILENCE_S`` (the silence watchdog's own tolerance: a board that
         reports does reach the settle time sooner in lockstep and in realtime).
         """
         runtime = self.runtime
-        if runtime.streamer.failure is not None:
+        if runtime.streamer.failure is not None or self.stop is not None:  # stopping: the rest pose comes next
             return None
         target_s = runtime.board_now_s() + settle_s
         if self.opts.max_board_s is not None:
             target_s = min(target_s, board_t0 + self.opts.max_board_s)
         wall_s = settle_s + TELEMETRY_SILENCE_S
         with anyio.move_on_after(wall_s) as scope:
-            await runtime.streamer.wait_board_time(int(target_s * 1e6))
+            self._phase = "settling after the turn"
+            try:
+                await runtime.streamer.wait_board_time(int(target_s * 1e6))
+            finally:
+                self._phase = None
         if scope.cancelled_caught:
             log.warning("settling after the turn: board time did not reach %.3f s within %g s", target_s, wall_s)
             return (f"settle cut: board time stayed at {runtime.board_now_s():.3f} s, short of {target_s:.3f} s, "
@@ -761,8 +902,10 @@ class RobotSession:
             return self._bare_turn(error, label or self.opts.label, out or self.out)
         start, self._turn = self._turn, None
         if start is None or self._shell is None or self._shell.last_result is None:
-            start = _TurnStart(label or self.opts.label, out or self.out, [], self._runtime.board_now_s(), None,
-                               len(self.rec.base), len(self._runtime.captures))
+            # no turn began (a stop or a loss while starting): the board time streamed since the first report
+            t0 = self._board_s0 if self._board_s0 is not None else self._runtime.board_now_s()
+            start = _TurnStart(label or self.opts.label, out or self.out, [], t0, None,
+                               0, len(self._runtime.captures))
             result = RunResult(Timeline(), [], start.board_t0)
         else:
             result = self._shell.last_result
@@ -896,7 +1039,25 @@ class RobotSession:
                    "events": [str(e) for e in turn.events],
                    **({"interrupted_by": str(turn.interrupted_by)} if turn.interrupted_by is not None else {}),
                    "captures": [p.name for p in captures], "scene": self.scene_report(),
+                   "timing": self.timing(),
                    **({"faults": {"host_detected": host_detected}} if opts.faults else {})})
+
+    def timing(self) -> dict[str, Any]:
+        """The turn's timing health (``summary.json``'s ``extra.timing``): ``lag`` (the event loop's
+        scheduling delay since the turn started, :meth:`host.run.loop_lag.LagMonitor.stats`: p50/p99/max
+        in ms and samples n), ``frames_late`` (servo frames the board refused as arriving too late, its
+        ``late_count`` since the turn started; None without a report), ``frames_skipped`` (grid frames the
+        host left unsent: too late to arrive in time), ``watchdog_trips`` (the board's watchdog holds seen
+        in its reports), ``recording_dropped`` (messages the recording dropped: its ``dropped``, else 0)
+        and ``stop_overdue`` (a stop's deadline cut the work)."""
+        client, runtime = self.client, self._runtime
+        tel = client.latest_telemetry if client is not None else None
+        return {"lag": self.lag.stats(),
+                "frames_late": max(0, tel.late_count - self._late0) if tel is not None else None,
+                "frames_skipped": runtime.streamer.frames_skipped if runtime is not None else None,
+                "watchdog_trips": client.fanout.watchdog_holds if client is not None else None,
+                "recording_dropped": int(getattr(self.recording, "dropped", 0) or 0),
+                "stop_overdue": self.stop_overdue}
 
     def writer(self, turn: TurnResult, label: str, *, plots: bool | None = None) -> Callable[[], None]:
         """Snapshot what the turn's artefacts need (on the loop) and return the writer (thread-safe).
@@ -998,6 +1159,20 @@ def _fell(robot: Robot, tilt: float, z: float | None, z0: float | None) -> bool:
 
 async def _one(text: str) -> AsyncIterator[str]:
     yield text
+
+
+def _cut_result(result: RunResult | None, t0: float, grace_s: float) -> RunResult:
+    """The result of a turn the stop's deadline cancelled (``result``: the shell's run as far as it got):
+    calls that had not ended are ``cancelled``, with an error naming the deadline."""
+    if result is None:
+        return RunResult(Timeline(), [], t0, interrupted=True)
+    for r in result.timeline:
+        if r.end is None and r.outcome not in ("done", "failed", "timeout", "cancelled", "interrupted"):
+            r.outcome = "cancelled"  # type: ignore[assignment]
+            r.error = r.error or (f"cut by the stop's {grace_s:g}-s deadline while "
+                                  f"{'running' if r.start is not None else 'queued'}")
+    result.interrupted = True
+    return result
 
 
 def _board_calls(result: RunResult, runtime: RobotRuntime | None) -> list[artefacts.BoardCall]:
