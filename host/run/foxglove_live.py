@@ -5,6 +5,12 @@ as a second sink of the run log's context, so Foxglove (Open connection > Foxglo
 ``ws://127.0.0.1:PORT``) sees every channel the MCAP gets, as it is logged. The server advertises the
 ``Time`` capability and broadcasts the board time of every report, so the viewer's clock is the
 board's (the same stamps as in the MCAP). Port 0 picks a free port (:attr:`LiveServer.port` says which).
+While it serves, the run log re-sends ``/scene`` every :data:`host.run.mcap_log.SCENE_EVERY_S` board
+seconds, so a viewer that connects late gets the robot's geometry (a file needs it once).
+
+Threads: a session's run log is fed from its writer thread (:mod:`host.run.recording`), so the time
+broadcast (``WebSocketServer.broadcast_time``) is called there; the SDK's server is thread-safe, and a
+call after :meth:`LiveServer.stop` does nothing.
 
 The protocol is the SDK's (Foxglove WebSocket protocol, subprotocol ``foxglove.sdk.v1``; a client
 offering only the older ``foxglove.websocket.v1`` is refused at the handshake): JSON control messages (``serverInfo``,
@@ -20,7 +26,7 @@ from __future__ import annotations
 import foxglove
 from foxglove.websocket import Capability
 
-from host.run.mcap_log import RunLog
+from host.run.mcap_log import SCENE_EVERY_S, RunLog
 
 __all__ = ["BACKLOG", "DEFAULT_PORT", "LiveError", "LiveServer", "start_live"]
 
@@ -45,6 +51,7 @@ class LiveServer:
         self._run_log = run_log
         self._stopped = False
         run_log.time_listeners.append(self._time)
+        run_log.scene_every_s = SCENE_EVERY_S
 
     def _time(self, board_ns: int) -> None:
         if not self._stopped:
@@ -56,6 +63,7 @@ class LiveServer:
         self._stopped = True
         if self._time in self._run_log.time_listeners:
             self._run_log.time_listeners.remove(self._time)
+        self._run_log.scene_every_s = None
         self.server.stop()
 
 

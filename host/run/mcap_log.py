@@ -18,7 +18,7 @@ topic                        schema (encoding)            what, when
 ``/joint_states``            foxglove.JointStates (pb)    measured position, velocity, effort per servo; each TELEMETRY
 ``/joint_targets``           foxglove.JointStates (pb)    commanded targets per servo; each SERVO_FRAME sent, at its apply time
 ``/tf``                      foxglove.FrameTransforms     every MJCF body in its parent's frame (:mod:`host.run.scene3d`); each TELEMETRY
-``/scene``                   foxglove.SceneUpdate         the robot's geoms as primitives, meshes as STL models; at the first report, then every :data:`SCENE_EVERY_S`
+``/scene``                   foxglove.SceneUpdate         the robot's geoms as primitives, meshes as STL models; at the first report (live: then every :data:`SCENE_EVERY_S`)
 ``/telemetry``               ghostshell.Telemetry (json)  every TELEMETRY field decoded (faults by name)
 ``/sim_state``               ghostshell.SimState (json)   the emulator's ground truth (base pose, scene objects); each new SIM_STATE
 ``/link/tx``                 ghostshell.LinkFrame (json)  every host-to-board message: seq, type, decoded fields, serial wire bytes (hex)
@@ -33,9 +33,12 @@ topic                        schema (encoding)            what, when
 (pb = protobuf, the SDK's encoding for its typed channels; json = a JSON channel with a JSON schema.)
 ``/scene``'s entities are ``frame_locked`` with no lifetime: Foxglove draws them in their body's frame as
 ``/tf`` moves it, until replaced. Playing a file, Foxglove shows on a seek the last message of each topic
-before that time, so one ``/scene`` would do; it is re-sent every :data:`SCENE_EVERY_S` for a live viewer
-that connects late. Its primitives are built once (:mod:`host.run.scene3d`): a re-send costs the SDK's
-encoding and the chunk's compression of its bytes (~5 MB for an arm with ~100 000 mesh triangles).
+before that time, so the file gets ``/scene`` once; with a live view (:attr:`RunLog.scene_every_s`, set by
+:mod:`host.run.foxglove_live`) it is re-sent every :data:`SCENE_EVERY_S` for a viewer that connects late.
+The primitives are built once (:mod:`host.run.scene3d`), but each send is the SDK's encoding and chunk
+compression of the whole message inside one ``log()`` that holds the GIL (the event loop's thread waits
+meanwhile, even though a writer thread calls it): ~20-30 ms for the ~5 MB of an arm with ~100 000 mesh
+triangles on a quiet machine, 0.2 s on a loaded one (``bench/bench_recording.py``).
 The MCAP also holds a ``run`` metadata record (robot, scene, link, clock) and the robot's MJCF as an
 attachment. Everything goes through the SDK; the ``mcap`` package is used only to read files back
 (:mod:`host.run.mcap_read`).
@@ -80,8 +83,8 @@ log = logging.getLogger("host.run")
 #: board seconds between forced chunk ends: a killed run loses at most the last FLUSH_S of board time
 #: (board time, not wall time, so where a lockstep run's file can be cut is reproducible)
 FLUSH_S = 1.0
-#: board seconds between re-sent scene primitives (so a live viewer that connects late gets them; a file
-#: needs them once, see the module docstring). 5 s: a mesh robot's scene is megabytes per message
+#: board seconds between re-sent scene primitives while a live view is on (a viewer that connects late gets
+#: them; a file needs them once, see the module docstring). 5 s: a mesh robot's scene is megabytes
 SCENE_EVERY_S = 5.0
 #: target uncompressed chunk size; small, so chunks end often and a cut file loses little. A chunk is
 #: compressed inside the ``log()`` call that fills it, on the host's event loop: with 256 KiB at zstd's
@@ -188,6 +191,8 @@ class RunLog:
         self.time_listeners: list[Callable[[int], None]] = []
         self.last_us = 0  # latest board time seen (µs)
         self._scene_at: int | None = None
+        #: board seconds between re-sent ``/scene`` messages; None: sent once (the live view sets it)
+        self.scene_every_s: float | None = None
         self._last_sim: SimState | None = None
         self._pending: Telemetry | None = None  # a report waiting for its SIM_STATE (on_message)
         self._flushed_us = 0
@@ -289,7 +294,8 @@ class RunLog:
         MJCF places it), and the scene's primitives when they are due."""
         t = tel.board_time_us
         ns = _ns(t)
-        if self._scene_at is None or t - self._scene_at >= SCENE_EVERY_S * 1e6:
+        every = self.scene_every_s
+        if self._scene_at is None or (every is not None and t - self._scene_at >= every * 1e6):
             self._scene_at = t
             self.scene_ch.log(self.scene.scene_update(t), log_time=ns)
         base = (sim.base_pos, sim.base_quat) if sim is not None else None
