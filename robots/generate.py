@@ -65,7 +65,7 @@ from pathlib import Path
 from typing import Any
 
 from robots.description import MAX_WIRE_SERVOS, RobotDataError
-from robots.loader import NAME_RE, RANGE_TOL_DEG, ROBOT_FILE, load_robot_dir, position_kp
+from robots.loader import NAME_RE, RANGE_TOL_DEG, ROBOT_FILE, check_meshes, load_robot_dir, position_kp
 from robots.mjcf_index import Element, MjcfIndex, index_mjcf
 
 __all__ = ["DEFAULT_MAX_SPEED_DPS", "GeneratedServo", "RobotPackage", "generate_package", "install_package"]
@@ -173,6 +173,7 @@ def generate_package(name: str, mjcf: str | Path, *, max_speed_dps: float = DEFA
     if not src.is_file():
         raise RobotDataError(f"{src}: no such file")
     src = src.resolve()
+    check_meshes(src)  # a missing, huge or foreign mesh file: one line naming it, before MuJoCo reads it
     try:
         model = mujoco.MjModel.from_xml_path(str(src))
     except (ValueError, OSError) as e:

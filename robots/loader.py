@@ -40,6 +40,16 @@ is a position actuator (affine bias, ``biasprm[1] = -kp``) and drives its servo'
 one in-range value per servo (or name joints that exist); the start/rest/safe poses exist; channel
 servos exist and no servo is in two channels; the camera exists in the MJCF; scene objects have
 valid shapes and sizes.
+
+Mesh files (:func:`check_meshes`, before MuJoCo reads them, so a bad one is one line naming it and no
+board starts): every ``<mesh file=...>`` (includes followed, the path resolved as MuJoCo does: the
+compiler's ``meshdir``/``assetdir`` from the main model's folder, ``strippath``) exists; is a binary
+STL (``84 + 50 N`` bytes, 1 <= N <= :data:`MAX_STL_TRIANGLES`: MuJoCo's STL decoder reads no more, and
+no ASCII STL), an OBJ (text with ``v`` lines) or a MuJoCo MSH (its four counts give its size), by
+suffix and content (a Git LFS pointer checked out in place of a mesh is named as one); is at most
+:data:`MAX_MESH_FILE_BYTES`; and all of them together at most :data:`MAX_MESH_TOTAL_BYTES`. Other formats (``.ply``, ``.dae``, ``.glb``...) are refused, with the
+formats that work: MuJoCo 4 has no decoder for them, and the run's 3D scene (:mod:`host.run.scene3d`)
+sends what MuJoCo compiled, as STL, so STL, OBJ and MSH all show.
 """
 
 from __future__ import annotations
@@ -66,13 +76,23 @@ from robots.description import (
     ServoTable,
 )
 
-__all__ = ["ROBOT_FILE", "load_robot_dir", "read_servo_table", "read_poses", "check_against_mjcf", "position_kp"]
+__all__ = ["MAX_MESH_FILE_BYTES", "MAX_MESH_TOTAL_BYTES", "MESH_SUFFIXES", "ROBOT_FILE", "check_against_mjcf",
+           "check_meshes", "load_robot_dir", "mesh_files", "position_kp", "read_poses", "read_servo_table"]
 
 ROBOT_FILE = "robot.toml"
 NAME_RE = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
 #: joint range in the MJCF vs the servo table: equal within this (degrees)
 RANGE_TOL_DEG = 0.05
 SHAPES = {"box": 3, "cylinder": 2, "sphere": 1}
+#: mesh file formats a robot may use (what MuJoCo decodes: binary/ASCII STL, Wavefront OBJ, MuJoCo MSH)
+MESH_SUFFIXES = (".stl", ".obj", ".msh")
+#: one mesh file larger than this is refused (32 MiB: ~670 000 triangles of binary STL; a robot's visual
+#: meshes are a few MB, and decimated meshes look the same in a run's video and 3D view)
+MAX_MESH_FILE_BYTES = 32 << 20
+#: a robot's mesh files together larger than this are refused (MuJoCo compiles them at every run start)
+#: triangles MuJoCo 4 reads from one binary STL file at most (its STL decoder refuses more)
+MAX_STL_TRIANGLES = 200_000
+MAX_MESH_TOTAL_BYTES = 128 << 20
 
 
 # --- file helpers ---------------------------------------------------------------------------------
@@ -311,6 +331,97 @@ def check_against_mjcf(mjcf: Path, table: ServoTable, servo_path: Path, servo_te
                                  "does not have")
 
 
+# --- meshes ---------------------------------------------------------------------------------------
+
+
+def mesh_files(mjcf: Path, index: Any = None) -> list[tuple[Any, Path]]:
+    """``(element, path)`` of every ``<mesh file=...>`` of ``mjcf`` (includes followed; ``index``: its
+    :class:`robots.mjcf_index.MjcfIndex` if read already), the path resolved as MuJoCo does (module docstring)."""
+    from robots.mjcf_index import index_mjcf
+
+    index = index_mjcf(mjcf) if index is None else index
+    compiler: dict[str, str] = {}
+    for el in index:
+        if el.tag == "compiler":
+            compiler.update(el.attrs)
+    strip = compiler.get("strippath", "false").lower() == "true"
+    meshdir = Path(compiler.get("meshdir", compiler.get("assetdir", "")))
+    base = Path(index.main).parent
+    out = []
+    for el in index:
+        name = el.attrs.get("file") if el.tag == "mesh" and el.parent != "default" else None
+        if not name:
+            continue
+        p = Path(name)
+        if strip:
+            p = Path(p.name)
+        out.append((el, p if p.is_absolute() else (meshdir if meshdir.is_absolute() else base / meshdir) / p))
+    return out
+
+
+def _mesh_problem(path: Path, size: int) -> str | None:
+    """Why ``path`` (``size`` bytes) is not a mesh MuJoCo reads, or None (formats: module docstring)."""
+    suffix = path.suffix.lower()
+    if suffix not in MESH_SUFFIXES:
+        return (f"{suffix or 'a file without a suffix'} is not a mesh format MuJoCo reads; give "
+                f"{', '.join(MESH_SUFFIXES)} (convert it, e.g. with trimesh or Blender)")
+    try:
+        with open(path, "rb") as f:
+            head = f.read(64 * 1024)
+    except OSError as e:
+        return f"cannot read it ({e.strerror or e})"
+    if head.startswith(b"version https://git-lfs"):
+        return "a Git LFS pointer, not the mesh (fetch it: git lfs pull)"
+    if suffix == ".stl":
+        n = int.from_bytes(head[80:84], "little") if size >= 84 else -1
+        if 84 + 50 * n == size:
+            if 1 <= n <= MAX_STL_TRIANGLES:
+                return None
+            return (f"a binary STL of {n} triangles; MuJoCo reads 1 to {MAX_STL_TRIANGLES} from an STL "
+                    "(decimate it, or split it into several meshes)")
+        if head.lstrip().lower().startswith(b"solid") and (b"facet" in head or b"endsolid" in head):
+            return "an ASCII STL; MuJoCo reads binary STL only (convert it, e.g. with trimesh or Blender)"
+        return "not an STL file (a binary STL is 84 + 50 bytes per triangle)"
+    if suffix == ".obj":
+        if b"\0" not in head and re.search(rb"(?m)^\s*v\s", head):
+            return None
+        return "not an OBJ file (no 'v x y z' vertex lines in its text)"
+    counts = [int.from_bytes(head[i:i + 4], "little", signed=True) for i in range(0, 16, 4)] if size >= 16 else []
+    if len(counts) == 4 and min(counts) >= 0 and 16 + 12 * (counts[0] + counts[1] + counts[3]) + 8 * counts[2] == size:
+        return None
+    return "not a MuJoCo MSH file (its four counts do not give its size)"
+
+
+def check_meshes(mjcf: Path, index: Any = None) -> None:
+    """Every mesh file of ``mjcf`` exists, is STL/OBJ/MSH and within the byte caps (module docstring);
+    else :class:`RobotDataError`: one line naming the ``<mesh>`` (file:line) and the file."""
+    total = 0
+    sizes: dict[Path, int] = {}
+    for el, path in mesh_files(mjcf, index):
+        where = f"{el.where}: mesh {el.attrs.get('name') or path.stem!r} file {path}"
+        try:
+            st = path.stat()
+        except OSError:
+            raise RobotDataError(f"{where}: no such file") from None
+        if not path.is_file():
+            raise RobotDataError(f"{where}: not a file")
+        if st.st_size > MAX_MESH_FILE_BYTES:
+            raise RobotDataError(f"{where}: {st.st_size / 2**20:.1f} MiB, over the {MAX_MESH_FILE_BYTES >> 20} MiB a "
+                                 "mesh file may have; decimate it (e.g. Blender's Decimate, trimesh's "
+                                 "simplify_quadric_decimation)")
+        problem = _mesh_problem(path, st.st_size)
+        if problem is not None:
+            raise RobotDataError(f"{where}: {problem}")
+        if path.resolve() not in sizes:
+            sizes[path.resolve()] = st.st_size
+            total += st.st_size
+    if total > MAX_MESH_TOTAL_BYTES:
+        big = sorted(sizes.items(), key=lambda kv: -kv[1])[:3]
+        raise RobotDataError(f"{mjcf}: its {len(sizes)} mesh files hold {total / 2**20:.1f} MiB, over the "
+                             f"{MAX_MESH_TOTAL_BYTES >> 20} MiB a robot may have (largest: "
+                             f"{', '.join(f'{p.name} {n / 2**20:.1f} MiB' for p, n in big)}); decimate them")
+
+
 # --- robot.toml -----------------------------------------------------------------------------------
 
 
@@ -457,6 +568,7 @@ def _load_robot_dir(root: Path, *, builtin: bool, check_mjcf: bool) -> Robot:
     inputs = (table, peripherals.camera, tuple(base.feet))
     if check_mjcf and not mjcf_check_cache.passed(mjcf, inputs):  # a pass is recorded: MuJoCo is not imported again
         before = mjcf_check_cache.snapshot(mjcf)
+        check_meshes(mjcf)  # before MuJoCo reads them: a missing, huge or foreign mesh is one line
         check_against_mjcf(mjcf, table, servo_path, servo_path.read_text(encoding="utf-8"),
                            peripherals.camera, base.feet, camera_at=_at(path, _line(text, r"^camera\s*=")),
                            feet_at=base_at["feet"])
