@@ -17,20 +17,20 @@ when the bytes came, and the board's behaviour does not (``firmware_sim.server.B
 
 ``Disturbance`` (a context manager around a running host process) adds a CPU hog per core and SIGSTOPs
 the host process for ``stop_s`` every ``period_s``; with ``stalls`` the host's control path stalls at
-random (``GHOSTSHELL_STALLS``, :mod:`host.motion.stalls`). ``run_lockstep(...)`` runs one program and
-returns the run folder's :class:`Record`.
+random (``GHOSTSHELL_STALLS``, :mod:`host.motion.stalls`). ``run_lockstep(...) -> Run`` runs one program
+and returns the board's :class:`Record`, the process and the number of SIGSTOPs.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import multiprocessing
 import os
 import signal
 import subprocess
 import sys
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -40,7 +40,7 @@ from protocol.framing import Frame, FrameDecoder
 ROOT = Path(__file__).resolve().parents[2]
 GHOSTSHELL = ROOT / ".venv" / "bin" / "ghostshell"
 
-__all__ = ["Disturbance", "Record", "board_record", "compare", "first_difference", "run_lockstep"]
+__all__ = ["Disturbance", "Record", "Run", "board_record", "compare", "first_difference", "run_lockstep"]
 
 #: the handshake: how often a HELLO or a TIME_SYNC is tried depends on wall-clock timeouts (a host stopped
 #: while the CAPS came retries it); everything after it must not
@@ -164,25 +164,27 @@ def first_difference(a: list[str], b: list[str]) -> str:
     return "identical"
 
 
-def _hog(stop: object) -> None:  # a busy loop until the parent kills the process
-    while True:
-        pass
-
-
 class Disturbance:
     """A CPU hog per core, and SIGSTOP/SIGCONT of ``pid`` (``stop_s`` stopped every ``period_s``), while
     the ``with`` block runs. Wall-clock pauses are the disturbance here, not synchronisation."""
 
-    def __init__(self, pid: int, *, hogs: int | None = None, stop_s: float = 0.25, period_s: float = 0.5) -> None:
+    def __init__(self, pid: int, *, hogs: int | None = None, stop_s: float = 0.25, period_s: float = 0.5,
+                 start_when: Callable[[], bool] | None = None) -> None:
         self.pid = pid
+        self.start_when = start_when  # polled every 20 ms before the disturbance starts (None: at once)
         self.hogs = (os.cpu_count() or 1) if hogs is None else hogs
         self.stop_s, self.period_s = stop_s, period_s
         self._done = threading.Event()
-        self._procs: list[multiprocessing.Process] = []
+        self._procs: list[subprocess.Popen[bytes]] = []
         self._thread = threading.Thread(target=self._toggle, daemon=True)
         self.stops = 0
 
     def _toggle(self) -> None:
+        while self.start_when is not None and not self.start_when():
+            if self._done.wait(0.02):
+                return
+        for _ in range(self.hogs):  # a busy loop each, until __exit__ kills it
+            self._procs.append(subprocess.Popen([sys.executable, "-c", "while True: pass"]))
         while not self._done.wait(self.period_s - self.stop_s):
             try:
                 os.kill(self.pid, signal.SIGSTOP)
@@ -196,11 +198,6 @@ class Disturbance:
                 return
 
     def __enter__(self) -> Disturbance:
-        ctx = multiprocessing.get_context("spawn")
-        for _ in range(self.hogs):
-            p = ctx.Process(target=_hog, args=(None,), daemon=True)
-            p.start()
-            self._procs.append(p)
         self._thread.start()
         return self
 
@@ -213,26 +210,36 @@ class Disturbance:
             pass
         for p in self._procs:
             p.kill()
-            p.join()
+            p.wait()
+
+
+@dataclass
+class Run:
+    """One ``ghostshell run --lockstep``: the board's :class:`Record`, the finished process and how often
+    its host was SIGSTOPped (0 for a quiet run)."""
+
+    record: Record
+    proc: subprocess.CompletedProcess[str]
+    stops: int = 0
 
 
 def run_lockstep(out: Path, xml: str, robot_args: list[str], *, disturb: bool = False,
-                 stalls: str | None = None, timeout_s: float = 300.0) -> tuple[Record, subprocess.CompletedProcess[str]]:
-    """Run ``ghostshell run --lockstep --no-live`` of ``xml`` into ``out`` (quiet, or with a
-    :class:`Disturbance` and ``GHOSTSHELL_STALLS=stalls``); returns the board's :class:`Record` and the
-    finished process (stdout, stderr, exit code)."""
+                 stalls: str | None = None, timeout_s: float = 300.0) -> Run:
+    """Run ``ghostshell run --lockstep --no-live --no-plots`` of ``xml`` into ``out``: quiet, or with a
+    :class:`Disturbance` from the first servo frames on and ``GHOSTSHELL_STALLS=stalls``."""
     env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
     env.pop("GHOSTSHELL_STALLS", None)
     if stalls:
         env["GHOSTSHELL_STALLS"] = stalls
-    cmd = [str(GHOSTSHELL), "run", *robot_args, "--xml", xml, "--lockstep", "--no-live", "--out", str(out)]
+    cmd = [str(GHOSTSHELL), "run", *robot_args, "--xml", xml, "--lockstep", "--no-live", "--no-plots", "--out", str(out)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
-    if disturb:
-        with Disturbance(proc.pid):
+    log = out / "board_frames.jsonl"
+    stops = 0
+    if disturb:  # from the first servo frames on: the handshake's retries are wall-clock business anyway
+        with Disturbance(proc.pid, start_when=lambda: log.exists() and log.stat().st_size > 4096) as dist:
             stdout, stderr = proc.communicate(timeout=timeout_s)
+        stops = dist.stops
     else:
         stdout, stderr = proc.communicate(timeout=timeout_s)
     done = subprocess.CompletedProcess(cmd, proc.returncode, stdout, stderr)
-    if proc.returncode != 0:
-        sys.stderr.write(stderr[-3000:])
-    return board_record(out), done
+    return Run(board_record(out) if log.exists() else Record(), done, stops)
