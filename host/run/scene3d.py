@@ -156,12 +156,12 @@ class RobotScene:
         self._stl_total = 0
         self._bodies: list[tuple[str, str, dict[str, list[Any]]]] = []  # (frame, entity id, primitives)
         per_body: dict[int, list[_Geom]] = {}
-        for g in self.geoms:
-            per_body.setdefault(g.body, []).append(g)
+        for geom in self.geoms:
+            per_body.setdefault(geom.body, []).append(geom)
         for body, body_geoms in per_body.items():
             prims: dict[str, list[Any]] = {"cubes": [], "spheres": [], "cylinders": [], "models": []}
-            for g in body_geoms:
-                self._primitive(g, prims)
+            for geom in body_geoms:
+                self._primitive(geom, prims)
             self._bodies.append((self.names[body], f"{robot.name}/{self.names[body]}", prims))
 
     @property
@@ -206,8 +206,10 @@ class RobotScene:
         lifetime: it stays until replaced), stamped ``board_time_us``. The primitives were built at
         construction; this only wraps them in new entities (a few µs per body)."""
         ts = stamp(board_time_us)
-        return SceneUpdate(entities=[SceneEntity(timestamp=ts, frame_id=frame, id=eid, frame_locked=True, **prims)
-                                     for frame, eid, prims in self._bodies])
+        return SceneUpdate(entities=[SceneEntity(timestamp=ts, frame_id=frame, id=eid, frame_locked=True,
+                                                 cubes=p["cubes"], spheres=p["spheres"], cylinders=p["cylinders"],
+                                                 models=p["models"])
+                                     for frame, eid, p in self._bodies])
 
     def _mesh_stl(self, mesh: int) -> bytes | None:
         """Mesh ``mesh``'s binary STL (cached), or None when it is over a cap (see the module docstring)."""
