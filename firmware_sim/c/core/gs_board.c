@@ -11,8 +11,9 @@
 #define MISS_LIMIT_LOCKSTEP 3u
 #define MISS_LIMIT_REALTIME 5u
 /* a bus on which nothing answers for this long (board clock) loses its silent servos even without
- * another device's answer to prove the plant runs: a cut bus or a dead plant, not a descheduled one */
-#define GS_BUS_SILENT_LIMIT_US 2000000u
+ * another device's answer to prove the plant runs: a cut bus or a dead plant, not a descheduled one
+ * (2 s was seen as a QEMU board's plant's lag on a machine at load 11 on 2 cores) */
+#define GS_BUS_SILENT_LIMIT_US 5000000u
 #define BOOT_PING_ROUNDS_REALTIME 5u /* realtime: a servo silent at boot is asked again (a slow plant) */
 #define READ_GROUP 6u /* servos per SYNC READ: one read job fits a 2 ms tick at 1 Mbaud */
 

@@ -86,7 +86,7 @@ struct gs_board {
     /* servo-bus health: a read a servo missed counts towards its loss (miss_limit in a row) only when the
      * plant demonstrably ran meanwhile: another device answered since that servo's previous counted miss
      * (gs_bus_answers moved past miss_epoch), or the whole bus has been silent for GS_BUS_SILENT_LIMIT_US
-     * of board clock. A read nobody answered is a stall (the plant or this board was descheduled:
+     * of board clock (5 s). A read nobody answered is a stall (the plant or this board was descheduled:
      * lateness, counted in bus_stalls); a late answer (gs_bus_heard_late) clears the servo's misses. */
     uint8_t miss[GS_SERVO_COUNT];
     uint8_t miss_limit;

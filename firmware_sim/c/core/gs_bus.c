@@ -19,10 +19,17 @@ int gs_bus_heard_late(uint8_t id) {
     return heard;
 }
 
+static void note_late(int id) {
+    gs_bus_stats.late_replies++;
+    heard_late[(unsigned)id >> 3] |= (uint8_t)(1u << ((unsigned)id & 7u));
+}
+
 /* Before a request: whatever is waiting on the bus answered an earlier request after its deadline. Each
- * whole status packet in it is a late reply (counted, its id remembered); the rest is dropped, so a late
- * answer is never taken for the new request's. Bounded: at most one buffer's worth per round, and the
- * plant sends nothing unasked. */
+ * whole status packet in it is a late reply (counted, its id remembered), so a late answer is never taken
+ * for the new request's. A packet still arriving (its header and part of it here: a slow emulated UART
+ * delivers byte by byte) stays in rx[]: when it completes, the wait for the new request's answer finds an
+ * id or length it did not ask for and counts it late too (gs_bus_sync_read, gs_bus_read, gs_bus_ping). Bounded: at most 64 buffers
+ * per call, and the plant sends nothing unasked. */
 static void collect_late(void) {
     for (unsigned round = 0; round < 64u; round++) {
         if (rx_len >= sizeof rx) rx_len = 0;
@@ -33,13 +40,10 @@ static void collect_late(void) {
             size_t np = 0;
             int id = parse_status(p, sizeof p, &np);
             if (id < 0) break;
-            gs_bus_stats.late_replies++;
-            heard_late[(unsigned)id >> 3] |= (uint8_t)(1u << ((unsigned)id & 7u));
+            note_late(id);
         }
         if (!got) break;
     }
-    hal_bus_drain();
-    rx_len = 0;
 }
 
 static void send_packet(uint8_t id, uint8_t inst, const uint8_t *params, size_t n) {
@@ -57,6 +61,7 @@ static void send_packet(uint8_t id, uint8_t inst, const uint8_t *params, size_t 
     }
     pkt[5 + n] = (uint8_t)(~sum & 0xFFu);
     collect_late(); /* a late answer to an earlier request must not be taken for this one's */
+    if (rx_len < 2u || rx[0] != 0xFFu || rx[1] != 0xFFu) rx_len = 0; /* keep only a packet still arriving */
     hal_bus_write(pkt, n + 6u);
     gs_bus_stats.packets_out++;
     gs_bus_stats.bytes_out += n + 6u;
@@ -154,12 +159,15 @@ uint32_t gs_bus_sync_read(uint8_t addr, uint8_t len, const uint8_t *ids, size_t 
             if (id == GS_BUS_TIMEOUT) gs_bus_stats.timeouts++;
             break;
         }
+        int ours = 0;
         for (size_t i = 0; i < n; i++) {
             if (ids[i] == (uint8_t)id && np == len) {
                 for (size_t j = 0; j < len; j++) data[i * len + j] = p[j];
                 got |= 1u << i;
+                ours = 1;
             }
         }
+        if (!ours) note_late(id); /* an earlier request's answer, completed only now */
     }
     return got;
 }
@@ -180,6 +188,7 @@ int gs_bus_read(uint8_t id, uint8_t addr, uint8_t len, uint8_t *data, uint32_t t
             for (size_t j = 0; j < len; j++) data[j] = p[j];
             return 1;
         }
+        note_late(got);
     }
 }
 
@@ -195,5 +204,6 @@ int gs_bus_ping(uint8_t id, uint32_t timeout_us) {
             return 0;
         }
         if (got == id) return 1;
+        note_late(got);
     }
 }

@@ -17,7 +17,8 @@ size_t hal_host_read(uint8_t *buf, size_t cap);
 size_t hal_host_write(const uint8_t *buf, size_t n);
 
 /* Servo-bus UART: write a whole packet (blocks until it is handed to the line); read what arrives
- * within `timeout_us` (returns as soon as at least one byte came; 0 on timeout); drop stale input. */
+ * within `timeout_us` (returns as soon as at least one byte came; 0 on timeout; 0 us: only what is
+ * there now); drop stale input. */
 void hal_bus_write(const uint8_t *buf, size_t n);
 size_t hal_bus_read(uint8_t *buf, size_t cap, uint32_t timeout_us);
 void hal_bus_drain(void);

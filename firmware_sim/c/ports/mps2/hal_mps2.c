@@ -1,6 +1,6 @@
 /* The Cortex-M3 port for QEMU's mps2-an385: CMSDK APB UART0 = host link, UART1 = servo bus,
  * UART2 = log channel; SysTick at 4 kHz from the 25 MHz system clock is the tick timer; the CPU
- * sleeps in WFI between events (UART0 receive interrupt, SysTick). Polled UART data registers
+ * sleeps in WFI between events (UART0 and UART1 receive interrupts, SysTick). Polled UART data registers
  * (one byte deep in QEMU's model, which holds further bytes back until the register is read: the
  * receive side never overruns). Boot settings come from the configuration block the launcher
  * writes with QEMU's generic loader (-device loader,addr=...,data=...). */
@@ -45,6 +45,7 @@ static uint32_t waited_counts;       /* system clock counts spent waiting for bu
 
 void systick_handler(void) { systicks++; }
 void uart0_rx_handler(void) { UART_INT(HOST) = 2u; } /* wake from WFI; main loop reads DATA */
+void uart1_rx_handler(void) { UART_INT(BUS) = 2u; }  /* the same for the servo bus's answers */
 
 #define SCB_ICSR REG32(0xE000ED04u)
 #define ICSR_PENDSTSET (1u << 26)
@@ -96,12 +97,17 @@ void hal_bus_write(const uint8_t *buf, size_t n) {
     }
 }
 
+/* Waits in WFI, woken by the bus UART's receive interrupt or SysTick (so a byte that lands between the
+ * check and the WFI waits at most one SysTick period, 250 us): a busy loop of MMIO reads would keep QEMU's
+ * vCPU thread spinning on its global lock while its I/O thread is the one delivering the bytes, which on
+ * a loaded machine made every answer late. */
 size_t hal_bus_read(uint8_t *buf, size_t cap, uint32_t timeout_us) {
     uint64_t start = now_counts();
     uint64_t limit = (uint64_t)timeout_us * (SYSCLK_HZ / 1000000u);
     size_t n = 0;
     while (!(UART_STATE(BUS) & ST_RXFULL)) {
         if (now_counts() - start >= limit) break;
+        __asm volatile("wfi");
     }
     while (n < cap && (UART_STATE(BUS) & ST_RXFULL)) buf[n++] = (uint8_t)UART_DATA(BUS);
     waited_counts += (uint32_t)(now_counts() - start);
@@ -138,7 +144,8 @@ int main(void) {
         UART_CTRL(i) = 3u; /* TX and RX enabled */
     }
     UART_CTRL(HOST) = 3u | 8u; /* + RX interrupt: wakes the WFI */
-    NVIC_ISER0 = 1u << 0;      /* UART0 RX is IRQ 0 on AN385 */
+    UART_CTRL(BUS) = 3u | 8u;  /* the same: hal_bus_read waits in WFI */
+    NVIC_ISER0 = 1u << 0 | 1u << 2; /* UART0 RX is IRQ 0, UART1 RX IRQ 2 on AN385 */
     SYST_RVR = COUNTS_PER_TICK - 1u;
     SYST_CVR = 0;
     SYST_CSR = 7u; /* processor clock, interrupt, enable */

@@ -5,6 +5,7 @@ extern uint32_t _sidata, _sdata, _edata, _sbss, _ebss, _estack;
 int main(void);
 void systick_handler(void);
 void uart0_rx_handler(void);
+void uart1_rx_handler(void);
 
 void reset_handler(void);
 void default_handler(void);
@@ -25,7 +26,7 @@ void reset_handler(void) {
 
 typedef void (*vector_t)(void);
 
-__attribute__((section(".vectors"), used)) const vector_t vectors[16 + 1] = {
+__attribute__((section(".vectors"), used)) const vector_t vectors[16 + 3] = {
     (vector_t)(uintptr_t)&_estack, /* initial main stack pointer */
     reset_handler,
     default_handler, /* NMI */
@@ -40,4 +41,6 @@ __attribute__((section(".vectors"), used)) const vector_t vectors[16 + 1] = {
     default_handler, /* PendSV */
     systick_handler,
     uart0_rx_handler, /* IRQ 0: UART0 RX */
+    default_handler,  /* IRQ 1: UART0 TX (not enabled) */
+    uart1_rx_handler, /* IRQ 2: UART1 RX (the servo bus) */
 };
