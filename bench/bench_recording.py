@@ -27,6 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from host.commands.inputs import positive_seconds  # noqa: E402
 from host.run.log_writer import LogWriter  # noqa: E402
 from host.run.mcap_log import RunLog  # noqa: E402
 from host.run.scene3d import RobotScene  # noqa: E402
@@ -99,9 +100,12 @@ def main() -> int:
     ap.add_argument("--robot", default="coco")
     ap.add_argument("--robots-dir", default=None)
     ap.add_argument("--mesh-arm", action="store_true", help="tests/support's arm with 13 STL meshes")
-    ap.add_argument("--seconds", type=float, default=10.0)
-    ap.add_argument("--modes", default="none,loop,thread")
+    ap.add_argument("--seconds", type=positive_seconds, default=10.0, help="wall seconds per mode")
+    ap.add_argument("--modes", default="none,loop,thread", help="comma-separated: none, loop, thread")
     args = ap.parse_args()
+    modes = args.modes.split(",")
+    if not modes or any(m not in ("none", "loop", "thread") for m in modes):
+        ap.error(f"--modes: expected none, loop and/or thread, got {args.modes!r}")
     with tempfile.TemporaryDirectory(prefix="bench_recording_") as tmp:
         if args.mesh_arm:
             from tests.support.mesh_robot import write_mesh_arm
@@ -114,7 +118,7 @@ def main() -> int:
         built = time.perf_counter() - t
         print(f"{robot.name}: RobotScene built in {built * 1e3:.0f} ms, {scene.mesh_bytes / 1e6:.2f} MB of STL "
               f"({len(scene.boxed_meshes)} mesh(es) boxed); {args.seconds:g} s per mode, wall-clock paced")
-        for mode in args.modes.split(","):
+        for mode in modes:
             costs, lags, dropped = asyncio.run(_run(robot, mode, args.seconds, Path(tmp) / f"{mode}.mcap"))
             print(f"  {mode:<6} loop cost per report n={len(costs)} {_pct(costs)}; 1 ms ticker lag n={len(lags)} "
                   f"{_pct(lags)}" + (f"; dropped {dropped}" if mode == "thread" else ""))

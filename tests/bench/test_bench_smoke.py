@@ -24,6 +24,7 @@ CASES = {
     "bench_can.py": ["--n", "20", "--seconds", "0.3", "--skip", "session,latency"],  # one short UML boot
     "bench_cfirmware.py": ["--seconds", "0.3", "--repeat", "1", "--skip-fuzz"],  # QEMU boot + native builds
     "bench_foxglove.py": ["--n", "1", "--task", "1"],  # one realtime run with a live client, two lockstep runs
+    "bench_recording.py": ["--seconds", "0.3"],  # CoCo's RunLog on a loop: none, inline, writer thread
     "bench_fuzz.py": ["--seconds", "1", "serial-decoder"],  # one libFuzzer run of 1 s
     "run_all.py": ["--quick", "--only", "board"],  # the table, from the board's figures
 }
