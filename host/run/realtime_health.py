@@ -27,8 +27,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-__all__ = ["BEHIND_MIN_MS", "LATENESS_PREFIX", "LATE_MIN", "LATE_SHARE", "SKIPPED_MIN_MS", "board_lateness",
-           "realtime_behind", "realtime_behind_line"]
+__all__ = ["BEHIND_MIN_MS", "LATENESS_PREFIX", "LATE_MIN", "LATE_SHARE", "SKIPPED_MIN_MS", "add_realtime_behind",
+           "board_lateness", "realtime_behind", "realtime_behind_line"]
 
 #: the board's stderr line (firmware_sim.cfirmware.launcher.LATENESS_PREFIX; the host does not import firmware_sim)
 LATENESS_PREFIX = "board: realtime lateness "
@@ -116,3 +116,15 @@ def realtime_behind_line(behind: Mapping[str, Any] | None) -> str | None:
             + "; ".join(behind.get("reasons") or ["it fell behind"])
             + "): told as lateness, not as faults; rerun with --lockstep for timing that does not depend on "
               "the machine's load")
+
+
+def add_realtime_behind(extra: dict[str, Any], board_stderr: Path) -> str | None:
+    """Put :func:`realtime_behind` of a run's summary ``extra`` (its ``link`` and ``clock``) and the board's
+    stderr file into ``extra["realtime_behind"]`` when the run fell behind; returns the one line (None when it
+    kept up, nothing added). Call it once the board has stopped (its lateness line is written at exit),
+    e.g. where summary.json is written."""
+    behind = realtime_behind(extra.get("link"), board_lateness(board_stderr), clock=str(extra.get("clock", "realtime")))
+    if behind is None:
+        return None
+    extra["realtime_behind"] = behind
+    return realtime_behind_line(behind)

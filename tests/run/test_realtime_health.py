@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from host.run.realtime_health import (
-    LATENESS_PREFIX, board_lateness, realtime_behind, realtime_behind_line,
+    LATENESS_PREFIX, add_realtime_behind, board_lateness, realtime_behind, realtime_behind_line,
 )
 
 #: what the C firmware's board printed after a run whose plant was stopped for half a second
@@ -52,3 +52,14 @@ def test_the_board_record_is_read_from_its_stderr(tmp_path: Path) -> None:
     assert board_lateness(err) == BEHIND
     err.write_text(LATENESS_PREFIX + "{not json\n")
     assert board_lateness(err) is None
+
+
+def test_added_to_a_summary_extra_once_the_board_stopped(tmp_path: Path) -> None:
+    err = tmp_path / "board.stderr"
+    err.write_text(LATENESS_PREFIX + json.dumps(QUIET) + "\n")
+    extra: dict = {"clock": "realtime", "link": {"frames_sent": 400, "late": 0}}
+    assert add_realtime_behind(extra, err) is None and "realtime_behind" not in extra
+    err.write_text(LATENESS_PREFIX + json.dumps(BEHIND) + "\n")
+    line = add_realtime_behind(extra, err)
+    assert line is not None and line.startswith("realtime: ") and extra["realtime_behind"]["bus_stalls"] == 162
+    assert add_realtime_behind({"clock": "lockstep", "link": {}}, err) is None
