@@ -10,6 +10,7 @@ goal SYNC WRITE steps the world one control period; in realtime it steps on the 
 from __future__ import annotations
 
 import argparse
+import json
 import select
 import signal
 import sys
@@ -69,5 +70,7 @@ def main(argv: list[str] | None = None) -> int:
         serve(plant, port, stop)
     finally:
         print(f"plant: {plant.stats.line(plant.world.period_us)}", file=sys.stderr, flush=True)
+        if not plant.lockstep:
+            print(f"plant: realtime lateness {json.dumps(plant.lateness.as_dict())}", file=sys.stderr, flush=True)
         port.close()
     return 0
