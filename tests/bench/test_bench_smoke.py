@@ -27,11 +27,13 @@ CASES = {
     "bench_recording.py": ["--seconds", "0.3"],  # CoCo's RunLog on a loop: none, inline, writer thread
     "bench_fuzz.py": ["--seconds", "1", "serial-decoder"],  # one libFuzzer run of 1 s
     "run_all.py": ["--quick", "--only", "board"],  # the table, from the board's figures
+    "bench_soak.py": ["-n", "1", "--seed", "1", "--links", "pty", "--realtime-share", "0"],  # one lockstep run
+    "bench_control_lag.py": ["-n", "1", "--cases", "mesh"],  # one realtime run of the mesh arm
 }
 
 
 #: cases that run a board on the wall clock (under xdist, one at a time and first in line for the cores: tests/support/realtime_lock.py)
-REALTIME = {"bench_roundtrip.py", "bench_foxglove.py", "bench_recovery.py"}
+REALTIME = {"bench_roundtrip.py", "bench_foxglove.py", "bench_recovery.py", "bench_control_lag.py"}
 
 #: a benchmark's wall-clock parts run as a case of their own, so its lockstep parts (most of its time)
 #: do not hold the other workers off (tests/support/realtime_lock.py)
