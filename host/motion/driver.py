@@ -32,18 +32,24 @@ __all__ = ["SETTLE_CHECKPOINTS", "drive", "react", "realtime_topper", "settle"]
 #: at most this many checkpoints :func:`settle` yields per round; on asyncio it stops as soon as no other
 #: task is ready to run
 SETTLE_CHECKPOINTS = 32
+#: lockstep: how often :func:`react` looks whether the board answered the requests in flight (s), and
+#: the longest it waits for them (s; a request's own retries give up well before)
+REPLY_POLL_S = 0.001
+REPLY_WAIT_S = 30.0
 
 
 async def drive(streamer: FrameStreamer, reports: AsyncIterable[Telemetry], *, lockstep: bool,
-                on_report: Callable[[Telemetry], bool | None]) -> Telemetry | None:
+                on_report: Callable[[Telemetry], bool | None],
+                pending_replies: Callable[[], int] | None = None) -> Telemetry | None:
     """Telemetry -> :meth:`FrameStreamer.on_telemetry` -> ``on_report`` -> top-up, one report at a time.
 
     ``on_report(tel)`` runs after the streamer confirmed the report (segment and board-time waiters
     are woken, not yet run); it may raise (a fault ends the drive) or return True to stop: the drive
     then returns that report without topping up. Returns None when ``reports`` ends.
 
-    Lockstep: the top-up is from the report's board time (µs), after :func:`react`; realtime: from the
-    link's board clock estimate.
+    Lockstep: the top-up is from the report's board time (µs), after :func:`react` (``pending_replies``:
+    how many requests to the board await their answer, e.g. ``len(client.requests.pending)``);
+    realtime: from the link's board clock estimate.
     """
     async for tel in reports:
         streamer.on_telemetry(tel)
@@ -52,24 +58,36 @@ async def drive(streamer: FrameStreamer, reports: AsyncIterable[Telemetry], *, l
         if STALLS is not None:
             await maybe_stall("driver")
         if lockstep:
-            await react(streamer)
+            await react(streamer, pending_replies)
             await streamer.top_up(tel.board_time_us)
         else:
             await streamer.top_up()
     return None
 
 
-async def react(streamer: FrameStreamer) -> None:
+async def react(streamer: FrameStreamer, pending_replies: Callable[[], int] | None = None) -> None:
     """Lockstep: return once everything the last report woke has reacted: the tasks it made ready have
-    run until they wait again (:func:`settle`) and no :meth:`FrameStreamer.busy` work is under way
-    (checked again after that work ends: it may wake more). Only then may frames extend board time,
-    so a segment, a request or a FLUSH that the report led to is in the message stream before them,
-    however long the host took."""
+    run until they wait again (:func:`settle`), no :meth:`FrameStreamer.busy` work or
+    :meth:`FrameStreamer.hold` is under way, and no request to the board awaits its answer
+    (``pending_replies() == 0``: a lockstep board answers while it waits for frames; the task that
+    gets the answer goes on at once, as if the answer had been instant). Checked again after each
+    wait: what ended may wake more. Only then may frames extend board time, so a segment, a request
+    or a FLUSH that the report led to is in the message stream before them, however long the host
+    took. A request still unanswered after ``REPLY_WAIT_S`` (its retries exhausted, or a bookkeeping
+    leak) no longer holds the board."""
+    waited_from: float | None = None
     while True:
         await settle()
-        if not streamer.busy_count:
+        if streamer.reacting:
+            await streamer.wait_not_busy()
+            continue
+        if pending_replies is None or not pending_replies():
             return
-        await streamer.wait_not_busy()
+        now = anyio.current_time()
+        waited_from = now if waited_from is None else waited_from
+        if now - waited_from > REPLY_WAIT_S:
+            return
+        await anyio.sleep(REPLY_POLL_S)
 
 
 async def realtime_topper(streamer: FrameStreamer) -> None:

@@ -129,9 +129,6 @@ class FrameLink(Protocol):
         ...
 
 
-#: Wall seconds the shielded top-up that resumes a held lockstep board may take (see :meth:`FrameStreamer.hold`).
-RESUME_TIMEOUT_S = 8.0
-
 #: Wire bytes of a FLUSH and of a SERVO_FRAME for ``n`` servos (framing and COBS overhead included),
 #: from :func:`protocol.framing.encode_frame`, in the wire schema of a robot of up to 16 servos.
 FLUSH_WIRE_BYTES = len(encode_frame(Flush(0, 0xFFF), 0))
@@ -231,7 +228,7 @@ class FrameStreamer:
         self._last_failure: Exception | None = None
         self._send_path_s: deque[float] = deque(maxlen=SEND_PATH_WINDOW)  # measured by start_now (s)
         self._busy = 0  # control work under way that a lockstep top-up waits for (busy())
-        self._not_busy = anyio.Event()
+        self._idle = anyio.Event()  # set (and replaced) when the last hold or busy section ends
 
     def grid(self, t_us: int) -> int:
         """The first frame time on the grid at or after ``t_us``."""
@@ -394,7 +391,10 @@ class FrameStreamer:
 
         A lockstep board runs only as far as frames reach, so not topping up
         freezes board time; on a realtime board holding would starve it, so it is
-        a no-op there.
+        a no-op there. While held, the telemetry driver waits at the report it is handling
+        (:func:`host.motion.driver.react`) and tops up from that report once the hold ends: the
+        board resumes from the same report whenever the held work ends (before, the hold's own end
+        topped up from the link's estimate, the latest report *received*, which depended on timing).
         """
         if not self.link.lockstep:
             yield
@@ -404,11 +404,7 @@ class FrameStreamer:
             yield
         finally:
             self._holds -= 1
-            if self._holds == 0:  # resume the board however the held work ended
-                # bounded: this runs while the caller may be cancelled, and the frame lock may be held
-                # by a cut waiting for an ACK; a resume that cannot happen must not hang the caller
-                with anyio.CancelScope(shield=True), anyio.move_on_after(RESUME_TIMEOUT_S):
-                    await self.top_up()
+            self._maybe_idle()
 
     @property
     def held(self) -> bool:
@@ -418,27 +414,38 @@ class FrameStreamer:
     @contextlib.asynccontextmanager
     async def busy(self) -> AsyncIterator[None]:
         """Mark control work that reacts to a report and waits on something other than board time (a
-        thread, a reply, wall time): in lockstep the telemetry driver tops up only once no such work is
-        under way (:func:`host.motion.driver.react`), so what the work sends precedes the frames that
-        move board time on. Work inside must not wait for board time itself (it would wait for ever)."""
+        thread, a reply from the board, wall time): in lockstep the telemetry driver tops up only once no
+        such work is under way (:func:`host.motion.driver.react`), so what the work sends, and what it
+        leads to, precedes the frames that move board time on. The work must not wait for board time
+        itself (it would wait for ever); a lockstep board answers requests while it waits for frames.
+        On a realtime board nothing waits for it."""
         self._busy += 1
         try:
             yield
         finally:
             self._busy -= 1
-            if self._busy == 0:
-                self._not_busy.set()
-                self._not_busy = anyio.Event()
+            self._maybe_idle()
 
     @property
     def busy_count(self) -> int:
         """How many :meth:`busy` sections are under way."""
         return self._busy
 
+    @property
+    def reacting(self) -> bool:
+        """True while the host's reaction to a report is under way on its own (a :meth:`hold` or a
+        :meth:`busy` section): a lockstep top-up waits, and the board's silence is on purpose."""
+        return self._holds > 0 or self._busy > 0
+
+    def _maybe_idle(self) -> None:
+        if not self.reacting:
+            self._idle.set()
+            self._idle = anyio.Event()
+
     async def wait_not_busy(self) -> None:
-        """Return once no :meth:`busy` section is under way."""
-        if self._busy:
-            await self._not_busy.wait()
+        """Return once no :meth:`hold` or :meth:`busy` section is under way."""
+        while self.reacting:
+            await self._idle.wait()
 
     async def _resumed(self, point: str) -> None:
         """A task woken by a report resumes: the stall-injection point of :mod:`host.motion.stalls`."""

@@ -112,7 +112,8 @@ async def pump(client: BoardClient, runtime: RobotRuntime, rec: Recorder,
 
     streamer = runtime.streamer
     reports = _stamped(client.telemetry(maxsize=1024), rec)
-    await drive(streamer, reports, lockstep=client.lockstep, on_report=on_report)
+    await drive(streamer, reports, lockstep=client.lockstep, on_report=on_report,
+                pending_replies=lambda: len(client.requests.pending))
 
 
 async def _stamped(reports: AsyncIterator[Any], rec: Recorder) -> AsyncIterator[Any]:
@@ -159,10 +160,11 @@ async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardCl
         if stalled > STALL_S:  # this process did not run (an overloaded machine, a blocked loop): not silence
             rec.last_rx += stalled
             since += stalled
-        if runtime.streamer.frames_sent != sent or runtime.streamer.held:
+        reacting = runtime.streamer.reacting  # held (waiting for the LLM) or busy: silent on purpose
+        if runtime.streamer.frames_sent != sent or reacting:
             sent, since = runtime.streamer.frames_sent, now
         silent = now - rec.last_rx
-        if runtime.streamer.held:  # a held lockstep board is silent on purpose (waiting for the LLM)
+        if reacting:  # a held lockstep board, or one waiting for the host's reaction, is silent on purpose
             rec.last_rx = now
         elif silent > TELEMETRY_SILENCE_S:
             raise LinkError(f"no telemetry from the board for {TELEMETRY_SILENCE_S:g} s; giving up the run")

@@ -22,6 +22,7 @@ from host.run.pump import LOCKSTEP_LOST_S, TELEMETRY_SILENCE_S, Recorder, silenc
 class _Streamer:
     frames_sent: int = 0
     held: bool = False
+    reacting: bool = False  # held, or a busy section under way
     first_free_us: int = 0
 
     def board_now_us(self) -> int:
