@@ -28,10 +28,11 @@ import anyio
 
 __all__ = ["CHECK_S", "PROGRESS_LIMIT_S", "STARVED_S", "ProgressGuard", "Stall"]
 
-#: wall seconds without any progress after which a session's work is taken as stalled. Longer than the
-#: silence watchdog's 10 s (:data:`host.run.pump.TELEMETRY_SILENCE_S`), which ends a silent board sooner
-#: with its own message, and than a real LLM's usual pause before its next chunk.
-PROGRESS_LIMIT_S = 30.0
+#: wall seconds without any progress after which a session's work is taken as stalled. Longer than every
+#: wait that has its own deadline and message, so the guard only ends what nothing else would: the silence
+#: watchdog's 10 s (:data:`host.run.pump.TELEMETRY_SILENCE_S`), an MCP tool call's 30 s
+#: (``host.mounts.mcp_mount`` ``call_timeout``) and an LLM request's 60 s (``host.ghost`` ``timeout_s``).
+PROGRESS_LIMIT_S = 90.0
 #: wall seconds between two looks at the probes
 CHECK_S = 0.25
 #: a look that comes this much later than asked for means the process did not run: the gap is not counted
