@@ -160,7 +160,9 @@ async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardCl
         if stalled > STALL_S:  # this process did not run (an overloaded machine, a blocked loop): not silence
             rec.last_rx += stalled
             since += stalled
-        reacting = runtime.streamer.reacting  # held (waiting for the LLM) or busy: silent on purpose
+        # held (waiting for the LLM), busy, or (lockstep) waiting for the board's answer to a request, which
+        # the driver waits for before it tops up: silent on purpose
+        reacting = runtime.streamer.reacting or (lockstep and client is not None and bool(client.requests.pending))
         if runtime.streamer.frames_sent != sent or reacting:
             sent, since = runtime.streamer.frames_sent, now
         silent = now - rec.last_rx

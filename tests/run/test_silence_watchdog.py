@@ -79,6 +79,11 @@ class _Stats:
 
 
 @dataclass
+class _Requests:
+    pending: dict[int, object] = field(default_factory=dict)  # requests awaiting the board's answer
+
+
+@dataclass
 class _LockstepClient:  # what the watchdog reads of a lockstep BoardClient, and the ADVANCEs it sends
     seen_us: int = 20_000  # the board time of the latest report the host has
     board_us: int = 20_000  # where the board's clock really is (what a TIME_SYNC reply would say)
@@ -86,6 +91,7 @@ class _LockstepClient:  # what the watchdog reads of a lockstep BoardClient, and
     stats: _Stats = field(default_factory=_Stats)
     targets: list[int] = field(default_factory=list)
     probes: int = 0
+    requests: _Requests = field(default_factory=lambda: _Requests())
 
     def link_lossy(self) -> bool:
         return self.stats.decode_errors > 0 or self.stats.retries > 0
@@ -157,4 +163,24 @@ async def test_a_healthy_lockstep_link_sends_nothing_on_wall_time() -> None:
         assert client.targets == [] and client.probes == 0 and runtime.streamer.top_ups == []
         await anyio.sleep(0.2)
         assert client.targets == [80_001] and client.probes == 1
+        tg.cancel_scope.cancel()
+
+
+@pytest.mark.anyio
+async def test_a_lockstep_board_answering_a_request_is_not_silent() -> None:
+    """The telemetry driver waits for the board's answers to requests before it tops up (the reaction to
+    a report includes them): the board's silence meanwhile is on purpose, however long, and no
+    recovery goes out during it; once answered, silence counts again."""
+    runtime = _Runtime(streamer=_SentStreamer())
+    client = _LockstepClient(stats=_Stats(retries=0))
+    client.requests.pending[7] = object()  # e.g. a camera capture over a slow line
+    rec = Recorder()
+    rec.last_rx = anyio.current_time()
+    async with anyio.create_task_group() as tg:
+        tg.start_soon(silence_watchdog, runtime, rec, client, anyio.current_time)
+        await anyio.sleep(TELEMETRY_SILENCE_S + 1)  # longer than the run's silence limit
+        assert client.targets == [] and client.probes == 0
+        client.requests.pending.clear()
+        await anyio.sleep(LOCKSTEP_LOST_S + 0.1)
+        assert client.targets == [80_001]
         tg.cancel_scope.cancel()
