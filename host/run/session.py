@@ -311,6 +311,7 @@ class RobotSession:
         #: the work a stop's deadline cuts: the start-pose move or the running turn
         self._work_scope: anyio.CancelScope | None = None
         self._stop_wall: float | None = None  # time.monotonic() of the first stop
+        self._deadline_scope: anyio.CancelScope | None = None  # the running _stop_deadline's
         #: the stop's deadline passed: what remains of the graceful stop is cut or skipped
         self.stop_overdue = False
         #: the event loop's scheduling delay, sampled while the session runs (reset at each turn's start)
@@ -559,8 +560,14 @@ class RobotSession:
 
     async def _stop_deadline(self) -> None:
         """At the stop's deadline, cut what still runs: the turn (its resets aborted; its calls are
-        reported as far as they got) or the start-pose move; later waits see :attr:`stop_overdue`."""
-        await anyio.sleep(self.stop_left_s())
+        reported as far as they got) or the start-pose move; later waits see :attr:`stop_overdue`.
+        :meth:`clear_stop` cancels it."""
+        with anyio.CancelScope() as scope:
+            self._deadline_scope = scope
+            await anyio.sleep(self.stop_left_s())
+        if scope.cancel_called:
+            return
+        self._deadline_scope = None
         self.stop_overdue = True
         if self._work_scope is not None:
             log.warning("the stop did not end the work within %g s (%s): cutting it", self.opts.stop_grace_s,
@@ -633,8 +640,13 @@ class RobotSession:
             self._runtime.abort_cleanups()
 
     def clear_stop(self) -> None:
-        """Forget a stop (e.g. a board-time bound that ended one MCP program): later turns run again."""
+        """Forget a stop (e.g. a board-time bound that ended one MCP program): later turns run again, and
+        its deadline no longer cuts them."""
         self.stop = None
+        self._stop_wall, self.stop_overdue = None, False
+        if self._deadline_scope is not None:
+            self._deadline_scope.cancel()
+            self._deadline_scope = None
 
     async def go_to_rest(self, timeout_s: float = 10.0) -> bool:
         """Move every servo smoothly to the robot's rest pose (``robot.toml`` ``rest_pose``), e.g. after a

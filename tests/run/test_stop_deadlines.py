@@ -83,3 +83,26 @@ def test_the_stop_deadline_cuts_a_turn_whose_stop_cannot_run(tmp_path: Path) -> 
     rec = turn.result.timeline.one("move_strides")
     assert rec.outcome != "done"
     assert cut_after and cut_after[0] < 6.0  # the deadline (1 s) and the cut, not the stop's own 12 s
+
+
+def test_a_cleared_stop_no_longer_cuts_later_turns(tmp_path: Path) -> None:
+    """An MCP server clears a bound's stop and runs the next program: the old stop's deadline must not
+    cut it (nor a later stop's start it at once)."""
+    took: list[float] = []
+
+    async def main() -> TurnResult:
+        with anyio.fail_after(60):
+            async with RobotSession(SessionOptions(out=tmp_path, lockstep=True, mcap=False, plots=False,
+                                                   stop_grace_s=0.05)) as s:
+                s.request_stop(StopReason("limit", "max_board_s", "the test's bound"))
+                s.clear_stop()
+                t = anyio.current_time()
+                turn = await s.run_turn('<move_strides direction="forward" times="2"/>', settle_s=0.1)
+                took.append(anyio.current_time() - t)
+                assert not s.stop_overdue
+                return turn
+
+    turn = anyio.run(main, backend="asyncio")
+    assert took[0] > 0.05  # the turn outlived the old deadline
+    assert turn.summary.outcome == "done", turn.result.timeline.table()
+    assert turn.summary.extra["timing"]["stop_overdue"] is False
