@@ -116,16 +116,22 @@ def run_one(case: Case, out: Path, timeout_s: float, grace_s: float) -> Result:
                                 cwd=ROOT, env=env, start_new_session=True)
         timed_out = False
         try:
-            status: int | None = proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            timed_out = True
-            proc.send_signal(signal.SIGTERM)  # one signal, to the process alone: a first Ctrl-C
             try:
-                status = proc.wait(grace_s)
+                status: int | None = proc.wait(timeout_s)
             except subprocess.TimeoutExpired:
+                timed_out = True
+                proc.send_signal(signal.SIGTERM)  # one signal, to the process alone: a first Ctrl-C
+                try:
+                    status = proc.wait(grace_s)
+                except subprocess.TimeoutExpired:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                    proc.wait()
+                    status = None
+        except BaseException:  # Ctrl-C on the soak: the run (and its board) must not outlive it
+            if proc.poll() is None:
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
-                status = None
+            raise
     wall = time.monotonic() - t0
     summary = None
     try:
@@ -159,12 +165,10 @@ def report(results: list[Result]) -> list[str]:
              "exit statuses: " + ", ".join(f"{k} {v}" for k, v in Counter(str(r.status) for r in results).most_common()),
              f"wall s: p50 {np.percentile(walls, 50):.1f}  p99 {np.percentile(walls, 99):.1f}  max {walls.max():.1f}  (n={n})"]
     for load in (False, True):
-        lags = [((r.summary or {}).get("extra", {}).get("timing") or {}).get("lag", {}).get("p99_ms")
-                for r in results if r.case.load == load]
-        lags = [x for x in lags if isinstance(x, (int, float))]
-        trips = [((r.summary or {}).get("extra", {}).get("timing") or {}).get("watchdog_trips")
-                 for r in results if r.case.load == load]
-        trips = [x for x in trips if isinstance(x, int)]
+        timings = [((r.summary or {}).get("extra", {}).get("timing") or {}) for r in results if r.case.load == load]
+        lags: list[float] = [t["lag"]["p99_ms"] for t in timings
+                             if isinstance((t.get("lag") or {}).get("p99_ms"), (int, float))]
+        trips: list[int] = [t["watchdog_trips"] for t in timings if isinstance(t.get("watchdog_trips"), int)]
         if lags:
             lines.append(f"{'under load' if load else 'no load   '}: per-run lag p99 median {np.median(lags):.1f} ms, "
                          f"worst {max(lags):.1f} ms (n={len(lags)}); watchdog trips total {sum(trips)} in "
@@ -182,6 +186,8 @@ def main() -> int:
     ap.add_argument("--links", default=",".join(LINKS), help=f"comma-separated links (default {','.join(LINKS)})")
     ap.add_argument("--out", default=None, help="keep failed runs' folders here (default: a temporary folder)")
     ap.add_argument("--json", default=None, metavar="FILE", help="write every run's result as JSON")
+    ap.add_argument("--max-wall-s", type=float, default=None,
+                    help="start no new run after this many wall seconds (the counts cover the runs made)")
     args = ap.parse_args()
     if args.n < 1 or not 0 <= args.realtime_share <= 1 or not args.timeout_s > 0:
         ap.error("need -n >= 1, 0 <= --realtime-share <= 1 and --timeout-s > 0")
@@ -193,8 +199,12 @@ def main() -> int:
           f"CPU hog on each of {os.cpu_count()} cores, timeout {args.timeout_s:g} s + {args.grace_s:g} s; "
           f"load average at start {os.getloadavg()[0]:.1f}; folders in {root}", flush=True)
     results: list[Result] = []
+    started = time.monotonic()
     try:
         for case in todo:
+            if args.max_wall_s is not None and time.monotonic() - started > args.max_wall_s:
+                print(f"--max-wall-s {args.max_wall_s:g}: stopping after {len(results)} of {args.n} runs", flush=True)
+                break
             out = root / f"run_{case.i + 1:04d}"
             r = run_one(case, out, args.timeout_s, args.grace_s)
             results.append(r)
