@@ -11,6 +11,9 @@ One process (this one) holds the world; the firmware runs as its own process:
   QEMU's generic loader. ``icount=True`` adds ``-icount shift=0,sleep=on`` (one instruction per
   virtual nanosecond: the tick-cost figure).
 
+Realtime, this process first raises its priority as the Python board does (:mod:`firmware_sim.priority`:
+nice -10 where permitted, 1 ns timer slack); the firmware it starts inherits both.
+
 This process is the servo-bus plant (:mod:`firmware_sim.plant`: the robot's MuJoCo model behind
 Feetech SCS/STS devices on a pty) and reads the firmware's log channel: ``board: ...`` lines go to
 stderr as the Python board prints them, ``F rx|tx T HEX`` records become the JSON-Lines frame log
@@ -261,6 +264,12 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
     except BuildError as e:
         print(f"board: cannot build the C firmware: {e}", file=err)
         return 2
+    if not opts.lockstep:
+        # as the Python board does (firmware_sim.priority): the plant, the relay and the firmware (a child
+        # inherits nice value and timer slack) must not wait behind other work on a loaded machine
+        from firmware_sim.priority import raise_priority, tighten_timer_slack
+
+        print(f"board: {raise_priority()}; {tighten_timer_slack()}", file=err, flush=True)
     world = World(opts.robot, scene=opts.scene, rate_hz=opts.rate_hz, dt=opts.dt)
     plant = PlantBus(world, lockstep=opts.lockstep)
     for sid, at in opts.dead_servos:

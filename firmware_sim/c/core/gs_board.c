@@ -15,6 +15,7 @@
  * (2 s was seen as a QEMU board's plant's lag on a machine at load 11 on 2 cores) */
 #define GS_BUS_SILENT_LIMIT_US 5000000u
 #define BOOT_PING_ROUNDS_REALTIME 5u /* realtime: a servo silent at boot is asked again (a slow plant) */
+#define GS_BOOT_WAIT_US 10000000u     /* realtime: how long boot waits for a silent bus to answer at all */
 #define READ_GROUP 6u /* servos per SYNC READ: one read job fits a 2 ms tick at 1 Mbaud */
 
 static const gs_mask_t ALL = (gs_mask_t)((1ull << GS_SERVO_COUNT) - 1u);
@@ -303,6 +304,8 @@ static void bus_read_job(gs_board_t *b) {
     } else {
         job = (unsigned)(b->ticks % jobs);
     }
+    if (!b->imu_present && gs_bus_heard_late(GS_IMU_ID)) b->imu_present = 1; /* answered its boot ping late */
+    if (!b->probe_present && gs_bus_heard_late(GS_PROBE_ID)) b->probe_present = 1;
     if (job == 0) read_probe(b);
     else if (job == 1) read_imu(b);
     else read_group(b, (job - 2u) * READ_GROUP, READ_GROUP, 0);
@@ -388,20 +391,43 @@ void gs_board_init(gs_board_t *b, const gs_settings_t *cfg, gs_send_fn sendfn, v
     b->tick_cycles_sum = b->tick_cycles_n = 0;
 }
 
+/* Realtime: ping `id` until it answers (on time or late) or `rounds` pings went unanswered while the bus
+ * was answering: after each unanswered ping another device is pinged (`*ref`, the last one that answered;
+ * before any did, the servos and the IMU in turn), and only when something answered meanwhile does the
+ * miss count. Pings into a silent bus count only after `give_up_us` (GS_BOOT_WAIT_US) of board clock. */
+static int boot_ping(gs_board_t *b, uint8_t id, unsigned rounds, uint64_t give_up_us, uint8_t *ref) {
+    unsigned unanswered = 0, probe = 0;
+    while (!hal_should_stop()) {
+        uint32_t answers = gs_bus_answers;
+        if (gs_bus_ping(id, b->bus_timeout_us) || gs_bus_heard_late(id)) {
+            *ref = id;
+            return 1;
+        }
+        uint8_t other = *ref;
+        if (!other || other == id) { /* no device known to answer yet: try the others in turn */
+            unsigned k = probe++ % (GS_SERVO_COUNT + 1u);
+            other = k < GS_SERVO_COUNT ? gs_servos[k].id : (uint8_t)GS_IMU_ID;
+        }
+        if (other != id && gs_bus_ping(other, b->bus_timeout_us)) *ref = other;
+        if (gs_bus_heard_late(id)) return 1;
+        if (gs_bus_answers != answers || hal_now_us() >= give_up_us) unanswered++;
+        if (unanswered >= rounds) return 0;
+    }
+    return 0;
+}
+
 void gs_board_boot(gs_board_t *b) {
-    /* realtime: a servo silent at boot is pinged again in later rounds (a plant still starting or
-     * descheduled answers late: gs_bus_heard_late); lockstep's 1 s timeout is one round's worth */
+    /* realtime: the plant may still be starting or be descheduled; a device is absent only after
+     * BOOT_PING_ROUNDS_REALTIME pings it left unanswered while the rest of the bus answered (or after
+     * GS_BOOT_WAIT_US of a silent bus). Lockstep's 1 s timeout is one round's worth. */
     gs_mask_t silent = 0;
     unsigned rounds = b->cfg.lockstep ? 1u : BOOT_PING_ROUNDS_REALTIME;
-    for (unsigned r = 0; r < rounds && !hal_should_stop(); r++) {
-        for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
-            if (r && !(silent >> i & 1u)) continue;
-            if (gs_bus_ping(gs_servos[i].id, b->bus_timeout_us)) silent &= ~((gs_mask_t)1 << i);
-            else silent |= (gs_mask_t)1 << i;
-        }
-        for (unsigned i = 0; i < GS_SERVO_COUNT; i++)
-            if (gs_bus_heard_late(gs_servos[i].id)) silent &= ~((gs_mask_t)1 << i);
-        if (!silent) break;
+    uint64_t give_up = hal_now_us() + GS_BOOT_WAIT_US;
+    uint8_t ref = 0; /* a device that answered (0: none yet) */
+    for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
+        int ok = b->cfg.lockstep ? gs_bus_ping(gs_servos[i].id, b->bus_timeout_us)
+                                 : boot_ping(b, gs_servos[i].id, rounds, give_up, &ref);
+        if (!ok) silent |= (gs_mask_t)1 << i;
     }
     for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
         if (silent >> i & 1u) {
@@ -412,8 +438,10 @@ void gs_board_boot(gs_board_t *b) {
     b->answers_seen = gs_bus_answers;
     b->last_answer_clock_us = hal_now_us();
     if (hal_should_stop()) return; /* stopped while it looked for its bus: no "absent" devices to report */
-    b->imu_present = (uint8_t)gs_bus_ping(GS_IMU_ID, b->bus_timeout_us);
-    b->probe_present = (uint8_t)gs_bus_ping(GS_PROBE_ID, b->bus_timeout_us);
+    b->imu_present = (uint8_t)(b->cfg.lockstep ? gs_bus_ping(GS_IMU_ID, b->bus_timeout_us)
+                                               : boot_ping(b, GS_IMU_ID, rounds, give_up, &ref));
+    b->probe_present = (uint8_t)(b->cfg.lockstep ? gs_bus_ping(GS_PROBE_ID, b->bus_timeout_us)
+                                                 : boot_ping(b, GS_PROBE_ID, rounds, give_up, &ref));
     uint8_t ids[GS_SERVO_COUNT], on[GS_SERVO_COUNT];
     for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
         ids[i] = gs_servos[i].id;
