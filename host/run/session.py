@@ -98,6 +98,7 @@ from host.run.pump import (
     timed_chunks,
 )
 from host.shell import Shell
+from host.shell.cleanups import Cleanups
 from host.shell.policy import Policy
 from host.shell.skills import SkillStore
 from host.shell.timeline import Observation, RunResult, Timeline
@@ -643,6 +644,8 @@ class RobotSession:
         """Forget a stop (e.g. a board-time bound that ended one MCP program): later turns run again, and
         its deadline no longer cuts them."""
         self.stop = None
+        if self.stop_overdue and self._runtime is not None:  # the deadline aborted its cleanups: re-arm them
+            self._runtime._cleanups = Cleanups()  # (RobotRuntime has no public reset; a fresh one is unaborted)
         self._stop_wall, self.stop_overdue = None, False
         if self._deadline_scope is not None:
             self._deadline_scope.cancel()
