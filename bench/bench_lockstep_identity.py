@@ -10,7 +10,7 @@ Prints ``n identical / n runs`` per robot, the wall seconds of the runs and the 
 every run that differs.
 
 Run: ``nice .venv/bin/python bench/bench_lockstep_identity.py [--runs 20] [--robot coco --robot arm ...]
-[--p 0.05] [--max-s 1.0]`` (MUJOCO_GL=egl). About 15-40 s a disturbed run on 2 loaded cores.
+[--p 0.05] [--max-s 1.0] [--firmware python|c]`` (MUJOCO_GL=egl). About 15-40 s a disturbed run on 2 loaded cores.
 """
 
 from __future__ import annotations
@@ -43,6 +43,8 @@ def main() -> int:
     ap.add_argument("--robot", action="append", choices=sorted(XML), help="robots (default: all three)")
     ap.add_argument("--p", type=float, default=0.05, help="stall probability at each stall point (default 0.05)")
     ap.add_argument("--max-s", type=float, default=1.0, help="longest stall, wall seconds (default 1.0)")
+    ap.add_argument("--firmware", choices=("python", "c"), default="python",
+                    help="the emulated board's firmware (default python; c: the C firmware and its MuJoCo plant)")
     ap.add_argument("--keep", type=Path, default=None, help="keep the run folders here (default: a temp folder)")
     args = ap.parse_args()
     if args.runs < 1 or not 0 <= args.p <= 1 or args.max_s < 0:
@@ -57,6 +59,7 @@ def main() -> int:
                 robot_args = ["--robots-dir", str(write_mesh_arm(base / "mesh")), "--robot", "mesh_arm"]
             else:
                 robot_args = ["--robot", robot]
+            robot_args += ["--firmware", args.firmware]
             t0 = time.monotonic()
             quiet = run_lockstep(base / robot / "quiet", XML[robot], robot_args)
             quiet_s = time.monotonic() - t0
@@ -79,7 +82,7 @@ def main() -> int:
                     same += 1
                 else:
                     print(f"  {robot} run {i}: {verdict[:300]}")
-            print(f"{robot}: {same} identical / {args.runs} disturbed runs ({failed} failed); quiet run "
+            print(f"{robot} ({args.firmware}): {same} identical / {args.runs} disturbed runs ({failed} failed); quiet run "
                   f"{quiet_s:.1f} s wall, board time {quiet.record.end_us / 1e6:.2f} s, "
                   f"{quiet.record.counts().get('ServoFrame', 0)} frames; disturbed wall s median "
                   f"{statistics.median(walls):.1f} max {max(walls):.1f}; SIGSTOPs per run median "
