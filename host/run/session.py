@@ -998,6 +998,7 @@ class RobotSession:
     def _summary(self, turn: TurnResult, label: str, base_start: Any, tilt_from: int,
                  captures: list[Path], link_error: BaseException | None = None) -> artefacts.Summary:
         opts, rec, result, calls = self.opts, self.rec, turn.result, turn.calls
+        cut_short = link_error is not None
         base = list(rec.base)[tilt_from:] if tilt_from < len(rec.base) else list(rec.base)[-1:]
         max_tilt = max((artefacts.tilt_deg(b[2]) for b in base), default=0.0)
         b0 = base_start or (base[0] if base else None)
@@ -1033,6 +1034,8 @@ class RobotSession:
                  **({"last_decode_error": client.stats.last_decode_error}
                     if client and client.stats.last_decode_error else {})}
         end_t = rec.t[-1] if rec.t else turn.board_t0
+        if cut_short and tel is not None:  # a stop at once, a loss: the board time the link received, which the
+            end_t = max(end_t, tel.board_time_us * 1e-6)  # pump may not have handled yet
         host_detected: dict[str, Any] = {"decode_errors": stats["decode_errors"], "frame_nacks": stats["frame_nacks"],
                                          "request_retries": stats["retries"], "seq_gaps": stats["seq_gaps"]}
         if link_error is not None:

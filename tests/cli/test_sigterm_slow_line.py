@@ -84,6 +84,7 @@ def test_one_sigterm_while_the_start_pose_crawls_at_2400_baud(tmp_path: Path) ->
     wait_until(lambda: _servo_frames(out) >= 2 and _last_report_s(out) > 0.15, "the move to the start pose is under way",
                timeout=120, proc=cli)
     status, took = _sigterm_once(cli)
+    print(f"exited {took:.2f} s after the SIGTERM")
     assert status == 130, cli.stderr[-2000:]
     assert took < BOUND_S, f"{took:.1f} s"
     assert "interrupted by SIGTERM while starting: stopped at once" in cli.stderr
@@ -104,6 +105,7 @@ def test_one_sigterm_mid_walk_at_4800_baud_ends_at_rest_within_the_bound(tmp_pat
     wait_until(lambda: servo_frames_moving_s(out, robot.pose(robot.start_pose)) > 0.5, "the walk is under way",
                timeout=60, proc=cli)
     status, took = _sigterm_once(cli)
+    print(f"exited {took:.2f} s after the SIGTERM")
     assert status == 130, cli.stderr[-2000:]
     assert took < BOUND_S, f"{took:.1f} s"
     assert "interrupted by SIGTERM at board time" in cli.stderr, cli.stderr[-2000:]
