@@ -232,6 +232,16 @@ static void servo_lost(gs_board_t *b, unsigned i) {
     nack(b, b->last_rx_seq, GS_MSG_TYPE_SERVO_FRAME, GS_NACK_REASON_SERVO_FAULT, servo_text(i, "stopped answering on the servo bus"), 0);
 }
 
+/* Realtime: while the bus is stalled (the last read got no answer at all: the plant is not running), reads
+ * wait only STALLED_TIMEOUT_US, so a descheduled plant costs the board half a tick per read instead of 10 ms
+ * (which made the board itself fall behind and skip ticks). Nothing is lost: late answers are still
+ * collected (gs_bus.c), and a stalled read never counts towards a dead servo. */
+#define STALLED_TIMEOUT_US 1000u
+
+static uint32_t read_timeout(const gs_board_t *b) {
+    return b->bus_stalled && !b->cfg.lockstep ? STALLED_TIMEOUT_US : b->bus_timeout_us;
+}
+
 /* SYNC READ of present position, speed and load of servos [first, first + n). */
 static void read_group(gs_board_t *b, unsigned first, unsigned n, int all) {
     uint8_t ids[READ_GROUP], data[READ_GROUP * GS_PRESENT_LEN];
@@ -242,7 +252,9 @@ static void read_group(gs_board_t *b, unsigned first, unsigned n, int all) {
         ids[k++] = gs_servos[i].id;
     }
     if (!k) return;
-    uint32_t ok = gs_bus_sync_read(GS_REG_PRESENT, GS_PRESENT_LEN, ids, k, data, b->bus_timeout_us);
+    uint32_t before = gs_bus_answers;
+    uint32_t ok = gs_bus_sync_read(GS_REG_PRESENT, GS_PRESENT_LEN, ids, k, data, read_timeout(b));
+    b->bus_stalled = gs_bus_answers == before;
     uint64_t clock = hal_now_us();
     if (gs_bus_answers != b->answers_seen) {
         b->answers_seen = gs_bus_answers;
@@ -277,13 +289,20 @@ static void read_group(gs_board_t *b, unsigned first, unsigned n, int all) {
 
 static void read_imu(gs_board_t *b) {
     uint8_t d[GS_IMU_LEN];
-    if (!b->imu_present || !gs_bus_read(GS_IMU_ID, GS_REG_PRESENT, GS_IMU_LEN, d, b->bus_timeout_us)) return;
+    if (!b->imu_present) return;
+    uint32_t before = gs_bus_answers;
+    int ok = gs_bus_read(GS_IMU_ID, GS_REG_PRESENT, GS_IMU_LEN, d, read_timeout(b));
+    b->bus_stalled = gs_bus_answers == before;
+    if (!ok) return;
     for (unsigned k = 0; k < 3; k++) b->imu[k] = (int16_t)(uint16_t)(d[2 * k] | d[2 * k + 1] << 8);
 }
 
 static void read_probe(gs_board_t *b) {
     if (!b->probe_present) return;
-    if (gs_bus_read(GS_PROBE_ID, GS_REG_PRESENT, GS_PROBE_LEN, b->probe, b->bus_timeout_us)) {
+    uint32_t before = gs_bus_answers;
+    int ok = gs_bus_read(GS_PROBE_ID, GS_REG_PRESENT, GS_PROBE_LEN, b->probe, read_timeout(b));
+    b->bus_stalled = gs_bus_answers == before;
+    if (ok) {
         b->probe_fresh = 1;
         b->probe_t_us = b->now_us;
     }
@@ -384,6 +403,7 @@ void gs_board_init(gs_board_t *b, const gs_settings_t *cfg, gs_send_fn sendfn, v
     b->last_answer_clock_us = hal_now_us();
     b->silent_max_us = 0;
     b->bus_stalls = b->ticks_skipped = b->overruns = 0;
+    b->bus_stalled = 0;
     for (unsigned k = 0; k < 3; k++) b->screen_last[k].name_len = 0;
     b->speaker_action = b->speaker_kind = 0;
     b->speaker_start_us = 0;

@@ -95,6 +95,7 @@ struct gs_board {
     uint64_t last_answer_clock_us; /* hal_now_us when a read last found new answers */
     uint64_t silent_max_us;  /* longest bus silence seen (hal clock) */
     uint32_t bus_stalls;     /* servo reads nobody answered, not counted as misses */
+    uint8_t bus_stalled;     /* the last read got no answer at all (realtime: the next reads wait less) */
     uint32_t ticks_skipped, overruns; /* realtime: ticks skipped to catch up, ticks started a period late */
     gs_mask_t answering;   /* servos included in reads */
     uint8_t servo_fault;   /* latched */
