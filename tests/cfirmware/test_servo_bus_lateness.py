@@ -93,3 +93,19 @@ def test_a_removed_servo_is_still_a_dead_servo(tmp_path: Path) -> None:
         assert w.close() == 130
     err = (tmp_path / "board.stderr").read_text()
     assert f"board: servo id {DEAD.id} ({DEAD.name}) stopped answering on the servo bus" in err
+
+
+def test_a_servo_dead_at_boot_is_found_at_boot(tmp_path: Path) -> None:
+    """Realtime boot pings a silent servo again (a plant still starting answers late) but, while the rest of the
+    bus answers, gives up after a few pings: the servo is reported from the first report on, not after the
+    10 s a silent bus is given."""
+    w = Wire(["--firmware", "c", "--dead-servo", f"{DEAD.id}@0"], tmp_path / "board.stderr")
+    try:
+        w.wait(lambda: bool(w.of(Telemetry)), what="the first report")
+        assert w.of(Telemetry)[0].faults & FaultFlags.SERVO_FAULT
+        assert w.of(Telemetry)[0].board_time_us < 2_000_000
+    finally:
+        assert w.close() == 130
+    err = (tmp_path / "board.stderr").read_text()
+    assert f"board: servo id {DEAD.id} ({DEAD.name}) stopped answering on the servo bus" in err
+    assert "IMU present, ground-truth probe present" in err  # the others were found
