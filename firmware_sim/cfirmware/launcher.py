@@ -58,7 +58,7 @@ from protocol.logfile import FrameLogWriter, open_frame_log
 from protocol.wiremodel import WireModel
 from robots.description import Robot
 
-__all__ = ["LATENESS_PREFIX", "LaunchOptions", "lateness_record", "run_firmware"]
+__all__ = ["LATENESS_PREFIX", "LaunchOptions", "lateness_record", "lateness_warning", "run_firmware"]
 
 QEMU_MACHINE = "mps2-an385"
 BOOT_CFG_ADDR = 0x20000000  # the image's .bootcfg block (firmware_sim/c/ports/mps2/mps2_an385.ld)
@@ -390,7 +390,11 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
                                                  "board_detected": detected}), file=err, flush=True)
         print(f"board: {plant.stats.line(world.period_us)}", file=err, flush=True)
         if not opts.lockstep:
-            print(f"{LATENESS_PREFIX}{json.dumps(lateness_record(logr.stats, plant))}", file=err, flush=True)
+            record = lateness_record(logr.stats, plant)
+            print(f"{LATENESS_PREFIX}{json.dumps(record)}", file=err, flush=True)
+            warning = lateness_warning(record, 1000 / opts.rate_hz)
+            if warning is not None:  # `ghostshell run` repeats a board's warning lines at its end
+                print(warning, file=err, flush=True)
         if "tick_cycles_mean" in logr.stats:
             print(f"board: tick cost (virtual-time cycles at 25 MHz, bus waits excluded): mean "
                   f"{logr.stats['tick_cycles_mean']}, max {logr.stats.get('tick_cycles_max', 0)}, "
@@ -422,6 +426,36 @@ def lateness_record(fw_stats: dict[str, int], plant: PlantBus) -> dict[str, int]
     rec["bus_silent_max_ms"] = int(round(fw_stats.get("bus_silent_max_us", 0) / 1000))
     rec.update(plant.lateness.as_dict())
     return rec
+
+
+#: what counts as "could not keep up" (host.run.realtime_health uses the same figures): ticks skipped to catch
+#: up, in ms of board time; the servo bus silent or the plant behind, ms; frames refused LATE
+BEHIND_SKIPPED_MS = 100
+BEHIND_MS = 100
+BEHIND_LATE_FRAMES = 10
+
+
+def lateness_warning(rec: dict[str, int], tick_ms: float) -> str | None:
+    """The one ``board: warning: ...`` line for a realtime run whose board or plant fell substantially behind
+    the wall clock (``rec``: :func:`lateness_record`; ``tick_ms``: the control period), else None. It names
+    what fell behind and suggests ``--lockstep``; a servo that stayed silent while the bus answered is a
+    SERVO_FAULT instead, never this line."""
+    parts = []
+    skipped_ms = rec.get("board_ticks_skipped", 0) * tick_ms
+    if skipped_ms >= BEHIND_SKIPPED_MS:
+        parts.append(f"the board skipped {skipped_ms / 1000:.2f} s of ticks to catch up")
+    if rec.get("bus_silent_max_ms", 0) >= BEHIND_MS:
+        parts.append(f"the servo bus was silent for up to {rec['bus_silent_max_ms']} ms "
+                     f"({rec.get('bus_stalls', 0)} reads unanswered, {rec.get('bus_late_replies', 0)} answers late)")
+    if rec.get("plant_behind_max_ms", 0) >= BEHIND_MS:
+        parts.append(f"the plant fell up to {rec['plant_behind_max_ms']} ms behind")
+    if rec.get("late_frames", 0) >= BEHIND_LATE_FRAMES:
+        parts.append(f"{rec['late_frames']} frames arrived late")
+    if not parts:
+        return None
+    return ("board: warning: realtime emulation could not keep up on this machine (" + "; ".join(parts)
+            + "): that is lateness, not a fault of the robot; rerun with --lockstep for timing that does not "
+              "depend on the machine's load")
 
 
 def _die_with_parent() -> None:

@@ -74,6 +74,9 @@ def test_a_stopped_plant_is_lateness_not_a_dead_servo(tmp_path: Path) -> None:
     assert rec["bus_stalls"] + rec["bus_late_replies"] + rec["board_ticks_skipped"] > 0, rec
     behind = realtime_behind({"frames_sent": 0, "late": 0}, rec)
     assert behind is not None and behind["suggest"] == "--lockstep", rec
+    # ... and the board says so in one warning line (`ghostshell run` repeats a board's warnings at its end)
+    warnings = [ln for ln in err.splitlines() if ln.startswith("board: warning: realtime emulation could not keep up")]
+    assert len(warnings) == 1 and "the plant fell up to" in warnings[0] and "--lockstep" in warnings[0], warnings
 
 
 def test_a_removed_servo_is_still_a_dead_servo(tmp_path: Path) -> None:
