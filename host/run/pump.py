@@ -41,6 +41,9 @@ class Recorder:
         #: the base's height (m) in the first ground-truth report: what "fell" is measured against
         self.base_z0: float | None = None
         self.last_rx = time.monotonic()  # wall time of the last report (for the silence watchdog)
+        #: whether the pump is waiting for the board's next report (False while it reacts to one: the
+        #: host's own time, which the silence watchdog does not count as the board's silence)
+        self.waiting = True
 
     def add(self, client: BoardClient, tel: Any) -> None:
         self.t.append(tel.board_time_us * 1e-6)
@@ -95,12 +98,13 @@ async def pump(client: BoardClient, runtime: RobotRuntime, rec: Recorder,
     In lockstep each report is handled in order and the board is advanced only
     from that report's time, after everything the report woke has reacted
     (:func:`host.motion.driver.react`), so board time steps with the host instead of running ahead
-    of it. ``rec.last_rx`` is set when a report arrives and again once its top-up went out: the
-    silence watchdog counts only the time the host waited for the board.
+    of it. ``rec.waiting`` is False from a report's arrival until its top-up went out: the silence
+    watchdog counts only the time the host waited for the board (a host stalled in its reaction is
+    not a silent board).
     """
 
     def on_report(tel: Any) -> bool:
-        rec.last_rx = time.monotonic()
+        rec.last_rx, rec.waiting = time.monotonic(), False
         rec.add(client, tel)
         for listener in listeners:  # e.g. the session's event monitor (host.run.events)
             listener(tel)
@@ -117,10 +121,12 @@ async def pump(client: BoardClient, runtime: RobotRuntime, rec: Recorder,
 
 
 async def _stamped(reports: AsyncIterator[Any], rec: Recorder) -> AsyncIterator[Any]:
-    """``reports``, setting ``rec.last_rx`` when the consumer asks for the next one (its top-up is out)."""
+    """``reports``; when the consumer asks for the next one (its top-up is out), the pump waits for the
+    board again: ``rec.waiting`` is set and ``rec.last_rx`` restarts the silence from now."""
     async for tel in reports:
+        rec.waiting = False
         yield tel
-        rec.last_rx = time.monotonic()
+        rec.last_rx, rec.waiting = time.monotonic(), True
 
 
 async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardClient | None = None,
@@ -134,8 +140,9 @@ async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardCl
     Lockstep: a healthy lockstep run sends nothing on wall-clock time (what the host sends, and at
     which board time it arrives, must depend only on the host's input and the board's reports).
     Silence is evidence of a lost message only once the link has lost something (decode errors,
-    re-sent requests: after ``LOSSY_NUDGE_S``) or after ``LOCKSTEP_LOST_S`` (counted from the pump's
-    last top-up); then :func:`lockstep_recover` lets the board reach the last frame sent, and sends
+    re-sent requests: after ``LOSSY_NUDGE_S``) or after ``LOCKSTEP_LOST_S``, counted only while the pump
+    waits for the board (``rec.waiting``: not while it reacts to a report, however long a stall of the
+    host makes that); then :func:`lockstep_recover` lets the board reach the last frame sent, and sends
     more frames once it is there, never an ADVANCE past a frame the host has not sent. (Before, a
     nudge after 0.5 s of wall silence ADVANCEd one report period past the last frame sent: a host
     stalled ~1 s on mesh work had the board run past the frames due next, with a stale target.)
@@ -166,8 +173,8 @@ async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardCl
         if runtime.streamer.frames_sent != sent or reacting:
             sent, since = runtime.streamer.frames_sent, now
         silent = now - rec.last_rx
-        if reacting:  # a held lockstep board, or one waiting for the host's reaction, is silent on purpose
-            rec.last_rx = now
+        if reacting or not rec.waiting:  # a held lockstep board, or one waiting for the host's reaction
+            rec.last_rx = now  # (the pump handling a report, however long: the host's time) is silent on purpose
         elif silent > TELEMETRY_SILENCE_S:
             raise LinkError(f"no telemetry from the board for {TELEMETRY_SILENCE_S:g} s; giving up the run")
         elif now - since > TELEMETRY_SILENCE_S:

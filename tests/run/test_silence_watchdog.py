@@ -184,3 +184,25 @@ async def test_a_lockstep_board_answering_a_request_is_not_silent() -> None:
         await anyio.sleep(LOCKSTEP_LOST_S + 0.1)
         assert client.targets == [80_001]
         tg.cancel_scope.cancel()
+
+
+@pytest.mark.anyio
+async def test_a_host_reacting_to_a_report_is_not_a_silent_board() -> None:
+    """The pump handling a report (``rec.waiting`` False: a stalled dispatch, a slow top-up) is the
+    host's own time: no recovery goes out during it, however long; once the pump waits again, silence
+    counts from then. A disturbed lockstep run had its silence watchdog probe the board mid-run (a
+    TIME_SYNC in the board's stream) while the pump stood in an injected 1-s stall."""
+    runtime = _Runtime(streamer=_SentStreamer())
+    client = _LockstepClient(stats=_Stats(retries=0))
+    rec = Recorder()
+    rec.last_rx, rec.waiting = anyio.current_time(), False
+    async with anyio.create_task_group() as tg:
+        tg.start_soon(silence_watchdog, runtime, rec, client, anyio.current_time)
+        await anyio.sleep(3 * LOCKSTEP_LOST_S)
+        assert client.targets == [] and client.probes == 0
+        rec.waiting = True
+        await anyio.sleep(LOCKSTEP_LOST_S - 0.1)
+        assert client.probes == 0
+        await anyio.sleep(0.2)
+        assert client.probes == 1
+        tg.cancel_scope.cancel()

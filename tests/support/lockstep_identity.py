@@ -48,6 +48,8 @@ _HANDSHAKE_RX = ("HELLO", "TIME_SYNC_REQUEST")
 _HANDSHAKE_TX = ("CAPS", "TIME_SYNC_REPLY")
 #: payload fields that carry a host sequence number
 _HOST_SEQ_FIELDS = ("last_applied_seq", "ack_seq")
+#: payload fields that carry the host's wall clock (when, not what): zeroed after the handshake
+_WALL_FIELDS = ("t1_host_us", "host_time_us", "sender_time_us")
 
 
 @dataclass
@@ -99,15 +101,17 @@ def _decode(raw: str) -> Frame | None:
 
 def _shift(msg: object, offset: int) -> object:
     """``msg`` with its host sequence numbers made relative to ``offset`` (0 stays 0: nothing applied yet)."""
-    changes = {k: (getattr(msg, k) - offset) & 0xFFFF for k in _HOST_SEQ_FIELDS
-               if hasattr(msg, k) and getattr(msg, k)}
+    changes: dict[str, int] = {k: (getattr(msg, k) - offset) & 0xFFFF for k in _HOST_SEQ_FIELDS
+                               if hasattr(msg, k) and getattr(msg, k)}
+    changes.update({k: 0 for k in _WALL_FIELDS if hasattr(msg, k)})
     return dataclasses.replace(msg, **changes) if changes else msg  # type: ignore[type-var]
 
 
 def board_record(run_dir: Path) -> Record:
     """The :class:`Record` of the board's frame log in ``run_dir`` (``board_frames.jsonl``): the messages
     after the handshake, each decoded from its raw bytes (full precision) with sequence numbers made
-    relative to the first message after the handshake (a retried HELLO shifts them all by one)."""
+    relative to the first message after the handshake (a retried HELLO shifts them all by one) and the
+    host's wall-clock stamps zeroed (a TIME_SYNC or HEARTBEAT sent later still counts as a message)."""
     rec = Record()
     host0: int | None = None
     board0: int | None = None
@@ -124,11 +128,11 @@ def board_record(run_dir: Path) -> Record:
             if frame is None:
                 continue
             if d.get("dir") == "rx":
-                if kind in _HANDSHAKE_RX:
+                if kind in _HANDSHAKE_RX and host0 is None:  # later ones count: sent mid-run
                     continue
                 host0 = frame.seq if host0 is None else host0
                 rec.rx.append(f"{(frame.seq - host0) & 0xFFFF} {_shift(frame.msg, host0)!r}")
-            elif d.get("dir") == "tx" and kind not in _HANDSHAKE_TX:
+            elif d.get("dir") == "tx" and not (kind in _HANDSHAKE_TX and board0 is None):
                 board0 = frame.seq if board0 is None else board0
                 msg = _shift(frame.msg, host0 or 0)
                 now_us = getattr(msg, "board_time_us", now_us)
