@@ -73,8 +73,13 @@ def main() -> int:
     ap.add_argument("--json", type=Path, default=None, help="also write every run's record here")
     args = ap.parse_args()
     if args.runs < 1:
-        print("bench_realtime_load: --runs must be at least 1", file=sys.stderr)
-        return 2
+        ap.error("--runs: must be at least 1")  # one usage line and exit status 2, as argparse refuses
+    if args.max_board_s <= 0:
+        ap.error("--max-board-s: must be > 0")
+    try:
+        args.out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        ap.error(f"--out: cannot make {args.out}: {e.strerror}")
     boards = args.firmware or ["python", "c", "qemu"]
     records: dict[str, list[dict[str, Any]]] = {}
     hogs_n = 0 if args.no_load else (os.cpu_count() or 1)
