@@ -99,6 +99,49 @@ def _raise_stop(signum: int, frame: object) -> None:
     raise _Stop()
 
 
+class _SocketBus:
+    """The servo bus to the native firmware as a UNIX socketpair (the firmware gets ``--bus fd:N``).
+
+    A pty moves bytes between its ends through a kernel worker thread at normal priority, and a read of an
+    empty tty waits for that worker: with a CPU hog on every core the native firmware sat in that wait
+    (``__flush_work``) for 100 ms and more and skipped ticks. A socketpair has no such worker. Same
+    interface as :class:`PtyPort` for the launcher's loop (``master``, ``name``, ``read``, ``write``,
+    ``close``) plus ``pass_fds``/``started`` for the child's end."""
+
+    def __init__(self) -> None:
+        import socket
+
+        self._ours, self._theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+        self._ours.setblocking(False)
+        self.master = self._ours.fileno()
+        self.name = f"fd:{self._theirs.fileno()}"
+        self.pass_fds: tuple[int, ...] = (self._theirs.fileno(),)
+
+    def started(self) -> None:
+        """The child holds its end now: close ours of it."""
+        self._theirs.close()
+
+    def read(self) -> bytes:
+        try:
+            return self._ours.recv(65536)
+        except (BlockingIOError, InterruptedError):
+            return b""
+        except OSError:
+            return b""
+
+    def write(self, data: bytes) -> int:
+        try:
+            return self._ours.send(data)
+        except (BlockingIOError, InterruptedError):
+            return 0
+        except OSError:  # the firmware is gone: its exit is noticed by the loop
+            return len(data)
+
+    def close(self) -> None:
+        self._ours.close()
+        self._theirs.close()
+
+
 def boot_config_words(opts: LaunchOptions) -> list[int]:
     """The configuration block the MCU image reads at boot (magic, settings, check word)."""
     words = [BOOT_MAGIC, int(opts.lockstep), opts.rate_hz, opts.telemetry_rate_hz, opts.watchdog_ms,
@@ -274,7 +317,8 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
     plant = PlantBus(world, lockstep=opts.lockstep)
     for sid, at in opts.dead_servos:
         plant.kill(sid, int(at * 1e6))
-    bus = PtyPort()
+    # the native firmware's bus is a socketpair (no tty layer: see _SocketBus); QEMU's UART1 needs a tty
+    bus: PtyPort | _SocketBus = _SocketBus() if opts.firmware == "c" else PtyPort()
     # QEMU's own pty backend notices its peer by polling once a second (the host's first bytes would wait up
     # to 1 s): its UART0 gets a tty device instead, relayed byte for byte to the host's pty
     modelled = opts.faults is not None and opts.faults.active or bool(opts.baud)
@@ -287,7 +331,9 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
         env.setdefault("ASAN_OPTIONS", "detect_leaks=0:abort_on_error=0")
         env.setdefault("UBSAN_OPTIONS", "print_stacktrace=1:halt_on_error=1")
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
-                            preexec_fn=_die_with_parent)
+                            preexec_fn=_die_with_parent, pass_fds=bus.pass_fds if isinstance(bus, _SocketBus) else ())
+    if isinstance(bus, _SocketBus):
+        bus.started()
     assert proc.stdout is not None and proc.stderr is not None
     log_fd = proc.stderr.fileno() if opts.firmware == "c" else proc.stdout.fileno()
     side_fd = proc.stdout.fileno() if opts.firmware == "c" else proc.stderr.fileno()
@@ -410,7 +456,8 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
 #: the line the launcher ends a realtime run's stderr with: ``board: realtime lateness {json}``
 LATENESS_PREFIX = "board: realtime lateness "
 #: the firmware's "S" counters that tell lateness (gs_board_log_stats), as the record names them
-_FW_LATENESS = {"bus_late_replies": "bus_late_replies", "bus_stalls": "bus_stalls", "ticks_skipped": "board_ticks_skipped",
+_FW_LATENESS = {"bus_late_replies": "bus_late_replies", "bus_stalls": "bus_stalls", "bus_tx_dropped": "bus_tx_dropped",
+                "ticks_skipped": "board_ticks_skipped",
                 "overruns": "board_overruns", "late_frames": "late_frames"}
 
 
@@ -418,7 +465,8 @@ def lateness_record(fw_stats: dict[str, int], plant: PlantBus) -> dict[str, int]
     """How far a realtime run's board and plant fell behind the wall clock (all ints):
     ``bus_late_replies`` (servo answers that came after the firmware's 10 ms bus deadline),
     ``bus_stalls`` (servo reads nothing answered: the plant or the board was descheduled; not counted
-    towards a dead servo), ``bus_silent_max_ms`` (longest silence of the whole bus), ``board_ticks_skipped``
+    towards a dead servo), ``bus_tx_dropped`` (bytes the native firmware's bus write gave up on: nobody read
+    the bus for 2 ms), ``bus_silent_max_ms`` (longest silence of the whole bus), ``board_ticks_skipped``
     and ``board_overruns`` (the firmware fell >100 ms / >1 tick behind), ``late_frames`` (frames the board
     refused as LATE) and the plant's :meth:`~firmware_sim.plant.bus.PlantLateness.as_dict`. The firmware's
     counters are its last "S" record (QEMU's image is killed, so up to 1 s old); missing ones are 0."""

@@ -959,6 +959,8 @@ void gs_board_log_stats(const gs_board_t *b) {
     gs_log_u64(gs_bus_stats.timeouts);
     gs_log_str(" bus_late_replies=");
     gs_log_u64(gs_bus_stats.late_replies);
+    gs_log_str(" bus_tx_dropped=");
+    gs_log_u64(gs_bus_stats.tx_dropped);
     gs_log_str(" bus_stalls=");
     gs_log_u64(b->bus_stalls);
     gs_log_str(" bus_silent_max_us=");

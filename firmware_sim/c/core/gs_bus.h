@@ -47,6 +47,7 @@
 typedef struct {
     uint32_t packets_out, packets_in, timeouts, bad_packets;
     uint32_t late_replies; /* status packets that came after their request's deadline (found before the next send) */
+    uint32_t tx_dropped;   /* bytes the port could not hand to a bus nobody read (native: 2 ms) */
     uint64_t bytes_out, bytes_in;
 } gs_bus_stats_t;
 

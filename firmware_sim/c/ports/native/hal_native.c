@@ -1,6 +1,8 @@
 /* The native (POSIX) port: the host UART is a pty this program creates (or a serial device path),
- * the servo-bus UART is a tty path (the plant's pty), the tick timer is CLOCK_MONOTONIC and the
- * log channel is stderr. */
+ * the servo-bus UART is a tty path (the plant's pty) or an inherited descriptor `fd:N` (the launcher
+ * passes one end of a socketpair: a pty moves its bytes through a kernel worker at normal priority, and
+ * every read of an empty tty waits for that worker, which on a loaded machine stalled the board's ticks
+ * for 100 ms and more), the tick timer is CLOCK_MONOTONIC and the log channel is stderr. */
 #ifndef _GNU_SOURCE
 #define _GNU_SOURCE
 #endif
@@ -15,6 +17,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "gs_bus.h"
 #include "gs_hal.h"
 #include "hal_native.h"
 
@@ -81,6 +84,13 @@ int native_open_host(const char *spec, char *name, size_t cap) {
 }
 
 int native_open_bus(const char *path) {
+    if (strncmp(path, "fd:", 3) == 0) { /* an inherited descriptor (the launcher's socketpair: no tty layer) */
+        char *end = NULL;
+        long fd = strtol(path + 3, &end, 10);
+        if (!end || *end || fd < 0 || fcntl((int)fd, F_GETFD) < 0) return -1;
+        bus_fd = (int)fd;
+        return fcntl(bus_fd, F_SETFL, fcntl(bus_fd, F_GETFL) | O_NONBLOCK);
+    }
     bus_fd = open(path, O_RDWR | O_NOCTTY);
     if (bus_fd < 0) return -1;
     if (isatty(bus_fd)) make_raw(bus_fd);
@@ -118,8 +128,14 @@ size_t hal_host_write(const uint8_t *buf, size_t n) {
     return k > 0 ? (size_t)k : 0;
 }
 
+/* A UART sends whether or not anyone listens: a plant that stopped reading (descheduled, SIGSTOPped) must
+ * not stop the board. A packet the bus cannot take within BUS_TX_WAIT_US is dropped (the rest of it;
+ * counted in gs_bus_stats.tx_dropped) and the board keeps its time. */
+#define BUS_TX_WAIT_US 2000u
+
 void hal_bus_write(const uint8_t *buf, size_t n) {
     size_t done = 0;
+    uint64_t give_up = hal_now_us() + BUS_TX_WAIT_US;
     while (done < n && !stop_flag) {
         ssize_t k = write(bus_fd, buf + done, n - done);
         if (k > 0) {
@@ -127,7 +143,12 @@ void hal_bus_write(const uint8_t *buf, size_t n) {
         } else if (k < 0 && errno != EAGAIN && errno != EINTR) {
             return;
         } else {
-            wait_fd(bus_fd, POLLOUT, 10000u);
+            uint64_t now = hal_now_us();
+            if (now >= give_up) {
+                gs_bus_stats.tx_dropped += (uint32_t)(n - done);
+                return;
+            }
+            wait_fd(bus_fd, POLLOUT, give_up - now);
         }
     }
 }

@@ -1,5 +1,5 @@
 /* The native firmware executable:
- *   gs_firmware --bus TTY [--host pty|PATH] [--lockstep|--realtime] [--rate HZ]
+ *   gs_firmware --bus TTY|fd:N [--host pty|PATH] [--lockstep|--realtime] [--rate HZ]
  *               [--telemetry-rate HZ] [--watchdog-ms MS] [--log-frames]
  * Prints "board: listening on PTY" on stdout once the bus devices are found, then serves until
  * SIGTERM/SIGINT; log channel on stderr. Exit 2 for bad arguments or a port that cannot open. */
@@ -23,7 +23,7 @@ static int num(const char *s, long lo, long hi, long *out) {
 }
 
 static int usage(const char *why) {
-    fprintf(stderr, "board: %s\nusage: gs_firmware --bus TTY [--host pty|PATH] [--lockstep|--realtime] [--rate HZ] "
+    fprintf(stderr, "board: %s\nusage: gs_firmware --bus TTY|fd:N [--host pty|PATH] [--lockstep|--realtime] [--rate HZ] "
                     "[--telemetry-rate HZ] [--watchdog-ms MS] [--log-frames]\n", why);
     return 2;
 }
