@@ -159,8 +159,13 @@ def firmware_command(opts: LaunchOptions, exe: Path, bus_tty: str, host: str) ->
                "--rate", str(opts.rate_hz), "--telemetry-rate", str(opts.telemetry_rate_hz),
                "--watchdog-ms", str(opts.watchdog_ms)]
         return cmd + (["--log-frames"] if opts.log_path else [])
+    bus_serial = bus_tty
+    if bus_tty.startswith("fd:"):  # a socket descriptor QEMU inherits (no tty layer: _SocketBus)
+        bus_serial = "chardev:bus"
     cmd = [require("qemu-system-arm"), "-M", QEMU_MACHINE, "-display", "none", "-monitor", "none",
-           "-kernel", str(exe), "-serial", host, "-serial", bus_tty, "-serial", "stdio"]
+           "-kernel", str(exe), "-serial", host, "-serial", bus_serial, "-serial", "stdio"]
+    if bus_tty.startswith("fd:"):
+        cmd += ["-chardev", f"socket,id=bus,fd={bus_tty[3:]}"]
     for k, w in enumerate(boot_config_words(opts)):
         cmd += ["-device", f"loader,addr={BOOT_CFG_ADDR + 4 * k:#x},data={w:#x},data-len=4"]
     if opts.icount:
@@ -318,7 +323,7 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
     for sid, at in opts.dead_servos:
         plant.kill(sid, int(at * 1e6))
     # the native firmware's bus is a socketpair (no tty layer: see _SocketBus); QEMU's UART1 needs a tty
-    bus: PtyPort | _SocketBus = _SocketBus() if opts.firmware == "c" else PtyPort()
+    bus: PtyPort | _SocketBus = _SocketBus()
     # QEMU's own pty backend notices its peer by polling once a second (the host's first bytes would wait up
     # to 1 s): its UART0 gets a tty device instead, relayed byte for byte to the host's pty
     modelled = opts.faults is not None and opts.faults.active or bool(opts.baud)
