@@ -3,10 +3,12 @@
 One process (this one) holds the world; the firmware runs as its own process:
 
 * ``c``: the native build (:mod:`firmware_sim.cfirmware.build`, kind ``native``) as a subprocess:
-  ``gs_firmware --bus PTY --host pty`` (it creates the host pty itself, as a board's UART);
+  ``gs_firmware --bus fd:N --host pty`` (it creates the host pty itself, as a board's UART; the servo
+  bus is one end of a socketpair, :class:`_SocketBus`);
 * ``qemu``: the Cortex-M3 image on ``qemu-system-arm -M mps2-an385``: UART0 = a pty this process
   relays byte for byte to the host's pty (QEMU's own ``-serial pty`` notices its peer by polling
-  once a second, which would hold the host's first bytes back), UART1 = the servo-bus pty, UART2 =
+  once a second, which would hold the host's first bytes back), UART1 = the servo bus (a socketpair
+  end, ``-chardev socket,id=bus,fd=N``), UART2 =
   ``-serial stdio`` (the log channel); boot settings go into the image's configuration block through
   QEMU's generic loader. ``icount=True`` adds ``-icount shift=0,sleep=on`` (one instruction per
   virtual nanosecond: the tick-cost figure).
