@@ -5,9 +5,9 @@ One process (this one) holds the world; the firmware runs as its own process:
 * ``c``: the native build (:mod:`firmware_sim.cfirmware.build`, kind ``native``) as a subprocess:
   ``gs_firmware --bus fd:N --host pty`` (it creates the host pty itself, as a board's UART; the servo
   bus is one end of a socketpair, :class:`_SocketBus`);
-* ``qemu``: the Cortex-M3 image on ``qemu-system-arm -M mps2-an385``: UART0 = a pty this process
-  relays byte for byte to the host's pty (QEMU's own ``-serial pty`` notices its peer by polling
-  once a second, which would hold the host's first bytes back), UART1 = the servo bus (a socketpair
+* ``qemu``: the Cortex-M3 image on ``qemu-system-arm -M mps2-an385``: UART0 = a socketpair end this
+  process relays byte for byte to the host's pty (QEMU's own ``-serial pty`` notices its peer by polling
+  once a second, which would hold the host's first bytes back; a socket has no tty layer), UART1 = the servo bus (a socketpair
   end, ``-chardev socket,id=bus,fd=N``), UART2 =
   ``-serial stdio`` (the log channel); boot settings go into the image's configuration block through
   QEMU's generic loader. ``icount=True`` adds ``-icount shift=0,sleep=on`` (one instruction per
@@ -161,13 +161,13 @@ def firmware_command(opts: LaunchOptions, exe: Path, bus_tty: str, host: str) ->
                "--rate", str(opts.rate_hz), "--telemetry-rate", str(opts.telemetry_rate_hz),
                "--watchdog-ms", str(opts.watchdog_ms)]
         return cmd + (["--log-frames"] if opts.log_path else [])
-    bus_serial = bus_tty
-    if bus_tty.startswith("fd:"):  # a socket descriptor QEMU inherits (no tty layer: _SocketBus)
-        bus_serial = "chardev:bus"
+    # a socket descriptor QEMU inherits ("fd:N", no tty layer: _SocketBus) is a socket chardev
+    chardevs = {name: path[3:] for name, path in (("host", host), ("bus", bus_tty)) if path.startswith("fd:")}
+    serial = {name: f"chardev:{name}" if name in chardevs else path for name, path in (("host", host), ("bus", bus_tty))}
     cmd = [require("qemu-system-arm"), "-M", QEMU_MACHINE, "-display", "none", "-monitor", "none",
-           "-kernel", str(exe), "-serial", host, "-serial", bus_serial, "-serial", "stdio"]
-    if bus_tty.startswith("fd:"):
-        cmd += ["-chardev", f"socket,id=bus,fd={bus_tty[3:]}"]
+           "-kernel", str(exe), "-serial", serial["host"], "-serial", serial["bus"], "-serial", "stdio"]
+    for name, fd in chardevs.items():
+        cmd += ["-chardev", f"socket,id={name},fd={fd}"]
     for k, w in enumerate(boot_config_words(opts)):
         cmd += ["-device", f"loader,addr={BOOT_CFG_ADDR + 4 * k:#x},data={w:#x},data-len=4"]
     if opts.icount:
@@ -178,11 +178,12 @@ def firmware_command(opts: LaunchOptions, exe: Path, bus_tty: str, host: str) ->
 class _Relay:
     """The modelled line between the host's pty and the firmware's (wire time and/or faults)."""
 
-    def __init__(self, baud: int | None, faults: FaultSpec | None, seed: int) -> None:
+    def __init__(self, baud: int | None, faults: FaultSpec | None, seed: int, *, fw_socket: bool = False) -> None:
         from firmware_sim.transports.faulty import FaultyWire
 
         self.host = PtyPort()  # the host connects to host.name
-        self.fw = PtyPort()  # the firmware's UART opens fw.name
+        # the firmware's UART opens fw.name (QEMU: a socketpair end it inherits, ``fd:N``: no tty layer)
+        self.fw: PtyPort | _SocketBus = _SocketBus() if fw_socket else PtyPort()
         # released frame by frame, as a UART delivers: one read may hold several
         self.to_fw: Any = WireModel(baud, FRAME_DELIMITER)
         self.to_host: Any = WireModel(baud, FRAME_DELIMITER)
@@ -329,7 +330,8 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
     # QEMU's own pty backend notices its peer by polling once a second (the host's first bytes would wait up
     # to 1 s): its UART0 gets a tty device instead, relayed byte for byte to the host's pty
     modelled = opts.faults is not None and opts.faults.active or bool(opts.baud)
-    relay = _Relay(opts.baud, opts.faults, opts.fault_seed) if modelled or (opts.firmware == "qemu" and port == "pty") \
+    relay = _Relay(opts.baud, opts.faults, opts.fault_seed, fw_socket=opts.firmware == "qemu") \
+        if modelled or (opts.firmware == "qemu" and port == "pty") \
         else None
     host_arg = relay.fw.name if relay is not None else port
     cmd = firmware_command(opts, exe, bus.name, host_arg)
@@ -337,10 +339,11 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
     if opts.asan:
         env.setdefault("ASAN_OPTIONS", "detect_leaks=0:abort_on_error=0")
         env.setdefault("UBSAN_OPTIONS", "print_stacktrace=1:halt_on_error=1")
+    sockets = [b for b in (bus, relay.fw if relay is not None else None) if isinstance(b, _SocketBus)]
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
-                            preexec_fn=_die_with_parent, pass_fds=bus.pass_fds if isinstance(bus, _SocketBus) else ())
-    if isinstance(bus, _SocketBus):
-        bus.started()
+                            preexec_fn=_die_with_parent, pass_fds=[fd for b in sockets for fd in b.pass_fds])
+    for b in sockets:
+        b.started()
     assert proc.stdout is not None and proc.stderr is not None
     log_fd = proc.stderr.fileno() if opts.firmware == "c" else proc.stdout.fileno()
     side_fd = proc.stdout.fileno() if opts.firmware == "c" else proc.stderr.fileno()
