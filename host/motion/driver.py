@@ -67,8 +67,8 @@ async def drive(streamer: FrameStreamer, reports: AsyncIterable[Telemetry], *, l
 
 async def react(streamer: FrameStreamer, pending_replies: Callable[[], int] | None = None) -> None:
     """Lockstep: return once everything the last report woke has reacted: the tasks it made ready have
-    run until they wait again (:func:`settle`), no :meth:`FrameStreamer.busy` work or
-    :meth:`FrameStreamer.hold` is under way, and no request to the board awaits its answer
+    run until they wait again (:func:`settle`), no :meth:`FrameStreamer.busy` work is under way, and no
+    request to the board awaits its answer
     (``pending_replies() == 0``: a lockstep board answers while it waits for frames; the task that
     gets the answer goes on at once, as if the answer had been instant). Checked again after each
     wait: what ended may wake more. Only then may frames extend board time, so a segment, a request

@@ -141,6 +141,9 @@ def frame_wire_bytes(n_servos: int, schema: WireSchema | None = None) -> int:
     return len(encode_frame(ServoFrame(0, (1 << n_servos) - 1, (0.0,) * n_servos), 0, schema))
 
 
+#: Wall seconds the shielded top-up that resumes a held lockstep board may take (see :meth:`FrameStreamer.hold`).
+RESUME_TIMEOUT_S = 8.0
+
 #: How far ahead of the board the grid is sent (µs) when the link is quick (:class:`FrameStreamer`)
 LOOKAHEAD_US = 60_000
 #: The frame grid's period (µs) when the line is fast enough: 100 frames/s, five control ticks per frame.
@@ -387,14 +390,17 @@ class FrameStreamer:
     # -- sending -------------------------------------------------------------------------------
     @contextlib.asynccontextmanager
     async def hold(self) -> AsyncIterator[None]:
-        """Keep a lockstep board where it is while the host does wall-clock work (e.g. speech synthesis).
+        """Keep a lockstep board where it is while the host waits for wall-clock input (a real LLM's next
+        chunk, an MCP server's answer).
 
         A lockstep board runs only as far as frames reach, so not topping up
         freezes board time; on a realtime board holding would starve it, so it is
-        a no-op there. While held, the telemetry driver waits at the report it is handling
-        (:func:`host.motion.driver.react`) and tops up from that report once the hold ends: the
-        board resumes from the same report whenever the held work ends (before, the hold's own end
-        topped up from the link's estimate, the latest report *received*, which depended on timing).
+        a no-op there. The telemetry driver goes on handling reports meanwhile (it only sends no
+        frames), and the hold's end tops up from the link's board clock estimate: the board runs one
+        lookahead further each time the input comes. (What the input is and when it comes are not the
+        host's to decide, so neither is the board time it meets; host work that takes wall time but has
+        no such input, speech synthesis, is :meth:`busy` instead: the board then waits for it at a
+        report, and a run stays a function of its input.)
         """
         if not self.link.lockstep:
             yield
@@ -404,7 +410,11 @@ class FrameStreamer:
             yield
         finally:
             self._holds -= 1
-            self._maybe_idle()
+            if self._holds == 0:  # resume the board however the held work ended
+                # bounded: this runs while the caller may be cancelled, and the frame lock may be held
+                # by a cut waiting for an ACK; a resume that cannot happen must not hang the caller
+                with anyio.CancelScope(shield=True), anyio.move_on_after(RESUME_TIMEOUT_S):
+                    await self.top_up()
 
     @property
     def held(self) -> bool:
@@ -418,7 +428,10 @@ class FrameStreamer:
         such work is under way (:func:`host.motion.driver.react`), so what the work sends, and what it
         leads to, precedes the frames that move board time on. The work must not wait for board time
         itself (it would wait for ever); a lockstep board answers requests while it waits for frames.
-        On a realtime board nothing waits for it."""
+        A no-op on a realtime board (nothing waits for it there)."""
+        if not self.link.lockstep:
+            yield
+            return
         self._busy += 1
         try:
             yield
@@ -433,9 +446,8 @@ class FrameStreamer:
 
     @property
     def reacting(self) -> bool:
-        """True while the host's reaction to a report is under way on its own (a :meth:`hold` or a
-        :meth:`busy` section): a lockstep top-up waits, and the board's silence is on purpose."""
-        return self._holds > 0 or self._busy > 0
+        """True while a :meth:`busy` section is under way: a lockstep top-up waits for it."""
+        return self._busy > 0
 
     def _maybe_idle(self) -> None:
         if not self.reacting:
@@ -443,7 +455,7 @@ class FrameStreamer:
             self._idle = anyio.Event()
 
     async def wait_not_busy(self) -> None:
-        """Return once no :meth:`hold` or :meth:`busy` section is under way."""
+        """Return once no :meth:`busy` section is under way."""
         while self.reacting:
             await self._idle.wait()
 

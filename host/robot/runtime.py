@@ -262,7 +262,7 @@ class RobotRuntime:
 
             self._speech_synth = synthesize_async
         rate = self._rate_wpm()
-        async with self.streamer.hold():  # synthesis takes wall time; a lockstep board waits for it
+        async with self.streamer.busy():  # synthesis takes wall time; a lockstep board waits for it at a report
             utt = await self._speech_synth(text, self.run_dir / "speech", rate_wpm=rate)
         return float(utt.duration_s)
 

@@ -169,7 +169,9 @@ async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardCl
             since += stalled
         # held (waiting for the LLM), busy, or (lockstep) waiting for the board's answer to a request, which
         # the driver waits for before it tops up: silent on purpose
-        reacting = runtime.streamer.reacting or (lockstep and client is not None and bool(client.requests.pending))
+        streamer = runtime.streamer
+        reacting = (streamer.held or streamer.reacting
+                    or (lockstep and client is not None and bool(client.requests.pending)))
         if runtime.streamer.frames_sent != sent or reacting:
             sent, since = runtime.streamer.frames_sent, now
         silent = now - rec.last_rx
@@ -178,7 +180,6 @@ async def silence_watchdog(runtime: RobotRuntime, rec: Recorder, client: BoardCl
         elif silent > TELEMETRY_SILENCE_S:
             raise LinkError(f"no telemetry from the board for {TELEMETRY_SILENCE_S:g} s; giving up the run")
         elif now - since > TELEMETRY_SILENCE_S:
-            streamer = runtime.streamer
             raise LinkError(f"the host sent no servo frame for {TELEMETRY_SILENCE_S:g} s "
                             f"(board clock estimate {streamer.board_now_us()} us, next frame "
                             f"{streamer.first_free_us} us, link latency p99 {streamer.link.latency_us(0) / 1000:.1f} ms, "

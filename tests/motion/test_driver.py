@@ -1,8 +1,9 @@
 """The one telemetry driver (``host.motion.driver.drive``): in lockstep, the frames that move board time
 past a report go out only after everything the report woke has reacted, however long that takes.
 
-A task waiting on board time is woken by a report and then waits on something else (a thread, a reply,
-wall time: here an event the test sets) before it starts a motion. Its motion must be in the frames the
+A task waiting on board time is woken by a report and then waits on something else (a thread or wall
+time in a busy section; the board's answer to a request: here an event the test sets) before it starts a
+motion. Its motion must be in the frames the
 report's top-up sends, as if the host had reacted at once. Runs on asyncio (``settle`` looks at its
 ready queue) with a recording link: no board, no wall-clock sleeps.
 """
@@ -32,13 +33,15 @@ def _frames(link: RecordingLink) -> list[ServoFrame]:
 
 async def _scenario(mark: str) -> tuple[list[ServoFrame], int]:
     """Reports at 20 and 40 ms; a task waits for board time 20 ms, then for the test's go-ahead inside
-    ``mark`` ("busy", "hold" or "none"), then starts a ramp. Returns the frames sent and the ramp's start."""
+    ``mark`` ("busy": a busy section; "reply": as a request awaiting the board's answer; "none": no wait),
+    then starts a ramp. Returns the frames sent and the ramp's start."""
     link = RecordingLink(now_us=0, lockstep=True)
     streamer = FrameStreamer(link, Mixer(np.zeros(2)), start_us=0)
     await streamer.top_up(0)  # the first lookahead: frames up to 60 ms
     go = anyio.Event()
     started: list[int] = []
     sent_before_go: list[int] = []
+    pending: list[int] = []  # requests awaiting the board's answer
     reports = [_report(20_000), _report(40_000)]
 
     async def reaction() -> None:
@@ -46,9 +49,10 @@ async def _scenario(mark: str) -> tuple[list[ServoFrame], int]:
         if mark == "busy":
             async with streamer.busy():
                 await go.wait()
-        elif mark == "hold":
-            async with streamer.hold():
-                await go.wait()
+        elif mark == "reply":
+            pending.append(1)
+            await go.wait()
+            pending.clear()
         seg = streamer.add(Ramp(), label="ramp")
         started.append(seg.start_us)
 
@@ -70,7 +74,7 @@ async def _scenario(mark: str) -> tuple[list[ServoFrame], int]:
     async with anyio.create_task_group() as tg:
         tg.start_soon(reaction)
         await anyio.lowlevel.checkpoint()
-        await drive(streamer, feed(), lockstep=True, on_report=on_report)
+        await drive(streamer, feed(), lockstep=True, on_report=on_report, pending_replies=lambda: len(pending))
     if mark != "none":
         assert sent_before_go == [6], sent_before_go  # 10..60 ms: the reaction's wait held the top-up back
     return _frames(link), started[0]
@@ -82,7 +86,7 @@ def _run(mark: str) -> tuple[list[ServoFrame], int]:
 
 def test_a_reaction_that_waits_is_in_the_frames_of_its_report() -> None:
     quick, quick_start = _run("none")
-    for mark in ("busy", "hold"):
+    for mark in ("busy", "reply"):
         slow, slow_start = _run(mark)
         assert slow_start == quick_start == 70_000  # the first unsent frame after the first lookahead
         assert slow == quick, mark  # the same frames, the ramp in the same ones
