@@ -29,7 +29,7 @@ from tests.support.lockstep_identity import compare, run_lockstep  # noqa: E402
 from tests.support.mesh_robot import write_mesh_arm  # noqa: E402
 
 XML = {
-    "coco": '<head_act action="nod" duration="1"/><wave/><head_act action="shake"/>',
+    "coco": 'Hello, I nod. <head_act action="nod" duration="1"/><wave/><head_act action="shake"/>',
     "arm": '<pose name="home"/><joint_move joint="shoulder_pan" deg="30" duration="1"/>'
            '<joint_move joint="elbow_flex" deg="20" duration="0.5"/>',
     "mesh_arm": '<pose name="home"/><joint_move joint="shoulder_pan" deg="30" duration="1"/>'

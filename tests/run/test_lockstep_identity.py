@@ -28,7 +28,7 @@ PROGRAMS = {
     "arm": ["--robot", "arm"],
 }
 XML = {
-    "coco": '<head_act action="nod" duration="0.6"/><wave/>',
+    "coco": 'Hello. <head_act action="nod" duration="0.6"/><wave/>',  # the text is spoken (synthesis: wall time)
     "arm": '<pose name="home"/><joint_move joint="shoulder_pan" deg="30" duration="0.6"/>',
     "mesh_arm": '<pose name="home"/><joint_move joint="shoulder_pan" deg="30" duration="0.6"/>',
 }
