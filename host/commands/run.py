@@ -400,6 +400,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         return link_exit_status(e)
     from host.run.artefacts import calls_table
     from host.run.link_health import link_health_line
+    from host.run.realtime_health import realtime_behind_line
 
     s = report.summary
     if report.stop is not None:  # a signal or a bound stopped the run: one line says what and where
@@ -429,8 +430,12 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     timing = timing_health_line(s.extra)
     if timing is not None:
         print(timing)
-    for warning in board_warnings(out / "board.stderr"):  # e.g. a --baud too slow for the telemetry
+    warnings = board_warnings(out / "board.stderr")  # e.g. a --baud too slow for the telemetry
+    for warning in warnings:
         print(warning)
+    behind = s.extra.get("realtime_behind")
+    if isinstance(behind, dict) and not any("could not keep up" in w for w in warnings):  # the C boards say it themselves
+        print(realtime_behind_line(behind))
     if s.extra.get("board_fault"):
         print_error(command_of(args), f"{s.extra['board_fault']}")
     scene = s.extra.get("scene") or {}

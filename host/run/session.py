@@ -85,6 +85,7 @@ from host.robot.runtime import RobotRuntime, warm_up_behaviours
 from host.run.loop_lag import LagMonitor
 from host.run.progress_guard import PROGRESS_LIMIT_S, ProgressGuard, Stall
 from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB, STOP_GRACE_S, Interrupted, StopReason
+from host.run.realtime_health import add_realtime_behind
 from host.run.recording import Recording
 from host.run.pump import (
     TELEMETRY_SILENCE_S,
@@ -1096,6 +1097,8 @@ class RobotSession:
             faults = summary.extra.get("faults")
             if isinstance(faults, dict):  # the board reports what it injected and detected when it stops
                 faults["board"] = board_fault_report(board_stderr)
+            if summary.extra.get("clock") == "realtime":  # a board that fell behind says so (lateness, not a dead servo)
+                add_realtime_behind(summary.extra, board_stderr)
             artefacts.write_timeline_json(out / "timeline.json", calls, t0=t0)
             artefacts.write_summary_json(out / "summary.json", summary)
             if plot is not None:
