@@ -18,7 +18,7 @@ topic                        schema (encoding)            what, when
 ``/joint_states``            foxglove.JointStates (pb)    measured position, velocity, effort per servo; each TELEMETRY
 ``/joint_targets``           foxglove.JointStates (pb)    commanded targets per servo; each SERVO_FRAME sent, at its apply time
 ``/tf``                      foxglove.FrameTransforms     every MJCF body in its parent's frame (:mod:`host.run.scene3d`); each TELEMETRY
-``/scene``                   foxglove.SceneUpdate         the robot's geoms as primitives, meshes as STL models; at the first report (live: then every :data:`SCENE_EVERY_S`)
+``/scene``                   foxglove.SceneUpdate         the robot's geoms as primitives, meshes as STL models; at board time 0 (live: then every :data:`SCENE_EVERY_S`)
 ``/telemetry``               ghostshell.Telemetry (json)  every TELEMETRY field decoded (faults by name)
 ``/sim_state``               ghostshell.SimState (json)   the emulator's ground truth (base pose, scene objects); each new SIM_STATE
 ``/link/tx``                 ghostshell.LinkFrame (json)  every host-to-board message: seq, type, decoded fields, serial wire bytes (hex)
@@ -33,12 +33,14 @@ topic                        schema (encoding)            what, when
 (pb = protobuf, the SDK's encoding for its typed channels; json = a JSON channel with a JSON schema.)
 ``/scene``'s entities are ``frame_locked`` with no lifetime: Foxglove draws them in their body's frame as
 ``/tf`` moves it, until replaced. Playing a file, Foxglove shows on a seek the last message of each topic
-before that time, so the file gets ``/scene`` once; with a live view (:attr:`RunLog.scene_every_s`, set by
+before that time, so the file gets ``/scene`` once, at board time 0 (:meth:`RunLog.prepare`, before the
+session streams its first frame); with a live view (:attr:`RunLog.scene_every_s`, set by
 :mod:`host.run.foxglove_live`) it is re-sent every :data:`SCENE_EVERY_S` for a viewer that connects late.
 The primitives are built once (:mod:`host.run.scene3d`), but each send is the SDK's encoding and chunk
 compression of the whole message inside one ``log()`` that holds the GIL (the event loop's thread waits
 meanwhile, even though a writer thread calls it): ~20-30 ms for the ~5 MB of an arm with ~100 000 mesh
-triangles on a quiet machine, 0.2 s on a loaded one (``bench/bench_recording.py``).
+triangles on a quiet machine, 0.2 s on a loaded one (``bench/bench_recording.py``). That is why the one
+send of a file is made before any frame goes out; only a live view's re-sends fall inside a run.
 The MCAP also holds a ``run`` metadata record (robot, scene, link, clock) and the robot's MJCF as an
 attachment. Everything goes through the SDK; the ``mcap`` package is used only to read files back
 (:mod:`host.run.mcap_read`).
@@ -206,8 +208,11 @@ class RunLog:
         return self._scene
 
     def prepare(self) -> None:
-        """Build the scene now (a recording does this first thing on its writer thread)."""
-        _ = self.scene
+        """Build the scene and write ``/scene`` at board time 0, now (a recording does this first thing on
+        its writer thread, and the session waits for it before it streams a frame: the SDK holds the GIL
+        while it encodes a mesh robot's megabytes, 20-30 ms, which must not land on the control path)."""
+        self._scene_at = 0
+        self.scene_ch.log(self.scene.scene_update(0), log_time=0)
 
     @classmethod
     def create(cls, path: Path, robot: Robot, meta: Mapping[str, str] | None = None) -> RunLog:

@@ -46,6 +46,8 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import anyio.to_thread
+
 from host.link import BoardClient
 from host.link.deferred import DeferredWork
 from host.link.session import FaultEvent
@@ -68,6 +70,8 @@ MAX_DEFERRED = 4096
 DRAIN_SLICE_S = 0.0005
 #: wall seconds :meth:`Recording.close` waits for the writer thread to finish the MCAP
 CLOSE_TIMEOUT_S = 10.0
+#: wall seconds the session waits for the scene's build and first send before it streams (:meth:`Recording.ready`)
+READY_TIMEOUT_S = 10.0
 
 
 class Recording:
@@ -137,6 +141,13 @@ class Recording:
         """Recording calls dropped because the writer thread had :data:`~host.run.log_writer.MAX_QUEUED`
         waiting (0 in a healthy run; the run's summary can show it)."""
         return self.writer.dropped
+
+    async def ready(self, timeout_s: float = READY_TIMEOUT_S) -> bool:
+        """Wait (in a worker thread, the loop free) until the writer did what was handed to it so far: the
+        scene's build and its one ``/scene`` message (:meth:`RunLog.prepare`), which hold the GIL for tens of
+        ms on a mesh robot. The session awaits this before it streams a frame, so that work never lands on
+        the control path. False when ``timeout_s`` wall seconds passed first (the run goes on)."""
+        return await anyio.to_thread.run_sync(self.writer.wait_idle, timeout_s)
 
     # -- listening ------------------------------------------------------------------------------
     def _log(self, fn: Callable[..., Any], *args: Any) -> None:

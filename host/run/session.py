@@ -454,6 +454,8 @@ class RobotSession:
                         log.warning("%s", note)
             self.recording = Recording.start(self.out / "run.mcap" if opts.mcap else None, self.robot, client, runtime,
                                              self._shell, live_port=opts.foxglove, meta=self._mcap_meta(spec))
+            if self.recording is not None:  # the scene's build and its /scene message, before any frame
+                await self.recording.ready()
             tg = anyio.create_task_group()
             self._tg = await self._stack.enter_async_context(tg)
             self._monitor = EventMonitor(self.robot.servos.names, self.robot.base.floating,
