@@ -8,8 +8,7 @@ returns that robots folder (pass it as ``--robots-dir``). Every mesh is a closed
 tube of ``segments`` sides and ``segments // 2`` rings per cap, so the default has 13 meshes of about
 8 000 triangles each (~100 000 in all, ~5 MB of STL): the size of a real arm's meshes (the public arm model
 that tripped the board's watchdog had 13 STL meshes). Joint names follow the SO-100's (``shoulder_pan`` ...
-``gripper``). Binary STL is written with numpy (50-byte records: normal, three vertices, attribute u16;
-layout from the STL format's description in the 3D Systems StereoLithography Interface Specification).
+``gripper``). Binary STL is written by the recording's own writer (:func:`host.run.scene3d.stl_bytes`).
 """
 
 from __future__ import annotations
@@ -18,11 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
+from host.run.scene3d import stl_bytes as scene_stl_bytes
+
 __all__ = ["JOINTS", "stl_bytes", "tube_mesh", "write_mesh_arm", "write_stl"]
 
 JOINTS = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper")
 
-_STL_RECORD = np.dtype([("normal", "<f4", (3,)), ("v", "<f4", (3, 3)), ("attr", "<u2")])
 
 
 def tube_mesh(radius: float, length: float, segments: int) -> np.ndarray:
@@ -49,14 +49,9 @@ def tube_mesh(radius: float, length: float, segments: int) -> np.ndarray:
 
 
 def stl_bytes(triangles: np.ndarray, header: bytes = b"ghostshell test mesh") -> bytes:
-    """Binary STL of ``triangles`` ``(n, 3, 3)``: an 80-byte header, a u32 count, 50 bytes per triangle."""
-    tri = np.asarray(triangles, dtype=np.float32)
-    rec = np.zeros(len(tri), dtype=_STL_RECORD)
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    norm = np.linalg.norm(n, axis=1, keepdims=True)
-    rec["normal"] = n / np.where(norm > 0, norm, 1)
-    rec["v"] = tri
-    return header[:80].ljust(80, b"\0") + np.uint32(len(tri)).tobytes() + rec.tobytes()
+    """Binary STL of ``triangles`` ``(n, 3, 3)`` (the product's writer, :func:`host.run.scene3d.stl_bytes`)."""
+    tri = np.asarray(triangles, dtype=np.float32).reshape(-1, 3)
+    return scene_stl_bytes(tri, np.arange(len(tri)).reshape(-1, 3), header)
 
 
 def write_stl(path: Path, triangles: np.ndarray) -> Path:
