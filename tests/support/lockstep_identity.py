@@ -183,6 +183,14 @@ class Disturbance:
         self._thread = threading.Thread(target=self._toggle, daemon=True)
         self.stops = 0
 
+    def _signal(self, sig: signal.Signals) -> bool:
+        """Send ``sig`` to the process through its pidfd (never to a recycled pid); False once it is gone."""
+        try:
+            signal.pidfd_send_signal(self._pidfd, sig)
+        except ProcessLookupError:
+            return False
+        return True
+
     def _toggle(self) -> None:
         while self.start_when is not None and not self.start_when():
             if self._done.wait(0.02):
@@ -190,28 +198,23 @@ class Disturbance:
         for _ in range(self.hogs):  # a busy loop each, until __exit__ kills it
             self._procs.append(subprocess.Popen([sys.executable, "-c", "while True: pass"]))
         while not self._done.wait(self.period_s - self.stop_s):
-            try:
-                os.kill(self.pid, signal.SIGSTOP)
-            except ProcessLookupError:
+            if not self._signal(signal.SIGSTOP):
                 return
             self.stops += 1
             self._done.wait(self.stop_s)
-            try:
-                os.kill(self.pid, signal.SIGCONT)
-            except ProcessLookupError:
+            if not self._signal(signal.SIGCONT):
                 return
 
     def __enter__(self) -> Disturbance:
+        self._pidfd = os.pidfd_open(self.pid)  # before the process can be reaped: its pid is not reused
         self._thread.start()
         return self
 
     def __exit__(self, et: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
         self._done.set()
         self._thread.join()
-        try:
-            os.kill(self.pid, signal.SIGCONT)
-        except ProcessLookupError:
-            pass
+        self._signal(signal.SIGCONT)
+        os.close(self._pidfd)
         for p in self._procs:
             p.kill()
             p.wait()
