@@ -500,14 +500,17 @@ class FrameStreamer:
         a stall of the host longer than the lookahead, or when the first top-up comes over a period
         after the streamer was made (a slow session start, a loaded machine). The mix is sampled at
         the first time still in reach: a segment that began or ended in the gap is started (ended) by
-        that frame, and the board moves there from where it was. Counted in ``frames_skipped``. (On a
+        that frame, and the board moves there from where it was. Counted in ``frames_skipped`` once a frame
+        was sent: before the first, the grid only starts later (the board expected nothing yet; a session
+        that waits for its recording's scene before it streams skipped ~20 "frames" that way). (On a
         paced line, frames already held with earlier apply times still go first:
         :mod:`host.motion.txqueue`.) Returns that reach (board µs).
         """
         reach = now_us + self.link.latency_us(self._frame_bytes) + self.send_path_us()
         if self.next_us < reach:
             first = self._grid(reach)
-            self.frames_skipped += (first - self.next_us) // self.period_us
+            if self.frames_sent:
+                self.frames_skipped += (first - self.next_us) // self.period_us
             self.next_us = first
         return reach
 

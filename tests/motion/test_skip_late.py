@@ -38,7 +38,8 @@ def test_after_a_stall_the_first_frame_sent_is_the_first_still_in_reach() -> Non
     reach = link.now_us + link.uplink_us + SEND_PATH_DEFAULT_US
     assert sent and sent[0].apply_at_us == -(-reach // PERIOD_US) * PERIOD_US == 1_100_000
     assert all(f.apply_at_us >= reach for f in sent)  # nothing the board would NACK LATE
-    assert s.frames_skipped == (1_100_000 - first_planned) // PERIOD_US == 9
+    assert (1_100_000 - first_planned) // PERIOD_US == 9
+    assert s.frames_skipped == 0  # before the first frame the grid only starts later: the board expected nothing
     # the segment that began in the gap is started by the first frame sent, sampled where it stands then
     assert seg.first_frame_us == 1_100_000
     np.testing.assert_allclose(sent[0].targets[:2], [0.5 * 0.08 / 0.2] * 2)
@@ -77,7 +78,21 @@ def test_the_reach_counts_the_frames_own_wire_time() -> None:
     first = _frames(link)[0].apply_at_us
     assert first == -(-reach // PERIOD_US) * PERIOD_US
     assert first - PERIOD_US < reach  # the one before it could not have made it
-    assert s.frames_skipped == (first - 1_010_000) // PERIOD_US
+    assert s.frames_skipped == 0  # the first top-up: nothing was expected yet
+
+
+def test_a_stall_after_the_first_frames_counts_what_it_skipped() -> None:
+    """Once frames went out, grid frames left unsent because they could no longer arrive in time are
+    counted in ``frames_skipped`` (the run's timing health reports them)."""
+    link = RecordingLink(now_us=1_000_000)
+    s = FrameStreamer(link, Mixer(np.zeros(4)))  # type: ignore[arg-type]
+    anyio.run(s.top_up)  # frames 1.01 .. 1.06 s
+    assert s.first_free_us == 1_070_000
+    link.now_us = 1_095_000  # then the host stalled
+    anyio.run(s.top_up)
+    first = [f.apply_at_us for f in _frames(link)][6]
+    assert first == 1_100_000
+    assert s.frames_skipped == (first - 1_070_000) // PERIOD_US == 3
 
 
 def test_a_link_slower_than_the_lookahead_still_gets_frames() -> None:
