@@ -85,6 +85,7 @@ from host.robot.runtime import RobotRuntime, warm_up_behaviours
 from host.run.loop_lag import LagMonitor
 from host.run.progress_guard import PROGRESS_LIMIT_S, ProgressGuard, Stall
 from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB, STOP_GRACE_S, Interrupted, StopReason
+from host.run.priority import raise_host_priority
 from host.run.realtime_health import add_realtime_behind
 from host.run.recording import Recording
 from host.run.pump import (
@@ -318,6 +319,7 @@ class RobotSession:
         self.stop_overdue = False
         #: the event loop's scheduling delay, sampled while the session runs (reset at each turn's start)
         self.lag = LagMonitor()
+        self._host_nice: int | None = None  # a realtime run's host priority (host.run.priority)
         self.guard: ProgressGuard | None = None
         self._board_s0: float | None = None  # the board time of the session's first report (s)
         self._late0 = 0  # the board's late count at the turn's start
@@ -465,6 +467,7 @@ class RobotSession:
                 tg.start_soon(self._scripted_events, runtime.board_now_s(), opts.events)
             tg.start_soon(self._ends_the_run, silence_watchdog(runtime, self.rec, client))
             if not client.lockstep:
+                self._host_nice = raise_host_priority()  # the loop is the control path (host.run.priority)
                 tg.start_soon(self._ends_the_run, realtime_topper(runtime))
                 if client.tx_wire is not None:  # a slow line the host models: lookahead frames yield to new calls
                     tg.start_soon(self._ends_the_run, frame_link.pace())
@@ -1069,8 +1072,9 @@ class RobotSession:
         in ms and samples n), ``frames_late`` (servo frames the board refused as arriving too late, its
         ``late_count`` since the turn started; None without a report), ``frames_skipped`` (grid frames the
         host left unsent: too late to arrive in time), ``watchdog_trips`` (the board's watchdog holds seen
-        in its reports), ``recording_dropped`` (messages the recording dropped: its ``dropped``, else 0)
-        and ``stop_overdue`` (a stop's deadline cut the work)."""
+        in its reports), ``recording_dropped`` (messages the recording dropped: its ``dropped``, else 0),
+        ``stop_overdue`` (a stop's deadline cut the work) and ``host_nice`` (the nice value a realtime host
+        ran at, :mod:`host.run.priority`; None in lockstep)."""
         client, runtime = self.client, self._runtime
         tel = client.latest_telemetry if client is not None else None
         return {"lag": self.lag.stats(),
@@ -1078,7 +1082,8 @@ class RobotSession:
                 "frames_skipped": runtime.streamer.frames_skipped if runtime is not None else None,
                 "watchdog_trips": client.fanout.watchdog_holds if client is not None else None,
                 "recording_dropped": int(getattr(self.recording, "dropped", 0) or 0),
-                "stop_overdue": self.stop_overdue}
+                "stop_overdue": self.stop_overdue,
+                "host_nice": self._host_nice}
 
     def writer(self, turn: TurnResult, label: str, *, plots: bool | None = None) -> Callable[[], None]:
         """Snapshot what the turn's artefacts need (on the loop) and return the writer (thread-safe).
