@@ -71,6 +71,8 @@ ENVIRONMENT: dict[str, str] = {
     "GHOSTSHELL_ROBOTS": "more robot folders to search, separated by ':' (after --robots-dir, before the user's)",
     "GHOSTSHELL_SKILLS": "the skill library file (default in the user data folder)",
     "GHOSTSHELL_BOARD_NICE": "nice increment a realtime emulated board asks for (default -10; 0: unchanged)",
+    "GHOSTSHELL_HOST_NICE": "nice value a realtime run's host lowers itself to where permitted (default -10)",
+    "GHOSTSHELL_STALLS": "test hook: 'seed=N,p=P,max_s=S' stalls the host's control path at random (lockstep identity tests)",
     "GHOSTSHELL_BOARD_KERNEL": "the emulated board's per-tick servo path: native (default), native! or python",
     "GHOSTSHELL_MJCF_CHECK_CACHE": "folder for recorded robot-model checks ('off': check every time)",
     "GHOSTSHELL_NATIVE_CACHE": "folder for the board's compiled per-tick library (default: the user cache)",

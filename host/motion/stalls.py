@@ -79,7 +79,7 @@ def _from_env() -> Stalls | None:
     try:
         return parse(text)
     except ValueError as e:
-        print(f"error: {e}", file=sys.stderr)
+        print(f"ghostshell: {e}", file=sys.stderr)
         raise SystemExit(2) from None
 
 

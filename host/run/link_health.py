@@ -76,6 +76,9 @@ def timing_health_line(extra: Mapping[str, Any]) -> str | None:
             f"{n(timing.get('watchdog_trips'))} board watchdog trips; {n(timing.get('recording_dropped'))} recording drops")
     if timing.get("stop_overdue"):
         line += "; the stop's deadline cut the work"
+    stalls = timing.get("stalls_injected")
+    if isinstance(stalls, Mapping):
+        line += f"; {n(stalls.get('count'))} control-path stalls injected ({stalls.get('total_s')} s, GHOSTSHELL_STALLS)"
     return line
 
 
@@ -91,6 +94,22 @@ def _units_hit(board: Mapping[str, Any]) -> int:
 
 #: at most this many of the board's warning lines are repeated (the rest stay in board.stderr)
 MAX_BOARD_WARNINGS = 5
+
+
+#: how an emulated board's stderr logs each watchdog hold (firmware_sim/server.py and the C firmware's gs_board.c)
+WATCHDOG_HOLD_LINE = "board: watchdog hold at "
+
+
+def board_watchdog_holds(stderr_path: Path) -> int | None:
+    """The watchdog holds an emulated board logged in its stderr file (the run folder's ``board.stderr``),
+    None when there is no file. The board's own count: the host sees a hold only as a rising edge of
+    WATCHDOG_HOLD in the 50 Hz reports, and two holds in consecutive reports (a 2 ms one after another)
+    showed as one."""
+    try:
+        text = stderr_path.read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return None
+    return sum(line.startswith(WATCHDOG_HOLD_LINE) for line in text.splitlines())
 
 
 def board_warnings(stderr_path: Path) -> list[str]:

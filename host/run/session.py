@@ -78,10 +78,12 @@ from host.link.session import HEARTBEAT_S, FaultEvent, LinkTarget
 from host.run import artefacts
 from host.run.events import Event, EventMonitor, EventPolicy, ScriptedEvent, has_fallen
 from host.run.heap import frozen_heap
+from host.motion.stalls import STALLS
 from host.motion.streamer import GRID_PERIOD_US, LOOKAHEAD_US, frame_wire_bytes, grid_period_us
 from host.robot.binding import robot_registry
 from host.robot.link import ClientLink
 from host.robot.runtime import RobotRuntime, warm_up_behaviours
+from host.run.link_health import board_watchdog_holds
 from host.run.loop_lag import LagMonitor
 from host.run.progress_guard import PROGRESS_LIMIT_S, ProgressGuard, Stall
 from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB, STOP_GRACE_S, Interrupted, StopReason
@@ -396,7 +398,8 @@ class RobotSession:
             identity = RobotIdentity(self.robot.name, self.robot.servo_count, self.robot.servo_table_hash)
             period_us = grid_period_us(self.robot.servo_count, opts.wire_baud)
             heartbeat_s = heartbeat_for_grid(period_us)
-            overload = line_load_note(self.robot.servo_count, opts.wire_baud, period_us, heartbeat_s)
+            overload = line_load_note(self.robot.servo_count, opts.wire_baud, period_us,  # lockstep sends no heartbeats
+                                      math.inf if opts.lockstep else heartbeat_s)
             if overload:
                 log.warning("%s", overload)
             try:
@@ -1074,7 +1077,8 @@ class RobotSession:
         host left unsent: too late to arrive in time), ``watchdog_trips`` (the board's watchdog holds seen
         in its reports), ``recording_dropped`` (messages the recording dropped: its ``dropped``, else 0),
         ``stop_overdue`` (a stop's deadline cut the work) and ``host_nice`` (the nice value a realtime host
-        ran at, :mod:`host.run.priority`; None in lockstep)."""
+        ran at, :mod:`host.run.priority`; None in lockstep); with ``GHOSTSHELL_STALLS`` set, ``stalls_injected``
+        (count and wall seconds, :mod:`host.motion.stalls`)."""
         client, runtime = self.client, self._runtime
         tel = client.latest_telemetry if client is not None else None
         return {"lag": self.lag.stats(),
@@ -1083,7 +1087,9 @@ class RobotSession:
                 "watchdog_trips": client.fanout.watchdog_holds if client is not None else None,
                 "recording_dropped": int(getattr(self.recording, "dropped", 0) or 0),
                 "stop_overdue": self.stop_overdue,
-                "host_nice": self._host_nice}
+                "host_nice": self._host_nice,
+                **({"stalls_injected": {"count": STALLS.count, "total_s": round(STALLS.total_s, 3)}}
+                   if STALLS is not None else {})}
 
     def writer(self, turn: TurnResult, label: str, *, plots: bool | None = None) -> Callable[[], None]:
         """Snapshot what the turn's artefacts need (on the loop) and return the writer (thread-safe).
@@ -1104,6 +1110,12 @@ class RobotSession:
             faults = summary.extra.get("faults")
             if isinstance(faults, dict):  # the board reports what it injected and detected when it stops
                 faults["board"] = board_fault_report(board_stderr)
+            holds = board_watchdog_holds(board_stderr)  # the board's own count beats the host's edges in 50 Hz reports
+            if holds:
+                for part, key in (("timing", "watchdog_trips"), ("link", "watchdog_holds")):
+                    counts = summary.extra.get(part)
+                    if isinstance(counts, dict):
+                        counts[key] = max(holds, counts.get(key) or 0)
             if summary.extra.get("clock") == "realtime":  # a board that fell behind says so (lateness, not a dead servo)
                 add_realtime_behind(summary.extra, board_stderr)
             artefacts.write_timeline_json(out / "timeline.json", calls, t0=t0)

@@ -35,4 +35,4 @@ def test_off_by_default_and_a_bad_environment_is_one_line_and_exit_2() -> None:
     bad = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=60,
                          env={**env, ENV: "p=lots"})
     assert bad.returncode == 2 and bad.stdout == ""
-    assert bad.stderr.count("\n") == 1 and bad.stderr.startswith(f"error: {ENV}"), bad.stderr
+    assert bad.stderr.count("\n") == 1 and bad.stderr.startswith(f"ghostshell: {ENV}"), bad.stderr

@@ -74,3 +74,17 @@ def test_faults_that_cost_nothing_counted_are_still_said() -> None:
     none_hit = {"link": CLEAN, "faults": {"board": {"spec": "drop=0.0001", "injected": [
         {"direction": "host->board", "injected": {"drop": 0}}]}}}
     assert link_health_line(none_hit) is None  # nothing injected, nothing seen
+
+
+def test_the_boards_own_watchdog_holds_are_counted_from_its_stderr(tmp_path: Path) -> None:
+    """Two holds in consecutive 50 Hz reports are one rising edge for the host; the board logs both."""
+    from host.run.link_health import board_watchdog_holds
+
+    err = tmp_path / "board.stderr"
+    assert board_watchdog_holds(err) is None
+    err.write_text("board: coco (12 servos), realtime\n"
+                   "board: watchdog hold at board time 3.786000 s, 0.202000 s after the last valid message\n"
+                   "board: watchdog resume at board time 3.788000 s, a valid message ended the hold after 0.002000 s\n"
+                   "board: watchdog hold at board time 3.800000 s, 0.202000 s after the last valid message\n"
+                   "board: warning: watchdog hold at the end\n")
+    assert board_watchdog_holds(err) == 2

@@ -25,3 +25,11 @@ def test_unknown_counts_and_an_overdue_stop_are_said() -> None:
 
 def test_a_summary_without_timing_has_no_line() -> None:
     assert timing_health_line({}) is None and timing_health_line({"timing": None}) is None
+
+
+def test_injected_stalls_are_named_in_the_line() -> None:
+    extra = {"timing": {"lag": {"p50_ms": 0.3, "p99_ms": 900.0, "max_ms": 1000.0, "n": 10}, "frames_late": 0,
+                        "frames_skipped": 0, "watchdog_trips": 0, "recording_dropped": 0, "stop_overdue": False,
+                        "stalls_injected": {"count": 4, "total_s": 2.5}}}
+    line = timing_health_line(extra)
+    assert line is not None and line.endswith("; 4 control-path stalls injected (2.5 s, GHOSTSHELL_STALLS)")
