@@ -9,7 +9,8 @@ So once a session knows its board runs realtime, the host lowers its nice value 
 nice -10 task ~10x the share of a nice 0 one) and asks for a timer slack of 1 ns (prctl(2)
 ``PR_SET_TIMERSLACK``: the loop's timed waits end on time instead of up to 50 µs late).
 
-The nice value is a target, not an increment: a host already at or below it is left as it is (so a
+Every thread of the process is lowered, not only the event loop's (:func:`_threads`). The nice value is a
+target, not an increment: a host already at or below it is left as it is (so a
 second session in one process, or ``bench/bench_latency.py`` that lowered it before, changes nothing),
 and a board started after this inherits the host's value and lowers its own from there
 (``firmware_sim.priority``; sessions start their board before this runs). Where lowering it is not
@@ -50,10 +51,25 @@ def raise_host_priority(env: Mapping[str, str] | None = None) -> int:
         target = DEFAULT_HOST_NICE
     now = os.nice(0)
     if target < now:
-        try:
-            now = os.nice(target - now)
-        except PermissionError:
-            pass
+        for tid in _threads():
+            try:
+                os.setpriority(os.PRIO_PROCESS, tid, target)
+            except (PermissionError, ProcessLookupError):
+                pass
+        now = os.nice(0)
     if sys.platform.startswith("linux"):
         ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_TIMERSLACK, ctypes.c_ulong(1), 0, 0, 0)
     return now
+
+
+def _threads() -> list[int]:
+    """Every thread of this process (Linux: ``/proc/self/task``), else this process's id.
+
+    On Linux a nice value belongs to a thread (setpriority(2) with a thread id; ``os.nice`` changes only
+    the caller's), and a thread inherits its creator's. The recording's writer thread and the worker
+    threads already started would stay at nice 0: one of them preempted by a hog while it holds the GIL
+    stalls the event loop all the same (a nice -10 loop thread of a realtime C run stood 2.3 s)."""
+    try:
+        return [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        return [os.getpid()]
