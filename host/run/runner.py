@@ -159,6 +159,9 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, RobotRuntime]
                     rested = await session.go_to_rest()
                     turn.summary.extra.setdefault("stopped", {})["rest_pose"] = (
                         session.robot.rest_pose if rested else None)
+                    timing = turn.summary.extra.get("timing")
+                    if isinstance(timing, dict):  # the deadline may have cut the rest pose after the turn ended
+                        timing["stop_overdue"] = session.stop_overdue
                 write = session.writer(turn, opts.task_label)  # snapshot now, plot after the board stopped
         except LinkError as exc:
             if signals is None or signals.forced is None:
