@@ -22,6 +22,7 @@ import argparse
 import json
 import os
 import subprocess
+import tempfile
 import sys
 import time
 from collections import Counter
@@ -69,7 +70,7 @@ def main() -> int:
     ap.add_argument("--task", type=int, default=26)
     ap.add_argument("--no-load", action="store_true", help="no CPU hogs")
     ap.add_argument("--max-board-s", type=float, default=60.0, help="each run's board-time bound (default 60)")
-    ap.add_argument("--out", type=Path, default=Path("/tmp/bench_realtime_load"))
+    ap.add_argument("--out", type=Path, default=Path(tempfile.gettempdir()) / "bench_realtime_load")
     ap.add_argument("--json", type=Path, default=None, help="also write every run's record here")
     args = ap.parse_args()
     if args.runs < 1:

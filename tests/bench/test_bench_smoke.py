@@ -29,11 +29,14 @@ CASES = {
     "run_all.py": ["--quick", "--only", "board"],  # the table, from the board's figures
     "bench_soak.py": ["-n", "1", "--seed", "1", "--links", "pty", "--realtime-share", "0"],  # one lockstep run
     "bench_control_lag.py": ["-n", "1", "--cases", "mesh"],  # one realtime run of the mesh arm
+    "bench_lockstep_identity.py": ["--runs", "1", "--robot", "arm", "--p", "0", "--max-s", "0"],  # ~3 s
+    "bench_realtime_load.py": ["--runs", "1", "--firmware", "python", "--no-load", "--task", "1"],  # ~5 s
 }
 
 
 #: cases that run a board on the wall clock (under xdist, one at a time and first in line for the cores: tests/support/realtime_lock.py)
-REALTIME = {"bench_roundtrip.py", "bench_foxglove.py", "bench_recovery.py", "bench_control_lag.py"}
+REALTIME = {"bench_roundtrip.py", "bench_foxglove.py", "bench_recovery.py", "bench_control_lag.py",
+            "bench_realtime_load.py"}
 
 #: a benchmark's wall-clock parts run as a case of their own, so its lockstep parts (most of its time)
 #: do not hold the other workers off (tests/support/realtime_lock.py)
