@@ -118,8 +118,8 @@ def _read(path: Path, index: MjcfIndex, parents: list[str], depth: int) -> None:
             raise RobotDataError(f"{el.where}: includes nest deeper than {MAX_INCLUDE_DEPTH} (a cycle?)")
         target = resolve_include(index.main, path, name)
         if target is None:
-            raise RobotDataError(f"{el.where}: included file {name!r} not found (next to {index.main.name} "
-                                 f"or {path.name})")
+            where = index.main.name if path == index.main else f"{index.main.name} or {path.name}"
+            raise RobotDataError(f"{el.where}: included file {name!r} not found (next to {where})")
         sub = MjcfIndex(index.main)
         _read(target, sub, inc_parents, depth + 1)
         index.elements[pos + 1:pos + 1] = sub.elements

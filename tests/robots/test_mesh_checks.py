@@ -144,3 +144,18 @@ def test_robots_new_refuses_a_huge_mesh_before_mujoco_reads_it(tmp_path: Path) -
     res = cli("robots", "new", "big_arm", "--mjcf", str(tmp_path / "src" / "mjcf" / "arm.xml"), data_home=tmp_path)
     line = one_line_error(res)
     assert "mesh 'shoulder_shell' file " in line and "over the 32 MiB a mesh file may have" in line
+
+
+def test_a_missing_include_names_each_place_it_was_looked_for_once(tmp_path: Path) -> None:
+    from robots.mjcf_index import index_mjcf
+
+    main = tmp_path / "arm.xml"
+    main.write_text('<mujoco>\n  <include file="parts.xml"/>\n</mujoco>\n')
+    with pytest.raises(RobotDataError) as e:
+        index_mjcf(main)
+    assert str(e.value).endswith("included file 'parts.xml' not found (next to arm.xml)"), e.value
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "parts.xml").write_text('<mujocoinclude>\n  <include file="sub/more.xml"/>\n</mujocoinclude>\n')
+    with pytest.raises(RobotDataError) as e:
+        index_mjcf(main)
+    assert str(e.value).endswith("included file 'sub/more.xml' not found (next to arm.xml or parts.xml)"), e.value
