@@ -65,16 +65,27 @@ async def _scenario(mark: str) -> tuple[list[ServoFrame], int]:
             tg.start_soon(release)
         return False
 
+    polls: list[int] = []  # the driver's looks at the pending requests
+
+    def pending_replies() -> int:
+        polls.append(len(pending))
+        return len(pending)
+
     async def release() -> None:
         # the reaction is blocked: nothing beyond the first lookahead may have gone out
-        await anyio.wait_all_tasks_blocked()
+        if mark == "reply":  # the driver polls the requests (a timer): wait until it saw this one 3 times
+            with anyio.fail_after(10):  # a driver that never asks fails here instead of hanging
+                while polls.count(1) < 3:
+                    await anyio.lowlevel.checkpoint()
+        else:  # the driver waits for the busy section to end
+            await anyio.wait_all_tasks_blocked()
         sent_before_go.append(len(_frames(link)))
         go.set()
 
     async with anyio.create_task_group() as tg:
         tg.start_soon(reaction)
         await anyio.lowlevel.checkpoint()
-        await drive(streamer, feed(), lockstep=True, on_report=on_report, pending_replies=lambda: len(pending))
+        await drive(streamer, feed(), lockstep=True, on_report=on_report, pending_replies=pending_replies)
     if mark != "none":
         assert sent_before_go == [6], sent_before_go  # 10..60 ms: the reaction's wait held the top-up back
     return _frames(link), started[0]
