@@ -102,7 +102,9 @@ def _rhythm(duration: float, period: float, min_period: float = 0.0) -> tuple[in
         return 1, period
     n = max(1, round(duration / period))
     if min_period > 0:  # never so many cycles that the speed limit stretches them past ``duration``
-        n = max(1, min(n, int(duration / min_period + 1e-9)))
+        fit = duration / min_period  # inf for a subnormal min_period (a sweep of ~1e-313 rad): no bound
+        if math.isfinite(fit):
+            n = max(1, min(n, int(fit + 1e-9)))
     p = min(max(duration / n, 0.7 * period, min_period), 1.5 * period)
     return n, p
 

@@ -278,3 +278,11 @@ def test_ease_in_keeps_a_loop_that_starts_inside_the_ramp() -> None:
 
     m = Motion((9,), np.array([0.0, 0.01, 0.02]), np.array([[0.0], [0.1], [0.0]]), loop_from=0.0)
     assert ease_in(m) is m
+
+
+def test_an_ear_swing_over_a_subnormal_angle_is_one_cycle() -> None:
+    """Hypothesis found it in CI: end_angle 2.2e-313 rad made the speed-limited period subnormal and
+    ``duration / min_period`` infinite (OverflowError converting it to a cycle count)."""
+    m = BEHAVIOURS["ear_swing"](LO + 0.0 * (HI - LO), persistent=False, side="left", start_angle=0.0,
+                                end_angle=2.2250738585e-313, speed=0, duration=1.0)
+    assert m.duration > 0
