@@ -313,8 +313,10 @@ class Board:
         return handler(self, msg, seq, rx)
 
     def _count(self, msg: Message, seq: int) -> None:
-        if isinstance(msg, Hello):
-            self.rx_gaps = GapDetector()  # a (new) host numbers its messages from 0 again
+        if isinstance(msg, Hello) and seq == 0:
+            # a new host numbers its messages from 0; a re-sent HELLO (seq > 0) continues its sender's
+            # numbering, and a HELLO lost before it is a gap like any other (gs_board.c does the same)
+            self.rx_gaps.new_sender()
         self.rx_gaps.feed(seq)
 
     def count_unhandled(self, msg: Message, seq: int) -> None:

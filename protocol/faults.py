@@ -317,6 +317,13 @@ class GapDetector:
         for s in recent:
             self.feed(s)
 
+    def new_sender(self) -> None:
+        """Forget the numbering (a new sender starts its own at the next number fed) and keep the
+        totals: a board's ``seq_gaps`` counts over its whole life, as its other link counters do."""
+        self.highest = None
+        self._missing.clear()
+        self._recent.clear()
+
     def feed(self, seq: int) -> int:
         seq &= 0xFFFF
         self.received += 1

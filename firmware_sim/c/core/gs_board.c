@@ -648,7 +648,9 @@ void gs_board_handle(gs_board_t *b, const gs_msg_t *m, uint16_t seq, int64_t rx)
         nack(b, seq, t, GS_NACK_REASON_UNSUPPORTED, "board does not accept ", gs_msg_type_name(t));
         return;
     }
-    if (t == GS_MSG_TYPE_HELLO) gaps_reset(b); /* a (new) host numbers its messages from 0 again */
+    /* a new host numbers its messages from 0; a re-sent HELLO (seq > 0) continues its sender's
+       numbering, and a HELLO lost before it is a gap like any other (board.py does the same) */
+    if (t == GS_MSG_TYPE_HELLO && seq == 0) gaps_reset(b);
     gaps_feed(b, seq);
     b->last_rx_seq = seq;
     int64_t held_since = b->hold_since_us;
