@@ -51,6 +51,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     path = sub.add_parser("path", help="print the user robot folder (where `new` writes), or robot NAME's folder")
     path.add_argument("name", nargs="?", default=None, metavar="NAME")
     path.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg, help=dir_help)
+    from host.commands import calibrate  # ``robots calibrate``: its own module (the vendor SDKs load when it runs)
+    calibrate.configure(sub.add_parser("calibrate", help=calibrate.HELP, description=calibrate.DESCRIPTION))
 
 
 def _fail(message: str) -> int:
@@ -208,4 +210,6 @@ def _path(args: argparse.Namespace) -> int:
 
 
 def main(args: argparse.Namespace) -> int:
-    return {"new": _new, "list": _list, "show": _show, "path": _path}[args.action](args)
+    from host.commands import calibrate
+
+    return {"new": _new, "list": _list, "show": _show, "path": _path, "calibrate": calibrate.main}[args.action](args)
