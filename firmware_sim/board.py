@@ -15,6 +15,14 @@ nothing; CONFIG, ADVANCE, FLUSH, ESTOP, ESTOP_CLEAR, SCREEN, SPEAKER -> ACK (or 
 CAMERA_CAPTURE -> CAMERA_CHUNKs (or NACK NO_RENDERER / BAD_VALUE; the same request id again -> the
 same image's chunks again); CAMERA_RESEND -> the wanted chunks of one of the last ``KEPT_IMAGES``
 images (NACK BAD_VALUE when it is no longer kept); anything else -> NACK UNSUPPORTED.
+
+A real servo bus (:meth:`Board.attach_bus`, ``python -m firmware_sim --servo-bus PORT``): the servo
+model's command goes to the servos as goals (:class:`firmware_sim.servobus.driver.BusDriver` clamps
+them again to the calibrated step limits) instead of into ``mj_step``, and what the servos measure
+(positions, speeds, loads) is written into the model (``qpos``/``qvel``, ``mj_forward``, no physics):
+MuJoCo mirrors the real robot, so TELEMETRY, SIM_STATE and camera captures show what it did. A servo
+that fails latches SERVO_FAULT: every servo holds, an unsolicited NACK SERVO_FAULT (msg_type
+SERVO_FRAME, the last received sequence number) names it, frames are refused until ESTOP_CLEAR.
 """
 
 from __future__ import annotations
@@ -22,7 +30,7 @@ from __future__ import annotations
 import math
 from collections import OrderedDict, deque
 from collections.abc import Callable
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import mujoco
 import numpy as np
@@ -69,6 +77,9 @@ from robots.model import RobotModel
 from robots.motion import min_jerk
 from robots.registry import load_robot
 from robots.scenes import toppled
+
+if TYPE_CHECKING:
+    from firmware_sim.servobus.driver import BusDriver
 
 __all__ = ["Board", "HOST_BOUND", "KEPT_IMAGES", "quat_to_rpy"]
 
@@ -216,6 +227,36 @@ class Board:
         self._flags_since = FaultFlags.NONE
         #: scripted pushes on the base (emulator only): (start us, end us, force N world frame), by start
         self._pushes: list[tuple[int, int, tuple[float, float, float]]] = []
+        #: a real servo bus this board drives (:meth:`attach_bus`), else None: MuJoCo simulates the servos
+        self.bus: BusDriver | None = None
+        self._bus_out: list[Message] = []  # unsolicited NACK SERVO_FAULTs for the next tick's output
+        self._last_rx_seq = 0  # the sequence number of the last message handled (what those NACKs carry)
+
+    def attach_bus(self, bus: BusDriver, positions: list[float]) -> None:
+        """Drive a real servo bus from now on (before the first tick): the Python tick runs (the native
+        one steps physics), the model mirrors ``positions`` (rad, servo order: the servos' measured
+        positions at start-up) and the command, the interpolation anchors and the hold pose all start
+        there, so the first goal is where each servo is and the speed limit ramps from it."""
+        if self.ticks:
+            raise RuntimeError("attach_bus must come before the first tick")
+        self.bus = bus
+        self.native = None
+        self.servo.native_counts = None
+        q = np.asarray(positions, dtype=np.float64)
+        self.servo.reset(q)
+        cmd = self.servo.cmd
+        self.anchor_v[:] = cmd
+        self._desired[:] = cmd
+        self.hold_q = cmd.copy()
+        self._mirror(bus.measured())
+
+    def _mirror(self, m: Any) -> None:
+        """Measured positions (rad), speeds (rad/s) and efforts (N*m) into the model: kinematics only."""
+        data = self.data
+        data.qpos[self._qpos_at] = m.positions
+        data.qvel[self._dof_at] = m.speeds
+        mujoco.mj_forward(self.model, data)
+        data.actuator_force[self._ctrl_at] = m.efforts
 
     def _bind_native(self) -> NativeTick | None:
         """The C tick on this board's arrays, per ``cfg.kernel`` / ``$GHOSTSHELL_BOARD_KERNEL`` (see
@@ -304,6 +345,7 @@ class Board:
         if handler is None and (isinstance(msg, HOST_BOUND) or not hasattr(msg, "__dataclass_fields__")):
             return [self._unsupported(msg, seq)]
         self._count(msg, seq)
+        self._last_rx_seq = seq
         held_since = self.safety.hold_since_us
         if self.safety.feed(self.now_us):
             self._resume()
@@ -375,10 +417,15 @@ class Board:
         self.buffer.clear()
         self.hold_q = self.data.qpos[self.cm.qpos_adr].copy()
         self.servo.reset(self.hold_q)
+        if self.bus is not None:
+            self.bus.on_estop()  # limp: torque off now
         return [Ack(seq, MsgType.ESTOP)]
 
     def _on_estop_clear(self, msg: EstopClear, seq: int, rx: int) -> list[Message]:
         self.safety.clear(self.now_us)
+        if self.bus is not None:  # torque back on, from where the servos are
+            self.servo.reset(self.bus.on_clear())
+            self.hold_q = self.servo.cmd
         self._resume()
         return [Ack(seq, MsgType.ESTOP_CLEAR)]
 
@@ -465,6 +512,9 @@ class Board:
         if self.safety.fault_latched:
             self.dropped_count += 1
             return [self._nack(msg, seq, NackReason.FAULT_LATCHED, "watchdog fault latched; send ESTOP_CLEAR")]
+        if self.safety.servo_fault:
+            self.dropped_count += 1
+            return [self._nack(msg, seq, NackReason.SERVO_FAULT, self._servo_fault_detail)]
         now = self.now_us
         t = unwrap_time_us(quantize_apply_at(int(msg.apply_at_us)), now)
         if t < now - self.cfg.max_late_us:
@@ -720,6 +770,9 @@ class Board:
         self.now_us = t + self._tick_us
         self.ticks += 1
         out = self._camera_results() if self.camera_worker is not None else []
+        if self._bus_out:
+            out += self._bus_out
+            self._bus_out = []
         if self.ticks % self._telemetry_every == 0:
             out += [self.telemetry(), self.sim_state()]
         return out
@@ -800,6 +853,8 @@ class Board:
 
     def _python_tick(self, desired: list[float], speed_cap: float | None) -> bool:
         """The reference path of one tick after interpolation: servo model, ctrl, ``mj_step``; True if clamped."""
+        if self.bus is not None:
+            return self._bus_tick(desired, speed_cap)
         data = self.data
         ctrl, clamped = self.servo.step_list(desired, data.qpos[self._qpos_at].tolist(), speed_cap)
         self._desired[:] = desired
@@ -810,6 +865,33 @@ class Board:
             mujoco.mj_step(self.model, data)
         else:
             mujoco.mj_step(self.model, data, nstep=substeps)
+        return bool(clamped)
+
+    _servo_fault_detail = "a servo failed on the servo bus; send ESTOP_CLEAR"
+
+    def _bus_tick(self, desired: list[float], speed_cap: float | None) -> bool:
+        """One tick on a real servo bus: servo model (its deadband against the measured positions) ->
+        the command as goals (one SYNC WRITE, clamped to the step limits) -> one SYNC READ -> the mirror.
+        A new servo fault latches SERVO_FAULT: every servo holds its command, a NACK names the servo."""
+        bus = self.bus
+        assert bus is not None
+        data = self.data
+        ctrl, clamped = self.servo.step_list(desired, data.qpos[self._qpos_at].tolist(), speed_cap)
+        self._desired[:] = desired
+        self._ctrl[:] = ctrl
+        data.ctrl[self._ctrl_at] = ctrl
+        self._mirror(bus.exchange(self.servo._cmd.tolist(), self.now_us))
+        faults = bus.take_faults()
+        if faults:
+            if not self.safety.servo_fault:
+                self.safety.servo_faulted()
+                self.buffer.clear()
+                self.hold_q = self.servo.cmd
+                self._servo_fault_detail = f"{faults[0].detail}; send ESTOP_CLEAR"[:64]
+            for f in faults:
+                self._bus_out.append(Nack(self._last_rx_seq & 0xFFFF, MsgType.SERVO_FRAME, NackReason.SERVO_FAULT,
+                                          f.detail.encode("ascii", "replace").decode("ascii")[:64]))
+            del self._bus_out[:-16]
         return bool(clamped)
 
     # --- reports ---------------------------------------------------------------------------

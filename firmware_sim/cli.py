@@ -8,7 +8,7 @@ import signal
 import sys
 import threading
 from collections.abc import Sequence
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from protocol.faults import push_arg, seed_arg
 from protocol.wiremodel import baud_arg
@@ -42,6 +42,15 @@ def _link_spec(text: str) -> LinkSpec:
     try:
         return parse_link_spec(text)
     except LinkSpecError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def _servo_bus_spec(text: str) -> tuple[str, int | None]:
+    from firmware_sim.servobus import parse_bus_spec
+
+    try:
+        return parse_bus_spec(text)
+    except ValueError as e:
         raise argparse.ArgumentTypeError(str(e)) from None
 
 
@@ -97,9 +106,24 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="--firmware qemu: -icount shift=0 (one instruction per virtual ns; tick cost figures)")
     parser.add_argument("--asan", action="store_true",
                         help="--firmware c: run the AddressSanitizer/UBSan build of the firmware")
+    parser.add_argument("--servo-bus", type=_servo_bus_spec, default=None, metavar="PORT[:BAUD]",
+                        help="drive the robot's REAL servos on this serial port (a USB adapter, e.g. /dev/ttyUSB0) "
+                             "instead of simulating them; MuJoCo mirrors what they measure. BAUD: default the robot's "
+                             "hardware.toml (see docs/guides/hardware.md)")
+    parser.add_argument("--bus-protocol", choices=BUS_PROTOCOL_CHOICES, default=None,
+                        help="--servo-bus: sts (Feetech SCS/STS) or dxl2 (Dynamixel Protocol 2.0); default the "
+                             "robot's hardware.toml, else sts")
+    parser.add_argument("--estop-torque", choices=("hold", "limp"), default=None,
+                        help="--servo-bus: what ESTOP does to the servos: hold (default: torque on, hold position) "
+                             "or limp (torque off; back on at ESTOP_CLEAR from where they are)")
 
 
 FIRMWARES = ("python", "c", "qemu")
+BUS_PROTOCOL_CHOICES = ("sts", "dxl2")
+#: a lockstep board waits this long (ms, beyond the wire time) for a servo's answer: its time is virtual,
+#: so a long wait costs nothing but a dead servo's detection; realtime uses the SDKs' LATENCY_TIMER (16 ms)
+LOCKSTEP_BUS_LATENCY_MS = 100.0
+REALTIME_BUS_LATENCY_MS = 16.0
 
 #: The name the usage line shows: ``ghostshell board`` sets it when it runs the board for the user.
 PROG_ENV = "GHOSTSHELL_BOARD_PROG"
@@ -176,12 +200,85 @@ def _run_c_firmware(args: argparse.Namespace, robot: object, parser: argparse.Ar
             fault_spec = FaultSpec.parse(args.faults)
         except FaultSpecError as e:
             parser.error(f"--faults: {e}")
+    bus: dict[str, object] = {}
+    if args.servo_bus is not None:
+        import dataclasses
+
+        names = {f.name for f in dataclasses.fields(LaunchOptions)}
+        if not {"servo_bus_port", "servo_bus_baud", "bus_protocol", "estop_torque"} <= names:
+            parser.error("--servo-bus: the C firmware cannot drive a servo bus yet; use --firmware python")
+        if args.dead_servo:
+            parser.error("--dead-servo is a fault of the emulated bus; it has no meaning with --servo-bus")
+        hw = _bus_hardware(args, robot)
+        if hw is None:
+            return 2
+        bus = {"servo_bus_port": args.servo_bus[0], "servo_bus_baud": args.servo_bus[1] or hw.baud,
+               "bus_protocol": hw.protocol, "estop_torque": args.estop_torque or "hold"}
     opts = LaunchOptions(robot=robot, firmware=args.firmware, link=args.link, lockstep=args.lockstep,  # type: ignore[arg-type]
                          rate_hz=args.rate, dt=args.dt, telemetry_rate_hz=args.telemetry_rate,
                          watchdog_ms=args.watchdog_ms, scene=args.scene, baud=args.baud, log_path=args.log,
                          faults=fault_spec, fault_seed=args.fault_seed, dead_servos=list(args.dead_servo),
-                         asan=args.asan, icount=args.icount)
+                         asan=args.asan, icount=args.icount, **bus)  # type: ignore[arg-type]
     return run_firmware(opts)
+
+
+def _bus_hardware(args: argparse.Namespace, robot: Any) -> Any:
+    """The robot's ``hardware.toml`` with ``--bus-protocol`` applied (:class:`robots.hardware.Hardware`),
+    or None after printing the one line why not (a bad file, a protocol that contradicts it)."""
+    from robots.datatypes import RobotDataError
+    from robots.hardware import DEFAULT_BAUD, DEFAULT_MODEL, HARDWARE_FILE, Hardware, load_hardware
+
+    try:
+        hw = load_hardware(robot.root, list(robot.servos))
+    except RobotDataError as e:
+        print(f"board: {e}", file=sys.stderr)
+        return None
+    has_file = (robot.root / HARDWARE_FILE).is_file()
+    want = args.bus_protocol
+    if want is not None and want != hw.protocol:
+        if has_file:
+            print(f"board: --bus-protocol {want} contradicts {robot.root / HARDWARE_FILE} (protocol = "
+                  f"{hw.protocol!r}); fix the file or leave --bus-protocol out", file=sys.stderr)
+            return None
+        hw = Hardware(want, DEFAULT_BAUD[want], DEFAULT_MODEL[want])
+    return hw
+
+
+def _start_bus(args: argparse.Namespace, robot: Any, board: Any) -> Any:
+    """Open ``--servo-bus``, check every servo, read where they are and attach the bus to ``board``
+    (:class:`firmware_sim.servobus.driver.BusDriver`, torque still off), or None after printing the
+    one line why not (the port, the baud, a servo missing, twice, garbled or of the wrong model)."""
+    from firmware_sim.servobus import BusError, make_bus
+    from firmware_sim.servobus.driver import BusDriver
+    from robots.datatypes import RobotDataError
+    from robots.hardware import load_calibration
+
+    hw = _bus_hardware(args, robot)
+    if hw is None:
+        return None
+    port, baud = args.servo_bus
+    latency = LOCKSTEP_BUS_LATENCY_MS if args.lockstep else REALTIME_BUS_LATENCY_MS
+    try:
+        cal = load_calibration(robot.root, list(robot.servos))
+        driver = BusDriver(make_bus(hw.protocol, port, baud or hw.baud, latency_ms=latency), robot, hw, cal,
+                           estop_torque=args.estop_torque or "hold")
+    except RobotDataError as e:
+        print(f"board: {e}", file=sys.stderr)
+        return None
+    try:
+        positions = driver.start()
+    except BusError as e:
+        driver.close()
+        print(f"board: {e}", file=sys.stderr)
+        return None
+    except BaseException:
+        driver.close()
+        raise
+    note = driver.tick_note(board.tick_us / 1e6)
+    if note:
+        print(f"board: {note}", file=sys.stderr, flush=True)
+    board.attach_bus(driver, positions)
+    return driver
 
 
 class _Stop(BaseException):  # not Exception: a handler that guards against bugs must not swallow it
@@ -237,10 +334,15 @@ def _main(argv: Sequence[str] | None = None) -> int:
         return _run_c_firmware(args, robot, parser)
     if args.dead_servo or args.icount or args.asan:
         parser.error("--dead-servo, --icount and --asan need --firmware c or qemu")
+    if args.servo_bus is None and (args.bus_protocol is not None or args.estop_torque is not None):
+        parser.error("--bus-protocol and --estop-torque need --servo-bus PORT")
+    if args.servo_bus is not None and args.push:
+        parser.error("--push pushes a simulated robot; with --servo-bus the robot is real")
     cfg = BoardConfig(
         rate_hz=args.rate, dt=args.dt, lockstep=args.lockstep,
         telemetry_rate_hz=args.telemetry_rate, watchdog_ms=args.watchdog_ms, robot=args.robot,
         robots_dir=args.robots_dir, scene=args.scene,
+        kernel="python" if args.servo_bus is not None else None,  # the native tick steps physics
     )
     try:
         cfg.validate()
@@ -288,6 +390,12 @@ def _main(argv: Sequence[str] | None = None) -> int:
     board = Board(cfg, robot=robot)
     for at, force, dur in args.push:
         board.push(at, force, dur)
+    driver = None
+    if args.servo_bus is not None:
+        driver = _start_bus(args, robot, board)
+        if driver is None:
+            link.close()
+            return 2
     # Realtime renders in a thread, its GL context made (and checked) before the link comes up: the first
     # capture would otherwise stall the control loop. Lockstep renders in the loop (deterministic) and
     # makes the renderer at the first capture: virtual time waits for it, and most runs never capture,
@@ -350,10 +458,19 @@ def _main(argv: Sequence[str] | None = None) -> int:
                 print(f"board: warning: telemetry needs ~{need} bit/s, more than 80% of {args.baud} baud; reports "
                       "will be dropped, SIM_STATE (the base pose and tilt) first, up to all of them (raise --baud, "
                       "or lower the board's --telemetry-rate)", file=sys.stderr, flush=True)
+        if driver is not None:
+            driver.torque_on()  # only now: the board's command starts at the measured positions
+            print(f"board: servo bus {driver.bus.port} ({driver.bus.protocol}, {driver.bus.baud} baud): "
+                  f"{driver.n} servos answer, torque on; ESTOP {driver.estop_torque}s", file=sys.stderr, flush=True)
         server.serve()
     except (_Stop, KeyboardInterrupt):
         status = INTERRUPTED_STATUS
     finally:
+        if driver is not None:
+            driver.close()  # torque off on the whole bus, on every way out
+            c = driver.bus.counts
+            print(f"board: servo bus torque off; {c['sync_writes']} goal writes, {c['sync_reads']} reads, "
+                  f"{c['timeouts']} timeouts, {c['corrupt']} garbled answers", file=sys.stderr, flush=True)
         if injectors and fault_spec is not None:
             from firmware_sim.transports.faulty import report_line
 

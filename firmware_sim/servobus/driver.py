@@ -1,0 +1,274 @@
+"""The board's side of a real servo bus: joint angles to register steps, limits, faults and torque.
+
+:class:`BusDriver` sits between the board core (:mod:`firmware_sim.board`, which thinks in joint
+angles) and a :class:`~firmware_sim.servobus.base.MotorBus` (register steps). It owns the safety
+rules of driving real servos:
+
+* **Start-up** (:meth:`BusDriver.start`): open the port, ping every servo of the robot and check its
+  model number against ``hardware.toml`` (a missing servo, a second or garbled answer, a wrong model:
+  :class:`~firmware_sim.servobus.base.BusSetupError` naming the servo, torque never switched on),
+  read the present positions and hand them to the board, which starts its command there. Torque goes
+  on only after that (:meth:`BusDriver.torque_on`), so the servos' first goal is where they are.
+* **Every goal inside its servo's limits**: each tick's command (rad, already clamped by the board's
+  servo model to the joint range and speed) is converted with the robot's calibration
+  (:func:`robots.hardware.rad_to_steps`) and clamped again, independently, to
+  :func:`robots.hardware.step_limits` right before the SYNC WRITE. A servo whose torque is off is sent
+  its measured position (clamped too), so torque coming back on never jumps.
+* **Faults**: a servo that gives no valid answer ``miss_limit`` reads in a row (not answering, or
+  garbled answers: checksum errors) is lost: left out of the reads, reported once. A servo's own
+  error bits (overload, overheating, voltage) are reported at once; an overloaded or overheated
+  servo's torque goes off. Each report is a :class:`BusFault` in :attr:`BusDriver.faults` (the board
+  turns it into SERVO_FAULT and a NACK) and one stderr line ``board: servo 3 (elbow_flex): overload
+  ...``.
+* **Exit** (:meth:`BusDriver.close`): torque off on the whole bus, on every path; never raises.
+
+Units: joint angles rad, speeds rad/s, efforts N*m (load fraction times the servo's full-scale torque,
+:func:`firmware_sim.cfirmware.servo_table.load_full_scale`), board time us.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import IO
+
+from firmware_sim.servobus.base import (
+    CORRUPT,
+    TIMEOUT,
+    TORQUE_OFF_FAULTS,
+    BusSetupError,
+    MotorBus,
+    Present,
+)
+from robots.description import Robot
+from robots.hardware import STEP_MAX, Calibration, Hardware, rad_to_steps, step_limits, steps_to_rad
+
+__all__ = ["BusDriver", "BusFault", "ESTOP_TORQUE", "Measured", "START_TOLERANCE_STEPS"]
+
+#: what ESTOP does to the servos: hold (torque on, hold position) or limp (torque off)
+ESTOP_TORQUE = ("hold", "limp")
+#: a servo found this many steps (about 1 degree) outside its limits at start-up refuses the start
+START_TOLERANCE_STEPS = 12
+
+
+@dataclass(frozen=True)
+class Measured:
+    """What the servos reported, servo order: positions (rad), speeds (rad/s), efforts (N*m). A servo
+    without a valid answer keeps its last values."""
+
+    positions: list[float]
+    speeds: list[float]
+    efforts: list[float]
+
+
+@dataclass(frozen=True)
+class BusFault:
+    """One servo's fault as reported: servo index (wire order), id, name and what (e.g. ``overload``)."""
+
+    index: int
+    servo_id: int
+    name: str
+    what: str
+    torque_off: bool = False
+
+    @property
+    def detail(self) -> str:
+        """The NACK detail (at most 64 bytes), as the C firmware words it: ``servo id 3 (elbow) what``."""
+        return f"servo id {self.servo_id} ({self.name}) {self.what}"[:64]
+
+
+class BusDriver:
+    """A robot's servos on ``bus`` (see the module doc). ``hardware``/``calibration``: the robot package's
+    ``hardware.toml``/``calibration.toml``. Raises :class:`robots.datatypes.RobotDataError` when a
+    calibration leaves a servo no valid range (:func:`robots.hardware.step_limits`)."""
+
+    def __init__(self, bus: MotorBus, robot: Robot, hardware: Hardware, calibration: Calibration, *,
+                 estop_torque: str = "hold", miss_limit: int = 3, err: IO[str] | None = None) -> None:
+        if estop_torque not in ESTOP_TORQUE:
+            raise ValueError(f"estop torque must be hold or limp, got {estop_torque!r}")
+        from firmware_sim.cfirmware.servo_table import load_full_scale
+
+        self.bus = bus
+        self.robot = robot
+        self.hardware = hardware
+        self.servos = list(robot.servos)
+        self.n = len(self.servos)
+        self.step = float(robot.servos.model.resolution)
+        self.cals = [calibration.of(s) for s in self.servos]
+        #: per servo the raw goal range (steps) no write leaves
+        self.limits: list[tuple[int, int]] = [step_limits(s, c, self.step) for s, c in zip(self.servos, self.cals)]
+        self._sign = [c.direction * s.direction for s, c in zip(self.servos, self.cals)]
+        self._full = load_full_scale(robot)
+        self.estop_torque = estop_torque
+        self.miss_limit = max(1, miss_limit)
+        self.err: IO[str] = sys.stderr if err is None else err
+        self.torque: list[bool] = [False] * self.n
+        self.lost: list[bool] = [False] * self.n
+        self.miss: list[int] = [0] * self.n
+        self._reported: list[set[str]] = [set() for _ in range(self.n)]
+        self.raw: list[int] = [0] * self.n
+        self._speed: list[float] = [0.0] * self.n
+        self._effort: list[float] = [0.0] * self.n
+        #: the goals (steps, by servo id) of the last SYNC WRITE
+        self.last_goals: dict[int, int] = {}
+        #: faults found since the board last took them (:meth:`take_faults`)
+        self.faults: list[BusFault] = []
+        self.opened = False
+
+    # -- start-up ----------------------------------------------------------------------------------
+    def start(self) -> list[float]:
+        """Open, ping and check every servo, set the bus up, read the present positions (rad, servo
+        order). Torque stays off. Raises :class:`~firmware_sim.servobus.base.BusOpenError` or
+        :class:`~firmware_sim.servobus.base.BusSetupError` (one line naming the servo)."""
+        self.bus.open()
+        self.opened = True
+        for s in self.servos:
+            ans = self.bus.ping(s.id)
+            if ans.fault is not None:
+                raise BusSetupError(f"servo {s.id} ({s.name}) {ans.fault}; torque left off")
+            want = self.hardware.model_of(s)
+            if ans.model != want:
+                raise BusSetupError(f"servo {s.id} ({s.name}) reports model number {ans.model}, the robot's "
+                                    f"hardware.toml says {want}; torque left off")
+        self.bus.prepare([s.id for s in self.servos])
+        present = self.bus.read([s.id for s in self.servos])
+        for i, s in enumerate(self.servos):
+            p = present[s.id]
+            if p.position is None or not 0 <= p.position <= STEP_MAX:
+                why = "does not answer" if p.comm == TIMEOUT else "answers garbled"
+                raise BusSetupError(f"servo {s.id} ({s.name}) {why} when its position is read; torque left off")
+            lo, hi = self.limits[i]
+            if not lo - START_TOLERANCE_STEPS <= p.position <= hi + START_TOLERANCE_STEPS:
+                deg = math.degrees
+                raise BusSetupError(
+                    f"servo {s.id} ({s.name}) is at {deg(self._rad(i, p.position)):.1f} deg, outside its range "
+                    f"{deg(s.min):.0f}..{deg(s.max):.0f} deg (steps {p.position}, limits {lo}..{hi}); torque left "
+                    "off: move it into its range by hand and start again")
+            self._take(i, p)
+        return self.measured().positions
+
+    def tick_note(self, period_s: float) -> str | None:
+        """A warning when one tick's bus traffic (sync read both ways + sync write, 10 bits a byte) takes
+        longer than the control period ``period_s``, else None."""
+        need = self.bus.tick_bytes(self.n) * 10 / self.bus.baud
+        if need <= period_s:
+            return None
+        return (f"warning: the servo bus needs ~{need * 1000:.1f} ms a tick at {self.bus.baud} baud for "
+                f"{self.n} servos, more than the {period_s * 1000:.1f} ms control period; a realtime board "
+                f"falls behind (lower --rate to {max(1, int(0.8 / need))} Hz or raise the servos' baud)")
+
+    # -- torque ------------------------------------------------------------------------------------
+    def torque_on(self, indices: Iterable[int] | None = None) -> None:
+        """Torque on (servo indices; all by default). The goal registers already hold the measured
+        positions of servos whose torque was off (every tick writes them)."""
+        idx = list(range(self.n)) if indices is None else list(indices)
+        self.bus.set_torque([self.servos[i].id for i in idx], True)
+        for i in idx:
+            self.torque[i] = True
+
+    def torque_off(self, indices: Iterable[int] | None = None) -> None:
+        idx = list(range(self.n)) if indices is None else list(indices)
+        self.bus.set_torque([self.servos[i].id for i in idx], False)
+        for i in idx:
+            self.torque[i] = False
+
+    def on_estop(self) -> None:
+        """ESTOP arrived: ``limp`` switches every servo's torque off now; ``hold`` keeps it (the board holds)."""
+        if self.estop_torque == "limp":
+            self.torque_off()
+
+    def on_clear(self) -> list[float]:
+        """ESTOP_CLEAR: lost servos are read again (one still silent is lost anew), reported faults may be
+        reported again, torque back on for every servo. Returns the measured positions (rad) the board
+        resumes from."""
+        self.lost = [False] * self.n
+        self.miss = [0] * self.n
+        self._reported = [set() for _ in range(self.n)]
+        self.torque_on()
+        return self.measured().positions
+
+    # -- per tick ----------------------------------------------------------------------------------
+    def goal_steps(self, i: int, q: float) -> int:
+        """Servo ``i``'s goal register value for command ``q`` (rad), inside :attr:`limits`. A servo
+        whose torque is off (or a non-finite ``q``) gets its measured position."""
+        raw = rad_to_steps(self.servos[i], self.cals[i], q, self.step) if self.torque[i] and math.isfinite(q) \
+            else self.raw[i]
+        lo, hi = self.limits[i]
+        return lo if raw < lo else hi if raw > hi else raw
+
+    def exchange(self, cmd: Sequence[float], t_us: int) -> Measured:
+        """One control tick at board time ``t_us``: ONE SYNC WRITE of the goals for ``cmd`` (rad, servo
+        order), then ONE SYNC READ of every servo not lost. Returns what was measured."""
+        goals = {s.id: self.goal_steps(i, cmd[i]) for i, s in enumerate(self.servos)}
+        self.last_goals = goals
+        self.bus.write_goals(goals)
+        ids = [s.id for i, s in enumerate(self.servos) if not self.lost[i]]
+        present = self.bus.read(ids)
+        for i, s in enumerate(self.servos):
+            p = present.get(s.id)
+            if p is None:
+                continue
+            if p.position is None or not 0 <= p.position <= STEP_MAX:
+                self.miss[i] += 1
+                if self.miss[i] >= self.miss_limit:
+                    self.lost[i] = True
+                    self._fault(i, p.comm if p.comm in (TIMEOUT, CORRUPT) else CORRUPT, t_us)
+                continue
+            self.miss[i] = 0
+            self._take(i, p)
+            for e in p.errors:
+                if e not in self._reported[i]:
+                    self._reported[i].add(e)
+                    self._fault(i, e, t_us)
+        return self.measured()
+
+    def _rad(self, i: int, raw: int) -> float:
+        return steps_to_rad(self.servos[i], self.cals[i], raw, self.step)
+
+    def _take(self, i: int, p: Present) -> None:
+        assert p.position is not None
+        self.raw[i] = p.position
+        self._speed[i] = self._sign[i] * p.speed * self.step
+        self._effort[i] = self._sign[i] * p.load * self._full[i]
+
+    def measured(self) -> Measured:
+        """The last measured values (see :class:`Measured`)."""
+        return Measured([self._rad(i, r) for i, r in enumerate(self.raw)], self._speed[:], self._effort[:])
+
+    def _fault(self, i: int, what: str, t_us: int) -> None:
+        s = self.servos[i]
+        off = what in TORQUE_OFF_FAULTS and self.torque[i]
+        if off:
+            self.torque_off([i])
+        f = BusFault(i, s.id, s.name, what, off)
+        self.faults.append(f)
+        del self.faults[:-64]  # bounded: the board takes them every tick
+        print(f"board: servo {s.id} ({s.name}): {what} at board time {t_us / 1e6:.3f} s"
+              + ("; its torque is off" if off else "") + "; every servo holds, motion refused until ESTOP_CLEAR",
+              file=self.err, flush=True)
+
+    def take_faults(self) -> list[BusFault]:
+        """The faults found since the last call (oldest first)."""
+        out, self.faults = self.faults, []
+        return out
+
+    # -- exit --------------------------------------------------------------------------------------
+    def close(self) -> None:
+        """Torque off on the whole bus (twice: a SYNC WRITE has no answer to confirm it) and close the
+        port. Never raises; safe to call more than once."""
+        if not self.opened:
+            return
+        ids = [s.id for s in self.servos]
+        for _ in range(2):
+            try:
+                self.bus.set_torque(ids, False)
+            except Exception:  # noqa: BLE001 - exit must go on: the port may be gone
+                pass
+        self.torque = [False] * self.n
+        self.opened = False
+        try:
+            self.bus.close()
+        except Exception:  # noqa: BLE001
+            pass
