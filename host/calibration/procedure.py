@@ -15,8 +15,8 @@ With every servo limp (torque off for the whole procedure, and again at the end 
 
 Checks (one :class:`CalibrationError` naming servo id and name; nothing is returned): a missing servo
 or wrong model, a direction change too small to tell, a range that did not move (min >= max), one that
-crosses the encoder's 0/4095 wrap, one that does not contain the reference pose, or one that does not
-overlap the joint's range (:func:`robots.hardware.step_limits`).
+crosses the encoder's 0/4095 wrap, one that does not overlap the joint's range
+(:func:`robots.hardware.step_limits`), or one that does not contain the reference pose.
 
 Unlike LeRobot nothing is written to the servos (no homing offset, no angle limits): the result is a
 :class:`robots.hardware.Calibration` for ``calibration.toml``. Input comes through ``ask(prompt) ->
@@ -32,7 +32,7 @@ from typing import Protocol
 
 from robots.datatypes import RobotDataError, Servo
 from robots.description import Robot
-from robots.hardware import STEP_CENTRE, STEP_MAX, Calibration, Hardware, ServoCalibration, step_limits
+from robots.hardware import STEP_CENTRE, STEP_MAX, Calibration, Hardware, ServoCalibration, rad_to_steps, step_limits
 
 __all__ = ["Bus", "CalibrationError", "MIN_MOVE_DEG", "POLL_S", "calibrate", "coverage_notes", "live_table",
            "reference_pose_name", "table"]
@@ -190,14 +190,18 @@ def calibrate(robot: Robot, bus: Bus, hardware: Hardware, *, ask: Callable[[str]
         if lo >= hi:
             raise CalibrationError(f"{_who(s)}: its range {lo}..{hi} is empty (min >= max): it did not move; "
                                    "nothing written")
-        if not lo <= ref[i] <= hi:
-            raise CalibrationError(f"{_who(s)}: its range {lo}..{hi} does not contain the reference pose ({ref[i]}): "
-                                   "was it in the reference pose? nothing written")
         cal = ServoCalibration(s.id, offsets[i], directions[i], lo, hi)
         try:
             step_limits(s, cal, step)
-        except RobotDataError as e:
-            raise CalibrationError(f"{e}; nothing written") from None
+        except RobotDataError:
+            a, b = sorted(rad_to_steps(s, cal, q, step) for q in (s.min, s.max))
+            raise CalibrationError(
+                f"{_who(s)}: its range {lo}..{hi} lies outside its joint range "
+                f"{math.degrees(s.min):+.0f}..{math.degrees(s.max):+.0f} deg "
+                f"(steps {a}..{b} from the reference pose): was it in the reference pose? nothing written") from None
+        if not lo <= ref[i] <= hi:
+            raise CalibrationError(f"{_who(s)}: its range {lo}..{hi} does not contain the reference pose ({ref[i]}): "
+                                   "was it moved through its whole range? nothing written")
         out[s.name] = cal
     return Calibration(out)
 

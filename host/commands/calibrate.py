@@ -67,9 +67,10 @@ def _fail(message: str, status: int = 2) -> int:
     return status
 
 
-def run(args: argparse.Namespace, *, ask: Callable[[str], str] = input, say: Callable[[str], None] = print,
+def run(args: argparse.Namespace, *, ask: Callable[[str], str] | None = None, say: Callable[[str], None] = print,
         live: Callable[[Sequence[int], Sequence[int], Sequence[int]], None] | None = None) -> int:
-    """The command with injectable input (``ask(prompt) -> line``), output and live range display."""
+    """The command with injectable input (``ask(prompt) -> line``, default :func:`input`), output and live
+    range display (default: a table redrawn in place when stdout is a terminal)."""
     from host.calibration.bus import BusError, ServoBus
     from host.calibration.procedure import CalibrationError, calibrate, coverage_notes, live_table, table
     from robots.hardware import CALIBRATION_FILE, DEFAULT_BAUD, DEFAULT_MODEL, HARDWARE_FILE, Hardware, load_hardware
@@ -110,25 +111,26 @@ def run(args: argparse.Namespace, *, ask: Callable[[str], str] = input, say: Cal
         live = live_table([s.name for s in servos], lambda text: (sys.stdout.write(text), sys.stdout.flush()))
     say(f"calibrating {robot.name} ({len(servos)} servos) on {port} at {bus.baud} baud, {protocol}"
         + (f"; replaces {target} when done" if target.exists() else ""))
+    limp: list[str] = []
     try:
-        calibration = calibrate(robot, bus, hardware, ask=ask, say=say, live=live)
+        calibration = calibrate(robot, bus, hardware, ask=ask or input, say=say, live=live)
     except CalibrationError as e:
         return _fail(str(e))
     except BusError as e:
         return _fail(f"{e}; nothing written", 1)
     except EOFError:
         return _fail("input ended before the procedure finished; nothing written", 1)
-    finally:
-        limp = [s for s in servos if not _quiet_torque_off(bus, s.id)]
+    finally:  # torque off again whatever happened (an error line, when there is one, stays the only line)
+        limp = [f"servo {s.id} ({s.name})" for s in servos if not _quiet_torque_off(bus, s.id)]
         bus.close()
-        if limp:
-            print_error(COMMAND, "note: torque off not acknowledged by " + ", ".join(f"servo {s.id} ({s.name})" for s in limp))
     try:
         path = save_calibration(folder, calibration, servos)
     except OSError as e:
         return _fail(f"{target}: {e.strerror or e}")
     for line in table(robot, calibration):
         say(line)
+    if limp:
+        say("note: torque off not acknowledged at the end by " + ", ".join(limp))
     for note in coverage_notes(robot, calibration):
         say(f"note: {note}")
     say(f"written to {path} (torque left off)")
