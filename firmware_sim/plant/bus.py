@@ -24,16 +24,26 @@ late; it never stops answering (that is the board's to tell apart from a dead se
 
 from __future__ import annotations
 
+import random
 import time
 from collections import deque
 from dataclasses import dataclass
 
-from firmware_sim.plant.devices import REG, Device
-from firmware_sim.plant.feetech import BROADCAST_ID, Inst, Instruction, InstructionParser, status_packet
+from firmware_sim.plant.collide import collide
+from firmware_sim.plant.devices import Device, ServoDevice
+from firmware_sim.plant.dxl_bus import DxlDevice, DxlHandler
+from firmware_sim.plant.dxl_table import MODEL_XL330, DxlRegisterFile, DxlServo
+from firmware_sim.plant.servo import Fault
+from firmware_sim.plant.sts_bus import StsHandler
 from firmware_sim.plant.world import World
 
-__all__ = ["BusStats", "PlantBus", "PlantLateness"]
+__all__ = ["BusStats", "PROTOCOLS", "PlantBus", "PlantLateness"]
 
+PROTOCOLS = ("sts", "dxl2")
+#: Dynamixel X defaults the plant's servos start with (e-Manual XL330-M288-T control table):
+#: return delay 250 (500 us), torque off, 5.0 V supply
+DXL_RETURN_DELAY_US = 500
+DXL_VOLTAGE_DV = 50
 BYTE_BITS = 10
 
 
@@ -68,32 +78,75 @@ class PlantLateness:
 
 
 class PlantBus:
-    """Device side of the bus over a :class:`World`."""
+    """Device side of the bus over a :class:`World`, speaking ``protocol`` ("sts" or "dxl2") at ``baud``.
 
-    def __init__(self, world: World, *, lockstep: bool, baud: int = 1_000_000) -> None:
+    The wire-side injected conditions come from ``world.conditions`` (missing and duplicate ids,
+    status packet corruption, seeded). ``line_baud``: the controller's line speed as the server
+    reads it from the pty (None: unknown, taken to match); a controller at another speed than
+    ``baud`` gets no answer and its bytes count as garbage, as servos at another baud would see them.
+    In "dxl2" the servos start as a Dynamixel X ships: model 1200 (unless the world or the
+    conditions name another), torque off, return delay 500 us, 5.0 V.
+    """
+
+    def __init__(self, world: World, *, lockstep: bool, baud: int = 1_000_000, protocol: str = "sts") -> None:
+        if protocol not in PROTOCOLS:
+            raise ValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
         self.world = world
         self.lockstep = lockstep
+        self.baud = baud
+        self.protocol = protocol
+        self.line_baud: int | None = None
         self.byte_us = BYTE_BITS * 1e6 / baud
-        self.parser = InstructionParser()
         self.stats = BusStats()
+        self.garbage_bytes = 0  # bytes received at the wrong line speed
         self._tick_busy = 0.0
         self._booted = False
-        self._pending_reg: dict[int, tuple[int, bytes]] = {}
-        self._dead: list[tuple[int, int]] = []  # (device id, from world time us)
+        c = world.conditions
+        self._dead: list[tuple[int, int]] = [(sid, 0) for sid in sorted(c.missing)]  # (device id, from world time us)
+        self._duplicate = c.duplicate
+        self._corrupt = c.corrupt
+        self._rng = random.Random(c.seed)
         self._out: deque[tuple[float, bytes]] = deque()  # realtime: (release time, bytes)
         self._free_at = 0.0
         self.t0 = time.monotonic()
         self.steps_wall = 0
         self.lateness = PlantLateness()
+        self.devices: dict[int, Device] | dict[int, DxlDevice]
+        self.handler: StsHandler | DxlHandler
+        if protocol == "sts":
+            sts: dict[int, Device] = {st.id: ServoDevice(st) for st in world.servos}
+            sts.update({world.imu.id: world.imu, world.probe.id: world.probe})
+            self.devices = sts
+            self.handler = StsHandler(sts, self._alive, world.refresh_if_stale, self._goal_written)
+        else:
+            for st in world.servos:
+                if world.model_number is None:
+                    st.model = c.models.get(st.id, MODEL_XL330)
+                if not st.fault.stops_torque:
+                    st.torque = False
+                st.return_delay_us = DXL_RETURN_DELAY_US
+                if not st.fault & Fault.VOLTAGE:
+                    st.voltage_dv = DXL_VOLTAGE_DV
+            dxl: dict[int, DxlDevice] = {st.id: DxlServo(st, baud=baud) for st in world.servos}
+            dxl.update({world.imu.id: DxlRegisterFile(world.imu), world.probe.id: DxlRegisterFile(world.probe)})
+            self.devices = dxl
+            self.handler = DxlHandler(dxl, self._alive, world.refresh_if_stale, self._goal_written)
 
     def kill(self, dev_id: int, at_us: int) -> None:
+        """Device ``dev_id`` stops answering from world time ``at_us`` (``--dead-servo ID@SECONDS``)."""
         self._dead.append((dev_id, at_us))
 
-    def _alive(self, dev: Device) -> bool:
+    def _alive(self, dev: Device | DxlDevice) -> bool:
         for dev_id, at in self._dead:
             if dev_id == dev.id and self.world.time_us >= at:
                 return False
-        return dev.alive
+        return getattr(dev, "alive", True)
+
+    def _goal_written(self) -> None:
+        """A SYNC WRITE covered the goal position: one control period (lockstep: of physics too)."""
+        if self.lockstep:
+            self.world.step()
+        self._close_tick()
 
     # -- time -----------------------------------------------------------------------------------
     def _wire(self, n: int) -> float:
@@ -140,15 +193,29 @@ class PlantBus:
         return ran
 
     # -- packets --------------------------------------------------------------------------------
+    def _on_wire(self, dev_id: int, reply: bytes) -> bytes:
+        """A status packet as the controller receives it: broken checksum (``corrupt``), collided
+        with the twin's answer (``duplicate``)."""
+        if self._corrupt and self._rng.random() < self._corrupt:
+            reply = reply[:-1] + bytes([reply[-1] ^ self._rng.randrange(1, 256)])
+        if dev_id in self._duplicate:
+            reply = collide(reply, reply)
+        return reply
+
     def feed(self, data: bytes, now: float | None = None) -> bytes:
         """Bytes from the controller -> bytes to send back now (lockstep); realtime queues them by time."""
+        if self.line_baud is not None and self.line_baud != self.baud:
+            self.garbage_bytes += len(data)  # framing errors at the servos: nothing is understood
+            return b""
         out = bytearray()
-        for ins in self.parser.feed(data):
+        for ins in self.handler.parser.feed(data):
             self.stats.packets_in += 1
             self._tick_busy += self._wire(len(ins.raw))
-            for reply in self._handle(ins):
+            for dev_id, reply in self.handler.handle(ins):  # type: ignore[arg-type]
+                reply = self._on_wire(dev_id, reply)
                 self.stats.packets_out += 1
-                delay = self.world.devices[reply[2]].table[REG.RETURN_DELAY] * 2 if reply[2] in self.world.devices else 0
+                dev = self.devices.get(dev_id)
+                delay = dev.return_delay_us if dev is not None else 0
                 self._tick_busy += delay + self._wire(len(reply))
                 if self.lockstep or now is None:
                     out += reply
@@ -166,61 +233,3 @@ class PlantBus:
 
     def next_release(self) -> float | None:
         return self._out[0][0] if self._out else None
-
-    def _devices_for(self, dev_id: int) -> list[Device]:
-        w = self.world
-        if dev_id == BROADCAST_ID:
-            return [d for d in w.devices.values() if self._alive(d)]
-        d = w.devices.get(dev_id)
-        return [d] if d is not None and self._alive(d) else []
-
-    def _handle(self, ins: Instruction) -> list[bytes]:
-        p, inst, dev_id = ins.params, ins.instruction, ins.id
-        w = self.world
-        if inst in (Inst.READ, Inst.SYNC_READ):
-            w.refresh_if_stale()
-        replies: list[bytes] = []
-        if inst == Inst.SYNC_WRITE and dev_id == BROADCAST_ID and len(p) >= 2:
-            addr, n = p[0], p[1]
-            goal = addr <= REG.GOAL_POSITION < addr + n
-            for k in range(2, len(p) - n + 1, n + 1):
-                d = w.devices.get(p[k])
-                if d is not None and self._alive(d):
-                    d.write(addr, bytes(p[k + 1:k + 1 + n]))
-            if goal and self.lockstep:
-                w.step()
-                self._close_tick()
-            elif goal:
-                self._close_tick()
-            return replies
-        if inst == Inst.SYNC_READ and dev_id == BROADCAST_ID and len(p) >= 2:
-            addr, n = p[0], p[1]
-            for sid in p[2:]:
-                d = w.devices.get(sid)
-                if d is None or not self._alive(d):
-                    continue
-                data = d.read(addr, n)
-                if data is not None:
-                    replies.append(status_packet(sid, 0, data))
-            return replies
-        if inst == Inst.ACTION:
-            for d in self._devices_for(dev_id):
-                reg = self._pending_reg.pop(d.id, None)
-                if reg is not None:
-                    d.write(*reg)
-            return replies
-        for d in self._devices_for(dev_id):
-            reply: bytes | None = None
-            if inst == Inst.PING:
-                reply = status_packet(d.id)
-            elif inst == Inst.READ and len(p) == 2:
-                data = d.read(p[0], p[1])
-                reply = status_packet(d.id, 0, data) if data is not None else None
-            elif inst == Inst.WRITE and len(p) >= 2:
-                reply = status_packet(d.id, 0 if d.write(p[0], bytes(p[1:])) else 0x08)
-            elif inst == Inst.REG_WRITE and len(p) >= 2:
-                self._pending_reg[d.id] = (p[0], bytes(p[1:]))
-                reply = status_packet(d.id)
-            if reply is not None and dev_id != BROADCAST_ID:
-                replies.append(reply)
-        return replies

@@ -6,8 +6,10 @@
 (steps), 40 torque enable, 41 acceleration, 42-43 goal position (steps), 44-45 goal time, 46-47
 goal speed, 55 lock, 56-57 present position (steps), 58-59 present speed (steps/s, bit 15 =
 sign), 60-61 present load (0.1 % of full torque, bit 10 = sign), 62 present voltage (0.1 V),
-63 present temperature (deg C), 66 moving, 69-70 present current. Torque enable is stored; the
-emulated servo always drives (a limp servo is not modelled).
+63 present temperature (deg C), 66 moving, 69-70 present current (always 0). A view over the
+servo's protocol-neutral :class:`~firmware_sim.plant.servo.ServoState`; torque enable 0 makes the
+servo limp in the world. Layout source: Feetech's STS3215 memory table and ``scservo_sdk``
+(``feetech-servo-sdk``) examples' register names (``ADDR_STS_*``).
 
 ``ImuDevice`` (id 0xF0, model 0x4D55): 56-61 roll, pitch, yaw as int16 x 1e-4 rad (the IMU a
 board would read; on a real robot it sits on I2C or SPI, here on the same bus for simplicity).
@@ -22,7 +24,11 @@ from __future__ import annotations
 
 import struct
 
-__all__ = ["Device", "IMU_ID", "ImuDevice", "PROBE_ID", "ProbeDevice", "REG", "ServoDevice", "STS_MODEL"]
+from firmware_sim.plant.feetech import from_sign_magnitude, to_sign_magnitude
+from firmware_sim.plant.servo import Fault, ServoState
+
+__all__ = ["Device", "IMU_ID", "ImuDevice", "PROBE_ID", "ProbeDevice", "REG", "STS_ERROR_BITS", "ServoDevice", "STS_MODEL",
+           "sts_error"]
 
 IMU_ID = 0xF0
 PROBE_ID = 0xF1
@@ -65,6 +71,24 @@ class Device:
         self.table[REG.ID] = dev_id
         self.alive = True  # False: the device stopped answering (a fault the tests inject)
 
+    @property
+    def return_delay_us(self) -> int:
+        """The delay before this device's status packet (register 7, 2 us units)."""
+        return self.table[REG.RETURN_DELAY] * 2
+
+    @property
+    def error(self) -> int:
+        """The STS status error byte (0: no condition)."""
+        return 0
+
+    @property
+    def model(self) -> int:
+        return self.u16(REG.MODEL)
+
+    @property
+    def firmware(self) -> int:
+        return self.table[0]
+
     def set_u16(self, addr: int, v: int) -> None:
         self.table[addr:addr + 2] = struct.pack("<H", v & 0xFFFF)
 
@@ -84,25 +108,77 @@ class Device:
         return True
 
 
-class ServoDevice(Device):
-    """One servo's registers; the world fills the present values and reads the goal."""
+#: the STS status error bits of each fault (scservo_sdk protocol_packet_handler.py: ERRBIT_VOLTAGE 1,
+#: ERRBIT_OVERHEAT 4, ERRBIT_OVERLOAD 32; ERRBIT_ANGLE 2 and ERRBIT_OVERELE 8 are not injected)
+STS_ERROR_BITS: dict[Fault, int] = {Fault.VOLTAGE: 0x01, Fault.OVERHEAT: 0x04, Fault.OVERLOAD: 0x20}
+_PRESENT = struct.Struct("<3H")
 
-    def __init__(self, dev_id: int, step_lo: int, step_hi: int, centre: int) -> None:
-        super().__init__(dev_id, 71, STS_MODEL)
-        self.set_u16(REG.MIN_ANGLE, step_lo)
-        self.set_u16(REG.MAX_ANGLE, step_hi)
-        self.table[REG.TORQUE_ENABLE] = 1
-        self.set_u16(REG.GOAL_POSITION, centre)
-        self.set_u16(REG.PRESENT_POSITION, centre)
-        self.table[REG.PRESENT_VOLTAGE] = 74
-        self.table[REG.PRESENT_TEMPERATURE] = 30
+
+def sts_error(fault: Fault) -> int:
+    """The STS status packet's error byte for ``fault``."""
+    return sum(bit for f, bit in STS_ERROR_BITS.items() if fault & f)
+
+
+class ServoDevice(Device):
+    """The STS control table as a view over one :class:`ServoState`.
+
+    Registers the servo state owns are rendered on READ (present position clipped to 0..4095,
+    speed sign-magnitude at bit 15, load in 0.1 % sign-magnitude at bit 10, voltage, temperature,
+    moving, torque enable, model number) and parsed on WRITE (angle limits 9..12, return delay 7,
+    torque enable 40, goal position 42..43 as sign-magnitude at bit 15); the others are stored.
+    """
+
+    def __init__(self, state: ServoState) -> None:
+        super().__init__(state.id, 71, state.model)
+        self.state = state
+        self.set_u16(REG.MIN_ANGLE, state.min_steps)
+        self.set_u16(REG.MAX_ANGLE, state.max_steps)
+        self.set_u16(REG.GOAL_POSITION, state.goal_steps)
+        self.table[REG.RETURN_DELAY] = state.return_delay_us // 2
+        self._render()
+
+    @property
+    def return_delay_us(self) -> int:
+        return self.state.return_delay_us
+
+    @property
+    def error(self) -> int:
+        return sts_error(self.state.fault)
+
+    def _render(self) -> None:
+        st, t = self.state, self.table
+        _PRESENT.pack_into(t, REG.PRESENT_POSITION, max(0, min(4095, st.present_steps)),
+                           to_sign_magnitude(max(-32767, min(32767, round(st.speed_steps_s))), 15),
+                           to_sign_magnitude(max(-1000, min(1000, round(st.load * 1000))), 10))
+        t[REG.MOVING] = 1 if st.moving else 0
+        t[REG.PRESENT_VOLTAGE] = st.voltage_dv & 0xFF
+        t[REG.PRESENT_TEMPERATURE] = st.temperature_c & 0xFF
+        t[REG.TORQUE_ENABLE] = 1 if st.torque else 0
+        self.set_u16(REG.MODEL, st.model)
+
+    def read(self, addr: int, n: int) -> bytes | None:
+        self._render()
+        return super().read(addr, n)
+
+    def write(self, addr: int, data: bytes) -> bool:
+        self._render()
+        if not super().write(addr, data):
+            return False
+        st, end = self.state, addr + len(data)
+        if addr <= REG.RETURN_DELAY < end:
+            st.return_delay_us = self.table[REG.RETURN_DELAY] * 2
+        if addr < REG.MAX_ANGLE + 2 and end > REG.MIN_ANGLE:
+            st.min_steps, st.max_steps = self.u16(REG.MIN_ANGLE), self.u16(REG.MAX_ANGLE)
+        if addr <= REG.TORQUE_ENABLE < end:
+            st.torque = bool(self.table[REG.TORQUE_ENABLE]) and not st.fault.stops_torque
+        if addr < REG.GOAL_POSITION + 2 and end > REG.GOAL_POSITION:
+            st.goal_steps = from_sign_magnitude(self.u16(REG.GOAL_POSITION), 15)
+        return True
 
     @property
     def goal(self) -> int:
         """Goal position in steps, limited to the angle limits (as the servo does)."""
-        raw = self.u16(REG.GOAL_POSITION)
-        v = -(raw & 0x7FFF) if raw & 0x8000 else raw
-        return max(self.u16(REG.MIN_ANGLE), min(self.u16(REG.MAX_ANGLE), v))
+        return self.state.goal
 
 
 class ImuDevice(Device):

@@ -1,9 +1,14 @@
 """Serve a :class:`firmware_sim.plant.bus.PlantBus` on a pty: the servo bus alone, for any client.
 
-``python -m firmware_sim.plant [--robot NAME] [--scene NAME] [--lockstep]`` prints
-``plant: servo bus on /dev/pts/N`` and answers there until SIGTERM/SIGINT: the vendor SDK
-(``scservo_sdk``), a servo tool or the C firmware can drive the emulated servos. In lockstep every
-goal SYNC WRITE steps the world one control period; in realtime it steps on the wall clock.
+``python -m firmware_sim.plant [--protocol sts|dxl2] [--baud N] [--robot NAME] [--robots-dir DIR]
+[--scene NAME] [--lockstep] [conditions...]`` prints ``plant: servo bus on /dev/pts/N`` and answers
+there until SIGTERM/SIGINT: a vendor SDK (``scservo_sdk``, ``dynamixel_sdk``), a servo tool or the C
+firmware can drive the emulated servos. In lockstep every goal SYNC WRITE steps the world one control
+period; in realtime it steps on the wall clock. The pty starts at ``--baud``; a client that sets
+another line speed gets no answer (read from the pty's termios before each read). Conditions:
+``--offset ID=STEPS``, ``--reverse ID``, ``--model ID=NUMBER``, ``--missing ID``, ``--duplicate ID``,
+``--error ID=overload|overheat|voltage@SECONDS``, ``--corrupt P`` with ``--seed N``,
+``--dead-servo ID@SECONDS`` (all repeatable but the last three; docs/reference/plant.md).
 :func:`serve` is the loop (tests run it in a thread with a stop event).
 """
 
@@ -14,14 +19,41 @@ import json
 import select
 import signal
 import sys
+import termios
 import threading
 import time
 
-from firmware_sim.plant.bus import PlantBus
+from firmware_sim.plant.bus import PROTOCOLS, PlantBus
+from firmware_sim.plant.conditions import Conditions, parse_error, parse_id, parse_id_int
 from firmware_sim.plant.world import World
 from firmware_sim.transports.ports import PtyPort
 
-__all__ = ["main", "serve"]
+__all__ = ["line_speed", "main", "serve", "set_line_speed"]
+
+#: termios speed constant -> bits per second (Linux: B1000000 and friends included)
+_SPEEDS: dict[int, int] = {getattr(termios, f"B{b}"): b for b in (
+    9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600, 1000000, 1152000, 1500000,
+    2000000, 2500000, 3000000, 3500000, 4000000) if hasattr(termios, f"B{b}")}
+_CONSTANTS = {b: c for c, b in _SPEEDS.items()}
+
+
+def line_speed(fd: int) -> int | None:
+    """The line speed (bit/s) the pty's client set: the master's termios reflect the slave's
+    (Linux). None when it is not a known speed constant (e.g. a custom BOTHER rate)."""
+    try:
+        return _SPEEDS.get(termios.tcgetattr(fd)[5])
+    except termios.error:
+        return None
+
+
+def set_line_speed(fd: int, baud: int) -> None:
+    """Set the pty's line speed (the speed a client that never sets one is at)."""
+    const = _CONSTANTS.get(baud)
+    if const is None:
+        return
+    attrs = termios.tcgetattr(fd)
+    attrs[4] = attrs[5] = const
+    termios.tcsetattr(fd, termios.TCSANOW, attrs)
 
 
 def serve(plant: PlantBus, port: PtyPort, stop: threading.Event) -> None:
@@ -36,6 +68,7 @@ def serve(plant: PlantBus, port: PtyPort, stop: threading.Event) -> None:
         r, _, _ = select.select([port.master], [port.master] if out else [], [], timeout)
         now = time.monotonic()
         if r:
+            plant.line_baud = line_speed(port.master)
             data = port.read()
             if data:
                 out += plant.feed(data, now)
@@ -45,23 +78,63 @@ def serve(plant: PlantBus, port: PtyPort, stop: threading.Event) -> None:
             del out[: port.write(bytes(out))]
 
 
+def _conditions(args: argparse.Namespace) -> Conditions:
+    return Conditions(
+        offsets=dict(args.offset), reversed=frozenset(args.reverse), models=dict(args.model),
+        missing=frozenset(args.missing), duplicate=frozenset(args.duplicate), errors=tuple(args.error),
+        corrupt=args.corrupt, seed=args.seed)
+
+
+def _dead(text: str) -> tuple[int, float]:
+    sid, sep, at = text.partition("@")
+    if not sep:
+        raise ValueError(f"expected ID@SECONDS, got {text!r}")
+    return parse_id(sid), float(at)
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m firmware_sim.plant", description=__doc__.splitlines()[0])
+    p.add_argument("--robot", default=None)
+    p.add_argument("--robots-dir", default=None)
+    p.add_argument("--scene", default=None)
+    p.add_argument("--protocol", choices=PROTOCOLS, default="sts", help="the servos' wire protocol")
+    p.add_argument("--baud", type=int, default=1_000_000, help="the servos' baud rate (bit/s)")
+    p.add_argument("--lockstep", action="store_true", help="step the world once per goal SYNC WRITE")
+    p.add_argument("--offset", type=parse_id_int, action="append", default=[], metavar="ID=STEPS",
+                   help="servo ID reads STEPS more than a calibrated one")
+    p.add_argument("--reverse", type=parse_id, action="append", default=[], metavar="ID",
+                   help="servo ID turns the other way")
+    p.add_argument("--model", type=parse_id_int, action="append", default=[], metavar="ID=NUMBER",
+                   help="servo ID reports model NUMBER")
+    p.add_argument("--missing", type=parse_id, action="append", default=[], metavar="ID", help="ID never answers")
+    p.add_argument("--duplicate", type=parse_id, action="append", default=[], metavar="ID",
+                   help="two devices answer ID (their replies collide)")
+    p.add_argument("--error", type=parse_error, action="append", default=[], metavar="ID=KIND@SECONDS",
+                   help="servo ID reports overload, overheat or voltage from world time SECONDS")
+    p.add_argument("--corrupt", type=float, default=0.0, metavar="P",
+                   help="probability that a status packet's checksum is broken")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--dead-servo", type=_dead, action="append", default=[], metavar="ID@SECONDS",
+                   help="device ID stops answering at world time SECONDS")
+    return p
+
+
 def main(argv: list[str] | None = None) -> int:
     from robots.description import RobotDataError
     from robots.registry import DEFAULT_ROBOT, load_robot
 
-    p = argparse.ArgumentParser(prog="python -m firmware_sim.plant", description=__doc__.splitlines()[0])
-    p.add_argument("--robot", default=DEFAULT_ROBOT)
-    p.add_argument("--robots-dir", default=None)
-    p.add_argument("--scene", default=None)
-    p.add_argument("--lockstep", action="store_true", help="step the world once per goal SYNC WRITE")
-    args = p.parse_args(argv)
+    args = parser().parse_args(argv)
     try:
-        robot = load_robot(args.robot, args.robots_dir)
-    except RobotDataError as e:
+        robot = load_robot(args.robot or DEFAULT_ROBOT, args.robots_dir)
+        world = World(robot, scene=args.scene, conditions=_conditions(args))
+        plant = PlantBus(world, lockstep=args.lockstep, baud=args.baud, protocol=args.protocol)
+    except (RobotDataError, ValueError) as e:
         print(f"plant: {e}", file=sys.stderr)
         return 2
-    plant = PlantBus(World(robot, scene=args.scene), lockstep=args.lockstep)
+    for sid, at in args.dead_servo:
+        plant.kill(sid, int(at * 1e6))
     port = PtyPort()
+    set_line_speed(port.slave, args.baud)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())

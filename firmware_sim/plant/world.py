@@ -8,8 +8,15 @@ servo model does per tick, here inside the servo where a real one does it), MuJo
 and the probe's ground truth are refreshed from the new state.
 
 Conversions are the inverse of the C firmware's generated servo table
-(:mod:`firmware_sim.cfirmware.servo_table`): present position ``centre + direction *
-round((q - neutral) / step)``, speed in steps/s, load in 0.1 % of the servo's full torque.
+(:mod:`firmware_sim.cfirmware.servo_table`) and :mod:`robots.hardware`'s: raw position ``centre +
+offset + sign * round((q - neutral) / step)`` with ``sign = direction * table_direction`` (offset 0
+and direction +1 unless injected: :class:`~firmware_sim.plant.conditions.Conditions`), speed in
+steps/s, load as a fraction of the servo's full torque.
+
+The world holds one protocol-neutral :class:`~firmware_sim.plant.servo.ServoState` per servo
+(:attr:`World.servos`, servo-table order); the wire protocols' control tables are views over them
+(built by :class:`~firmware_sim.plant.bus.PlantBus`). A servo whose torque is off is limp: its
+position actuator's gain and bias are zeroed until torque comes back on.
 """
 
 from __future__ import annotations
@@ -21,21 +28,18 @@ import mujoco
 import numpy as np
 
 from firmware_sim.board import quat_to_rpy
-from firmware_sim.cfirmware.servo_table import STEP_CENTRE, _step_range, load_full_scale
-from firmware_sim.plant.devices import REG, ImuDevice, ProbeDevice, ServoDevice
-from firmware_sim.plant.feetech import to_sign_magnitude
+from firmware_sim.cfirmware.servo_table import load_full_scale
+from firmware_sim.plant.conditions import Conditions
+from firmware_sim.plant.devices import STS_MODEL, ImuDevice, ProbeDevice
+from firmware_sim.plant.servo import Fault, ServoState
 from robots.description import Robot
+from robots.hardware import STEP_CENTRE, ServoCalibration, step_limits
 from robots.scenes import toppled
 
-__all__ = ["World"]
+__all__ = ["LOW_VOLTAGE_DV", "World"]
 
-
-#: registers 9..43 of a servo as one block: min angle, max angle, (29 bytes), goal position
-_GOAL_LO, _GOAL_HI = REG.MIN_ANGLE, REG.GOAL_POSITION + 2
-_GOAL_FMT = f"HH{REG.GOAL_POSITION - REG.MIN_ANGLE - 4}xH"
-assert REG.MAX_ANGLE == REG.MIN_ANGLE + 2 < REG.GOAL_POSITION, "the goal block reads min, max, ..., goal"
-#: present position, speed and load (registers 56..61)
-_PRESENT = struct.Struct("<3H")
+#: what an undervolted servo reads (3.0 V: below the STS's and the XL330's minimum)
+LOW_VOLTAGE_DV = 30
 
 
 def _q16(v: float) -> int:
@@ -43,11 +47,20 @@ def _q16(v: float) -> int:
 
 
 class World:
-    """MuJoCo physics behind the bus devices (ids 1..N, the IMU, the probe)."""
+    """MuJoCo physics behind the bus devices (servo states 1..N, the IMU, the probe).
 
-    def __init__(self, robot: Robot, *, scene: str | None = None, rate_hz: int = 500, dt: float = 0.002) -> None:
+    ``conditions``: injected hardware conditions (offsets, reversal, model numbers, timed errors;
+    the wire-side ones are read by the bus). ``model``: the model number every servo reports unless
+    ``conditions.models`` says otherwise (None: the bus protocol's default, STS3215's 777 until a
+    :class:`~firmware_sim.plant.bus.PlantBus` of another protocol sets it).
+    """
+
+    def __init__(self, robot: Robot, *, scene: str | None = None, rate_hz: int = 500, dt: float = 0.002,
+                 conditions: Conditions | None = None, model: int | None = None) -> None:
         self.robot = robot
         self.table = robot.servos
+        self.conditions = conditions or Conditions()
+        self.model_number = model
         self.cm = robot.model(scene or robot.default_scene)
         self.model = self.cm.model
         self.model.opt.timestep = dt
@@ -60,79 +73,106 @@ class World:
         neutral = np.array(self.table.neutral)
         self.cm.place_on_floor(self.data, neutral)
         self.full = load_full_scale(robot)
-        # per-servo constants, servo order (step() and refresh() run every control period)
-        self._goal_consts = [(s.neutral, s.direction, s.min, s.max) for s in self.table]
-        self._goal_block = struct.Struct("<" + _GOAL_FMT * self.n)
         self._qpos_adr, self._dof_adr, self._act_id = self.cm.qpos_adr, self.cm.dof_adr, self.cm.act_id
-        self.servos: list[ServoDevice] = []
+        c = self.conditions
+        self.servos: list[ServoState] = []
+        # per servo: (neutral, sign, offset, joint min, joint max); sign = calibration direction * table direction
+        self._consts: list[tuple[float, int, int, float, float]] = []
         for s in self.table:
-            lo, hi = _step_range(s.neutral, s.min, s.max, s.direction, self.step_rad)
-            self.servos.append(ServoDevice(s.id, lo, hi, STEP_CENTRE))
-        self._present_consts = list(zip(self.servos, [s.neutral for s in self.table],
-                                        [s.direction for s in self.table], self.full))
+            cal = ServoCalibration(s.id, c.offsets.get(s.id, 0), -1 if s.id in c.reversed else 1)
+            lo, hi = step_limits(s, cal, self.step_rad)
+            sign = cal.direction * s.direction
+            self._consts.append((s.neutral, sign, cal.offset_steps, s.min, s.max))
+            self.servos.append(ServoState(s.id, c.models.get(s.id, STS_MODEL if model is None else model), lo, hi, STEP_CENTRE))
+        self.by_id = {st.id: st for st in self.servos}
         self.imu = ImuDevice()
         self.probe = ProbeDevice()
-        self.devices = {d.id: d for d in (*self.servos, self.imu, self.probe)}
         self.time_us = 0
         self.steps = 0
         for i, s in enumerate(self.table):
-            self.servos[i].set_u16(REG.GOAL_POSITION, self._to_steps(i, s.neutral))
+            self.servos[i].goal_steps = self._to_steps(i, s.neutral)
+        acts = list(self._act_id)
+        self._gain0 = [float(self.model.actuator_gainprm[a, 0]) for a in acts]
+        self._bias0 = [(float(self.model.actuator_biasprm[a, 1]), float(self.model.actuator_biasprm[a, 2])) for a in acts]
+        self._driven = [True] * self.n
+        self._apply_conditions()
         self.stale = False
         self.refresh()
 
     # -- conversions ---------------------------------------------------------------------------
     def _to_steps(self, i: int, q: float) -> int:
-        s = self.table[i]
-        return max(0, min(4095, STEP_CENTRE + s.direction * int(round((q - s.neutral) / self.step_rad))))
+        neutral, sign, offset, _, _ = self._consts[i]
+        return max(0, min(4095, STEP_CENTRE + offset + sign * int(round((q - neutral) / self.step_rad))))
 
     def goal_rad(self, i: int) -> float:
-        s = self.table[i]
-        return s.neutral + s.direction * (self.servos[i].goal - STEP_CENTRE) * self.step_rad
+        neutral, sign, offset, _, _ = self._consts[i]
+        return neutral + sign * (self.servos[i].goal - STEP_CENTRE - offset) * self.step_rad
 
     def positions(self) -> np.ndarray:
         """Joint angles (rad), servo order, as MuJoCo has them."""
         return self.data.qpos[self.cm.qpos_adr].copy()
 
+    # -- conditions and torque -----------------------------------------------------------------
+    def _apply_conditions(self) -> None:
+        """Timed hardware errors whose time has come: the fault bits, the reading that goes with them
+        (temperature 85 C, above the limit; voltage :data:`LOW_VOLTAGE_DV`), torque off for overload/overheat."""
+        for e in self.conditions.errors:
+            st = self.by_id.get(e.id)
+            if st is None or self.time_us < e.at_us or st.fault & e.fault:
+                continue
+            st.fault |= e.fault
+            if e.fault & Fault.OVERHEAT:
+                st.temperature_c = 85
+            if e.fault & Fault.VOLTAGE:
+                st.voltage_dv = LOW_VOLTAGE_DV
+            if e.fault.stops_torque:
+                st.torque = False
+
+    def _sync_torque(self) -> None:
+        """A servo with torque off is limp: its position actuator's gain and bias are zero."""
+        m = self.model
+        for i, st in enumerate(self.servos):
+            if st.torque != self._driven[i]:
+                a = self._act_id[i]
+                m.actuator_gainprm[a, 0] = self._gain0[i] if st.torque else 0.0
+                m.actuator_biasprm[a, 1], m.actuator_biasprm[a, 2] = self._bias0[i] if st.torque else (0.0, 0.0)
+                self._driven[i] = st.torque
+
     # -- physics -------------------------------------------------------------------------------
     def step(self) -> None:
         """One control period: goals -> ctrl (with the deadband) -> physics -> registers.
 
-        Per servo: ``steps`` is the goal position register (sign-magnitude at bit 15) held to the
-        angle-limit registers 9..12 (:attr:`ServoDevice.goal`); ``goal = clip(neutral + direction *
-        (steps - centre) * step, min, max)`` (rad, the joint's range) and ``ctrl = q`` while
-        ``|goal - q| < deadband``. The goal registers of all servos are read in one
-        ``struct`` call and the loop runs over precomputed per-servo constants (~11 us a period for
-        CoCo's 12 servos; numpy's per-call overhead made a vectorised form slower at this size).
+        Per servo: ``steps`` is the goal held to the servo's limits (:attr:`ServoState.goal`);
+        ``goal = clip(neutral + sign * (steps - centre - offset) * step, min, max)`` (rad, the joint's
+        range) and ``ctrl = q`` while ``|goal - q| < deadband``. The loop runs over precomputed
+        per-servo constants (~11 us a period for CoCo's 12 servos).
         """
         d = self.data
-        regs = self._goal_block.unpack(b"".join([dev.table[_GOAL_LO:_GOAL_HI] for dev in self.servos]))
+        self._sync_torque()
         q = d.qpos[self._qpos_adr].tolist()
         step, deadband = self.step_rad, self.deadband
         ctrl = []
-        for i, (neutral, direction, lo, hi) in enumerate(self._goal_consts):
-            lim_lo, lim_hi, raw = regs[3 * i:3 * i + 3]
-            steps = max(lim_lo, min(lim_hi, -(raw & 0x7FFF) if raw & 0x8000 else raw))  # ServoDevice.goal
-            g = min(max(neutral + direction * (steps - STEP_CENTRE) * step, lo), hi)
-            qi = q[i]
+        for st, (neutral, sign, offset, lo, hi), qi in zip(self.servos, self._consts, q):
+            steps = max(st.min_steps, min(st.max_steps, st.goal_steps))
+            g = min(max(neutral + sign * (steps - STEP_CENTRE - offset) * step, lo), hi)
             ctrl.append(qi if abs(g - qi) < deadband else g)
         d.ctrl[self._act_id] = ctrl
         mujoco.mj_step(self.model, d, nstep=self.substeps)
         self.time_us += self.period_us
         self.steps += 1
-        self.stale = True  # present registers are refreshed when read (PlantBus calls refresh_if_stale)
+        self._apply_conditions()
+        self.stale = True  # present values are refreshed when read (PlantBus calls refresh_if_stale)
 
     def refresh_if_stale(self) -> None:
         if self.stale:
             self.refresh()
 
     def refresh(self) -> None:
-        """Present registers of every device from the current state.
+        """Present values of every servo state and the IMU's and probe's registers from the current state.
 
-        Per servo: position ``clip(centre + direction * round((q - neutral) / step), 0, 4095)``
-        steps; speed ``round(direction * qvel / step)`` steps/s held to +-32767, sign-magnitude at bit
-        15; load ``round(direction * force / full * 1000)`` (0.1 % of full torque) held to +-1000,
-        sign-magnitude at bit 10;
-        moving while ``|speed| > 2`` steps/s.
+        Per servo: position ``centre + offset + sign * round((q - neutral) / step)`` steps (the STS
+        register clips it to 0..4095); speed ``sign * qvel / step`` steps/s; load ``sign * force /
+        full`` (fraction of full torque); moving while ``|round(speed)| > 2`` steps/s.
         """
         self.stale = False
         d, cm = self.data, self.cm
@@ -140,13 +180,10 @@ class World:
         q = d.qpos[self._qpos_adr].tolist()
         v = d.qvel[self._dof_adr].tolist()
         f = d.actuator_force[self._act_id].tolist()
-        for (dev, neutral, direction, full), qi, vi, fi in zip(self._present_consts, q, v, f):
-            pos = max(0, min(4095, STEP_CENTRE + direction * round((qi - neutral) / step)))
-            speed = round(direction * vi / step)
-            load = round(direction * fi / full * 1000)
-            _PRESENT.pack_into(dev.table, REG.PRESENT_POSITION, pos, to_sign_magnitude(max(-32767, min(32767, speed)), 15),
-                               to_sign_magnitude(max(-1000, min(1000, load)), 10))
-            dev.table[REG.MOVING] = 1 if abs(speed) > 2 else 0
+        for st, (neutral, sign, offset, _, _), full, qi, vi, fi in zip(self.servos, self._consts, self.full, q, v, f):
+            st.present_steps = STEP_CENTRE + offset + sign * round((qi - neutral) / step)
+            st.speed_steps_s = sign * vi / step
+            st.load = sign * fi / full
         pos, quat = cm.base_pose(d)
         rpy = quat_to_rpy(*quat)
         self.imu.table[56:62] = struct.pack("<3h", *(_q16(a) for a in rpy))
