@@ -29,7 +29,7 @@ from typing import Any
 
 from host.commands.errors import print_error
 from host.commands.outarg import out_dir_problem
-from host.commands.run import _push_text, add_run_options, check_run_args, line_rates, resolve_strict
+from host.commands.run import _push_text, add_run_options, check_run_args, line_rates, resolve_strict, use_servo_bus
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -115,6 +115,7 @@ def main(args: argparse.Namespace) -> int:
         print_error("chat", f"the run folder {out} {why}; give another with --out DIR")
         return 2
     try:
+        use_servo_bus(args)
         return anyio.run(_chat, args, turns, replies, skills, out, backend="asyncio")
     except (LinkError, GhostError, SkillError, RuntimeError, OSError) as e:
         print_error("chat", str(e))

@@ -106,11 +106,63 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
                         help="emulated board only: push the robot's base at board time S with a force in newtons "
                              "(world frame) for DUR s (default 0.2); repeatable")
     add_mount_argument(parser)
+    add_servo_bus_arguments(parser)
     parser.add_argument("--max-board-s", type=_bound, default=DEFAULT_MAX_BOARD_S, metavar="S",
                         help=f"stop a turn after S board seconds (default {DEFAULT_MAX_BOARD_S:g}; 0: no bound); "
                              "summary.json says so, exit status 1")
     parser.add_argument("--max-log-mb", type=_bound, default=DEFAULT_MAX_LOG_MB, metavar="MB",
                         help=f"stop when the frame logs reach MB megabytes (default {DEFAULT_MAX_LOG_MB:g}; 0: no bound)")
+
+
+def _servo_bus(text: str) -> str:
+    """``PORT[:BAUD]`` checked as the board checks it (firmware_sim.servobus.parse_bus_spec; the host imports
+    nothing of the board): a port name, and a baud that is a whole number > 0 when given."""
+    port, sep, baud = text.rpartition(":")
+    if sep and baud.lstrip("-").isdigit():
+        if not port:
+            raise argparse.ArgumentTypeError(f"expected PORT[:BAUD] (e.g. /dev/ttyUSB0:1000000), got {text!r}")
+        if int(baud) <= 0:
+            raise argparse.ArgumentTypeError(f"the baud rate must be > 0, got {baud} in {text!r}")
+    elif not text:
+        raise argparse.ArgumentTypeError("expected PORT[:BAUD] (e.g. /dev/ttyUSB0:1000000), got ''")
+    return text
+
+
+def add_servo_bus_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--servo-bus PORT[:BAUD] --bus-protocol sts|dxl2 --estop-torque hold|limp`` (run, chat, demo): the board the
+    run starts drives the robot's real servos (docs/guides/hardware.md)."""
+    parser.add_argument("--servo-bus", type=_servo_bus, default=None, metavar="PORT[:BAUD]",
+                        help="the board this run starts drives the robot's REAL servos on this serial port (a USB "
+                             "adapter, e.g. /dev/ttyUSB0); MuJoCo mirrors them. BAUD: default the robot's hardware.toml "
+                             "(docs/guides/hardware.md)")
+    parser.add_argument("--bus-protocol", choices=("sts", "dxl2"), default=None,
+                        help="--servo-bus: sts (Feetech) or dxl2 (Dynamixel Protocol 2.0); default the robot's hardware.toml")
+    parser.add_argument("--estop-torque", choices=("hold", "limp"), default=None,
+                        help="--servo-bus: ESTOP holds position with torque on (hold, default) or switches torque off "
+                             "(limp; back on at ESTOP_CLEAR from where the servos are)")
+
+
+def servo_bus_problem(args: argparse.Namespace) -> str | None:
+    """Why the ``--servo-bus`` flags cannot be used as given, or None."""
+    bus = getattr(args, "servo_bus", None)
+    if bus is None:
+        if getattr(args, "bus_protocol", None) is not None or getattr(args, "estop_torque", None) is not None:
+            return "--bus-protocol and --estop-torque need --servo-bus PORT"
+        return None
+    if getattr(args, "push", None):
+        return "--push pushes a simulated robot; with --servo-bus the robot is real"
+    if not (bool(getattr(args, "emulate_board", False)) or _implies_emulated(getattr(args, "link", "pty"))):
+        return (f"--servo-bus is an option of the board this run starts, and {args.link} is a board you started: "
+                "give that board the servo bus (`ghostshell board --link ... --servo-bus PORT`)")
+    return None
+
+
+def use_servo_bus(args: argparse.Namespace) -> None:
+    """Hand the ``--servo-bus`` flags to the board the session starts (host.run.session.SERVO_BUS_ARGS)."""
+    from host.run.session import SERVO_BUS_ARGS, servo_bus_args
+
+    SERVO_BUS_ARGS.set(servo_bus_args(getattr(args, "servo_bus", None), getattr(args, "bus_protocol", None),
+                                      getattr(args, "estop_torque", None)))
 
 
 def add_mount_argument(parser: argparse.ArgumentParser) -> None:
@@ -212,6 +264,10 @@ def check_run_args(args: argparse.Namespace) -> int | None:
     if isinstance(robot, int):
         return robot
     args.robot_value = robot
+    why = servo_bus_problem(args)
+    if why is not None:
+        print_error(command_of(args), why)
+        return USAGE_STATUS
     link = getattr(args, "link", None)
     if getattr(args, "baud", None) is not None and link is not None and link.implies_emulated_board \
             and not link_kind(link).models_baud:
@@ -384,6 +440,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
             print(banner, flush=True)
 
     try:
+        use_servo_bus(args)
         report = anyio.run(run_program, opts, show_banner, backend="asyncio")
     except Interrupted as e:
         ended = ended_report(e)

@@ -51,6 +51,7 @@ the recording's dropped messages.
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import dataclasses
 import functools
 import json
@@ -116,6 +117,27 @@ from robots.generic import GENERIC_CHANNEL
 from robots.registry import DEFAULT_ROBOT, load_robot
 
 log = logging.getLogger("host.run")
+
+
+#: The board arguments that put a REAL servo bus under the board a session starts (``--servo-bus PORT[:BAUD]``,
+#: ``--bus-protocol sts|dxl2``, ``--estop-torque hold|limp``; docs/guides/hardware.md), set by ``ghostshell
+#: run|chat|demo`` around the session (:func:`servo_bus_args`). A context variable, not a SessionOptions field:
+#: run/demo build their session from ``host.run.runner.RunOptions``, which copies every SessionOptions field
+#: and has none for it.
+SERVO_BUS_ARGS: contextvars.ContextVar[tuple[str, ...]] = contextvars.ContextVar("ghostshell_servo_bus_args",
+                                                                                 default=())
+
+
+def servo_bus_args(servo_bus: str | None, bus_protocol: str | None, estop_torque: str | None) -> tuple[str, ...]:
+    """The board's arguments for a real servo bus (empty without ``servo_bus``)."""
+    if servo_bus is None:
+        return ()
+    out = ["--servo-bus", servo_bus]
+    if bus_protocol is not None:
+        out += ["--bus-protocol", bus_protocol]
+    if estop_torque is not None:
+        out += ["--estop-torque", estop_torque]
+    return tuple(out)
 
 
 @dataclass
@@ -374,6 +396,7 @@ class RobotSession:
                     board_args += ["--faults", opts.faults, "--fault-seed", str(opts.fault_seed)]
                 if opts.firmware != "python":
                     board_args += ["--firmware", opts.firmware]
+                board_args += list(SERVO_BUS_ARGS.get())  # a real servo bus under the board (docs/guides/hardware.md)
                 # in a worker thread: a board takes seconds to load its model, and other sessions in this
                 # event loop (eval --workers) must keep streaming meanwhile
                 started: list[BoardProcess] = []
