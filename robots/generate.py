@@ -17,11 +17,17 @@ Generation rules
 * Refused (one line, ``file:line`` of the element): an MJCF MuJoCo cannot compile; no position
   actuator at all; an unnamed position actuator (the servo table names it); two position
   actuators on one joint; a driven joint without a range (``range="lo hi"``; there is no default
-  range: a made-up limit would let the LLM drive the joint where the model says it cannot go); an
-  actuator ``ctrlrange`` narrower than its joint's range (targets near the limits could not be
-  reached); more than :data:`robots.description.MAX_WIRE_SERVOS` servos (the wire's servo mask);
+  range: a made-up limit would let the LLM drive the joint where the model says it cannot go; the
+  message offers the actuator's ``ctrlrange`` when it has one); a joint ``range`` or actuator
+  ``ctrlrange`` that is NaN, infinite, inverted or empty (MuJoCo compiles those as no limit); a
+  ``ctrlrange`` wholly outside its joint's range (no target could be reached); more than :data:`robots.description.MAX_WIRE_SERVOS` servos (the wire's servo mask);
   a file the MJCF references by an absolute path, or one that does not exist.
-* **Limits**: ``min_deg``/``max_deg`` = the joint's range in degrees. A slide joint's "degrees"
+* **Limits**: ``min_deg``/``max_deg`` = the range the servo reaches, in degrees
+  (:func:`robots.loader.servo_range`): the joint's ``range`` (its mechanical stop) intersected with
+  its actuator's ``ctrlrange`` (the software limit MuJoCo clamps targets to). A ctrlrange narrower
+  than the joint range narrows the servo range; a wider one is clamped to the joint range; either is
+  one note for all the servos it concerns, and a comment in ``servos.toml``. An actuator without a
+  ctrlrange leaves the joint range. A slide joint's "degrees"
   are its position in metres x 180/pi (the loader's one unit for every servo; 0.1 m = 5.73).
   ``neutral_deg`` = 0 clamped into the range; ``direction`` = 1; ``max_speed_dps`` =
   :data:`DEFAULT_MAX_SPEED_DPS` (a position actuator states no speed; ``--max-speed-dps``
@@ -42,7 +48,7 @@ Generation rules
   and ``model`` assets, resolved as MuJoCo does (``compiler`` ``meshdir``/``texturedir``/``assetdir``,
   ``strippath``). Relative layout is kept: the MJCF sits at the package's top, or under ``model/``
   when some file lies above the MJCF's folder (``../meshes``), so every relative path still holds.
-* **Notes** (printed, not refused): skipped actuators, clamped keyframes, and joints whose
+* **Notes** (printed, not refused): skipped actuators, servo ranges a ctrlrange changed, clamped keyframes, and joints whose
   actuator is too weak for the load at the neutral pose (the static error ``|qfrc_bias| / kp``
   above :data:`SAG_NOTE_DEG`: it would miss its targets by about that much).
 
@@ -53,6 +59,7 @@ and the whole package with the loader before it is installed.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -65,7 +72,8 @@ from pathlib import Path
 from typing import Any
 
 from robots.description import MAX_WIRE_SERVOS, RobotDataError
-from robots.loader import NAME_RE, RANGE_TOL_DEG, ROBOT_FILE, check_meshes, load_robot_dir, position_kp
+from robots.loader import (NAME_RE, ROBOT_FILE, check_meshes, compile_error, load_robot_dir, position_kp, range_notes,
+                           servo_range)
 from robots.mjcf_index import Element, MjcfIndex, index_mjcf
 
 __all__ = ["DEFAULT_MAX_SPEED_DPS", "GeneratedServo", "RobotPackage", "generate_package", "install_package"]
@@ -103,6 +111,10 @@ class GeneratedServo:
     min_deg: float
     max_deg: float
     neutral_deg: float
+    range_from: str = ""  # where min/max come from when the actuator's ctrlrange changed them (a comment)
+    #: how far (m) the geometry this joint carries sweeps over its range at the neutral pose: the farthest geom
+    #: centre's distance from a hinge's axis x its range (rad), a slide's travel; picks the ``try:`` joint
+    sweep_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -174,11 +186,11 @@ def generate_package(name: str, mjcf: str | Path, *, max_speed_dps: float = DEFA
         raise RobotDataError(f"{src}: no such file")
     src = src.resolve()
     check_meshes(src)  # a missing, huge or foreign mesh file: one line naming it, before MuJoCo reads it
+    index = index_mjcf(src)
     try:
         model = mujoco.MjModel.from_xml_path(str(src))
     except (ValueError, OSError) as e:
-        raise RobotDataError(f"{src}: MuJoCo cannot compile it: {' '.join(str(e).split())}") from None
-    index = index_mjcf(src)
+        raise compile_error(src, e, index) from None
     notes: list[str] = []
 
     act_elems = [e for e in index.children_of("actuator")]
@@ -188,6 +200,7 @@ def generate_package(name: str, mjcf: str | Path, *, max_speed_dps: float = DEFA
     kps: list[float] = []
     by_joint: dict[int, tuple[str, Element | None]] = {}
     skipped: list[str] = []
+    changed: list[tuple[str, str, float, float, float, float, float, float, bool]] = []  # ranges a ctrlrange set
     for a in range(model.nu):
         el = act_el(a)
         aname = model.actuator(a).name
@@ -216,28 +229,24 @@ def generate_package(name: str, mjcf: str | Path, *, max_speed_dps: float = DEFA
                                  f"({_at(oel, src)}) does; a servo is one position actuator per joint")
         by_joint[jid] = (aname, el)
         jel = index.named("joint", jname)
-        if not model.jnt_limited[jid]:
-            raise RobotDataError(f"{_at(jel, src)}: joint {jname!r} (driven by actuator {aname!r}) has no range; "
-                                 "give it range=\"lo hi\" (the servo table's limits come from it)")
-        lo, hi = (float(v) for v in model.jnt_range[jid])
-        if not lo < hi:
-            raise RobotDataError(f"{_at(jel, src)}: joint {jname!r} has an empty range [{_deg(lo):g}, {_deg(hi):g}] deg")
-        if model.actuator_ctrllimited[a]:
+        lo, hi, how = servo_range(model, a, jid, joint_at=_at(jel, src), actuator_at=where)
+        comment = ""
+        if how is not None:
+            jlo, jhi = (float(v) for v in model.jnt_range[jid])
             clo, chi = (float(v) for v in model.actuator_ctrlrange[a])
-            tol = math.radians(RANGE_TOL_DEG)
-            if clo > lo + tol or chi < hi - tol:
-                raise RobotDataError(
-                    f"{where}: actuator {aname!r} has ctrlrange [{_deg(clo):.2f}, {_deg(chi):.2f}] deg, narrower than "
-                    f"joint {jname!r}'s range [{_deg(lo):.2f}, {_deg(hi):.2f}] deg ({_at(jel, src)}), so targets "
-                    "near its limits could not be reached; widen the ctrlrange or narrow the joint range")
+            changed.append((how, jname, lo, hi, jlo, jhi, clo, chi, jtype == slide))
+            comment = (f"joint range {_deg(jlo):.4g}..{_deg(jhi):.4g} within actuator ctrlrange "
+                       f"{_deg(clo):.4g}..{_deg(chi):.4g}" if how == "narrower" else
+                       f"the joint range; the actuator's ctrlrange {_deg(clo):.4g}..{_deg(chi):.4g} is wider")
         if len(servos) == MAX_WIRE_SERVOS:
             raise RobotDataError(f"{where}: actuator {aname!r} would be servo {MAX_WIRE_SERVOS + 1}; the wire carries "
                                  f"at most {MAX_WIRE_SERVOS} servos (its servo mask is one u32)")
         servos.append(GeneratedServo(len(servos) + 1, jname, aname, "hinge" if jtype == hinge else "slide",
-                                     _deg(lo), _deg(hi), _deg(_clamp(0.0, lo, hi))))
+                                     _deg(lo), _deg(hi), _deg(_clamp(0.0, lo, hi)), comment))
         kps.append(kp)
     if skipped:
         notes.append("skipped actuators (not servos): " + "; ".join(skipped))
+    notes.extend(range_notes(changed))
     if not servos:
         first = act_elems[0] if act_elems else index.first("mujoco")
         found = f"its {model.nu} actuator(s) are none ({'; '.join(skipped)})" if model.nu else "it has no actuators"
@@ -290,6 +299,8 @@ def generate_package(name: str, mjcf: str | Path, *, max_speed_dps: float = DEFA
                               for g in range(model.ngeom))
 
     notes.extend(_sag_notes(model, servos, jids, qadr, kps))
+    sweeps = _sweeps(model, jids, qadr, servos)
+    servos = [dataclasses.replace(s, sweep_m=w) for s, w in zip(servos, sweeps)]
 
     camera = None
     for c in range(model.ncam):
@@ -356,6 +367,37 @@ def _spawn_height(m: Any, root: int, qadr: Sequence[int], q: Sequence[float]) ->
     if not math.isfinite(lowest):
         return 0.2
     return round(-lowest + SPAWN_CLEARANCE_M, 4)
+
+
+def _sweeps(m: Any, jids: Sequence[int], qadr: Sequence[int], servos: Sequence[GeneratedServo]) -> list[float]:
+    """:attr:`GeneratedServo.sweep_m` of each servo (``m``: a ``mujoco.MjModel``), at the neutral pose."""
+    import mujoco
+    import numpy as np
+
+    d = mujoco.MjData(m)
+    d.qpos[list(qadr)] = [math.radians(s.neutral_deg) for s in servos]
+    mujoco.mj_kinematics(m, d)
+    out = []
+    for s, j in zip(servos, jids):
+        span = math.radians(s.max_deg - s.min_deg)
+        if s.kind == "slide":
+            out.append(span)
+            continue
+        body = int(m.jnt_bodyid[j])
+        carried = []
+        for g in range(m.ngeom):
+            b = int(m.geom_bodyid[g])
+            while b > 0 and b != body:
+                b = int(m.body_parentid[b])
+            if b == body:
+                carried.append(g)
+        anchor, axis = d.xanchor[j], d.xaxis[j] / max(float(np.linalg.norm(d.xaxis[j])), 1e-12)
+        far = 0.0
+        for g in carried:
+            r = d.geom_xpos[g] - anchor
+            far = max(far, float(np.linalg.norm(r - (r @ axis) * axis)))
+        out.append(far * span)
+    return out
 
 
 def _sag_notes(m: Any, servos: Sequence[GeneratedServo], jids: Sequence[int], qadr: Sequence[int],
@@ -465,8 +507,9 @@ def _robot_toml(name: str, title: str, src: Path, mjcf: str, servos: Sequence[Ge
 def _servos_toml(src: Path, servos: Sequence[GeneratedServo], max_speed_dps: float) -> str:
     lines = [*_header(src, "The servo table"),
              "# One [[servo]] per position actuator, in actuator order; id N is wire index N-1.",
-             "# Joint angles in degrees (a slide joint: metres x 180/pi); min_deg/max_deg equal the MJCF joint range",
-             "# (the loader checks it); max_speed_dps is the board's speed limit per servo.", "",
+             "# Joint angles in degrees (a slide joint: metres x 180/pi); min_deg/max_deg are the range the servo reaches:",
+             "# the MJCF joint range, within the actuator's ctrlrange (the loader checks it); max_speed_dps is the",
+             "# board's speed limit per servo.", "",
              "[model]", "resolution_deg = 0.088   # a generic 12-bit smart servo: 4096 steps per turn",
              "deadband_deg = 0.2       # no drive while |target - position| is below this"]
     for s in servos:
@@ -475,7 +518,8 @@ def _servos_toml(src: Path, servos: Sequence[GeneratedServo], max_speed_dps: flo
             lines += [f"# slide joint: {s.min_deg * math.pi / 180:.4g}..{s.max_deg * math.pi / 180:.4g} m"]
         lines += [f"id = {s.id}", f"name = {_tstr(s.joint)}", f"joint = {_tstr(s.joint)}",
                   f"actuator = {_tstr(s.actuator)}", f"neutral_deg = {_tnum(s.neutral_deg)}",
-                  f"min_deg = {_tnum(s.min_deg)}", f"max_deg = {_tnum(s.max_deg)}", "direction = 1",
+                  f"min_deg = {_tnum(s.min_deg)}", f"max_deg = {_tnum(s.max_deg)}"
+                  + (f"   # {s.range_from}" if s.range_from else ""), "direction = 1",
                   f"max_speed_dps = {_tnum(max_speed_dps)}"]
     return "\n".join(lines) + "\n"
 

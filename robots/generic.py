@@ -13,6 +13,7 @@ names as real types, and the shell reads them with ``typing.get_type_hints``.
 
 import math
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -22,12 +23,45 @@ from robots.datatypes import RobotData
 from robots.stubs import stub
 from robots.motion import Limits, Motion, check_finite, transition
 
-__all__ = ["GENERIC_CHANNEL", "generic_behaviours", "generic_module"]
+__all__ = ["GENERIC_CHANNEL", "JointDegrees", "generic_behaviours", "generic_module", "joint_range_text"]
 
 #: the channel the generic functions run on
 GENERIC_CHANNEL = "joints"
 #: bounds of ``duration`` (s)
 Seconds = Annotated[float, Interval(ge=0.0, le=120.0)]
+
+
+def joint_range_text(value: float, name: str, lo_deg: float, hi_deg: float) -> str | None:
+    """None when ``value`` (deg) is inside ``[lo_deg, hi_deg]``, else why, naming the joint's own range:
+    ``"[-97, 97] for joint elbow_flex"`` (what follows "is out of range" in the mapper's message)."""
+    if lo_deg - 1e-6 <= value <= hi_deg + 1e-6:
+        return None
+    return f"[{lo_deg:.4g}, {hi_deg:.4g}] for joint {name}"
+
+
+@dataclass(frozen=True)
+class JointDegrees:
+    """The bound of ``joint_move``'s ``deg``: the range of the joint its ``joint`` argument names.
+
+    ``ge``/``le`` are the widest range (what ``robots show`` and the prompt print as the parameter's span);
+    the mapper (:func:`host.shell.mapper.map_args`) checks the value against the named joint's own range
+    with :meth:`out_of_range`, so a message never names another joint's range. Not an ``annotated_types``
+    bound on purpose: the MCP tool schema leaves it out (JSON Schema cannot make a bound depend on another
+    argument), and the shell's message says which joint and which range."""
+
+    ge: float
+    le: float
+    ranges: tuple[tuple[str, float, float], ...]  # (servo or joint name, lo deg, hi deg)
+    joint_param: str = "joint"
+
+    def out_of_range(self, value: Any, args: Mapping[str, Any]) -> str | None:
+        """None when ``value`` is inside the range of the joint ``args[joint_param]`` names, else the text that
+        follows "is out of range" (:func:`joint_range_text`)."""
+        joint = args.get(self.joint_param)
+        for name, lo, hi in self.ranges:
+            if name == joint:
+                return joint_range_text(float(value), name, lo, hi)
+        return None
 
 
 def _hold_end(m: Motion) -> Motion:
@@ -66,9 +100,9 @@ def generic_behaviours(robot: RobotData) -> Mapping[str, Callable[..., Motion]]:
                 s = table.by_joint(joint)
             except KeyError:
                 raise ValueError(f"{robot.name} has no joint {joint!r}; joints: {', '.join(table.names)}") from None
-        lo, hi = math.degrees(s.min), math.degrees(s.max)
-        if not lo - 1e-6 <= deg <= hi + 1e-6:
-            raise ValueError(f"{s.name} reaches {lo:.0f}..{hi:.0f} deg; {deg:g} deg is outside its range")
+        why = joint_range_text(deg, s.name, math.degrees(s.min), math.degrees(s.max))
+        if why is not None:  # the mapper refuses it first (JointDegrees); a caller in Python gets the same line
+            raise ValueError(f"<joint_move> deg={deg:g} is out of range {why}")
         m = transition(start, [math.radians(deg)], (s.index,), limits, min_duration=float(duration))
         return _hold_end(m) if persistent else m
 
@@ -80,7 +114,7 @@ def generic_module(robot: RobotData) -> type:
     table = robot.servos
     pose_names: Any = Literal.__getitem__(tuple(robot.poses))  # type: ignore[attr-defined]
     joint_names: Any = Literal.__getitem__(table.names)  # type: ignore[attr-defined]
-    ranges = ", ".join(f"{s.name} {math.degrees(s.min):.0f}..{math.degrees(s.max):.0f}" for s in table)
+    ranges = ", ".join(f"{s.name} {math.degrees(s.min):.4g}..{math.degrees(s.max):.4g}" for s in table)
     widest = max(max(abs(math.degrees(s.min)), abs(math.degrees(s.max))) for s in table)
     bound = float(math.ceil(widest))
 
@@ -94,7 +128,8 @@ def generic_module(robot: RobotData) -> type:
     def joint_move(self, joint, deg, duration=1.0) -> None:  # type: ignore[no-untyped-def]
         pass
 
-    joint_move.__annotations__ = {"joint": joint_names, "deg": Annotated[float, Interval(ge=-bound, le=bound)],
+    own = tuple((n, math.degrees(sv.min), math.degrees(sv.max)) for sv in table for n in dict.fromkeys((sv.name, sv.joint)))
+    joint_move.__annotations__ = {"joint": joint_names, "deg": Annotated[float, JointDegrees(-bound, bound, own)],
                                   "duration": Seconds, "return": None}
     joint_move.__doc__ = (f"Move one joint to `deg` degrees (a joint angle) in `duration` seconds; ranges in "
                           f"degrees: {ranges}.")

@@ -35,8 +35,10 @@ Servo table (``servo_table``)::
 What is checked (each refusal is a :class:`RobotDataError` naming file:line where there is one):
 ids run 1..N in order with N <= :data:`robots.description.MAX_WIRE_SERVOS`; names and joints are
 unique; min < max with the neutral inside; direction +-1; speed > 0; every joint exists in the
-MJCF as a hinge or slide with a range that equals the table's (0.05 deg); every actuator exists,
-is a position actuator (affine bias, ``biasprm[1] = -kp``) and drives its servo's joint; poses give
+MJCF as a hinge or slide with a valid range; every actuator exists, is a position actuator (affine
+bias, ``biasprm[1] = -kp``) and drives its servo's joint, and its ``ctrlrange`` (if any) is a valid
+range that overlaps the joint's; the table's min/max equal (0.05 deg) the range the servo reaches
+(:func:`servo_range`: the joint range, narrowed by a narrower ctrlrange) or the joint range itself; poses give
 one in-range value per servo (or name joints that exist); the start/rest/safe poses exist; channel
 servos exist and no servo is in two channels; the camera exists in the MJCF; scene objects have
 valid shapes and sizes.
@@ -77,7 +79,8 @@ from robots.description import (
 )
 
 __all__ = ["MAX_MESH_FILE_BYTES", "MAX_MESH_TOTAL_BYTES", "MESH_SUFFIXES", "ROBOT_FILE", "check_against_mjcf",
-           "check_meshes", "load_robot_dir", "mesh_files", "position_kp", "read_poses", "read_servo_table"]
+           "check_meshes", "compile_error", "load_robot_dir", "mesh_files", "mjcf_notes", "mjcf_servo_ranges",
+           "position_kp", "range_notes", "read_poses", "read_servo_table", "servo_range"]
 
 ROBOT_FILE = "robot.toml"
 NAME_RE = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
@@ -278,6 +281,168 @@ def position_kp(model: Any, aid: int) -> float | None:
     return kp
 
 
+def _span(lo: float, hi: float, slide: bool) -> str:
+    """A range for people: degrees for a hinge, metres for a slide joint."""
+    if slide:
+        return f"[{lo:.4g}, {hi:.4g}] m"
+    return f"[{math.degrees(lo):.4g}, {math.degrees(hi):.4g}] deg"
+
+
+def _bad_pair(lo: float, hi: float) -> str | None:
+    """Why ``(lo, hi)`` is no range (NaN, infinite, inverted, empty), or None."""
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return "is not a pair of finite numbers"
+    if lo > hi:
+        return "is inverted (lo > hi)"
+    if lo == hi:
+        return "is empty (lo = hi)"
+    return None
+
+
+def servo_range(model: Any, aid: int, jid: int, *, joint_at: str, actuator_at: str) -> tuple[float, float, str | None]:
+    """The range a servo can reach (radians, metres for a slide): its joint's ``range`` (the mechanical stop,
+    which MuJoCo enforces) intersected with its position actuator's ``ctrlrange`` (the software limit on the
+    targets, which MuJoCo clamps to), and how the ctrlrange changed it: None (no ctrlrange, or equal within
+    :data:`RANGE_TOL_DEG`), ``"narrower"`` (the servo range is the intersection) or ``"wider"`` (clamped to
+    the joint range). An actuator without a ctrlrange (``ctrllimited`` off) leaves the joint range.
+
+    :class:`RobotDataError` (``joint_at``/``actuator_at``: their file:line) when the joint has no range
+    (there is no default: a made-up limit would let the LLM drive the joint where the model says it cannot
+    go), when a range given is NaN, infinite, inverted or empty (MuJoCo compiles those as *no* limit), or
+    when the ctrlrange lies wholly outside the joint range (no target could be reached)."""
+    import mujoco
+
+    slide = int(model.jnt_type[jid]) == int(mujoco.mjtJoint.mjJNT_SLIDE)
+    jname, aname = model.joint(jid).name, model.actuator(aid).name
+    lo, hi = (float(v) for v in model.jnt_range[jid])
+    clo, chi = (float(v) for v in model.actuator_ctrlrange[aid])
+    climited = bool(model.actuator_ctrllimited[aid])
+    if not model.jnt_limited[jid] or not lo < hi:
+        why = _bad_pair(lo, hi) if (lo, hi) != (0.0, 0.0) else None
+        if why is not None:
+            raise RobotDataError(f"{joint_at}: joint {jname!r} range {lo:g} {hi:g} {why}; give range=\"lo hi\" "
+                                 "with lo < hi")
+        hint = (f" (its actuator {aname!r} has ctrlrange {clo:g} {chi:g}: the same range=\"{clo:g} {chi:g}\" "
+                "would do)") if climited else ""
+        raise RobotDataError(f"{joint_at}: joint {jname!r} (driven by actuator {aname!r}) has no range; give it "
+                             f"range=\"lo hi\", its mechanical stops (the servo table's limits come from it){hint}")
+    if not climited:
+        if (clo, chi) != (0.0, 0.0):  # given, but MuJoCo compiled it as no limit
+            why = _bad_pair(clo, chi) or "was not applied"
+            raise RobotDataError(f"{actuator_at}: actuator {aname!r} ctrlrange {clo:g} {chi:g} {why}; give "
+                                 "ctrlrange=\"lo hi\" with lo < hi, or leave it out (the joint range is used)")
+        return lo, hi, None
+    if math.isnan(clo) or math.isnan(chi) or not clo < chi:
+        why = _bad_pair(clo, chi) or "is not a range"
+        raise RobotDataError(f"{actuator_at}: actuator {aname!r} ctrlrange {clo:g} {chi:g} {why}")
+    slo, shi = max(lo, clo), min(hi, chi)
+    if not slo < shi:
+        raise RobotDataError(f"{actuator_at}: actuator {aname!r} ctrlrange {_span(clo, chi, slide)} lies outside joint "
+                             f"{jname!r}'s range {_span(lo, hi, slide)} ({joint_at}): no target could be reached; "
+                             "make them overlap")
+    tol = math.radians(RANGE_TOL_DEG)
+    if slo > lo + tol or shi < hi - tol:
+        return slo, shi, "narrower"
+    if clo < lo - tol or chi > hi + tol:
+        return lo, hi, "wider"
+    return lo, hi, None
+
+
+def range_notes(changed: Sequence[tuple[str, str, float, float, float, float, float, float, bool]]) -> list[str]:
+    """At most two notes (one a kind) on servo ranges a ctrlrange changed: ``changed`` holds
+    ``(how, joint, servo lo, servo hi, joint lo, joint hi, ctrl lo, ctrl hi, slide)`` as :func:`servo_range`
+    found them (radians / metres)."""
+    notes = []
+    narrower = [c for c in changed if c[0] == "narrower"]
+    wider = [c for c in changed if c[0] == "wider"]
+    if narrower:
+        items = ", ".join(f"{j} {_span(a, b, sl)} (joint {_span(jl, jh, sl)}"
+                          + (f", ctrlrange {_span(cl, ch, sl)})" if not _same(a, b, cl, ch) else ")")
+                          for _, j, a, b, jl, jh, cl, ch, sl in narrower)
+        notes.append(f"ctrlrange narrower than the joint range on {len(narrower)} servo(s), so the servo range is the "
+                     f"intersection: {items}")
+    if wider:
+        items = ", ".join(f"{j} {_span(a, b, sl)} (ctrlrange {_span(cl, ch, sl)})"
+                          for _, j, a, b, _jl, _jh, cl, ch, sl in wider)
+        radians = any(not sl and max(abs(cl), abs(ch)) > 2 * math.pi + 1e-9 for *_, cl, ch, sl in wider)
+        hint = "; MuJoCo reads a hinge's ctrlrange in radians, even with angle=\"degree\"" if radians else ""
+        notes.append(f"ctrlrange wider than the joint range on {len(wider)} servo(s), so the servo range is the joint "
+                     f"range: {items}{hint}")
+    return notes
+
+
+def compile_error(mjcf: Path, error: Exception, index: Any = None) -> RobotDataError:
+    """MuJoCo's compile error as one line, at the element's file:line where it can be found (MuJoCo names
+    the element and a line, but the line of an included file's element comes as 0)."""
+    text = " ".join(str(error).split())
+    where = str(mjcf)
+    m = re.search(r"Element name '([^']+)'", text)
+    if m and index is not None:
+        named = [e for e in index if e.attrs.get("name") == m.group(1)]
+        # a joint and its actuator often share a name: the one whose kind the message names
+        said = set(re.findall(r"[a-z]+", text[:m.start()]))
+        kind = [e for e in named if {e.tag, e.parent} & said] if len(named) > 1 else named
+        if kind:
+            where = kind[0].where
+    if where == str(mjcf):
+        m = re.search(r"line (\d+)", text)
+        if m and int(m.group(1)) > 0:
+            where = f"{mjcf}:{m.group(1)}"
+    return RobotDataError(f"{where}: MuJoCo cannot compile it: {text}")
+
+
+def mjcf_servo_ranges(mjcf: Path, table: ServoTable, model: Any = None, index: Any = None
+                      ) -> list[tuple[float, float, str | None]]:
+    """:func:`servo_range` of every servo of ``table`` in ``mjcf`` (compiled unless ``model`` is given)."""
+    import mujoco
+
+    from robots.mjcf_index import index_mjcf
+
+    index = index_mjcf(mjcf) if index is None else index
+    if model is None:
+        try:
+            model = mujoco.MjModel.from_xml_path(str(mjcf))
+        except (ValueError, OSError) as e:
+            raise compile_error(mjcf, e, index) from None
+    actuators = {e.attrs.get("name"): e for e in index.children_of("actuator")}
+    out = []
+    for s in table:
+        jel, ael = index.named("joint", s.joint), actuators.get(s.actuator)
+        out.append(servo_range(model, model.actuator(s.actuator).id, model.joint(s.joint).id,
+                               joint_at=jel.where if jel is not None else str(mjcf),
+                               actuator_at=ael.where if ael is not None else str(mjcf)))
+    return out
+
+
+def mjcf_notes(robot: Any) -> list[str]:
+    """Notes on a loaded robot's servo ranges against its MJCF (what ``ghostshell robots check`` prints):
+    ctrlranges narrower or wider than the joint ranges, and a servo table that keeps the joint range where
+    the ctrlrange is narrower (targets beyond the ctrlrange are not reached)."""
+    import mujoco
+
+    model = mujoco.MjModel.from_xml_path(str(robot.mjcf))
+    changed = []
+    table_wide = []
+    for s, (lo, hi, how) in zip(robot.servos, mjcf_servo_ranges(robot.mjcf, robot.servos, model)):
+        jid, aid = model.joint(s.joint).id, model.actuator(s.actuator).id
+        slide = int(model.jnt_type[jid]) == int(mujoco.mjtJoint.mjJNT_SLIDE)
+        jl, jh = (float(v) for v in model.jnt_range[jid])
+        cl, ch = (float(v) for v in model.actuator_ctrlrange[aid])
+        if how is not None:
+            changed.append((how, s.joint, lo, hi, jl, jh, cl, ch, slide))
+        if how == "narrower" and not _same(s.min, s.max, lo, hi):
+            table_wide.append(f"{s.name} {_span(s.min, s.max, slide)} (reachable {_span(lo, hi, slide)})")
+    notes = range_notes(changed)
+    if table_wide:
+        notes.append("the servo table keeps the joint range where the ctrlrange is narrower, so targets beyond the "
+                     f"ctrlrange are not reached: {', '.join(table_wide)}; set min_deg/max_deg to the reachable range")
+    return notes
+
+
+def _same(a_lo: float, a_hi: float, b_lo: float, b_hi: float) -> bool:
+    return abs(math.degrees(a_lo - b_lo)) <= RANGE_TOL_DEG and abs(math.degrees(a_hi - b_hi)) <= RANGE_TOL_DEG
+
+
 def check_against_mjcf(mjcf: Path, table: ServoTable, servo_path: Path, servo_text: str,
                        camera: str | None = None, feet: Sequence[str] = (), *, camera_at: str | None = None,
                        feet_at: str | None = None) -> None:
@@ -289,11 +454,11 @@ def check_against_mjcf(mjcf: Path, table: ServoTable, servo_path: Path, servo_te
 
     import mujoco
 
+    index = index_mjcf(mjcf)
     try:
         model = mujoco.MjModel.from_xml_path(str(mjcf))
     except (ValueError, OSError) as e:
-        raise RobotDataError(f"{mjcf}: MuJoCo cannot compile it: {' '.join(str(e).split())}") from None
-    index = index_mjcf(mjcf)
+        raise compile_error(mjcf, e, index) from None
     actuators = {e.attrs.get("name"): e for e in index.children_of("actuator")}
     hinge_slide = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
     for s in table:
@@ -305,13 +470,6 @@ def check_against_mjcf(mjcf: Path, table: ServoTable, servo_path: Path, servo_te
         jline = jel.where if jel is not None else str(mjcf)
         if int(model.jnt_type[jid]) not in hinge_slide:
             raise RobotDataError(f"{jline}: joint {s.joint!r} (servo {s.name}) must be a hinge or slide joint")
-        if not model.jnt_limited[jid]:
-            raise RobotDataError(f"{jline}: joint {s.joint!r} (servo {s.name}) has no range; give it range=\"lo hi\"")
-        lo, hi = (float(v) for v in model.jnt_range[jid])
-        if abs(math.degrees(lo - s.min)) > RANGE_TOL_DEG or abs(math.degrees(hi - s.max)) > RANGE_TOL_DEG:
-            raise RobotDataError(
-                f"{where}: servo {s.name}: the table says [{math.degrees(s.min):.2f}, {math.degrees(s.max):.2f}] deg "
-                f"but {jline} joint {s.joint!r} has range [{math.degrees(lo):.2f}, {math.degrees(hi):.2f}] deg")
         aid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, s.actuator)
         if aid < 0:
             raise RobotDataError(f"{where}: servo {s.name}: actuator {s.actuator!r} is not in {mjcf.name}")
@@ -322,6 +480,19 @@ def check_against_mjcf(mjcf: Path, table: ServoTable, servo_path: Path, servo_te
         if position_kp(model, aid) is None:
             raise RobotDataError(f"{aline}: actuator {s.actuator!r} (servo {s.name}) is not a position actuator "
                                  "(use <position kp=...>)")
+        lo, hi, how = servo_range(model, aid, jid, joint_at=jline, actuator_at=aline)
+        jlo, jhi = (float(v) for v in model.jnt_range[jid])
+        # the reachable range (joint range, narrowed by a narrower ctrlrange), or the joint range itself
+        # (a table written before ctrlranges were taken into account: `robots check` notes it)
+        if not _same(s.min, s.max, lo, hi) and not _same(s.min, s.max, jlo, jhi):
+            said = f"{where}: servo {s.name}: the table says [{math.degrees(s.min):.2f}, {math.degrees(s.max):.2f}] deg"
+            if how == "narrower":
+                raise RobotDataError(
+                    f"{said} but it reaches [{math.degrees(lo):.2f}, {math.degrees(hi):.2f}] deg: {jline} joint "
+                    f"{s.joint!r}'s range [{math.degrees(jlo):.2f}, {math.degrees(jhi):.2f}] deg within {aline} actuator "
+                    f"{s.actuator!r}'s ctrlrange")
+            raise RobotDataError(f"{said} but {jline} joint {s.joint!r} has range [{math.degrees(jlo):.2f}, "
+                                 f"{math.degrees(jhi):.2f}] deg")
     if camera is not None and mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0:
         raise RobotDataError(f"{camera_at or 'robot.toml [peripherals]'}: camera = {camera!r}: {mjcf.name} has no "
                              "camera of that name")
@@ -492,13 +663,14 @@ def _tour(doc: Mapping[str, Any], poses: Mapping[str, Any], path: Path, text: st
     return names
 
 
-def load_robot_dir(root: Path, *, builtin: bool = False, check_mjcf: bool = True) -> Robot:
+def load_robot_dir(root: Path, *, builtin: bool = False, check_mjcf: bool = True, fresh: bool = False) -> Robot:
     """Read the robot in folder ``root`` (its ``robot.toml``); :class:`RobotDataError` says what and where.
+    ``fresh``: check it against its MJCF even when a pass is recorded (``ghostshell robots check``).
 
     A value of the wrong TOML type that no check names (``base = 3``, ``voices = 7``) is a
     :class:`RobotDataError` naming robot.toml too, never a traceback."""
     try:
-        return _load_robot_dir(Path(root).resolve(), builtin=builtin, check_mjcf=check_mjcf)
+        return _load_robot_dir(Path(root).resolve(), builtin=builtin, check_mjcf=check_mjcf, fresh=fresh)
     except RobotDataError:
         raise
     except (TypeError, AttributeError, KeyError, IndexError, ValueError) as e:
@@ -506,7 +678,7 @@ def load_robot_dir(root: Path, *, builtin: bool = False, check_mjcf: bool = True
                              f"({type(e).__name__}: {e}); robots/loader.py documents every key") from None
 
 
-def _load_robot_dir(root: Path, *, builtin: bool, check_mjcf: bool) -> Robot:
+def _load_robot_dir(root: Path, *, builtin: bool, check_mjcf: bool, fresh: bool = False) -> Robot:
     path = root / ROBOT_FILE
     doc, text = _read_toml(path)
     name = doc.get("name")
@@ -566,7 +738,7 @@ def _load_robot_dir(root: Path, *, builtin: bool, check_mjcf: bool) -> Robot:
     data = {k: root / str(v) for k, v in (doc.get("data") or {}).items()}
     view = {str(k): _num(v, f"view {k}", str(path)) for k, v in (doc.get("view") or {}).items()}
     inputs = (table, peripherals.camera, tuple(base.feet))
-    if check_mjcf and not mjcf_check_cache.passed(mjcf, inputs):  # a pass is recorded: MuJoCo is not imported again
+    if check_mjcf and (fresh or not mjcf_check_cache.passed(mjcf, inputs)):  # a pass is recorded: MuJoCo is not imported again
         before = mjcf_check_cache.snapshot(mjcf)
         check_meshes(mjcf)  # before MuJoCo reads them: a missing, huge or foreign mesh is one line
         check_against_mjcf(mjcf, table, servo_path, servo_path.read_text(encoding="utf-8"),

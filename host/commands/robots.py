@@ -1,10 +1,14 @@
-"""``ghostshell robots new|list|show|path``: make, list and inspect robot packages.
+"""``ghostshell robots new|check|list|show|path``: make, list and inspect robot packages.
 
 * ``new NAME --mjcf FILE`` writes a robot package generated from one MJCF (rules:
   :mod:`robots.generate`) into the user robot folder (``--robots-dir``, else the first folder of
   ``$GHOSTSHELL_ROBOTS``, else platformdirs' user data folder; :func:`robots.registry.new_robots_dir`).
   An existing folder of that name is refused unless ``--force``, and so is a name that would shadow
   another robot on the search path (e.g. a built-in one).
+  It prints its notes (``note: ...`` on stderr: skipped actuators, servo ranges an actuator ``ctrlrange``
+  changed, ...) once, and ends with a ``try:`` command that moves one joint visibly.
+* ``check NAME``: the loader's checks, always against the MJCF (no recorded pass), and the package's notes
+  (:func:`robots.loader.mjcf_notes`). Loading a robot for any other command prints no notes.
 * ``list``: every robot on the search path (:mod:`robots.registry`): name, servo count, built-in or
   user, folder, and a note when one shadows another; a broken package is listed with its error line.
 * ``show NAME``: :meth:`robots.description.Robot.describe` plus the functions each vocabulary exposes.
@@ -18,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import inspect
+import math
 import sys
 from typing import Any, get_args, get_origin
 
@@ -48,6 +53,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     show = sub.add_parser("show", help="describe a robot and the functions it exposes")
     show.add_argument("name", metavar="NAME", help="a robot name or a robot folder")
     show.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg, help=dir_help)
+    check = sub.add_parser("check", help="check a robot package against its MJCF again and print its notes",
+                           description="Check robot NAME as every load does, but always against its MJCF (no "
+                                       "recorded pass), and print its notes (servo ranges an actuator ctrlrange "
+                                       "changed); exit 2 with one line when it is broken.")
+    check.add_argument("name", metavar="NAME", help="a robot name or a robot folder")
+    check.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg, help=dir_help)
     path = sub.add_parser("path", help="print the user robot folder (where `new` writes), or robot NAME's folder")
     path.add_argument("name", nargs="?", default=None, metavar="NAME")
     path.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg, help=dir_help)
@@ -89,10 +100,42 @@ def _new(args: argparse.Namespace) -> int:
     print(f"robot {pkg.name}: {len(pkg.servos)} servos ({kinds}), poses {', '.join(pkg.poses)}, "
           f"{'floating' if pkg.floating else 'fixed'} base, camera {pkg.camera or 'none'}")
     print(f"written to {written} ({', '.join(sorted([*pkg.texts, *pkg.copies]))})")
-    where = f" --robots-dir {args.robots_dir}" if args.robots_dir else ""
-    first = pkg.servos[0]
-    print(f"try: ghostshell run --robot {pkg.name}{where} --xml '<pose name=\"home\"/><joint_move joint=\"{first.joint}\" "
-          f"deg=\"{(first.min_deg + first.max_deg) / 4:.0f}\" duration=\"1\"/>'")
+    print(try_command(pkg, args.robots_dir))
+    return 0
+
+
+def try_command(pkg: Any, robots_dir: str | None = None) -> str:
+    """The ``try:`` line ``new`` ends with: a run that visibly moves one joint from the start pose (``home``):
+    the joint whose move sweeps the most (:attr:`robots.generate.GeneratedServo.sweep_m`: not a wrist roll
+    that turns a link about its own axis), half way from home to its farther limit."""
+    import shlex
+
+    home = dict(zip((s.joint for s in pkg.servos), pkg.poses["home"]))
+    best = max(pkg.servos, key=lambda s: (s.sweep_m, s.max_deg - s.min_deg))
+    h = home[best.joint]
+    far = best.max_deg if best.max_deg - h >= h - best.min_deg else best.min_deg
+    deg = min(max(round(h + (far - h) / 2), math.ceil(best.min_deg)), math.floor(best.max_deg))
+    where = f" --robots-dir {shlex.quote(str(robots_dir))}" if robots_dir else ""
+    xml = f'<joint_move joint="{best.joint}" deg="{deg}" duration="1"/>'
+    return f"try: ghostshell run --robot {pkg.name}{where} --xml {shlex.quote(xml)}"
+
+
+# --- check ----------------------------------------------------------------------------------------
+
+
+def _check(args: argparse.Namespace) -> int:
+    from robots.loader import load_robot_dir, mjcf_notes
+    from robots.registry import find_robot
+
+    try:
+        folder, builtin = find_robot(args.name, args.robots_dir)
+        robot = load_robot_dir(folder, builtin=builtin, fresh=True)
+        notes = mjcf_notes(robot)
+    except RobotDataError as e:
+        return _fail(str(e))
+    for note in notes:
+        print(f"note: {note}", file=sys.stderr)
+    print(f"robot {robot.name}: ok ({robot.servo_count} servos, poses {', '.join(robot.poses)}; {robot.mjcf} checked)")
     return 0
 
 
@@ -212,4 +255,5 @@ def _path(args: argparse.Namespace) -> int:
 def main(args: argparse.Namespace) -> int:
     from host.commands import calibrate
 
-    return {"new": _new, "list": _list, "show": _show, "path": _path, "calibrate": calibrate.main}[args.action](args)
+    return {"new": _new, "check": _check, "list": _list, "show": _show, "path": _path,
+            "calibrate": calibrate.main}[args.action](args)

@@ -63,7 +63,9 @@ def convert_value(value: str, annotation: Any, *, where: str = "value") -> Any:
         out = convert_value(value, base, where=where)
         for m in meta:
             rng = as_range(m)
-            if rng is not None and out is not None and not (rng.lo <= out <= rng.hi):
+            # a bound that depends on another argument (``out_of_range``, e.g. a joint's own range) is
+            # checked by map_args with every argument: its ge/le alone would name another joint's range
+            if rng is not None and out is not None and not (rng.lo <= out <= rng.hi) and not hasattr(m, "out_of_range"):
                 raise OutOfRange(f"{where}={value!r} is out of range [{rng.lo:g}, {rng.hi:g}]")
             _check_exclusive(m, out, where, value)
             _check_length(m, out, where)
@@ -214,6 +216,13 @@ def map_args(spec: FunctionSpec, attrs: dict[str, str]) -> dict[str, Any]:
     missing = [p.name for p in spec.params if p.required and p.name not in out]
     if missing:
         raise MissingParameter(f"<{spec.name}> is missing required parameter(s): {', '.join(missing)}")
+    for p in spec.params:  # bounds that depend on other arguments: ``out_of_range(value, args) -> why | None``
+        meta = typing.get_args(p.annotation)[1:] if typing.get_origin(p.annotation) is Annotated else ()
+        for m in meta:
+            check = getattr(m, "out_of_range", None)
+            why = check(out[p.name], out) if callable(check) and out.get(p.name) is not None else None
+            if why:
+                raise OutOfRange(f"<{spec.name}> {p.name}={attrs[p.name]!r} is out of range {why}")
     return out
 
 

@@ -112,11 +112,14 @@ def test_joint_without_range(tmp_path: Path) -> None:
     assert msg.startswith(f"{src}:{line}: joint 'tilt'") and "has no range" in msg, msg
 
 
-def test_ctrlrange_narrower_than_joint(tmp_path: Path) -> None:
+def test_ctrlrange_narrower_than_joint_narrows_the_servo(tmp_path: Path) -> None:
+    """The joint range is the mechanical stop, the ctrlrange the software limit: the servo reaches the intersection
+    (tests/robots/test_servo_ranges.py has the rest of the rules)."""
     src = write_rig(tmp_path, actuators=RIG_ACTUATORS_XML.replace('class="servo"/>', 'class="servo" ctrlrange="-0.5 0.5"/>'))
-    msg = _refusal(src)
-    acts = tmp_path / "rig_actuators.xml"
-    assert msg.startswith(f"{acts}:{line_of(acts, 'tilt_servo')}: actuator 'tilt_servo' has ctrlrange"), msg
+    pkg = generate_package("rig", src)
+    tilt = pkg.servos[2]
+    assert (tilt.min_deg, tilt.max_deg) == pytest.approx((math.degrees(-0.5), math.degrees(0.5)))  # joint: -45..60
+    assert sum("ctrlrange narrower" in n for n in pkg.notes) == 1
 
 
 def test_unnamed_position_actuator(tmp_path: Path) -> None:
@@ -149,7 +152,8 @@ def test_mjcf_mujoco_cannot_compile(tmp_path: Path) -> None:
     src = write_rig(tmp_path, RIG_XML.replace('joint="rail"', 'joint="nope"').replace("<worldbody>", "<worldbody>"),
                     RIG_ACTUATORS_XML.replace('joint="rail"', 'joint="nope"'))
     msg = _refusal(src)
-    assert msg.startswith(f"{src}: MuJoCo cannot compile it:") and "\n" not in msg, msg
+    acts = tmp_path / "rig_actuators.xml"  # MuJoCo says "line 0" for an included file's element: found by its name
+    assert msg.startswith(f"{acts}:{line_of(acts, 'rail_servo')}: MuJoCo cannot compile it:") and "\n" not in msg, msg
 
 
 def test_bad_names_and_missing_file(tmp_path: Path) -> None:
