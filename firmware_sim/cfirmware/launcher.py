@@ -31,6 +31,13 @@ between two ptys), so the faults hit the firmware's UART as bytes on a bad wire 
 
 SIM_STATE: the firmware forwards what the emulator-only probe device on its bus reports (ground
 truth the plant knows and no real robot has; on hardware nothing answers and no SIM_STATE is sent).
+
+The servo bus: ``bus_protocol`` "sts" (Feetech) or "dxl2" (Dynamixel Protocol 2.0) is the firmware's
+(``--protocol``; QEMU: its configuration block) and the in-process plant's. ``servo_bus_port`` (native
+only) is a real bus: the firmware opens that tty itself (``--bus tty:PORT:BAUD``, raw 8N1; baud
+``servo_bus_baud``, default the protocol's 1 Mbaud) and no plant runs here (no world, no SIM_STATE).
+``estop_torque``: "hold" (ESTOP holds where the servos are) or "limp" (torque off until ESTOP_CLEAR).
+A stopped firmware turns every servo's torque off.
 """
 
 from __future__ import annotations
@@ -87,6 +94,10 @@ class LaunchOptions:
     dead_servos: list[tuple[int, float]] = field(default_factory=list)  # (servo id, world seconds)
     asan: bool = False  # native: the ASan/UBSan build
     icount: bool = False  # qemu: -icount shift=0
+    servo_bus_port: str | None = None  # native: a real servo bus (tty path); no plant runs
+    servo_bus_baud: int | None = None  # its baud (None: the protocol's default, 1 Mbaud)
+    bus_protocol: str = "sts"  # "sts" (Feetech SCS/STS) or "dxl2" (Dynamixel Protocol 2.0)
+    estop_torque: str = "hold"  # ESTOP: "hold" (torque on, where the servos are) or "limp" (torque off)
 
 
 #: exit status of a board a signal stopped (SIGINT, SIGTERM): the CLI's "interrupted", 128 + SIGINT
@@ -144,10 +155,16 @@ class _SocketBus:
         self._theirs.close()
 
 
+#: the firmware's servo-bus protocols (gs_bus.h: GS_BUS_STS 0, GS_BUS_DXL2 1) and ESTOP torque settings
+BUS_PROTOCOLS = {"sts": 0, "dxl2": 1}
+ESTOP_TORQUE = {"hold": 0, "limp": 1}
+DEFAULT_SERVO_BAUD = 1_000_000
+
+
 def boot_config_words(opts: LaunchOptions) -> list[int]:
     """The configuration block the MCU image reads at boot (magic, settings, check word)."""
     words = [BOOT_MAGIC, int(opts.lockstep), opts.rate_hz, opts.telemetry_rate_hz, opts.watchdog_ms,
-             int(bool(opts.log_path))]
+             int(bool(opts.log_path)), BUS_PROTOCOLS[opts.bus_protocol], ESTOP_TORQUE[opts.estop_torque]]
     check = 0
     for w in words:
         check ^= w
@@ -159,7 +176,8 @@ def firmware_command(opts: LaunchOptions, exe: Path, bus_tty: str, host: str) ->
     if opts.firmware == "c":
         cmd = [str(exe), "--bus", bus_tty, "--host", host, "--lockstep" if opts.lockstep else "--realtime",
                "--rate", str(opts.rate_hz), "--telemetry-rate", str(opts.telemetry_rate_hz),
-               "--watchdog-ms", str(opts.watchdog_ms)]
+               "--watchdog-ms", str(opts.watchdog_ms), "--protocol", opts.bus_protocol,
+               "--estop-torque", opts.estop_torque]
         return cmd + (["--log-frames"] if opts.log_path else [])
     # a socket descriptor QEMU inherits ("fd:N", no tty layer: _SocketBus) is a socket chardev
     chardevs = {name: path[3:] for name, path in (("host", host), ("bus", bus_tty)) if path.startswith("fd:")}
@@ -307,6 +325,16 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
         print("board: --faults and --baud with the C firmware need --link pty (the line is modelled between two ptys)",
               file=err)
         return 2
+    if opts.bus_protocol not in BUS_PROTOCOLS:
+        print(f"board: bus protocol must be one of {', '.join(BUS_PROTOCOLS)}, got {opts.bus_protocol!r}", file=err)
+        return 2
+    if opts.estop_torque not in ESTOP_TORQUE:
+        print(f"board: estop torque must be one of {', '.join(ESTOP_TORQUE)}, got {opts.estop_torque!r}", file=err)
+        return 2
+    if opts.servo_bus_port is not None and opts.firmware != "c":
+        print("board: a real servo bus (--servo-bus) needs --firmware c: a QEMU guest has no tty to open "
+              "(its servo bus is the emulated plant)", file=err)
+        return 2
     target = "mps2" if opts.firmware == "qemu" else ("native-asan" if opts.asan else "native")
     try:
         exe = build(target, opts.robot)
@@ -321,12 +349,21 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
         from firmware_sim.priority import raise_priority, tighten_timer_slack
 
         print(f"board: {raise_priority()}; {tighten_timer_slack()}", file=err, flush=True)
-    world = World(opts.robot, scene=opts.scene, rate_hz=opts.rate_hz, dt=opts.dt)
-    plant = PlantBus(world, lockstep=opts.lockstep)
-    for sid, at in opts.dead_servos:
-        plant.kill(sid, int(at * 1e6))
-    # the native firmware's bus is a socketpair (no tty layer: see _SocketBus); QEMU's UART1 needs a tty
-    bus: PtyPort | _SocketBus = _SocketBus()
+    plant: PlantBus | None = None
+    bus: _SocketBus | None = None
+    if opts.servo_bus_port is None:
+        world = World(opts.robot, scene=opts.scene, rate_hz=opts.rate_hz, dt=opts.dt)
+        # the keyword only when not the default: PlantBus before Dynamixel support knows no `protocol`
+        proto_kw: dict[str, Any] = {"protocol": opts.bus_protocol} if opts.bus_protocol != "sts" else {}
+        plant = PlantBus(world, lockstep=opts.lockstep, **proto_kw)
+        for sid, at in opts.dead_servos:
+            plant.kill(sid, int(at * 1e6))
+        # the firmware's bus is a socketpair (no tty layer: see _SocketBus), QEMU's too (a socket chardev)
+        bus = _SocketBus()
+        bus_arg = bus.name
+    else:  # a real servo bus: the firmware opens the tty, nothing runs here for it
+        bus_arg = f"tty:{opts.servo_bus_port}:{opts.servo_bus_baud or DEFAULT_SERVO_BAUD}"
+
     # QEMU's own pty backend notices its peer by polling once a second (the host's first bytes would wait up
     # to 1 s): its UART0 gets a tty device instead, relayed byte for byte to the host's pty
     modelled = opts.faults is not None and opts.faults.active or bool(opts.baud)
@@ -334,7 +371,7 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
         if modelled or (opts.firmware == "qemu" and port == "pty") \
         else None
     host_arg = relay.fw.name if relay is not None else port
-    cmd = firmware_command(opts, exe, bus.name, host_arg)
+    cmd = firmware_command(opts, exe, bus_arg, host_arg)
     env = dict(os.environ)
     if opts.asan:
         env.setdefault("ASAN_OPTIONS", "detect_leaks=0:abort_on_error=0")
@@ -347,7 +384,7 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
     assert proc.stdout is not None and proc.stderr is not None
     log_fd = proc.stderr.fileno() if opts.firmware == "c" else proc.stdout.fileno()
     side_fd = proc.stdout.fileno() if opts.firmware == "c" else proc.stderr.fileno()
-    for fd in (log_fd, side_fd, bus.master):
+    for fd in (log_fd, side_fd) + ((bus.master,) if bus is not None else ()):
         os.set_blocking(fd, False)
     logr = _LogReader(err, opts.log_path, schema_for(opts.robot.servo_count))
     side = bytearray()
@@ -373,18 +410,20 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
                     status = 1
                     break
             timeout = 0.5
-            for t in (plant.next_step_time(), plant.next_release(), relay.next_time() if relay else None):
+            times = (plant.next_step_time(), plant.next_release()) if plant is not None else ()
+            for t in (*times, relay.next_time() if relay else None):
                 if t is not None:
                     timeout = min(timeout, max(0.0, t - now))
-            rfds = [bus.master, log_fd, side_fd] + (relay.fds() if relay else [])
-            wfds = ([bus.master] if bus_out else []) + (relay.fds() if relay and relay.wants_write else [])
+            bus_fds = [bus.master] if bus is not None else []
+            rfds = bus_fds + [log_fd, side_fd] + (relay.fds() if relay else [])
+            wfds = (bus_fds if bus_out else []) + (relay.fds() if relay and relay.wants_write else [])
             try:
                 readable, _, _ = select.select(rfds, wfds, [], timeout)
             except InterruptedError:
                 continue
             now = time.monotonic()
             for fd in readable:
-                if fd == bus.master:
+                if bus is not None and plant is not None and fd == bus.master:
                     data = bus.read()
                     if data:
                         bus_out += plant.feed(data, now)
@@ -402,10 +441,11 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
                             del side[: len(side) - 4096]
                 elif relay is not None:
                     relay.on_readable(fd, now)
-            plant.step_due(now)
-            bus_out += plant.ready(now)
-            if bus_out:
-                del bus_out[: bus.write(bytes(bus_out))]
+            if plant is not None and bus is not None:
+                plant.step_due(now)
+                bus_out += plant.ready(now)
+                if bus_out:
+                    del bus_out[: bus.write(bytes(bus_out))]
             if relay is not None:
                 relay.pump(now)
             if proc.poll() is not None:
@@ -432,6 +472,8 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
                 if not data:
                     break
                 logr.feed(data)
+        if plant is not None and bus is not None:  # the stopped firmware's last words (torque off) reach the plant
+            plant.feed(bus.read(), time.monotonic())
         logr.close()
         if died:
             print(f"board: the C firmware exited with status {proc.returncode}", file=err, flush=True)
@@ -444,7 +486,8 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
             print("board: faults " + json.dumps({"spec": str(opts.faults), "seed": opts.fault_seed,
                                                  "injected": [i.summary() for i in relay.injectors],
                                                  "board_detected": detected}), file=err, flush=True)
-        print(f"board: {plant.stats.line(world.period_us)}", file=err, flush=True)
+        if plant is not None:
+            print(f"board: {plant.stats.line(plant.world.period_us)}", file=err, flush=True)
         if not opts.lockstep:
             record = lateness_record(logr.stats, plant)
             print(f"{LATENESS_PREFIX}{json.dumps(record)}", file=err, flush=True)
@@ -459,7 +502,8 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
             relay.close()
         for fd in held_fds:
             os.close(fd)
-        bus.close()
+        if bus is not None:
+            bus.close()
     return status
 
 
@@ -471,18 +515,19 @@ _FW_LATENESS = {"bus_late_replies": "bus_late_replies", "bus_stalls": "bus_stall
                 "overruns": "board_overruns", "late_frames": "late_frames"}
 
 
-def lateness_record(fw_stats: dict[str, int], plant: PlantBus) -> dict[str, int]:
+def lateness_record(fw_stats: dict[str, int], plant: PlantBus | None) -> dict[str, int]:
     """How far a realtime run's board and plant fell behind the wall clock (all ints):
     ``bus_late_replies`` (servo answers that came after the firmware's 10 ms bus deadline),
     ``bus_stalls`` (servo reads nothing answered: the plant or the board was descheduled; not counted
     towards a dead servo), ``bus_tx_dropped`` (bytes the native firmware's bus write gave up on: nobody read
     the bus for 2 ms), ``bus_silent_max_ms`` (longest silence of the whole bus), ``board_ticks_skipped``
     and ``board_overruns`` (the firmware fell >100 ms / >1 tick behind), ``late_frames`` (frames the board
-    refused as LATE) and the plant's :meth:`~firmware_sim.plant.bus.PlantLateness.as_dict`. The firmware's
+    refused as LATE) and the plant's :meth:`~firmware_sim.plant.bus.PlantLateness.as_dict` (none on a real bus). The firmware's
     counters are its last "S" record (QEMU's image is killed, so up to 1 s old); missing ones are 0."""
     rec = {name: int(fw_stats.get(key, 0)) for key, name in _FW_LATENESS.items()}
     rec["bus_silent_max_ms"] = int(round(fw_stats.get("bus_silent_max_us", 0) / 1000))
-    rec.update(plant.lateness.as_dict())
+    if plant is not None:
+        rec.update(plant.lateness.as_dict())
     return rec
 
 

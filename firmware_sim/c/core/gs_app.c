@@ -155,5 +155,6 @@ void gs_app_run(gs_app_t *app, const gs_settings_t *cfg) {
     gs_log_end();
     if (cfg->lockstep) serve_lockstep(app);
     else serve_realtime(app);
+    gs_board_shutdown(&app->board); /* a stop (SIGTERM/SIGINT natively) leaves no servo under torque */
     maybe_stats(app, 1);
 }

@@ -34,7 +34,9 @@ static int16_t q16_of(int64_t v, int64_t per_count) { /* units -> q16 code, clam
 
 static int32_t steps_to_urad(unsigned i, int32_t steps) {
     const gs_servo_t *s = &gs_servos[i];
-    return (int32_t)(s->neutral_urad + div_round((int64_t)s->direction * (steps - GS_STEP_CENTRE) * GS_STEP_NRAD, 1000));
+    int64_t st = steps < -1048576 ? -1048576 : steps > 1048576 ? 1048576 : steps; /* a sane register value */
+    return clamp32(s->neutral_urad + div_round((int64_t)s->direction * (st - GS_STEP_CENTRE) * GS_STEP_NRAD, 1000),
+                   INT32_MIN / 2, INT32_MAX / 2);
 }
 
 static uint16_t urad_to_goal(unsigned i, int32_t q) {
@@ -42,11 +44,6 @@ static uint16_t urad_to_goal(unsigned i, int32_t q) {
     int64_t rel = div_round(((int64_t)q - s->neutral_urad) * 1000, GS_STEP_NRAD);
     int64_t steps = GS_STEP_CENTRE + s->direction * rel;
     return (uint16_t)clamp32(steps, s->step_lo, s->step_hi);
-}
-
-static int32_t sign_mag(uint16_t raw, unsigned bit) { /* Feetech sign-magnitude register */
-    int32_t mag = (int32_t)(raw & ((1u << bit) - 1u));
-    return (raw >> bit & 1u) ? -mag : mag;
 }
 
 static uint64_t unwrap32(uint32_t wrapped, int64_t ref) { /* protocol.codec.unwrap_time_us */
@@ -220,6 +217,7 @@ static void servo_lost(gs_board_t *b, unsigned i) {
     if (b->servo_fault) return;
     b->servo_fault = 1;
     b->fault_servo = (uint8_t)i;
+    b->fault_errors = 0;
     b->servo_fault_t = b->now_us;
     gs_log_str("board: servo id ");
     gs_log_u64(gs_servos[i].id);
@@ -242,9 +240,84 @@ static uint32_t read_timeout(const gs_board_t *b) {
     return b->bus_stalled && !b->cfg.lockstep ? STALLED_TIMEOUT_US : b->bus_timeout_us;
 }
 
+/* A servo's first present position: its command starts there (no jump to neutral or to a first frame),
+ * and its torque goes on after the next goal write (unless a limp ESTOP or a hardware error keeps it off). */
+static void first_position(gs_board_t *b, unsigned i) {
+    const gs_servo_t *s = &gs_servos[i];
+    gs_mask_t bit = (gs_mask_t)1 << i;
+    int32_t q = clamp32(b->pos_urad[i], s->min_urad, s->max_urad);
+    b->pos_known |= bit;
+    b->cmd[i] = b->anchor_v[i] = b->hold_q[i] = b->desired[i] = q;
+    b->anchor_t[i] = b->now_us;
+    b->goal[i] = urad_to_goal(i, q);
+    b->resume_pending[i] = 0;
+    b->blend_off[i] = 0;
+    if ((b->torque_off & bit) && !(b->err_latched & bit) && !(b->estopped && b->cfg.estop_limp)) b->torque_due |= bit;
+}
+
+static const char *const ERR_NAMES[8] = {"input voltage", "angle limit", "overheating", "motor encoder",
+                                         "electrical shock", "overload", "overcurrent", "hardware alert"};
+
+/* "overload" / "overheating, overload" (GS_SERVO_ERR_* bits, low first) into `out`. */
+static void err_text(uint8_t err, char *out, size_t cap) {
+    size_t n = 0;
+    for (unsigned k = 0; k < 8u; k++) {
+        if (!(err >> k & 1u)) continue;
+        if (n && n + 2u < cap) {
+            out[n++] = ',';
+            out[n++] = ' ';
+        }
+        for (const char *p = ERR_NAMES[k]; *p && n + 1u < cap; p++) out[n++] = *p;
+    }
+    out[n] = 0;
+}
+
+/* A servo reported a hardware error (GS_SERVO_ERR_*; the Dynamixel alert bit is resolved here by reading its
+ * hardware error status): its torque goes off, one log line names it, and SERVO_FAULT latches (every servo
+ * holds) until ESTOP_CLEAR, which turns its torque on again (a persisting error latches anew). */
+static void servo_error(gs_board_t *b, unsigned i, uint8_t err) {
+    gs_mask_t bit = (gs_mask_t)1 << i;
+    uint8_t id = gs_servos[i].id;
+    if (b->err_latched & bit) return;
+    if (err & GS_SERVO_ERR_ALERT) {
+        uint8_t hw = 0;
+        if (gs_bus_read_errors(id, &hw, read_timeout(b))) err = hw; /* unanswered: "hardware alert" */
+        if (!err) return;                                            /* an alert with no hardware error */
+    }
+    b->err_latched |= bit;
+    b->servo_errors[i] = err;
+    gs_bus_torque(&id, 1, 0);
+    b->torque_off |= bit;
+    b->torque_due &= ~bit;
+    char what[GS_MAX_NACK_DETAIL_BYTES + 1];
+    err_text(err, what, sizeof what);
+    gs_log_str("board: servo ");
+    gs_log_u64(id);
+    gs_log_str(" (");
+    gs_log_str(gs_servos[i].name);
+    gs_log_str("): ");
+    gs_log_str(what);
+    gs_log_str("; its torque is off at board time ");
+    gs_log_secs(b->now_us);
+    gs_log_str(" s; every servo holds; fault latched until ESTOP_CLEAR");
+    gs_log_end();
+    if (b->servo_fault) return;
+    b->servo_fault = 1;
+    b->fault_servo = (uint8_t)i;
+    b->fault_errors = err;
+    b->servo_fault_t = b->now_us;
+    size_t n = 0;
+    while (what[n]) n++;
+    const char *tail = "; torque off";
+    for (const char *p = tail; *p && n + 1u < sizeof what; p++) what[n++] = *p;
+    what[n] = 0;
+    nack(b, b->last_rx_seq, GS_MSG_TYPE_SERVO_FRAME, GS_NACK_REASON_SERVO_FAULT, servo_text(i, what), 0);
+}
+
 /* SYNC READ of present position, speed and load of servos [first, first + n). */
 static void read_group(gs_board_t *b, unsigned first, unsigned n, int all) {
-    uint8_t ids[READ_GROUP], data[READ_GROUP * GS_PRESENT_LEN];
+    uint8_t ids[READ_GROUP];
+    gs_present_t pr[READ_GROUP];
     unsigned idx[READ_GROUP], k = 0;
     for (unsigned i = first; i < first + n && i < GS_SERVO_COUNT; i++) {
         if (!all && !(b->answering >> i & 1u)) continue;
@@ -253,7 +326,7 @@ static void read_group(gs_board_t *b, unsigned first, unsigned n, int all) {
     }
     if (!k) return;
     uint32_t before = gs_bus_answers;
-    uint32_t ok = gs_bus_sync_read(GS_REG_PRESENT, GS_PRESENT_LEN, ids, k, data, read_timeout(b));
+    uint32_t ok = gs_bus_read_present(ids, k, pr, read_timeout(b));
     b->bus_stalled = gs_bus_answers == before;
     uint64_t clock = hal_now_us();
     if (gs_bus_answers != b->answers_seen) {
@@ -278,12 +351,16 @@ static void read_group(gs_board_t *b, unsigned first, unsigned n, int all) {
             continue;
         }
         b->miss[i] = 0;
-        const uint8_t *d = &data[j * GS_PRESENT_LEN];
-        uint16_t pos = (uint16_t)(d[0] | d[1] << 8), spd = (uint16_t)(d[2] | d[3] << 8), load = (uint16_t)(d[4] | d[5] << 8);
+        if (!pr[j].valid) continue; /* it answered, with an error number instead of data */
         const gs_servo_t *s = &gs_servos[i];
-        b->pos_urad[i] = steps_to_urad(i, sign_mag(pos, 15));
-        b->vel_urad_s[i] = (int32_t)div_round((int64_t)s->direction * sign_mag(spd, 15) * GS_STEP_NRAD, 1000);
-        b->eff_mnm[i] = (int32_t)div_round((int64_t)s->direction * sign_mag(load, 10) * s->load_full_mnm, 1000);
+        int64_t spd = pr[j].speed, load = pr[j].load;
+        spd = spd < -16777216 ? -16777216 : spd > 16777216 ? 16777216 : spd;
+        load = load < -1000000 ? -1000000 : load > 1000000 ? 1000000 : load;
+        b->pos_urad[i] = steps_to_urad(i, pr[j].pos);
+        b->vel_urad_s[i] = clamp32(div_round((int64_t)s->direction * spd * GS_STEP_NRAD, 1000), INT32_MIN, INT32_MAX);
+        b->eff_mnm[i] = clamp32(div_round((int64_t)s->direction * load * s->load_full_mnm, 1000), INT32_MIN, INT32_MAX);
+        if (!(b->pos_known >> i & 1u)) first_position(b, i);
+        if (pr[j].error) servo_error(b, i, pr[j].error);
     }
 }
 
@@ -291,7 +368,7 @@ static void read_imu(gs_board_t *b) {
     uint8_t d[GS_IMU_LEN];
     if (!b->imu_present) return;
     uint32_t before = gs_bus_answers;
-    int ok = gs_bus_read(GS_IMU_ID, GS_REG_PRESENT, GS_IMU_LEN, d, read_timeout(b));
+    int ok = gs_bus_read(GS_IMU_ID, GS_DEV_PRESENT, GS_IMU_LEN, d, read_timeout(b));
     b->bus_stalled = gs_bus_answers == before;
     if (!ok) return;
     for (unsigned k = 0; k < 3; k++) b->imu[k] = (int16_t)(uint16_t)(d[2 * k] | d[2 * k + 1] << 8);
@@ -300,7 +377,7 @@ static void read_imu(gs_board_t *b) {
 static void read_probe(gs_board_t *b) {
     if (!b->probe_present) return;
     uint32_t before = gs_bus_answers;
-    int ok = gs_bus_read(GS_PROBE_ID, GS_REG_PRESENT, GS_PROBE_LEN, b->probe, read_timeout(b));
+    int ok = gs_bus_read(GS_PROBE_ID, GS_DEV_PRESENT, GS_PROBE_LEN, b->probe, read_timeout(b));
     b->bus_stalled = gs_bus_answers == before;
     if (ok) {
         b->probe_fresh = 1;
@@ -334,20 +411,35 @@ static void read_all_positions(gs_board_t *b) {
     for (unsigned g = 0; g < N_GROUPS; g++) read_group(b, g * READ_GROUP, READ_GROUP, 0);
 }
 
+/* The goals of every servo, each limited to its servo table's step range right here, whatever computed it
+ * (the last line of defence: a goal outside it could drive a joint into its stop); then the torque of the
+ * servos whose command now starts from their present position. */
 static void write_goals(gs_board_t *b) {
-    uint8_t ids[GS_SERVO_COUNT], data[2u * GS_SERVO_COUNT];
+    uint8_t ids[GS_SERVO_COUNT];
+    uint16_t steps[GS_SERVO_COUNT];
     for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
-        ids[i] = gs_servos[i].id;
-        data[2 * i] = (uint8_t)(b->goal[i] & 0xFFu);
-        data[2 * i + 1] = (uint8_t)(b->goal[i] >> 8);
+        const gs_servo_t *s = &gs_servos[i];
+        uint16_t g = b->goal[i];
+        ids[i] = s->id;
+        steps[i] = g < s->step_lo ? s->step_lo : g > s->step_hi ? s->step_hi : g;
     }
-    gs_bus_sync_write(GS_REG_GOAL_POSITION, 2, ids, GS_SERVO_COUNT, data);
+    gs_bus_write_goals(ids, GS_SERVO_COUNT, steps);
+    if (b->torque_due) {
+        uint8_t on[GS_SERVO_COUNT];
+        size_t n = 0;
+        for (unsigned i = 0; i < GS_SERVO_COUNT; i++)
+            if (b->torque_due >> i & 1u) on[n++] = gs_servos[i].id;
+        gs_bus_torque(on, n, 1);
+        b->torque_off &= ~b->torque_due;
+        b->torque_due = 0;
+    }
 }
 
 /* --- init ------------------------------------------------------------------------------------ */
 
 void gs_board_init(gs_board_t *b, const gs_settings_t *cfg, gs_send_fn sendfn, void *ctx) {
     b->cfg = *cfg;
+    gs_bus_init(cfg->bus_protocol == GS_BUS_DXL2 ? GS_BUS_DXL2 : GS_BUS_STS, cfg->bus_baud);
     b->tick_us = gs_config_tick_us(cfg);
     b->bus_timeout_us = cfg->lockstep ? 1000000u : 10000u; /* lockstep: no deadline, only a dead servo waits */
     b->miss_limit = cfg->lockstep ? MISS_LIMIT_LOCKSTEP : MISS_LIMIT_REALTIME;
@@ -397,7 +489,16 @@ void gs_board_init(gs_board_t *b, const gs_settings_t *cfg, gs_send_fn sendfn, v
     b->answering = ALL;
     b->servo_fault = 0;
     b->fault_servo = 0;
+    b->fault_errors = 0;
     b->servo_fault_t = 0;
+    b->pos_known = 0;
+    b->torque_off = ALL; /* on only from a known present position */
+    b->torque_due = 0;
+    b->err_latched = 0;
+    for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
+        b->servo_errors[i] = 0;
+        b->model[i] = 0;
+    }
     for (unsigned i = 0; i < GS_SERVO_COUNT; i++) b->miss_epoch[i] = 0;
     b->answers_seen = gs_bus_answers;
     b->last_answer_clock_us = hal_now_us();
@@ -415,11 +516,11 @@ void gs_board_init(gs_board_t *b, const gs_settings_t *cfg, gs_send_fn sendfn, v
  * was answering: after each unanswered ping another device is pinged (`*ref`, the last one that answered;
  * before any did, the servos and the IMU in turn), and only when something answered meanwhile does the
  * miss count. Pings into a silent bus count only after `give_up_us` (GS_BOOT_WAIT_US) of board clock. */
-static int boot_ping(gs_board_t *b, uint8_t id, unsigned rounds, uint64_t give_up_us, uint8_t *ref) {
+static int boot_ping(gs_board_t *b, uint8_t id, unsigned rounds, uint64_t give_up_us, uint8_t *ref, uint16_t *model) {
     unsigned unanswered = 0, probe = 0;
     while (!hal_should_stop()) {
         uint32_t answers = gs_bus_answers;
-        if (gs_bus_ping(id, b->bus_timeout_us) || gs_bus_heard_late(id)) {
+        if (gs_bus_ping(id, b->bus_timeout_us, model) || gs_bus_heard_late(id)) {
             *ref = id;
             return 1;
         }
@@ -428,7 +529,7 @@ static int boot_ping(gs_board_t *b, uint8_t id, unsigned rounds, uint64_t give_u
             unsigned k = probe++ % (GS_SERVO_COUNT + 1u);
             other = k < GS_SERVO_COUNT ? gs_servos[k].id : (uint8_t)GS_IMU_ID;
         }
-        if (other != id && gs_bus_ping(other, b->bus_timeout_us)) *ref = other;
+        if (other != id && gs_bus_ping(other, b->bus_timeout_us, 0)) *ref = other;
         if (gs_bus_heard_late(id)) return 1;
         if (gs_bus_answers != answers || hal_now_us() >= give_up_us) unanswered++;
         if (unanswered >= rounds) return 0;
@@ -445,8 +546,8 @@ void gs_board_boot(gs_board_t *b) {
     uint64_t give_up = hal_now_us() + GS_BOOT_WAIT_US;
     uint8_t ref = 0; /* a device that answered (0: none yet) */
     for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
-        int ok = b->cfg.lockstep ? gs_bus_ping(gs_servos[i].id, b->bus_timeout_us)
-                                 : boot_ping(b, gs_servos[i].id, rounds, give_up, &ref);
+        int ok = b->cfg.lockstep ? gs_bus_ping(gs_servos[i].id, b->bus_timeout_us, &b->model[i])
+                                 : boot_ping(b, gs_servos[i].id, rounds, give_up, &ref, &b->model[i]);
         if (!ok) silent |= (gs_mask_t)1 << i;
     }
     for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
@@ -458,22 +559,34 @@ void gs_board_boot(gs_board_t *b) {
     b->answers_seen = gs_bus_answers;
     b->last_answer_clock_us = hal_now_us();
     if (hal_should_stop()) return; /* stopped while it looked for its bus: no "absent" devices to report */
-    b->imu_present = (uint8_t)(b->cfg.lockstep ? gs_bus_ping(GS_IMU_ID, b->bus_timeout_us)
-                                               : boot_ping(b, GS_IMU_ID, rounds, give_up, &ref));
-    b->probe_present = (uint8_t)(b->cfg.lockstep ? gs_bus_ping(GS_PROBE_ID, b->bus_timeout_us)
-                                                 : boot_ping(b, GS_PROBE_ID, rounds, give_up, &ref));
-    uint8_t ids[GS_SERVO_COUNT], on[GS_SERVO_COUNT];
-    for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
-        ids[i] = gs_servos[i].id;
-        on[i] = 1;
-    }
-    gs_bus_sync_write(GS_REG_TORQUE_ENABLE, 1, ids, GS_SERVO_COUNT, on);
+    b->imu_present = (uint8_t)(b->cfg.lockstep ? gs_bus_ping(GS_IMU_ID, b->bus_timeout_us, 0)
+                                               : boot_ping(b, GS_IMU_ID, rounds, give_up, &ref, 0));
+    b->probe_present = (uint8_t)(b->cfg.lockstep ? gs_bus_ping(GS_PROBE_ID, b->bus_timeout_us, 0)
+                                                 : boot_ping(b, GS_PROBE_ID, rounds, give_up, &ref, 0));
+    /* the present positions first: each command starts there, and torque goes on with the first tick's goal
+       write (write_goals), so no servo jumps to neutral or to the first frame */
     read_all_positions(b);
     read_imu(b);
     read_probe(b);
-    gs_log_str("board: servo bus: ");
+    uint16_t model = b->model[0];
+    for (unsigned i = 1; i < GS_SERVO_COUNT; i++)
+        if (b->model[i] != model) model = 0;
+    gs_log_str("board: servo bus (");
+    gs_log_str(gs_bus_protocol_name(gs_bus_protocol()));
+    if (b->cfg.bus_baud) {
+        gs_log_str(", ");
+        gs_log_u64(b->cfg.bus_baud);
+        gs_log_str(" baud");
+    }
+    gs_log_str("): ");
     gs_log_u64(GS_SERVO_COUNT);
-    gs_log_str(" servos, IMU ");
+    gs_log_str(" servos");
+    if (model) {
+        gs_log_str(" (model ");
+        gs_log_u64(model);
+        gs_log_str(")");
+    }
+    gs_log_str(", IMU ");
     gs_log_str(b->imu_present ? "present" : "absent");
     gs_log_str(", ground-truth probe ");
     gs_log_str(b->probe_present ? "present (emulator: SIM_STATE forwarded)" : "absent (no SIM_STATE)");
@@ -574,8 +687,13 @@ static void servo_frame(gs_board_t *b, const gs_servo_frame_t *f, uint16_t seq) 
     }
     if (b->servo_fault) {
         b->dropped_count++;
-        nack(b, seq, GS_MSG_TYPE_SERVO_FRAME, GS_NACK_REASON_SERVO_FAULT,
-             servo_text(b->fault_servo, "is not answering; send ESTOP_CLEAR"), 0);
+        char what[GS_MAX_NACK_DETAIL_BYTES + 1] = "is not answering";
+        if (b->fault_errors) err_text(b->fault_errors, what, sizeof what - 20u);
+        size_t n = 0;
+        while (what[n]) n++;
+        for (const char *p = "; send ESTOP_CLEAR"; *p && n + 1u < sizeof what; p++) what[n++] = *p;
+        what[n] = 0;
+        nack(b, seq, GS_MSG_TYPE_SERVO_FRAME, GS_NACK_REASON_SERVO_FAULT, servo_text(b->fault_servo, what), 0);
         return;
     }
     int64_t now = b->now_us;
@@ -713,6 +831,13 @@ void gs_board_handle(gs_board_t *b, const gs_msg_t *m, uint16_t seq, int64_t rx)
             b->hold_q[i] = b->pos_urad[i];
             b->cmd[i] = clamp32(b->hold_q[i], gs_servos[i].min_urad, gs_servos[i].max_urad);
         }
+        if (b->cfg.estop_limp) { /* limp: every servo's torque off until ESTOP_CLEAR */
+            uint8_t ids[GS_SERVO_COUNT];
+            for (unsigned i = 0; i < GS_SERVO_COUNT; i++) ids[i] = gs_servos[i].id;
+            gs_bus_torque(ids, GS_SERVO_COUNT, 0);
+            b->torque_off = ALL;
+            b->torque_due = 0;
+        }
         ack(b, seq, t);
         return;
     case GS_MSG_TYPE_ESTOP_CLEAR:
@@ -720,10 +845,21 @@ void gs_board_handle(gs_board_t *b, const gs_msg_t *m, uint16_t seq, int64_t rx)
         b->fault_latched = 0;
         b->hold_since_us = GS_NO_TIME;
         b->last_feed_us = b->now_us;
-        if (b->servo_fault) { /* try the servos again; one still silent latches the fault anew */
+        if (b->servo_fault) { /* try the servos again; one still silent or failing latches the fault anew */
             b->servo_fault = 0;
+            b->fault_errors = 0;
             b->answering = ALL;
             for (unsigned i = 0; i < GS_SERVO_COUNT; i++) b->miss[i] = 0;
+        }
+        b->err_latched = 0;
+        if (b->torque_off) { /* torque on again (after the next goal write) from where those servos are now */
+            read_all_positions(b);
+            for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
+                if (!(b->torque_off >> i & 1u) || !(b->pos_known >> i & 1u)) continue;
+                b->cmd[i] = b->hold_q[i] = clamp32(b->pos_urad[i], gs_servos[i].min_urad, gs_servos[i].max_urad);
+                b->goal[i] = urad_to_goal(i, b->cmd[i]);
+                b->torque_due |= (gs_mask_t)1 << i;
+            }
         }
         resume(b);
         ack(b, seq, t);
@@ -938,6 +1074,13 @@ void gs_board_tick(gs_board_t *b) {
         b->tick_cycles_sum += dc;
         b->tick_cycles_n++;
     }
+}
+
+void gs_board_shutdown(gs_board_t *b) {
+    (void)b;
+    gs_bus_torque_off_all();
+    gs_log_str("board: stopping: torque off for every servo on the bus");
+    gs_log_end();
 }
 
 void gs_board_log_stats(const gs_board_t *b) {

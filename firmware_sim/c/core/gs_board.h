@@ -7,8 +7,13 @@
  * to the bus (SYNC WRITE every tick), one scheduled bus read, and TELEMETRY (+ SIM_STATE when the
  * emulator's probe answers) every telemetry period. Reply policy as the Python board's docstring,
  * except CAMERA_CAPTURE -> NACK NO_RENDERER (an MCU has no renderer) and CAMERA_RESEND -> NACK
- * BAD_VALUE; a servo that stops answering latches SERVO_FAULT (one unsolicited NACK SERVO_FAULT
- * naming it, frames refused with SERVO_FAULT, every servo holds) until ESTOP_CLEAR.
+ * BAD_VALUE; a servo that stops answering, or reports a hardware error (overload, overheating, input
+ * voltage ...: the STS status error byte, the Dynamixel alert bit and register 70), latches SERVO_FAULT
+ * (one unsolicited NACK SERVO_FAULT naming it, frames refused with SERVO_FAULT, every servo holds; a
+ * servo with an error is also torqued off) until ESTOP_CLEAR. Torque: at boot the present positions are
+ * read first and each command starts there, then torque goes on; ESTOP holds (default) or goes limp
+ * (gs_settings_t.estop_limp: torque off, on again at ESTOP_CLEAR from where the servos are then);
+ * gs_board_shutdown() turns the whole bus's torque off.
  *
  * Units inside: angles in micro-radians (int32), times in microseconds (int64), the jitter
  * buffer keeps the wire's q16 codes. No floating point. */
@@ -99,7 +104,16 @@ struct gs_board {
     uint32_t ticks_skipped, overruns; /* realtime: ticks skipped to catch up, ticks started a period late */
     gs_mask_t answering;   /* servos included in reads */
     uint8_t servo_fault;   /* latched */
-    uint8_t fault_servo;   /* index of the first servo that stopped answering */
+    uint8_t fault_servo;   /* index of the first servo that stopped answering or reported an error */
+    uint8_t fault_errors;  /* its GS_SERVO_ERR_* (0: it stopped answering) */
+    /* torque: a servo's torque goes on only once its present position is known and its command starts
+     * there (never a jump to a first frame or to neutral), after the goal write of the next tick */
+    gs_mask_t pos_known;     /* servos whose present position was read at least once */
+    gs_mask_t torque_off;    /* servos whose torque is off (not yet on, a hardware error, a limp ESTOP) */
+    gs_mask_t torque_due;    /* torque on after the next goal write */
+    gs_mask_t err_latched;   /* servos whose hardware error was reported (until ESTOP_CLEAR) */
+    uint8_t servo_errors[GS_SERVO_COUNT]; /* GS_SERVO_ERR_* last reported per servo */
+    uint16_t model[GS_SERVO_COUNT];       /* model number each servo reported at boot (0: unknown) */
     int64_t servo_fault_t;
     /* peripherals (none on this board's bus): the last command per screen target and the speaker's last
      * action are ACKed and kept (speech text is not kept: it is the host's to synthesise) */
@@ -121,6 +135,8 @@ void gs_board_tick(gs_board_t *b);
 void gs_board_skip(gs_board_t *b, uint64_t n_ticks);
 void gs_board_note_overrun(gs_board_t *b);
 void gs_board_on_link_error(gs_board_t *b);
+/* Stopping: torque off for every servo on the bus (a broadcast WRITE), one log line. */
+void gs_board_shutdown(gs_board_t *b);
 /* One "S ..." statistics record on the log channel (counters the launcher reports at exit). */
 void gs_board_log_stats(const gs_board_t *b);
 

@@ -14,6 +14,9 @@ void gs_config_defaults(gs_settings_t *c) {
     c->resume_blend_min_us = 40000;
     c->log_frames = 0;
     c->log_bus = 0;
+    c->bus_protocol = 0;
+    c->bus_baud = 0;
+    c->estop_limp = 0;
 }
 
 uint32_t gs_config_tick_us(const gs_settings_t *c) { return 1000000u / c->rate_hz; }

@@ -37,6 +37,9 @@ typedef struct {
     int64_t resume_blend_min_us; /* shortest blend (40 000) */
     uint8_t log_frames;          /* write every frame in/out to the log channel */
     uint8_t log_bus;             /* write bus statistics to the log channel */
+    uint8_t bus_protocol;        /* servo bus: GS_BUS_STS (0, Feetech) or GS_BUS_DXL2 (1, Dynamixel 2.0) */
+    uint32_t bus_baud;           /* the servo bus line's baud rate (0: a socket to the plant, no wire time) */
+    uint8_t estop_limp;          /* ESTOP: 0 hold where the servos are (torque on), 1 limp (torque off) */
 } gs_settings_t;
 
 void gs_config_defaults(gs_settings_t *cfg);

@@ -3,7 +3,8 @@
  * sleeps in WFI between events (UART0 and UART1 receive interrupts, SysTick). Polled UART data registers
  * (one byte deep in QEMU's model, which holds further bytes back until the register is read: the
  * receive side never overruns). Boot settings come from the configuration block the launcher
- * writes with QEMU's generic loader (-device loader,addr=...,data=...). */
+ * writes with QEMU's generic loader (-device loader,addr=...,data=...): lockstep, rates, watchdog, frame
+ * log, the servo-bus protocol (0 STS, 1 Dynamixel 2.0) and the ESTOP torque (0 hold, 1 limp). */
 #include <stdint.h>
 
 #include "gs_app.h"
@@ -35,7 +36,7 @@
 
 /* boot configuration, written by the launcher before reset (magic 'GSCF' + check word) */
 typedef struct {
-    uint32_t magic, lockstep, rate_hz, telemetry_rate_hz, watchdog_ms, log_frames, check;
+    uint32_t magic, lockstep, rate_hz, telemetry_rate_hz, watchdog_ms, log_frames, bus_protocol, estop_limp, check;
 } boot_cfg_t;
 __attribute__((section(".bootcfg"), used)) volatile boot_cfg_t boot_cfg;
 #define BOOT_MAGIC 0x47534346u
@@ -153,7 +154,9 @@ int main(void) {
     gs_config_defaults(&cfg);
     const volatile boot_cfg_t *b = &boot_cfg;
     if (b->magic == BOOT_MAGIC &&
-        b->check == (b->magic ^ b->lockstep ^ b->rate_hz ^ b->telemetry_rate_hz ^ b->watchdog_ms ^ b->log_frames) &&
+        b->check == (b->magic ^ b->lockstep ^ b->rate_hz ^ b->telemetry_rate_hz ^ b->watchdog_ms ^ b->log_frames ^
+                     b->bus_protocol ^ b->estop_limp) &&
+        b->bus_protocol <= 1u &&
         b->rate_hz >= 1u && b->rate_hz <= 10000u && 1000000u % b->rate_hz == 0u && b->telemetry_rate_hz >= 1u &&
         b->telemetry_rate_hz <= b->rate_hz && b->watchdog_ms >= 1u) {
         cfg.lockstep = (uint8_t)(b->lockstep != 0u);
@@ -161,6 +164,8 @@ int main(void) {
         cfg.telemetry_rate_hz = b->telemetry_rate_hz;
         cfg.watchdog_ms = b->watchdog_ms;
         cfg.log_frames = (uint8_t)(b->log_frames != 0u);
+        cfg.bus_protocol = (uint8_t)b->bus_protocol; /* the servo bus is the plant's socket: no baud to model */
+        cfg.estop_limp = (uint8_t)(b->estop_limp != 0u);
     }
     gs_app_run(&app, &cfg);
     for (;;) {

@@ -83,6 +83,77 @@ int native_open_host(const char *spec, char *name, size_t cap) {
     return fcntl(host_fd, F_SETFL, fcntl(host_fd, F_GETFL) | O_NONBLOCK);
 }
 
+/* The termios speed constant of `baud` (0: none: a rate this port cannot ask a tty for). */
+static speed_t speed_of(unsigned long baud) {
+    switch (baud) {
+    case 9600: return B9600;
+    case 19200: return B19200;
+    case 38400: return B38400;
+    case 57600: return B57600;
+    case 115200: return B115200;
+    case 230400: return B230400;
+#ifdef B460800
+    case 460800: return B460800;
+#endif
+#ifdef B500000
+    case 500000: return B500000;
+#endif
+#ifdef B576000
+    case 576000: return B576000;
+#endif
+#ifdef B921600
+    case 921600: return B921600;
+#endif
+#ifdef B1000000
+    case 1000000: return B1000000;
+#endif
+#ifdef B2000000
+    case 2000000: return B2000000;
+#endif
+#ifdef B3000000
+    case 3000000: return B3000000;
+#endif
+#ifdef B4000000
+    case 4000000: return B4000000;
+#endif
+    default: return 0;
+    }
+}
+
+/* A real servo bus (a USB adapter's tty): raw, 8N1, no flow control, `baud` both ways; the device must
+ * take the rate (read back after setting it). 0, or -1 with `why` (one line's worth). */
+int native_open_bus_tty(const char *path, unsigned long baud, char *why, size_t cap) {
+    speed_t sp = speed_of(baud);
+    if (!sp) {
+        snprintf(why, cap, "%lu baud is not a rate a tty can be set to here (9600 ... 4000000, e.g. 57600 or 1000000)", baud);
+        return -1;
+    }
+    bus_fd = open(path, O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
+    if (bus_fd < 0) {
+        snprintf(why, cap, "%s", strerror(errno));
+        return -1;
+    }
+    struct termios t;
+    if (tcgetattr(bus_fd, &t) != 0) {
+        snprintf(why, cap, "not a tty (%s)", strerror(errno));
+        return -1;
+    }
+    cfmakeraw(&t);
+    t.c_cflag &= (tcflag_t)~(CSIZE | PARENB | CSTOPB | CRTSCTS);
+    t.c_cflag |= CS8 | CLOCAL | CREAD;
+    t.c_iflag &= (tcflag_t)~(IXON | IXOFF | IXANY);
+    t.c_cc[VMIN] = 0;
+    t.c_cc[VTIME] = 0;
+    struct termios got;
+    if (cfsetispeed(&t, sp) != 0 || cfsetospeed(&t, sp) != 0 || tcsetattr(bus_fd, TCSANOW, &t) != 0 ||
+        tcgetattr(bus_fd, &got) != 0 || cfgetospeed(&got) != sp || cfgetispeed(&got) != sp) {
+        snprintf(why, cap, "the device refuses %lu baud", baud);
+        return -1;
+    }
+    tcflush(bus_fd, TCIOFLUSH);
+    return 0;
+}
+
 int native_open_bus(const char *path) {
     if (strncmp(path, "fd:", 3) == 0) { /* an inherited descriptor (the launcher's socketpair: no tty layer) */
         char *end = NULL;
@@ -136,7 +207,8 @@ size_t hal_host_write(const uint8_t *buf, size_t n) {
 void hal_bus_write(const uint8_t *buf, size_t n) {
     size_t done = 0;
     uint64_t give_up = hal_now_us() + BUS_TX_WAIT_US;
-    while (done < n && !stop_flag) {
+    /* also while stopping: the last packet (torque off for the whole bus) must go out; BUS_TX_WAIT_US bounds it */
+    while (done < n) {
         ssize_t k = write(bus_fd, buf + done, n - done);
         if (k > 0) {
             done += (size_t)k;
@@ -148,7 +220,12 @@ void hal_bus_write(const uint8_t *buf, size_t n) {
                 gs_bus_stats.tx_dropped += (uint32_t)(n - done);
                 return;
             }
-            wait_fd(bus_fd, POLLOUT, give_up - now);
+            if (stop_flag) { /* the self-pipe is readable now: wait on the bus alone */
+                struct pollfd p = {bus_fd, POLLOUT, 0};
+                poll(&p, 1, (int)((give_up - now + 999u) / 1000u));
+            } else {
+                wait_fd(bus_fd, POLLOUT, give_up - now);
+            }
         }
     }
 }

@@ -1,8 +1,12 @@
 /* The native firmware executable:
- *   gs_firmware --bus TTY|fd:N [--host pty|PATH] [--lockstep|--realtime] [--rate HZ]
- *               [--telemetry-rate HZ] [--watchdog-ms MS] [--log-frames]
+ *   gs_firmware --bus tty:PATH:BAUD|TTY|fd:N [--protocol sts|dxl2] [--estop-torque hold|limp]
+ *               [--host pty|PATH] [--lockstep|--realtime] [--rate HZ] [--telemetry-rate HZ]
+ *               [--watchdog-ms MS] [--log-frames]
+ * --bus tty:PATH:BAUD is a real servo bus (a USB adapter: raw 8N1 at BAUD, e.g. 57600 or 1000000); TTY
+ * (the plant's pty, its settings untouched) and fd:N (an inherited socket) are the emulator's.
  * Prints "board: listening on PTY" on stdout once the bus devices are found, then serves until
- * SIGTERM/SIGINT; log channel on stderr. Exit 2 for bad arguments or a port that cannot open. */
+ * SIGTERM/SIGINT (then torque off for the whole bus); log channel on stderr. Exit 2 for bad arguments or a
+ * port that cannot open (one line naming it). */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -23,7 +27,8 @@ static int num(const char *s, long lo, long hi, long *out) {
 }
 
 static int usage(const char *why) {
-    fprintf(stderr, "board: %s\nusage: gs_firmware --bus TTY|fd:N [--host pty|PATH] [--lockstep|--realtime] [--rate HZ] "
+    fprintf(stderr, "board: %s\nusage: gs_firmware --bus tty:PATH:BAUD|TTY|fd:N [--protocol sts|dxl2] "
+                    "[--estop-torque hold|limp] [--host pty|PATH] [--lockstep|--realtime] [--rate HZ] "
                     "[--telemetry-rate HZ] [--watchdog-ms MS] [--log-frames]\n", why);
     return 2;
 }
@@ -41,6 +46,10 @@ int main(int argc, char **argv) {
         else if (!strcmp(a, "--lockstep")) cfg.lockstep = 1;
         else if (!strcmp(a, "--realtime")) cfg.lockstep = 0;
         else if (!strcmp(a, "--log-frames")) cfg.log_frames = 1;
+        else if (!strcmp(a, "--protocol") && has && !strcmp(argv[i + 1], "sts")) { cfg.bus_protocol = GS_BUS_STS; i++; }
+        else if (!strcmp(a, "--protocol") && has && !strcmp(argv[i + 1], "dxl2")) { cfg.bus_protocol = GS_BUS_DXL2; i++; }
+        else if (!strcmp(a, "--estop-torque") && has && !strcmp(argv[i + 1], "hold")) { cfg.estop_limp = 0; i++; }
+        else if (!strcmp(a, "--estop-torque") && has && !strcmp(argv[i + 1], "limp")) { cfg.estop_limp = 1; i++; }
         else if (!strcmp(a, "--rate") && has && num(argv[i + 1], 1, 10000, &v) && 1000000 % v == 0) { cfg.rate_hz = (uint32_t)v; i++; }
         else if (!strcmp(a, "--telemetry-rate") && has && num(argv[i + 1], 1, 10000, &v)) { cfg.telemetry_rate_hz = (uint32_t)v; i++; }
         else if (!strcmp(a, "--watchdog-ms") && has && num(argv[i + 1], 1, 3600000, &v)) { cfg.watchdog_ms = (uint32_t)v; i++; }
@@ -50,7 +59,20 @@ int main(int argc, char **argv) {
     if (cfg.telemetry_rate_hz > cfg.rate_hz) return usage("telemetry rate must be at most the control rate");
     native_init();
     char name[256];
-    if (native_open_bus(bus) != 0) {
+    if (!strncmp(bus, "tty:", 4)) { /* tty:PATH:BAUD (PATH may hold colons: the baud is after the last) */
+        const char *colon = strrchr(bus + 4, ':');
+        long baud;
+        char path[512], why[160];
+        if (!colon || colon == bus + 4 || (size_t)(colon - (bus + 4)) >= sizeof path || !num(colon + 1, 1, 100000000, &baud))
+            return usage("--bus tty:PATH:BAUD needs a device path and a baud rate, e.g. tty:/dev/ttyUSB0:1000000");
+        memcpy(path, bus + 4, (size_t)(colon - (bus + 4)));
+        path[colon - (bus + 4)] = 0;
+        if (native_open_bus_tty(path, (unsigned long)baud, why, sizeof why) != 0) {
+            fprintf(stderr, "board: cannot open the servo bus %s at %ld baud: %s\n", path, baud, why);
+            return 2;
+        }
+        cfg.bus_baud = (uint32_t)baud;
+    } else if (native_open_bus(bus) != 0) {
         fprintf(stderr, "board: cannot open the servo bus %s\n", bus);
         return 2;
     }
