@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from firmware_sim.plant.collide import collide
 from firmware_sim.plant.devices import Device, ServoDevice
 from firmware_sim.plant.dxl_bus import DxlDevice, DxlHandler
-from firmware_sim.plant.dxl_table import MODEL_XL330, DxlRegisterFile, DxlServo
+from firmware_sim.plant.dxl_table import MODEL_XL330, DxlRegisterFile, DxlServo, dxl_model
 from firmware_sim.plant.servo import Fault
 from firmware_sim.plant.sts_bus import StsHandler
 from firmware_sim.plant.world import World
@@ -40,10 +40,8 @@ from firmware_sim.plant.world import World
 __all__ = ["BusStats", "PROTOCOLS", "PlantBus", "PlantLateness"]
 
 PROTOCOLS = ("sts", "dxl2")
-#: Dynamixel X defaults the plant's servos start with (e-Manual XL330-M288-T control table):
-#: return delay 250 (500 us), torque off, 5.0 V supply
+#: Dynamixel X factory default return delay (e-Manual control tables: 250 = 500 us)
 DXL_RETURN_DELAY_US = 500
-DXL_VOLTAGE_DV = 50
 BYTE_BITS = 10
 
 
@@ -85,7 +83,7 @@ class PlantBus:
     reads it from the pty (None: unknown, taken to match); a controller at another speed than
     ``baud`` gets no answer and its bytes count as garbage, as servos at another baud would see them.
     In "dxl2" the servos start as a Dynamixel X ships: model 1200 (unless the world or the
-    conditions name another), torque off, return delay 500 us, 5.0 V.
+    conditions name another), torque off, return delay 500 us, the model's nominal supply voltage.
     """
 
     def __init__(self, world: World, *, lockstep: bool, baud: int = 1_000_000, protocol: str = "sts") -> None:
@@ -126,7 +124,7 @@ class PlantBus:
                     st.torque = False
                 st.return_delay_us = DXL_RETURN_DELAY_US
                 if not st.fault & Fault.VOLTAGE:
-                    st.voltage_dv = DXL_VOLTAGE_DV
+                    st.voltage_dv = dxl_model(st.model).nominal_voltage_dv
             dxl: dict[int, DxlDevice] = {st.id: DxlServo(st, baud=baud) for st in world.servos}
             dxl.update({world.imu.id: DxlRegisterFile(world.imu), world.probe.id: DxlRegisterFile(world.probe)})
             self.devices = dxl

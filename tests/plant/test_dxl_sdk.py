@@ -108,22 +108,24 @@ def test_read_write_and_bulk_read_across_devices(dxl) -> None:
 
 
 def test_indirect_addresses_map_a_sync_read_block(dxl) -> None:
-    """Indirect address 1..7 -> present position (4), present temperature (1), present voltage (2);
-    one SYNC READ of indirect data 1..7 returns them, as ROBOTIS's indirect_address example does."""
+    """XL330 indirect address 1..7 (168..) -> present position (4), present temperature (1), present
+    voltage (2); one SYNC READ of indirect data 1..7 (208..) returns them, as ROBOTIS's
+    indirect_address example does; a goal written through indirect data reaches the goal register."""
     s, port, ph = dxl
+    data1 = ADDR.INDIRECT_DATA_XL330
     targets = [*range(ADDR.PRESENT_POSITION, ADDR.PRESENT_POSITION + 4), ADDR.PRESENT_TEMPERATURE,
                ADDR.PRESENT_VOLTAGE, ADDR.PRESENT_VOLTAGE + 1]
     for sid in IDS:
         for k, a in enumerate(targets):
             _ok(ph, *ph.write2ByteTxRx(port, sid, ADDR.INDIRECT_ADDRESS + 2 * k, a))
-    reader = GroupSyncRead(port, ph, ADDR.INDIRECT_DATA, len(targets))
+    reader = GroupSyncRead(port, ph, data1, len(targets))
     for sid in IDS:
         assert reader.addParam(sid)
     _ok(ph, reader.txRxPacket())
     for st in s.world.servos:
-        assert reader.getData(st.id, ADDR.INDIRECT_DATA, 4) == st.present_steps
-        assert reader.getData(st.id, ADDR.INDIRECT_DATA + 4, 1) == st.temperature_c
-        assert reader.getData(st.id, ADDR.INDIRECT_DATA + 5, 2) == st.voltage_dv
+        assert reader.getData(st.id, data1, 4) == st.present_steps
+        assert reader.getData(st.id, data1 + 4, 1) == st.temperature_c
+        assert reader.getData(st.id, data1 + 5, 2) == st.voltage_dv == 50
     # torque on: the indirect addresses are locked (access error), the indirect data writes through
     _ok(ph, *ph.write1ByteTxRx(port, 1, ADDR.TORQUE_ENABLE, 1))
     result, error = ph.write2ByteTxRx(port, 1, ADDR.INDIRECT_ADDRESS, ADDR.GOAL_POSITION)
@@ -132,7 +134,7 @@ def test_indirect_addresses_map_a_sync_read_block(dxl) -> None:
     for k in range(4):
         _ok(ph, *ph.write2ByteTxRx(port, 1, ADDR.INDIRECT_ADDRESS + 2 * k, ADDR.GOAL_POSITION + k))
     _ok(ph, *ph.write1ByteTxRx(port, 1, ADDR.TORQUE_ENABLE, 1))
-    _ok(ph, *ph.write4ByteTxRx(port, 1, ADDR.INDIRECT_DATA, 2100))
+    _ok(ph, *ph.write4ByteTxRx(port, 1, data1, 2100))
     back, result, error = ph.read4ByteTxRx(port, 1, ADDR.GOAL_POSITION)
     _ok(ph, result, error)
     assert back == 2100 and s.world.servos[0].goal_steps == 2100
