@@ -8,8 +8,11 @@ base's pose (SIM_STATE ``base_pos``/``base_quat``) at the same board
 time: together that is the robot's whole ``qpos``. Each video frame takes the
 latest recorded state at its time (25 fps reads every other 50 Hz sample).
 
-A frame (640x480) is a third-person view that follows the robot (a free MuJoCo camera
-looking at its base; distance and angles from the robot's ``[view]``), the robot's camera
+A frame (640x480) is a third-person view: for a floating robot a free MuJoCo camera that follows its
+base (distance and angles from the robot's ``[view]``), as for a fixed-base robot with a ``[view]``; a
+fixed-base robot without one gets a camera framed on the model's bounding box at the neutral pose. A
+fixed-base robot whose model has no floor gets one drawn under it (:mod:`host.run.framing`). Then the
+robot's camera
 (its ``[peripherals] camera``, when it has one) as an inset, and a caption
 strip: the board time, the calls active on each channel (``timeline.json``) and
 the sentence being spoken. The scene's movable objects are drawn where the
@@ -277,13 +280,23 @@ def _setup_worker(settings: VideoSettings, scene: str, robot: str | None, robots
     cam = mujoco.MjvCamera()
     cam.type = mujoco.mjtCamera.mjCAMERA_FREE
     view = bot.view
+    framing = None
+    if not cm.floating:  # the floor it lacks, and (no [view]) a camera framed on it: host.run.framing
+        from host.run.framing import frame_fixed_base
+
+        static = sum(1 for o in bot.scene(scene).objects if not o.free)
+        framing = frame_fixed_base(model, data, cm.qpos_adr, bot.servos.neutral, static_objects=static)
     cam.distance = float(view.get("distance_m", settings.distance_m))
     cam.azimuth = float(view.get("azimuth_deg", settings.azimuth_deg))
     cam.elevation = float(view.get("elevation_deg", settings.elevation_deg))
+    framed = framing is not None and not view  # a robot package's own [view] wins
+    if framed:
+        assert framing is not None
+        cam.lookat[:], cam.distance = framing.lookat, framing.distance
     head_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera) if camera is not None else -1
     _W.update(mujoco=mujoco, model=model, data=data, main=main, head=head, cam=cam, head_id=head_id,
               qpos_adr=np.asarray(cm.qpos_adr), rm=cm, label=bot.peripherals.camera_label,
-              lookat_z=float(view.get("lookat_z", 0.05)))
+              lookat_z=float(view.get("lookat_z", 0.05)), framing=framing, framed=framed)
 
 
 def _render(job: tuple[float, np.ndarray, np.ndarray, str, str, dict[str, list[float]]]) -> bytes:
@@ -295,8 +308,14 @@ def _render(job: tuple[float, np.ndarray, np.ndarray, str, str, dict[str, list[f
     data = _W["data"]
     _W["rm"].set_state(data, base, joints, objects)
     cam = _W["cam"]
-    cam.lookat[:] = [base[0], base[1], max(_W["lookat_z"], base[2])]
+    framing = _W.get("framing")
+    if not _W.get("framed"):  # follow the base (a floating robot, or a [view] of the robot's own)
+        cam.lookat[:] = [base[0], base[1], max(_W["lookat_z"], base[2])]
     _W["main"].update_scene(data, cam)
+    if framing is not None:
+        from host.run.framing import add_floor
+
+        add_floor(_W["main"].scene, framing)
     view = _W["main"].render()
     img = Image.new("RGB", (WIDTH, HEIGHT), (18, 18, 24))
     img.paste(Image.fromarray(view), (0, 0))
