@@ -67,6 +67,19 @@ TARGETS: dict[str, FuzzTarget] = {
             "decoded fields) and errors out",
         ),
         FuzzTarget(
+            "bus-sts",
+            "firmware_sim.servobus.fuzz_sts",
+            "garbage, partial and mutated Feetech STS status packets as the servo bus's answers to the board's motor "
+            "bus + safety layer (scservo_sdk on an in-memory port): no exception, bounded state, one goal SYNC WRITE "
+            "a tick, every goal inside its servo's calibrated step limits",
+        ),
+        FuzzTarget(
+            "bus-dxl2",
+            "firmware_sim.servobus.fuzz_dxl2",
+            "the same for Dynamixel Protocol 2.0 (dynamixel_sdk, indirect addressing, hardware error status): no "
+            "exception, bounded state, one goal SYNC WRITE a tick, every goal inside its step limits",
+        ),
+        FuzzTarget(
             "session",
             "host.fuzz.session",
             "fuzzed board replies into the link client's receive path: no exception, bounded maps, "
