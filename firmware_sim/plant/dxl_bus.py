@@ -107,9 +107,9 @@ class DxlHandler:
         elif inst == DxlInst.ACTION:
             self._action([d])
             return []
-        elif inst == DxlInst.REBOOT:
-            d.reboot()
+        elif inst == DxlInst.REBOOT:  # the status is sent before the restart: it still carries the alert
             reply = self._status(d, Result.OK)
+            d.reboot()
         else:
             reply = self._status(d, Result.INSTRUCTION)
         return [reply] if level >= 2 else []
