@@ -47,7 +47,7 @@ typedef enum { GS_BUS_STS = 0, GS_BUS_DXL2 = 1 } gs_bus_protocol_t;
 #define GS_DXL_GOAL_POSITION 116u    /* i32 steps */
 #define GS_DXL_PRESENT 126u          /* current i16 (mA), velocity i32 (0.229 rpm), position i32 (steps) */
 #define GS_DXL_PRESENT_LEN 10u
-#define GS_DXL_STALL_MA 1470         /* the current of a 100 % load reading (XL330-M288 stall current) */
+#define GS_DXL_STALL_MA 1750         /* the current of a 100 % load reading (XL330: its current limit, as the plant models it) */
 
 /* The IMU and the probe: the same register file under both protocols (firmware_sim/plant/devices.py) */
 #define GS_DEV_PRESENT 56u
