@@ -22,13 +22,17 @@ import sys
 import termios
 import threading
 import time
+from collections.abc import Callable
+from typing import TypeVar
 
 from firmware_sim.plant.bus import PROTOCOLS, PlantBus
 from firmware_sim.plant.conditions import Conditions, parse_error, parse_id, parse_id_int
 from firmware_sim.plant.world import World
 from firmware_sim.transports.ports import PtyPort
 
-__all__ = ["line_speed", "main", "serve", "set_line_speed"]
+__all__ = ["line_speed", "main", "parser", "serve", "set_line_speed"]
+
+T = TypeVar("T")
 
 #: termios speed constant -> bits per second (Linux: B1000000 and friends included)
 _SPEEDS: dict[int, int] = {getattr(termios, f"B{b}"): b for b in (
@@ -85,11 +89,25 @@ def _conditions(args: argparse.Namespace) -> Conditions:
         corrupt=args.corrupt, seed=args.seed)
 
 
+def _arg(fn: Callable[[str], T]) -> Callable[[str], T]:
+    """``fn`` for argparse: its ValueError's message becomes the command line's error."""
+    def parse(text: str) -> T:
+        try:
+            return fn(text)
+        except ValueError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+    parse.__name__ = fn.__name__
+    return parse
+
+
 def _dead(text: str) -> tuple[int, float]:
     sid, sep, at = text.partition("@")
     if not sep:
         raise ValueError(f"expected ID@SECONDS, got {text!r}")
-    return parse_id(sid), float(at)
+    try:
+        return parse_id(sid), float(at)
+    except ValueError as e:
+        raise ValueError(f"expected ID@SECONDS, got {text!r} ({e})") from None
 
 
 def parser() -> argparse.ArgumentParser:
@@ -100,21 +118,21 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--protocol", choices=PROTOCOLS, default="sts", help="the servos' wire protocol")
     p.add_argument("--baud", type=int, default=1_000_000, help="the servos' baud rate (bit/s)")
     p.add_argument("--lockstep", action="store_true", help="step the world once per goal SYNC WRITE")
-    p.add_argument("--offset", type=parse_id_int, action="append", default=[], metavar="ID=STEPS",
+    p.add_argument("--offset", type=_arg(parse_id_int), action="append", default=[], metavar="ID=STEPS",
                    help="servo ID reads STEPS more than a calibrated one")
-    p.add_argument("--reverse", type=parse_id, action="append", default=[], metavar="ID",
+    p.add_argument("--reverse", type=_arg(parse_id), action="append", default=[], metavar="ID",
                    help="servo ID turns the other way")
-    p.add_argument("--model", type=parse_id_int, action="append", default=[], metavar="ID=NUMBER",
+    p.add_argument("--model", type=_arg(parse_id_int), action="append", default=[], metavar="ID=NUMBER",
                    help="servo ID reports model NUMBER")
-    p.add_argument("--missing", type=parse_id, action="append", default=[], metavar="ID", help="ID never answers")
-    p.add_argument("--duplicate", type=parse_id, action="append", default=[], metavar="ID",
+    p.add_argument("--missing", type=_arg(parse_id), action="append", default=[], metavar="ID", help="ID never answers")
+    p.add_argument("--duplicate", type=_arg(parse_id), action="append", default=[], metavar="ID",
                    help="two devices answer ID (their replies collide)")
-    p.add_argument("--error", type=parse_error, action="append", default=[], metavar="ID=KIND@SECONDS",
+    p.add_argument("--error", type=_arg(parse_error), action="append", default=[], metavar="ID=KIND@SECONDS",
                    help="servo ID reports overload, overheat or voltage from world time SECONDS")
     p.add_argument("--corrupt", type=float, default=0.0, metavar="P",
                    help="probability that a status packet's checksum is broken")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--dead-servo", type=_dead, action="append", default=[], metavar="ID@SECONDS",
+    p.add_argument("--dead-servo", type=_arg(_dead), action="append", default=[], metavar="ID@SECONDS",
                    help="device ID stops answering at world time SECONDS")
     return p
 
