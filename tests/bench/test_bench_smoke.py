@@ -31,6 +31,7 @@ CASES = {
     "bench_control_lag.py": ["-n", "1", "--cases", "mesh"],  # one realtime run of the mesh arm
     "bench_lockstep_identity.py": ["--runs", "1", "--robot", "arm", "--p", "0", "--max-s", "0"],  # ~3 s
     "bench_realtime_load.py": ["--runs", "1", "--firmware", "python", "--no-load", "--task", "1"],  # ~5 s
+    "bench_servo_bus.py": ["--cycles", "5", "--robots", "arm"],  # two plants on ptys, the vendor SDKs as clients
 }
 
 
