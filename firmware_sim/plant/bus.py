@@ -1,20 +1,26 @@
 """The plant's side of the servo bus: instructions in, status packets out, bus time modelled.
 
 :class:`PlantBus` answers every instruction packet for the devices of a :class:`World` as the
-devices would (PING, READ, WRITE, REG_WRITE + ACTION, SYNC READ, SYNC WRITE; broadcast id 0xFE).
+devices would, in Feetech STS (:mod:`firmware_sim.plant.sts_bus`) or Dynamixel Protocol 2.0
+(:mod:`firmware_sim.plant.dxl_bus`), over the protocol's control-table views of the world's
+protocol-neutral servo states.
+
 Clock coupling: in **lockstep** a SYNC WRITE that covers the goal-position register advances the
 world one control period (the firmware writes the goals exactly once per control tick, in every
 mode), so physics runs in the firmware's virtual time; in **realtime** the world steps on the
 wall clock (:meth:`PlantBus.next_step_time`) and a goal write only sets the goals.
 
-Bus time at ``baud`` (1 Mbaud, 10 bits per byte): every packet both ways costs its bytes' time,
-each status packet also the servo's return delay (register 7, 2 us units; 0 by default). The
+Bus time at ``baud`` (10 bits per byte): every packet both ways costs its bytes' time, each status
+packet also the servo's return delay (STS register 7, 0 by default; DXL address 9, 500 us as
+shipped; 2 us units). The
 accounting is per control period (from one goal write to the next): ``stats()`` gives the mean
 and largest bus time per tick and how many ticks needed more than the period. In realtime the
 status packets are also released no earlier than their modelled end time.
 
 Faults: ``kill(servo_id, at_us)`` makes a device stop answering from world time ``at_us``
-(``--dead-servo ID@SECONDS`` on the board's command line).
+(``--dead-servo ID@SECONDS`` on the board's command line); the wire-side injected conditions of
+``world.conditions`` (missing, duplicate, corrupt) and a controller at another line speed
+(``line_baud``) are applied here.
 
 Lateness (realtime): the plant tells when it fell behind the wall clock (its process descheduled, a
 loaded machine): :class:`PlantLateness` counts the physics steps run later than one period after
@@ -120,7 +126,7 @@ class PlantBus:
             for st in world.servos:
                 if world.model_number is None:
                     st.model = c.models.get(st.id, MODEL_XL330)
-                if not st.fault.stops_torque:
+                if not st.fault & Fault.STOPS_TORQUE:
                     st.torque = False
                 st.return_delay_us = DXL_RETURN_DELAY_US
                 if not st.fault & Fault.VOLTAGE:

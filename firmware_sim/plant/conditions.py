@@ -16,7 +16,7 @@ from firmware_sim.plant.servo import Fault
 __all__ = ["Conditions", "FAULT_NAMES", "ServoError", "parse_error", "parse_id", "parse_id_int"]
 
 #: ``--error`` spellings
-FAULT_NAMES: dict[str, Fault] = {"overload": Fault.OVERLOAD, "overheat": Fault.OVERHEAT, "voltage": Fault.VOLTAGE}
+FAULT_NAMES: dict[str, int] = {"overload": Fault.OVERLOAD, "overheat": Fault.OVERHEAT, "voltage": Fault.VOLTAGE}
 
 
 @dataclass(frozen=True)
@@ -25,7 +25,7 @@ class ServoError:
     torque goes off)."""
 
     id: int
-    fault: Fault
+    fault: int  # Fault bits
     at_us: int
 
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import struct
 
-from firmware_sim.plant.feetech import from_sign_magnitude, to_sign_magnitude
+from firmware_sim.plant.feetech import from_sign_magnitude
 from firmware_sim.plant.servo import Fault, ServoState
 
 __all__ = ["Device", "IMU_ID", "ImuDevice", "PROBE_ID", "ProbeDevice", "REG", "STS_ERROR_BITS", "ServoDevice", "STS_MODEL",
@@ -110,13 +110,15 @@ class Device:
 
 #: the STS status error bits of each fault (scservo_sdk protocol_packet_handler.py: ERRBIT_VOLTAGE 1,
 #: ERRBIT_OVERHEAT 4, ERRBIT_OVERLOAD 32; ERRBIT_ANGLE 2 and ERRBIT_OVERELE 8 are not injected)
-STS_ERROR_BITS: dict[Fault, int] = {Fault.VOLTAGE: 0x01, Fault.OVERHEAT: 0x04, Fault.OVERLOAD: 0x20}
-_PRESENT = struct.Struct("<3H")
+STS_ERROR_BITS: dict[int, int] = {Fault.VOLTAGE: 0x01, Fault.OVERHEAT: 0x04, Fault.OVERLOAD: 0x20}
+_STS_ERROR = [sum(bit for f, bit in STS_ERROR_BITS.items() if fault & f) for fault in range(8)]
+#: present position, speed, load (56..61), voltage (62), temperature (63)
+_PRESENT = struct.Struct("<3HBB")
 
 
-def sts_error(fault: Fault) -> int:
-    """The STS status packet's error byte for ``fault``."""
-    return sum(bit for f, bit in STS_ERROR_BITS.items() if fault & f)
+def sts_error(fault: int) -> int:
+    """The STS status packet's error byte for ``fault`` (:class:`Fault` bits)."""
+    return _STS_ERROR[fault & 7]
 
 
 class ServoDevice(Device):
@@ -143,18 +145,21 @@ class ServoDevice(Device):
 
     @property
     def error(self) -> int:
-        return sts_error(self.state.fault)
+        return _STS_ERROR[self.state.fault & 7]
 
     def _render(self) -> None:
         st, t = self.state, self.table
-        _PRESENT.pack_into(t, REG.PRESENT_POSITION, max(0, min(4095, st.present_steps)),
-                           to_sign_magnitude(max(-32767, min(32767, round(st.speed_steps_s))), 15),
-                           to_sign_magnitude(max(-1000, min(1000, round(st.load * 1000))), 10))
-        t[REG.MOVING] = 1 if st.moving else 0
-        t[REG.PRESENT_VOLTAGE] = st.voltage_dv & 0xFF
-        t[REG.PRESENT_TEMPERATURE] = st.temperature_c & 0xFF
+        pos = st.present_steps
+        speed = round(st.speed_steps_s)
+        load = round(st.load * 1000)
+        _PRESENT.pack_into(t, REG.PRESENT_POSITION, 0 if pos < 0 else 4095 if pos > 4095 else pos,
+                           min(32767, speed) if speed >= 0 else min(32767, -speed) | 0x8000,
+                           min(1000, load) if load >= 0 else min(1000, -load) | 0x400,
+                           st.voltage_dv & 0xFF, st.temperature_c & 0xFF)
+        t[REG.MOVING] = 1 if speed > 2 or speed < -2 else 0
         t[REG.TORQUE_ENABLE] = 1 if st.torque else 0
-        self.set_u16(REG.MODEL, st.model)
+        t[REG.MODEL] = st.model & 0xFF
+        t[REG.MODEL + 1] = st.model >> 8 & 0xFF
 
     def read(self, addr: int, n: int) -> bytes | None:
         self._render()
@@ -170,7 +175,7 @@ class ServoDevice(Device):
         if addr < REG.MAX_ANGLE + 2 and end > REG.MIN_ANGLE:
             st.min_steps, st.max_steps = self.u16(REG.MIN_ANGLE), self.u16(REG.MAX_ANGLE)
         if addr <= REG.TORQUE_ENABLE < end:
-            st.torque = bool(self.table[REG.TORQUE_ENABLE]) and not st.fault.stops_torque
+            st.torque = bool(self.table[REG.TORQUE_ENABLE]) and not st.fault & Fault.STOPS_TORQUE
         if addr < REG.GOAL_POSITION + 2 and end > REG.GOAL_POSITION:
             st.goal_steps = from_sign_magnitude(self.u16(REG.GOAL_POSITION), 15)
         return True

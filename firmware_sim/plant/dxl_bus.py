@@ -45,14 +45,11 @@ class DxlDevice(Protocol):
     def return_delay_us(self) -> int: ...
     @property
     def alert(self) -> bool: ...
+    @property
+    def status_return_level(self) -> int: ...
     def read(self, addr: int, n: int) -> tuple[int, bytes]: ...
     def write(self, addr: int, data: bytes) -> int: ...
     def reboot(self) -> None: ...
-
-
-def _status_level(d: DxlDevice) -> int:
-    table = getattr(d, "table", None)
-    return int(table[ADDR.STATUS_RETURN_LEVEL]) if table is not None and len(table) > 200 else 2
 
 
 class DxlHandler:
@@ -84,7 +81,7 @@ class DxlHandler:
         d = self._get(dev_id)
         if d is None:
             return []
-        level = _status_level(d)
+        level = d.status_return_level
         reply: Reply | None
         if inst == DxlInst.PING:
             return [self._status(d, Result.OK, struct.pack("<HB", d.model & 0xFFFF, d.firmware & 0xFF))]

@@ -52,7 +52,7 @@ FIRMWARE = 52
 DXL_BAUD_CODES: dict[int, int] = {0: 9600, 1: 57600, 2: 115200, 3: 1_000_000, 4: 2_000_000, 5: 3_000_000,
                                   6: 4_000_000, 7: 4_500_000}
 #: hardware error status bits of each fault
-HW_ERROR_BITS: dict[Fault, int] = {Fault.VOLTAGE: 0x01, Fault.OVERHEAT: 0x04, Fault.OVERLOAD: 0x20}
+HW_ERROR_BITS: dict[int, int] = {Fault.VOLTAGE: 0x01, Fault.OVERHEAT: 0x04, Fault.OVERLOAD: 0x20}
 RPM_UNIT = 0.229
 PWM_LIMIT = 885
 
@@ -128,7 +128,7 @@ _READ_ONLY = frozenset({*range(0, 7), 69, 70, *range(120, 148)})
 _BAUD_CODE = {v: k for k, v in DXL_BAUD_CODES.items()}
 
 
-def hardware_error(fault: Fault) -> int:
+def hardware_error(fault: int) -> int:
     """The hardware error status register (address 70) for ``fault``."""
     return sum(bit for f, bit in HW_ERROR_BITS.items() if fault & f)
 
@@ -184,6 +184,11 @@ class DxlServo:
     def alert(self) -> bool:
         """Bit 7 of every status packet: the hardware error status is non-zero."""
         return self.state.fault != Fault.NONE
+
+    @property
+    def status_return_level(self) -> int:
+        """Address 68: 0 answers PING only, 1 also READ, 2 everything."""
+        return int(self.table[ADDR.STATUS_RETURN_LEVEL])
 
     @property
     def indirect_data(self) -> int:
@@ -283,7 +288,7 @@ class DxlServo:
             st.min_steps, st.max_steps = lo - home, hi - home
             st.goal_steps = int(struct.unpack_from("<i", t, ADDR.GOAL_POSITION)[0]) - home
         if addr <= ADDR.TORQUE_ENABLE < end:
-            st.torque = bool(t[ADDR.TORQUE_ENABLE]) and not st.fault.stops_torque
+            st.torque = bool(t[ADDR.TORQUE_ENABLE]) and not st.fault & Fault.STOPS_TORQUE
         if addr < ADDR.GOAL_POSITION + 4 and end > ADDR.GOAL_POSITION:
             st.goal_steps = int(struct.unpack_from("<i", t, ADDR.GOAL_POSITION)[0]) - self._homing()
 
@@ -318,6 +323,10 @@ class DxlRegisterFile:
     @property
     def alert(self) -> bool:
         return False
+
+    @property
+    def status_return_level(self) -> int:
+        return 2
 
     def read(self, addr: int, n: int) -> tuple[int, bytes]:
         data = self.device.read(addr, n)

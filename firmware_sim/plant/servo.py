@@ -13,23 +13,20 @@ steps/s; load a signed fraction of full torque (-1..1); temperature deg C; volta
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import IntFlag
 
 __all__ = ["Fault", "ServoState"]
 
 
-class Fault(IntFlag):
-    """Hardware conditions a servo reports (each protocol maps them to its own error bits)."""
+class Fault:
+    """Hardware conditions a servo reports, as bits of an int (each protocol maps them to its own
+    error bits). Plain ints, not an ``enum.IntFlag``: they are tested on every status packet."""
 
     NONE = 0
     VOLTAGE = 1
     OVERHEAT = 2
     OVERLOAD = 4
-
-    @property
-    def stops_torque(self) -> bool:
-        """Overload and overheating switch the servo's torque off (its own protection)."""
-        return bool(self & (Fault.OVERHEAT | Fault.OVERLOAD))
+    #: overload and overheating switch the servo's torque off (its own protection)
+    STOPS_TORQUE = OVERHEAT | OVERLOAD
 
 
 @dataclass
@@ -47,7 +44,7 @@ class ServoState:
     load: float = 0.0  # signed fraction of full torque, servo frame
     temperature_c: int = 30
     voltage_dv: int = 74
-    fault: Fault = Fault.NONE
+    fault: int = Fault.NONE  # Fault bits
     return_delay_us: int = 0
 
     @property

@@ -125,7 +125,7 @@ class World:
                 st.temperature_c = 85
             if e.fault & Fault.VOLTAGE:
                 st.voltage_dv = LOW_VOLTAGE_DV
-            if e.fault.stops_torque:
+            if e.fault & Fault.STOPS_TORQUE:
                 st.torque = False
 
     def _sync_torque(self) -> None:

@@ -51,7 +51,7 @@ def _periods(bus: Bus, n: int, ids: list[int]) -> None:
 @pytest.mark.parametrize("kind, bit, name, limp", [
     (Fault.OVERLOAD, 0x20, "Overload", True), (Fault.OVERHEAT, 0x04, "Overheat", True),
     (Fault.VOLTAGE, 0x01, "Input voltage", False)])
-def test_error_bits_as_the_sdk_names_them(monkeypatch: pytest.MonkeyPatch, kind: Fault, bit: int, name: str,
+def test_error_bits_as_the_sdk_names_them(monkeypatch: pytest.MonkeyPatch, kind: int, bit: int, name: str,
                                            limp: bool) -> None:
     with sts_bus(monkeypatch, Conditions(errors=(ServoError(2, kind, 40_000),))) as bus:
         s, port, ph = bus
