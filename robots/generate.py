@@ -72,8 +72,8 @@ from pathlib import Path
 from typing import Any
 
 from robots.description import MAX_WIRE_SERVOS, RobotDataError
-from robots.loader import (NAME_RE, ROBOT_FILE, check_meshes, compile_error, load_robot_dir, position_kp, range_notes,
-                           servo_range)
+from robots.loader import (NAME_RE, ROBOT_FILE, check_meshes, check_no_nan, compile_error, load_robot_dir,
+                           position_kp, range_notes, servo_range)
 from robots.mjcf_index import Element, MjcfIndex, index_mjcf
 
 __all__ = ["DEFAULT_MAX_SPEED_DPS", "GeneratedServo", "RobotPackage", "generate_package", "install_package"]
@@ -187,6 +187,7 @@ def generate_package(name: str, mjcf: str | Path, *, max_speed_dps: float = DEFA
     src = src.resolve()
     check_meshes(src)  # a missing, huge or foreign mesh file: one line naming it, before MuJoCo reads it
     index = index_mjcf(src)
+    check_no_nan(index)  # MuJoCo compiles a NaN (a NaN range as none) and prints a warning line of its own
     try:
         model = mujoco.MjModel.from_xml_path(str(src))
     except (ValueError, OSError) as e:

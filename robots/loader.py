@@ -79,7 +79,7 @@ from robots.description import (
 )
 
 __all__ = ["MAX_MESH_FILE_BYTES", "MAX_MESH_TOTAL_BYTES", "MESH_SUFFIXES", "ROBOT_FILE", "check_against_mjcf",
-           "check_meshes", "compile_error", "load_robot_dir", "mesh_files", "mjcf_notes", "mjcf_servo_ranges",
+           "check_meshes", "check_no_nan", "compile_error", "load_robot_dir", "mesh_files", "mjcf_notes", "mjcf_servo_ranges",
            "position_kp", "range_notes", "read_poses", "read_servo_table", "servo_range"]
 
 ROBOT_FILE = "robot.toml"
@@ -317,13 +317,13 @@ def servo_range(model: Any, aid: int, jid: int, *, joint_at: str, actuator_at: s
     lo, hi = (float(v) for v in model.jnt_range[jid])
     clo, chi = (float(v) for v in model.actuator_ctrlrange[aid])
     climited = bool(model.actuator_ctrllimited[aid])
-    if not model.jnt_limited[jid] or not lo < hi:
+    if not model.jnt_limited[jid] or not lo < hi or not (math.isfinite(lo) and math.isfinite(hi)):
         why = _bad_pair(lo, hi) if (lo, hi) != (0.0, 0.0) else None
         if why is not None:
             raise RobotDataError(f"{joint_at}: joint {jname!r} range {lo:g} {hi:g} {why}; give range=\"lo hi\" "
                                  "with lo < hi")
-        hint = (f" (its actuator {aname!r} has ctrlrange {clo:g} {chi:g}: the same range=\"{clo:g} {chi:g}\" "
-                "would do)") if climited else ""
+        hint = (f"; its actuator {aname!r} has ctrlrange {clo:g} {chi:g}, so range=\"{clo:g} {chi:g}\" would do"
+                if climited else "")
         raise RobotDataError(f"{joint_at}: joint {jname!r} (driven by actuator {aname!r}) has no range; give it "
                              f"range=\"lo hi\", its mechanical stops (the servo table's limits come from it){hint}")
     if not climited:
@@ -369,6 +369,31 @@ def range_notes(changed: Sequence[tuple[str, str, float, float, float, float, fl
         notes.append(f"ctrlrange wider than the joint range on {len(wider)} servo(s), so the servo range is the joint "
                      f"range: {items}{hint}")
     return notes
+
+
+#: attributes that name things (a body may be called "nan"); every other attribute is numbers or a keyword
+_NAME_ATTRS = frozenset({"name", "class", "childclass", "joint", "joint1", "joint2", "body", "body1", "body2", "site",
+                         "site1", "site2", "tendon", "tendon1", "tendon2", "mesh", "material", "texture", "hfield",
+                         "file", "target", "objname", "actuator", "geom", "geom1", "geom2", "prefix", "model",
+                         "camera", "key", "refname", "slidersite", "cranksite", "flex", "skin"})
+
+
+def check_no_nan(index: Any) -> None:
+    """A number attribute holding NaN (MuJoCo compiles it, printing a warning line of its own, and a NaN range
+    as no range): :class:`RobotDataError` at its file:line. ``index``: the MJCF's
+    :class:`robots.mjcf_index.MjcfIndex`."""
+    for el in index:
+        for key, value in el.attrs.items():
+            if key in _NAME_ATTRS:
+                continue
+            tokens = value.replace(",", " ").split()
+            try:
+                numbers = [float(t) for t in tokens]
+            except ValueError:
+                continue  # a keyword ("true", "degree", ...), not numbers
+            if any(math.isnan(v) for v in numbers):
+                what = f"{el.tag} {el.attrs['name']!r}" if el.attrs.get("name") else f"<{el.tag}>"
+                raise RobotDataError(f"{el.where}: {what} {key}=\"{value}\" holds NaN; give numbers")
 
 
 def compile_error(mjcf: Path, error: Exception, index: Any = None) -> RobotDataError:
@@ -455,6 +480,7 @@ def check_against_mjcf(mjcf: Path, table: ServoTable, servo_path: Path, servo_te
     import mujoco
 
     index = index_mjcf(mjcf)
+    check_no_nan(index)
     try:
         model = mujoco.MjModel.from_xml_path(str(mjcf))
     except (ValueError, OSError) as e:
