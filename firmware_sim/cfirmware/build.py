@@ -17,6 +17,7 @@ native-asan    the same with ``-fsanitize=address,undefined`` (tests run the cor
 mps2           the Cortex-M3 image for QEMU's ``mps2-an385`` (``arm-none-eabi-gcc``, newlib-nano)
 codec          the codec harness (stdin hex lines -> decode/dump/re-encode), ASan/UBSan
 fuzz-c-wire    libFuzzer: bytes into the C link decoder + board session (clang, fuzzer+ASan+UBSan)
+fuzz-c-bus     libFuzzer: servo-bus answers (STS or Dynamixel 2.0) into the bus layer + board core (clang)
 libdecode      the C frame decoder as a shared library (the differential target c-diff loads it)
 =============  ==================================================================================
 
@@ -109,6 +110,9 @@ KINDS: dict[str, _Kind] = {
     "fuzz-c-wire": _Kind("clang", _CORE + ("tests/fuzz_hal.c", "tests/fuzz_c_wire.c"),
                          (*WARN, "-O1", "-g", "-fsanitize=fuzzer,address,undefined", "-fno-sanitize-recover=all"),
                          "fuzz_c_wire"),
+    "fuzz-c-bus": _Kind("clang", _CORE + ("tests/fuzz_c_bus.c",),
+                        (*WARN, "-O1", "-g", "-fsanitize=fuzzer,address,undefined", "-fno-sanitize-recover=all"),
+                        "fuzz_c_bus"),
     "libdecode": _Kind("cc", ("core/gs_link.c", "{schema}/gs_proto.c", "core/gs_cobs.c", "core/gs_crc.c",
                               "tests/diff_lib.c"),
                        (*WARN, "-O1", "-fPIC", "-shared", "-DGS_PROTO_DUMP"), "libgs_decode.so"),

@@ -1,0 +1,53 @@
+"""Fuzz target ``c-bus``: the C firmware's servo-bus layer (Feetech STS and Dynamixel Protocol 2.0) and board
+core under libFuzzer, the fuzzed bytes being the bus's answers.
+
+``python -m firmware_sim.cfirmware.fuzz_bus [libFuzzer args]`` builds the target with Debian's clang
+(``-fsanitize=fuzzer,address,undefined``, :mod:`firmware_sim.cfirmware.build` kind ``fuzz-c-bus``, cached)
+and replaces itself with it, so ``ghostshell fuzz c-bus`` drives it like the other targets. Input: byte 0
+picks the protocol (bit 0: STS / Dynamixel 2.0) and the ESTOP torque (bit 1: hold / limp), 16 bytes of host
+script (frames anywhere in the wire's range, ESTOP, ESTOP_CLEAR), then one op per packet the firmware sends
+(well-formed answers with fuzzed data and error bytes, corrupted ones, raw garbage, silence); layout and
+invariants in firmware_sim/c/tests/fuzz_c_bus.c (no memory error or UB, every goal sent inside its servo's
+step range, commands inside the joint ranges, torque only from a known position, ESTOP holds).
+:func:`load` runs one input through the binary (the replay tests).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+__all__ = ["binary", "load"]
+
+
+def binary() -> Path:
+    from firmware_sim.cfirmware.build import build
+    from robots.registry import DEFAULT_ROBOT, load_robot
+
+    return build("fuzz-c-bus", load_robot(DEFAULT_ROBOT))
+
+
+def load(instrument: bool = False) -> Callable[[bytes], None]:
+    exe = binary()
+
+    def one_input(data: bytes) -> None:
+        with tempfile.NamedTemporaryFile(prefix="c-bus-", delete=False) as f:
+            f.write(data)
+        try:
+            r = subprocess.run([str(exe), f.name], capture_output=True, text=True, timeout=60)
+        finally:
+            os.unlink(f.name)
+        if r.returncode != 0:
+            raise AssertionError(f"c-bus: the C firmware broke an invariant or a sanitizer fired:\n{r.stderr[-3000:]}")
+
+    return one_input
+
+
+if __name__ == "__main__":
+    exe = binary()
+    sys.stdout.flush()
+    os.execv(str(exe), [str(exe), *sys.argv[1:]])
