@@ -16,7 +16,8 @@ import shutil
 import sys
 import threading
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from typing import Any
+from dataclasses import dataclass
 from pathlib import Path
 
 import dynamixel_sdk.port_handler
@@ -25,13 +26,13 @@ import scservo_sdk.port_handler
 
 import host.cli
 from firmware_sim.plant.bus import PlantBus
-from firmware_sim.plant.devices import REG
-from firmware_sim.plant.server import serve
+from firmware_sim.plant.conditions import Conditions
+from firmware_sim.plant.server import serve, set_line_speed
 from firmware_sim.plant.world import World
 from firmware_sim.transports.ports import PtyPort
 from host.commands.calibrate import run
 from robots.datatypes import Servo
-from robots.hardware import CALIBRATION_FILE, STEP_CENTRE, Calibration, ServoCalibration, load_calibration
+from robots.hardware import CALIBRATION_FILE, Calibration, ServoCalibration, load_calibration
 from robots.hardware import rad_to_steps, steps_to_rad
 from robots.loader import load_robot_dir
 from robots.registry import BUILTIN_DIR
@@ -42,31 +43,12 @@ ROBOT = "arm"
 # --- the plant with injected mounting -----------------------------------------------------------------
 
 
-class MountedWorld(World):
-    """The plant's world with servos mounted at another zero (``offsets``: id -> steps) or the other way
-    round (``reverse``: ids): present position ``centre + offset + rev * direction * round((q - neutral) / step)``.
-    (Interim: the plant's own ``--offset``/``--reverse`` options were not committed yet.)"""
-
-    def __init__(self, robot, offsets: dict[int, int], reverse: set[int]) -> None:
-        self._mount = {s.id: (offsets.get(s.id, 0), -1 if s.id in reverse else 1) for s in robot.servos}
-        super().__init__(robot)
-
-    def refresh(self) -> None:
-        super().refresh()
-        q = self.data.qpos[self._qpos_adr].tolist()
-        for i, s in enumerate(self.table):
-            off, rev = self._mount[s.id]
-            pos = STEP_CENTRE + off + rev * s.direction * round((q[i] - s.neutral) / self.step_rad)
-            self.servos[i].set_u16(REG.PRESENT_POSITION, max(0, min(4095, pos)))
-
-
 @dataclass
 class Plant:
     world: World
     bus: PlantBus
     port: PtyPort
-    offsets: dict[int, int] = field(default_factory=dict)
-    reverse: set[int] = field(default_factory=set)
+    conditions: Conditions
 
     @property
     def step(self) -> float:
@@ -74,11 +56,12 @@ class Plant:
 
     def raw(self, s: Servo, q: float) -> int:
         """The present position the plant reports for joint angle ``q`` (its injected mounting)."""
-        cal = ServoCalibration(s.id, self.offsets.get(s.id, 0), -1 if s.id in self.reverse else 1)
+        c = self.conditions
+        cal = ServoCalibration(s.id, c.offsets.get(s.id, 0), -1 if s.id in c.reversed else 1)
         return rad_to_steps(s, cal, q, self.step)
 
-    def torque(self, s: Servo) -> int:
-        return self.world.servos[s.index].table[REG.TORQUE_ENABLE]
+    def torque(self, s: Servo) -> bool:
+        return self.world.servos[s.index].torque
 
 
 @pytest.fixture
@@ -100,16 +83,20 @@ def start_plant(robots_dir: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[C
     monkeypatch.setattr(dynamixel_sdk.port_handler, "LATENCY_TIMER", 100)
     running: list[tuple[threading.Event, threading.Thread, PtyPort]] = []
 
-    def start(offsets: dict[int, int] | None = None, reverse: set[int] | None = None) -> Plant:
+    def start(protocol: str = "sts", **conditions: Any) -> Plant:
         robot = load_robot_dir(robots_dir / ROBOT)
-        world = MountedWorld(robot, offsets or {}, reverse or set())
-        bus = PlantBus(world, lockstep=True)  # lockstep: no goal writes, so physics never steps; the hand rules
+        c = Conditions(**conditions)
+        world = World(robot, conditions=c)
+        bus = PlantBus(world, lockstep=True, protocol=protocol)  # lockstep: no goal writes, physics never steps
+        for st in world.servos:  # whatever the servos start with, the command must leave them limp
+            st.torque = True
         port = PtyPort()
+        set_line_speed(port.slave, bus.baud)
         stop = threading.Event()
         th = threading.Thread(target=serve, args=(bus, port, stop), daemon=True)
         th.start()
         running.append((stop, th, port))
-        return Plant(world, bus, port, dict(offsets or {}), set(reverse or ()))
+        return Plant(world, bus, port, c)
 
     yield start
     for stop, th, port in running:
@@ -202,15 +189,17 @@ def _calibrate(robots_dir: Path, plant: Plant, hand: Hand, *extra: str) -> int:
 # --- recovery --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.parametrize("protocol", ["sts", "dxl2"])
 @pytest.mark.parametrize("offsets, reverse", [
     ({}, set()),
     ({1: 37, 2: -250, 3: 400, 5: -1, 6: 91}, {2, 4, 6}),
 ], ids=["as-built", "offsets-and-reversed"])
-def test_calibration_recovers_the_mounting_and_round_trips(robots_dir, start_plant, offsets, reverse) -> None:
-    plant = start_plant(offsets, reverse)
+def test_calibration_recovers_the_mounting_and_round_trips(robots_dir, start_plant, protocol, offsets, reverse) -> None:
+    plant = start_plant(protocol, offsets=offsets, reversed=frozenset(reverse))
+    extra = ("--bus-protocol", protocol) if protocol != "sts" else ()
     robot = load_robot_dir(robots_dir / ROBOT)
     hand = Hand(plant, robot)
-    assert _calibrate(robots_dir, plant, hand) == 0, hand.said
+    assert _calibrate(robots_dir, plant, hand, *extra) == 0, hand.said
     servos = list(robot.servos)
     assert len(hand.prompts) == len(servos) + 2
     assert any("neutral" in line and "'zero'" in line for line in hand.said), hand.said  # the pose named
@@ -224,7 +213,7 @@ def test_calibration_recovers_the_mounting_and_round_trips(robots_dir, start_pla
     for s in servos:
         for q in (s.min, s.neutral, s.max, 0.3 * s.min + 0.7 * s.max):
             assert abs(steps_to_rad(s, written.of(s), plant.raw(s, q), plant.step) - q) <= plant.step / 2 + 1e-9
-    assert all(plant.torque(s) == 0 for s in servos), "torque left on"
+    assert not any(plant.torque(s) for s in servos), "torque left on"
 
 
 # --- bad input: one line naming servo id and name, exit 2, nothing written ---------------------------
@@ -235,20 +224,28 @@ def _refused(robots_dir: Path, plant: Plant, hand: Hand, capsys: pytest.CaptureF
     err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
     assert status == 2 and len(err) == 1, (status, err)
     assert not (robots_dir / ROBOT / CALIBRATION_FILE).exists()
-    assert all(plant.torque(s) == 0 for s in hand.servos) or not hand.prompts
+    assert not any(plant.torque(s) for s in hand.servos) or not hand.prompts
     return err[0]
 
 
 def test_a_missing_servo_is_named(robots_dir, start_plant, capsys) -> None:
-    plant = start_plant()
-    plant.bus.kill(3, 0)
+    plant = start_plant(missing=frozenset({3}))
     hand = Hand(plant, load_robot_dir(robots_dir / ROBOT))
     line = _refused(robots_dir, plant, hand, capsys)
     assert line.startswith("ghostshell robots: servo 3 (elbow_flex) does not answer a ping"), line
     assert hand.prompts == []
 
 
-def test_a_wrong_model_is_named(robots_dir, start_plant, capsys) -> None:
+@pytest.mark.parametrize("protocol, model", [("sts", 777), ("dxl2", 1200)])
+def test_a_servo_of_another_model_is_named(robots_dir, start_plant, capsys, protocol, model) -> None:
+    plant = start_plant(protocol, models={2: 1020})  # an XM430 where hardware.toml says otherwise
+    hand = Hand(plant, load_robot_dir(robots_dir / ROBOT))
+    line = _refused(robots_dir, plant, hand, capsys, "--bus-protocol", protocol)
+    assert line == (f"ghostshell robots: servo 2 (shoulder_lift) reports model number 1020, hardware.toml says {model}: "
+                    "a different servo, or fix hardware.toml (model / [models])"), line
+
+
+def test_a_wrong_model_in_hardware_toml_is_named(robots_dir, start_plant, capsys) -> None:
     (robots_dir / ROBOT / "hardware.toml").write_text('protocol = "sts"\n[models]\ngripper = 1200\n')
     plant = start_plant()
     hand = Hand(plant, load_robot_dir(robots_dir / ROBOT))
@@ -312,7 +309,7 @@ def test_ctrl_c_leaves_torque_off_and_writes_nothing(robots_dir, start_plant, mo
     err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
     assert status == 130 and err == ["ghostshell robots: interrupted by SIGINT (Ctrl-C)"], (status, err)
     assert not (robots_dir / ROBOT / CALIBRATION_FILE).exists()
-    assert all(plant.torque(s) == 0 for s in robot.servos)
+    assert not any(plant.torque(s) for s in robot.servos)
 
 
 def test_end_of_input_writes_nothing(robots_dir, start_plant, capsys) -> None:
@@ -329,7 +326,7 @@ def test_end_of_input_writes_nothing(robots_dir, start_plant, capsys) -> None:
 
 
 def test_a_recalibration_replaces_the_file(robots_dir, start_plant) -> None:
-    plant = start_plant({4: 12}, {5})
+    plant = start_plant(offsets={4: 12}, reversed=frozenset({5}))
     robot = load_robot_dir(robots_dir / ROBOT)
     (robots_dir / ROBOT / CALIBRATION_FILE).write_text("[servo.wrist_roll]\nid = 5\noffset_steps = 999\n")
     hand = Hand(plant, robot)
@@ -338,3 +335,72 @@ def test_a_recalibration_replaces_the_file(robots_dir, start_plant) -> None:
     cal = load_calibration(robots_dir / ROBOT, list(robot.servos))
     assert cal.of(robot.servos[3]).offset_steps == 12 and cal.of(robot.servos[4]).direction == -1
     assert isinstance(cal, Calibration) and len(cal.servos) == len(robot.servos)
+
+
+def test_a_servo_lost_during_the_procedure_is_exit_1(robots_dir, start_plant, capsys) -> None:
+    plant = start_plant()
+    robot = load_robot_dir(robots_dir / ROBOT)
+    hand = Hand(plant, robot)
+    ask = hand.ask
+
+    def unplug_then_ask(prompt: str) -> str:
+        if len(hand.prompts) == 2:  # during the direction step of servo 2: its cable comes off
+            plant.bus.kill(2, 0)
+        return ask(prompt)
+
+    status = run(_args(robots_dir, plant.port.name), ask=unplug_then_ask, say=hand.say, live=hand.live)
+    err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
+    assert status == 1 and len(err) == 1, (status, err)
+    assert err[0].startswith("ghostshell robots: servo 2 did not answer a present-position read") and \
+        err[0].endswith("nothing written"), err
+    assert not (robots_dir / ROBOT / CALIBRATION_FILE).exists()
+
+
+class _FakeBus:
+    """Servos that report what ``pos`` says (a real encoder wraps from 4095 to 0; the plant's does not)."""
+
+    def __init__(self, robot) -> None:
+        self.pos = {s.id: 2048 for s in robot.servos}
+        self.reads = 0
+
+    def ping(self, servo_id: int) -> int:
+        return 777
+
+    def torque_off(self, servo_id: int) -> bool:
+        return True
+
+    def position(self, servo_id: int) -> int:
+        self.reads += 1
+        return self.pos[servo_id]
+
+
+def test_a_range_across_the_encoder_wrap_is_refused(robots_dir) -> None:
+    from host.calibration.procedure import CalibrationError, calibrate
+    from robots.hardware import Hardware
+
+    robot = load_robot_dir(robots_dir / ROBOT)
+    bus = _FakeBus(robot)
+    bus.pos[1] = 3900  # shoulder_pan's horn mounted near the encoder's end
+    asked: list[str] = []
+
+    def settle() -> None:
+        n, waited = bus.reads + 3 * len(bus.pos), 0
+        while bus.reads < n and waited < 250:  # the range reader polls meanwhile (until it stops, at the wrap)
+            threading.Event().wait(0.002)
+            waited += 1
+
+    def ask(prompt: str) -> str:
+        asked.append(prompt)
+        if len(asked) == 1:
+            return ""
+        if len(asked) <= 1 + len(bus.pos):
+            bus.pos[len(asked) - 1] += 100  # direction: each joint +100 steps
+            return ""
+        for p in (4095, 20, 150):  # through the end of the encoder and over its wrap
+            bus.pos[1] = p
+            settle()
+        return ""
+
+    with pytest.raises(CalibrationError, match=r"^servo 1 \(shoulder_pan\): its position jumped 4095 -> 20, across the "
+                                               r"encoder's 0/4095 wrap"):
+        calibrate(robot, bus, Hardware(), ask=ask, say=lambda line: None, poll_s=0.001)
