@@ -95,7 +95,8 @@ def _positions(bus: Bus, servos: Sequence[Servo]) -> list[int]:
 
 
 def _deg(x: float) -> str:
-    return f"{math.degrees(x):+.0f} deg"
+    v = round(math.degrees(x))
+    return f"{v:+d} deg" if v else "0 deg"
 
 
 def _record_ranges(bus: Bus, servos: Sequence[Servo], ask: Callable[[str], str], prompt: str,

@@ -108,7 +108,7 @@ def run(args: argparse.Namespace, *, ask: Callable[[str], str] | None = None, sa
     except BusError as e:
         return _fail(str(e))
     if live is None and sys.stdout.isatty():
-        live = live_table([s.name for s in servos], lambda text: (sys.stdout.write(text), sys.stdout.flush()))
+        live = live_table([s.name for s in servos], _write)
     say(f"calibrating {robot.name} ({len(servos)} servos) on {port} at {bus.baud} baud, {protocol}"
         + (f"; replaces {target} when done" if target.exists() else ""))
     limp: list[str] = []
@@ -135,6 +135,11 @@ def run(args: argparse.Namespace, *, ask: Callable[[str], str] | None = None, sa
         say(f"note: {note}")
     say(f"written to {path} (torque left off)")
     return 0
+
+
+def _write(text: str) -> None:
+    sys.stdout.write(text)
+    sys.stdout.flush()
 
 
 def _quiet_torque_off(bus: ServoBus, servo_id: int) -> bool:
