@@ -1,7 +1,8 @@
 """Serve a :class:`firmware_sim.plant.bus.PlantBus` on a pty: the servo bus alone, for any client.
 
 ``python -m firmware_sim.plant [--protocol sts|dxl2] [--baud N] [--robot NAME] [--robots-dir DIR]
-[--scene NAME] [--lockstep] [conditions...]`` prints ``plant: servo bus on /dev/pts/N`` and answers
+[--scene NAME] [--lockstep] [conditions...]`` (protocol, baud and model numbers default to the robot's
+``hardware.toml``, :mod:`robots.hardware`) prints ``plant: servo bus on /dev/pts/N`` and answers
 there until SIGTERM/SIGINT: a vendor SDK (``scservo_sdk``, ``dynamixel_sdk``), a servo tool or the C
 firmware can drive the emulated servos. In lockstep every goal SYNC WRITE steps the world one control
 period; in realtime it steps on the wall clock. The pty starts at ``--baud``; a client that sets
@@ -82,9 +83,9 @@ def serve(plant: PlantBus, port: PtyPort, stop: threading.Event) -> None:
             del out[: port.write(bytes(out))]
 
 
-def _conditions(args: argparse.Namespace) -> Conditions:
+def _conditions(args: argparse.Namespace, hw_models: dict[int, int]) -> Conditions:
     return Conditions(
-        offsets=dict(args.offset), reversed=frozenset(args.reverse), models=dict(args.model),
+        offsets=dict(args.offset), reversed=frozenset(args.reverse), models={**hw_models, **dict(args.model)},
         missing=frozenset(args.missing), duplicate=frozenset(args.duplicate), errors=tuple(args.error),
         corrupt=args.corrupt, seed=args.seed)
 
@@ -115,8 +116,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--robot", default=None)
     p.add_argument("--robots-dir", default=None)
     p.add_argument("--scene", default=None)
-    p.add_argument("--protocol", choices=PROTOCOLS, default="sts", help="the servos' wire protocol")
-    p.add_argument("--baud", type=int, default=1_000_000, help="the servos' baud rate (bit/s)")
+    p.add_argument("--protocol", choices=PROTOCOLS, default=None,
+                   help="the servos' wire protocol (default: the robot's hardware.toml, else sts)")
+    p.add_argument("--baud", type=int, default=None,
+                   help="the servos' baud rate, bit/s (default: the robot's hardware.toml, else 1000000)")
     p.add_argument("--lockstep", action="store_true", help="step the world once per goal SYNC WRITE")
     p.add_argument("--offset", type=_arg(parse_id_int), action="append", default=[], metavar="ID=STEPS",
                    help="servo ID reads STEPS more than a calibrated one")
@@ -139,20 +142,27 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     from robots.description import RobotDataError
+    from robots.hardware import DEFAULT_BAUD, HARDWARE_FILE, load_hardware
     from robots.registry import DEFAULT_ROBOT, load_robot
 
     args = parser().parse_args(argv)
     try:
         robot = load_robot(args.robot or DEFAULT_ROBOT, args.robots_dir)
-        world = World(robot, scene=args.scene, conditions=_conditions(args))
-        plant = PlantBus(world, lockstep=args.lockstep, baud=args.baud, protocol=args.protocol)
+        hw = load_hardware(robot.root, list(robot.servos))
+        protocol = args.protocol or hw.protocol
+        # the robot's own servo models when the file describes this protocol's bus
+        same = (robot.root / HARDWARE_FILE).is_file() and hw.protocol == protocol
+        hw_models = {s.id: hw.model_of(s) for s in robot.servos} if same else {}
+        baud = args.baud or (hw.baud if same else DEFAULT_BAUD[protocol])
+        world = World(robot, scene=args.scene, conditions=_conditions(args, hw_models))
+        plant = PlantBus(world, lockstep=args.lockstep, baud=baud, protocol=protocol)
     except (RobotDataError, ValueError) as e:
         print(f"plant: {e}", file=sys.stderr)
         return 2
     for sid, at in args.dead_servo:
         plant.kill(sid, int(at * 1e6))
     port = PtyPort()
-    set_line_speed(port.slave, args.baud)
+    set_line_speed(port.slave, baud)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())

@@ -5,6 +5,7 @@ conditions from the command line applied), and SIGTERM ends it cleanly with its 
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -13,7 +14,7 @@ from pathlib import Path
 import pytest
 from dynamixel_sdk import COMM_RX_TIMEOUT, COMM_SUCCESS, PacketHandler, PortHandler
 
-from firmware_sim.plant.dxl_table import ADDR, MODEL_XM430
+from firmware_sim.plant.dxl_table import ADDR, MODEL_XL330, MODEL_XM430
 from firmware_sim.plant.server import main
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -60,3 +61,28 @@ def test_bad_command_lines_are_refused(argv: list[str], says: str, capsys: pytes
 def test_a_bad_probability_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["--corrupt", "1.5"]) == 2
     assert "corrupt must be a probability" in capsys.readouterr().err
+
+
+def test_protocol_baud_and_models_default_to_the_robots_hardware_toml(tmp_path: Path) -> None:
+    """A robot whose ``hardware.toml`` says Dynamixel at 57 600 with XM430s and one XL330: the plant
+    serves exactly that without ``--protocol`` or ``--baud``."""
+    shutil.copytree(ROOT / "robots" / "arm", tmp_path / "myarm", ignore=shutil.ignore_patterns("__pycache__"))
+    (tmp_path / "myarm" / "hardware.toml").write_text(
+        'protocol = "dxl2"\nbaud = 57600\nmodel = 1020\n[models]\ngripper = 1200\n')
+    proc = subprocess.Popen([sys.executable, "-m", "firmware_sim.plant", "--robot", "myarm", "--robots-dir", str(tmp_path),
+                             "--lockstep"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "MUJOCO_GL": "egl"})
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        assert line.startswith("plant: servo bus on /dev/pts/"), (line, proc.stderr.read() if proc.poll() is not None else "")
+        port = PortHandler(line.split(" on ", 1)[1].strip())
+        assert port.openPort() and port.setBaudRate(57600)
+        ph = PacketHandler(2.0)
+        assert ph.ping(port, 1)[:2] == (MODEL_XM430, COMM_SUCCESS)
+        assert ph.ping(port, 6)[:2] == (MODEL_XL330, COMM_SUCCESS)  # the gripper
+        port.closePort()
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
