@@ -54,8 +54,8 @@ def _has_floor(model: Any, static_objects: int) -> bool:
     return bool(planes.any()) or static_objects > 0
 
 
-def frame_fixed_base(model: Any, data: Any, qpos_adr: Sequence[int], q: Sequence[float], *,
-                     static_objects: int = 0, fovy_deg: float | None = None) -> Framing:
+def frame_fixed_base(model: Any, data: Any, qpos_adr: Sequence[int] | np.ndarray, q: Sequence[float] | np.ndarray,
+                     *, static_objects: int = 0, fovy_deg: float | None = None) -> Framing:
     """The framing of ``model`` with its servos' joints (qpos addresses ``qpos_adr``) at ``q`` (rad; the
     neutral pose); ``data`` is used for the forward kinematics. ``static_objects``: how many objects the
     scene welds to the world (a table or a floor: no floor is drawn then)."""
