@@ -1,7 +1,7 @@
 """Dynamixel Protocol 2.0 instructions answered by the bus devices (the DXL side of :class:`PlantBus`).
 
 PING (status data: model number LE16, firmware version; broadcast: every device answers, id
-order), READ, WRITE, REG_WRITE + ACTION, REBOOT, SYNC READ / SYNC WRITE (start address LE16, data
+order), READ, WRITE, REG_WRITE + ACTION, REBOOT, SYNC READ / FAST SYNC READ / SYNC WRITE (start address LE16, data
 length LE16, ids / (id, data)...), BULK READ (id, address LE16, length LE16)..., BULK WRITE (id,
 address LE16, length LE16, data)... SYNC and BULK READ are answered by the listed devices in the
 listed order; SYNC and BULK WRITE and broadcast WRITE have no answer. Status return level
@@ -23,7 +23,7 @@ from typing import Protocol
 
 from firmware_sim.plant.dxl_table import ADDR
 from firmware_sim.plant.dynamixel import (
-    BROADCAST_ID, ERR_ALERT, DxlInst, DxlInstruction, DxlParser, Result, status_packet,
+    BROADCAST_ID, ERR_ALERT, DxlInst, DxlInstruction, DxlParser, Result, crc16, status_packet,
 )
 
 __all__ = ["DxlDevice", "DxlHandler"]
@@ -74,7 +74,7 @@ class DxlHandler:
 
     def handle(self, ins: DxlInstruction) -> list[Reply]:
         p, inst, dev_id = ins.params, ins.instruction, ins.id
-        if inst in (DxlInst.READ, DxlInst.SYNC_READ, DxlInst.BULK_READ):
+        if inst in (DxlInst.READ, DxlInst.SYNC_READ, DxlInst.FAST_SYNC_READ, DxlInst.BULK_READ):
             self.refresh()
         if dev_id == BROADCAST_ID:
             return self._broadcast(inst, p)
@@ -117,6 +117,25 @@ class DxlHandler:
             if reg is not None:
                 d.write(*reg)
 
+    def _fast_sync_read(self, p: bytes) -> list[Reply]:
+        """FAST SYNC READ: one status packet (id 0xFE) the listed devices fill in turn, each part
+        ``ERR ID DATA CRC_L CRC_H`` with the CRC of the packet so far (the last one is the packet's).
+        Not byte-stuffed (the SDK's ``rxPacket(fast_option=True)`` does not unstuff). A listed device
+        that is not there breaks the chain: the packet ends where it would have answered."""
+        addr, n = struct.unpack_from("<HH", p)
+        ids = list(p[4:])
+        pkt = bytearray(b"\xff\xff\xfd\x00\xfe" + struct.pack("<H", 1 + (n + 4) * len(ids)) + bytes([0x55]))
+        first: int | None = None
+        for sid in ids:
+            d = self._get(sid)
+            if d is None:
+                break
+            result, data = d.read(addr, n)
+            pkt += bytes([result | (ERR_ALERT if d.alert else 0), sid]) + (data if result == Result.OK else bytes(n))
+            pkt += struct.pack("<H", crc16(bytes(pkt)))
+            first = sid if first is None else first
+        return [] if first is None else [(first, bytes(pkt))]
+
     def _broadcast(self, inst: int, p: bytes) -> list[Reply]:
         replies: list[Reply] = []
         if inst == DxlInst.PING:
@@ -130,6 +149,8 @@ class DxlHandler:
             for d in self.devices.values():
                 if self.alive(d):
                     d.write(p[0] | p[1] << 8, bytes(p[2:]))
+        elif inst == DxlInst.FAST_SYNC_READ and len(p) >= 4:
+            replies.extend(self._fast_sync_read(p))
         elif inst in (DxlInst.SYNC_READ, DxlInst.SYNC_WRITE) and len(p) >= 4:
             addr, n = struct.unpack_from("<HH", p)
             if inst == DxlInst.SYNC_READ:

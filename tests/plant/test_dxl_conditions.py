@@ -14,7 +14,7 @@ from contextlib import contextmanager
 import dynamixel_sdk.port_handler
 import pytest
 from dynamixel_sdk import (
-    COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS, GroupBulkRead, GroupSyncWrite, PacketHandler, PortHandler,
+    COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS, GroupBulkRead, GroupSyncRead, GroupSyncWrite, PacketHandler, PortHandler,
 )
 
 from firmware_sim.plant.conditions import Conditions, ServoError
@@ -166,6 +166,13 @@ def test_missing_servo_never_answers(monkeypatch: pytest.MonkeyPatch) -> None:
         assert ph.ping(port, 3)[1] == COMM_SUCCESS
         found, result = ph.broadcastPing(port)
         assert result == COMM_SUCCESS and 4 not in found and 3 in found and 5 in found
+        # a SYNC READ stops at the silent servo; a FAST SYNC READ's one packet breaks off there
+        reader = GroupSyncRead(port, ph, ADDR.PRESENT_POSITION, 4)
+        for sid in (3, 4, 5):
+            assert reader.addParam(sid)
+        assert reader.txRxPacket() == COMM_RX_TIMEOUT
+        assert reader.fastSyncRead() != COMM_SUCCESS
+        assert reader.removeParam(4) is None and reader.fastSyncRead() == COMM_SUCCESS
 
 
 def test_duplicate_id_answers_collide_into_garbage(monkeypatch: pytest.MonkeyPatch) -> None:

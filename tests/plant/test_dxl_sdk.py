@@ -158,3 +158,13 @@ def test_eeprom_write_with_torque_on_is_an_access_error(dxl) -> None:
     assert error == Result.DATA_LIMIT
     _, result, error = ph.readTxRx(port, 4, 250, 4)  # past the control table: a status without data
     assert result == COMM_SUCCESS and error == Result.DATA_RANGE
+
+
+def test_fast_sync_read_returns_every_servo_in_one_packet(dxl) -> None:
+    s, port, ph = dxl
+    reader = GroupSyncRead(port, ph, ADDR.PRESENT_POSITION, 4)
+    for sid in IDS:
+        assert reader.addParam(sid)
+    _ok(ph, reader.fastSyncRead())
+    for st in s.world.servos:
+        assert reader.getData(st.id, ADDR.PRESENT_POSITION, 4) == st.present_steps
