@@ -16,7 +16,7 @@ from dynamixel_sdk import (
 
 from firmware_sim.plant.dxl_table import ADDR, MODEL_XL330
 from firmware_sim.plant.devices import IMU_ID, PROBE_ID
-from firmware_sim.plant.dynamixel import ERR_ALERT, Result
+from firmware_sim.plant.dynamixel import Result
 from robots.hardware import STEP_CENTRE
 
 from .harness import ROBOT, STEP, Served, served
