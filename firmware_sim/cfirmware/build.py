@@ -142,14 +142,22 @@ def _version(compiler: str) -> str:
         return compiler
 
 
-def build(kind_name: str, robot: Robot, *, quiet: bool = True) -> Path:
-    """Compile ``kind_name`` for ``robot`` (cached); returns the binary's path.
+def build(kind_name: str, robot: Robot, *, quiet: bool = True, calibrated: bool = False) -> Path:
+    """Compile ``kind_name`` for ``robot`` (cached); returns the binary's path. ``calibrated``: the servo
+    table carries the robot's ``calibration.toml`` (offsets, directions, the calibrated step range: a real
+    servo bus); without it the table is the uncalibrated one the emulator's plant matches.
 
-    Raises :class:`ToolchainMissing` (install command) or :class:`BuildError` (compiler output).
+    Raises :class:`ToolchainMissing` (install command) or :class:`BuildError` (compiler output);
+    a bad calibration file raises :class:`robots.datatypes.RobotDataError`.
     """
     kind = KINDS[kind_name]
     cc = require(kind.compiler)
-    gen = {"gs_servo_table.h": servo_table_h(robot), "gs_servo_table.c": servo_table_c(robot)}
+    cal = None
+    if calibrated:
+        from robots.hardware import load_calibration
+
+        cal = load_calibration(robot.root, list(robot.servos))
+    gen = {"gs_servo_table.h": servo_table_h(robot), "gs_servo_table.c": servo_table_c(robot, cal)}
     codec = codec_dir(robot)
     sources = _sources(kind, codec)
     headers = sorted(C_ROOT.glob("**/*.h")) + sorted(C_ROOT.glob("ports/mps2/*.ld"))

@@ -65,6 +65,7 @@ from protocol.linkkinds import link_kind
 from protocol.linkspec import LinkSpec
 from protocol.logfile import FrameLogWriter, open_frame_log
 from protocol.wiremodel import WireModel
+from robots.datatypes import RobotDataError
 from robots.description import Robot
 
 __all__ = ["LATENESS_PREFIX", "LaunchOptions", "lateness_record", "lateness_warning", "run_firmware"]
@@ -337,11 +338,15 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
         return 2
     target = "mps2" if opts.firmware == "qemu" else ("native-asan" if opts.asan else "native")
     try:
-        exe = build(target, opts.robot)
+        # a real bus: the servo table with the robot's calibration.toml (offsets, directions, calibrated ranges)
+        exe = build(target, opts.robot, calibrated=opts.servo_bus_port is not None)
         if opts.firmware == "qemu":
             require("qemu-system-arm")
     except BuildError as e:
         print(f"board: cannot build the C firmware: {e}", file=err)
+        return 2
+    except RobotDataError as e:  # a calibration.toml that does not fit the servo table
+        print(f"board: {e}", file=err)
         return 2
     if not opts.lockstep:
         # as the Python board does (firmware_sim.priority): the plant, the relay and the firmware (a child

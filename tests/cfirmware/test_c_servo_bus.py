@@ -394,3 +394,60 @@ def test_plant_error_flag_over_a_real_tty(tmp_path: Path) -> None:
             _check_error_reported(b, (tmp_path / "fw.stderr").read_text(), 3, "overload")
         finally:
             assert b.stop() == 0
+
+
+# -- calibration.toml (a real bus's build) ----------------------------------------------------------------
+
+def test_a_real_bus_build_carries_the_calibration(tmp_path: Path) -> None:
+    """The servo table of a real-bus build (``build(..., calibrated=True)``, what the launcher uses with
+    ``servo_bus_port``) has the robot's calibration: against servos mounted off centre and reversed as the
+    file says, the joints go where the frames say and telemetry reads them back."""
+    import shutil
+
+    from robots.hardware import Calibration, ServoCalibration, save_calibration
+    from robots.loader import load_robot_dir
+
+    root = tmp_path / "coco"
+    shutil.copytree(ROBOT.root, root)
+    head_yaw, head_pitch = ROBOT.servos[8], ROBOT.servos[9]
+    save_calibration(root, Calibration({head_yaw.name: ServoCalibration(9, offset_steps=300),
+                                        head_pitch.name: ServoCalibration(10, direction=-1)}), list(ROBOT.servos))
+    robot = load_robot_dir(root)
+    exe = build("native-asan", robot, calibrated=True)
+    assert exe != build("native-asan", robot)
+    world = World(robot, conditions=Conditions(offsets={9: 300}, reversed=frozenset({10})))
+    plant = PlantBus(world, lockstep=True, protocol="dxl2")
+    port = PtyPort()
+    set_line_speed(port.slave, 1_000_000)
+    stop = threading.Event()
+    th = threading.Thread(target=serve, args=(plant, port, stop), daemon=True)
+    th.start()
+    err = tmp_path / "fw.stderr"
+    proc = subprocess.Popen([str(exe), "--bus", f"tty:{port.name}:1000000", "--protocol", "dxl2", "--lockstep",
+                             "--host", "pty"], stdout=subprocess.PIPE, stderr=open(err, "wb"), stdin=subprocess.DEVNULL)
+    try:
+        assert proc.stdout is not None
+        ser = serial.Serial(_readline(proc.stdout, "board: listening on ", proc, err).split()[-1], 115200, timeout=0)
+        dec, got = FrameDecoder(), []
+        q = list(ROBOT.pose(ROBOT.start_pose))
+        q[8], q[9] = 0.4, 0.3
+        frames = [Hello(PROTOCOL_VERSION, SCHEMA_HASH, 0)] + [ServoFrame(10_000 * k, MASK, q) for k in range(1, 101)]
+        for seq, m in enumerate([*frames, Advance(1_000_000)]):
+            ser.write(encode_frame(m, seq))
+        end = time.monotonic() + WAIT_S
+        while not any(isinstance(f, Frame) and isinstance(f.msg, Telemetry) and f.msg.board_time_us >= 1_000_000
+                      for f in got):
+            assert time.monotonic() < end and proc.poll() is None, err.read_text()[-2000:]
+            select.select([ser.fileno()], [], [], 0.2)
+            got += dec.feed(ser.read(65536))
+        last = [f.msg for f in got if isinstance(f, Frame) and isinstance(f.msg, Telemetry)][-1]
+        actual = world.positions()
+        assert abs(actual[8] - 0.4) < 0.03 and abs(actual[9] - 0.3) < 0.03, actual[8:10]
+        assert abs(last.positions[8] - 0.4) < 0.03 and abs(last.positions[9] - 0.3) < 0.03, last.positions[8:10]
+        ser.close()
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(30)
+        stop.set()
+        th.join(10)
+        port.close()

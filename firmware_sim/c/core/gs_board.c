@@ -35,14 +35,14 @@ static int16_t q16_of(int64_t v, int64_t per_count) { /* units -> q16 code, clam
 static int32_t steps_to_urad(unsigned i, int32_t steps) {
     const gs_servo_t *s = &gs_servos[i];
     int64_t st = steps < -1048576 ? -1048576 : steps > 1048576 ? 1048576 : steps; /* a sane register value */
-    return clamp32(s->neutral_urad + div_round((int64_t)s->direction * (st - GS_STEP_CENTRE) * GS_STEP_NRAD, 1000),
+    return clamp32(s->neutral_urad + div_round((int64_t)s->direction * (st - GS_STEP_CENTRE - s->offset_steps) * GS_STEP_NRAD, 1000),
                    INT32_MIN / 2, INT32_MAX / 2);
 }
 
 static uint16_t urad_to_goal(unsigned i, int32_t q) {
     const gs_servo_t *s = &gs_servos[i];
     int64_t rel = div_round(((int64_t)q - s->neutral_urad) * 1000, GS_STEP_NRAD);
-    int64_t steps = GS_STEP_CENTRE + s->direction * rel;
+    int64_t steps = GS_STEP_CENTRE + s->offset_steps + s->direction * rel;
     return (uint16_t)clamp32(steps, s->step_lo, s->step_hi);
 }
 
