@@ -126,7 +126,7 @@ class PlantBus:
             for st in world.servos:
                 if world.model_number is None:
                     st.model = c.models.get(st.id, MODEL_XL330)
-                if not st.fault & Fault.STOPS_TORQUE:
+                if not st.fault & st.shutdown:
                     st.torque = False
                 st.return_delay_us = DXL_RETURN_DELAY_US
                 if not st.fault & Fault.VOLTAGE:

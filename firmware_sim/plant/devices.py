@@ -175,7 +175,7 @@ class ServoDevice(Device):
         if addr < REG.MAX_ANGLE + 2 and end > REG.MIN_ANGLE:
             st.min_steps, st.max_steps = self.u16(REG.MIN_ANGLE), self.u16(REG.MAX_ANGLE)
         if addr <= REG.TORQUE_ENABLE < end:
-            st.torque = bool(self.table[REG.TORQUE_ENABLE]) and not st.fault & Fault.STOPS_TORQUE
+            st.torque = bool(self.table[REG.TORQUE_ENABLE]) and not st.fault & st.shutdown
         if addr < REG.GOAL_POSITION + 2 and end > REG.GOAL_POSITION:
             st.goal_steps = from_sign_magnitude(self.u16(REG.GOAL_POSITION), 15)
         return True

@@ -7,6 +7,7 @@ Layout (little-endian; ``R`` read-only, ``E`` EEPROM: writable only with torque 
     20 homing offset (4, E)    31 temperature limit (E)   32 / 34 max / min voltage limit (2, E, 0.1 V)
     36 PWM limit (2, E)        38 current limit (2, E)    44 velocity limit (4, E, 0.229 rpm)
     48 max position limit (4, E)   52 min position limit (4, E)
+    63 shutdown (E: the hardware error bits that turn torque off; XL330 53, XM430 52 as shipped)
     64 torque enable            65 LED                     68 status return level (0..2)
     70 hardware error status (R: bit 0 input voltage, 2 overheating, 3 motor encoder,
        4 electrical shock, 5 overload)
@@ -71,10 +72,11 @@ class DxlModel:
     nominal_voltage_dv: int
     current_limit: int  # register units
     velocity_limit: int  # 0.229 rpm
+    shutdown: int  # Shutdown (63) as shipped: hardware error bits that turn torque off
 
 
-XL330 = DxlModel(MODEL_XL330, "XL330-M288-T", 228, ((168, 208, 20),), 70, 70, 35, 50, 1750, 445)
-XM430 = DxlModel(MODEL_XM430, "XM430-W350", 662, ((168, 224, 28), (578, 634, 28)), 80, 160, 95, 120, 1193, 350)
+XL330 = DxlModel(MODEL_XL330, "XL330-M288-T", 228, ((168, 208, 20),), 70, 70, 35, 50, 1750, 445, 53)
+XM430 = DxlModel(MODEL_XM430, "XM430-W350", 662, ((168, 224, 28), (578, 634, 28)), 80, 160, 95, 120, 1193, 350, 52)
 MODELS: dict[int, DxlModel] = {m.number: m for m in (XL330, XM430)}
 
 
@@ -95,6 +97,7 @@ class ADDR:
     TEMPERATURE_LIMIT = 31
     MAX_VOLTAGE = 32
     MIN_VOLTAGE = 34
+    SHUTDOWN = 63
     VELOCITY_LIMIT = 44
     MAX_POSITION = 48
     MIN_POSITION = 52
@@ -133,6 +136,11 @@ def hardware_error(fault: int) -> int:
     return sum(bit for f, bit in HW_ERROR_BITS.items() if fault & f)
 
 
+def _shutdown_faults(register: int) -> int:
+    """The :class:`Fault` bits a Shutdown register value (address 63, hardware error bits) names."""
+    return sum(f for f, bit in HW_ERROR_BITS.items() if register & bit)
+
+
 class DxlServo:
     """One Dynamixel X servo's control table over ``state``, laid out as its model number says
     (see the module docstring). ``baud``: the bus speed, shown in the baud rate register."""
@@ -151,6 +159,8 @@ class DxlServo:
         struct.pack_into("<I", t, ADDR.VELOCITY_LIMIT, m.velocity_limit)
         struct.pack_into("<ii", t, ADDR.MAX_POSITION, state.max_steps, state.min_steps)
         t[ADDR.STATUS_RETURN_LEVEL] = 2
+        t[ADDR.SHUTDOWN] = m.shutdown
+        state.shutdown = _shutdown_faults(m.shutdown)
         struct.pack_into("<i", t, ADDR.GOAL_POSITION, state.goal_steps)
         self._items = list(_ITEMS)
         self._indirect: dict[int, int] = {}  # indirect data address -> its indirect address register
@@ -287,8 +297,10 @@ class DxlServo:
             home = self._homing()
             st.min_steps, st.max_steps = lo - home, hi - home
             st.goal_steps = int(struct.unpack_from("<i", t, ADDR.GOAL_POSITION)[0]) - home
+        if addr <= ADDR.SHUTDOWN < end:
+            st.shutdown = _shutdown_faults(t[ADDR.SHUTDOWN])
         if addr <= ADDR.TORQUE_ENABLE < end:
-            st.torque = bool(t[ADDR.TORQUE_ENABLE]) and not st.fault & Fault.STOPS_TORQUE
+            st.torque = bool(t[ADDR.TORQUE_ENABLE]) and not st.fault & st.shutdown
         if addr < ADDR.GOAL_POSITION + 4 and end > ADDR.GOAL_POSITION:
             st.goal_steps = int(struct.unpack_from("<i", t, ADDR.GOAL_POSITION)[0]) - self._homing()
 

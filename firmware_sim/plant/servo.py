@@ -25,7 +25,8 @@ class Fault:
     VOLTAGE = 1
     OVERHEAT = 2
     OVERLOAD = 4
-    #: overload and overheating switch the servo's torque off (its own protection)
+    #: the faults that switch a servo's torque off by default (its own protection; a Dynamixel's
+    #: Shutdown register, address 63, sets them per servo: :attr:`ServoState.shutdown`)
     STOPS_TORQUE = OVERHEAT | OVERLOAD
 
 
@@ -45,6 +46,7 @@ class ServoState:
     temperature_c: int = 30
     voltage_dv: int = 74
     fault: int = Fault.NONE  # Fault bits
+    shutdown: int = Fault.STOPS_TORQUE  # the Fault bits that turn torque off (and keep it off)
     return_delay_us: int = 0
 
     @property

@@ -115,7 +115,8 @@ class World:
     # -- conditions and torque -----------------------------------------------------------------
     def _apply_conditions(self) -> None:
         """Timed hardware errors whose time has come: the fault bits, the reading that goes with them
-        (temperature 85 C, above the limit; voltage :data:`LOW_VOLTAGE_DV`), torque off for overload/overheat."""
+        (temperature 85 C, above the limit; voltage :data:`LOW_VOLTAGE_DV`), torque off for the faults
+        in the servo's shutdown set (:attr:`ServoState.shutdown`: overload and overheat by default)."""
         for e in self.conditions.errors:
             st = self.by_id.get(e.id)
             if st is None or self.time_us < e.at_us or st.fault & e.fault:
@@ -125,7 +126,7 @@ class World:
                 st.temperature_c = 85
             if e.fault & Fault.VOLTAGE:
                 st.voltage_dv = LOW_VOLTAGE_DV
-            if e.fault & Fault.STOPS_TORQUE:
+            if e.fault & st.shutdown:
                 st.torque = False
 
     def _sync_torque(self) -> None:

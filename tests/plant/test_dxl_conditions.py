@@ -90,10 +90,15 @@ def test_overload_sets_the_alert_bit_and_hardware_error_and_drops_torque(monkeyp
         assert "Hardware error" in ph.getRxPacketError(error)
         assert ph.read1ByteTxRx(port, 3, ADDR.TORQUE_ENABLE)[0] == 0  # the servo let go
         assert not s.world._driven[2]
-        # undervoltage: alert, bit 0, the reading below the minimum; torque stays on
+        # undervoltage: alert, bit 0, the reading below the minimum; the XL330 ships with Shutdown 53,
+        # which includes the input voltage error, so its torque would not come on; with Shutdown 52 it does
         value, result, error = ph.read2ByteTxRx(port, 5, ADDR.PRESENT_VOLTAGE)
         assert result == COMM_SUCCESS and error == ERR_ALERT and value == LOW_VOLTAGE_DV
         assert ph.read1ByteTxRx(port, 5, ADDR.HARDWARE_ERROR)[0] == 0x01
+        assert ph.read1ByteTxRx(port, 5, ADDR.SHUTDOWN)[0] == 53
+        assert ph.read1ByteTxRx(port, 5, ADDR.TORQUE_ENABLE)[0] == 0
+        assert ph.write1ByteTxRx(port, 5, ADDR.SHUTDOWN, 52) == (COMM_SUCCESS, ERR_ALERT)
+        assert ph.write1ByteTxRx(port, 5, ADDR.TORQUE_ENABLE, 1) == (COMM_SUCCESS, ERR_ALERT)
         assert ph.read1ByteTxRx(port, 5, ADDR.TORQUE_ENABLE)[0] == 1
         # every status packet carries the alert, a PING too; the other servos are clean
         assert ph.ping(port, 3)[2] == ERR_ALERT and ph.ping(port, 4)[2] == 0
