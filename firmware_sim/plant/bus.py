@@ -126,8 +126,7 @@ class PlantBus:
             for st in world.servos:
                 if world.model_number is None:
                     st.model = c.models.get(st.id, MODEL_XL330)
-                if not st.fault & st.shutdown:
-                    st.torque = False
+                st.torque = False  # as shipped
                 st.return_delay_us = DXL_RETURN_DELAY_US
                 if not st.fault & Fault.VOLTAGE:
                     st.voltage_dv = dxl_model(st.model).nominal_voltage_dv
