@@ -451,3 +451,51 @@ def test_a_real_bus_build_carries_the_calibration(tmp_path: Path) -> None:
         stop.set()
         th.join(10)
         port.close()
+
+
+# -- the launcher with a real bus ---------------------------------------------------------------------------
+
+_LAUNCH = """
+import sys
+from firmware_sim.cfirmware.launcher import LaunchOptions, run_firmware
+from robots.registry import load_robot
+sys.exit(run_firmware(LaunchOptions(robot=load_robot("coco"), lockstep=True, servo_bus_port=sys.argv[1],
+                                    servo_bus_baud=int(sys.argv[2]), bus_protocol=sys.argv[3])))
+"""
+
+
+def test_the_launcher_hands_a_real_bus_to_the_firmware_and_runs_no_plant(tmp_path: Path) -> None:
+    err = tmp_path / "board.stderr"
+    with plant_process("dxl2", 57_600) as tty:
+        proc = subprocess.Popen([sys.executable, "-c", _LAUNCH, tty, "57600", "dxl2"], stdout=subprocess.PIPE,
+                                stderr=open(err, "wb"), stdin=subprocess.DEVNULL, cwd=ROOT)
+        try:
+            assert proc.stdout is not None
+            ser = serial.Serial(_readline(proc.stdout, "board: listening on ", proc, err).split()[-1], 115200, timeout=0)
+            ser.write(encode_frame(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 0), 0))
+            dec, got = FrameDecoder(), []
+            end = time.monotonic() + WAIT_S
+            while not any(isinstance(f, Frame) and isinstance(f.msg, Caps) for f in got):
+                assert time.monotonic() < end and proc.poll() is None, err.read_text()[-2000:]
+                select.select([ser.fileno()], [], [], 0.2)
+                got += dec.feed(ser.read(65536))
+            ser.close()
+        finally:
+            proc.send_signal(signal.SIGTERM)
+            rc = proc.wait(60)
+    text = err.read_text()
+    assert rc == 130, text[-2000:]
+    assert "board: servo bus (dxl2, 57600 baud): 12 servos (model 1200)" in text, text
+    assert "board: stopping: torque off for every servo on the bus" in text
+    assert "ticks, bus time per tick" not in text  # no plant of the launcher's (its statistics line)
+
+
+def test_a_real_bus_needs_the_native_firmware() -> None:
+    import io
+
+    from firmware_sim.cfirmware.launcher import LaunchOptions, run_firmware
+
+    err = io.StringIO()
+    assert run_firmware(LaunchOptions(robot=ROBOT, firmware="qemu", servo_bus_port="/dev/ttyUSB0"), err) == 2
+    lines = err.getvalue().strip().splitlines()
+    assert len(lines) == 1 and "--firmware c" in lines[0] and "QEMU" in lines[0], lines
