@@ -83,11 +83,11 @@ def start_plant(robots_dir: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[C
     monkeypatch.setattr(dynamixel_sdk.port_handler, "LATENCY_TIMER", 100)
     running: list[tuple[threading.Event, threading.Thread, PtyPort]] = []
 
-    def start(protocol: str = "sts", **conditions: Any) -> Plant:
+    def start(protocol: str = "sts", baud: int = 1_000_000, **conditions: Any) -> Plant:
         robot = load_robot_dir(robots_dir / ROBOT)
         c = Conditions(**conditions)
         world = World(robot, conditions=c)
-        bus = PlantBus(world, lockstep=True, protocol=protocol)  # lockstep: no goal writes, physics never steps
+        bus = PlantBus(world, lockstep=True, protocol=protocol, baud=baud)  # lockstep: no goal writes, physics never steps
         for st in world.servos:  # whatever the servos start with, the command must leave them limp
             st.torque = True
         port = PtyPort()
@@ -404,3 +404,18 @@ def test_a_range_across_the_encoder_wrap_is_refused(robots_dir) -> None:
     with pytest.raises(CalibrationError, match=r"^servo 1 \(shoulder_pan\): its position jumped 4095 -> 20, across the "
                                                r"encoder's 0/4095 wrap"):
         calibrate(robot, bus, Hardware(), ask=ask, say=lambda line: None, poll_s=0.001)
+
+
+def test_protocol_and_baud_come_from_hardware_toml(robots_dir, start_plant, capsys) -> None:
+    (robots_dir / ROBOT / "hardware.toml").write_text('protocol = "dxl2"\nbaud = 57600\n')
+    plant = start_plant("dxl2", baud=57600, offsets={6: -33}, reversed=frozenset({1}))
+    robot = load_robot_dir(robots_dir / ROBOT)
+    hand = Hand(plant, robot)
+    assert _calibrate(robots_dir, plant, hand) == 0, hand.said
+    assert hand.said[0].endswith("at 57600 baud, dxl2"), hand.said[0]
+    cal = load_calibration(robots_dir / ROBOT, list(robot.servos))
+    assert cal.of(robot.servos[5]).offset_steps == -33 and cal.of(robot.servos[0]).direction == -1
+    # the same servos asked at another baud do not answer (PORT:BAUD overrides hardware.toml)
+    (robots_dir / ROBOT / CALIBRATION_FILE).unlink()
+    line = _refused(robots_dir, plant, Hand(plant, robot), capsys, "--servo-bus", f"{plant.port.name}:1000000")
+    assert line.startswith("ghostshell robots: servo 1 (shoulder_pan) does not answer a ping"), line
