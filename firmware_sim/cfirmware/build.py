@@ -18,6 +18,7 @@ mps2           the Cortex-M3 image for QEMU's ``mps2-an385`` (``arm-none-eabi-gc
 codec          the codec harness (stdin hex lines -> decode/dump/re-encode), ASan/UBSan
 fuzz-c-wire    libFuzzer: bytes into the C link decoder + board session (clang, fuzzer+ASan+UBSan)
 fuzz-c-bus     libFuzzer: servo-bus answers (STS or Dynamixel 2.0) into the bus layer + board core (clang)
+bus-codec      the servo-bus framing of both protocols (stdin hex lines -> packets), ASan/UBSan
 libdecode      the C frame decoder as a shared library (the differential target c-diff loads it)
 =============  ==================================================================================
 
@@ -113,6 +114,8 @@ KINDS: dict[str, _Kind] = {
     "fuzz-c-bus": _Kind("clang", _CORE + ("tests/fuzz_c_bus.c",),
                         (*WARN, "-O1", "-g", "-fsanitize=fuzzer,address,undefined", "-fno-sanitize-recover=all"),
                         "fuzz_c_bus"),
+    "bus-codec": _Kind("cc", ("core/gs_bus.c", "core/gs_bus_sts.c", "core/gs_bus_dxl2.c", "tests/bus_codec_harness.c"),
+                       (*WARN, "-O1", *SAN), "bus_codec_harness"),
     "libdecode": _Kind("cc", ("core/gs_link.c", "{schema}/gs_proto.c", "core/gs_cobs.c", "core/gs_crc.c",
                               "tests/diff_lib.c"),
                        (*WARN, "-O1", "-fPIC", "-shared", "-DGS_PROTO_DUMP"), "libgs_decode.so"),
