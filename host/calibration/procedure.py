@@ -172,7 +172,7 @@ def calibrate(robot: Robot, bus: Bus, hardware: Hardware, *, ask: Callable[[str]
     say("2/3 direction: one joint at a time, move it a little (5-20 deg) towards its positive direction.")
     directions: list[int] = []
     min_move = max(1, round(math.radians(MIN_MOVE_DEG) / step))
-    for i, s in enumerate(servos):
+    for s in servos:
         before = bus.position(s.id)
         ask(f"  {s.name} (servo {s.id}): towards {_deg(s.max)} (its max), then press Enter: ")
         delta = _wrap(bus.position(s.id) - before)
