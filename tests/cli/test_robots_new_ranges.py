@@ -197,3 +197,46 @@ def test_mcp_tool_out_of_range_names_the_joints_own_range(tmp_path: Path) -> Non
         text = result.content[0].text
         assert f"<joint_move> deg='{d}.0' is out of range [-96, 96] for joint elbow_flex" in text, text
         assert "ValueError" not in text and "validation error" not in text, text
+
+
+GUIDE = Path(__file__).resolve().parents[2] / "docs" / "guides" / "robots.md"
+
+
+def _guide_section() -> str:
+    text = GUIDE.read_text(encoding="utf-8")
+    start = text.index("### From a third-party MJCF to a video")
+    return text[start:text.index("\n## ", start) if "\n## " in text[start:] else len(text)]
+
+
+def test_the_robots_guide_walk_runs_as_written(tmp_path: Path) -> None:
+    """docs/guides/robots.md, "From a third-party MJCF to a video": every command of its sh block, as written
+    (the MJCF path replaced by this arm's), and the output it shows."""
+    section = _guide_section()
+    block = section[section.index("```sh\n") + 6:]
+    block = block[:block.index("```")]
+    commands = [line.split("  #")[0].strip() for line in block.splitlines() if line.strip()]
+    assert [c.split()[1:3] for c in commands][:4] == [["robots", "new"], ["robots", "check"], ["run", "--robot"],
+                                                      ["render", "runs/program"]]
+    mjcf = third_party_arm(tmp_path)
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    outputs = []
+    for command in commands:
+        argv = shlex.split(command.replace("~/models/arm/arm.xml", str(mjcf)))
+        assert argv[0] == "ghostshell", command
+        res = subprocess.run([sys.executable, "-m", "host", *argv[1:]], cwd=cwd, capture_output=True, text=True,
+                             timeout=240, env=_env(tmp_path))
+        assert res.returncode == 0, f"{command}\n{res.stdout}\n{res.stderr}"
+        outputs.append(res)
+    assert (cwd / "runs" / "program" / "run.mp4").stat().st_size > 10_000
+    shown = [line for line in section.splitlines() if line.startswith(("try: ", "note: ctrlrange", "[error "))]
+    new, check = outputs[0], outputs[1]
+    try_line = new.stdout.strip().splitlines()[-1]
+    assert shown[0] == try_line.replace(f" --robots-dir {tmp_path}", "")
+    note = shown[1].removesuffix(", ...")
+    assert _notes(new.stderr)[0].startswith(note) and _notes(check.stderr)[0].startswith(note), new.stderr
+    assert commands[2] == f"{try_line.removeprefix('try: ')} --video"  # the walk runs the try: line
+    res = subprocess.run([sys.executable, "-m", "host", "run", "--robot", "myarm", "--lockstep", "--no-live", "--xml",
+                          '<joint_move joint="elbow_flex" deg="120"/>'], cwd=cwd, capture_output=True, text=True,
+                         timeout=240, env=_env(tmp_path))
+    assert shown[2] in res.stdout + res.stderr
