@@ -131,6 +131,14 @@ class MotorBus(ABC):
         when the fast path was set up."""
         return True
 
+    #: the servos' default return delay (us) before each status packet (Dynamixel X: 250 x 2 us; STS: 0)
+    return_delay_us: ClassVar[float] = 0.0
+
     def tick_bytes(self, n: int) -> int:
         """Bytes on the wire per control tick for ``n`` servos (the sync read both ways, the sync write)."""
         return 0
+
+    def tick_seconds(self, n: int) -> float:
+        """Bus time (s) of one control tick for ``n`` servos at :attr:`baud`: 10 bits a byte plus each
+        status packet's return delay."""
+        return self.tick_bytes(n) * 10 / self.baud + n * self.return_delay_us / 1e6

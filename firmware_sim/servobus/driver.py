@@ -45,10 +45,12 @@ from firmware_sim.servobus.base import (
 from robots.description import Robot
 from robots.hardware import STEP_MAX, Calibration, Hardware, rad_to_steps, step_limits, steps_to_rad
 
-__all__ = ["BusDriver", "BusFault", "ESTOP_TORQUE", "Measured", "START_TOLERANCE_STEPS"]
+__all__ = ["BusDriver", "BusFault", "ESTOP_TORQUE", "Measured", "START_TOLERANCE_STEPS", "START_TRIES"]
 
 #: what ESTOP does to the servos: hold (torque on, hold position) or limp (torque off)
 ESTOP_TORQUE = ("hold", "limp")
+#: start-up asks a servo this often (ping, first read) before it counts as missing or garbled
+START_TRIES = 5
 #: a servo found this many steps (about 1 degree) outside its limits at start-up refuses the start
 START_TOLERANCE_STEPS = 12
 
@@ -126,6 +128,10 @@ class BusDriver:
         self.opened = True
         for s in self.servos:
             ans = self.bus.ping(s.id)
+            for _ in range(START_TRIES - 1):  # a noisy line may garble one answer; a missing servo stays silent
+                if ans.fault is None or "twice" in ans.fault:
+                    break
+                ans = self.bus.ping(s.id)
             if ans.fault is not None:
                 raise BusSetupError(f"servo {s.id} ({s.name}) {ans.fault}; torque left off")
             want = self.hardware.model_of(s)
@@ -134,6 +140,11 @@ class BusDriver:
                                     f"hardware.toml says {want}; torque left off")
         self.bus.prepare([s.id for s in self.servos])
         present = self.bus.read([s.id for s in self.servos])
+        for _ in range(START_TRIES - 1):
+            bad = [i for i, p in present.items() if p.position is None]
+            if not bad:
+                break
+            present.update(self.bus.read(bad))
         for i, s in enumerate(self.servos):
             p = present[s.id]
             if p.position is None or not 0 <= p.position <= STEP_MAX:
@@ -150,9 +161,10 @@ class BusDriver:
         return self.measured().positions
 
     def tick_note(self, period_s: float) -> str | None:
-        """A warning when one tick's bus traffic (sync read both ways + sync write, 10 bits a byte) takes
+        """A warning when one tick's bus traffic (sync read both ways + sync write, 10 bits a byte, the
+        servos' return delays) takes
         longer than the control period ``period_s``, else None."""
-        need = self.bus.tick_bytes(self.n) * 10 / self.bus.baud
+        need = self.bus.tick_seconds(self.n)
         if need <= period_s:
             return None
         return (f"warning: the servo bus needs ~{need * 1000:.1f} ms a tick at {self.bus.baud} baud for "

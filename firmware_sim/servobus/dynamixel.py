@@ -56,6 +56,7 @@ class DynamixelBus(SdkBus):
 
     protocol = "dxl2"
     goal_bytes = 4
+    return_delay_us = 500.0
     STATUS_BYTES = 11
     TORQUE_ADDR = 64
     GOAL_ADDR = 116
