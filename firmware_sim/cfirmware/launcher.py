@@ -36,6 +36,8 @@ The servo bus: ``bus_protocol`` "sts" (Feetech) or "dxl2" (Dynamixel Protocol 2.
 (``--protocol``; QEMU: its configuration block) and the in-process plant's. ``servo_bus_port`` (native
 only) is a real bus: the firmware opens that tty itself (``--bus tty:PORT:BAUD``, raw 8N1; baud
 ``servo_bus_baud``, default the protocol's 1 Mbaud) and no plant runs here (no world, no SIM_STATE).
+With a real bus the firmware is built with the robot's ``calibration.toml`` in its servo table
+(:func:`firmware_sim.cfirmware.build.build` ``calibrated=True``: offsets, directions, calibrated step ranges).
 ``estop_torque``: "hold" (ESTOP holds where the servos are) or "limp" (torque off until ESTOP_CLEAR).
 A stopped firmware turns every servo's torque off.
 """

@@ -361,6 +361,13 @@ def _check_error_reported(b: NativeBoard, err: str, sid: int, what: str) -> None
     assert faulted and 300_000 <= faulted[0].board_time_us <= 400_000, [t.board_time_us for t in faulted[:3]]
     lines = [ln for ln in err.splitlines() if ln.startswith(f"board: servo {sid} ")]
     assert len(lines) == 1 and lines[0].startswith(f"board: servo {sid} ({name}): {what}"), err
+    # the host turns the NACK into its one line, naming the servo, its error and the way out
+    from types import SimpleNamespace
+
+    from host.link.faultcheck import servo_fault_message
+
+    line = servo_fault_message(SimpleNamespace(servo_fault=nacks[0], link_spec="pty"), faulted[0].board_time_us)  # type: ignore[arg-type]
+    assert f"servo id {sid} ({name}) {what}" in line and "--clear" in line and "\n" not in line, line
 
 
 @pytest.mark.parametrize("protocol", ["sts", "dxl2"])

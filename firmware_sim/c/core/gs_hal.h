@@ -1,7 +1,7 @@
 /* The hardware abstraction the firmware core runs on (one implementation per port).
  *
- * Three peripherals: the host UART (the GhostShell wire), the servo-bus UART (Feetech SCS/STS
- * packets at 1 Mbaud), a microsecond tick timer; plus a log channel (stderr natively, a third UART
+ * Three peripherals: the host UART (the GhostShell wire), the servo-bus UART (Feetech SCS/STS or
+ * Dynamixel Protocol 2.0 packets, gs_bus.h; 1 Mbaud or what the port opened it at), a microsecond tick timer; plus a log channel (stderr natively, a third UART
  * on the MCU) and an idle wait. Nothing here allocates. */
 #ifndef GS_HAL_H
 #define GS_HAL_H
