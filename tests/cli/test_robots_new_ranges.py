@@ -122,6 +122,22 @@ def test_hostile_ranges_are_one_line_exit_2(tmp_path: Path, case: str) -> None:
     assert not (tmp_path / "robots" / "thirdarm").exists()
 
 
+@pytest.mark.parametrize("edit", ['ctrlrange="2 3"', 'ctrlrange="nan 1"', 'ctrlrange="1 -1"'])
+def test_a_package_edited_into_a_hostile_range_is_one_line_exit_2(tmp_path: Path, edit: str) -> None:
+    """The same refusals when the package's own MJCF is edited after ``robots new``: ``robots check`` and ``run``."""
+    assert _new(tmp_path, third_party_arm(tmp_path)).returncode == 0
+    mjcf = tmp_path / "robots" / "thirdarm" / "arm.xml"
+    mjcf.write_text(re.sub(r'(joint="elbow_flex") ctrlrange="[^"]*"', rf"\1 {edit}", mjcf.read_text()))
+    at = f"{mjcf}:{line_of(mjcf, '<position name=.elbow_flex.')}: "
+    check = one_line_error(cli("robots", "check", "thirdarm", "--robots-dir", str(tmp_path / "robots"),
+                               data_home=tmp_path))
+    assert check.startswith(f"ghostshell robots: {at}"), check
+    run = one_line_error(cli("run", "--robot", "thirdarm", "--robots-dir", str(tmp_path / "robots"), "--lockstep",
+                             "--no-live", "--out", str(tmp_path / "run"), "--xml", '<pose name="home"/>',
+                             data_home=tmp_path))
+    assert run.startswith("ghostshell run: ") and at in run, run
+
+
 def test_the_try_line_runs_as_printed_and_moves_a_joint_visibly(tmp_path: Path) -> None:
     new = _new(tmp_path, third_party_arm(tmp_path))
     assert new.returncode == 0, new.stderr
