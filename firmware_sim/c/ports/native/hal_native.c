@@ -16,6 +16,10 @@
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
+#ifdef __linux__
+#include <linux/serial.h>
+#include <sys/ioctl.h>
+#endif
 
 #include "gs_bus.h"
 #include "gs_hal.h"
@@ -151,6 +155,15 @@ int native_open_bus_tty(const char *path, unsigned long baud, char *why, size_t 
         return -1;
     }
     tcflush(bus_fd, TCIOFLUSH);
+#ifdef __linux__
+    /* a USB adapter hands received bytes on after its latency timer (FTDI: 16 ms by default, longer than a
+       tick); low latency asks the driver for 1 ms. Not every device has it (a pty does not): best effort */
+    struct serial_struct ss;
+    if (ioctl(bus_fd, TIOCGSERIAL, &ss) == 0) {
+        ss.flags |= ASYNC_LOW_LATENCY;
+        (void)ioctl(bus_fd, TIOCSSERIAL, &ss);
+    }
+#endif
     return 0;
 }
 
