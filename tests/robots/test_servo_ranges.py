@@ -12,6 +12,7 @@ import math
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from robots.description import RobotDataError
@@ -164,3 +165,42 @@ def test_the_loader_checks_the_table_against_the_reachable_range(tmp_path: Path)
         load_robot_dir(folder)
     assert "servo elbow_flex: the table says [-96.83, 90.00] deg but it reaches [-95.83, 95.83] deg" in str(e.value)
     assert "ctrlrange" in str(e.value)
+
+
+# --- joint_move's deg: the named joint's own range, one line -------------------------------------------------
+
+
+@pytest.fixture
+def joints_registry(tmp_path: Path):  # type: ignore[no-untyped-def]
+    from host.shell.registry import Registry
+    from host.shell.types import Module
+    from robots.generic import generic_module
+
+    robot = load_robot_dir(install_package(generate_package("handmade", write_arm(tmp_path / "src")), tmp_path / "r"))
+    return robot, Registry([Module.interface_only("joints", generic_module(robot))])
+
+
+@pytest.mark.parametrize("joint, deg, own", [
+    ("elbow_flex", "500", "[-95.83, 95.83]"),  # outside every joint's range
+    ("elbow_flex", "100", "[-95.83, 95.83]"),  # inside the widest (shoulder_pan's, -109..109) but not its own
+    ("gripper", "-20", "[-8.74, 99.27]"),
+])
+def test_joint_move_out_of_range_names_the_joints_own_range(joints_registry, joint: str, deg: str,  # type: ignore[no-untyped-def]
+                                                            own: str) -> None:
+    from host.shell.mapper import OutOfRange, map_element
+
+    _robot, reg = joints_registry
+    with pytest.raises(OutOfRange) as e:
+        map_element(reg, "joint_move", {"joint": joint, "deg": deg})
+    assert str(e.value) == f"<joint_move> deg={deg!r} is out of range {own} for joint {joint}"
+
+
+def test_joint_move_inside_its_range_maps_and_the_behaviour_says_the_same(joints_registry) -> None:  # type: ignore[no-untyped-def]
+    from host.shell.mapper import map_element
+
+    robot, reg = joints_registry
+    assert map_element(reg, "joint_move", {"joint": "elbow_flex", "deg": "95"}).args == {"joint": "elbow_flex",
+                                                                                          "deg": 95.0}
+    with pytest.raises(ValueError) as e:  # the behaviour, called from Python, refuses with the same line
+        robot.behaviours["joint_move"](np.zeros(robot.servo_count), joint="elbow_flex", deg=100.0)
+    assert str(e.value) == "<joint_move> deg=100 is out of range [-95.83, 95.83] for joint elbow_flex"
