@@ -506,3 +506,42 @@ def test_a_real_bus_needs_the_native_firmware() -> None:
     assert run_firmware(LaunchOptions(robot=ROBOT, firmware="qemu", servo_bus_port="/dev/ttyUSB0"), err) == 2
     lines = err.getvalue().strip().splitlines()
     assert len(lines) == 1 and "--firmware c" in lines[0] and "QEMU" in lines[0], lines
+
+
+_LAUNCH_PLANT = """
+import sys
+from firmware_sim.cfirmware.launcher import LaunchOptions, run_firmware
+from robots.registry import load_robot
+sys.exit(run_firmware(LaunchOptions(robot=load_robot("coco"), lockstep=False, bus_protocol=sys.argv[1])))
+"""
+
+
+def test_realtime_over_the_launchers_plant_in_dxl2_mode(tmp_path: Path) -> None:
+    """Realtime (wall-clock ticks, the plant's physics on the wall clock too): the Dynamixel bus keeps up at
+    500 Hz and no servo is taken for lost."""
+    err = tmp_path / "board.stderr"
+    proc = subprocess.Popen([sys.executable, "-c", _LAUNCH_PLANT, "dxl2"], stdout=subprocess.PIPE,
+                            stderr=open(err, "wb"), stdin=subprocess.DEVNULL, cwd=ROOT)
+    try:
+        assert proc.stdout is not None
+        ser = serial.Serial(_readline(proc.stdout, "board: listening on ", proc, err).split()[-1], 115200, timeout=0)
+        dec, got = FrameDecoder(), []
+
+        def tel() -> list[Telemetry]:
+            return [f.msg for f in got if isinstance(f, Frame) and isinstance(f.msg, Telemetry)]
+
+        ser.write(encode_frame(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 0), 0))
+        end = time.monotonic() + WAIT_S
+        while not tel() or tel()[-1].board_time_us < 1_500_000:
+            assert time.monotonic() < end and proc.poll() is None, err.read_text()[-2000:]
+            select.select([ser.fileno()], [], [], 0.1)
+            got += dec.feed(ser.read(65536))
+        assert not any(t.faults & FaultFlags.SERVO_FAULT for t in tel())
+        assert any(abs(p) > 0 for p in tel()[-1].positions)
+        ser.close()
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        rc = proc.wait(60)
+    text = err.read_text()
+    assert rc == 130, text[-2000:]
+    assert "board: servo bus (dxl2): 12 servos (model 1200)" in text and "stopped answering" not in text, text
