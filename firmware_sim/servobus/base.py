@@ -40,7 +40,7 @@ __all__ = [
 
 #: what went wrong with a servo, as the one-line reports name it
 TIMEOUT = "not answering on the servo bus"
-CORRUPT = "garbled answers on the servo bus (checksum errors)"
+CORRUPT = "garbled answers (checksum errors)"
 OVERLOAD = "overload"
 OVERHEAT = "overheating"
 VOLTAGE = "voltage"

@@ -81,6 +81,11 @@ class TimedPortMixin:
             ok = self.setBaudRate(baud)  # type: ignore[attr-defined]
         except Exception as e:  # noqa: BLE001 - serial.SerialException, OSError, ValueError: one line
             raise BusOpenError(f"cannot open the servo bus {name} at {baud} baud: {e}") from None
+        if ok:  # a USB adapter's latency timer (FTDI: 16 ms) is longer than a tick: ask for low latency
+            try:
+                self.ser.set_low_latency_mode(True)
+            except Exception:  # noqa: BLE001 - best effort: not a tty that has it (a pty), no permission
+                pass
         if not ok:
             raise BusOpenError(f"cannot open the servo bus {name} at {baud} baud: the serial adapter "
                                "(its driver, as the vendor SDK knows it) does not offer that rate")

@@ -108,7 +108,7 @@ def run_board(bus: str, *args: str, timeout: float = 120) -> subprocess.Complete
     """``python -m firmware_sim --link pty --lockstep --robot arm --servo-bus BUS ARGS`` to its exit (start-up
     failures end it; stdin closed)."""
     return subprocess.run([sys.executable, "-m", "firmware_sim", "--link", "pty", "--lockstep", "--robot", "arm",
-                           "--stop-on-stdin-eof", *(["--servo-bus", bus] if bus else []), *args],
+                           *(["--servo-bus", bus] if bus else []), *args],
                           cwd=ROOT, capture_output=True, text=True, timeout=timeout, stdin=subprocess.DEVNULL,
                           check=False)
 
