@@ -142,7 +142,7 @@ def load(protocol: str, instrument: bool = False) -> Callable[[bytes], None]:
     servos = list(robot.servos)
     ids = [s.id for s in servos]
     model = DEFAULT_MODEL[protocol]
-    hardware = Hardware(protocol, 1_000_000, model)
+    hardware = Hardware("sts" if protocol == "sts" else "dxl2", 1_000_000, model)
     sts = protocol == "sts"
     goal_addr, goal_n = (42, 2) if sts else (116, 4)
 

@@ -68,8 +68,9 @@ class SdkBus(MotorBus):
 
     # -- shared ----------------------------------------------------------------------------------
     def open(self) -> None:
-        port = self.port_handler if self.port_handler is not None else self._make_port()
-        if self.port_handler is None:
+        port: Any = self.port_handler
+        if port is None:
+            port = self._make_port()
             port.open_at(self.baud)
         self._port = port
         self._ph = self._make_ph()
