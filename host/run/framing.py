@@ -3,11 +3,12 @@
 A third-party arm's MJCF often has no floor and no camera placement the follow camera could use; with the
 defaults (0.75 m from the base, looking at 5 cm above it) a tall arm is cut off and a small one is a speck
 in a black void. :func:`frame_fixed_base` instead puts the model at the neutral pose
-(``mj_forward``), bounds every visible geom (groups 0-2, not transparent) by its own box turned into the
-world's axes (``geom_aabb`` about ``geom_xpos``/``geom_xmat``; a plane is left out), and aims the free camera at the
+(``mj_forward``), bounds every visible geom of a body (groups 0-2, not transparent; the world body's own
+geoms are scenery and left out) by its own box turned into the world's axes (``geom_aabb`` about
+``geom_xpos``/``geom_xmat``), and aims the free camera at the
 box's centre from the distance at which its bounding sphere fills the view (``vis.global.fovy``), with a
-little margin. When the model has no floor (no plane geom, no static scene object such as a table or the
-generated ``floor``) it also returns a floor just under the box, which :func:`add_floor` draws into the
+little margin. When the model has no floor (no plane, no geom on the world body, no static scene object
+such as a table) it also returns a floor just under the box, which :func:`add_floor` draws into the
 rendered scene only: a visual geom (``mjv_initGeom``), never part of the physics the board simulated.
 
 :mod:`host.run.video` uses the framed camera only when the robot package has no ``[view]`` (one it states
@@ -48,10 +49,12 @@ class Framing:
 
 
 def _has_floor(model: Any, static_objects: int) -> bool:
+    """A plane, a geom of the world body itself (a floor or table box, scenery) or a static scene object."""
     import mujoco
 
     planes = np.asarray(model.geom_type) == int(mujoco.mjtGeom.mjGEOM_PLANE)
-    return bool(planes.any()) or static_objects > 0
+    world = np.asarray(model.geom_bodyid) == 0
+    return bool(planes.any() or world.any()) or static_objects > 0
 
 
 def frame_fixed_base(model: Any, data: Any, qpos_adr: Sequence[int] | np.ndarray, q: Sequence[float] | np.ndarray,
@@ -67,7 +70,8 @@ def frame_fixed_base(model: Any, data: Any, qpos_adr: Sequence[int] | np.ndarray
     lo = np.full(3, np.inf)
     hi = np.full(3, -np.inf)
     for g in range(model.ngeom):
-        if int(model.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_PLANE) or int(model.geom_group[g]) >= VISIBLE_GROUPS:
+        if (int(model.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_PLANE) or int(model.geom_group[g]) >= VISIBLE_GROUPS
+                or int(model.geom_bodyid[g]) == 0):  # the world body's geoms are scenery (a floor box, a table)
             continue
         if float(model.geom_rgba[g, 3]) <= 0.0 and int(model.geom_matid[g]) < 0:
             continue

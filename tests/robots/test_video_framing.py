@@ -119,3 +119,15 @@ def test_a_floating_robot_keeps_the_follow_camera(tmp_path: Path, worker: dict) 
     pos, _ = rm.base_pose(w["data"])
     _frame(w)
     assert tuple(w["cam"].lookat[:2]) == pytest.approx(pos[:2])  # it looks at the base
+
+
+def test_a_floor_box_in_the_world_body_is_the_floor_and_not_framed(tmp_path: Path, worker: dict) -> None:  # type: ignore[type-arg]
+    """Scenery on the world body (a 10 m floor box) is a floor: none drawn, and the camera frames the arm, not it."""
+    write_mesh_arm(tmp_path, segments=8)
+    mjcf = tmp_path / "mjcf" / "arm.xml"
+    mjcf.write_text(mjcf.read_text().replace('<light pos="0 0 2"/>', '<light pos="0 0 2"/>\n    <geom type="box" '
+                                             'size="5 5 0.01" pos="0 0 -0.05" rgba="0.5 0.5 0.5 1"/>'))
+    folder = install_package(generate_package("boxed", mjcf), tmp_path / "boxed")
+    w = _setup(folder)
+    assert w["framed"] and w["framing"].floor_z is None
+    assert w["framing"].distance < 1.5  # the arm's ~0.5 m, not the 10 m box
