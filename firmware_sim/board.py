@@ -892,7 +892,7 @@ class Board:
                 self._bus_out.append(Nack(self._last_rx_seq & 0xFFFF, MsgType.SERVO_FRAME, NackReason.SERVO_FAULT,
                                           f.detail.encode("ascii", "replace").decode("ascii")[:64]))
             del self._bus_out[:-16]
-        return bool(clamped)
+        return bool(clamped) or bus.clamped  # the step limits clamped a goal: CLAMPED in telemetry too
 
     # --- reports ---------------------------------------------------------------------------
 

@@ -98,6 +98,9 @@ class MotorBus(ABC):
     counts: dict[str, int] = field(default_factory=lambda: {"sync_reads": 0, "sync_writes": 0, "corrupt": 0,
                                                              "timeouts": 0})
 
+    #: model numbers the pings found, by servo id
+    models: dict[int, int] = field(default_factory=dict)
+
     protocol: ClassVar[str] = ""
     #: the position register's raw span (4096-step servos) and bytes a goal takes on the wire
     goal_bytes: ClassVar[int] = 2

@@ -118,6 +118,7 @@ class BusDriver:
         #: faults found since the board last took them (:meth:`take_faults`)
         self.faults: list[BusFault] = []
         self.opened = False
+        self.clamped = False
 
     # -- start-up ----------------------------------------------------------------------------------
     def start(self) -> list[float]:
@@ -214,6 +215,9 @@ class BusDriver:
         """One control tick at board time ``t_us``: ONE SYNC WRITE of the goals for ``cmd`` (rad, servo
         order), then ONE SYNC READ of every servo not lost. Returns what was measured."""
         goals = {s.id: self.goal_steps(i, cmd[i]) for i, s in enumerate(self.servos)}
+        #: a command the step limits clamped this tick (a torque-on servo's goal is not its command's steps)
+        self.clamped = any(self.torque[i] and math.isfinite(cmd[i]) and goals[s.id] != rad_to_steps(
+            s, self.cals[i], cmd[i], self.step) for i, s in enumerate(self.servos))
         self.last_goals = goals
         self.bus.write_goals(goals)
         ids = [s.id for i, s in enumerate(self.servos) if not self.lost[i]]

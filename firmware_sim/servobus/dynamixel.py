@@ -4,11 +4,12 @@ X-series control table (e-Manual): 0-1 model number (the ping's answer carries i
 enable, 70 hardware error status (bit 0 input voltage, 2 overheating, 3 motor encoder, 4 electrical
 shock, 5 overload), 116-119 goal position (steps, signed), 126-127 present current (signed), 128-131
 present velocity (0.229 rpm units, signed), 132-135 present position (steps, signed), 168.. indirect
-addresses (2 bytes each), 224.. their indirect data.
+addresses (2 bytes each); their indirect data at 208.. on the 330 series (XL330/XC330: 20 of them),
+224.. on the 430/540 series (:func:`indirect_data_address`).
 
 Per tick: ONE SYNC READ and ONE SYNC WRITE (116, 4 bytes). At start-up (:meth:`DynamixelBus.prepare`)
 the indirect addresses 1..11 of every servo are pointed at 70, 126..135 so the sync read of
-224..234 brings the hardware error status with the present values. A servo table that does not
+the 11 indirect data bytes brings the hardware error status with the present values. A servo table that does not
 take them (the write refused, or the read-back disagreeing with a direct read of the position)
 falls back to the contiguous 126..135 and reads 70 only from a servo whose status packet raises
 its alert bit (bit 7 of the error byte): one extra READ on the tick an error appears.
@@ -33,6 +34,14 @@ PRESENT_ADDR = 126  # current, velocity, position: 10 bytes
 PRESENT_BYTES = 10
 INDIRECT_ADDR = 168
 INDIRECT_DATA = 224
+#: model numbers of the 330 series (XL330-M077/M288, XC330-T181/T288/M181/M288): indirect data at 208
+SERIES_330 = frozenset({1190, 1200, 1210, 1220, 1230, 1240})
+
+
+def indirect_data_address(model: int) -> int:
+    """Address of indirect data 1 on a servo of ``model`` (208 on the 330 series, else 224)."""
+    return 208 if model in SERIES_330 else INDIRECT_DATA
+
 #: what the indirect addresses 1..11 point at: hardware error status, then 126..135
 INDIRECT: tuple[int, ...] = (HW_ERROR_ADDR, *range(PRESENT_ADDR, PRESENT_ADDR + PRESENT_BYTES))
 ERR_ALERT = 0x80
@@ -62,6 +71,14 @@ class DynamixelBus(SdkBus):
     GOAL_ADDR = 116
     #: True once every servo's indirect addresses point at :data:`INDIRECT` (``prepare``)
     indirect = False
+    #: the indirect data address of the sync read (all servos alike; ``prepare``)
+    indirect_data = INDIRECT_DATA
+
+    def ping(self, servo_id: int) -> Any:
+        ans = super().ping(servo_id)
+        if ans.model is not None:
+            self.models[servo_id] = ans.model
+        return ans
 
     def _make_port(self) -> Any:
         return dxl_port(self.port, self.latency_ms)
@@ -113,7 +130,7 @@ class DynamixelBus(SdkBus):
         return ping_params[0] | ping_params[1] << 8 if len(ping_params) >= 2 else None
 
     def _read_spec(self) -> tuple[int, int]:
-        return (INDIRECT_DATA, len(INDIRECT)) if self.indirect else (PRESENT_ADDR, PRESENT_BYTES)
+        return (self.indirect_data, len(INDIRECT)) if self.indirect else (PRESENT_ADDR, PRESENT_BYTES)
 
     def _request(self, dev_id: int, instruction: int, params: list[int], answer_bytes: int) -> Answer:
         self._fresh()
@@ -126,16 +143,20 @@ class DynamixelBus(SdkBus):
         """Point every servo's indirect addresses at :data:`INDIRECT` (torque must be off); True when all
         took them and read back right, else the contiguous read stays (see the module doc)."""
         table = [b for a in INDIRECT for b in (a & 0xFF, a >> 8)]
+        data = {indirect_data_address(self.models.get(i, 0)) for i in ids}
+        if len(data) != 1:  # 330s and 430s on one bus: no one address for the sync read
+            return False
+        at = data.pop()
         for i in ids:
             r = self._request(i, 3, [INDIRECT_ADDR & 0xFF, INDIRECT_ADDR >> 8, *table], 0)
             if not isinstance(r, tuple) or r[1] & 0x7F:
                 return False
-            via = self._request(i, 2, [INDIRECT_DATA & 0xFF, INDIRECT_DATA >> 8, len(INDIRECT), 0], len(INDIRECT))
+            via = self._request(i, 2, [at & 0xFF, at >> 8, len(INDIRECT), 0], len(INDIRECT))
             direct = self._request(i, 2, [132, 0, 4, 0], 4)
             if not isinstance(via, tuple) or not isinstance(direct, tuple) or len(via[2]) < len(INDIRECT) \
                     or len(direct[2]) < 4 or abs(_s(_le(via[2][7:11]), 32) - _s(_le(direct[2][:4]), 32)) > 16:
                 return False
-        self.indirect = True
+        self.indirect, self.indirect_data = True, at
         return True
 
     def _present(self, dev_id: int, error: int, params: list[int]) -> Present:

@@ -68,9 +68,10 @@ class _Model:
 
     def regs(self, i: int, addr: int, n: int) -> bytes:
         t = self.table(i)
-        if self.protocol == "dxl2" and addr >= 224:
+        base = 208 if self.model in (1190, 1200, 1210, 1220, 1230, 1240) else 224  # the 330 series' indirect data
+        if self.protocol == "dxl2" and addr >= base:
             ind = self.indirect.get(i, [])
-            return bytes(t[ind[k - 224]] if 0 <= k - 224 < len(ind) and ind[k - 224] < 256 else 0
+            return bytes(t[ind[k - base]] if 0 <= k - base < len(ind) and ind[k - base] < 256 else 0
                          for k in range(addr, addr + n))
         return bytes(t[addr:addr + n]).ljust(n, b"\0")
 
