@@ -104,3 +104,31 @@ def test_realtime_board_on_a_realtime_plant(tmp_path: Path) -> None:
         finally:
             assert w.close() == 130
     assert abs(w.of(Telemetry)[-1].positions[PAN.index] + 0.4) < math.radians(2)
+
+
+def test_the_calibration_maps_angles_to_the_servos_raw_steps(tmp_path: Path) -> None:
+    """The plant's shoulder_pan is mounted 300 steps off centre and the other way round (an uncalibrated servo);
+    calibration.toml says so: the board reads it at neutral and moves the real joint to the commanded angle."""
+    from firmware_sim.plant.conditions import Conditions
+
+    folder = tmp_path / "arm"
+    shutil.copytree(ARM.root, folder, ignore=shutil.ignore_patterns("__pycache__"))
+    (folder / "calibration.toml").write_text(
+        "[servo.shoulder_pan]\nid = 1\noffset_steps = 300\ndirection = -1\nmin_steps = 0\nmax_steps = 4095\n")
+    robot = load_robot(str(folder))
+    with plant_thread(robot, conditions=Conditions(offsets={PAN.id: 300}, reversed=frozenset({PAN.id}))) as (
+            world, plant, pty, goals):
+        w = board(pty, tmp_path, "--robot", str(folder))
+        try:
+            tel = run_to(w, 40_000)
+            assert abs(tel[0].positions[PAN.index]) < 2 * STEP  # neutral, as the plant's joint is
+            q = [0.0] * N
+            q[PAN.index] = 0.5
+            stream(w, q, 40_000, 1_000_000)
+            tel = run_to(w, 1_000_000)
+            joint = float(world.positions()[PAN.index])
+        finally:
+            assert w.close() == 130
+    assert abs(joint - 0.5) < math.radians(1.5), joint  # the real joint went there
+    assert abs(tel[-1].positions[PAN.index] - 0.5) < math.radians(1.5)
+    assert goals[-1][PAN.index] == pytest.approx(2048 + 300 - round(0.5 / STEP), abs=1)
