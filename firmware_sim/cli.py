@@ -460,8 +460,9 @@ def _main(argv: Sequence[str] | None = None) -> int:
                       "or lower the board's --telemetry-rate)", file=sys.stderr, flush=True)
         if driver is not None:
             driver.torque_on()  # only now: the board's command starts at the measured positions
-            how = {True: ", one sync read through indirect addresses", False: ", one sync read + the hardware error "
-                   "status on an alert"}.get(getattr(driver.bus, "indirect", None), "")  # type: ignore[call-overload]
+            indirect = getattr(driver.bus, "indirect", None)  # Dynamixel only
+            how = "" if indirect is None else (", one sync read through indirect addresses" if indirect
+                                               else ", one sync read + the hardware error status on an alert")
             print(f"board: servo bus {driver.bus.port} ({driver.bus.protocol}, {driver.bus.baud} baud{how}): "
                   f"{driver.n} servos answer, torque on; ESTOP {driver.estop_torque}s", file=sys.stderr, flush=True)
         server.serve()
