@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import math
 import re
+import sys
 import tomllib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -470,8 +471,10 @@ def _same(a_lo: float, a_hi: float, b_lo: float, b_hi: float) -> bool:
 
 def check_against_mjcf(mjcf: Path, table: ServoTable, servo_path: Path, servo_text: str,
                        camera: str | None = None, feet: Sequence[str] = (), *, camera_at: str | None = None,
-                       feet_at: str | None = None) -> None:
-    """Compile ``mjcf`` and check the servo table (and camera, foot sites) against it.
+                       feet_at: str | None = None) -> list[str]:
+    """Compile ``mjcf`` and check the servo table (and camera, foot sites) against it; returns the notes a
+    load prints: servos whose table keeps the joint range where the actuator's ctrlrange is narrower (their
+    targets beyond the ctrlrange are not reached).
 
     ``camera_at``/``feet_at``: where robot.toml names them (file:line), for the messages. MJCF places
     come from :func:`robots.mjcf_index.index_mjcf` (includes followed)."""
@@ -486,6 +489,7 @@ def check_against_mjcf(mjcf: Path, table: ServoTable, servo_path: Path, servo_te
     except (ValueError, OSError) as e:
         raise compile_error(mjcf, e, index) from None
     actuators = {e.attrs.get("name"): e for e in index.children_of("actuator")}
+    unreached: list[str] = []
     hinge_slide = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
     for s in table:
         where = _at(servo_path, _line(servo_text, r"^\[\[servo\]\]", s.id - 1))
@@ -508,6 +512,9 @@ def check_against_mjcf(mjcf: Path, table: ServoTable, servo_path: Path, servo_te
                                  "(use <position kp=...>)")
         lo, hi, how = servo_range(model, aid, jid, joint_at=jline, actuator_at=aline)
         jlo, jhi = (float(v) for v in model.jnt_range[jid])
+        if how == "narrower" and not _same(s.min, s.max, lo, hi):
+            unreached.append(f"{s.name} [{math.degrees(s.min):.4g}, {math.degrees(s.max):.4g}] (reachable "
+                             f"[{math.degrees(lo):.4g}, {math.degrees(hi):.4g}])")
         # the reachable range (joint range, narrowed by a narrower ctrlrange), or the joint range itself
         # (a table written before ctrlranges were taken into account: `robots check` notes it)
         if not _same(s.min, s.max, lo, hi) and not _same(s.min, s.max, jlo, jhi):
@@ -526,6 +533,11 @@ def check_against_mjcf(mjcf: Path, table: ServoTable, servo_path: Path, servo_te
         if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, site) < 0:
             raise RobotDataError(f"{feet_at or 'robot.toml [base]'}: feet names site {site!r}, which {mjcf.name} "
                                  "does not have")
+    if not unreached:
+        return []
+    return [f"{servo_path}: the servo table keeps the joint range where the actuator's ctrlrange is narrower, so "
+            f"targets beyond the ctrlrange are not reached: {', '.join(unreached)} deg; set min_deg/max_deg to the "
+            "reachable range"]
 
 
 # --- meshes ---------------------------------------------------------------------------------------
@@ -689,14 +701,18 @@ def _tour(doc: Mapping[str, Any], poses: Mapping[str, Any], path: Path, text: st
     return names
 
 
-def load_robot_dir(root: Path, *, builtin: bool = False, check_mjcf: bool = True, fresh: bool = False) -> Robot:
+def load_robot_dir(root: Path, *, builtin: bool = False, check_mjcf: bool = True, fresh: bool = False,
+                   show_notes: bool = True) -> Robot:
     """Read the robot in folder ``root`` (its ``robot.toml``); :class:`RobotDataError` says what and where.
     ``fresh``: check it against its MJCF even when a pass is recorded (``ghostshell robots check``).
+    ``show_notes``: print the check's notes (:func:`check_against_mjcf`) on stderr, ``note: robot NAME: ...``;
+    only a load that runs the check has any, so a package says them once, not on every command.
 
     A value of the wrong TOML type that no check names (``base = 3``, ``voices = 7``) is a
     :class:`RobotDataError` naming robot.toml too, never a traceback."""
     try:
-        return _load_robot_dir(Path(root).resolve(), builtin=builtin, check_mjcf=check_mjcf, fresh=fresh)
+        return _load_robot_dir(Path(root).resolve(), builtin=builtin, check_mjcf=check_mjcf, fresh=fresh,
+                               show_notes=show_notes)
     except RobotDataError:
         raise
     except (TypeError, AttributeError, KeyError, IndexError, ValueError) as e:
@@ -704,7 +720,12 @@ def load_robot_dir(root: Path, *, builtin: bool = False, check_mjcf: bool = True
                              f"({type(e).__name__}: {e}); robots/loader.py documents every key") from None
 
 
-def _load_robot_dir(root: Path, *, builtin: bool, check_mjcf: bool, fresh: bool = False) -> Robot:
+#: notes a load printed in this process (a robot loaded again with the check cache off says them once)
+_NOTED: set[str] = set()
+
+
+def _load_robot_dir(root: Path, *, builtin: bool, check_mjcf: bool, fresh: bool = False,
+                    show_notes: bool = True) -> Robot:
     path = root / ROBOT_FILE
     doc, text = _read_toml(path)
     name = doc.get("name")
@@ -767,10 +788,14 @@ def _load_robot_dir(root: Path, *, builtin: bool, check_mjcf: bool, fresh: bool 
     if check_mjcf and (fresh or not mjcf_check_cache.passed(mjcf, inputs)):  # a pass is recorded: MuJoCo is not imported again
         before = mjcf_check_cache.snapshot(mjcf)
         check_meshes(mjcf)  # before MuJoCo reads them: a missing, huge or foreign mesh is one line
-        check_against_mjcf(mjcf, table, servo_path, servo_path.read_text(encoding="utf-8"),
-                           peripherals.camera, base.feet, camera_at=_at(path, _line(text, r"^camera\s*=")),
-                           feet_at=base_at["feet"])
+        notes = check_against_mjcf(mjcf, table, servo_path, servo_path.read_text(encoding="utf-8"),
+                                   peripherals.camera, base.feet, camera_at=_at(path, _line(text, r"^camera\s*=")),
+                                   feet_at=base_at["feet"])
         mjcf_check_cache.record(mjcf, inputs, before)
+        for note in notes if show_notes else ():  # once: the next load finds the pass recorded and checks nothing
+            if note not in _NOTED:
+                _NOTED.add(note)
+                print(f"note: robot {name}: {note}", file=sys.stderr)
     return Robot(
         name=name, title=str(doc.get("title", name)), description=str(doc.get("description", "")), root=root,
         mjcf=mjcf, servos=table, poses=poses, channels=channels, peripherals=peripherals, scenes=scenes,

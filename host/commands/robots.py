@@ -8,7 +8,9 @@
   It prints its notes (``note: ...`` on stderr: skipped actuators, servo ranges an actuator ``ctrlrange``
   changed, ...) once, and ends with a ``try:`` command that moves one joint visibly.
 * ``check NAME``: the loader's checks, always against the MJCF (no recorded pass), and the package's notes
-  (:func:`robots.loader.mjcf_notes`). Loading a robot for any other command prints no notes.
+  (:func:`robots.loader.mjcf_notes`). Loading a robot for any other command prints only a note on a
+  problem (a servo table that keeps the joint range where the ctrlrange is narrower), and only when the
+  load checks the MJCF, i.e. once after the package changed, not on every command.
 * ``list``: every robot on the search path (:mod:`robots.registry`): name, servo count, built-in or
   user, folder, and a note when one shadows another; a broken package is listed with its error line.
 * ``show NAME``: :meth:`robots.description.Robot.describe` plus the functions each vocabulary exposes.
@@ -129,7 +131,7 @@ def _check(args: argparse.Namespace) -> int:
 
     try:
         folder, builtin = find_robot(args.name, args.robots_dir)
-        robot = load_robot_dir(folder, builtin=builtin, fresh=True)
+        robot = load_robot_dir(folder, builtin=builtin, fresh=True, show_notes=False)  # mjcf_notes says them all
         notes = mjcf_notes(robot)
     except RobotDataError as e:
         return _fail(str(e))

@@ -93,6 +93,22 @@ def test_new_check_and_load_print_the_ctrlrange_note_once(tmp_path: Path) -> Non
     assert "servos: 1:shoulder_pan[-109..109], 2:shoulder_lift[-99..99], 3:elbow_flex[-96..96]" in show
 
 
+def test_a_hand_edited_table_is_noted_on_the_first_load_only(tmp_path: Path) -> None:
+    """A table that keeps the joint range where the ctrlrange is narrower loads (targets beyond the ctrlrange are
+    not reached): the first command after the edit says so in one note; the next ones (a pass recorded) do not."""
+    assert _new(tmp_path, third_party_arm(tmp_path)).returncode == 0
+    servos = tmp_path / "robots" / "thirdarm" / "servos.toml"
+    servos.write_text(servos.read_text().replace("min_deg = -96.0\nmax_deg = 96.0", "min_deg = -97.0\nmax_deg = 97.0"))
+    said = []
+    for _ in range(2):
+        res = cli("robots", "show", "thirdarm", "--robots-dir", str(tmp_path / "robots"), data_home=tmp_path)
+        assert res.returncode == 0, res.stderr
+        said.append(_notes(res.stderr))
+    assert len(said[0]) == 1 and said[1] == [], said
+    assert said[0][0].startswith(f"note: robot thirdarm: {servos}: the servo table keeps the joint range where the "
+                                 "actuator's ctrlrange is narrower") and "elbow_flex [-97, 97] (reachable [-96, 96])" in said[0][0]
+
+
 def test_a_wider_ctrlrange_is_clamped_with_one_note(tmp_path: Path) -> None:
     wide = {j: (lo - 20, hi + 20) for j, (lo, hi) in RANGES.items()}
     new = _new(tmp_path, third_party_arm(tmp_path, wide))

@@ -149,14 +149,22 @@ def test_hostile_ranges_are_one_line_at_file_line(tmp_path: Path, case: str) -> 
     assert says in msg and "\n" not in msg and "Error:" not in msg.split("MuJoCo")[0], msg
 
 
-def test_the_loader_checks_the_table_against_the_reachable_range(tmp_path: Path) -> None:
+def test_the_loader_checks_the_table_against_the_reachable_range(tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
     folder = install_package(generate_package("handmade", write_arm(tmp_path / "src")), tmp_path / "robots")
+    assert capsys.readouterr().err == ""  # a generated package has nothing to say when it loads
     servos = folder / "servos.toml"
     text = servos.read_text()
-    # a table written with the joint range (before ctrlranges counted) still loads; `robots check` says why not ideal
+    # a table written with the joint range (before ctrlranges counted) still loads, with one note, once
     joint_range = re.sub(r"min_deg = -95\.8\d+", "min_deg = -96.8322", re.sub(r"max_deg = 95\.8\d+", "max_deg = 96.8322", text))
     servos.write_text(joint_range)
     robot = load_robot_dir(folder)
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith(f"note: robot handmade: {servos}: the servo table keeps the joint "
+                                               "range where the actuator's ctrlrange is narrower"), err
+    assert "elbow_flex [-96.83, 96.83] (reachable [-95.83, 95.83])" in err[0]
+    load_robot_dir(folder)
+    assert capsys.readouterr().err == ""  # the pass is recorded: the next load (command) checks and says nothing
     table_note = [n for n in mjcf_notes(robot) if n.startswith("the servo table keeps the joint range")]
     assert len(table_note) == 1 and "elbow_flex [-96.83, 96.83] deg (reachable [-95.83, 95.83] deg)" in table_note[0]
     # any other range is refused, naming both places
