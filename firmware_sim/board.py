@@ -870,9 +870,11 @@ class Board:
     _servo_fault_detail = "a servo failed on the servo bus; send ESTOP_CLEAR"
 
     def _bus_tick(self, desired: list[float], speed_cap: float | None) -> bool:
-        """One tick on a real servo bus: servo model (its deadband against the measured positions) ->
-        the command as goals (one SYNC WRITE, clamped to the step limits) -> one SYNC READ -> the mirror.
-        A new servo fault latches SERVO_FAULT: every servo holds its command, a NACK names the servo."""
+        """One tick on a real servo bus: the servo model (joint and speed limits) -> its speed-limited
+        command (rad) as the goals (one SYNC WRITE, clamped again to the step limits; quantised to steps
+        there, the servo's own deadband acts in the servo) -> one SYNC READ -> the mirror. ``ctrl`` (the
+        deadband against the measured positions) is kept as in simulation, for reports only. A new
+        servo fault latches SERVO_FAULT: every servo holds its command, a NACK names the servo."""
         bus = self.bus
         assert bus is not None
         data = self.data
