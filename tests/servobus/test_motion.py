@@ -132,3 +132,19 @@ def test_the_calibration_maps_angles_to_the_servos_raw_steps(tmp_path: Path) -> 
     assert abs(joint - 0.5) < math.radians(1.5), joint  # the real joint went there
     assert abs(tel[-1].positions[PAN.index] - 0.5) < math.radians(1.5)
     assert goals[-1][PAN.index] == pytest.approx(2048 + 300 - round(0.5 / STEP), abs=1)
+
+
+def test_the_c_firmware_gets_the_servo_bus_options(tmp_path: Path) -> None:
+    """``--firmware c --servo-bus PTY --estop-torque limp``: firmware_sim/cli.py hands port, baud, protocol and
+    e-stop flavour to the C launcher (LaunchOptions), whose firmware then drives the plant's servos."""
+    with Plant() as plant:
+        w = board(f"{plant.pty}:1000000", tmp_path, "--firmware", "c", "--estop-torque", "limp")
+        try:
+            q = [0.0] * N
+            q[PAN.index] = 0.5
+            stream(w, q, 0, 600_000)
+            tel = run_to(w, 600_000)
+        finally:
+            assert w.close() == 130
+    assert abs(tel[-1].positions[PAN.index] - 0.5) < math.radians(1.5)
+    assert "(sts, 1000000 baud)" in (tmp_path / "board.stderr").read_text()
