@@ -469,8 +469,10 @@ def _main(argv: Sequence[str] | None = None) -> int:
     except (_Stop, KeyboardInterrupt):
         status = INTERRUPTED_STATUS
     finally:
-        if driver is not None:
-            driver.close()  # torque off on the whole bus, on every way out
+        if driver is not None:  # torque off on the whole bus, on every way out; a second Ctrl-C must not cut it short
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            driver.close()
             c = driver.bus.counts
             print(f"board: servo bus torque off; {c['sync_writes']} goal writes, {c['sync_reads']} reads, "
                   f"{c['timeouts']} timeouts, {c['corrupt']} garbled answers", file=sys.stderr, flush=True)
