@@ -790,7 +790,7 @@ def _load_robot_dir(root: Path, *, builtin: bool, check_mjcf: bool, fresh: bool 
         check_meshes(mjcf)  # before MuJoCo reads them: a missing, huge or foreign mesh is one line
         notes = check_against_mjcf(mjcf, table, servo_path, servo_path.read_text(encoding="utf-8"),
                                    peripherals.camera, base.feet, camera_at=_at(path, _line(text, r"^camera\s*=")),
-                                   feet_at=base_at["feet"])
+                                   feet_at=base_at["feet"]) or []
         mjcf_check_cache.record(mjcf, inputs, before)
         for note in notes if show_notes else ():  # once: the next load finds the pass recorded and checks nothing
             if note not in _NOTED:
