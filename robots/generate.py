@@ -18,10 +18,12 @@ Generation rules
   actuator at all; an unnamed position actuator (the servo table names it); two position
   actuators on one joint; a driven joint without a range (``range="lo hi"``; there is no default
   range: a made-up limit would let the LLM drive the joint where the model says it cannot go; the
-  message offers the actuator's ``ctrlrange`` when it has one); a joint ``range`` or actuator
-  ``ctrlrange`` that is NaN, infinite, inverted or empty (MuJoCo compiles those as no limit); a
-  ``ctrlrange`` wholly outside its joint's range (no target could be reached); more than :data:`robots.description.MAX_WIRE_SERVOS` servos (the wire's servo mask);
-  a file the MJCF references by an absolute path, or one that does not exist.
+  message offers the actuator's ``ctrlrange`` when it has one); a joint ``range`` that is infinite,
+  inverted or empty, or an actuator ``ctrlrange`` that is inverted or empty (MuJoCo compiles those as
+  no limit); a ``ctrlrange`` wholly outside its joint's range (no target could be reached); a NaN in
+  any number (refused before MuJoCo reads it, which would take a NaN range as none); more than
+  :data:`robots.description.MAX_WIRE_SERVOS` servos (the wire's servo mask); a file the MJCF
+  references by an absolute path, or one that does not exist.
 * **Limits**: ``min_deg``/``max_deg`` = the range the servo reaches, in degrees
   (:func:`robots.loader.servo_range`): the joint's ``range`` (its mechanical stop) intersected with
   its actuator's ``ctrlrange`` (the software limit MuJoCo clamps targets to). A ctrlrange narrower

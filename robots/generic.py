@@ -128,7 +128,8 @@ def generic_module(robot: RobotData) -> type:
     def joint_move(self, joint, deg, duration=1.0) -> None:  # type: ignore[no-untyped-def]
         pass
 
-    own = tuple((n, math.degrees(sv.min), math.degrees(sv.max)) for sv in table for n in dict.fromkeys((sv.name, sv.joint)))
+    own = tuple((n, math.degrees(sv.min), math.degrees(sv.max))
+                for sv in table for n in dict.fromkeys((sv.name, sv.joint)))  # a servo by its name or its joint's
     joint_move.__annotations__ = {"joint": joint_names, "deg": Annotated[float, JointDegrees(-bound, bound, own)],
                                   "duration": Seconds, "return": None}
     joint_move.__doc__ = (f"Move one joint to `deg` degrees (a joint angle) in `duration` seconds; ranges in "

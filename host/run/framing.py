@@ -91,7 +91,8 @@ def frame_fixed_base(model: Any, data: Any, qpos_adr: Sequence[int] | np.ndarray
     distance = radius * MARGIN / math.sin(fovy / 2)
     floor_z = None if _has_floor(model, static_objects) else float(lo[2]) - 0.001
     return Framing((float(center[0]), float(center[1]), float(center[2])), distance, floor_z,
-                   max(FLOOR_RADII * radius, 5.0), (tuple(float(v) for v in lo), tuple(float(v) for v in hi)))  # type: ignore[arg-type]
+                   max(FLOOR_RADII * radius, 5.0),
+                   (tuple(float(v) for v in lo), tuple(float(v) for v in hi)))  # type: ignore[arg-type]
 
 
 def add_floor(scene: Any, framing: Framing) -> None:
