@@ -719,7 +719,9 @@ class ProgramRun:
         try:
             result = await c.spec.impl(**c.args)
         except Exception as exc:  # a failing function fails its call only
-            c.error = f"{type(exc).__name__}: {exc}"
+            # a ValueError is the function refusing its arguments: its message is the one line; any other
+            # exception is a bug in the function, and its class name helps whoever reads the line
+            c.error = str(exc) if isinstance(exc, ValueError) and str(exc) else f"{type(exc).__name__}: {exc}"
         else:
             c.record.result = result
             if result is not None:

@@ -159,6 +159,24 @@ async def test_sync_attribute_puts_call_on_main_channel():
     assert r.timeline.one("B").start == 0
 
 
+async def test_a_refused_argument_fails_in_one_line_without_an_exception_name():
+    """A function that refuses its arguments (ValueError) fails with its own message; any other
+    exception is a bug and keeps its class name."""
+
+    @shell_function
+    async def reach(deg: float = 0) -> None:
+        raise ValueError(f"elbow_flex reaches -97..97 deg, not {deg:g}")
+
+    @shell_function
+    async def buggy() -> None:
+        raise KeyError("servo")
+
+    sh = Shell(Registry([Module.from_functions("C1", reach, buggy)]))
+    r = await sh.run_text('<reach deg="500"/><buggy/>')
+    assert r.timeline.one("reach").error == "elbow_flex reaches -97..97 deg, not 500"
+    assert r.timeline.one("buggy").error == "KeyError: 'servo'"
+
+
 async def test_failure_is_local():
     @shell_function
     async def boom(x: int = 1) -> None:
