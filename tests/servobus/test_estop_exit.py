@@ -58,9 +58,9 @@ def test_estop_limp_switches_torque_off_and_clear_resumes_from_the_measured_pose
             w.wait(lambda: any(isinstance(a, Ack) and a.msg_type == MsgType.ESTOP_CLEAR for a in w.of(Ack)),
                    what="ESTOP_CLEAR's ack")
             n_before = len(goals)
-            present = [st.present_steps for st in world.servos]
-            on = [st.torque for st in world.servos]
+            present = [st.present_steps for st in world.servos]  # no step since the board's last read
             run_to(w, 1_200_000)
+            on = [st.torque for st in world.servos]  # the torque write went out before these goal writes
         finally:
             assert w.close() == 130
     assert not any(limp) and all(on)
