@@ -10,7 +10,8 @@ import signal
 import subprocess
 import sys
 import threading
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -94,6 +95,18 @@ def plant_thread(robot: object = ARM, *, protocol: str = "sts", baud: int = 1_00
         th.join(10)
         port.close()
         sys.setswitchinterval(old)
+
+
+def eventually(pred: Callable[[], bool], timeout: float = 10.0) -> bool:
+    """True once ``pred()`` holds (checked every 5 ms, up to ``timeout`` s): for the in-thread plant, which
+    reads what a board wrote to its pty on its own time, also after that board exited."""
+    end = time.monotonic() + timeout
+    done = threading.Event()
+    while not pred():
+        if time.monotonic() > end:
+            return False
+        done.wait(0.005)
+    return True
 
 
 def board(bus: str, tmp_path: Path, *args: str, name: str = "board.stderr") -> Wire:

@@ -12,7 +12,9 @@ from pathlib import Path
 import pytest
 
 from protocol.messages import Ack, Estop, EstopClear, FaultFlags, MsgType, Nack, NackReason, ServoFrame
-from tests.servobus.helpers import ARM, MASK, N, ROOT, STEP, Plant, board, plant_thread, run_board, run_to, stream
+from tests.servobus.helpers import (
+    ARM, MASK, N, ROOT, STEP, Plant, board, eventually, plant_thread, run_board, run_to, stream,
+)
 
 PAN = ARM.servos[0]
 LIFT = ARM.servos[1]
@@ -38,7 +40,7 @@ def test_estop_hold_keeps_torque_on_and_holds(tmp_path: Path) -> None:
         finally:
             assert w.close() == 130
         assert all(torque)
-        assert not any(st.torque for st in world.servos)  # exit: torque off on the whole bus
+        assert eventually(lambda: not any(st.torque for st in world.servos))  # exit: torque off on the whole bus
     assert next(n for n in w.of(Nack) if n.ack_seq == seq).reason == NackReason.ESTOPPED
     held = [t for t in tel if t.board_time_us >= 400_000]
     assert held and all(t.faults & FaultFlags.ESTOP for t in held)
@@ -82,7 +84,7 @@ def test_sigint_exits_130_with_torque_off(tmp_path: Path) -> None:
             assert w.board.proc.wait(30) == 130
         finally:
             w.close()
-        assert not any(st.torque for st in world.servos)
+        assert eventually(lambda: not any(st.torque for st in world.servos))
     assert "servo bus torque off" in (tmp_path / "board.stderr").read_text()
 
 

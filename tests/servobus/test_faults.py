@@ -14,7 +14,7 @@ import pytest
 
 from host.link.faultcheck import refusal_message
 from protocol.messages import FaultFlags, Nack, NackReason, ServoFrame, Telemetry
-from tests.servobus.helpers import ARM, MASK, N, Plant, board, plant_thread, run_board, run_to, stream
+from tests.servobus.helpers import ARM, MASK, N, Plant, board, eventually, plant_thread, run_board, run_to, stream
 
 ELBOW = ARM.servos[2]  # id 3
 
@@ -42,7 +42,7 @@ def test_start_up_failure_leaves_torque_off(tmp_path: Path) -> None:
     with plant_thread(conditions=Conditions(missing=frozenset({6}))) as (world, plant, pty, goals):
         proc = run_board(pty)
         assert proc.returncode == 2 and "servo 6 (gripper) does not answer" in proc.stderr
-        assert not any(st.torque for st in world.servos[:5])
+        assert eventually(lambda: not any(st.torque for st in world.servos[:5]))
         assert not goals  # not one goal written
 
 
