@@ -1,0 +1,115 @@
+"""The bus layer alone, on the in-memory port (no pty, no board): ``PORT[:BAUD]``, what each kind of bad
+answer becomes, the second clamp, the timing warning, torque off at close."""
+
+from __future__ import annotations
+
+import io
+import math
+
+import pytest
+
+from firmware_sim.servobus import make_bus, parse_bus_spec
+from firmware_sim.servobus.base import CORRUPT, OVERLOAD, TIMEOUT, VOLTAGE
+from firmware_sim.servobus.driver import BusDriver
+from firmware_sim.servobus.fuzz import _Model
+from firmware_sim.servobus.memport import MemPort
+from firmware_sim.fuzz import Reader
+from robots.hardware import DEFAULT_MODEL, Calibration, Hardware, ServoCalibration
+from tests.servobus.helpers import ARM, N
+
+IDS = [s.id for s in ARM.servos]
+
+
+def test_parse_bus_spec() -> None:
+    assert parse_bus_spec("/dev/ttyUSB0") == ("/dev/ttyUSB0", None)
+    assert parse_bus_spec("/dev/ttyUSB0:57600") == ("/dev/ttyUSB0", 57600)
+    assert parse_bus_spec("COM3:1000000") == ("COM3", 1000000)
+    assert parse_bus_spec("socket://host:7000x") == ("socket://host:7000x", None)
+    for bad in ("", ":57600", "/dev/x:0", "/dev/x:-1"):
+        with pytest.raises(ValueError):
+            parse_bus_spec(bad)
+
+
+class _Bus:
+    """A driver on the in-memory port; ``mode(pkt) -> 'ok' | 'silent' | 'garbled' | ('error', bits)``
+    decides each answer."""
+
+    def __init__(self, protocol: str, cal: Calibration | None = None) -> None:
+        self.mode = lambda pkt: "ok"
+        self.model = _Model(protocol, Reader(b""), IDS, DEFAULT_MODEL[protocol])
+        self.port = MemPort(self._answer)
+        self.err = io.StringIO()
+        self.driver = BusDriver(make_bus(protocol, "mem", 1_000_000, port_handler=self.port), ARM,
+                                Hardware("sts" if protocol == "sts" else "dxl2", 1_000_000, DEFAULT_MODEL[protocol]),
+                                cal or Calibration(), err=self.err)
+
+    def _answer(self, pkt: bytes) -> bytes:
+        m = self.mode(pkt)
+        if m == "silent":
+            self.model.answer(pkt, 0, False)
+            return b""
+        if isinstance(m, tuple):
+            return b"".join(self.model.answer(pkt, m[1], False) or [])
+        out = b"".join(self.model.answer(pkt, 0, False) or [])
+        return out[:-1] + bytes([out[-1] ^ 0xFF]) if m == "garbled" and out else out
+
+
+@pytest.mark.parametrize("protocol", ["sts", "dxl2"])
+def test_each_bad_answer_is_named(protocol: str) -> None:
+    b = _Bus(protocol)
+    q = b.driver.start()
+    assert q == pytest.approx([0.0] * N, abs=0.01)
+    b.driver.torque_on()
+    sync_read = 0x82
+    inst = (lambda p: p[4]) if protocol == "sts" else (lambda p: p[7])
+    # servo 3 silent three reads in a row: lost
+    b.mode = lambda pkt: "silent" if inst(pkt) == sync_read else "ok"
+    for k in range(3):
+        b.driver.exchange(q, k * 2000)
+    faults = b.driver.take_faults()
+    assert [(f.servo_id, f.what) for f in faults] == [(i, TIMEOUT) for i in IDS]  # the whole bus went silent
+    # ESTOP_CLEAR tries them again; now one garbled answer after another
+    b.driver.on_clear()
+    b.mode = lambda pkt: "garbled" if inst(pkt) == sync_read else "ok"
+    for k in range(3):
+        b.driver.exchange(q, k * 2000)
+    assert {f.what for f in b.driver.take_faults()} == {CORRUPT}
+    # error bits: overload (STS bit 5 / Dynamixel hardware error bit 5) turns that servo's torque off
+    b.driver.on_clear()
+    if protocol == "sts":
+        b.mode = lambda pkt: ("error", 0x20 | 0x01) if inst(pkt) == sync_read else "ok"
+    else:
+        for t in b.model.tables.values():
+            t[70] = 0x20 | 0x01
+        b.mode = lambda pkt: ("error", 0x80) if inst(pkt) == sync_read else "ok"
+    b.driver.exchange(q, 0)
+    faults = b.driver.take_faults()
+    assert {f.what for f in faults} == {OVERLOAD, VOLTAGE}
+    assert all(f.torque_off for f in faults if f.what == OVERLOAD)
+    assert not any(b.driver.torque)
+    assert "board: servo 1 (shoulder_pan): overload at board time 0.000 s; its torque is off" in b.err.getvalue()
+    b.driver.close()
+
+
+def test_goals_stay_inside_the_step_limits_whatever_the_command() -> None:
+    cal = Calibration({"shoulder_pan": ServoCalibration(1, 100, -1, 1500, 2500)})
+    b = _Bus("sts", cal)
+    q = b.driver.start()
+    b.driver.torque_on()
+    lo, hi = b.driver.limits[0]
+    assert (lo, hi) == (1500, 2500)
+    for x in (math.nan, math.inf, -math.inf, 1e300, -1e300, 3.0, -3.0):
+        b.driver.exchange([x] + q[1:], 0)
+        assert lo <= b.driver.last_goals[1] <= hi
+        assert b.driver.clamped or not math.isfinite(x)
+    b.driver.close()
+    assert not any(b.driver.torque)
+
+
+def test_the_timing_warning() -> None:
+    b = _Bus("dxl2")
+    b.driver.bus.baud = 57_600
+    note = b.driver.tick_note(0.002)
+    assert note is not None and "57600 baud" in note and "lower --rate" in note
+    b.driver.bus.baud = 1_000_000
+    assert _Bus("sts").driver.tick_note(0.002) is None
