@@ -29,7 +29,7 @@ from typing import Any
 
 from host.commands.errors import print_error
 from host.commands.outarg import out_dir_problem
-from host.commands.run import _push_text, add_run_options, check_run_args, line_rates, resolve_strict, use_servo_bus
+from host.commands.run import _push_text, add_run_options, check_run_args, line_rates, resolve_strict, servo_bus_of
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -115,7 +115,6 @@ def main(args: argparse.Namespace) -> int:
         print_error("chat", f"the run folder {out} {why}; give another with --out DIR")
         return 2
     try:
-        use_servo_bus(args)
         return anyio.run(_chat, args, turns, replies, skills, out, backend="asyncio")
     except (LinkError, GhostError, SkillError, RuntimeError, OSError) as e:
         print_error("chat", str(e))
@@ -154,6 +153,7 @@ async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any,
                           out=out, skills=skills,
                           label="chat", scene=args.scene, policy=getattr(args, "loaded_policy", None),
                           faults=args.faults, fault_seed=args.fault_seed, foxglove=args.foxglove,
+                          servo_bus=servo_bus_of(args),
                           mcp_mounts=tuple(args.mount_mcp),
                           event_policy=getattr(args, "event_policy", None),
                           events=getattr(args, "scripted_events", ()),

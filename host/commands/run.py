@@ -157,12 +157,12 @@ def servo_bus_problem(args: argparse.Namespace) -> str | None:
     return None
 
 
-def use_servo_bus(args: argparse.Namespace) -> None:
-    """Hand the ``--servo-bus`` flags to the board the session starts (host.run.session.SERVO_BUS_ARGS)."""
-    from host.run.session import SERVO_BUS_ARGS, servo_bus_args
+def servo_bus_of(args: argparse.Namespace) -> tuple[str, ...]:
+    """The board arguments of the ``--servo-bus`` flags (``SessionOptions.servo_bus``; () without them)."""
+    from host.run.session import servo_bus_args
 
-    SERVO_BUS_ARGS.set(servo_bus_args(getattr(args, "servo_bus", None), getattr(args, "bus_protocol", None),
-                                      getattr(args, "estop_torque", None)))
+    return servo_bus_args(getattr(args, "servo_bus", None), getattr(args, "bus_protocol", None),
+                          getattr(args, "estop_torque", None))
 
 
 def add_mount_argument(parser: argparse.ArgumentParser) -> None:
@@ -426,7 +426,7 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         skills=skills,
         policy=policy, faults=getattr(args, "faults", None), fault_seed=getattr(args, "fault_seed", 0),
         max_board_s=args.max_board_s, max_log_mb=args.max_log_mb, handle_signals=True,
-        firmware=getattr(args, "firmware", "python"),
+        firmware=getattr(args, "firmware", "python"), servo_bus=servo_bus_of(args),
         foxglove=getattr(args, "foxglove", None), plots=not getattr(args, "no_plots", False),
         mcp_mounts=tuple(getattr(args, "mount_mcp", ())),
         event_policy=getattr(args, "event_policy", None), events=getattr(args, "scripted_events", ()),
@@ -440,7 +440,6 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
             print(banner, flush=True)
 
     try:
-        use_servo_bus(args)
         report = anyio.run(run_program, opts, show_banner, backend="asyncio")
     except Interrupted as e:
         ended = ended_report(e)

@@ -84,6 +84,7 @@ class RunOptions:
     faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
     fault_seed: int = 0
     firmware: str = "python"  # the emulated board's firmware: python, c or qemu (SessionOptions.firmware)
+    servo_bus: tuple[str, ...] = ()  # board arguments for a real servo bus (SessionOptions.servo_bus)
     mcap: bool = True  # record the run to <out>/run.mcap
     plots: bool = True  # draw timeline.png and joints.png (SessionOptions.plots); --no-plots
     foxglove: int | None = None  # serve the live view on this localhost port; None: off

@@ -51,7 +51,6 @@ the recording's dropped messages.
 from __future__ import annotations
 
 import contextlib
-import contextvars
 import dataclasses
 import functools
 import json
@@ -119,15 +118,6 @@ from robots.registry import DEFAULT_ROBOT, load_robot
 log = logging.getLogger("host.run")
 
 
-#: The board arguments that put a REAL servo bus under the board a session starts (``--servo-bus PORT[:BAUD]``,
-#: ``--bus-protocol sts|dxl2``, ``--estop-torque hold|limp``; docs/guides/hardware.md), set by ``ghostshell
-#: run|chat|demo`` around the session (:func:`servo_bus_args`). A context variable, not a SessionOptions field:
-#: run/demo build their session from ``host.run.runner.RunOptions``, which copies every SessionOptions field
-#: and has none for it.
-SERVO_BUS_ARGS: contextvars.ContextVar[tuple[str, ...]] = contextvars.ContextVar("ghostshell_servo_bus_args",
-                                                                                 default=())
-
-
 def servo_bus_args(servo_bus: str | None, bus_protocol: str | None, estop_torque: str | None) -> tuple[str, ...]:
     """The board's arguments for a real servo bus (empty without ``servo_bus``)."""
     if servo_bus is None:
@@ -169,6 +159,9 @@ class SessionOptions:
     #: the emulated board's firmware: "python" (firmware_sim), "c" (the C firmware, native) or "qemu" (the C
     #: firmware on an emulated Cortex-M3); python -m firmware_sim --firmware
     firmware: str = "python"
+    #: the board's arguments that put a REAL servo bus under it (``--servo-bus PORT[:BAUD]``, ``--bus-protocol
+    #: sts|dxl2``, ``--estop-torque hold|limp``; :func:`servo_bus_args`; docs/guides/hardware.md); () = the plant
+    servo_bus: tuple[str, ...] = ()
     mcap: bool = True  # record the session to <out>/run.mcap (host.run.mcap_log)
     #: draw timeline.png and joints.png with each turn's artefacts (matplotlib, ~0.25 s of CPU per turn in
     #: a worker thread, and its import and warm-up once per process); False: neither plot is drawn and
@@ -396,7 +389,7 @@ class RobotSession:
                     board_args += ["--faults", opts.faults, "--fault-seed", str(opts.fault_seed)]
                 if opts.firmware != "python":
                     board_args += ["--firmware", opts.firmware]
-                board_args += list(SERVO_BUS_ARGS.get())  # a real servo bus under the board (docs/guides/hardware.md)
+                board_args += list(opts.servo_bus)  # a real servo bus under the board (docs/guides/hardware.md)
                 # in a worker thread: a board takes seconds to load its model, and other sessions in this
                 # event loop (eval --workers) must keep streaming meanwhile
                 started: list[BoardProcess] = []
