@@ -200,20 +200,16 @@ def _run_c_firmware(args: argparse.Namespace, robot: object, parser: argparse.Ar
             fault_spec = FaultSpec.parse(args.faults)
         except FaultSpecError as e:
             parser.error(f"--faults: {e}")
-    bus: dict[str, object] = {}
+    if args.servo_bus is not None and args.dead_servo:
+        parser.error("--dead-servo is a fault of the emulated bus; it has no meaning with --servo-bus")
+    # the bus the firmware speaks: the real one (--servo-bus), else the plant's emulated servos, in the robot's
+    # protocol (hardware.toml) or --bus-protocol's
+    hw = _bus_hardware(args, robot)
+    if hw is None:
+        return 2
+    bus: dict[str, object] = {"bus_protocol": hw.protocol, "estop_torque": args.estop_torque or "hold"}
     if args.servo_bus is not None:
-        import dataclasses
-
-        names = {f.name for f in dataclasses.fields(LaunchOptions)}
-        if not {"servo_bus_port", "servo_bus_baud", "bus_protocol", "estop_torque"} <= names:
-            parser.error("--servo-bus: the C firmware cannot drive a servo bus yet; use --firmware python")
-        if args.dead_servo:
-            parser.error("--dead-servo is a fault of the emulated bus; it has no meaning with --servo-bus")
-        hw = _bus_hardware(args, robot)
-        if hw is None:
-            return 2
-        bus = {"servo_bus_port": args.servo_bus[0], "servo_bus_baud": args.servo_bus[1] or hw.baud,
-               "bus_protocol": hw.protocol, "estop_torque": args.estop_torque or "hold"}
+        bus |= {"servo_bus_port": args.servo_bus[0], "servo_bus_baud": args.servo_bus[1] or hw.baud}
     opts = LaunchOptions(robot=robot, firmware=args.firmware, link=args.link, lockstep=args.lockstep,  # type: ignore[arg-type]
                          rate_hz=args.rate, dt=args.dt, telemetry_rate_hz=args.telemetry_rate,
                          watchdog_ms=args.watchdog_ms, scene=args.scene, baud=args.baud, log_path=args.log,
