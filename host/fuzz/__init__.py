@@ -80,6 +80,14 @@ TARGETS: dict[str, FuzzTarget] = {
             "exception, bounded state, one goal SYNC WRITE a tick, every goal inside its step limits",
         ),
         FuzzTarget(
+            "c-bus",
+            "firmware_sim.cfirmware.fuzz_bus",
+            "fuzzed servo-bus answers (byte 0: Feetech STS or Dynamixel 2.0, ESTOP hold/limp; well-formed, corrupted, "
+            "garbage, silence) into the C firmware's bus layer and board core (clang -fsanitize=fuzzer,address,undefined, "
+            "lockstep): no memory error or UB, every goal sent inside its servo's step range, commands inside the joint "
+            "ranges, torque only from a known position, ESTOP holds",
+        ),
+        FuzzTarget(
             "session",
             "host.fuzz.session",
             "fuzzed board replies into the link client's receive path: no exception, bounded maps, "
