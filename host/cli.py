@@ -44,7 +44,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "dsbc": ("dsbc", "score a generated function-token program against a ground truth"),
     "run": ("run", "run a task or a program on the robot"),
     "chat": ("chat", "a multi-turn conversation with the robot (interactive, or batch from files)"),
-    "robots": ("robots", "make, list and inspect robots: new NAME --mjcf FILE | list | show NAME | path [NAME]"),
+    "robots": ("robots", "make, list, check and calibrate robots: new NAME --mjcf FILE | list | show NAME | check NAME | path [NAME] | calibrate NAME --servo-bus PORT"),
     "skills": ("skills", "list, show or delete the saved skills (the persistent skill library)"),
     "mcp": ("mcp", "serve the shell as an MCP server (stdio, or streamable HTTP with --http PORT)"),
     "eval": ("eval", "evaluate an LLM the paper's way: DSBC over the tasks, runs on the board, the native-call ablation"),

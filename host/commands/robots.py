@@ -1,4 +1,4 @@
-"""``ghostshell robots new|check|list|show|path``: make, list and inspect robot packages.
+"""``ghostshell robots new|check|list|show|path|calibrate``: make, list, inspect and calibrate robot packages.
 
 * ``new NAME --mjcf FILE`` writes a robot package generated from one MJCF (rules:
   :mod:`robots.generate`) into the user robot folder (``--robots-dir``, else the first folder of
@@ -15,6 +15,8 @@
   user, folder, and a note when one shadows another; a broken package is listed with its error line.
 * ``show NAME``: :meth:`robots.description.Robot.describe` plus the functions each vocabulary exposes.
 * ``path [NAME]``: the folder ``new`` writes into, or robot NAME's folder.
+* ``calibrate NAME --servo-bus PORT[:BAUD]``: record each real servo's offset, direction and range into the
+  package's ``calibration.toml`` (:mod:`host.commands.calibrate`; docs/guides/calibration.md).
 
 Bad input (an MJCF that makes no robot, a broken package, a name that finds nothing) is one line on
 stderr naming what and where (file:line where there is one) and exit status 2.
