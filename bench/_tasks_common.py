@@ -110,14 +110,15 @@ def task_ids(text: str) -> list[int]:
 
 def run_task(task_id: int, program: str, *, lockstep: bool, out_root: Path, buffer_response: bool = False,
              tokens_per_s: float = 30.0, seed: int = 0, wire_baud: int | None = None, link: str = "pty",
-             robot: str | None = None) -> RunReport:
+             robot: str | None = None, servo_bus: tuple[str, ...] = ()) -> RunReport:
     """Run one task end to end (board subprocess on ``link``, a link spec: the board is started
-    on it; ``wire_baud``: the board models wire time at that baud rate) and return its report."""
+    on it; ``wire_baud``: the board models wire time at that baud rate; ``servo_bus``: the board's
+    arguments for a real servo bus, ``SessionOptions.servo_bus``) and return its report."""
     suffix = "buffered" if buffer_response else "streaming"
     opts = RunOptions(program=program, task_label=f"task {task_id}", lockstep=lockstep,
                       out=out_root / f"task{task_id:02d}_{suffix}", tokens_per_s=tokens_per_s, seed=seed,
                       buffer_response=buffer_response, wire_baud=wire_baud, link=link, emulate_board=True,
-                      robot=robot or DEFAULT_ROBOT)
+                      robot=robot or DEFAULT_ROBOT, servo_bus=servo_bus)
     return anyio.run(run_program, opts, backend="asyncio")
 
 

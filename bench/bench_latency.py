@@ -347,6 +347,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--link", default="pty", metavar="SPEC",
                     help="link spec the board is started on (default pty; e.g. can:slcan:pty, 'can:slcan:pty?fd=1', "
                          "can:socketcan:vcan0 inside UML)")
+    ap.add_argument("--servo-bus-plant", choices=("sts", "dxl2"), default=None, metavar="PROTOCOL",
+                    help="the real-bus path: the board drives a servo bus (--servo-bus) on a pty served by the plant "
+                         "(python -m firmware_sim.plant, realtime, 1 Mbaud) in this protocol, as a USB adapter appears")
     ap.add_argument("--repeat", type=int, default=1, metavar="K",
                     help="run the selected task set K times (more calls for the percentiles; default 1)")
     ap.add_argument("--load", action="store_true",
@@ -359,6 +362,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.repeat < 1:
         ap.error("--repeat: expected K >= 1")
+    if args.servo_bus_plant and (args.lockstep or args.link != "pty"):
+        ap.error("--servo-bus-plant: a realtime board over --link pty (the plant runs on the wall clock)")
     if args.floor is not None and args.lockstep:
         ap.error("--floor: a lockstep board does not wait on the wall clock; give --floor only for a realtime run")
     if args.floor is not None and args.floor != 0 and not MIN_FLOOR_N <= args.floor <= MAX_FLOOR_N:
@@ -374,7 +379,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with cpu_load((os.cpu_count() or 1) if args.load else 0) as hogs:  # the hogs keep nice 0
             print(raise_host_priority(args.nice), flush=True)
-            return _run(args, len(hogs), robot, programs, root)
+            with servo_bus_plant(args.servo_bus_plant, robot) as servo_bus:
+                return _run(args, len(hogs), robot, programs, root, servo_bus)
     except KeyboardInterrupt:  # the hogs are gone (cpu_load), a run's board stopped with its session
         signal.signal(signal.SIGINT, signal.SIG_DFL)  # a further Ctrl-C ends the process: no traceback, no hang
         print("bench_latency: interrupted; no summary (the runs so far are in their folders)", file=sys.stderr)
@@ -397,7 +403,33 @@ def raise_host_priority(inc: int) -> str:
     return f"priority: host and board at nice {after} (--nice {inc}; the --load hogs at {before})"
 
 
-def _run(args: Any, hogs: int, robot: Robot, programs: list[tuple[int, str]], root: Path) -> int:
+@contextlib.contextmanager
+def servo_bus_plant(protocol: str | None, robot: Robot) -> Iterator[tuple[str, ...]]:
+    """With ``protocol``: the plant (``python -m firmware_sim.plant``, realtime, 1 Mbaud) serving ``robot``'s
+    servos on a pty for the whole benchmark, and the board arguments that put it under the board
+    (``--servo-bus PTY:1000000 --bus-protocol PROTOCOL``); without: no plant, ``()``. The plant's bus-time
+    line is printed when it stops."""
+    if protocol is None:
+        yield ()
+        return
+    proc = subprocess.Popen([sys.executable, "-m", "firmware_sim.plant", "--robot", str(robot.root), "--protocol",
+                             protocol, "--baud", "1000000"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    line = proc.stdout.readline().strip()
+    try:
+        if not line.startswith("plant: servo bus on "):
+            raise SystemExit(f"bench_latency: the plant did not start: {line!r}")
+        port = line.removeprefix("plant: servo bus on ")
+        print(f"real-bus path: the board drives {protocol} servos at 1 Mbaud on {port} (the plant)", flush=True)
+        yield ("--servo-bus", f"{port}:1000000", "--bus-protocol", protocol)
+    finally:
+        proc.terminate()
+        _, err = proc.communicate(timeout=30)
+        print("".join(x for x in err.splitlines(keepends=True) if "bus time" in x or "lateness" in x).rstrip(), flush=True)
+
+
+def _run(args: Any, hogs: int, robot: Robot, programs: list[tuple[int, str]], root: Path,
+         servo_bus: tuple[str, ...] = ()) -> int:
     registry = home_channels(robot=robot)
     motion_channels = frozenset(robot.channels) | {"joints"}  # the generic pose/joint_move channel
     mode = ("lockstep" if args.lockstep else "realtime") + (f", {args.baud} baud wire" if args.baud else "")
@@ -422,7 +454,8 @@ def _run(args: Any, hogs: int, robot: Robot, programs: list[tuple[int, str]], ro
         try:
             rep = run_task(tid, program, lockstep=args.lockstep,
                            out_root=root / f"r{rep_i}" if args.repeat > 1 else root, tokens_per_s=args.tokens_per_s,
-                           seed=args.seed, wire_baud=args.baud, link=args.link, robot=str(robot.root))
+                           seed=args.seed, wire_baud=args.baud, link=args.link, robot=str(robot.root),
+                           servo_bus=servo_bus)
         except (HandshakeError, LinkConfigError) as e:  # no run can work (wrong link, wrong robot): stop here
             print(f"bench_latency: {e}", file=sys.stderr)
             return 1 if isinstance(e, HandshakeError) else 2
