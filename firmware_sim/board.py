@@ -236,7 +236,10 @@ class Board:
         """Drive a real servo bus from now on (before the first tick): the Python tick runs (the native
         one steps physics), the model mirrors ``positions`` (rad, servo order: the servos' measured
         positions at start-up) and the command, the interpolation anchors and the hold pose all start
-        there, so the first goal is where each servo is and the speed limit ramps from it."""
+        there, so the first goal is where each servo is and the speed limit ramps from it. The board
+        exchanges with the bus on every ``bus.every``-th tick (:meth:`BusDriver.plan`: the bus period),
+        from the first tick on; the ticks between run the servo model, interpolation and watchdog and
+        leave the mirror where the last read put it."""
         if self.ticks:
             raise RuntimeError("attach_bus must come before the first tick")
         self.bus = bus
@@ -870,9 +873,10 @@ class Board:
     _servo_fault_detail = "a servo failed on the servo bus; send ESTOP_CLEAR"
 
     def _bus_tick(self, desired: list[float], speed_cap: float | None) -> bool:
-        """One tick on a real servo bus: the servo model (joint and speed limits) -> its speed-limited
-        command (rad) as the goals (one SYNC WRITE, clamped again to the step limits; quantised to steps
-        there, the servo's own deadband acts in the servo) -> one SYNC READ -> the mirror. ``ctrl`` (the
+        """One tick on a real servo bus: the servo model (joint and speed limits) -> on a bus tick (every
+        ``bus.every``-th) its speed-limited command (rad) as the goals (one SYNC WRITE, clamped again
+        to the step limits; quantised to steps there, the servo's own deadband acts in the servo) -> one
+        SYNC READ -> the mirror. ``ctrl`` (the
         deadband against the measured positions) is kept as in simulation, for reports only. A new
         servo fault latches SERVO_FAULT: every servo holds its command, a NACK names the servo."""
         bus = self.bus
@@ -882,6 +886,8 @@ class Board:
         self._desired[:] = desired
         self._ctrl[:] = ctrl
         data.ctrl[self._ctrl_at] = ctrl
+        if self.ticks % bus.every:  # between bus periods: the command moves on, the mirror holds
+            return bool(clamped)
         self._mirror(bus.exchange(self.servo._cmd.tolist(), self.now_us))
         faults = bus.take_faults()
         if faults:

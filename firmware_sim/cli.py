@@ -270,9 +270,7 @@ def _start_bus(args: argparse.Namespace, robot: Any, board: Any) -> Any:
     except BaseException:
         driver.close()
         raise
-    note = driver.tick_note(board.tick_us / 1e6)
-    if note:
-        print(f"board: {note}", file=sys.stderr, flush=True)
+    print(f"board: {driver.plan(board.tick_us / 1e6, lockstep=args.lockstep)}", file=sys.stderr, flush=True)
     board.attach_bus(driver, positions)
     return driver
 
@@ -472,6 +470,11 @@ def _main(argv: Sequence[str] | None = None) -> int:
             c = driver.bus.counts
             print(f"board: servo bus torque off; {c['sync_writes']} goal writes, {c['sync_reads']} reads, "
                   f"{c['timeouts']} timeouts, {c['corrupt']} garbled answers", file=sys.stderr, flush=True)
+            import json
+
+            # the host's runner copies this line into summary.json (extra.servo_bus), as it does board: faults
+            print(f"board: servo bus {json.dumps(driver.summary(), separators=(',', ':'))}", file=sys.stderr,
+                  flush=True)
         if injectors and fault_spec is not None:
             from firmware_sim.transports.faulty import report_line
 

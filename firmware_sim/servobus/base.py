@@ -134,8 +134,20 @@ class MotorBus(ABC):
         when the fast path was set up."""
         return True
 
-    #: the servos' default return delay (us) before each status packet (Dynamixel X: 250 x 2 us; STS: 0)
-    return_delay_us: ClassVar[float] = 0.0
+    #: the servos' factory return delay (us) before each status packet (Dynamixel X: 250 x 2 us; STS: 0)
+    default_return_delay_us: ClassVar[float] = 0.0
+    #: the largest return delay (us) start-up found on the bus (``zero_return_delay``); None: not set up
+    measured_return_delay_us: float | None = field(default=None, init=False)
+
+    @property
+    def return_delay_us(self) -> float:
+        """The return delay (us) the bus timing counts with: as set up at start-up, else the factory one."""
+        d = self.measured_return_delay_us
+        return self.default_return_delay_us if d is None else d
+
+    def zero_return_delay(self, ids: Sequence[int]) -> float:
+        """Write the servos' return delay to 0 where they take it; the largest left (us)."""
+        return self.return_delay_us
 
     def tick_bytes(self, n: int) -> int:
         """Bytes on the wire per control tick for ``n`` servos (the sync read both ways, the sync write)."""

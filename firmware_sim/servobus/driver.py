@@ -45,7 +45,7 @@ from firmware_sim.servobus.base import (
 from robots.description import Robot
 from robots.hardware import STEP_MAX, Calibration, Hardware, rad_to_steps, step_limits, steps_to_rad
 
-__all__ = ["BusDriver", "BusFault", "ESTOP_TORQUE", "Measured", "START_TOLERANCE_STEPS", "START_TRIES"]
+__all__ = ["BUS_MARGIN", "BusDriver", "BusFault", "ESTOP_TORQUE", "Measured", "START_TOLERANCE_STEPS", "START_TRIES"]
 
 #: what ESTOP does to the servos: hold (torque on, hold position) or limp (torque off)
 ESTOP_TORQUE = ("hold", "limp")
@@ -53,6 +53,9 @@ ESTOP_TORQUE = ("hold", "limp")
 START_TRIES = 5
 #: a servo found this many steps (about 1 degree) outside its limits at start-up refuses the start
 START_TOLERANCE_STEPS = 12
+#: one bus cycle takes at most 1/BUS_MARGIN of the bus period (about 20 % spare: the servos' and the
+#: adapter's own delays, the board's work between packets)
+BUS_MARGIN = 1.2
 
 
 @dataclass(frozen=True)
@@ -119,6 +122,11 @@ class BusDriver:
         self.faults: list[BusFault] = []
         self.opened = False
         self.clamped = False
+        #: the board exchanges with the bus every ``every``-th control tick (:meth:`plan`)
+        self.every = 1
+        self.period_s = 0.002
+        #: faults reported since start (the exit summary)
+        self.fault_count = 0
 
     # -- start-up ----------------------------------------------------------------------------------
     def start(self) -> list[float]:
@@ -139,6 +147,7 @@ class BusDriver:
             if ans.model != want:
                 raise BusSetupError(f"servo {s.id} ({s.name}) reports model number {ans.model}, the robot's "
                                     f"hardware.toml says {want}; torque left off")
+        self.bus.zero_return_delay([s.id for s in self.servos])  # the status packets follow at once
         self.bus.prepare([s.id for s in self.servos])
         present = self.bus.read([s.id for s in self.servos])
         for _ in range(START_TRIES - 1):
@@ -154,23 +163,45 @@ class BusDriver:
             lo, hi = self.limits[i]
             if not lo - START_TOLERANCE_STEPS <= p.position <= hi + START_TOLERANCE_STEPS:
                 deg = math.degrees
+                a, b = sorted((deg(self._rad(i, lo)), deg(self._rad(i, hi))))  # the effective range
                 raise BusSetupError(
                     f"servo {s.id} ({s.name}) is at {deg(self._rad(i, p.position)):.1f} deg, outside its range "
-                    f"{deg(s.min):.0f}..{deg(s.max):.0f} deg (steps {p.position}, limits {lo}..{hi}); torque left "
+                    f"{a:.0f}..{b:.0f} deg (steps {p.position}, limits {lo}..{hi}); torque left "
                     "off: move it into its range by hand and start again")
             self._take(i, p)
         return self.measured().positions
 
-    def tick_note(self, period_s: float) -> str | None:
-        """A warning when one tick's bus traffic (sync read both ways + sync write, 10 bits a byte, the
-        servos' return delays) takes
-        longer than the control period ``period_s``, else None."""
-        need = self.bus.tick_seconds(self.n)
-        if need <= period_s:
-            return None
-        return (f"warning: the servo bus needs ~{need * 1000:.1f} ms a tick at {self.bus.baud} baud for "
-                f"{self.n} servos, more than the {period_s * 1000:.1f} ms control period; a realtime board "
-                f"falls behind (lower --rate to {max(1, int(0.8 / need))} Hz or raise the servos' baud)")
+    def plan(self, period_s: float, *, lockstep: bool = False) -> str:
+        """Choose the bus period for a board ticking every ``period_s`` s: the smallest whole number of
+        control periods that holds one bus cycle (:meth:`cycle_seconds`) with :data:`BUS_MARGIN`, so
+        a realtime board's ticks never wait for the line. Sets :attr:`every` (the board exchanges with
+        the bus on every ``every``-th tick) and returns the one line for the user. A lockstep board
+        exchanges every tick (``every`` 1): its time is virtual, and the plant it drives steps once per
+        goal write; the line says what a realtime board would do."""
+        need = self.cycle_seconds()
+        k = max(1, math.ceil(need * BUS_MARGIN / period_s - 1e-9))
+        self.period_s = period_s
+        head = f"servo bus: {self.n} servos need {need * 1000:.1f} ms a cycle at {self.bus.baud} baud: "
+        if lockstep:
+            self.every = 1
+            return head + (f"goals every tick in lockstep (virtual time; realtime: every {k} ticks, "
+                           f"{1 / (k * period_s):.3g} Hz)" if k > 1 else f"goals every tick ({1 / period_s:.3g} Hz)")
+        self.every = k
+        return head + (f"goals every {k} ticks" if k > 1 else "goals every tick") + f" ({1 / (k * period_s):.3g} Hz)"
+
+    def cycle_seconds(self) -> float:
+        """One bus cycle (s): the sync read both ways and the sync write at the bus's baud, 10 bits a byte,
+        plus each status packet's return delay (as start-up left it)."""
+        return self.bus.tick_seconds(self.n)
+
+    def summary(self) -> dict[str, object]:
+        """What the exit line ``board: servo bus {json}`` records (the host copies it into summary.json)."""
+        c = self.bus.counts
+        return {"port": self.bus.port, "protocol": self.bus.protocol, "baud": self.bus.baud, "servos": self.n,
+                "bus_period_ticks": self.every, "bus_period_ms": round(self.every * self.period_s * 1000, 3),
+                "cycle_ms": round(self.cycle_seconds() * 1000, 3), "return_delay_us": self.bus.return_delay_us,
+                "goal_writes": c["sync_writes"], "reads": c["sync_reads"], "timeouts": c["timeouts"],
+                "checksum_errors": c["corrupt"], "faults": self.fault_count}
 
     # -- torque ------------------------------------------------------------------------------------
     def torque_on(self, indices: Iterable[int] | None = None) -> None:
@@ -259,6 +290,7 @@ class BusDriver:
         if off:
             self.torque_off([i])
         f = BusFault(i, s.id, s.name, what, off)
+        self.fault_count += 1
         self.faults.append(f)
         del self.faults[:-64]  # bounded: the board takes them every tick
         print(f"board: servo {s.id} ({s.name}): {what} at board time {t_us / 1e6:.3f} s"

@@ -65,10 +65,12 @@ class DynamixelBus(SdkBus):
 
     protocol = "dxl2"
     goal_bytes = 4
-    return_delay_us = 500.0
+    default_return_delay_us = 500.0
     STATUS_BYTES = 11
     TORQUE_ADDR = 64
     GOAL_ADDR = 116
+    RETURN_DELAY_ADDR = 9
+    ADDR_BYTES = 2
     #: True once every servo's indirect addresses point at :data:`INDIRECT` (``prepare``)
     indirect = False
     #: the indirect data address of the sync read (all servos alike; ``prepare``)
@@ -131,13 +133,6 @@ class DynamixelBus(SdkBus):
 
     def _read_spec(self) -> tuple[int, int]:
         return (self.indirect_data, len(INDIRECT)) if self.indirect else (PRESENT_ADDR, PRESENT_BYTES)
-
-    def _request(self, dev_id: int, instruction: int, params: list[int], answer_bytes: int) -> Answer:
-        self._fresh()
-        if not self._tx(dev_id, instruction, params):
-            return TIMEOUT
-        self._port.setPacketTimeout(self.STATUS_BYTES + answer_bytes)
-        return self._answer_from(dev_id)
 
     def prepare(self, ids: Sequence[int]) -> bool:
         """Point every servo's indirect addresses at :data:`INDIRECT` (torque must be off); True when all

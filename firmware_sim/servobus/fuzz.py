@@ -119,6 +119,11 @@ class _Model:
             if not sts and len(p) >= 2 and (p[0] | p[1] << 8) == 168:
                 data = p[2:]
                 self.indirect[i] = [data[k] | data[k + 1] << 8 for k in range(0, len(data) - 1, 2)]
+            elif len(p) >= (2 if sts else 3):  # any other WRITE lands in the table (the return delay)
+                addr, data = (p[0], p[1:]) if sts else (p[0] | p[1] << 8, p[2:])
+                t = self.table(i)
+                if addr + len(data) <= len(t):
+                    t[addr:addr + len(data)] = data
             return [self.status(i, err, b"")]
         return []
 

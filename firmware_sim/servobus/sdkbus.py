@@ -33,6 +33,10 @@ class SdkBus(MotorBus):
     STATUS_BYTES = 6
     TORQUE_ADDR = 40
     GOAL_ADDR = 42
+    #: the return delay register (STS 7, Dynamixel 9; 2 us units) and what a servo does before it is read
+    RETURN_DELAY_ADDR = 7
+    #: bytes an address / a length takes in an instruction (STS 1, Dynamixel 2)
+    ADDR_BYTES = 1
 
     # -- to implement per protocol ---------------------------------------------------------------
     @abstractmethod
@@ -67,6 +71,41 @@ class SdkBus(MotorBus):
         """(start address, bytes) of the per-tick sync read."""
 
     # -- shared ----------------------------------------------------------------------------------
+    def _le_bytes(self, v: int) -> list[int]:
+        return [(v >> (8 * k)) & 0xFF for k in range(self.ADDR_BYTES)]
+
+    def _request(self, dev_id: int, instruction: int, params: list[int], answer_bytes: int) -> Answer:
+        """One instruction to one servo and its answer (TIMEOUT when it could not be sent)."""
+        self._fresh()
+        if not self._tx(dev_id, instruction, params):
+            return TIMEOUT
+        self._port.setPacketTimeout(self.STATUS_BYTES + answer_bytes)
+        return self._answer_from(dev_id)
+
+    def write_register(self, dev_id: int, addr: int, data: list[int]) -> bool:
+        """WRITE ``data`` at ``addr`` of one servo; True when it answered without an error bit."""
+        r = self._request(dev_id, 3, [*self._le_bytes(addr), *data], 0)
+        return isinstance(r, tuple) and not r[1] & 0x7F
+
+    def read_register(self, dev_id: int, addr: int, n: int) -> list[int] | None:
+        """READ ``n`` bytes at ``addr`` of one servo; None without a valid answer."""
+        r = self._request(dev_id, 2, [*self._le_bytes(addr), *self._le_bytes(n)], n)
+        return r[2][:n] if isinstance(r, tuple) and len(r[2]) >= n else None
+
+    def zero_return_delay(self, ids: Sequence[int]) -> float:
+        """Write every servo's return delay to 0 (LeRobot does the same at start-up: a status packet then
+        follows its instruction at once); a servo that refuses (a Dynamixel with its torque on, an EEPROM
+        lock) keeps its own, read back, else the protocol's default. Sets and returns
+        :attr:`measured_return_delay_us`, the largest (us)."""
+        worst = 0.0
+        for i in ids:
+            if self.write_register(i, self.RETURN_DELAY_ADDR, [0]):
+                continue
+            got = self.read_register(i, self.RETURN_DELAY_ADDR, 1)
+            worst = max(worst, 2.0 * got[0] if got is not None else self.default_return_delay_us)
+        self.measured_return_delay_us = worst
+        return worst
+
     def open(self) -> None:
         port: Any = self.port_handler
         if port is None:

@@ -73,7 +73,7 @@ from host.ghost import GhostError
 from host.link import BoardClient, RobotIdentity
 from host.link.board_process import BoardProcess, dead_board_error, start_board
 from host.link.errors import BoardFaulted, HandshakeError, LinkConfigError, LinkError, RobotMismatch, SchemaMismatch
-from host.link.faultcheck import LATCHED, clear_command, clear_leftover_fault, refusal_message
+from host.link.faultcheck import LATCHED, ServoFaulted, clear_command, clear_leftover_fault, refusal_message
 from host.link.session import HEARTBEAT_S, FaultEvent, LinkTarget
 from host.run import artefacts
 from host.run.events import Event, EventMonitor, EventPolicy, ScriptedEvent, has_fallen
@@ -109,7 +109,7 @@ from host.shell.timeline import Observation, RunResult, Timeline
 from protocol.linkkinds import link_kind
 from protocol.linkspec import LinkSpec, parse_link_spec
 from protocol.framing import encode_frame
-from protocol.messages import FaultFlags, Heartbeat, Nack
+from protocol.messages import FaultFlags, Heartbeat, Nack, NackReason
 from protocol.wiremodel import BITS_PER_BYTE
 from robots.description import Robot
 from robots.generic import GENERIC_CHANNEL
@@ -441,6 +441,7 @@ class RobotSession:
                 # a board you started keeps its own clock: --lockstep here starts no board that would honour it
                 log.warning("--lockstep: the board on %s runs in realtime (its CAPS); this run follows the board's "
                             "clock (start the board with `ghostshell board --lockstep`)", spec)
+            client.board_started_here = self._board is not None  # a fault's line: rerun, not clear a stopped board
             note = await clear_leftover_fault(client)
             if note:
                 log.warning("%s", note)
@@ -798,6 +799,10 @@ class RobotSession:
 
     def _on_nack(self, nack: Nack) -> None:
         """Servo frames refused because of an ESTOP fail the turn at once (before telemetry shows it)."""
+        if nack.reason == NackReason.SERVO_FAULT and self.client is not None and self._runtime is not None:
+            # worded when shown, from every NACK by then (host.link.faultcheck.servo_fault_message)
+            self._runtime.streamer.fail(ServoFaulted(self.client))
+            return
         message = refusal_message(nack, self.client.link_spec if self.client is not None else "SPEC")
         if message is not None and self._runtime is not None:
             self._runtime.streamer.fail(BoardFaulted(message))
@@ -1132,6 +1137,9 @@ class RobotSession:
                     counts = summary.extra.get(part)
                     if isinstance(counts, dict):
                         counts[key] = max(holds, counts.get(key) or 0)
+            bus = board_servo_bus_report(board_stderr)  # real servos were driven: which, and how it went
+            if bus is not None:
+                summary.extra["servo_bus"] = bus
             if summary.extra.get("clock") == "realtime":  # a board that fell behind says so (lateness, not a dead servo)
                 add_realtime_behind(summary.extra, board_stderr)
             artefacts.write_timeline_json(out / "timeline.json", calls, t0=t0)
@@ -1193,6 +1201,24 @@ def board_fault_report(stderr_path: Path) -> Any:
         for line in stderr_path.read_text(encoding="utf-8", errors="replace").splitlines():
             if line.startswith("board: faults "):
                 report = json.loads(line[len("board: faults "):])
+    except (OSError, ValueError):
+        pass
+    return report
+
+
+#: the board's exit line about a real servo bus it drove (firmware_sim.cli): port, protocol, baud, servos,
+#: bus period and the bus counters (timeouts, checksum errors, faults)
+SERVO_BUS_LINE = "board: servo bus {"
+
+
+def board_servo_bus_report(stderr_path: Path) -> Any:
+    """The board's ``board: servo bus {json}`` exit line as a dict (None without one: no servo bus, or the
+    board still running)."""
+    report: Any = None
+    try:
+        for line in stderr_path.read_text(encoding="utf-8", errors="replace").splitlines():
+            if line.startswith(SERVO_BUS_LINE):
+                report = json.loads(line[len(SERVO_BUS_LINE) - 1:])
     except (OSError, ValueError):
         pass
     return report

@@ -106,10 +106,13 @@ def test_goals_stay_inside_the_step_limits_whatever_the_command() -> None:
     assert not any(b.driver.torque)
 
 
-def test_the_timing_warning() -> None:
+def test_the_bus_period_line_names_no_option_that_does_not_exist() -> None:
     b = _Bus("dxl2")
+    b.driver.start()
     b.driver.bus.baud = 57_600
-    note = b.driver.tick_note(0.002)
-    assert note is not None and "57600 baud" in note and "lower --rate" in note
-    b.driver.bus.baud = 1_000_000
-    assert _Bus("sts").driver.tick_note(0.002) is None
+    line = b.driver.plan(0.002)
+    assert line.startswith("servo bus: 6 servos need ") and "at 57600 baud: goals every " in line, line
+    assert "--rate" not in line and "lower" not in line
+    s = _Bus("sts").driver
+    s.start()
+    assert s.plan(0.002).endswith("goals every tick (500 Hz)") and s.every == 1
