@@ -265,7 +265,8 @@ def _start_bus(args: argparse.Namespace, robot: Any, board: Any) -> Any:
         positions = driver.start()
     except BusError as e:
         driver.close()
-        print(f"board: {e}", file=sys.stderr)
+        # "board: servo bus PORT: why": the host's board launcher (host.link.board_process) knows the line
+        print(f"board: servo bus {port}: {e}", file=sys.stderr)
         return None
     except BaseException:
         driver.close()

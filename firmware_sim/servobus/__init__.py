@@ -14,22 +14,36 @@ becomes the mirror of what the servos measure. One job per module:
 
 from __future__ import annotations
 
+import os
+
 from firmware_sim.servobus.base import BusError, BusOpenError, BusSetupError, MotorBus, PingAnswer, Present
 
 __all__ = ["BusError", "BusOpenError", "BusSetupError", "MotorBus", "PingAnswer", "Present", "make_bus",
            "parse_bus_spec"]
 
 
+def _split_bus_spec(text: str) -> tuple[str, str]:
+    """``PORT[:BAUD]`` -> (port, baud text, "" without one). The text after the last ``:`` is no baud when
+    it holds a ``/``, when the whole text is a path that exists (``/dev/serial/by-path/...:1.0-port0``) or,
+    in a pyserial URL, when it is the URL's own ``host:port`` (``socket://host:7000``)."""
+    port, sep, baud = text.rpartition(":")
+    if not sep or "/" in baud or os.path.exists(text):
+        return text, ""
+    if "://" in text and text.split("://", 1)[1].count(":") < 2:
+        return text, ""
+    return port, baud
+
+
 def parse_bus_spec(text: str) -> tuple[str, int | None]:
     """``PORT[:BAUD]`` -> (port, baud or None). ``ValueError`` (one line) for an empty port or a baud that
-    is not a positive whole number."""
-    port, sep, baud = text.rpartition(":")
-    if not sep or not baud.isdigit() and not baud.lstrip("-").isdigit():
-        port, baud = text, ""
+    is not a positive whole number (``/dev/pts/0:abc``: the baud ``'abc'`` is not a number)."""
+    port, baud = _split_bus_spec(text)
     if not port:
         raise ValueError(f"expected PORT[:BAUD] (e.g. /dev/ttyUSB0:1000000), got {text!r}")
     if not baud:
         return port, None
+    if not baud.lstrip("-").isdigit():
+        raise ValueError(f"baud {baud!r} is not a number (expected PORT[:BAUD], e.g. /dev/ttyUSB0:1000000)")
     b = int(baud)
     if b <= 0:
         raise ValueError(f"the baud rate must be > 0, got {baud} in {text!r}")

@@ -135,14 +135,23 @@ class BusDriver:
         :class:`~firmware_sim.servobus.base.BusSetupError` (one line naming the servo)."""
         self.bus.open()
         self.opened = True
-        for s in self.servos:
+        answered = False
+        for k, s in enumerate(self.servos):
             ans = self.bus.ping(s.id)
             for _ in range(START_TRIES - 1):  # a noisy line may garble one answer; a missing servo stays silent
                 if ans.fault is None or "twice" in ans.fault:
                     break
                 ans = self.bus.ping(s.id)
             if ans.fault is not None:
+                if not answered and ans.fault.startswith("does not answer") and not any(
+                        self.bus.ping(o.id).fault is None for o in self.servos[k + 1:]):
+                    raise BusSetupError(
+                        f"no servo answers a ping ({self.n} servos, ids "
+                        f"{', '.join(str(o.id) for o in self.servos)}) in {self.bus.protocol} at {self.bus.baud} "
+                        "baud: check the protocol (--bus-protocol or the robot's hardware.toml), the baud and the "
+                        "servos' power; torque left off")
                 raise BusSetupError(f"servo {s.id} ({s.name}) {ans.fault}; torque left off")
+            answered = True
             want = self.hardware.model_of(s)
             if ans.model != want:
                 raise BusSetupError(f"servo {s.id} ({s.name}) reports model number {ans.model}, the robot's "

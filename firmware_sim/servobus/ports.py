@@ -14,6 +14,7 @@ adapter refuses the rate (the SDKs return False for a rate outside their table).
 
 from __future__ import annotations
 
+import os
 import select
 import time
 from typing import Any
@@ -77,18 +78,36 @@ class TimedPortMixin:
     def open_at(self, baud: int) -> None:
         """Open at ``baud``; :class:`BusOpenError` naming the port and why."""
         name = getattr(self, "port_name", "?")
+        if not _is_tty(name):
+            raise BusOpenError(f"{name} is not a serial port (a USB serial adapter such as /dev/ttyUSB0, or a pty)")
         try:
             ok = self.setBaudRate(baud)  # type: ignore[attr-defined]
         except Exception as e:  # noqa: BLE001 - serial.SerialException, OSError, ValueError: one line
-            raise BusOpenError(f"cannot open the servo bus {name} at {baud} baud: {e}") from None
+            raise BusOpenError(f"cannot open it at {baud} baud: {e}") from None
         if ok:  # a USB adapter's latency timer (FTDI: 16 ms) is longer than a tick: ask for low latency
             try:
                 self.ser.set_low_latency_mode(True)
             except Exception:  # noqa: BLE001 - best effort: not a tty that has it (a pty), no permission
                 pass
         if not ok:
-            raise BusOpenError(f"cannot open the servo bus {name} at {baud} baud: the serial adapter "
-                               "(its driver, as the vendor SDK knows it) does not offer that rate")
+            raise BusOpenError(f"cannot open it at {baud} baud: the serial adapter (its driver, as the vendor SDK "
+                               "knows it) does not offer that rate")
+
+
+def _is_tty(name: str) -> bool:
+    """False only for a path that exists and is no terminal device (``/dev/null``, a file): pyserial would
+    fail on it with a raw ioctl error. A missing path or one this process may not open: True (the open
+    names the real reason); a pyserial URL or a Windows port name: True."""
+    if not os.path.exists(name):
+        return True
+    try:
+        fd = os.open(name, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    except OSError:
+        return True
+    try:
+        return os.isatty(fd)
+    finally:
+        os.close(fd)
 
 
 def sts_port(name: str, latency_ms: float) -> Any:

@@ -154,7 +154,7 @@ class SdkBus(MotorBus):
         self._port.setPacketTimeout(self.STATUS_BYTES + 3)
         r = self._answer_from(servo_id)
         if r == TIMEOUT:
-            return PingAnswer(fault="does not answer a ping (missing, unpowered, or another id or baud)")
+            return PingAnswer(fault="does not answer a ping (missing, unpowered, or another id, baud or protocol)")
         if r == CORRUPT or not isinstance(r, tuple):
             return PingAnswer(fault="answers a ping garbled (two servos with this id, or noise on the bus)")
         if self._second_answer():

@@ -116,15 +116,22 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
 
 def _servo_bus(text: str) -> str:
     """``PORT[:BAUD]`` checked as the board checks it (firmware_sim.servobus.parse_bus_spec; the host imports
-    nothing of the board): a port name, and a baud that is a whole number > 0 when given."""
+    nothing of the board): a port name, and a baud that is a whole number > 0 when given. The text after the
+    last ``:`` is no baud when it holds a ``/``, when the whole text is a path that exists, or in a pyserial
+    URL when it is the URL's own ``host:port``."""
+    import os
+
     port, sep, baud = text.rpartition(":")
-    if sep and baud.lstrip("-").isdigit():
-        if not port:
-            raise argparse.ArgumentTypeError(f"expected PORT[:BAUD] (e.g. /dev/ttyUSB0:1000000), got {text!r}")
-        if int(baud) <= 0:
-            raise argparse.ArgumentTypeError(f"the baud rate must be > 0, got {baud} in {text!r}")
-    elif not text:
-        raise argparse.ArgumentTypeError("expected PORT[:BAUD] (e.g. /dev/ttyUSB0:1000000), got ''")
+    if (not sep or "/" in baud or os.path.exists(text)
+            or "://" in text and text.split("://", 1)[1].count(":") < 2):
+        port, baud = text, ""
+    if not port:
+        raise argparse.ArgumentTypeError(f"expected PORT[:BAUD] (e.g. /dev/ttyUSB0:1000000), got {text!r}")
+    if baud and not baud.lstrip("-").isdigit():
+        raise argparse.ArgumentTypeError(f"baud {baud!r} is not a number (expected PORT[:BAUD], e.g. "
+                                         "/dev/ttyUSB0:1000000)")
+    if baud and int(baud) <= 0:
+        raise argparse.ArgumentTypeError(f"the baud rate must be > 0, got {baud} in {text!r}")
     return text
 
 

@@ -30,6 +30,8 @@ from protocol.linkspec import LinkSpec, parse_link_spec
 
 __all__ = ["BoardProcess", "dead_board_error", "start_board"]
 
+#: how a board started with ``--servo-bus`` words why it cannot use that bus: ``board: servo bus PORT: why``
+SERVO_BUS_REFUSAL = "board: servo bus "
 USAGE_STATUS = 2  # ``python -m firmware_sim`` exits 2 for a link spec it cannot serve (after one stderr line)
 
 
@@ -143,6 +145,9 @@ def start_board(
         proc.stdin.close()
         why = _last_line(err)
         err.close()
+        if status == USAGE_STATUS and why.startswith(SERVO_BUS_REFUSAL) and "--servo-bus" in args:
+            # the link was fine: the board could not use the real servo bus it was given (firmware_sim.cli)
+            raise LinkConfigError(f"the board cannot use its servo bus {why.removeprefix(SERVO_BUS_REFUSAL)}")
         if status == USAGE_STATUS and why:  # the board refused the link spec (its own one-line reason)
             raise LinkConfigError(f"the emulated board cannot serve {spec}: {why.removeprefix('board: ')}")
         hint = f" (see {stderr_path})" if stderr_path else ""

@@ -89,7 +89,11 @@ def test_sigint_exits_130_with_torque_off(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(("args", "why"), [
-    (["--servo-bus", "/dev/no-such-adapter"], "board: cannot open the servo bus /dev/no-such-adapter at 1000000 baud"),
+    (["--servo-bus", "/dev/no-such-adapter"], "board: servo bus /dev/no-such-adapter: cannot open it at 1000000 baud"),
+    (["--servo-bus", "/dev/null"], "board: servo bus /dev/null: /dev/null is not a serial port"),
+    (["--servo-bus", "PLANT:abc"], "--servo-bus: baud 'abc' is not a number"),
+    (["--servo-bus", "PLANT", "--bus-protocol", "dxl2"], "no servo answers a ping (6 servos, ids 1, 2, 3, 4, 5, 6) "
+                                                         "in dxl2 at 1000000 baud: check the protocol"),
     (["--servo-bus", "PLANT:12345"], "does not offer that rate"),
     (["--servo-bus", ":1000000"], "expected PORT[:BAUD]"),
     (["--servo-bus", "PLANT:0"], "the baud rate must be > 0"),
@@ -110,6 +114,7 @@ def test_bad_board_command_lines_exit_2_with_one_line(args: list[str], why: str)
     (["--estop-torque", "limp"], "--bus-protocol and --estop-torque need --servo-bus PORT"),
     (["--servo-bus", "/dev/ttyUSB9", "--link", "/dev/ttyACM7"], "is a board you started"),
     (["--servo-bus", "/dev/ttyUSB9:-5"], "the baud rate must be > 0"),
+    (["--servo-bus", "/dev/pts/0:abc"], "--servo-bus: baud 'abc' is not a number"),
     (["--servo-bus", "/dev/ttyUSB9", "--bus-protocol", "can"], "invalid choice"),
 ])
 def test_bad_run_command_lines_exit_2_with_one_line(args: list[str], why: str) -> None:

@@ -20,7 +20,7 @@ ELBOW = ARM.servos[2]  # id 3
 
 
 @pytest.mark.parametrize(("flag", "servo", "why"), [
-    ("--missing", ARM.servos[2], "does not answer a ping"),
+    ("--missing", ARM.servos[2], "does not answer a ping (missing, unpowered, or another id, baud or protocol)"),
     ("--duplicate", ARM.servos[1], "answers a ping"),
     ("--model", ARM.servos[3], "reports model number 1200, the robot's hardware.toml says 777"),
 ])
@@ -31,7 +31,8 @@ def test_start_up_refuses_a_bad_bus_with_one_line(flag: str, servo: object, why:
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1, lines
-    assert lines[0].startswith(f"board: servo {servo.id} ({servo.name}) ") and why in lines[0]  # type: ignore[attr-defined]
+    assert lines[0].startswith(f"board: servo bus {plant.pty}: servo {servo.id} ({servo.name}) ")  # type: ignore[attr-defined]
+    assert why in lines[0]
     assert "torque left off" in lines[0]
     assert "listening" not in proc.stdout
 
