@@ -127,6 +127,7 @@ class BusDriver:
         self.period_s = 0.002
         #: faults reported since start (the exit summary)
         self.fault_count = 0
+        self._estop_said = False
 
     # -- start-up ----------------------------------------------------------------------------------
     def start(self) -> list[float]:
@@ -228,9 +229,16 @@ class BusDriver:
             self.torque[i] = False
 
     def on_estop(self) -> None:
-        """ESTOP arrived: ``limp`` switches every servo's torque off now; ``hold`` keeps it (the board holds)."""
+        """ESTOP arrived: ``limp`` switches every servo's torque off now; ``hold`` keeps it (the board holds).
+        The first ESTOP until ESTOP_CLEAR prints one stderr line saying which (the ACK does not tell)."""
         if self.estop_torque == "limp":
             self.torque_off()
+        if not self._estop_said:
+            self._estop_said = True
+            print("board: ESTOP: " + ("every servo's torque is off (--estop-torque limp): the robot goes limp"
+                                      if self.estop_torque == "limp" else
+                                      "every servo holds its position, torque on (--estop-torque hold)")
+                  + "; motion refused until ESTOP_CLEAR", file=self.err, flush=True)
 
     def on_clear(self) -> list[float]:
         """ESTOP_CLEAR: lost servos are read again (one still silent is lost anew), reported faults may be
@@ -239,6 +247,7 @@ class BusDriver:
         self.lost = [False] * self.n
         self.miss = [0] * self.n
         self._reported = [set() for _ in range(self.n)]
+        self._estop_said = False
         self.torque_on()
         return self.measured().positions
 

@@ -1,7 +1,8 @@
 """``ghostshell estop``: send ESTOP to a running board, or ESTOP_CLEAR with ``--clear``.
 
-ESTOP makes the board hold where it is and refuse every servo frame (NACK ESTOPPED)
-until ESTOP_CLEAR; ESTOP_CLEAR also releases a latched WATCHDOG_FAULT (a board that
+ESTOP makes the board stop where it is and refuse every servo frame (NACK ESTOPPED)
+until ESTOP_CLEAR (an emulated board holds; one driving real servos holds, or lets them go limp with
+``--estop-torque limp``, and says which on its stderr); ESTOP_CLEAR also releases a latched WATCHDOG_FAULT (a board that
 lost its host). Either request is re-sent until the board acknowledges it
 (:meth:`host.link.BoardClient.request` retries). ``--clear`` says what it cleared (the
 board's report before the request: an ESTOP, a watchdog fault, or nothing was latched).
@@ -62,7 +63,9 @@ async def _run(args: argparse.Namespace) -> int:
             print(f"board on {client.port_name}: ESTOP_CLEAR acknowledged; {what}")
         else:
             await client.estop()
-            print(f"board on {client.port_name}: ESTOP acknowledged; it holds and refuses motion until "
+            # "stops", not "holds": a board driving real servos with --estop-torque limp lets them go limp
+            # (its stderr says which); the ACK does not tell, so the line claims only what is true of both
+            print(f"board on {client.port_name}: ESTOP acknowledged; it stops and refuses motion until "
                   f"`{clear_command(client.link_spec)}`")
     except LinkError as e:
         what = "ESTOP_CLEAR" if args.clear else "ESTOP"

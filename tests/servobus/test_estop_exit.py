@@ -42,6 +42,8 @@ def test_estop_hold_keeps_torque_on_and_holds(tmp_path: Path) -> None:
         assert all(torque)
         assert eventually(lambda: not any(st.torque for st in world.servos))  # exit: torque off on the whole bus
     assert next(n for n in w.of(Nack) if n.ack_seq == seq).reason == NackReason.ESTOPPED
+    err = (tmp_path / "board.stderr").read_text()
+    assert err.count("board: ESTOP: every servo holds its position, torque on (--estop-torque hold)") == 1, err
     held = [t for t in tel if t.board_time_us >= 400_000]
     assert held and all(t.faults & FaultFlags.ESTOP for t in held)
     pan = [t.positions[PAN.index] for t in held if t.board_time_us >= 500_000]  # settled after the stop
@@ -71,6 +73,7 @@ def test_estop_limp_switches_torque_off_and_clear_resumes_from_the_measured_pose
         assert abs(first[i] - present[i]) <= 3, (i, first[i], present[i])
     err = (tmp_path / "board.stderr").read_text()
     assert "ESTOP limps" in err
+    assert err.count("board: ESTOP: every servo's torque is off (--estop-torque limp): the robot goes limp") == 1
 
 
 def test_sigint_exits_130_with_torque_off(tmp_path: Path) -> None:
@@ -123,3 +126,21 @@ def test_bad_run_command_lines_exit_2_with_one_line(args: list[str], why: str) -
     assert proc.returncode == 2, proc.stdout + proc.stderr
     lines = (proc.stdout + proc.stderr).strip().splitlines()
     assert len(lines) == 1 and why in lines[0], lines
+
+
+def test_ghostshell_estop_claims_no_hold_of_a_limp_board(tmp_path: Path) -> None:
+    """``ghostshell estop`` to a board whose ESTOP lets the servos go limp: its line says the board stops and
+    refuses motion (true of hold and limp alike), never that it holds; the board's stderr says limp."""
+    from host.link.board_process import start_board
+
+    with Plant(lockstep=False) as plant:
+        b = start_board(["--realtime", "--robot", "arm", "--servo-bus", plant.pty, "--estop-torque", "limp"],
+                        tmp_path / "board.stderr", timeout=60)
+        try:
+            proc = subprocess.run([sys.executable, "-m", "host.cli", "estop", "--link", b.port], cwd=ROOT,
+                                  capture_output=True, text=True, timeout=60, check=False)
+        finally:
+            b.stop()
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "ESTOP acknowledged; it stops and refuses motion until" in proc.stdout and "holds" not in proc.stdout
+    assert "board: ESTOP: every servo's torque is off (--estop-torque limp)" in (tmp_path / "board.stderr").read_text()
