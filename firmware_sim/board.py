@@ -169,6 +169,9 @@ class Board:
         )
         self.servo.reset(neutral)
         self.crouch = np.array(self.robot.pose(self.robot.safe_pose))  # the latched-watchdog pose
+        #: its name (robot.toml ``safe_pose``: CoCo's crouch, the arm's rest), as the board's lines word the
+        #: latched watchdog (Mode.CROUCH on the wire and in code)
+        self.safe_pose_name = str(self.robot.safe_pose)
         self.buffer = JitterBuffer(self.cfg.buffer_depth, self.n)
         self.safety = Safety(self.cfg.watchdog_ms * 1000, self.cfg.crouch_after_ms * 1000)
         self.screen = Screen()
@@ -216,7 +219,7 @@ class Board:
         self.covered_until = -1  # lockstep: latest accepted frame apply-at (tick at it may run)
         self.last_applied_seq = 0
         #: safety transitions not yet reported: (board time us of the first tick in the new mode,
-        #: "hold"|"crouch"|"estop"|"resume", board time us of the last valid message / of the ESTOP's
+        #: "hold"|the safe pose's name (the latched watchdog: "crouch", "rest")|"estop"|"resume", board time us of the last valid message / of the ESTOP's
         #: arrival / of the first held tick ("resume": a valid message ended a HOLD, the board runs again))
         self.watchdog_events: deque[tuple[int, str, int]] = deque(maxlen=16)
         self._estop_rx_us: int | None = None
@@ -741,7 +744,8 @@ class Board:
         if entered and mode in (Mode.HOLD, Mode.CROUCH):
             self.buffer.clear()
             self.hold_q = self.servo.cmd
-            self.watchdog_events.append((t, mode.value, self.safety.last_feed_us))
+            self.watchdog_events.append((t, self.safe_pose_name if mode is Mode.CROUCH else mode.value,
+                                         self.safety.last_feed_us))
         desired: list[float] | np.ndarray | None = None  # None: the native tick interpolates
         if mode is Mode.RUN:
             self._apply_due(t)
