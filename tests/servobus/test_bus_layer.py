@@ -116,3 +116,25 @@ def test_the_bus_period_line_names_no_option_that_does_not_exist() -> None:
     s = _Bus("sts").driver
     s.start()
     assert s.plan(0.002).endswith("goals every tick (500 Hz)") and s.every == 1
+
+
+def test_out_of_range_at_start_up_shows_the_calibrated_range() -> None:
+    """The range in the line is the calibrated step limits in degrees, not the joint's: the line never
+    contradicts itself (at -73.8 deg "outside -100..100")."""
+    import struct
+
+    from firmware_sim.servobus.base import BusSetupError
+    from robots.hardware import steps_to_rad
+
+    lift = ARM.servos[1]
+    cal = Calibration({lift.name: ServoCalibration(lift.id, 0, 1, 1432, 2663)})
+    b = _Bus("sts", cal)
+    b.model.table(lift.id)[56:58] = struct.pack("<H", 3186)
+    with pytest.raises(BusSetupError) as e:
+        b.driver.start()
+    deg = sorted(math.degrees(steps_to_rad(lift, cal.of(lift), s, ARM.servos.model.resolution)) for s in (1432, 2663))
+    at = math.degrees(steps_to_rad(lift, cal.of(lift), 3186, ARM.servos.model.resolution))
+    assert f"is at {at:.1f} deg, outside its range {deg[0]:.0f}..{deg[1]:.0f} deg (steps 3186, limits 1432..2663)" \
+        in str(e.value), str(e.value)
+    assert not deg[0] <= at <= deg[1]
+    b.driver.close()
