@@ -181,6 +181,9 @@ def firmware_command(opts: LaunchOptions, exe: Path, bus_tty: str, host: str) ->
                "--rate", str(opts.rate_hz), "--telemetry-rate", str(opts.telemetry_rate_hz),
                "--watchdog-ms", str(opts.watchdog_ms), "--protocol", opts.bus_protocol,
                "--estop-torque", opts.estop_torque]
+        # the emulator's injected dead servo (--dead-servo ID@0 may be dead at boot): a fault to find mid-run, as
+        # the Python board's emulated bus has it, not a refused start
+        cmd += ["--no-boot-checks"] if opts.dead_servos and opts.servo_bus_port is None else []
         return cmd + (["--log-frames"] if opts.log_path else [])
     # a socket descriptor QEMU inherits ("fd:N", no tty layer: _SocketBus) is a socket chardev
     chardevs = {name: path[3:] for name, path in (("host", host), ("bus", bus_tty)) if path.startswith("fd:")}
@@ -251,6 +254,10 @@ class _Relay:
         self.fw.close()
 
 
+#: a boot check's refusal line from the C firmware (gs_board_boot)
+_REFUSAL = re.compile(r"^board: (servo \d+ \(|no servo answers a ping ).*; torque left off")
+
+
 class _LogReader:
     """Splits the firmware's log channel into stderr lines, frame records and counters."""
 
@@ -263,6 +270,10 @@ class _LogReader:
         self.lines = 0
         self.chardevs: dict[str, str] = {}  # QEMU's "char device redirected to X (label L)" (on its stdout)
         self.booted = False  # the firmware's boot line came (its devices are found)
+        #: a boot check's refusal ("board: servo 4 (wrist_flex) ...; torque left off") is said as the Python board
+        #: says it: "board: servo bus PORT: servo 4 ..." (host.link.board_process knows that line)
+        self.refusal_prefix = "board: servo bus: "
+        self.refused: str | None = None
 
     def feed(self, data: bytes) -> None:
         self.buf += data
@@ -302,6 +313,9 @@ class _LogReader:
             return
         if " C firmware, " in text:
             self.booted = True
+        if not self.booted and _REFUSAL.match(text):
+            text = self.refusal_prefix + text.removeprefix("board: ")
+            self.refused = text
         if text:
             print(text, file=self.err, flush=True)
 
@@ -394,6 +408,8 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
     for fd in (log_fd, side_fd) + ((bus.master,) if bus is not None else ()):
         os.set_blocking(fd, False)
     logr = _LogReader(err, opts.log_path, schema_for(opts.robot.servo_count))
+    logr.refusal_prefix = (f"board: servo bus {opts.servo_bus_port}: " if opts.servo_bus_port is not None
+                           else "board: servo bus (the emulator's plant): ")
     side = bytearray()
     announced: str | None = None
     if opts.firmware == "qemu" and (relay is not None or port != "pty"):  # no pty of QEMU's to wait for
@@ -482,7 +498,12 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
         if plant is not None and bus is not None:  # the stopped firmware's last words (torque off) reach the plant
             plant.feed(bus.read(), time.monotonic())
         logr.close()
-        if died:
+        # a boot check refused the start (a servo missing, garbled, of another model, out of range): the
+        # firmware's one line "board: servo N (name) ...; torque left off" is all there is to say, and exit 2
+        refused = died and proc.returncode == 2 and logr.refused is not None
+        if refused:
+            status = 2
+        elif died:
             print(f"board: the C firmware exited with status {proc.returncode}", file=err, flush=True)
             tail = bytes(side[-2000:]).decode("utf-8", "replace").strip()
             if tail and opts.firmware == "qemu":
@@ -493,9 +514,9 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
             print("board: faults " + json.dumps({"spec": str(opts.faults), "seed": opts.fault_seed,
                                                  "injected": [i.summary() for i in relay.injectors],
                                                  "board_detected": detected}), file=err, flush=True)
-        if plant is not None:
+        if plant is not None and not refused:
             print(f"board: {plant.stats.line(plant.world.period_us)}", file=err, flush=True)
-        if not opts.lockstep:
+        if not opts.lockstep and not refused:
             record = lateness_record(logr.stats, plant)
             print(f"{LATENESS_PREFIX}{json.dumps(record)}", file=err, flush=True)
             warning = lateness_warning(record, 1000 / opts.rate_hz)

@@ -125,7 +125,7 @@ static void serve_realtime(gs_app_t *app) {
     }
 }
 
-void gs_app_init(gs_app_t *app, const gs_settings_t *cfg) {
+int gs_app_init(gs_app_t *app, const gs_settings_t *cfg) {
     gs_link_init(&app->link);
     gs_board_init(&app->board, cfg, on_send, app);
     if (cfg->log_frames) {
@@ -133,11 +133,12 @@ void gs_app_init(gs_app_t *app, const gs_settings_t *cfg) {
         app->link.on_raw_ctx = app;
     }
     app->stats_key = 0;
-    gs_board_boot(&app->board);
+    return gs_board_boot(&app->board);
 }
 
-void gs_app_run(gs_app_t *app, const gs_settings_t *cfg) {
-    gs_app_init(app, cfg);
+int gs_app_run(gs_app_t *app, const gs_settings_t *cfg) {
+    int refused = gs_app_init(app, cfg);
+    if (refused) return refused; /* a boot check failed: its line is logged, torque is off; nothing is served */
     gs_log_str("board: ");
     gs_log_str(GS_ROBOT_NAME);
     gs_log_str(" (");
@@ -157,4 +158,5 @@ void gs_app_run(gs_app_t *app, const gs_settings_t *cfg) {
     else serve_realtime(app);
     gs_board_shutdown(&app->board); /* a stop (SIGTERM/SIGINT natively) leaves no servo under torque */
     maybe_stats(app, 1);
+    return 0;
 }

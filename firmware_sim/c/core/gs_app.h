@@ -15,10 +15,12 @@ typedef struct {
     uint32_t stats_key; /* checksum of the counters last written as an "S" record */
 } gs_app_t;
 
-/* Set up (the bus devices are found here) and run until hal_should_stop(). */
-void gs_app_run(gs_app_t *app, const gs_settings_t *cfg);
-/* The pieces of the loops, for harnesses that drive the core step by step (the fuzz targets). */
-void gs_app_init(gs_app_t *app, const gs_settings_t *cfg);
+/* Set up (the bus devices are found and checked here) and run until hal_should_stop(); 0, or 2 when a boot
+ * check refused the start (gs_board_boot: one line logged, torque off, nothing served: exit with 2). */
+int gs_app_run(gs_app_t *app, const gs_settings_t *cfg);
+/* The pieces of the loops, for harnesses that drive the core step by step (the fuzz targets); gs_app_init
+ * returns gs_board_boot's status. */
+int gs_app_init(gs_app_t *app, const gs_settings_t *cfg);
 void gs_app_process(gs_app_t *app, const gs_rx_item_t *item);
 void gs_app_tick(gs_app_t *app);
 

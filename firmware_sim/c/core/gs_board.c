@@ -391,14 +391,17 @@ static void read_probe(gs_board_t *b) {
  * telemetry tick, the servo groups last: [probe, IMU, group 0, group 1, ...]. */
 static void bus_read_job(gs_board_t *b) {
     unsigned jobs = 2u + N_GROUPS;
-    uint32_t every = gs_config_telemetry_every(&b->cfg);
+    uint32_t k = b->bus_every ? b->bus_every : 1u;
+    uint32_t every = gs_config_telemetry_every(&b->cfg) / k; /* in bus ticks */
+    uint64_t n = (b->ticks - 1u) / k + 1u;                   /* this bus tick's number (b->ticks when k = 1) */
     unsigned job;
+    if (!every) every = 1u;
     if (every >= jobs) {
-        uint32_t r = (uint32_t)((every - b->ticks % every) % every); /* ticks to the next telemetry */
+        uint32_t r = (uint32_t)((every - n % every) % every); /* bus ticks to the next telemetry */
         if (r >= jobs) return;
         job = jobs - 1u - r;
     } else {
-        job = (unsigned)(b->ticks % jobs);
+        job = (unsigned)(n % jobs);
     }
     if (!b->imu_present && gs_bus_heard_late(GS_IMU_ID)) b->imu_present = 1; /* answered its boot ping late */
     if (!b->probe_present && gs_bus_heard_late(GS_PROBE_ID)) b->probe_present = 1;
@@ -510,6 +513,8 @@ void gs_board_init(gs_board_t *b, const gs_settings_t *cfg, gs_send_fn sendfn, v
     b->speaker_start_us = 0;
     b->tick_cycles_last = b->tick_cycles_max = 0;
     b->tick_cycles_sum = b->tick_cycles_n = 0;
+    b->bus_every = 1;
+    b->bus_cycle_us = b->return_delay_us = 0;
 }
 
 /* Realtime: ping `id` until it answers (on time or late) or `rounds` pings went unanswered while the bus
@@ -537,7 +542,218 @@ static int boot_ping(gs_board_t *b, uint8_t id, unsigned rounds, uint64_t give_u
     return 0;
 }
 
-void gs_board_boot(gs_board_t *b) {
+/* --- boot checks (the Python board's start-up, firmware_sim/servobus/driver.py, and its wording) ---------- */
+
+#define START_TRIES 5u            /* a servo is asked this often (ping, first read) before it is missing or garbled */
+#define START_TOLERANCE_STEPS 12  /* about 1 degree outside its step range at boot refuses the start */
+#define BUS_MARGIN_PCT 120u       /* the bus period holds the bus cycle with 20 % to spare */
+
+static uint16_t expected_model(unsigned i) {
+    return gs_bus_protocol() == GS_BUS_DXL2 ? gs_servos[i].model_dxl2 : gs_servos[i].model_sts;
+}
+
+static void log_servo(unsigned i) { /* "board: servo 4 (wrist_flex) " */
+    gs_log_str("board: servo ");
+    gs_log_u64(gs_servos[i].id);
+    gs_log_str(" (");
+    gs_log_str(gs_servos[i].name);
+    gs_log_str(") ");
+}
+
+/* The end of a refusal line; torque off for the whole bus (twice: a broadcast WRITE has no answer). */
+static int refuse_end(const char *tail) {
+    gs_log_str(tail ? tail : "; torque left off");
+    gs_log_end();
+    gs_bus_torque_off_all();
+    gs_bus_torque_off_all();
+    return 2;
+}
+
+static void log_tenths(int64_t v) { /* v / 10 with one decimal */
+    if (v < 0) {
+        gs_log_str("-");
+        v = -v;
+    }
+    gs_log_u64((uint64_t)(v / 10));
+    gs_log_str(".");
+    gs_log_u64((uint64_t)(v % 10));
+}
+
+static void log_signed(int64_t v) {
+    if (v < 0) {
+        gs_log_str("-");
+        v = -v;
+    }
+    gs_log_u64((uint64_t)v);
+}
+
+enum { PING_OK, PING_SILENT, PING_GARBLED, PING_TWICE, PING_NO_MODEL, PING_STOPPED };
+
+/* Ping servo i until it answers with its model number (START_TRIES for garbled answers; realtime: boot_ping's
+ * rounds for silence); with a line rate, then listen for a second answer (two servos with this id). */
+static int check_ping(gs_board_t *b, unsigned i, unsigned rounds, uint64_t give_up, uint8_t *ref) {
+    uint8_t id = gs_servos[i].id;
+    for (unsigned tries = 1;; tries++) {
+        uint32_t rx0 = gs_bus_rx_bytes;
+        uint64_t in0 = gs_bus_stats.bytes_in;
+        uint16_t model = 0;
+        int ok = b->cfg.lockstep ? gs_bus_ping(id, b->bus_timeout_us, &model)
+                                 : boot_ping(b, id, rounds, give_up, ref, &model);
+        int garbled = (uint64_t)(uint32_t)(gs_bus_rx_bytes - rx0) > gs_bus_stats.bytes_in - in0;
+        b->model[i] = model;
+        if (hal_should_stop()) return PING_STOPPED;
+        if (ok && model) {
+            if (b->cfg.bus_baud) {
+                size_t status = gs_bus_protocol() == GS_BUS_DXL2 ? 14u : 8u;
+                if (gs_bus_listen(2u * gs_bus_wire_us(status) + 5000u)) return PING_TWICE;
+            }
+            return PING_OK;
+        }
+        if (tries >= START_TRIES || (!ok && !garbled)) return ok ? PING_NO_MODEL : garbled ? PING_GARBLED : PING_SILENT;
+    }
+}
+
+static const char *const PING_WHY[] = {
+    "", "does not answer a ping (missing, unpowered, or another id or baud)",
+    "answers a ping garbled (two servos with this id, or noise on the bus)",
+    "answers a ping twice (two servos with this id)", "does not tell its model number (garbled answer)", ""};
+
+/* Each servo's return delay to 0 (STS register 7; Dynamixel address 9, EEPROM: with torque off), as LeRobot
+ * sets its servos up; a servo that refuses keeps its own. Returns the largest delay read back (us). */
+static uint32_t set_return_delay(gs_board_t *b) {
+    int dxl = gs_bus_protocol() == GS_BUS_DXL2;
+    uint16_t reg = dxl ? 9u : 7u;
+    uint8_t ids[GS_SERVO_COUNT], zero = 0;
+    size_t n = 0;
+    uint32_t worst = 0;
+    for (unsigned i = 0; i < GS_SERVO_COUNT; i++)
+        if (b->answering >> i & 1u) ids[n++] = gs_servos[i].id;
+    if (!n) return 0;
+    if (dxl) gs_bus_torque(ids, n, 0);
+    for (size_t j = 0; j < n && !hal_should_stop(); j++) (void)gs_bus_write_reg(ids[j], reg, &zero, 1, b->bus_timeout_us);
+    for (size_t j = 0; j < n && !hal_should_stop(); j++) {
+        uint8_t v = dxl ? 250u : 0u; /* unread: the factory default (Dynamixel X 500 us, STS 0) */
+        (void)gs_bus_read(ids[j], reg, 1, &v, b->bus_timeout_us);
+        if (2u * v > worst) worst = 2u * v;
+    }
+    return worst;
+}
+
+/* The present positions at boot: every servo answers (START_TRIES reads) and stands inside its step range
+ * (START_TOLERANCE_STEPS to spare), else one line and 2. */
+static int check_positions(gs_board_t *b) {
+    gs_present_t pr[GS_SERVO_COUNT];
+    gs_mask_t got = 0, garbled = 0;
+    for (unsigned tries = 0; tries < START_TRIES && got != ALL && !hal_should_stop(); tries++) {
+        for (unsigned first = 0; first < GS_SERVO_COUNT; first += READ_GROUP) {
+            uint8_t ids[READ_GROUP];
+            unsigned idx[READ_GROUP], k = 0;
+            gs_present_t p[READ_GROUP];
+            for (unsigned i = first; i < first + READ_GROUP && i < GS_SERVO_COUNT; i++)
+                if (!(got >> i & 1u)) {
+                    idx[k] = i;
+                    ids[k++] = gs_servos[i].id;
+                }
+            if (!k) continue;
+            uint32_t rx0 = gs_bus_rx_bytes;
+            uint64_t in0 = gs_bus_stats.bytes_in;
+            uint32_t ok = gs_bus_read_present(ids, k, p, b->bus_timeout_us);
+            int bad = (uint64_t)(uint32_t)(gs_bus_rx_bytes - rx0) > gs_bus_stats.bytes_in - in0;
+            for (unsigned j = 0; j < k; j++) {
+                gs_mask_t bit = (gs_mask_t)1 << idx[j];
+                if (ok >> j & 1u && p[j].valid && p[j].pos >= 0 && p[j].pos <= 4095) {
+                    pr[idx[j]] = p[j];
+                    got |= bit;
+                    garbled &= ~bit;
+                } else if (bad || (ok >> j & 1u)) {
+                    garbled |= bit;
+                } else {
+                    garbled &= ~bit;
+                }
+            }
+        }
+    }
+    if (hal_should_stop()) return 0;
+    for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
+        const gs_servo_t *s = &gs_servos[i];
+        if (!(got >> i & 1u)) {
+            log_servo(i);
+            gs_log_str(garbled >> i & 1u ? "answers garbled" : "does not answer");
+            return refuse_end(" when its position is read; torque left off");
+        }
+        int32_t pos = pr[i].pos;
+        if (pos < (int32_t)s->step_lo - START_TOLERANCE_STEPS || pos > (int32_t)s->step_hi + START_TOLERANCE_STEPS) {
+            log_servo(i);
+            gs_log_str("is at ");
+            log_tenths(div_round((int64_t)steps_to_urad(i, pos) * 180000, 314159265));
+            gs_log_str(" deg, outside its range ");
+            log_signed(div_round((int64_t)s->min_urad * 18000, 314159265));
+            gs_log_str("..");
+            log_signed(div_round((int64_t)s->max_urad * 18000, 314159265));
+            gs_log_str(" deg (steps ");
+            gs_log_u64((uint64_t)pos);
+            gs_log_str(", limits ");
+            gs_log_u64(s->step_lo);
+            gs_log_str("..");
+            gs_log_u64(s->step_hi);
+            gs_log_str(")");
+            return refuse_end("; torque left off: move it into its range by hand and start again");
+        }
+    }
+    return 0;
+}
+
+/* The bus period: one bus cycle (the goal SYNC WRITE, a SYNC READ of every servo's present state and the
+ * answers, 10 bits a byte, each answer after the servos' return delay) with a 20 % margin, in whole control
+ * periods; one boot line says it. Lockstep writes goals every tick: the plant steps its world on each. */
+static void choose_bus_period(gs_board_t *b) {
+    size_t n = GS_SERVO_COUNT, bytes;
+    if (gs_bus_protocol() == GS_BUS_DXL2) bytes = (10u + 4u + 5u * n) + (10u + 4u + n) + n * (11u + GS_DXL_PRESENT_LEN);
+    else bytes = (6u + 2u + 3u * n) + (6u + 2u + n) + n * (6u + GS_PRESENT_LEN);
+    uint32_t every = 1;
+    b->bus_cycle_us = b->cfg.bus_baud ? gs_bus_wire_us(bytes) + (uint32_t)n * b->return_delay_us : 0u;
+    if (!b->cfg.lockstep && b->bus_cycle_us) {
+        uint64_t need = (uint64_t)b->bus_cycle_us * BUS_MARGIN_PCT / 100u;
+        every = (uint32_t)((need + b->tick_us - 1u) / b->tick_us);
+        if (every < 1u) every = 1u;
+    }
+    b->bus_every = every;
+    gs_log_str("board: servo bus: ");
+    gs_log_u64(n);
+    if (!b->cfg.bus_baud) {
+        gs_log_str(" servos on a socket to the emulator's plant (no wire time)");
+    } else {
+        gs_log_str(" servos need ");
+        log_tenths(((int64_t)b->bus_cycle_us + 50) / 100);
+        gs_log_str(" ms a cycle at ");
+        gs_log_u64(b->cfg.bus_baud);
+        gs_log_str(" baud");
+        if (b->return_delay_us) {
+            gs_log_str(" (return delay ");
+            gs_log_u64(b->return_delay_us);
+            gs_log_str(" us each)");
+        }
+    }
+    if (b->cfg.lockstep) {
+        gs_log_str(": goals every tick (lockstep: the plant steps on each goal write)");
+    } else {
+        gs_log_str(": goals every ");
+        if (every == 1u) {
+            gs_log_str("tick");
+        } else {
+            gs_log_u64(every);
+            gs_log_str(" ticks");
+        }
+        gs_log_str(" (");
+        uint32_t hz10 = (uint32_t)(((uint64_t)b->cfg.rate_hz * 10u + every / 2u) / every);
+        if (hz10 % 10u) log_tenths(hz10);
+        else gs_log_u64(hz10 / 10u);
+        gs_log_str(" Hz)");
+    }
+    gs_log_end();
+}
+
+int gs_board_boot(gs_board_t *b) {
     /* realtime: the plant may still be starting or be descheduled; a device is absent only after
      * BOOT_PING_ROUNDS_REALTIME pings it left unanswered while the rest of the bus answered (or after
      * GS_BOOT_WAIT_US of a silent bus). Lockstep's 1 s timeout is one round's worth. */
@@ -546,9 +762,50 @@ void gs_board_boot(gs_board_t *b) {
     uint64_t give_up = hal_now_us() + GS_BOOT_WAIT_US;
     uint8_t ref = 0; /* a device that answered (0: none yet) */
     for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
-        int ok = b->cfg.lockstep ? gs_bus_ping(gs_servos[i].id, b->bus_timeout_us, &b->model[i])
-                                 : boot_ping(b, gs_servos[i].id, rounds, give_up, &ref, &b->model[i]);
-        if (!ok) silent |= (gs_mask_t)1 << i;
+        if (!b->cfg.boot_checks) {
+            int ok = b->cfg.lockstep ? gs_bus_ping(gs_servos[i].id, b->bus_timeout_us, &b->model[i])
+                                     : boot_ping(b, gs_servos[i].id, rounds, give_up, &ref, &b->model[i]);
+            if (!ok) silent |= (gs_mask_t)1 << i;
+            continue;
+        }
+        int r = check_ping(b, i, rounds, give_up, &ref);
+        if (r == PING_STOPPED) return 0;
+        if (r == PING_SILENT && i == 0u) { /* nothing answered yet: does any servo answer at all? */
+            int any = 0;
+            for (unsigned j = 1; j < GS_SERVO_COUNT && !any && !hal_should_stop(); j++)
+                any = gs_bus_ping(gs_servos[j].id, b->bus_timeout_us, 0);
+            if (!any) {
+                gs_log_str("board: no servo answers a ping (");
+                gs_log_u64(GS_SERVO_COUNT);
+                gs_log_str(" servos, ids ");
+                for (unsigned j = 0; j < GS_SERVO_COUNT; j++) {
+                    if (j) gs_log_str(", ");
+                    gs_log_u64(gs_servos[j].id);
+                }
+                gs_log_str(") in ");
+                gs_log_str(gs_bus_protocol_name(gs_bus_protocol()));
+                if (b->cfg.bus_baud) {
+                    gs_log_str(" at ");
+                    gs_log_u64(b->cfg.bus_baud);
+                    gs_log_str(" baud");
+                }
+                return refuse_end(": check the protocol (--bus-protocol or the robot's hardware.toml), the baud and "
+                                  "the servos' power; torque left off");
+            }
+        }
+        if (r != PING_OK) {
+            log_servo(i);
+            gs_log_str(PING_WHY[r]);
+            return refuse_end(0);
+        }
+        if (b->model[i] != expected_model(i)) {
+            log_servo(i);
+            gs_log_str("reports model number ");
+            gs_log_u64(b->model[i]);
+            gs_log_str(", the robot's hardware.toml says ");
+            gs_log_u64(expected_model(i));
+            return refuse_end(0);
+        }
     }
     for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
         if (silent >> i & 1u) {
@@ -556,9 +813,15 @@ void gs_board_boot(gs_board_t *b) {
             servo_lost(b, i);
         }
     }
+    if (hal_should_stop()) return 0; /* stopped while it looked for its bus: no "absent" devices to report */
+    b->return_delay_us = set_return_delay(b);
+    if (b->cfg.boot_checks) {
+        int r = check_positions(b);
+        if (r) return r;
+    }
     b->answers_seen = gs_bus_answers;
     b->last_answer_clock_us = hal_now_us();
-    if (hal_should_stop()) return; /* stopped while it looked for its bus: no "absent" devices to report */
+    if (hal_should_stop()) return 0;
     b->imu_present = (uint8_t)(b->cfg.lockstep ? gs_bus_ping(GS_IMU_ID, b->bus_timeout_us, 0)
                                                : boot_ping(b, GS_IMU_ID, rounds, give_up, &ref, 0));
     b->probe_present = (uint8_t)(b->cfg.lockstep ? gs_bus_ping(GS_PROBE_ID, b->bus_timeout_us, 0)
@@ -591,6 +854,8 @@ void gs_board_boot(gs_board_t *b) {
     gs_log_str(", ground-truth probe ");
     gs_log_str(b->probe_present ? "present (emulator: SIM_STATE forwarded)" : "absent (no SIM_STATE)");
     gs_log_end();
+    choose_bus_period(b);
+    return 0;
 }
 
 /* --- time ------------------------------------------------------------------------------------ */
@@ -1061,10 +1326,13 @@ void gs_board_tick(gs_board_t *b) {
         b->flags_since |= GS_FAULT_FLAGS_CLAMPED;
         b->clamped_ticks++;
     }
-    write_goals(b); /* one SYNC WRITE per tick: in lockstep the plant steps its physics on it */
+    /* the bus period (choose_bus_period): goals and one read job every bus_every ticks, the command of this
+       tick; the control loop, interpolation and watchdog above run every tick */
+    int bus_tick = b->ticks % b->bus_every == 0u;
+    if (bus_tick) write_goals(b); /* one SYNC WRITE per bus tick: in lockstep (every tick) the plant steps on it */
     b->now_us = t + b->tick_us;
     b->ticks++;
-    bus_read_job(b);
+    if (bus_tick) bus_read_job(b);
     uint32_t every = gs_config_telemetry_every(&b->cfg);
     if (b->ticks % every == 0) telemetry(b);
     uint32_t dc = hal_cycles() - c0;

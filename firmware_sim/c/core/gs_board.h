@@ -114,6 +114,11 @@ struct gs_board {
     gs_mask_t err_latched;   /* servos whose hardware error was reported (until ESTOP_CLEAR) */
     uint8_t servo_errors[GS_SERVO_COUNT]; /* GS_SERVO_ERR_* last reported per servo */
     uint16_t model[GS_SERVO_COUNT];       /* model number each servo reported at boot (0: unknown) */
+    /* the bus period: goals written and one read job run every `bus_every` control ticks (the bus cycle's
+     * wire time with a 20 % margin, chosen at boot; 1 in lockstep, where the plant steps on each goal write) */
+    uint32_t bus_every;
+    uint32_t bus_cycle_us;     /* one bus cycle's wire time + return delays (0 on a socket) */
+    uint32_t return_delay_us;  /* the servos' return delay found at boot (the largest) */
     int64_t servo_fault_t;
     /* peripherals (none on this board's bus): the last command per screen target and the speaker's last
      * action are ACKed and kept (speech text is not kept: it is the host's to synthesise) */
@@ -126,8 +131,10 @@ struct gs_board {
 };
 
 void gs_board_init(gs_board_t *b, const gs_settings_t *cfg, gs_send_fn send, void *ctx);
-/* Find the devices on the bus, enable torque, read the first positions. */
-void gs_board_boot(gs_board_t *b);
+/* Find the devices on the bus, check them (cfg.boot_checks), set their return delay to 0, choose the bus
+ * period, read the first positions; 0, or 2 when a check refused the start (one "board: servo N (name) ..."
+ * line logged, torque off for the whole bus: the caller exits with status 2). */
+int gs_board_boot(gs_board_t *b);
 int64_t gs_board_time_us(const gs_board_t *b);
 int gs_board_can_tick(const gs_board_t *b);
 void gs_board_handle(gs_board_t *b, const gs_msg_t *msg, uint16_t seq, int64_t rx_us);

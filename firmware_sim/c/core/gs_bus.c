@@ -6,6 +6,7 @@
 
 gs_bus_stats_t gs_bus_stats;
 uint32_t gs_bus_answers;
+uint32_t gs_bus_rx_bytes;
 
 static gs_bus_protocol_t proto = GS_BUS_STS;
 static const gs_bus_codec_t *codec = &gs_bus_sts_codec;
@@ -55,6 +56,7 @@ static void collect_late(void) {
         if (rx_len >= sizeof rx) rx_len = 0;
         size_t got = hal_bus_read(&rx[rx_len], sizeof rx - rx_len, 0);
         rx_len += got;
+        gs_bus_rx_bytes += (uint32_t)got;
         for (;;) {
             gs_status_t st;
             int id = parse_status(&st);
@@ -98,6 +100,7 @@ static int next_status(uint64_t deadline, gs_status_t *st) {
         if (rx_len >= sizeof rx) rx_len = 0; /* cannot happen with sane packets; never overflow */
         size_t got = hal_bus_read(&rx[rx_len], sizeof rx - rx_len, now >= deadline ? 0u : (uint32_t)(deadline - now));
         rx_len += got;
+        gs_bus_rx_bytes += (uint32_t)got;
         if (!got && now >= deadline) return GS_BUS_TIMEOUT;
     }
 }
@@ -137,6 +140,23 @@ uint32_t gs_bus_collect(const uint8_t *ids, size_t n, size_t len, uint64_t deadl
     return got;
 }
 
+size_t gs_bus_listen(uint32_t wait_us) {
+    uint64_t deadline = hal_now_us() + wait_us;
+    size_t total = rx_len;
+    rx_len = 0;
+    while (!hal_should_stop()) {
+        uint8_t junk[64];
+        uint64_t now = hal_now_us();
+        size_t got = hal_bus_read(junk, sizeof junk, now >= deadline ? 0u : (uint32_t)(deadline - now));
+        gs_bus_rx_bytes += (uint32_t)got;
+        total += got;
+        if (!got && hal_now_us() >= deadline) break;
+    }
+    return total;
+}
+
+uint32_t gs_bus_wire_us(size_t bytes) { return line_baud ? (uint32_t)((uint64_t)bytes * 10000000u / line_baud) : 0u; }
+
 /* --- the neutral requests ------------------------------------------------------------------------ */
 
 int gs_bus_ping(uint8_t id, uint32_t timeout_us, uint16_t *model) {
@@ -169,4 +189,18 @@ int gs_bus_read_errors(uint8_t id, uint8_t *errors, uint32_t timeout_us) {
 
 int gs_bus_read(uint8_t id, uint16_t addr, uint8_t len, uint8_t *data, uint32_t timeout_us) {
     return proto == GS_BUS_DXL2 ? gs_dxl2_read(id, addr, len, data, timeout_us) : gs_sts_read(id, addr, len, data, timeout_us);
+}
+
+int gs_bus_write_reg(uint8_t id, uint16_t addr, const uint8_t *data, uint8_t len, uint32_t timeout_us) {
+    uint8_t params[4u + 8u];
+    size_t k = 0;
+    gs_status_t st;
+    if (len > 8u) return 0;
+    params[k++] = (uint8_t)(addr & 0xFFu);
+    if (proto == GS_BUS_DXL2) params[k++] = (uint8_t)(addr >> 8);
+    else if (addr > 0xFFu) return 0;
+    for (size_t j = 0; j < len; j++) params[k++] = data[j];
+    gs_bus_send(id, GS_INST_WRITE, params, k);
+    if (!gs_bus_await(id, 0, gs_bus_deadline(timeout_us, proto == GS_BUS_DXL2 ? 11u : 6u), &st)) return 0;
+    return proto == GS_BUS_DXL2 ? !(st.error & 0x7Fu) : 1;
 }

@@ -103,6 +103,17 @@ extern gs_bus_stats_t gs_bus_stats;
  * received, on time or late: a caller compares it between two reads to tell "this device stayed silent
  * while others answered" (a device gone) from "nothing answered at all" (the plant is not running). */
 extern uint32_t gs_bus_answers;
+/* Every byte read from the bus (valid packets or not): beside gs_bus_stats.bytes_in (the bytes of valid status
+ * packets) it tells "garbled bytes came" (two servos with one id, noise) from "nothing came" (boot checks). */
+extern uint32_t gs_bus_rx_bytes;
+/* Boot: listen `wait_us` for anything more on the bus (a second servo answering with the same id); the bytes
+ * heard, also any not yet parsed, which are dropped. */
+size_t gs_bus_listen(uint32_t wait_us);
+/* Microseconds the line needs for `bytes` at its baud (0 on a socket). */
+uint32_t gs_bus_wire_us(size_t bytes);
+/* WRITE `len` (<= 8) bytes at `addr` of one servo, which answers; 1 when it answered and (Dynamixel) did not
+ * refuse with an error number. */
+int gs_bus_write_reg(uint8_t id, uint16_t addr, const uint8_t *data, uint8_t len, uint32_t timeout_us);
 /* 1 when a late status packet from `id` was seen since the last call for that id (and forgets it). */
 int gs_bus_heard_late(uint8_t id);
 

@@ -17,6 +17,7 @@ void gs_config_defaults(gs_settings_t *c) {
     c->bus_protocol = 0;
     c->bus_baud = 0;
     c->estop_limp = 0;
+    c->boot_checks = 1;
 }
 
 uint32_t gs_config_tick_us(const gs_settings_t *c) { return 1000000u / c->rate_hz; }

@@ -40,6 +40,9 @@ typedef struct {
     uint8_t bus_protocol;        /* servo bus: GS_BUS_STS (0, Feetech) or GS_BUS_DXL2 (1, Dynamixel 2.0) */
     uint32_t bus_baud;           /* the servo bus line's baud rate (0: a socket to the plant, no wire time) */
     uint8_t estop_limp;          /* ESTOP: 0 hold where the servos are (torque on), 1 limp (torque off) */
+    uint8_t boot_checks;         /* 1: a servo missing, garbled or twice, of another model or outside its range at
+                                    boot refuses the start (gs_board_boot returns 2, torque off); 0: the emulator's
+                                    injected dead servo (--dead-servo ID@0) and the fuzzers: found as SERVO_FAULT */
 } gs_settings_t;
 
 void gs_config_defaults(gs_settings_t *cfg);

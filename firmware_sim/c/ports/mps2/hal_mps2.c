@@ -167,7 +167,7 @@ int main(void) {
         cfg.bus_protocol = (uint8_t)b->bus_protocol; /* the servo bus is the plant's socket: no baud to model */
         cfg.estop_limp = (uint8_t)(b->estop_limp != 0u);
     }
-    gs_app_run(&app, &cfg);
+    (void)gs_app_run(&app, &cfg); /* a refused boot: its line is out, torque off; the guest idles */
     for (;;) {
         __asm volatile("wfi");
     }

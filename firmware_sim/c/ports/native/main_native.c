@@ -1,12 +1,15 @@
 /* The native firmware executable:
  *   gs_firmware --bus tty:PATH:BAUD|TTY|fd:N [--protocol sts|dxl2] [--estop-torque hold|limp]
  *               [--host pty|PATH] [--lockstep|--realtime] [--rate HZ] [--telemetry-rate HZ]
- *               [--watchdog-ms MS] [--log-frames]
+ *               [--watchdog-ms MS] [--log-frames] [--no-boot-checks]
  * --bus tty:PATH:BAUD is a real servo bus (a USB adapter: raw 8N1 at BAUD, e.g. 57600 or 1000000); TTY
  * (the plant's pty, its settings untouched) and fd:N (an inherited socket) are the emulator's.
  * Prints "board: listening on PTY" on stdout once the bus devices are found, then serves until
  * SIGTERM/SIGINT (then torque off for the whole bus); log channel on stderr. Exit 2 for bad arguments or a
- * port that cannot open (one line naming it). */
+ * port that cannot open (one line naming it); exit 2 too when a boot check refuses the start (a servo missing,
+ * answering garbled or twice, of another model than hardware.toml's, outside its step range: one line naming
+ * it, torque off for the whole bus). --no-boot-checks (the launcher, for the emulator's --dead-servo ID@0):
+ * a servo silent at boot latches SERVO_FAULT instead. */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -29,7 +32,7 @@ static int num(const char *s, long lo, long hi, long *out) {
 static int usage(const char *why) {
     fprintf(stderr, "board: %s\nusage: gs_firmware --bus tty:PATH:BAUD|TTY|fd:N [--protocol sts|dxl2] "
                     "[--estop-torque hold|limp] [--host pty|PATH] [--lockstep|--realtime] [--rate HZ] "
-                    "[--telemetry-rate HZ] [--watchdog-ms MS] [--log-frames]\n", why);
+                    "[--telemetry-rate HZ] [--watchdog-ms MS] [--log-frames] [--no-boot-checks]\n", why);
     return 2;
 }
 
@@ -46,6 +49,7 @@ int main(int argc, char **argv) {
         else if (!strcmp(a, "--lockstep")) cfg.lockstep = 1;
         else if (!strcmp(a, "--realtime")) cfg.lockstep = 0;
         else if (!strcmp(a, "--log-frames")) cfg.log_frames = 1;
+        else if (!strcmp(a, "--no-boot-checks")) cfg.boot_checks = 0;
         else if (!strcmp(a, "--protocol") && has && !strcmp(argv[i + 1], "sts")) { cfg.bus_protocol = GS_BUS_STS; i++; }
         else if (!strcmp(a, "--protocol") && has && !strcmp(argv[i + 1], "dxl2")) { cfg.bus_protocol = GS_BUS_DXL2; i++; }
         else if (!strcmp(a, "--estop-torque") && has && !strcmp(argv[i + 1], "hold")) { cfg.estop_limp = 0; i++; }
@@ -82,7 +86,7 @@ int main(int argc, char **argv) {
     }
     printf("board: listening on %s\n", name);
     fflush(stdout);
-    gs_app_run(&app, &cfg);
+    int status = gs_app_run(&app, &cfg);
     native_close();
-    return 0;
+    return status;
 }
