@@ -68,6 +68,7 @@ class ReceivePath:
     camera: CameraAssembler
     latest_sim_state: SimState | None
     servo_fault: Nack | None
+    servo_faults: list[Nack]
     on_nack: list[Callable[[Nack], None]]
     on_received: list[Callable[[Message], None]]
     _rx_gaps: GapDetector
@@ -142,6 +143,8 @@ class ReceivePath:
     def _handle_nack(self, msg: Nack, t4: int, nbytes: int) -> None:
         if msg.reason == NackReason.SERVO_FAULT:
             self.servo_fault = msg
+            self.servo_faults.append(msg)
+            del self.servo_faults[:-64]  # bounded: a faulted board refuses every frame with one
         if msg.msg_type == MsgType.HELLO:
             reason = msg.reason.name if hasattr(msg.reason, "name") else str(msg.reason)
             error = SchemaMismatch if msg.reason == NackReason.SCHEMA_MISMATCH else HandshakeError

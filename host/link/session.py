@@ -133,6 +133,12 @@ class BoardClient(ReceivePath, TelemetryWaits, BoardCommands):
         self.on_nack: list[Callable[[Nack], None]] = []
         #: the board's latest NACK SERVO_FAULT (its detail names the servo that stopped answering on its bus)
         self.servo_fault: Nack | None = None
+        #: every NACK SERVO_FAULT so far, oldest first, the last 64 (the board reports each failed servo in
+        #: its own: several silent at once; host.link.faultcheck.servo_fault_message reads them)
+        self.servo_faults: list[Nack] = []
+        #: the board stops when this command does (the command started it): a servo fault's line says to run
+        #: again, not how to clear a board that will be gone (set by whoever started it)
+        self.board_started_here = False
         self._sent = SentFanout()  # the on_sent listeners
         #: called with every message received, after the client handled it (listeners, e.g. a run's
         #: recorder; python-can's Listener model)

@@ -16,8 +16,8 @@ import anyio
 import numpy as np
 
 from host.link import BoardClient
-from host.link.errors import BoardFaulted, LinkError
-from host.link.faultcheck import clear_command, servo_fault_message
+from host.link.errors import LinkError
+from host.link.faultcheck import DETAIL_WAIT_S, ServoFaulted, clear_command, servo_fault_named
 from host.motion.driver import SETTLE_CHECKPOINTS as SETTLE_CHECKPOINTS  # re-exported (host.run.runner)
 from host.motion.driver import drive
 from host.motion.driver import settle as settle  # re-exported (tests)
@@ -103,6 +103,8 @@ async def pump(client: BoardClient, runtime: RobotRuntime, rec: Recorder,
     not a silent board).
     """
 
+    fault_seen: list[tuple[float, int]] = []  # when (wall s, board us) the SERVO_FAULT flag was first seen
+
     def on_report(tel: Any) -> bool:
         rec.last_rx, rec.waiting = time.monotonic(), False
         rec.add(client, tel)
@@ -110,8 +112,13 @@ async def pump(client: BoardClient, runtime: RobotRuntime, rec: Recorder,
             listener(tel)
         if tel.faults & FaultFlags.WATCHDOG_FAULT:
             raise LinkError(watchdog_fault_message(client, tel.board_time_us))
-        if tel.faults & FaultFlags.SERVO_FAULT:  # a servo stopped answering on the board's bus (C firmware)
-            raise BoardFaulted(servo_fault_message(client, tel.board_time_us))
+        if tel.faults & FaultFlags.SERVO_FAULT:  # a servo on the board's bus failed
+            # the report may overtake the NACK that names the servo: wait for it a little (the frames the
+            # run keeps sending are refused naming it too); the flag alone names no servo and no cause
+            if not fault_seen:
+                fault_seen.append((time.monotonic(), tel.board_time_us))
+            if servo_fault_named(client) or time.monotonic() - fault_seen[0][0] >= DETAIL_WAIT_S:
+                raise ServoFaulted(client, fault_seen[0][1])
         return False
 
     streamer = runtime.streamer
