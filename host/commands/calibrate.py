@@ -102,7 +102,7 @@ def run(args: argparse.Namespace, *, ask: Callable[[str], str] | None = None, sa
             return _fail(f"{folder / HARDWARE_FILE} says protocol = {hardware.protocol!r}, --bus-protocol {protocol}: "
                          "fix hardware.toml or drop --bus-protocol")
         hardware = Hardware(protocol, DEFAULT_BAUD[protocol], DEFAULT_MODEL[protocol])
-    bus = ServoBus(port, baud or hardware.baud, protocol)
+    bus = ServoBus(port, baud or hardware.baud, protocol, names={s.id: s.name for s in servos})
     try:
         bus.open()
     except BusError as e:

@@ -351,7 +351,7 @@ def test_a_servo_lost_during_the_procedure_is_exit_1(robots_dir, start_plant, ca
     status = run(_args(robots_dir, plant.port.name), ask=unplug_then_ask, say=hand.say, live=hand.live)
     err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
     assert status == 1 and len(err) == 1, (status, err)
-    assert err[0].startswith("ghostshell robots: servo 2 did not answer a present-position read") and \
+    assert err[0].startswith("ghostshell robots: servo 2 (shoulder_lift) did not answer a present-position read") and \
         err[0].endswith("nothing written"), err
     assert not (robots_dir / ROBOT / CALIBRATION_FILE).exists()
 
