@@ -101,7 +101,8 @@ KINDS: dict[str, _Kind] = {
     "native-asan": _Kind("cc", _CORE + ("ports/native/*.c",), (*WARN, "-O1", "-D_GNU_SOURCE", *SAN), "gs_firmware"),
     "mps2": _Kind(
         "arm-none-eabi-gcc", _CORE + ("ports/mps2/*.c",),
-        (*WARN, "-mcpu=cortex-m3", "-mthumb", "-Os", "-ffunction-sections", "-fdata-sections", "-g"),
+        (*WARN, "-mcpu=cortex-m3", "-mthumb", "-Os", "-ffunction-sections", "-fdata-sections", "-g",
+         "-DGS_BUS_SOCKET_ONLY"),  # its servo bus is QEMU's socket to the plant, never a tty (gs_board.c)
         "gs_firmware.elf",
         ("-nostartfiles", "--specs=nano.specs", "-Wl,--gc-sections", "-Wl,-T,{c}/ports/mps2/mps2_an385.ld",
          "-Wl,-Map={out}/gs_firmware.map", "-lgcc"),

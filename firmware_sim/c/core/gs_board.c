@@ -356,6 +356,7 @@ static void read_group(gs_board_t *b, unsigned first, unsigned n, int all) {
         int64_t spd = pr[j].speed, load = pr[j].load;
         spd = spd < -16777216 ? -16777216 : spd > 16777216 ? 16777216 : spd;
         load = load < -1000000 ? -1000000 : load > 1000000 ? 1000000 : load;
+        b->raw_pos[i] = pr[j].pos;
         b->pos_urad[i] = steps_to_urad(i, pr[j].pos);
         b->vel_urad_s[i] = clamp32(div_round((int64_t)s->direction * spd * GS_STEP_NRAD, 1000), INT32_MIN, INT32_MAX);
         b->eff_mnm[i] = clamp32(div_round((int64_t)s->direction * load * s->load_full_mnm, 1000), INT32_MIN, INT32_MAX);
@@ -544,6 +545,15 @@ static int boot_ping(gs_board_t *b, uint8_t id, unsigned rounds, uint64_t give_u
 
 /* --- boot checks (the Python board's start-up, firmware_sim/servobus/driver.py, and its wording) ---------- */
 
+/* The servo bus's line rate (0: a socket to the emulator's plant, no wire time). A port whose bus is always
+ * that socket (mps2: QEMU has no tty to open) builds with GS_BUS_SOCKET_ONLY: the line-rate code (a second
+ * answer listened for, the bus cycle's wire time) is left out of its image. */
+#ifdef GS_BUS_SOCKET_ONLY
+#define LINE_BAUD(b) ((void)(b), 0u)
+#else
+#define LINE_BAUD(b) ((b)->cfg.bus_baud)
+#endif
+
 #define START_TRIES 5u            /* a servo is asked this often (ping, first read) before it is missing or garbled */
 #define START_TOLERANCE_STEPS 12  /* about 1 degree outside its step range at boot refuses the start */
 #define BUS_MARGIN_PCT 120u       /* the bus period holds the bus cycle with 20 % to spare */
@@ -569,22 +579,16 @@ static int refuse_end(const char *tail) {
     return 2;
 }
 
-static void log_tenths(int64_t v) { /* v / 10 with one decimal */
+/* v / 10 with one decimal (tenths), or v as it is */
+static void log_fixed(int64_t v, int tenths) {
     if (v < 0) {
         gs_log_str("-");
         v = -v;
     }
-    gs_log_u64((uint64_t)(v / 10));
+    gs_log_u64((uint64_t)(tenths ? v / 10 : v));
+    if (!tenths) return;
     gs_log_str(".");
     gs_log_u64((uint64_t)(v % 10));
-}
-
-static void log_signed(int64_t v) {
-    if (v < 0) {
-        gs_log_str("-");
-        v = -v;
-    }
-    gs_log_u64((uint64_t)v);
 }
 
 enum { PING_OK, PING_SILENT, PING_GARBLED, PING_TWICE, PING_NO_MODEL, PING_STOPPED };
@@ -603,7 +607,7 @@ static int check_ping(gs_board_t *b, unsigned i, unsigned rounds, uint64_t give_
         b->model[i] = model;
         if (hal_should_stop()) return PING_STOPPED;
         if (ok && model) {
-            if (b->cfg.bus_baud) {
+            if (LINE_BAUD(b)) {
                 size_t status = gs_bus_protocol() == GS_BUS_DXL2 ? 14u : 8u;
                 if (gs_bus_listen(2u * gs_bus_wire_us(status) + 5000u)) return PING_TWICE;
             }
@@ -639,65 +643,44 @@ static uint32_t set_return_delay(gs_board_t *b) {
     return worst;
 }
 
-/* The present positions at boot: every servo answers (START_TRIES reads) and stands inside its step range
- * (START_TOLERANCE_STEPS to spare), else one line and 2. */
+/* The present positions at boot: every servo answers (START_TRIES reads; no miss counts towards a lost servo
+ * here) and stands inside its step range (START_TOLERANCE_STEPS to spare), else one line and 2. */
 static int check_positions(gs_board_t *b) {
-    gs_present_t pr[GS_SERVO_COUNT];
-    gs_mask_t got = 0, garbled = 0;
-    for (unsigned tries = 0; tries < START_TRIES && got != ALL && !hal_should_stop(); tries++) {
-        for (unsigned first = 0; first < GS_SERVO_COUNT; first += READ_GROUP) {
-            uint8_t ids[READ_GROUP];
-            unsigned idx[READ_GROUP], k = 0;
-            gs_present_t p[READ_GROUP];
-            for (unsigned i = first; i < first + READ_GROUP && i < GS_SERVO_COUNT; i++)
-                if (!(got >> i & 1u)) {
-                    idx[k] = i;
-                    ids[k++] = gs_servos[i].id;
-                }
-            if (!k) continue;
-            uint32_t rx0 = gs_bus_rx_bytes;
-            uint64_t in0 = gs_bus_stats.bytes_in;
-            uint32_t ok = gs_bus_read_present(ids, k, p, b->bus_timeout_us);
-            int bad = (uint64_t)(uint32_t)(gs_bus_rx_bytes - rx0) > gs_bus_stats.bytes_in - in0;
-            for (unsigned j = 0; j < k; j++) {
-                gs_mask_t bit = (gs_mask_t)1 << idx[j];
-                if (ok >> j & 1u && p[j].valid && p[j].pos >= 0 && p[j].pos <= 4095) {
-                    pr[idx[j]] = p[j];
-                    got |= bit;
-                    garbled &= ~bit;
-                } else if (bad || (ok >> j & 1u)) {
-                    garbled |= bit;
-                } else {
-                    garbled &= ~bit;
-                }
-            }
-        }
+    uint8_t limit = b->miss_limit;
+    int garbled = 0;
+    b->miss_limit = 255u;
+    for (unsigned tries = 0; tries < START_TRIES && b->pos_known != ALL && !hal_should_stop(); tries++) {
+        uint32_t rx0 = gs_bus_rx_bytes;
+        uint64_t in0 = gs_bus_stats.bytes_in;
+        read_all_positions(b);
+        garbled = (uint64_t)(uint32_t)(gs_bus_rx_bytes - rx0) > gs_bus_stats.bytes_in - in0;
     }
+    b->miss_limit = limit;
     if (hal_should_stop()) return 0;
     for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
         const gs_servo_t *s = &gs_servos[i];
-        if (!(got >> i & 1u)) {
+        int32_t pos = b->raw_pos[i];
+        b->miss[i] = 0;
+        if (!(b->pos_known >> i & 1u) || pos < 0 || pos > 4095) {
             log_servo(i);
-            gs_log_str(garbled >> i & 1u ? "answers garbled" : "does not answer");
+            gs_log_str(b->pos_known >> i & 1u || garbled ? "answers garbled" : "does not answer");
             return refuse_end(" when its position is read; torque left off");
         }
-        int32_t pos = pr[i].pos;
         if (pos < (int32_t)s->step_lo - START_TOLERANCE_STEPS || pos > (int32_t)s->step_hi + START_TOLERANCE_STEPS) {
             log_servo(i);
             gs_log_str("is at ");
-            log_tenths(div_round((int64_t)steps_to_urad(i, pos) * 180000, 314159265));
+            log_fixed(div_round((int64_t)b->pos_urad[i] * 180000, 314159265), 1);
             gs_log_str(" deg, outside its range ");
-            log_signed(div_round((int64_t)s->min_urad * 18000, 314159265));
+            log_fixed(div_round((int64_t)s->min_urad * 18000, 314159265), 0);
             gs_log_str("..");
-            log_signed(div_round((int64_t)s->max_urad * 18000, 314159265));
+            log_fixed(div_round((int64_t)s->max_urad * 18000, 314159265), 0);
             gs_log_str(" deg (steps ");
             gs_log_u64((uint64_t)pos);
             gs_log_str(", limits ");
             gs_log_u64(s->step_lo);
             gs_log_str("..");
             gs_log_u64(s->step_hi);
-            gs_log_str(")");
-            return refuse_end("; torque left off: move it into its range by hand and start again");
+            return refuse_end("); torque left off: move it into its range by hand and start again");
         }
     }
     return 0;
@@ -711,7 +694,7 @@ static void choose_bus_period(gs_board_t *b) {
     if (gs_bus_protocol() == GS_BUS_DXL2) bytes = (10u + 4u + 5u * n) + (10u + 4u + n) + n * (11u + GS_DXL_PRESENT_LEN);
     else bytes = (6u + 2u + 3u * n) + (6u + 2u + n) + n * (6u + GS_PRESENT_LEN);
     uint32_t every = 1;
-    b->bus_cycle_us = b->cfg.bus_baud ? gs_bus_wire_us(bytes) + (uint32_t)n * b->return_delay_us : 0u;
+    b->bus_cycle_us = LINE_BAUD(b) ? gs_bus_wire_us(bytes) + (uint32_t)n * b->return_delay_us : 0u;
     if (!b->cfg.lockstep && b->bus_cycle_us) {
         uint64_t need = (uint64_t)b->bus_cycle_us * BUS_MARGIN_PCT / 100u;
         every = (uint32_t)((need + b->tick_us - 1u) / b->tick_us);
@@ -720,13 +703,13 @@ static void choose_bus_period(gs_board_t *b) {
     b->bus_every = every;
     gs_log_str("board: servo bus: ");
     gs_log_u64(n);
-    if (!b->cfg.bus_baud) {
+    if (!LINE_BAUD(b)) {
         gs_log_str(" servos on a socket to the emulator's plant (no wire time)");
     } else {
         gs_log_str(" servos need ");
-        log_tenths(((int64_t)b->bus_cycle_us + 50) / 100);
+        log_fixed(((int64_t)b->bus_cycle_us + 50) / 100, 1);
         gs_log_str(" ms a cycle at ");
-        gs_log_u64(b->cfg.bus_baud);
+        gs_log_u64(LINE_BAUD(b));
         gs_log_str(" baud");
         if (b->return_delay_us) {
             gs_log_str(" (return delay ");
@@ -746,8 +729,7 @@ static void choose_bus_period(gs_board_t *b) {
         }
         gs_log_str(" (");
         uint32_t hz10 = (uint32_t)(((uint64_t)b->cfg.rate_hz * 10u + every / 2u) / every);
-        if (hz10 % 10u) log_tenths(hz10);
-        else gs_log_u64(hz10 / 10u);
+        log_fixed(hz10 % 10u ? hz10 : hz10 / 10u, hz10 % 10u != 0u);
         gs_log_str(" Hz)");
     }
     gs_log_end();
@@ -784,9 +766,9 @@ int gs_board_boot(gs_board_t *b) {
                 }
                 gs_log_str(") in ");
                 gs_log_str(gs_bus_protocol_name(gs_bus_protocol()));
-                if (b->cfg.bus_baud) {
+                if (LINE_BAUD(b)) {
                     gs_log_str(" at ");
-                    gs_log_u64(b->cfg.bus_baud);
+                    gs_log_u64(LINE_BAUD(b));
                     gs_log_str(" baud");
                 }
                 return refuse_end(": check the protocol (--bus-protocol or the robot's hardware.toml), the baud and "
@@ -836,9 +818,9 @@ int gs_board_boot(gs_board_t *b) {
         if (b->model[i] != model) model = 0;
     gs_log_str("board: servo bus (");
     gs_log_str(gs_bus_protocol_name(gs_bus_protocol()));
-    if (b->cfg.bus_baud) {
+    if (LINE_BAUD(b)) {
         gs_log_str(", ");
-        gs_log_u64(b->cfg.bus_baud);
+        gs_log_u64(LINE_BAUD(b));
         gs_log_str(" baud");
     }
     gs_log_str("): ");

@@ -117,6 +117,7 @@ struct gs_board {
     /* the bus period: goals written and one read job run every `bus_every` control ticks (the bus cycle's
      * wire time with a 20 % margin, chosen at boot; 1 in lockstep, where the plant steps on each goal write) */
     uint32_t bus_every;
+    int32_t raw_pos[GS_SERVO_COUNT]; /* the last present position read (register steps) */
     uint32_t bus_cycle_us;     /* one bus cycle's wire time + return delays (0 on a socket) */
     uint32_t return_delay_us;  /* the servos' return delay found at boot (the largest) */
     int64_t servo_fault_t;
