@@ -594,11 +594,12 @@ static void log_fixed(int64_t v, int tenths) {
 enum { PING_OK, PING_SILENT, PING_GARBLED, PING_TWICE, PING_NO_MODEL, PING_STOPPED };
 
 /* Ping servo i until it answers with its model number (START_TRIES for garbled answers; realtime: boot_ping's
- * rounds for silence); with a line rate, then listen for a second answer (two servos with this id). */
+ * rounds for silence); with a line rate, then listen for a second answer (two servos with this id; a plant's
+ * collided answers are garbled instead). */
 static int check_ping(gs_board_t *b, unsigned i, unsigned rounds, uint64_t give_up, uint8_t *ref) {
     uint8_t id = gs_servos[i].id;
     for (unsigned tries = 1;; tries++) {
-        uint32_t rx0 = gs_bus_rx_bytes;
+        uint32_t rx0 = gs_bus_rx_bytes, timeouts0 = gs_bus_stats.timeouts;
         uint64_t in0 = gs_bus_stats.bytes_in;
         uint16_t model = 0;
         int ok = b->cfg.lockstep ? gs_bus_ping(id, b->bus_timeout_us, &model)
@@ -607,7 +608,8 @@ static int check_ping(gs_board_t *b, unsigned i, unsigned rounds, uint64_t give_
         b->model[i] = model;
         if (hal_should_stop()) return PING_STOPPED;
         if (ok && model) {
-            if (LINE_BAUD(b)) {
+            /* only when every request was answered in time: an answer that was late (a busy plant) is no twin */
+            if (LINE_BAUD(b) && gs_bus_stats.timeouts == timeouts0) {
                 size_t status = gs_bus_protocol() == GS_BUS_DXL2 ? 14u : 8u;
                 if (gs_bus_listen(2u * gs_bus_wire_us(status) + 5000u)) return PING_TWICE;
             }
