@@ -164,10 +164,18 @@ ESTOP_TORQUE = {"hold": 0, "limp": 1}
 DEFAULT_SERVO_BAUD = 1_000_000
 
 
+def _boot_checks(opts: LaunchOptions) -> bool:
+    """Whether the firmware refuses to start on a failed boot check (gs_board_boot). Not with the emulator's
+    injected dead servo (``--dead-servo ID@0`` may be dead at boot): a fault found mid-run, as the Python board's
+    emulated bus has it."""
+    return not (opts.dead_servos and opts.servo_bus_port is None)
+
+
 def boot_config_words(opts: LaunchOptions) -> list[int]:
     """The configuration block the MCU image reads at boot (magic, settings, check word)."""
     words = [BOOT_MAGIC, int(opts.lockstep), opts.rate_hz, opts.telemetry_rate_hz, opts.watchdog_ms,
-             int(bool(opts.log_path)), BUS_PROTOCOLS[opts.bus_protocol], ESTOP_TORQUE[opts.estop_torque]]
+             int(bool(opts.log_path)), BUS_PROTOCOLS[opts.bus_protocol], ESTOP_TORQUE[opts.estop_torque],
+             int(_boot_checks(opts))]
     check = 0
     for w in words:
         check ^= w
@@ -181,9 +189,7 @@ def firmware_command(opts: LaunchOptions, exe: Path, bus_tty: str, host: str) ->
                "--rate", str(opts.rate_hz), "--telemetry-rate", str(opts.telemetry_rate_hz),
                "--watchdog-ms", str(opts.watchdog_ms), "--protocol", opts.bus_protocol,
                "--estop-torque", opts.estop_torque]
-        # the emulator's injected dead servo (--dead-servo ID@0 may be dead at boot): a fault to find mid-run, as
-        # the Python board's emulated bus has it, not a refused start
-        cmd += ["--no-boot-checks"] if opts.dead_servos and opts.servo_bus_port is None else []
+        cmd += [] if _boot_checks(opts) else ["--no-boot-checks"]
         return cmd + (["--log-frames"] if opts.log_path else [])
     # a socket descriptor QEMU inherits ("fd:N", no tty layer: _SocketBus) is a socket chardev
     chardevs = {name: path[3:] for name, path in (("host", host), ("bus", bus_tty)) if path.startswith("fd:")}
@@ -474,6 +480,9 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
             if proc.poll() is not None:
                 status = proc.returncode
                 break
+            if logr.refused is not None and opts.firmware == "qemu":  # the guest idles after its refusal line
+                status = 2
+                break
     except (_Stop, KeyboardInterrupt):
         status = INTERRUPTED_STATUS
     finally:
@@ -500,7 +509,7 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
         logr.close()
         # a boot check refused the start (a servo missing, garbled, of another model, out of range): the
         # firmware's one line "board: servo N (name) ...; torque left off" is all there is to say, and exit 2
-        refused = died and proc.returncode == 2 and logr.refused is not None
+        refused = status == 2 and logr.refused is not None
         if refused:
             status = 2
         elif died:

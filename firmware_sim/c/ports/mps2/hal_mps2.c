@@ -36,7 +36,8 @@
 
 /* boot configuration, written by the launcher before reset (magic 'GSCF' + check word) */
 typedef struct {
-    uint32_t magic, lockstep, rate_hz, telemetry_rate_hz, watchdog_ms, log_frames, bus_protocol, estop_limp, check;
+    uint32_t magic, lockstep, rate_hz, telemetry_rate_hz, watchdog_ms, log_frames, bus_protocol, estop_limp,
+        boot_checks, check; /* boot_checks 0: the emulator's dead servo at boot is a fault, not a refused start */
 } boot_cfg_t;
 __attribute__((section(".bootcfg"), used)) volatile boot_cfg_t boot_cfg;
 #define BOOT_MAGIC 0x47534346u
@@ -155,7 +156,7 @@ int main(void) {
     const volatile boot_cfg_t *b = &boot_cfg;
     if (b->magic == BOOT_MAGIC &&
         b->check == (b->magic ^ b->lockstep ^ b->rate_hz ^ b->telemetry_rate_hz ^ b->watchdog_ms ^ b->log_frames ^
-                     b->bus_protocol ^ b->estop_limp) &&
+                     b->bus_protocol ^ b->estop_limp ^ b->boot_checks) &&
         b->bus_protocol <= 1u &&
         b->rate_hz >= 1u && b->rate_hz <= 10000u && 1000000u % b->rate_hz == 0u && b->telemetry_rate_hz >= 1u &&
         b->telemetry_rate_hz <= b->rate_hz && b->watchdog_ms >= 1u) {
@@ -166,8 +167,10 @@ int main(void) {
         cfg.log_frames = (uint8_t)(b->log_frames != 0u);
         cfg.bus_protocol = (uint8_t)b->bus_protocol; /* the servo bus is the plant's socket: no baud to model */
         cfg.estop_limp = (uint8_t)(b->estop_limp != 0u);
+        cfg.boot_checks = (uint8_t)(b->boot_checks != 0u);
     }
-    (void)gs_app_run(&app, &cfg); /* a refused boot: its line is out, torque off; the guest idles */
+    (void)gs_app_run(&app, &cfg); /* a refused boot: its line is out, torque off; the guest idles (the launcher
+                                     stops it on that line) */
     for (;;) {
         __asm volatile("wfi");
     }
