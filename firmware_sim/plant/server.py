@@ -9,8 +9,10 @@ period; in realtime it steps on the wall clock. The pty starts at ``--baud``; a 
 another line speed gets no answer (read from the pty's termios before each read). Conditions:
 ``--offset ID=STEPS``, ``--reverse ID``, ``--model ID=NUMBER``, ``--missing ID``, ``--duplicate ID``,
 ``--error ID=overload|overheat|voltage@SECONDS``, ``--corrupt P`` with ``--seed N``,
-``--dead-servo ID@SECONDS`` (all repeatable but the last three; docs/reference/plant.md).
-:func:`serve` is the loop (tests run it in a thread with a stop event).
+``--dead-servo ID@SECONDS`` (all repeatable but the last three; docs/reference/plant.md). ``--hand``: lines on
+stdin move and hold the limp joints as a person's hand would (``shoulder_pan 30``, ``pose zero``,
+``release all``; :mod:`firmware_sim.plant.hand`). :func:`serve` is the loop (tests run it in a thread with a
+stop event).
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ import threading
 import time
 from collections.abc import Callable
 from typing import TypeVar
+
+from firmware_sim.plant.hand import HELP, Hand
 
 from firmware_sim.plant.bus import PROTOCOLS, PlantBus
 from firmware_sim.plant.conditions import Conditions, parse_error, parse_id, parse_id_int
@@ -61,10 +65,13 @@ def set_line_speed(fd: int, baud: int) -> None:
     termios.tcsetattr(fd, termios.TCSANOW, attrs)
 
 
-def serve(plant: PlantBus, port: PtyPort, stop: threading.Event) -> None:
-    """Answer on ``port`` until ``stop`` is set."""
+def serve(plant: PlantBus, port: PtyPort, stop: threading.Event, hand: Hand | None = None) -> None:
+    """Answer on ``port`` until ``stop`` is set; ``hand``: its queued commands are applied every turn (at most
+    50 ms apart)."""
     out = bytearray()
     while not stop.is_set():
+        if hand is not None:
+            hand.apply()
         now = time.monotonic()
         timeout = 0.05
         for t in (plant.next_step_time(), plant.next_release()):
@@ -137,6 +144,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--dead-servo", type=_arg(_dead), action="append", default=[], metavar="ID@SECONDS",
                    help="device ID stops answering at world time SECONDS")
+    p.add_argument("--hand", action="store_true",
+                   help="read lines on stdin that hold limp joints at an angle, as a hand: 'shoulder_pan 30' (degrees), "
+                        "'pose zero', 'release NAME|all', 'show'")
     return p
 
 
@@ -167,8 +177,13 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     print(f"plant: servo bus on {port.name}", flush=True)
+    hand = None
+    if args.hand:
+        hand = Hand(plant.world)
+        print(HELP, flush=True)
+        threading.Thread(target=hand.read, args=(sys.stdin,), name="plant-hand", daemon=True).start()
     try:
-        serve(plant, port, stop)
+        serve(plant, port, stop, hand)
     finally:
         print(f"plant: {plant.stats.line(plant.world.period_us)}", file=sys.stderr, flush=True)
         if not plant.lockstep:

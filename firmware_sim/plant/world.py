@@ -16,7 +16,9 @@ steps/s, load as a fraction of the servo's full torque.
 The world holds one protocol-neutral :class:`~firmware_sim.plant.servo.ServoState` per servo
 (:attr:`World.servos`, servo-table order); the wire protocols' control tables are views over them
 (built by :class:`~firmware_sim.plant.bus.PlantBus`). A servo whose torque is off is limp: its
-position actuator's gain and bias are zeroed until torque comes back on.
+position actuator's gain and bias are zeroed until torque comes back on. A limp joint may be *held*
+(:meth:`World.hold`, the plant's ``--hand``: a person's hand): it stays kinematically at that angle (position
+set, velocity zero, every period) instead of sagging under gravity, until released or its torque comes on.
 """
 
 from __future__ import annotations
@@ -95,6 +97,8 @@ class World:
         self._gain0 = [float(self.model.actuator_gainprm[a, 0]) for a in acts]
         self._bias0 = [(float(self.model.actuator_biasprm[a, 1]), float(self.model.actuator_biasprm[a, 2])) for a in acts]
         self._driven = [True] * self.n
+        #: servo index -> the joint angle (rad) a hand holds it at while its torque is off (:meth:`hold`)
+        self.held: dict[int, float] = {}
         self._apply_conditions()
         self.stale = False
         self.refresh()
@@ -139,6 +143,35 @@ class World:
                 m.actuator_biasprm[a, 1], m.actuator_biasprm[a, 2] = self._bias0[i] if st.torque else (0.0, 0.0)
                 self._driven[i] = st.torque
 
+    # -- a hand --------------------------------------------------------------------------------
+    def hold(self, i: int, q: float) -> float:
+        """Hold servo ``i``'s joint at ``q`` (rad, held to the joint's range) while its torque is off, as a
+        hand would (a servo with torque on drives itself: the hold waits until it is off). Applied now and
+        after every period. Returns the angle held."""
+        _, _, _, lo, hi = self._consts[i]
+        q = min(max(float(q), lo), hi)
+        self.held[i] = q
+        self._apply_holds()
+        mujoco.mj_forward(self.model, self.data)
+        self.refresh()
+        return q
+
+    def release(self, i: int | None = None) -> None:
+        """Let go of servo ``i``'s joint (None: of every joint): limp again, it sags under gravity."""
+        if i is None:
+            self.held.clear()
+        else:
+            self.held.pop(i, None)
+
+    def _apply_holds(self) -> None:
+        if not self.held:
+            return
+        d = self.data
+        for i, q in self.held.items():
+            if not self.servos[i].torque:
+                d.qpos[self._qpos_adr[i]] = q
+                d.qvel[self._dof_adr[i]] = 0.0
+
     # -- physics -------------------------------------------------------------------------------
     def step(self) -> None:
         """One control period: goals -> ctrl (with the deadband) -> physics -> registers.
@@ -158,7 +191,9 @@ class World:
             g = min(max(neutral + sign * (steps - STEP_CENTRE - offset) * step, lo), hi)
             ctrl.append(qi if abs(g - qi) < deadband else g)
         d.ctrl[self._act_id] = ctrl
+        self._apply_holds()
         mujoco.mj_step(self.model, d, nstep=self.substeps)
+        self._apply_holds()
         self.time_us += self.period_us
         self.steps += 1
         self._apply_conditions()

@@ -6,7 +6,9 @@ With every servo limp (torque off for the whole procedure, and again at the end 
 1. **check the bus**: every servo of the servo table answers a ping with the model number
    ``hardware.toml`` names;
 2. **reference pose** (the servo table's ``neutral``; the pose of ``poses.toml`` that equals it is
-   named): ``offset_steps = present - STEP_CENTRE``;
+   named): ``offset_steps = present - STEP_CENTRE``; the positions are read twice, :data:`STILL_S` apart,
+   and a joint that moved more than :data:`STILL_STEPS` between them (a limp joint sagging, a hand not
+   yet still) is named in one warning line; the offset is taken from the later reading;
 3. **direction**, one joint at a time: the user moves it a little towards its positive direction;
    ``direction = sign(raw change) * table direction`` (a change under :data:`MIN_MOVE_DEG` is refused);
 4. **range**: the user moves every joint through its whole range while the present positions are read
@@ -27,6 +29,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from collections.abc import Callable, Sequence
 from typing import Protocol
 
@@ -34,14 +37,18 @@ from robots.datatypes import RobotDataError, Servo
 from robots.description import Robot
 from robots.hardware import STEP_CENTRE, STEP_MAX, Calibration, Hardware, ServoCalibration, rad_to_steps, step_limits
 
-__all__ = ["Bus", "CalibrationError", "MIN_MOVE_DEG", "POLL_S", "calibrate", "coverage_notes", "live_table",
-           "reference_pose_name", "table"]
+__all__ = ["Bus", "CalibrationError", "MIN_MOVE_DEG", "POLL_S", "STILL_S", "STILL_STEPS", "calibrate", "coverage_notes",
+           "live_table", "reference_pose_name", "still_warning", "table"]
 
 #: a direction move must change the raw position by at least this much (degrees)
 MIN_MOVE_DEG = 5.0
 #: the range phase reads every present position this often (seconds)
 POLL_S = 0.02
 HALF_TURN = (STEP_MAX + 1) // 2
+#: the reference pose is read twice this far apart (seconds) ...
+STILL_S = 0.2
+#: ... and a joint whose two readings differ by more steps than this is still moving (a step of encoder noise is not)
+STILL_STEPS = 1
 
 
 class CalibrationError(Exception):
@@ -99,6 +106,16 @@ def _deg(x: float) -> str:
     return f"{v:+d} deg" if v else "0 deg"
 
 
+def still_warning(servos: Sequence[Servo], first: Sequence[int], second: Sequence[int], apart_s: float) -> str | None:
+    """The one warning line for joints that moved between two readings of the reference pose, else None."""
+    moved = [(s, _wrap(b - a)) for s, a, b in zip(servos, first, second) if abs(_wrap(b - a)) > STILL_STEPS]
+    if not moved:
+        return None
+    which = ", ".join(f"{_who(s)} {d:+d} steps" for s, d in moved)
+    return (f"warning: still moving while the reference pose was read ({which} in {apart_s:g} s): a limp joint "
+            "sags unless held; hold it still in the pose (its offset is taken from the later reading)")
+
+
 def _record_ranges(bus: Bus, servos: Sequence[Servo], ask: Callable[[str], str], prompt: str,
                    live: Callable[[Sequence[int], Sequence[int], Sequence[int]], None] | None,
                    poll_s: float) -> tuple[list[int], list[int]]:
@@ -145,11 +162,12 @@ def _record_ranges(bus: Bus, servos: Sequence[Servo], ask: Callable[[str], str],
 def calibrate(robot: Robot, bus: Bus, hardware: Hardware, *, ask: Callable[[str], str],
               say: Callable[[str], None] = print,
               live: Callable[[Sequence[int], Sequence[int], Sequence[int]], None] | None = None,
-              poll_s: float = POLL_S) -> Calibration:
+              poll_s: float = POLL_S, still_s: float = STILL_S) -> Calibration:
     """Run the procedure (module docstring) on ``bus``; the calibration of every servo of ``robot``.
 
     ``ask(prompt)`` waits for the user (Enter); ``say`` prints a line; ``live(positions, mins, maxes)``
-    is called after every reading of the range phase (servo order). Torque is left off."""
+    is called after every reading of the range phase (servo order); ``still_s``: how far apart the reference
+    pose's two readings are (:func:`still_warning`). Torque is left off."""
     servos = list(robot.servos)
     step = robot.servos.model.resolution
     _check_bus(bus, servos, hardware)
@@ -165,7 +183,12 @@ def calibrate(robot: Robot, bus: Bus, hardware: Hardware, *, ask: Callable[[str]
     say(f"Torque is off: every servo of {robot.name} is limp; move the joints by hand.")
     say(f"1/3 reference pose: the servo table's neutral ({named}): {joints}")
     ask("Put the robot in this pose and press Enter: ")
+    first = _positions(bus, servos)
+    time.sleep(still_s)
     ref = _positions(bus, servos)
+    warning = still_warning(servos, first, ref, still_s)
+    if warning:
+        say(warning)
     offsets = [p - STEP_CENTRE for p in ref]
 
     # (b) one joint at a time -> direction
