@@ -187,15 +187,14 @@ class BusDriver:
         a realtime board's ticks never wait for the line. Sets :attr:`every` (the board exchanges with
         the bus on every ``every``-th tick) and returns the one line for the user. A lockstep board
         exchanges every tick (``every`` 1): its time is virtual, and the plant it drives steps once per
-        goal write; the line says what a realtime board would do."""
+        goal write (the C firmware words it alike)."""
         need = self.cycle_seconds()
         k = max(1, math.ceil(need * BUS_MARGIN / period_s - 1e-9))
         self.period_s = period_s
         head = f"servo bus: {self.n} servos need {need * 1000:.1f} ms a cycle at {self.bus.baud} baud: "
         if lockstep:
             self.every = 1
-            return head + (f"goals every tick in lockstep (virtual time; realtime: every {k} ticks, "
-                           f"{1 / (k * period_s):.3g} Hz)" if k > 1 else f"goals every tick ({1 / period_s:.3g} Hz)")
+            return head + "goals every tick (lockstep: the plant steps on each goal write)"
         self.every = k
         return head + (f"goals every {k} ticks" if k > 1 else "goals every tick") + f" ({1 / (k * period_s):.3g} Hz)"
 
