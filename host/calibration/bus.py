@@ -122,7 +122,7 @@ class ServoBus:
                            f"({type(e).__name__}: {e}): two servos with this id, noise on the line, or a loose "
                            "cable") from None
 
-    def _attempts(self, servo_id: int, what: str, call: Callable[[], T], ok: Callable[[T], bool]) -> tuple[T | None, str]:
+    def _attempts(self, servo_id: int, what: str, call: Callable[[], T], ok: Callable[[Any], bool]) -> tuple[T | None, str]:
         """Up to :data:`RETRIES` attempts of ``call``; (the first answer ``ok`` accepts or None, why the last failed).
         A garbled reply is a failed attempt; when every attempt was garbled the :class:`BusError` is raised."""
         why, garbled = "", None
