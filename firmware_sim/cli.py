@@ -218,22 +218,22 @@ def _run_c_firmware(args: argparse.Namespace, robot: object, parser: argparse.Ar
     return run_firmware(opts)
 
 
-def _bus_hardware(args: argparse.Namespace, robot: Any) -> Any:
+def _bus_hardware(args: argparse.Namespace, robot: Any, who: str = "board: ") -> Any:
     """The robot's ``hardware.toml`` with ``--bus-protocol`` applied (:class:`robots.hardware.Hardware`),
-    or None after printing the one line why not (a bad file, a protocol that contradicts it)."""
+    or None after printing the one line why not (a bad file, a protocol that contradicts it), after ``who``."""
     from robots.datatypes import RobotDataError
     from robots.hardware import DEFAULT_BAUD, DEFAULT_MODEL, HARDWARE_FILE, Hardware, load_hardware
 
     try:
         hw = load_hardware(robot.root, list(robot.servos))
     except RobotDataError as e:
-        print(f"board: {e}", file=sys.stderr)
+        print(f"{who}{e}", file=sys.stderr)
         return None
     has_file = (robot.root / HARDWARE_FILE).is_file()
     want = args.bus_protocol
     if want is not None and want != hw.protocol:
         if has_file:
-            print(f"board: --bus-protocol {want} contradicts {robot.root / HARDWARE_FILE} (protocol = "
+            print(f"{who}--bus-protocol {want} contradicts {robot.root / HARDWARE_FILE} (protocol = "
                   f"{hw.protocol!r}); fix the file or leave --bus-protocol out", file=sys.stderr)
             return None
         hw = Hardware(want, DEFAULT_BAUD[want], DEFAULT_MODEL[want])
@@ -249,24 +249,26 @@ def _start_bus(args: argparse.Namespace, robot: Any, board: Any) -> Any:
     from robots.datatypes import RobotDataError
     from robots.hardware import load_calibration
 
-    hw = _bus_hardware(args, robot)
+    port, baud = args.servo_bus
+    # every refusal reads "board: servo bus PORT: why": the host's board launcher (host.link.board_process)
+    # then says the board cannot use its servo bus, not that it cannot serve its link
+    who = f"board: servo bus {port}: "
+    hw = _bus_hardware(args, robot, who)
     if hw is None:
         return None
-    port, baud = args.servo_bus
     latency = LOCKSTEP_BUS_LATENCY_MS if args.lockstep else REALTIME_BUS_LATENCY_MS
     try:
         cal = load_calibration(robot.root, list(robot.servos))
         driver = BusDriver(make_bus(hw.protocol, port, baud or hw.baud, latency_ms=latency), robot, hw, cal,
                            estop_torque=args.estop_torque or "hold")
     except RobotDataError as e:
-        print(f"board: {e}", file=sys.stderr)
+        print(f"{who}{e}", file=sys.stderr)
         return None
     try:
         positions = driver.start()
     except BusError as e:
         driver.close()
-        # "board: servo bus PORT: why": the host's board launcher (host.link.board_process) knows the line
-        print(f"board: servo bus {port}: {e}", file=sys.stderr)
+        print(f"{who}{e}", file=sys.stderr)
         return None
     except BaseException:
         driver.close()
