@@ -5,12 +5,14 @@ Only what calibration needs: ping (the model number), torque off, present positi
 through :meth:`ServoBus._sdk`: the SDKs trust the bytes they read (a short or garbled status packet that
 passes its checksum raises ``IndexError`` and friends from deep inside them), so any exception from a call
 counts as a failed attempt, and after :data:`RETRIES` of them it is a :class:`BusError` naming the servo
-(id and name). Nothing here writes a servo's EEPROM (its id, offset or angle limits): the calibration lives in the robot package's
+(id and name). Before each retry a late reply to the failed attempt is let in and dropped (:data:`DRAIN_S`):
+a busy machine's late answer would otherwise be read as the next request's, short (the same IndexError). Nothing here writes a servo's EEPROM (its id, offset or angle limits): the calibration lives in the robot package's
 ``calibration.toml`` and the board applies it (:mod:`robots.hardware`).
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -20,6 +22,8 @@ from robots.hardware import STEP_MAX, BusProtocol
 __all__ = ["BusError", "Registers", "REGISTERS", "ServoBus", "parse_servo_bus"]
 
 RETRIES = 3
+#: before a retry, how long a late reply to the failed attempt is given to arrive (then dropped), seconds
+DRAIN_S = 0.02
 T = TypeVar("T")
 
 
@@ -127,7 +131,9 @@ class ServoBus:
         A garbled reply is a failed attempt; when every attempt was garbled the :class:`BusError` is raised."""
         why, garbled = "", None
         self.last_corrupt = False
-        for _ in range(RETRIES):
+        for attempt in range(RETRIES):
+            if attempt:
+                self._drain()
             try:
                 answer = self._sdk(servo_id, what, call)
             except BusError as e:
@@ -142,6 +148,16 @@ class ServoBus:
         if garbled is not None:
             raise garbled
         return None, why
+
+    def _drain(self) -> None:
+        """Before a retry: let a late reply to the failed attempt arrive, then drop it. Read as the answer to
+        the next request it would be garbage (a ping's status taken for a register read: the SDK's
+        IndexError), and every retry after it one reply behind."""
+        time.sleep(DRAIN_S)
+        try:
+            self._port.clearPort()
+        except Exception:  # noqa: BLE001 - the next attempt reports what is wrong with the port
+            pass
 
     @staticmethod
     def _result(answer: Any) -> object:
