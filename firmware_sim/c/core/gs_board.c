@@ -650,12 +650,15 @@ static uint32_t set_return_delay(gs_board_t *b) {
 static int check_positions(gs_board_t *b) {
     uint8_t limit = b->miss_limit;
     int garbled = 0;
+    uint64_t give_up = hal_now_us() + GS_BOOT_WAIT_US;
     b->miss_limit = 255u;
-    for (unsigned tries = 0; tries < START_TRIES && b->pos_known != ALL && !hal_should_stop(); tries++) {
-        uint32_t rx0 = gs_bus_rx_bytes;
+    for (unsigned tries = 0; tries < START_TRIES && b->pos_known != ALL && !hal_should_stop();) {
+        uint32_t rx0 = gs_bus_rx_bytes, answers = gs_bus_answers;
         uint64_t in0 = gs_bus_stats.bytes_in;
         read_all_positions(b);
         garbled = (uint64_t)(uint32_t)(gs_bus_rx_bytes - rx0) > gs_bus_stats.bytes_in - in0;
+        /* realtime: a read nothing answered (a plant descheduled) counts only after GS_BOOT_WAIT_US, as at the pings */
+        if (b->cfg.lockstep || gs_bus_answers != answers || hal_now_us() >= give_up) tries++;
     }
     b->miss_limit = limit;
     if (hal_should_stop()) return 0;
