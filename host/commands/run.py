@@ -600,7 +600,14 @@ def main(args: argparse.Namespace) -> int:
     if program is not None:
         from host.shell.limits import Limits
 
-        why = Limits().refuse_reply(program)
+        from host.robot.binding import signature_registry
+        from host.shell.precheck import refuse_program
+
+        limits = Limits()
+        why = limits.refuse_reply(program)
+        if why is None:  # every element's arguments too: a bad one late in the program must not move the robot first
+            why = refuse_program(program, signature_registry(args.robot_value, getattr(args, "vocabulary", None)),
+                                 limits.max_scope_timeout_s)
         if why is not None:  # refused before the board starts, not cut minutes into the run
             source = f"--xml-file {args.xml_file}" if args.xml_file is not None else "the program"
             print_error("run", f"{source}: {why}; nothing was run")

@@ -194,17 +194,20 @@ def test_the_try_line_runs_as_printed_and_moves_a_joint_visibly(tmp_path: Path) 
 
 
 def test_out_of_range_names_the_joints_own_range(tmp_path: Path) -> None:
+    """A program known in full is checked before the board starts (host.shell.precheck): each bad deg is
+    refused in one line with the joint's own range, exit 2, and nothing runs (no robot moved)."""
     assert _new(tmp_path, third_party_arm(tmp_path)).returncode == 0
-    xml = '<joint_move joint="elbow_flex" deg="500" duration="1"/><joint_move joint="elbow_flex" deg="120"/>'
-    res = cli("run", "--robot", "thirdarm", "--robots-dir", str(tmp_path / "robots"), "--lockstep", "--no-live",
-              "--out", str(tmp_path / "run"), "--xml", xml, data_home=tmp_path)
-    text = res.stdout + res.stderr
     for deg in ("500", "120"):  # outside every joint's range / inside the widest (shoulder_pan's) but not its own
-        assert f"<joint_move> deg='{deg}' is out of range [-96, 96] for joint elbow_flex" in text, text
-    assert "Error:" not in text and "[-159" not in text and "[-160" not in text, text
-    timeline = json.loads((tmp_path / "run" / "timeline.json").read_text())
-    errors = [c["error"] for c in timeline["calls"]]
-    assert errors == [f"<joint_move> deg='{d}' is out of range [-96, 96] for joint elbow_flex" for d in ("500", "120")]
+        xml = f'<joint_move joint="shoulder_lift" deg="10" duration="1"/><joint_move joint="elbow_flex" deg="{deg}"/>'
+        res = cli("run", "--robot", "thirdarm", "--robots-dir", str(tmp_path / "robots"), "--lockstep", "--no-live",
+                  "--out", str(tmp_path / f"run{deg}"), "--xml", xml, data_home=tmp_path)
+        text = res.stdout + res.stderr
+        assert res.returncode == 2, text
+        assert f"column 58: <joint_move> deg='{deg}' is out of range [-96, 96] for joint elbow_flex; nothing was run" \
+            in text, text
+        assert "Error:" not in text and "[-159" not in text and "[-160" not in text, text
+        assert len(text.strip().splitlines()) == 1, text
+        assert not (tmp_path / f"run{deg}" / "timeline.json").exists()
 
 
 def test_mcp_tool_out_of_range_names_the_joints_own_range(tmp_path: Path) -> None:
@@ -261,7 +264,7 @@ def test_the_robots_guide_walk_runs_as_written(tmp_path: Path) -> None:
         assert res.returncode == 0, f"{command}\n{res.stdout}\n{res.stderr}"
         outputs.append(res)
     assert (cwd / "runs" / "program" / "run.mp4").stat().st_size > 10_000
-    shown = [line for line in section.splitlines() if line.startswith(("try: ", "note: ctrlrange", "[error "))]
+    shown = [line for line in section.splitlines() if line.startswith(("try: ", "note: ctrlrange", "ghostshell run: the program"))]
     new, check = outputs[0], outputs[1]
     try_line = new.stdout.strip().splitlines()[-1]
     assert shown[0] == try_line.replace(f" --robots-dir {tmp_path}", "")
