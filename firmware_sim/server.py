@@ -284,7 +284,7 @@ class BoardServer:
                       f"{(t - fed) / 1e6:.6f} s", file=self.err, flush=True)
                 continue
             print(f"board: watchdog {mode} at board time {t / 1e6:.6f} s, {(t - fed) / 1e6:.6f} s after the last "
-                  f"valid message" + ("; fault latched until ESTOP_CLEAR" if mode == "crouch" else ""),
+                  f"valid message" + ("; fault latched until ESTOP_CLEAR" if mode != "hold" else ""),
                   file=self.err, flush=True)
 
     def _sync_viewer(self) -> None:

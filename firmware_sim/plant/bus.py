@@ -63,7 +63,8 @@ class BusStats:
     def line(self, period_us: int) -> str:
         mean = self.busy_us_total / self.ticks if self.ticks else 0.0
         return (f"servo bus: {self.ticks} ticks, bus time per tick mean {mean:.0f} us, max {self.busy_us_max:.0f} us "
-                f"of {period_us} us ({self.over_budget} ticks over), {self.packets_in} packets in, {self.packets_out} out")
+                f"of {period_us} us a control period ({self.over_budget} over their budget: a period, or in realtime the "
+                f"periods since the previous goal write), {self.packets_in} packets in, {self.packets_out} out")
 
 
 @dataclass
@@ -104,6 +105,8 @@ class PlantBus:
         self.stats = BusStats()
         self.garbage_bytes = 0  # bytes received at the wrong line speed
         self._tick_busy = 0.0
+        self._feed_now: float | None = None  # the monotonic time of the bytes being fed (realtime)
+        self._last_goal_at: float | None = None  # realtime: when the previous goal SYNC WRITE came
         self._booted = False
         c = world.conditions
         self._dead: list[tuple[int, int]] = [(sid, 0) for sid in sorted(c.missing)]  # (device id, from world time us)
@@ -164,7 +167,14 @@ class PlantBus:
         s.ticks += 1
         s.busy_us_total += self._tick_busy
         s.busy_us_max = max(s.busy_us_max, self._tick_busy)
-        if self._tick_busy > self.world.period_us:
+        # the cycle's budget: one control period, or in realtime the whole periods since the previous goal
+        # write (a board that writes goals every k-th tick, its bus period, has k periods for a cycle)
+        budget = self.world.period_us
+        if not self.lockstep and self._feed_now is not None:
+            if self._last_goal_at is not None:
+                budget *= max(1, round((self._feed_now - self._last_goal_at) * 1e6 / self.world.period_us))
+            self._last_goal_at = self._feed_now
+        if self._tick_busy > budget:
             s.over_budget += 1
         self._tick_busy = 0.0
 
@@ -211,6 +221,7 @@ class PlantBus:
             self.garbage_bytes += len(data)  # framing errors at the servos: nothing is understood
             return b""
         out = bytearray()
+        self._feed_now = now
         for ins in self.handler.parser.feed(data):
             self.stats.packets_in += 1
             self._tick_busy += self._wire(len(ins.raw))
