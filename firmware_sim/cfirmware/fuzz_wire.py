@@ -10,40 +10,23 @@ wire bytes), so the frame-log corpora seed it; invariants in firmware_sim/c/test
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
+from firmware_sim.cfirmware import libfuzzer
+
 __all__ = ["binary", "load"]
+
+KIND = "fuzz-c-wire"
 
 
 def binary() -> Path:
-    from firmware_sim.cfirmware.build import build
-    from robots.registry import DEFAULT_ROBOT, load_robot
-
-    return build("fuzz-c-wire", load_robot(DEFAULT_ROBOT))
+    return libfuzzer.binary(KIND)
 
 
 def load(instrument: bool = False) -> Callable[[bytes], None]:
-    exe = binary()
-
-    def one_input(data: bytes) -> None:
-        with tempfile.NamedTemporaryFile(prefix="c-wire-", delete=False) as f:
-            f.write(data)
-        try:
-            r = subprocess.run([str(exe), f.name], capture_output=True, text=True, timeout=60)
-        finally:
-            os.unlink(f.name)
-        if r.returncode != 0:
-            raise AssertionError(f"c-wire: the C firmware broke an invariant or a sanitizer fired:\n{r.stderr[-3000:]}")
-
-    return one_input
+    return libfuzzer.one_input_runner(KIND, "c-wire")
 
 
 if __name__ == "__main__":
-    exe = binary()
-    sys.stdout.flush()
-    os.execv(str(exe), [str(exe), *sys.argv[1:]])
+    libfuzzer.exec_target(KIND)
