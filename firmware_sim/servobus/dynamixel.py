@@ -118,16 +118,6 @@ class DynamixelBus(SdkBus):
             self._port.is_using = False
             return False
 
-    def _sync_write(self, addr: int, n: int, data: Mapping[int, list[int]]) -> None:
-        param: list[int] = []
-        for i, b in data.items():
-            param += [i, *b]
-        try:
-            self._port.is_using = False
-            self._ph.syncWriteTxOnly(self._port, addr, n, param, len(param))
-        except Exception:  # noqa: BLE001 - the next read reports a bus that went away
-            self._port.is_using = False
-
     def _model_of(self, dev_id: int, ping_params: list[int]) -> int | None:
         return ping_params[0] | ping_params[1] << 8 if len(ping_params) >= 2 else None
 

@@ -56,8 +56,16 @@ class SdkBus(MotorBus):
     @abstractmethod
     def _sync_read_tx(self, addr: int, n: int, ids: list[int]) -> bool: ...
 
-    @abstractmethod
-    def _sync_write(self, addr: int, n: int, data: Mapping[int, list[int]]) -> None: ...
+    def _sync_write(self, addr: int, n: int, data: Mapping[int, list[int]]) -> None:
+        """One SYNC WRITE of ``n`` bytes at ``addr`` per id (no answer: both SDKs' ``syncWriteTxOnly``)."""
+        param: list[int] = []
+        for i, b in data.items():
+            param += [i, *b]
+        try:
+            self._port.is_using = False
+            self._ph.syncWriteTxOnly(self._port, addr, n, param, len(param))
+        except Exception:  # noqa: BLE001 - the next read reports a bus that went away
+            self._port.is_using = False
 
     @abstractmethod
     def _model_of(self, dev_id: int, ping_params: list[int]) -> int | None:
