@@ -1,0 +1,93 @@
+/* ISO 15765-2 (ISO-TP) over CAN frames, sans-I/O: the state machine of can-isotp 2.x's TransportLayerLogic
+ * with the exact parameters of protocol/can/isotp_link.py (both ends of the GhostShell link use those):
+ * normal 11-bit addressing (receive on `rxid`, transmit on `txid`), block size 0 and STmin 0 in the flow
+ * controls it sends, frames padded with 0xCC to 8 bytes (classic) or 64 (CAN FD: tx_data_length 64), a First
+ * Frame announcing more than 4095 bytes answered with an Overflow flow control, wait frames refused
+ * (wftmax 0), N_Bs (flow-control wait) and N_Cr (next consecutive frame) GS_ISOTP_TIMEOUT_US = 200 ms
+ * (ISOTP_TIMEOUT_MS). Frame formats (ISO 15765-2:2016 clause 9.6): single frame 0x0L (FD beyond 7 bytes:
+ * 0x00 LL), first frame 0x1L LL (0x10 00 + 32-bit length beyond 4095), consecutive frame 0x2N, flow control
+ * 0x3S BS STmin.
+ *
+ * gs_isotp_feed() queues a received frame (id == rxid, standard); gs_isotp_poll(now_us) runs the state machine
+ * as can-isotp's process() does: frames to send go to `emit` in order, each completed unit to `on_unit`.
+ * Errors are counted (`errors`, `fc_timeouts` of them) with the last one's text. Bounded: GS_ISOTP_TXQ units
+ * waiting to be sent, GS_ISOTP_INBOX received frames, a received unit kept up to GS_ISOTP_RX_KEEP bytes (a
+ * longer one is still received to its end, as can-isotp accepts 4095 bytes, and handed on as truncated). */
+#ifndef GS_ISOTP_H
+#define GS_ISOTP_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "gs_can.h"
+
+#define GS_ISOTP_TIMEOUT_US 200000u
+#define GS_ISOTP_MAX_FRAME 4095u
+#ifndef GS_ISOTP_TXQ
+#define GS_ISOTP_TXQ 16u
+#endif
+#define GS_ISOTP_TX_MAX GS_CAN_BULK_MAX
+#define GS_ISOTP_INBOX 32u
+#define GS_ISOTP_RX_KEEP 512u
+
+typedef void (*gs_isotp_emit_fn)(void *ctx, const gs_can_frame_t *f);
+/* `truncated`: the unit was longer than GS_ISOTP_RX_KEEP (only its start is in `data`). */
+typedef void (*gs_isotp_unit_fn)(void *ctx, const uint8_t *data, size_t n, int truncated);
+
+typedef struct {
+    uint32_t start_us;
+    uint32_t timeout_us;
+    uint8_t running;
+} gs_isotp_timer_t;
+
+typedef struct {
+    uint32_t rxid, txid;
+    uint8_t fd;
+    gs_isotp_emit_fn emit;
+    gs_isotp_unit_fn on_unit;
+    void *ctx;
+    /* receive */
+    uint8_t rx_state; /* 0 idle, 1 waiting for consecutive frames */
+    uint8_t last_seqnum;
+    uint8_t actual_rxdl;
+    uint32_t rx_frame_length, rx_count;
+    uint8_t rx_buf[GS_ISOTP_RX_KEEP];
+    gs_isotp_timer_t timer_rx_cf;
+    uint8_t pending_fc, pending_fc_status;
+    uint8_t have_fc, fc_status, fc_bs, fc_stmin; /* the last flow control received, for the transmitter */
+    uint32_t fc_stmin_us;
+    gs_can_frame_t inbox[GS_ISOTP_INBOX];
+    uint8_t inbox_head, inbox_len;
+    /* transmit */
+    uint8_t tx_state; /* 0 idle, 1 waiting for a flow control, 2 sending consecutive frames */
+    uint8_t tx_seqnum;
+    uint8_t remote_bs, tx_block_counter;
+    gs_isotp_timer_t timer_rx_fc, timer_stmin;
+    uint8_t active;
+    uint16_t active_len, active_pos;
+    uint8_t active_data[GS_ISOTP_TX_MAX];
+    uint8_t txq[GS_ISOTP_TXQ][GS_ISOTP_TX_MAX];
+    uint16_t txq_len[GS_ISOTP_TXQ];
+    uint8_t txq_head, txq_n;
+    /* errors */
+    uint32_t errors, fc_timeouts;
+    const char *last_error;
+} gs_isotp_t;
+
+void gs_isotp_init(gs_isotp_t *t, uint32_t rxid, uint32_t txid, int fd, gs_isotp_emit_fn emit, gs_isotp_unit_fn on_unit,
+                   void *ctx);
+/* Queue one unit to send (1..GS_ISOTP_TX_MAX bytes); 0, or -1 when GS_ISOTP_TXQ units already wait. */
+int gs_isotp_send(gs_isotp_t *t, const uint8_t *data, size_t n);
+/* A received frame on rxid (a full inbox drops it, counted as an error). */
+void gs_isotp_feed(gs_isotp_t *t, const gs_can_frame_t *f);
+/* Advance the state machine at `now_us` (any monotonic microsecond clock). */
+void gs_isotp_poll(gs_isotp_t *t, uint32_t now_us);
+/* A transfer is under way either way (poll again within a few ms: its timers). */
+int gs_isotp_busy(const gs_isotp_t *t);
+/* Units queued or being sent (protocol.can.engine.CanEngine.bulk_waiting). */
+unsigned gs_isotp_waiting(const gs_isotp_t *t);
+/* Sending: queued units or a transfer under way (can-isotp's transmitting()). */
+int gs_isotp_transmitting(const gs_isotp_t *t);
+unsigned gs_isotp_queued(const gs_isotp_t *t);
+
+#endif
