@@ -33,6 +33,7 @@ from host.commands.errors import print_error
 #: subcommand -> (module under host.commands, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "board": ("board", "run the emulated board of a robot (firmware_sim) on a link: pty, a serial port/URL or CAN"),
+    "firmware": ("firmware", "build the C firmware for a part (build, targets: flash and RAM budgets), or check a real board answers (check)"),
     "pose": ("pose", "drive the board to a named pose and report the largest error"),
     "estop": ("estop", "emergency-stop the board on a link (ESTOP), or clear an estop / latched watchdog fault (--clear)"),
     "demo": ("demo", "the showcase: a paper task end to end on an emulated board (pty, MuJoCo, scripted LLM)"),

@@ -7,7 +7,8 @@ and its help is argparse's own ``format_help()`` at a fixed width (:data:`WIDTH`
 terminal), subcommands (``robots new``, ``log decode``, ...) included. ``ghostshell board`` hands its
 arguments to ``python -m firmware_sim`` (:mod:`host.commands.board`); host never imports firmware_sim,
 so that section is the board's own ``--help``, run as a subprocess the way the command runs it (with
-``GHOSTSHELL_BOARD_PROG`` naming it ``ghostshell board``). The page also carries the exit codes
+``GHOSTSHELL_BOARD_PROG`` naming it ``ghostshell board``); ``ghostshell firmware build`` and ``targets``
+are ``python -m firmware_sim.cfirmware``'s, shown the same way (``GHOSTSHELL_FIRMWARE_PROG``). The page also carries the exit codes
 (:data:`host.cli.EXIT_CODES`).
 
 Written by hand (about 60 lines of glue): argparse renders every parser's help; the Markdown
@@ -74,6 +75,26 @@ def _board_help() -> str:
     return proc.stdout
 
 
+def _firmware_help(action: str) -> str:
+    """``ghostshell firmware ACTION --help`` for an action ``python -m firmware_sim.cfirmware`` runs
+    (:data:`host.commands.firmware.PASSED_THROUGH`), run as a subprocess as the command runs it."""
+    from host.commands.firmware import FIRMWARE_PROG_ENV
+
+    env = {**os.environ, "COLUMNS": str(WIDTH), FIRMWARE_PROG_ENV: "ghostshell firmware"}
+    proc = subprocess.run([sys.executable, "-m", "firmware_sim.cfirmware", action, "--help"], env=env,
+                          capture_output=True, text=True, timeout=120, check=False)
+    if proc.returncode != 0:
+        raise RuntimeError(f"python -m firmware_sim.cfirmware {action} --help exited {proc.returncode}: "
+                           f"{proc.stderr.strip()}")
+    return proc.stdout
+
+
+def _firmware_passed_through() -> dict[str, str]:
+    from host.commands.firmware import PASSED_THROUGH
+
+    return PASSED_THROUGH
+
+
 def _block(text: str) -> str:
     return "```text\n" + text.rstrip() + "\n```\n"
 
@@ -115,7 +136,9 @@ def render() -> str:
             parser = _command_parser(name)
             lines.append(_block(parser.format_help()))
             for sub_name, sub in _subparsers(parser):
-                lines += [f"### ghostshell {name} {sub_name}", "", _block(sub.format_help())]
+                passed = name == "firmware" and sub_name in _firmware_passed_through()
+                lines += [f"### ghostshell {name} {sub_name}", "",
+                          _block(_firmware_help(sub_name) if passed else sub.format_help())]
     return "\n".join(lines).rstrip() + "\n"
 
 

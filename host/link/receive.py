@@ -149,7 +149,7 @@ class ReceivePath:
             reason = msg.reason.name if hasattr(msg.reason, "name") else str(msg.reason)
             error = SchemaMismatch if msg.reason == NackReason.SCHEMA_MISMATCH else HandshakeError
             if self.supervisor.refuse_hello(error(
-                f"board refused the handshake: {reason}: {msg.detail or 'no detail'}; "
+                f"the board on {self.port_name} refused the handshake: {reason}: {msg.detail or 'no detail'}; "
                 "host and board must run the same protocol version and message schema"
             ), msg.ack_seq):
                 return

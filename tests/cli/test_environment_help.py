@@ -10,8 +10,8 @@ from pathlib import Path
 from host.cli import ENVIRONMENT
 
 ROOT = Path(__file__).resolve().parents[2]
-#: set by ``ghostshell board`` for the board's own usage line, never by a user
-INTERNAL = {"GHOSTSHELL_BOARD_PROG"}
+#: set by ``ghostshell board`` / ``ghostshell firmware`` for the usage line of the module they run, never by a user
+INTERNAL = {"GHOSTSHELL_BOARD_PROG", "GHOSTSHELL_FIRMWARE_PROG"}
 
 
 def _read_by_the_code() -> set[str]:

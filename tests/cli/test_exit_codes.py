@@ -80,6 +80,7 @@ def _rows(f: dict[str, str], out: str) -> list[Row]:
         "pose": ["pose", "--pose", "stand"],
         "estop": ["estop"],
         "mcp": ["mcp", "--lockstep", "--out", out],
+        "firmware check": ["firmware", "check"],
     }
     for name, argv in link_commands.items():
         for spec, says in BAD_LINKS.items():
@@ -103,6 +104,11 @@ def _rows(f: dict[str, str], out: str) -> list[Row]:
         # was pyserial's OverflowError traceback once the run opened the port
         Row(("run", "--task", "14", "--baud", "99999999999", "--out", out), "must be 1..12000000 bit/s"),
         Row(("estop", "--link", "pty"), "a link the emulated board creates"),
+        # firmware: build's own parser and refusals (python -m firmware_sim.cfirmware), check's link
+        Row(("firmware", "build", "--target", "avr"), "invalid choice: 'avr'"),
+        Row(("firmware", "build", "--target", "mps2", "--robot", "no-such-robot"), "no robot 'no-such-robot'"),
+        Row(("firmware", "build", "--target", "mps2", "--out", f["regular.txt"]), "is a regular file, not a folder"),
+        Row(("firmware", "check", "--link", "pty"), "a link the emulated board creates"),
         # demo / tour
         Row(("demo", "--task", "999", "--lockstep", "--out", out), "no runnable task 999"),
         Row(("demo", "--scene", "moon", "--out", out), "--scene 'moon'"),

@@ -895,13 +895,33 @@ static void resume(gs_board_t *b) {
 
 /* --- messages ---------------------------------------------------------------------------- */
 
+/* A refused HELLO's schema detail is the Python board's, byte for byte (firmware_sim/board.py _hello:
+   "host schema 0x%08x != board 0x%08x"), so the host's refusal line is the same whichever board refused
+   (tests/cfirmware/test_handshake_refusal.py). */
 static void hello(gs_board_t *b, const gs_hello_t *h, uint16_t seq) {
     if (h->protocol_version != GS_PROTOCOL_VERSION) {
         nack(b, seq, GS_MSG_TYPE_HELLO, GS_NACK_REASON_VERSION_MISMATCH, "host protocol version differs; board speaks v1", 0);
         return;
     }
     if (h->schema_hash != GS_SCHEMA_HASH) {
-        nack(b, seq, GS_MSG_TYPE_HELLO, GS_NACK_REASON_SCHEMA_MISMATCH, "host schema hash differs from the board's", 0);
+        static const char form[] = "host schema 0x........ != board 0x........";
+        char d[sizeof form];
+        uint32_t v = h->schema_hash;
+        int shift = 28;
+        for (unsigned i = 0; i < sizeof form; i++) {
+            char ch = form[i];
+            if (ch == '.') {  /* the next hex digit: the host's hash, then the board's */
+                unsigned nib = (v >> shift) & 15u;
+                ch = (char)(nib < 10u ? '0' + nib : 'a' - 10u + nib);
+                shift -= 4;
+                if (shift < 0) {
+                    shift = 28;
+                    v = GS_SCHEMA_HASH;
+                }
+            }
+            d[i] = ch;
+        }
+        nack(b, seq, GS_MSG_TYPE_HELLO, GS_NACK_REASON_SCHEMA_MISMATCH, d, 0);
         return;
     }
     gs_msg_t m;
@@ -1328,6 +1348,11 @@ void gs_board_tick(gs_board_t *b) {
         if (dc > b->tick_cycles_max) b->tick_cycles_max = dc;
         b->tick_cycles_sum += dc;
         b->tick_cycles_n++;
+#ifdef GS_TICK_TRACE /* every tick's cost as a "K CYCLES" record (the bench's median/p99; a trace build only) */
+        gs_log_str("K ");
+        gs_log_u64(dc);
+        gs_log_end();
+#endif
     }
 }
 
