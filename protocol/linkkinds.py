@@ -8,18 +8,18 @@ emulated board for it, which board firmwares can serve it, and one line saying w
 maps kind names to its transport in its own registry (``host.link.kinds``, ``firmware_sim.transports.kinds``);
 a new kind is one :class:`LinkKind` here plus one entry in each registry that serves it.
 
-=============  ==========================  ==========  ===============  =====================
+=============  ==========================  ==========  ===============  ========================
 kind           specs                       frame log   emulated board   firmwares
-=============  ==========================  ==========  ===============  =====================
-``pty``        ``pty``                     ``.jsonl``  creates it       python, c, qemu
-``serial``     a device path, pyserial URL ``.jsonl``  may be started   python, c, qemu
+=============  ==========================  ==========  ===============  ========================
+``pty``        ``pty``                     ``.jsonl``  creates it       python, c, qemu, stm32f4
+``serial``     a device path, pyserial URL ``.jsonl``  may be started   python, c, qemu, stm32f4
 ``slcan-pty``  ``can:slcan:pty``           ``.log``    creates it       python
 ``slcan``      ``can:slcan:DEVICE``        ``.log``    may be started   python
-``socketcan``  ``can:socketcan:IF``        ``.log``    may be started   python
+``socketcan``  ``can:socketcan:IF``        ``.log``    may be started   python, c
 ``virtual``    ``can:virtual:BUS``         ``.log``    never (in one    python (in-process)
                                                        process only)
 ``can``        any other CAN spec          ``.log``    may be started   python
-=============  ==========================  ==========  ===============  =====================
+=============  ==========================  ==========  ===============  ========================
 """
 
 from __future__ import annotations
@@ -90,15 +90,16 @@ def _can(interface: str, channel: str | None = None) -> Callable[[SpecFields], b
 LINK_KINDS: tuple[LinkKind, ...] = (
     LinkKind("pty", "serial", ".jsonl", lambda s: s.kind == "serial" and s.port == "pty",
              "the emulated board, which creates the pty and announces it", board_creates=True,
-             firmwares=("python", "c", "qemu"), models_baud=True),
+             firmwares=("python", "c", "qemu", "stm32f4"), models_baud=True),
     LinkKind("serial", "serial", ".jsonl", lambda s: s.kind == "serial",
              "a serial device (a character device) or a pyserial URL a board serves",
-             firmwares=("python", "c", "qemu"), preflight="device", models_baud=True),
+             firmwares=("python", "c", "qemu", "stm32f4"), preflight="device", models_baud=True),
     LinkKind("slcan-pty", "can", ".log", _can("slcan", "pty"),
              "the emulated board as an SLCAN adapter on a pty it creates and announces", board_creates=True),
     LinkKind("slcan", "can", ".log", _can("slcan"), "an SLCAN (Lawicel) USB-CAN adapter on a serial port"),
     LinkKind("socketcan", "can", ".log", _can("socketcan"),
-             "a SocketCAN interface (Linux; vcan inside User-Mode Linux here: ghostshell vcan)", preflight="open"),
+             "a SocketCAN interface (Linux; vcan inside User-Mode Linux here: ghostshell vcan)", preflight="open",
+             firmwares=("python", "c")),
     LinkKind("virtual", "can", ".log", _can("virtual"),
              "python-can's virtual bus, which exists inside one process (tests serve a board on it in-process)",
              cross_process=False),

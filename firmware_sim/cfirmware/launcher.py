@@ -1,4 +1,4 @@
-"""Run the C firmware as the board: ``python -m firmware_sim --firmware c|qemu --link pty ...``.
+"""Run the C firmware as the board: ``python -m firmware_sim --firmware c|qemu|stm32f4 --link pty ...``.
 
 One process (this one) holds the world; the firmware runs as its own process:
 
@@ -11,7 +11,12 @@ One process (this one) holds the world; the firmware runs as its own process:
   end, ``-chardev socket,id=bus,fd=N``), UART2 =
   ``-serial stdio`` (the log channel); boot settings go into the image's configuration block through
   QEMU's generic loader. ``icount=True`` adds ``-icount shift=0,sleep=on`` (one instruction per
-  virtual nanosecond: the tick-cost figure).
+  virtual nanosecond: the tick-cost figure);
+* ``stm32f4``: the STM32F405/F407 image (``ports/stm32f4``) on ``qemu-system-arm -M netduinoplus2``, wired
+  the same way: USART2 = the host (relayed), USART6 = the servo bus, USART3 = the log channel
+  (:data:`QEMU_MACHINES` holds each machine's serial order and boot-block address). With ``icount`` it runs
+  the trace build, whose every tick's cost ends the run as ``board: tick cost per tick (cycles): median
+  ..., p99 ..., max ..., n ...``.
 
 Realtime, this process first raises its priority as the Python board does (:mod:`firmware_sim.priority`:
 nice -10 where permitted, 1 ns timer slack); the firmware it starts inherits both.
@@ -60,6 +65,7 @@ from firmware_sim.cfirmware.build import BuildError, build, require
 from firmware_sim.plant.bus import PlantBus
 from firmware_sim.plant.world import World
 from firmware_sim.transports.ports import PtyPort
+from protocol.can.frame import CanFrame
 from protocol.codec import WireSchema, schema_for
 from protocol.faults import FaultInjector, FaultSpec
 from protocol.framing import FRAME_DELIMITER
@@ -72,9 +78,34 @@ from robots.description import Robot
 
 __all__ = ["LATENESS_PREFIX", "LaunchOptions", "lateness_record", "lateness_warning", "run_firmware"]
 
-QEMU_MACHINE = "mps2-an385"
-BOOT_CFG_ADDR = 0x20000000  # the image's .bootcfg block (firmware_sim/c/ports/mps2/mps2_an385.ld)
 BOOT_MAGIC = 0x47534346
+
+
+@dataclass(frozen=True)
+class QemuMachine:
+    """A QEMU board the C firmware runs on as an MCU image (``--firmware`` value -> :data:`QEMU_MACHINES`).
+
+    ``serials``: what each ``-serial`` argument carries, in QEMU's order for the machine (``host``, ``bus``,
+    ``log`` or ``null``); ``boot_cfg_addr``: the image's configuration block (its linker script puts
+    ``.bootcfg`` first in RAM); ``clock_hz``: the core clock its SysTick counts (the tick-cost figure);
+    ``trace_kind``: the build that logs every tick's cost, used with ``icount``."""
+
+    machine: str
+    kind: str
+    serials: tuple[str, ...]
+    boot_cfg_addr: int
+    clock_hz: int
+    trace_kind: str | None = None
+
+
+#: ``qemu``: the Cortex-M3 image on mps2-an385 (CMSDK UART0..2 = host, bus, log); ``stm32f4``: the STM32F405
+#: image on netduinoplus2, whose -serial arguments are USART1, USART2, USART3, UART4, UART5, USART6 in that
+#: order (hw/arm/stm32f405_soc.c): USART2 host, USART3 log, USART6 the servo bus (ports/stm32f4/hal_stm32f4.c)
+QEMU_MACHINES: dict[str, QemuMachine] = {
+    "qemu": QemuMachine("mps2-an385", "mps2", ("host", "bus", "log"), 0x20000000, 25_000_000),
+    "stm32f4": QemuMachine("netduinoplus2", "stm32f4", ("null", "host", "log", "null", "null", "bus"), 0x20000000,
+                           168_000_000, trace_kind="stm32f4-trace"),
+}
 _CHARDEV = re.compile(r"char device redirected to (\S+) \(label (\w+)\)")
 STATS_KEYS = ("link_errors", "late_frames", "dropped_frames", "watchdog_trips", "seq_gaps")
 
@@ -82,7 +113,7 @@ STATS_KEYS = ("link_errors", "late_frames", "dropped_frames", "watchdog_trips", 
 @dataclass
 class LaunchOptions:
     robot: Robot
-    firmware: str = "c"  # "c" (native) or "qemu"
+    firmware: str = "c"  # "c" (native), or a QEMU image: "qemu" (mps2-an385), "stm32f4" (netduinoplus2)
     link: LinkSpec | None = None
     lockstep: bool = False
     rate_hz: int = 500
@@ -96,7 +127,7 @@ class LaunchOptions:
     fault_seed: int = 0
     dead_servos: list[tuple[int, float]] = field(default_factory=list)  # (servo id, world seconds)
     asan: bool = False  # native: the ASan/UBSan build
-    icount: bool = False  # qemu: -icount shift=0
+    icount: bool = False  # qemu, stm32f4: -icount shift=0
     servo_bus_port: str | None = None  # native: a real servo bus (tty path); no plant runs
     servo_bus_baud: int | None = None  # its baud (None: the protocol's default, 1 Mbaud)
     bus_protocol: str = "sts"  # "sts" (Feetech SCS/STS) or "dxl2" (Dynamixel Protocol 2.0)
@@ -191,15 +222,18 @@ def firmware_command(opts: LaunchOptions, exe: Path, bus_tty: str, host: str) ->
                "--estop-torque", opts.estop_torque]
         cmd += [] if _boot_checks(opts) else ["--no-boot-checks"]
         return cmd + (["--log-frames"] if opts.log_path else [])
+    m = QEMU_MACHINES[opts.firmware]
     # a socket descriptor QEMU inherits ("fd:N", no tty layer: _SocketBus) is a socket chardev
     chardevs = {name: path[3:] for name, path in (("host", host), ("bus", bus_tty)) if path.startswith("fd:")}
     serial = {name: f"chardev:{name}" if name in chardevs else path for name, path in (("host", host), ("bus", bus_tty))}
-    cmd = [require("qemu-system-arm"), "-M", QEMU_MACHINE, "-display", "none", "-monitor", "none",
-           "-kernel", str(exe), "-serial", serial["host"], "-serial", serial["bus"], "-serial", "stdio"]
+    serial |= {"log": "stdio", "null": "null"}
+    cmd = [require("qemu-system-arm"), "-M", m.machine, "-display", "none", "-monitor", "none", "-kernel", str(exe)]
+    for role in m.serials:
+        cmd += ["-serial", serial[role]]
     for name, fd in chardevs.items():
         cmd += ["-chardev", f"socket,id={name},fd={fd}"]
     for k, w in enumerate(boot_config_words(opts)):
-        cmd += ["-device", f"loader,addr={BOOT_CFG_ADDR + 4 * k:#x},data={w:#x},data-len=4"]
+        cmd += ["-device", f"loader,addr={m.boot_cfg_addr + 4 * k:#x},data={w:#x},data-len=4"]
     if opts.icount:
         cmd += ["-icount", "shift=0,sleep=on"]
     return cmd
@@ -267,12 +301,16 @@ _REFUSAL = re.compile(r"^board: (servo \d+ \(|no servo answers a ping ).*; torqu
 class _LogReader:
     """Splits the firmware's log channel into stderr lines, frame records and counters."""
 
-    def __init__(self, err: IO[str], log_path: str | None, schema: WireSchema) -> None:
+    def __init__(self, err: IO[str], log_path: str | None, schema: WireSchema, *, can_channel: str | None = None) -> None:
         self.err = err
         self.schema = schema  # the robot's wire schema: the firmware's frames are in it
         self.buf = bytearray()
         self.stats: dict[str, int] = {}
-        self.log: FrameLogWriter | None = open_frame_log(log_path, "serial", schema=schema) if log_path else None
+        #: a CAN link's frame log (python-can's writers by suffix, as the Python board's) from the "C" records
+        self.log: FrameLogWriter | None = None
+        if log_path:
+            self.log = (open_frame_log(log_path, "can", channel=can_channel) if can_channel is not None
+                        else open_frame_log(log_path, "serial", schema=schema))
         self.lines = 0
         self.chardevs: dict[str, str] = {}  # QEMU's "char device redirected to X (label L)" (on its stdout)
         self.booted = False  # the firmware's boot line came (its devices are found)
@@ -280,6 +318,7 @@ class _LogReader:
         #: says it: "board: servo bus PORT: servo 4 ..." (host.link.board_process knows that line)
         self.refusal_prefix = "board: servo bus: "
         self.refused: str | None = None
+        self.ticks: list[int] = []  # every control tick's cost in core clock cycles (a trace build's K records)
 
     def feed(self, data: bytes) -> None:
         self.buf += data
@@ -307,9 +346,19 @@ class _LogReader:
                     return
                 self.log.write_serial(parts[1], t, raw)  # decoded here from the firmware's raw bytes
             return
+        if text.startswith("C ") and self.log is not None:
+            frame = parse_can_record(text)
+            if frame is None:
+                print(f"board: unreadable CAN frame record from the firmware: {text[:80]}", file=self.err, flush=True)
+            else:
+                self.log.write_can(frame[0], frame[1])  # wall-clock time, as the Python board's CAN log
+            return
         m = _CHARDEV.search(text)
         if m:
             self.chardevs[m.group(2)] = m.group(1)
+            return
+        if text.startswith("K ") and text[2:].isdigit():  # a trace build's tick cost (build kind stm32f4-trace)
+            self.ticks.append(int(text[2:]))
             return
         if text.startswith("S "):
             for item in text[2:].split():
@@ -341,9 +390,19 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
     link = opts.link
     kind = link_kind(link) if link is not None else None
     if kind is not None and opts.firmware not in kind.firmwares:
-        print(f"board: the C firmware speaks the serial wire only; {link} is a {kind.wire.upper()} link", file=err)
+        print(f"board: {_unserved(opts.firmware, kind.wire, str(link))}", file=err)
         return 2
-    port = link.port if link is not None else "pty"
+    can = link if kind is not None and kind.wire == "can" else None  # SocketCAN: the firmware's own raw socket
+    if can is not None:
+        why = _can_unavailable(can.channel or "can0")
+        if why is not None:
+            print(f"board: cannot open CAN interface {can.channel or 'can0'}: {why}", file=err)
+            return 2
+    port = link.port if link is not None and can is None else "pty"
+    if can is not None and (opts.faults is not None and opts.faults.active or opts.baud):
+        print("board: --faults and --baud with the C firmware need --link pty (the line is modelled between two ptys)",
+              file=err)
+        return 2
     if (opts.faults is not None and opts.faults.active or opts.baud) and port != "pty":
         print("board: --faults and --baud with the C firmware need --link pty (the line is modelled between two ptys)",
               file=err)
@@ -358,11 +417,16 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
         print("board: a real servo bus (--servo-bus) needs --firmware c: a QEMU guest has no tty to open "
               "(its servo bus is the emulated plant)", file=err)
         return 2
-    target = "mps2" if opts.firmware == "qemu" else ("native-asan" if opts.asan else "native")
+    machine = QEMU_MACHINES.get(opts.firmware)  # None: the native build
+    qemu = machine is not None
+    if machine is not None:
+        target = machine.trace_kind if opts.icount and machine.trace_kind else machine.kind
+    else:
+        target = "native-asan" if opts.asan else "native"
     try:
         # a real bus: the servo table with the robot's calibration.toml (offsets, directions, calibrated ranges)
         exe = build(target, opts.robot, calibrated=opts.servo_bus_port is not None)
-        if opts.firmware == "qemu":
+        if qemu:
             require("qemu-system-arm")
     except BuildError as e:
         print(f"board: cannot build the C firmware: {e}", file=err)
@@ -394,11 +458,14 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
     # QEMU's own pty backend notices its peer by polling once a second (the host's first bytes would wait up
     # to 1 s): its UART0 gets a tty device instead, relayed byte for byte to the host's pty
     modelled = opts.faults is not None and opts.faults.active or bool(opts.baud)
-    relay = _Relay(opts.baud, opts.faults, opts.fault_seed, fw_socket=opts.firmware == "qemu") \
-        if modelled or (opts.firmware == "qemu" and port == "pty") \
+    relay = _Relay(opts.baud, opts.faults, opts.fault_seed, fw_socket=qemu) \
+        if modelled or (qemu and port == "pty") \
         else None
     host_arg = relay.fw.name if relay is not None else port
     cmd = firmware_command(opts, exe, bus_arg, host_arg)
+    if can is not None:  # the host link on SocketCAN (core/can), not a pty
+        i = cmd.index("--host")
+        cmd[i:i + 2] = ["--can", can.channel or "can0", "--node", str(can.node)] + (["--fd"] if can.fd else [])
     env = dict(os.environ)
     if opts.asan:
         env.setdefault("ASAN_OPTIONS", "detect_leaks=0:abort_on_error=0")
@@ -413,12 +480,13 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
     side_fd = proc.stdout.fileno() if opts.firmware == "c" else proc.stderr.fileno()
     for fd in (log_fd, side_fd) + ((bus.master,) if bus is not None else ()):
         os.set_blocking(fd, False)
-    logr = _LogReader(err, opts.log_path, schema_for(opts.robot.servo_count))
+    logr = _LogReader(err, opts.log_path, schema_for(opts.robot.servo_count),
+                      can_channel=(can.channel or "can0") if can is not None else None)
     logr.refusal_prefix = (f"board: servo bus {opts.servo_bus_port}: " if opts.servo_bus_port is not None
                            else "board: servo bus (the emulator's plant): ")
     side = bytearray()
     announced: str | None = None
-    if opts.firmware == "qemu" and (relay is not None or port != "pty"):  # no pty of QEMU's to wait for
+    if qemu and (relay is not None or port != "pty"):  # no pty of QEMU's to wait for
         side += f"char device redirected to {relay.host.name if relay is not None else port} (label serial0)".encode()
     old = (signal.signal(signal.SIGTERM, _raise_stop), signal.signal(signal.SIGINT, _raise_stop))
     status = 0
@@ -429,10 +497,10 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
         while True:
             now = time.monotonic()
             if announced is None and logr.booted:  # the bus devices are found: the host may talk now
-                found = _announcement(opts, bytes(side)) or (logr.chardevs.get("serial0") if opts.firmware == "qemu"
+                found = _announcement(opts, bytes(side)) or (logr.chardevs.get("serial0") if qemu
                                                              else None)
                 if found is not None:
-                    announced = relay.host.name if relay is not None else found
+                    announced = relay.host.name if relay is not None else str(can) if can is not None else found
                     print(f"board: listening on {announced}", flush=True)
                 elif now - t_start > 60:
                     print("board: the C firmware did not open its host UART within 60 s", file=err, flush=True)
@@ -464,7 +532,7 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
                     data = _read(fd)
                     if data:
                         side += data
-                        if announced is not None and opts.firmware == "qemu":
+                        if announced is not None and qemu:
                             _pass_lines(side, err)
                         elif len(side) > 1 << 16:
                             del side[: len(side) - 4096]
@@ -480,7 +548,7 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
             if proc.poll() is not None:
                 status = proc.returncode
                 break
-            if logr.refused is not None and opts.firmware == "qemu":  # the guest idles after its refusal line
+            if logr.refused is not None and qemu:  # the guest idles after its refusal line
                 status = 2
                 break
     except (_Stop, KeyboardInterrupt):
@@ -515,7 +583,7 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
         elif died:
             print(f"board: the C firmware exited with status {proc.returncode}", file=err, flush=True)
             tail = bytes(side[-2000:]).decode("utf-8", "replace").strip()
-            if tail and opts.firmware == "qemu":
+            if tail and qemu:
                 print(tail, file=err, flush=True)
             status = status or 1
         if relay is not None and relay.injectors and opts.faults is not None:
@@ -531,10 +599,15 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
             warning = lateness_warning(record, 1000 / opts.rate_hz)
             if warning is not None:  # `ghostshell run` repeats a board's warning lines at its end
                 print(warning, file=err, flush=True)
-        if "tick_cycles_mean" in logr.stats:
-            print(f"board: tick cost (virtual-time cycles at 25 MHz, bus waits excluded): mean "
+        if "tick_cycles_mean" in logr.stats and machine is not None:
+            print(f"board: tick cost (virtual-time cycles at {machine.clock_hz / 1e6:g} MHz, bus waits excluded): mean "
                   f"{logr.stats['tick_cycles_mean']}, max {logr.stats.get('tick_cycles_max', 0)}, "
                   f"n {logr.stats.get('tick_cycles_n', 0)}", file=err, flush=True)
+        if logr.ticks:  # a trace build's every tick (K records; the S counters above are up to 1 s old)
+            ticks = sorted(logr.ticks)
+            print(f"board: tick cost per tick (cycles): median {ticks[len(ticks) // 2]}, "
+                  f"p99 {ticks[min(len(ticks) - 1, len(ticks) * 99 // 100)]}, max {ticks[-1]}, n {len(ticks)}",
+                  file=err, flush=True)
         if relay is not None:
             relay.close()
         for fd in held_fds:
@@ -638,3 +711,39 @@ def _pass_lines(buf: bytearray, err: IO[str]) -> None:
         del buf[: end + 1]
         if line and not _CHARDEV.search(line):
             print(f"board: qemu: {line}", file=err, flush=True)
+
+
+def _unserved(firmware: str, wire: str, link: str) -> str:
+    """The one line refusing a link the firmware cannot serve (after ``board: ``)."""
+    if wire == "can" and firmware == "c":
+        return (f"the C firmware serves CAN only on SocketCAN (--link can:socketcan:IF[?node=N&fd=1]), "
+                f"not {link}")
+    if wire == "can":
+        return f"the {firmware} image has no CAN controller (QEMU emulates none); serve {link} with --firmware python or c"
+    return f"the {firmware} firmware cannot serve {link}"
+
+
+def parse_can_record(text: str) -> tuple[str, CanFrame] | None:
+    """(direction, frame) of the firmware's CAN frame record ``C rx|tx T_US ID FLAGS HEX`` (core/can/gs_app_can.h:
+    hex id, flags 1 FD | 2 extended | 4 remote, data hex), or None when it is malformed."""
+    parts = text.split(" ")
+    if len(parts) not in (5, 6) or parts[1] not in ("rx", "tx"):
+        return None
+    try:
+        aid, flags = int(parts[3], 16), int(parts[4])
+        data = bytes.fromhex(parts[5]) if len(parts) == 6 else b""
+    except ValueError:
+        return None
+    return parts[1], CanFrame(aid, data, is_fd=bool(flags & 1), is_extended_id=bool(flags & 2), is_remote=bool(flags & 4))
+
+
+def _can_unavailable(channel: str) -> str | None:
+    """Why a raw CAN socket cannot be bound to ``channel`` here (the firmware would fail the same way), or None."""
+    import socket
+
+    try:
+        with socket.socket(socket.AF_CAN, socket.SOCK_RAW, socket.CAN_RAW) as sock:
+            sock.bind((channel,))
+    except (OSError, AttributeError) as e:
+        return e.strerror or str(e) if isinstance(e, OSError) else "no CAN sockets in this Python"
+    return None

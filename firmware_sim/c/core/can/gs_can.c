@@ -392,7 +392,7 @@ static size_t drop_older(gs_can_decoder_t *d, gs_can_rx_fn_t *r, unsigned seq11,
         unsigned back = (seq11 - r->asm_[i].seq11) & SEQ_MASK;
         if (back > 0u && back <= SEQ_MASK / 2u) {
             remove_asm(r, i);
-            error_item(d, &items[n++], GS_CAN_E_INCOMPLETE, "CAN INCOMPLETE: parts of an earlier message (dropped)", raw_len);
+            error_item(d, &items[n++], GS_CAN_E_INCOMPLETE, "parts of an earlier message (dropped)", raw_len);
         } else {
             i++;
         }
@@ -404,7 +404,7 @@ static size_t drop_older(gs_can_decoder_t *d, gs_can_rx_fn_t *r, unsigned seq11,
 static size_t surface(gs_can_decoder_t *d, const gs_can_layout_t *l, unsigned seq11, int64_t *raw, gs_can_item_t *items,
                       size_t n, size_t raw_len) {
     if (l->has_crc && fixed_crc(l, seq11, raw) != (uint16_t)raw[l->nsig - 1u]) {
-        error_item(d, &items[n], GS_CAN_E_CRC, "CAN CRC: the message's crc16 does not match its parts (dropped)", raw_len);
+        error_item(d, &items[n], GS_CAN_E_CRC, "the message's crc16 does not match its parts (dropped)", raw_len);
         return n + 1u;
     }
     const gs_can_message_t *md = message_of(l->msg_type);
@@ -459,7 +459,7 @@ size_t gs_can_decoder_feed(gs_can_decoder_t *d, const gs_can_frame_t *f, gs_can_
             accepted = accepted || is_mine(d, aid);
         }
         if (accepted) {
-            error_item(d, &items[n++], GS_CAN_E_EXTENDED_ID, "CAN EXTENDED_ID: 29-bit identifier", len);
+            error_item(d, &items[n++], GS_CAN_E_EXTENDED_ID, "29-bit identifier", len);
         } else {
             d->foreign++;
         }
@@ -471,7 +471,7 @@ size_t gs_can_decoder_feed(gs_can_decoder_t *d, const gs_can_frame_t *f, gs_can_
     }
     unsigned fn = aid >> 7;
     if (f->flags & GS_CAN_FLAG_RTR) {
-        error_item(d, &items[n++], GS_CAN_E_REMOTE, "CAN REMOTE: remote frame", len);
+        error_item(d, &items[n++], GS_CAN_E_REMOTE, "remote frame", len);
         return n;
     }
     int fd = (f->flags & GS_CAN_FLAG_FD) != 0;
@@ -488,22 +488,22 @@ size_t gs_can_decoder_feed(gs_can_decoder_t *d, const gs_can_frame_t *f, gs_can_
         return n;
     }
     if (len < 2u) {
-        error_item(d, &items[n++], GS_CAN_E_LENGTH, "CAN LENGTH: no header", len);
+        error_item(d, &items[n++], GS_CAN_E_LENGTH, "no header", len);
         return n;
     }
     const gs_can_layout_t *l = gs_can_layout(fn, fd);
     if (!l) {
-        error_item(d, &items[n++], GS_CAN_E_PAYLOAD, "CAN PAYLOAD: no fixed layout in this frame kind (it travels as ISO-TP)", len);
+        error_item(d, &items[n++], GS_CAN_E_PAYLOAD, "no fixed layout in this frame kind (it travels as ISO-TP)", len);
         return n;
     }
     unsigned header = (unsigned)(f->data[0] | (f->data[1] << 8));
     unsigned part = header & 0x1Fu, seq11 = (header >> 5) & SEQ_MASK;
     if (part >= l->parts) {
-        error_item(d, &items[n++], GS_CAN_E_PART, "CAN PART: part index beyond the message's parts", len);
+        error_item(d, &items[n++], GS_CAN_E_PART, "part index beyond the message's parts", len);
         return n;
     }
     if (len < l->part_bytes[part]) {
-        error_item(d, &items[n++], GS_CAN_E_LENGTH, "CAN LENGTH: part shorter than its layout", len);
+        error_item(d, &items[n++], GS_CAN_E_LENGTH, "part shorter than its layout", len);
         return n;
     }
     gs_can_rx_fn_t *r = rx_fn(d, fn);
@@ -518,7 +518,7 @@ size_t gs_can_decoder_feed(gs_can_decoder_t *d, const gs_can_frame_t *f, gs_can_
     for (unsigned i = 0; i < r->nasm;) {
         if (d->frames - r->asm_[i].born > GS_CAN_STALE_FRAMES) {
             remove_asm(r, i);
-            error_item(d, &items[n++], GS_CAN_E_INCOMPLETE, "CAN INCOMPLETE: a message's parts never all came (dropped)", len);
+            error_item(d, &items[n++], GS_CAN_E_INCOMPLETE, "a message's parts never all came (dropped)", len);
         } else {
             i++;
         }
@@ -528,7 +528,7 @@ size_t gs_can_decoder_feed(gs_can_decoder_t *d, const gs_can_frame_t *f, gs_can_
         if (r->asm_[i].seq11 == seq11) ai = (int)i;
     if (ai >= 0 && r->asm_[ai].fd != (uint8_t)fd) {
         remove_asm(r, (unsigned)ai);
-        error_item(d, &items[n++], GS_CAN_E_MIXED, "CAN MIXED: classic and FD parts mixed", len);
+        error_item(d, &items[n++], GS_CAN_E_MIXED, "classic and FD parts mixed", len);
         ai = -1;
     }
     int64_t raw[GS_CAN_MAX_SIGNALS + 1u];
@@ -541,7 +541,7 @@ size_t gs_can_decoder_feed(gs_can_decoder_t *d, const gs_can_frame_t *f, gs_can_
     if (ai < 0) {
         while (r->nasm >= GS_CAN_MAX_ASSEMBLIES) { /* a third sequence: the oldest cannot complete any more */
             remove_asm(r, 0);
-            error_item(d, &items[n++], GS_CAN_E_INCOMPLETE, "CAN INCOMPLETE: a third message started (oldest dropped)", len);
+            error_item(d, &items[n++], GS_CAN_E_INCOMPLETE, "a third message started (oldest dropped)", len);
         }
         gs_can_assembly_t *a = &r->asm_[r->nasm];
         a->used = 1;
@@ -559,7 +559,7 @@ size_t gs_can_decoder_feed(gs_can_decoder_t *d, const gs_can_frame_t *f, gs_can_
             return n;
         }
         remove_asm(r, (unsigned)ai);
-        error_item(d, &items[n++], GS_CAN_E_MIXED, "CAN MIXED: a part with two contents (dropped)", len);
+        error_item(d, &items[n++], GS_CAN_E_MIXED, "a part with two contents (dropped)", len);
         return n;
     }
     a->have |= 1u << part;

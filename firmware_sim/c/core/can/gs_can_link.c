@@ -70,7 +70,7 @@ static void on_unit(void *ctx, const uint8_t *data, size_t n, int truncated) {
     if (truncated) {
         l->dec.errors[GS_CAN_E_BULK]++;
         it->kind = GS_CAN_E_BULK;
-        it->why = "CAN BULK: ISO-TP unit longer than any message";
+        it->why = "ISO-TP unit longer than any message";
         it->raw_len = n;
         it->seq = 0;
     } else {
@@ -110,7 +110,7 @@ static void poll_isotp(gs_can_link_t *l) {
         if (it) {
             l->dec.errors[GS_CAN_E_BULK]++;
             it->kind = GS_CAN_E_BULK;
-            it->why = l->isotp.last_error;
+            it->why = l->isotp.last_error; /* "ISO-TP: ..." as protocol/can/engine.py */
             it->raw_len = 0;
             it->seq = 0;
             l->items_n++;

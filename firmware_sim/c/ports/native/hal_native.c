@@ -257,11 +257,13 @@ void hal_bus_drain(void) {
     }
 }
 
-void hal_wait(uint64_t until_us, int want_write) {
+void native_wait_fd(int fd, int want_write, uint64_t until_us) {
     uint64_t now = hal_now_us();
     if (until_us <= now || stop_flag) return;
-    wait_fd(host_fd, (short)(POLLIN | (want_write ? POLLOUT : 0)), until_us - now);
+    wait_fd(fd, (short)(POLLIN | (want_write ? POLLOUT : 0)), until_us - now);
 }
+
+void hal_wait(uint64_t until_us, int want_write) { native_wait_fd(host_fd, want_write, until_us); }
 
 void hal_log_write(const char *s, size_t n) { fwrite(s, 1, n, stderr); }
 
