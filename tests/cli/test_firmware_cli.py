@@ -24,6 +24,7 @@ from firmware_sim.cfirmware.build import build
 from firmware_sim.cfirmware.targets import TARGETS
 from host.link.board_process import start_board
 from protocol.codec import WIRE_SCHEMA_16
+from protocol.messages import MAX_WIRE_SERVOS
 from robots.loader import load_robot_dir
 from robots.registry import load_robot
 from support.cliproc import start, wait_until
@@ -93,6 +94,17 @@ def test_a_32_servo_robot_is_refused_for_mps2_with_its_numbers(tmp_path: Path) -
     assert lines[0] == (f"ghostshell firmware: robot chain32 needs {b(flash)} B flash and {b(ram)} B RAM, mps2 has "
                         f"{b(budget.flash_bytes)} B flash and {b(budget.ram_bytes)} B RAM"), lines[0]
     assert not out.exists()
+
+
+def test_a_robot_wider_than_the_wire_is_bad_input(tmp_path: Path) -> None:
+    """33 servos: no firmware, no board, no host carries it (the loader refuses the robot, as every command does)."""
+    pkg = write_chain_robot(tmp_path / "robots", 33)
+    r = _ghostshell("firmware", "build", "--robot", str(pkg), "--target", "native", cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("ghostshell firmware: "), r.stderr
+    assert "33 servos" in lines[0] and f"at most {MAX_WIRE_SERVOS}" in lines[0], r.stderr
+    assert r.stdout == "" and not (tmp_path / "firmware").exists()
 
 
 def test_targets_prints_the_table(tmp_path: Path) -> None:
