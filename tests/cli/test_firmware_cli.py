@@ -178,7 +178,8 @@ def test_check_prints_one_line_per_fact(board, tmp_path: Path) -> None:
     assert facts["servos"] == "12"
     assert facts["schema"].startswith(f"{WIRE_SCHEMA_16.hash:#010x} (u16 servo mask")
     assert facts["control rate"].endswith(" Hz") and facts["telemetry rate"].endswith(" Hz")
-    assert facts["faults"] == "none"
+    # a realtime board on a loaded machine may report a late tick (TICK_OVERRUN); nothing else is expected
+    assert facts["faults"] == "none" or set(facts["faults"].split(", ")) == {"TICK_OVERRUN"}, facts["faults"]
 
 
 def test_check_refuses_a_board_of_another_robot(board, tmp_path: Path) -> None:
