@@ -1,6 +1,6 @@
 """``ghostshell firmware build|targets|check`` as a user runs it (real processes, real toolchains, real boards).
 
-* build: CoCo for native and mps2 writes its files into ``--out``, and the flash and RAM it prints are
+* build: CoCo for native, mps2 and stm32f4 writes its files into ``--out``, and the flash and RAM it prints are
   what ``arm-none-eabi-size -A`` says of the written .elf (flash = .text + .ARM.exidx + .data, RAM =
   .data + .bss + .stack + .bootcfg); the .bin is the flash image, the .hex Intel HEX of it;
 * a generated 32-servo robot is refused for mps2 with one line naming its numbers, nothing written;
@@ -49,9 +49,16 @@ def _bytes(text: str) -> int:
     return int(text.replace(" ", ""))
 
 
-def test_coco_for_mps2_writes_elf_bin_hex_and_prints_what_arm_none_eabi_size_says(tmp_path: Path) -> None:
+def _b(n: int) -> str:
+    """``32 768``: bytes as the command prints them."""
+    return f"{n:,}".replace(",", " ")
+
+
+@pytest.mark.parametrize("target", ["mps2", "stm32f4"])
+def test_coco_for_an_arm_target_writes_elf_bin_hex_and_prints_what_arm_none_eabi_size_says(target: str,
+                                                                                          tmp_path: Path) -> None:
     out = tmp_path / "out"
-    r = _ghostshell("firmware", "build", "--robot", "coco", "--target", "mps2", "--out", str(out), cwd=tmp_path)
+    r = _ghostshell("firmware", "build", "--robot", "coco", "--target", target, "--out", str(out), cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert r.stderr == ""
     elf, bin_, hex_ = (out / f"gs_firmware.{ext}" for ext in ("elf", "bin", "hex"))
@@ -59,8 +66,10 @@ def test_coco_for_mps2_writes_elf_bin_hex_and_prints_what_arm_none_eabi_size_say
     s = _arm_size(elf)
     flash = s[".text"] + s.get(".ARM.exidx", 0) + s[".data"]
     ram = s[".data"] + s[".bss"] + s.get(".stack", 0) + s.get(".bootcfg", 0)
-    printed_flash = re.search(r"flash +(\d[\d ]*) B of 32 768 B", r.stdout)
-    printed_ram = re.search(r"RAM +(\d[\d ]*) B of 8 192 B", r.stdout)
+    t = TARGETS[target]
+    assert t.flash_bytes is not None and t.ram_bytes is not None
+    printed_flash = re.search(rf"flash +(\d[\d ]*) B of {_b(t.flash_bytes)} B", r.stdout)
+    printed_ram = re.search(rf"RAM +(\d[\d ]*) B of {_b(t.ram_bytes)} B", r.stdout)
     assert printed_flash and printed_ram, r.stdout
     assert (_bytes(printed_flash[1]), _bytes(printed_ram[1])) == (flash, ram), r.stdout
     assert bin_.stat().st_size == flash  # the raw image: vectors and code from the start of flash, then .data
@@ -90,9 +99,8 @@ def test_a_32_servo_robot_is_refused_for_mps2_with_its_numbers(tmp_path: Path) -
     budget = TARGETS["mps2"]
     assert budget.flash_bytes is not None and budget.ram_bytes is not None
     assert flash > budget.flash_bytes and ram > budget.ram_bytes  # this robot is over both
-    b = lambda n: f"{n:,}".replace(",", " ")  # noqa: E731
-    assert lines[0] == (f"ghostshell firmware: robot chain32 needs {b(flash)} B flash and {b(ram)} B RAM, mps2 has "
-                        f"{b(budget.flash_bytes)} B flash and {b(budget.ram_bytes)} B RAM"), lines[0]
+    assert lines[0] == (f"ghostshell firmware: robot chain32 needs {_b(flash)} B flash and {_b(ram)} B RAM, mps2 has "
+                        f"{_b(budget.flash_bytes)} B flash and {_b(budget.ram_bytes)} B RAM"), lines[0]
     assert not out.exists()
 
 
