@@ -77,7 +77,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--objects-log", default=None, metavar="FILE",
                         help="write the scene's movable objects' poses with every SIM_STATE as JSON lines "
                              "(simulation ground truth for the video; see firmware_sim.objects_log; the Python board only: "
-                             "ignored with --firmware c|qemu)")
+                             "ignored with --firmware c|qemu|stm32f4)")
     parser.add_argument("--faults", default=None, metavar="SPEC",
                         help="inject link faults both ways (serial and CAN), e.g. drop=0.01,corrupt=0.01,dup=0.005,"
                              "reorder=0.005,truncate=P,delay=MS[±MS],cut=START+LEN (see protocol.faults)")
@@ -99,11 +99,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--firmware", choices=FIRMWARES, default="python",
                         help="python: this emulator (default); c: the C firmware built natively, its servos on a "
                              "Feetech bus to the MuJoCo plant; qemu: the same C firmware as a Cortex-M3 image on "
-                             "qemu-system-arm -M mps2-an385")
+                             "qemu-system-arm -M mps2-an385; stm32f4: its STM32F405 image (the one real boards run) "
+                             "on qemu-system-arm -M netduinoplus2")
     parser.add_argument("--dead-servo", action="append", default=[], type=_dead_servo, metavar="ID@SECONDS",
-                        help="--firmware c|qemu: servo ID stops answering on the bus at world time SECONDS (a fault)")
+                        help="--firmware c|qemu|stm32f4: servo ID stops answering on the bus at world time SECONDS (a fault)")
     parser.add_argument("--icount", action="store_true",
-                        help="--firmware qemu: -icount shift=0 (one instruction per virtual ns; tick cost figures)")
+                        help="--firmware qemu|stm32f4: -icount shift=0 (one instruction per virtual ns; tick cost figures; "
+                             "stm32f4: every tick's cost, median/p99/max at exit)")
     parser.add_argument("--asan", action="store_true",
                         help="--firmware c: run the AddressSanitizer/UBSan build of the firmware")
     parser.add_argument("--servo-bus", type=_servo_bus_spec, default=None, metavar="PORT[:BAUD]",
@@ -118,7 +120,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "or limp (torque off; back on at ESTOP_CLEAR from where they are)")
 
 
-FIRMWARES = ("python", "c", "qemu")
+FIRMWARES = ("python", "c", "qemu", "stm32f4")
+#: the firmwares that are a QEMU guest (firmware_sim.cfirmware.launcher.QEMU_MACHINES): --icount applies
+QEMU_FIRMWARES = ("qemu", "stm32f4")
 BUS_PROTOCOL_CHOICES = ("sts", "dxl2")
 #: a lockstep board waits this long (ms, beyond the wire time) for a servo's answer: its time is virtual,
 #: so a long wait costs nothing but a dead servo's detection; realtime uses the SDKs' LATENCY_TIMER (16 ms)
@@ -179,7 +183,7 @@ def _stop_on_stdin_eof() -> None:
 
 
 def _run_c_firmware(args: argparse.Namespace, robot: object, parser: argparse.ArgumentParser) -> int:
-    """``--firmware c|qemu``: the C firmware with the servo-bus plant (firmware_sim.cfirmware.launcher)."""
+    """``--firmware c|qemu|stm32f4``: the C firmware with the servo-bus plant (firmware_sim.cfirmware.launcher)."""
     from firmware_sim.cfirmware.launcher import LaunchOptions, run_firmware
     from firmware_sim.config import BoardConfig, ConfigError
 
@@ -189,9 +193,9 @@ def _run_c_firmware(args: argparse.Namespace, robot: object, parser: argparse.Ar
     except ConfigError as e:
         parser.error(str(e))
     if args.viewer:
-        parser.error("--viewer is not available with --firmware c|qemu")
-    if args.icount and args.firmware != "qemu" or args.asan and args.firmware != "c":
-        parser.error("--icount needs --firmware qemu; --asan needs --firmware c")
+        parser.error("--viewer is not available with --firmware c|qemu|stm32f4")
+    if args.icount and args.firmware not in QEMU_FIRMWARES or args.asan and args.firmware != "c":
+        parser.error("--icount needs --firmware qemu or stm32f4; --asan needs --firmware c")
     fault_spec = None
     if args.faults:
         from protocol.faults import FaultSpec, FaultSpecError
@@ -330,7 +334,7 @@ def _main(argv: Sequence[str] | None = None) -> int:
             _stop_on_stdin_eof()
         return _run_c_firmware(args, robot, parser)
     if args.dead_servo or args.icount or args.asan:
-        parser.error("--dead-servo, --icount and --asan need --firmware c or qemu")
+        parser.error("--dead-servo, --icount and --asan need --firmware c, qemu or stm32f4")
     if args.servo_bus is None and (args.bus_protocol is not None or args.estop_torque is not None):
         parser.error("--bus-protocol and --estop-torque need --servo-bus PORT")
     if args.servo_bus is not None and args.push:

@@ -90,10 +90,11 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
                         help="seed of the fault injection (default 0; needs --faults)")
     parser.add_argument("--policy", default=None, metavar="FILE",
                         help="safety policy (TOML): allowed functions, tighter parameter bounds, motion budget")
-    parser.add_argument("--firmware", choices=("python", "c", "qemu"), default="python",
+    parser.add_argument("--firmware", choices=("python", "c", "qemu", "stm32f4"), default="python",
                         help="the emulated board's firmware: python (default), c (the C firmware built natively, "
-                             "servos on a Feetech bus to the MuJoCo plant) or qemu (the same C on an emulated "
-                             "Cortex-M3, qemu-system-arm -M mps2-an385)")
+                             "servos on a Feetech bus to the MuJoCo plant), qemu (the same C on an emulated "
+                             "Cortex-M3, qemu-system-arm -M mps2-an385) or stm32f4 (its STM32F405 image on "
+                             "qemu-system-arm -M netduinoplus2)")
     parser.add_argument("--quiet", action="store_true",
                         help="no progress bars (rendering run.mp4); they are shown only on a terminal anyway")
     parser.add_argument("--foxglove", nargs="?", type=_port, const=8765, default=None, metavar="PORT",
@@ -362,8 +363,9 @@ def check_run_args(args: argparse.Namespace) -> int | None:
             spec = None
         if spec is not None and not (firmware in link_kind(spec).firmwares
                                      and (args.emulate_board or spec.implies_emulated_board)):
+            served = " or a SocketCAN interface (can:socketcan:IF)" if firmware == "c" else ""
             print_error(command_of(args), f"--firmware {firmware} runs the emulated board this run starts on a serial link "
-                  f"(--link pty); {args.link} is not one")
+                  f"(--link pty){served}; {args.link} is not one")
             return USAGE_STATUS
     emulate = bool(getattr(args, "emulate_board", False)) or args.link.implies_emulated_board
     why = preflight_link(args.link, emulated=emulate)  # last: it may open a CAN bus

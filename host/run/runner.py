@@ -83,7 +83,7 @@ class RunOptions:
     policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
     faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
     fault_seed: int = 0
-    firmware: str = "python"  # the emulated board's firmware: python, c or qemu (SessionOptions.firmware)
+    firmware: str = "python"  # the emulated board's firmware: python, c, qemu or stm32f4 (SessionOptions.firmware)
     servo_bus: tuple[str, ...] = ()  # board arguments for a real servo bus (SessionOptions.servo_bus)
     mcap: bool = True  # record the run to <out>/run.mcap
     plots: bool = True  # draw timeline.png and joints.png (SessionOptions.plots); --no-plots

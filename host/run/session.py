@@ -156,8 +156,9 @@ class SessionOptions:
     policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
     faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
     fault_seed: int = 0
-    #: the emulated board's firmware: "python" (firmware_sim), "c" (the C firmware, native) or "qemu" (the C
-    #: firmware on an emulated Cortex-M3); python -m firmware_sim --firmware
+    #: the emulated board's firmware: "python" (firmware_sim), "c" (the C firmware, native), "qemu" (the C
+    #: firmware on an emulated Cortex-M3) or "stm32f4" (its STM32F405 image on QEMU's netduinoplus2);
+    #: python -m firmware_sim --firmware
     firmware: str = "python"
     #: the board's arguments that put a REAL servo bus under it (``--servo-bus PORT[:BAUD]``, ``--bus-protocol
     #: sts|dxl2``, ``--estop-torque hold|limp``; :func:`servo_bus_args`; docs/guides/hardware.md); () = the plant

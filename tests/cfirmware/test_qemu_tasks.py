@@ -47,22 +47,27 @@ def test_task_on_qemu(tid: int, tmp_path_factory: pytest.TempPathFactory) -> Non
 @pytest.mark.slow
 def test_task26_timeline_same_on_every_board(tmp_path_factory: pytest.TempPathFactory) -> None:
     runs = {fw: _run(26, fw, tmp_path_factory) for fw in ("python", "c", "qemu")}
-    ref = runs["python"]
+    for fw, run in runs.items():
+        assert_same_timeline(fw, run, runs["python"])
+
+
+def assert_same_timeline(fw: str, run: E2ERun, ref: E2ERun) -> None:
+    """``run``'s calls (on firmware ``fw``) are ``ref``'s, each starting and ending within one control tick of
+    it (board time since each run's start), but for what a persistent call's end releases (below)."""
     # a call released by a persistent call's end (the next <wait> block after one) starts when that end
     # is seen, so within the same report period (a CI run: play_bgm[0]/wait[2] at 3.82 s vs 3.80 s on QEMU)
     # ... and every call that starts after it is later by the same amount (a CI run: its move_strides
     # 3.87 s vs 3.85 s, its end 5.29 vs 5.27): those are compared within one tick of that shift
     ends = [b.end for b in ref.calls if b.persistent and b.ended_by is None and b.end is not None]
-    for fw, run in runs.items():
-        assert [c.path for c in run.calls] == [c.path for c in ref.calls], fw
-        shift, since = 0.0, float("inf")  # the run's lag behind the reference from board time `since` on
-        for a, b in sorted(zip(run.calls, ref.calls), key=lambda pair: pair[1].start):
-            lag = (a.start - run.t0) - (b.start - ref.t0)
-            if any(abs(b.start - e) < 1e-9 for e in ends):  # released by a persistent call's end
-                assert abs(lag) <= REPORT_S + 1e-9, (fw, a.path, a.start, b.start)
-                shift, since = lag, b.start
-            base = shift if b.start >= since else 0.0
-            assert abs(lag - base) <= TICK_S + 1e-9, (fw, a.path, a.start, b.start, base)
-            tol = REPORT_S if a.persistent and a.ended_by is None else TICK_S
-            end_lag = (a.end - run.t0) - (b.end - ref.t0)
-            assert abs(end_lag - base) <= tol + 1e-9, (fw, a.path, a.end, b.end, base)
+    assert [c.path for c in run.calls] == [c.path for c in ref.calls], fw
+    shift, since = 0.0, float("inf")  # the run's lag behind the reference from board time `since` on
+    for a, b in sorted(zip(run.calls, ref.calls), key=lambda pair: pair[1].start):
+        lag = (a.start - run.t0) - (b.start - ref.t0)
+        if any(abs(b.start - e) < 1e-9 for e in ends):  # released by a persistent call's end
+            assert abs(lag) <= REPORT_S + 1e-9, (fw, a.path, a.start, b.start)
+            shift, since = lag, b.start
+        base = shift if b.start >= since else 0.0
+        assert abs(lag - base) <= TICK_S + 1e-9, (fw, a.path, a.start, b.start, base)
+        tol = REPORT_S if a.persistent and a.ended_by is None else TICK_S
+        end_lag = (a.end - run.t0) - (b.end - ref.t0)
+        assert abs(end_lag - base) <= tol + 1e-9, (fw, a.path, a.end, b.end, base)

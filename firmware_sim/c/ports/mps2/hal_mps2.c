@@ -4,10 +4,11 @@
  * (one byte deep in QEMU's model, which holds further bytes back until the register is read: the
  * receive side never overruns). Boot settings come from the configuration block the launcher
  * writes with QEMU's generic loader (-device loader,addr=...,data=...): lockstep, rates, watchdog, frame
- * log, the servo-bus protocol (0 STS, 1 Dynamixel 2.0) and the ESTOP torque (0 hold, 1 limp). */
+ * log, the servo-bus protocol (0 STS, 1 Dynamixel 2.0) and the ESTOP torque (0 hold, 1 limp): ports/mcu/gs_bootcfg.h. */
 #include <stdint.h>
 
 #include "gs_app.h"
+#include "gs_bootcfg.h"
 #include "gs_hal.h"
 
 #define REG32(a) (*(volatile uint32_t *)(a))
@@ -33,14 +34,6 @@
 #define HOST 0u
 #define BUS 1u
 #define LOG 2u
-
-/* boot configuration, written by the launcher before reset (magic 'GSCF' + check word) */
-typedef struct {
-    uint32_t magic, lockstep, rate_hz, telemetry_rate_hz, watchdog_ms, log_frames, bus_protocol, estop_limp,
-        boot_checks, check; /* boot_checks 0: the emulator's dead servo at boot is a fault, not a refused start */
-} boot_cfg_t;
-__attribute__((section(".bootcfg"), used)) volatile boot_cfg_t boot_cfg;
-#define BOOT_MAGIC 0x47534346u
 
 static volatile uint32_t systicks;  /* SysTick interrupts since boot */
 static uint32_t waited_counts;       /* system clock counts spent waiting for bus bytes */
@@ -153,22 +146,7 @@ int main(void) {
     SYST_CSR = 7u; /* processor clock, interrupt, enable */
     gs_settings_t cfg;
     gs_config_defaults(&cfg);
-    const volatile boot_cfg_t *b = &boot_cfg;
-    if (b->magic == BOOT_MAGIC &&
-        b->check == (b->magic ^ b->lockstep ^ b->rate_hz ^ b->telemetry_rate_hz ^ b->watchdog_ms ^ b->log_frames ^
-                     b->bus_protocol ^ b->estop_limp ^ b->boot_checks) &&
-        b->bus_protocol <= 1u &&
-        b->rate_hz >= 1u && b->rate_hz <= 10000u && 1000000u % b->rate_hz == 0u && b->telemetry_rate_hz >= 1u &&
-        b->telemetry_rate_hz <= b->rate_hz && b->watchdog_ms >= 1u) {
-        cfg.lockstep = (uint8_t)(b->lockstep != 0u);
-        cfg.rate_hz = b->rate_hz;
-        cfg.telemetry_rate_hz = b->telemetry_rate_hz;
-        cfg.watchdog_ms = b->watchdog_ms;
-        cfg.log_frames = (uint8_t)(b->log_frames != 0u);
-        cfg.bus_protocol = (uint8_t)b->bus_protocol; /* the servo bus is the plant's socket: no baud to model */
-        cfg.estop_limp = (uint8_t)(b->estop_limp != 0u);
-        cfg.boot_checks = (uint8_t)(b->boot_checks != 0u);
-    }
+    (void)gs_boot_cfg_apply(&cfg); /* the servo bus is the plant's socket: no baud to model */
     (void)gs_app_run(&app, &cfg); /* a refused boot: its line is out, torque off; the guest idles (the launcher
                                      stops it on that line) */
     for (;;) {
