@@ -40,9 +40,11 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import shutil
 import subprocess
 import tempfile
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -183,15 +185,25 @@ def _version(compiler: str) -> str:
         return compiler
 
 
-def build(kind_name: str, robot: Robot, *, quiet: bool = True, calibrated: bool = False) -> Path:
+def build(kind_name: str, robot: Robot, *, quiet: bool = True, calibrated: bool = False,
+          defines: Mapping[str, int] | None = None) -> Path:
     """Compile ``kind_name`` for ``robot`` (cached); returns the binary's path. ``calibrated``: the servo
     table carries the robot's ``calibration.toml`` (offsets, directions, the calibrated step range: a real
-    servo bus); without it the table is the uncalibrated one the emulator's plant matches.
+    servo bus); without it the table is the uncalibrated one the emulator's plant matches. ``defines``:
+    a port's build settings as ``-DNAME=VALUE`` (unsigned integers; part of the cache key), e.g. the STM32F4
+    board's crystal ``{"GS_HSE_HZ": 12_000_000}`` (docs/guides/stm32f4.md).
 
-    Raises :class:`ToolchainMissing` (install command) or :class:`BuildError` (compiler output);
-    a bad calibration file raises :class:`robots.datatypes.RobotDataError`.
+    Raises :class:`ToolchainMissing` (install command) or :class:`BuildError` (compiler output, or a define
+    that is not an upper-case C name with a non-negative integer); a bad calibration file raises
+    :class:`robots.datatypes.RobotDataError`.
     """
     kind = KINDS[kind_name]
+    extra: list[str] = []
+    for name, value in sorted((defines or {}).items()):
+        if not re.fullmatch(r"GS_[A-Z0-9_]+", name) or isinstance(value, bool) or not isinstance(value, int) \
+                or value < 0:
+            raise BuildError(f"a build define must be GS_NAME=unsigned integer, got {name}={value!r}")
+        extra.append(f"-D{name}={value}u")
     cc = require(kind.compiler)
     cal = None
     if calibrated:
@@ -209,7 +221,7 @@ def build(kind_name: str, robot: Robot, *, quiet: bool = True, calibrated: bool 
         h.update(str(p.relative_to(C_ROOT)).encode() + b"\0" + p.read_bytes() + b"\0")
     for name, text in sorted(gen.items()):
         h.update(name.encode() + b"\0" + text.encode() + b"\0")
-    h.update(repr((kind, _version(cc))).encode())
+    h.update(repr((kind, _version(cc), extra)).encode())
     out = cache_root() / f"{kind_name}-{robot.name}-{h.hexdigest()[:16]}"
     binary = out / kind.output
     if binary.is_file():
@@ -225,7 +237,7 @@ def build(kind_name: str, robot: Robot, *, quiet: bool = True, calibrated: bool 
         for d in port_dirs:
             includes += ["-I", d]
         link = [a.format(c=C_ROOT, out=tmp) for a in kind.link]
-        cmd = [cc, *kind.flags, *includes, *map(str, sources), str(tmp / "gs_servo_table.c"), "-o",
+        cmd = [cc, *kind.flags, *extra, *includes, *map(str, sources), str(tmp / "gs_servo_table.c"), "-o",
                str(tmp / kind.output), *link]
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
         if r.returncode != 0:
