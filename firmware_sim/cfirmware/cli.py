@@ -1,6 +1,6 @@
 """``python -m firmware_sim.cfirmware build|targets``: build the C firmware for a robot and a part, or list the parts.
 
-``build --robot NAME --target native|mps2|stm32f4 [--out DIR] [--calibrated]`` builds the firmware
+``build --robot NAME --target native|mps2|stm32f4 [--out DIR] [--calibrated] [--define NAME=N]`` builds the firmware
 (:func:`firmware_sim.cfirmware.build.build`, cached) and writes it into ``--out`` (default
 ``./firmware/ROBOT-TARGET/``): an ARM target's image as ``gs_firmware.elf``, ``.bin`` (raw, from the
 start of flash) and ``.hex`` (Intel HEX); ``native`` the executable ``gs_firmware``. It prints the
@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -78,6 +79,20 @@ def _percent(n: int, budget: int) -> str:
     return f"{math.floor(1000 * n / budget) / 10:.1f} %"
 
 
+def _define(text: str) -> tuple[str, int]:
+    """``NAME=N`` -> (NAME, N): an upper-case C name and a non-negative integer (decimal or 0x...)."""
+    name, sep, value = text.partition("=")
+    if not sep or re.fullmatch(r"[A-Z_][A-Z0-9_]*", name) is None:
+        raise argparse.ArgumentTypeError(f"expected NAME=N with an upper-case C name (GS_HSE_HZ=12000000), got {text!r}")
+    try:
+        v = int(value.replace("_", ""), 0)
+    except ValueError:
+        v = -1
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"{name}: expected a non-negative integer, got {value!r}")
+    return name, v
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The parser of ``build`` and ``targets`` (prog from ``$GHOSTSHELL_FIRMWARE_PROG``)."""
     from robots.registry import DEFAULT_ROBOT, robots_dir_arg
@@ -96,6 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--target", required=True, choices=list(TARGETS), help="the part (the targets action lists them)")
     b.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="folder to write the files into (default ./firmware/ROBOT-TARGET/)")
+    b.add_argument("--define", dest="defines", action="append", type=_define, default=[], metavar="NAME=N",
+                   help="a port's build setting, -DNAME=N (repeatable; an unsigned integer), e.g. the STM32F4 "
+                        "board's crystal: --define GS_HSE_HZ=12000000 (docs/guides/stm32f4.md)")
     b.add_argument("--calibrated", action="store_true",
                    help="servo table with the robot's calibration.toml (a real servo bus: offsets, directions, "
                         "calibrated step ranges)")
@@ -210,10 +228,11 @@ def _build(args: argparse.Namespace) -> int:
         _say(f"target {target.name}: this checkout cannot build it yet (no build kind {target.kind!r} in "
              "firmware_sim/cfirmware/build.py)")
         return FAILED
+    settings = "".join(f", {k}={v}" for k, v in args.defines)
     print(f"building {robot.name} ({robot.servo_count} servos) for {target.name}: {target.part}"
-          + (", calibrated servo table" if args.calibrated else ""), flush=True)
+          + (", calibrated servo table" if args.calibrated else "") + settings, flush=True)
     try:
-        binary = build(target.kind, robot, calibrated=args.calibrated)
+        binary = build(target.kind, robot, calibrated=args.calibrated, defines=dict(args.defines) or None)
     except ToolchainMissing as e:
         _say(str(e))
         return FAILED

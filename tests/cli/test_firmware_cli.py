@@ -77,6 +77,19 @@ def test_coco_for_an_arm_target_writes_elf_bin_hex_and_prints_what_arm_none_eabi
     assert all(ln.startswith(":") for ln in lines) and lines[-1] == ":00000001FF"  # Intel HEX, its EOF record
 
 
+def test_a_define_is_a_build_setting_of_the_image(tmp_path: Path) -> None:
+    """--define GS_HSE_HZ=12000000 (a pyboard's crystal, docs/guides/stm32f4.md) builds another image."""
+    images = {}
+    for hse in ("8000000", "12000000"):
+        out = tmp_path / hse
+        r = _ghostshell("firmware", "build", "--target", "stm32f4", "--define", f"GS_HSE_HZ={hse}", "--out", str(out),
+                        cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        assert f"GS_HSE_HZ={hse}" in r.stdout.splitlines()[0]
+        images[hse] = (out / "gs_firmware.bin").read_bytes()
+    assert images["8000000"] != images["12000000"]
+
+
 def test_coco_for_native_writes_the_executable(tmp_path: Path) -> None:
     r = _ghostshell("firmware", "build", "--robot", "coco", "--target", "native", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
@@ -131,6 +144,8 @@ BAD = [
     (("firmware", "build", "--target", "mps2", "--robot", "no-such-robot"), "ghostshell firmware: no robot 'no-such-robot'"),
     (("firmware", "build", "--target", "mps2", "--out", "{FILE}"), "is a regular file, not a folder"),
     (("firmware", "build", "--target", "mps2", "--bogus"), "unrecognized arguments: --bogus"),
+    (("firmware", "build", "--target", "stm32f4", "--define", "hse=12"), "argument --define: expected NAME=N"),
+    (("firmware", "build", "--target", "stm32f4", "--define", "GS_HSE_HZ=fast"), "expected a non-negative integer"),
     (("firmware", "check"), "ghostshell firmware check: error: the following arguments are required: --link"),
     (("firmware", "check", "--link", "pty"), "a link the emulated board creates"),
     (("firmware", "check", "--link", "/dev/null", "--robot", "no-such-robot"), "no robot 'no-such-robot'"),
