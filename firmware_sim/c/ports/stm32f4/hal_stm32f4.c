@@ -21,8 +21,8 @@
  * overrun); taking bytes from the ring enables it again. Host and log transmit from rings: the writer puts
  * into the data register while TXE is set, the TXE interrupt sends the rest (QEMU 7.2's USART raises no TXE
  * interrupt but sends each byte at once, so the writer empties the ring there). The servo bus transmits polled
- * and takes its own echo out of the receive ring (hal_bus_write). The CPU sleeps in WFI with interrupts masked around the test (a byte that lands between the test and the WFI
- * still wakes it). SysTick at 4 kHz from the processor clock wakes it and counts core cycles (the tick cost);
+ * and takes its own echo out of the receive ring (hal_bus_write). The CPU sleeps in WFI with interrupts masked
+ * around the test (a byte that lands between the test and the WFI still wakes it). SysTick at 4 kHz from the processor clock wakes it and counts core cycles (the tick cost);
  * the time base (hal_now_us) is TIM2 free-running at 1 MHz, 32 bits extended in software: a count of SysTick
  * interrupts would lose a period whenever one is taken more than a period late, as QEMU does when its main loop
  * is busy (two expiries before the first is taken are one interrupt): the board clock then ran up to 5 % slow
