@@ -22,7 +22,8 @@
  * into the data register while TXE is set, the TXE interrupt sends the rest (QEMU 7.2's USART raises no TXE
  * interrupt but sends each byte at once, so the writer empties the ring there). The servo bus transmits polled
  * and takes its own echo out of the receive ring (hal_bus_write). The CPU sleeps in WFI with interrupts masked
- * around the test (a byte that lands between the test and the WFI still wakes it). SysTick at 4 kHz from the processor clock wakes it and counts core cycles (the tick cost);
+ * around the test (a byte that lands between the test and the WFI still wakes it). SysTick at 4 kHz from the
+ * processor clock wakes it and counts core cycles (the tick cost);
  * the time base (hal_now_us) is TIM2 free-running at 1 MHz, 32 bits extended in software: a count of SysTick
  * interrupts would lose a period whenever one is taken more than a period late, as QEMU does when its main loop
  * is busy (two expiries before the first is taken are one interrupt): the board clock then ran up to 5 % slow
@@ -47,7 +48,8 @@
 #include "stm32f4_regs.h"
 
 #ifndef GS_HSE_HZ
-#define GS_HSE_HZ 8000000u /* STM32F4-Discovery, Olimex STM32-H405: 8 MHz; pyboard v1.1 12 MHz; Netduino Plus 2 25 MHz */
+/* the crystal: STM32F4-Discovery, Olimex STM32-H405 8 MHz; pyboard v1.1 12 MHz; Netduino Plus 2 25 MHz */
+#define GS_HSE_HZ 8000000u
 #endif
 #ifndef GS_HOST_BAUD
 #define GS_HOST_BAUD 115200u
@@ -208,7 +210,8 @@ static void clock_init(void) {
         (void)RCC_APB1ENR;
         PWR_CR |= PWR_CR_VOS;
         RCC_PLLCFGR = (GS_HSE_HZ / 1000000u) << RCC_PLLCFGR_PLLM_POS | PLL_N << RCC_PLLCFGR_PLLN_POS |
-                      (PLL_P / 2u - 1u) << RCC_PLLCFGR_PLLP_POS | RCC_PLLCFGR_PLLSRC_HSE | PLL_Q << RCC_PLLCFGR_PLLQ_POS;
+                      (PLL_P / 2u - 1u) << RCC_PLLCFGR_PLLP_POS | RCC_PLLCFGR_PLLSRC_HSE |
+                      PLL_Q << RCC_PLLCFGR_PLLQ_POS;
         RCC_CR |= RCC_CR_PLLON;
         if (!poll(&RCC_CR, RCC_CR_PLLRDY, RCC_CR_PLLRDY)) {
             failed = "PLL did not lock";
