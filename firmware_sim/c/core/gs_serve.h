@@ -16,8 +16,13 @@
  *   SERVE_PENDING(app)           received input not yet decoded or taken
  *   SERVE_WAIT(app, until, wr)   sleep until `until` (hal_now_us), input, or (wr) room to write
  *   SERVE_LOCKSTEP_BACKLOG       lockstep: stop ticking while this much output waits
- *   SERVE_LINK_NAME              a string literal for the banner ("" serial, "CAN, ") */
+ *   SERVE_LINK_NAME              a string literal for the banner ("" serial, "CAN, ")
+ *   SERVE_AFTER_TICK(app)        optional: link work after each lockstep tick (CAN: read the bus, so a flow
+ *                                control is answered between ticks; the serial link defines nothing: no cost) */
 
+#ifndef SERVE_AFTER_TICK
+#define SERVE_AFTER_TICK(app) ((void)0)
+#endif
 #define RESYNC_BEHIND_US 100000 /* realtime: re-anchor the schedule when this far behind */
 #define STATS_EVERY_TICKS 500u
 
@@ -45,6 +50,7 @@ static void serve_lockstep(SERVE_APP_T *app) {
         /* (a stop ends the batch: each tick of a stopping board would wait out its bus reads) */
         while (gs_board_can_tick(b) && SERVE_BACKLOG(app) < SERVE_LOCKSTEP_BACKLOG && ran < 256u && !hal_should_stop()) {
             serve_tick(app);
+            SERVE_AFTER_TICK(app);
             if (++ran % 16u == 0) SERVE_FLUSH(app);
         }
         unsigned handled = 0;
@@ -117,3 +123,4 @@ static void serve_banner(const gs_settings_t *cfg) {
 
 #undef RESYNC_BEHIND_US
 #undef STATS_EVERY_TICKS
+#undef SERVE_AFTER_TICK

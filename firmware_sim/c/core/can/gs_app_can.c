@@ -84,6 +84,16 @@ void gs_app_can_pump(gs_app_can_t *app) {
 
 void gs_app_can_flush(gs_app_can_t *app) { gs_can_link_flush(&app->link, now32()); }
 
+/* After each lockstep tick: read what the bus brought (decoded into the item ring, taken in stream order later:
+ * lockstep semantics unchanged) and, while an ISO-TP transfer is under way, send at once what it made. A flow
+ * control left unread while the board ticked on (up to 256 ticks a batch, each with its plant round trip: ~2 ms in
+ * UML) timed out transfers the host had answered in time, and the host's N_Cr ran out waiting for frames the
+ * board held. One non-blocking read per tick. */
+static void after_tick(gs_app_can_t *app) {
+    gs_app_can_pump(app);
+    if (gs_isotp_busy(&app->link.isotp)) gs_can_link_flush(&app->link, now32());
+}
+
 static void wait_io(gs_app_can_t *app, uint64_t until, int want_write) {
     long io = gs_can_link_next_io_us(&app->link, now32());
     if (io >= 0) {
@@ -104,6 +114,7 @@ static void wait_io(gs_app_can_t *app, uint64_t until, int want_write) {
 #define SERVE_WAIT(app, until, wr) wait_io((app), (until), (wr))
 #define SERVE_LOCKSTEP_BACKLOG GS_CAN_LOCKSTEP_BACKLOG
 #define SERVE_LINK_NAME "CAN, "
+#define SERVE_AFTER_TICK(app) after_tick(app)
 #include "gs_serve.h"
 
 void gs_app_can_tick(gs_app_can_t *app) { serve_tick(app); }

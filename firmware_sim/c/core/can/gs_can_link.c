@@ -275,6 +275,7 @@ void gs_can_link_flush(gs_can_link_t *l, uint32_t now_us) {
         }
         if (sent > 0) {
             l->tx_frames++;
+            if (f->id == l->isotp.txid && f->len) gs_isotp_sent(&l->isotp, f, now_us);
             if (l->log) l->log(l->ctx, f, 1);
         } else {
             l->tx_dropped++;

@@ -61,6 +61,12 @@ void gs_isotp_feed(gs_isotp_t *t, const gs_can_frame_t *f) {
     t->inbox_len++;
 }
 
+void gs_isotp_sent(gs_isotp_t *t, const gs_can_frame_t *f, uint32_t now_us) {
+    unsigned pci = f->len ? f->data[0] >> 4 : 0xFu;
+    if (pci == PDU_FF && t->tx_state == TX_WAIT_FC && t->timer_rx_fc.running) timer_start(&t->timer_rx_fc, now_us, GS_ISOTP_TIMEOUT_US);
+    if (pci == PDU_FC && t->rx_state == RX_WAIT_CF && t->timer_rx_cf.running) timer_start(&t->timer_rx_cf, now_us, GS_ISOTP_TIMEOUT_US);
+}
+
 int gs_isotp_transmitting(const gs_isotp_t *t) { return t->txq_n > 0 || t->tx_state != TX_IDLE; }
 unsigned gs_isotp_queued(const gs_isotp_t *t) { return t->txq_n; }
 unsigned gs_isotp_waiting(const gs_isotp_t *t) { return t->txq_n + (gs_isotp_transmitting(t) ? 1u : 0u); }

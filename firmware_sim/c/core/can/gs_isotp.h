@@ -82,6 +82,10 @@ int gs_isotp_send(gs_isotp_t *t, const uint8_t *data, size_t n);
 void gs_isotp_feed(gs_isotp_t *t, const gs_can_frame_t *f);
 /* Advance the state machine at `now_us` (any monotonic microsecond clock). */
 void gs_isotp_poll(gs_isotp_t *t, uint32_t now_us);
+/* A frame this link emitted has gone on the bus at `now_us` (the transmit confirmation, ISO 15765-2 clause 9.7:
+ * N_Bs runs from a First Frame's, N_Cr from a flow control's): the waiting timer restarts there, so a frame that
+ * queued behind others on its way out does not eat into the peer's time to answer. */
+void gs_isotp_sent(gs_isotp_t *t, const gs_can_frame_t *f, uint32_t now_us);
 /* A transfer is under way either way (poll again within a few ms: its timers). */
 int gs_isotp_busy(const gs_isotp_t *t);
 /* Units queued or being sent (protocol.can.engine.CanEngine.bulk_waiting). */

@@ -113,4 +113,10 @@ int hal_can_send(const gs_can_frame_t *f) {
     }
 }
 
-void hal_can_wait(uint64_t until_us, int want_write) { native_wait_fd(can_fd, want_write, until_us); }
+/* The log channel (stderr) is fully buffered on a CAN link (main_native.c: a frame record per CAN frame, one
+ * write each when line-buffered, was a large share of a lockstep tick's system calls under UML): what the board
+ * said goes out before it sleeps. */
+void hal_can_wait(uint64_t until_us, int want_write) {
+    fflush(stderr);
+    native_wait_fd(can_fd, want_write, until_us);
+}

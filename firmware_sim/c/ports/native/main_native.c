@@ -97,6 +97,7 @@ int main(int argc, char **argv) {
             fprintf(stderr, "board: cannot open CAN interface %s: %s\n", can, why);
             return 2;
         }
+        setvbuf(stderr, NULL, _IOFBF, 1u << 16); /* flushed whenever the board waits (can_native.c) */
         printf("board: listening on can:socketcan:%s (node %ld)\n", can, node);
         fflush(stdout);
         int st = gs_app_can_run(&can_app, &cfg, (unsigned)node, can_fd_frames);
