@@ -26,6 +26,7 @@ from e2e.conftest import TASKS, E2ERun, run_e2e
 from e2e.task_checks import check_common, check_task
 from firmware_sim.cfirmware.build import build
 from firmware_sim.cfirmware.launcher import LaunchOptions, firmware_command
+from host.run.realtime_health import board_lateness
 from protocol.codec import SCHEMA_HASH
 from protocol.messages import PROTOCOL_VERSION, Caps, Hello
 from robots.registry import DEFAULT_ROBOT, load_robot
@@ -47,7 +48,7 @@ def _realtime(tid: int, tmp: pytest.TempPathFactory) -> E2ERun:
 @pytest.mark.parametrize("tid", [1, 23, 26])
 def test_task_on_stm32f4(tid: int, mode: str, tmp_path_factory: pytest.TempPathFactory) -> None:
     run = _run(tid, FW, tmp_path_factory) if mode == "lockstep" else _realtime(tid, tmp_path_factory)
-    check_common(run, FW)
+    check_common(run, FW, late_ok=mode == "realtime" and fell_behind(run))
     # task 23's own check (exactly one FLUSH of the head servos, after the last stride) holds in lockstep only: in
     # realtime the host also flushes the head ~0.5 s into the run on every board (the Python board, the native C
     # firmware and this image alike, measured 2026-12-07), so only the common checks apply to that run
@@ -61,6 +62,17 @@ def test_task_on_stm32f4(tid: int, mode: str, tmp_path_factory: pytest.TempPathF
 @pytest.mark.slow
 def test_task26_timeline_same_as_the_python_board(tmp_path_factory: pytest.TempPathFactory) -> None:
     assert_same_timeline(FW, _run(26, FW, tmp_path_factory), _run(26, "python", tmp_path_factory))
+
+
+def fell_behind(run: E2ERun) -> bool:
+    """Whether a realtime run's emulated board says it fell behind the wall clock (its ``board: realtime lateness``
+    record: ticks overrun or skipped, servo reads unanswered, the plant behind). Only then may frames have been
+    late: QEMU on a loaded two-core machine is descheduled now and then, which the run reports as lateness (never
+    as a fault); a late frame from a board that kept up is a failure."""
+    rec = board_lateness(run.out / "board.stderr")
+    assert rec is not None, "a realtime C firmware run ends with its lateness record"
+    return any(rec.get(k, 0) > 0 for k in ("board_overruns", "board_ticks_skipped", "bus_stalls",
+                                              "bus_late_replies", "plant_late_steps", "plant_behind_max_ms"))
 
 
 def _boot_lines(cmd: list[str], until: str, timeout: float = 60.0) -> str:

@@ -80,8 +80,10 @@ def no_renderer(run: E2ERun) -> list[BoardCall]:
     return [c for c in run.calls if c.function == "capture" and c.outcome == "failed" and "NO_RENDERER" in (c.error or "")]
 
 
-def check_common(run: E2ERun, firmware: str = "python") -> None:
-    """What every ground-truth run must show, whatever the task (and whichever board firmware)."""
+def check_common(run: E2ERun, firmware: str = "python", *, late_ok: bool = False) -> None:
+    """What every ground-truth run must show, whatever the task (and whichever board firmware). ``late_ok``: frames
+    refused LATE or dropped are allowed (a realtime emulator the caller found to have fell behind the wall clock:
+    tests/cfirmware/test_stm32f4_tasks.py); every other link count must still be 0."""
     s = run.report.summary
     refused = no_renderer(run) if firmware != "python" else []
     assert run.report.result.error is None, run.report.result.error
@@ -89,7 +91,10 @@ def check_common(run: E2ERun, firmware: str = "python") -> None:
     assert all(c.outcome == "done" for c in run.calls if c not in refused), run.table()
     assert not s.fell and s.max_tilt_deg < 30, (s.fell, s.max_tilt_deg)
     link = s.extra["link"]
-    assert link["late"] == 0 and link["dropped"] == 0 and link["frame_nacks"] == 0 and link["decode_errors"] == 0, link
+    late = (link["late"] or 0) + (link["dropped"] or 0)
+    # a frame refused LATE or dropped is also a frame NACK: allowed ones explain at most that many NACKs
+    assert (late_ok or late == 0) and (link["frame_nacks"] or 0) <= (late if late_ok else 0), link
+    assert link["decode_errors"] == 0, link
     for c in run.calls:
         if c in refused:
             continue
