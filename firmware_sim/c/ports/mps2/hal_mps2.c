@@ -1,5 +1,5 @@
 /* The Cortex-M3 port for QEMU's mps2-an385: CMSDK APB UART0 = host link, UART1 = servo bus,
- * UART2 = log channel; SysTick at 4 kHz from the 25 MHz system clock is the tick timer; the CPU
+ * UART2 = log channel; CMSDK timer 0 at 25 MHz is the time base, SysTick at 4 kHz wakes the waits; the CPU
  * sleeps in WFI between events (UART0 and UART1 receive interrupts, SysTick). Polled UART data registers
  * (one byte deep in QEMU's model, which holds further bytes back until the register is read: the
  * receive side never overruns). Boot settings come from the configuration block the launcher
@@ -35,37 +35,30 @@
 #define BUS 1u
 #define LOG 2u
 
-static volatile uint32_t systicks;  /* SysTick interrupts since boot */
 static uint32_t waited_counts;       /* system clock counts spent waiting for bus bytes */
 
-void systick_handler(void) { systicks++; }
+void systick_handler(void) {} /* wakes the WFI waits */
 void uart0_rx_handler(void) { UART_INT(HOST) = 2u; } /* wake from WFI; main loop reads DATA */
 void uart1_rx_handler(void) { UART_INT(BUS) = 2u; }  /* the same for the servo bus's answers */
 
-#define SCB_ICSR REG32(0xE000ED04u)
-#define ICSR_PENDSTSET (1u << 26)
+/* The time base: CMSDK APB timer 0 (0x40000000; ARM DDI 0479 "APB timer": a 32-bit down-counter at PCLK =
+ * 25 MHz, reloading from RELOAD) free-running from 0xFFFFFFFF, read and extended to 64 bits in software (one
+ * reader, main code; it wraps every 172 s and is read far more often). Not a count of SysTick interrupts: QEMU
+ * takes those late under load and a count of them lost periods (the board clock ran at 0.947 of the wall
+ * clock over 5 s, so the host's frames filled the jitter buffer: BUFFER_FULL); the counter is computed from
+ * QEMU's clock whenever it is read. SysTick only wakes the WFI waits. */
+#define TIMER0_CTRL REG32(0x40000000u)
+#define TIMER0_VALUE REG32(0x40000004u)
+#define TIMER0_RELOAD REG32(0x40000008u)
 
-static uint64_t last_counts;
+static uint32_t timer_last;
+static uint64_t timer_counts;
 
-/* Monotonic system-clock counts: SysTick periods counted by its interrupt plus the counter. A reload
- * seen before its interrupt was taken (pending, or not even flagged yet in QEMU's timer model) would
- * make time step back by up to one period: such a reading is moved on by one period. */
 static uint64_t now_counts(void) {
-    for (;;) {
-        uint32_t t = systicks;
-        uint32_t v = SYST_CVR;
-        uint32_t pending = SCB_ICSR & ICSR_PENDSTSET;
-        if (t != systicks) continue; /* the interrupt ran in between: read again */
-        if (pending) {               /* wrapped, interrupt not taken yet: count the period now */
-            v = SYST_CVR;
-            t++;
-        }
-        uint64_t c = (uint64_t)t * COUNTS_PER_TICK + (COUNTS_PER_TICK - 1u - v);
-        if (c < last_counts) c += COUNTS_PER_TICK;
-        if (c < last_counts) c = last_counts;
-        last_counts = c;
-        return c;
-    }
+    uint32_t v = TIMER0_VALUE;
+    timer_counts += (uint32_t)(timer_last - v); /* down-counter: elapsed counts modulo 2^32 */
+    timer_last = v;
+    return timer_counts;
 }
 
 uint64_t hal_now_us(void) { return now_counts() / (SYSCLK_HZ / 1000000u); }
@@ -141,6 +134,10 @@ int main(void) {
     UART_CTRL(HOST) = 3u | 8u; /* + RX interrupt: wakes the WFI */
     UART_CTRL(BUS) = 3u | 8u;  /* the same: hal_bus_read waits in WFI */
     NVIC_ISER0 = 1u << 0 | 1u << 2; /* UART0 RX is IRQ 0, UART1 RX IRQ 2 on AN385 */
+    TIMER0_RELOAD = 0xFFFFFFFFu;
+    TIMER0_VALUE = 0xFFFFFFFFu;
+    TIMER0_CTRL = 1u; /* enable, PCLK, no interrupt */
+    timer_last = TIMER0_VALUE;
     SYST_RVR = COUNTS_PER_TICK - 1u;
     SYST_CVR = 0;
     SYST_CSR = 7u; /* processor clock, interrupt, enable */
