@@ -5,7 +5,7 @@ function; it raises ``AssertionError`` when an invariant breaks) and a ``__main_
 atheris. ``ghostshell fuzz`` starts the module as a subprocess (libFuzzer owns the process: it exits
 on the first crash), so the CLI never imports a target. The board target lives in
 ``firmware_sim.fuzz`` because the host never imports the board; the C firmware's in
-``firmware_sim.cfirmware`` (``c-wire`` execs a clang libFuzzer binary, ``c-diff`` is atheris over both
+``firmware_sim.cfirmware`` (``c-wire``, ``c-bus`` and ``c-can`` exec a clang libFuzzer binary, ``c-diff`` is atheris over both
 decoders).
 """
 
@@ -59,6 +59,14 @@ TARGETS: dict[str, FuzzTarget] = {
             "the C firmware's link decoder + board session (clang -fsanitize=fuzzer,address,undefined, lockstep, "
             "emulated bus): no memory error or UB, buffers within their sizes, commands inside the servo table's "
             "ranges, ESTOP holds",
+        ),
+        FuzzTarget(
+            "c-can",
+            "firmware_sim.cfirmware.fuzz_can",
+            "CAN frames (ids, DLC, FD, 29-bit, remote, ISO-TP sequences, fuzzed messages sent as the host would) into "
+            "the C firmware's CAN link + board core (clang -fsanitize=fuzzer,address,undefined, lockstep, refused "
+            "writes): no memory error or UB, bounded queues, commands inside the servo table's ranges, ESTOP holds, "
+            "every frame it sends well-formed",
         ),
         FuzzTarget(
             "c-diff",
