@@ -554,8 +554,9 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
     except (_Stop, KeyboardInterrupt):
         status = INTERRUPTED_STATUS
     finally:
-        signal.signal(signal.SIGTERM, old[0])
-        signal.signal(signal.SIGINT, old[1])
+        # a second Ctrl-C (or a SIGTERM after it) must not cut the clean shutdown short: ignored until it is done
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         exited = proc.poll() is not None
         # a terminal's Ctrl-C reaches the firmware too (same process group): its exit then is no death
         died = exited and status != INTERRUPTED_STATUS
@@ -614,6 +615,8 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
             os.close(fd)
         if bus is not None:
             bus.close()
+    signal.signal(signal.SIGTERM, old[0])
+    signal.signal(signal.SIGINT, old[1])
     return status
 
 

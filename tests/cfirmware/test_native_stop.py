@@ -53,3 +53,55 @@ def test_sigterm_during_bus_waits_ends_the_board_at_once(coco, tmp_path: Path) -
             proc.kill()
             proc.wait()
         bus.close()
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        return [int(p) for p in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    except OSError:
+        return []
+
+
+def _pending_signals(pid: int) -> int:
+    """The signals pending for ``pid`` (thread and process sets ORed; /proc/PID/status SigPnd, ShdPnd)."""
+    fields = dict(line.split(":", 1) for line in Path(f"/proc/{pid}/status").read_text().splitlines() if ":" in line)
+    return int(fields["SigPnd"], 16) | int(fields["ShdPnd"], 16)
+
+
+def test_a_second_ctrl_c_during_the_shutdown_does_not_cut_it_short(tmp_path: Path) -> None:
+    """Ctrl-C, then Ctrl-C again while the launcher waits for the firmware to stop: still the clean shutdown and 130
+    (it printed 'board: interrupted while starting' and skipped its summary lines: the second signal hit the default
+    handler the cleanup had restored). The firmware is held stopped (SIGSTOP) so the second signal lands inside that
+    wait, which is known to have begun when the launcher's SIGTERM is pending at the firmware."""
+    import os
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "firmware_sim", "--link", "pty", "--firmware", "c", "--lockstep"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert proc.stderr is not None and proc.stdout is not None
+    try:
+        out = b""
+        while b"listening on" not in out:  # its announcement (stdout)
+            assert _wait_readable(proc.stdout.fileno(), 120.0), out
+            chunk = os.read(proc.stdout.fileno(), 65536)
+            assert chunk, out
+            out += chunk
+        (fw,) = _children(proc.pid)
+        os.kill(fw, signal.SIGSTOP)
+        proc.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + 30
+        while not _pending_signals(fw) & (1 << (signal.SIGTERM - 1)):  # the launcher's stop reached the firmware
+            assert time.monotonic() < deadline, "the launcher never asked the firmware to stop"
+            _wait_readable(proc.stdout.fileno(), 0.01)  # a 10 ms poll interval, not a synchronisation
+        proc.send_signal(signal.SIGINT)  # the second Ctrl-C, inside the shutdown
+        os.kill(fw, signal.SIGCONT)
+        rc = proc.wait(60)
+        text = proc.stderr.read().decode(errors="replace")
+        assert rc == 130, text
+        assert "interrupted while starting" not in text, text
+        assert "board: servo bus:" in text, text  # the shutdown's summary line was written
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
