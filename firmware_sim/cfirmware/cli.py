@@ -25,7 +25,6 @@ import os
 import re
 import shutil
 import signal
-import subprocess
 import sys
 import tempfile
 from collections.abc import Sequence
@@ -40,8 +39,6 @@ __all__ = ["PROG_ENV", "build_parser", "main"]
 #: the name the lines show: ``ghostshell firmware`` sets it when it runs this module for the user
 PROG_ENV = "GHOSTSHELL_FIRMWARE_PROG"
 OK, FAILED, USAGE, INTERRUPTED = 0, 1, 2, 130
-OBJCOPY = "arm-none-eabi-objcopy"
-OBJCOPY_APT = "apt-get install -y binutils-arm-none-eabi"
 
 
 def _prog() -> str:
@@ -167,18 +164,9 @@ def _budget_problem(robot_name: str, target: Target, flash: int, ram: int) -> st
     return None
 
 
-def _objcopy(elf: Path, fmt: str, dest: Path) -> None:
-    tool = shutil.which(OBJCOPY)
-    if tool is None:
-        from firmware_sim.cfirmware.build import ToolchainMissing
-
-        raise ToolchainMissing(f"{OBJCOPY} is not installed; install it with: {OBJCOPY_APT} (.ci/setup does this as root)")
-    subprocess.run([tool, "-O", fmt, str(elf), str(dest)], check=True, capture_output=True, timeout=120)
-
-
 def _write(binary: Path, target: Target, out: Path) -> list[Path]:
     """Copy the build's files into ``out`` (each written beside its final name, then renamed); an ARM
-    image's .bin and .hex come from the build folder, or from ``arm-none-eabi-objcopy`` when it has none."""
+    image's .bin and .hex are the build's (:func:`firmware_sim.cfirmware.build.build` writes them beside the .elf)."""
     out.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     files: list[tuple[str, str | None]] = [(binary.name, None)]
@@ -190,11 +178,7 @@ def _write(binary: Path, target: Target, out: Path) -> list[Path]:
         os.close(fd)
         tmp = Path(tmp_name)
         try:
-            if src.is_file():
-                shutil.copy2(src, tmp)
-            else:
-                assert fmt is not None, f"the build wrote no {src}"
-                _objcopy(binary, fmt, tmp)
+            shutil.copy2(src, tmp)
             tmp.chmod(0o755 if fmt is None else 0o644)  # the image or executable as the linker made it; data
             os.replace(tmp, dest)
         except BaseException:
