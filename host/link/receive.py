@@ -61,6 +61,7 @@ class LinkStats:
 class ReceivePath:
     """Received items -> handlers -> listeners (module docstring); the session provides what is annotated."""
 
+    port_name: str  # the link as its messages name it (BoardClient, set on connect)
     stats: LinkStats
     fanout: TelemetryFanout
     requests: RequestTable
