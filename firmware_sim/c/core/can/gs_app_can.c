@@ -88,10 +88,12 @@ void gs_app_can_flush(gs_app_can_t *app) { gs_can_link_flush(&app->link, now32()
  * lockstep semantics unchanged) and, while an ISO-TP transfer is under way, send at once what it made. A flow
  * control left unread while the board ticked on (up to 256 ticks a batch, each with its plant round trip: ~2 ms in
  * UML) timed out transfers the host had answered in time, and the host's N_Cr ran out waiting for frames the
- * board held. One non-blocking read per tick. */
+ * board held. One non-blocking read per tick while a transfer is under way, every 4th tick otherwise. */
 static void after_tick(gs_app_can_t *app) {
+    int busy = gs_isotp_busy(&app->link.isotp);
+    if (!busy && app->board.ticks % 4u != 0) return; /* idle ISO-TP: a host's First Frame is answered within 4 ticks */
     gs_app_can_pump(app);
-    if (gs_isotp_busy(&app->link.isotp)) gs_can_link_flush(&app->link, now32());
+    if (busy || gs_isotp_busy(&app->link.isotp)) gs_can_link_flush(&app->link, now32());
 }
 
 static void wait_io(gs_app_can_t *app, uint64_t until, int want_write) {
