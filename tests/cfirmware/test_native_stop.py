@@ -68,6 +68,11 @@ def _pending_signals(pid: int) -> int:
     return int(fields["SigPnd"], 16) | int(fields["ShdPnd"], 16)
 
 
+def _state(pid: int) -> str:
+    """The process state letter of ``pid`` (/proc/PID/stat, field 3: R, S, T stopped, Z ...)."""
+    return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+
+
 def test_a_second_ctrl_c_during_the_shutdown_does_not_cut_it_short(tmp_path: Path) -> None:
     """Ctrl-C, then Ctrl-C again while the launcher waits for the firmware to stop: still the clean shutdown and 130
     (it printed 'board: interrupted while starting' and skipped its summary lines: the second signal hit the default
@@ -89,8 +94,11 @@ def test_a_second_ctrl_c_during_the_shutdown_does_not_cut_it_short(tmp_path: Pat
             out += chunk
         (fw,) = _children(proc.pid)
         os.kill(fw, signal.SIGSTOP)
-        proc.send_signal(signal.SIGINT)
         deadline = time.monotonic() + 30
+        while _state(fw) != "T":  # stopped: a SIGTERM pending with the SIGSTOP would be taken first (lower number)
+            assert time.monotonic() < deadline, "the firmware did not stop"
+            _wait_readable(proc.stdout.fileno(), 0.01)  # a 10 ms poll interval, not a synchronisation
+        proc.send_signal(signal.SIGINT)
         while not _pending_signals(fw) & (1 << (signal.SIGTERM - 1)):  # the launcher's stop reached the firmware
             assert time.monotonic() < deadline, "the launcher never asked the firmware to stop"
             _wait_readable(proc.stdout.fileno(), 0.01)  # a 10 ms poll interval, not a synchronisation
