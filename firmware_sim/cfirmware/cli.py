@@ -76,6 +76,13 @@ def _percent(n: int, budget: int) -> str:
     return f"{math.floor(1000 * n / budget) / 10:.1f} %"
 
 
+def _out_dir(text: str) -> Path:
+    """``--out``: a folder name; an empty one (``--out ""``, which would write into the current folder) is refused."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("give a folder (an empty name would write into the current folder)")
+    return Path(text)
+
+
 def _define(text: str) -> tuple[str, int]:
     """``NAME=N`` -> (NAME, N): an upper-case C name and a non-negative integer (decimal or 0x...)."""
     name, sep, value = text.partition("=")
@@ -106,7 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg,
                    help="a folder of robots searched before the user robot folder and the built-in robots")
     b.add_argument("--target", required=True, choices=list(TARGETS), help="the part (the targets action lists them)")
-    b.add_argument("--out", type=Path, default=None, metavar="DIR",
+    b.add_argument("--out", type=_out_dir, default=None, metavar="DIR",
                    help="folder to write the files into (default ./firmware/ROBOT-TARGET/)")
     b.add_argument("--define", dest="defines", action="append", type=_define, default=[], metavar="NAME=N",
                    help="a port's build setting, -DNAME=N (repeatable; an unsigned integer), e.g. the STM32F4 "
@@ -138,6 +145,24 @@ def _out_problem(out: Path) -> str | None:
             if not os.access(p, os.W_OK | os.X_OK):
                 return f"--out {out}: {p} is a folder this process cannot write in"
             return None
+    return None
+
+
+def _defines_problem(defines: list[tuple[str, int]], target: Target) -> str | None:
+    """Why ``--define`` settings cannot build ``target`` (one line), or None: a name its port does not read, a name
+    given twice, a value out of its range (:attr:`Target.defines`)."""
+    seen: set[str] = set()
+    for name, value in defines:
+        spec = target.defines.get(name)
+        if spec is None:
+            takes = ", ".join(target.defines) or "none"
+            return f"--define {name}: target {target.name} reads no such setting (it reads: {takes})"
+        if name in seen:
+            return f"--define {name}: given twice"
+        seen.add(name)
+        why = spec.problem(name, value)
+        if why is not None:
+            return f"--define {why}"
     return None
 
 
@@ -191,6 +216,7 @@ def _write(binary: Path, target: Target, out: Path) -> list[Path]:
 def _build(args: argparse.Namespace) -> int:
     from firmware_sim.cfirmware.build import KINDS, BuildError, ToolchainMissing, build
     from robots.datatypes import RobotDataError
+    from robots.hardware import CALIBRATION_FILE
     from robots.registry import load_robot
 
     target = TARGETS[args.target]
@@ -198,6 +224,14 @@ def _build(args: argparse.Namespace) -> int:
         robot = load_robot(args.robot, args.robots_dir)
     except RobotDataError as e:
         _say(str(e))
+        return USAGE
+    why = _defines_problem(args.defines, target)
+    if why is not None:
+        _say(why)
+        return USAGE
+    if args.calibrated and not (robot.root / CALIBRATION_FILE).is_file():
+        _say(f"--calibrated: robot {robot.name} has no {CALIBRATION_FILE} in {robot.root}; measure one first with "
+             f"ghostshell robots calibrate {robot.name} --servo-bus PORT (docs/guides/calibration.md)")
         return USAGE
     out: Path = args.out if args.out is not None else Path("firmware") / f"{robot.name}-{target.name}"
     why = _out_problem(out)

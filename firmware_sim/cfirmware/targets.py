@@ -20,12 +20,12 @@ checks the default robot against :data:`TARGETS` ``["mps2"]``.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from protocol.messages import MAX_WIRE_SERVOS
 
-__all__ = ["FLASH_SECTIONS", "RAM_SECTIONS", "TARGETS", "ImageUse", "Target", "image_use"]
+__all__ = ["FLASH_SECTIONS", "HSE_HZ", "RAM_SECTIONS", "TARGETS", "Define", "ImageUse", "Target", "image_use"]
 
 #: sections counted as flash (bytes in the image); absent ones count 0
 FLASH_SECTIONS = (".text", ".ARM.exidx", ".data")
@@ -34,12 +34,34 @@ RAM_SECTIONS = (".data", ".bss", ".stack", ".bootcfg")
 
 
 @dataclass(frozen=True)
+class Define:
+    """A build setting a target's port reads (``--define NAME=N``): allowed values ``low``..``high`` in steps of
+    ``step`` (all integers), and what it is, for the refusal line."""
+
+    what: str
+    low: int
+    high: int
+    step: int = 1
+
+    def problem(self, name: str, value: int) -> str | None:
+        """Why ``value`` cannot be ``name`` (one line), or None."""
+        if not self.low <= value <= self.high or (value - self.low) % self.step:
+            unit = f" in steps of {self.step}" if self.step > 1 else ""
+            return f"{name}={value}: {self.what} must be {self.low}..{self.high}{unit}"
+        return None
+
+
+#: the STM32F4 port's crystal (ports/stm32f4: PLL M = the HSE in MHz, RM0090 6.3.2 RCC_PLLCFGR; 4..26 MHz crystals)
+HSE_HZ = Define("the HSE crystal frequency in Hz (a whole number of MHz)", 4_000_000, 26_000_000, 1_000_000)
+
+
+@dataclass(frozen=True)
 class Target:
     """One ``--target``: ``part`` (what it stands for), ``kind`` (the build kind,
     :data:`firmware_sim.cfirmware.build.KINDS`), ``flash_bytes`` / ``ram_bytes`` (the budget, None:
     none), ``qemu_machine`` (``qemu-system-arm -M`` that runs the image, None: none), ``max_servos``
     (the most servos its firmware drives), ``elf`` (True: an ARM image written as .elf, .bin and .hex;
-    False: a native executable)."""
+    False: a native executable), ``defines`` (the build settings its port reads, ``--define``)."""
 
     name: str
     part: str
@@ -49,6 +71,7 @@ class Target:
     qemu_machine: str | None
     max_servos: int = MAX_WIRE_SERVOS
     elf: bool = True
+    defines: Mapping[str, Define] = field(default_factory=dict)
 
 
 TARGETS: Mapping[str, Target] = {
@@ -56,7 +79,7 @@ TARGETS: Mapping[str, Target] = {
         Target("native", "this computer (POSIX executable)", "native", None, None, None, elf=False),
         Target("mps2", "small Cortex-M3 part (our stand-in)", "mps2", 32 * 1024, 8 * 1024, "mps2-an385"),
         Target("stm32f4", "STM32F405RG / STM32F407VG (Cortex-M4F)", "stm32f4", 1024 * 1024, 128 * 1024,
-               "netduinoplus2"),
+               "netduinoplus2", defines={"GS_HSE_HZ": HSE_HZ}),
     )
 }
 

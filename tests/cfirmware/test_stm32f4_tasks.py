@@ -48,11 +48,14 @@ def _realtime(tid: int, tmp: pytest.TempPathFactory) -> E2ERun:
 @pytest.mark.parametrize("tid", [1, 23, 26])
 def test_task_on_stm32f4(tid: int, mode: str, tmp_path_factory: pytest.TempPathFactory) -> None:
     run = _run(tid, FW, tmp_path_factory) if mode == "lockstep" else _realtime(tid, tmp_path_factory)
-    check_common(run, FW, late_ok=mode == "realtime" and fell_behind(run))
+    behind = mode == "realtime" and fell_behind(run)
+    check_common(run, FW, late_ok=behind)
     # task 23's own check (exactly one FLUSH of the head servos, after the last stride) holds in lockstep only: in
     # realtime the host also flushes the head ~0.5 s into the run on every board (the Python board, the native C
-    # firmware and this image alike, measured 2026-12-07), so only the common checks apply to that run
-    if (tid, mode) != (23, "realtime"):
+    # firmware and this image alike, measured 2026-12-07), so only the common checks apply to that run. A realtime
+    # run that fell behind the wall clock (and said so) keeps its calls and their order, not the tasks' timings
+    # (a CI run at load 6 on 2 cores: the host skipped 64 frames, head_act started 0.40 s after shake_ear ended)
+    if (tid, mode) != (23, "realtime") and not behind:
         check_task(tid, run, FW)
     err = (run.out / "board.stderr").read_text()
     assert "C firmware" in err and "servo bus" in err
@@ -65,14 +68,17 @@ def test_task26_timeline_same_as_the_python_board(tmp_path_factory: pytest.TempP
 
 
 def fell_behind(run: E2ERun) -> bool:
-    """Whether a realtime run's emulated board says it fell behind the wall clock (its ``board: realtime lateness``
-    record: ticks overrun or skipped, servo reads unanswered, the plant behind). Only then may frames have been
-    late: QEMU on a loaded two-core machine is descheduled now and then, which the run reports as lateness (never
-    as a fault); a late frame from a board that kept up is a failure."""
+    """Whether a realtime run says it fell behind the wall clock: the board's ``board: realtime lateness`` record
+    (ticks overrun or skipped, servo reads unanswered, the plant behind) or the host (frames it skipped, being
+    late itself; summary.json ``extra["realtime_behind"]``). Only then may frames have been late: QEMU and the host
+    on a loaded two-core machine are descheduled now and then, which a run reports as lateness (never as a fault);
+    a late frame in a run that kept up is a failure."""
     rec = board_lateness(run.out / "board.stderr")
     assert rec is not None, "a realtime C firmware run ends with its lateness record"
-    return any(rec.get(k, 0) > 0 for k in ("board_overruns", "board_ticks_skipped", "bus_stalls",
-                                              "bus_late_replies", "plant_late_steps", "plant_behind_max_ms"))
+    extra = run.report.summary.extra
+    return (any(rec.get(k, 0) > 0 for k in ("board_overruns", "board_ticks_skipped", "bus_stalls",
+                                            "bus_late_replies", "plant_late_steps", "plant_behind_max_ms"))
+            or (extra["link"].get("frames_skipped") or 0) > 0 or extra.get("realtime_behind") is not None)
 
 
 def _boot_lines(cmd: list[str], until: str, timeout: float = 60.0) -> str:

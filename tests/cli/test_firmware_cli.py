@@ -146,6 +146,17 @@ BAD = [
     (("firmware", "build", "--target", "mps2", "--bogus"), "unrecognized arguments: --bogus"),
     (("firmware", "build", "--target", "stm32f4", "--define", "hse=12"), "argument --define: expected NAME=N"),
     (("firmware", "build", "--target", "stm32f4", "--define", "GS_HSE_HZ=fast"), "expected a non-negative integer"),
+    # a new user's findings (2026-12-07): each of these reached the compiler (exit 1, a 2-4 KB gcc dump), built
+    # with no effect, or wrote into the current folder
+    (("firmware", "build", "--target", "stm32f4", "--define", "GS_HSE_HZ=0"), "must be 4000000..26000000"),
+    (("firmware", "build", "--target", "stm32f4", "--define", "GS_HSE_HZ=12500000"), "in steps of 1000000"),
+    (("firmware", "build", "--target", "stm32f4", "--define", "GS_HSE_HZ=99999999999999999999"), "must be 4000000"),
+    (("firmware", "build", "--target", "stm32f4", "--define", "GS_FOO=1"), "reads no such setting (it reads: GS_HSE_HZ)"),
+    (("firmware", "build", "--target", "mps2", "--define", "GS_HSE_HZ=12000000"), "target mps2 reads no such setting"),
+    (("firmware", "build", "--target", "stm32f4", "--define", "GS_HSE_HZ=12000000", "--define", "GS_HSE_HZ=8000000"),
+     "GS_HSE_HZ: given twice"),
+    (("firmware", "build", "--target", "stm32f4", "--calibrated"), "robot coco has no calibration.toml"),
+    (("firmware", "build", "--target", "mps2", "--out", ""), "argument --out: give a folder"),
     (("firmware", "check"), "ghostshell firmware check: error: the following arguments are required: --link"),
     (("firmware", "check", "--link", "pty"), "a link the emulated board creates"),
     (("firmware", "check", "--link", "/dev/null", "--robot", "no-such-robot"), "no robot 'no-such-robot'"),
