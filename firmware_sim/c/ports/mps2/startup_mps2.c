@@ -1,28 +1,12 @@
-/* Reset and the vector table of the Cortex-M3 image: copy .data, zero .bss, run main. */
+/* The vector table of the Cortex-M3 image (reset: ports/mcu/gs_reset.c: copy .data, zero .bss, run main). */
 #include <stdint.h>
 
-extern uint32_t _sidata, _sdata, _edata, _sbss, _ebss, _estack;
-int main(void);
+extern uint32_t _estack;
+void reset_handler(void);   /* ports/mcu/gs_reset.c */
+void default_handler(void); /* ports/mcu/gs_reset.c */
 void systick_handler(void);
 void uart0_rx_handler(void);
 void uart1_rx_handler(void);
-
-void reset_handler(void);
-void default_handler(void);
-
-void default_handler(void) {
-    for (;;) {
-    }
-}
-
-void reset_handler(void) {
-    uint32_t *src = &_sidata, *dst = &_sdata;
-    while (dst < &_edata) *dst++ = *src++;
-    for (dst = &_sbss; dst < &_ebss;) *dst++ = 0;
-    main();
-    for (;;) {
-    }
-}
 
 typedef void (*vector_t)(void);
 

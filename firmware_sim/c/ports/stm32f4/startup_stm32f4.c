@@ -1,35 +1,19 @@
-/* Reset and the vector table of the STM32F405/F407 image (RM0090 12.2 table 61: 16 system exceptions then
- * 82 interrupt positions; USART1 37, USART2 38, USART3 39, USART6 71): copy .data, zero .bss, run main. The
+/* The vector table of the STM32F405/F407 image (RM0090 12.2 table 61: 16 system exceptions then
+ * 82 interrupt positions; USART1 37, USART2 38, USART3 39, USART6 71). The
  * table sits first in flash (0x0800 0000, aliased at 0 when booting from main flash: BOOT0 low). Soft-float
- * image: the FPU stays off (no CPACR write), exceptions stack no FP context. */
+ * image: the FPU stays off (no CPACR write), exceptions stack no FP context. Reset: ports/mcu/gs_reset.c. */
 #include <stdint.h>
 
 #include "stm32f4_regs.h"
 
-extern uint32_t _sidata, _sdata, _edata, _sbss, _ebss, _estack;
-int main(void);
+extern uint32_t _estack;
+void reset_handler(void);   /* ports/mcu/gs_reset.c */
+void default_handler(void); /* ports/mcu/gs_reset.c: an unexpected exception or fault stops there; the
+                               independent watchdog (once started) resets the part */
 void systick_handler(void);
 void usart2_handler(void);
 void usart3_handler(void);
 void usart6_handler(void);
-
-void reset_handler(void);
-void default_handler(void);
-
-/* An unexpected exception or fault: stop here; the independent watchdog (once started) resets the part. */
-void default_handler(void) {
-    for (;;) {
-    }
-}
-
-void reset_handler(void) {
-    uint32_t *src = &_sidata, *dst = &_sdata;
-    while (dst < &_edata) *dst++ = *src++;
-    for (dst = &_sbss; dst < &_ebss;) *dst++ = 0;
-    main();
-    for (;;) {
-    }
-}
 
 typedef void (*vector_t)(void);
 
