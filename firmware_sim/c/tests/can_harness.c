@@ -24,26 +24,11 @@
 #include "gs_can.h"
 #include "gs_can_link.h"
 #include "gs_isotp.h"
-
-static int unhex(const char *s, uint8_t *out, size_t cap) {
-    size_t n = 0;
-    while (s[n] && s[n] != ' ' && s[n] != '\n' && s[n] != '\r') n++;
-    if (n % 2 || n / 2 > cap) return -1;
-    for (size_t i = 0; i < n / 2; i++) {
-        unsigned v;
-        if (sscanf(s + 2 * i, "%2x", &v) != 1) return -1;
-        out[i] = (uint8_t)v;
-    }
-    return (int)(n / 2);
-}
-
-static void hex(const uint8_t *p, size_t n) {
-    for (size_t i = 0; i < n; i++) printf("%02x", p[i]);
-}
+#include "gs_hex.h"
 
 static void frame(const gs_can_frame_t *f) {
     printf(" %x:%u:", (unsigned)f->id, (unsigned)f->flags);
-    hex(f->data, f->len);
+    gs_print_hex(f->data, f->len);
 }
 
 /* The `k`-th space-separated word of `line` (0-based), or "". */
@@ -59,7 +44,7 @@ static const char *word(const char *line, int k) {
 
 static int parse_msg(unsigned type, const char *hexs, gs_msg_t *m) {
     static uint8_t buf[512];
-    int n = unhex(hexs, buf, sizeof buf);
+    int n = gs_unhex(hexs, buf, sizeof buf);
     const char *why = "";
     if (n < 0) return -1;
     return gs_decode_payload((uint8_t)type, buf, (size_t)n, m, &why) == GS_OK ? 0 : -1;
@@ -70,7 +55,7 @@ static void item(const gs_can_item_t *it) {
         static uint8_t buf[512];
         int n = gs_encode_payload(&it->msg, buf, sizeof buf);
         printf(" M:%u:%u:", (unsigned)it->msg.type, (unsigned)it->seq);
-        if (n >= 0) hex(buf, (size_t)n);
+        if (n >= 0) gs_print_hex(buf, (size_t)n);
         else printf("ENC%d", n);
     } else {
         printf(" X:%s", gs_can_item_kind_name(it->kind));
@@ -81,7 +66,7 @@ static int parse_frame(const char *s, gs_can_frame_t *f) {
     unsigned id, flags;
     memset(f, 0, sizeof *f);
     if (sscanf(s, "%x %u", &id, &flags) != 2) return -1;
-    int n = unhex(word(s, 2), f->data, sizeof f->data);
+    int n = gs_unhex(word(s, 2), f->data, sizeof f->data);
     if (n < 0) return -1;
     f->id = id;
     f->flags = (uint8_t)flags;
@@ -160,7 +145,7 @@ int main(void) {
             }
             int n = gs_can_encode_bulk(&m, (uint16_t)a, unit, sizeof unit);
             if (n < 0) printf("ERR\n");
-            else { printf("= "); hex(unit, (size_t)n); printf("\n"); }
+            else { printf("= "); gs_print_hex(unit, (size_t)n); printf("\n"); }
             break;
         }
         case 'R':
@@ -184,7 +169,7 @@ int main(void) {
             break;
         case 'S': {
             static uint8_t buf[4096];
-            int n = unhex(line + 2, buf, sizeof buf);
+            int n = gs_unhex(line + 2, buf, sizeof buf);
             printf("%s\n", n < 0 ? "BAD" : gs_isotp_send(&tp, buf, (size_t)n) == 0 ? "OK" : "FULL");
             break;
         }

@@ -10,22 +10,7 @@
 #include "gs_cobs.h"
 #include "gs_crc.h"
 #include "gs_proto.h"
-
-static int unhex(const char *s, uint8_t *out, size_t cap) {
-    size_t n = strlen(s);
-    while (n && (s[n - 1] == '\n' || s[n - 1] == '\r' || s[n - 1] == ' ')) n--;
-    if (n % 2 || n / 2 > cap) return -1;
-    for (size_t i = 0; i < n / 2; i++) {
-        unsigned v;
-        if (sscanf(s + 2 * i, "%2x", &v) != 1) return -1;
-        out[i] = (uint8_t)v;
-    }
-    return (int)(n / 2);
-}
-
-static void hex(const uint8_t *p, size_t n) {
-    for (size_t i = 0; i < n; i++) printf("%02x", p[i]);
-}
+#include "gs_hex.h"
 
 int main(void) {
     static char line[8192];
@@ -38,7 +23,7 @@ int main(void) {
             if (sscanf(line + 2, "%u", &type) != 1 || !(sp = strchr(line + 2, ' '))) {
                 printf("BAD\n");
             } else {
-                int n = unhex(sp + 1, buf, sizeof buf);
+                int n = gs_unhex(sp + 1, buf, sizeof buf);
                 gs_msg_t m;
                 const char *why = "";
                 int rc = n < 0 ? GS_E_VALUE : gs_decode_payload((uint8_t)type, buf, (size_t)n, &m, &why);
@@ -48,18 +33,18 @@ int main(void) {
                     gs_dump_msg(&m, dump, sizeof dump);
                     int k = gs_encode_payload(&m, out, sizeof out);
                     printf("OK %s | ", dump);
-                    if (k >= 0) hex(out, (size_t)k);
+                    if (k >= 0) gs_print_hex(out, (size_t)k);
                     else printf("ENC%d", k);
                     printf("\n");
                 }
             }
         } else if (line[0] == 'C') {
-            int n = unhex(line + 2, buf, sizeof buf);
+            int n = gs_unhex(line + 2, buf, sizeof buf);
             long k = n < 0 ? -1 : gs_cobs_decode(buf, (size_t)n);
             if (k < 0) printf("ERR\n");
-            else { printf("OK "); hex(buf, (size_t)k); printf("\n"); }
+            else { printf("OK "); gs_print_hex(buf, (size_t)k); printf("\n"); }
         } else if (line[0] == 'R') {
-            int n = unhex(line + 2, buf, sizeof buf);
+            int n = gs_unhex(line + 2, buf, sizeof buf);
             printf("%u\n", n < 0 ? 0u : (unsigned)gs_crc16_x25(buf, (size_t)n));
         } else {
             printf("BAD\n");
