@@ -76,9 +76,6 @@ class BoardServer:
         self.running = True
         self.inbox: deque[Frame | DecodeError] = deque()  # lockstep: decoded, not yet handled
         self.clock = RealtimeClock(board.tick_us / 1e6) if not board.cfg.lockstep else None
-        if self.clock is None:
-            transport.lockstep_idle = lambda: (not self.inbox and not self.board.can_tick()
-                                               and not self.transport.lockstep_hold)
         if self.clock is not None:
             board._clock_us = self.clock.board_time_us  # fine-grained time for TIME_SYNC
 
@@ -231,14 +228,11 @@ class BoardServer:
         before it have covered: the board handles the next message only when it cannot tick.
         So the same byte stream gives the same telemetry, however the bytes were chunked. Ticks run
         through :meth:`Board.run` (the ticks up to the next report, the quiet ones in one C call);
-        the backlog is checked before each such run, and a run sends at most one tick's reports. While the
-        transport holds (:attr:`BoardTransport.lockstep_hold`: CAN, an ISO-TP transfer waiting for the host's
-        flow control) the board neither ticks nor handles a message, so the host's answer always comes before
-        the board's next step, whenever it arrives in wall-clock time."""
+        the backlog is checked before each such run, and a run sends at most one tick's reports."""
         while self.running:
             ran = flushed = 0
             while (self.running and self.board.can_tick() and self.backlog < LOCKSTEP_BACKLOG and ran < 256
-                   and self._line_has_room() and not self.transport.lockstep_hold):
+                   and self._line_has_room()):
                 n, out = self.board.run(256 - ran)  # up to the next tick with reports, several per C call
                 if out:
                     if self.objects_log is not None:
@@ -252,13 +246,12 @@ class BoardServer:
                     flushed = ran
             self._sync_viewer()
             handled = 0
-            while self.inbox and not self.board.can_tick() and handled < 256 and not self.transport.lockstep_hold:
+            while self.inbox and not self.board.can_tick() and handled < 256:
                 self._process(self.inbox.popleft())
                 handled += 1
             self._flush_tx()
-            hold = self.transport.lockstep_hold
             blocked = ((not self.board.can_tick() and not self.inbox) or self.backlog >= LOCKSTEP_BACKLOG
-                       or not self._line_has_room() or hold)
+                       or not self._line_has_room())
             timeout: float = 0.5 if blocked else 0.0
             io_t = self._next_io_time()
             if io_t is not None:

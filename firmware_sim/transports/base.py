@@ -30,10 +30,6 @@ class BoardTransport(ABC):
         self.name: str = ""
         #: board time in seconds for frame-log records; the server sets it to the board clock
         self.log_time: Callable[[], float] = lambda: 0.0
-        #: lockstep only (the server sets it): True while the board has handled every message it has, cannot
-        #: tick and does not hold (:attr:`lockstep_hold`), i.e. its state is a function of the input so far. A
-        #: transport whose receiving answers the host on its own (CAN: ISO-TP flow control) answers only then
-        self.lockstep_idle: Callable[[], bool] | None = None
 
     @abstractmethod
     def fileno(self) -> int | None:
@@ -79,13 +75,6 @@ class BoardTransport(ABC):
     def next_io_time(self) -> float | None:
         """The next ``time.monotonic()`` at which the wire model releases bytes either way, or None."""
         return None
-
-    @property
-    def lockstep_hold(self) -> bool:
-        """True while a lockstep board must neither tick nor handle a message: its output in flight depends on
-        an answer from the host (CAN: an ISO-TP transfer waiting for flow control or still sending), so what it
-        does next waits for that answer instead of racing it in wall-clock time. False for a plain byte link."""
-        return False
 
     def exit_note(self) -> str | None:
         """A statistic worth one line at exit (printed once by the board's command line), or None."""

@@ -7,30 +7,6 @@ layout in the link's frame kind, classic TELEMETRY above 27 servos, goes as bulk
 id selects its identifiers; the broadcast ESTOP 0x000 is honoured too). The board's own policy stays
 here: a CAN controller's transmit priority (lowest identifier first), periodic bulk reports (newest
 wins, sent only while a host is heard), NACKs without their detail text when they must be short.
-
-Lockstep: a board's output must be a function of the host's input stream, never of wall-clock time. Over
-CAN, ISO-TP's flow control made two races, one per direction, and two rules remove them:
-
-* Sending. Whether the host's flow control for a board's bulk transfer (a SIM_STATE) arrived before or
-  after the board's next ticks decided whether the next report replaced the waiting one or went too (two
-  runs of one task sent 135 and 147 SIM_STATEs, and every later sequence number differed). A lockstep
-  board holds (:attr:`CanBoardTransport.lockstep_hold`, read by
-  :meth:`firmware_sim.server.BoardServer._serve_lockstep`): while a transfer it started waits for flow
-  control or sends its consecutive frames (or another waits to start), it neither ticks nor handles a
-  message; it only reads and writes the bus. The host's flow control then always comes "before" the next
-  tick, and each periodic report goes out whole before the next one is made (none is replaced).
-* Receiving. The board's flow control for a host's First Frame went out between whichever reports the board
-  had sent when the First Frame was read. A lockstep board keeps what it reads in stream order
-  (:meth:`CanBoardTransport._feed_in_order`) and takes a First Frame only when it is idle (every message
-  before it handled, no tick covered, no hold: :attr:`BoardTransport.lockstep_idle`), and nothing after it
-  until that transfer ends; flow controls and consecutive frames are taken as they come. The bulk message
-  takes its First Frame's place in the stream, and the flow control a fixed place in the board's output.
-
-A transfer nobody answers ends as before, by ISO-TP's timeouts (``ISOTP_TIMEOUT_MS``) and the "host heard"
-rule, so a silent host stalls the board for at most that long per transfer (the host's timing then shows,
-as it must). Realtime boards do neither. The C firmware does the same (firmware_sim/c/core/can/gs_app_can.c
-``SERVE_HOLD``, gs_can_link.c ``gs_can_link_feed_held``); tests/e2e/test_lockstep_can_identity.py and
-tests/socketcan/test_c_firmware_over_socketcan.py check it under a CPU hog.
 Every frame sent and received goes to the frame log chosen by suffix (:mod:`protocol.logfile`:
 python-can's writers, ``.log`` candump, ``.asc``, ``.blf``; wall-clock timestamps).
 
@@ -85,7 +61,6 @@ SLCAN_WINDOW = 512  # SLCAN text bytes handed to the pty at a time; the rest wai
 FAULTY_WINDOW = 32  # frames the tx fault injector released that may wait for the wire (then the queue waits)
 BACKOFF_MIN_S = 0.001
 BACKOFF_MAX_S = 0.02
-HELD_LIMIT = 4096  # lockstep: received frames not yet fed (in stream order) beyond which the bus is not read
 
 class CanBoardTransport(BoardTransport):
     """Shared CAN logic over :class:`protocol.can.engine.CanEngine`; subclasses read and write frames."""
@@ -123,7 +98,6 @@ class CanBoardTransport(BoardTransport):
         self.rx_faults: FaultInjector[CanFrame] | None = None
         self.tx_faults: FaultInjector[CanFrame] | None = None
         self._faulty_out: deque[CanFrame] = deque()  # frames the tx injector released, not yet written
-        self._held: deque[CanFrame] = deque()  # lockstep: received, logged, not yet fed (see _feed_in_order)
 
     @property
     def channel_name(self) -> str:
@@ -192,61 +166,23 @@ class CanBoardTransport(BoardTransport):
         return []
 
     def receive(self, now: float, *, read: bool = True) -> list[Frame | DecodeError]:
-        frames = self._read_frames() if read and len(self._held) < HELD_LIMIT else []
+        frames = self._read_frames() if read else []
         if self.rx_faults is not None:  # what reaches the controller: after the injected faults
             for f in frames:
                 self.rx_faults.push(f, now)
             frames = self.rx_faults.pop_due(now)
         errors = self._take_line_errors()
-        if not frames and not self.engine.busy and not self._items and not self._held:
+        if not frames and not self.engine.busy and not self._items:
             return errors
         for f in frames:
             self._log(f, True)
         if frames:
             self.host_heard = True
-        if self.lockstep_idle is None:
-            items = self.engine.feed_many(frames)
-        else:
-            self._held.extend(frames)
-            items = self._feed_in_order()
+        items = self.engine.feed_many(frames)
         if self._periodic_in_flight and not self.engine.isotp.layer.transmitting():
             self._periodic_in_flight = False
         taken, self._items = self._items, []
         return errors + taken + items
-
-    def _is_isotp(self, frame: CanFrame, *kinds: int) -> bool:
-        """Is ``frame`` an ISO-TP frame to this board whose PCI type (high nibble of byte 0) is in ``kinds``?"""
-        return (frame.arbitration_id == self.engine.bulk_rx_id and not frame.is_extended_id and bool(frame.data)
-                and frame.data[0] >> 4 in kinds)
-
-    def _feed_in_order(self) -> list[Frame | DecodeError]:
-        """Lockstep: feed the held frames so that the board's answers come at points of its input stream, never
-        of wall-clock time (module docstring, "Lockstep"). Flow controls and consecutive frames (0x3, 0x2: they
-        continue transfers already under way) go at once. The rest go in order, but a First Frame (0x1: its flow
-        control is an answer) only when the board is idle (:attr:`lockstep_idle`) and nothing else was fed in this
-        call, and nothing after it until its transfer ends (completed or timed out): the bulk message then takes
-        its First Frame's place in the stream."""
-        out: list[Frame | DecodeError] = []
-        rest: deque[CanFrame] = deque()
-        for f in self._held:
-            if self._is_isotp(f, 2, 3):
-                out += self.engine.feed(f)
-            else:
-                rest.append(f)
-        self._held = rest
-        layer = self.engine.isotp.layer
-        fed = bool(out)
-        while self._held and not layer.is_rx_active():
-            f = self._held[0]
-            if self._is_isotp(f, 1):
-                if not fed and self.lockstep_idle is not None and self.lockstep_idle():
-                    out += self.engine.feed(self._held.popleft())
-                break
-            out += self.engine.feed(self._held.popleft())
-            fed = True
-        if self.engine.busy:
-            out += self.engine.poll()
-        return out
 
     def queue(self, msg: Message, seq: int, now: float) -> bool:
         if isinstance(msg, Nack) and msg.detail and self._nack_fixed(msg):
@@ -347,17 +283,7 @@ class CanBoardTransport(BoardTransport):
             due.append(self._retry_at)
         if self.engine.busy or self._periodic:
             due.append(time.monotonic() + 0.002)
-        if (self._held and self.lockstep_idle is not None and not self.engine.isotp.layer.is_rx_active()
-                and self.lockstep_idle()):
-            due.append(time.monotonic())  # the board is idle: the First Frame held for it goes now
         return min(due) if due else None
-
-    @property
-    def lockstep_hold(self) -> bool:
-        """True while an ISO-TP transfer this board started (a periodic report or any other bulk message)
-        waits for the host's flow control or is still sending its consecutive frames, or another waits to
-        start. See the module docstring ("Lockstep")."""
-        return self.engine.isotp.layer.transmitting() or bool(self._periodic)
 
     def exit_note(self) -> str | None:
         if not self.periodic_unanswered:

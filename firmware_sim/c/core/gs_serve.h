@@ -18,16 +18,10 @@
  *   SERVE_LOCKSTEP_BACKLOG       lockstep: stop ticking while this much output waits
  *   SERVE_LINK_NAME              a string literal for the banner ("" serial, "CAN, ")
  *   SERVE_AFTER_TICK(app)        optional: link work after each lockstep tick (CAN: read the bus, so a flow
- *                                control is answered between ticks; the serial link defines nothing: no cost)
- *   SERVE_HOLD(app)              optional: lockstep, 1 while the board must neither tick nor take an item because
- *                                output in flight waits for the host's answer (CAN: an ISO-TP transfer waiting for
- *                                flow control or sending; firmware_sim/server.py lockstep_hold); 0 by default */
+ *                                control is answered between ticks; the serial link defines nothing: no cost) */
 
 #ifndef SERVE_AFTER_TICK
 #define SERVE_AFTER_TICK(app) ((void)0)
-#endif
-#ifndef SERVE_HOLD
-#define SERVE_HOLD(app) 0
 #endif
 #define RESYNC_BEHIND_US 100000 /* realtime: re-anchor the schedule when this far behind */
 #define STATS_EVERY_TICKS 500u
@@ -54,15 +48,14 @@ static void serve_lockstep(SERVE_APP_T *app) {
     while (!hal_should_stop()) {
         unsigned ran = 0;
         /* (a stop ends the batch: each tick of a stopping board would wait out its bus reads) */
-        while (gs_board_can_tick(b) && SERVE_BACKLOG(app) < SERVE_LOCKSTEP_BACKLOG && ran < 256u && !hal_should_stop() &&
-               !SERVE_HOLD(app)) {
+        while (gs_board_can_tick(b) && SERVE_BACKLOG(app) < SERVE_LOCKSTEP_BACKLOG && ran < 256u && !hal_should_stop()) {
             serve_tick(app);
             SERVE_AFTER_TICK(app);
             if (++ran % 16u == 0) SERVE_FLUSH(app);
         }
         unsigned handled = 0;
         int pending = 0;
-        while (!gs_board_can_tick(b) && handled < 256u && !SERVE_HOLD(app)) {
+        while (!gs_board_can_tick(b) && handled < 256u) {
             SERVE_PUMP(app);
             if (!SERVE_NEXT(app, &item)) break;
             SERVE_PROCESS(app, &item);
@@ -71,7 +64,7 @@ static void serve_lockstep(SERVE_APP_T *app) {
         SERVE_FLUSH(app);
         SERVE_PUMP(app);
         pending = SERVE_PENDING(app);
-        int blocked = (!gs_board_can_tick(b) && !pending) || SERVE_BACKLOG(app) >= SERVE_LOCKSTEP_BACKLOG || SERVE_HOLD(app);
+        int blocked = (!gs_board_can_tick(b) && !pending) || SERVE_BACKLOG(app) >= SERVE_LOCKSTEP_BACKLOG;
         if (blocked) SERVE_WAIT(app, hal_now_us() + 500000u, SERVE_BACKLOG(app) > 0);
     }
 }
@@ -131,4 +124,3 @@ static void serve_banner(const gs_settings_t *cfg) {
 #undef RESYNC_BEHIND_US
 #undef STATS_EVERY_TICKS
 #undef SERVE_AFTER_TICK
-#undef SERVE_HOLD

@@ -76,18 +76,10 @@ void gs_app_can_process(gs_app_can_t *app, const gs_can_item_t *it) {
     gs_board_handle(b, &it->msg, it->seq, gs_board_time_us(b));
 }
 
-/* Lockstep: what the board does next is a function of the input so far (firmware_sim/transports/can.py,
- * "Lockstep"): it holds while a transfer of its own waits for the host (gs_can_link_hold), and answers a host's
- * First Frame only when idle: every item taken, no tick covered, no hold. */
-static int lockstep_idle(const gs_app_can_t *app) {
-    return !gs_can_link_pending(&app->link) && !gs_board_can_tick(&app->board) && !gs_can_link_hold(&app->link);
-}
-
 void gs_app_can_pump(gs_app_can_t *app) {
     gs_can_frame_t f;
     for (unsigned i = 0; i < PUMP_MAX_FRAMES && gs_can_link_can_take(&app->link) && hal_can_recv(&f); i++)
         gs_can_link_rx(&app->link, &f, now32());
-    if (app->link.lockstep) gs_can_link_feed_held(&app->link, lockstep_idle(app), now32());
 }
 
 void gs_app_can_flush(gs_app_can_t *app) { gs_can_link_flush(&app->link, now32()); }
@@ -125,14 +117,12 @@ static void wait_io(gs_app_can_t *app, uint64_t until, int want_write) {
 #define SERVE_LOCKSTEP_BACKLOG GS_CAN_LOCKSTEP_BACKLOG
 #define SERVE_LINK_NAME "CAN, "
 #define SERVE_AFTER_TICK(app) after_tick(app)
-#define SERVE_HOLD(app) gs_can_link_hold(&(app)->link)
 #include "gs_serve.h"
 
 void gs_app_can_tick(gs_app_can_t *app) { serve_tick(app); }
 
 int gs_app_can_init(gs_app_can_t *app, const gs_settings_t *cfg, unsigned node, int fd) {
     gs_can_link_init(&app->link, node, fd, write_frame, log_frame, app);
-    app->link.lockstep = cfg->lockstep ? 1u : 0u;
     gs_board_init(&app->board, cfg, on_send, app);
     app->stats_key = 0;
     return gs_board_boot(&app->board);

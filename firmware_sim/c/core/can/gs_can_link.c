@@ -121,56 +121,13 @@ static void poll_isotp(gs_can_link_t *l) {
     if (l->periodic_in_flight && !gs_isotp_transmitting(&l->isotp)) l->periodic_in_flight = 0;
 }
 
-int gs_can_link_can_take(const gs_can_link_t *l) {
-    return l->items_n + GS_CAN_MAX_ITEMS_PER_FRAME + 2u <= GS_CAN_ITEMS && l->held_n < GS_CAN_HELD;
-}
-
-/* An ISO-TP frame to this board whose PCI type (high nibble of byte 0) is `kind`. */
-static int is_isotp(const gs_can_link_t *l, const gs_can_frame_t *f, unsigned kind) {
-    return f->id == l->isotp.rxid && !(f->flags & GS_CAN_FLAG_EXT) && f->len && (unsigned)(f->data[0] >> 4) == kind;
-}
-
-static void feed(gs_can_link_t *l, const gs_can_frame_t *f);
+int gs_can_link_can_take(const gs_can_link_t *l) { return l->items_n + GS_CAN_MAX_ITEMS_PER_FRAME + 2u <= GS_CAN_ITEMS; }
 
 void gs_can_link_rx(gs_can_link_t *l, const gs_can_frame_t *f, uint32_t now_us) {
     l->now_us = now_us;
     l->rx_frames++;
     l->host_heard = 1;
     if (l->log) l->log(l->ctx, f, 0);
-    if (l->lockstep && !is_isotp(l, f, 2u) && !is_isotp(l, f, 3u)) {
-        if (l->held_n >= GS_CAN_HELD) { /* the port checks can_take first: never */
-            l->items_dropped++;
-            return;
-        }
-        l->held[(l->held_head + l->held_n) % GS_CAN_HELD] = *f;
-        l->held_n++;
-        return;
-    }
-    feed(l, f);
-}
-
-void gs_can_link_feed_held(gs_can_link_t *l, int idle, uint32_t now_us) {
-    l->now_us = now_us;
-    int fed = 0;
-    while (l->held_n && !gs_isotp_rx_active(&l->isotp) && l->items_n + GS_CAN_MAX_ITEMS_PER_FRAME + 2u <= GS_CAN_ITEMS) {
-        const gs_can_frame_t *f = &l->held[l->held_head];
-        int first_frame = is_isotp(l, f, 1u);
-        if (first_frame && (fed || !idle)) break;
-        gs_can_frame_t copy = *f;
-        l->held_head = (uint16_t)((l->held_head + 1u) % GS_CAN_HELD);
-        l->held_n--;
-        feed(l, &copy);
-        if (first_frame) break;
-        fed = 1;
-    }
-    if (gs_isotp_busy(&l->isotp)) poll_isotp(l);
-}
-
-int gs_can_link_hold(const gs_can_link_t *l) {
-    return gs_isotp_transmitting(&l->isotp) || l->periodic[0].used || l->periodic[1].used;
-}
-
-static void feed(gs_can_link_t *l, const gs_can_frame_t *f) {
     if (f->id == l->isotp.rxid && !(f->flags & GS_CAN_FLAG_EXT)) {
         gs_isotp_feed(&l->isotp, f);
         poll_isotp(l);

@@ -30,9 +30,6 @@
 #ifndef GS_CAN_ITEMS
 #define GS_CAN_ITEMS 64u /* decoded items waiting for the core */
 #endif
-#ifndef GS_CAN_HELD
-#define GS_CAN_HELD 128u /* lockstep: received frames not yet fed, in stream order (then the port reads no more) */
-#endif
 #define GS_CAN_FRAME_COST 16u        /* backlog bytes per queued frame (firmware_sim/transports/can.py FRAME_COST) */
 #define GS_CAN_NACK_BULK_BACKLOG 8u  /* bulk units waiting beyond which a NACK goes fixed without its text */
 #define GS_CAN_BACKOFF_MIN_US 1000u
@@ -79,10 +76,6 @@ typedef struct {
     uint8_t periodic_in_flight;
     uint8_t host_heard;
     uint16_t tx_seq;
-    /* lockstep (gs_can_link_feed_held): frames received but not yet fed, in stream order */
-    uint8_t lockstep;
-    gs_can_frame_t held[GS_CAN_HELD];
-    uint16_t held_head, held_n;
     /* counters (firmware_sim/transports/can.py's names) */
     uint32_t tx_frames, tx_retries, tx_dropped, rx_frames;
     uint32_t periodic_replaced, periodic_unheard, periodic_unanswered, nack_details_dropped, send_refused;
@@ -93,14 +86,6 @@ void gs_can_link_init(gs_can_link_t *l, unsigned node, int fd, gs_can_write_fn w
 int gs_can_link_can_take(const gs_can_link_t *l);
 /* One frame from the bus (after the port's node filter), decoded at once. */
 void gs_can_link_rx(gs_can_link_t *l, const gs_can_frame_t *f, uint32_t now_us);
-/* Lockstep (`lockstep` set): feed the held frames (firmware_sim/transports/can.py _feed_in_order): in order, but a
- * First Frame only when `idle` (the board handled every item, cannot tick, does not hold) and nothing was fed before
- * it in this call, and nothing after it until its transfer ends. Flow controls and consecutive frames are fed on
- * arrival by gs_can_link_rx. */
-void gs_can_link_feed_held(gs_can_link_t *l, int idle, uint32_t now_us);
-/* Lockstep: a transfer this board started waits for flow control or sends, or a report waits to start: the board
- * neither ticks nor takes an item (firmware_sim/transports/can.py lockstep_hold). */
-int gs_can_link_hold(const gs_can_link_t *l);
 /* The next decoded item, in stream order: 1 with `item`, 0 when none waits. */
 int gs_can_link_next(gs_can_link_t *l, gs_can_item_t *item);
 int gs_can_link_pending(const gs_can_link_t *l);

@@ -70,7 +70,6 @@ void gs_isotp_sent(gs_isotp_t *t, const gs_can_frame_t *f, uint32_t now_us) {
 int gs_isotp_transmitting(const gs_isotp_t *t) { return t->txq_n > 0 || t->tx_state != TX_IDLE; }
 unsigned gs_isotp_queued(const gs_isotp_t *t) { return t->txq_n; }
 unsigned gs_isotp_waiting(const gs_isotp_t *t) { return t->txq_n + (gs_isotp_transmitting(t) ? 1u : 0u); }
-int gs_isotp_rx_active(const gs_isotp_t *t) { return t->rx_state != RX_IDLE; }
 int gs_isotp_busy(const gs_isotp_t *t) { return gs_isotp_transmitting(t) || t->rx_state != RX_IDLE || t->inbox_len > 0; }
 
 /* Nearest CAN FD data length (can-isotp _get_nearest_can_fd_size). */

@@ -88,8 +88,6 @@ void gs_isotp_poll(gs_isotp_t *t, uint32_t now_us);
 void gs_isotp_sent(gs_isotp_t *t, const gs_can_frame_t *f, uint32_t now_us);
 /* A transfer is under way either way (poll again within a few ms: its timers). */
 int gs_isotp_busy(const gs_isotp_t *t);
-/* Receiving: a First Frame taken, its consecutive frames still to come (can-isotp's is_rx_active()). */
-int gs_isotp_rx_active(const gs_isotp_t *t);
 /* Units queued or being sent (protocol.can.engine.CanEngine.bulk_waiting). */
 unsigned gs_isotp_waiting(const gs_isotp_t *t);
 /* Sending: queued units or a transfer under way (can-isotp's transmitting()). */
