@@ -175,13 +175,31 @@ def test_bad_arguments_exit_2_with_one_line(argv: tuple[str, ...], says: str, tm
     assert regular.read_text(encoding="utf-8") == "kept\n" and not (tmp_path / "firmware").exists()
 
 
+def _held_compiler(tmp_path: Path) -> tuple[Path, Path]:
+    """A stand-in ``arm-none-eabi-gcc`` first on PATH: it answers ``--version``, and a compile marks a file
+    and then holds (until a signal stops it), so a Ctrl-C is sure to find the build compiling however busy
+    the machine is (a real compile takes about a second: on a loaded machine it can finish first)."""
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    mark = tmp_path / "compiling"
+    gcc = bin_dir / "arm-none-eabi-gcc"
+    gcc.write_text("#!/bin/sh\n"
+                   'if [ "$1" = --version ]; then echo "arm-none-eabi-gcc (held stand-in) 0"; exit 0; fi\n'
+                   f'echo "$$" > "{mark}"\n'
+                   "exec sleep 600\n", encoding="utf-8")
+    gcc.chmod(0o755)
+    return bin_dir, mark
+
+
 def test_ctrl_c_during_a_build_exits_130_and_writes_nothing(tmp_path: Path) -> None:
-    cache = tmp_path / "cache"  # empty: the build compiles (about a second), so the Ctrl-C finds it compiling
+    cache = tmp_path / "cache"  # empty: the build compiles
     out = tmp_path / "out"
+    bin_dir, compiling = _held_compiler(tmp_path)
+    env = dict(os.environ, GHOSTSHELL_CFIRMWARE_CACHE=str(cache), PATH=f"{bin_dir}{os.pathsep}{os.environ['PATH']}")
     cli = start(["firmware", "build", "--robot", "coco", "--target", "mps2", "--out", str(out)], tmp_path / "logs",
-                env=dict(os.environ, GHOSTSHELL_CFIRMWARE_CACHE=str(cache)))
+                env=env)
     try:
-        wait_until(lambda: "building coco" in cli.stdout, "the build started", proc=cli)
+        wait_until(compiling.exists, "the build is compiling", proc=cli)
         cli.ctrl_c()
         status = cli.wait(60)
     finally:
@@ -190,6 +208,16 @@ def test_ctrl_c_during_a_build_exits_130_and_writes_nothing(tmp_path: Path) -> N
     assert cli.stderr.strip().splitlines() == ["ghostshell firmware: interrupted by SIGINT (Ctrl-C)"], cli.stderr
     assert not out.exists()
     assert not list(cache.glob(".*")), list(cache.iterdir())  # no half-built folder left in the cache
+    compiler_pid = int(compiling.read_text())
+    wait_until(lambda: not Path(f"/proc/{compiler_pid}").exists() or "zombie" in _state(compiler_pid),
+               "the compiler is stopped too", timeout=10)
+
+
+def _state(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/status").read_text().split("State:", 1)[1].split("\n", 1)[0].lower()
+    except (OSError, IndexError):
+        return "zombie"
 
 
 @pytest.fixture(params=["python", "c"])
