@@ -609,7 +609,8 @@ def main(args: argparse.Namespace) -> int:
         why = limits.refuse_reply(program)
         if why is None:  # every element's arguments too: a bad one late in the program must not move the robot first
             why = refuse_program(program, signature_registry(args.robot_value, getattr(args, "vocabulary", None)),
-                                 limits.max_scope_timeout_s)
+                                 limits.max_scope_timeout_s, strict=resolve_strict(args),
+                                 mounts={m.name for m in args.mount_mcp})
         if why is not None:  # refused before the board starts, not cut minutes into the run
             source = f"--xml-file {args.xml_file}" if args.xml_file is not None else "the program"
             print_error("run", f"{source}: {why}; nothing was run")
