@@ -12,7 +12,10 @@ argument is checked before anything starts: one line says what is wrong and what
 130 interrupted (Ctrl-C or SIGTERM). Every error line reads ``ghostshell COMMAND: message``
 (:func:`host.commands.errors.print_error`). ``ghostshell vcan`` passes its COMMAND's status through.
 SIGTERM is handled as Ctrl-C is: ``run``, ``demo`` and ``chat`` interrupt their turn
-(:mod:`host.run.stops`); elsewhere the command stops, cleans up and exits 130.
+(:mod:`host.run.stops`); elsewhere the command stops, cleans up and exits 130. A command started with
+SIGINT ignored (bash starts a script's background job, ``ghostshell demo &``, so; the process inherits
+it and Python then installs no KeyboardInterrupt handler) gets Python's default handler back at the
+start, so ``kill -INT PID`` interrupts it in every phase (rendering, a tour, a handshake), as Ctrl-C does.
 """
 
 from __future__ import annotations
@@ -140,9 +143,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     args_list = list(sys.argv[1:] if argv is None else argv)
     command = next((a for a in args_list if not a.startswith("-")), "")
     previous = signal.getsignal(signal.SIGTERM)
+    previous_int = signal.getsignal(signal.SIGINT)
     in_main_thread = threading.current_thread() is threading.main_thread()  # else leave signals alone
     if in_main_thread:
         signal.signal(signal.SIGTERM, _on_sigterm)
+        if previous_int == signal.SIG_IGN:  # a background job of a script (`ghostshell demo &`): see below
+            signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         parser = build_parser(args_list)
         args = parser.parse_args(args_list)
@@ -165,6 +171,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if in_main_thread:
             signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
+            if previous_int == signal.SIG_IGN:
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _interrupt_behind(error: BaseException) -> KeyboardInterrupt | None:
