@@ -8,7 +8,9 @@ terminal), subcommands (``robots new``, ``log decode``, ...) included. ``ghostsh
 arguments to ``python -m firmware_sim`` (:mod:`host.commands.board`); host never imports firmware_sim,
 so that section is the board's own ``--help``, run as a subprocess the way the command runs it (with
 ``GHOSTSHELL_BOARD_PROG`` naming it ``ghostshell board``); ``ghostshell firmware build`` and ``targets``
-are ``python -m firmware_sim.cfirmware``'s, shown the same way (``GHOSTSHELL_FIRMWARE_PROG``). The page also carries the exit codes
+are ``python -m firmware_sim.cfirmware``'s, shown the same way (``GHOSTSHELL_FIRMWARE_PROG``). The servo-bus
+plant, ``python -m firmware_sim.plant`` (a test double, no ``ghostshell`` command), gets a section of its own,
+its ``--help`` run as a subprocess too (:data:`PLANT_MODULE`). The page also carries the exit codes
 (:data:`host.cli.EXIT_CODES`).
 
 Written by hand (about 60 lines of glue): argparse renders every parser's help; the Markdown
@@ -30,12 +32,14 @@ from pathlib import Path
 from host.cli import COMMANDS, EXIT_CODES, build_parser
 from protocol.generated import check_or_write
 
-__all__ = ["DOC", "WIDTH", "render", "main"]
+__all__ = ["DOC", "PLANT_MODULE", "WIDTH", "render", "main"]
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "cli.md"
 #: help text width in columns (argparse reads COLUMNS through shutil.get_terminal_size)
 WIDTH = 100
 BOARD_PROG_ENV = "GHOSTSHELL_BOARD_PROG"  # firmware_sim.cli.PROG_ENV (not imported: host never imports firmware_sim)
+#: the servo-bus plant's module (``python -m firmware_sim.plant``), documented beside the commands
+PLANT_MODULE = "firmware_sim.plant"
 
 
 @contextmanager
@@ -89,6 +93,16 @@ def _firmware_help(action: str) -> str:
     return proc.stdout
 
 
+def _plant_help() -> str:
+    """``python -m firmware_sim.plant --help``, run as a subprocess (host never imports firmware_sim)."""
+    env = {**os.environ, "COLUMNS": str(WIDTH)}
+    proc = subprocess.run([sys.executable, "-m", PLANT_MODULE, "--help"], env=env, capture_output=True, text=True,
+                          timeout=120, check=False)
+    if proc.returncode != 0:
+        raise RuntimeError(f"python -m {PLANT_MODULE} --help exited {proc.returncode}: {proc.stderr.strip()}")
+    return proc.stdout
+
+
 def _firmware_passed_through() -> dict[str, str]:
     from host.commands.firmware import PASSED_THROUGH
 
@@ -139,6 +153,11 @@ def render() -> str:
                 passed = name == "firmware" and sub_name in _firmware_passed_through()
                 lines += [f"### ghostshell {name} {sub_name}", "",
                           _block(_firmware_help(sub_name) if passed else sub.format_help())]
+        lines += [f"## python -m {PLANT_MODULE}", "",
+                  "The servo-bus plant: a robot's servos (and the IMU and ground-truth probe) answering on a pty, "
+                  "a test double for the C firmware and the vendors' SDKs, not a `ghostshell` command "
+                  "([reference](reference/plant.md)). Its help:", "",
+                  _block(_plant_help())]
     return "\n".join(lines).rstrip() + "\n"
 
 

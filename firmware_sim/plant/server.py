@@ -119,15 +119,29 @@ def _dead(text: str) -> tuple[int, float]:
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m firmware_sim.plant", description=__doc__.splitlines()[0])
-    p.add_argument("--robot", default=None)
-    p.add_argument("--robots-dir", default=None)
-    p.add_argument("--scene", default=None)
+    from robots.registry import DEFAULT_ROBOT
+
+    p = argparse.ArgumentParser(
+        prog="python -m firmware_sim.plant",
+        description="Serve a robot's emulated servo bus on a pty, for any client (a vendor SDK, a servo tool, "
+                    "the C firmware): prints 'plant: servo bus on /dev/pts/N' and answers there until SIGTERM "
+                    "or SIGINT, then prints its bus summary on stderr (exit 0; a bad option exits 2).",
+        epilog="Ids: the robot's servos at their servo-table ids, the IMU at 0xF0, the ground-truth probe at 0xF1 "
+               "(emulator only). Times in --error and --dead-servo are the plant's world time from its start. "
+               "docs/reference/plant.md has the register maps.")
+    p.add_argument("--robot", default=None, metavar="NAME",
+                   help=f"the robot whose servos answer: a name (ghostshell robots list) or a robot folder "
+                        f"(default {DEFAULT_ROBOT})")
+    p.add_argument("--robots-dir", default=None, metavar="DIR", help="search this folder for --robot first")
+    p.add_argument("--scene", default=None, metavar="NAME",
+                   help="objects in the world: one of the robot's scenes (default: the robot's default scene)")
     p.add_argument("--protocol", choices=PROTOCOLS, default=None,
                    help="the servos' wire protocol (default: the robot's hardware.toml, else sts)")
-    p.add_argument("--baud", type=int, default=None,
+    p.add_argument("--baud", type=int, default=None, metavar="N",
                    help="the servos' baud rate, bit/s (default: the robot's hardware.toml, else 1000000)")
-    p.add_argument("--lockstep", action="store_true", help="step the world once per goal SYNC WRITE")
+    p.add_argument("--lockstep", action="store_true",
+                   help="step the world one control period per SYNC WRITE that covers the goal position (a plain "
+                        "WRITE sets a goal but moves nothing); default: step on the wall clock")
     p.add_argument("--offset", type=_arg(parse_id_int), action="append", default=[], metavar="ID=STEPS",
                    help="servo ID reads STEPS more than a calibrated one")
     p.add_argument("--reverse", type=_arg(parse_id), action="append", default=[], metavar="ID",
@@ -141,7 +155,7 @@ def parser() -> argparse.ArgumentParser:
                    help="servo ID reports overload, overheat or voltage from world time SECONDS")
     p.add_argument("--corrupt", type=float, default=0.0, metavar="P",
                    help="probability that a status packet's checksum is broken")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, metavar="N", help="seed of --corrupt's random draws (default 0)")
     p.add_argument("--dead-servo", type=_arg(_dead), action="append", default=[], metavar="ID@SECONDS",
                    help="device ID stops answering at world time SECONDS")
     p.add_argument("--hand", action="store_true",
