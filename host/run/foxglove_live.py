@@ -12,11 +12,19 @@ Threads: a session's run log is fed from its writer thread (:mod:`host.run.recor
 broadcast (``WebSocketServer.broadcast_time``) is called there; the SDK's server is thread-safe, and a
 call after :meth:`LiveServer.stop` does nothing.
 
-The protocol is the SDK's (Foxglove WebSocket protocol, subprotocol ``foxglove.sdk.v1``; a client
-offering only the older ``foxglove.websocket.v1`` is refused at the handshake): JSON control messages (``serverInfo``,
+The protocol is the SDK's (Foxglove WebSocket protocol) under the subprotocol name :data:`SUBPROTOCOL`
+(``foxglove.sdk.v1``), the only one foxglove-sdk's server accepts: a constant in its handshake, no option
+(in 0.30.3, the newest on PyPI, and in the SDK's source from its first commit). A client that does not offer it, e.g. one
+offering only the older name :data:`OLD_SUBPROTOCOL` (``foxglove.websocket.v1``, the same messages), gets
+HTTP 400 at the handshake. Which viewers and clients connect: docs/guides/running.md, live view
+(the Foxglove app and Lichtblick 1.22.1+ do; ``@foxglove/ws-protocol``'s ``FoxgloveClient`` does when its
+WebSocket offers ``foxglove.sdk.v1``, not with its own ``SUPPORTED_SUBPROTOCOL``, still the old name).
+The messages: JSON control messages (``serverInfo``,
 ``advertise``, ``subscribe``) and binary message data (opcode 1, subscription id u32 LE, log time u64
 LE ns, payload; opcode 2 is the server time, u64 LE ns). Clients that connect, disconnect or stall are the server's business: a slow client
 loses its oldest messages (:data:`BACKLOG` per client), never the run.
+
+When it starts, the run prints :attr:`LiveServer.banner` (one line on stderr: the URL and the subprotocol).
 
 Errors: :class:`LiveError` (one line) when the server cannot start, e.g. the port is taken.
 """
@@ -28,13 +36,17 @@ from foxglove.websocket import Capability
 
 from host.run.mcap_log import SCENE_EVERY_S, RunLog
 
-__all__ = ["BACKLOG", "DEFAULT_PORT", "LiveError", "LiveServer", "start_live"]
+__all__ = ["BACKLOG", "DEFAULT_PORT", "OLD_SUBPROTOCOL", "SUBPROTOCOL", "LiveError", "LiveServer", "start_live"]
 
 #: Foxglove's default WebSocket port (the app's "Foxglove WebSocket" connection suggests it)
 DEFAULT_PORT = 8765
 #: messages queued per client before the oldest are dropped (the SDK's message_backlog_size)
 BACKLOG = 4096
 HOST = "127.0.0.1"
+#: the WebSocket subprotocol the SDK's server accepts (a client that does not offer it gets HTTP 400)
+SUBPROTOCOL = "foxglove.sdk.v1"
+#: the older name of the same protocol, refused by the SDK's server when offered alone
+OLD_SUBPROTOCOL = "foxglove.websocket.v1"
 
 
 class LiveError(RuntimeError):
@@ -48,6 +60,10 @@ class LiveServer:
         self.server = server
         self.port = int(server.port)
         self.url = f"ws://{HOST}:{self.port}"
+        #: the line a run prints when the live view starts: where, and under which subprotocol
+        self.banner = (f"foxglove: live view on {self.url}, WebSocket subprotocol {SUBPROTOCOL} "
+                       f"(Foxglove: Open connection > Foxglove WebSocket; a client offering only "
+                       f"{OLD_SUBPROTOCOL} gets HTTP 400)")
         self._run_log = run_log
         self._stopped = False
         run_log.time_listeners.append(self._time)

@@ -132,8 +132,7 @@ class Recording:
         rec.notes = notes
         rec.live = live
         if live is not None:
-            print(f"foxglove: live view on {live.url} (Foxglove: Open connection > Foxglove WebSocket)",
-                  file=sys.stderr, flush=True)
+            print(live.banner, file=sys.stderr, flush=True)
         return rec
 
     @property

@@ -177,3 +177,71 @@ def test_a_taken_port_is_one_line_and_the_run_goes_on(tmp_path: Path, caplog: py
     notes = [r.getMessage() for r in caplog.records]
     assert len(notes) == 1 and f"port {port} is taken" in notes[0], notes
     assert (tmp_path / "run.mcap").stat().st_size > 0
+
+
+# --- the handshake: which subprotocols the live view accepts, and that the docs and the start line say so
+
+RUNNING_MD = Path(__file__).resolve().parents[2] / "docs" / "guides" / "running.md"
+
+
+def _live_section() -> str:
+    """The live-view bullet of docs/guides/running.md (from ``--foxglove [PORT]`` to the next top-level bullet)."""
+    text = RUNNING_MD.read_text()
+    start = text.index("- with `--foxglove [PORT]`")
+    end = text.index("\n- ", start + 1)
+    return " ".join(text[start:end].split())
+
+
+@pytest.mark.parametrize("offer", [
+    ["foxglove.sdk.v1"],                              # Python websockets, ws-protocol with a socket offering it
+    ["foxglove.websocket.v1", "foxglove.sdk.v1"],     # Lichtblick >= 1.22.1, the Foxglove app: both names
+    ["foxglove.websocket.v1"],                        # Foxglove Studio 1.x, FoxgloveClient.SUPPORTED_SUBPROTOCOL
+    None,                                             # no subprotocol at all
+])
+def test_handshake_answers_each_subprotocol_offer_as_the_docs_say(tmp_path: Path, offer: list[str] | None) -> None:
+    """A real WebSocket handshake against the live server: 101 with ``foxglove.sdk.v1`` echoed and a
+    ``serverInfo`` when it is offered; HTTP 400 otherwise, and then the docs name that offer as refused."""
+    from websockets.exceptions import InvalidStatus
+
+    from host.run.foxglove_live import OLD_SUBPROTOCOL, SUBPROTOCOL, start_live
+    from host.run.mcap_log import RunLog
+
+    run_log = RunLog(load_robot("coco"))
+    live = start_live(run_log, 0)
+
+    async def handshake() -> tuple[int, str | None, dict[str, Any]]:
+        try:
+            async with websockets.connect(live.url, subprotocols=offer, open_timeout=10) as ws:  # type: ignore[arg-type]
+                info = json.loads(await ws.recv())
+                return ws.response.status_code, ws.subprotocol, info
+        except InvalidStatus as e:
+            return e.response.status_code, None, {}
+
+    try:
+        status, chosen, info = anyio.run(handshake, backend="asyncio")
+    finally:
+        live.stop()
+        run_log.close()
+    docs = _live_section()
+    assert SUBPROTOCOL in docs and f"{OLD_SUBPROTOCOL}` and is refused (HTTP 400)" in docs
+    if offer is not None and SUBPROTOCOL in offer:
+        assert (status, chosen) == (101, SUBPROTOCOL)
+        assert info["op"] == "serverInfo" and info["capabilities"] == ["time"]
+    else:
+        assert status == 400
+        assert offer is None or offer == [OLD_SUBPROTOCOL]  # the one refusal the docs name, word for word
+        assert "a client that does not offer it gets HTTP 400" in docs
+        assert f"offer only `{OLD_SUBPROTOCOL}`: refused" in docs
+
+
+def test_the_start_line_names_the_url_and_the_subprotocol(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    async def main() -> str:
+        async with RobotSession(SessionOptions(out=tmp_path, foxglove=0, lockstep=True)) as s:
+            assert s.recording is not None and s.recording.live is not None
+            return str(s.recording.live.url)
+
+    url = anyio.run(main, backend="asyncio")
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if "live view" in ln]
+    assert lines == [f"foxglove: live view on {url}, WebSocket subprotocol foxglove.sdk.v1 "
+                     "(Foxglove: Open connection > Foxglove WebSocket; a client offering only "
+                     "foxglove.websocket.v1 gets HTTP 400)"], lines
