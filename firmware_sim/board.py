@@ -28,12 +28,14 @@ SERVO_FRAME, the last received sequence number) names it, frames are refused unt
 from __future__ import annotations
 
 import math
+import struct
 from collections import OrderedDict, deque
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import mujoco
 import numpy as np
+from cobs import cobs
 
 from firmware_sim.config import BoardConfig
 from firmware_sim.jitter_buffer import JitterBuffer
@@ -43,6 +45,7 @@ from firmware_sim.safety import Mode, Safety
 from firmware_sim.servo_model import ServoModel
 from protocol.codec import MESSAGE_CLASSES, msg_type_of, quantize_apply_at, schema_for, unwrap_time_us
 from protocol.faults import GapDetector
+from protocol.framing import CRC_SIZE, HEADER_SIZE, DecodeError, DecodeErrorKind, Frame, crc16
 from protocol.messages import (
     BOARD_TO_HOST,
     PROTOCOL_VERSION,
@@ -81,7 +84,7 @@ from robots.scenes import toppled
 if TYPE_CHECKING:
     from firmware_sim.servobus.driver import BusDriver
 
-__all__ = ["Board", "HOST_BOUND", "KEPT_IMAGES", "quat_to_rpy"]
+__all__ = ["Board", "HOST_BOUND", "KEPT_IMAGES", "answerable", "quat_to_rpy"]
 
 KEPT_IMAGES = 2  # camera images the board keeps for CAMERA_RESEND
 
@@ -92,6 +95,36 @@ HOST_BOUND: tuple[type[Message], ...] = tuple(MESSAGE_CLASSES[t] for t in sorted
 
 #: a received-message handler: ``(board, msg, seq, rx_us) -> replies``
 _Handler = Callable[["Board", Any, int, int], "list[Message]"]
+
+
+_CONFIG_KEYS = frozenset(int(k) for k in ConfigKey)
+_CONFIG_BODY = HEADER_SIZE + 5 + CRC_SIZE  # a CONFIG frame: header, key u8 + value i32, CRC
+
+
+def answerable(item: DecodeError) -> Frame | DecodeError:
+    """A serial frame the codec refused that the board still answers, as a :class:`Frame`; else ``item``.
+
+    The one such frame: a well-formed CONFIG (COBS, CRC, version, type and length all check, 5 payload
+    bytes) whose key byte is no :class:`ConfigKey`. The codec refuses it (an unknown enum value), but the
+    host waits for its ACK: it becomes ``Config(key=<the int>, value)`` and :meth:`Board.handle` answers
+    NACK BAD_VALUE as for a value out of range (the C firmware: ``gs_board_unknown_config``). Every other
+    decode error stays a silent link error (line noise gets no reply). ``item.raw``: the COBS block and
+    its delimiter (a CAN decode error's raw bytes never qualify: they are not such a frame).
+    """
+    raw = item.raw
+    if item.kind is not DecodeErrorKind.PAYLOAD or len(raw) != _CONFIG_BODY + 2 or raw[-1] != 0:
+        return item
+    try:
+        body = cobs.decode(raw[:-1])
+    except cobs.DecodeError:
+        return item
+    if (len(body) != _CONFIG_BODY or body[0] != PROTOCOL_VERSION or body[1] != MsgType.CONFIG
+            or body[4] != 5 or body[5] in _CONFIG_KEYS
+            or struct.unpack_from("<H", body, _CONFIG_BODY - CRC_SIZE)[0] != crc16(body[:-CRC_SIZE])):
+        return item
+    (seq,) = struct.unpack_from("<H", body, 2)
+    (value,) = struct.unpack_from("<i", body, HEADER_SIZE + 1)
+    return Frame(seq, MsgType.CONFIG, Config(body[5], value), raw)  # type: ignore[arg-type]  # key: not a ConfigKey
 
 
 def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
@@ -559,8 +592,10 @@ class Board:
             self.cfg.max_late_us = v
         elif key is ConfigKey.MAX_FUTURE_US and v > 0:
             self.cfg.max_future_us = v
+        elif not isinstance(key, ConfigKey):  # a well-formed CONFIG with an unknown key (answerable())
+            return self._nack(msg, seq, NackReason.BAD_VALUE, f"unknown CONFIG key {int(key)}")
         else:
-            return self._nack(msg, seq, NackReason.BAD_VALUE, f"{getattr(key, 'name', key)}={v} out of range")
+            return self._nack(msg, seq, NackReason.BAD_VALUE, f"{key.name}={v} out of range")
         return Ack(seq, MsgType.CONFIG)
 
     def _capture(self, msg: CameraCapture, seq: int) -> list[Message]:

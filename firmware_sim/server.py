@@ -35,7 +35,7 @@ import time
 from collections import deque
 from typing import IO
 
-from firmware_sim.board import Board
+from firmware_sim.board import Board, answerable
 from firmware_sim.clock import RealtimeClock
 from firmware_sim.objects_log import ObjectsLog
 from firmware_sim.transports.base import PERIODIC_REPORTS, BoardTransport
@@ -134,6 +134,8 @@ class BoardServer:
 
     def _process(self, item: Frame | DecodeError) -> None:
         """Count one received item if bad, else hand it to the board and send the replies."""
+        if isinstance(item, DecodeError):
+            item = answerable(item)  # a well-formed CONFIG with an unknown key is answered (NACK BAD_VALUE)
         if isinstance(item, DecodeError):
             self.board.on_link_error()
             print(f"board: link error {item.kind.value}: {item.detail}", file=self.err, flush=True)

@@ -30,6 +30,9 @@ static void on_raw(void *ctx, const uint8_t *raw, size_t n) {
 
 void gs_app_process(gs_app_t *app, const gs_rx_item_t *it) {
     gs_board_t *b = &app->board;
+    /* link.block still holds the frame gs_link_next decoded in place: a well-formed CONFIG with an unknown
+       key is answered (NACK BAD_VALUE), not counted as a link error */
+    if (it->kind == GS_RX_PAYLOAD && gs_board_unknown_config(b, app->link.block, it->seq, gs_board_time_us(b))) return;
     if (it->kind != GS_RX_FRAME) {
         gs_board_on_link_error(b);
         gs_log_str("board: link error ");

@@ -1023,13 +1023,30 @@ static void config(gs_board_t *b, const gs_msg_t *m, uint16_t seq) {
     case GS_CONFIG_KEY_MAX_FUTURE_US:
         if (v > 0) { b->cfg.max_future_us = v; break; }
         goto bad;
-    default:
-        goto bad;
+    default: { /* a well-formed CONFIG with an unknown key (gs_board_unknown_config) */
+        char key[4];
+        fmt_u64(key, sizeof key, m->u.config.key);
+        nack(b, seq, GS_MSG_TYPE_CONFIG, GS_NACK_REASON_BAD_VALUE, "unknown CONFIG key ", key);
+        return;
+    }
     }
     ack(b, seq, GS_MSG_TYPE_CONFIG);
     return;
 bad:
     nack(b, seq, GS_MSG_TYPE_CONFIG, GS_NACK_REASON_BAD_VALUE, "config value out of range", 0);
+}
+
+int gs_board_unknown_config(gs_board_t *b, const uint8_t *body, uint16_t seq, int64_t rx) {
+    if (body[1] != GS_MSG_TYPE_CONFIG || body[4] != 5u) return 0;
+    uint8_t key = body[GS_FRAME_HEADER_SIZE];
+    if (key >= GS_CONFIG_KEY_TELEMETRY_RATE_HZ && key <= GS_CONFIG_KEY_CROUCH_AFTER_MS) return 0;
+    gs_msg_t m;
+    m.type = GS_MSG_TYPE_CONFIG;
+    m.u.config.key = key;
+    const uint8_t *v = &body[GS_FRAME_HEADER_SIZE + 1];
+    m.u.config.value = (int32_t)((uint32_t)v[0] | (uint32_t)v[1] << 8 | (uint32_t)v[2] << 16 | (uint32_t)v[3] << 24);
+    gs_board_handle(b, &m, seq, rx); /* config(): not a known key -> NACK BAD_VALUE */
+    return 1;
 }
 
 void gs_board_handle(gs_board_t *b, const gs_msg_t *m, uint16_t seq, int64_t rx) {

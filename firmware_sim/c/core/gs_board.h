@@ -143,6 +143,11 @@ void gs_board_tick(gs_board_t *b);
 void gs_board_skip(gs_board_t *b, uint64_t n_ticks);
 void gs_board_note_overrun(gs_board_t *b);
 void gs_board_on_link_error(gs_board_t *b);
+/* A serial frame whose COBS, CRC, version, length and type checked but whose payload did not decode
+ * (`body`: the decoded frame, header first): a CONFIG of 5 payload bytes whose key is no ConfigKey is
+ * handled as a CONFIG (NACK BAD_VALUE; board.py answerable() does the same). 1 when handled, 0 when it
+ * is no such frame (the caller counts a link error). */
+int gs_board_unknown_config(gs_board_t *b, const uint8_t *body, uint16_t seq, int64_t rx);
 /* Stopping: torque off for every servo on the bus (a broadcast WRITE), one log line. */
 void gs_board_shutdown(gs_board_t *b);
 /* One "S ..." statistics record on the log channel (counters the launcher reports at exit). */
