@@ -10,9 +10,16 @@ counters; pure bookkeeping, no I/O):
             any robot's own size): :func:`has_fallen`, the same test as ``summary.json``'s ``fell``;
             once per fall
 ``tilt``    it tilts more than :data:`TILT_DEG` (25 deg) without falling; once until it is upright again
-``stall``   a servo whose target has been steady for :data:`STALL_S` stays more than
-            :data:`STALL_DEG` from it for :data:`STALL_S` (blocked, collided, overloaded); once per servo
-            until it reaches a target again
+``stall``   a servo stopped short of its target, pushing at its limit (blocked, collided, overloaded,
+            a gripper closed on an object): for :data:`STALL_S` its commanded target stayed put, it
+            stayed more than :data:`STALL_DEG` from it, its effort stayed at :data:`SATURATED` of its
+            actuator's limit or more, pushing towards the target, and it moved slower than
+            :data:`STALL_SPEED_DPS`. The same rule for every servo and every behaviour (``joint_move``,
+            ``pose``, ``grip`` ...); the event names the servo, its joint, the target, the angle
+            reached, the effort and the limit (:meth:`EventMonitor.stall_data`). Once per servo until it
+            comes within :data:`REACHED_DEG` of a target again. The limit is the MJCF actuator's
+            ``forcerange``, else the servo table's stall torque (:mod:`host.run.effort_limits`); a servo
+            with neither, or reports without efforts, gets no stall event
 ``link``    the link lost :data:`LINK_BURST` or more messages (decode errors, re-sent requests, sequence
             gaps) within one second; at most once per :data:`LINK_QUIET_S`
 ``toppled`` SIM_STATE's toppled count rose (a scene object fell over)
@@ -51,10 +58,16 @@ FALL_TILT_DEG = 45.0
 #: ... or its base sinks below this fraction of the height it started at
 FALL_HEIGHT_FRACTION = 1 / 3
 TILT_DEG = 25.0
-STALL_DEG = 15.0
-STALL_S = 0.5
+#: a stall: more than this from the commanded target (deg; 5 encoder steps of an STS3215, 11 of its deadband) ...
+STALL_DEG = 1.0
+#: ... for this long (board seconds; the turn's default settle, 0.5 s, leaves room to report it) ...
+STALL_S = 0.2
+#: ... with the effort at this fraction of the actuator's limit or more ...
+SATURATED = 0.95
+#: ... and moving slower than this (deg/s; faster is catching up, not blocked)
+STALL_SPEED_DPS = 5.0
 #: a servo whose error falls below this has reached its target (re-arms its stall event)
-REACHED_DEG = 5.0
+REACHED_DEG = 0.5
 LINK_BURST = 5
 LINK_QUIET_S = 5.0
 #: most events kept per session (older ones are dropped; the count stays exact)
@@ -169,6 +182,17 @@ def _tilt_deg(quat: Sequence[float]) -> float:
     return math.degrees(math.acos(max(-1.0, min(1.0, cos))))
 
 
+def _saturated(effort: float, err_deg: float, limit: tuple[float, float] | None) -> bool:
+    """``effort`` (N*m) is at :data:`SATURATED` of ``limit``'s side it pushes on, towards the target
+    (``err_deg`` > 0: the target lies at a larger angle)."""
+    if limit is None or not math.isfinite(effort):
+        return False
+    lo, hi = limit
+    if err_deg > 0:
+        return hi > 0 and effort >= SATURATED * hi
+    return lo < 0 and effort <= SATURATED * lo
+
+
 def has_fallen(tilt_deg: float, z: float | None, z0: float | None) -> bool:
     """A floating base has fallen: tilted more than :data:`FALL_TILT_DEG`, or its height ``z`` (m) below
     :data:`FALL_HEIGHT_FRACTION` of ``z0``, its height at the start (None: unknown, tilt only)."""
@@ -180,11 +204,17 @@ class EventMonitor:
 
     ``names``: servo names (messages); ``floating``: the robot has a floating base (fall/tilt are
     only meaningful then); ``targets(t_us)``: the host's commanded targets at board time ``t_us``
-    (the frames it sent), None when it sent none.
+    (the frames it sent, radians per servo), None when it sent none; ``limits``: per servo the
+    ``(lo, hi)`` effort limit in N*m or None (:func:`host.run.effort_limits.effort_limits`; without
+    them no stall is reported); ``joints``: the MJCF joint of each servo (default: ``names``).
     """
 
-    def __init__(self, names: Sequence[str], floating: bool, targets: Any = None) -> None:
+    def __init__(self, names: Sequence[str], floating: bool, targets: Any = None,
+                 limits: Sequence[tuple[float, float] | None] | None = None,
+                 joints: Sequence[str] | None = None) -> None:
         self.names = tuple(names)
+        self.joints = tuple(joints) if joints is not None else self.names
+        self.limits = tuple(limits) if limits is not None else ()
         self.floating = floating
         self.targets = targets
         self._fallen = False
@@ -197,9 +227,11 @@ class EventMonitor:
         self._link_last = -math.inf
 
     def feed(self, t_s: float, positions: Sequence[float], base: tuple[Sequence[float], Sequence[float]] | None,
-             toppled: int = 0, losses: int = 0) -> list[Event]:
+             toppled: int = 0, losses: int = 0, efforts: Sequence[float] | None = None,
+             velocities: Sequence[float] | None = None) -> list[Event]:
         """One report at board time ``t_s``: joint positions (rad), base (position m, quaternion) if the
-        board reports it, the scene's toppled count, the link's cumulative loss count."""
+        board reports it, the scene's toppled count, the link's cumulative loss count, the servos'
+        efforts (N*m; None: not reported, no stall) and velocities (rad/s; None: not checked)."""
         out: list[Event] = []
         if base is not None and self.floating:
             pos, quat = base
@@ -219,39 +251,59 @@ class EventMonitor:
             out.append(Event("toppled", t_s, f"{toppled - self._toppled} scene object(s) toppled ({toppled} now)",
                              {"toppled": toppled}))
         self._toppled = max(self._toppled, toppled)
-        out += self._stalls(t_s, positions)
+        out += self._stalls(t_s, positions, efforts, velocities)
         out += self._link(t_s, losses)
         return out
 
-    def _stalls(self, t_s: float, positions: Sequence[float]) -> list[Event]:
-        if self.targets is None:
+    def _stalls(self, t_s: float, positions: Sequence[float], efforts: Sequence[float] | None,
+                velocities: Sequence[float] | None) -> list[Event]:
+        if self.targets is None or efforts is None or not self.limits:
             return []
         now_t = self.targets(int(t_s * 1e6))
         before = self.targets(int((t_s - STALL_S) * 1e6))
         if now_t is None or before is None:
             return []
         q = np.asarray(positions, dtype=float)
-        err = np.degrees(np.abs(q - now_t))
-        steady = np.degrees(np.abs(now_t - before)) < 1.0
+        target = np.asarray(now_t, dtype=float)
+        n = min(len(q), len(target), len(efforts), len(self.limits))
+        err = np.degrees(target[:n] - q[:n])  # signed: where the servo has to go
+        steady = np.degrees(np.abs(target[:n] - np.asarray(before, dtype=float)[:n])) < 1.0
         out = []
-        for i, e in enumerate(err):
-            if not math.isfinite(float(e)):
+        for i in range(n):
+            e = float(err[i])
+            if not math.isfinite(e):
                 continue
-            if e < REACHED_DEG:
+            if abs(e) < REACHED_DEG:
                 self._stalled.discard(i)
                 self._stall_since.pop(i, None)
                 continue
-            if not steady[i] or e < STALL_DEG:
+            speed = abs(math.degrees(velocities[i])) if velocities is not None and i < len(velocities) else 0.0
+            if not (steady[i] and abs(e) > STALL_DEG and speed < STALL_SPEED_DPS
+                    and _saturated(float(efforts[i]), e, self.limits[i])):
                 self._stall_since.pop(i, None)
                 continue
             since = self._stall_since.setdefault(i, t_s)
-            if t_s - since >= STALL_S and i not in self._stalled:
+            if t_s - since >= STALL_S - 1e-9 and i not in self._stalled:
                 self._stalled.add(i)
-                name = self.names[i] if i < len(self.names) else f"servo {i + 1}"
-                out.append(Event("stall", t_s, f"{name} cannot reach its target: {e:.0f} deg off for "
-                                               f"{t_s - since:.1f} s (blocked or overloaded)",
-                                 {"servo": name, "error_deg": round(float(e), 1)}))
+                data = self.stall_data(i, float(target[i]), float(q[i]), float(efforts[i]), t_s - since)
+                out.append(Event("stall", t_s, f"{data['servo']} stopped short of its target: at "
+                                               f"{data['reached_deg']:.1f} deg, target {data['target_deg']:.1f} deg "
+                                               f"({data['error_deg']:.1f} deg short), effort {data['effort_nm']:.2f} "
+                                               f"N*m at its limit {data['limit_nm']:.2f} N*m for {data['for_s']:.1f} s "
+                                               "(blocked or overloaded)", data))
         return out
+
+    def stall_data(self, i: int, target: float, reached: float, effort: float, for_s: float) -> dict[str, Any]:
+        """A stall event's ``data``: ``servo``, ``joint`` (names), ``target_deg``, ``reached_deg``,
+        ``error_deg`` (|target - reached|), ``effort_nm``, ``limit_nm`` (the limit on the side it pushes)
+        and ``for_s`` (how long it had stalled when reported); ``target``/``reached`` in radians."""
+        lim = self.limits[i] if i < len(self.limits) else None
+        side = (lim[1] if effort >= 0 else lim[0]) if lim is not None else math.nan
+        return {"servo": self.names[i] if i < len(self.names) else f"servo {i + 1}",
+                "joint": self.joints[i] if i < len(self.joints) else f"servo {i + 1}",
+                "target_deg": round(math.degrees(target), 1), "reached_deg": round(math.degrees(reached), 1),
+                "error_deg": round(abs(math.degrees(target - reached)), 1), "effort_nm": round(effort, 3),
+                "limit_nm": round(side, 3), "for_s": round(for_s, 2)}
 
     def _link(self, t_s: float, losses: int) -> list[Event]:
         self._losses.append((t_s, losses))

@@ -77,6 +77,7 @@ from host.link.faultcheck import LATCHED, ServoFaulted, clear_command, clear_lef
 from host.link.session import HEARTBEAT_S, FaultEvent, LinkTarget
 from host.run import artefacts
 from host.run.events import Event, EventMonitor, EventPolicy, ScriptedEvent, has_fallen
+from host.run.effort_limits import effort_limits
 from host.run.heap import frozen_heap
 from host.motion.stalls import STALLS
 from host.motion.streamer import GRID_PERIOD_US, LOOKAHEAD_US, frame_wire_bytes, grid_period_us
@@ -482,7 +483,8 @@ class RobotSession:
             tg = anyio.create_task_group()
             self._tg = await self._stack.enter_async_context(tg)
             self._monitor = EventMonitor(self.robot.servos.names, self.robot.base.floating,
-                                         _targets_at(runtime.streamer.history))
+                                         _targets_at(runtime.streamer.history), limits=effort_limits(self.robot),
+                                         joints=[s.joint for s in self.robot.servos])
             tg.start_soon(self._ends_the_run, pump(client, runtime, self.rec, [self._on_report]))
             if opts.events:
                 tg.start_soon(self._scripted_events, runtime.board_now_s(), opts.events)
@@ -747,7 +749,8 @@ class RobotSession:
         base = (sim.base_pos, sim.base_quat) if sim is not None else None
         for ev in self._monitor.feed(tel.board_time_us * 1e-6, tel.positions, base,
                                      toppled=sim.toppled if sim is not None else 0,
-                                     losses=stats.decode_errors + stats.retries + stats.seq_gaps):
+                                     losses=stats.decode_errors + stats.retries + stats.seq_gaps,
+                                     efforts=tel.efforts, velocities=tel.velocities):
             self.emit(ev)
 
     async def _scripted_events(self, t0: float, events: Iterable[ScriptedEvent]) -> None:

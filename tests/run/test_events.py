@@ -80,10 +80,10 @@ def test_a_fixed_base_never_falls() -> None:
 
 def test_monitor_reports_a_stall_once_per_servo() -> None:
     target = np.array([0.0, 1.0])
-    m = EventMonitor(["ok", "blocked"], floating=False, targets=lambda t_us: target)
-    got = [e for t in np.arange(0.0, 2.0, 0.02) for e in m.feed(float(t), [0.0, 0.4], None)]
+    m = EventMonitor(["ok", "blocked"], floating=False, targets=lambda t_us: target, limits=[(-1.0, 1.0)] * 2)
+    got = [e for t in np.arange(0.0, 2.0, 0.02) for e in m.feed(float(t), [0.0, 0.4], None, efforts=[0.0, 1.0])]
     assert [(e.kind, e.data["servo"]) for e in got] == [("stall", "blocked")]
-    assert got[0].board_time_s >= 0.5 and got[0].data["error_deg"] == pytest.approx(34.4, abs=0.1)
+    assert got[0].board_time_s >= 0.2 and got[0].data["error_deg"] == pytest.approx(34.4, abs=0.1)
 
 
 def test_a_moving_target_is_no_stall() -> None:
