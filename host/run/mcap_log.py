@@ -6,25 +6,36 @@ sink attached to it receives every message: the MCAP writer (:meth:`RunLog.open`
 time** (the board's clock since it started, ns in MCAP ``log_time`` and in message stamps), so a run
 reads the same in Foxglove as in timeline.json.
 
-Channels (written live, as things happen, so a killed run leaves an MCAP that is readable up to its
-last complete chunk, and the writer finishes a chunk every :data:`FLUSH_S` board seconds; only
-``/calls/events`` waits for the end of each turn, when the board-measured times are known). The SDK
-writes a channel's record with its first message, so a channel that got none (a run that never
-speaks has no ``/speech``) is not in the file:
+Channels (written live, :data:`HOLD_S` behind the board's reports, so a killed run leaves an MCAP that is
+readable up to its last complete chunk; the writer ends a chunk every :data:`FLUSH_S` board seconds of
+log time, and when it reaches :data:`CHUNK_BYTES`). The SDK writes a channel's record with its first
+message, so a channel that got none (a run that never speaks has no ``/speech``) is not in the file.
+
+Order: the file's log times never go back (a player that checks message order, or reads the file as a
+stream, sees one timeline). Things are known out of time order: a SERVO_FRAME is sent ahead of its apply
+time, a call's start line and a photo are noticed a report or a 50 ms poll after they happened. So every
+message goes through a reorder buffer on the feeding thread (a heap keyed by log time, then arrival): a
+report at board time t writes everything held up to ``t - HOLD_S``, earliest first. Chosen over stamping
+targets at their send time because a target plotted at its apply time lines up with the joint state
+measured then, which is what the plot is for. Bounded: at most :data:`MAX_HELD` messages (past it the
+earliest is written at once) and the buffer is drained by :meth:`RunLog.close`. A message that comes
+later than the buffer waited (a turn's Events for calls cut by a stop) is written at the file's latest
+log time, its own stamp keeping when it happened (:attr:`RunLog.late` counts them). The live view gets
+each message when the file does, :data:`HOLD_S` behind the board:
 
 ==========================  ===========================  ===================================================
 topic                        schema (encoding)            what, when
 ==========================  ===========================  ===================================================
 ``/joint_states``            foxglove.JointStates (pb)    measured position, velocity, effort per servo; each TELEMETRY
-``/joint_targets``           foxglove.JointStates (pb)    commanded targets per servo; each SERVO_FRAME sent, at its apply time
-``/tf``                      foxglove.FrameTransforms     every MJCF body in its parent's frame (:mod:`host.run.scene3d`); each TELEMETRY
-``/scene``                   foxglove.SceneUpdate         the robot's geoms as primitives, meshes as STL models; at board time 0 (live: then every :data:`SCENE_EVERY_S`)
+``/joint_targets``           foxglove.JointStates (pb)    each SERVO_FRAME sent, at its apply time: the masked servos' targets
+``/tf``                      foxglove.FrameTransforms     every body (robot, scene objects) in its parent's frame (:mod:`host.run.scene3d`); each TELEMETRY
+``/scene``                   foxglove.SceneUpdate         the robot's and the scene's geoms as primitives, meshes as STL models; at board time 0 (live: then every :data:`SCENE_EVERY_S`)
 ``/telemetry``               ghostshell.Telemetry (json)  every TELEMETRY field decoded (faults by name)
 ``/sim_state``               ghostshell.SimState (json)   the emulator's ground truth (base pose, scene objects); each new SIM_STATE
 ``/link/tx``                 ghostshell.LinkFrame (json)  every host-to-board message: seq, type, decoded fields, serial wire bytes (hex)
-``/calls``                   foxglove.Log                 one line when a call starts and one when it ends (outcome, error)
-``/calls/events``            foxglove.Event               each finished call: board-measured start/end, function, channel, path, outcome, args
-``/speech``                  ghostshell.Speech (json)     each sentence spoken: text, start/end, outcome (cut sentences end where the cut was)
+``/calls``                   foxglove.Log                 one line when a call starts (board-measured) and one when it ends (outcome, error)
+``/calls/events``            foxglove.Event               each finished call at its end: board-measured start/end, function, channel, path, outcome, args
+``/speech``                  ghostshell.Speech (json)     each sentence spoken, at its end: text, start/end, outcome (cut sentences end at the cut)
 ``/camera``                  foxglove.CompressedImage     each photo the robot took (PNG)
 ``/link/faults``             foxglove.Log                 board fault bits raised/cleared, NACKs, decode errors, re-sent requests, reconnects
 ``/link/gaps``               ghostshell.SeqGap (json)     each time board messages went missing (gaps in the board's sequence numbers)
@@ -54,6 +65,7 @@ turns any other exception of a logging method into one warning.
 from __future__ import annotations
 
 import dataclasses
+import heapq
 import json
 import logging
 from enum import Enum, IntFlag
@@ -78,11 +90,12 @@ from protocol.framing import encode_frame
 from protocol.messages import FaultFlags, Message, Nack, ServoFrame, SimState, Telemetry, nack_detail
 from robots.description import Robot
 
-__all__ = ["FLUSH_S", "McapError", "RunLog", "SCENE_EVERY_S", "TOPICS"]
+__all__ = ["FLUSH_S", "HOLD_S", "MAX_HELD", "McapError", "RunLog", "SCENE_EVERY_S", "TOPICS", "board_us"]
 
 log = logging.getLogger("host.run")
 
-#: board seconds between forced chunk ends: a killed run loses at most the last FLUSH_S of board time
+#: board seconds of log time between forced chunk ends: a killed run loses at most the last FLUSH_S + HOLD_S
+#: of board time
 #: (board time, not wall time, so where a lockstep run's file can be cut is reproducible)
 FLUSH_S = 1.0
 #: board seconds between re-sent scene primitives while a live view is on (a viewer that connects late gets
@@ -96,6 +109,13 @@ SCENE_EVERY_S = 5.0
 CHUNK_BYTES = 64 * 1024
 #: zstd level of the chunks (1: the fastest; zstd's default is 3)
 ZSTD_LEVEL = 1
+#: board seconds a message waits in the reorder buffer behind the latest report's time before it is
+#: written: what comes later than that (a call's end line polled every 50 ms, a photo stamped with its last
+#: chunk) still lands in log-time order. 0.25 s: 5 polls; the live view lags the board by as much
+HOLD_S = 0.25
+#: messages the reorder buffer holds at most (~0.25 s + the frames' lookahead is a few hundred); past it
+#: the earliest is written at once, so the buffer never grows without bound (a board that stopped reporting)
+MAX_HELD = 20_000
 
 TOPICS = ("/joint_states", "/joint_targets", "/tf", "/scene", "/telemetry", "/sim_state", "/link/tx", "/calls",
           "/calls/events", "/speech", "/camera", "/link/faults", "/link/gaps")
@@ -132,6 +152,12 @@ def _ns(board_time_us: int) -> int:
     return max(0, int(board_time_us)) * 1000
 
 
+def board_us(board_time_s: float) -> int:
+    """Board seconds as whole µs, rounded to the nearest (``int(6.9 * 1e6)`` is 6 899 999: truncation
+    put a photo taken at 6.9 s at 6.899999 s)."""
+    return round(board_time_s * 1e6)
+
+
 def _flag_names(f: int) -> str:
     return "|".join(e.name or "" for e in FaultFlags if e.value and f & e) or "NONE"
 
@@ -160,17 +186,20 @@ def message_fields_one(v: Any) -> Any:
 class RunLog:
     """The run's Foxglove channels on one context (see the module docstring for topics and timing).
 
-    ``RunLog(robot)`` creates the channels; :meth:`open` adds the MCAP sink (or create it with
+    ``RunLog(robot, scene=None)`` creates the channels (``scene``: the run's scene, whose objects are drawn
+    too; None: the robot alone); :meth:`open` adds the MCAP sink (or create it with
     :meth:`create`). Feed it with the ``on_*`` methods from one thread at a time (a session's
     :class:`host.run.recording.Recording` feeds it from its writer thread, :mod:`host.run.log_writer`);
-    :meth:`close` finishes the file. ``time_listeners`` get the board time (ns) of every report, on
-    the feeding thread (the live server broadcasts it as the viewer's clock; the SDK's server is
+    :meth:`close` finishes the file. ``time_listeners`` get the board time (ns) of every report as it is
+    written (:data:`HOLD_S` behind the board), on the feeding thread (the live server broadcasts it as the viewer's clock; the SDK's server is
     thread-safe). The robot's :class:`RobotScene` (its MJCF compiled: 0.15-0.9 s with meshes) is built
     on first use (:attr:`scene`, or :meth:`prepare`), on the feeding thread.
     """
 
-    def __init__(self, robot: Robot) -> None:
+    def __init__(self, robot: Robot, scene: str | None = None) -> None:
         self.robot = robot
+        #: the run's scene (robot.toml ``[scenes.NAME]``): its objects are drawn too; None: the robot alone
+        self.scene_name = scene
         self.context = foxglove.Context()
         self._scene: RobotScene | None = None
         self.names = list(robot.servos.names)
@@ -199,12 +228,20 @@ class RunLog:
         self._pending: Telemetry | None = None  # a report waiting for its SIM_STATE (on_message)
         self._flushed_us = 0
         self.closed = False
+        #: the reorder buffer: (log time ns, arrival order, channel, message), earliest first
+        self._held: list[tuple[int, int, Any, Any]] = []
+        self._arrivals = 0
+        self._written_ns = 0  # log time of the latest message written (the file's log times never go back)
+        self._tx_ns = 0  # log time of the latest /link/tx message (send order is log-time order)
+        #: messages written later than their own time (clamped to the file's latest log time; their
+        #: stamps keep the time they happened)
+        self.late = 0
 
     @property
     def scene(self) -> RobotScene:
         """The robot's 3D scene (built on first use)."""
         if self._scene is None:
-            self._scene = RobotScene(self.robot)
+            self._scene = RobotScene(self.robot, self.scene_name or "empty")
         return self._scene
 
     def prepare(self) -> None:
@@ -212,7 +249,7 @@ class RunLog:
         its writer thread, and the session waits for it before it streams a frame: the SDK holds the GIL
         while it encodes a mesh robot's megabytes, 20-30 ms, which must not land on the control path)."""
         self._scene_at = 0
-        self.scene_ch.log(self.scene.scene_update(0), log_time=0)
+        self.scene_ch.log(self.scene.scene_update(0), log_time=self._written_ns)  # 0: nothing was written yet
 
     @classmethod
     def create(cls, path: Path, robot: Robot, meta: Mapping[str, str] | None = None) -> RunLog:
@@ -251,19 +288,15 @@ class RunLog:
         ns = _ns(t)
         n = min(len(self.names), len(tel.positions))
         vel, eff = tel.velocities, tel.efforts
-        self.joint_states.log(JointStates(timestamp=stamp(t), joints=[
+        self._put(self.joint_states, JointStates(timestamp=stamp(t), joints=[
             JointState(name=self.names[i], position=float(tel.positions[i]),
                        velocity=float(vel[i]) if i < len(vel) else None,
-                       effort=float(eff[i]) if i < len(eff) else None) for i in range(n)]), log_time=ns)
-        self.telemetry.log(_fields(tel), log_time=ns)
-        for cb in list(self.time_listeners):
-            cb(ns)
+                       effort=float(eff[i]) if i < len(eff) else None) for i in range(n)]), ns)
+        self._put(self.telemetry, _fields(tel), ns)
         if sim is not None:
             self.on_sim_state(sim)
             self.on_transforms(tel, sim)
-        if t - self._flushed_us >= FLUSH_S * 1e6:
-            self._flushed_us = t
-            self.flush()
+        self._release(ns - int(HOLD_S * 1e9))
 
     def on_message(self, msg: Message) -> None:
         """A board-to-host message as it arrives: TELEMETRY and SIM_STATE paired by board time.
@@ -292,7 +325,7 @@ class RunLog:
         """The emulator's ground truth (each new SIM_STATE once)."""
         if sim is not self._last_sim:
             self._last_sim = sim
-            self.sim_state.log(_fields(sim), log_time=_ns(sim.board_time_us))
+            self._put(self.sim_state, _fields(sim), _ns(sim.board_time_us))
 
     def on_transforms(self, tel: Telemetry, sim: SimState | None) -> None:
         """The robot's frames at ``tel``'s joint angles, its base where ``sim`` puts it (None: where the
@@ -302,59 +335,70 @@ class RunLog:
         every = self.scene_every_s
         if self._scene_at is None or (every is not None and t - self._scene_at >= every * 1e6):
             self._scene_at = t
-            self.scene_ch.log(self.scene.scene_update(t), log_time=ns)
+            self._put(self.scene_ch, self.scene.scene_update(t), ns)
         base = (sim.base_pos, sim.base_quat) if sim is not None else None
-        self.tf.log(self.scene.transforms(t, tel.positions[:len(self.names)], base), log_time=ns)
+        self._put(self.tf, self.scene.transforms(t, tel.positions[:len(self.names)], base), ns)
 
     def on_frame_sent(self, seq: int, msg: Message, board_time_us: int) -> None:
-        """A host-to-board message went out (``board_time_us``: the board clock estimate at sending)."""
+        """A host-to-board message went out (``board_time_us``: the board clock estimate at sending).
+
+        ``/link/tx`` gets it at ``board_time_us`` (never before the previous one: send order); a
+        SERVO_FRAME's targets go to ``/joint_targets`` at its apply time, which is ahead (the reorder
+        buffer holds them until the reports catch up). The frame's ``targets`` are packed: one per set
+        bit of ``mask``, lowest servo first (a frame for servos 10 and 11 carries two values)."""
         try:
             raw = encode_frame(msg, seq).hex()
         except (ValueError, OverflowError):
             raw = ""
-        self.link_tx.log({"seq": seq, "type": type(msg).__name__, "fields": _fields(msg), "raw": raw},
-                         log_time=_ns(board_time_us))
+        self._tx_ns = max(self._tx_ns, _ns(board_time_us))
+        self._put(self.link_tx, {"seq": seq, "type": type(msg).__name__, "fields": _fields(msg), "raw": raw},
+                  self._tx_ns)
         if isinstance(msg, ServoFrame):
+            servos = [i for i in range(msg.mask.bit_length()) if msg.mask >> i & 1]
             joints = [JointState(name=self.names[i], position=float(q))
-                      for i, q in enumerate(msg.targets[:len(self.names)]) if msg.mask >> i & 1]
-            self.joint_targets.log(JointStates(timestamp=stamp(msg.apply_at_us), joints=joints),
-                                   log_time=_ns(msg.apply_at_us))
+                      for i, q in zip(servos, msg.targets) if i < len(self.names)]
+            self._put(self.joint_targets, JointStates(timestamp=stamp(msg.apply_at_us), joints=joints),
+                      _ns(msg.apply_at_us))
 
     # -- calls, speech, images ----------------------------------------------------------------
     def on_call_start(self, path: str, function: str, channel: str | None, args: Mapping[str, Any],
                       board_time_s: float) -> None:
-        self.calls.log(Log(timestamp=stamp(int(board_time_s * 1e6)), level=LogLevel.Info, name=channel or "main",
-                           message=f"start {path} {function}({_args(args)})"), log_time=_ns(int(board_time_s * 1e6)))
+        t = board_us(board_time_s)
+        self._put(self.calls, Log(timestamp=stamp(t), level=LogLevel.Info, name=channel or "main",
+                                  message=f"start {path} {function}({_args(args)})"), _ns(t))
 
     def on_call_end(self, path: str, function: str, channel: str | None, outcome: str, error: str | None,
                     board_time_s: float) -> None:
         level = LogLevel.Info if outcome in ("done", "interrupted", "cancelled") else LogLevel.Warning
         text = f"end {path} {function}: {outcome}" + (f": {error}" if error else "")
-        self.calls.log(Log(timestamp=stamp(int(board_time_s * 1e6)), level=level, name=channel or "main", message=text),
-                       log_time=_ns(int(board_time_s * 1e6)))
+        t = board_us(board_time_s)
+        self._put(self.calls, Log(timestamp=stamp(t), level=level, name=channel or "main", message=text), _ns(t))
 
     def on_call(self, record: Any) -> None:
-        """A finished call (``host.run.artefacts.BoardCall``: board-measured times) as an Event."""
+        """A finished call (``host.run.artefacts.BoardCall``: board-measured times) as an Event, logged at
+        its end (when it is known; the Event's start and end times say when it ran)."""
         if record.start is None:
             return
-        start_us = int(record.start * 1e6)
-        end_us = int((record.end if record.end is not None else record.start) * 1e6)
+        start_us = board_us(record.start)
+        end_us = max(start_us, board_us(record.end if record.end is not None else record.start))
         meta = {"function": record.function, "channel": record.channel or "", "path": record.path,
                 "outcome": record.outcome, "args": json.dumps(record.args, ensure_ascii=False, default=str),
                 **({"error": record.error} if record.error else {})}
-        self.call_events.log(Event(start_time=stamp(start_us), end_time=stamp(end_us),
-                                   metadata=[KeyValuePair(key=k, value=str(v)) for k, v in meta.items()]),
-                             log_time=_ns(start_us))
+        self._put(self.call_events, Event(start_time=stamp(start_us), end_time=stamp(end_us),
+                                          metadata=[KeyValuePair(key=k, value=str(v)) for k, v in meta.items()]),
+                  _ns(end_us))
 
     def on_speech(self, text: str, start_s: float, end_s: float | None, outcome: str, path: str = "") -> None:
-        """A sentence that was spoken from ``start_s`` to ``end_s`` (board seconds; cut sentences end at the cut)."""
-        self.speech.log({"text": text, "start_s": start_s, "end_s": end_s if end_s is not None else start_s,
-                         "outcome": outcome, "path": path}, log_time=_ns(int(start_s * 1e6)))
+        """A sentence that was spoken from ``start_s`` to ``end_s`` (board seconds; cut sentences end at the
+        cut), logged at its end (when it is known)."""
+        end = end_s if end_s is not None else start_s
+        self._put(self.speech, {"text": text, "start_s": start_s, "end_s": end, "outcome": outcome, "path": path},
+                  _ns(max(board_us(start_s), board_us(end))))
 
     def on_image(self, board_time_s: float, png: bytes, frame_id: str = "camera") -> None:
         """A photo (PNG bytes) taken at ``board_time_s``."""
-        t = int(board_time_s * 1e6)
-        self.camera.log(CompressedImage(timestamp=stamp(t), frame_id=frame_id, data=png, format="png"), log_time=_ns(t))
+        t = board_us(board_time_s)
+        self._put(self.camera, CompressedImage(timestamp=stamp(t), frame_id=frame_id, data=png, format="png"), _ns(t))
 
     # -- link ---------------------------------------------------------------------------------
     def on_fault(self, board_time_us: int, raised: int, cleared: int) -> None:
@@ -371,13 +415,46 @@ class RunLog:
 
     def on_gap(self, board_time_us: int, lost: int, lost_total: int) -> None:
         """``lost`` board messages went missing since the last report (``lost_total`` since the handshake)."""
-        self.gaps.log({"board_time_us": board_time_us, "lost": lost, "lost_total": lost_total},
-                      log_time=_ns(board_time_us))
+        self._put(self.gaps, {"board_time_us": board_time_us, "lost": lost, "lost_total": lost_total},
+                  _ns(board_time_us))
 
     def link_note(self, text: str, board_time_us: int, level: LogLevel = LogLevel.Warning) -> None:
         """One line on ``/link/faults``."""
-        self.faults.log(Log(timestamp=stamp(board_time_us), level=level, name="link", message=text),
-                        log_time=_ns(board_time_us))
+        self._put(self.faults, Log(timestamp=stamp(board_time_us), level=level, name="link", message=text),
+                  _ns(board_time_us))
+
+    # -- the reorder buffer ---------------------------------------------------------------------
+    def _put(self, channel: Any, msg: Any, ns: int) -> None:
+        """Hold ``msg`` for ``channel`` at log time ``ns`` until :meth:`_release` passes it (the earliest
+        goes at once past :data:`MAX_HELD`)."""
+        heapq.heappush(self._held, (ns, self._arrivals, channel, msg))
+        self._arrivals += 1
+        if len(self._held) > MAX_HELD:
+            self._write(*heapq.heappop(self._held))
+
+    def _release(self, upto_ns: int) -> None:
+        """Write every held message with a log time up to ``upto_ns``, earliest first (same time: in the
+        order they came), and end the chunk each :data:`FLUSH_S` of log time."""
+        held = self._held
+        while held and held[0][0] <= upto_ns:
+            self._write(*heapq.heappop(held))
+        if self._written_ns - self._flushed_us * 1000 >= FLUSH_S * 1e9:
+            self._flushed_us = self._written_ns // 1000
+            self.flush()
+
+    def _write(self, ns: int, _order: int, channel: Any, msg: Any) -> None:
+        if ns < self._written_ns:  # later than the buffer could wait: at the file's time, its stamp says when
+            ns = self._written_ns
+            self.late += 1
+        self._written_ns = ns
+        channel.log(msg, log_time=ns)
+        if channel is self.joint_states:  # the live view's clock: the board time written so far
+            for cb in list(self.time_listeners):
+                cb(ns)
+
+    def drain(self) -> None:
+        """Write everything held now, in log-time order (:meth:`close` does this first)."""
+        self._release(1 << 62)
 
     # -- file ---------------------------------------------------------------------------------
     def flush(self) -> None:
@@ -404,6 +481,7 @@ class RunLog:
         if self._pending is not None:
             self.on_transforms(self._pending, self._last_sim)
             self._pending = None
+        self.drain()
         self.closed = True
         try:
             if self.writer is not None:

@@ -7,9 +7,10 @@ touches nothing else:
   (seq, message) callbacks (TELEMETRY and SIM_STATE go to :meth:`RunLog.on_message`);
 * board faults and NACKs: the client's ``on_fault`` / ``on_nack`` callbacks;
 * calls and speech: at most every :data:`POLL_S` board seconds, on a report, the shell's live
-  timeline (``Shell.last_result``; board-measured start/end from ``RobotRuntime.board_times`` where
-  the runtime has them); at the end of each turn the turn's board-measured calls (``on_turn_end``)
-  as Events;
+  timeline (``Shell.last_result``; board-measured start/end from ``RobotRuntime.board_times``: a
+  robot call's start line waits for its board-measured start); each call's Event when it ends, and
+  at the end of each turn those of the turn's calls that never ended (``on_turn_end``);
+* the report that came before the recording attached (``latest_telemetry``), first;
 * photos: the runtime's new captures, looked for on every report, stamped with the board time their
   last CAMERA_CHUNK arrived;
 * sequence gaps, decode errors, re-sent requests, reconnects: the client's ``LinkStats`` counters,
@@ -52,9 +53,11 @@ from host.link import BoardClient
 from host.link.deferred import DeferredWork
 from host.link.session import FaultEvent
 from host.robot.runtime import RobotRuntime
+from host.run.artefacts import BoardCall
 from host.run.log_writer import LogWriter
 from host.run.mcap_log import McapError, RunLog
 from host.shell import Shell
+from host.shell.types import BUILTINS
 from protocol.messages import CameraChunk, Message, Nack, SimState, Telemetry
 from robots.description import Robot
 
@@ -95,6 +98,12 @@ class Recording:
         self._work = DeferredWork(slice_s=DRAIN_SLICE_S, max_deferred=MAX_DEFERRED)  # loop-side bookkeeping
         self.writer = LogWriter().start()  # every RunLog call, in order (module docstring)
         self.writer.submit(self._guard, run_log.prepare)  # the scene (MJCF compile) first, off the loop
+        first = getattr(client, "latest_telemetry", None)  # a report that came before the recording did
+        if isinstance(first, Telemetry):
+            self._log(run_log.on_message, first)
+            sim = getattr(client, "latest_sim_state", None)
+            if isinstance(sim, SimState) and sim.board_time_us == first.board_time_us:
+                self._log(run_log.on_message, sim)
         client.on_fault.append(self._on_fault)
         client.on_nack.append(self._on_nack)
         client.on_sent.append(self._on_sent)
@@ -109,7 +118,7 @@ class Recording:
         run goes on without it; None when neither remains.
         """
         notes: list[str] = []
-        run_log = RunLog(robot)
+        run_log = RunLog(robot, (meta or {}).get("scene"))
         if path is not None:
             try:
                 run_log.open(path, meta)
@@ -219,14 +228,22 @@ class Recording:
         for r in result.timeline:
             key = (t0, r.path)
             measured = board.get(r.path, [None, None])
-            if r.start is not None and key not in self._started:
+            ended = r.end is not None and r.outcome != "pending"
+            # a start line once the board time it started at is known (a robot call's shell start is its
+            # release, maybe behind calls queued on its channel; a wait/async scope starts when the shell says)
+            known = measured[0] is not None or ended or r.function in BUILTINS
+            if r.start is not None and key not in self._started and known:
                 self._started.add(key)
                 start = measured[0] if measured[0] is not None else t0 + r.start
                 self._log(self.run_log.on_call_start, r.path, r.function, r.channel, dict(r.args), start)
-            if r.end is not None and r.outcome != "pending" and key not in self._ended:
+            if ended and key not in self._ended:
                 self._ended.add(key)
                 end = measured[1] if measured[1] is not None else t0 + r.end
                 self._log(self.run_log.on_call_end, r.path, r.function, r.channel, r.outcome, r.error, end)
+                if r.start is not None:  # its Event now, at its end (on_turn_end gives the calls that had none)
+                    start = measured[0] if measured[0] is not None else t0 + r.start
+                    self._log(self.run_log.on_call, BoardCall(r.function, r.channel, dict(r.args), r.path, start, end,
+                                                              r.outcome, r.error))
                 if r.function == "speak" and r.start is not None:
                     start = measured[0] if measured[0] is not None else t0 + r.start
                     self._log(self.run_log.on_speech, str(r.args.get("text", "")), start, end, r.outcome, r.path)
@@ -262,8 +279,10 @@ class Recording:
         last changes first (after the work still noted). Handed to the writer thread; returns at once."""
         self._drain()
         self._guard(self._poll_calls)
+        result = self.shell.last_result
         for c in calls:
-            self._log(self.run_log.on_call, c)
+            if result is None or (result.t0, c.path) not in self._ended:
+                self._log(self.run_log.on_call, c)
         self._log(self.run_log.flush)
 
     def close(self) -> None:

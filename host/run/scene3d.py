@@ -1,7 +1,11 @@
 """A robot's 3D scene for Foxglove: primitives from its MJCF geoms, frame transforms from its joint angles.
 
-Any robot (fixed or floating base): the model is the robot's own MJCF compiled without scene objects
-(:func:`robots.model.load_model` with the ``empty`` scene), so nothing here names a robot.
+Any robot (fixed or floating base): the model is the robot's own MJCF compiled with the run's scene
+(:func:`robots.model.load_model`; ``RobotScene(robot, scene)``, default ``empty``: the robot alone), so
+nothing here names a robot. A scene's objects (:mod:`robots.scenes`: the arm's table and its cubes,
+coco's bottles) are bodies under ``world`` like the robot's, so they get frames and primitives the same
+way. Their frames stay where the scene puts them: the board's SIM_STATE carries the robot's base, not
+the objects' poses, so a cube the arm pushes is drawn where it started.
 
 Frames: one per MuJoCo body, named after the body (``body<N>`` when unnamed); ``world`` is MuJoCo's
 world body. :meth:`RobotScene.transforms` gives every body's pose in its parent body's frame (the
@@ -123,9 +127,10 @@ class _Geom:
 class RobotScene:
     """The robot's bodies as Foxglove frames and primitives (see the module docstring)."""
 
-    def __init__(self, robot: Robot) -> None:
+    def __init__(self, robot: Robot, scene: str = "empty") -> None:
         self.robot = robot
-        self.rm: RobotModel = load_model(robot, "empty")
+        self.scene = scene
+        self.rm: RobotModel = load_model(robot, scene)
         m = self.rm.model
         self.model = m
         self.data = mujoco.MjData(m)

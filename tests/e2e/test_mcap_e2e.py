@@ -65,7 +65,20 @@ def test_task26_mcap_has_every_channel_on_the_board_clock(tmp_path: Path) -> Non
         meta = {kv["key"]: kv["value"] for kv in ev.value["metadata"]}
         c = timeline[meta["path"]]
         assert meta["outcome"] == c["outcome"] and meta["function"] == c["function"]
-        assert abs(ev.log_time_ns / 1e9 - c["start"]) < 1e-6
+        assert abs(ev.log_time_ns / 1e9 - c["end"]) < 1e-6  # logged at its end, when it is known
+    # every message in log-time order, in the order the file holds them (a strict player's check)
+    with open(tmp_path / "run.mcap", "rb") as f:
+        times = [m.log_time for _, _, m in make_reader(f).iter_messages(log_time_order=False)]
+    assert times == sorted(times)
+    # a call's start line at the board time it started (timeline.json), not when the shell released it
+    starts = {m.value["message"].split()[1]: m.log_time_ns / 1e9 for m in mcap.messages(["/calls"])
+              if m.value["message"].startswith("start ")}
+    assert set(starts) == {p for p, c in timeline.items() if c["start"] is not None}
+    for path, t in starts.items():
+        assert abs(t - timeline[path]["start"]) <= 0.010, path  # one control tick
+    # the board's first report (20 ms) is in every channel made from reports
+    for topic in ("/joint_states", "/telemetry", "/tf", "/sim_state"):
+        assert next(iter(mcap.messages([topic]))).log_time_ns == round(tel[0] * 1e9), topic
     assert mcap.metadata()["run"]["robot"] == "coco"
     with open(tmp_path / "run.mcap", "rb") as f:
         assert [a.name for a in make_reader(f).iter_attachments()] == ["coco.xml"]
