@@ -19,6 +19,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from host.commands.modearg import add_mode_argument
 from host.commands.errors import print_error
 from host.commands.outarg import add_no_plots_argument, out_dir, out_dir_problem
 from host.commands.robotarg import add_robot_argument, robot_from_args
@@ -40,7 +41,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "robot's native-call ablation tasks (e.g. ablation:6,9)")
     parser.add_argument("--trials", type=_at_least_one, default=5, help="rounds per task (the paper: 5)")
     parser.add_argument("--workers", type=_at_least_one, default=1, help="jobs at once, each with its own lockstep board")
-    parser.add_argument("--out", type=out_dir, default=None, help="output folder (default runs/eval-<model>)")
+    parser.add_argument("--out", type=out_dir, default=None, metavar="DIR", help="output folder (default runs/eval-<model>)")
     parser.add_argument("--native-tools", action="store_true",
                         help="expose the functions as provider tool definitions (native function calling)")
     parser.add_argument("--native-exec", choices=("parallel", "sequential"), default="parallel",
@@ -50,7 +51,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     add_no_plots_argument(parser, "executed reply", skips_matplotlib=False)
     parser.add_argument("--vocabulary", default=None, metavar="NAME",
                         help="the robot's vocabulary in the prompt (default: the robot's; ghostshell robots show NAME lists them)")
-    parser.add_argument("--mode", choices=("async-first", "sync-first"), default="async-first")
+    add_mode_argument(parser)
     parser.add_argument("--format", choices=("code", "xml"), default="code", help="the prompt format (as ghostshell prompt)")
     parser.add_argument("--temperature", type=_temperature, default=None, help="sampling temperature, 0-2")
     parser.add_argument("--paper-model", default=None, help="the paper's column to compare with (default: matched from --llm)")

@@ -35,7 +35,12 @@ MAX_LINE_CHARS = 16 * 1024
 
 def configure(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
-    p = sub.add_parser("decode", help="print every record of a frame log, one line each")
+    decode_help = "print every record of a frame log, one line each"
+    p = sub.add_parser("decode", help=decode_help,
+                       description=decode_help[0].upper() + decode_help[1:] + " (time, direction, message type "
+                       "and its fields): a serial JSON Lines log, a CAN log (candump .log, .asc, .blf; through the "
+                       "robot's DBC) or a run's run.mcap (then a count per topic on stderr). Exit status 1 when "
+                       "some records could not be decoded (each is named; the rest are printed).")
     p.add_argument("file", metavar="FILE", help="a log written with --log (by the board or the host): .jsonl serial; "
                    ".log/.asc/.blf CAN; or a run's run.mcap")
     p.add_argument("--type", action="append", default=None, metavar="NAME",

@@ -11,6 +11,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from host.commands.modearg import add_mode_argument
 from host.commands.errors import print_error
 from host.commands.inputs import port_number
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, preflight_link, unreachable_link
@@ -32,13 +33,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     add_mount_argument(parser)
     parser.add_argument("--vocabulary", default=None, metavar="NAME",
                         help="the robot's vocabulary in the prompt (default: the robot's; ghostshell robots show NAME lists them)")
-    parser.add_argument("--mode", choices=("async-first", "sync-first"), default="async-first")
+    add_mode_argument(parser)
     parser.add_argument("--scene", default=None, metavar="NAME",
                         help="objects in the board's world: one of the robot's scenes (default: the robot's)")
     add_link_argument(parser)
     parser.add_argument("--emulate-board", action="store_true",
                         help="start the emulated board on --link first (implied for pty and can:slcan:pty)")
-    parser.add_argument("--out", type=out_dir, default=Path("runs/mcp"), help="session folder (frame logs, turns)")
+    parser.add_argument("--out", type=out_dir, default=Path("runs/mcp"), metavar="DIR",
+                        help="session folder (frame logs, turns; default runs/mcp)")
     add_no_plots_argument(parser, "turn")
 
 

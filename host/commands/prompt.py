@@ -8,6 +8,7 @@ import sys
 from collections.abc import Iterable
 from typing import Any
 
+from host.commands.modearg import add_mode_argument
 from host.commands.errors import print_error
 from host.commands.robotarg import add_robot_argument, robot_from_args
 
@@ -15,7 +16,7 @@ from host.commands.robotarg import add_robot_argument, robot_from_args
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the prompt options."""
     parser.add_argument("--format", choices=("code", "xml"), default="code", help="Python stubs or XML tokens")
-    parser.add_argument("--mode", choices=("async-first", "sync-first"), default="async-first")
+    add_mode_argument(parser)
     parser.add_argument("--text-first-class", action="store_true", help="speech blocks on the main channel")
     parser.add_argument(
         "--interface",

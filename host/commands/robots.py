@@ -52,9 +52,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     new.add_argument("--max-speed-dps", type=float, default=None, metavar="DPS",
                      help="every servo's speed limit in deg/s (default: robots.generate.DEFAULT_MAX_SPEED_DPS)")
     new.add_argument("--title", default=None, help="a title for people (default: the MJCF's model name)")
-    lst = sub.add_parser("list", help="list built-in and user robots with their servo counts")
+    lst = _action(sub, "list", "list built-in and user robots with their servo counts")
     lst.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg, help=dir_help)
-    show = sub.add_parser("show", help="describe a robot and the functions it exposes")
+    show = _action(sub, "show", "describe a robot and the functions it exposes")
     show.add_argument("name", metavar="NAME", help="a robot name or a robot folder")
     show.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg, help=dir_help)
     check = sub.add_parser("check", help="check a robot package against its MJCF again and print its notes",
@@ -63,11 +63,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
                                        "changed); exit 2 with one line when it is broken.")
     check.add_argument("name", metavar="NAME", help="a robot name or a robot folder")
     check.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg, help=dir_help)
-    path = sub.add_parser("path", help="print the user robot folder (where `new` writes), or robot NAME's folder")
-    path.add_argument("name", nargs="?", default=None, metavar="NAME")
+    path = _action(sub, "path", "print the user robot folder (where `new` writes), or robot NAME's folder")
+    path.add_argument("name", nargs="?", default=None, metavar="NAME", help="a robot name (default: none, the user folder)")
     path.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg, help=dir_help)
     from host.commands import calibrate  # ``robots calibrate``: its own module (the vendor SDKs load when it runs)
     calibrate.configure(sub.add_parser("calibrate", help=calibrate.HELP, description=calibrate.DESCRIPTION))
+
+
+def _action(sub: Any, name: str, what: str) -> argparse.ArgumentParser:
+    """``robots NAME``'s parser: ``what`` is its line in ``robots --help`` and, as a sentence, its description."""
+    parser: argparse.ArgumentParser = sub.add_parser(name, help=what, description=what[0].upper() + what[1:] + ".")
+    return parser
 
 
 def _fail(message: str) -> int:

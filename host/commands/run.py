@@ -19,6 +19,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from host.commands.modearg import add_mode_argument
 from host.commands.errors import command_of, print_error
 from host.commands.inputs import STDIN, InputError, baud_rate, read_text_input
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, preflight_link, unreachable_link
@@ -62,7 +63,7 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
                        help="virtual board clock, as fast as the host streams (reproducible)")
     clock.add_argument("--realtime", dest="lockstep", action="store_false", help="wall-clock board (default)")
     parser.set_defaults(lockstep=False)
-    parser.add_argument("--mode", choices=("async-first", "sync-first"), default="async-first")
+    add_mode_argument(parser)
     parsing = parser.add_mutually_exclusive_group()
     parsing.add_argument("--lenient", dest="strict", action="store_false",
                          help="recover from malformed output with warnings (default with a real --llm)")

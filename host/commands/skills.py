@@ -17,12 +17,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--skills", default=None, metavar="FILE", help="skill library file (else $GHOSTSHELL_SKILLS, "
                         "else the user data directory)")
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
-    sub.add_parser("list", help="list the saved skills")
-    show = sub.add_parser("show", help="print a skill's program")
-    show.add_argument("name")
-    rm = sub.add_parser("rm", help="delete a skill")
-    rm.add_argument("name")
-    sub.add_parser("path", help="print the library file's path")
+    for action, what in (("list", "list the saved skills"), ("show", "print a skill's program"),
+                         ("rm", "delete a skill"), ("path", "print the library file's path")):
+        p = sub.add_parser(action, help=what, description=what[0].upper() + what[1:] + ".")
+        if action in ("show", "rm"):
+            p.add_argument("name", metavar="NAME", help="the skill's name (ghostshell skills list)")
 
 
 def main(args: argparse.Namespace) -> int:

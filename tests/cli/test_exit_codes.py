@@ -360,3 +360,20 @@ def test_bad_input_exits_with_its_status_and_one_line(index: int, results: list[
     assert last.startswith(("ghostshell", "board: ")), why
     assert r.stdout == "", why  # nothing before the error: no banner, no board
     assert not r.out.exists(), why + "\n--- the refused command made its run folder"
+
+
+def test_every_refusal_names_its_command(results: list[Result]) -> None:
+    """One prefix rule (issue 45, item 4): a command's error line reads ``ghostshell COMMAND: ...``
+    (:func:`host.commands.errors.print_error`), or ``ghostshell COMMAND ACTION: error: ...`` for
+    argparse's usage error of a subcommand's action (``log decode``); never a bare ``ghostshell:``.
+    ``ghostshell board`` is the board's own process (``python -m firmware_sim``): its refusals after
+    argparse's read ``board: ...``, the form the host's board launcher reads (host.link.board_process)."""
+    wrong = []
+    for r in results:
+        lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+        command = r.row.argv[0]
+        action = next((a for a in r.row.argv[1:] if not a.startswith("-")), "")
+        prefixes = (f"ghostshell {command}: ", f"ghostshell {command} {action}: ", *(("board: ",) * (command == "board")))
+        if not lines or not lines[-1].startswith(prefixes):
+            wrong.append(f"{' '.join(r.row.argv)}: {lines[-1] if lines else '(no line)'}")
+    assert not wrong, "\n".join(wrong)
