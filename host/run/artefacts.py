@@ -47,7 +47,9 @@ class Summary:
     """``summary.json``: how the run went, in numbers. ``base_start`` / ``base_end`` are ``[x m, y m, yaw deg]``
     from the board's SIM_STATE reports; they, ``fell`` and ``max_tilt_deg`` are None (``null``) when no such
     report reached the host (``extra.base_reports`` 0: a line too slow for them, a link lost before the
-    first), never zeros that would read as "upright, did not move"."""
+    first), never zeros that would read as "upright, did not move". ``final_joints_deg``: servo name (the
+    name ``joint_move`` takes) -> its measured joint angle in degrees (2 decimals) in the last TELEMETRY
+    of the turn; None when no report reached the host."""
 
     task: str
     outcome: str
@@ -58,6 +60,7 @@ class Summary:
     first_action_latency_ms: float | None
     outcomes: dict[str, int] = field(default_factory=dict)
     duration_s: float = 0.0
+    final_joints_deg: dict[str, float] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -74,21 +77,38 @@ def _jsonable(v: Any) -> Any:
 
 
 def calls_table(calls: Sequence[BoardCall], t0: float = 0.0) -> str:
-    """A plain-text table of ``calls`` with board-measured times in seconds after ``t0`` (what
-    ``timeline.json`` holds), in the layout of :meth:`host.shell.timeline.Timeline.table`."""
-    rows = ["  start     end  channel  outcome      path  args"]
+    """A plain-text table of ``calls`` with their board-measured times in board seconds, the time base
+    of ``timeline.json`` and ``timeline.png`` (the header line says so and gives ``t0``, the turn's
+    start on that clock), in the layout of :meth:`host.shell.timeline.Timeline.table`."""
+    rows = [f"  start     end  channel  outcome      path  args      (board time, s; the turn began at {t0:.2f})"]
     for c in calls:
-        s = "   -  " if c.start is None else f"{c.start - t0:6.2f}"
-        e = "   -  " if c.end is None else f"{c.end - t0:6.2f}"
+        s = "   -  " if c.start is None else f"{c.start:6.2f}"
+        e = "   -  " if c.end is None else f"{c.end:6.2f}"
         rows.append(f"{s}  {e}  {c.channel or '-':7}  {c.outcome:11}  {c.path}  {c.args}{'  ' + c.error if c.error else ''}"
                     f"{'  ended by ' + c.ended_by if c.ended_by else ''}")
     return "\n".join(rows)
 
 
+#: decimals of the floats in timeline.json: 6, a microsecond of board time
+DECIMALS = 6
+
+
+def _rounded(v: Any) -> Any:
+    """``v`` with every float rounded to :data:`DECIMALS` (0.9239999999999999 -> 0.924)."""
+    if isinstance(v, float):
+        return round(v, DECIMALS) if math.isfinite(v) else v
+    if isinstance(v, dict):
+        return {k: _rounded(x) for k, x in v.items()}
+    if isinstance(v, list):
+        return [_rounded(x) for x in v]
+    return v
+
+
 def write_timeline_json(path: Path, calls: Sequence[BoardCall], t0: float = 0.0) -> None:
-    """Write ``{"clock": "board", "t0": run start, "calls": [...]}`` (times in board seconds)."""
-    doc = {"clock": "board", "t0": t0, "calls": [{k: _jsonable(v) for k, v in asdict(c).items()
-                                                   if k != "ended_by" or v is not None} for c in calls]}
+    """Write ``{"clock": "board", "t0": run start, "calls": [...]}`` (times in board seconds, every
+    float rounded to 6 decimals: a microsecond, the board clock's resolution)."""
+    doc = _rounded({"clock": "board", "t0": t0, "calls": [{k: _jsonable(v) for k, v in asdict(c).items()
+                                                             if k != "ended_by" or v is not None} for c in calls]})
     _write_atomic(path, json.dumps(doc, indent=1, ensure_ascii=False) + "\n")
 
 
@@ -161,8 +181,28 @@ def warm_up_plotting() -> None:
     _plotting_warm = True
 
 
-def plot_timeline(path: Path, calls: Sequence[BoardCall], title: str = "") -> None:
-    """A Gantt chart of the calls, one row per channel."""
+#: legend text (pt): the plots' legends sit right of their axes, never over a curve or a bar
+LEGEND_PT = 6.0
+#: most entries in one legend column of joints.png (a 2.3 in panel holds ~14 lines of 6 pt)
+LEGEND_ROWS = 12
+
+
+def _legend_width_in(labels: Sequence[str], ncol: int = 1) -> float:
+    """Inches a legend of ``labels`` in ``ncol`` columns takes right of the axes (its handles, gaps and
+    the widest label at :data:`LEGEND_PT`, ~0.6 em a character: a generous guess, measuring it costs a dry draw), with the gap to the axes."""
+    col = 0.4 + 0.6 * LEGEND_PT / 72 * max((len(x) for x in labels), default=1)
+    return 0.12 + ncol * col
+
+
+def _outside_legend(ax: Any, ncol: int = 1) -> Any:
+    """``ax``'s legend right of its axes (upper left corner at the axes' upper right): the data area
+    stays clear whatever the curves do."""
+    return ax.legend(fontsize=LEGEND_PT, ncol=ncol, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+
+
+def plot_timeline(path: Path, calls: Sequence[BoardCall], title: str = "") -> Any:
+    """A Gantt chart of the calls, one row per channel; the outcome colours' legend right of the chart.
+    Returns the matplotlib ``Figure`` (already saved; for tests)."""
     shown = [c for c in calls if c.start is not None]
     row = lambda c: c.channel or ("skills" if c.function == "RUN" else "?")  # noqa: E731 (a RUN spans its calls)
     channels = list(dict.fromkeys(row(c) for c in shown)) or ["-"]
@@ -183,9 +223,19 @@ def plot_timeline(path: Path, calls: Sequence[BoardCall], title: str = "") -> No
     ax.set_xlabel("board time (s)")
     ax.set_title(title or "timeline")
     ax.grid(axis="x", alpha=0.3)
+    from matplotlib.patches import Patch
+
+    outcomes = [o for o in _COLOURS if any(c.outcome == o for c in shown)]
+    right_in = 0.15
+    if outcomes:
+        ax.legend(handles=[Patch(facecolor=_COLOURS[o], edgecolor="black", linewidth=0.5, label=o) for o in outcomes],
+                  fontsize=LEGEND_PT, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+        right_in = _legend_width_in(outcomes)
     # the channel names are the y tick labels (10 pt, ~0.09 in a character)
-    _place_axes(fig, left_in=0.25 + 0.09 * max(len(c) for c in channels), bottom_in=0.55, top_in=0.35)
+    _place_axes(fig, left_in=0.25 + 0.09 * max(len(c) for c in channels), bottom_in=0.55, top_in=0.35,
+                right_in=right_in)
     fig.savefig(path, dpi=110, pil_kwargs=PNG_OPTIONS)
+    return fig
 
 
 def joint_groups(robot: Robot) -> list[tuple[str, list[int]]]:
@@ -199,24 +249,38 @@ def joint_groups(robot: Robot) -> list[tuple[str, list[int]]]:
 
 def plot_joints(path: Path, times: np.ndarray, positions: np.ndarray, names: Sequence[str],
                 targets: tuple[np.ndarray, np.ndarray] | None = None,
-                groups: Sequence[tuple[str, Sequence[int]]] | None = None) -> None:
+                groups: Sequence[tuple[str, Sequence[int]]] | None = None) -> Any:
     """Joint angles (degrees) against board time, one panel per servo group (``groups``: (label,
-    servo indices), e.g. :func:`joint_groups`; default one panel of every servo)."""
+    servo indices), e.g. :func:`joint_groups`; default one panel of every servo), each panel's legend
+    right of it (a column per :data:`LEGEND_ROWS` servos). Returns the matplotlib ``Figure`` (already
+    saved; for tests)."""
     panels = [(label, list(idx)) for label, idx in (groups or [("joints", range(len(names)))]) if len(idx)]
     fig = new_figure((10, max(3.0, 2.3 * len(panels))))
     axes = fig.subplots(len(panels), 1, sharex=True, squeeze=False)
+    right_in = 0.15
     for ax, (label, idx) in zip(axes[:, 0], panels):
         for i in idx:
             line, = ax.plot(times, np.degrees(positions[:, i]), lw=1, label=names[i])
             if targets is not None and len(targets[0]):
                 ax.plot(targets[0], np.degrees(targets[1][:, i]), lw=0.6, ls="--", color=line.get_color())
         ax.set_ylabel(f"{label}\n(deg)")
-        ax.legend(fontsize=6, ncol=4, loc="upper right")
+        ncol = -(-len(idx) // LEGEND_ROWS)
+        _outside_legend(ax, ncol)
+        right_in = max(right_in, _legend_width_in([names[i] for i in idx], ncol))
         ax.grid(alpha=0.3)
     axes = axes[:, 0]
     axes[-1].set_xlabel("board time (s)  (solid: measured, dashed: commanded)")
-    _place_axes(fig, left_in=1.0, bottom_in=0.5, top_in=0.15)  # two-line panel labels, ticks to "-1000"
+    _place_axes(fig, left_in=1.0, bottom_in=0.5, top_in=0.15, right_in=right_in)  # two-line panel labels, ticks to "-1000"
     fig.savefig(path, dpi=110, pil_kwargs=PNG_OPTIONS)
+    return fig
+
+
+def joint_angles_deg(names: Sequence[str], positions: Sequence[float] | None) -> dict[str, float] | None:
+    """``{servo name: angle in degrees, 2 decimals}`` of ``positions`` (radians, servo order; a NaN
+    becomes None in JSON terms: left out); None when ``positions`` is None."""
+    if positions is None:
+        return None
+    return {n: round(math.degrees(float(q)), 2) for n, q in zip(names, positions) if math.isfinite(float(q))}
 
 
 def tilt_deg(quat_wxyz: Sequence[float]) -> float:

@@ -1079,6 +1079,8 @@ class RobotSession:
             task=label, outcome=outcome, fell=fell if base else None, base_start=_pose(b0), base_end=_pose(b1),
             max_tilt_deg=round(max_tilt, 2) if base else None, first_action_latency_ms=None if first is None else round(first, 1),
             outcomes=counts, duration_s=round(end_t - turn.board_t0, 3),
+            final_joints_deg=artefacts.joint_angles_deg(self.robot.servos.names, tel.positions if tel is not None
+                                                        else (rec.q[-1] if rec.q else None)),
             extra={"clock": self._clock_mode(), "robot": self.robot.name, "robot_folder": str(self.robot.root),
                    "vocabulary": self.vocabulary,
                    "mode": opts.mode, "error": None if result.error is None else str(result.error),

@@ -22,7 +22,7 @@ def test_artefacts_well_formed(task_run) -> None:
     for c, call in zip(doc["calls"], run.calls):
         assert CALL_KEYS <= c.keys(), c
         assert (c["function"], c["path"], c["start"], c["end"], c["outcome"]) == \
-            (call.function, call.path, call.start, call.end, call.outcome)
+            (call.function, call.path, round(call.start, 6), round(call.end, 6), call.outcome)  # to the µs
         assert isinstance(c["args"], dict) and c["start"] <= c["end"]
 
     summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
