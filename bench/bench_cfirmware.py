@@ -42,7 +42,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 from cfirmware.wire import Wire  # noqa: E402
-from firmware_sim.cfirmware.build import build, codec_dir, size_of  # noqa: E402
+from firmware_sim.cfirmware.build import BuildError, build, codec_dir, size_of  # noqa: E402
+from firmware_sim.cfirmware.targets import link_overflow  # noqa: E402
 from protocol.codec import SCHEMA_HASH  # noqa: E402
 from protocol.messages import PROTOCOL_VERSION, Advance, Caps, Hello, ServoFrame, Telemetry  # noqa: E402
 from robots.loader import load_robot_dir  # noqa: E402
@@ -59,7 +60,16 @@ def sizes(tmp: Path) -> None:
     robots = [load_robot(DEFAULT_ROBOT)] + [load_robot_dir(write_chain_robot(tmp, n)) for n in (17, 32)]
     for kind, label, flash_kb, ram_kb in IMAGES:
         for robot in robots:
-            elf = build(kind, robot)
+            try:
+                elf = build(kind, robot)
+            except BuildError as e:  # the part's linker script refuses an image that does not fit it
+                need = link_overflow(str(e))
+                if need is None:
+                    raise
+                print(f"size, {label} ({robot.name}, {robot.servo_count} servos, {codec_dir(robot).name} codec): "
+                      f"does not fit, refused at link time: flash {need[0]} B of {flash_kb * 1024}, "
+                      f"RAM {need[1]} B of {ram_kb * 1024} (the linker's region use)")
+                continue
             s = size_of(elf)
             flash = s[".text"] + s.get(".ARM.exidx", 0) + s[".data"]
             ram = s[".data"] + s[".bss"] + s.get(".stack", 0) + s.get(".bootcfg", 0)

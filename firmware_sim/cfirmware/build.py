@@ -114,9 +114,11 @@ _STM32F4 = (*WARN, "-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=soft", *_ARM)
 
 def _arm_link(script: str) -> tuple[str, ...]:
     """The link arguments of an ARM image: no C runtime start files (the port's startup), newlib-nano,
-    section garbage collection, the port's linker ``script`` (under firmware_sim/c) and a map file."""
+    section garbage collection, the port's linker ``script`` (under firmware_sim/c), a map file, and the
+    memory regions' use on the linker's output (in the :class:`BuildError` of an image that overflows them:
+    :func:`firmware_sim.cfirmware.targets.link_overflow`)."""
     return ("-nostartfiles", "--specs=nano.specs", "-Wl,--gc-sections", "-Wl,-T,{c}/" + script,
-            "-Wl,-Map={out}/gs_firmware.map", "-lgcc")
+            "-Wl,-Map={out}/gs_firmware.map", "-Wl,--print-memory-usage", "-lgcc")
 
 
 #: ``{schema}`` in a source pattern is the folder of the robot's wire-schema codec (``schema16``, ``schema32``)

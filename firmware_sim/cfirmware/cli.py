@@ -6,7 +6,8 @@
 start of flash) and ``.hex`` (Intel HEX); ``native`` the executable ``gs_firmware``. It prints the
 image's flash and RAM use against the part's budget (:mod:`firmware_sim.cfirmware.targets`), and
 writes nothing when the robot does not fit: more servos than the target drives, or flash or RAM over
-budget, each one line naming the numbers. ``targets`` prints the table.
+budget (the port's linker script refuses such an image: the line gives the linker's numbers,
+:func:`firmware_sim.cfirmware.targets.link_overflow`), each one line naming the numbers. ``targets`` prints the table.
 
 ``ghostshell firmware build|targets`` runs this module (the host never imports firmware_sim), with
 ``GHOSTSHELL_FIRMWARE_PROG`` naming it ``ghostshell firmware`` in its lines.
@@ -32,7 +33,7 @@ from pathlib import Path
 from types import FrameType
 from typing import NoReturn
 
-from firmware_sim.cfirmware.targets import TARGETS, Target, image_use
+from firmware_sim.cfirmware.targets import TARGETS, Target, image_use, link_overflow
 
 __all__ = ["PROG_ENV", "build_parser", "main"]
 
@@ -255,7 +256,11 @@ def _build(args: argparse.Namespace) -> int:
         _say(str(e))
         return FAILED
     except BuildError as e:
-        _say(str(e))
+        # the port's linker script holds the image to the part's memories: a region overflow is the robot not
+        # fitting, one line with its numbers (the compiler's output otherwise)
+        need = link_overflow(str(e))
+        why = _budget_problem(robot.name, target, *need) if need is not None else None
+        _say(why if why is not None else str(e))
         return FAILED
     except RobotDataError as e:  # a bad calibration.toml
         _say(str(e))

@@ -10,7 +10,10 @@ stm32f4    STM32F405RG / STM32F407VG (Cortex-M4F)       1024 KiB     128 KiB    
 
 ``mps2``'s budget is the project's goal for a small part (the image runs on QEMU's mps2-an385,
 whose own memories are larger); ``stm32f4``'s is the part's: 1 MiB flash, 128 KiB SRAM (its
-64 KiB CCM RAM is not used). How an image is counted (:func:`image_use`, bytes, as
+64 KiB CCM RAM is not used). Each port's linker script declares its target's budget as its FLASH and
+RAM regions (``firmware_sim/c/ports/mps2/mps2_an385.ld``, ``ports/stm32f4/stm32f405.ld``), so an image
+that does not fit does not link; :func:`link_overflow` reads the flash and RAM such an image needs from
+the linker's output (``--print-memory-usage``), for the build command's one-line refusal. How an image is counted (:func:`image_use`, bytes, as
 ``bench/bench_cfirmware.py`` counts): flash = ``.text + .ARM.exidx + .data`` (``.data``'s initial
 values live in flash), RAM = ``.data + .bss + .stack + .bootcfg`` (the main stack and the boot
 configuration block are sections of their own in our linker scripts). ``tests/cfirmware/test_image_size.py``
@@ -19,18 +22,23 @@ checks the default robot against :data:`TARGETS` ``["mps2"]``.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from protocol.messages import MAX_WIRE_SERVOS
 
-__all__ = ["FLASH_SECTIONS", "HSE_HZ", "RAM_SECTIONS", "TARGETS", "Define", "ImageUse", "Target", "image_use"]
+__all__ = ["FLASH_SECTIONS", "HSE_HZ", "RAM_SECTIONS", "REGIONS", "TARGETS", "Define", "ImageUse", "Target", "image_use",
+           "link_overflow"]
 
 #: sections counted as flash (bytes in the image); absent ones count 0
 FLASH_SECTIONS = (".text", ".ARM.exidx", ".data")
 #: sections counted as RAM (what the image occupies at run time); absent ones count 0
 RAM_SECTIONS = (".data", ".bss", ".stack", ".bootcfg")
+#: our linker scripts' memory regions -> what they hold: FLASH the flash sections, RAM the RAM sections (with no
+#: gaps between them, so a region's use is the sum :func:`image_use` counts)
+REGIONS = {"FLASH": "flash", "RAM": "ram"}
 
 
 @dataclass(frozen=True)
@@ -101,3 +109,22 @@ def image_use(elf: Path) -> ImageUse:
 
     s = size_of(elf)
     return ImageUse(sum(s.get(k, 0) for k in FLASH_SECTIONS), sum(s.get(k, 0) for k in RAM_SECTIONS), s)
+
+
+_OVERFLOW = re.compile(r"region [`'](\w+)' overflowed by \d+ bytes")
+#: a row of ``ld --print-memory-usage``: ``FLASH:  33184 B  32 KB  101.27%`` (whole KB, MB, GB in those units)
+_USAGE = re.compile(r"^\s*(\w+):\s+(\d+) (B|KB|MB|GB)\s+\d+ (?:B|KB|MB|GB)\s+[\d.]+%", re.M)
+_UNIT = {"B": 1, "KB": 1 << 10, "MB": 1 << 20, "GB": 1 << 30}
+
+
+def link_overflow(output: str) -> tuple[int, int] | None:
+    """``(flash, ram)`` bytes an image needs when the linker refused it for overflowing a memory region, from the
+    linker's ``output`` (an ARM build links with ``--print-memory-usage``: the table of each region's use is printed
+    even when a region overflows; :class:`firmware_sim.cfirmware.build.BuildError` carries it). None when the
+    output tells of no region overflow or has no usage table for both FLASH and RAM (another link error)."""
+    if _OVERFLOW.search(output) is None:
+        return None
+    used = {m[1]: int(m[2]) * _UNIT[m[3]] for m in _USAGE.finditer(output) if m[1] in REGIONS}
+    if set(used) != set(REGIONS):
+        return None
+    return used["FLASH"], used["RAM"]
