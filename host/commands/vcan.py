@@ -4,8 +4,14 @@ Where this kernel has the interfaces, or can create them (root and the ``vcan`` 
 here, directly, after they are created (and they are deleted afterwards). Elsewhere (a kernel without
 ``vcan``, e.g. this machine's) it runs inside a throwaway User-Mode Linux guest (:mod:`host.vcan.uml`):
 the guest's root is this machine's root, so the working folder, the venv and every path outside
-``/tmp`` are the same inside; folders under ``/tmp`` that the command names (and ``--keep DIR``) are
-shared too; the kernel modules the SocketCAN tests need (``sch_tbf`` for ``tc``) are loaded; output
+``/tmp`` are the same inside; the guest's ``/tmp`` is its own, but every ``/tmp`` path the command
+names (an argument, an option's ``=VALUE``, or a path inside an argument such as a ``bash -c`` script)
+is shared: the nearest folder of it that exists here is the same folder inside (``--keep DIR`` adds
+one), and a path whose first folder below ``/tmp`` does not exist here yet (``--out /tmp/new/run``)
+is copied out of the guest when the command ends (not when the guest is killed: Ctrl-C, timeout);
+a path in the guest's own ``/run`` or ``/dev/shm`` gets a one-line warning; paths
+built at run time (``mktemp``, ``$VAR``) are not seen: name them, or use ``--keep``. The kernel
+modules the SocketCAN tests need (``sch_tbf`` for ``tc``) are loaded; output
 streams to this terminal while COMMAND runs; the guest's files are removed afterwards (unless
 ``--run-dir``).
 
@@ -88,7 +94,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="kill COMMAND after S seconds (exit status 124; default 3600)")
     parser.add_argument("--keep", action="append", default=[], metavar="DIR",
                         help="User-Mode Linux: another folder under /tmp COMMAND needs (the working folder and "
-                             "/tmp paths named in COMMAND are shared without it)")
+                             "/tmp paths named in COMMAND, also inside a bash -c script, are shared without it)")
     parser.add_argument("--run-dir", default=None, metavar="DIR",
                         help="User-Mode Linux: keep the guest's files (job, console, output) in DIR "
                              "(default: a temporary folder, removed at exit)")
@@ -96,23 +102,69 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="the command and its arguments")
 
 
-def _tmp_paths(argv: Sequence[str], cwd: Path) -> list[Path]:
-    """Folders under /tmp the command names (a file's or a new file's folder), which the guest must see."""
-    found = []
+#: an absolute path inside a command's argument (``bash -c "... > /tmp/x/cap.log"``, ``--out=/tmp/run``):
+#: up to whitespace, a quote or a shell operator
+_ABS_PATH = re.compile(r"""(?<![\w.~$-])/[^\s'"`;&|<>()$*?\[\]{}]*""")
+#: the guest's own tmpfs folders besides /tmp: a file written there never reaches this machine
+_GUEST_ONLY = ("/run", "/dev/shm")
+TMP = Path("/tmp")
+
+
+def _named_paths(argv: Sequence[str], cwd: Path) -> list[Path]:
+    """Every path ``argv`` names, made absolute: a whole argument, an option's ``=VALUE``, and every
+    absolute path inside an argument (a ``bash -c`` script's redirections and arguments)."""
+    texts: list[str] = []
     for arg in argv:
-        for part in arg.split("=", 1)[-1:] if arg.startswith("-") else [arg]:
-            if not part or "\n" in part:
-                continue
-            p = Path(part) if os.path.isabs(part) else cwd / part
-            try:
-                p = p.resolve()
-                folder = p if p.is_dir() else p.parent  # a file, or one the command will create
-                exists = folder.is_dir()
-            except (OSError, RuntimeError, ValueError):
-                continue
-            if exists and str(folder).startswith("/tmp/"):
-                found.append(folder)
+        if "\n" not in arg:
+            texts.append(arg.split("=", 1)[-1] if arg.startswith("-") else arg)
+        texts += _ABS_PATH.findall(arg)
+    found = []
+    for text in texts:
+        if not text or text == "/":
+            continue
+        p = Path(text) if os.path.isabs(text) else cwd / text
+        try:
+            found.append(Path(os.path.abspath(p)))  # no resolve yet: a symlink under /tmp is followed below
+        except (OSError, ValueError):
+            continue
     return found
+
+
+def _tmp_paths(argv: Sequence[str], cwd: Path) -> tuple[list[Path], list[Path]]:
+    """``(shared, copied_back)``: the host folders under ``/tmp`` a User-Mode Linux guest must see for the
+    paths the command names there, and the paths directly under ``/tmp`` the command names that do not
+    exist on this machine yet (the guest's ``/tmp`` is a private tmpfs; these are copied out of it when
+    the command ends, :func:`host.vcan.uml.run_in_uml` ``copy_back``).
+
+    A named path's nearest folder that exists here is shared (``/tmp/x`` for ``--out /tmp/x/run/new``);
+    when that is ``/tmp`` itself, the first folder below it (``/tmp/new`` for ``/tmp/new/run``) is
+    copied back instead: sharing all of ``/tmp`` would share the host's temporary files with the
+    guest's (a pytest inside would clean up the one outside)."""
+    shared: list[Path] = []
+    copied: list[Path] = []
+    for p in _named_paths(argv, cwd):
+        try:
+            p = p.resolve()
+            if p == TMP or TMP not in p.parents:
+                continue
+            folder = p if p.is_dir() else p.parent  # a file, or one the command will create
+            while folder != TMP and not folder.is_dir():
+                folder = folder.parent
+        except (OSError, RuntimeError, ValueError):
+            continue
+        if folder != TMP:
+            shared.append(folder)
+        else:
+            top = TMP / p.relative_to(TMP).parts[0]
+            if not top.exists() and not top.is_symlink():
+                copied.append(top)
+    return sorted(set(shared)), sorted(set(copied))
+
+
+def _guest_only_paths(argv: Sequence[str], cwd: Path) -> list[str]:
+    """Paths the command names in the guest's own tmpfs folders (/run, /dev/shm): never shared."""
+    return sorted({str(p) for p in _named_paths(argv, cwd)
+                   if any(str(p) == g or str(p).startswith(g + "/") for g in _GUEST_ONLY)})
 
 
 def _sink(stream: str, data: bytes) -> None:
@@ -163,11 +215,17 @@ def main(args: argparse.Namespace) -> int:
         return HARNESS_FAILED
     temporary = args.run_dir is None
     run_dir = Path(tempfile.mkdtemp(prefix="uml_run_")) if temporary else Path(args.run_dir)
-    keep = [Path(k) for k in args.keep] + _tmp_paths(command, cwd)
+    shared, copied_back = _tmp_paths(command, cwd)
+    keep = [Path(k) for k in args.keep] + shared
+    unshared = _guest_only_paths(command, cwd)
+    if unshared:
+        print_error("vcan", f"warning: {', '.join(unshared)} {'is' if len(unshared) == 1 else 'are'} the User-Mode "
+                    "Linux guest's own (its /run and /dev/shm are not this machine's): what COMMAND writes there "
+                    "is lost; use a folder under /tmp or the working folder")
     try:
         result = run_in_uml(command, run_dir=run_dir, cwd=cwd, env=env, vcans=args.ifaces, fd=not args.classic,
-                            txqueuelen=args.txqueuelen, keep=keep, extra_modules=args.modules, timeout=args.timeout,
-                            on_output=_sink)
+                            txqueuelen=args.txqueuelen, keep=keep, copy_back=copied_back, extra_modules=args.modules,
+                            timeout=args.timeout, on_output=_sink)
     except UmlError as e:
         first = str(e).partition("\n")[0]
         print_error("vcan", f"{first}" + (f" (details in {run_dir})" if not temporary else ""))

@@ -6,7 +6,8 @@ import this module through ``tests/support/uml.py``): Debian's ``user-mode-linux
 and the ``can``, ``can-raw``, ``can-dev`` and ``vcan`` modules under
 ``/usr/lib/uml/modules/<kernel version>/``. The guest boots in about 2 s without KVM, its root
 file system is the host's root through hostfs (``root=/dev/root rootfstype=hostfs rootflags=/``),
-so the checkout's venv python and every path are the same inside and out. PID 1 is
+so the checkout's venv python and every path are the same inside and out, except ``/tmp`` (the
+guest's own; ``keep`` folders shared, ``copy_back`` paths copied out at the end). PID 1 is
 ``host/vcan/uml_init.py`` (see there for what it mounts and why).
 
 Use::
@@ -231,6 +232,7 @@ def run_in_uml(
     fd: bool = True,
     txqueuelen: int | None = None,
     keep: Sequence[Path] = (),
+    copy_back: Sequence[Path] = (),
     extra_modules: Sequence[str] = (),
     timeout: float = 300.0,
     mem: str = "1536M",
@@ -250,6 +252,10 @@ def run_in_uml(
     extra_modules: more kernel modules to load by name, e.g. ``("sch_tbf",)`` for ``tc``.
     keep: further host folders under ``/tmp`` that the job must see (the guest's ``/tmp`` is
         a private tmpfs otherwise).
+    copy_back: paths directly under ``/tmp`` (``/tmp/NAME``) that do not exist on the host: whatever
+        the job left there in the guest's ``/tmp`` (a file or a whole folder) is copied to the host's
+        when the job has ended (also at its timeout); one left alone, with a line on the job's stderr,
+        when the host has one by then.
     timeout: seconds the job may run; it is then killed and ``returncode`` is 124. The whole
         UML process is killed ``BOOT_MARGIN_S`` later if it still has not powered off.
     mem: guest memory (``mem=``); cpu: the host CPU to pin UML to (default: the last allowed).
@@ -274,6 +280,7 @@ def run_in_uml(
         "run_dir": str(run_dir),
         # the checkout and its venv are always reachable, also when they live under /tmp (a CI clone)
         "keep": sorted({str(Path(str(k)).resolve()) for k in (*keep, REPO_ROOT, sys.prefix, cwd or REPO_ROOT)}),
+        "copy_back": [str(Path(str(p))) for p in copy_back],
         "modules": [str(p) for p in module_paths([*BASE_MODULES, *extra_modules], modules)],
         "vcans": list(vcans),
         "mtu": CANFD_MTU if fd else CAN_MTU,

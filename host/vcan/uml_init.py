@@ -14,7 +14,9 @@ so every path means the same inside and out. Steps:
 4. run the job with the exact environment given, stdout/stderr into files in the run dir,
    killing it after its timeout (exit status 124, as coreutils ``timeout``); a command that is
    not found or not executable gets one line on its stderr and 127 / 126, as a shell gives;
-5. write ``exit_status`` atomically, ``sync``, and power off with ``sysrq o``. PID 1 never
+5. copy the job's ``copy_back`` paths (``/tmp/NAME`` the host did not have) out of the guest's
+   ``/tmp`` into the host's, through the host ``/tmp`` bound at ``/run/host-tmp``;
+6. write ``exit_status`` atomically, ``sync``, and power off with ``sysrq o``. PID 1 never
    exits (a dying init panics the kernel); any failure of steps 1-3 is written to
    ``init_error.txt`` with exit status 125.
 
@@ -156,6 +158,27 @@ def _run_job(job: dict, run_dir: Path) -> int:
     return status if status >= 0 else 128 - status
 
 
+def _copy_back(paths: list[str], run_dir: Path) -> None:
+    """Copy each guest ``/tmp/NAME`` the job left to the host's ``/tmp`` (bound at ``/run/host-tmp``),
+    unless the host has one by now (a line on the job's stderr says so)."""
+    import shutil
+
+    for path in paths:
+        src = Path(path)
+        if not path.startswith("/tmp/") or not (src.exists() or src.is_symlink()):
+            continue
+        dst = Path("/run/host-tmp") / path[len("/tmp/"):]
+        if dst.exists() or dst.is_symlink():
+            with open(run_dir / "stderr.txt", "ab") as err:
+                err.write(f"[uml] {path} exists outside the guest by now: the guest's was not copied out\n".encode())
+            continue
+        if src.is_dir() and not src.is_symlink():
+            shutil.copytree(src, dst, symlinks=True)
+        else:
+            shutil.copy2(src, dst, follow_symlinks=False)
+    os.sync()
+
+
 def _power_off() -> None:
     os.sync()
     try:
@@ -190,6 +213,11 @@ def main(job_path: str) -> None:
     except BaseException:
         (run_dir / "init_error.txt").write_text(traceback.format_exc())
         status = 125
+    try:
+        _copy_back(job.get("copy_back", []), run_dir)
+    except BaseException:
+        with open(run_dir / "stderr.txt", "ab") as err:
+            err.write(f"[uml] copying out of the guest's /tmp failed: {traceback.format_exc(limit=1)}".encode())
     try:
         _write_status(run_dir, status)
     finally:
