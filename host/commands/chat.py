@@ -35,8 +35,8 @@ from host.commands.run import _push_text, add_run_options, check_run_args, line_
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--llm", default="scripted", metavar="SPEC",
                         help="openai:MODEL (any OpenAI-compatible endpoint) or scripted (replay --replies)")
-    parser.add_argument("--base-url", default=None, help="LLM endpoint (else GHOSTSHELL_LLM_BASE_URL/OPENAI_BASE_URL)")
-    parser.add_argument("--api-key", default=None, help="LLM key (else GHOSTSHELL_LLM_API_KEY/OPENAI_API_KEY)")
+    parser.add_argument("--base-url", default=None, metavar="URL", help="LLM endpoint (else GHOSTSHELL_LLM_BASE_URL/OPENAI_BASE_URL)")
+    parser.add_argument("--api-key", default=None, metavar="KEY", help="LLM key (else GHOSTSHELL_LLM_API_KEY/OPENAI_API_KEY)")
     parser.add_argument("--turns", metavar="FILE", help="user turns, separated by lines '---' (batch mode)")
     parser.add_argument("--replies", metavar="FILE", help="assistant replies for --llm scripted, separated by '---'")
     parser.add_argument("--max-steps", type=int, default=4, metavar="N",

@@ -15,7 +15,7 @@ from host.commands.errors import print_error
 from host.commands.run import add_run_options, check_run_args, run_with
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--task", type=int, default=None,
+    parser.add_argument("--task", type=int, default=None, metavar="N",
                         help="the robot's task to show (default: the robot's demo task, robot.toml demo_task)")
     parser.add_argument("--no-video", dest="video", action="store_false",
                         help="skip run.mp4 (rendered after the run by default)")

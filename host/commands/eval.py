@@ -34,13 +34,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="--llm scripted: the replies, blocks separated by lines '---' (one per task in --tasks "
                              "order, or each headed '--- task N')")
     add_robot_argument(parser)
-    parser.add_argument("--base-url", default=None, help="the provider's API root (e.g. http://127.0.0.1:8000/v1)")
-    parser.add_argument("--api-key", default=None, help="default: GHOSTSHELL_LLM_API_KEY, then the provider's variable")
-    parser.add_argument("--tasks", default=None,
+    parser.add_argument("--base-url", default=None, metavar="URL", help="the provider's API root (e.g. http://127.0.0.1:8000/v1)")
+    parser.add_argument("--api-key", default=None, metavar="KEY", help="default: GHOSTSHELL_LLM_API_KEY, then the provider's variable")
+    parser.add_argument("--tasks", default=None, metavar="IDS",
                         help="task ids, e.g. 1-30 or 1,4,7-9 (default: all of the robot's), or 'ablation' for the "
                              "robot's native-call ablation tasks (e.g. ablation:6,9)")
-    parser.add_argument("--trials", type=_at_least_one, default=5, help="rounds per task (the paper: 5)")
-    parser.add_argument("--workers", type=_at_least_one, default=1, help="jobs at once, each with its own lockstep board")
+    parser.add_argument("--trials", type=_at_least_one, default=5, metavar="N", help="rounds per task (the paper: 5)")
+    parser.add_argument("--workers", type=_at_least_one, default=1, metavar="N", help="jobs at once, each with its own lockstep board")
     parser.add_argument("--out", type=out_dir, default=None, metavar="DIR", help="output folder (default runs/eval-<model>)")
     parser.add_argument("--native-tools", action="store_true",
                         help="expose the functions as provider tool definitions (native function calling)")
@@ -53,8 +53,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="the robot's vocabulary in the prompt (default: the robot's; ghostshell robots show NAME lists them)")
     add_mode_argument(parser)
     parser.add_argument("--format", choices=("code", "xml"), default="code", help="the prompt format (as ghostshell prompt)")
-    parser.add_argument("--temperature", type=_temperature, default=None, help="sampling temperature, 0-2")
-    parser.add_argument("--paper-model", default=None, help="the paper's column to compare with (default: matched from --llm)")
+    parser.add_argument("--temperature", type=_temperature, default=None, metavar="T", help="sampling temperature, 0-2")
+    parser.add_argument("--paper-model", default=None, metavar="NAME", help="the paper's column to compare with (default: matched from --llm)")
     from host.commands.run import add_mount_argument
 
     add_mount_argument(parser)

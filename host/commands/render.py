@@ -17,7 +17,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run_dir", metavar="RUN_DIR", help="a run's artefact folder (ghostshell run/demo --out)")
     parser.add_argument("--out", default=None, metavar="FILE", help="video file (default RUN_DIR/run.mp4)")
     parser.add_argument("--fps", type=int, default=25, choices=range(10, 61), metavar="FPS", help="frames per second (default 25)")
-    parser.add_argument("--workers", type=whole_number(1), default=2, help="render processes (default 2: both cores)")
+    parser.add_argument("--workers", type=whole_number(1), default=2, metavar="N", help="render processes (default 2: both cores)")
     parser.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg,
                         help="search this folder first for the robot the run drove (its summary.json names it)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar (shown only on a terminal anyway)")

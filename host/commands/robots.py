@@ -51,7 +51,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     new.add_argument("--force", action="store_true", help="replace an existing robot folder / shadow another robot")
     new.add_argument("--max-speed-dps", type=float, default=None, metavar="DPS",
                      help="every servo's speed limit in deg/s (default: robots.generate.DEFAULT_MAX_SPEED_DPS)")
-    new.add_argument("--title", default=None, help="a title for people (default: the MJCF's model name)")
+    new.add_argument("--title", default=None, metavar="TEXT", help="a title for people (default: the MJCF's model name)")
     lst = _action(sub, "list", "list built-in and user robots with their servo counts")
     lst.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg, help=dir_help)
     show = _action(sub, "show", "describe a robot and the functions it exposes")

@@ -43,8 +43,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     add_run_options(parser)
     parser.add_argument("--llm", default="scripted", metavar="SPEC",
                         help="scripted (replay, default) or openai:MODEL (any OpenAI-compatible endpoint)")
-    parser.add_argument("--base-url", default=None, help="LLM endpoint (else GHOSTSHELL_LLM_BASE_URL/OPENAI_BASE_URL)")
-    parser.add_argument("--api-key", default=None, help="LLM key (else GHOSTSHELL_LLM_API_KEY/OPENAI_API_KEY)")
+    parser.add_argument("--base-url", default=None, metavar="URL",
+                        help="LLM endpoint (else GHOSTSHELL_LLM_BASE_URL/OPENAI_BASE_URL)")
+    parser.add_argument("--api-key", default=None, metavar="KEY",
+                        help="LLM key (else GHOSTSHELL_LLM_API_KEY/OPENAI_API_KEY)")
     parser.add_argument("--interrupt-at", type=_non_negative, default=None, metavar="S",
                         help="interrupt the run S board seconds after the stream starts (external event)")
 
@@ -72,8 +74,9 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
     parser.set_defaults(strict=None)
     parser.add_argument("--skills", default=None, metavar="FILE",
                         help="skill library file (else $GHOSTSHELL_SKILLS, else the user data directory)")
-    parser.add_argument("--tokens-per-s", type=_positive, default=30.0, help="scripted LLM speed (default 30)")
-    parser.add_argument("--seed", type=int, default=0, help="scripted LLM jitter seed")
+    parser.add_argument("--tokens-per-s", type=_positive, default=30.0, metavar="N",
+                        help="scripted LLM speed (default 30)")
+    parser.add_argument("--seed", type=int, default=0, metavar="N", help="scripted LLM jitter seed")
     parser.add_argument("--baud", type=baud_rate, default=None, metavar="N",
                         help="the serial line's rate in bit/s: a real port opens at it (default 115200); the "
                              "emulated board over a pty models its wire time at it, as `ghostshell board --baud` "
