@@ -6,11 +6,15 @@ numbers and each payload layout (an interpreter of the reference's type vocabula
 ``protocol``, ``host`` or ``firmware_sim`` is imported. The host then talks to a real board
 subprocess, the Python board and the C firmware alike, as the reference says a client should: a
 TIME_SYNC before any HELLO (HELLO is optional), HELLO -> CAPS, frames and ADVANCE in lockstep,
-TELEMETRY confirming the frames, ESTOP and ESTOP_CLEAR.
+TELEMETRY confirming the frames, CONFIG (its keys table, the refusals table's NACK codes), the servo table
+hash computed by the reference's recipe, ESTOP and ESTOP_CLEAR. The hash recipes are also checked against the
+code (``test_hashes_from_the_recipe``: the only test here that imports the project, to compare).
 """
 
 from __future__ import annotations
 
+import hashlib
+import math
 import os
 import re
 import select
@@ -18,6 +22,7 @@ import struct
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import crcmod
@@ -63,6 +68,24 @@ class Reference:
                 self.layouts[hm.group(1)] = [(r[1], r[2]) for r in _rows(payload[k + 2:end]) if r[1] != "(empty payload)"]
         flags = lines[lines.index("### FaultFlags"):]
         self.faults = {r[1]: int(r[0], 16) for r in _rows(flags[2:flags.index("", 3)])}
+        self.nack_reasons = {r[1]: int(r[0]) for r in self._table(lines, "### NackReason")}
+        #: CONFIG key name -> (value, min, max)
+        self.config_keys = {r[1]: (int(r[0]), int(r[3]), int(r[4])) for r in self._table(lines, "## CONFIG keys")}
+        #: the refusals table: what arrives -> what the board does
+        self.refusals = {r[0]: r[1] for r in self._table(lines, "## Refusals")}
+        block = text[text.index("```text\n") + len("```text\n"):]
+        self.schema_text = block[:block.index("\n```")]
+
+    @staticmethod
+    def _table(lines: list[str], heading: str) -> list[list[str]]:
+        """The rows of the first table after ``heading``."""
+        k = next(i for i in range(lines.index(heading), len(lines)) if lines[i].startswith("|"))
+        return _rows(lines[k:lines.index("", k)])
+
+    def refusal(self, arrives: str) -> str:
+        """The NackReason name the refusals table gives for the row starting with ``arrives``."""
+        does = next(v for k, v in self.refusals.items() if k.startswith(arrives))
+        return re.match(r"NACK (\w+)", does).group(1)
 
     # -- payloads ---------------------------------------------------------------------------------
     _INT = {"u8": "<B", "u16": "<H", "u32": "<I", "u64": "<Q", "i8": "<b", "i16": "<h", "i32": "<i", "i64": "<q",
@@ -189,6 +212,21 @@ def test_host_from_the_reference_tables(firmware: str, tmp_path: Path) -> None:
         assert tel["last_applied_seq"] == last
         assert abs(tel["positions"][0] - (q0[0] + 2000)) < 300, (tel["positions"][0], q0[0])
         assert tel["faults"] & ref.faults["WATCHDOG_HOLD"] == 0
+        # CONFIG keys and refusals, from their tables: a value in range is acknowledged, one below the range and
+        # an unknown key are refused with the code the refusals table names
+        value, lo, hi = ref.config_keys["TELEMETRY_RATE_HZ"]
+        s = host.send("CONFIG", key=value, value=caps["telemetry_rate_hz"])
+        host.wait(lambda g: g[0] == "ACK" and g[2]["ack_seq"] == s)
+        value, lo, hi = ref.config_keys["WATCHDOG_MS"]
+        s = host.send("CONFIG", key=value, value=lo - 1)
+        _, _, nack = host.wait(lambda g: g[0] == "NACK" and g[2]["ack_seq"] == s)
+        assert nack["reason"] == ref.nack_reasons[ref.refusal("CONFIG with a value out of")]
+        s = host.send("CONFIG", key=max(v for v, _, _ in ref.config_keys.values()) + 1, value=1)
+        _, _, nack = host.wait(lambda g: g[0] == "NACK" and g[2]["ack_seq"] == s)
+        assert nack["reason"] == ref.nack_reasons[ref.refusal("CONFIG with an unknown key")]
+        assert nack["msg_type"] == ref.types["CONFIG"]
+        assert caps["servo_table_hash"] == servo_table_hash(ROOT / "robots" / caps["robot"] / "servos.toml")
+        assert "HEARTBEAT" not in {g[0] for g in host.got}  # the board never sends one
         s = host.send("ESTOP")
         host.wait(lambda g: g[0] == "ACK" and g[2]["ack_seq"] == s)
         s = host.send("ESTOP_CLEAR")
@@ -200,10 +238,46 @@ def test_host_from_the_reference_tables(firmware: str, tmp_path: Path) -> None:
         err.close()
 
 
+def servo_table_hash(servos_toml: Path) -> int:
+    """The reference's recipe ("Hashes"), written from its text: tomllib, math.radians, %.9g, SHA-256."""
+    table = tomllib.loads(servos_toml.read_text(encoding="utf-8"))
+    rad = math.radians
+    lines = [f"servos {len(table['servo'])}"]
+    for sv in sorted(table["servo"], key=lambda r: r["id"]):
+        joint = sv["joint"]
+        lines.append(" ".join([str(sv["id"]), sv["name"], joint, sv.get("actuator", joint)]
+                              + [f"{rad(sv.get(k, 0.0)):.9g}" for k in ("neutral_deg", "min_deg", "max_deg")]
+                              + [str(sv.get("direction", 1)), f"{rad(sv.get('max_speed_dps', 300.0)):.9g}"]))
+    model = table.get("model", {})
+    lines.append(f"model {rad(model.get('resolution_deg', 0.088)):.9g} {rad(model.get('deadband_deg', 0.2)):.9g}")
+    text = "\n".join(lines) + "\n"
+    return int.from_bytes(hashlib.sha256(text.encode("utf-8")).digest()[:4], "big")
+
+
+def test_hashes_from_the_recipe() -> None:
+    """The reference's "Hashes" recipes, followed by hand, give the stated schema hash and each built-in robot's
+    servo_table_hash (what CAPS reports)."""
+    ref = Reference(DOC.read_text(encoding="utf-8"))
+    digest = hashlib.sha256((ref.schema_text + "\n").encode("utf-8")).digest()
+    assert int.from_bytes(digest[:4], "big") == ref.schema
+    from protocol.codec import SCHEMA_HASH
+    from robots.registry import load_robot
+
+    assert ref.schema == SCHEMA_HASH
+    tables = sorted((ROOT / "robots").glob("*/servos.toml"))
+    assert len(tables) >= 2
+    for path in tables:
+        assert servo_table_hash(path) == load_robot(path.parent.name).servos.hash, path
+
+
 def test_reference_is_current() -> None:
-    """docs/wire-protocol.md is what the declaration generates (python -m firmware_sim.refdoc)."""
-    from firmware_sim.refdoc import DOC as GENERATED, facts
-    from protocol.refdoc import render
+    """docs/wire-protocol.md is what the declaration generates (python -m firmware_sim.refdoc), and its constants
+    copied from modules that need MuJoCo still hold."""
+    from firmware_sim.peripherals import MAX_IMAGE_SIDE
+    from firmware_sim.refdoc import DOC as GENERATED
+    from firmware_sim.refdoc import MAX_IMAGE_SIDE as DOC_MAX_IMAGE_SIDE
+    from firmware_sim.refdoc import render
 
     assert GENERATED == DOC
-    assert DOC.read_text(encoding="utf-8") == render(facts()), "stale: python -m firmware_sim.refdoc"
+    assert DOC_MAX_IMAGE_SIDE == MAX_IMAGE_SIDE
+    assert DOC.read_text(encoding="utf-8") == render(), "stale: python -m firmware_sim.refdoc"
