@@ -58,7 +58,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     """Add the board's options to ``parser``."""
     parser.add_argument("--link", required=True, type=_link_spec, metavar="SPEC",
                         help="'pty' creates a pty pair and prints its name; a serial port or pyserial URL; "
-                             "or can:INTERFACE:CHANNEL[?node=N&fd=1...] (see DEVELOPERS.md)")
+                             "or can:INTERFACE:CHANNEL[?node=N&fd=1...] (see docs/concepts/wire.md, Link specs)")
     parser.add_argument("--baud", type=baud_arg, default=None,
                         help="model wire time at this baud rate (10 bits/byte, both directions)")
     parser.add_argument("--rate", type=_positive_int, default=500, metavar="HZ", help="control loop rate (default 500)")
@@ -67,7 +67,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     clock.add_argument("--realtime", dest="lockstep", action="store_false",
                        help="pace to the wall clock (default)")
     clock.add_argument("--lockstep", dest="lockstep", action="store_true",
-                       help="virtual time: advance only as far as the host's frames or ADVANCE")
+                       help="virtual time: advance only as far as the host's frames or ADVANCE (for tests and "
+                            "replays; which mode a host should use: the wire protocol page below)")
     parser.set_defaults(lockstep=False)
     parser.add_argument("--telemetry-rate", type=_positive_int, default=50, metavar="HZ",
                         help="TELEMETRY and SIM_STATE rate (default 50)")
@@ -76,11 +77,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--log", default=None, metavar="FILE", help="write every frame in/out as JSON lines")
     parser.add_argument("--objects-log", default=None, metavar="FILE",
                         help="write the scene's movable objects' poses with every SIM_STATE as JSON lines "
-                             "(simulation ground truth for the video; see firmware_sim.objects_log; the Python board only: "
+                             "(simulation ground truth for the video; see docs/guides/robots.md; the Python board only: "
                              "ignored with --firmware c|qemu|stm32f4)")
     parser.add_argument("--faults", default=None, metavar="SPEC",
                         help="inject link faults both ways (serial and CAN), e.g. drop=0.01,corrupt=0.01,dup=0.005,"
-                             "reorder=0.005,truncate=P,delay=MS[±MS],cut=START+LEN (see protocol.faults)")
+                             "reorder=0.005,truncate=P,delay=MS[±MS],cut=START+LEN (see docs/guides/faults.md)")
     parser.add_argument("--fault-seed", type=seed_arg, default=0, metavar="N", help="seed of the fault injectors (default 0)")
     parser.add_argument("--viewer", action="store_true", help="open MuJoCo's viewer (needs a display)")
     parser.add_argument("--robot", default=DEFAULT_ROBOT, metavar="NAME",
@@ -154,7 +155,10 @@ class _OneLineParser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     p = _OneLineParser(prog=os.environ.get(PROG_ENV) or "python -m firmware_sim",
-                                description="A robot's emulated board (MuJoCo).")
+                                description="A robot's emulated board (MuJoCo).",
+                                epilog="The wire protocol a host speaks to this board (messages, refusals,\n"
+                                       "realtime or lockstep, start-up): docs/wire-protocol.md",
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     configure(p)
     return p
 

@@ -17,7 +17,8 @@ __all__ = ["configure", "main"]
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("board_args", nargs=argparse.REMAINDER, metavar="ARGS",
-                        help="arguments for python -m firmware_sim (its --help lists them)")
+                        help="arguments for python -m firmware_sim (its --help lists them; the wire protocol a host "
+                             "speaks to the board: docs/wire-protocol.md)")
 
     # argparse's REMAINDER does not take arguments that start with '-' right after a
     # subcommand, so this subparser hands everything over untouched instead of parsing.

@@ -145,3 +145,20 @@ def test_only_a_well_formed_config_with_an_unknown_key_is_answerable() -> None:
         assert answerable(bad) is bad
     can = DecodeError(DecodeErrorKind.PAYLOAD, "CAN PAYLOAD: ...", bytes(14))  # CAN data bytes, not a COBS block
     assert answerable(can) is can
+
+
+def test_board_help_and_the_wire_page_point_to_docs_pages() -> None:
+    """``ghostshell board --help`` (the board's parser) and docs/concepts/wire.md send a reader to docs pages,
+    not to DEVELOPERS.md or to source files."""
+    import re
+    from pathlib import Path
+
+    from firmware_sim.cli import build_parser
+
+    help_text = " ".join(build_parser().format_help().split())
+    assert "docs/wire-protocol.md" in help_text and "DEVELOPERS.md" not in help_text
+    assert not re.search(r"(?<![\w/-])(protocol|firmware_sim|host)\.[a-z_]+", help_text), help_text
+    page = (Path(__file__).resolve().parents[2] / "docs" / "concepts" / "wire.md").read_text(encoding="utf-8")
+    prose = re.sub(r"```.*?```", "", page, flags=re.S)
+    assert "DEVELOPERS.md" not in prose and not re.search(r"`[\w/]+\.py`", prose)
+    assert "../wire-protocol.md#refusals" in prose and "../wire-protocol.md#hashes" in prose
