@@ -62,6 +62,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from firmware_sim.cfirmware.build import BuildError, build, require
+from firmware_sim.cfirmware.targets import link_overflow
 from firmware_sim.plant.bus import PlantBus
 from firmware_sim.plant.world import World
 from firmware_sim.transports.ports import PtyPort
@@ -429,7 +430,13 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
         if qemu:
             require("qemu-system-arm")
     except BuildError as e:
-        print(f"board: cannot build the C firmware: {e}", file=err)
+        need = link_overflow(str(e))  # the port's linker script holds the image to its part's flash and RAM
+        if need is not None:
+            flash, ram = (f"{n:,}".replace(",", " ") for n in need)
+            print(f"board: robot {opts.robot.name} does not fit the {target} image's part: it needs {flash} B flash "
+                  f"and {ram} B RAM (the part's budget: ghostshell firmware targets); --firmware c runs it", file=err)
+        else:
+            print(f"board: cannot build the C firmware: {e}", file=err)
         return 2
     except RobotDataError as e:  # a calibration.toml that does not fit the servo table
         print(f"board: {e}", file=err)

@@ -99,3 +99,16 @@ def test_link_overflow_reads_the_linkers_table() -> None:
         == (32 * 1024, 9 * 1024)
     assert link_overflow(table + f"{ld}: undefined reference to `gs_tick'\n") is None  # another link error
     assert link_overflow(f"{ld}: region `RAM' overflowed by 1024 bytes\n") is None  # no table: no numbers
+
+
+def test_a_qemu_board_of_a_robot_that_does_not_fit_says_so_in_one_line(tmp_path: Path) -> None:
+    """``--firmware qemu`` runs the mps2 image: a robot whose image the small part's script refuses is one line,
+    exit 2 (the linker's output stays out of it)."""
+    pkg = write_chain_robot(tmp_path / "robots", 16)
+    r = subprocess.run([sys.executable, "-m", "firmware_sim", "--link", "pty", "--firmware", "qemu", "--lockstep",
+                        "--robot", str(pkg)], cwd=tmp_path, capture_output=True, text=True, timeout=240,
+                       stdin=subprocess.DEVNULL)
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("board: robot chain16 does not fit the mps2 image's part: it needs "), \
+        r.stderr
