@@ -248,11 +248,11 @@ def _fault_flags(f: BoardFacts) -> list[str]:
         ("WATCHDOG_FAULT", f"{f.crouch_after_ms} ms after the hold began: the servos move to the robot's safe pose "
          "and frames are refused (FAULT_LATCHED)", "ESTOP_CLEAR only", "level, latched"),
         ("CLAMPED", "a tick since the previous report (the board running frames) clamped a target to the servo "
-         "table's range or speed", "by that report", "edge: once per report"),
+         "table's range or speed", "by that report", "since the last report"),
         ("TICK_OVERRUN", "a realtime tick since the previous report started more than one period late (never in "
-         "lockstep)", "by that report", "edge: once per report"),
+         "lockstep)", "by that report", "since the last report"),
         ("LINK_ERRORS", "a frame since the previous report was dropped as undecodable", "by that report: watch the "
-         "`link_errors` counter, which only grows", "edge: once per report"),
+         "`link_errors` counter, which only grows", "since the last report"),
         ("SERVO_FAULT", "a servo on a real servo bus stopped answering or reported an error (an unsolicited NACK "
          "SERVO_FAULT names it); every servo holds, frames are refused", "ESTOP_CLEAR (a servo still failing latches "
          "it again)", "level, latched"),
@@ -261,8 +261,10 @@ def _fault_flags(f: BoardFacts) -> list[str]:
         "## Fault flags",
         "",
         "TELEMETRY `faults` (bits in the FaultFlags table above). A *level* flag is set in every report while the "
-        "condition lasts; an *edge* flag is set in the one report after the event and cleared by it, so a host that "
-        "misses that report misses the flag: count with the counters instead.",
+        "condition lasts. A *since the last report* flag is set in a report when its event happened at least once "
+        "since the previous report, and that report clears it: a host that misses the report misses the flag (an "
+        "error that goes on sets it in every report). For LINK_ERRORS watch the `link_errors` counter instead; "
+        "CLAMPED and TICK_OVERRUN have no counter on the wire.",
         "",
         "| flag | set when | cleared | kind |",
         "| --- | --- | --- | --- |",
