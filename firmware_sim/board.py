@@ -11,7 +11,8 @@ next tick to run (tick ``k`` runs at ``k * tick_us``).
 Reply policy: HELLO -> CAPS (or NACK VERSION_MISMATCH / SCHEMA_MISMATCH);
 TIME_SYNC_REQUEST -> TIME_SYNC_REPLY; SERVO_FRAME -> nothing when accepted (telemetry's
 ``last_applied_seq`` confirms it), NACK with the reason when refused; HEARTBEAT ->
-nothing; CONFIG, ADVANCE, FLUSH, ESTOP, ESTOP_CLEAR, SCREEN, SPEAKER -> ACK (or NACK);
+nothing; CONFIG, ADVANCE, FLUSH, ESTOP, ESTOP_CLEAR, SCREEN, SPEAKER -> ACK (or NACK; a CONFIG
+with an unknown key too: NACK BAD_VALUE);
 CAMERA_CAPTURE -> CAMERA_CHUNKs (or NACK NO_RENDERER / BAD_VALUE; the same request id again -> the
 same image's chunks again); CAMERA_RESEND -> the wanted chunks of one of the last ``KEPT_IMAGES``
 images (NACK BAD_VALUE when it is no longer kept); anything else -> NACK UNSUPPORTED.

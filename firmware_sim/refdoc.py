@@ -99,6 +99,7 @@ def facts() -> BoardFacts:
     cfg = BoardConfig()
     doc = board.__doc__ or ""
     policy = doc[doc.index("Reply policy:"):].split("\n\n")[0].strip() if "Reply policy:" in doc else ""
+    policy = policy.replace("``KEPT_IMAGES``", str(board.KEPT_IMAGES)).replace("``", "`")  # reST -> Markdown
     return BoardFacts(rate_hz=cfg.rate_hz, telemetry_rate_hz=cfg.telemetry_rate_hz, watchdog_ms=cfg.watchdog_ms,
                       crouch_after_ms=cfg.crouch_after_ms, max_late_us=cfg.max_late_us,
                       max_future_us=cfg.max_future_us, buffer_depth=cfg.buffer_depth, c_buffer_depth=C_BUFFER_DEPTH,
@@ -403,8 +404,10 @@ def render() -> str:
     text = _replace(text, "schema text below (UTF-8). ", "schema text below (recipe: [Hashes](#hashes)). ")
     text = _replace(text, "`servo_table_hash` (first four bytes of SHA-256 over the table's canonical text)",
                     "`servo_table_hash` ([Hashes](#hashes))")
+    text = _replace(text, "Reply policy (the Python board's, `firmware_sim/board.py`):",
+                    "Reply policy (both boards; the C firmware answers every CAMERA_CAPTURE with NO_RENDERER):")
     head, rest = text.split("## Board behaviour a client must know\n", 1)
-    policy = rest[rest.index("Reply policy (the Python board's"):rest.index("## CAN form")]
+    policy = rest[rest.index("Reply policy (both boards"):rest.index("## CAN form")]
     board = _behaviour(f) + _refusals(f) + _fault_flags(f) + _config_keys(f) + _hashes(BoardConfig())
     return head + "\n".join(board) + "\n" + policy + rest[rest.index("## CAN form"):]
 
