@@ -330,8 +330,8 @@ def _behaviour(f: BoardFacts) -> list[str]:
         "",
         "- A **realtime** board (the default, and the only kind of real board) runs its clock at wall time: the host "
         "estimates the clock offset with TIME_SYNC and sends frames due a little ahead of the board clock (within the "
-        f"SERVO_FRAME window below). An outside host driving a robot, emulated like real, should be written for this "
-        "mode.",
+        f"SERVO_FRAME window below). An outside host that drives a robot, real or emulated, should be written for "
+        "this mode, and use lockstep only for reproducible tests.",
         "- A **lockstep** board (`ghostshell board --lockstep`, emulator only, CAPS `lockstep` = 1) lets its clock "
         "run only as far as the host allows: it starts at board time 0 and runs a tick at time `t` only while a "
         "received SERVO_FRAME is due at or after `t`, or `t < until_us` of an ADVANCE. It handles the next message "
