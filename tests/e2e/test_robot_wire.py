@@ -55,7 +55,16 @@ def _ghostshell(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "host", *args], capture_output=True, text=True, cwd=cwd, timeout=200)
 
 
-@pytest.mark.parametrize("link", sorted(LINKS))
+#: the CAN cases assert that a clean link loses nothing, which over ISO-TP holds only while neither process
+#: is starved for ISO-TP's 200 ms flow-control / consecutive-frame timeouts (protocol.can.isotp_link:
+#: wall-clock timers, even in lockstep). In the suite's background mode an ordinary test runs at nice 19
+#: beside a realtime one and was starved that long in CI (6 SIM_STATE/TELEMETRY transfers lost, 17-can,
+#: 2026-12-07), so these run as realtime tests: at their worker's own nice value, one at a time.
+_WALL_CLOCK_BOUND = [pytest.param(link, marks=pytest.mark.realtime) if link != "serial" else link
+                     for link in sorted(LINKS)]
+
+
+@pytest.mark.parametrize("link", _WALL_CLOCK_BOUND)
 @pytest.mark.parametrize("n", [1, 17, 32])
 def test_generated_robot_runs_over_the_link(tmp_path: Path, n: int, link: str) -> None:
     pkg = write_chain_robot(tmp_path, n)
