@@ -10,7 +10,7 @@ import threading
 from collections.abc import Sequence
 from typing import Any, NoReturn
 
-from protocol.faults import push_arg, seed_arg
+from protocol.cliargs import push_arg, seed_arg
 from protocol.wiremodel import baud_arg
 from protocol.linkspec import LinkSpec, LinkSpecError, parse_link_spec
 from robots.registry import DEFAULT_ROBOT, robots_dir_arg

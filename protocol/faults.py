@@ -31,14 +31,13 @@ import dataclasses
 import difflib
 import heapq
 import itertools
-import argparse
 import math
 import random
 from collections import Counter, deque
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
-__all__ = ["MAX_DELAY_MS", "FaultInjector", "FaultSpec", "FaultSpecError", "GapDetector", "REORDER_HOLD_S", "seed_arg"]
+__all__ = ["MAX_DELAY_MS", "FaultInjector", "FaultSpec", "FaultSpecError", "GapDetector", "REORDER_HOLD_S"]
 
 #: longest a reordered unit waits for a successor before it is released anyway (seconds)
 REORDER_HOLD_S = 0.05
@@ -372,33 +371,3 @@ class GapDetector:
                 pending += 1
         return self.lost - pending
 
-
-def seed_arg(text: str) -> int:
-    """``--fault-seed`` on both ends' command lines: an integer >= 0 (``argparse.ArgumentTypeError`` otherwise)."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text}")
-    return v
-
-
-def push_arg(text: str) -> tuple[float, tuple[float, float, float], float]:
-    """``--push S:FX,FY,FZ[:DUR]`` on both ends (emulated board only: a push on the robot's base, a
-    scripted disturbance): (start board s, force N in the world frame, duration s, default 0.2).
-    ``argparse.ArgumentTypeError`` names what is wrong."""
-    parts = text.split(":")
-    try:
-        if len(parts) not in (2, 3):
-            raise ValueError
-        at = float(parts[0])
-        force = tuple(float(v) for v in parts[1].split(","))
-        dur = float(parts[2]) if len(parts) == 3 else 0.2
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected S:FX,FY,FZ[:DURATION] (seconds, newtons), got {text!r}") from None
-    if len(force) != 3 or not all(math.isfinite(v) and abs(v) <= 1000 for v in force):
-        raise argparse.ArgumentTypeError(f"the force needs three finite components within +-1000 N, got {text!r}")
-    if not (math.isfinite(at) and at >= 0 and math.isfinite(dur) and 0 < dur <= 10):
-        raise argparse.ArgumentTypeError(f"start >= 0 s and 0 < duration <= 10 s, got {text!r}")
-    return at, (force[0], force[1], force[2]), dur

@@ -27,7 +27,7 @@ from host.commands.outarg import add_no_plots_argument, out_dir, out_dir_problem
 from host.commands.robotarg import add_robot_argument, robot_from_args
 from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB
 from robots.description import Robot
-from protocol.faults import push_arg, seed_arg
+from protocol.cliargs import push_arg, seed_arg
 from protocol.linkkinds import link_kind
 
 
