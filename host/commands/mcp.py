@@ -84,7 +84,7 @@ def main(args: argparse.Namespace) -> int:
 
     opts = SessionOptions(robot=str(robot.root), robots_dir=args.robots_dir, vocabulary=args.vocabulary,
                           mode=args.mode, lockstep=args.lockstep, link=args.link,
-                          emulate_board=args.emulate_board or None, out=args.out, label="mcp", scene=args.scene,
+                          emulate_board=args.emulate_board or None, out=args.out, task_label="mcp", scene=args.scene,
                           mcp_mounts=tuple(args.mount_mcp), plots=not args.no_plots)
     try:
         stop = serve(opts, args.http)

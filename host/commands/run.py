@@ -171,7 +171,7 @@ def servo_bus_problem(args: argparse.Namespace) -> str | None:
 
 def servo_bus_of(args: argparse.Namespace) -> tuple[str, ...]:
     """The board arguments of the ``--servo-bus`` flags (``SessionOptions.servo_bus``; () without them)."""
-    from host.run.session import servo_bus_args
+    from host.run.options import servo_bus_args
 
     return servo_bus_args(getattr(args, "servo_bus", None), getattr(args, "bus_protocol", None),
                           getattr(args, "estop_torque", None))

@@ -22,9 +22,9 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import NoReturn
 
 import anyio
 import anyio.to_thread
@@ -32,18 +32,13 @@ import anyio.to_thread
 from host.ghost import make_ghost
 from host.link.errors import LinkError
 from host.run import artefacts
-from host.run.events import EventPolicy, ScriptedEvent
 from host.robot.runtime import RobotRuntime
 from host.run.pump import HISTORY, SETTLE_CHECKPOINTS, TELEMETRY_SILENCE_S
-from host.run.session import RobotSession, SessionOptions, TurnResult
-from host.run.progress_guard import PROGRESS_LIMIT_S
-from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB, STOP_GRACE_S, StopReason, StopSignals
+from host.run.options import SessionOptions
+from host.run.session import RobotSession, TurnResult
+from host.run.stops import StopReason, StopSignals
 from host.shell import Shell
-from host.shell.skills import SkillStore
-from host.shell.policy import Policy
 from host.shell.timeline import RunResult
-from protocol.linkspec import LinkSpec
-from robots.registry import DEFAULT_ROBOT
 
 log = logging.getLogger("host.run")
 
@@ -51,24 +46,14 @@ __all__ = ["HISTORY", "SETTLE_CHECKPOINTS", "TELEMETRY_SILENCE_S", "RunOptions",
 
 
 @dataclass
-class RunOptions:
-    """What to run and how (the ``ghostshell run`` flags)."""
+class RunOptions(SessionOptions):
+    """What to run and how (the ``ghostshell run`` flags): the session's options (:class:`SessionOptions`:
+    robot, board, link, shell, bounds) and the run's own below."""
 
     program: str | None = None  # function tokens to replay (scripted LLM)
     prompt: str | None = None  # an instruction for a real LLM
     llm: str = "scripted"
-    task_label: str = "program"
-    robot: str = DEFAULT_ROBOT  # a robot name or folder (robots.registry); robots_dir is searched first
-    robots_dir: str | None = None
-    vocabulary: str | None = None  # None: the robot's default vocabulary
-    mode: str = "async-first"
-    strict: bool = True
-    lockstep: bool = False
-    link: str | LinkSpec = "pty"  # a link spec (protocol.linkspec)
-    emulate_board: bool | None = None  # start the emulated board on `link` first; None: only where implied (pty, can:slcan:pty)
-    baud: int = 115200
-    wire_baud: int | None = None  # the board models wire time at this baud rate (its --baud)
-    out: Path = Path("runs/latest")
+    task_label: str = "program"  # the run's one turn (SessionOptions.task_label, whose default is "session")
     tokens_per_s: float = 30.0
     seed: int = 0
     llm_base_url: str | None = None
@@ -76,27 +61,7 @@ class RunOptions:
     interrupt_at: float | None = None  # board seconds after the run starts: external interruption
     settle_s: float = 0.5
     buffer_response: bool = False  # wait for the whole LLM response before executing (the non-streaming baseline)
-    start_pose: str | None = None  # None: the robot's start pose
     live: bool = False  # draw the live channel view (on a terminal)
-    skills: SkillStore | None = None  # the skill library (None: in memory, gone after the run)
-    scene: str | None = None  # objects in the board's world (python -m firmware_sim --scene); None: the robot's default
-    policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
-    faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
-    fault_seed: int = 0
-    firmware: str = "python"  # the emulated board's firmware: python, c, qemu or stm32f4 (SessionOptions.firmware)
-    servo_bus: tuple[str, ...] = ()  # board arguments for a real servo bus (SessionOptions.servo_bus)
-    mcap: bool = True  # record the run to <out>/run.mcap
-    plots: bool = True  # draw timeline.png and joints.png (SessionOptions.plots); --no-plots
-    foxglove: int | None = None  # serve the live view on this localhost port; None: off
-    mcp_mounts: tuple[Any, ...] = ()  # MCP servers mounted as shell modules (host.mounts.MountSpec)
-    mount_options: Any = None  # host.mounts.MountOptions (None: its defaults)
-    event_policy: EventPolicy | None = None  # per event kind: ignore, note or interrupt (host.run.events)
-    events: tuple[ScriptedEvent, ...] = ()  # scripted events (--events FILE)
-    pushes: tuple[str, ...] = ()  # emulated board: pushes on the base (board --push S:FX,FY,FZ[:DUR])
-    max_board_s: float | None = DEFAULT_MAX_BOARD_S  # board seconds the run may last (None: no bound)
-    max_log_mb: float | None = DEFAULT_MAX_LOG_MB  # megabytes its frame logs may reach (None: no bound)
-    progress_limit_s: float | None = PROGRESS_LIMIT_S  # wall s without progress: outcome stalled (None: off)
-    stop_grace_s: float = STOP_GRACE_S  # wall s a stop's graceful end may take (host.run.stops)
     handle_signals: bool = False  # SIGINT/SIGTERM interrupt the run (the CLI; main thread only)
 
 
@@ -114,12 +79,6 @@ class RunReport:
     rested: bool | None = None  # after a stop: the robot reached its rest pose (None: no stop, or it came after the turn)
 
 
-def session_options(opts: RunOptions) -> SessionOptions:
-    """The board/link/shell part of ``opts`` (every :class:`SessionOptions` field, ``label`` from ``task_label``)."""
-    shared = {f.name: getattr(opts, f.name) for f in fields(SessionOptions) if f.name != "label"}
-    return SessionOptions(**shared, label=opts.task_label)
-
-
 async def run_program(opts: RunOptions, on_start: Callable[[Shell, RobotRuntime], None] | None = None) -> RunReport:
     """Run ``opts`` end to end and write the artefacts to ``opts.out``.
 
@@ -129,7 +88,7 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, RobotRuntime]
     as far as they got, ``extra.faults``) and then raises that same error; :func:`ended_report`
     gives the :class:`RunReport` it wrote.
     """
-    session = RobotSession(session_options(opts))
+    session = RobotSession(opts)
     signals = StopSignals(session.request_stop, session.abort_cleanups) if opts.handle_signals else None
     rested: bool | None = None
     turn: TurnResult | None = None

@@ -86,8 +86,9 @@ from host.robot.link import ClientLink
 from host.robot.runtime import RobotRuntime, warm_up_behaviours
 from host.run.link_health import board_watchdog_holds
 from host.run.loop_lag import LagMonitor
-from host.run.progress_guard import PROGRESS_LIMIT_S, ProgressGuard, Stall
-from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB, STOP_GRACE_S, Interrupted, StopReason
+from host.run.options import SessionOptions
+from host.run.progress_guard import ProgressGuard, Stall
+from host.run.stops import Interrupted, StopReason
 from host.run.priority import raise_host_priority
 from host.run.realtime_health import add_realtime_behind
 from host.run.recording import Recording
@@ -104,8 +105,6 @@ from host.run.pump import (
 )
 from host.shell import Shell
 from host.shell.cleanups import Cleanups
-from host.shell.policy import Policy
-from host.shell.skills import SkillStore
 from host.shell.timeline import Observation, RunResult, Timeline
 from protocol.linkkinds import link_kind
 from protocol.linkspec import LinkSpec, parse_link_spec
@@ -114,77 +113,9 @@ from protocol.messages import FaultFlags, Heartbeat, Nack, NackReason
 from protocol.wiremodel import BITS_PER_BYTE
 from robots.description import Robot
 from robots.generic import GENERIC_CHANNEL
-from robots.registry import DEFAULT_ROBOT, load_robot
+from robots.registry import load_robot
 
 log = logging.getLogger("host.run")
-
-
-def servo_bus_args(servo_bus: str | None, bus_protocol: str | None, estop_torque: str | None) -> tuple[str, ...]:
-    """The board's arguments for a real servo bus (empty without ``servo_bus``)."""
-    if servo_bus is None:
-        return ()
-    out = ["--servo-bus", servo_bus]
-    if bus_protocol is not None:
-        out += ["--bus-protocol", bus_protocol]
-    if estop_torque is not None:
-        out += ["--estop-torque", estop_torque]
-    return tuple(out)
-
-
-@dataclass
-class SessionOptions:
-    """How to bring the robot up (the board/link/shell part of the ``run``/``chat`` flags).
-
-    ``robot``: a robot name on the robot search path or a robot folder (``robots_dir`` is searched
-    first); ``vocabulary``, ``start_pose`` and ``scene`` default to the robot's own.
-    """
-
-    robot: str = DEFAULT_ROBOT
-    robots_dir: str | None = None
-    vocabulary: str | None = None
-    mode: str = "async-first"
-    strict: bool = True
-    lockstep: bool = False
-    link: str | LinkSpec = "pty"  # a link spec (protocol.linkspec)
-    emulate_board: bool | None = None  # start the emulated board on `link` first; None: only where implied (pty, can:slcan:pty)
-    baud: int = 115200
-    wire_baud: int | None = None  # the board models wire time at this baud rate (its --baud)
-    out: Path = Path("runs/latest")
-    start_pose: str | None = None  # a pose of the robot's (None: its start_pose)
-    skills: SkillStore | None = None  # None: an in-memory store (skills end with the session)
-    label: str = "session"
-    scene: str | None = None  # objects in the board's world (python -m firmware_sim --scene); None: the robot's default
-    policy: Policy | None = None  # refuse calls before they reach the link (host.shell.policy)
-    faults: str | None = None  # emulated board: inject link faults both ways (protocol.faults spec)
-    fault_seed: int = 0
-    #: the emulated board's firmware: "python" (firmware_sim), "c" (the C firmware, native), "qemu" (the C
-    #: firmware on an emulated Cortex-M3) or "stm32f4" (its STM32F405 image on QEMU's netduinoplus2);
-    #: python -m firmware_sim --firmware
-    firmware: str = "python"
-    #: the board's arguments that put a REAL servo bus under it (``--servo-bus PORT[:BAUD]``, ``--bus-protocol
-    #: sts|dxl2``, ``--estop-torque hold|limp``; :func:`servo_bus_args`; docs/guides/hardware.md); () = the plant
-    servo_bus: tuple[str, ...] = ()
-    mcap: bool = True  # record the session to <out>/run.mcap (host.run.mcap_log)
-    #: draw timeline.png and joints.png with each turn's artefacts (matplotlib, ~0.25 s of CPU per turn in
-    #: a worker thread, and its import and warm-up once per process); False: neither plot is drawn and
-    #: matplotlib is never imported (the other artefacts are written as before)
-    plots: bool = True
-    foxglove: int | None = None  # serve the live view on this localhost port (host.run.foxglove_live); None: off
-    #: MCP servers mounted as shell modules (``--mount-mcp NAME=COMMAND|URL``, :mod:`host.mounts`)
-    mcp_mounts: tuple[Any, ...] = ()
-    mount_options: Any = None  # host.mounts.MountOptions (None: its defaults)
-    #: events (host.run.events): what to do per kind, and scripted ones (``--events FILE``)
-    event_policy: EventPolicy | None = None
-    events: tuple[ScriptedEvent, ...] = ()
-    #: emulated board only: pushes on the robot's base, ``S:FX,FY,FZ[:DURATION]`` (board ``--push``)
-    pushes: tuple[str, ...] = ()
-    max_board_s: float | None = DEFAULT_MAX_BOARD_S  # board seconds one turn may last (None: no bound)
-    max_log_mb: float | None = DEFAULT_MAX_LOG_MB  # megabytes the session's frame logs may reach (None: no bound)
-    #: wall seconds the session's work may go without progress before it stops as ``stalled``
-    #: (host.run.progress_guard; None: not guarded)
-    progress_limit_s: float | None = PROGRESS_LIMIT_S
-    #: wall seconds from the first stop until the graceful stop's remaining work is cut (host.run.stops)
-    stop_grace_s: float = STOP_GRACE_S
 
 
 #: wall seconds between two checks of the frame logs' size (``max_log_mb``)
@@ -737,7 +668,7 @@ class RobotSession:
         return "lockstep" if lockstep else "realtime"
 
     def _mcap_meta(self, spec: LinkSpec) -> dict[str, str]:
-        return {"scene": self.scene, "vocabulary": self.vocabulary, "link": str(spec), "label": self.opts.label,
+        return {"scene": self.scene, "vocabulary": self.vocabulary, "link": str(spec), "label": self.opts.task_label,
                 "clock_mode": self._clock_mode()}
 
     # -- events (host.run.events) ----------------------------------------------------------------
@@ -948,12 +879,12 @@ class RobotSession:
         if self._runtime is None:
             if not isinstance(error, Interrupted) and (not self._link_tried or isinstance(error, BoardFaulted)):
                 return None
-            return self._bare_turn(error, label or self.opts.label, out or self.out)
+            return self._bare_turn(error, label or self.opts.task_label, out or self.out)
         start, self._turn = self._turn, None
         if start is None or self._shell is None or self._shell.last_result is None:
             # no turn began (a stop or a loss while starting): the board time streamed since the first report
             t0 = self._board_s0 if self._board_s0 is not None else self._runtime.board_now_s()
-            start = _TurnStart(label or self.opts.label, out or self.out, [], t0, None,
+            start = _TurnStart(label or self.opts.task_label, out or self.out, [], t0, None,
                                0, len(self._runtime.captures))
             result = RunResult(Timeline(), [], start.board_t0)
         else:
