@@ -10,9 +10,10 @@ step in nano-radians, torques in milli-newton-metres. The goal-position register
 ``GS_STEP_CENTRE + offset + direction * round((angle - neutral) / step)`` (the horn convention of the
 servo table: horn = direction * (joint - neutral) + centre); ``step_lo``/``step_hi`` bound it so the
 joint never leaves ``[min, max]``. With a ``calibration`` (:mod:`robots.hardware`: the robot's
-``calibration.toml``, for a real servo bus) ``offset`` is its ``offset_steps``, ``direction`` its
-direction times the table's, and the step range :func:`robots.hardware.step_limits` (also inside the
-calibrated mechanical range); without one, offset 0 and the table's direction (the emulator's plant). ``load_full_mnm``: the torque a present-load reading of 1000
+``calibration.toml``, for a real servo bus) ``offset`` is its ``offset_steps`` and ``direction`` its
+direction times the table's; without one, offset 0 and the table's direction (as the emulator's plant).
+The step range is :func:`robots.hardware.step_limits` either way (calibrated: also inside the
+calibrated mechanical range; uncalibrated: inside the whole register 0..4095). ``load_full_mnm``: the torque a present-load reading of 1000
 (100 %) means: the table's stall torque, else the MJCF actuator's force range. ``model_sts``/``model_dxl2``:
 the model number the servo must report at boot on either protocol (the firmware's protocol is chosen at run
 time): the robot's ``hardware.toml`` (:meth:`robots.hardware.Hardware.model_of`) for the protocol it names,
@@ -23,14 +24,11 @@ from __future__ import annotations
 
 import math
 
+from firmware_sim.servo_load import load_full_scale
 from robots.description import Robot
-from robots.hardware import DEFAULT_MODEL, Calibration, Hardware, ServoCalibration, load_hardware, step_limits
+from robots.hardware import STEP_CENTRE, DEFAULT_MODEL, Calibration, Hardware, ServoCalibration, load_hardware, step_limits
 
-__all__ = ["STEP_CENTRE", "expected_models", "load_full_scale", "servo_table_c", "servo_table_h", "step_nrad"]
-
-#: goal/present position register value of the horn centre (4096-step servos: half a turn)
-STEP_CENTRE = 2048
-STEP_MAX = 4095
+__all__ = ["STEP_CENTRE", "expected_models", "servo_table_c", "servo_table_h", "step_nrad"]
 
 
 def step_nrad(robot: Robot) -> int:
@@ -38,34 +36,8 @@ def step_nrad(robot: Robot) -> int:
     return int(round(robot.servos.model.resolution * 1e9))
 
 
-def load_full_scale(robot: Robot) -> list[float]:
-    """Per servo, the torque (N*m) of a 100 % present-load reading (stall torque or actuator force range)."""
-    stall = robot.servos.model.stall_torque
-    if stall:
-        return [float(stall)] * robot.servo_count
-    model = robot.model().model
-    out = []
-    for s in robot.servos:
-        import mujoco
-
-        aid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, s.actuator)
-        lo, hi = model.actuator_forcerange[aid]
-        full = max(abs(float(lo)), abs(float(hi)))
-        out.append(full if full > 0 else 1.0)
-    return out
-
-
 def _urad(x: float) -> int:
     return int(round(x * 1e6))
-
-
-def _step_range(neutral: float, lo: float, hi: float, direction: int, step: float) -> tuple[int, int]:
-    """Goal-register range whose joint angles stay inside [lo, hi] (and the register's 0..4095)."""
-    a = math.ceil((lo - neutral) / step - 1e-9)
-    b = math.floor((hi - neutral) / step + 1e-9)
-    if direction < 0:
-        a, b = -b, -a
-    return max(0, STEP_CENTRE + a), min(STEP_MAX, STEP_CENTRE + b)
 
 
 def _c_string(s: str) -> str:
@@ -134,13 +106,9 @@ def servo_table_c(robot: Robot, calibration: Calibration | None = None, hardware
     rows = []
     for i, s in enumerate(t):
         direction = 1 if s.direction >= 0 else -1
-        if calibration is None:
-            lo, hi = _step_range(s.neutral, s.min, s.max, s.direction, t.model.resolution)
-            offset = 0
-        else:
-            cal = calibration.of(s) if calibration.servos.get(s.name) else ServoCalibration(s.id)
-            lo, hi = step_limits(s, cal, t.model.resolution)
-            offset, direction = cal.offset_steps, direction * cal.direction
+        cal = calibration.of(s) if calibration is not None and calibration.servos.get(s.name) else ServoCalibration(s.id)
+        lo, hi = step_limits(s, cal, t.model.resolution)
+        offset, direction = cal.offset_steps, direction * cal.direction
         rows.append(f"    {{{s.id}, {_c_string(s.name)}, {_urad(s.min)}, {_urad(s.max)}, {_urad(s.neutral)}, "
                     f"{_urad(safe[i])}, {_urad(s.max_speed)}, {direction}, {lo}, {hi}, {offset}, "
                     f"{models[i][0]}, {models[i][1]}, {int(round(full[i] * 1000))}}},")

@@ -23,7 +23,7 @@ rules of driving real servos:
 * **Exit** (:meth:`BusDriver.close`): torque off on the whole bus, on every path; never raises.
 
 Units: joint angles rad, speeds rad/s, efforts N*m (load fraction times the servo's full-scale torque,
-:func:`firmware_sim.cfirmware.servo_table.load_full_scale`), board time us.
+:func:`firmware_sim.servo_load.load_full_scale`), board time us.
 """
 
 from __future__ import annotations
@@ -93,7 +93,7 @@ class BusDriver:
                  estop_torque: str = "hold", miss_limit: int = 3, err: IO[str] | None = None) -> None:
         if estop_torque not in ESTOP_TORQUE:
             raise ValueError(f"estop torque must be hold or limp, got {estop_torque!r}")
-        from firmware_sim.cfirmware.servo_table import load_full_scale
+        from firmware_sim.servo_load import load_full_scale
 
         self.bus = bus
         self.robot = robot

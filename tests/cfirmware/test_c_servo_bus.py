@@ -54,10 +54,10 @@ def _exe() -> Path:
 
 
 def _step_range(i: int) -> tuple[int, int]:
-    from firmware_sim.cfirmware.servo_table import _step_range as rng
+    from robots.hardware import ServoCalibration, step_limits
 
     s = ROBOT.servos[i]
-    return rng(s.neutral, s.min, s.max, s.direction, ROBOT.servos.model.resolution)
+    return step_limits(s, ServoCalibration(s.id), ROBOT.servos.model.resolution)
 
 
 def _steps(i: int, q: float) -> int:
