@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 import struct
-from collections import OrderedDict, deque
+from collections import deque
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -41,10 +41,11 @@ from cobs import cobs
 from firmware_sim.config import BoardConfig
 from firmware_sim.jitter_buffer import JitterBuffer
 from firmware_sim.native import GS_CAP, GS_INTERP, NativeTick, NativeUnavailable, kernel_choice, note_fallback
-from firmware_sim.peripherals import MAX_IMAGE_SIDE, Camera, CameraUnavailable, CameraWorker, Screen, Speaker
+from firmware_sim.board_camera import KEPT_IMAGES, BoardCamera, nack
+from firmware_sim.peripherals import Camera, CameraWorker, Screen, Speaker
 from firmware_sim.safety import Mode, Safety
 from firmware_sim.servo_model import ServoModel
-from protocol.codec import MESSAGE_CLASSES, msg_type_of, quantize_apply_at, schema_for, unwrap_time_us
+from protocol.codec import MESSAGE_CLASSES, quantize_apply_at, schema_for, unwrap_time_us
 from protocol.faults import GapDetector
 from protocol.framing import CRC_SIZE, HEADER_SIZE, DecodeError, DecodeErrorKind, Frame, crc16
 from protocol.messages import (
@@ -53,7 +54,6 @@ from protocol.messages import (
     Ack,
     Advance,
     CameraCapture,
-    CameraChunk,
     CameraResend,
     Caps,
     Config,
@@ -87,7 +87,6 @@ if TYPE_CHECKING:
 
 __all__ = ["Board", "HOST_BOUND", "KEPT_IMAGES", "answerable", "quat_to_rpy"]
 
-KEPT_IMAGES = 2  # camera images the board keeps for CAMERA_RESEND
 
 #: messages only the board sends (:data:`protocol.messages.BOARD_TO_HOST`): one arriving from the host is
 #: refused (NACK UNSUPPORTED) before it counts as link traffic (it neither feeds the watchdog nor the
@@ -210,13 +209,10 @@ class Board:
         self.safety = Safety(self.cfg.watchdog_ms * 1000, self.cfg.crouch_after_ms * 1000)
         self.screen = Screen()
         self.speaker = Speaker()
-        self.camera = Camera(self.model, self.robot.peripherals.camera)
-        self.camera_worker: CameraWorker | None = None
-        self._capture_seqs: dict[int, int] = {}
+        #: CAMERA_CAPTURE / CAMERA_RESEND and the images kept for them
+        self.cameras = BoardCamera(self.model, self.robot.peripherals.camera)
         #: sequence gaps in what the host sent (lost messages), since the last HELLO
         self.rx_gaps = GapDetector()
-        #: the last KEPT_IMAGES images' chunks by request id, for CAMERA_RESEND and a repeated CAMERA_CAPTURE
-        self._kept_images: OrderedDict[int, list[CameraChunk]] = OrderedDict()
         self._clock_us = clock_us
         # per-servo interpolation anchor: the last applied keyframe (or where a resumed servo was);
         # arrays updated in place (the native tick holds their addresses), read as lists by the Python path
@@ -481,10 +477,10 @@ class Board:
         return [Ack(seq, MsgType.SPEAKER)]
 
     def _on_capture(self, msg: CameraCapture, seq: int, rx: int) -> list[Message]:
-        return self._capture(msg, seq)
+        return self.cameras.capture(msg, seq, self.data)
 
     def _on_resend(self, msg: CameraResend, seq: int, rx: int) -> list[Message]:
-        return self._resend(msg, seq)
+        return self.cameras.resend(msg, seq)
 
     #: the received-message table: message class -> ``handler(self, msg, seq, rx_us) -> replies``. Built
     #: once with the class, of plain functions: bound methods held by the instance would make every board a
@@ -505,12 +501,7 @@ class Board:
         CameraResend: _on_resend,
     }
 
-    def _nack(self, msg: object, seq: int, reason: NackReason, detail: str) -> Nack:
-        try:
-            mt = msg_type_of(msg)  # type: ignore[arg-type]
-        except Exception:
-            mt = MsgType.HELLO
-        return Nack(seq, mt, reason, detail.encode("ascii", "replace").decode("ascii")[:64])
+    _nack = staticmethod(nack)
 
     def _hello(self, msg: Hello, seq: int) -> Message:
         if msg.protocol_version != PROTOCOL_VERSION:
@@ -599,60 +590,19 @@ class Board:
             return self._nack(msg, seq, NackReason.BAD_VALUE, f"{key.name}={v} out of range")
         return Ack(seq, MsgType.CONFIG)
 
-    def _capture(self, msg: CameraCapture, seq: int) -> list[Message]:
-        if not (1 <= msg.width <= MAX_IMAGE_SIDE and 1 <= msg.height <= MAX_IMAGE_SIDE):
-            return [self._nack(msg, seq, NackReason.BAD_VALUE, f"image size must be 1..{MAX_IMAGE_SIDE} per side")]
-        kept = self._kept_images.get(msg.request_id)
-        if kept is not None:  # the host asks again (its request or every chunk was lost): same image
-            return list(kept)
-        if self.camera_worker is not None:  # realtime: render off the control loop
-            if msg.request_id in self._capture_seqs:
-                return []  # a repeated request for an image being rendered: it is on its way
-            if self.camera_worker.error is not None:
-                return [self._nack(msg, seq, NackReason.NO_RENDERER, self.camera_worker.error)]
-            if not self.camera_worker.submit(msg.request_id, int(msg.width), int(msg.height), self.data):
-                return [self._nack(msg, seq, NackReason.BUSY, "camera busy: too many captures in flight")]
-            self._capture_seqs[msg.request_id] = seq
-            return []
-        try:
-            png = self.camera.capture_png(self.data, int(msg.width), int(msg.height))
-        except CameraUnavailable as e:
-            return [self._nack(msg, seq, NackReason.NO_RENDERER, str(e))]
-        return list(self._keep(msg.request_id, Camera.chunks(msg.request_id, png)))
+    @property
+    def camera(self) -> Camera:
+        """The camera renderer (the lockstep path's; :attr:`cameras` holds it)."""
+        return self.cameras.camera
 
-    def _keep(self, request_id: int, chunks: list[CameraChunk]) -> list[CameraChunk]:
-        """Remember an image's chunks (the last ``KEPT_IMAGES``) so the host can ask for lost ones."""
-        self._kept_images[request_id] = chunks
-        while len(self._kept_images) > KEPT_IMAGES:
-            self._kept_images.popitem(last=False)
-        return chunks
-
-    def _resend(self, msg: CameraResend, seq: int) -> list[Message]:
-        kept = self._kept_images.get(msg.request_id)
-        if kept is None:
-            return [self._nack(msg, seq, NackReason.BAD_VALUE, f"no image {msg.request_id} kept")]
-        if not msg.wanted:
-            return list(kept)
-        out: list[Message] = []
-        for k in range(len(msg.wanted) * 8):
-            if msg.wanted[k // 8] >> (k % 8) & 1 and msg.first + k < len(kept):
-                out.append(kept[msg.first + k])
-        return out
+    @property
+    def camera_worker(self) -> CameraWorker | None:
+        """The realtime render thread once :meth:`start_camera_worker` ran, else None."""
+        return self.cameras.worker
 
     def start_camera_worker(self) -> str | None:
         """Render captures in a background thread from now on; returns why not, if it can't."""
-        self.camera_worker = CameraWorker(self.model, self.robot.peripherals.camera)
-        return self.camera_worker.error
-
-    def _camera_results(self) -> list[Message]:
-        out: list[Message] = []
-        for request_id, result in self.camera_worker.results() if self.camera_worker else ():
-            seq = self._capture_seqs.pop(request_id, 0)
-            if isinstance(result, str):
-                out.append(Nack(seq, MsgType.CAMERA_CAPTURE, NackReason.NO_RENDERER, result[:64]))
-            else:
-                out.extend(self._keep(request_id, result))
-        return out
+        return self.cameras.start_worker()
 
     def _resume(self) -> None:
         """Leaving a hold: buffered frames are gone, every servo continues from its command.
@@ -812,7 +762,7 @@ class Board:
             self.clamped_ticks += 1
         self.now_us = t + self._tick_us
         self.ticks += 1
-        out = self._camera_results() if self.camera_worker is not None else []
+        out = self.cameras.results() if self.cameras.worker is not None else []
         if self._bus_out:
             out += self._bus_out
             self._bus_out = []

@@ -71,8 +71,8 @@ def test_only_the_last_images_are_kept() -> None:
         replies = board.handle(CameraCapture(rid, 32, 24), seq=rid)
         if replies and isinstance(replies[0], Nack):
             return
-    assert len(board._kept_images) == KEPT_IMAGES == 2
+    assert len(board.cameras.kept) == KEPT_IMAGES == 2
     (nack,) = board.handle(CameraResend(1, 0, b""), seq=9)
     assert isinstance(nack, Nack) and nack.reason is NackReason.BAD_VALUE and nack.ack_seq == 9
     assert "no image 1 kept" in nack.detail
-    assert board.handle(CameraResend(3, 0, b"\x01"), seq=10)[0] == board._kept_images[3][0]
+    assert board.handle(CameraResend(3, 0, b"\x01"), seq=10)[0] == board.cameras.kept[3][0]
