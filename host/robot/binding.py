@@ -3,8 +3,9 @@
 Every vocabulary of the robot is mounted so the mapper accepts any of them; the one chosen for the
 prompt is visible, the others are mounted hidden (callable, not shown). A name several vocabularies
 declare is taken from the visible one. Each stub becomes an async function that fills the stub's
-defaults, renames parameters, pins fixed arguments and hands the behaviour call to a
-:class:`Performer` (the runtime that really moves the robot, or a fake one in tests). Plain text is
+defaults, renames parameters, pins fixed arguments and hands the behaviour call, with the call's
+context from the scheduler (:class:`host.shell.context.RunningCall`: element path and id, persistent,
+hand-over), to a :class:`Performer` (the runtime that really moves the robot, or a fake one in tests). Plain text is
 spoken only by a robot with a speaker (:func:`speech_module`).
 """
 
@@ -15,6 +16,7 @@ from collections.abc import Callable
 from types import SimpleNamespace
 from typing import Any, Protocol
 
+from host.shell.context import CallContext, RunningCall
 from host.shell.registry import Registry
 from host.shell.types import Module, shell_function
 from robots.description import Robot
@@ -22,32 +24,32 @@ from robots.interface import StubInfo, class_stubs, stub_info
 
 
 class Performer(Protocol):
-    """What the binding needs from a runtime."""
+    """What the binding needs from a runtime. ``call`` is the shell call being run (or reset)."""
 
-    async def perform(self, behaviour: str, channel: str, args: dict[str, Any]) -> Any: ...
+    async def perform(self, behaviour: str, channel: str, args: dict[str, Any], call: RunningCall) -> Any: ...
 
-    async def reset(self, behaviour: str, channel: str) -> None: ...
+    async def reset(self, behaviour: str, channel: str, call: RunningCall) -> None: ...
 
-    async def speak(self, text: str) -> Any: ...
+    async def speak(self, text: str, call: RunningCall) -> Any: ...
 
 
 def _bound_call(stub: Callable[..., Any], info: StubInfo, performer: Performer) -> Callable[..., Any]:
     sig = inspect.signature(stub)
 
-    async def call(**kwargs: Any) -> Any:
+    async def call(shell_call: CallContext, **kwargs: Any) -> Any:
         bound = sig.bind_partial(None, **kwargs)  # None stands for the stub's self
         bound.apply_defaults()
         args = {info.rename.get(k, k): v for k, v in bound.arguments.items() if k != "self"}
         args.update(info.fixed)
-        return await performer.perform(info.behaviour, info.channel, args)
+        return await performer.perform(info.behaviour, info.channel, args, shell_call)
 
     call.__name__ = stub.__name__
     return call
 
 
 def _bound_reset(info: StubInfo, performer: Performer) -> Callable[..., Any]:
-    async def reset() -> None:
-        await performer.reset(info.behaviour, info.channel)
+    async def reset(shell_call: CallContext) -> None:
+        await performer.reset(info.behaviour, info.channel, shell_call)
 
     return reset
 
@@ -82,9 +84,9 @@ def speech_module(performer: Performer) -> Module:
     """The speech channel: plain text in the stream is spoken by ``speak``."""
 
     @shell_function(speech=True)
-    async def speak(text: str) -> Any:
+    async def speak(text: str, shell_call: CallContext) -> Any:
         """Say `text` aloud (you do not call this: plain text outside tags is spoken)."""
-        return await performer.speak(text)
+        return await performer.speak(text, shell_call)
 
     return Module.from_functions("speak", speak, channel="speech", doc="the speaker")
 
@@ -109,13 +111,13 @@ def robot_registry(robot: Robot, performer: Performer, vocabulary: str | None = 
 class _SignaturesOnly:
     """A performer for registries that are only read (prompts, tool schemas, policy checks)."""
 
-    async def perform(self, behaviour: str, channel: str, args: dict[str, Any]) -> Any:
+    async def perform(self, behaviour: str, channel: str, args: dict[str, Any], call: RunningCall) -> Any:
         raise RuntimeError(f"{behaviour}: this registry lists the robot's functions; it runs nothing")
 
-    async def reset(self, behaviour: str, channel: str) -> None:
+    async def reset(self, behaviour: str, channel: str, call: RunningCall) -> None:
         return None
 
-    async def speak(self, text: str) -> Any:
+    async def speak(self, text: str, call: RunningCall) -> Any:
         raise RuntimeError("this registry lists the robot's functions; it runs nothing")
 
 

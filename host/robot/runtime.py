@@ -28,7 +28,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 from collections.abc import AsyncIterator, Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -38,7 +38,7 @@ import numpy as np
 from host.motion.mixer import Mixer, Segment
 from host.motion.streamer import GRID_PERIOD_US, LOOKAHEAD_US, FrameLink, FrameStreamer
 from host.shell.cleanups import Cleanups
-from host.shell.context import current_call
+from host.shell.context import RunningCall
 from protocol.messages import (
     ScreenCommand,
     ScreenTarget,
@@ -135,8 +135,12 @@ class RobotRuntime:
         self._last: dict[str, Segment] = {}  # channel -> its last finite segment (where the next one starts)
         self._rest = np.asarray(robot.pose(robot.rest_pose))
         self._speech_synth = speech_synth
-        self._playing_bgm: dict[int, str] = {}
         self._cleanups = Cleanups()  # the shielded stops of cancelled calls (abort_cleanups cuts them short)
+        #: behaviour name -> its implementation: the peripherals, then the robot's motions (which win a name clash)
+        self.behaviours: dict[str, Behaviour] = {
+            "face_emo": FaceBehaviour(self), "play_bgm": MusicBehaviour(self), "capture": CaptureBehaviour(self),
+            "speech_role": SpeechRoleBehaviour(self), **{name: MotionBehaviour(self, name) for name in robot.behaviours},
+        }
 
     def warm_up(self) -> int:
         """:func:`warm_up_behaviours` of this runtime's robot."""
@@ -147,11 +151,9 @@ class RobotRuntime:
         """Board time a peripheral command sent now starts at (see ``FrameStreamer.start_due_us``)."""
         return self.streamer.start_due_us(len(encode_frame(msg, 0)) + 4)  # + 4: a larger start time's varint
 
-    def _mark(self, start: float | None = None, end: float | None = None) -> None:
-        ctx = current_call()
-        if ctx is None:
-            return
-        rec = self.board_times.setdefault(ctx.path, [None, None])
+    def _mark(self, call: RunningCall, start: float | None = None, end: float | None = None) -> None:
+        """Keep ``call``'s board-measured start (the first one given) and end (seconds) by its path."""
+        rec = self.board_times.setdefault(call.path, [None, None])
         if start is not None and rec[0] is None:
             rec[0] = start
         if end is not None:
@@ -171,48 +173,21 @@ class RobotRuntime:
         c = self.robot.channels.get(channel)
         return c.servos if c is not None else tuple(int(i) for i in seg.motion.servos)
 
-    async def perform(self, behaviour: str, channel: str, args: dict[str, Any]) -> Any:
-        """Run one behaviour call (the shell calls this with typed arguments)."""
-        if behaviour in self.robot.behaviours:
-            return await self._motion(behaviour, channel, args)
-        if behaviour == "face_emo":
-            return await self._face(args)
-        if behaviour == "play_bgm":
-            return await self._bgm(args)
-        if behaviour == "capture":
-            return await self._capture()
-        if behaviour == "speech_role":
-            return await self._speech_role(args)
-        raise ValueError(f"no implementation for behaviour {behaviour!r} on channel {channel!r}")
+    async def perform(self, behaviour: str, channel: str, args: dict[str, Any], call: RunningCall) -> Any:
+        """Run one behaviour call (the shell calls this with typed arguments and the call's context);
+        raises ValueError for a behaviour :attr:`behaviours` has no implementation of."""
+        impl = self.behaviours.get(behaviour)
+        if impl is None:
+            raise ValueError(f"no implementation for behaviour {behaviour!r} on channel {channel!r}")
+        return await impl.perform(call, channel, args)
 
-    async def reset(self, behaviour: str, channel: str) -> None:
-        """End a persistent call: smooth return (motion), neutral face, music stop."""
-        ctx = current_call()
-        if ctx is None:
-            return
-        if behaviour in self.robot.behaviours:
-            seg = self._active.pop(ctx.element_id, None)
-            if seg is None:
-                return
-            servos = self._servos(channel, seg)
-            rest = self._rest[list(servos)]
-            new = await self.streamer.cut([seg], servos, lambda q: transition(q, rest, servos, self.limits),
-                                          label=f"{ctx.path}:reset")
-            if new is not None:
-                self._mark(end=await self.streamer.wait_ended(new))
-        elif behaviour == "face_emo":
-            t = self._start_due(ScreenCommand(ScreenTarget.FACE, "neutral", 0, 0))
-            await self.link.send_peripheral(ScreenCommand(ScreenTarget.FACE, "neutral", t, 0))
-            await self.streamer.wait_board_time(t)
-            self._mark(end=t * 1e-6)
-        elif behaviour == "play_bgm":
-            stop = SpeakerCommand(SpeakerAction.STOP, SoundKind.CLIP, 0, 0, 0, name=self._playing_bgm.pop(ctx.element_id, ""))
-            t = self._start_due(stop)
-            await self.link.send_peripheral(dataclasses.replace(stop, start_at_us=t))
-            await self.streamer.wait_board_time(t)
-            self._mark(end=t * 1e-6)
+    async def reset(self, behaviour: str, channel: str, call: RunningCall) -> None:
+        """End a persistent call: smooth return (motion), neutral face, music stop; nothing for the others."""
+        impl = self.behaviours.get(behaviour)
+        if impl is not None:
+            await impl.reset(call, channel)
 
-    async def speak(self, text: str) -> str:
+    async def speak(self, text: str, call: RunningCall) -> str:
         """Say one sentence at once: PLAY when a start would be due (``start_due_us``; with a generous bound
         on its length), synthesise meanwhile, then a STOP timed at start + the synthesised duration."""
         from host.speech.tts import estimate_duration_s
@@ -223,18 +198,18 @@ class RobotRuntime:
         play = SpeakerCommand(SpeakerAction.PLAY, SoundKind.SPEECH, 0, int(bound_s * 1000), volume, text=payload)
         start = self._start_due(play)
         await self.link.send_peripheral(dataclasses.replace(play, start_at_us=start))
-        async with self._stop_on_cancel(SpeakerCommand(SpeakerAction.STOP, SoundKind.SPEECH, 0, 0, 0)):
+        async with self._stop_on_cancel(call, SpeakerCommand(SpeakerAction.STOP, SoundKind.SPEECH, 0, 0, 0)):
             duration = min(await self._speech_duration(text), bound_s)
             end = start + int(duration * 1e6)
             await self.link.send_peripheral(SpeakerCommand(SpeakerAction.STOP, SoundKind.SPEECH, end, 0, 0))
             await self.streamer.wait_board_time(start)
-            self._mark(start=start * 1e-6)
+            self._mark(call, start=start * 1e-6)
             await self.streamer.wait_board_time(end)
-        self._mark(end=end * 1e-6)
+        self._mark(call, end=end * 1e-6)
         return f"said {text!r} ({duration:.2f} s)"
 
     @contextlib.asynccontextmanager
-    async def _stop_on_cancel(self, stop: ScreenCommand | SpeakerCommand) -> AsyncIterator[None]:
+    async def _stop_on_cancel(self, call: RunningCall, stop: ScreenCommand | SpeakerCommand) -> AsyncIterator[None]:
         """If the call is cancelled (interrupted), stop its peripheral at the next frame time."""
         try:
             yield
@@ -243,7 +218,7 @@ class RobotRuntime:
                 with self._cleanups.shielded(5):
                     now = self._start_due(stop)
                     await self.link.send_peripheral(dataclasses.replace(stop, start_at_us=now))
-                    self._mark(end=now * 1e-6)
+                    self._mark(call, end=now * 1e-6)
             raise
 
     def abort_cleanups(self) -> None:
@@ -266,44 +241,6 @@ class RobotRuntime:
             utt = await self._speech_synth(text, self.run_dir / "speech", rate_wpm=rate)
         return float(utt.duration_s)
 
-    async def _motion(self, behaviour: str, channel: str, args: dict[str, Any]) -> str:
-        ctx = current_call()
-        persistent = bool(ctx and ctx.persistent)
-        at_us, from_us = self._plan_start(channel)
-        label = ctx.path if ctx else behaviour
-        if at_us is None:  # a fresh start: as soon as the link allows, from rest (minimum-jerk start)
-            start = self.streamer.planned_targets(self.streamer.start_due_us())
-            motion = ease_in(self.robot.behaviours[behaviour](start, persistent=persistent, **args))
-            seg = await self.streamer.start_now(motion, label=label)
-        else:  # flowing on from the previous call on this channel
-            start = self.streamer.planned_targets(from_us)
-            motion = self.robot.behaviours[behaviour](start, persistent=persistent, **args)
-            seg = self.streamer.add(motion, label=label, start_us=at_us)
-        if persistent and ctx is not None:
-            self._last.pop(channel, None)
-            self._active[ctx.element_id] = seg
-            self._mark(start=await self.streamer.wait_started(seg))
-            await anyio.sleep_forever()
-        self._last[channel] = seg
-        try:
-            self._mark(start=await self.streamer.wait_started(seg))
-            planned_end = seg.end_us
-            if ctx is not None and planned_end is not None:
-                await self.streamer.wait_board_time(planned_end - self.streamer.lookahead_us - HANDOVER_LEAD_US)
-                ctx.hand_over()
-            end = await self.streamer.wait_ended(seg)
-        except anyio.get_cancelled_exc_class():
-            if self._cleanups.aborted:  # stopped at once: no smooth stop to wait for
-                self._mark(end=self.board_now_s())
-                raise
-            with self._cleanups.shielded(STOP_TIMEOUT_S) as (shield, scope):
-                await self._stop(seg, channel)
-            if scope.cancelled_caught or shield.cancel_called:
-                self._mark(end=self.board_now_s())
-            raise
-        self._mark(end=end)
-        return f"{behaviour} done"
-
     def _plan_start(self, channel: str) -> tuple[int | None, int | None]:
         """Where a new finite motion on ``channel`` starts: (start on the frame grid, time whose
         targets it starts from), the previous segment's planned end while that is still ahead."""
@@ -313,7 +250,7 @@ class RobotRuntime:
             return None, None
         return self.streamer.grid(end), end
 
-    async def _stop(self, seg: Segment, channel: str) -> None:
+    async def _stop(self, call: RunningCall, seg: Segment, channel: str) -> None:
         """Interrupted finite motion: flush and settle smoothly where it is."""
         if seg.first_frame_us is None:  # planned ahead and not sent yet: just drop it
             self.mixer.cancel(seg)
@@ -323,77 +260,196 @@ class RobotRuntime:
                                       label="stop")
         if new is not None:
             with anyio.move_on_after(5):
-                self._mark(end=await self.streamer.wait_ended(new))
+                self._mark(call, end=await self.streamer.wait_ended(new))
 
-    async def _speech_role(self, args: dict[str, Any]) -> str:
+    async def _show(self, call: RunningCall, msg: ScreenCommand | SpeakerCommand) -> int:
+        """Send a peripheral command timed at the next start due, wait for that board time and mark it as
+        ``call``'s start; returns it (board µs)."""
+        start = self._start_due(msg)
+        await self.link.send_peripheral(dataclasses.replace(msg, start_at_us=start))
+        await self.streamer.wait_board_time(start)
+        self._mark(call, start=start * 1e-6)
+        return start
+
+    async def _end_at(self, call: RunningCall, stop: ScreenCommand | SpeakerCommand, end: int) -> None:
+        """Wait until board time ``end`` (µs), sending ``stop`` if the call is interrupted; mark its end."""
+        async with self._stop_on_cancel(call, stop):
+            await self.streamer.wait_board_time(end)
+        self._mark(call, end=end * 1e-6)
+
+    async def _end_now(self, call: RunningCall, stop: ScreenCommand | SpeakerCommand) -> None:
+        """A persistent peripheral call's reset: ``stop`` at the next start due; its end is marked then."""
+        t = self._start_due(stop)
+        await self.link.send_peripheral(dataclasses.replace(stop, start_at_us=t))
+        await self.streamer.wait_board_time(t)
+        self._mark(call, end=t * 1e-6)
+
+
+class Behaviour(Protocol):
+    """One behaviour's implementation in :attr:`RobotRuntime.behaviours`: ``perform`` runs a call (a persistent
+    one until it is cancelled), ``reset`` ends a persistent one."""
+
+    async def perform(self, call: RunningCall, channel: str, args: dict[str, Any]) -> str: ...
+
+    async def reset(self, call: RunningCall, channel: str) -> None: ...
+
+
+async def _hold_if_persistent(call: RunningCall) -> None:
+    """An instantaneous behaviour used as a parent element stays active until it is reset."""
+    if call.persistent:
+        await anyio.sleep_forever()
+
+
+@dataclass
+class MotionBehaviour:
+    """A motion behaviour of the robot (``robot.behaviours[name]``): planned from where its servos are
+    planned to be, flowing on from the previous call on its channel; persistent: loops until reset."""
+
+    rt: RobotRuntime
+    name: str
+
+    async def perform(self, call: RunningCall, channel: str, args: dict[str, Any]) -> str:
+        rt, persistent = self.rt, call.persistent
+        at_us, from_us = rt._plan_start(channel)
+        if at_us is None:  # a fresh start: as soon as the link allows, from rest (minimum-jerk start)
+            start = rt.streamer.planned_targets(rt.streamer.start_due_us())
+            motion = ease_in(rt.robot.behaviours[self.name](start, persistent=persistent, **args))
+            seg = await rt.streamer.start_now(motion, label=call.path)
+        else:  # flowing on from the previous call on this channel
+            start = rt.streamer.planned_targets(from_us)
+            motion = rt.robot.behaviours[self.name](start, persistent=persistent, **args)
+            seg = rt.streamer.add(motion, label=call.path, start_us=at_us)
+        if persistent:
+            rt._last.pop(channel, None)
+            rt._active[call.element_id] = seg
+            rt._mark(call, start=await rt.streamer.wait_started(seg))
+            await anyio.sleep_forever()
+        rt._last[channel] = seg
+        try:
+            rt._mark(call, start=await rt.streamer.wait_started(seg))
+            planned_end = seg.end_us
+            if planned_end is not None:
+                await rt.streamer.wait_board_time(planned_end - rt.streamer.lookahead_us - HANDOVER_LEAD_US)
+                call.hand_over()
+            end = await rt.streamer.wait_ended(seg)
+        except anyio.get_cancelled_exc_class():
+            if rt._cleanups.aborted:  # stopped at once: no smooth stop to wait for
+                rt._mark(call, end=rt.board_now_s())
+                raise
+            with rt._cleanups.shielded(STOP_TIMEOUT_S) as (shield, scope):
+                await rt._stop(call, seg, channel)
+            if scope.cancelled_caught or shield.cancel_called:
+                rt._mark(call, end=rt.board_now_s())
+            raise
+        rt._mark(call, end=end)
+        return f"{self.name} done"
+
+    async def reset(self, call: RunningCall, channel: str) -> None:
+        """Smooth return to the rest pose from where the looping segment is cut."""
+        rt = self.rt
+        seg = rt._active.pop(call.element_id, None)
+        if seg is None:
+            return
+        servos = rt._servos(channel, seg)
+        rest = rt._rest[list(servos)]
+        new = await rt.streamer.cut([seg], servos, lambda q: transition(q, rest, servos, rt.limits),
+                                    label=f"{call.path}:reset")
+        if new is not None:
+            rt._mark(call, end=await rt.streamer.wait_ended(new))
+
+
+_NEUTRAL_FACE = ScreenCommand(ScreenTarget.FACE, "neutral", 0, 0)
+
+
+@dataclass
+class FaceBehaviour:
+    """``face_emo``: show an expression for ``duration`` s (persistent: until reset, then neutral)."""
+
+    rt: RobotRuntime
+
+    async def perform(self, call: RunningCall, channel: str, args: dict[str, Any]) -> str:
+        duration = 0.0 if call.persistent else float(args.get("duration", 2.0))
+        start = await self.rt._show(call, ScreenCommand(ScreenTarget.FACE, str(args["emo"]), 0, int(duration * 1000)))
+        await _hold_if_persistent(call)
+        await self.rt._end_at(call, _NEUTRAL_FACE, start + int(duration * 1e6))
+        return f"face {args['emo']} shown for {duration:g} s"
+
+    async def reset(self, call: RunningCall, channel: str) -> None:
+        await self.rt._end_now(call, _NEUTRAL_FACE)
+
+
+@dataclass
+class MusicBehaviour:
+    """``play_bgm``: play a clip for ``duration`` s (persistent: until reset, then STOP)."""
+
+    rt: RobotRuntime
+    #: element id -> the clip a persistent call is playing (its reset stops that one)
+    playing: dict[int, str] = field(default_factory=dict)
+
+    async def perform(self, call: RunningCall, channel: str, args: dict[str, Any]) -> str:
+        rt = self.rt
+        duration = 0.0 if call.persistent else float(args.get("duration") or 5.0)
+        name = str(args.get("name", "happy"))  # UTF-8 byte bound checked by the mapper
+        note = ""
+        if rt.clips is not None and name not in rt.clips:
+            note = f"; note: this robot has no clip {name!r}, played 'happy' instead (clips: {', '.join(rt.clips)})"
+            name = "happy"
+        start = await rt._show(call, SpeakerCommand(SpeakerAction.PLAY, SoundKind.CLIP, 0, int(duration * 1000),
+                                                    int(args.get("volume", 60)), name=name))
+        if call.persistent:
+            self.playing[call.element_id] = name
+            await anyio.sleep_forever()
+        await rt._end_at(call, SpeakerCommand(SpeakerAction.STOP, SoundKind.CLIP, 0, 0, 0, name=name),
+                         start + int(duration * 1e6))
+        return f"music {name!r} played for {duration:g} s{note}"
+
+    async def reset(self, call: RunningCall, channel: str) -> None:
+        name = self.playing.pop(call.element_id, "")
+        await self.rt._end_now(call, SpeakerCommand(SpeakerAction.STOP, SoundKind.CLIP, 0, 0, 0, name=name))
+
+
+@dataclass
+class CaptureBehaviour:
+    """``capture``: a camera frame saved as ``capture_<n>.png`` in the run directory."""
+
+    rt: RobotRuntime
+
+    async def perform(self, call: RunningCall, channel: str, args: dict[str, Any]) -> str:
+        rt = self.rt
+        rt._mark(call, start=rt.board_now_s())
+        png = await rt.link.capture(160, 120)
+        path = rt.run_dir / f"capture_{len(rt.captures) + 1}.png"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(png)
+        rt.captures.append(path)
+        rt._mark(call, end=rt.board_now_s())
+        await _hold_if_persistent(call)
+        return f"photo saved to {path.name} ({len(png)} bytes)"
+
+    async def reset(self, call: RunningCall, channel: str) -> None:
+        return None
+
+
+@dataclass
+class SpeechRoleBehaviour:
+    """``speech_role``: the :class:`Voice` later speech uses (an unknown role falls back to "robot")."""
+
+    rt: RobotRuntime
+
+    async def perform(self, call: RunningCall, channel: str, args: dict[str, Any]) -> str:
+        rt = self.rt
         role = str(args.get("role", "robot"))
         note = ""
-        if role not in self.voices:
-            note = f"; note: this robot has no voice {role!r}, using 'robot' (voices: {', '.join(self.voices)})"
+        if role not in rt.voices:
+            note = f"; note: this robot has no voice {role!r}, using 'robot' (voices: {', '.join(rt.voices)})"
             role = "robot"
-        self.voice = Voice(**{**args, "role": role})
-        t = self.board_now_s()
-        self._mark(t, t)
-        await self._hold_if_persistent()
-        v = self.voice
+        rt.voice = Voice(**{**args, "role": role})
+        t = rt.board_now_s()
+        rt._mark(call, t, t)
+        await _hold_if_persistent(call)
+        v = rt.voice
         return (f"voice {v.role!r}, emotion {v.emotion!r}, rate {v.speech_rate:+g}%, loudness "
                 f"{v.loudness_rate:+g}%{note}")
 
-    async def _face(self, args: dict[str, Any]) -> str:
-        ctx = current_call()
-        persistent = bool(ctx and ctx.persistent)
-        duration = 0.0 if persistent else float(args.get("duration", 2.0))
-        show = ScreenCommand(ScreenTarget.FACE, str(args["emo"]), 0, int(duration * 1000))
-        start = self._start_due(show)
-        await self.link.send_peripheral(dataclasses.replace(show, start_at_us=start))
-        await self.streamer.wait_board_time(start)
-        self._mark(start=start * 1e-6)
-        if persistent:
-            await anyio.sleep_forever()
-        end = start + int(duration * 1e6)
-        async with self._stop_on_cancel(ScreenCommand(ScreenTarget.FACE, "neutral", 0, 0)):
-            await self.streamer.wait_board_time(end)
-        self._mark(end=end * 1e-6)
-        return f"face {args['emo']} shown for {duration:g} s"
-
-    async def _bgm(self, args: dict[str, Any]) -> str:
-        ctx = current_call()
-        persistent = bool(ctx and ctx.persistent)
-        duration = 0.0 if persistent else float(args.get("duration") or 5.0)
-        name = str(args.get("name", "happy"))  # UTF-8 byte bound checked by the mapper
-        note = ""
-        if self.clips is not None and name not in self.clips:
-            note = f"; note: this robot has no clip {name!r}, played 'happy' instead (clips: {', '.join(self.clips)})"
-            name = "happy"
-        play = SpeakerCommand(SpeakerAction.PLAY, SoundKind.CLIP, 0, int(duration * 1000), int(args.get("volume", 60)),
-                              name=name)
-        start = self._start_due(play)
-        await self.link.send_peripheral(dataclasses.replace(play, start_at_us=start))
-        await self.streamer.wait_board_time(start)
-        self._mark(start=start * 1e-6)
-        if persistent and ctx is not None:
-            self._playing_bgm[ctx.element_id] = name
-            await anyio.sleep_forever()
-        end = start + int(duration * 1e6)
-        async with self._stop_on_cancel(SpeakerCommand(SpeakerAction.STOP, SoundKind.CLIP, 0, 0, 0, name=name)):
-            await self.streamer.wait_board_time(end)
-        self._mark(end=end * 1e-6)
-        return f"music {name!r} played for {duration:g} s{note}"
-
-    async def _capture(self) -> str:
-        t0 = self.board_now_s()
-        self._mark(start=t0)
-        png = await self.link.capture(160, 120)
-        path = self.run_dir / f"capture_{len(self.captures) + 1}.png"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_bytes(png)
-        self.captures.append(path)
-        self._mark(end=self.board_now_s())
-        await self._hold_if_persistent()
-        return f"photo saved to {path.name} ({len(png)} bytes)"
-
-    async def _hold_if_persistent(self) -> None:
-        """An instantaneous behaviour used as a parent element stays active until it is reset."""
-        ctx = current_call()
-        if ctx is not None and ctx.persistent:
-            await anyio.sleep_forever()
+    async def reset(self, call: RunningCall, channel: str) -> None:
+        return None

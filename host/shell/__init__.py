@@ -17,7 +17,6 @@ _EXPORTS = {
     "Range": "host.shell.types",
     "shell_function": "host.shell.types",
     "MAIN_CHANNEL": "host.shell.types",
-    "current_call": "host.shell.context",
     "CallContext": "host.shell.context",
     "RunResult": "host.shell.timeline",
     "CallRecord": "host.shell.timeline",

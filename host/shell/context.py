@@ -1,7 +1,8 @@
-"""The call context a running shell function can inspect: ``current_call()``.
+"""The call context the scheduler hands a running shell function: :class:`CallContext`.
 
-Inside a function (or its reset hook) invoked by the scheduler,
-``current_call()`` returns a :class:`CallContext`: whether the element is
+A function (or its reset hook) that declares a parameter annotated :class:`CallContext` (any name,
+e.g. ``call: CallContext``) receives its call's context in it; that parameter is not an attribute
+the LLM sees (:func:`context_param`, :func:`host.shell.types.params_of`). The context says whether the element is
 persistent (a start-tag, running until its children finish and it is reset) or
 finite (self-closing), its element path and id, and whether a descendant on the
 same channel currently overrides it (e.g. ``<stand posture="forward"><stand
@@ -16,9 +17,10 @@ own completion still comes when it really ends.
 
 from __future__ import annotations
 
-from contextvars import ContextVar
+import inspect
+import typing
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import anyio
 
@@ -65,13 +67,31 @@ class CallContext:
             self._resumed.set()
 
 
-_current: ContextVar[CallContext | None] = ContextVar("ghostshell_call", default=None)
+class RunningCall(Protocol):
+    """What an executor (a robot runtime) needs of a call: its element path and id, whether it is
+    persistent, and a way to hand its channel over. :class:`CallContext` is one; tests pass their own."""
+
+    @property
+    def path(self) -> str: ...
+    @property
+    def element_id(self) -> int: ...
+    @property
+    def persistent(self) -> bool: ...
+    def hand_over(self) -> None: ...
 
 
-def current_call() -> CallContext | None:
-    """The context of the shell call running in this task, or None outside the shell."""
-    return _current.get()
-
-
-def _set_current(ctx: CallContext | None) -> None:
-    _current.set(ctx)
+def context_param(fn: Any) -> str | None:
+    """The name of ``fn``'s parameter annotated :class:`CallContext` (the scheduler fills it), or None."""
+    try:
+        params = inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return None
+    try:
+        hints = typing.get_type_hints(fn)
+    except Exception:  # noqa: BLE001 - an unresolvable hint elsewhere: fall back to the written annotation
+        hints = {}
+    for p in params.values():
+        hint = hints.get(p.name, p.annotation)
+        if hint is CallContext or hint == "CallContext":
+            return p.name
+    return None

@@ -19,7 +19,7 @@ from typing import Annotated, Literal
 
 import anyio
 
-from host.shell.context import current_call
+from host.shell.context import CallContext
 from host.shell.types import Module, Range, shell_function
 
 Emotion = Literal[
@@ -149,10 +149,9 @@ class SimulatedQuadruped:
         self.log: list[tuple[float, str, str]] = []  # (time, function, event)
         self.photos = 0
 
-    async def _act(self, name: str, seconds: float, hold: float | None = None) -> None:
-        ctx = current_call()
+    async def _act(self, ctx: CallContext, name: str, seconds: float, hold: float | None = None) -> None:
         self.log.append((anyio.current_time(), name, "start"))
-        if ctx is not None and ctx.persistent:
+        if ctx.persistent:
             if hold is not None:  # reach the posture, then hold it
                 await anyio.sleep(hold)
                 await anyio.sleep_forever()
@@ -176,77 +175,77 @@ class SimulatedQuadruped:
             return reset
         raise AttributeError(attr)
 
-    async def stand(self, posture: str = "normal") -> None:
-        await self._act("stand", DEFAULT_SECONDS["stand"], hold=DEFAULT_SECONDS["stand"])
+    async def stand(self, call: CallContext, posture: str = "normal") -> None:
+        await self._act(call, "stand", DEFAULT_SECONDS["stand"], hold=DEFAULT_SECONDS["stand"])
 
-    async def sit(self, style: str = "normal") -> None:
-        await self._act("sit", DEFAULT_SECONDS["sit"])
+    async def sit(self, call: CallContext, style: str = "normal") -> None:
+        await self._act(call, "sit", DEFAULT_SECONDS["sit"])
 
-    async def push_up(self, times: int = 2, duration: float | None = None) -> None:
-        await self._act("push_up", duration if duration is not None else times * 1.0)
+    async def push_up(self, call: CallContext, times: int = 2, duration: float | None = None) -> None:
+        await self._act(call, "push_up", duration if duration is not None else times * 1.0)
 
-    async def wave(self) -> None:
-        await self._act("wave", DEFAULT_SECONDS["wave"])
+    async def wave(self, call: CallContext) -> None:
+        await self._act(call, "wave", DEFAULT_SECONDS["wave"])
 
-    async def chest_expansion_exercise(self) -> None:
-        await self._act("chest_expansion_exercise", DEFAULT_SECONDS["chest_expansion_exercise"])
+    async def chest_expansion_exercise(self, call: CallContext) -> None:
+        await self._act(call, "chest_expansion_exercise", DEFAULT_SECONDS["chest_expansion_exercise"])
 
-    async def fly_rub_hands(self) -> None:
-        await self._act("fly_rub_hands", DEFAULT_SECONDS["fly_rub_hands"])
+    async def fly_rub_hands(self, call: CallContext) -> None:
+        await self._act(call, "fly_rub_hands", DEFAULT_SECONDS["fly_rub_hands"])
 
-    async def body_lean(self, direction: str) -> None:
-        await self._act("body_lean", DEFAULT_SECONDS["body_lean"])
+    async def body_lean(self, call: CallContext, direction: str) -> None:
+        await self._act(call, "body_lean", DEFAULT_SECONDS["body_lean"])
 
-    async def run_distance(self, distance: float) -> None:
-        await self._act("run_distance", distance / 10.0)
+    async def run_distance(self, call: CallContext, distance: float) -> None:
+        await self._act(call, "run_distance", distance / 10.0)
 
-    async def rotate(self, angle: float = 360) -> None:
-        await self._act("rotate", abs(angle) / 90.0)
+    async def rotate(self, call: CallContext, angle: float = 360) -> None:
+        await self._act(call, "rotate", abs(angle) / 90.0)
 
-    async def wriggle(self, duration: float = 2) -> None:
-        await self._act("wriggle", duration)
+    async def wriggle(self, call: CallContext, duration: float = 2) -> None:
+        await self._act(call, "wriggle", duration)
 
-    async def single_leg_knock(self, leg: int, times: int = 1) -> None:
-        await self._act("single_leg_knock", times * DEFAULT_SECONDS["single_leg_knock"])
+    async def single_leg_knock(self, call: CallContext, leg: int, times: int = 1) -> None:
+        await self._act(call, "single_leg_knock", times * DEFAULT_SECONDS["single_leg_knock"])
 
-    async def shake_ass(self, speed: int = 50, times: int = 1) -> None:
-        await self._act("shake_ass", times * 50.0 / speed)
+    async def shake_ass(self, call: CallContext, speed: int = 50, times: int = 1) -> None:
+        await self._act(call, "shake_ass", times * 50.0 / speed)
 
-    async def creep(self, direction: str = "forward", speed: int = 50) -> None:
-        await self._act("creep", DEFAULT_SECONDS["creep"])
+    async def creep(self, call: CallContext, direction: str = "forward", speed: int = 50) -> None:
+        await self._act(call, "creep", DEFAULT_SECONDS["creep"])
 
-    async def move_forward(self) -> None:
-        await self._act("move_forward", DEFAULT_SECONDS["move_forward"])
+    async def move_forward(self, call: CallContext) -> None:
+        await self._act(call, "move_forward", DEFAULT_SECONDS["move_forward"])
 
-    async def move_strides(self, direction: str = "forward", times: int = 1) -> None:
-        await self._act("move_strides", times * DEFAULT_SECONDS["move_strides"])
+    async def move_strides(self, call: CallContext, direction: str = "forward", times: int = 1) -> None:
+        await self._act(call, "move_strides", times * DEFAULT_SECONDS["move_strides"])
 
-    async def shake_like_dog(self) -> None:
-        await self._act("shake_like_dog", DEFAULT_SECONDS["shake_like_dog"])
+    async def shake_like_dog(self, call: CallContext) -> None:
+        await self._act(call, "shake_like_dog", DEFAULT_SECONDS["shake_like_dog"])
 
-    async def head_act(self, action: str = "nod", duration: float | None = None) -> None:
-        await self._act("head_act", duration if duration is not None else DEFAULT_SECONDS["head_act"])
+    async def head_act(self, call: CallContext, action: str = "nod", duration: float | None = None) -> None:
+        await self._act(call, "head_act", duration if duration is not None else DEFAULT_SECONDS["head_act"])
 
-    async def head_pose(self, yaw: float = 0, pitch: float = 0) -> None:
-        await self._act("head_pose", DEFAULT_SECONDS["head_pose"])
+    async def head_pose(self, call: CallContext, yaw: float = 0, pitch: float = 0) -> None:
+        await self._act(call, "head_pose", DEFAULT_SECONDS["head_pose"])
 
-    async def shake_ear(self, duration: float = 1) -> None:
-        await self._act("shake_ear", duration)
+    async def shake_ear(self, call: CallContext, duration: float = 1) -> None:
+        await self._act(call, "shake_ear", duration)
 
-    async def ear_state(self, state: str) -> None:
-        await self._act("ear_state", DEFAULT_SECONDS["ear_state"], hold=DEFAULT_SECONDS["ear_state"])
+    async def ear_state(self, call: CallContext, state: str) -> None:
+        await self._act(call, "ear_state", DEFAULT_SECONDS["ear_state"], hold=DEFAULT_SECONDS["ear_state"])
 
-    async def face_emo(self, emo: str, duration: float = 1) -> None:
-        await self._act("face_emo", duration)
+    async def face_emo(self, call: CallContext, emo: str, duration: float = 1) -> None:
+        await self._act(call, "face_emo", duration)
 
-    async def speak(self, text: str) -> None:
-        await self._act("speak", 0.1 * len(text))
+    async def speak(self, call: CallContext, text: str) -> None:
+        await self._act(call, "speak", 0.1 * len(text))
 
-    async def play_bgm(self, name: str = "default", duration: float | None = None) -> None:
-        await self._act("play_bgm", duration if duration is not None else DEFAULT_SECONDS["play_bgm"])
+    async def play_bgm(self, call: CallContext, name: str = "default", duration: float | None = None) -> None:
+        await self._act(call, "play_bgm", duration if duration is not None else DEFAULT_SECONDS["play_bgm"])
 
-    async def capture(self) -> str:
-        await self._act("capture", DEFAULT_SECONDS["capture"])
+    async def capture(self, call: CallContext) -> str:
+        await self._act(call, "capture", DEFAULT_SECONDS["capture"])
         self.photos += 1
         return f"photo{self.photos}.jpg"
 

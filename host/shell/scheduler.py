@@ -68,7 +68,7 @@ from typing import Any, Protocol
 import anyio
 
 from host.shell.cleanups import Cleanups
-from host.shell.context import CallContext, _current
+from host.shell.context import CallContext
 from host.shell.mapper import MappingError, map_element, map_scope, split_sync
 from host.shell.limits import Limits
 from host.shell.parser import (
@@ -715,9 +715,9 @@ class ProgramRun:
         overridden = [a for a in c.ancestors() if a.ctx is not None and a.home is not None and a.home == c.home and not a.completed.is_set()]
         for a in overridden:
             a.ctx._enter_override()  # type: ignore[union-attr]
-        token = _current.set(ctx)
+        handed = {c.spec.call_param: ctx} if c.spec.call_param else {}
         try:
-            result = await c.spec.impl(**c.args)
+            result = await c.spec.impl(**c.args, **handed)
         except Exception as exc:  # a failing function fails its call only
             # a ValueError is the function refusing its arguments: its message is the one line; any other
             # exception is a bug in the function, and its class name helps whoever reads the line
@@ -727,7 +727,6 @@ class ProgramRun:
             if result is not None:
                 self._observe("result", f"{c.spec.name} returned {result!r}", c.record.path)
         finally:
-            _current.reset(token)
             for a in overridden:
                 a.ctx._exit_override()  # type: ignore[union-attr]
 
@@ -808,17 +807,14 @@ class ProgramRun:
         ctx.phase = "reset"
         if self._cleanups.aborted:  # stopped at once: the call keeps its interruption as its outcome
             return
-        token = _current.set(ctx)
-        try:
-            with self._cleanups.shielded(RESET_TIMEOUT) as (shield, timeout):
-                try:
-                    await c.spec.reset()
-                except Exception as exc:
-                    c.error = c.error or f"reset failed: {type(exc).__name__}: {exc}"
-            if timeout.cancelled_caught and not shield.cancel_called:
-                c.error = c.error or f"reset timed out after {RESET_TIMEOUT:g}s"
-        finally:
-            _current.reset(token)
+        handed = {c.spec.reset_call_param: ctx} if c.spec.reset_call_param else {}
+        with self._cleanups.shielded(RESET_TIMEOUT) as (shield, timeout):
+            try:
+                await c.spec.reset(**handed)
+            except Exception as exc:
+                c.error = c.error or f"reset failed: {type(exc).__name__}: {exc}"
+        if timeout.cancelled_caught and not shield.cancel_called:
+            c.error = c.error or f"reset timed out after {RESET_TIMEOUT:g}s"
 
     def abort_cleanups(self) -> None:
         """Stop at once (a second Ctrl-C): the resets running now are cut short and later ones skipped,

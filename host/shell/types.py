@@ -16,6 +16,8 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from host.shell.context import CallContext, context_param
+
 #: Name of the main channel C0.
 MAIN_CHANNEL = "main"
 
@@ -129,6 +131,9 @@ class FunctionSpec:
     speech: bool = False
     aliases: tuple[str, ...] = ()
     interface: Any = None
+    #: the parameter of ``impl`` / ``reset`` that receives the call's :class:`CallContext` (None: it takes none)
+    call_param: str | None = None
+    reset_call_param: str | None = None
 
     def param(self, name: str) -> Param | None:
         """The parameter called ``name``, or None."""
@@ -139,7 +144,8 @@ class FunctionSpec:
 
 
 def params_of(stub: Any) -> tuple[Param, ...]:
-    """Read the declared parameters of ``stub`` (``self`` dropped, hints resolved with extras)."""
+    """Read the declared parameters of ``stub`` (``self`` and a :class:`CallContext` parameter dropped,
+    hints resolved with extras)."""
     sig = inspect.signature(stub)
     try:
         hints = typing.get_type_hints(stub, include_extras=True)
@@ -147,7 +153,7 @@ def params_of(stub: Any) -> tuple[Param, ...]:
         raise TypeError(f"cannot resolve type hints of {getattr(stub, '__qualname__', stub)!r}: {exc}") from exc
     out: list[Param] = []
     for p in sig.parameters.values():
-        if p.name == "self" or p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD):
+        if p.name == "self" or p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD) or hints.get(p.name) is CallContext:
             continue
         if p.kind is p.POSITIONAL_ONLY:
             raise TypeError(f"{stub.__qualname__}: positional-only parameter {p.name!r} cannot be an attribute")
@@ -255,4 +261,6 @@ def _spec(stub: Any, impl: AsyncFn, owner: Any, module: str, channel: str) -> Fu
         speech=opts.speech,
         aliases=opts.aliases,
         interface=stub,
+        call_param=context_param(impl),
+        reset_call_param=context_param(reset) if reset is not None else None,
     )

@@ -27,13 +27,13 @@ class Recorder:
     def __init__(self) -> None:
         self.calls: list[tuple[str, str, dict[str, Any]]] = []
 
-    async def perform(self, behaviour: str, channel: str, args: dict[str, Any]) -> Any:
+    async def perform(self, behaviour: str, channel: str, args: dict[str, Any], call: Any) -> Any:
         self.calls.append((behaviour, channel, args))
 
-    async def reset(self, behaviour: str, channel: str) -> None:
+    async def reset(self, behaviour: str, channel: str, call: Any) -> None:
         self.calls.append((f"reset:{behaviour}", channel, {}))
 
-    async def speak(self, text: str) -> Any:
+    async def speak(self, text: str, call: Any) -> Any:
         self.calls.append(("speak", "speech", {"text": text}))
 
 

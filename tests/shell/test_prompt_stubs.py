@@ -17,10 +17,10 @@ from host.shell.types import Module, Range, params_of
 
 
 class _Recorder:
-    async def perform(self, behaviour, channel, args):  # pragma: no cover - never called here
+    async def perform(self, behaviour, channel, args, call):  # pragma: no cover - never called here
         return None
 
-    async def reset(self, behaviour, channel):  # pragma: no cover
+    async def reset(self, behaviour, channel, call):  # pragma: no cover
         return None
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import anyio
 import pytest
 
-from host.shell.context import current_call
+from host.shell.context import CallContext
 from host.shell.registry import Registry
 from host.shell.shell import Shell
 from host.shell.types import Module, shell_function
@@ -123,8 +123,7 @@ async def test_same_channel_descendant_runs_at_once_and_overrides():
     seen = []
 
     @shell_function
-    async def hold() -> None:
-        ctx = current_call()
+    async def hold(ctx: CallContext) -> None:
         while True:
             seen.append((anyio.current_time(), ctx.overridden))
             await anyio.sleep(1)
@@ -283,11 +282,9 @@ def handing_over(name: str, seconds: float, lead: float):
     """A call that hands its channel over ``lead`` s before it ends (as the motion runtime does)."""
 
     @shell_function(name=name)
-    async def fn() -> None:
+    async def fn(ctx: CallContext) -> None:
         LOG.append((anyio.current_time(), f"{name}:start"))
         await anyio.sleep(seconds - lead)
-        ctx = current_call()
-        assert ctx is not None
         ctx.hand_over()
         await anyio.sleep(lead)
 

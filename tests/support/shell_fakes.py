@@ -13,7 +13,7 @@ from typing import Any
 
 import anyio
 
-from host.shell.context import current_call
+from host.shell.context import CallContext
 from host.shell.registry import Registry
 from host.shell.shell import Shell
 from host.shell.types import Module, shell_function
@@ -30,10 +30,9 @@ def fake(name: str, seconds: float, *, reset_seconds: float | None = None) -> Ca
         LOG.append((anyio.current_time(), f"{name}:reset"))
 
     @shell_function(name=name, reset=reset if reset_seconds is not None else None)
-    async def fn(d: float = seconds) -> None:
-        ctx = current_call()
+    async def fn(ctx: CallContext, d: float = seconds) -> None:
         LOG.append((anyio.current_time(), f"{name}:start"))
-        if ctx is not None and ctx.persistent:
+        if ctx.persistent:
             await anyio.sleep_forever()
         await anyio.sleep(d)
 
