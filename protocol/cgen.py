@@ -1,7 +1,7 @@
 """Generate the C payload codec (``gs_proto.h`` + ``gs_proto.c``) of each wire schema from :mod:`protocol.codec`.
 
-The message set is declared once, as the field objects of :mod:`protocol.codec`; this module
-turns that declaration into C99 text (pure: it returns strings, the ``__main__`` writes files):
+The message set is declared once, as the classes of :mod:`protocol.messages` (the layouts
+:mod:`protocol.codec` derives from them per wire schema); this module turns that declaration into C99 text (pure: it returns strings, the ``__main__`` writes files):
 
 * one struct per message type holding **wire-level values** (q16 codes as ``int16_t``, float32 as
   their IEEE bits in ``uint32_t``, strings and byte runs as length + bytes), a tagged union

@@ -15,16 +15,46 @@ travels as a u16 for robots of up to :data:`MAX_SERVOS` servos and as a u32 abov
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import typing
 from enum import IntEnum, IntFlag
 
+from protocol.wiretypes import (
+    APPLY_AT,
+    CAN_COUNTER,
+    CAN_TIME,
+    DECLARED,
+    MASK,
+    MAX_CHUNK_DATA,
+    MAX_NACK_DETAIL_BYTES,
+    MAX_NAME_BYTES,
+    MAX_RESEND_BITMAP,
+    MAX_SERVOS,
+    MAX_SPEECH_TEXT_BYTES,
+    MAX_WIRE_SERVOS,
+    SEQ16,
+    U8,
+    U16,
+    U32,
+    U64,
+    Bool,
+    CanField,
+    EnumU8,
+    F32Array,
+    Flags16,
+    Q16Array,
+    RestBytes,
+    Sender,
+    SInt,
+    Str8,
+    UInt,
+    message,
+    per_servo,
+    wire,
+)
+
+__all__ = ["MAX_SERVOS", "MAX_WIRE_SERVOS"]  # re-exported: many modules import them from here
+
 PROTOCOL_VERSION = 1
-#: Servos the default wire schema carries (its servo mask is a u16): every robot with up to 16 servos.
-MAX_SERVOS = 16
-#: The most servos the wire carries (robots with 17..32 servos use the u32-mask schema,
-#: :func:`protocol.codec.schema_for`). Why 32: the servo mask is at most one u32, one register on an MCU,
-#: and a 32-servo TELEMETRY (227 payload bytes) still fits a serial frame's 255-byte payload.
-MAX_WIRE_SERVOS = 32
 
 
 class MsgType(IntEnum):
@@ -51,19 +81,6 @@ class MsgType(IntEnum):
     CAMERA_CHUNK = 0x33
     CAMERA_RESEND = 0x34
 
-
-#: the message types a host sends and a board receives; the others (:data:`BOARD_TO_HOST`) only a board
-#: sends. Each message's sender is declared here once, as a DBC names a message's transmitter: the
-#: board refuses a board-sent type it receives (``firmware_sim.board.HOST_BOUND``) and a replay tells
-#: which end wrote a serial frame log by it (``host.run.replay.host_to_board_dir``).
-HOST_TO_BOARD: frozenset[MsgType] = frozenset({
-    MsgType.HELLO, MsgType.TIME_SYNC_REQUEST, MsgType.CONFIG, MsgType.HEARTBEAT, MsgType.ADVANCE,
-    MsgType.SERVO_FRAME, MsgType.FLUSH, MsgType.ESTOP, MsgType.ESTOP_CLEAR, MsgType.SCREEN, MsgType.SPEAKER,
-    MsgType.CAMERA_CAPTURE, MsgType.CAMERA_RESEND,
-})
-
-#: the message types only a board sends (every type not in :data:`HOST_TO_BOARD`)
-BOARD_TO_HOST: frozenset[MsgType] = frozenset(MsgType) - HOST_TO_BOARD
 
 
 class NackReason(IntEnum):
@@ -146,142 +163,89 @@ class ScreenTarget(IntEnum):
     EARS = 2  # ear light animation
 
 
-# --- handshake and clock -------------------------------------------------------------------
+# --- the messages -------------------------------------------------------------------------------
+#
+# One class per message, the only place it is declared: its type (MsgType above), its sender, its CAN form
+# (``can_fixed``: a fixed CAN layout; else ISO-TP bulk), and per field its wire type with its unit and, on
+# CAN, its form where it differs from serial (protocol.wiretypes.wire). The serial layouts and schema hash
+# (protocol.codec), the CAN layouts (protocol.can.layouts), the C codec (protocol.cgen), the DBCs
+# (protocol.can.make_dbc) and the wire reference (protocol.refdoc) all derive from these classes.
+
+# --- the real-time path: messages with a fixed CAN layout (this order is the CAN layout table's rows) ---
 
 
-@dataclass(frozen=True)
-class Hello:
-    """Host -> board: first message of a session."""
-
-    protocol_version: int
-    schema_hash: int  # u32, see protocol.codec.SCHEMA_HASH
-    host_time_us: int
-
-
-@dataclass(frozen=True)
-class Caps:
-    """Board -> host: answer to HELLO; the host refuses a board whose robot, servo count or servo
-    table hash differs from the robot it was started for."""
-
-    protocol_version: int
-    schema_hash: int
-    servo_count: int
-    control_rate_hz: int
-    buffer_depth: int  # servo frames the jitter buffer holds
-    telemetry_rate_hz: int
-    board_time_us: int
-    lockstep: bool
-    robot: str = ""  # the robot the board drives (its robot.toml name), UTF-8, at most 32 bytes
-    servo_table_hash: int = 0  # u32 over its servo table (robots.description.ServoTable.hash)
-
-
-@dataclass(frozen=True)
-class TimeSyncRequest:
-    """Host -> board: NTP-style probe; t1 is the host clock at send."""
-
-    t1_host_us: int
-
-
-@dataclass(frozen=True)
-class TimeSyncReply:
-    """Board -> host: t2 board clock at receive, t3 board clock at send."""
-
-    t1_host_us: int
-    t2_board_us: int
-    t3_board_us: int
-
-
-@dataclass(frozen=True)
-class Config:
-    key: ConfigKey
-    value: int
-
-
-@dataclass(frozen=True)
-class Heartbeat:
-    """Either direction; keeps the watchdog fed when nothing else is sent."""
-
-    sender_time_us: int
-
-
-@dataclass(frozen=True)
-class Advance:
-    """Host -> board, lockstep only: let the board clock run up to ``until_us``."""
-
-    until_us: int
-
-
-# --- motion --------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class ServoFrame:
-    """Targets to reach at ``apply_at_us`` on the board clock (board interpolates between frames)."""
-
-    apply_at_us: int
-    mask: int
-    targets: tuple[float, ...]
-
-
-@dataclass(frozen=True)
-class Flush:
-    """Drop buffered frames due at or after ``from_us`` for the masked servos."""
-
-    from_us: int
-    mask: int
-
-
-@dataclass(frozen=True)
+@message(MsgType.ESTOP, Sender.HOST, can_fixed=True)
 class Estop:
     pass
 
 
-@dataclass(frozen=True)
+@message(MsgType.ESTOP_CLEAR, Sender.HOST, can_fixed=True)
 class EstopClear:
     pass
 
 
-# --- board -> host -------------------------------------------------------------------------
+@message(MsgType.SERVO_FRAME, Sender.HOST, can_fixed=True)
+class ServoFrame:
+    """Targets to reach at ``apply_at_us`` on the board clock (board interpolates between frames)."""
+
+    apply_at_us: int = wire(APPLY_AT, can=CanField(comment="board clock modulo 2**32"))
+    mask: int = wire(MASK, can=CanField(comment="bit i = servo i+1 present"))
+    targets: tuple[float, ...] = wire(per_servo(10_000, "rad", mask_field="mask", allow_nan=False),
+                                      can=CanField(signals="target"))
 
 
-@dataclass(frozen=True)
-class Telemetry:
-    board_time_us: int
-    positions: tuple[float, ...]  # all servos, index order
-    velocities: tuple[float, ...]
-    efforts: tuple[float, ...]
-    imu_rpy: tuple[float, float, float]  # body roll, pitch, yaw in radians
-    faults: FaultFlags
-    buffer_fill: int
-    last_applied_seq: int  # host sequence number of the last servo frame applied
-    late_count: int  # frames rejected as late, since boot
-    dropped_count: int  # frames rejected otherwise (future, full, estop), since boot
-    link_errors: int  # undecodable frames received, since boot
+@message(MsgType.TIME_SYNC_REQUEST, Sender.HOST, can_fixed=True)
+class TimeSyncRequest:
+    """Host -> board: NTP-style probe; t1 is the host clock at send."""
+
+    t1_host_us: int = wire(U64, can=CAN_TIME)
 
 
-@dataclass(frozen=True)
-class SimState:
-    """Emulator only: ground truth of the floating base (no real board can send this)."""
+@message(MsgType.TIME_SYNC_REPLY, Sender.BOARD, can_fixed=True)
+class TimeSyncReply:
+    """Board -> host: t2 board clock at receive, t3 board clock at send."""
 
-    board_time_us: int
-    base_pos: tuple[float, float, float]  # metres, world frame
-    base_quat: tuple[float, float, float, float]  # w, x, y, z
-    objects: int = 0  # movable scene objects (e.g. --scene bottles: 3)
-    toppled: int = 0  # how many of them lean more than 45 deg from vertical
+    t1_host_us: int = wire(U64, can=CAN_TIME)
+    t2_board_us: int = wire(U64, can=CAN_TIME)
+    t3_board_us: int = wire(U64, can=CAN_TIME)
 
 
-@dataclass(frozen=True)
+@message(MsgType.FLUSH, Sender.HOST, can_fixed=True)
+class Flush:
+    """Drop buffered frames due at or after ``from_us`` for the masked servos."""
+
+    from_us: int = wire(U64, can=CAN_TIME)
+    mask: int = wire(MASK, can=CanField(comment="bit i = servo i+1"))
+
+
+@message(MsgType.ADVANCE, Sender.HOST, can_fixed=True)
+class Advance:
+    """Host -> board, lockstep only: let the board clock run up to ``until_us``."""
+
+    until_us: int = wire(U64, can=CAN_TIME)
+
+
+@message(MsgType.HEARTBEAT, Sender.EITHER, can_fixed=True)
+class Heartbeat:
+    """Either direction; keeps the watchdog fed when nothing else is sent."""
+
+    sender_time_us: int = wire(U64, can=CAN_TIME)
+
+
+@message(MsgType.ACK, Sender.BOARD, can_fixed=True)
 class Ack:
-    ack_seq: int  # sequence number of the acknowledged host message
-    msg_type: MsgType
+    ack_seq: int = wire(SEQ16)  # sequence number of the acknowledged host message
+    msg_type: MsgType = wire(EnumU8(MsgType))
 
 
-@dataclass(frozen=True)
+@message(MsgType.NACK, Sender.BOARD, can_fixed=True)
 class Nack:
-    ack_seq: int
-    msg_type: MsgType
-    reason: NackReason
-    detail: str = ""  # short ASCII explanation, at most 64 bytes on the wire
+    ack_seq: int = wire(SEQ16)
+    msg_type: MsgType = wire(EnumU8(MsgType))
+    reason: NackReason = wire(EnumU8(NackReason))
+    # short explanation, at most 64 bytes on the wire; not carried by the fixed CAN layout (a NACK with a
+    # detail goes as ISO-TP bulk)
+    detail: str = wire(Str8(MAX_NACK_DETAIL_BYTES), can=CanField(omitted=True), default="")
 
 
 def nack_detail(nack: Nack) -> str:
@@ -295,52 +259,111 @@ def nack_detail(nack: Nack) -> str:
         return f"reason {int(nack.reason)}"
 
 
-# --- peripherals ---------------------------------------------------------------------------
+@message(MsgType.TELEMETRY, Sender.BOARD, can_fixed=True)
+class Telemetry:
+    board_time_us: int = wire(U64, can=CAN_TIME)
+    positions: tuple[float, ...] = wire(per_servo(10_000, "rad"), can=CanField(signals="position"))  # all servos, index order
+    velocities: tuple[float, ...] = wire(per_servo(1_000, "rad/s"), can=CanField(signals="velocity"))
+    efforts: tuple[float, ...] = wire(per_servo(1_000, "N*m"), can=CanField(signals="effort"))
+    imu_rpy: tuple[float, float, float] = wire(  # body roll, pitch, yaw in radians
+        Q16Array(10_000, fixed=3, unit="rad"), can=CanField(signals=("imu_roll", "imu_pitch", "imu_yaw")))
+    faults: FaultFlags = wire(Flags16(FaultFlags))
+    buffer_fill: int = wire(U16)
+    last_applied_seq: int = wire(SEQ16)  # host sequence number of the last servo frame applied
+    late_count: int = wire(U32, can=CAN_COUNTER)  # frames rejected as late, since boot
+    dropped_count: int = wire(U32, can=CAN_COUNTER)  # frames rejected otherwise (future, full, estop), since boot
+    link_errors: int = wire(U32, can=CAN_COUNTER)  # undecodable frames received, since boot
 
 
-@dataclass(frozen=True)
+# --- messages that travel on CAN as ISO-TP bulk (their serial payload) ---------------------------
+
+
+@message(MsgType.HELLO, Sender.HOST)
+class Hello:
+    """Host -> board: first message of a session."""
+
+    protocol_version: int = wire(U8)
+    schema_hash: int = wire(U32)  # u32, see protocol.codec.SCHEMA_HASH
+    host_time_us: int = wire(U64)
+
+
+@message(MsgType.CAPS, Sender.BOARD)
+class Caps:
+    """Board -> host: answer to HELLO; the host refuses a board whose robot, servo count or servo
+    table hash differs from the robot it was started for."""
+
+    protocol_version: int = wire(U8)
+    schema_hash: int = wire(U32)
+    servo_count: int = wire(U8)
+    control_rate_hz: int = wire(U16)
+    buffer_depth: int = wire(U16)  # servo frames the jitter buffer holds
+    telemetry_rate_hz: int = wire(U16)
+    board_time_us: int = wire(U64)
+    lockstep: bool = wire(Bool())
+    robot: str = wire(Str8(MAX_NAME_BYTES), default="")  # the robot the board drives (its robot.toml name)
+    servo_table_hash: int = wire(U32, default=0)  # u32 over its servo table (robots.description.ServoTable.hash)
+
+
+@message(MsgType.CONFIG, Sender.HOST)
+class Config:
+    key: ConfigKey = wire(EnumU8(ConfigKey))
+    value: int = wire(SInt(4))
+
+
+@message(MsgType.SIM_STATE, Sender.BOARD)
+class SimState:
+    """Emulator only: ground truth of the floating base (no real board can send this)."""
+
+    board_time_us: int = wire(U64)
+    base_pos: tuple[float, float, float] = wire(F32Array(3, "m"))  # metres, world frame
+    base_quat: tuple[float, float, float, float] = wire(F32Array(4, "1"))  # w, x, y, z
+    objects: int = wire(U8, default=0)  # movable scene objects (e.g. --scene bottles: 3)
+    toppled: int = wire(U8, default=0)  # how many of them lean more than 45 deg from vertical
+
+
+@message(MsgType.SCREEN, Sender.HOST)
 class ScreenCommand:
     """Show an expression or animation from ``start_at_us`` for ``duration_ms`` (0 = until replaced)."""
 
-    target: ScreenTarget
-    name: str  # UTF-8, at most 32 bytes (codec.MAX_NAME_BYTES)
-    start_at_us: int
-    duration_ms: int
+    target: ScreenTarget = wire(EnumU8(ScreenTarget))
+    name: str = wire(Str8(MAX_NAME_BYTES))  # UTF-8, at most 32 bytes
+    start_at_us: int = wire(U64)
+    duration_ms: int = wire(U32)
 
 
-@dataclass(frozen=True)
+@message(MsgType.SPEAKER, Sender.HOST)
 class SpeakerCommand:
     """Play or stop speech or a clip on the board clock."""
 
-    action: SpeakerAction
-    kind: SoundKind
-    start_at_us: int
-    duration_ms: int
-    volume: int  # 0..100
-    name: str = ""  # clip name, UTF-8, at most 32 bytes (codec.MAX_NAME_BYTES)
-    text: str = ""  # speech text, UTF-8, at most 200 bytes
+    action: SpeakerAction = wire(EnumU8(SpeakerAction))
+    kind: SoundKind = wire(EnumU8(SoundKind))
+    start_at_us: int = wire(U64)
+    duration_ms: int = wire(U32)
+    volume: int = wire(UInt(1))  # 0..100: the wire clamps to a byte, the board to 0..100
+    name: str = wire(Str8(MAX_NAME_BYTES), default="")  # clip name, UTF-8, at most 32 bytes
+    text: str = wire(Str8(MAX_SPEECH_TEXT_BYTES, "utf-8"), default="")  # speech text, UTF-8, at most 200 bytes
 
 
-@dataclass(frozen=True)
+@message(MsgType.CAMERA_CAPTURE, Sender.HOST)
 class CameraCapture:
     """Ask the head camera for one image."""
 
-    request_id: int
-    width: int
-    height: int
+    request_id: int = wire(U32)
+    width: int = wire(U16)
+    height: int = wire(U16)
 
 
-@dataclass(frozen=True)
+@message(MsgType.CAMERA_CHUNK, Sender.BOARD)
 class CameraChunk:
     """One piece of an encoded image (PNG); ``index`` counts from 0 to ``total - 1``."""
 
-    request_id: int
-    index: int
-    total: int
-    data: bytes = field(repr=False)
+    request_id: int = wire(U32)
+    index: int = wire(U16)
+    total: int = wire(U16)
+    data: bytes = wire(RestBytes(MAX_CHUNK_DATA), repr=False)
 
 
-@dataclass(frozen=True)
+@message(MsgType.CAMERA_RESEND, Sender.HOST)
 class CameraResend:
     """Host -> board: send chunks of a kept image again (selective repeat over a lossy link).
 
@@ -349,9 +372,9 @@ class CameraResend:
     with the CAMERA_CHUNKs (no ACK), or NACK BAD_VALUE when it no longer has ``request_id``.
     """
 
-    request_id: int
-    first: int
-    wanted: bytes = field(default=b"", repr=False)
+    request_id: int = wire(U32)
+    first: int = wire(U16)
+    wanted: bytes = wire(RestBytes(MAX_RESEND_BITMAP), default=b"", repr=False)
 
 
 Message = (
@@ -376,3 +399,19 @@ Message = (
     | CameraChunk
     | CameraResend
 )
+
+
+# --- derived from the declarations above ----------------------------------------------------------
+
+if set(DECLARED) != set(MsgType) or set(typing.get_args(Message)) != {d.cls for d in DECLARED.values()}:
+    raise ImportError("protocol.messages: every MsgType needs exactly one @message class, listed in Message")
+
+#: the message types a host sends and a board receives (sender HOST or EITHER); the others
+#: (:data:`BOARD_TO_HOST`) only a board sends. The board refuses a board-sent type it receives
+#: (``firmware_sim.board.HOST_BOUND``) and a replay tells which end wrote a serial frame log by it
+#: (``host.run.replay.host_to_board_dir``).
+HOST_TO_BOARD: frozenset[MsgType] = frozenset(
+    MsgType(t) for t, d in DECLARED.items() if d.sender is not Sender.BOARD)
+
+#: the message types only a board sends (every type not in :data:`HOST_TO_BOARD`)
+BOARD_TO_HOST: frozenset[MsgType] = frozenset(MsgType) - HOST_TO_BOARD

@@ -28,14 +28,12 @@ from protocol.can import ids as can_ids
 from protocol.can.layouts import DEFAULT_SERVO_COUNT as CAN_SERVOS
 from protocol.can.layouts import FIXED_LAYOUTS, HEADER_BITS, PART_BITS, SEQ_BITS, can_layouts
 from protocol.messages import MsgType
+from protocol.wiretypes import DECLARED
 
 __all__ = ["BoardFacts", "DIRECTION", "field_type", "render"]
 
-BOARD_TO_HOST = {MsgType.CAPS, MsgType.TIME_SYNC_REPLY, MsgType.TELEMETRY, MsgType.SIM_STATE, MsgType.ACK,
-                 MsgType.NACK, MsgType.CAMERA_CHUNK}
-#: who sends each message type
-DIRECTION = {t: ("both" if t is MsgType.HEARTBEAT else "board → host" if t in BOARD_TO_HOST else "host → board")
-             for t in MsgType}
+#: who sends each message type, as declared (:class:`protocol.wiretypes.Sender`)
+DIRECTION = {t: DECLARED[int(t)].sender.value for t in MsgType}
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 Pure code (no I/O, no python-can): :mod:`protocol.can.ids` (11-bit COB-IDs), :mod:`.frame`
 (:class:`CanFrame`), :mod:`.layouts` (signals and parts, one table per robot servo count:
-:func:`can_layouts`, derived from the message declaration :data:`protocol.codec.CAN_FIXED`),
+:func:`can_layouts`, derived from the message declarations of :mod:`protocol.messages`),
 :mod:`.codec` (encode), :mod:`.decoder` (reassemble, never raises). :mod:`protocol.can.make_dbc`
 builds a robot's DBC from its layouts with cantools (``ghostshell dbc --robot NAME [--fd]
 [--check | --write]``; ``python -m protocol.can.make_dbc --servos N`` without a robot).

@@ -2,7 +2,7 @@
 
 The C CAN engine (``firmware_sim/c/core/gs_can.c``) packs and unpacks fixed-layout frames by a table,
 never by hand-written layouts: this module turns :func:`protocol.can.layouts.can_layouts` (the layouts
-derived from the one message declaration, :data:`protocol.codec.LAYOUTS` + :data:`protocol.codec.CAN_FIXED`)
+derived from the one message declaration, the classes of :mod:`protocol.messages`)
 into C99 text (pure: it returns a string; the firmware build, :mod:`firmware_sim.cfirmware.build`,
 writes it into the build folder next to the servo table, as ``gs_servo_table.h``).
 

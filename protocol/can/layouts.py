@@ -30,8 +30,9 @@ seconds off; the header (part index, 11-bit sequence) alone cannot catch either.
 CAN: one more part where the last one is full (SERVO_FRAME 6 parts, TIME_SYNC_REPLY 4, ADVANCE,
 TIME_SYNC_REQUEST and HEARTBEAT 2); on CAN FD a few bytes (SERVO_FRAME 48 bytes).
 
-The signals come from the one message declaration (:mod:`protocol.codec`), never from a list of
-their own: :data:`protocol.codec.CAN_FIXED` names the messages that have a fixed layout and the CAN
+The signals come from the one message declaration (the classes of :mod:`protocol.messages`), never from
+a list of their own: :data:`protocol.codec.CAN_FIXED`, derived from the classes declared ``can_fixed``
+with the ``can=`` forms of their fields, names the messages that have a fixed layout and the CAN
 form of each field that differs from its serial form; :func:`message_fields` derives every signal
 from the serial layout of the robot's schema and that form, in the layout's field order (integers
 keep their serial width unless narrowed, a servo mask is the schema's, a per-servo array becomes one
