@@ -84,46 +84,16 @@ from typing import Any
 
 from protocol import messages as m
 from protocol.messages import MAX_SERVOS, MAX_WIRE_SERVOS, Message, MsgType
-from protocol.wiretypes import (
-    _F32_MAX,
-    _Q16_MAX,
-    _Q16_NAN,
-    DECLARED,
-    EFFORT_SCALE,
-    MAX_CHUNK_DATA,
-    MAX_NACK_DETAIL_BYTES,
-    MAX_NAME_BYTES,
-    MAX_PAYLOAD,
-    MAX_RESEND_BITMAP,
-    MAX_SPEECH_TEXT_BYTES,
-    POSITION_SCALE,
-    VELOCITY_SCALE,
-    Bool,
-    CanField,
-    EnumU8,
-    F32Array,
-    Field,
-    Flags16,
-    Mask,
-    PayloadError,
-    Q16Array,
-    RestBytes,
-    SInt,
-    Str8,
-    UInt,
-    _as_int,
-    _q16_decode,
-    _q16_encode,
-    _Reader,
-    _seq_of_floats,
-    field_unit,
-    quantize_angle,
-    quantize_apply_at,
-    quantize_effort,
-    quantize_f32,
-    quantize_position,
-    quantize_velocity,
-    unwrap_time_us,
+from protocol.wiretypes import DECLARED, Field, _as_int, _Reader
+
+# Re-exported: the wire field types, quantisers and bounds moved to protocol.wiretypes (the message
+# declarations use them), and callers and tests import them from here.
+from protocol.wiretypes import _F32_MAX, _Q16_MAX, _Q16_NAN, _q16_decode, _q16_encode, _seq_of_floats  # noqa: F401
+from protocol.wiretypes import (  # noqa: F401
+    EFFORT_SCALE, MAX_CHUNK_DATA, MAX_NACK_DETAIL_BYTES, MAX_NAME_BYTES, MAX_PAYLOAD, MAX_RESEND_BITMAP,
+    MAX_SPEECH_TEXT_BYTES, POSITION_SCALE, VELOCITY_SCALE, Bool, CanField, EnumU8, F32Array, Flags16, Mask,
+    PayloadError, Q16Array, RestBytes, SInt, Str8, UInt, field_unit, quantize_angle, quantize_apply_at,
+    quantize_effort, quantize_f32, quantize_position, quantize_velocity, unwrap_time_us,
 )
 
 __all__ = [
