@@ -42,6 +42,7 @@ from firmware_sim.config import BoardConfig
 from firmware_sim.jitter_buffer import JitterBuffer
 from firmware_sim.native import GS_CAP, GS_INTERP, NativeTick, NativeUnavailable, kernel_choice, note_fallback
 from firmware_sim.board_camera import KEPT_IMAGES, BoardCamera, nack
+from firmware_sim.board_stream import TargetStream
 from firmware_sim.peripherals import Camera, CameraWorker, Screen, Speaker
 from firmware_sim.safety import Mode, Safety
 from firmware_sim.servo_model import ServoModel
@@ -78,7 +79,6 @@ from protocol.messages import (
 )
 from robots.description import Robot
 from robots.model import RobotModel
-from robots.motion import min_jerk
 from robots.registry import load_robot
 from robots.scenes import toppled
 
@@ -206,6 +206,11 @@ class Board:
         #: latched watchdog (Mode.CROUCH on the wire and in code)
         self.safe_pose_name = str(self.robot.safe_pose)
         self.buffer = JitterBuffer(self.cfg.buffer_depth, self.n)
+        #: per servo the interpolation anchor and the next keyframe, the resume blend
+        self.stream = TargetStream(self.n, self.buffer, self.cfg, neutral)
+        #: the stream's anchors (board time us, rad), the arrays the native tick holds (updated in place)
+        self.anchor_t: np.ndarray = self.stream.anchor_t
+        self.anchor_v: np.ndarray = self.stream.anchor_v
         self.safety = Safety(self.cfg.watchdog_ms * 1000, self.cfg.crouch_after_ms * 1000)
         self.screen = Screen()
         self.speaker = Speaker()
@@ -214,26 +219,9 @@ class Board:
         #: sequence gaps in what the host sent (lost messages), since the last HELLO
         self.rx_gaps = GapDetector()
         self._clock_us = clock_us
-        # per-servo interpolation anchor: the last applied keyframe (or where a resumed servo was);
-        # arrays updated in place (the native tick holds their addresses), read as lists by the Python path
-        self.anchor_t: np.ndarray = np.zeros(self.n, dtype=np.int64)
-        # leaving a hold (see _resume, _blend): per servo the held command still waiting for its first
-        # keyframe, then a minimum-jerk blend of the offset (held - stream) down to 0: start, length, offset
-        self._resume_t = 0
-        self._resume_from: list[float | None] = [None] * self.n
-        self._blend_t0: list[int] = [0] * self.n
-        self._blend_len: list[int] = [0] * self.n
-        self._blend_off: list[float] = [0.0] * self.n
-        self._blending = False
-        self.anchor_v: np.ndarray = neutral.astype(np.float64)
         self.hold_q = neutral.copy()
         self._desired: np.ndarray = neutral.astype(np.float64)
         self._ctrl: np.ndarray = self.data.ctrl[self.cm.act_id].astype(np.float64)
-        # the buffer's next keyframe per servo as arrays for the native tick (refreshed when the buffer changes)
-        self._next_ok = np.zeros(self.n, dtype=np.int64)
-        self._next_t = np.zeros(self.n, dtype=np.int64)
-        self._next_v = np.zeros(self.n, dtype=np.float64)
-        self._next_src: object = None
         # the servos' joints and actuators as slices when contiguous (cheaper than index arrays per tick)
         self._qpos_at = _as_slice(self.cm.qpos_adr)
         self._ctrl_at = _as_slice(self.cm.act_id)
@@ -305,7 +293,7 @@ class Board:
             "qpos_adr": np.ascontiguousarray(self.cm.qpos_adr, dtype=np.int64),
             "act_id": np.ascontiguousarray(self.cm.act_id, dtype=np.int64),
             "anchor_t": self.anchor_t, "anchor_v": self.anchor_v,
-            "next_ok": self._next_ok, "next_t": self._next_t, "next_v": self._next_v,
+            "next_ok": self.stream.next_ok, "next_t": self.stream.next_t, "next_v": self.stream.next_v,
             "desired": self._desired, "ctrl": self._ctrl, "cmd": s._cmd,
             "mins": np.ascontiguousarray(s.mins, dtype=np.float64), "maxs": np.ascontiguousarray(s.maxs, dtype=np.float64),
             "max_step": np.ascontiguousarray(s.max_step, dtype=np.float64),
@@ -441,8 +429,7 @@ class Board:
 
     def _on_flush(self, msg: Flush, seq: int, rx: int) -> list[Message]:
         for i in self.buffer.flush(int(msg.from_us), int(msg.mask)):
-            self.anchor_t[i], self.anchor_v[i] = self.now_us, self.servo.cmd_of(i)
-            self._resume_from[i], self._blend_off[i] = None, 0.0  # the new stream starts from the command
+            self.stream.restart(i, self.now_us, self.servo.cmd_of(i))  # the new stream starts from the command
         self._recompute_cover()
         return [Ack(seq, MsgType.FLUSH)]
 
@@ -605,99 +592,16 @@ class Board:
         return self.cameras.start_worker()
 
     def _resume(self) -> None:
-        """Leaving a hold: buffered frames are gone, every servo continues from its command.
-
-        The host's stream kept its own timeline through the hold, so its next target may be far from
-        the held command (a gait phase later). Each servo blends from the held command into the
-        stream (:meth:`_blend`) instead of ramping to the first keyframe within the lookahead, which
-        would step to the speed limit.
-        """
-        self.anchor_t[:] = self.now_us
-        self.anchor_v[:] = self.servo._cmd
-        self._resume_t = self.now_us
-        self._resume_from = self.anchor_v.tolist()
-        self._blend_off = [0.0] * self.n
-        self._blending = True
+        """Leaving a hold: buffered frames are gone, every servo continues from its command
+        (:meth:`firmware_sim.board_stream.TargetStream.resume`: it blends into the host's stream)."""
+        self.stream.resume(self.now_us, self.servo._cmd)
         self._recompute_cover()
-
-    def _blend(self, t: int) -> list[float]:
-        """Interpolated targets plus, per servo after a resume, the offset from the held command to
-        the stream fading with the minimum-jerk profile 1 - :func:`robots.motion.min_jerk`
-        over ``1.875 |offset| / resume_speed`` (the profile's peak speed is 1.875 offset / length).
-
-        A servo waits at its held command until its first keyframe after the resume; from then the
-        stream for it is that keyframe's target until it is due, then the frames as usual.
-        """
-        pend, at, av = self._resume_from, self.anchor_t, self.anchor_v
-        nxt = self.buffer.next_all()
-        speed, min_len = self.cfg.resume_speed, self.cfg.resume_blend_min_us
-        for i, held in enumerate(pend):
-            if held is None:
-                continue
-            first = nxt[i]
-            if first is not None:
-                v1 = first[1]
-                at[i], av[i] = t, v1  # flat at the first target until it is due
-            elif at[i] != self._resume_t or av[i] != held:
-                v1 = float(av[i])  # a frame was applied at once
-            else:
-                continue
-            pend[i] = None
-            off = held - v1
-            self._blend_t0[i], self._blend_off[i] = t, off
-            self._blend_len[i] = max(min_len, int(1.875 * abs(off) / speed * 1e6))
-        out = self._interpolate(t)
-        active = any(v is not None for v in pend)
-        for i, off in enumerate(self._blend_off):
-            if off:
-                s = (t - self._blend_t0[i]) / self._blend_len[i]
-                if s >= 1.0:
-                    self._blend_off[i] = 0.0
-                    continue
-                out[i] += off * (1.0 - float(min_jerk(np.asarray(s))))
-                active = True
-        if not active:
-            self._blending = False
-        for i, held in enumerate(pend):
-            if held is not None:
-                out[i] = held
-        return out
 
     def _recompute_cover(self) -> None:
         latest = self.buffer.latest_apply_at
         self.covered_until = min(self.covered_until, latest if latest is not None else self.now_us - self.tick_us)
 
     # --- control tick ----------------------------------------------------------------------
-
-    def _interpolate(self, t: int) -> list[float]:
-        """Per servo: linear from its anchor (last applied keyframe) to its next buffered keyframe.
-
-        The reference for the native tick's interpolation (``firmware_sim/native/tick.c``)."""
-        at, av = self.anchor_t.tolist(), self.anchor_v.tolist()
-        out = av[:]
-        for i, nxt in enumerate(self.buffer.next_all()):
-            if nxt is not None:
-                t1, v1 = nxt
-                t0 = at[i]
-                if t1 > t0:
-                    a = av[i]
-                    out[i] = a + (v1 - a) * (t - t0) / (t1 - t0)
-        return out
-
-    def _refresh_next(self) -> None:
-        """Copy the buffer's next keyframe per servo into the native tick's arrays when it changed
-        (the buffer rebuilds its cached list, a new object, after every change)."""
-        nxt = self.buffer.next_all()
-        if nxt is self._next_src:
-            return
-        self._next_src = nxt
-        ok, nt, nv = self._next_ok, self._next_t, self._next_v
-        for i, x in enumerate(nxt):
-            if x is None:
-                ok[i] = 0
-            else:
-                ok[i] = 1
-                nt[i], nv[i] = x
 
     @property
     def desired(self) -> np.ndarray:
@@ -735,12 +639,12 @@ class Board:
         desired: list[float] | np.ndarray | None = None  # None: the native tick interpolates
         if mode is Mode.RUN:
             self._apply_due(t)
-            if self._blending:
-                desired = self._blend(t)
+            if self.stream.blending:
+                desired = self.stream.blend(t)
             elif native is None:
-                desired = self._interpolate(t)
+                desired = self.stream.interpolate(t)
             else:
-                self._refresh_next()
+                self.stream.refresh_next()
         elif mode is Mode.CROUCH:
             desired, speed_cap = self.crouch, self.cfg.crouch_speed
         else:
@@ -801,7 +705,7 @@ class Board:
         except at the first (applied here, as :meth:`tick` would, before the C runs); a report may be
         due only at the last. :meth:`tick` would do nothing else for it than
         ``native.tick(t, GS_INTERP)`` and move the clock."""
-        if (self.native is None or not self.cfg.lockstep or self._blending or self._pushes
+        if (self.native is None or not self.cfg.lockstep or self.stream.blending or self._pushes
                 or self.camera_worker is not None or self._estop_rx_us is not None):
             return None
         sf = self.safety
@@ -818,7 +722,7 @@ class Board:
         if first is not None:  # tick k >= 1 sees no frame due while now + k dt < first (> now here)
             n = min(n, -((now - first) // dt))
         n = max(1, n)  # tick 0 itself: can_tick held, the watchdog was fed, its frames are applied
-        self._refresh_next()
+        self.stream.refresh_next()
         clamped = self.native.run(now, n, dt, GS_INTERP)
         if clamped:
             self._flags_since |= FaultFlags.CLAMPED

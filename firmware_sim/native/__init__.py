@@ -6,7 +6,7 @@ than ``mj_step`` itself for a robot standing still (~15 µs); in C it is well un
 plus one ctypes call. ``gs_run`` / :meth:`NativeTick.run` runs several ticks per call: the board's
 Python around a tick (safety, jitter buffer, reports; ~5 µs) then runs once per batch of quiet ticks
 (:meth:`firmware_sim.board.Board.run`). The C does the same IEEE double operations in the same order as the Python
-reference (:meth:`firmware_sim.board.Board._interpolate`, :meth:`firmware_sim.servo_model.ServoModel.step_list`),
+reference (:meth:`firmware_sim.board_stream.TargetStream.interpolate`, :meth:`firmware_sim.servo_model.ServoModel.step_list`),
 so the board's state is bit-identical whichever runs (``tests/firmware/test_native_tick.py`` compares
 both tick by tick over long random streams). ``mj_step`` is called from C through a function pointer
 into the ``libmujoco`` the mujoco wheel ships (the one the Python bindings already loaded), on the

@@ -1,6 +1,6 @@
 /* The board's per-tick servo path in C: interpolation -> servo model -> MuJoCo ctrl -> mj_step.
  *
- * A transcription of firmware_sim/board.py `Board._interpolate` and
+ * A transcription of firmware_sim/board_stream.py `TargetStream.interpolate` and
  * firmware_sim/servo_model.py `ServoModel.step_list` (the Python reference) doing the same IEEE
  * double operations in the same order, so the board's state is bit-identical whichever runs
  * (tests/firmware/test_native_tick.py compares both over long random streams):

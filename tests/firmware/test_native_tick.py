@@ -39,7 +39,7 @@ def _state(b: Board) -> bytes:
     parts = [d.qpos, d.qvel, d.act, d.ctrl, d.qacc_warmstart, d.xfrc_applied, b.servo._cmd, b._desired, b._ctrl,
              b.anchor_t, b.anchor_v, np.array([d.time])]
     counters = (b.now_us, b.ticks, b.last_applied_seq, b.late_count, b.dropped_count, b.clamped_ticks,
-                b.servo.limit_clamps, b.servo.speed_clamps, b.mode.value, len(b.buffer), b._blending)
+                b.servo.limit_clamps, b.servo.speed_clamps, b.mode.value, len(b.buffer), b.stream.blending)
     return b"".join(np.ascontiguousarray(p).tobytes() for p in parts) + repr(counters).encode()
 
 

@@ -4,7 +4,7 @@ A host streams ``move_strides`` the way :class:`host.motion.streamer.FrameStream
 full-body SERVO_FRAME every 10 ms of board time, 60 ms ahead) and keeps its timeline through a cut:
 the frames due to be sent during the cut are lost. The board HOLDs 200 ms into the silence; the
 first frame after the cut ends the hold and the board blends from the held pose into the stream
-(``Board._resume`` / ``Board._blend``: minimum jerk at ``BoardConfig.resume_speed``). Before the blend
+(``Board._resume`` / ``TargetStream.blend``: minimum jerk at ``BoardConfig.resume_speed``). Before the blend
 the board ramped to the first frame within the lookahead, which hit the servo speed limit (CLAMPED)
 at some phases of 0.3 s and 1.1 s cuts: the CLAMPED assertion below is that failing case.
 Deterministic (board time only, no link, no wall clock), so every gait phase is tried; the realtime

@@ -1203,7 +1203,7 @@ static int64_t fade_q16(int64_t num, int64_t den) {
 }
 
 /* Interpolated targets plus, per servo after a resume, the offset from the held command to the
- * stream fading with a minimum-jerk profile over 1.875 |offset| / resume_speed (board.py _blend). */
+ * stream fading with a minimum-jerk profile over 1.875 |offset| / resume_speed (board_stream.py TargetStream.blend). */
 static void blend(gs_board_t *b, int64_t t, int32_t *out) {
     gs_jb_next_all(&b->buf);
     for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
