@@ -90,6 +90,55 @@ def serve(plant: PlantBus, port: PtyPort, stop: threading.Event, hand: Hand | No
             del out[: port.write(bytes(out))]
 
 
+#: the widest ``--baud`` (bit/s), as ``ghostshell run --baud``
+MAX_BAUD = 12_000_000
+#: a model number is a 2-byte register
+MAX_MODEL = 0xFFFF
+
+
+def _ranges(ids: list[int]) -> str:
+    """``[1, 2, 3, 5]`` -> ``"1..3, 5"``."""
+    runs: list[list[int]] = []
+    for i in sorted(set(ids)):
+        if runs and runs[-1][-1] == i - 1:
+            runs[-1][-1] = i
+        else:
+            runs.append([i, i])
+    return ", ".join(str(a) if a == b else f"{a}..{b}" for a, b in runs)
+
+
+def refusal(args: argparse.Namespace, robot_name: str, servo_ids: list[int]) -> str | None:
+    """The first option in ``args`` that makes no sense for a robot with ``servo_ids``, as one line naming the
+    option and its valid range, or None. ``--missing``, ``--duplicate`` and ``--dead-servo`` name a device:
+    a servo, the IMU (0xF0) or the probe (0xF1); the rest name a servo."""
+    from firmware_sim.plant.devices import IMU_ID, PROBE_ID
+
+    servos = set(servo_ids)
+    servo_range = f"{robot_name}'s servo ids are {_ranges(servo_ids)}"
+    device_range = f"{servo_range}, the IMU 0x{IMU_ID:X}, the probe 0x{PROBE_ID:X}"
+    if args.baud is not None and not 1 <= args.baud <= MAX_BAUD:
+        return f"--baud {args.baud}: the baud rate must be 1..{MAX_BAUD} bit/s"
+    per_servo: list[tuple[str, int, str]] = [
+        *(("--offset", sid, f"{sid}={v}") for sid, v in args.offset),
+        *(("--reverse", sid, str(sid)) for sid in args.reverse),
+        *(("--model", sid, f"{sid}={v}") for sid, v in args.model),
+        *(("--error", e.id, f"{e.id}=...") for e in args.error)]
+    for option, sid, text in per_servo:
+        if sid not in servos:
+            return f"{option} {text}: {sid} is not a servo; {servo_range}"
+    for option, sid in [*(("--missing", i) for i in args.missing), *(("--duplicate", i) for i in args.duplicate),
+                        *(("--dead-servo", i) for i, _ in args.dead_servo)]:
+        if sid not in servos and sid not in (IMU_ID, PROBE_ID):
+            return f"{option} {sid}: no such device on the bus; {device_range}"
+    for sid, v in args.model:
+        if not 0 <= v <= MAX_MODEL:
+            return f"--model {sid}={v}: a model number must be 0..{MAX_MODEL}"
+    for sid, at in args.dead_servo:
+        if not at >= 0:
+            return f"--dead-servo {sid}@{at:g}: the time must be 0 or more world seconds"
+    return None
+
+
 def _conditions(args: argparse.Namespace, hw_models: dict[int, int]) -> Conditions:
     return Conditions(
         offsets=dict(args.offset), reversed=frozenset(args.reverse), models={**hw_models, **dict(args.model)},
@@ -172,6 +221,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     try:
         robot = load_robot(args.robot or DEFAULT_ROBOT, args.robots_dir)
+        if args.scene is not None and args.scene not in robot.scenes:
+            raise ValueError(f"--scene {args.scene}: {robot.name} has no such scene; scenes: {', '.join(robot.scenes)}")
+        why = refusal(args, robot.name, [s.id for s in robot.servos])
+        if why is not None:
+            raise ValueError(why)
         hw = load_hardware(robot.root, list(robot.servos))
         protocol = args.protocol or hw.protocol
         # the robot's own servo models when the file describes this protocol's bus
