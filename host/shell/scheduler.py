@@ -74,6 +74,7 @@ from host.shell.limits import Limits
 from host.shell.parser import (
     EmptyTag,
     EndTag,
+    Event,
     FunctionTokenParser,
     ParseError,
     ParseWarning,
@@ -82,6 +83,7 @@ from host.shell.parser import (
 )
 from host.shell.policy import Policy, PolicyError
 from host.shell.registry import Registry
+from host.shell.skill_recorder import MAX_SKILL_DEPTH, SkillRecorder, warning_text
 from host.shell.skills import SkillError, SkillStore, end_tag, start_tag, text
 from host.shell.timeline import CallRecord, Observation, RunResult, Timeline
 from host.shell.types import MAIN_CHANNEL, FunctionSpec
@@ -128,8 +130,7 @@ RESET_TIMEOUT = 5.0
 #: broken tag (``"/>``).
 _MARKUP = re.compile(r"<\s*[/!?]?\s*[^\W\d][^<>]*>|<[/!?]?[^\W\d][^\s<>]*|[\"']?[ \t]*/>")
 
-#: Deepest nesting of ``<RUN>`` expansions.
-MAX_SKILL_DEPTH = 16
+__all__ = ["MAX_DEPTH", "MAX_SKILL_DEPTH", "MODES", "RESET_TIMEOUT", "ProgramRun", "RunSettings"]
 
 
 @dataclass(eq=False)
@@ -179,14 +180,6 @@ class _Frame:
     counts: dict[str, int] = field(default_factory=dict)
 
 
-@dataclass(eq=False)
-class _Recording:
-    name: str
-    description: str
-    depth: int = 1
-    parts: list[str] = field(default_factory=list)
-
-
 class ProgramRun:
     """The state of one run; created by :class:`~host.shell.shell.Shell`."""
 
@@ -209,15 +202,12 @@ class ProgramRun:
         self._stack: list[_Frame] = [_Frame("", None, "", self.mode == "async-first")]
         self._text = SentenceSplitter()
         self._text_fed = False  # text reached the splitter since its last flush (else flushing is a no-op)
-        self._recording: _Recording | None = None
-        self._skill_stack: list[str] = []
         self._tg: anyio.abc.TaskGroup | None = None
         self._consumer = anyio.CancelScope()
         self._stopped = False
         self._warned_no_speech = False
         self._executed: list[tuple[str, _Call | None]] = []  # the reply as executed (see executed_text)
-        self._save_mark = 0
-        self.save_failures = 0  # <SAVE> elements that saved nothing (the run's outcome is then failed)
+        self._skills = SkillRecorder(self.skills, self._observe, self._executed)  # <SAVE> and <RUN>
         self.limits: Limits = getattr(shell, "limits", None) or Limits()
         self.policy = getattr(shell, "policy", None)
         self._text_chars = 0  # characters of text this turn
@@ -253,6 +243,11 @@ class ProgramRun:
                     self._abort(exc, "the output stream failed")
         self._tg = None
         return self.result()
+
+    @property
+    def save_failures(self) -> int:
+        """``<SAVE>`` elements that saved nothing (the run's outcome is then failed)."""
+        return self._skills.failures
 
     def result(self) -> RunResult:
         """The run's result so far (complete once :meth:`run` returned)."""
@@ -293,9 +288,7 @@ class ProgramRun:
         self._stopped = True
         self._consumer.cancel()
         self._text, self._text_fed = SentenceSplitter(), False
-        if self._recording is not None:  # an unfinished SAVE is not part of what was executed
-            del self._executed[self._save_mark:]
-        self._recording = None
+        self._skills.drop()
         while len(self._stack) > 1:
             f = self._stack.pop()
             self._executed.append((end_tag(f.name), None))
@@ -321,11 +314,7 @@ class ProgramRun:
         if self._refused_calls:
             self._observe("error", f"{self._refused_calls} element(s) refused in all: more than "
                                    f"{self.limits.max_calls} calls in one turn")
-        if self._recording is not None:
-            self._observe("error", f"<SAVE name={self._recording.name!r}> was never closed; skill not saved")
-            self.save_failures += 1
-            del self._executed[self._save_mark:]
-            self._recording = None
+        self._skills.end_of_stream()
         while len(self._stack) > 1:  # lenient parsers close these; be safe anyway
             f = self._stack.pop()
             self._executed.append((end_tag(f.name), None))
@@ -333,78 +322,44 @@ class ProgramRun:
                 self._close(f.call)
 
     # -- events --------------------------------------------------------------
-    def _feed(self, events: list[Any]) -> None:
+    def _feed(self, events: list[Event]) -> None:
         for ev in events:
             if self._stopped:
                 return
             self._event(ev)
 
-    def _event(self, ev: Any) -> None:
-        if not self._skill_stack and isinstance(ev, (StartTag, EmptyTag, EndTag)):
-            if self._recording is None:
+    def _event(self, ev: Event) -> None:
+        """One parser event: kept for the reply as executed, recorded (inside ``<SAVE>``) or dispatched."""
+        if not self._skills.stack and isinstance(ev, (StartTag, EmptyTag, EndTag)):
+            if not self._skills.recording:
                 self._flush_text()  # sentences before the tag come first
             self._keep(ev)
-        if self._recording is not None:
-            self._record_event(ev)
+        if self._skills.recording:
+            self._skills.record(ev)
             return
-        if isinstance(ev, Text):
-            self._text_in(ev.text)
-        elif isinstance(ev, ParseWarning):  # the commonest event of malformed output: tested before the tags
-            self._observe("warning", f"parse warning at {getattr(ev, 'pos', '?')}: {ev.message}")
-        elif isinstance(ev, (StartTag, EmptyTag)) and ev.refused is not None:
-            self._flush_text()  # a malformed call (duplicated attribute): refused, its children still scoped
-            self._mapping_failed(ev.name, dict(ev.attrs), f"<{ev.name}> refused: {ev.refused}",
-                                 isinstance(ev, EmptyTag))
-        elif isinstance(ev, StartTag):
-            self._flush_text()
-            self._start(ev.name, dict(ev.attrs), empty=False)
-        elif isinstance(ev, EmptyTag):
-            self._flush_text()
-            self._start(ev.name, dict(ev.attrs), empty=True)
-        elif isinstance(ev, EndTag):
-            self._flush_text()
-            self._end(ev.name)
+        match ev:
+            case Text(text=data):
+                self._text_in(data)
+            case ParseWarning():  # the commonest event of malformed output: matched before the tags
+                self._observe("warning", warning_text(ev))
+            case StartTag(name=name, attrs=attrs, refused=str(why)) | EmptyTag(name=name, attrs=attrs, refused=str(why)):
+                self._flush_text()  # a malformed call (duplicated attribute): refused, its children still scoped
+                self._mapping_failed(name, dict(attrs), f"<{name}> refused: {why}", isinstance(ev, EmptyTag))
+            case StartTag(name=name, attrs=attrs) | EmptyTag(name=name, attrs=attrs):
+                self._flush_text()
+                self._start(name, dict(attrs), empty=isinstance(ev, EmptyTag))
+            case EndTag(name=name):
+                self._flush_text()
+                self._end(name)
 
-    def _keep(self, ev: Any) -> None:
-        if isinstance(ev, EmptyTag):
-            self._executed.append((start_tag(ev.name, dict(ev.attrs), empty=True), None))
-        elif isinstance(ev, StartTag):
-            self._executed.append((start_tag(ev.name, dict(ev.attrs)), None))
-        elif isinstance(ev, EndTag):
-            if self._recording is not None or len(self._stack) > 1:
-                self._executed.append((end_tag(ev.name), None))
-
-    def _record_event(self, ev: Any) -> None:
-        rec = self._recording
-        assert rec is not None
-        if isinstance(ev, Text):
-            rec.parts.append(text(ev.text))
-            if not self._skill_stack:
-                self._executed.append((text(ev.text), None))
-        elif isinstance(ev, EmptyTag):
-            rec.parts.append(start_tag(ev.name, dict(ev.attrs), empty=True))
-        elif isinstance(ev, StartTag):
-            rec.depth += 1
-            rec.parts.append(start_tag(ev.name, dict(ev.attrs)))
-        elif isinstance(ev, EndTag):
-            rec.depth -= 1
-            if rec.depth == 0:
-                self._recording = None
-                self._save(rec)
-            else:
-                rec.parts.append(end_tag(ev.name))
-        elif isinstance(ev, ParseWarning):
-            self._observe("warning", f"parse warning at {getattr(ev, 'pos', '?')}: {ev.message}")
-
-    def _save(self, rec: _Recording) -> None:
-        existed = rec.name in self.skills
-        try:
-            self.skills.save(rec.name, rec.description, "".join(rec.parts))
-        except (SkillError, OSError) as exc:
-            self._observe("error", f"skill not saved: {exc}")
-            self.save_failures += 1
-        else:
-            self._observe("info", f"skill {rec.name!r} {'replaced (a skill of that name existed)' if existed else 'saved'}")
+    def _keep(self, ev: StartTag | EmptyTag | EndTag) -> None:
+        match ev:
+            case EmptyTag(name=name, attrs=attrs):
+                self._executed.append((start_tag(name, dict(attrs), empty=True), None))
+            case StartTag(name=name, attrs=attrs):
+                self._executed.append((start_tag(name, dict(attrs)), None))
+            case EndTag(name=name) if self._skills.recording or len(self._stack) > 1:
+                self._executed.append((end_tag(name), None))
 
     # -- text -------------------------------------------------------------------
     def _text_in(self, data: str) -> None:
@@ -451,7 +406,7 @@ class ProgramRun:
         if self._queue_full(channel):
             return
         call = self._new_call(spec.name, "fn", spec, {"text": segment}, channel, spec.channel, persistent=False)
-        if not self._skill_stack:  # sentences of one text run are joined by a space (the splitter drops it)
+        if not self._skills.stack:  # sentences of one text run are joined by a space (the splitter drops it)
             sep = " " if self._executed and self._executed[-1][1] is not None else ""
             self._executed.append((sep + text(segment), call))
 
@@ -489,7 +444,7 @@ class ProgramRun:
                                  f"{self.limits.max_attr_chars}", empty)
             return
         if name == "SAVE":
-            self._start_save(attrs, empty)
+            self._skills.start(attrs, empty)
             return
         if name == "RUN":
             self._run_skill(attrs, empty)
@@ -570,28 +525,13 @@ class ProgramRun:
         if frame.call is not None:
             self._close(frame.call)
 
-    def _start_save(self, attrs: dict[str, str], empty: bool) -> None:
-        name = attrs.get("name", "")
-        if empty:
-            self._observe("error", f"<SAVE name={name!r}/> encloses no program; nothing saved")
-            self.save_failures += 1
-            return
-        self._recording = _Recording(name, attrs.get("description", ""))
-        self._save_mark = max(0, len(self._executed) - 1)  # the <SAVE> start tag
-
     def _run_skill(self, attrs: dict[str, str], empty: bool) -> None:
         """``<RUN id=.../>``: an element (no channel) whose children are the skill's calls; a
         ``<RUN>`` start-tag also scopes what it encloses, after the skill's calls."""
         frame = self._stack[-1]
         sid = attrs.get("id", attrs.get("name", ""))
         try:
-            if sid in self._skill_stack:
-                raise SkillError(f"recursive skill: {' -> '.join([*self._skill_stack, sid])}")
-            if len(self._skill_stack) >= MAX_SKILL_DEPTH:
-                raise SkillError(f"skills nested deeper than {MAX_SKILL_DEPTH}")
-            skill = self.skills.get(sid)
-            p = FunctionTokenParser(strict=True)
-            events = p.feed(skill.program) + p.close()
+            events = self._skills.program(sid)
         except (SkillError, ParseError) as exc:
             path = self._path(frame, "RUN")
             rec = CallRecord(next(self._ids), "RUN", None, {"id": sid}, path, False, self.now())
@@ -604,16 +544,13 @@ class ProgramRun:
             return
         call = self._new_call("RUN", "run", None, {"id": sid}, None, None, persistent=True)
         self._stack.append(_Frame("RUN", call, call.record.path, frame.async_ctx))
-        self._skill_stack.append(sid)
         depth = len(self._stack)
-        try:
+        with self._skills.expanding(sid):
             for ev in events:
                 if self._stopped:
                     break
                 self._event(ev)
             self._flush_text()
-        finally:
-            self._skill_stack.pop()
         if self._stopped:  # _stop closed every open element, this RUN included
             return
         while len(self._stack) > depth:  # cannot happen for a strict-parsed program
