@@ -42,6 +42,7 @@ from firmware_sim.config import BoardConfig
 from firmware_sim.jitter_buffer import JitterBuffer
 from firmware_sim.native import GS_CAP, GS_INTERP, NativeTick, NativeUnavailable, kernel_choice, note_fallback
 from firmware_sim.board_camera import KEPT_IMAGES, BoardCamera, nack
+from firmware_sim.board_reports import BoardReports, quat_to_rpy
 from firmware_sim.board_stream import TargetStream
 from firmware_sim.peripherals import Camera, CameraWorker, Screen, Speaker
 from firmware_sim.safety import Mode, Safety
@@ -80,7 +81,6 @@ from protocol.messages import (
 from robots.description import Robot
 from robots.model import RobotModel
 from robots.registry import load_robot
-from robots.scenes import toppled
 
 if TYPE_CHECKING:
     from firmware_sim.servobus.driver import BusDriver
@@ -125,21 +125,6 @@ def answerable(item: DecodeError) -> Frame | DecodeError:
     (seq,) = struct.unpack_from("<H", body, 2)
     (value,) = struct.unpack_from("<i", body, HEADER_SIZE + 1)
     return Frame(seq, MsgType.CONFIG, Config(body[5], value), raw)  # type: ignore[arg-type]  # key: not a ConfigKey
-
-
-def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
-    """``idx`` as an equivalent slice when it is a contiguous ascending run, else unchanged."""
-    if len(idx) and np.array_equal(idx, np.arange(idx[0], idx[0] + len(idx))):
-        return slice(int(idx[0]), int(idx[0]) + len(idx))
-    return idx
-
-
-def quat_to_rpy(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
-    """Roll, pitch, yaw (rad, ZYX convention) of a unit quaternion."""
-    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
-    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    return roll, pitch, yaw
 
 
 class Board:
@@ -222,10 +207,9 @@ class Board:
         self.hold_q = neutral.copy()
         self._desired: np.ndarray = neutral.astype(np.float64)
         self._ctrl: np.ndarray = self.data.ctrl[self.cm.act_id].astype(np.float64)
-        # the servos' joints and actuators as slices when contiguous (cheaper than index arrays per tick)
-        self._qpos_at = _as_slice(self.cm.qpos_adr)
-        self._ctrl_at = _as_slice(self.cm.act_id)
-        self._dof_at = _as_slice(self.cm.dof_adr)
+        #: TELEMETRY and SIM_STATE of the model; its slices of the servos' joints, actuators and dofs
+        self.reports = BoardReports(self.cm, self.data)
+        self._qpos_at, self._ctrl_at, self._dof_at = self.reports.qpos_at, self.reports.ctrl_at, self.reports.dof_at
         self._tick_us = self.cfg.tick_us  # rate and dt are fixed for a board's life (CONFIG cannot change them)
         self._substeps = self.cfg.substeps
         self._telemetry_every = self.cfg.telemetry_every  # CONFIG TELEMETRY_RATE_HZ updates it
@@ -800,41 +784,14 @@ class Board:
 
     def telemetry(self) -> Telemetry:
         """TELEMETRY for the current state (clears the since-last-report flags)."""
-        d = self.data
-        w, x, y, z = self._base_pose()[1]
         faults = self.safety.flags | self._flags_since if self._flags_since else self.safety.flags
         self._flags_since = FaultFlags.NONE
-        return Telemetry(
-            board_time_us=self.now_us,
-            positions=tuple(d.qpos[self._qpos_at].tolist()),
-            velocities=tuple(d.qvel[self._dof_at].tolist()),
-            efforts=tuple(d.actuator_force[self._ctrl_at].tolist()),
-            imu_rpy=quat_to_rpy(w, x, y, z),
-            faults=faults,
-            buffer_fill=len(self.buffer),
-            last_applied_seq=self.last_applied_seq & 0xFFFF,
-            late_count=self.late_count,
-            dropped_count=self.dropped_count,
-            link_errors=self.link_errors,
-        )
-
-    def _base_pose(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
-        """:meth:`robots.model.RobotModel.base_pose` (position m, quaternion w x y z), the floating base's
-        seven qpos read in one slice (a report's hot spot: ~3 µs element by element)."""
-        r = self.cm.root_qpos
-        if r is None:
-            return self.cm.base_pose(self.data)
-        x, y, z, qw, qx, qy, qz = self.data.qpos[r:r + 7].tolist()
-        return (x, y, z), (qw, qx, qy, qz)
+        return self.reports.telemetry(self.now_us, faults, len(self.buffer), self.last_applied_seq & 0xFFFF,
+                                      self.late_count, self.dropped_count, self.link_errors)
 
     def sim_state(self) -> SimState:
         """Ground truth of the floating base (emulator only)."""
-        pos, quat = self._base_pose()
-        return SimState(
-            self.now_us, pos, quat,
-            objects=len(self.scene_objects),
-            toppled=toppled(self.data.qpos, self.scene_objects) if self.scene_objects else 0,
-        )
+        return self.reports.sim_state(self.now_us)
 
     @property
     def mode(self) -> Mode:

@@ -29,7 +29,7 @@ import struct
 import mujoco
 import numpy as np
 
-from firmware_sim.board import quat_to_rpy
+from firmware_sim.board_reports import quat_to_rpy
 from firmware_sim.servo_load import load_full_scale
 from firmware_sim.plant.conditions import Conditions
 from firmware_sim.plant.devices import STS_MODEL, ImuDevice, ProbeDevice
