@@ -31,8 +31,8 @@ async def test_a_function_and_its_reset_get_their_call_as_an_argument() -> None:
 
     r = await shell_with({"C1": [hold]}).run_text('<hold speed="2"><hold/></hold>')
     assert all(x.outcome == "done" for x in r.timeline), r.timeline.table()
-    assert seen == [("run", "hold[0]", True, "run"), ("run", "hold[0]/hold[0]", False, "run"),
-                    ("reset", "hold[0]", True, "reset")]
+    assert sorted(seen[:2]) == [("run", "hold[0]", True, "run"), ("run", "hold[0]/hold[0]", False, "run")]
+    assert seen[2:] == [("reset", "hold[0]", True, "reset")]  # the two runs start in either order
 
 
 async def test_the_call_parameter_is_no_attribute() -> None:
