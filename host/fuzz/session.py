@@ -1,6 +1,6 @@
 """Fuzz target ``session``: fuzzed board replies into the host link client's receive path.
 
-The entry point is :meth:`host.link.session.BoardClient._on_items`, the session's receive handler:
+The entry point is :meth:`host.link.receive.ReceivePath.on_items` (a client's ``receiver``), the receive handler:
 a serial transport feeds every chunk it reads through a :class:`protocol.framing.FrameDecoder` and
 hands the items to it; this target does the same with fuzzed bytes (no port is opened). Before the input, the client is given what a live
 session has in flight: a pending ACK wait (seq 7), a time-sync probe (t1 = 1000) and a camera
@@ -69,28 +69,30 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
         ack: asyncio.Future[object] = loop.create_future()
         cap: asyncio.Future[object] = loop.create_future()
         sync: asyncio.Future[object] = loop.create_future()
-        client._pending[7] = ack
-        client._pending[9] = cap
+        client.requests.pending[7] = ack
+        client.requests.pending[9] = cap
         client.camera.start(1, 9)
-        client._sync_pending[1000] = sync  # type: ignore[assignment]
-        on_chunk = client._on_chunk
+        client.supervisor.sync_pending[1000] = sync
+        camera = client.camera
+        on_chunk = camera.on_chunk
 
-        def observed_chunk(msg: CameraChunk) -> None:
-            was_done = cap.done()
-            on_chunk(msg)
-            if cap.done() and not was_done and cap.exception() is None:
-                parts, total = client.camera.parts[1], client.camera.totals.get(1, msg.total)
+        def observed_chunk(msg: CameraChunk) -> tuple[int, bytes] | None:
+            done = on_chunk(msg)
+            if done is not None and done[0] == 9 and not cap.done():
+                parts, total = camera.parts[1], camera.totals.get(1, msg.total)
                 missing = [i for i in range(total) if i not in parts]
                 assert not missing, f"a partial image surfaced: chunks {missing} of {total} missing"
+            return done
 
-        client._on_chunk = observed_chunk  # type: ignore[method-assign]
+        camera.on_chunk = observed_chunk  # type: ignore[method-assign]
+        on_items, clock = client.receiver.on_items, client.board_clock
         seen = 0
         for piece in chunks(stream, seed):
-            client._on_items(dec.feed(piece))
+            on_items(dec.feed(piece))
             assert not errors.records, f"receive path failed: {_describe(errors.records[0])}"
-            assert client._board_time_seen >= seen, "board time went back"
-            seen = client._board_time_seen
-            assert len(client._frame_nacks) <= 1024 and len(client.fault_events) <= 256
+            assert clock.seen_us >= seen, "board time went back"
+            seen = clock.seen_us
+            assert len(client.requests.frame_nacks) <= 1024 and len(client.fault_events) <= 256
             assert client.stats.rx_frames == dec.frames_ok
             assert client.stats.decode_errors == dec.error_count
             if client.latest_telemetry is not None:

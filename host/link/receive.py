@@ -1,14 +1,14 @@
 """The session's receive path: decoded items in, each message to its handler through a table.
 
-:class:`ReceivePath` is a mixin of :class:`host.link.session.BoardClient` (python-can's Notifier role):
-the transport calls :meth:`ReceivePath._on_items` with what it decoded; undecodable items are
-counted, never raised; every message goes to its handler by type (``_HANDLERS``, looked up by name,
-so a handler replaced on the instance, as the fuzz harness ``host.fuzz.session`` does with
-``_on_chunk``, is the one called) and then to the ``on_received`` listeners. The handlers hand on:
+:class:`ReceivePath` is a part of :class:`host.link.session.BoardClient` (python-can's Notifier role):
+the transport calls :meth:`ReceivePath.on_items` with what it decoded; undecodable items are
+counted, never raised; every message goes to its handler by type (a table of bound methods made
+once) and then to the ``on_received`` listeners. The handlers hand on:
 TELEMETRY to :class:`host.link.telemetry.TelemetryFanout`, ACK/NACK and images to
 :class:`host.link.requests.RequestTable`, CAPS and TIME_SYNC replies to
-:class:`host.link.supervisor.Supervisor`, CAMERA_CHUNKs to :class:`host.link.camera.CameraAssembler`.
-A bug in a handler or listener is logged and the reader goes on.
+:class:`host.link.supervisor.Supervisor`, CAMERA_CHUNKs to :class:`host.link.camera.CameraAssembler`,
+board times to :class:`host.link.board_time.BoardClock`. It holds the session only as
+:class:`ReceiveLink`. A bug in a handler or listener is logged and the reader goes on.
 """
 
 from __future__ import annotations
@@ -16,18 +16,21 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any, Protocol
 
+from host.link.board_time import BoardClock
 from host.link.camera import CameraAssembler
 from host.link.errors import HandshakeError, SchemaMismatch
 from host.link.requests import RequestTable
-from host.link.supervisor import Supervisor, host_now_us
+from host.link.supervisor import Supervisor
 from host.link.telemetry import TelemetryFanout
+from host.link.timesync import host_now_us
 from protocol.faults import GapDetector
 from protocol.framing import DecodeError, Frame
 from protocol.messages import (Ack, CameraChunk, Caps, Message, MsgType, Nack, NackReason, SimState, Telemetry,
                                TimeSyncReply)
 
-__all__ = ["REORDER_DEPTH", "LinkStats", "ReceivePath"]
+__all__ = ["REORDER_DEPTH", "LinkStats", "ReceiveLink", "ReceivePath"]
 
 log = logging.getLogger("host.link")
 
@@ -58,24 +61,54 @@ class LinkStats:
     last_decode_error: str = ""  # kind and detail of the latest undecodable item, for reports
 
 
+class ReceiveLink(Protocol):
+    """What the receive path needs of the session: its name for messages, counters, the replies awaited
+    by sequence number and the camera captures in progress."""
+
+    @property
+    def port_name(self) -> str: ...
+    @property
+    def stats(self) -> LinkStats: ...
+    @property
+    def requests(self) -> RequestTable: ...
+    @property
+    def camera(self) -> CameraAssembler: ...
+
+
 class ReceivePath:
-    """Received items -> handlers -> listeners (module docstring); the session provides what is annotated."""
+    """Received items -> handlers -> listeners (module docstring). ``latest_sim_state``, ``servo_fault``
+    and ``servo_faults`` are what it kept of the board's messages."""
 
-    port_name: str  # the link as its messages name it (BoardClient, set on connect)
-    stats: LinkStats
-    fanout: TelemetryFanout
-    requests: RequestTable
-    supervisor: Supervisor
-    camera: CameraAssembler
-    latest_sim_state: SimState | None
-    servo_fault: Nack | None
-    servo_faults: list[Nack]
-    on_nack: list[Callable[[Nack], None]]
-    on_received: list[Callable[[Message], None]]
-    _rx_gaps: GapDetector
-    _board_time_seen: int
+    def __init__(self, link: ReceiveLink, fanout: TelemetryFanout, clock: BoardClock, supervisor: Supervisor) -> None:
+        self.link = link
+        # the parts each message reaches, held directly: one attribute access per message
+        self.stats, self.requests, self.camera = link.stats, link.requests, link.camera
+        self.fanout, self.clock, self.supervisor = fanout, clock, supervisor
+        self._rx_gaps = GapDetector()
+        self.latest_sim_state: SimState | None = None
+        #: the board's latest NACK SERVO_FAULT (its detail names the servo that stopped answering on its bus)
+        self.servo_fault: Nack | None = None
+        #: every NACK SERVO_FAULT so far, oldest first, the last 64 (the board reports each failed servo in
+        #: its own: several silent at once; host.link.faultcheck.servo_fault_message reads them)
+        self.servo_faults: list[Nack] = []
+        #: called with every frame NACK nobody awaited (a servo frame's)
+        self.on_nack: list[Callable[[Nack], None]] = []
+        #: called with every message received, after it was handled (listeners, e.g. a run's recorder;
+        #: python-can's Listener model)
+        self.on_received: list[Callable[[Message], None]] = []
+        #: received message class -> ``handler(msg, t4, nbytes)``: the message, the host time (µs) its read
+        #: was taken, and the frame's wire bytes (a table, not an isinstance chain)
+        self._handlers: dict[type[Message], Callable[[Any, int, int], None]] = {
+            Telemetry: self._handle_telemetry,
+            SimState: self._handle_sim_state,
+            Ack: self._handle_ack,
+            Nack: self._handle_nack,
+            TimeSyncReply: self._handle_time_sync,
+            Caps: self._handle_caps,
+            CameraChunk: self._handle_chunk,
+        }
 
-    def _on_items(self, items: Sequence[Frame | DecodeError]) -> None:
+    def on_items(self, items: Sequence[Frame | DecodeError]) -> None:
         t4 = host_now_us()
         for item in items:
             if isinstance(item, DecodeError):
@@ -98,27 +131,16 @@ class ReceivePath:
             except Exception:  # a bug in a callback must not kill the reader
                 log.exception("link: error handling %s", item.msg_type.name)
 
-    #: received message class -> the name of its handler, ``handler(msg, t4, nbytes)``: the message, the
-    #: host time (µs) its read was taken, and the frame's wire bytes (a table, not an isinstance chain;
-    #: looked up by name so a handler replaced on the instance or the class is the one called)
-    _HANDLERS: dict[type[Message], str] = {
-        Telemetry: "_handle_telemetry",
-        SimState: "_handle_sim_state",
-        Ack: "_handle_ack",
-        Nack: "_handle_nack",
-        TimeSyncReply: "_handle_time_sync",
-        Caps: "_handle_caps",
-        CameraChunk: "_handle_chunk",
-    }
-
     def _dispatch(self, msg: Message, t4: int, nbytes: int) -> None:
-        name = self._HANDLERS.get(type(msg))
-        if name is not None:
-            getattr(self, name)(msg, t4, nbytes)
+        handler = self._handlers.get(type(msg))
+        if handler is not None:
+            handler(msg, t4, nbytes)
 
     def _handle_telemetry(self, msg: Telemetry, t4: int, nbytes: int) -> None:
         self.stats.telemetry += 1
-        self._board_time_seen = max(self._board_time_seen, msg.board_time_us)
+        clock = self.clock
+        if msg.board_time_us > clock.seen_us:
+            clock.seen_us = msg.board_time_us
         self.fanout.on_telemetry(msg)
 
     def _handle_sim_state(self, msg: SimState, t4: int, nbytes: int) -> None:
@@ -134,9 +156,6 @@ class ReceivePath:
         self.supervisor.on_caps(msg)
 
     def _handle_chunk(self, msg: CameraChunk, t4: int, nbytes: int) -> None:
-        self._on_chunk(msg)
-
-    def _on_chunk(self, msg: CameraChunk) -> None:
         done = self.camera.on_chunk(msg)
         if done is not None:
             self.requests.on_result(*done)
@@ -150,7 +169,7 @@ class ReceivePath:
             reason = msg.reason.name if hasattr(msg.reason, "name") else str(msg.reason)
             error = SchemaMismatch if msg.reason == NackReason.SCHEMA_MISMATCH else HandshakeError
             if self.supervisor.refuse_hello(error(
-                f"the board on {self.port_name} refused the handshake: {reason}: {msg.detail or 'no detail'}; "
+                f"the board on {self.link.port_name} refused the handshake: {reason}: {msg.detail or 'no detail'}; "
                 "host and board must run the same protocol version and message schema"
             ), msg.ack_seq):
                 return

@@ -1,21 +1,23 @@
 """The link supervisor: handshake, time sync, heartbeat and reconnect for one session.
 
-A :class:`Supervisor` keeps a session's link alive; the session (``host.link.session``) sends,
+A :class:`Supervisor` keeps a session's link alive; the session (``host.link.core``) sends,
 numbers and answers, the supervisor decides when and what to say to keep it up:
 
 * :meth:`Supervisor.connect_once`: connect the transport, HELLO -> CAPS (:meth:`handshake`; the
   robot's wire schema first, then after a SCHEMA_MISMATCH each other schema this build speaks, see
   the session's module docstring), then a burst of TIME_SYNC exchanges;
 * :meth:`Supervisor.supervise`: after a loss, reconnect with exponential backoff (0.05 s doubling
-  to ``reconnect_max_s``), then the session's ``_reconnected`` (its ``on_reconnect`` callbacks);
+  to ``reconnect_max_s``), then the session's ``reconnected`` (its ``on_reconnected`` callbacks);
 * :meth:`Supervisor.heartbeat_loop`: a HEARTBEAT whenever nothing else was sent for ``heartbeat_s``
   (realtime boards: a lockstep board's watchdog runs on its own clock, which only the host's frames and
   ADVANCEs move, and a message sent on wall time would make the run depend on the host's timing);
 * :meth:`Supervisor.sync_loop`: a TIME_SYNC exchange every ``sync_interval_s`` (realtime boards),
-  feeding :class:`host.link.timesync.ClockSync` (NTP's four timestamps, RFC 5905 section 8).
+  feeding the board clock's :class:`host.link.timesync.ClockSync` (NTP's four timestamps, RFC 5905
+  section 8; :class:`host.link.board_time.BoardClock`).
 
 It knows the session only as :class:`SupervisedSession` (a Protocol: what it reads, sets and calls),
-so this module does not import the session. It owns the replies only it waits on
+so this module does not import the session; the handshake's and the keep-alive's settings are its
+own attributes. It owns the replies only it waits on
 (:class:`host.link.waiting.Reply`): the HELLO's (answered by CAPS or a NACK) and the TIME_SYNC
 replies (by ``t1``). The loops run in the session's anyio task group and never raise.
 """
@@ -31,16 +33,16 @@ from typing import Any, Protocol
 
 import anyio
 
+from host.link.board_time import BoardClock
 from host.link.errors import HandshakeError, LinkError, LinkTimeout, RobotMismatch, SchemaMismatch
-from host.link.timesync import ClockSync
+from host.link.timesync import host_now_us
 from host.link.transports.base import Transport
 from host.link.waiting import Flag, Reply
 from protocol.codec import WIRE_SCHEMAS, WireBoundError, WireSchema, schema_by_hash, schema_for
-from protocol.framing import DecodeError, Frame
-from protocol.messages import Caps, Heartbeat, Hello, Message, TimeSyncReply, TimeSyncRequest
+from protocol.messages import PROTOCOL_VERSION, Caps, Heartbeat, Hello, Message, TimeSyncReply, TimeSyncRequest
 from protocol.wiremodel import WireModel
 
-__all__ = ["SYNC_ATTEMPTS", "RobotIdentity", "SupervisedSession", "Supervisor", "host_now_us"]
+__all__ = ["HEARTBEAT_S", "SYNC_ATTEMPTS", "RobotIdentity", "SupervisedSession", "Supervisor", "host_now_us"]
 
 log = logging.getLogger("host.link")
 #: TIME_SYNC exchanges tried at connect before the link counts as failed; the first waits
@@ -54,11 +56,8 @@ SYNC_WAIT_MAX_S = 2.0
 #: HELLO is sent again after this, then after twice the wait before, until the handshake timeout: any
 #: CAPS answers it (HELLO is stateless on the board), so an early re-send costs one frame, never a reply
 HELLO_FIRST_RETRY_S = 0.25
-
-
-def host_now_us() -> int:
-    """The host clock used for time sync: ``time.monotonic`` in integer microseconds."""
-    return time.monotonic_ns() // 1000
+#: a HEARTBEAT whenever nothing else was sent for this long (s): four per 200 ms of the board's default watchdog
+HEARTBEAT_S = 0.05
 
 
 @dataclass(frozen=True)
@@ -74,50 +73,50 @@ class RobotIdentity:
 
 
 class SupervisedSession(Protocol):
-    """What the supervisor needs of the session (:class:`host.link.session.BoardClient` is one)."""
+    """What the supervisor needs of the session (:class:`host.link.core.LinkSession` is one)."""
 
-    robot: RobotIdentity | None
     port_name: str
-    link_spec: str
-    clock: ClockSync
-    protocol_version: int
-    handshake_timeout: float
-    schema: WireSchema
-    schema_hash: int
     reconnect: bool
-    reconnect_max_s: float
-    sync_burst: int
-    heartbeat_s: float
-    sync_interval_s: float
-    keepalive: bool
-    tx_wire: WireModel | None
+    closing: bool
+    ready: bool
+    last_tx: float
     last_reconnect_error: str
-    _schema_pinned: bool
-    _closing: bool
-    _ready: bool
-    _last_tx: float
-    _lost: Flag
-    _connected: Flag
+    tx_wire: WireModel | None
+    up: Flag
+    lost: Flag
 
-    @property
-    def lockstep(self) -> bool: ...
     @property
     def transport(self) -> Transport | None: ...
-    def _get_transport(self) -> Transport: ...
-    def _on_items(self, items: Sequence[Frame | DecodeError]) -> None: ...
-    def _on_lost(self, reason: str) -> None: ...
-    def _send(self, msg: Message) -> int: ...
-    def _link_up(self, caps: Caps) -> None: ...
-    def _saw_board_time(self, board_time_us: int) -> None: ...
-    def _count_retry(self) -> None: ...
-    def _reconnected(self) -> None: ...
+    async def attach(self, servo_count: int | None) -> Transport: ...
+    def transmit(self, msg: Message) -> int: ...
+    def link_up(self, caps: Caps) -> None: ...
+    def count_retry(self) -> None: ...
+    def reconnected(self) -> None: ...
 
 
 class Supervisor:
-    """Keeps ``client``'s link up (module docstring); ``hello_fut`` and ``sync_pending`` are its replies."""
+    """Keeps ``client``'s link up (module docstring); ``hello_fut`` and ``sync_pending`` are its replies.
 
-    def __init__(self, client: SupervisedSession) -> None:
-        self.client = client
+    ``clock`` is the board clock its TIME_SYNC exchanges feed. The handshake: ``robot`` is what CAPS
+    must report (None: any), ``schema`` the wire schema tried first, ``schema_hash`` pins the hash HELLO
+    carries (only it is tried; tests), ``handshake_timeout`` (s) bounds each schema's HELLO. Keep-alive:
+    a HEARTBEAT after ``heartbeat_s`` without a send, a TIME_SYNC every ``sync_interval_s`` (realtime
+    boards, while ``keepalive``), ``sync_burst`` exchanges at connect; reconnect backoff up to
+    ``reconnect_max_s``.
+    """
+
+    def __init__(self, client: SupervisedSession, clock: BoardClock, *, robot: RobotIdentity | None = None,
+                 schema: WireSchema, schema_hash: int | None = None, protocol_version: int = PROTOCOL_VERSION,
+                 handshake_timeout: float = 3.0, reconnect_max_s: float = 1.0, sync_burst: int = 8,
+                 heartbeat_s: float = HEARTBEAT_S, sync_interval_s: float = 0.5) -> None:
+        self.client, self.clock = client, clock
+        self.robot, self.schema, self.protocol_version = robot, schema, protocol_version
+        self.schema_pinned = schema_hash is not None
+        #: the schema hash HELLO carries (the one the board accepted, after a handshake)
+        self.schema_hash = schema.hash if schema_hash is None else schema_hash
+        self.handshake_timeout, self.reconnect_max_s = handshake_timeout, reconnect_max_s
+        self.sync_burst_n, self.heartbeat_s, self.sync_interval_s = sync_burst, heartbeat_s, sync_interval_s
+        self.keepalive = True  # heartbeat + periodic sync; turn off to let the watchdog fire
         self.hello_fut: Reply[Caps] | None = None
         #: every HELLO of the current handshake (re-sends included): sequence number -> its schema hash
         self.hellos_sent: dict[int, int] = {}
@@ -174,23 +173,19 @@ class Supervisor:
         self.sync_pending.clear()
 
     async def connect_once(self) -> None:
+        """Connect, handshake and sync once (no retries); raises :class:`LinkError` on failure."""
         c = self.client
-        transport = c._get_transport()
-        if c.robot is not None:
-            transport.set_servo_count(c.robot.servo_count)
-        c._lost.clear()
-        await transport.connect(c._on_items, c._on_lost)
-        c.port_name = port = transport.name  # a callable spec resolves on connect
-        c.link_spec = transport.link_spec
+        transport = await c.attach(self.robot.servo_count if self.robot is not None else None)
+        port = c.port_name
         try:
             caps = await self.handshake()
-            c._link_up(caps)
+            c.link_up(caps)
             await self.sync_burst()
         except BaseException:
-            c._ready = False
+            c.ready = False
             transport.disconnect()
             raise
-        c._connected.set()
+        c.up.set()
         log.info(
             "link up on %s: protocol v%d, %d servos, %d Hz, %s", port, caps.protocol_version,
             caps.servo_count, caps.control_rate_hz, "lockstep" if caps.lockstep else "realtime",
@@ -204,10 +199,10 @@ class Supervisor:
         self.hello_fut = fut
         self.hello_hash = schema_hash  # only a NACK of a HELLO with this hash fails it (refuse_hello)
         try:
-            deadline = anyio.current_time() + c.handshake_timeout
+            deadline = anyio.current_time() + self.handshake_timeout
             wait = HELLO_FIRST_RETRY_S
             while True:
-                self.hellos_sent[c._send(Hello(c.protocol_version, schema_hash, host_now_us()))] = schema_hash
+                self.hellos_sent[c.transmit(Hello(self.protocol_version, schema_hash, host_now_us()))] = schema_hash
                 left = deadline - anyio.current_time()
                 if left <= 0:
                     break
@@ -216,7 +211,7 @@ class Supervisor:
                 wait *= 2
             fut.cancel()
             why = self.slow_line_note() or "is a GhostShell board (ghostshell board, python -m firmware_sim) serving this port?"
-            raise HandshakeError(f"no CAPS from {c.port_name!r} within {c.handshake_timeout} s: {why}") from None
+            raise HandshakeError(f"no CAPS from {c.port_name!r} within {self.handshake_timeout} s: {why}") from None
         finally:
             self.hello_fut = None
 
@@ -225,8 +220,8 @@ class Supervisor:
         self.hellos_sent.clear()
         # the robot's schema first (pinned: only it); then, after a SCHEMA_MISMATCH, every other one
         # this build speaks (module docstring)
-        first = c.schema_hash if c._schema_pinned else c.schema.hash
-        hashes = [first] + ([] if c._schema_pinned else [s.hash for s in WIRE_SCHEMAS if s.hash != first])
+        first = self.schema_hash if self.schema_pinned else self.schema.hash
+        hashes = [first] + ([] if self.schema_pinned else [s.hash for s in WIRE_SCHEMAS if s.hash != first])
         caps = None
         refused: SchemaMismatch | None = None
         for h in hashes:
@@ -239,9 +234,9 @@ class Supervisor:
         if caps is None:
             assert refused is not None
             raise refused
-        if caps.protocol_version != c.protocol_version:
+        if caps.protocol_version != self.protocol_version:
             raise HandshakeError(
-                f"board speaks protocol v{caps.protocol_version}, host v{c.protocol_version}: "
+                f"board speaks protocol v{caps.protocol_version}, host v{self.protocol_version}: "
                 "update the host or the board firmware so both match"
             )
         if caps.schema_hash != h:
@@ -249,7 +244,7 @@ class Supervisor:
                 f"schema mismatch: board {caps.schema_hash:#010x}, host {h:#010x}: "
                 "host and board were built from different protocol definitions; update one side"
             )
-        want = c.robot
+        want = self.robot
         board = RobotIdentity(caps.robot, caps.servo_count, caps.servo_table_hash)
         if want is not None and board != want:
             raise RobotMismatch(
@@ -264,26 +259,26 @@ class Supervisor:
                                  f"{h:#010x} of another servo count ({board_schema!r} expected): a broken board build")
         if c.transport is not None:
             c.transport.set_servo_count(caps.servo_count)
-        c.schema_hash = h
+        self.schema_hash = h
         return caps
 
     async def supervise(self) -> None:
         c = self.client
-        while not c._closing:
-            await c._lost.wait()
-            if c._closing or not c.reconnect:
+        while not c.closing:
+            await c.lost.wait()
+            if c.closing or not c.reconnect:
                 return
             delay = 0.05
-            while not c._closing:
+            while not c.closing:
                 await anyio.sleep(delay)  # backoff between attempts (not synchronisation)
                 try:
                     await self.connect_once()
                 except LinkError as e:
                     log.debug("reconnect to %s failed: %s", c.port_name, e)
                     c.last_reconnect_error = str(e)  # the loss's own cause stays in last_disconnect_reason
-                    delay = min(c.reconnect_max_s, delay * 2)
+                    delay = min(self.reconnect_max_s, delay * 2)
                     continue
-                c._reconnected()
+                c.reconnected()
                 break
 
     async def sync_once(self, timeout: float = 0.5) -> tuple[int, int, int, int]:
@@ -295,7 +290,7 @@ class Supervisor:
         fut: Reply[tuple[TimeSyncReply, int, int]] = Reply()
         self.sync_pending[t1] = fut
         try:
-            c._send(TimeSyncRequest(t1))
+            c.transmit(TimeSyncRequest(t1))
             # the part of the uplink the host's line model accounts for (queue + the request's own bytes)
             wire_us = c.tx_wire.busy_s(time.monotonic()) * 1e6 if c.tx_wire is not None else 0.0
             reply, t4, reply_bytes = await fut.get(timeout)
@@ -306,19 +301,21 @@ class Supervisor:
             if self.sync_pending.get(t1) is fut:
                 del self.sync_pending[t1]
             fut.cancel()
-        c._saw_board_time(reply.t3_board_us)
-        if not c.lockstep:
+        clock = self.clock
+        clock.saw(reply.t3_board_us)
+        if not clock.lockstep:
             # the board models its line at the same rate both ways: the reply's own bytes took their wire
             # time too. Its wait behind the board's earlier bytes is not in the leg: the emulated board
             # stamps t3 as the reply's first byte goes on its line (firmware_sim.server); a board that
             # stamps it sooner adds that wait, and such a sample's longer round trip ranks it low in the fit
             down_us = c.tx_wire.wire_s(reply_bytes) * 1e6 if c.tx_wire is not None and wire_us > 0 else 0.0
-            c.clock.add(t1, reply.t2_board_us, reply.t3_board_us, t4, wire_us=wire_us, wire_down_us=down_us)
+            clock.sync.add(t1, reply.t2_board_us, reply.t3_board_us, t4, wire_us=wire_us, wire_down_us=down_us)
         return t1, reply.t2_board_us, reply.t3_board_us, t4
 
     async def sync_burst(self) -> None:
+        """``sync_burst`` TIME_SYNC exchanges (one in lockstep), each tried up to :data:`SYNC_ATTEMPTS` times."""
         c = self.client
-        for _ in range(c.sync_burst if not c.lockstep else 1):
+        for _ in range(self.sync_burst_n if not self.clock.lockstep else 1):
             # a lost probe or reply costs a retry, not the connection (at 5 % frame loss a classic-CAN
             # exchange of 6 frames fails 1 time in 4, three in a row 1 in 50); a board slow to answer (a
             # loaded machine) gets longer each time (SYNC_ATTEMPTS)
@@ -329,23 +326,23 @@ class Supervisor:
                 except LinkTimeout:
                     if attempt == SYNC_ATTEMPTS - 1:
                         raise
-                    c._count_retry()
+                    c.count_retry()
 
     async def heartbeat_loop(self) -> None:
         """A HEARTBEAT whenever nothing else was sent for ``heartbeat_s`` (realtime boards only: in lockstep
         nothing is sent on wall time, see the module docstring)."""
         c = self.client
         while True:
-            await anyio.sleep(c.heartbeat_s / 2)
-            if (c._ready and c.keepalive and not c.lockstep
-                    and time.monotonic() - c._last_tx >= c.heartbeat_s):
+            await anyio.sleep(self.heartbeat_s / 2)
+            if (c.ready and self.keepalive and not self.clock.lockstep
+                    and time.monotonic() - c.last_tx >= self.heartbeat_s):
                 with contextlib.suppress(LinkError):
-                    c._send(Heartbeat(host_now_us()))
+                    c.transmit(Heartbeat(host_now_us()))
 
     async def sync_loop(self) -> None:
         c = self.client
         while True:
-            await anyio.sleep(c.sync_interval_s)
-            if c._ready and c.keepalive and not c.lockstep:
+            await anyio.sleep(self.sync_interval_s)
+            if c.ready and self.keepalive and not self.clock.lockstep:
                 with contextlib.suppress(LinkError):
                     await self.sync_once()

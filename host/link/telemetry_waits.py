@@ -1,27 +1,29 @@
 """Telemetry views and waits of the session: ``latest_telemetry``, fault bits and edges, ``wait_for`` (with
 the lockstep nudge), ``next_telemetry``, ``telemetry()``.
 
-:class:`TelemetryWaits` is a mixin of :class:`host.link.session.BoardClient`: it reads the session's
-:class:`host.link.telemetry.TelemetryFanout` (``fanout``) and, for a lockstep board whose clock only
-runs when the host ADVANCEs it, sends ADVANCE through the session's ``_send``. Waiting is anyio
-(:meth:`host.link.waiting.Reply.wait`, a deadline on :func:`anyio.current_time`).
+:class:`TelemetryWaits` is a part of :class:`host.link.session.BoardClient`: it reads the
+:class:`host.link.telemetry.TelemetryFanout` it is given (``fanout``) and the board clock
+(:class:`host.link.board_time.BoardClock`) and, for a lockstep board whose clock only runs when the
+host ADVANCEs it, sends ADVANCE through the session, which it holds as :class:`WaitLink`. Waiting is
+anyio (:meth:`host.link.waiting.Reply.wait`, a deadline on :func:`anyio.current_time`).
 """
 
 from __future__ import annotations
 
 import contextlib
 from collections import deque
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
+from typing import Protocol
 
 import anyio
 
-from host.link.board_time import BoardTime
+from host.link.board_time import BoardClock
 from host.link.errors import LinkError, LinkTimeout
 from host.link.receive import LinkStats
 from host.link.telemetry import FaultEvent, TelemetryFanout, flag_names
-from protocol.messages import Advance, FaultFlags, Message, Telemetry
+from protocol.messages import Advance, Caps, FaultFlags, Message, Telemetry
 
-__all__ = ["NudgeTarget", "TelemetryWaits"]
+__all__ = ["NudgeTarget", "TelemetryWaits", "WaitLink"]
 
 
 class NudgeTarget:
@@ -58,35 +60,27 @@ class NudgeTarget:
         return self.target
 
 
-class TelemetryWaits(BoardTime):
-    """Waits on the telemetry listener (and the board clock, :class:`BoardTime`); the session provides
-    the attributes annotated here."""
-
-    fanout: TelemetryFanout
-    stats: LinkStats
+class WaitLink(Protocol):
+    """What the telemetry waits need of the session: the board's CAPS (report and tick rates), the
+    loss counters, and a send that works before the handshake completed (a nudge's ADVANCE)."""
 
     @property
-    def latest_telemetry(self) -> Telemetry | None:
-        """The latest TELEMETRY report (None before the first)."""
-        return self.fanout.latest
-
+    def caps(self) -> Caps | None: ...
     @property
-    def faults(self) -> FaultFlags:
-        """The fault bits of :data:`FAULT_BITS` in the latest report."""
-        return self.fanout.faults
+    def stats(self) -> LinkStats: ...
+    def transmit(self, msg: Message) -> int: ...
 
-    @property
-    def fault_events(self) -> deque[FaultEvent]:
-        """The latest 256 fault edges."""
-        return self.fanout.fault_events
 
-    @property
-    def on_fault(self) -> list[Callable[[FaultEvent], None]]:
-        """Callbacks called with every fault edge (append to it)."""
-        return self.fanout.on_fault
+class TelemetryWaits:
+    """Waits on the telemetry listener ``fanout`` and the board clock ``clock``; ``sync_once(timeout)`` is
+    one TIME_SYNC exchange (:meth:`host.link.supervisor.Supervisor.sync_once`)."""
 
-    def _send(self, msg: Message) -> int:  # the session's
-        raise NotImplementedError
+    def __init__(self, link: WaitLink, fanout: TelemetryFanout, clock: BoardClock,
+                 sync_once: Callable[[float], Awaitable[object]]) -> None:
+        self.link, self.fanout, self.clock = link, fanout, clock
+        self._sync_once = sync_once
+        #: the latest 16 report latencies (s) :meth:`nudge_raise_s` works from (emptied on every handshake)
+        self.report_latencies: deque[float] = deque(maxlen=16)
 
     #: wall seconds between the ADVANCEs of :meth:`wait_for` with ``nudge`` (a lockstep board answers in ~1 ms)
     NUDGE_S = 0.1
@@ -97,9 +91,9 @@ class TelemetryWaits(BoardTime):
     #: a nudge's target is raised after this many times the slowest recent report (see nudge_raise_s)
     NUDGE_RAISE_FACTOR = 4
 
-    #: the latest 16 report latencies nudge_raise_s works from (the session makes it, and empties it
-    #: on every handshake)
-    report_latencies: deque[float]
+    def restart(self, caps: Caps) -> None:
+        """A handshake completed: the latencies of :meth:`nudge_raise_s` are measured anew (``caps`` unused)."""
+        self.report_latencies.clear()
 
     def nudge_raise_s(self) -> float:
         """Wall seconds a nudge waits for the report its ADVANCE asked for before it takes the report as
@@ -124,7 +118,8 @@ class TelemetryWaits(BoardTime):
         """Whether the link has shown a loss: a frame that failed to decode, or a request re-sent for want
         of its ACK. Lockstep nudges (:meth:`wait_for`, :func:`host.run.pump.silence_watchdog`) act on
         wall-clock silence quickly only then."""
-        return self.stats.decode_errors > 0 or self.stats.retries > 0
+        stats = self.link.stats
+        return stats.decode_errors > 0 or stats.retries > 0
 
     def _report_latency(self, seconds: float) -> None:
         self.report_latencies.append(max(0.0, seconds))
@@ -135,11 +130,11 @@ class TelemetryWaits(BoardTime):
         an ADVANCE target's report that was lost, not late, shows as a board already there). False
         when the board is behind, or when no reply came within ``timeout`` s (a slow board, or a lost
         message: ask again later)."""
-        if self.board_now_estimate() >= t_us:
+        if self.clock.board_now_estimate() >= t_us:
             return True
         with contextlib.suppress(LinkError):  # LinkTimeout or LinkDown: not known to be there
-            await self.sync_once(timeout)
-        return self.board_now_estimate() >= t_us
+            await self._sync_once(timeout)
+        return self.clock.board_now_estimate() >= t_us
 
     async def telemetry(self, maxsize: int | None = None) -> AsyncIterator[Telemetry]:
         """Every telemetry report from now on; a slow consumer loses the oldest (bounded stream)."""
@@ -160,10 +155,10 @@ class TelemetryWaits(BoardTime):
         set from), and a repeat comes only after :attr:`QUIET_LOST_S` without one. The ADVANCEs are not awaited: the report is the
         acknowledgement that matters.
         """
-        t = self.latest_telemetry
+        t = self.fanout.latest
         if t is not None and predicate(t):
             return t
-        nudging = nudge and self.lockstep
+        nudging = nudge and self.clock.lockstep
         goal = NudgeTarget()
         raised_from = 0  # the board time seen when the target was set
         # A report later than both raised_from and this wait's previous target (``floor``) can only have
@@ -188,7 +183,7 @@ class TelemetryWaits(BoardTime):
             while True:
                 if nudging:
                     now = anyio.current_time()
-                    seen = self.board_now_estimate()
+                    seen = self.clock.board_now_estimate()
                     lossy = self.link_lossy()
                     quiet = now - sent_at >= self.QUIET_LOST_S
                     # healthy link: a report from the current target (later than the time it was set from)
@@ -208,7 +203,7 @@ class TelemetryWaits(BoardTime):
                     if resend:
                         sent_at = now
                         with contextlib.suppress(LinkError):
-                            self._send(Advance(goal.target))
+                            self.link.transmit(Advance(goal.target))
                 left = deadline - anyio.current_time()
                 if left <= 0:
                     break
@@ -219,7 +214,7 @@ class TelemetryWaits(BoardTime):
                     return got
                 if not nudging:
                     break
-            last = self.latest_telemetry
+            last = self.fanout.latest
             where = (f"; last telemetry at board time {last.board_time_us / 1e6:.3f} s, faults {flag_names(last.faults)}"
                      if last else "; no telemetry received")
             raise LinkTimeout(f"telemetry condition not met within {timeout} s{where}")
@@ -229,7 +224,7 @@ class TelemetryWaits(BoardTime):
 
     def report_period_us(self) -> int:
         """One telemetry period plus one control tick (us): an ADVANCE this far always yields a report."""
-        caps = self.caps
+        caps = self.link.caps
         rate = caps.telemetry_rate_hz if caps is not None and caps.telemetry_rate_hz > 0 else 50
         tick = caps.control_rate_hz if caps is not None and caps.control_rate_hz > 0 else 500
         return 1_000_000 // rate + 1_000_000 // tick

@@ -17,13 +17,19 @@ that discipline the system clock, not estimators one can feed samples.
 
 from __future__ import annotations
 
+import time
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ClockEstimate", "ClockSync", "SyncSample", "quantile_sorted"]
+__all__ = ["ClockEstimate", "ClockSync", "SyncSample", "host_now_us", "quantile_sorted"]
+
+
+def host_now_us() -> int:
+    """The host clock used for time sync: ``time.monotonic`` in integer microseconds."""
+    return time.monotonic_ns() // 1000
 
 
 def quantile_sorted(values: Sequence[float], q: float) -> float:

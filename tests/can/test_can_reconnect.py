@@ -93,7 +93,7 @@ def test_a_spec_that_now_names_another_node_is_refused(tmp_path: Path) -> None:
             node["n"] = 2
             c.transport.disconnect()  # type: ignore[union-attr]
             with pytest.raises(LinkDown, match="not a CAN link to node 1"):
-                await c._connect_once()  # noqa: SLF001  (the reconnect step itself)
+                await c.supervisor.connect_once()  # noqa: SLF001  (the reconnect step itself)
         finally:
             await c.close()
 

@@ -165,7 +165,7 @@ def test_a_bursts_writer_hands_the_cpu_over_once_after_the_write(board_factory, 
 
     async def main() -> None:
         async with await BoardClient.connect(board.port, log_path=tmp_path / "host.jsonl") as c:
-            port = c._transport._port  # type: ignore[attr-defined]
+            port = c.transport._port  # type: ignore[attr-defined]
             monkeypatch.setattr(serial_module, "_hand_over", lambda: waiting.append(len(port._tx)))
             c.send(Flush(0, 0b1))
             assert waiting == []  # a plain send does not hand over

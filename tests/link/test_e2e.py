@@ -71,7 +71,7 @@ def test_reader_thread_transport_works_too(board_factory) -> None:
 
     async def main() -> None:
         async with await BoardClient.connect(board.port, force_thread=True) as c:
-            assert c._transport is not None and c._transport._port is not None and c._transport._port.fd is None
+            assert c.transport is not None and c.transport._port is not None and c.transport._port.fd is None
             res = await move_to(c, POSES["stand"], duration_s=0.3)
             assert res.max_error_deg < 3.0
 
@@ -165,7 +165,7 @@ def test_garbage_on_the_line_does_not_break_the_session(board_factory) -> None:
             assert t1.faults & FaultFlags.LINK_ERRORS or t1.link_errors > t0.link_errors
             # board -> host: garbage in the receive path is counted, never raised
             before = c.stats.decode_errors
-            c._transport._on_data(garbage)  # type: ignore[union-attr,attr-defined]  # the serial transport's byte handler, fed as if the line had delivered this
+            c.transport._on_data(garbage)  # type: ignore[union-attr,attr-defined]  # the serial transport's byte handler, fed as if the line had delivered this
             assert c.stats.decode_errors > before
             await c.next_telemetry(2)
             res = await move_to(c, POSES["crouch"], duration_s=0.3)

@@ -249,6 +249,7 @@ def test_a_late_nack_of_a_refused_hash_does_not_fail_the_next_hashs_hello(reply_
     Virtual time (trio's MockClock): the board answers every HELLO ``reply_after_s`` later."""
     import trio.testing
 
+    from host.link.board_time import BoardClock
     from host.link.errors import SchemaMismatch
     from host.link.supervisor import Supervisor
     from protocol.codec import WIRE_SCHEMA_16, WIRE_SCHEMA_32
@@ -258,19 +259,13 @@ def test_a_late_nack_of_a_refused_hash_does_not_fail_the_next_hashs_hello(reply_
     sups: list[Supervisor] = []
 
     class Client:  # what Supervisor.handshake reads of a session
-        robot = None
         port_name = "fake"
-        protocol_version = PROTOCOL_VERSION
-        handshake_timeout = 3.0
-        schema = WIRE_SCHEMA_16
-        schema_hash = WIRE_SCHEMA_16.hash
-        _schema_pinned = False
         transport = None
 
         def __init__(self, tg: anyio.abc.TaskGroup) -> None:
             self.tg = tg
 
-        def _send(self, msg: Hello) -> int:
+        def transmit(self, msg: Hello) -> int:
             seq = len(sent)
             sent.append(msg.schema_hash)
 
@@ -286,7 +281,9 @@ def test_a_late_nack_of_a_refused_hash_does_not_fail_the_next_hashs_hello(reply_
 
     async def main() -> Caps:
         async with anyio.create_task_group() as tg:
-            sups.append(Supervisor(Client(tg)))  # type: ignore[arg-type]
+            client = Client(tg)
+            sups.append(Supervisor(client, BoardClock(client), schema=WIRE_SCHEMA_16,  # type: ignore[arg-type]
+                                   protocol_version=PROTOCOL_VERSION, handshake_timeout=3.0))
             caps = await sups[0].handshake()
             tg.cancel_scope.cancel()
         return caps
@@ -313,19 +310,19 @@ def test_the_boards_numbering_restarts_at_the_caps_so_frames_that_overtook_it_ar
     caps = Caps(PROTOCOL_VERSION, 0, 1, 500, 64, 50, 10_000, True, "chain1", 0)
     client = BoardClient("pty")
     client.supervisor.hello_fut = Reply()
-    client._on_items([tel(7), tel(8), tel(11), Frame(10, MsgType.CAPS, caps, b"")])
+    client.receiver.on_items([tel(7), tel(8), tel(11), Frame(10, MsgType.CAPS, caps, b"")])
     assert client.supervisor.hello_fut.done() and client.supervisor.hello_fut.result() is caps
-    client._link_up(caps)  # the handshake's end, after the frames above were counted
+    client.session.link_up(caps)  # the handshake's end, after the frames above were counted
     sim = SimState(9000, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))
-    client._on_items([Frame(9, MsgType.SIM_STATE, sim, b""), tel(12), tel(13)])
+    client.receiver.on_items([Frame(9, MsgType.SIM_STATE, sim, b""), tel(12), tel(13)])
     assert client.stats.seq_gaps == 0
     # a SIM_STATE overtaken at the end of a run is no loss while it may still come; a real loss counts
     # once REORDER_DEPTH later messages have come
-    client._on_items([tel(15)])
+    client.receiver.on_items([tel(15)])
     assert client.stats.seq_gaps == 0
-    client._on_items([tel(s) for s in range(16, 16 + REORDER_DEPTH)])
+    client.receiver.on_items([tel(s) for s in range(16, 16 + REORDER_DEPTH)])
     assert client.stats.seq_gaps == 1
-    client._on_items([Frame(14, MsgType.SIM_STATE, sim, b"")])  # it was late after all
+    client.receiver.on_items([Frame(14, MsgType.SIM_STATE, sim, b"")])  # it was late after all
     assert client.stats.seq_gaps == 0
 
 

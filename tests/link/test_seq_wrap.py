@@ -39,7 +39,7 @@ def test_nack_for_a_sequence_number_is_forgotten_when_the_number_comes_round(boa
             # a waiter for the old frame's NACK is answered "none" when its number is reused
             late_waiter = asyncio.ensure_future(c.wait_frame_nack((bad - 1) & 0xFFFF, 60))
             before = c.stats.tx_frames
-            while gap := (bad - c._tx_seq) & 0xFFFF:  # frames to send before `bad` comes round
+            while gap := (bad - c.session.tx_seq) & 0xFFFF:  # frames to send before `bad` comes round
                 if gap == 1:
                     c.send(Heartbeat(0))
                 else:

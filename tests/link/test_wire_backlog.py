@@ -116,10 +116,10 @@ def test_every_send_occupies_the_hosts_line_and_the_streamer_plans_behind_it() -
             frame = ServoFrame(1_000_000, 0xFFF, tuple(0.1 * i for i in range(12)))
             for _ in range(40):
                 before = line.free_at
-                seq = client._send(frame)
+                seq = client.session.transmit(frame)
                 nbytes = len(encode_frame(frame, seq, client.schema))
                 # the frame's wire time, from when it was handed over or behind the bytes before it
-                assert line.free_at == pytest.approx(max(before, client._last_tx) + nbytes * 10 / BAUD, abs=1e-9)
+                assert line.free_at == pytest.approx(max(before, client.session.last_tx) + nbytes * 10 / BAUD, abs=1e-9)
             t0 = time.monotonic()
             extra = link.latency_us(31) - idle
             t1 = time.monotonic()
