@@ -331,10 +331,10 @@ class ProgramRun:
     def _event(self, ev: Event) -> None:
         """One parser event: kept for the reply as executed, recorded (inside ``<SAVE>``) or dispatched."""
         if not self._skills.stack and isinstance(ev, (StartTag, EmptyTag, EndTag)):
-            if not self._skills.recording:
+            if self._skills.recording is None:
                 self._flush_text()  # sentences before the tag come first
             self._keep(ev)
-        if self._skills.recording:
+        if self._skills.recording is not None:
             self._skills.record(ev)
             return
         match ev:
@@ -358,7 +358,7 @@ class ProgramRun:
                 self._executed.append((start_tag(name, dict(attrs), empty=True), None))
             case StartTag(name=name, attrs=attrs):
                 self._executed.append((start_tag(name, dict(attrs)), None))
-            case EndTag(name=name) if self._skills.recording or len(self._stack) > 1:
+            case EndTag(name=name) if self._skills.recording is not None or len(self._stack) > 1:
                 self._executed.append((end_tag(name), None))
 
     # -- text -------------------------------------------------------------------

@@ -55,17 +55,13 @@ class SkillRecorder:
         self.skills = skills
         self._observe = observe
         self._executed = executed
-        self._recording: _Recording | None = None
+        #: the open ``<SAVE>`` while one is (its events go to :meth:`record`, nothing is dispatched), else None
+        self.recording: _Recording | None = None
         self._mark = 0  # index in ``executed`` of the open SAVE's start tag
         #: <SAVE> elements that saved nothing
         self.failures = 0
         #: the skills being expanded now, outermost first (a <RUN> inside a skill nests)
         self.stack: list[str] = []
-
-    @property
-    def recording(self) -> bool:
-        """True while a ``<SAVE>`` is open (events go to :meth:`record`, nothing is dispatched)."""
-        return self._recording is not None
 
     def start(self, attrs: dict[str, str], empty: bool) -> None:
         """A ``<SAVE>`` tag (its start tag already kept in ``executed``); ``<SAVE/>`` fails at once."""
@@ -74,12 +70,12 @@ class SkillRecorder:
             self._observe("error", f"<SAVE name={name!r}/> encloses no program; nothing saved")
             self.failures += 1
             return
-        self._recording = _Recording(name, attrs.get("description", ""))
+        self.recording = _Recording(name, attrs.get("description", ""))
         self._mark = max(0, len(self._executed) - 1)
 
     def record(self, ev: Event) -> None:
         """One parser event inside the open ``<SAVE>``; its end-tag saves the program."""
-        rec = self._recording
+        rec = self.recording
         assert rec is not None
         match ev:
             case Text(text=data):
@@ -94,7 +90,7 @@ class SkillRecorder:
             case EndTag(name=name):
                 rec.depth -= 1
                 if rec.depth == 0:
-                    self._recording = None
+                    self.recording = None
                     self._save(rec)
                 else:
                     rec.parts.append(end_tag(name))
@@ -113,14 +109,14 @@ class SkillRecorder:
 
     def drop(self) -> None:
         """The run stopped: an unfinished SAVE is not part of what was executed (nothing is saved)."""
-        if self._recording is not None:
+        if self.recording is not None:
             del self._executed[self._mark:]
-        self._recording = None
+        self.recording = None
 
     def end_of_stream(self) -> None:
         """The stream ended: a SAVE still open was never closed (one failure; nothing is saved)."""
-        if self._recording is not None:
-            self._observe("error", f"<SAVE name={self._recording.name!r}> was never closed; skill not saved")
+        if self.recording is not None:
+            self._observe("error", f"<SAVE name={self.recording.name!r}> was never closed; skill not saved")
             self.failures += 1
             self.drop()
 

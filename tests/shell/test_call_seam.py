@@ -58,9 +58,9 @@ def test_save_records_events_until_its_end_tag(tmp_path) -> None:
     rec.start({"name": "s", "description": "d"}, empty=False)
     for ev in (StartTag("a", {}), EmptyTag("b", {"x": "1"}), Text("hi"), EndTag("a")):
         rec.record(ev)
-    assert rec.recording
+    assert rec.recording is not None
     rec.record(EndTag("SAVE"))
-    assert not rec.recording and rec.failures == 0
+    assert rec.recording is None and rec.failures == 0
     assert rec.skills.get("s").program == '<a><b x="1"/>hi</a>'
     assert seen == [("info", "skill 's' saved")]
     assert executed[-1] == ("hi", None)
@@ -69,7 +69,7 @@ def test_save_records_events_until_its_end_tag(tmp_path) -> None:
 def test_an_unclosed_or_empty_save_fails_and_is_not_executed(tmp_path) -> None:
     rec, seen, executed = _recorder(tmp_path)
     rec.start({"name": "s"}, empty=True)
-    assert not rec.recording and rec.failures == 1
+    assert rec.recording is None and rec.failures == 1
     rec.start({"name": "s"}, empty=False)
     rec.record(Text("x"))
     rec.end_of_stream()
