@@ -42,11 +42,16 @@ stream *after* line-ending normalisation (CRLF and lone CR become LF, as XML req
 
 from __future__ import annotations
 
-import re
-from dataclasses import dataclass, field
-from typing import NoReturn, TypeAlias
+from typing import NoReturn
 
-from host.shell.xml_names import INVALID_CHAR_CLASS, NAME_CHARS, NAME_START_CHARS, is_xml_char
+from host.shell.parse_events import _NOPOS, EmptyTag, EndTag, Event, ParseError, ParseWarning, Position, StartTag, Text
+from host.shell.parse_lex import (
+    _AFTER, _ANAME, _ATTR, _CDATA, _COMMENT, _DECL_PREFIXES, _DECL_SCAN, _EAFTER, _ENAME, _ENAME0, _EQ, _ETAG,
+    _INVALID, _LT, _NAME_ST, _NAMECHARS, _NAMESTART, _PLAIN_TEXT, _PREQ, _REF, _REFCHARS, _RESIDUE,
+    _RESIDUE_PREFIX, _SKIP_DECL, _SKIP_PI, _SKIP_TAG, _SKIP_TAG_END, _SLASH, _STAG, _TAG, _TEXT, _TEXT_SPECIAL,
+    _UNQUOTED, _UVALUE, _VALUE, _VALUE_END, _WS, MAX_TOKEN,
+)
+from host.shell.parse_values import _attr_value, _char_ref, _Malformed, _ref_problem
 
 __all__ = [
     "MAX_TOKEN",
@@ -61,181 +66,6 @@ __all__ = [
     "Text",
     "parse",
 ]
-
-#: Largest single tag or reference (characters) the parser will hold while it is incomplete.
-MAX_TOKEN = 64 * 1024
-
-
-@dataclass(frozen=True, slots=True)
-class Position:
-    """A place in the (line-ending-normalised) input: 1-based line and column, 0-based offset."""
-
-    line: int = 1
-    column: int = 1
-    offset: int = 0
-
-    def __str__(self) -> str:
-        return f"line {self.line}, column {self.column}"
-
-
-_NOPOS = Position()
-
-
-@dataclass(frozen=True, slots=True)
-class StartTag:
-    """An AFToken ``<name a="v">``; ``attrs`` values have references resolved.
-
-    ``refused`` (lenient mode) says why the call must not run (a duplicated attribute), or is None.
-    """
-
-    name: str
-    attrs: dict[str, str]
-    pos: Position = field(default=_NOPOS, compare=False)
-    refused: str | None = field(default=None, compare=False)
-
-
-@dataclass(frozen=True, slots=True)
-class EndTag:
-    """An RFToken ``</name>``."""
-
-    name: str
-    pos: Position = field(default=_NOPOS, compare=False)
-
-
-@dataclass(frozen=True, slots=True)
-class EmptyTag:
-    """An SCFToken ``<name a="v"/>``; ``refused`` as for :class:`StartTag`."""
-
-    name: str
-    attrs: dict[str, str]
-    pos: Position = field(default=_NOPOS, compare=False)
-    refused: str | None = field(default=None, compare=False)
-
-
-@dataclass(frozen=True, slots=True)
-class Text:
-    """Character data (FChar, resolved FRef, CDATA content); adjacent pieces within a feed are merged."""
-
-    text: str
-    pos: Position = field(default=_NOPOS, compare=False)
-
-
-@dataclass(frozen=True, slots=True)
-class ParseWarning:
-    """A recovery made in lenient mode (the input was malformed at ``pos``)."""
-
-    message: str
-    pos: Position = field(default=_NOPOS, compare=False)
-
-
-Event: TypeAlias = StartTag | EndTag | EmptyTag | Text | ParseWarning
-
-
-class ParseError(Exception):
-    """Malformed (or, at ``close()``, incomplete) input in strict mode.
-
-    ``line``/``column`` (1-based) and ``offset`` (0-based) locate the problem; ``incomplete`` is True
-    when the stream ended inside a token or element rather than containing a malformed one;
-    ``events`` holds the events the failing ``feed``/``close`` call completed before the error, so
-    nothing parsed is lost.
-    """
-
-    def __init__(
-        self,
-        message: str,
-        line: int = 1,
-        column: int = 1,
-        offset: int = 0,
-        *,
-        incomplete: bool = False,
-        events: list[Event] | None = None,
-    ) -> None:
-        super().__init__(f"{message} (line {line}, column {column}, offset {offset})")
-        self.message = message
-        self.line = line
-        self.column = column
-        self.offset = offset
-        self.incomplete = incomplete
-        self.events: list[Event] = events if events is not None else []
-
-
-# ----------------------------------------------------------------------------------------- regexes
-_NS = NAME_START_CHARS
-_NC = NAME_CHARS
-_NAME = f"[{_NS}][{_NC}]*"
-_S = "[ \t\n]"
-_PLAIN_TEXT = re.compile(f"[^<&\\]\r{INVALID_CHAR_CLASS}]+")
-_TEXT_SPECIAL = re.compile(f"[<&{INVALID_CHAR_CLASS}]")
-_NAMESTART = re.compile(f"[{_NS}]")
-_NAMECHARS = re.compile(f"[{_NC}]*")
-_WS = re.compile(f"{_S}*")
-_REFCHARS = re.compile(f"[#{_NC}]*")
-_VALUE_END = {'"': re.compile('[<"]'), "'": re.compile("[<']")}
-_INVALID = re.compile(f"[{INVALID_CHAR_CLASS}]")
-# Fast paths: a complete, well-formed tag inside one buffer.
-_STAG = re.compile(
-    f"<({_NAME})((?:{_S}+{_NAME}{_S}*={_S}*(?:\"[^<\"]*\"|'[^<']*'))*){_S}*(/?)>"
-)
-_ATTR = re.compile(f"{_S}+({_NAME}){_S}*={_S}*(?:\"([^<\"]*)\"|'([^<']*)')")
-_ETAG = re.compile(f"</({_NAME}){_S}*>")
-_VALUE_REF = re.compile(f"&(?:#([0-9]+);|#x([0-9a-fA-F]+);|({_NAME});)?")
-_WS_TO_SPACE = str.maketrans("\t\n", "  ")
-_PREDEFINED = {"lt": "<", "gt": ">", "amp": "&", "apos": "'", "quot": '"'}
-_DECL_PREFIXES = ("<!--", "<![CDATA[", "<!DOCTYPE")
-
-# --------------------------------------------------------------------------------------- modes
-_TEXT, _TAG, _REF, _COMMENT, _CDATA, _SKIP_PI, _SKIP_DECL, _SKIP_TAG = range(8)
-#: what ends the skipping of a dropped malformed tag (lenient): its '>' or the next '<'
-_SKIP_TAG_END = re.compile("[<>]")
-#: residue of a dropped tag right after it (lenient): '"/>', "'>", '/>', '>'
-_RESIDUE = re.compile("[ \t]*[\"']?[ \t]*/?[ \t]*>")
-_RESIDUE_PREFIX = re.compile("[ \t]*[\"']?[ \t]*/?[ \t]*")
-# tag sub-states
-(_LT, _NAME_ST, _AFTER, _ANAME, _EQ, _PREQ, _VALUE, _SLASH, _ENAME0, _ENAME, _EAFTER, _UVALUE) = range(12)
-#: an unquoted attribute value (lenient recovery, as HTML reads ``a=1``)
-_UNQUOTED = re.compile("[^ \t\n<>/\"'=`]*")
-
-
-_DECL_SCAN = re.compile(r"[\[\]>]")
-
-
-class _Malformed(Exception):
-    """Internal: malformed input at buffer index ``index`` (or at ``pos``)."""
-
-    def __init__(self, message: str, index: int = -1, pos: Position | None = None,
-                 incomplete: bool = False) -> None:
-        super().__init__(message)
-        self.message = message
-        self.index = index
-        self.pos = pos
-        self.incomplete = incomplete
-
-
-def _char_ref(body: str) -> str | None:
-    """Resolve ``#123`` / ``#x7B`` / predefined entity name; None when invalid."""
-    if body[:2] == "#x":
-        digits, base = body[2:], 16
-        ok = digits != "" and all(c in "0123456789abcdefABCDEF" for c in digits)
-    elif body[:1] == "#":
-        digits, base = body[1:], 10
-        ok = digits.isascii() and digits.isdigit()
-    else:
-        return _PREDEFINED.get(body)
-    if not ok:
-        return None
-    digits = digits.lstrip("0") or "0"
-    if len(digits) > 8:
-        return None
-    cp = int(digits, base)
-    return chr(cp) if is_xml_char(cp) else None
-
-
-def _ref_problem(body: str) -> str:
-    if body.startswith("#"):
-        return f"invalid character reference '&{body};'"
-    if not body:
-        return "empty reference '&;'"
-    return f"undefined entity '&{body};' (only &lt; &gt; &amp; &apos; &quot; are predefined)"
 
 
 class FunctionTokenParser:
@@ -522,44 +352,6 @@ class FunctionTokenParser:
         stack.pop()
         self._events.append(EndTag(name, pos))
 
-    # ------------------------------------------------------------------------------ values
-    def _attr_value(self, raw: str, pos: Position) -> str:
-        """Normalise an attribute value as XML does and resolve its references."""
-        if "\t" in raw or "\n" in raw:
-            raw = raw.translate(_WS_TO_SPACE)
-        m = _INVALID.search(raw)
-        if m is not None:
-            msg = f"character U+{ord(m.group()):04X} is not allowed in XML"
-            if self.strict:
-                raise _Malformed(msg, pos=pos)
-            self._warn(msg + "; dropped", pos)
-            raw = _INVALID.sub("", raw)
-        if "&" in raw:
-            raw = _VALUE_REF.sub(lambda mm: self._value_ref(mm, pos), raw)
-        return raw
-
-    def _value_ref(self, m: re.Match[str], pos: Position) -> str:
-        if m.group(1) is not None:
-            body = "#" + m.group(1)
-        elif m.group(2) is not None:
-            body = "#x" + m.group(2)
-        elif m.group(3) is not None:
-            body = m.group(3)
-        else:
-            msg = "'&' in an attribute value must start a reference like &amp; or &#38;"
-            if self.strict:
-                raise _Malformed(msg, pos=pos)
-            self._warn(msg + "; kept as text", pos)
-            return "&"
-        s = _char_ref(body)
-        if s is None:
-            msg = _ref_problem(body)
-            if self.strict:
-                raise _Malformed(msg, pos=pos)
-            self._warn(msg + "; kept as text", pos)
-            return m.group(0)
-        return s
-
     # ------------------------------------------------------------------------------ tokens
     def _begin(self, i: int, mode: int) -> None:
         """Start an incomplete token at buffer index ``i``."""
@@ -692,7 +484,7 @@ class FunctionTokenParser:
                                     if v is None:
                                         v = am.group(3)
                                     if "&" in v or "\t" in v or "\n" in v or _INVALID.search(v):
-                                        v = self._attr_value(v, tpos)
+                                        v = _attr_value(v, tpos, strict, self._warn)
                                     if an in attrs:
                                         self._dup_attr(an, tpos)
                                     else:
@@ -994,7 +786,7 @@ class FunctionTokenParser:
     def _end_attr(self) -> None:
         """An attribute value is complete: store it (a repeated name refuses the tag) and expect whitespace."""
         an = "".join(self._aname)
-        v = self._attr_value("".join(self._vparts), self._tok_pos)
+        v = _attr_value("".join(self._vparts), self._tok_pos, self.strict, self._warn)
         if an in self._attrs:
             self._dup_attr(an, self._tok_pos)
         else:
