@@ -216,6 +216,14 @@ class ProgramRun:
         self._full_channels: set[str | None] = set()  # channels whose queue overflowed (reported once)
         self._parser_class: type[FunctionTokenParser] = getattr(shell, "parser_class", FunctionTokenParser)
         self._cleanups = Cleanups()  # the shielded resets running now (abort_cleanups cuts them short)
+        #: the elements the shell itself interprets (``host.shell.types.BUILTINS``) -> how each starts; any
+        #: other name is a function (:meth:`_start_call`)
+        self._elements: dict[str, Callable[[str, dict[str, str], bool], None]] = {
+            "SAVE": lambda _name, attrs, empty: self._skills.start(attrs, empty),
+            "RUN": lambda _name, attrs, empty: self._run_skill(attrs, empty),
+            "wait": self._start_scope,
+            "async": self._start_scope,
+        }
 
     # ------------------------------------------------------------------ API
     async def run(self, chunks: AsyncIterable[str]) -> RunResult:
@@ -443,27 +451,28 @@ class ProgramRun:
                                  f"<{name}> attribute {big!r} has {len(attrs[big])} characters; the limit is "
                                  f"{self.limits.max_attr_chars}", empty)
             return
-        if name == "SAVE":
-            self._skills.start(attrs, empty)
+        self._elements.get(name, self._start_call)(name, attrs, empty)
+
+    def _start_scope(self, name: str, attrs: dict[str, str], empty: bool) -> None:
+        """``<wait>`` or ``<async>``: a main-channel element that scopes its children."""
+        frame = self._stack[-1]
+        try:
+            args, ignored = map_scope(name, attrs, self.limits.max_scope_timeout_s)
+        except MappingError as exc:
+            self._scope_failed(name, attrs, str(exc), empty)
             return
-        if name == "RUN":
-            self._run_skill(attrs, empty)
-            return
-        if name in ("wait", "async"):
-            try:
-                args, ignored = map_scope(name, attrs, self.limits.max_scope_timeout_s)
-            except MappingError as exc:
-                self._scope_failed(name, attrs, str(exc), empty)
-                return
-            if ignored:
-                self._observe("warning", f"<{name}> takes only until and timeout; ignored {sorted(ignored)}")
-            if empty and args:
-                self._observe("warning", f"<{name}/> has no children: {' and '.join(sorted(args))} has no effect")
-            call = self._new_call(name, "builtin", None, args, MAIN_CHANNEL, None, persistent=not empty)
-            call.until, call.timeout = args.get("until", "all"), args.get("timeout")
-            if not empty:
-                self._stack.append(_Frame(name, call, call.record.path, name == "async" or frame.async_ctx))
-            return
+        if ignored:
+            self._observe("warning", f"<{name}> takes only until and timeout; ignored {sorted(ignored)}")
+        if empty and args:
+            self._observe("warning", f"<{name}/> has no children: {' and '.join(sorted(args))} has no effect")
+        call = self._new_call(name, "builtin", None, args, MAIN_CHANNEL, None, persistent=not empty)
+        call.until, call.timeout = args.get("until", "all"), args.get("timeout")
+        if not empty:
+            self._stack.append(_Frame(name, call, call.record.path, name == "async" or frame.async_ctx))
+
+    def _start_call(self, name: str, attrs: dict[str, str], empty: bool) -> None:
+        """An element naming a function: mapped, checked by the policy and the channel's queue, dispatched."""
+        frame = self._stack[-1]
         try:
             mapped = map_element(self.registry, name, attrs)
         except MappingError as exc:

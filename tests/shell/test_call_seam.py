@@ -87,3 +87,10 @@ def test_run_program_refuses_recursion_and_depth(tmp_path) -> None:
     rec.stack[:] = [f"k{i}" for i in range(MAX_SKILL_DEPTH)]
     with pytest.raises(SkillError, match="nested deeper"):
         rec.program("s")
+
+
+async def test_every_builtin_element_has_a_start() -> None:
+    from host.shell.scheduler import ProgramRun
+    from host.shell.types import BUILTINS
+
+    assert set(ProgramRun(shell_with({}))._elements) == BUILTINS
