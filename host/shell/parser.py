@@ -51,6 +51,7 @@ from host.shell.parse_lex import (
     _RESIDUE_PREFIX, _SKIP_DECL, _SKIP_PI, _SKIP_TAG, _SKIP_TAG_END, _SLASH, _STAG, _TAG, _TEXT, _TEXT_SPECIAL,
     _UNQUOTED, _UVALUE, _VALUE, _VALUE_END, _WS, MAX_TOKEN,
 )
+from host.shell.parse_out import ParseOutput
 from host.shell.parse_values import _attr_value, _char_ref, _Malformed, _ref_problem
 
 __all__ = [
@@ -80,7 +81,8 @@ class FunctionTokenParser:
 
     def __init__(self, strict: bool = True) -> None:
         self.strict = strict
-        self._stack: list[tuple[str, Position]] = []
+        #: events, merged text and the open elements
+        self._out = ParseOutput(strict)
         self._mode = _TEXT
         self._carry = ""  # bounded lookahead (<= 9 chars) re-fed at the start of the next feed
         self._cr = False  # trailing CR held back (maybe half of a CRLF)
@@ -110,15 +112,12 @@ class FunctionTokenParser:
         self._buf = ""
         self._base = 0
         self._lc_i = 0
-        self._events: list[Event] = []
-        self._tparts: list[str] = []
-        self._tpos = _NOPOS
 
     # ------------------------------------------------------------------------------ public API
     @property
     def open_elements(self) -> tuple[str, ...]:
         """Names of the currently open elements, outermost first."""
-        return tuple(name for name, _ in self._stack)
+        return tuple(name for name, _ in self._out.stack)
 
     @property
     def incomplete(self) -> bool:
@@ -218,15 +217,15 @@ class FunctionTokenParser:
         self._buf = text
         self._lc_i = 0
         events: list[Event] = []
-        self._events = events
+        self._out.events = events
         try:
             self._scan()
             if final:
                 self._finish()
         except _Malformed as exc:  # strict mode only
             self._die(exc)
-        if self._tparts:
-            self._flush_text()
+        if self._out.tparts:
+            self._out.flush_text()
         # line accounting up to the carry (which is re-fed next time); the buffer may have been
         # rebuilt by a lenient recovery, so read it back
         buf = self._buf
@@ -243,14 +242,14 @@ class FunctionTokenParser:
 
     def _die(self, exc: _Malformed) -> NoReturn:
         pos = exc.pos if exc.pos is not None else self._pos_of(exc.index)
-        self._flush_text()
+        self._out.flush_text()
         err = ParseError(
             exc.message,
             pos.line,
             pos.column,
             pos.offset,
             incomplete=exc.incomplete,
-            events=self._events,
+            events=self._out.events,
         )
         self._dead = err
         raise err from None
@@ -282,24 +281,10 @@ class FunctionTokenParser:
 
     # ------------------------------------------------------------------------------ emitters
     def _text(self, s: str, i: int) -> None:
-        if not self._tparts:
-            self._tpos = self._pos(i)
-        self._tparts.append(s)
-
-    def _text_at(self, s: str, pos: Position) -> None:
-        if not self._tparts:
-            self._tpos = pos
-        self._tparts.append(s)
-
-    def _flush_text(self) -> None:
-        parts = self._tparts
-        if parts:
-            self._events.append(Text(parts[0] if len(parts) == 1 else "".join(parts), self._tpos))
-            self._tparts = []
-
-    def _warn(self, message: str, pos: Position) -> None:
-        self._flush_text()
-        self._events.append(ParseWarning(message, pos))
+        out = self._out
+        if not out.tparts:
+            out.tpos = self._pos(i)
+        out.tparts.append(s)
 
     def _checked_text(self, seg: str, i: int) -> None:
         """Emit ``seg`` (buffer index ``i``) after rejecting/dropping non-XML characters."""
@@ -311,46 +296,12 @@ class FunctionTokenParser:
                 raise _Malformed(msg, i + j)
             if j:
                 self._text(seg[:j], i)
-            self._warn(msg + "; dropped", self._pos(i + j))
+            self._out.warn(msg + "; dropped", self._pos(i + j))
             seg = seg[j + 1 :]
             i += j + 1
             m = _INVALID.search(seg)
         if seg:
             self._text(seg, i)
-
-    def _start(self, name: str, attrs: dict[str, str], empty: bool, pos: Position) -> None:
-        self._flush_text()
-        refused, self._refusal = self._refusal, None
-        if empty:
-            self._events.append(EmptyTag(name, attrs, pos, refused))
-        else:
-            self._events.append(StartTag(name, attrs, pos, refused))
-            self._stack.append((name, pos))
-
-    def _end(self, name: str, pos: Position) -> None:
-        stack = self._stack
-        self._flush_text()
-        if stack and stack[-1][0] == name:
-            stack.pop()
-            self._events.append(EndTag(name, pos))
-            return
-        if self.strict:
-            if stack:
-                top, tpos = stack[-1]
-                msg = f"mismatched end-tag </{name}>: expected </{top}> (<{top}> opened at {tpos})"
-            else:
-                msg = f"end-tag </{name}> closes no open element"
-            raise _Malformed(msg, pos=pos)
-        names = [n for n, _ in stack]
-        if name not in names:
-            self._warn(f"end-tag </{name}> closes no open element; dropped", pos)
-            return
-        while stack[-1][0] != name:
-            inner, _ = stack.pop()
-            self._warn(f"end-tag </{name}> closes unclosed <{inner}>", pos)
-            self._events.append(EndTag(inner, pos))
-        stack.pop()
-        self._events.append(EndTag(name, pos))
 
     # ------------------------------------------------------------------------------ tokens
     def _begin(self, i: int, mode: int) -> None:
@@ -385,14 +336,14 @@ class FunctionTokenParser:
             raise _Malformed(message, i)
         pos = self._tok_pos
         if self._mode == _TAG and not as_text:  # a tag-like token: drop it, never speak it
-            self._warn(f"{message}; malformed tag dropped", pos)
+            self._out.warn(f"{message}; malformed tag dropped", pos)
             self._tok_raw = []
             self._refusal = None
             self._mode = _SKIP_TAG
             return self._buf, len(self._buf), i
         opener = "&" if self._mode == _REF else "<"
-        self._warn(f"{message}; '{opener}' treated as text", pos)
-        self._text_at(opener, pos)
+        self._out.warn(f"{message}; '{opener}' treated as text", pos)
+        self._out.text_at(opener, pos)
         self._mode = _TEXT
         if not self._tok_raw:
             buf = self._buf
@@ -411,7 +362,7 @@ class FunctionTokenParser:
         msg = f"tag or reference longer than {MAX_TOKEN} characters"
         if self.strict:
             raise _Malformed(msg, pos=self._tok_pos)
-        self._warn(msg + "; dropped", self._tok_pos)
+        self._out.warn(msg + "; dropped", self._tok_pos)
         self._done_token()
 
     # ------------------------------------------------------------------------------ the scanner
@@ -428,7 +379,7 @@ class FunctionTokenParser:
                 if self._residue:
                     rm = _RESIDUE.match(buf, pos)
                     if rm is not None:
-                        self._warn(f"residue {buf[pos:rm.end()].strip()!r} of a dropped tag; dropped", self._pos(pos))
+                        self._out.warn(f"residue {buf[pos:rm.end()].strip()!r} of a dropped tag; dropped", self._pos(pos))
                         pos = rm.end()
                         self._residue = False
                         continue
@@ -448,7 +399,7 @@ class FunctionTokenParser:
                             raise _Malformed("']]>' is not allowed in text", pos + j)
                         if j:
                             self._text(seg[:j], pos)
-                        self._warn("']]>' in text; kept as text", self._pos(pos + j))
+                        self._out.warn("']]>' in text; kept as text", self._pos(pos + j))
                         self._text(seg[j:], pos + j)
                     elif m is None and seg[-1] == "]":
                         k = 2 if seg.endswith("]]") else 1
@@ -468,7 +419,7 @@ class FunctionTokenParser:
                     if buf[end + 1] == "/":
                         mt = _ETAG.match(buf, end)
                         if mt is not None:
-                            self._end(mt.group(1), self._pos(end))
+                            self._out.end(mt.group(1), self._pos(end))
                             pos = mt.end()
                             continue
                     else:
@@ -484,12 +435,13 @@ class FunctionTokenParser:
                                     if v is None:
                                         v = am.group(3)
                                     if "&" in v or "\t" in v or "\n" in v or _INVALID.search(v):
-                                        v = _attr_value(v, tpos, strict, self._warn)
+                                        v = _attr_value(v, tpos, strict, self._out.warn)
                                     if an in attrs:
                                         self._dup_attr(an, tpos)
                                     else:
                                         attrs[an] = v
-                            self._start(mt.group(1), attrs, mt.group(3) == "/", tpos)
+                            refused, self._refusal = self._refusal, None
+                            self._out.start(mt.group(1), attrs, mt.group(3) == "/", tpos, refused)
                             pos = mt.end()
                             continue
                     self._begin(end, _TAG)
@@ -501,7 +453,7 @@ class FunctionTokenParser:
                     msg = f"character U+{ord(c):04X} is not allowed in XML"
                     if strict:
                         raise _Malformed(msg, end)
-                    self._warn(msg + "; dropped", self._pos(end))
+                    self._out.warn(msg + "; dropped", self._pos(end))
                     pos = end + 1
             elif mode == _TAG:
                 ts = self._ts
@@ -538,7 +490,7 @@ class FunctionTokenParser:
                         pos = e + 1
                     elif _NAMESTART.match(c) and (self._had_space or not strict):
                         if not self._had_space:  # '<nod a="1"b="2"/>': unambiguous after the quote
-                            self._warn(f"attributes of <{''.join(self._tname)}> must be separated by "
+                            self._out.warn(f"attributes of <{''.join(self._tname)}> must be separated by "
                                        "whitespace; recovered", self._pos(e))
                         self._aname = []
                         self._ts = _ANAME
@@ -591,7 +543,7 @@ class FunctionTokenParser:
                         self._ts = _VALUE
                         pos = e + 1
                     elif ts == _PREQ and not strict and _UNQUOTED.match(buf, e).end() > e:  # type: ignore[union-attr]
-                        self._warn(f"value of attribute '{''.join(self._aname)}' is not quoted; recovered",
+                        self._out.warn(f"value of attribute '{''.join(self._aname)}' is not quoted; recovered",
                                    self._pos(e))
                         self._vparts = []
                         self._ts = _UVALUE
@@ -614,14 +566,14 @@ class FunctionTokenParser:
                             self._mode = _COMMENT
                             pos = pos + 3
                         elif head.startswith("<![CDATA["):
-                            self._flush_text()
+                            self._out.flush_text()
                             self._mode = _CDATA
                             pos = pos + 8
                         elif head.startswith("<!DOCTYPE"):
                             msg = "a DTD (<!DOCTYPE ...>) is not allowed in function tokens"
                             if strict:
                                 raise _Malformed(msg, pos - 1)
-                            self._warn(msg + "; skipped", self._tok_pos)
+                            self._out.warn(msg + "; skipped", self._tok_pos)
                             self._mode = _SKIP_DECL
                             self._depth = 0
                             pos = pos + 8
@@ -640,7 +592,7 @@ class FunctionTokenParser:
                         msg = "processing instructions (<?...?>) are not allowed in function tokens"
                         if strict:
                             raise _Malformed(msg, pos - 1)
-                        self._warn(msg + "; skipped", self._tok_pos)
+                        self._out.warn(msg + "; skipped", self._tok_pos)
                         self._mode = _SKIP_PI
                         pos += 1
                     else:
@@ -680,7 +632,7 @@ class FunctionTokenParser:
                             self._too_long(length)
                             continue
                         self._done_token()
-                        self._end(name, self._tok_pos)
+                        self._out.end(name, self._tok_pos)
                     else:
                         buf, n, pos = self._bad_token(
                             f"unexpected {buf[e]!r} in end-tag </{name}>", e
@@ -700,7 +652,7 @@ class FunctionTokenParser:
                         else:
                             pos = e + 1
                             self._done_token()
-                            self._text_at(s, self._tok_pos)
+                            self._out.text_at(s, self._tok_pos)
                     else:
                         buf, n, pos = self._bad_token(
                             "'&' must start a reference like &amp; or &#38;", e
@@ -727,7 +679,7 @@ class FunctionTokenParser:
                         msg = f"character U+{ord(bad.group()):04X} is not allowed in XML"
                         if strict:
                             raise _Malformed(msg, bad.start())
-                        self._warn(msg + "; ignored", self._pos(bad.start()))
+                        self._out.warn(msg + "; ignored", self._pos(bad.start()))
                 if i < 0:
                     return
                 if i + 1 >= n:
@@ -745,7 +697,7 @@ class FunctionTokenParser:
                 else:
                     if strict:
                         raise _Malformed("'--' is not allowed inside a comment", i)
-                    self._warn("'--' inside a comment; ignored", self._pos(i))
+                    self._out.warn("'--' inside a comment; ignored", self._pos(i))
                     pos = i + 2
             elif mode == _SKIP_TAG:
                 m = _SKIP_TAG_END.search(buf, pos)
@@ -786,7 +738,7 @@ class FunctionTokenParser:
     def _end_attr(self) -> None:
         """An attribute value is complete: store it (a repeated name refuses the tag) and expect whitespace."""
         an = "".join(self._aname)
-        v = _attr_value("".join(self._vparts), self._tok_pos, self.strict, self._warn)
+        v = _attr_value("".join(self._vparts), self._tok_pos, self.strict, self._out.warn)
         if an in self._attrs:
             self._dup_attr(an, self._tok_pos)
         else:
@@ -798,7 +750,7 @@ class FunctionTokenParser:
         msg = f"duplicate attribute '{name}'"
         if self.strict:
             raise _Malformed(msg, pos=pos)
-        self._warn(msg + "; the call is refused", pos)
+        self._out.warn(msg + "; the call is refused", pos)
         self._refusal = f"{msg} (which value was meant is ambiguous)"
 
     def _finish_stag(self, empty: bool, gt: int) -> bool:
@@ -808,7 +760,8 @@ class FunctionTokenParser:
             self._too_long(length)
             return True
         self._done_token()
-        self._start("".join(self._tname), self._attrs, empty, self._tok_pos)
+        refused, self._refusal = self._refusal, None
+        self._out.start("".join(self._tname), self._attrs, empty, self._tok_pos, refused)
         return True
 
     def _finish(self) -> None:
@@ -824,21 +777,21 @@ class FunctionTokenParser:
             msg = f"stream ended inside markup {carry!r}"
             if strict:
                 raise _Malformed(msg, i, incomplete=True)
-            self._warn(msg + "; dropped", self._pos(i))
+            self._out.warn(msg + "; dropped", self._pos(i))
         if mode == _TAG:
             what = "end-tag" if self._ts in (_ENAME0, _ENAME, _EAFTER) else "tag"
             msg = f"stream ended inside {what} {''.join(self._tok_raw)[:40]!r}"
             if strict:
                 raise _Malformed(msg, pos=self._tok_pos, incomplete=True)
-            self._warn(msg + "; dropped", self._tok_pos)
+            self._out.warn(msg + "; dropped", self._tok_pos)
             self._done_token()
         elif mode == _REF:
             raw = "".join(self._tok_raw)
             msg = f"stream ended inside reference {raw[:40]!r}"
             if strict:
                 raise _Malformed(msg, pos=self._tok_pos, incomplete=True)
-            self._warn(msg + "; kept as text", self._tok_pos)
-            self._text_at(raw, self._tok_pos)
+            self._out.warn(msg + "; kept as text", self._tok_pos)
+            self._out.text_at(raw, self._tok_pos)
             self._done_token()
         elif mode != _TEXT:
             what = {
@@ -851,21 +804,18 @@ class FunctionTokenParser:
             msg = f"stream ended inside a {what}"
             if strict:
                 raise _Malformed(msg, len(self._buf), incomplete=True)
-            self._warn(msg, self._pos(len(self._buf)))
+            self._out.warn(msg, self._pos(len(self._buf)))
             self._mode = _TEXT
-        if self._stack:
+        if self._out.stack:
             pos = self._pos(len(self._buf))
             if strict:
-                name, opened = self._stack[-1]
+                name, opened = self._out.stack[-1]
                 raise _Malformed(
                     f"stream ended with <{name}> (opened at {opened}) still open",
                     pos=pos,
                     incomplete=True,
                 )
-            while self._stack:
-                name, opened = self._stack.pop()
-                self._warn(f"<{name}> (opened at {opened}) not closed; closed at end", pos)
-                self._events.append(EndTag(name, pos))
+            self._out.close_all(pos)
 
 
 def parse(text: str, strict: bool = True) -> list[Event]:
