@@ -1,7 +1,13 @@
-"""The GhostShell wire protocol, version 1: the message set as plain dataclasses.
+"""The GhostShell wire protocol, version 1: the message set, each message declared once.
 
-This module is the contract shared by the host and the board. It has no I/O and
-no encoding: :mod:`protocol.codec` packs these into payloads and
+This module is the contract shared by the host and the board. Each message is one frozen dataclass
+declared with :func:`protocol.wiretypes.message`: its :class:`MsgType`, its sender, its CAN form (a fixed
+CAN layout or ISO-TP bulk) and, per field, its wire type (which carries the unit) and CAN form. Everything
+else is derived from these classes: :data:`HOST_TO_BOARD` / :data:`BOARD_TO_HOST` here, the payload
+layouts, schema hashes, :data:`protocol.codec.MESSAGE_CLASSES` and :data:`protocol.codec.CAN_FIXED`,
+the CAN layouts, the C codec, the DBCs and the wire reference. Adding a message: a :class:`MsgType`
+member, its class below (listed in :data:`Message`; import fails otherwise), and a handler on each end.
+No I/O and no encoding here: :mod:`protocol.codec` packs messages into payloads and
 :mod:`protocol.framing` puts payloads on the wire.
 
 Units: times are integer microseconds (board clock unless the field says host),
