@@ -46,6 +46,7 @@ from host.link.board_time import BoardClock
 from host.link.camera import CameraAssembler
 from host.link.core import LinkSession, LinkTarget
 from host.link.errors import LinkError
+from host.link.facade import PartAttr, WritablePartAttr
 from host.link.receive import LinkStats, ReceivePath
 from host.link.requests import RequestTable, RetransmitTimeout
 from host.link.sent import SentListener
@@ -181,157 +182,63 @@ class BoardClient:
         for cb in list(self.on_reconnect):
             cb(self)
 
-    # --- state, read from the parts ---------------------------------------------------------
+    # --- state, the parts' (read through; host.link.facade) --------------------------------
 
-    @property
-    def connected(self) -> bool:
-        """True between a completed handshake and the port going away."""
-        return self.session.ready
-
-    @property
-    def transport(self) -> Transport | None:
-        """The transport (None before the first connection attempt)."""
-        return self.session.transport
-
-    @property
-    def spec(self) -> LinkSpec | None:
-        """The link spec given (None when it was a callable, resolved on every connect)."""
-        return self.session.spec
-
-    @property
-    def port_name(self) -> str:
-        """The link as messages name it (the transport's name once connected: over CAN with its node)."""
-        return self.session.port_name
-
-    @property
-    def link_spec(self) -> str:
-        """The spec to give ``--link`` to reach this board again (the port name without decoration)."""
-        return self.session.link_spec
-
-    @property
-    def caps(self) -> Caps | None:
-        """The board's CAPS of the latest handshake (None before the first)."""
-        return self.session.caps
-
-    @property
-    def schema_hash(self) -> int:
-        """The schema hash HELLO carries (the one the board accepted, after a handshake)."""
-        return self.supervisor.schema_hash
-
-    @property
-    def lockstep(self) -> bool:
-        """True when the board's clock is virtual (CAPS says so)."""
-        return self.board_clock.lockstep
-
-    @property
-    def clock(self) -> ClockSync:
-        """The time-sync estimator (offset, drift, uplink delays; realtime boards)."""
-        return self.board_clock.sync
-
-    @property
-    def clock_estimate(self) -> ClockEstimate | None:
-        """Current offset/drift estimate (None before the first sync or in lockstep)."""
-        return self.board_clock.estimate
-
-    @property
-    def stats(self) -> LinkStats:
-        """Counters since the client was created."""
-        return self.session.stats
-
-    @property
-    def requests(self) -> RequestTable:
-        """Pending requests, frame NACKs and their waiters by sequence number."""
-        return self.session.requests
-
-    @property
-    def camera(self) -> CameraAssembler:
-        """Camera captures in progress."""
-        return self.session.camera
-
-    @property
-    def rto(self) -> RetransmitTimeout:
-        """The wait before a request is re-sent, from this connection's measured round trips."""
-        return self.session.rto
-
-    @property
-    def report_latencies(self) -> deque[float]:
-        """The latest 16 lockstep report latencies (s) the nudge works from (:meth:`nudge_raise_s`)."""
-        return self.waits.report_latencies
-
-    @property
-    def keepalive(self) -> bool:
-        """Heartbeat + periodic sync (default on); turn off to let the board's watchdog fire."""
-        return self.supervisor.keepalive
-
-    @keepalive.setter
-    def keepalive(self, on: bool) -> None:
-        self.supervisor.keepalive = on
-
-    @property
-    def tx_wire(self) -> WireModel | None:
-        """The host's model of its own line, or None (:attr:`host.link.core.LinkSession.tx_wire`); settable."""
-        return self.session.tx_wire
-
-    @tx_wire.setter
-    def tx_wire(self, line: WireModel | None) -> None:
-        self.session.tx_wire = line
-
-    @property
-    def last_disconnect_reason(self) -> str:
-        """Why the link was last lost ("" before)."""
-        return self.session.last_disconnect_reason
-
-    @property
-    def last_reconnect_error(self) -> str:
-        """Why the latest reconnect attempt failed ("" once it succeeded)."""
-        return self.session.last_reconnect_error
-
-    @property
-    def on_sent(self) -> list[SentListener]:
-        """Called with (seq, message) after every message handed to the transport (append to it)."""
-        return self.session.on_sent
-
-    @property
-    def on_received(self) -> list[Callable[[Message], None]]:
-        """Called with every message received, after the client handled it (append to it)."""
-        return self.receiver.on_received
-
-    @property
-    def on_nack(self) -> list[Callable[[Nack], None]]:
-        """Called with every NACK no request awaited (a servo frame's; append to it)."""
-        return self.receiver.on_nack
-
-    @property
-    def latest_sim_state(self) -> SimState | None:
-        """The latest SIM_STATE (None before the first)."""
-        return self.receiver.latest_sim_state
-
-    @property
-    def servo_fault(self) -> Nack | None:
-        """The board's latest NACK SERVO_FAULT (its detail names the servo that stopped answering)."""
-        return self.receiver.servo_fault
-
-    @property
-    def servo_faults(self) -> list[Nack]:
-        """Every NACK SERVO_FAULT so far, oldest first, the last 64."""
-        return self.receiver.servo_faults
-
-    @property
-    def latest_telemetry(self) -> Telemetry | None:
-        """The latest TELEMETRY report (None before the first)."""
-        return self.fanout.latest
-
-    @property
-    def faults(self) -> FaultFlags:
-        """The fault bits of :data:`FAULT_BITS` in the latest report."""
-        return self.fanout.faults
-
-    @property
-    def fault_events(self) -> deque[FaultEvent]:
-        """The latest 256 fault edges."""
-        return self.fanout.fault_events
-
-    @property
-    def on_fault(self) -> list[Callable[[FaultEvent], None]]:
-        """Callbacks called with every fault edge (append to it)."""
-        return self.fanout.on_fault
+    #: True between a completed handshake and the port going away
+    connected = PartAttr[bool]("session.ready")
+    #: the transport (None before the first connection attempt)
+    transport = PartAttr["Transport | None"]("session.transport")
+    #: the link spec given (None when it was a callable, resolved on every connect)
+    spec = PartAttr["LinkSpec | None"]("session.spec")
+    #: the link as messages name it (the transport's name once connected: over CAN with its node)
+    port_name = PartAttr[str]("session.port_name")
+    #: the spec to give ``--link`` to reach this board again (the port name without decoration)
+    link_spec = PartAttr[str]("session.link_spec")
+    #: the board's CAPS of the latest handshake (None before the first)
+    caps = PartAttr["Caps | None"]("session.caps")
+    #: the schema hash HELLO carries (the one the board accepted, after a handshake)
+    schema_hash = PartAttr[int]("supervisor.schema_hash")
+    #: True when the board's clock is virtual (CAPS says so)
+    lockstep = PartAttr[bool]("board_clock.lockstep")
+    #: the time-sync estimator (offset, drift, uplink delays; realtime boards)
+    clock = PartAttr[ClockSync]("board_clock.sync")
+    #: current offset/drift estimate (None before the first sync or in lockstep)
+    clock_estimate = PartAttr["ClockEstimate | None"]("board_clock.estimate")
+    #: counters since the client was created
+    stats = PartAttr[LinkStats]("session.stats")
+    #: pending requests, frame NACKs and their waiters by sequence number
+    requests = PartAttr[RequestTable]("session.requests")
+    #: camera captures in progress
+    camera = PartAttr[CameraAssembler]("session.camera")
+    #: the wait before a request is re-sent, from this connection's measured round trips
+    rto = PartAttr[RetransmitTimeout]("session.rto")
+    #: the latest 16 lockstep report latencies (s) the nudge works from (``nudge_raise_s``)
+    report_latencies = PartAttr["deque[float]"]("waits.report_latencies")
+    #: heartbeat + periodic sync (default on); turn off to let the board's watchdog fire
+    keepalive = WritablePartAttr[bool]("supervisor.keepalive")
+    #: the host's model of its own line, or None (:attr:`host.link.core.LinkSession.tx_wire`)
+    tx_wire = WritablePartAttr["WireModel | None"]("session.tx_wire")
+    #: why the link was last lost ("" before)
+    last_disconnect_reason = PartAttr[str]("session.last_disconnect_reason")
+    #: why the latest reconnect attempt failed ("" once it succeeded)
+    last_reconnect_error = PartAttr[str]("session.last_reconnect_error")
+    #: called with (seq, message) after every message handed to the transport (append to it)
+    on_sent = PartAttr["list[SentListener]"]("session.on_sent")
+    #: called with every message received, after the client handled it (append to it)
+    on_received = PartAttr["list[Callable[[Message], None]]"]("receiver.on_received")
+    #: called with every NACK no request awaited (a servo frame's; append to it)
+    on_nack = PartAttr["list[Callable[[Nack], None]]"]("receiver.on_nack")
+    #: the latest SIM_STATE (None before the first)
+    latest_sim_state = PartAttr["SimState | None"]("receiver.latest_sim_state")
+    #: the board's latest NACK SERVO_FAULT (its detail names the servo that stopped answering)
+    servo_fault = PartAttr["Nack | None"]("receiver.servo_fault")
+    #: every NACK SERVO_FAULT so far, oldest first, the last 64
+    servo_faults = PartAttr["list[Nack]"]("receiver.servo_faults")
+    #: the latest TELEMETRY report (None before the first)
+    latest_telemetry = PartAttr["Telemetry | None"]("fanout.latest")
+    #: the fault bits of :data:`FAULT_BITS` in the latest report
+    faults = PartAttr[FaultFlags]("fanout.faults")
+    #: the latest 256 fault edges
+    fault_events = PartAttr["deque[FaultEvent]"]("fanout.fault_events")
+    #: callbacks called with every fault edge (append to it)
+    on_fault = PartAttr["list[Callable[[FaultEvent], None]]"]("fanout.on_fault")
