@@ -1,8 +1,8 @@
 """host/link: the host end of the link to a robot's board.
 
-The session (:mod:`host.link.session`, :class:`BoardClient`) runs over a transport
-(:mod:`host.link.transports`: serial; CAN plugs in) built from a link spec
-(:mod:`protocol.linkspec`).
+The client (:mod:`host.link.session`, :class:`BoardClient`: a facade over its parts, the session
+:mod:`host.link.core` first) runs over a transport (:mod:`host.link.transports`: serial, CAN) built
+from a link spec (:mod:`protocol.linkspec`).
 """
 
 from host.link.session import FAULT_BITS, BoardClient, FaultEvent, LinkStats, RobotIdentity, host_now_us

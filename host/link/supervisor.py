@@ -4,8 +4,8 @@ A :class:`Supervisor` keeps a session's link alive; the session (``host.link.cor
 numbers and answers, the supervisor decides when and what to say to keep it up:
 
 * :meth:`Supervisor.connect_once`: connect the transport, HELLO -> CAPS (:meth:`handshake`; the
-  robot's wire schema first, then after a SCHEMA_MISMATCH each other schema this build speaks, see
-  the session's module docstring), then a burst of TIME_SYNC exchanges;
+  robot's wire schema first, then after a SCHEMA_MISMATCH each other schema this build speaks, unless
+  a hash is pinned), then a burst of TIME_SYNC exchanges;
 * :meth:`Supervisor.supervise`: after a loss, reconnect with exponential backoff (0.05 s doubling
   to ``reconnect_max_s``), then the session's ``reconnected`` (its ``on_reconnected`` callbacks);
 * :meth:`Supervisor.heartbeat_loop`: a HEARTBEAT whenever nothing else was sent for ``heartbeat_s``
@@ -19,7 +19,8 @@ It knows the session only as :class:`SupervisedSession` (a Protocol: what it rea
 so this module does not import the session; the handshake's and the keep-alive's settings are its
 own attributes. It owns the replies only it waits on
 (:class:`host.link.waiting.Reply`): the HELLO's (answered by CAPS or a NACK) and the TIME_SYNC
-replies (by ``t1``). The loops run in the session's anyio task group and never raise.
+replies (by ``t1``). The loops run in the client's anyio task group (:mod:`host.link.background`) and
+never raise.
 """
 
 from __future__ import annotations

@@ -4,13 +4,13 @@
 report) with the subset of :class:`asyncio.Future`'s interface the receive path uses
 (``done()``, ``set_result()``, ``set_exception()``, ``cancel()``, ``exception()``, ``result()``), so
 the receive handlers also accept a plain future (the fuzz harness ``host.fuzz.session`` puts some in
-the session's maps). Waiting is anyio: :meth:`Reply.wait` is an :class:`anyio.Event` wait under
+the request table and the supervisor's maps). Waiting is anyio: :meth:`Reply.wait` is an :class:`anyio.Event` wait under
 :func:`anyio.move_on_after`. The event is made on the first wait, inside the event loop: a reply may
 be created and answered from synchronous code (the transport's receive callbacks, the fuzz harness)
 where anyio cannot tell which async library runs.
 
 :class:`Flag` is the set/clear/wait event anyio does not have (an :class:`anyio.Event` cannot be
-cleared): the session's "link up" and "link lost" states.
+cleared): the session's "link up" and "link lost" states (:class:`host.link.core.LinkSession`).
 """
 
 from __future__ import annotations

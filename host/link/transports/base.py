@@ -1,4 +1,4 @@
-"""The host's link transport interface: what the session (:mod:`host.link.session`) needs from a wire.
+"""The host's link transport interface: what the session (:mod:`host.link.core`) needs from a wire.
 
 Modelled on python-can's split of ``BusABC`` from ``can/interfaces/*``: a transport
 moves whole protocol-v1 messages (with their 16-bit sequence number) to and from one
@@ -7,7 +7,7 @@ frames / ISO-TP on CAN) and the frame log (JSON Lines on serial, python-can writ
 on CAN). The session above it (handshake, ACK/NACK, time sync, heartbeat, reconnect,
 telemetry, faults, camera) is written once for every transport.
 
-Life cycle: the session creates one transport per client (``open_transport``) and calls
+Life cycle: the session builds one transport per client (``open_transport``) and calls
 :meth:`Transport.connect` for the first connection and again after every loss; a
 transport object therefore outlives reconnects and keeps one frame log. All callbacks
 run on the event loop thread.
