@@ -51,7 +51,6 @@ the recording's dropped messages.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import functools
 import json
 import logging
@@ -70,18 +69,16 @@ import anyio.to_thread
 import numpy as np
 
 from host.ghost import GhostError
-from host.link import BoardClient, RobotIdentity
-from host.link.board_process import BoardProcess, dead_board_error, start_board
-from host.link.errors import BoardFaulted, HandshakeError, LinkConfigError, LinkError, RobotMismatch, SchemaMismatch
-from host.link.faultcheck import LATCHED, ServoFaulted, clear_command, clear_leftover_fault, refusal_message
-from host.link.session import HEARTBEAT_S, FaultEvent, LinkTarget
+from host.link import BoardClient
+from host.link.board_process import BoardProcess
+from host.link.errors import BoardFaulted, LinkConfigError, LinkError
+from host.link.faultcheck import LATCHED, ServoFaulted, clear_command, refusal_message
+from host.link.session import FaultEvent, LinkTarget
 from host.run import artefacts
 from host.run.events import Event, EventMonitor, EventPolicy, ScriptedEvent, has_fallen
 from host.run.effort_limits import effort_limits
 from host.run.heap import frozen_heap
 from host.motion.stalls import STALLS
-from host.motion.streamer import GRID_PERIOD_US, LOOKAHEAD_US, frame_wire_bytes, grid_period_us
-from host.robot.binding import robot_registry
 from host.robot.link import ClientLink
 from host.robot.runtime import RobotRuntime, warm_up_behaviours
 from host.run.link_health import board_watchdog_holds
@@ -91,6 +88,8 @@ from host.run.progress_guard import ProgressGuard, Stall
 from host.run.stops import Interrupted, StopReason
 from host.run.priority import raise_host_priority
 from host.run.realtime_health import add_realtime_behind
+from host.run.assembly import build_runtime, build_shell, first_report, mount_servers
+from host.run.launch import LinkPlan, board_args, connect_client, launch_board
 from host.run.recording import Recording
 from host.run.pump import (
     TELEMETRY_SILENCE_S,
@@ -106,11 +105,8 @@ from host.run.pump import (
 from host.shell import Shell
 from host.shell.cleanups import Cleanups
 from host.shell.timeline import Observation, RunResult, Timeline
-from protocol.linkkinds import link_kind
 from protocol.linkspec import LinkSpec, parse_link_spec
-from protocol.framing import encode_frame
-from protocol.messages import FaultFlags, Heartbeat, Nack, NackReason
-from protocol.wiremodel import BITS_PER_BYTE
+from protocol.messages import FaultFlags, Nack, NackReason
 from robots.description import Robot
 from robots.generic import GENERIC_CHANNEL
 from robots.registry import load_robot
@@ -187,42 +183,6 @@ def _first_cause(group: BaseExceptionGroup) -> Exception | None:
     return None
 
 
-#: the longest heartbeat interval (s), over a line whose frame grid is slow: half the board's default watchdog
-HEARTBEAT_MAX_S = 0.1
-
-
-def heartbeat_for_grid(period_us: int) -> float:
-    """The session's heartbeat interval (s) for a frame grid of ``period_us``: :data:`HEARTBEAT_S`, or over a
-    slow line (:func:`host.motion.streamer.grid_period_us`) 0.6 of the grid period up to
-    :data:`HEARTBEAT_MAX_S`. A realtime streamer sends a frame every period, and every valid message
-    feeds the board's watchdog; a heartbeat only fills the gaps. At 4 800 baud (a 12-servo frame every
-    170 ms) 50 ms heartbeats came three per gap, 18 per second: with the frames and TIME_SYNCs more than
-    the line carries, so frames arrived late and were refused (574 NACKed as LATE in a 2-minute run)."""
-    return min(HEARTBEAT_MAX_S, max(HEARTBEAT_S, 0.6 * period_us * 1e-6))
-
-
-#: the share of a modelled line past which :func:`line_load_note` warns (as the board's telemetry warning)
-LINE_WARN_SHARE = 0.8
-
-
-def line_load_note(n_servos: int, baud: int | None, period_us: int, heartbeat_s: float) -> str | None:
-    """One line when the host's steady traffic over a modelled line of ``baud`` (8N1) needs more than
-    :data:`LINE_WARN_SHARE` of it, else None. Steady traffic: one full-body frame per grid period and the
-    heartbeats that fill each period's gap (one per ``heartbeat_s`` after the frame). At 2 400 baud a
-    12-servo robot's frame every 330 ms and three heartbeats need ~2 700 bit/s, 114 % of the line:
-    frames queue, arrive late and are refused, and calls do not finish."""
-    if not baud:
-        return None
-    hb_bytes = len(encode_frame(Heartbeat(0), 0))
-    beats = max(0, math.ceil(period_us * 1e-6 / heartbeat_s - 1e-9) - 1)
-    need = (frame_wire_bytes(n_servos) + beats * hb_bytes) * BITS_PER_BYTE / (period_us * 1e-6)
-    if need <= LINE_WARN_SHARE * baud:
-        return None
-    return (f"--baud {baud}: the frames and heartbeats alone need ~{need:,.0f} bit/s, {need / baud:.0%} of the "
-            f"line (more than {LINE_WARN_SHARE:.0%}); frames will arrive late and be refused, and calls may not "
-            "finish (raise --baud)")
-
-
 class RobotSession:
     """One robot, one shell, many turns (see the module docstring)."""
 
@@ -295,148 +255,21 @@ class RobotSession:
         return self._shell
 
     async def __aenter__(self) -> RobotSession:
-        opts = self.opts
+        """Bring the session up, one step after the other (each below; :mod:`host.run.launch`,
+        :mod:`host.run.assembly`); a failure on the way tears down what was started, in reverse."""
         created = not self.out.exists()
         self.out.mkdir(parents=True, exist_ok=True)
-        spec = parse_link_spec(opts.link) if isinstance(opts.link, str) else opts.link
-        target: LinkTarget = spec
-        emulate = opts.emulate_board if opts.emulate_board is not None else spec.implies_emulated_board
+        spec = parse_link_spec(self.opts.link) if isinstance(self.opts.link, str) else self.opts.link
         try:
-            if spec.implies_emulated_board and not emulate:
-                raise LinkConfigError(f"{spec} is a link the emulated board creates: it cannot be used without starting the board")
-            if emulate and not link_kind(spec).cross_process:
-                raise LinkConfigError(f"{spec}: python-can's virtual bus exists inside one process, so an emulated board "
-                                "started as a subprocess cannot join it; use can:slcan:pty, or can:socketcan:vcan0 "
-                                "with --emulate-board (the virtual bus is for in-process tests)")
-            # frame logs: the kind's format (JSON Lines on serial; python-can's candump format, .log, on CAN)
-            log_suffix = link_kind(spec).log_suffix
-            if emulate:
-                board_args = ["--lockstep" if opts.lockstep else "--realtime", "--robot", str(self.robot.root),
-                              "--log", str(self.out / f"board_frames{log_suffix}"), "--scene", self.scene,
-                              "--objects-log", str(self.out / artefacts.OBJECTS_LOG)]
-                for push in opts.pushes:
-                    board_args += ["--push", push]
-                if opts.wire_baud:
-                    board_args += ["--baud", str(opts.wire_baud)]
-                if opts.faults:
-                    board_args += ["--faults", opts.faults, "--fault-seed", str(opts.fault_seed)]
-                if opts.firmware != "python":
-                    board_args += ["--firmware", opts.firmware]
-                board_args += list(opts.servo_bus)  # a real servo bus under the board (docs/guides/hardware.md)
-                # in a worker thread: a board takes seconds to load its model, and other sessions in this
-                # event loop (eval --workers) must keep streaming meanwhile
-                started: list[BoardProcess] = []
-
-                def start() -> BoardProcess:
-                    started.append(start_board(board_args, self.out / "board.stderr", link=spec))
-                    return started[-1]
-
-                try:
-                    self._board = await anyio.to_thread.run_sync(start)
-                except BaseException:
-                    for board in started:  # cancelled while it started: it must not be left behind
-                        board.stop()
-                    raise
-                target = self._board.link_target()  # never reconnects to the pty of a board that died
+            plan = LinkPlan.of(spec, self.opts, self.robot)
+            target = await self._launch_board(plan)
             self._link_tried = True
-            # one-time planning costs now, not on the first call's token -> servo path; before the link is
-            # up, because it holds the event loop and a board whose link is up expects heartbeats
-            warm_up_behaviours(self.robot)
-            if opts.plots:
-                artefacts.warm_up_plotting()  # the turn's plots run in a thread while the link is live
-            identity = RobotIdentity(self.robot.name, self.robot.servo_count, self.robot.servo_table_hash)
-            period_us = grid_period_us(self.robot.servo_count, opts.wire_baud)
-            heartbeat_s = heartbeat_for_grid(period_us)
-            overload = line_load_note(self.robot.servo_count, opts.wire_baud, period_us,  # lockstep sends no heartbeats
-                                      math.inf if opts.lockstep else heartbeat_s)
-            if overload:
-                log.warning("%s", overload)
-            try:
-                client = await BoardClient.connect(target, baud=opts.baud, log_path=self.out / f"host_frames{log_suffix}",
-                                                   robot=identity, wire_baud=opts.wire_baud,
-                                                   heartbeat_s=heartbeat_s)
-            except LinkConfigError as e:
-                dead = dead_board_error(self._board, e)  # the board died first: a lost link, not a usage error
-                if dead is None:
-                    raise
-                raise dead from e
-            except HandshakeError as e:
-                if (not (emulate and opts.faults) or isinstance(e, (SchemaMismatch, RobotMismatch))
-                        or self._board is None or self._board.exit_reason() is not None):
-                    raise
-                # the board this run started injects the faults from its first message on: it is there, and
-                # the question the error ends with would send the user looking for one
-                raise HandshakeError(f"{e} (the board this run started is there: its --faults {opts.faults} "
-                                     "lost the HELLO/CAPS exchange)") from e
-            self.client = await client.__aenter__()
-            self._stack.push_async_exit(functools.partial(self._close_client, client))
-            if not emulate and opts.lockstep and not client.lockstep:
-                # a board you started keeps its own clock: --lockstep here starts no board that would honour it
-                log.warning("--lockstep: the board on %s runs in realtime (its CAPS); this run follows the board's "
-                            "clock (start the board with `ghostshell board --lockstep`)", spec)
-            client.board_started_here = self._board is not None  # a fault's line: rerun, not clear a stopped board
-            note = await clear_leftover_fault(client)
-            if note:
-                log.warning("%s", note)
-            tel = await client.wait_for(lambda t: True, timeout=10, nudge=True)
-            self._board_s0 = tel.board_time_us * 1e-6
-            self._late0 = tel.late_count
-            frame_link = ClientLink(client, wire_baud=opts.wire_baud)
-            if period_us != GRID_PERIOD_US:
-                log.warning("--baud %d: one %d-servo frame takes %.0f ms on the line, so the host sends one every "
-                            "%.0f ms instead of every %.0f ms (the board moves the servos in straight lines between them)",
-                            opts.wire_baud, self.robot.servo_count,
-                            1e3 * frame_wire_bytes(self.robot.servo_count) * BITS_PER_BYTE / (opts.wire_baud or 1),
-                            period_us / 1e3, GRID_PERIOD_US / 1e3)
-            runtime = RobotRuntime(self.robot, frame_link, self.out, initial=np.asarray(tel.positions),
-                                   period_us=period_us, lookahead_us=max(LOOKAHEAD_US, 3 * period_us))
-            self._runtime = runtime
-            client.on_fault.append(self._on_fault)
-            client.on_nack.append(self._on_nack)
-            registry = robot_registry(self.robot, runtime, self.vocabulary)
-            self._shell = Shell(registry, mode=opts.mode, strict=opts.strict, clock=runtime.board_now_s,
-                                sleep=runtime.sleep, skills=opts.skills, policy=opts.policy)
-            if opts.mcp_mounts:  # McpMountError (one line) when a server cannot be mounted
-                from host.mounts import MountOptions, mounted
-
-                mount_opts = opts.mount_options or MountOptions()
-                if client.lockstep:  # a server answers in wall time: the virtual board clock waits for it
-                    mount_opts = dataclasses.replace(mount_opts, around_call=runtime.streamer.hold)
-                self.mounts = await self._stack.enter_async_context(
-                    mounted(opts.mcp_mounts, registry=registry, options=mount_opts))
-                for m in self.mounts:
-                    for note in m.notes:
-                        log.warning("%s", note)
-            self.recording = Recording.start(self.out / "run.mcap" if opts.mcap else None, self.robot, client, runtime,
-                                             self._shell, live_port=opts.foxglove, meta=self._mcap_meta(spec))
-            if self.recording is not None:  # the scene's build and its /scene message, before any frame
-                await self.recording.ready()
-            tg = anyio.create_task_group()
-            self._tg = await self._stack.enter_async_context(tg)
-            self._monitor = EventMonitor(self.robot.servos.names, self.robot.base.floating,
-                                         _targets_at(runtime.streamer.history), limits=effort_limits(self.robot),
-                                         joints=[s.joint for s in self.robot.servos])
-            tg.start_soon(self._ends_the_run, pump(client, runtime, self.rec, [self._on_report]))
-            if opts.events:
-                tg.start_soon(self._scripted_events, runtime.board_now_s(), opts.events)
-            tg.start_soon(self._ends_the_run, silence_watchdog(runtime, self.rec, client))
-            if not client.lockstep:
-                self._host_nice = raise_host_priority()  # the loop is the control path (host.run.priority)
-                tg.start_soon(self._ends_the_run, realtime_topper(runtime))
-                if client.tx_wire is not None:  # a slow line the host models: lookahead frames yield to new calls
-                    tg.start_soon(self._ends_the_run, frame_link.pace())
-            if opts.max_log_mb is not None:
-                tg.start_soon(self._log_bound, opts.max_log_mb)
-            tg.start_soon(self.lag.run)
-            if opts.progress_limit_s is not None:
-                self.guard = self._progress_guard(opts.progress_limit_s)
-                tg.start_soon(self.guard.run)
-            await runtime.streamer.top_up()
-            pose = opts.start_pose or self.robot.start_pose
-            with self._work(f"moving to the start pose {pose!r}") as scope:
-                await go_to_pose(runtime, pose)
-            if scope.cancelled_caught:  # a stop while starting: the turn is cut at its start
-                log.warning("the move to the start pose %r was cut: %s", pose, self.stop.message if self.stop else "")
+            self._warm_up()
+            client = await self._connect(plan, target)
+            frame_link = await self._assemble(client, plan)
+            await self._start_recording(client, plan.spec)
+            await self._start_tasks(client, frame_link)
+            await self._go_to_start_pose()
             self._up = True
         except BaseException as exc:
             await self.__aexit__(type(exc), exc, exc.__traceback__)
@@ -465,6 +298,91 @@ class RobotSession:
                 self._board.stop()
                 self._board = None
         return None
+
+    async def _launch_board(self, plan: LinkPlan) -> LinkTarget:
+        """Start the emulated board when the plan says so; returns what the client connects to."""
+        if not plan.emulate:
+            return plan.spec
+        args = board_args(self.opts, self.robot, self.out, self.scene, plan.log_suffix)
+        self._board = await launch_board(args, self.out / "board.stderr", plan.spec)
+        return self._board.link_target()  # never reconnects to the pty of a board that died
+
+    def _warm_up(self) -> None:
+        """One-time planning costs now, not on the first call's token -> servo path; before the link is up,
+        because it holds the event loop and a board whose link is up expects heartbeats."""
+        warm_up_behaviours(self.robot)
+        if self.opts.plots:
+            artefacts.warm_up_plotting()  # the turn's plots run in a thread while the link is live
+
+    async def _connect(self, plan: LinkPlan, target: LinkTarget) -> BoardClient:
+        """Connect and enter the link client; its close joins the teardown (:meth:`_close_client`)."""
+        client = await connect_client(plan, target, baud=self.opts.baud, board=self._board, faults=self.opts.faults,
+                                      log_path=self.out / f"host_frames{plan.log_suffix}")
+        self.client = await client.__aenter__()
+        self._stack.push_async_exit(functools.partial(self._close_client, client))
+        return client
+
+    async def _assemble(self, client: BoardClient, plan: LinkPlan) -> ClientLink:
+        """The runtime, the shell and the mounted MCP servers on the connected ``client``
+        (:mod:`host.run.assembly`); returns the runtime's frame link."""
+        tel = await first_report(client, plan, board_started_here=self._board is not None)
+        self._board_s0 = tel.board_time_us * 1e-6
+        self._late0 = tel.late_count
+        runtime, frame_link = build_runtime(self.robot, client, plan, self.out, tel)
+        self._runtime = runtime
+        client.on_fault.append(self._on_fault)
+        client.on_nack.append(self._on_nack)
+        self._shell = build_shell(self.robot, runtime, self.vocabulary, self.opts)
+        if self.opts.mcp_mounts:
+            self.mounts = await self._stack.enter_async_context(
+                mount_servers(self.opts, self._shell.registry, runtime, client.lockstep))
+            for m in self.mounts:
+                for note in m.notes:
+                    log.warning("%s", note)
+        return frame_link
+
+    async def _start_recording(self, client: BoardClient, spec: LinkSpec) -> None:
+        """run.mcap and the live view (:class:`Recording`): the scene's build and its /scene message, before any frame."""
+        self.recording = Recording.start(self.out / "run.mcap" if self.opts.mcap else None, self.robot, client,
+                                         self.runtime, self.shell, live_port=self.opts.foxglove,
+                                         meta=self._mcap_meta(spec))
+        if self.recording is not None:
+            await self.recording.ready()
+
+    async def _start_tasks(self, client: BoardClient, frame_link: ClientLink) -> None:
+        """The session-long task group (left first at teardown): the telemetry pump, the silence watchdog,
+        in realtime the top-up (and a slow line's pacing), the bounds, the loop-lag sampler, the progress guard."""
+        opts, runtime = self.opts, self.runtime
+        tg = anyio.create_task_group()
+        self._tg = await self._stack.enter_async_context(tg)
+        self._monitor = EventMonitor(self.robot.servos.names, self.robot.base.floating,
+                                     _targets_at(runtime.streamer.history), limits=effort_limits(self.robot),
+                                     joints=[s.joint for s in self.robot.servos])
+        tg.start_soon(self._ends_the_run, pump(client, runtime, self.rec, [self._on_report]))
+        if opts.events:
+            tg.start_soon(self._scripted_events, runtime.board_now_s(), opts.events)
+        tg.start_soon(self._ends_the_run, silence_watchdog(runtime, self.rec, client))
+        if not client.lockstep:
+            self._host_nice = raise_host_priority()  # the loop is the control path (host.run.priority)
+            tg.start_soon(self._ends_the_run, realtime_topper(runtime))
+            if client.tx_wire is not None:  # a slow line the host models: lookahead frames yield to new calls
+                tg.start_soon(self._ends_the_run, frame_link.pace())
+        if opts.max_log_mb is not None:
+            tg.start_soon(self._log_bound, opts.max_log_mb)
+        tg.start_soon(self.lag.run)
+        if opts.progress_limit_s is not None:
+            self.guard = self._progress_guard(opts.progress_limit_s)
+            tg.start_soon(self.guard.run)
+
+    async def _go_to_start_pose(self) -> None:
+        """Fill the lookahead, then move to the start pose; a stop while starting cuts the move at once."""
+        runtime = self.runtime
+        await runtime.streamer.top_up()
+        pose = self.opts.start_pose or self.robot.start_pose
+        with self._work(f"moving to the start pose {pose!r}") as scope:
+            await go_to_pose(runtime, pose)
+        if scope.cancelled_caught:  # a stop while starting: the turn is cut at its start
+            log.warning("the move to the start pose %r was cut: %s", pose, self.stop.message if self.stop else "")
 
     async def _close_client(self, client: BoardClient, *exc: object) -> None:
         """Close the link client within ``CLOSE_TIMEOUT_S`` wall seconds (see there); a close that

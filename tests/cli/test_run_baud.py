@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from host.motion.streamer import grid_period_us
-from host.run.session import HEARTBEAT_MAX_S, HEARTBEAT_S, heartbeat_for_grid, line_load_note
+from host.run.launch import HEARTBEAT_MAX_S, HEARTBEAT_S, heartbeat_for_grid, line_load_note
 
 from host.cli import build_parser
 from host.commands.run import DEFAULT_PORT_BAUD, line_rates
