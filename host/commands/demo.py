@@ -19,7 +19,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="the robot's task to show (default: the robot's demo task, robot.toml demo_task)")
     parser.add_argument("--no-video", dest="video", action="store_false",
                         help="skip run.mp4 (rendered after the run by default)")
-    add_run_options(parser)
+    add_run_options(parser, clears_out=True)
 
 
 def main(args: argparse.Namespace) -> int:

@@ -26,7 +26,8 @@ import stat
 import tempfile
 from pathlib import Path
 
-__all__ = ["add_no_plots_argument", "out_dir", "out_dir_problem", "tcp_port_taken"]
+__all__ = ["add_no_plots_argument", "clear_run_artefacts", "out_dir", "out_dir_problem", "remove_unused_out",
+           "tcp_port_taken"]
 
 _PROBE_PREFIX = ".ghostshell-write-probe-"
 
@@ -98,6 +99,35 @@ def out_dir(text: str) -> Path:
     if why is not None:
         raise argparse.ArgumentTypeError(f"{text} {why}")
     return Path(text)
+
+
+def clear_run_artefacts(out: Path) -> list[str]:
+    """Remove from the folder ``out`` the files an earlier run left there (:data:`host.run.artefacts.RUN_ARTEFACTS`,
+    its photos); returns their names, sorted (empty when ``out`` does not exist or holds none). Every other
+    file and folder (``speech/``, the user's own) is left alone. Errors: :class:`OSError` of a file that
+    cannot be removed."""
+    from host.run.artefacts import RUN_ARTEFACT_PATTERNS, RUN_ARTEFACTS
+
+    if not out.is_dir():
+        return []
+    found = [out / name for name in RUN_ARTEFACTS]
+    found += [p for pattern in RUN_ARTEFACT_PATTERNS for p in out.glob(pattern)]
+    removed = []
+    for path in found:
+        if path.is_file() or path.is_symlink():
+            path.unlink(missing_ok=True)
+            removed.append(path.name)
+    return sorted(removed)
+
+
+def remove_unused_out(out: Path) -> None:
+    """Remove the folder ``out`` a run created and then refused to run in (a link refused when opened):
+    the files it began (an empty frame log) and the folder, when nothing else is in it. Never raises."""
+    try:
+        clear_run_artefacts(out)
+        out.rmdir()
+    except OSError:
+        pass
 
 
 def tcp_port_taken(port: int, host: str = "127.0.0.1") -> str | None:

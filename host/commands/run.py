@@ -23,7 +23,8 @@ from host.commands.modearg import add_mode_argument
 from host.commands.errors import command_of, print_error
 from host.commands.inputs import STDIN, InputError, baud_rate, read_text_input
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, preflight_link, unreachable_link
-from host.commands.outarg import add_no_plots_argument, out_dir, out_dir_problem, tcp_port_taken
+from host.commands.outarg import (add_no_plots_argument, clear_run_artefacts, out_dir, out_dir_problem,
+                                  remove_unused_out, tcp_port_taken)
 from host.commands.robotarg import add_robot_argument, robot_from_args
 from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB
 from robots.description import Robot
@@ -40,7 +41,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     src.add_argument("--xml-file", metavar="F", help="a file of function tokens to replay (- reads standard input)")
     src.add_argument("--prompt", metavar="TEXT", help="an instruction for a real LLM (needs --llm openai:MODEL)")
     parser.add_argument("--video", action="store_true", help="also render run.mp4 after the run (MuJoCo offscreen, ffmpeg)")
-    add_run_options(parser)
+    add_run_options(parser, clears_out=True)
     parser.add_argument("--llm", default="scripted", metavar="SPEC",
                         help="scripted (replay, default) or openai:MODEL (any OpenAI-compatible endpoint)")
     parser.add_argument("--base-url", default=None, metavar="URL",
@@ -51,8 +52,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="interrupt the run S board seconds after the stream starts (external event)")
 
 
-def add_run_options(parser: argparse.ArgumentParser) -> None:
-    """Options shared by ``run`` and ``demo``."""
+def add_run_options(parser: argparse.ArgumentParser, *, clears_out: bool = False) -> None:
+    """Options shared by ``run``, ``demo`` and ``chat``; ``clears_out``: the command removes an earlier run's
+    artefacts from ``--out`` (:func:`run_with`), and its help says so."""
     add_robot_argument(parser)
     parser.add_argument("--vocabulary", default=None, metavar="NAME",
                         help="the robot's vocabulary shown in the prompt (default: the robot's; the mapper accepts "
@@ -81,7 +83,9 @@ def add_run_options(parser: argparse.ArgumentParser) -> None:
                         help="the serial line's rate in bit/s: a real port opens at it (default 115200); the "
                              "emulated board over a pty models its wire time at it, as `ghostshell board --baud` "
                              "does (default: not modelled, a pty is as fast as the machine)")
-    parser.add_argument("--out", type=out_dir, default=None, metavar="DIR", help="artefact folder (default runs/<label>)")
+    parser.add_argument("--out", type=out_dir, default=None, metavar="DIR",
+                        help="artefact folder (default runs/<label>" + ("; an earlier run's artefacts there are "
+                                                                        "replaced)" if clears_out else ")"))
     parser.add_argument("--no-live", action="store_true", help="no live channel view")
     add_no_plots_argument(parser)
     parser.add_argument("--scene", default=None, metavar="NAME",
@@ -427,6 +431,15 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     if why is not None:
         print_error(command_of(args), f"the run folder {out} {why}; give another with --out DIR")
         return USAGE_STATUS
+    created = not out.exists()  # a run refused before it starts removes the folder it made
+    try:
+        earlier = clear_run_artefacts(out)
+    except OSError as e:
+        print_error(command_of(args), f"{out}/ holds an earlier run's artefacts that cannot be removed: {e}")
+        return 1
+    if earlier:  # the artefacts line then names only what this run wrote
+        print_error(command_of(args), f"{out}/ held an earlier run's artefacts ({' '.join(earlier)}): removed; "
+                    "this run writes its own", file=sys.stdout)
     baud, wire_baud = line_rates(args)
     opts = RunOptions(
         program=program, prompt=prompt, llm=getattr(args, "llm", "scripted"), task_label=label,
@@ -459,6 +472,8 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         what = f"; {_counts(ended.summary.outcomes)}" if ended is not None else ""
         print_error(command, f"{e.how}{what}; "
               + (f"summary.json and timeline.json in {out}/" if ended is not None else "nothing ran"))
+        if ended is None and created:
+            remove_unused_out(out)
         return 130
     except (LinkError, GhostError, RuntimeError, OSError) as e:
         print_error(command_of(args), f"{e}")
@@ -466,7 +481,10 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
             print(warning)
         if ended_report(e) is not None:  # a run the link ended still left its report
             print(f"artefacts in {out}/: " + " ".join(n for n in ARTEFACTS if (out / n).exists()))
-        return link_exit_status(e)
+        status = link_exit_status(e)
+        if status == USAGE_STATUS and created and ended_report(e) is None:  # a link refused when opened (can:slcan:/dev/nonexist): no run folder
+            remove_unused_out(out)
+        return status
     from host.run.artefacts import calls_table
     from host.run.link_health import link_health_line
     from host.run.realtime_health import realtime_behind_line
@@ -476,7 +494,8 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         rest = ("the turn had already ended" if report.rested is None else
                 f"the robot went to its rest pose {args.robot_value.rest_pose!r}" if report.rested else
                 "the robot could not be brought to its rest pose")
-        print_error(command, f"{report.stop.message} at board time {s.duration_s:.2f} s; "
+        print_error(command, f"{report.stop.message} at board time {report.board_t0 + s.duration_s:.2f} s "
+              f"({s.duration_s:.2f} s into the run); "
               f"{_counts(s.outcomes)}; {rest}; artefacts in {out}/")
         timing = timing_health_line(s.extra)
         if timing is not None:

@@ -23,6 +23,15 @@ if TYPE_CHECKING:
 
 #: the emulated board's object poses (``python -m firmware_sim --objects-log``, firmware_sim.objects_log)
 OBJECTS_LOG = "objects.jsonl"
+#: the suffixes of the frame logs (``host_frames.jsonl`` on a serial link; CAN: host.link.canlog.CAN_LOG_SUFFIXES)
+FRAME_LOG_SUFFIXES = (".jsonl", ".log", ".asc", ".blf", ".csv", ".trc", ".mf4")
+#: every file a run (``run``, ``demo``) may write into its folder, by name: the files an earlier run left
+#: there are removed before the next run writes (:func:`host.commands.outarg.clear_run_artefacts`)
+RUN_ARTEFACTS = ("timeline.json", "timeline.png", "joints.png", "summary.json",
+                 *(f"{end}_frames{s}" for end in ("host", "board") for s in FRAME_LOG_SUFFIXES),
+                 "run.mcap", "board.stderr", OBJECTS_LOG, "run.mp4")
+#: the run's photos (``capture_session_N.png``), as :meth:`pathlib.Path.glob` patterns
+RUN_ARTEFACT_PATTERNS = ("capture_session_*.png",)
 OUTCOMES = ("done", "failed", "cancelled", "interrupted", "pending", "timeout")
 
 
