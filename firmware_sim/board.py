@@ -41,6 +41,7 @@ from cobs import cobs
 from firmware_sim.config import BoardConfig
 from firmware_sim.jitter_buffer import JitterBuffer
 from firmware_sim.native import GS_CAP, GS_INTERP, NativeTick, NativeUnavailable, kernel_choice, note_fallback
+from firmware_sim.board_bus import SERVO_FAULT_DETAIL, BusBridge
 from firmware_sim.board_camera import KEPT_IMAGES, BoardCamera, nack
 from firmware_sim.board_reports import BoardReports, quat_to_rpy
 from firmware_sim.board_stream import TargetStream
@@ -234,7 +235,8 @@ class Board:
         self._pushes: list[tuple[int, int, tuple[float, float, float]]] = []
         #: a real servo bus this board drives (:meth:`attach_bus`), else None: MuJoCo simulates the servos
         self.bus: BusDriver | None = None
-        self._bus_out: list[Message] = []  # unsolicited NACK SERVO_FAULTs for the next tick's output
+        #: the board's side of that bus (exchange, mirror, NACK SERVO_FAULTs), else None
+        self._bridge: BusBridge | None = None
         self._last_rx_seq = 0  # the sequence number of the last message handled (what those NACKs carry)
 
     def attach_bus(self, bus: BusDriver, positions: list[float]) -> None:
@@ -248,6 +250,7 @@ class Board:
         if self.ticks:
             raise RuntimeError("attach_bus must come before the first tick")
         self.bus = bus
+        self._bridge = BusBridge(bus, self.model, self.reports)
         self.native = None
         self.servo.native_counts = None
         q = np.asarray(positions, dtype=np.float64)
@@ -256,15 +259,7 @@ class Board:
         self.anchor_v[:] = cmd
         self._desired[:] = cmd
         self.hold_q = cmd.copy()
-        self._mirror(bus.measured())
-
-    def _mirror(self, m: Any) -> None:
-        """Measured positions (rad), speeds (rad/s) and efforts (N*m) into the model: kinematics only."""
-        data = self.data
-        data.qpos[self._qpos_at] = m.positions
-        data.qvel[self._dof_at] = m.speeds
-        mujoco.mj_forward(self.model, data)
-        data.actuator_force[self._ctrl_at] = m.efforts
+        self._bridge.mirror(bus.measured())
 
     def _bind_native(self) -> NativeTick | None:
         """The C tick on this board's arrays, per ``cfg.kernel`` / ``$GHOSTSHELL_BOARD_KERNEL`` (see
@@ -516,7 +511,7 @@ class Board:
             return [self._nack(msg, seq, NackReason.FAULT_LATCHED, "watchdog fault latched; send ESTOP_CLEAR")]
         if self.safety.servo_fault:
             self.dropped_count += 1
-            return [self._nack(msg, seq, NackReason.SERVO_FAULT, self._servo_fault_detail)]
+            return [self._nack(msg, seq, NackReason.SERVO_FAULT, self._bridge.fault_detail if self._bridge else SERVO_FAULT_DETAIL)]
         now = self.now_us
         t = unwrap_time_us(quantize_apply_at(int(msg.apply_at_us)), now)
         if t < now - self.cfg.max_late_us:
@@ -651,9 +646,8 @@ class Board:
         self.now_us = t + self._tick_us
         self.ticks += 1
         out = self.cameras.results() if self.cameras.worker is not None else []
-        if self._bus_out:
-            out += self._bus_out
-            self._bus_out = []
+        if self._bridge is not None and self._bridge.out:
+            out += self._bridge.take_out()
         if self.ticks % self._telemetry_every == 0:
             out += [self.telemetry(), self.sim_state()]
         return out
@@ -733,14 +727,16 @@ class Board:
                     self.safety.feed(when)
 
     def _python_tick(self, desired: list[float], speed_cap: float | None) -> bool:
-        """The reference path of one tick after interpolation: servo model, ctrl, ``mj_step``; True if clamped."""
-        if self.bus is not None:
-            return self._bus_tick(desired, speed_cap)
+        """The reference path of one tick after interpolation: servo model, ctrl, then ``mj_step`` (or, on a
+        real servo bus, :meth:`_bus_period`); True if clamped. On a bus ``ctrl`` (the deadband against
+        the measured positions) is kept as in simulation, for reports only."""
         data = self.data
         ctrl, clamped = self.servo.step_list(desired, data.qpos[self._qpos_at].tolist(), speed_cap)
         self._desired[:] = desired
         self._ctrl[:] = ctrl
         data.ctrl[self._ctrl_at] = ctrl
+        if self._bridge is not None:
+            return self._bus_period(self._bridge, bool(clamped))
         substeps = self._substeps
         if substeps == 1:
             mujoco.mj_step(self.model, data)
@@ -748,37 +744,22 @@ class Board:
             mujoco.mj_step(self.model, data, nstep=substeps)
         return bool(clamped)
 
-    _servo_fault_detail = "a servo failed on the servo bus; send ESTOP_CLEAR"
-
-    def _bus_tick(self, desired: list[float], speed_cap: float | None) -> bool:
-        """One tick on a real servo bus: the servo model (joint and speed limits) -> on a bus tick (every
-        ``bus.every``-th) its speed-limited command (rad) as the goals (one SYNC WRITE, clamped again
-        to the step limits; quantised to steps there, the servo's own deadband acts in the servo) -> one
-        SYNC READ -> the mirror. ``ctrl`` (the
-        deadband against the measured positions) is kept as in simulation, for reports only. A new
-        servo fault latches SERVO_FAULT: every servo holds its command, a NACK names the servo."""
-        bus = self.bus
-        assert bus is not None
-        data = self.data
-        ctrl, clamped = self.servo.step_list(desired, data.qpos[self._qpos_at].tolist(), speed_cap)
-        self._desired[:] = desired
-        self._ctrl[:] = ctrl
-        data.ctrl[self._ctrl_at] = ctrl
-        if self.ticks % bus.every:  # between bus periods: the command moves on, the mirror holds
-            return bool(clamped)
-        self._mirror(bus.exchange(self.servo._cmd.tolist(), self.now_us))
-        faults = bus.take_faults()
-        if faults:
-            if not self.safety.servo_fault:
-                self.safety.servo_faulted()
-                self.buffer.clear()
-                self.hold_q = self.servo.cmd
-                self._servo_fault_detail = f"{faults[0].detail}; send ESTOP_CLEAR"[:64]
-            for f in faults:
-                self._bus_out.append(Nack(self._last_rx_seq & 0xFFFF, MsgType.SERVO_FRAME, NackReason.SERVO_FAULT,
-                                          f.detail.encode("ascii", "replace").decode("ascii")[:64]))
-            del self._bus_out[:-16]
-        return bool(clamped) or bus.clamped  # the step limits clamped a goal: CLAMPED in telemetry too
+    def _bus_period(self, bridge: BusBridge, clamped: bool) -> bool:
+        """After the servo model on a real servo bus: on a bus tick (every ``bus.every``-th) its speed-limited
+        command (rad) goes out as the goals and the measurement comes back into the model
+        (:meth:`firmware_sim.board_bus.BusBridge.exchange`; quantised to steps there, the servo's own
+        deadband acts in the servo); between bus periods the command moves on and the mirror holds. A
+        new servo fault latches SERVO_FAULT: every servo holds its command, a NACK names the servo.
+        Returns ``clamped`` or whether the step limits clamped a goal (CLAMPED in telemetry too)."""
+        if self.ticks % bridge.bus.every:
+            return clamped
+        faults = bridge.exchange(self.servo._cmd.tolist(), self.now_us, self._last_rx_seq)
+        if faults and not self.safety.servo_fault:
+            self.safety.servo_faulted()
+            self.buffer.clear()
+            self.hold_q = self.servo.cmd
+            bridge.fault_detail = f"{faults[0].detail}; send ESTOP_CLEAR"[:64]
+        return clamped or bridge.bus.clamped
 
     # --- reports ---------------------------------------------------------------------------
 
