@@ -20,8 +20,8 @@ import anyio
 from host.link.board_time import BoardClock
 from host.link.errors import LinkError, LinkTimeout
 from host.link.receive import LinkStats
-from host.link.telemetry import FaultEvent, TelemetryFanout, flag_names
-from protocol.messages import Advance, Caps, FaultFlags, Message, Telemetry
+from host.link.telemetry import TelemetryFanout, flag_names
+from protocol.messages import Advance, Caps, Message, Telemetry
 
 __all__ = ["NudgeTarget", "TelemetryWaits", "WaitLink"]
 
