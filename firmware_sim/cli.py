@@ -1,4 +1,11 @@
-"""``python -m firmware_sim``: the board's command line (contract in DEVELOPERS.md)."""
+"""``python -m firmware_sim``: the board's command line.
+
+The contract with whatever starts it (the host, :func:`host.link.board_process.start_board`, or a user): a bad
+``--link`` or option exits 2 with one line. The first stdout line is ``board: listening on X``: for ``pty`` (and
+``can:slcan:pty``) X is the pty the board made and a host connects to ``spec.with_port(X)``; for other links
+to the spec as given. It serves until SIGINT/SIGTERM, shuts down cleanly and exits 130; with
+``--stop-on-stdin-eof`` it exits 0 when its standard input closes (a board the host started never outlives it).
+"""
 
 from __future__ import annotations
 
