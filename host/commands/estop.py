@@ -27,7 +27,7 @@ __all__ = ["configure", "main"]
 def configure(parser: argparse.ArgumentParser) -> None:
     add_link_argument(parser, default=None,
                       help="the running board's link: a serial port / pty path / pyserial URL or "
-                           "can:INTERFACE:CHANNEL[?node=N] (see DEVELOPERS.md)")
+                           "can:INTERFACE:CHANNEL[?node=N] (docs/concepts/wire.md)")
     parser.add_argument("--clear", action="store_true",
                         help="send ESTOP_CLEAR (release an estop or a latched watchdog fault) instead of ESTOP")
     parser.add_argument("--baud", type=baud_rate, default=115200, metavar="N", help="baud rate (default 115200)")

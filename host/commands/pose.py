@@ -19,7 +19,7 @@ __all__ = ["configure", "main"]
 def configure(parser: argparse.ArgumentParser) -> None:
     add_link_argument(parser, default=None,
                       help="the running board's link: a serial port / pty path / pyserial URL or "
-                           "can:INTERFACE:CHANNEL[?node=N] (see DEVELOPERS.md)")
+                           "can:INTERFACE:CHANNEL[?node=N] (docs/concepts/wire.md)")
     parser.add_argument("--pose", required=True, metavar="NAME", help="one of the robot's named poses "
                         "(ghostshell robots show NAME lists them)")
     add_robot_argument(parser)
