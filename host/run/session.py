@@ -52,7 +52,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import json
 import logging
 import math
 import time
@@ -66,7 +65,6 @@ from typing import Any
 import anyio
 import anyio.abc
 import anyio.to_thread
-import numpy as np
 
 from host.ghost import GhostError
 from host.link import BoardClient
@@ -81,16 +79,15 @@ from host.run.heap import frozen_heap
 from host.motion.stalls import STALLS
 from host.robot.link import ClientLink
 from host.robot.runtime import RobotRuntime, warm_up_behaviours
-from host.run.link_health import board_watchdog_holds
 from host.run.loop_lag import LagMonitor
 from host.run.options import SessionOptions
 from host.run.progress_guard import ProgressGuard, Stall
 from host.run.stops import Interrupted, StopReason
 from host.run.priority import raise_host_priority
-from host.run.realtime_health import add_realtime_behind
 from host.run.assembly import build_runtime, build_shell, first_report, mount_servers
 from host.run.launch import LinkPlan, board_args, connect_client, launch_board
 from host.run.recording import Recording
+from host.run.turn_files import turn_plotter, turn_writer
 from host.run.pump import (
     TELEMETRY_SILENCE_S,
     BoardPacer,
@@ -968,62 +965,20 @@ class RobotSession:
                    if STALLS is not None else {})}
 
     def writer(self, turn: TurnResult, label: str, *, plots: bool | None = None) -> Callable[[], None]:
-        """Snapshot what the turn's artefacts need (on the loop) and return the writer (thread-safe).
+        """Snapshot what the turn's artefacts need (on the loop) and return the writer (thread-safe,
+        :func:`host.run.turn_files.turn_writer`: timeline.json and summary.json first, then the plots).
 
-        The writer writes timeline.json and summary.json first, then (``plots``; None: the session's
-        :attr:`SessionOptions.plots`) timeline.png and joints.png, so a process stopped while plotting
-        still leaves both JSON files. ``plots=True`` on a session made without plots draws without the
-        warm-up of :meth:`__aenter__` (no caller does: its first plot holds the GIL for a while). Without
-        plots the joint history is not copied either (the whole run's samples, on the loop)."""
+        ``plots``: draw timeline.png and joints.png (None: the session's :attr:`SessionOptions.plots`).
+        ``plots=True`` on a session made without plots draws without the warm-up of :meth:`__aenter__` (no
+        caller does: its first plot holds the GIL for a while). Without plots the joint history is not
+        copied either (the whole run's samples, on the loop)."""
         if plots is None:
             plots = self.opts.plots
-        out, calls, summary, t0 = turn.out, list(turn.calls), turn.summary, turn.board_t0
-        board_stderr = self.out / "board.stderr"
-        plot = self._plotter(turn, label) if plots else None
-
-        def write() -> None:
-            out.mkdir(parents=True, exist_ok=True)
-            faults = summary.extra.get("faults")
-            if isinstance(faults, dict):  # the board reports what it injected and detected when it stops
-                faults["board"] = board_fault_report(board_stderr)
-            holds = board_watchdog_holds(board_stderr)  # the board's own count beats the host's edges in 50 Hz reports
-            if holds:
-                for part, key in (("timing", "watchdog_trips"), ("link", "watchdog_holds")):
-                    counts = summary.extra.get(part)
-                    if isinstance(counts, dict):
-                        counts[key] = max(holds, counts.get(key) or 0)
-            bus = board_servo_bus_report(board_stderr)  # real servos were driven: which, and how it went
-            if bus is not None:
-                summary.extra["servo_bus"] = bus
-            if summary.extra.get("clock") == "realtime":  # a board that fell behind says so (lateness, not a dead servo)
-                add_realtime_behind(summary.extra, board_stderr)
-            artefacts.write_timeline_json(out / "timeline.json", calls, t0=t0)
-            artefacts.write_summary_json(out / "summary.json", summary)
-            if plot is not None:
-                plot()
-
-        return write
-
-    def _plotter(self, turn: TurnResult, label: str) -> Callable[[], None]:
-        """Snapshot the joint history a turn's plots need (on the loop); the returned call draws
-        timeline.png and joints.png into ``turn.out`` (thread-safe)."""
-        rec, runtime = self.rec, self._runtime
-        times = np.asarray(rec.t)
-        q = np.asarray(rec.q)
-        keep = times >= turn.board_t0 - 1e-9
-        history = list(runtime.streamer.history) if runtime is not None else []
-        sent = [(t, q_) for t, q_ in history if t * 1e-6 >= turn.board_t0 - 1e-9]
-        names = self.robot.servos.names
-        out, calls = turn.out, list(turn.calls)
-
-        def plot() -> None:
-            artefacts.plot_timeline(out / "timeline.png", calls, title=f"{label}: calls on the board clock")
-            if len(times) and keep.any():
-                targets = (np.asarray([t for t, _ in sent]) * 1e-6, np.asarray([q_ for _, q_ in sent])) if sent else None
-                artefacts.plot_joints(out / "joints.png", times[keep], q[keep], names, targets,
-                                      groups=artefacts.joint_groups(self.robot))
-
-        return plot
+        runtime = self._runtime
+        plot = (turn_plotter(turn.out, list(turn.calls), turn.board_t0, label, self.rec,
+                             list(runtime.streamer.history) if runtime is not None else [], self.robot)
+                if plots else None)
+        return turn_writer(turn.out, list(turn.calls), turn.summary, turn.board_t0, self.out / "board.stderr", plot)
 
     def write_now(self, turn: TurnResult, label: str | None = None, *, plots: bool | None = None) -> None:
         """Write a turn's artefacts in this thread (e.g. after the session ended; ``plots=False``: no
@@ -1047,36 +1002,6 @@ def _targets_at(history: Any) -> Callable[[int], Any]:
         return None
 
     return targets
-
-
-def board_fault_report(stderr_path: Path) -> Any:
-    """What the board injected and detected: its ``board: faults {json}`` stderr line (None before it stopped)."""
-    report: Any = None
-    try:
-        for line in stderr_path.read_text(encoding="utf-8", errors="replace").splitlines():
-            if line.startswith("board: faults "):
-                report = json.loads(line[len("board: faults "):])
-    except (OSError, ValueError):
-        pass
-    return report
-
-
-#: the board's exit line about a real servo bus it drove (firmware_sim.cli): port, protocol, baud, servos,
-#: bus period and the bus counters (timeouts, checksum errors, faults)
-SERVO_BUS_LINE = "board: servo bus {"
-
-
-def board_servo_bus_report(stderr_path: Path) -> Any:
-    """The board's ``board: servo bus {json}`` exit line as a dict (None without one: no servo bus, or the
-    board still running)."""
-    report: Any = None
-    try:
-        for line in stderr_path.read_text(encoding="utf-8", errors="replace").splitlines():
-            if line.startswith(SERVO_BUS_LINE):
-                report = json.loads(line[len(SERVO_BUS_LINE) - 1:])
-    except (OSError, ValueError):
-        pass
-    return report
 
 
 def _stopped_extra(error: Interrupted) -> dict[str, Any]:
