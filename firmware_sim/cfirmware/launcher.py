@@ -137,6 +137,12 @@ class LaunchOptions:
 
 #: exit status of a board a signal stopped (SIGINT, SIGTERM): the CLI's "interrupted", 128 + SIGINT
 INTERRUPTED_STATUS = 130
+#: seconds the launcher waits for the firmware (or QEMU) to exit on SIGTERM before it kills it. Kept well
+#: under the host's own budget for stopping the launcher (``host.link.board_process.BoardProcess.stop``,
+#: 5 s, then SIGKILL), so the launcher always has time left to drain the firmware's last log lines and end
+#: a realtime run's stderr with its lateness record (a CI run at load ~4: QEMU slow to exit, the launcher
+#: killed mid-wait, no record; tests/cfirmware/test_stop_budget.py keeps the margin)
+FIRMWARE_STOP_S = 2.0
 
 
 class _Stop(BaseException):
@@ -570,7 +576,7 @@ def run_firmware(opts: LaunchOptions, err: IO[str] | None = None) -> int:
         if not exited:
             proc.send_signal(signal.SIGTERM)
             try:
-                proc.wait(5)
+                proc.wait(FIRMWARE_STOP_S)
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
