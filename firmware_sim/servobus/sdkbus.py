@@ -156,6 +156,24 @@ class SdkBus(MotorBus):
         return self._safe_rx() != TIMEOUT
 
     def ping(self, servo_id: int) -> PingAnswer:
+        """Ping ``servo_id``: its model number, or the fault that stops the start-up. A second answer is
+        confirmed on a quiet line before it is called a duplicate id: a late answer to an earlier ping (a slow
+        servo or emulator, the retry after a timeout) reads as a second answer too (CI: a realtime plant on a
+        loaded machine answered ping 1 after the board had re-sent it, "answers a ping twice")."""
+        ans = self._ping_once(servo_id)
+        if ans.fault is not None and "twice" in ans.fault:
+            self._drain()
+            ans = self._ping_once(servo_id)
+        return ans
+
+    def _drain(self) -> None:
+        """Read and drop what still arrives until the line is quiet for one answer window (at most 8 answers)."""
+        for _ in range(8):
+            if not self._second_answer():
+                break
+        self._fresh()
+
+    def _ping_once(self, servo_id: int) -> PingAnswer:
         self._fresh()
         if not self._tx(servo_id, 1, []):
             return PingAnswer(fault="cannot send on the servo bus")

@@ -138,3 +138,47 @@ def test_out_of_range_at_start_up_shows_the_calibrated_range() -> None:
         in str(e.value), str(e.value)
     assert not deg[0] <= at <= deg[1]
     b.driver.close()
+
+
+class _LateFirstAnswer(_Bus):
+    """Servo 1 answers its first ping late: only when the board has re-sent the ping, just before its answer
+    to the second (a realtime plant on a loaded machine, CI 2026-12-07: "answers a ping twice"). ``twin``: every
+    ping of servo 1 gets two answers (a real duplicate id)."""
+
+    def __init__(self, protocol: str, twin: bool = False) -> None:
+        super().__init__(protocol)
+        self.held: bytes | None = None
+        self.pings = 0
+        self.twin = twin
+
+    def _answer(self, pkt: bytes) -> bytes:
+        out = super()._answer(pkt)
+        sts = self.model.protocol == "sts"
+        dev, inst = (pkt[2], pkt[4]) if sts else (pkt[4], pkt[7])
+        if dev != 1 or inst != 0x01:
+            return out
+        self.pings += 1
+        if self.twin:
+            return out + out
+        if self.pings == 1:
+            self.held = out
+            return b""
+        held, self.held = self.held or b"", None
+        return held + out
+
+
+@pytest.mark.parametrize("protocol", ["sts", "dxl2"])
+def test_a_late_answer_to_a_re_sent_ping_is_no_duplicate_id(protocol: str) -> None:
+    b = _LateFirstAnswer(protocol)
+    assert b.driver.start() == pytest.approx([0.0] * N, abs=0.01)
+    assert b.pings >= 2
+    b.driver.close()
+
+
+@pytest.mark.parametrize("protocol", ["sts", "dxl2"])
+def test_two_answers_to_every_ping_are_a_duplicate_id(protocol: str) -> None:
+    from firmware_sim.servobus.base import BusSetupError
+
+    b = _LateFirstAnswer(protocol, twin=True)
+    with pytest.raises(BusSetupError, match=r"servo 1 \(shoulder_pan\) answers a ping twice"):
+        b.driver.start()
