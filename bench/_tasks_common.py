@@ -17,7 +17,7 @@ from typing import Any
 import anyio
 import numpy as np
 
-from host.robot.binding import signature_registry
+from host.runtime.binding import signature_registry
 from host.run.runner import RunOptions, RunReport, run_program
 from host.shell.registry import Registry
 from robots.datatypes import RobotDataError

@@ -1,7 +1,7 @@
 """SocketCAN beside the pty: frame round trip, and bus load measured from a candump capture.
 
 This machine's kernel has no ``vcan``; the SocketCAN parts run inside User-Mode Linux (one boot,
-``host/vcan/uml.py``) unless ``vcan0`` exists natively. The pty numbers are taken in the same
+``host/tools/vcan/uml.py``) unless ``vcan0`` exists natively. The pty numbers are taken in the same
 kernel as the CAN ones (inside UML when UML is used), so the two columns compare like with like;
 UML makes every system call several times dearer than on the host, so absolute numbers are
 upper bounds for a native kernel.

@@ -41,7 +41,7 @@ from pathlib import Path
 from protocol.can.codec import Sender, encode_bulk, encode_fixed, is_fixed
 from protocol.can.layouts import CanLayouts, can_layouts
 from protocol.messages import Message, MsgType, TimeSyncRequest, TimeSyncReply
-from protocol.samples import SAMPLES, servo_frame_n, telemetry_n
+from protocol.testing.samples import SAMPLES, servo_frame_n, telemetry_n
 
 NOMINAL = 1_000_000
 

@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable
 
 from protocol.framing import FrameDecoder, encode_frame, frame_size
-from protocol.samples import servo_frame_12, telemetry_12
+from protocol.testing.samples import servo_frame_12, telemetry_12
 
 
 def rate(fn: Callable[[], int], seconds: float) -> float:

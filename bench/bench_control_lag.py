@@ -2,7 +2,7 @@
 
 Every frame, confirmation and token of a run goes through the host's one event loop; work that holds it
 (recording, plotting) delays all of them, and past the board's watchdog (200 ms) the servos are held.
-Each run's summary.json has ``extra.timing`` (:meth:`host.run.session.RobotSession.timing`): the lag a
+Each run's summary.json has ``extra.timing`` (:meth:`host.run.robot_session.RobotSession.timing`): the lag a
 task sleeping 5 ms sees (p50/p99/max over the turn, :mod:`host.run.loop_lag`), frames late, watchdog
 trips and the recording's drops. This runs ``ghostshell run`` (realtime, a real board subprocess, run.mcap
 recorded) ``-n`` times for each case and prints those numbers per run, then per case the median of the

@@ -32,7 +32,7 @@ import websockets
 
 from host.commands.inputs import positive_seconds, whole_number
 from host.run.runner import RunOptions, run_program
-from host.run.session import RobotSession, SessionOptions
+from host.run.robot_session import RobotSession, SessionOptions
 from robots.registry import DEFAULT_ROBOT, load_robot
 
 

@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from host.commands.fuzz import run_target  # noqa: E402
-from host.fuzz import TARGETS  # noqa: E402
+from host.tools.fuzz import TARGETS  # noqa: E402
 
 DEFAULT_TARGETS = ("serial-decoder", "can-decoder", "board", "shell", "session")
 

@@ -7,7 +7,7 @@ Two workloads, each fed in 16-character chunks to :class:`host.shell.shell.Shell
 * ``calls``: N tiny self-closing calls on one channel (``<nod/>`` x N).
 
 Prints wall-clock seconds and throughput for each size with the limits lifted, so the growth
-(linear or not) is visible, then the same hostile inputs under the default :class:`Limits`.
+(linear or not) is visible, then the same hostile inputs under the default :class:`TurnLimits`.
 
     python bench/bench_hostile.py [--mb 0.5 1 2] [--calls 1000 2500 5000]
 """
@@ -20,7 +20,7 @@ import time
 import trio
 from trio.testing import MockClock
 
-from host.shell.limits import Limits
+from host.shell.limits import TurnLimits
 from host.shell.registry import Registry
 from host.shell.shell import Shell
 from host.shell.types import Module, shell_function
@@ -43,10 +43,10 @@ def registry() -> Registry:
                      Module.from_functions("head", nod, channel="head")])
 
 
-RAW = Limits(max_text_chars=10**9, max_calls=10**9, max_queued_per_channel=10**9)
+RAW = TurnLimits(max_text_chars=10**9, max_calls=10**9, max_queued_per_channel=10**9)
 
 
-def run(text: str, chunk: int = 16, limits: Limits | None = RAW) -> tuple[float, int]:
+def run(text: str, chunk: int = 16, limits: TurnLimits | None = RAW) -> tuple[float, int]:
     shell = Shell(registry(), strict=False, limits=limits)
     pieces = [text[i : i + chunk] for i in range(0, len(text), chunk)]
     t0 = time.perf_counter()

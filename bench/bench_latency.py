@@ -28,7 +28,7 @@ program's own ordering. They are counted as *queued* and reported apart, with
 ``ready -> servo`` = board start - max(chunk arrival, the moment the scheduler
 released the call). The headline p50/p99 is over *immediate* motion calls.
 
-What it is made of (host/motion/streamer.py, host/robot/runtime.py, firmware_sim):
+What it is made of (host/motion/streamer.py, host/runtime/robot_runtime.py, firmware_sim):
 
 * a new call's first frame is due at the board's now + the link's measured latency (TIME_SYNC
   round trips; with ``--baud`` the frame's wire time too) + the host's own send path (planning the

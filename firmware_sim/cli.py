@@ -325,7 +325,7 @@ def _main(argv: Sequence[str] | None = None) -> int:
 
     from firmware_sim.board import Board
     from firmware_sim.config import BoardConfig, ConfigError
-    from firmware_sim.heap import freeze_heap
+    from firmware_sim.gc_freeze import freeze_heap
     from firmware_sim.server import BoardServer
     from firmware_sim.transports import open_board_transport
     from protocol.linkkinds import link_kind
@@ -445,7 +445,7 @@ def _main(argv: Sequence[str] | None = None) -> int:
         signal.signal(signal.SIGINT, _raise_stop)
         if args.stop_on_stdin_eof:
             _stop_on_stdin_eof()
-        freeze_heap()  # full GC passes over the loaded model would stall ticks for tens of ms (firmware_sim.heap)
+        freeze_heap()  # full GC passes over the loaded model would stall ticks for tens of ms (firmware_sim.gc_freeze)
         print(f"board: listening on {link.name}", flush=True)
         mode = "lockstep" if cfg.lockstep else "realtime"
         print(f"board: {robot.name} ({robot.servo_count} servos), {mode}, {cfg.rate_hz} Hz, dt {cfg.dt} s, "

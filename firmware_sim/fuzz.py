@@ -21,7 +21,7 @@ Input layout (little-endian; a short read ends the input)::
     7 QUIET    n u8                                      (n mod 16) x ADVANCE by 8 ticks (watchdog)
 
 A hand-written reader (not atheris' ``FuzzedDataProvider``, which takes integers from the end of the
-input) keeps the layout simple enough to write seeds from frame logs (``host.fuzz.seeds``).
+input) keeps the layout simple enough to write seeds from frame logs (``host.tools.fuzz.seeds``).
 
 Invariants (an ``AssertionError`` names the one that broke):
 
@@ -101,7 +101,7 @@ UNDER_TEST = ("firmware_sim.board", "firmware_sim.config", "firmware_sim.jitter_
 
 @contextmanager
 def _instrument_only(modules: Sequence[str]) -> Iterator[None]:
-    """A copy of ``host.fuzz.harness.instrument_only`` (the board never imports the host): atheris'
+    """A copy of ``host.tools.fuzz.harness.instrument_only`` (the board never imports the host): atheris'
     ``include`` takes top-level packages only, so every other module of the package is excluded."""
     import atheris  # type: ignore[import-not-found,unused-ignore]
 

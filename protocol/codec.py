@@ -153,7 +153,7 @@ def _layouts(max_servos: int) -> dict[MsgType, Layout]:
 #: serial one (field name -> :class:`CanField`), as declared (``can_fixed``, ``wire(..., can=...)``).
 #: Signals follow the serial layout's field order; :mod:`protocol.can.layouts` places them per robot
 #: servo count, :mod:`protocol.can.codec` packs the values, :mod:`protocol.can.make_dbc` writes the DBC,
-#: :mod:`protocol.refdoc` the reference from it.
+#: :mod:`protocol.wire_tables` the reference from it.
 CAN_FIXED: Mapping[MsgType, Mapping[str, CanField]] = {
     MsgType(t): d.can_forms() for t, d in DECLARED.items() if d.can_fixed}  # declaration order: the C table's rows
 

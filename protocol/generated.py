@@ -1,6 +1,6 @@
 """Checked-in generated files: write them, or check that they are current (one helper, one message format).
 
-Every generator with a ``--check`` flag (``python -m protocol.cgen``, ``python -m firmware_sim.refdoc``,
+Every generator with a ``--check`` flag (``python -m protocol.cgen``, ``python -m firmware_sim.wire_reference``,
 ``python -m host.cli_reference``) ends in :func:`check_or_write`; ``protocol`` is the one package all three
 may import. This module does file I/O, for those command-line entry points only: the codecs never call it.
 

@@ -175,7 +175,7 @@ class ScreenTarget(IntEnum):
 # (``can_fixed``: a fixed CAN layout; else ISO-TP bulk), and per field its wire type with its unit and, on
 # CAN, its form where it differs from serial (protocol.wiretypes.wire). The serial layouts and schema hash
 # (protocol.codec), the CAN layouts (protocol.can.layouts), the C codec (protocol.cgen), the DBCs
-# (protocol.can.make_dbc) and the wire reference (protocol.refdoc) all derive from these classes.
+# (protocol.can.make_dbc) and the wire reference (protocol.wire_tables) all derive from these classes.
 
 # --- the real-time path: messages with a fixed CAN layout (this order is the CAN layout table's rows) ---
 

@@ -6,7 +6,7 @@ are serialised: a chunk pushed while the line is still busy starts when the prev
 The caller passes the time (``now``, seconds on any monotonic clock) to every call; the model
 only orders and releases bytes. Used by the emulated board's serial transport (both directions)
 and by the C firmware launcher's relay between two ptys; the host keeps one for its own sends
-(:attr:`host.link.session.BoardClient.tx_wire`) to know how long the line is busy.
+(:attr:`host.link.client.BoardClient.tx_wire`) to know how long the line is busy.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Wire field types and the message declaration machinery: what :mod:`protocol.messages` declares each
 message with, and what :mod:`protocol.codec` (serial payloads), :mod:`protocol.can.layouts` (fixed CAN
 layouts), :mod:`protocol.cgen` (the C codec), :mod:`protocol.can.make_dbc` (DBCs) and
-:mod:`protocol.refdoc` (the wire reference) read back from that one declaration.
+:mod:`protocol.wire_tables` (the wire reference) read back from that one declaration.
 
 A message is one class (:func:`message`): its :class:`~protocol.messages.MsgType`, its sender
 (:class:`Sender`), its CAN form (a fixed CAN layout or ISO-TP bulk) and, per field, the wire type with its

@@ -21,7 +21,7 @@ from annotated_types import Interval
 
 from robots.datatypes import RobotData
 from robots.stubs import stub
-from robots.motion import Limits, Motion, check_finite, transition
+from robots.motion import JointLimits, Motion, check_finite, transition
 
 __all__ = ["GENERIC_CHANNEL", "JointDegrees", "generic_behaviours", "generic_module", "joint_range_text"]
 
@@ -75,7 +75,7 @@ def _hold_end(m: Motion) -> Motion:
 
 def generic_behaviours(robot: RobotData) -> Mapping[str, Callable[..., Motion]]:
     """``pose`` and ``joint_move`` for ``robot``: ``gen(start, *, persistent=False, **params) -> Motion``."""
-    limits = Limits.of_robot(robot)
+    limits = JointLimits.of_robot(robot)
     table = robot.servos
     every = tuple(range(robot.servo_count))
 

@@ -4,7 +4,7 @@ A :class:`Motion` is what the host's motion mixer plays on one channel: sample t
 for some servos (radians, the servo table's joint angles) and, for the persistent form of a
 behaviour, the time a seamless loop starts. The board interpolates linearly between samples, so the
 speed a motion demands of a servo is its largest finite difference; every motion built here
-satisfies the robot's joint limits and speed limits (:class:`Limits`; :meth:`Track.build` enforces
+satisfies the robot's joint limits and speed limits (:class:`JointLimits`; :meth:`Track.build` enforces
 the speed limits by uniform time stretching as a last resort).
 
 Minimum-jerk segments are written by hand (one polynomial, Flash & Hogan 1985): no maintained
@@ -26,7 +26,7 @@ from robots.datatypes import RobotData, ServoTable
 __all__ = [
     "DT",
     "EASE_IN_S",
-    "Limits",
+    "JointLimits",
     "Motion",
     "SPEED_MARGIN",
     "Track",
@@ -41,7 +41,7 @@ __all__ = [
 
 
 @dataclass(frozen=True, eq=False)
-class Limits:
+class JointLimits:
     """Per-servo joint limits and speed limits of one robot (radians, rad/s; servo order).
 
     ``neutral`` fills the servos a partial start vector leaves out; ``names`` are the servo names
@@ -55,13 +55,13 @@ class Limits:
     names: tuple[str, ...]
 
     @classmethod
-    def of(cls, table: ServoTable) -> Limits:
+    def of(cls, table: ServoTable) -> JointLimits:
         """The limits of a servo table."""
         return cls(np.array(table.mins), np.array(table.maxs), np.array(table.max_speeds),
                    np.array(table.neutral), table.names)
 
     @classmethod
-    def of_robot(cls, robot: RobotData) -> Limits:
+    def of_robot(cls, robot: RobotData) -> JointLimits:
         """The limits of ``robot``'s servo table (cached on the robot)."""
         cached = robot.__dict__.get("_limits")
         if cached is None:
@@ -75,7 +75,7 @@ class Limits:
         return len(self.lo)
 
 
-def check_start(start: Sequence[float] | np.ndarray, limits: Limits) -> np.ndarray:
+def check_start(start: Sequence[float] | np.ndarray, limits: JointLimits) -> np.ndarray:
     """Validate the current joint targets of all servos (within limits, finite); clipped copy."""
     s = np.asarray(start, dtype=float)
     if s.shape != (limits.n,):
@@ -150,7 +150,7 @@ class Track:
     once, and a Python append per sample cost ~3 us (a 700-sample walk: ~2 ms).
     """
 
-    def __init__(self, servos: Sequence[int], start: np.ndarray, limits: Limits) -> None:
+    def __init__(self, servos: Sequence[int], start: np.ndarray, limits: JointLimits) -> None:
         self.servos = tuple(int(i) for i in servos)
         sel = list(self.servos)
         self.lo, self.hi, self.vmax = limits.lo[sel], limits.hi[sel], limits.vmax[sel]
@@ -253,7 +253,7 @@ class Track:
 
 
 def transition(start: Sequence[float] | np.ndarray, target: Sequence[float] | np.ndarray,
-               servos: Sequence[int], limits: Limits, *, max_speed: float | None = None,
+               servos: Sequence[int], limits: JointLimits, *, max_speed: float | None = None,
                min_duration: float = 0.0) -> Motion:
     """Smooth min-jerk move of ``servos`` from ``start`` to ``target`` within ``limits``.
 

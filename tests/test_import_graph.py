@@ -126,7 +126,7 @@ def test_the_graph_sees_known_arrows() -> None:
     g = import_graph()
     assert "protocol.messages" in g["protocol.codec"]
     assert "firmware_sim.board" in g["firmware_sim.server"]
-    assert "host.link.session" in g["host.link"]  # the package re-exports BoardClient
+    assert "host.link.client" in g["host.link"]  # the package re-exports BoardClient
 
 
 def test_circles_found_by_the_builder() -> None:

@@ -35,7 +35,7 @@ import anyio
 
 from host.chat.observations import observation_message
 from host.ghost.base import Ghost
-from host.run.session import RobotSession, TurnResult
+from host.run.robot_session import RobotSession, TurnResult
 from host.shell.parser import ParseError
 from host.shell.registry import RegistryError
 from host.shell.types import Module

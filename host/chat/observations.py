@@ -35,7 +35,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from host.run.session import TurnResult
+from host.run.robot_session import TurnResult
 
 #: most call lines in one observation message (the rest are counted, not listed)
 MAX_LINES = 40

@@ -101,11 +101,11 @@ def main(args: argparse.Namespace) -> int:
     status = check_run_args(args)
     if status is not None:
         return status
-    from host.shell.limits import Limits
+    from host.shell.limits import TurnLimits
 
     for name, blocks in (("--replies", replies), ("--turns", turns)):
         for i, block in enumerate(blocks or [], 1):
-            why = Limits().refuse_reply(block.text) if name == "--replies" else None
+            why = TurnLimits().refuse_reply(block.text) if name == "--replies" else None
             if why is not None:  # refused before the board starts, not cut minutes into the turn
                 print_error("chat", f"{name} {args.replies}: reply {i}: {why}; nothing was run")
                 return 2
@@ -143,7 +143,7 @@ class _Chat:
 
 async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any, out: Path) -> int:
     from host.link import LinkError
-    from host.run.session import RobotSession, SessionOptions
+    from host.run.robot_session import RobotSession, SessionOptions
     from host.run.stops import StopSignals
 
     baud, wire_baud = line_rates(args)

@@ -13,7 +13,7 @@ from rich.table import Table
 
 from host.commands.errors import print_error
 from host.commands.inputs import InputError, read_text_input
-from host.eval.dsbc import dsbc_breakdown
+from host.tools.eval.dsbc import dsbc_breakdown
 
 
 def _load(arg: str, what: str) -> str:

@@ -3,7 +3,7 @@
 Offline, without a model: ``--llm ground-truth`` answers every task with its ground truth (micro =
 macro = 1.0), ``--llm scripted --replies FILE`` with the replies in FILE (the format of ``chat
 --replies``: blocks separated by lines ``---``; either one reply per task in ``--tasks`` order, or
-each block headed ``--- task N``; see :func:`host.eval.sweep.replies_for_tasks`). Either shows the
+each block headed ``--- task N``; see :func:`host.tools.eval.sweep.replies_for_tasks`). Either shows the
 whole report (eval.json, eval.md, eval.png) with no key and no network.
 
 Exit status: 0 every job finished, 1 some job failed (run again to retry it), 2 bad arguments,
@@ -88,8 +88,8 @@ def _scripted_replies(args: argparse.Namespace, tasks: list[int]) -> dict[int, s
     """``--replies`` read and mapped onto ``tasks`` (ValueError with one line), or None without it."""
     from host.chat.script import ScriptError, parse_blocks
     from host.commands.inputs import InputError, read_text_input
-    from host.eval.sweep import SCRIPTED, replies_for_tasks
-    from host.shell.limits import Limits
+    from host.tools.eval.sweep import SCRIPTED, replies_for_tasks
+    from host.shell.limits import TurnLimits
 
     if args.llm != SCRIPTED:
         if args.replies is not None:
@@ -106,15 +106,15 @@ def _scripted_replies(args: argparse.Namespace, tasks: list[int]) -> dict[int, s
     except (ScriptError, ValueError) as e:
         raise ValueError(f"--replies {args.replies}: {e}") from None
     for task, text in replies.items():
-        why = Limits().refuse_reply(text)
+        why = TurnLimits().refuse_reply(text)
         if why is not None:
             raise ValueError(f"--replies {args.replies}: the reply for task {task}: {why}")
     return replies
 
 
 def build_config(args: argparse.Namespace) -> Any:
-    from host.eval.paper import ablation_tasks, hri_tasks, parse_task_spec
-    from host.eval.sweep import SweepConfig
+    from host.tools.eval.paper import ablation_tasks, hri_tasks, parse_task_spec
+    from host.tools.eval.sweep import SweepConfig
 
     robot = robot_from_args(args, "eval")
     if isinstance(robot, int):
@@ -166,10 +166,10 @@ def main(args: argparse.Namespace) -> int:
     """Run the sweep and write the reports; 2 on bad arguments, 1 when every job failed."""
     import anyio
 
-    from host.eval.report import write_reports
+    from host.tools.eval.report import write_reports
     from host.ghost import GhostError
 
-    from host.eval.sweep import GROUND_TRUTH, OFFLINE
+    from host.tools.eval.sweep import GROUND_TRUTH, OFFLINE
 
     try:
         cfg = build_config(args)
@@ -210,7 +210,7 @@ def main(args: argparse.Namespace) -> int:
 
         try:
             if args.ray:
-                from host.eval.ray_backend import run_sweep_on_ray
+                from host.tools.eval.ray_backend import run_sweep_on_ray
 
                 records = run_sweep_on_ray(cfg, args.ray, on_result=progress)
             else:
@@ -249,7 +249,7 @@ def main(args: argparse.Namespace) -> int:
 async def _sweep_until_signal(cfg: Any, progress: Any, stopped: list[str]) -> list[dict[str, Any]]:
     """The sweep, cancelled by the first SIGINT/SIGTERM (its name then goes into ``stopped``): the
     running jobs stop (their sessions stop their boards); returns the records finished so far."""
-    from host.eval.sweep import load_results, ordered, run_sweep
+    from host.tools.eval.sweep import load_results, ordered, run_sweep
     from host.run.stops import StopSignals
 
     signals = StopSignals(lambda stop: False)  # no turn of its own to end gracefully: stop the jobs at once

@@ -27,8 +27,8 @@ from pathlib import Path
 
 from host.commands.errors import print_error
 from host.commands.outarg import out_dir
-from host.fuzz import TARGETS
-from host.fuzz.libfuzzer import FuzzStats, parse_output
+from host.tools.fuzz import TARGETS
+from host.tools.fuzz.libfuzzer import FuzzStats, parse_output
 
 __all__ = ["configure", "main", "run_target", "seed_dirs"]
 

@@ -80,7 +80,7 @@ def main(args: argparse.Namespace) -> int:
         print_error("mcp", f"the MCP SDK is missing ({err}); pip install 'mcp>=2'")
         return 2
     from host.link import LinkError
-    from host.run.session import SessionOptions
+    from host.run.robot_session import SessionOptions
 
     opts = SessionOptions(robot=str(robot.root), robots_dir=args.robots_dir, vocabulary=args.vocabulary,
                           mode=args.mode, lockstep=args.lockstep, link=args.link,

@@ -36,7 +36,7 @@ async def _run(args: argparse.Namespace, robot: Robot, target: tuple[float, ...]
     from host.link import BoardClient, LinkConfigError, LinkError, RobotIdentity, RobotMismatch
     from host.link.faultcheck import clear_leftover_fault
     from host.motion.moves import move_to
-    from robots.motion import Limits
+    from robots.motion import JointLimits
 
     names = robot.servos.names
     identity = RobotIdentity(robot.name, robot.servo_count, robot.servo_table_hash)
@@ -53,7 +53,7 @@ async def _run(args: argparse.Namespace, robot: Robot, target: tuple[float, ...]
         note = await clear_leftover_fault(client)
         if note:
             print_error("pose", str(note))
-        res = await move_to(client, target, Limits.of_robot(robot), duration_s=args.duration, tolerance_deg=args.tolerance,
+        res = await move_to(client, target, JointLimits.of_robot(robot), duration_s=args.duration, tolerance_deg=args.tolerance,
                             settle_timeout_s=args.timeout, wall_timeout_s=max(30.0, 4 * args.timeout))
     except LinkError as e:
         print_error("pose", f"pose {args.pose!r} not reached: {e}")

@@ -23,7 +23,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="MODULE:ATTR",
         help="callable returning a Registry, a list of Modules or a dict {module: interface class} "
-        "(default: the --robot's interface; e.g. host.shell.example:modules)",
+        "(default: the --robot's interface; e.g. host.testing.quadruped:modules)",
     )
     add_robot_argument(parser)
     parser.add_argument("--vocabulary", default=None, metavar="NAME",
@@ -45,7 +45,7 @@ def build_registry(spec: str | None, vocabulary: str | None = None, robot: Any =
     from host.shell.registry import Registry
 
     if spec is None:
-        from host.robot.binding import signature_registry
+        from host.runtime.binding import signature_registry
         from robots.registry import load_robot
 
         bot = robot if robot is not None else load_robot()

@@ -201,7 +201,7 @@ def mount_problem(args: argparse.Namespace, robot: Robot) -> str | None:
     if not specs:
         return None
     from host.mounts.spec import McpMountError, check_specs  # not mcp_mount: no MCP SDK for a usage error
-    from host.robot.binding import signature_registry
+    from host.runtime.binding import signature_registry
 
     try:
         check_specs(specs, signature_registry(robot, getattr(args, "vocabulary", None)))
@@ -311,7 +311,7 @@ def check_run_args(args: argparse.Namespace) -> int | None:
         from host.shell.policy import Policy, PolicyError
 
         try:
-            from host.robot.binding import function_params
+            from host.runtime.binding import function_params
 
             args.loaded_policy = Policy.load(args.policy, known=function_params(robot))
             args.event_policy = EventPolicy.load(args.policy)
@@ -623,12 +623,12 @@ def main(args: argparse.Namespace) -> int:
             print_error("run", str(e))
             return 2
     if program is not None:
-        from host.shell.limits import Limits
+        from host.shell.limits import TurnLimits
 
-        from host.robot.binding import signature_registry
+        from host.runtime.binding import signature_registry
         from host.shell.precheck import refuse_program
 
-        limits = Limits()
+        limits = TurnLimits()
         why = limits.refuse_reply(program)
         if why is None:  # every element's arguments too: a bad one late in the program must not move the robot first
             why = refuse_program(program, signature_registry(args.robot_value, getattr(args, "vocabulary", None)),

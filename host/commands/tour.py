@@ -80,11 +80,11 @@ async def _drive(port: LinkSpec, args: argparse.Namespace, out: Path | None, rob
     from host.link import BoardClient, RobotIdentity
     from host.link.faultcheck import clear_leftover_fault
     from host.motion.moves import move_to
-    from robots.motion import Limits
+    from robots.motion import JointLimits
 
     poses = robot.poses
     names = robot.servos.names
-    limits = Limits.of_robot(robot)
+    limits = JointLimits.of_robot(robot)
     identity = RobotIdentity(robot.name, robot.servo_count, robot.servo_table_hash)
     state: dict[str, Any] = {"pose": "-", "robot": robot.title}
     results: list[dict[str, Any]] = []

@@ -2,7 +2,7 @@
 
 Where this kernel has the interfaces, or can create them (root and the ``vcan`` module), COMMAND runs
 here, directly, after they are created (and they are deleted afterwards). Elsewhere (a kernel without
-``vcan``, e.g. this machine's) it runs inside a throwaway User-Mode Linux guest (:mod:`host.vcan.uml`):
+``vcan``, e.g. this machine's) it runs inside a throwaway User-Mode Linux guest (:mod:`host.tools.vcan.uml`):
 the guest's root is this machine's root, so the working folder, the venv and every path outside
 ``/tmp`` are the same inside; the guest's ``/tmp`` is its own, but every ``/tmp`` path the command
 names (an argument, an option's ``=VALUE``, or a path inside an argument such as a ``bash -c`` script)
@@ -134,7 +134,7 @@ def _tmp_paths(argv: Sequence[str], cwd: Path) -> tuple[list[Path], list[Path]]:
     """``(shared, copied_back)``: the host folders under ``/tmp`` a User-Mode Linux guest must see for the
     paths the command names there, and the paths directly under ``/tmp`` the command names that do not
     exist on this machine yet (the guest's ``/tmp`` is a private tmpfs; these are copied out of it when
-    the command ends, :func:`host.vcan.uml.run_in_uml` ``copy_back``).
+    the command ends, :func:`host.tools.vcan.uml.run_in_uml` ``copy_back``).
 
     A named path's nearest folder that exists here is shared (``/tmp/x`` for ``--out /tmp/x/run/new``);
     when that is ``/tmp`` itself, the first folder below it (``/tmp/new`` for ``/tmp/new/run``) is
@@ -181,8 +181,8 @@ def _which(program: str, cwd: Path, path: str) -> str | None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from host.vcan.native import native_plan, run_native
-    from host.vcan.uml import UmlError, default_env, run_in_uml, uml_unavailable_reason
+    from host.tools.vcan.native import native_plan, run_native
+    from host.tools.vcan.uml import UmlError, default_env, run_in_uml, uml_unavailable_reason
 
     command = args.command[1:] if args.command[:1] == ["--"] else list(args.command)
     if not command:

@@ -4,7 +4,7 @@
 to the session's ``send`` (no reply) or ``request`` (awaits the ACK, with retries;
 :mod:`host.link.requests`); :class:`CameraCapturer` asks for a camera image and drives its selective
 repeat (:class:`host.link.camera.CameraAssembler`). Both are parts of
-:class:`host.link.session.BoardClient` and hold the session (:class:`host.link.core.LinkSession`)
+:class:`host.link.client.BoardClient` and hold the session (:class:`host.link.core.LinkSession`)
 only as the Protocols :class:`CommandLink` and :class:`CaptureLink`.
 """
 

@@ -1,6 +1,6 @@
 """Board time as the host knows it: the time-sync estimate (realtime) or the latest board time seen (lockstep).
 
-A :class:`BoardClock` is one part of a :class:`host.link.session.BoardClient`. On a realtime board the
+A :class:`BoardClock` is one part of a :class:`host.link.client.BoardClient`. On a realtime board the
 supervisor's TIME_SYNC exchanges feed its :class:`host.link.timesync.ClockSync` (``sync``: offset +
 drift), and :meth:`BoardClock.host_to_board` maps host time (:func:`host.link.timesync.host_now_us`,
 µs) to board time (µs). A lockstep board's clock is virtual: it moves only when the host ADVANCEs it,

@@ -1,6 +1,6 @@
 """Attributes of a facade that are one of its parts' own: ``caps = PartAttr[Caps | None]("session.caps")``.
 
-:class:`host.link.session.BoardClient` holds its parts (the session, the board clock, the receive
+:class:`host.link.client.BoardClient` holds its parts (the session, the board clock, the receive
 path, ...) as attributes and shows their state under its own names. At run time a :class:`PartAttr`
 is a ``property`` whose getter is :func:`operator.attrgetter` of the dotted path (no Python frame per
 read: as fast as a hand-written property, ~90 ns); a :class:`WritablePartAttr` also sets the part's

@@ -33,7 +33,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from host.link.errors import BoardFaulted, LinkError, LinkTimeout
-from host.link.session import BoardClient
+from host.link.client import BoardClient
 from protocol.messages import FaultFlags, MsgType, Nack, NackReason, Telemetry, nack_detail
 
 __all__ = ["DETAIL_WAIT_S", "LATCHED", "ServoFault", "ServoFaulted", "ask_servo_fault", "clear_command",

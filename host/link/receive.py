@@ -1,6 +1,6 @@
 """The session's receive path: decoded items in, each message to its handler through a table.
 
-:class:`ReceivePath` is a part of :class:`host.link.session.BoardClient` (python-can's Notifier role):
+:class:`ReceivePath` is a part of :class:`host.link.client.BoardClient` (python-can's Notifier role):
 the transport calls :meth:`ReceivePath.on_items` with what it decoded; undecodable items are
 counted, never raised; every message goes to its handler by type (a table of bound methods made
 once) and then to the ``on_received`` listeners. The handlers hand on:

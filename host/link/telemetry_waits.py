@@ -1,7 +1,7 @@
 """Telemetry views and waits of the session: ``latest_telemetry``, fault bits and edges, ``wait_for`` (with
 the lockstep nudge), ``next_telemetry``, ``telemetry()``.
 
-:class:`TelemetryWaits` is a part of :class:`host.link.session.BoardClient`: it reads the
+:class:`TelemetryWaits` is a part of :class:`host.link.client.BoardClient`: it reads the
 :class:`host.link.telemetry.TelemetryFanout` it is given (``fanout``) and the board clock
 (:class:`host.link.board_time.BoardClock`) and, for a lockstep board whose clock only runs when the
 host ADVANCEs it, sends ADVANCE through the session, which it holds as :class:`WaitLink`. Waiting is

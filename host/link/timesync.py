@@ -54,7 +54,7 @@ class SyncSample:
     """One exchange reduced to its midpoint host time, offset and round trip (all us); ``up_us`` is
     ``t2 - t1`` (the host -> board leg plus the clock offset); ``wire_us`` the part of that leg the
     host's model of its line accounts for (waiting behind earlier bytes + the request's own wire
-    time, :attr:`host.link.session.BoardClient.tx_wire`; 0 without a model)."""
+    time, :attr:`host.link.client.BoardClient.tx_wire`; 0 without a model)."""
 
     host_mid_us: float
     offset_us: float

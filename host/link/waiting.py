@@ -3,7 +3,7 @@
 :class:`Reply` is a one-shot answer slot (an ACK, a CAPS, a TIME_SYNC reply, an image, a telemetry
 report) with the subset of :class:`asyncio.Future`'s interface the receive path uses
 (``done()``, ``set_result()``, ``set_exception()``, ``cancel()``, ``exception()``, ``result()``), so
-the receive handlers also accept a plain future (the fuzz harness ``host.fuzz.session`` puts some in
+the receive handlers also accept a plain future (the fuzz harness ``host.tools.fuzz.link_receive`` puts some in
 the request table and the supervisor's maps). Waiting is anyio: :meth:`Reply.wait` is an :class:`anyio.Event` wait under
 :func:`anyio.move_on_after`. The event is made on the first wait, inside the event loop: a reply may
 be created and answered from synchronous code (the transport's receive callbacks, the fuzz harness)

@@ -1,6 +1,6 @@
 """``ghostshell mcp``: the shell as a Model Context Protocol server (official ``mcp`` SDK, 2.x).
 
-One :class:`~host.run.session.RobotSession` (one emulated board, one link, one
+One :class:`~host.run.robot_session.RobotSession` (one emulated board, one link, one
 shell) lives as long as the server (the SDK's lifespan) and serves every call:
 
 * tool ``run_program(xml)``: streams the function-token program into the shell
@@ -47,10 +47,10 @@ from mcp.server.mcpserver.exceptions import ToolError
 from mcp.server.mcpserver.utilities.types import Image
 
 from host.mcp_server.functions import function_tools
-from host.robot.binding import signature_registry
-from host.run.session import RobotSession, SessionOptions
+from host.runtime.binding import signature_registry
+from host.run.robot_session import RobotSession, SessionOptions
 from host.run.stops import StopReason, StopSignals
-from host.shell.limits import Limits
+from host.shell.limits import TurnLimits
 from robots.registry import load_robot
 
 #: the function stubs' resource URI
@@ -104,7 +104,7 @@ def build_server(opts: SessionOptions, served: ServerState | None = None) -> MCP
         if turn_lock.locked():
             # ToolError: the client gets this message as an is_error result (no server traceback)
             raise ToolError("a program is already running; call interrupt() first or wait for it")
-        why = Limits().refuse_reply(xml)
+        why = TurnLimits().refuse_reply(xml)
         if why is not None:
             raise ToolError(f"{why}; nothing was run")
         if s.stop is not None and s.stop.kind == "signal":

@@ -26,7 +26,7 @@ from host.motion.driver import drive, realtime_topper
 from host.motion.mixer import Mixer
 from host.motion.streamer import FrameStreamer
 from protocol.messages import FaultFlags, Nack, Telemetry
-from robots.motion import Limits, transition
+from robots.motion import JointLimits, transition
 
 __all__ = ["MoveResult", "current_positions", "max_error_deg", "move_to"]
 
@@ -66,7 +66,7 @@ async def current_positions(client: BoardClient, timeout: float = 2.0) -> tuple[
 async def move_to(
     client: BoardClient,
     target: Sequence[float],
-    limits: Limits | None = None,
+    limits: JointLimits | None = None,
     *,
     duration_s: float = 1.0,
     rate_hz: float = 100.0,
@@ -97,7 +97,7 @@ async def move_to(
         from robots.registry import load_robot
 
         name = client.caps.robot if client.caps is not None and client.caps.robot else None
-        limits = Limits.of_robot(load_robot(name) if name else load_robot())
+        limits = JointLimits.of_robot(load_robot(name) if name else load_robot())
     motion = transition(q0, goal, servos, limits, max_speed=max_speed, min_duration=duration_s)
     link = BoardFrameLink(client)
     period_us = max(1, int(round(1e6 / rate_hz)))

@@ -1,6 +1,6 @@
 """Mounts: outside function providers as shell modules (today: MCP servers, ``--mount-mcp``).
 
-A mount is a *source* of :class:`~host.shell.types.Module` s, like :func:`host.robot.binding.robot_registry` is for
+A mount is a *source* of :class:`~host.shell.types.Module` s, like :func:`host.runtime.binding.robot_registry` is for
 a robot's functions: the shell (``host/shell``) stays free of the MCP SDK and of subprocess I/O, and
 another kind of mount (another robot's shell, item 5) goes beside it.
 

@@ -1,12 +1,12 @@
 """The session's robot runtime and shell, assembled on a connected link client.
 
-The steps of :meth:`host.run.session.RobotSession.__aenter__` after the link is up
+The steps of :meth:`host.run.robot_session.RobotSession.__aenter__` after the link is up
 (:func:`host.run.launch.connect_client`), in this order:
 
 1. :func:`first_report`: the link's state settled (a leftover watchdog fault cleared, a board in ESTOP
    refused with :class:`~host.link.errors.BoardFaulted`), then the board's first TELEMETRY.
-2. :func:`build_runtime`: the :class:`~host.robot.runtime.RobotRuntime` on the link's frame path
-   (:class:`~host.robot.link.ClientLink`), starting from the reported positions.
+2. :func:`build_runtime`: the :class:`~host.runtime.robot_runtime.RobotRuntime` on the link's frame path
+   (:class:`~host.runtime.link.ClientLink`), starting from the reported positions.
 3. :func:`build_shell`: the robot's registry (its vocabulary) and the one :class:`~host.shell.Shell`.
 4. :func:`mount_servers`: the MCP servers mounted as shell modules (``--mount-mcp``), if any.
 
@@ -26,9 +26,9 @@ import numpy as np
 from host.link import BoardClient
 from host.link.faultcheck import clear_leftover_fault
 from host.motion.streamer import LOOKAHEAD_US
-from host.robot.binding import robot_registry
-from host.robot.link import ClientLink
-from host.robot.runtime import RobotRuntime
+from host.runtime.binding import robot_registry
+from host.runtime.link import ClientLink
+from host.runtime.robot_runtime import RobotRuntime
 from host.run.launch import LinkPlan
 from host.run.options import SessionOptions
 from host.shell import Shell

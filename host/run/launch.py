@@ -1,6 +1,6 @@
 """How a session reaches its board: the link plan, the emulated board's launch and the link client's connect.
 
-The first steps of :meth:`host.run.session.RobotSession.__aenter__`, in this order:
+The first steps of :meth:`host.run.robot_session.RobotSession.__aenter__`, in this order:
 
 1. :meth:`LinkPlan.of` decides, before anything starts, what the session connects to: the link spec, whether
    it starts the emulated board on it, the frame logs' suffix, the robot identity the handshake checks, the
@@ -27,7 +27,7 @@ import anyio.to_thread
 from host.link import BoardClient, RobotIdentity
 from host.link.board_process import BoardProcess, dead_board_error, start_board
 from host.link.errors import HandshakeError, LinkConfigError, RobotMismatch, SchemaMismatch
-from host.link.session import HEARTBEAT_S, LinkTarget
+from host.link.client import HEARTBEAT_S, LinkTarget
 from host.motion.streamer import GRID_PERIOD_US, frame_wire_bytes, grid_period_us
 from host.run import artefacts
 from host.run.options import SessionOptions

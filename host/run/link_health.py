@@ -57,7 +57,7 @@ def link_health_line(extra: Mapping[str, Any]) -> str | None:
 def timing_health_line(extra: Mapping[str, Any]) -> str | None:
     """``"timing: control-path lag p50 0.21 ms, p99 1.30 ms, max 9.87 ms (n 2 400); 0 frames late, 0 skipped;
     0 board watchdog trips; 0 recording drops"`` from summary.json's ``extra.timing``
-    (:meth:`host.run.session.RobotSession.timing`), or None without it. Unknown counts read ``?``."""
+    (:meth:`host.run.robot_session.RobotSession.timing`), or None without it. Unknown counts read ``?``."""
     timing = extra.get("timing")
     if not isinstance(timing, Mapping):
         return None

@@ -15,7 +15,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from host.robot.runtime import RobotRuntime
+from host.runtime.robot_runtime import RobotRuntime
 from host.shell import Shell
 from host.shell.timeline import Timeline
 

@@ -402,7 +402,7 @@ class RunLog:
 
     # -- link ---------------------------------------------------------------------------------
     def on_fault(self, board_time_us: int, raised: int, cleared: int) -> None:
-        """Board fault bits changed (``host.link.session.FaultEvent``)."""
+        """Board fault bits changed (``host.link.client.FaultEvent``)."""
         parts = ([f"raised {_flag_names(raised)}"] if raised else []) + ([f"cleared {_flag_names(cleared)}"] if cleared else [])
         level = LogLevel.Error if raised & (FaultFlags.ESTOP | FaultFlags.WATCHDOG_FAULT) else LogLevel.Warning
         self.link_note("board fault " + ", ".join(parts), board_time_us, level)

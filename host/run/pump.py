@@ -1,6 +1,6 @@
 """The session's background work: telemetry pump, silence watchdog, realtime top-up, LLM chunk timing.
 
-Everything here runs inside a :class:`~host.run.session.RobotSession`'s task group
+Everything here runs inside a :class:`~host.run.robot_session.RobotSession`'s task group
 (or wraps the chunk stream of one turn).
 """
 
@@ -22,7 +22,7 @@ from host.motion.driver import SETTLE_CHECKPOINTS as SETTLE_CHECKPOINTS  # re-ex
 from host.motion.driver import drive
 from host.motion.driver import settle as settle  # re-exported (tests)
 from host.motion.driver import realtime_topper as driver_topper
-from host.robot.runtime import RobotRuntime
+from host.runtime.robot_runtime import RobotRuntime
 from host.run import artefacts
 from protocol.messages import FaultFlags
 from robots.motion import transition

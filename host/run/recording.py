@@ -51,8 +51,8 @@ import anyio.to_thread
 
 from host.link import BoardClient
 from host.link.deferred import DeferredWork
-from host.link.session import FaultEvent
-from host.robot.runtime import RobotRuntime
+from host.link.client import FaultEvent
+from host.runtime.robot_runtime import RobotRuntime
 from host.run.artefacts import BoardCall
 from host.run.log_writer import LogWriter
 from host.run.mcap_log import McapError, RunLog

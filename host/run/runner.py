@@ -6,7 +6,7 @@ rate. In lockstep the board clock is virtual and only moves as far as the host
 streams frames, so the whole run (the LLM's token pacing included) is timed on
 the board clock; in realtime both follow the wall clock.
 
-A run is a :class:`~host.run.session.RobotSession` with a single turn whose
+A run is a :class:`~host.run.robot_session.RobotSession` with a single turn whose
 artefacts go straight into ``out``.
 
 Stops (:mod:`host.run.stops`): with ``RunOptions.handle_signals`` (the CLI) the first SIGINT or
@@ -32,10 +32,10 @@ import anyio.to_thread
 from host.ghost import make_ghost
 from host.link.errors import LinkError
 from host.run import artefacts
-from host.robot.runtime import RobotRuntime
+from host.runtime.robot_runtime import RobotRuntime
 from host.run.pump import HISTORY, SETTLE_CHECKPOINTS, TELEMETRY_SILENCE_S
 from host.run.options import SessionOptions
-from host.run.session import RobotSession, TurnResult
+from host.run.robot_session import RobotSession, TurnResult
 from host.run.stops import StopReason, StopSignals
 from host.shell import Shell
 from host.shell.timeline import RunResult

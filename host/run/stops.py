@@ -4,7 +4,7 @@
 SIGTERM is an *interruption*, not an abort: the session's running turn is cancelled through the
 shell's lifecycle tree (:meth:`host.shell.Shell.interrupt`, exactly as an external interruption:
 moving channels FLUSHed and stopped smoothly, active parents reset), the robot is moved smoothly
-to its rest pose (:meth:`host.run.session.RobotSession.go_to_rest`), and every artefact of what ran
+to its rest pose (:meth:`host.run.robot_session.RobotSession.go_to_rest`), and every artefact of what ran
 is written (summary.json with outcome ``interrupted``, timeline, plots, frame logs); the command
 prints one line and exits 130. A second signal exits at once: the work is cancelled, summary.json
 and timeline.json of what ran are written (no plots, no rest pose), the emulated board is stopped,
@@ -19,7 +19,7 @@ The emulated board does not see the terminal's Ctrl-C at all: the host starts it
 process group (:func:`host.link.board_process.start_board`), so the host owns the shutdown and the
 link never looks "lost" because of the user's Ctrl-C.
 
-**Bounds** (``--max-board-s``, ``--max-log-mb``, :class:`host.run.session.SessionOptions`): a turn
+**Bounds** (``--max-board-s``, ``--max-log-mb``, :class:`host.run.robot_session.SessionOptions`): a turn
 that reaches its board-time bound, or a session whose frame logs reach their size bound, is stopped
 the same way as by a first signal (interrupted through the lifecycle tree, rest pose, artefacts),
 with outcome ``limit`` and the reason in ``summary.json`` (``extra.stopped``); the command exits 1.
@@ -29,7 +29,7 @@ seconds is stopped the same way with outcome ``stalled`` (kind ``"stall"``), exi
 **Deadline** (:data:`STOP_GRACE_S`): whatever stopped it, a session's graceful stop (the turn's end,
 the settle, the rest pose) has that many wall seconds from the first stop; what is still running then
 is cut (the rest pose is skipped or cut), so the first signal ends a run within ``STOP_GRACE_S`` plus
-the teardown (:meth:`host.run.session.RobotSession.request_stop`), whatever the link's speed.
+the teardown (:meth:`host.run.robot_session.RobotSession.request_stop`), whatever the link's speed.
 """
 
 from __future__ import annotations

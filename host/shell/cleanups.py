@@ -4,7 +4,7 @@ A cancelled call still runs its cleanup (a reset, a smooth stop, a peripheral's 
 shielded cancel scope with a timeout, so an interruption ends gracefully. A forced stop (a second
 Ctrl-C) must not wait for them: :meth:`Cleanups.abort` cancels the shields running now, and
 :attr:`Cleanups.aborted` tells later cleanups to skip. Used by :class:`host.shell.scheduler.ProgramRun`
-(resets) and :class:`host.robot.runtime.RobotRuntime` (stops).
+(resets) and :class:`host.runtime.robot_runtime.RobotRuntime` (stops).
 """
 
 from __future__ import annotations

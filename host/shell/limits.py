@@ -18,7 +18,7 @@ Speech segments count towards ``max_queued_per_channel`` (on the speech channel)
 ``max_calls`` (text has its own limit).
 
 A reply known in full before it runs (``run --xml-file``, ``chat --replies``, an MCP
-``run_program``) is checked first with :meth:`Limits.refuse_reply`: one that exceeds the text or
+``run_program``) is checked first with :meth:`TurnLimits.refuse_reply`: one that exceeds the text or
 call limit is refused before any of it runs, instead of running (and speaking) for minutes up to
 the point where the limit cuts it.
 """
@@ -32,14 +32,14 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from host.shell.parser import Event
 
-__all__ = ["Limits"]
+__all__ = ["TurnLimits"]
 
 _CHECK_CHUNK = 64 * 1024  # characters parsed between two checks of the counts
 
 
 @dataclass(frozen=True)
-class Limits:
-    """Limits for one turn; raise :class:`ValueError` from :meth:`validate` when one is not positive."""
+class TurnLimits:
+    """TurnLimits for one turn; raise :class:`ValueError` from :meth:`validate` when one is not positive."""
 
     max_text_chars: int = 1_000_000
     max_calls: int = 5_000
@@ -47,12 +47,12 @@ class Limits:
     max_attr_chars: int = 4_096
     max_scope_timeout_s: float = 600.0  # seconds of the shell's clock (board time in real runs)
 
-    def validate(self) -> Limits:
+    def validate(self) -> TurnLimits:
         for name in ("max_text_chars", "max_calls", "max_queued_per_channel", "max_attr_chars"):
             if getattr(self, name) < 1:
-                raise ValueError(f"Limits.{name} must be at least 1, got {getattr(self, name)}")
+                raise ValueError(f"TurnLimits.{name} must be at least 1, got {getattr(self, name)}")
         if not 0 < self.max_scope_timeout_s < float("inf"):
-            raise ValueError(f"Limits.max_scope_timeout_s must be a finite number above 0, got {self.max_scope_timeout_s}")
+            raise ValueError(f"TurnLimits.max_scope_timeout_s must be a finite number above 0, got {self.max_scope_timeout_s}")
         return self
 
     def refuse_reply(self, text: str) -> str | None:

@@ -70,7 +70,7 @@ import anyio
 from host.shell.cleanups import Cleanups
 from host.shell.context import CallContext
 from host.shell.mapper import MappingError, map_element, map_scope, split_sync
-from host.shell.limits import Limits
+from host.shell.limits import TurnLimits
 from host.shell.parser import (
     EmptyTag,
     EndTag,
@@ -111,7 +111,7 @@ class RunSettings(Protocol):
     @property
     def skills(self) -> SkillStore: ...
     @property
-    def limits(self) -> Limits: ...
+    def limits(self) -> TurnLimits: ...
     @property
     def policy(self) -> Policy | None: ...
     @property
@@ -208,7 +208,7 @@ class ProgramRun:
         self._warned_no_speech = False
         self._executed: list[tuple[str, _Call | None]] = []  # the reply as executed (see executed_text)
         self._skills = SkillRecorder(self.skills, self._observe, self._executed)  # <SAVE> and <RUN>
-        self.limits: Limits = getattr(shell, "limits", None) or Limits()
+        self.limits: TurnLimits = getattr(shell, "limits", None) or TurnLimits()
         self.policy = getattr(shell, "policy", None)
         self._text_chars = 0  # characters of text this turn
         self._calls = 0  # elements this turn

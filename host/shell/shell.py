@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterable, AsyncIterator, Awaitable, Callable, Iterable
 
-from host.shell.limits import Limits
+from host.shell.limits import TurnLimits
 from host.shell.parser import FunctionTokenParser
 from host.shell.policy import Policy
 from host.shell.registry import Registry
@@ -30,7 +30,7 @@ class Shell:
     speech on the main channel; ``clock`` is the time source for the timeline
     (default ``anyio.current_time``) and ``sleep(seconds)`` sleeps on that clock (a scope's
     ``timeout``; default ``anyio.sleep``, right for the default clock); ``skills`` is the skill memory (default: an
-    in-memory store); ``limits`` caps what one turn may do (:class:`Limits`); ``policy``
+    in-memory store); ``limits`` caps what one turn may do (:class:`TurnLimits`); ``policy``
     refuses calls it does not allow before they are dispatched (:class:`Policy`).
 
     ``parser_class`` (class attribute) is the type of each run's stream parser; a subclass may watch
@@ -47,7 +47,7 @@ class Shell:
         text_first_class: bool = False,
         clock: Callable[[], float] | None = None,
         skills: SkillStore | None = None,
-        limits: Limits | None = None,
+        limits: TurnLimits | None = None,
         policy: Policy | None = None,
         sleep: Callable[[float], Awaitable[None]] | None = None,
     ) -> None:
@@ -60,7 +60,7 @@ class Shell:
         self.clock = clock
         self.sleep = sleep
         self.skills = skills if skills is not None else SkillStore()
-        self.limits = (limits or Limits()).validate()
+        self.limits = (limits or TurnLimits()).validate()
         self.policy = policy
         self._run: ProgramRun | None = None
         self._last: ProgramRun | None = None

@@ -4,7 +4,7 @@ Every generator has the signature ``gen(start, *, persistent=False, **params) ->
 (:data:`robots.description.Behaviour`): ``start`` holds the current joint targets of all six servos
 (radians), ``params`` are the stub parameters of ``robots/arm/interface.py`` (seconds, counts,
 names). Each motion starts exactly at ``start``, stays inside the joint limits and under the speed
-limits (:class:`robots.motion.Limits` of the servo table; :meth:`robots.motion.Track.build` checks
+limits (:class:`robots.motion.JointLimits` of the servo table; :meth:`robots.motion.Track.build` checks
 the speed of every sample), and drives
 
 - the ``arm`` channel's five servos: ``point_at``, ``wave``, ``nod``, ``shake``; ``pick`` and
@@ -42,7 +42,7 @@ import numpy as np
 
 from robots.arm.kinematics import DOWN, ArmGeometry
 from robots.description import Behaviour, Robot, SceneObjectSpec
-from robots.motion import DT, Limits, Motion, Track, check_count, check_finite, check_start, min_jerk
+from robots.motion import DT, JointLimits, Motion, Track, check_count, check_finite, check_start, min_jerk
 from robots.registry import load_robot
 
 __all__ = ["BEHAVIOURS", "ROBOT", "geometry", "places", "target_point"]
@@ -51,7 +51,7 @@ rad = math.radians
 _HERE = Path(__file__).resolve().parent
 #: this package's robot (the same value ``load_robot("arm")`` returns)
 ROBOT: Robot = load_robot(str(_HERE))
-LIMITS = Limits.of_robot(ROBOT)
+LIMITS = JointLimits.of_robot(ROBOT)
 _T = ROBOT.servos
 PAN, LIFT, ELBOW, WFLEX, WROLL, GRIP = (_T.by_name(n).index for n in (
     "shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper"))

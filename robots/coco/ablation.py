@@ -3,7 +3,7 @@
 The task data (``paper_results.json``) states each task's expected pattern in shorthand atoms
 (``rotate{earShake}``, ``headAct(nod, 3s) -> say``); here each atom is a predicate on one
 board-measured call of CoCo's vocabularies (duck-typed: ``function``, ``args``, ``start``, ``end``),
-for the generic judge in ``host.eval.native``.
+for the generic judge in ``host.tools.eval.native``.
 """
 
 from __future__ import annotations

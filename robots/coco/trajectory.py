@@ -18,7 +18,7 @@ from robots.motion import (
     DT,
     EASE_IN_S,
     SPEED_MARGIN,
-    Limits,
+    JointLimits,
     Motion,
     check_choice,
     check_count,
@@ -45,7 +45,7 @@ __all__ = [
 ]
 
 #: CoCo's servo limits (radians, rad/s)
-LIMITS = Limits.of_robot(ROBOT)
+LIMITS = JointLimits.of_robot(ROBOT)
 #: Channel -> servo indices (robot.toml [channels])
 CHANNEL_SERVOS: dict[str, tuple[int, ...]] = {name: c.servos for name, c in ROBOT.channels.items()}
 

@@ -19,7 +19,7 @@ from protocol.faults import FaultSpec, GapDetector
 from protocol.framing import Frame
 from protocol.linkspec import parse_link_spec
 from protocol.messages import MsgType
-from protocol.samples import servo_frame_12, telemetry_12
+from protocol.testing.samples import servo_frame_12, telemetry_12
 
 SPEC = FaultSpec.parse("drop=0.05,corrupt=0.2,dup=0.05,reorder=0.05")
 N = 300

@@ -12,7 +12,7 @@ from host.link.canlog import candump_cut_line, candump_problem, iter_can_log, re
 from protocol.can import CanItem, encode_fixed
 from protocol.can.codec import Sender
 from protocol.messages import MsgType
-from protocol.samples import servo_frame_12, telemetry_12
+from protocol.testing.samples import servo_frame_12, telemetry_12
 
 
 class _Sink:
@@ -111,7 +111,7 @@ def test_a_capture_names_its_robot_in_caps(tmp_path: Path) -> None:
     from protocol.can import encode_bulk
     from protocol.can.frame import CanFrame
     from protocol.messages import Caps, Estop
-    from protocol.samples import servo_frame_n, telemetry_n
+    from protocol.testing.samples import servo_frame_n, telemetry_n
     from host.link.canlog import log_servo_count
 
     t = can_layouts(17)

@@ -17,7 +17,7 @@ import anyio
 import pytest
 
 from host.link.errors import LinkError
-from host.run.session import RobotSession, SessionOptions
+from host.run.robot_session import RobotSession, SessionOptions
 from support.realtime_lock import realtime_part_done
 
 pytestmark = [pytest.mark.timeout(120, method="thread"), pytest.mark.realtime]

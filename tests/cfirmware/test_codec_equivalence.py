@@ -23,7 +23,7 @@ from protocol import messages as m
 from protocol.cgen import GENERATED_FILES, generate, wire_text
 from protocol.framing import crc16
 from protocol.messages import MsgType
-from protocol.samples import telemetry_n
+from protocol.testing.samples import telemetry_n
 
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 FLOATS = st.floats(min_value=-40.0, max_value=40.0, allow_nan=False)

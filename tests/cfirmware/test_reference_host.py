@@ -271,13 +271,13 @@ def test_hashes_from_the_recipe() -> None:
 
 
 def test_reference_is_current() -> None:
-    """docs/wire-protocol.md is what the declaration generates (python -m firmware_sim.refdoc), and its constants
+    """docs/wire-protocol.md is what the declaration generates (python -m firmware_sim.wire_reference), and its constants
     copied from modules that need MuJoCo still hold."""
     from firmware_sim.peripherals import MAX_IMAGE_SIDE
-    from firmware_sim.refdoc import DOC as GENERATED
-    from firmware_sim.refdoc import MAX_IMAGE_SIDE as DOC_MAX_IMAGE_SIDE
-    from firmware_sim.refdoc import render
+    from firmware_sim.wire_reference import DOC as GENERATED
+    from firmware_sim.wire_reference import MAX_IMAGE_SIDE as DOC_MAX_IMAGE_SIDE
+    from firmware_sim.wire_reference import render
 
     assert GENERATED == DOC
     assert DOC_MAX_IMAGE_SIDE == MAX_IMAGE_SIDE
-    assert DOC.read_text(encoding="utf-8") == render(), "stale: python -m firmware_sim.refdoc"
+    assert DOC.read_text(encoding="utf-8") == render(), "stale: python -m firmware_sim.wire_reference"

@@ -12,7 +12,7 @@ from host.chat.conversation import Conversation
 from host.chat.script import Block, ScriptError, parse_blocks
 from host.ghost import make_ghost
 from host.ghost.base import Ghost
-from host.run.session import RobotSession, SessionOptions
+from host.run.robot_session import RobotSession, SessionOptions
 
 
 def test_batch_files_split_on_separator_lines_with_options() -> None:

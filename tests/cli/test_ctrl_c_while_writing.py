@@ -28,7 +28,7 @@ import pytest
 
 from host.cli import main as cli_main
 from host.run import runner
-from host.run.session import RobotSession
+from host.run.robot_session import RobotSession
 from host.run.stops import StopSignals
 
 pytestmark = pytest.mark.timeout(240)

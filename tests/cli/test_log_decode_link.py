@@ -45,7 +45,7 @@ def test_a_file_the_link_fits_is_read_whatever_its_name_and_a_missing_one_is_nam
     file or a folder given with a --link was blamed on its suffix."""
     from host.link.canlog import iter_can_log
     from protocol.can import encode_fixed
-    from protocol.samples import servo_frame_12
+    from protocol.testing.samples import servo_frame_12
 
     lines = [f"({1000 + i * 0.001:.6f}) vcan0 {f.arbitration_id:03X}#{f.data.hex().upper()}"
              for i, f in enumerate(encode_fixed(servo_frame_12(), 7, 1))]

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from host.robot.binding import signature_registry
+from host.runtime.binding import signature_registry
 from host.shell.precheck import refuse_program
 from robots.registry import load_robot
 

@@ -10,7 +10,7 @@ import anyio
 import pytest
 
 from support.coco import coco_registry
-from host.run.session import RobotSession, SessionOptions
+from host.run.robot_session import RobotSession, SessionOptions
 from host.shell.mapper import BadValue, map_element
 from robots.coco.interface import NAME_BYTES
 from robots.coco.motions import BEHAVIOURS, EAR_STATES

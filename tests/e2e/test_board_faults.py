@@ -23,7 +23,7 @@ import pytest
 from host.link import BoardClient, BoardFaulted
 from host.link.board_process import start_board
 from host.run.runner import RunOptions, run_program
-from host.run.session import RobotSession, SessionOptions
+from host.run.robot_session import RobotSession, SessionOptions
 from protocol.messages import FaultFlags
 
 pytestmark = pytest.mark.timeout(120)

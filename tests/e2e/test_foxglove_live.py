@@ -15,7 +15,7 @@ import websockets
 from mcap.records import Schema
 from mcap_protobuf.decoder import DecoderFactory
 
-from host.run.session import RobotSession, SessionOptions
+from host.run.robot_session import RobotSession, SessionOptions
 from robots.coco.tasks import load_tasks
 from robots.registry import load_robot
 

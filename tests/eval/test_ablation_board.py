@@ -9,8 +9,8 @@ from pathlib import Path
 import anyio
 import pytest
 
-from host.eval.native import ToolCall, expected_pattern, intervals_from_timeline, judge, native_program
-from host.eval.paper import ablation_tasks
+from host.tools.eval.native import ToolCall, expected_pattern, intervals_from_timeline, judge, native_program
+from host.tools.eval.paper import ablation_tasks
 from host.run.runner import RunOptions, run_program
 
 A = ablation_tasks()

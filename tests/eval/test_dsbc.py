@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from host.cli import main as cli_main
-from host.eval import dsbc, dsbc_breakdown
+from host.tools.eval import dsbc, dsbc_breakdown
 
 from robots.coco.tasks import load_tasks
 

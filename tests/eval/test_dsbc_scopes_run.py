@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import pytest
 
-from host.eval.dsbc import dsbc, dsbc_breakdown
+from host.tools.eval.dsbc import dsbc, dsbc_breakdown
 from robots.coco.tasks import load_tasks
 
 TASKS = {i: t.ground_truth for i, t in load_tasks().items() if t.ground_truth}

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from host.cli import main as cli
-from host.eval.paper import hri_tasks
+from host.tools.eval.paper import hri_tasks
 from support.fake_llm import FakeLLM, Handler, replay, stream_body
 
 BY_INSTRUCTION = {t.instruction: t for t in hri_tasks().values()}

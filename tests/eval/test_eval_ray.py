@@ -10,8 +10,8 @@ import pytest
 pytest.importorskip("ray", reason="Ray is not installed (pip install 'ghostshell[ray]'); the --ray backend is optional")
 
 from host.cli import main as cli  # noqa: E402
-from host.eval.dsbc import dsbc  # noqa: E402
-from host.eval.paper import hri_tasks  # noqa: E402
+from host.tools.eval.dsbc import dsbc  # noqa: E402
+from host.tools.eval.paper import hri_tasks  # noqa: E402
 from support.fake_llm import FakeLLM, replay, stream_body  # noqa: E402
 
 

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from host.cli import main as cli
-from host.eval.dsbc import dsbc
-from host.eval.paper import hri_tasks
-from host.eval.stats import averages
+from host.tools.eval.dsbc import dsbc
+from host.tools.eval.paper import hri_tasks
+from host.tools.eval.stats import averages
 from support.fake_llm import FakeLLM, Handler, replay, stream_body
 
 TASKS = hri_tasks()

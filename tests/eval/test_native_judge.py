@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 
 from host.commands.prompt import build_registry
-from host.eval.native import (Interval, ToolCall, expected_pattern, judge, json_schema, native_program,
+from host.tools.eval.native import (Interval, ToolCall, expected_pattern, judge, json_schema, native_program,
                               parse_arguments, tool_schemas)
-from host.eval.paper import ablation_tasks
+from host.tools.eval.paper import ablation_tasks
 
 
 def iv(function: str, start: float, end: float, **args: object) -> Interval:

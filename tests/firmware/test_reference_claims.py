@@ -1,4 +1,4 @@
-"""The board behaviour docs/wire-protocol.md states (firmware_sim/refdoc.py), checked on the Python board core
+"""The board behaviour docs/wire-protocol.md states (firmware_sim/wire_reference.py), checked on the Python board core
 (lockstep, direct handle()/tick() calls): start-up, ESTOP and the jitter buffer, where a sparse keyframe's
 interpolation starts, edge and level fault flags, the CONFIG keys table, the message table's wording, and the
 one undecodable frame the board answers (board.answerable). The same refusals over a pty on both boards:
@@ -13,7 +13,7 @@ import pytest
 
 from firmware_sim.board import Board, answerable
 from firmware_sim.config import BoardConfig
-from firmware_sim.refdoc import CONFIG_RANGES, I32_MAX, MEANING, render
+from firmware_sim.wire_reference import CONFIG_RANGES, I32_MAX, MEANING, render
 from protocol.framing import DecodeError, DecodeErrorKind, Frame, FrameDecoder, encode_raw_frame
 from protocol.messages import (
     Ack, Advance, Config, ConfigKey, Estop, EstopClear, FaultFlags, MsgType, Nack, NackReason, ServoFrame,

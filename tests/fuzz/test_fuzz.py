@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from host.fuzz import TARGETS
-from host.fuzz.libfuzzer import parse_output
+from host.tools.fuzz import TARGETS
+from host.tools.fuzz.libfuzzer import parse_output
 
 atheris = pytest.importorskip("atheris", reason="the fuzz extra is not installed (pip install -e '.[fuzz]')")
 
@@ -34,7 +34,7 @@ def test_corpus_and_regressions_replay(target: str) -> None:
 
 def test_regressions_fail_without_the_fix() -> None:
     """The partial-camera-image regression input really breaks an invariant when the fix is undone."""
-    from host.fuzz.session import load
+    from host.tools.fuzz.link_receive import load
     from host.link.camera import CameraAssembler
 
     fixed = CameraAssembler.on_chunk

@@ -1,8 +1,8 @@
 """The second round of fuzz speed-ups (issue 17) keeps every check: what each one changes is tested here.
 
-Fitted stack sizes of instrumented code (:mod:`host.fuzz.stackdepth`), the hook-free copies used
-for the second run of the same code (:func:`host.fuzz.harness.without_hooks`), the shell's Trio in
-guest mode (:class:`host.fuzz.shell.GuestLoop`), the shell's and CAN target's remembered or narrowed
+Fitted stack sizes of instrumented code (:mod:`host.tools.fuzz.stackdepth`), the hook-free copies used
+for the second run of the same code (:func:`host.tools.fuzz.harness.without_hooks`), the shell's Trio in
+guest mode (:class:`host.tools.fuzz.shell.GuestLoop`), the shell's and CAN target's remembered or narrowed
 checks still catching a fault, the first time, from the input alone.
 """
 
@@ -34,7 +34,7 @@ def _code_objects(path: Path) -> list[types.CodeType]:
 
 def test_max_stack_depth_is_the_compilers() -> None:
     """On every code object of the code the targets instrument, the computed depth is CPython's own."""
-    from host.fuzz.stackdepth import max_stack_depth
+    from host.tools.fuzz.stackdepth import max_stack_depth
 
     files = [*sorted((ROOT / "protocol").rglob("*.py")), *sorted((ROOT / "host" / "shell").rglob("*.py")),
              *sorted((ROOT / "firmware_sim").glob("*.py"))]
@@ -51,7 +51,7 @@ def test_instrumented_parser_has_a_fitted_stack_and_parses_as_the_plain_one() ->
     source on every shell seed, fed in chunks, strict and lenient."""
     code = (
         "import pathlib\n"
-        "from host.fuzz.harness import instrument_only, without_hooks\n"
+        "from host.tools.fuzz.harness import instrument_only, without_hooks\n"
         "with instrument_only(['host.shell']):\n"
         "    import host.shell.parser as P\n"
         "scan = P.FunctionTokenParser._scan.__code__\n"
@@ -82,7 +82,7 @@ def test_instrumented_parser_has_a_fitted_stack_and_parses_as_the_plain_one() ->
 
 def test_without_hooks_recompiles_the_methods_over_the_module_globals(monkeypatch: pytest.MonkeyPatch) -> None:
     import protocol.framing as framing
-    from host.fuzz.harness import without_hooks
+    from host.tools.fuzz.harness import without_hooks
     from protocol.messages import Heartbeat
 
     Plain = without_hooks(framing.FrameDecoder)
@@ -102,7 +102,7 @@ def test_guest_loop_runs_on_virtual_time_on_its_thread() -> None:
     """In a thread of its own (a guest run makes its thread count as inside Trio while it lives)."""
     import trio
 
-    from host.fuzz.shell import GuestLoop
+    from host.tools.fuzz.shell import GuestLoop
 
     threads_before = threading.active_count()
     seen: dict[str, object] = {}
@@ -143,7 +143,7 @@ def test_guest_loop_runs_on_virtual_time_on_its_thread() -> None:
 def test_guest_loop_leaves_sigint_alone() -> None:
     code = (
         "import signal\n"
-        "from host.fuzz.shell import GuestLoop\n"
+        "from host.tools.fuzz.shell import GuestLoop\n"
         "before = signal.getsignal(signal.SIGINT)\n"
         "GuestLoop.shared()\n"
         "assert signal.getsignal(signal.SIGINT) is before\n"
@@ -154,11 +154,11 @@ def test_guest_loop_leaves_sigint_alone() -> None:
 def test_shell_target_still_checks_a_new_element_after_warm_up(monkeypatch: pytest.MonkeyPatch) -> None:
     """Elements already mapped and checked are remembered; an element seen for the first time is
     mapped and checked for real, after a warm-up and on its own in a fresh process-like load."""
-    import host.fuzz.validate as validate
+    import host.tools.fuzz.validate as validate
 
     real = validate.conforms
     monkeypatch.setattr(validate, "conforms", lambda v, ann: v != -77 and real(v, ann))  # a "bug" at -77
-    from host.fuzz.shell import load
+    from host.tools.fuzz.shell import load
 
     one_input = load(False)
     for p in sorted((HERE / "shell" / "corpus").glob("*")):
@@ -171,7 +171,7 @@ def test_shell_target_still_checks_a_new_element_after_warm_up(monkeypatch: pyte
 
 
 def test_shell_target_did_you_mean_is_the_registrys() -> None:
-    from host.fuzz.shell import load
+    from host.tools.fuzz.shell import load
     from host.shell.registry import Registry, UnknownFunction
 
     one_input = load(False)
@@ -191,7 +191,7 @@ def test_can_target_still_bounds_assemblies(monkeypatch: pytest.MonkeyPatch) -> 
     """The bounds are checked after every frame the decoder takes (and at the end of the input): a
     decoder keeping three assemblies of one function code is caught."""
     import protocol.can.decoder as decoder
-    from host.fuzz.can_decoder import load
+    from host.tools.fuzz.can_decoder import load
     from protocol.can.ids import FunctionCode
 
     fn = list(FunctionCode).index(FunctionCode.SERVO_FRAME)

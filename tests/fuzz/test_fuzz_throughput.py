@@ -21,7 +21,7 @@ ROOT = HERE.parent.parent
 
 
 def test_package_modules_lists_submodules_without_importing() -> None:
-    from host.fuzz.harness import package_modules
+    from host.tools.fuzz.harness import package_modules
 
     names = package_modules("protocol")
     assert {"protocol", "protocol.framing", "protocol.codec", "protocol.can", "protocol.can.decoder"} <= set(names)
@@ -30,7 +30,7 @@ def test_package_modules_lists_submodules_without_importing() -> None:
 def test_instrument_only_instruments_just_the_named_modules() -> None:
     """atheris' own ``include`` would instrument every ``protocol`` module imported in the block."""
     code = (
-        "from host.fuzz.harness import instrument_only\n"
+        "from host.tools.fuzz.harness import instrument_only\n"
         "with instrument_only(['protocol.framing']):\n"
         "    import protocol.framing\n"
     )
@@ -45,7 +45,7 @@ def test_trio_loop_runs_on_virtual_time_and_raises_in_the_caller() -> None:
 
     import trio
 
-    from host.fuzz.shell import TrioLoop
+    from host.tools.fuzz.shell import TrioLoop
 
     loop = TrioLoop()
 
@@ -75,7 +75,7 @@ def test_serial_decoder_still_reencodes_a_new_frame_after_warm_up(monkeypatch: p
     real = framing.encode_frame
     monkeypatch.setattr(framing, "encode_frame",
                         lambda m, s, schema=None: b"x" if getattr(m, "sender_time_us", 0) == 77 else real(m, s, schema))
-    from host.fuzz.serial_decoder import load
+    from host.tools.fuzz.serial_decoder import load
 
     one_input = load(False)
     for p in sorted((HERE / "serial-decoder" / "corpus").glob("*")):
@@ -88,7 +88,7 @@ def test_serial_decoder_still_reencodes_a_new_frame_after_warm_up(monkeypatch: p
 
 def test_serial_decoder_still_finds_a_chunking_bug_on_remembered_frames(monkeypatch: pytest.MonkeyPatch) -> None:
     import protocol.framing as framing
-    from host.fuzz.serial_decoder import load
+    from host.tools.fuzz.serial_decoder import load
 
     one_input = load(False)
     inputs = [p.read_bytes() for p in sorted((HERE / "serial-decoder" / "corpus").glob("*"))]

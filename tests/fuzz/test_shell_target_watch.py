@@ -1,7 +1,7 @@
 """The shell target checks its parser invariants on the Shell's own parse (one parse per input, not two).
 
 Each check the separate direct parse made still fails its input: a planted fault in the parser is
-caught through the Shell's watched stream parser (:func:`host.fuzz.shell.watched_parser`), also when
+caught through the Shell's watched stream parser (:func:`host.tools.fuzz.shell.watched_parser`), also when
 the Shell stops reading early (the target feeds the rest itself), and the guest loop runs each call
 at its first tick.
 """
@@ -31,7 +31,7 @@ def raising(exc: Exception) -> Any:
 
 
 def test_the_watched_parser_is_the_shells_stream_parser(monkeypatch: pytest.MonkeyPatch) -> None:
-    from host.fuzz.shell import load
+    from host.tools.fuzz.shell import load
 
     made: list[tuple[type, bool]] = []
     real = FunctionTokenParser.__init__
@@ -49,7 +49,7 @@ def test_the_watched_parser_is_the_shells_stream_parser(monkeypatch: pytest.Monk
 
 
 def test_a_parser_exception_the_shell_would_swallow_is_raised(monkeypatch: pytest.MonkeyPatch) -> None:
-    from host.fuzz.shell import load
+    from host.tools.fuzz.shell import load
 
     one_input = load(False)
     one_input(CALL)
@@ -66,7 +66,7 @@ def test_a_parser_exception_the_shell_would_swallow_is_raised(monkeypatch: pytes
 
 
 def test_a_lenient_parse_error_fails_the_input(monkeypatch: pytest.MonkeyPatch) -> None:
-    from host.fuzz.shell import load
+    from host.tools.fuzz.shell import load
 
     one_input = load(False)
     one_input(LENIENT)
@@ -78,7 +78,7 @@ def test_a_lenient_parse_error_fails_the_input(monkeypatch: pytest.MonkeyPatch) 
 
 
 def test_a_dead_strict_parser_must_stay_dead(monkeypatch: pytest.MonkeyPatch) -> None:
-    from host.fuzz.shell import load
+    from host.tools.fuzz.shell import load
 
     one_input = load(False)
     broken = b"\x00<rotate></other>\0\0\0\0"
@@ -89,7 +89,7 @@ def test_a_dead_strict_parser_must_stay_dead(monkeypatch: pytest.MonkeyPatch) ->
 
 
 def test_held_back_input_is_bounded(monkeypatch: pytest.MonkeyPatch) -> None:
-    from host.fuzz.shell import load
+    from host.tools.fuzz.shell import load
 
     monkeypatch.setattr(FunctionTokenParser, "pending", property(lambda self: "x" * (MAX_TOKEN + 17)))
     with pytest.raises(AssertionError, match=f"parser holds {MAX_TOKEN + 17} characters"):
@@ -97,7 +97,7 @@ def test_held_back_input_is_bounded(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_tags_must_nest(monkeypatch: pytest.MonkeyPatch) -> None:
-    from host.fuzz.shell import load
+    from host.tools.fuzz.shell import load
 
     one_input = load(False)
     real = FunctionTokenParser.feed
@@ -110,7 +110,7 @@ def test_the_rest_is_parsed_and_checked_when_the_shell_stops_reading(monkeypatch
     """A scheduler failure aborts the run after the first piece's events; the parser fault is at
     ``close()``, which the Shell never reaches: the target finishes the parse and finds it."""
     import host.shell.scheduler as scheduler
-    from host.fuzz.shell import load
+    from host.tools.fuzz.shell import load
 
     one_input = load(False)
     closed: list[bool] = []
@@ -144,7 +144,7 @@ def test_the_rest_is_parsed_and_checked_when_the_shell_stops_reading(monkeypatch
 def test_guest_loop_runs_a_call_at_its_first_tick() -> None:
     """No hand-over through Trio's wake-up socket and no task per call: one callback (one tick) runs
     a call that does not wait; the loop still serves call after call and ends when closed."""
-    from host.fuzz.shell import GuestLoop
+    from host.tools.fuzz.shell import GuestLoop
 
     seen: dict[str, object] = {}
 

@@ -20,7 +20,7 @@ from host.motion.mixer import Mixer
 from host.motion.moves import max_error_deg
 from host.motion.streamer import FrameStreamer
 from protocol.messages import Nack, ServoFrame
-from robots.motion import Limits, transition
+from robots.motion import JointLimits, transition
 from robots.registry import load_robot
 
 pytestmark = [pytest.mark.timeout(60), pytest.mark.realtime]
@@ -41,7 +41,7 @@ def test_a_new_motion_overtakes_held_lookahead_frames_and_lands(board_factory) -
             servos = (0, 1, 2)
             goal = q0.copy()
             goal[list(servos)] += 0.3
-            motion = transition(q0, goal, servos, Limits.of_robot(load_robot("coco")), min_duration=0.3)
+            motion = transition(q0, goal, servos, JointLimits.of_robot(load_robot("coco")), min_duration=0.3)
             streamer = FrameStreamer(link, Mixer(q0))
             nacks: list[Nack] = []
             client.on_nack.append(nacks.append)

@@ -14,7 +14,7 @@ import time
 import anyio
 import pytest
 
-from host.link.session import BoardClient
+from host.link.client import BoardClient
 from host.link.timesync import ClockSync
 from host.link.transports.serial import SerialLinkTransport
 from host.motion.board_link import BoardFrameLink

@@ -102,7 +102,7 @@ def test_mcp_streamable_http_on_localhost(tmp_path: Path) -> None:
 def test_a_second_program_while_one_runs_is_a_clear_tool_error(tmp_path: Path) -> None:
     """In process (the SDK's in-memory client): the busy refusal reaches the client with its message."""
     from host.mcp_server.server import build_server
-    from host.run.session import SessionOptions
+    from host.run.robot_session import SessionOptions
 
     server = build_server(SessionOptions(lockstep=True, out=tmp_path / "mcp"))
 

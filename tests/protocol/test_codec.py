@@ -33,7 +33,7 @@ from protocol.codec import (
 )
 from protocol.framing import Frame, FrameDecoder, encode_frame, frame_size
 from protocol.messages import MAX_SERVOS, MsgType
-from protocol.samples import SAMPLES
+from protocol.testing.samples import SAMPLES
 
 # --- strategies and an independent prediction of what survives the wire ---------------------
 

@@ -21,7 +21,7 @@ from protocol.framelog import (
 )
 from protocol.framing import DecodeError, DecodeErrorKind, Frame, FrameDecoder, encode_frame
 from protocol.messages import MsgType
-from protocol.samples import SAMPLES
+from protocol.testing.samples import SAMPLES
 
 
 @pytest.mark.parametrize("t", list(MsgType), ids=lambda t: t.name)

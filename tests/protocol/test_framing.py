@@ -27,7 +27,7 @@ from protocol.framing import (
     frame_size,
 )
 from protocol.messages import MsgType
-from protocol.samples import SAMPLES, servo_frame_12, telemetry_12
+from protocol.testing.samples import SAMPLES, servo_frame_12, telemetry_12
 
 SAMPLE_LIST = list(SAMPLES.values())
 

@@ -42,7 +42,7 @@ def test_a_fields_can_form_reaches_the_can_signals() -> None:
 
 
 def test_the_reference_directions_are_the_declared_senders() -> None:
-    from protocol.refdoc import DIRECTION
+    from protocol.wire_tables import DIRECTION
 
     assert DIRECTION[MsgType.HEARTBEAT] == "both"
     assert DIRECTION[MsgType.CAPS] == "board → host"

@@ -25,7 +25,7 @@ from protocol.codec import (
 )
 from protocol.framing import DecodeError, DecodeErrorKind, Frame, FrameDecoder, encode_frame
 from protocol.messages import MAX_WIRE_SERVOS, MsgType
-from protocol.samples import servo_frame_n, telemetry_n
+from protocol.testing.samples import servo_frame_n, telemetry_n
 
 #: (servos, SERVO_FRAME payload, TELEMETRY payload, SERVO_FRAME wire bytes, TELEMETRY wire bytes): the
 #: table in protocol.codec's docstring

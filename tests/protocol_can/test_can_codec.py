@@ -19,7 +19,7 @@ from protocol.can.layouts import CRC_SIGNAL, FIXED_LAYOUTS, unwrap_seq
 from protocol.can.make_dbc import DbcRobot, dbc_text
 from protocol.codec import PayloadError, msg_type_of, quantize_message
 from protocol.messages import MsgType
-from protocol.samples import SAMPLES
+from protocol.testing.samples import SAMPLES
 
 COCO_DIR = Path(__file__).resolve().parents[2] / "robots" / "coco"  # CoCo's checked-in DBCs
 COCO = DbcRobot("coco", "CoCo", 12)

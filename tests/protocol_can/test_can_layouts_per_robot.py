@@ -18,7 +18,7 @@ from protocol.can.layouts import CRC_SIGNAL, DEFAULT_SERVO_COUNT, FIXED_LAYOUTS,
 from protocol.can.make_dbc import DbcRobot, dbc_text
 from protocol.codec import WireBoundError, schema_for
 from protocol.messages import MsgType
-from protocol.samples import servo_frame_n, telemetry_n
+from protocol.testing.samples import servo_frame_n, telemetry_n
 from support.gen_robot import write_chain_robot
 
 ROOT = Path(__file__).resolve().parents[2]

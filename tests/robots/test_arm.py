@@ -13,7 +13,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from host.robot.binding import robot_registry
+from host.runtime.binding import robot_registry
 from host.shell import Shell
 from host.shell.prompt import render_prompt
 from robots.arm import behaviours as B

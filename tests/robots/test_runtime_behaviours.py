@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from host.robot.runtime import (
+from host.runtime.robot_runtime import (
     CaptureBehaviour,
     FaceBehaviour,
     MotionBehaviour,

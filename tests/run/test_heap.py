@@ -1,4 +1,4 @@
-"""host.run.heap: a turn runs with the heap frozen, the heap is given back after the last turn."""
+"""host.run.turn_gc: a turn runs with the heap frozen, the heap is given back after the last turn."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from pathlib import Path
 
 import anyio
 
-from host.run.heap import frozen_heap, turns_frozen
-from host.run.session import RobotSession, SessionOptions
+from host.run.turn_gc import frozen_heap, turns_frozen
+from host.run.robot_session import RobotSession, SessionOptions
 
 
 def test_frozen_inside_and_given_back_after_the_last_block() -> None:

@@ -7,7 +7,7 @@ from pathlib import Path
 import anyio
 import pytest
 
-from host.run.session import RobotSession, SessionOptions, TurnResult
+from host.run.robot_session import RobotSession, SessionOptions, TurnResult
 from host.shell.skills import SkillStore
 
 
@@ -55,7 +55,7 @@ def test_a_session_plans_every_behaviour_once_before_its_first_turn(tmp_path: Pa
     """One-time planning costs (CoCo's gait calibration file) are paid before the link connects (CPU
     work that would hold the heartbeat back once the board's watchdog is armed), not by the first
     call's token -> servo path; the warm-up plans every behaviour that has defaults."""
-    import host.run.session as session_module
+    import host.run.robot_session as session_module
     from robots.coco.gaits import load_calibration
 
     load_calibration.cache_clear()
@@ -81,7 +81,7 @@ def test_a_session_sets_up_plotting_before_its_link_connects(tmp_path: Path, mon
     """The turn's plots are drawn in a worker thread while the link is live; matplotlib's import and
     first draw (hundreds of ms in which the loop thread barely got the GIL: a realtime board's
     watchdog latched in CI) happen before the link connects (``artefacts.warm_up_plotting``)."""
-    import host.run.session as session_module
+    import host.run.robot_session as session_module
 
     order: list[str] = []
     connect = session_module.BoardClient.connect

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import anyio
 
-from host.run.session import RobotSession, SessionOptions, TurnResult
+from host.run.robot_session import RobotSession, SessionOptions, TurnResult
 from host.run.stops import StopReason
 
 

@@ -21,9 +21,9 @@ from pathlib import Path
 import anyio
 import pytest
 
-import host.robot.runtime as runtime_mod
-import host.run.session as session_mod
-from host.run.session import RobotSession, SessionOptions, TurnResult
+import host.runtime.robot_runtime as runtime_mod
+import host.run.robot_session as session_mod
+from host.run.robot_session import RobotSession, SessionOptions, TurnResult
 
 
 def _session(tmp_path: Path) -> RobotSession:

@@ -15,7 +15,7 @@ def anyio_backend():
 @pytest.fixture
 def coco():
     """Factory: ``coco(**shell_kwargs) -> (Shell, SimulatedQuadruped)`` with the example CoCo-like modules."""
-    from host.shell.example import SimulatedQuadruped, modules
+    from host.testing.quadruped import SimulatedQuadruped, modules
     from host.shell.registry import Registry
     from host.shell.shell import Shell
 

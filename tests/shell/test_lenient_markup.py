@@ -120,7 +120,7 @@ FRAGMENTS = st.sampled_from([
 def test_property_lenient_speech_never_contains_markup(parts: list[str], step: int) -> None:
     import anyio
 
-    from host.shell.example import SimulatedQuadruped, modules
+    from host.testing.quadruped import SimulatedQuadruped, modules
     from host.shell.registry import Registry
     from host.shell.shell import Shell
 

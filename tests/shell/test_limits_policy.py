@@ -8,7 +8,7 @@ from typing import Annotated
 import anyio
 import pytest
 
-from host.shell.limits import Limits
+from host.shell.limits import TurnLimits
 from host.shell.policy import Policy, PolicyError
 from host.shell.registry import Registry
 from host.shell.shell import Shell
@@ -56,7 +56,7 @@ def errors(result) -> list[str]:
 
 
 async def test_text_per_turn_is_capped_with_one_error() -> None:
-    shell = make(limits=Limits(max_text_chars=100))
+    shell = make(limits=TurnLimits(max_text_chars=100))
     result = await shell.run_text(["Hello there. " * 5, "More words here. " * 10, "And more. " * 10])
     spoken = "".join(c[1]["text"] for c in CALLS if c[0] == "speak")
     assert 0 < len(spoken) <= 100
@@ -65,7 +65,7 @@ async def test_text_per_turn_is_capped_with_one_error() -> None:
 
 
 async def test_calls_per_turn_refused_and_counted() -> None:
-    shell = make(limits=Limits(max_calls=10))
+    shell = make(limits=TurnLimits(max_calls=10))
     result = await shell.run_text(["<nod/>" * 25, "<nod><nod/></nod>"])
     assert sum(1 for c in CALLS if c[0] == "nod") == 10
     errs = errors(result)
@@ -75,7 +75,7 @@ async def test_calls_per_turn_refused_and_counted() -> None:
 
 
 async def test_queued_calls_per_channel() -> None:
-    shell = make(limits=Limits(max_queued_per_channel=5))
+    shell = make(limits=TurnLimits(max_queued_per_channel=5))
     result = await shell.run_text("<nod/>" * 12)
     outcomes = [r.outcome for r in result.timeline]
     assert outcomes.count("done") == 5 and outcomes.count("failed") == 7
@@ -83,7 +83,7 @@ async def test_queued_calls_per_channel() -> None:
 
 
 async def test_attribute_size() -> None:
-    shell = make(limits=Limits(max_attr_chars=50))
+    shell = make(limits=TurnLimits(max_attr_chars=50))
     result = await shell.run_text(f'<note text="{"x" * 51}"/><note text="ok"/>')
     assert CALLS == [("note", {"text": "ok"})]
     assert any("attribute 'text' has 51 characters; the limit is 50" in m for m in errors(result))
@@ -92,7 +92,7 @@ async def test_attribute_size() -> None:
 
 def test_limits_validate() -> None:
     with pytest.raises(ValueError, match="max_calls"):
-        Limits(max_calls=0).validate()
+        TurnLimits(max_calls=0).validate()
 
 
 POLICY = """

@@ -141,7 +141,7 @@ def test_prompt_cli_falls_back_to_example_interface():
         pytest.skip("host is not runnable with -m")
     assert out.returncode == 0, out.stderr
     assert "<head_act" in out.stdout and "<!--" in out.stdout
-    out = subprocess.run([sys.executable, "-m", "host", "prompt", "--interface", "host.shell.example:modules",
+    out = subprocess.run([sys.executable, "-m", "host", "prompt", "--interface", "host.testing.quadruped:modules",
                           "--mode", "sync-first"], capture_output=True, text=True)
     assert out.returncode == 0 and "def head_act(" in out.stdout and "Sync-First" in out.stdout
     bad = subprocess.run([sys.executable, "-m", "host", "prompt", "--interface", "no.such:thing"],
@@ -197,7 +197,7 @@ async def test_runtime_recursion_guard(coco, tmp_path):
 
 
 def test_interface_only_modules_render_but_do_not_run():
-    from host.shell.example import Head
+    from host.testing.quadruped import Head
 
     reg = Registry([Module.interface_only("head", Head)])
     assert "def head_act(" in render_prompt(reg)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from host.robot.binding import signature_registry
+from host.runtime.binding import signature_registry
 from host.shell.precheck import refuse_program
 from robots.registry import load_robot
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import anyio
 import pytest
 
-from host.shell.limits import Limits
+from host.shell.limits import TurnLimits
 from host.shell.scheduler import MAX_DEPTH
 from host.shell.shell import Shell
 from host.shell.skills import SkillStore
@@ -239,11 +239,11 @@ async def test_other_scope_attributes_are_ignored_with_a_warning():
 
 
 async def test_the_timeout_bound_is_a_limit():
-    sh = _shell(limits=Limits(max_scope_timeout_s=2.0))
+    sh = _shell(limits=TurnLimits(max_scope_timeout_s=2.0))
     r = await sh.run_text('<wait timeout="3"><flap/></wait>')
     assert errors(r) == ["<wait> timeout='3' is out of range: seconds, more than 0 and at most 2"]
     with pytest.raises(ValueError, match="max_scope_timeout_s"):
-        Limits(max_scope_timeout_s=float("nan")).validate()
+        TurnLimits(max_scope_timeout_s=float("nan")).validate()
 
 
 async def test_scopes_nested_past_the_limit():

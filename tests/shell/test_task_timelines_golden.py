@@ -42,7 +42,7 @@ async def _timelines(make) -> dict[str, list[dict]]:
 
 
 def _make(**kw):
-    from host.shell.example import SimulatedQuadruped, modules
+    from host.testing.quadruped import SimulatedQuadruped, modules
     from host.shell.registry import Registry
     from host.shell.shell import Shell
 

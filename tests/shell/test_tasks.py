@@ -1,6 +1,6 @@
 """All 30 ground-truth programs of the paper on fake CoCo functions (virtual clock).
 
-Durations come from host.shell.example (nod 1 s, stride 1 s, bgm clip 5 s,
+Durations come from host.testing.quadruped (nod 1 s, stride 1 s, bgm clip 5 s,
 speech 0.1 s/char ...). Each check asserts the ordering the instruction demands.
 """
 

@@ -1,11 +1,11 @@
-"""CoCo's registry for shell tests: :func:`host.robot.binding.robot_registry` with CoCo mounted."""
+"""CoCo's registry for shell tests: :func:`host.runtime.binding.robot_registry` with CoCo mounted."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from host.robot.binding import function_params as _function_params
-from host.robot.binding import robot_registry
+from host.runtime.binding import function_params as _function_params
+from host.runtime.binding import robot_registry
 from host.shell.registry import Registry
 from robots.coco import ROBOT
 

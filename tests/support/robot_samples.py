@@ -128,11 +128,11 @@ CRAWLER_XML = """\
 RIG_BEHAVIOURS_PY = """\
 import math
 
-from robots.motion import Limits, Track
+from robots.motion import JointLimits, Track
 
 
 def BEHAVIOURS(robot):
-    limits = Limits.of_robot(robot)
+    limits = JointLimits.of_robot(robot)
     pan = robot.servos.by_name("pan").index
 
     def scan(start, *, persistent=False, times=1):

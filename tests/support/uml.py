@@ -1,4 +1,4 @@
-"""The User-Mode Linux harness for tests: :mod:`host.vcan.uml` (``ghostshell vcan`` is its command line).
+"""The User-Mode Linux harness for tests: :mod:`host.tools.vcan.uml` (``ghostshell vcan`` is its command line).
 
 Kept so tests and benchmarks import ``support.uml`` as before: importing it gives the package's
 module itself (so a test's ``monkeypatch.setattr(support.uml, ...)`` reaches the harness).
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import sys
 
-import host.vcan.uml as _uml
+import host.tools.vcan.uml as _uml
 
 if __name__ == "__main__":
     from host.cli import main

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from host.vcan.uml import uml_unavailable_reason
+from host.tools.vcan.uml import uml_unavailable_reason
 
 pytestmark = [pytest.mark.skipif(uml_unavailable_reason() is not None, reason=uml_unavailable_reason() or ""),
               pytest.mark.timeout(300)]

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from host.commands.vcan import _guest_only_paths, _tmp_paths
-from host.vcan.uml import REPO_ROOT, uml_unavailable_reason
+from host.tools.vcan.uml import REPO_ROOT, uml_unavailable_reason
 
 
 def test_paths_inside_a_script_are_found(tmp_path: Path) -> None:

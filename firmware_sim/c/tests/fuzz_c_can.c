@@ -3,7 +3,7 @@
  *
  * Input: byte 0 = options (bit 0: a CAN FD link; bits 1..3: how many of the board's writes in a row the bus
  * refuses, as SocketCAN's ENOBUFS, before it takes one), then frame records in the can-decoder target's
- * layout (host/fuzz/can_decoder.py, so its corpus seeds this one):
+ * layout (host/tools/fuzz/can_decoder.py, so its corpus seeds this one):
  *     flags u8   bit0 FD, bit1 29-bit id, bit2 remote, bit3/bit4 pick the id:
  *                bit3: u8 -> function code (mod 14) of node 5 (with bit4: node 0 for ESTOP, else node 6)
  *                bit4 alone: the board's ISO-TP receive id; neither: u16 raw id (u32 when 29-bit)

@@ -30,7 +30,7 @@ TARGETS: dict[str, FuzzTarget] = {
     for t in (
         FuzzTarget(
             "serial-decoder",
-            "host.fuzz.serial_decoder",
+            "host.tools.fuzz.serial_decoder",
             "bytes in arbitrary chunks into protocol.framing.FrameDecoder: bounded buffer, resync at the "
             "next 0x00, every frame re-encodes to its own bytes, chunking never changes the result",
         ),
@@ -43,13 +43,13 @@ TARGETS: dict[str, FuzzTarget] = {
         ),
         FuzzTarget(
             "shell",
-            "host.fuzz.shell",
+            "host.tools.fuzz.shell",
             "fuzzed text in fuzzed chunks into the function-token parser + mapper (strict and lenient): "
             "no stray exception, every mapped call satisfies its declared types and ranges, bounded state",
         ),
         FuzzTarget(
             "can-decoder",
-            "host.fuzz.can_decoder",
+            "host.tools.fuzz.can_decoder",
             "arbitrary CAN frames (ids, DLCs, FD, 29-bit, remote) into the CAN reassembly/decoder and ISO-TP: "
             "no partial message surfaces, surfaced messages re-encode to their frames, bounded state",
         ),
@@ -97,7 +97,7 @@ TARGETS: dict[str, FuzzTarget] = {
         ),
         FuzzTarget(
             "session",
-            "host.fuzz.session",
+            "host.tools.fuzz.link_receive",
             "fuzzed board replies into the link client's receive path: no exception, bounded maps, "
             "counters consistent",
         ),

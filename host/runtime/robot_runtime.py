@@ -48,7 +48,7 @@ from protocol.messages import (
 )
 from protocol.framing import encode_frame
 from robots.description import Robot
-from robots.motion import Limits, ease_in, transition
+from robots.motion import JointLimits, ease_in, transition
 
 #: How long (board µs) before the streamer's horizon reaches a motion's planned end the next
 #: call on its channel is let in, so that it is planned before that frame is sent.
@@ -62,7 +62,7 @@ STOP_TIMEOUT_S = 12.0
 
 
 class RobotLink(FrameLink, Protocol):
-    """The link operations the runtime uses (see :class:`host.robot.link.ClientLink`)."""
+    """The link operations the runtime uses (see :class:`host.runtime.link.ClientLink`)."""
 
     async def send_peripheral(self, msg: ScreenCommand | SpeakerCommand) -> None: ...
 
@@ -119,7 +119,7 @@ class RobotRuntime:
                  lookahead_us: int = LOOKAHEAD_US, voices: tuple[str, ...] | None = None,
                  clips: tuple[str, ...] | None = None) -> None:
         self.robot = robot
-        self.limits = Limits.of_robot(robot)
+        self.limits = JointLimits.of_robot(robot)
         self.link = link
         self.run_dir = run_dir
         self.mixer = Mixer(initial)
@@ -167,7 +167,7 @@ class RobotRuntime:
         """Sleep on the board clock (works in lockstep, where wall time means nothing)."""
         await self.streamer.wait_board_time(self.streamer.board_now_us() + int(seconds * 1e6))
 
-    # -- the Performer protocol used by host.robot.binding ------------------------------------
+    # -- the Performer protocol used by host.runtime.binding ------------------------------------
     def _servos(self, channel: str, seg: Segment) -> tuple[int, ...]:
         """The servos a cut on ``channel`` affects: the channel's (robot.toml), else the segment's own."""
         c = self.robot.channels.get(channel)

@@ -2,7 +2,7 @@
 
 ``eval.json``: ``{"config", "paper_model", "summary", "tasks", "records"}`` where
 ``records`` is every job (reply, score, per-layer breakdown, run outcome) and
-``summary`` the micro/macro means ± std over trials (:mod:`host.eval.stats`) or,
+``summary`` the micro/macro means ± std over trials (:mod:`host.tools.eval.stats`) or,
 for the ablation, passes per mode beside the paper's.
 """
 
@@ -15,10 +15,10 @@ from typing import Any
 
 import numpy as np
 
-from host.eval.paper import ablation_tasks, hri_tasks, match_paper_model, paper_summary
+from host.tools.eval.paper import ablation_tasks, hri_tasks, match_paper_model, paper_summary
 from robots.description import Robot
 from robots.registry import DEFAULT_ROBOT, load_robot
-from host.eval.stats import DDOF, averages
+from host.tools.eval.stats import DDOF, averages
 
 
 def _fmt(x: float | None) -> str:

@@ -1,6 +1,6 @@
 """PID 1 inside a throwaway User-Mode Linux guest: set up SocketCAN, run one job, power off.
 
-Started by :func:`host.vcan.uml.run_in_uml` through a generated ``init`` script as
+Started by :func:`host.tools.vcan.uml.run_in_uml` through a generated ``init`` script as
 ``python uml_init.py RUN_DIR/job.json``. The guest's root is the host's root through hostfs,
 so every path means the same inside and out. Steps:
 

@@ -38,7 +38,7 @@ NODE = 5
 def load(instrument: bool = False) -> Callable[[bytes], None]:
     """Import the CAN decoder (instrumented when ``instrument``) and return the one-input function."""
     if instrument:
-        from host.fuzz.harness import instrument_only
+        from host.tools.fuzz.harness import instrument_only
 
         # the reassembly/decoder, its layouts and ids, the fixed-layout codec and the ISO-TP link
         with instrument_only(["protocol.can.decoder", "protocol.can.codec", "protocol.can.layouts",
@@ -158,6 +158,6 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
 
 
 if __name__ == "__main__":
-    from host.fuzz.harness import run_atheris
+    from host.tools.fuzz.harness import run_atheris
 
-    run_atheris(load, "host.fuzz.can_decoder")
+    run_atheris(load, "host.tools.fuzz.can_decoder")

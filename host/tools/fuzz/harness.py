@@ -52,7 +52,7 @@ def instrument_only(modules: Sequence[str]) -> Iterator[None]:
     """Instrument, among the modules imported in the ``with`` block, exactly ``modules`` and their submodules.
 
     A module already imported stays as it is (import the code under test first, inside the block).
-    Each instrumented code object gets its real stack size (:mod:`host.fuzz.stackdepth`): atheris'
+    Each instrumented code object gets its real stack size (:mod:`host.tools.fuzz.stackdepth`): atheris'
     estimate made every call of a long function allocate a fresh frame chunk.
     """
     import atheris  # type: ignore[import-not-found,unused-ignore]
@@ -65,7 +65,7 @@ def instrument_only(modules: Sequence[str]) -> Iterator[None]:
     ]
     from atheris import import_hook  # type: ignore[import-not-found,unused-ignore]
 
-    from host.fuzz.stackdepth import fit_stacksize
+    from host.tools.fuzz.stackdepth import fit_stacksize
 
     patch = import_hook.patch_code
 

@@ -1,7 +1,7 @@
 """A small example interface of a quadruped with ears, a head and a face, with a simulated implementation.
 
 Used by the shell tests as fake functions of known duration, and by ``ghostshell prompt --interface
-host.shell.example:modules`` to show the shell's prompt without a robot. Each module is an abstract
+host.testing.quadruped:modules`` to show the shell's prompt without a robot. Each module is an abstract
 interface (stubs with hints and docstrings: what the LLM sees) bound by
 dependency injection to :class:`SimulatedQuadruped`, whose methods just
 ``await anyio.sleep(seconds)`` and log what they did. Durations (seconds):

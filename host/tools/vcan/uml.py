@@ -8,11 +8,11 @@ and the ``can``, ``can-raw``, ``can-dev`` and ``vcan`` modules under
 file system is the host's root through hostfs (``root=/dev/root rootfstype=hostfs rootflags=/``),
 so the checkout's venv python and every path are the same inside and out, except ``/tmp`` (the
 guest's own; ``keep`` folders shared, ``copy_back`` paths copied out at the end). PID 1 is
-``host/vcan/uml_init.py`` (see there for what it mounts and why).
+``host/tools/vcan/uml_init.py`` (see there for what it mounts and why).
 
 Use::
 
-    from host.vcan.uml import run_in_uml, socketcan_skip_reason
+    from host.tools.vcan.uml import run_in_uml, socketcan_skip_reason
     result = run_in_uml([sys.executable, "-c", "..."], run_dir=tmp_path, timeout=60)
     assert result.returncode == 0, result.describe()
 
@@ -44,14 +44,14 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from host.vcan.native import interface_up
+from host.tools.vcan.native import interface_up
 
 UML_KERNEL = Path("/usr/bin/linux.uml")
 UML_MODULES_ROOT = Path("/usr/lib/uml/modules")
 INIT_SCRIPT = Path(__file__).resolve().with_name("uml_init.py")
 XSTATE_SHIM_SOURCE = Path(__file__).resolve().with_name("uml_xstate_shim.c")
 #: The folder holding the ``host`` package (the checkout): always reachable inside, and the default cwd.
-REPO_ROOT = Path(__file__).resolve().parents[2]
+REPO_ROOT = Path(__file__).resolve().parents[3]
 #: Boot + power-off allowance added to the job's own timeout for the outer watchdog, seconds.
 BOOT_MARGIN_S = 60.0
 #: CAN FD MTU (``CANFD_MTU`` in linux/can.h); the classic one is 16.

@@ -2,7 +2,7 @@
 
 Input layout (atheris ``FuzzedDataProvider``): byte 0 picks strict (even) or lenient (odd) parsing, the
 last 4 bytes seed the chunking, the bytes between are the LLM output (UTF-8, errors replaced). A seed
-file is therefore ``b"\\x00" + program + 4 bytes`` (see ``host.fuzz.seeds``).
+file is therefore ``b"\\x00" + program + 4 bytes`` (see ``host.tools.fuzz.seeds``).
 
 Each input runs once, through :class:`host.shell.shell.Shell` on Trio's ``MockClock`` (virtual time)
 with the default robot's vocabulary bound to a recorder, and the Shell's own stream parser is watched
@@ -13,7 +13,7 @@ with the default robot's vocabulary bound to a recorder, and the Shell's own str
    output stream failed"; here it is raised), and it stays dead afterwards; tags nest properly;
    held-back input stays under ``MAX_TOKEN`` after every piece; :func:`host.shell.mapper.map_element`
    raises only :class:`MappingError` on every start or empty tag, and every argument it maps
-   satisfies its annotation (:func:`host.fuzz.validate.conforms`). Should the Shell stop reading
+   satisfies its annotation (:func:`host.tools.fuzz.validate.conforms`). Should the Shell stop reading
    before the end (its run aborted), the rest of the pieces are fed to the same parser here;
 2. the run: no exception escapes it, and every call that reaches an implementation has exactly the
    declared parameters, each one conforming.
@@ -22,8 +22,8 @@ Throughput (measured exec/s, with command, n and load: docs/guides/fuzzing.md#th
 fuzzing, the Shell runs in one Trio run in guest mode on the fuzzing thread (:class:`GuestLoop`: no
 thread hand-off, one task that runs each call at its first tick; ``load(False)`` uses the threaded
 :class:`TrioLoop`, one Trio loop kept for the process); coverage instruments ``host.shell`` and
-``host.speech`` only, with real stack sizes (:mod:`host.fuzz.stackdepth`); start-up's objects are
-frozen out of the garbage collector (:func:`host.fuzz.harness.run_atheris`). The parser checks read
+``host.speech`` only, with real stack sizes (:mod:`host.tools.fuzz.stackdepth`); start-up's objects are
+frozen out of the garbage collector (:func:`host.tools.fuzz.harness.run_atheris`). The parser checks read
 the Shell's parse (instrumented: that is the input's coverage) instead of parsing the input a second
 time; the watch reads ``pending``, and probes a dead parser's ``feed``, with that source compiled
 without coverage hooks. Each distinct (element, attributes) is mapped once per process (mapped and
@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 from types import SimpleNamespace
 from typing import TYPE_CHECKING, Any
 
-from host.fuzz.serial_decoder import chunks as byte_chunks
+from host.tools.fuzz.serial_decoder import chunks as byte_chunks
 
 if TYPE_CHECKING:
     from host.shell.parser import Event, FunctionTokenParser, ParseError
@@ -275,14 +275,14 @@ def watched_parser(
 def load(instrument: bool = False) -> Callable[[bytes], None]:
     """Import the shell (instrumented when ``instrument``) and return the one-input function."""
     if instrument:
-        from host.fuzz.harness import instrument_only
+        from host.tools.fuzz.harness import instrument_only
 
         with instrument_only(["host.shell", "host.speech"]):
             import host.shell.shell  # noqa: F401
     import atheris  # type: ignore[import-not-found,unused-ignore]
 
-    from host.fuzz.harness import without_hooks
-    from host.fuzz.validate import conforms
+    from host.tools.fuzz.harness import without_hooks
+    from host.tools.fuzz.validate import conforms
     from host.shell.mapper import MappingError, map_element
     from host.shell.parser import MAX_TOKEN, EmptyTag, EndTag, Event, FunctionTokenParser, ParseError, StartTag
     from host.shell.registry import Registry, UnknownFunction
@@ -437,6 +437,6 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
 
 
 if __name__ == "__main__":
-    from host.fuzz.harness import run_atheris
+    from host.tools.fuzz.harness import run_atheris
 
-    run_atheris(load, "host.fuzz.shell")
+    run_atheris(load, "host.tools.fuzz.shell")

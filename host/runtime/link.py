@@ -7,7 +7,7 @@ from protocol.messages import ScreenCommand, SpeakerCommand
 
 
 class ClientLink(BoardFrameLink):
-    """Adapts :class:`BoardClient` to :class:`host.robot.runtime.RobotLink`: the streamer's frame link
+    """Adapts :class:`BoardClient` to :class:`host.runtime.robot_runtime.RobotLink`: the streamer's frame link
     plus peripheral commands and camera captures."""
 
     async def send_peripheral(self, msg: ScreenCommand | SpeakerCommand) -> None:

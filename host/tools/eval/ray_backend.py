@@ -1,7 +1,7 @@
 """``ghostshell eval --ray ADDRESS``: the same sweep, one Ray task per (task, trial).
 
 Ray (optional extra ``ghostshell[ray]``) schedules the jobs over a cluster; each
-task runs :func:`host.eval.sweep.run_job` in its own event loop and starts its
+task runs :func:`host.tools.eval.sweep.run_job` in its own event loop and starts its
 own lockstep board on the node it lands on. The driver appends results to the
 same ``results.jsonl`` as they finish (``ray.wait``), so a sweep interrupted on
 Ray resumes locally or on Ray alike. ``ADDRESS`` is what ``ray.init`` takes
@@ -15,7 +15,7 @@ from collections.abc import Callable
 from dataclasses import asdict
 from typing import Any
 
-from host.eval.sweep import (RESULTS, SweepConfig, SweepProgress, _check_config, load_results, ordered, pending_jobs,
+from host.tools.eval.sweep import (RESULTS, SweepConfig, SweepProgress, _check_config, load_results, ordered, pending_jobs,
                              recorder, run_job, system_prompt)
 
 

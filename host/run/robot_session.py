@@ -71,14 +71,14 @@ from host.link import BoardClient
 from host.link.board_process import BoardProcess
 from host.link.errors import BoardFaulted, LinkConfigError, LinkError
 from host.link.faultcheck import LATCHED, ServoFaulted, clear_command, refusal_message
-from host.link.session import FaultEvent, LinkTarget
+from host.link.client import FaultEvent, LinkTarget
 from host.run import artefacts
 from host.run.events import Event, EventMonitor, EventPolicy, ScriptedEvent, has_fallen
 from host.run.effort_limits import effort_limits
-from host.run.heap import frozen_heap
+from host.run.turn_gc import frozen_heap
 from host.motion.stalls import STALLS
-from host.robot.link import ClientLink
-from host.robot.runtime import RobotRuntime, warm_up_behaviours
+from host.runtime.link import ClientLink
+from host.runtime.robot_runtime import RobotRuntime, warm_up_behaviours
 from host.run.loop_lag import LagMonitor
 from host.run.options import SessionOptions
 from host.run.progress_guard import ProgressGuard, Stall
@@ -702,7 +702,7 @@ class RobotSession:
         self.lag.reset()  # the turn's timing health covers the turn
         tel = self.client.latest_telemetry if self.client is not None else None
         self._late0 = tel.late_count if tel is not None else self._late0
-        with frozen_heap():  # no full GC pass over the loaded host inside the turn (host.run.heap)
+        with frozen_heap():  # no full GC pass over the loaded host inside the turn (host.run.turn_gc)
             with self._work("running the turn") as work:
                 async with anyio.create_task_group() as tg:
                     if interrupt_after is not None:

@@ -13,7 +13,7 @@ later passes walk only what the board allocated since. Objects still die by refe
 only a reference cycle among the frozen objects would outlive its last use: the board's own state, kept
 to the end of the process anyway, and whatever start-up garbage was still uncollected (once, bounded).
 No ``gc.collect()`` first: that full pass would add 9-36 ms to every board's start. The host has its own
-copy for its turns (:mod:`host.run.heap`): the two ends do not import each other.
+copy for its turns (:mod:`host.run.turn_gc`): the two ends do not import each other.
 """
 
 from __future__ import annotations

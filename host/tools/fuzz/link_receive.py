@@ -7,7 +7,7 @@ session has in flight: a pending ACK wait (seq 7), a time-sync probe (t1 = 1000)
 capture (request 1, seq 9), so replies to them are matched too.
 
 Input layout (atheris ``FuzzedDataProvider``): the last 4 bytes seed the chunking, the rest are the
-bytes "from the board"; a seed file is ``wire bytes + 4 bytes`` (see ``host.fuzz.seeds``).
+bytes "from the board"; a seed file is ``wire bytes + 4 bytes`` (see ``host.tools.fuzz.seeds``).
 
 Invariants: nothing is logged as an error (the client swallows handler exceptions with a log, so a
 log record at ERROR is a crash here); the NACK map holds at most 1024 entries and the fault-event
@@ -23,7 +23,7 @@ import asyncio
 import logging
 from collections.abc import Callable
 
-from host.fuzz.serial_decoder import chunks
+from host.tools.fuzz.serial_decoder import chunks
 
 __all__ = ["load"]
 
@@ -48,10 +48,10 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
         import atheris  # type: ignore[import-not-found,unused-ignore]
 
         with atheris.instrument_imports(include=["host.link", "protocol"]):
-            import host.link.session  # noqa: F401
+            import host.link.client  # noqa: F401
     import atheris  # type: ignore[import-not-found,unused-ignore]
 
-    from host.link.session import FAULT_BITS, BoardClient
+    from host.link.client import FAULT_BITS, BoardClient
     from protocol.framing import FrameDecoder
     from protocol.messages import CameraChunk, FaultFlags
 
@@ -105,6 +105,6 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
 
 
 if __name__ == "__main__":
-    from host.fuzz.harness import run_atheris
+    from host.tools.fuzz.harness import run_atheris
 
-    run_atheris(load, "host.fuzz.session")
+    run_atheris(load, "host.tools.fuzz.link_receive")

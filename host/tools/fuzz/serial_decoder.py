@@ -1,7 +1,7 @@
 """Fuzz target ``serial-decoder``: arbitrary bytes, in arbitrary chunks, into the serial frame decoder.
 
 Input layout (atheris ``FuzzedDataProvider``): 4 bytes seed the chunking, the rest is the byte stream,
-so a seed file is ``4 bytes + wire bytes`` (e.g. a frame log's raw frames, see ``host.fuzz.seeds``).
+so a seed file is ``4 bytes + wire bytes`` (e.g. a frame log's raw frames, see ``host.tools.fuzz.seeds``).
 
 Invariants (an ``AssertionError`` names the one that broke):
 
@@ -22,7 +22,7 @@ input (the whole feed meets the chunked feed's blocks again, garbage included). 
 still checked on every input, and a new block is decoded (and a new frame re-encoded) for real the
 first time it appears, so a failure reproduces from its input alone. ``FrameDecoder``'s own work
 (delimiters, buffering, OVERSIZE, counters) runs in full for both feeds; the whole feed runs the
-same ``FrameDecoder`` source without coverage hooks (:func:`host.fuzz.harness.without_hooks`; the
+same ``FrameDecoder`` source without coverage hooks (:func:`host.tools.fuzz.harness.without_hooks`; the
 chunked feed's coverage is the input's). Measured exec/s (command, n, load):
 docs/guides/fuzzing.md#throughput.
 """
@@ -62,11 +62,11 @@ def chunks(data: bytes, seed: int, max_chunk: int = 300) -> list[bytes]:
 def load(instrument: bool = False) -> Callable[[bytes], None]:
     """Import the decoder (instrumented for coverage when ``instrument``) and return the one-input function."""
     if instrument:
-        from host.fuzz.harness import instrument_only
+        from host.tools.fuzz.harness import instrument_only
 
         with instrument_only(["protocol.framing", "protocol.codec"]):  # not protocol.messages (declarations)
             from protocol import codec, framing  # noqa: F401
-    from host.fuzz.harness import without_hooks
+    from host.tools.fuzz.harness import without_hooks
     import atheris  # type: ignore[import-not-found,unused-ignore]
 
     from protocol import framing
@@ -146,6 +146,6 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
 
 
 if __name__ == "__main__":
-    from host.fuzz.harness import run_atheris
+    from host.tools.fuzz.harness import run_atheris
 
-    run_atheris(load, "host.fuzz.serial_decoder")
+    run_atheris(load, "host.tools.fuzz.serial_decoder")

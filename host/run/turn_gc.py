@@ -3,7 +3,7 @@
 CPython's collector walks every tracked container object on a full (generation 2) pass. A host with
 the shell, the link, the SDKs and MuJoCo loaded holds ~285 000 of them, and a full pass over them took
 27-130 ms in the host of ``bench/bench_latency.py`` (a ``gc.callbacks`` probe on a 2-core machine shared
-with other work; the emulated board's own passes took 25-62 ms, see :mod:`firmware_sim.heap`). One such
+with other work; the emulated board's own passes took 25-62 ms, see :mod:`firmware_sim.gc_freeze`). One such
 pass inside a turn holds the event loop past the streamer's 60 ms lookahead and delays every token and
 frame behind it.
 
@@ -17,7 +17,7 @@ one frozen period: only the turn that opens it freezes, so each period holds one
 garbage cannot pile up across overlapping turns. A process that froze its heap for good before (a fuzz
 harness) is left as it is. Objects still die by reference count as before.
 
-The board process has its own copy (:mod:`firmware_sim.heap`): the two ends do not import each other.
+The board process has its own copy (:mod:`firmware_sim.gc_freeze`): the two ends do not import each other.
 """
 
 from __future__ import annotations

@@ -1,12 +1,12 @@
-"""``python -m firmware_sim.refdoc [--check]``: write ``docs/wire-protocol.md``: the tables of
-:func:`protocol.refdoc.render` (layouts, enumerations, CAN form) with the board's side: what each
+"""``python -m firmware_sim.wire_reference [--check]``: write ``docs/wire-protocol.md``: the tables of
+:func:`protocol.wire_tables.render` (layouts, enumerations, CAN form) with the board's side: what each
 message means, the refusals, the fault flags, the CONFIG keys, the two hashes' recipes, start-up,
 board modes, the watchdog and the jitter buffer, with the numbers of the emulated board's defaults.
 ``--check`` exits 1 when the checked-in file differs.
 
 The board's side is written here, next to the board it describes (``firmware_sim/board.py``; the C
 firmware ``firmware_sim/c/core/gs_board.c`` behaves the same unless a sentence says otherwise), and
-replaces the generic board section of :func:`protocol.refdoc.render`. Its tables have the reference's
+replaces the generic board section of :func:`protocol.wire_tables.render`. Its tables have the reference's
 fixed shape (``| a | b |`` rows after a header and a ``| --- |`` row; a blank line ends a table), so a
 program can read them (tests/cfirmware/test_reference_host.py does).
 """
@@ -22,8 +22,8 @@ from protocol import codec as c
 from protocol import framing
 from protocol.generated import check_or_write
 from protocol.messages import BOARD_TO_HOST, PROTOCOL_VERSION, ConfigKey, MsgType
-from protocol.refdoc import BoardFacts
-from protocol.refdoc import render as render_tables
+from protocol.wire_tables import BoardFacts
+from protocol.wire_tables import render as render_tables
 
 __all__ = ["CONFIG_RANGES", "DOC", "MEANING", "facts", "main", "render"]
 
@@ -109,7 +109,7 @@ def facts() -> BoardFacts:
 def _replace(text: str, old: str, new: str) -> str:
     """``text`` with its one ``old`` replaced (ValueError when the generic page no longer has it)."""
     if text.count(old) != 1:
-        raise ValueError(f"protocol.refdoc.render changed: {old[:60]!r} found {text.count(old)} times")
+        raise ValueError(f"protocol.wire_tables.render changed: {old[:60]!r} found {text.count(old)} times")
     return text.replace(old, new)
 
 
@@ -397,7 +397,7 @@ def _behaviour(f: BoardFacts) -> list[str]:
 
 
 def render() -> str:
-    """The whole reference as Markdown: :func:`protocol.refdoc.render` with the board's side."""
+    """The whole reference as Markdown: :func:`protocol.wire_tables.render` with the board's side."""
     f = facts()
     text = render_tables(f)
     text = _message_table(text)
@@ -413,11 +413,11 @@ def render() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m firmware_sim.refdoc", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m firmware_sim.wire_reference", description=__doc__.splitlines()[0])
     p.add_argument("--out", type=Path, default=DOC)
     p.add_argument("--check", action="store_true", help="exit 1 when the page differs from the generated text")
     args = p.parse_args(argv)
-    return check_or_write({args.out: render()}, check=args.check, command="python -m firmware_sim.refdoc")
+    return check_or_write({args.out: render()}, check=args.check, command="python -m firmware_sim.wire_reference")
 
 
 if __name__ == "__main__":

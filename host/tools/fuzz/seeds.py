@@ -1,6 +1,6 @@
 """Seed corpora for the fuzz targets from real runs' frame logs (and the paper tasks' programs).
 
-``python -m host.fuzz.seeds RUN_DIR... [--out tests/fuzz]`` reads each run folder's
+``python -m host.tools.fuzz.seeds RUN_DIR... [--out tests/fuzz]`` reads each run folder's
 ``host_frames.jsonl`` (written by ``ghostshell run``; ``tx`` = host -> board, ``rx`` = board -> host)
 and writes small seed files in each target's input layout:
 
@@ -130,7 +130,7 @@ def write_seeds(target_dir: Path, seeds: Iterable[bytes], max_files: int = 24) -
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m host.fuzz.seeds", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m host.tools.fuzz.seeds", description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="+", type=Path, help="run folders with host_frames.jsonl")
     ap.add_argument("--out", type=Path, default=Path("tests/fuzz"))
     a = ap.parse_args(argv)

@@ -3,7 +3,7 @@
 :func:`native_plan` decides whether ``ghostshell vcan`` can run a command here directly: every
 interface already up (nothing to do), or, as root with ``ip`` (iproute2), the missing ones can be
 created (``ip link add dev NAME type vcan`` loads the module on demand; a kernel without it refuses
-that, and the command then runs in User-Mode Linux instead, :mod:`host.vcan.uml`).
+that, and the command then runs in User-Mode Linux instead, :mod:`host.tools.vcan.uml`).
 :func:`run_native` creates them, loads further modules (``modprobe``, best effort), runs the
 command with this terminal's stdin/stdout/stderr and deletes the interfaces it created.
 """

@@ -2,17 +2,17 @@
 
 For every (task, trial) of the robot (``SweepConfig.robot``): the system prompt exactly as
 ``ghostshell prompt --robot R`` builds it, the task's instruction as the user message, the streamed reply; DSBC
-against the ground truth (:func:`host.eval.dsbc.dsbc_breakdown`); the reply
+against the ground truth (:func:`host.tools.eval.dsbc.dsbc_breakdown`); the reply
 executed on an emulated board in lockstep (:func:`host.run.runner.run_program`
 replaying the reply through the shell, one board subprocess per job) to record
 whether it ran clean. With ``native_tools`` the functions go to the provider as
-tool definitions and the reply runs the native way (:mod:`host.eval.native`).
+tool definitions and the reply runs the native way (:mod:`host.tools.eval.native`).
 
 Every finished job is appended to ``results.jsonl`` in the output folder (one
 JSON object per line, flushed), so an interrupted sweep continues where it
 stopped; a job whose LLM call failed is retried on the next start. Jobs run
 ``workers`` at a time in one AnyIO task group (each with its own board), or on
-a Ray cluster (:mod:`host.eval.ray_backend`).
+a Ray cluster (:mod:`host.tools.eval.ray_backend`).
 
 Offline (no model): ``llm=GROUND_TRUTH`` answers each task with its own ground truth (micro =
 macro = 1.0); ``llm=SCRIPTED`` answers each task with ``SweepConfig.replies[task]`` (from
@@ -33,16 +33,16 @@ from typing import IO, Any
 import anyio
 import anyio.to_thread
 
-from host.eval.dsbc import dsbc_breakdown
-from host.eval.native import (ToolCall, expected_pattern, intervals_from_timeline, judge, judge_words,
+from host.tools.eval.dsbc import dsbc_breakdown
+from host.tools.eval.native import (ToolCall, expected_pattern, intervals_from_timeline, judge, judge_words,
                               native_program, parse_arguments, tool_schemas)
-from host.eval.paper import ablation_tasks, hri_tasks
+from host.tools.eval.paper import ablation_tasks, hri_tasks
 from host.ghost import GhostError, make_ghost
-from host.robot.binding import signature_registry
+from host.runtime.binding import signature_registry
 from robots.description import Robot
 from robots.registry import DEFAULT_ROBOT, load_robot
 
-log = logging.getLogger("host.eval")
+log = logging.getLogger("host.tools.eval")
 
 RESULTS = "results.jsonl"
 CONFIG = "config.json"
@@ -77,7 +77,7 @@ class SweepConfig:
     tokens_per_s: float = 30.0
     temperature: float | None = None
     max_retries: int = 2
-    native_exec: str = "parallel"  # how one response's tool calls run (host.eval.native.NATIVE_EXEC)
+    native_exec: str = "parallel"  # how one response's tool calls run (host.tools.eval.native.NATIVE_EXEC)
     replies: dict[int, str] | None = None  # llm SCRIPTED: the reply to each task
     mcp_mounts: tuple[Any, ...] = ()  # MCP servers mounted as modules in the prompt and every run (host.mounts)
     plots: bool = True  # each executed reply's run draws timeline.png and joints.png (--no-plots: not)

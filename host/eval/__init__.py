@@ -1,5 +1,0 @@
-"""host/eval: evaluation of generated function-token programs (the DSBC metric)."""
-
-from host.eval.dsbc import DSBCResult, LayerScore, dsbc, dsbc_breakdown
-
-__all__ = ["DSBCResult", "LayerScore", "dsbc", "dsbc_breakdown"]
