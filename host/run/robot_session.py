@@ -55,7 +55,6 @@ import functools
 import logging
 import math
 import time
-from collections import deque
 from collections.abc import AsyncIterable, AsyncIterator, Awaitable, Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -73,7 +72,9 @@ from host.link.errors import BoardFaulted, LinkConfigError, LinkError
 from host.link.faultcheck import LATCHED, ServoFaulted, clear_command, refusal_message
 from host.link.client import FaultEvent, LinkTarget
 from host.run import artefacts
-from host.run.events import Event, EventMonitor, EventPolicy, ScriptedEvent, has_fallen
+from host.run.events import Event, EventMonitor, EventPolicy
+from host.run.session_events import SessionEvents
+from host.run.turn_summary import TurnSummaries, TurnView, board_calls, fell, pose
 from host.run.effort_limits import effort_limits
 from host.run.turn_gc import frozen_heap
 from host.motion.stalls import STALLS
@@ -105,7 +106,6 @@ from host.shell.timeline import Observation, RunResult, Timeline
 from protocol.linkspec import LinkSpec, parse_link_spec
 from protocol.messages import FaultFlags, Nack, NackReason
 from robots.description import Robot
-from robots.generic import GENERIC_CHANNEL
 from robots.registry import load_robot
 
 log = logging.getLogger("host.run")
@@ -207,14 +207,10 @@ class RobotSession:
         self.close_timed_out = False
         self.recording: Recording | None = None  # run.mcap and the live view (host.run.recording)
         self.mounts: list[Any] = []  # the mounted MCP servers (host.mounts.McpMount)
-        #: events handled so far (not the ignored ones), newest last, bounded; see :meth:`emit`
-        self.events: deque[Event] = deque(maxlen=256)
-        #: called with every event that is not ignored, and its action ("note" | "interrupt")
-        self.on_event: list[Callable[[Event, str], None]] = []
-        self.event_policy = opts.event_policy or EventPolicy()
-        self._turn_events: list[Event] = []  # events during the running turn (or since the last one)
-        self._interrupted_by: Event | None = None
-        self._monitor: EventMonitor | None = None
+        #: the session's events: watched on every report, handled as the policy says (host.run.session_events)
+        self.events = SessionEvents(opts.event_policy or EventPolicy(), self.robot.channels, lambda: self._shell)
+        #: builds each turn's summary.json (host.run.turn_summary)
+        self.summaries = TurnSummaries(self.robot, opts, self.vocabulary, self.rec, self.scene_report, self._clock_mode)
         self._up = False  # __aenter__ finished (the start pose reached or cut)
         #: what the session's work is doing now, for the progress guard (None: nothing to guard)
         self._phase: str | None = None
@@ -352,12 +348,12 @@ class RobotSession:
         opts, runtime = self.opts, self.runtime
         tg = anyio.create_task_group()
         self._tg = await self._stack.enter_async_context(tg)
-        self._monitor = EventMonitor(self.robot.servos.names, self.robot.base.floating,
+        self.events.watch(EventMonitor(self.robot.servos.names, self.robot.base.floating,
                                      _targets_at(runtime.streamer.history), limits=effort_limits(self.robot),
-                                     joints=[s.joint for s in self.robot.servos])
-        tg.start_soon(self._ends_the_run, pump(client, runtime, self.rec, [self._on_report]))
+                                     joints=[s.joint for s in self.robot.servos]), client)
+        tg.start_soon(self._ends_the_run, pump(client, runtime, self.rec, [self.events.on_report]))
         if opts.events:
-            tg.start_soon(self._scripted_events, runtime.board_now_s(), opts.events)
+            tg.start_soon(self.events.play, runtime.streamer, runtime.board_now_s(), opts.events)
         tg.start_soon(self._ends_the_run, silence_watchdog(runtime, self.rec, client))
         if not client.lockstep:
             self._host_nice = raise_host_priority()  # the loop is the control path (host.run.priority)
@@ -586,50 +582,6 @@ class RobotSession:
         return {"scene": self.scene, "vocabulary": self.vocabulary, "link": str(spec), "label": self.opts.task_label,
                 "clock_mode": self._clock_mode()}
 
-    # -- events (host.run.events) ----------------------------------------------------------------
-    def _on_report(self, tel: Any) -> None:
-        if self._monitor is None or self.client is None:
-            return
-        sim = self.client.latest_sim_state
-        stats = self.client.stats
-        base = (sim.base_pos, sim.base_quat) if sim is not None else None
-        for ev in self._monitor.feed(tel.board_time_us * 1e-6, tel.positions, base,
-                                     toppled=sim.toppled if sim is not None else 0,
-                                     losses=stats.decode_errors + stats.retries + stats.seq_gaps,
-                                     efforts=tel.efforts, velocities=tel.velocities):
-            self.emit(ev)
-
-    async def _scripted_events(self, t0: float, events: Iterable[ScriptedEvent]) -> None:
-        streamer = self.runtime.streamer
-        for ev in events:
-            await streamer.wait_board_time(int((t0 + ev.at_s) * 1e6))
-            self.emit(Event("scripted", t0 + ev.at_s, ev.text))
-
-    def emit(self, event: Event) -> str:
-        """Handle ``event`` as the policy says; returns the action taken ("ignore" | "note" | "interrupt").
-
-        A fall always stops motion first (every motion channel interrupted), whatever the policy.
-        ``note``: the event joins the observations of the running turn (or the next one);
-        ``interrupt``: also cuts the running turn (if none runs, it is a note)."""
-        action = self.event_policy.action(event.kind)
-        shell = self._shell
-        running = shell is not None and shell.running
-        if event.kind == "fall" and running and shell is not None and self._runtime is not None:
-            motion = [c for c in shell.registry.channels() if c in self.robot.channels or c == GENERIC_CHANNEL]
-            shell.interrupt(motion)
-        if action == "ignore":
-            return action
-        self.events.append(event)
-        self._turn_events.append(event)
-        log.info("event: %s (%s)", event, action)
-        if action == "interrupt" and running and shell is not None:
-            if self._interrupted_by is None:
-                self._interrupted_by = event
-            shell.interrupt()
-        for cb in list(self.on_event):
-            cb(event, action)
-        return action
-
     # -- board faults ----------------------------------------------------------------------------
     def _how_to_clear(self) -> str:
         return f"clear it with `{clear_command(self.client.link_spec if self.client is not None else 'SPEC')}`"
@@ -758,16 +710,18 @@ class RobotSession:
         return None
 
     def _turn_result(self, start: _TurnStart, result: RunResult, link_error: BaseException | None = None) -> TurnResult:
-        events, self._turn_events = self._turn_events, []
-        by, self._interrupted_by = self._interrupted_by, None
+        events, by = self.events.end_turn()
         for ev in events:  # what the next request hears about, like any observation
             result.observations.append(Observation("info", f"event: {ev}", None, ev.board_time_s))
         turn = TurnResult(result, [], None, start.out, start.token_times, start.board_t0,  # type: ignore[arg-type]
                           executed_text=result.executed_text, received_text="".join(c for _, c in start.token_times),
                           events=events, interrupted_by=by if result.interrupted else None)
-        turn.calls = _board_calls(result, self._runtime)
+        turn.calls = board_calls(result, self._runtime)
         captures = self._runtime.captures[start.n_captures:] if self._runtime is not None else []
-        turn.summary = self._summary(turn, start.label, start.base_start, start.tilt_from, captures, link_error)
+        view = TurnView(start.label, result, turn.calls, start.board_t0, start.base_start, start.tilt_from, captures,
+                        events, turn.interrupted_by)
+        turn.summary = self.summaries.summary(view, streamer=self.runtime.streamer, client=self.client, stop=self.stop,
+                                              timing=self.timing(), link_error=link_error)
         return turn
 
     def ended_turn(self, error: BaseException, label: str | None = None, out: Path | None = None) -> TurnResult | None:
@@ -813,25 +767,7 @@ class RobotSession:
 
     def _bare_turn(self, error: BaseException, label: str, out: Path) -> TurnResult:
         """The report of a session whose link failed before the runtime existed (while connecting)."""
-        client = self.client
-        stats = client.stats if client is not None else None
-        host_detected = {"decode_errors": stats.decode_errors if stats else None,
-                         "frame_nacks": stats.frame_nacks if stats else None,
-                         "request_retries": stats.retries if stats else None,
-                         "seq_gaps": stats.seq_gaps if stats else None, "link_lost": str(error)}
-        stopped = isinstance(error, Interrupted)
-        summary = artefacts.Summary(
-            task=label, outcome="interrupted" if stopped else "link_lost", fell=None, base_start=None,
-            base_end=None, max_tilt_deg=None, first_action_latency_ms=None, outcomes=artefacts.count_outcomes([]),
-            extra={"clock": self._clock_mode(), "robot": self.robot.name,
-                   "robot_folder": str(self.robot.root),
-                   "vocabulary": self.vocabulary,
-                   "mode": self.opts.mode, "error": None,
-                   **(_stopped_extra(error) if isinstance(error, Interrupted) else {"link_error": str(error)}),
-                   "observations": [],
-                   "link": {}, "captures": [], "scene": self.scene_report(),
-                   **({"faults": {"host_detected": host_detected}} if self.opts.faults and not stopped else {})})
-        return TurnResult(RunResult(Timeline(), [], 0.0), [], summary, out)
+        return TurnResult(RunResult(Timeline(), [], 0.0), [], self.summaries.bare(error, label, self.client), out)
 
     async def _interrupt_at(self, at_s: float) -> None:
         try:
@@ -852,8 +788,8 @@ class RobotSession:
         tl = self.shell.timeline
         running = {} if tl is None else {r.channel or "-": f"{r.function}{r.args}" for r in tl
                                          if r.start is not None and r.end is None}
-        return {"board_time_s": round(runtime.board_now_s(), 3), "base": _pose(b), "tilt_deg": round(tilt, 2),
-                "fell": _fell(self.robot, tilt, b[1][2] if b else None, self.rec.base_z0), "running": running, "busy": self.shell.running,
+        return {"board_time_s": round(runtime.board_now_s(), 3), "base": pose(b), "tilt_deg": round(tilt, 2),
+                "fell": fell(self.robot, tilt, b[1][2] if b else None, self.rec.base_z0), "running": running, "busy": self.shell.running,
                 "skills": [s.name for s in self.shell.skills.list()], "scene": self.scene_report()}
 
     async def capture(self) -> Path:
@@ -875,72 +811,6 @@ class RobotSession:
         return self.shell.prompt(format=format)
 
     # -- artefacts -------------------------------------------------------------------------------
-    def _summary(self, turn: TurnResult, label: str, base_start: Any, tilt_from: int,
-                 captures: list[Path], link_error: BaseException | None = None) -> artefacts.Summary:
-        opts, rec, result, calls = self.opts, self.rec, turn.result, turn.calls
-        cut_short = link_error is not None
-        base = list(rec.base)[tilt_from:] if tilt_from < len(rec.base) else list(rec.base)[-1:]
-        max_tilt = max((artefacts.tilt_deg(b[2]) for b in base), default=0.0)
-        b0 = base_start or (base[0] if base else None)
-        b1 = base[-1] if base else None
-        starts = [c.start for c in calls if c.start is not None and c.function not in ("wait", "async")]
-        first = (min(starts) - turn.board_t0) * 1000 if starts else None
-        counts = artefacts.count_outcomes(calls)
-        streamer = self.runtime.streamer
-        board_fault = streamer.failure if streamer.failure is not link_error else None
-        failed = counts.get("failed", 0) or result.error is not None or result.save_failures or board_fault is not None
-        outcome = "failed" if board_fault is not None else ("interrupted" if result.interrupted else
-                                                            ("failed" if failed else "done"))
-        stopped: dict[str, Any] = {}
-        if isinstance(link_error, Interrupted):  # a signal cancelled the work at once: not a link error
-            outcome, stopped, link_error = "interrupted", _stopped_extra(link_error), None
-        elif link_error is not None:
-            outcome = "link_lost"
-        elif self.stop is not None and board_fault is None:
-            outcome, stopped = self.stop.outcome, {"stopped": self.stop.as_dict()}
-        fell = _fell(self.robot, max_tilt, min((b[1][2] for b in base), default=None), rec.base_z0)
-        client = self.client
-        tel = client.latest_telemetry if client is not None else None
-        # frames_sent: the SERVO_FRAMEs the link wrote by the turn's end (the host frame log's count then; a
-        # realtime streamer holds the pose until the link closes, so the log may end a few frames later),
-        # not the streamer's grid frames
-        stats = {"frames_sent": client.stats.servo_frames_sent if client else streamer.frames_sent, "frames_skipped": streamer.frames_skipped, "late": tel.late_count if tel else None,
-                 "dropped": tel.dropped_count if tel else None,
-                 "frame_nacks": client.stats.frame_nacks if client else None,
-                 "decode_errors": client.stats.decode_errors if client else None,
-                 "retries": client.stats.retries if client else None,
-                 "seq_gaps": client.stats.seq_gaps if client else None,
-                 "watchdog_holds": client.fanout.watchdog_holds if client else None,
-                 **({"last_decode_error": client.stats.last_decode_error}
-                    if client and client.stats.last_decode_error else {})}
-        end_t = rec.t[-1] if rec.t else turn.board_t0
-        if cut_short and tel is not None:  # a stop at once, a loss: the board time the link received, which the
-            end_t = max(end_t, tel.board_time_us * 1e-6)  # pump may not have handled yet
-        host_detected: dict[str, Any] = {"decode_errors": stats["decode_errors"], "frame_nacks": stats["frame_nacks"],
-                                         "request_retries": stats["retries"], "seq_gaps": stats["seq_gaps"]}
-        if link_error is not None:
-            host_detected["link_lost"] = str(link_error)
-            host_detected["last_report_board_s"] = rec.t[-1] if rec.t else None
-        return artefacts.Summary(
-            task=label, outcome=outcome, fell=fell if base else None, base_start=_pose(b0), base_end=_pose(b1),
-            max_tilt_deg=round(max_tilt, 2) if base else None, first_action_latency_ms=None if first is None else round(first, 1),
-            outcomes=counts, duration_s=round(end_t - turn.board_t0, 3),
-            final_joints_deg=artefacts.joint_angles_deg(self.robot.servos.names, tel.positions if tel is not None
-                                                        else (rec.q[-1] if rec.q else None)),
-            extra={"clock": self._clock_mode(), "robot": self.robot.name, "robot_folder": str(self.robot.root),
-                   "vocabulary": self.vocabulary,
-                   "mode": opts.mode, "error": None if result.error is None else str(result.error),
-                   **({"link_error": str(link_error)} if link_error is not None else {}),
-                   **stopped,
-                   **({"board_fault": str(board_fault)} if board_fault is not None else {}),
-                   "observations": [str(o) for o in result.observations], "link": stats,
-                   # SIM_STATE reports the base pose and tilt came from (0: both are unknown, not zero)
-                   "base_reports": len(base),
-                   "events": [str(e) for e in turn.events],
-                   **({"interrupted_by": str(turn.interrupted_by)} if turn.interrupted_by is not None else {}),
-                   "captures": [p.name for p in captures], "scene": self.scene_report(),
-                   "timing": self.timing(),
-                   **({"faults": {"host_detected": host_detected}} if opts.faults else {})})
 
     def timing(self) -> dict[str, Any]:
         """The turn's timing health (``summary.json``'s ``extra.timing``): ``lag`` (the event loop's
@@ -1004,21 +874,6 @@ def _targets_at(history: Any) -> Callable[[int], Any]:
     return targets
 
 
-def _stopped_extra(error: Interrupted) -> dict[str, Any]:
-    return {"stopped": error.stopped_extra()}
-
-
-def _pose(b: Any) -> list[float] | None:
-    """A ground-truth report's base pose as ``[x m, y m, yaw deg]``; None without a report."""
-    return [round(b[1][0], 4), round(b[1][1], 4), round(artefacts.yaw_deg(b[2]), 2)] if b else None
-
-
-def _fell(robot: Robot, tilt: float, z: float | None, z0: float | None) -> bool:
-    """Whether ``robot`` fell (:func:`host.run.events.has_fallen`): only a floating base can (a fixed one
-    stays where its MJCF puts it)."""
-    return robot.base.floating and has_fallen(tilt, z, z0)
-
-
 async def _one(text: str) -> AsyncIterator[str]:
     yield text
 
@@ -1035,18 +890,6 @@ def _cut_result(result: RunResult | None, t0: float, grace_s: float) -> RunResul
                                   f"{'running' if r.start is not None else 'queued'}")
     result.interrupted = True
     return result
-
-
-def _board_calls(result: RunResult, runtime: RobotRuntime | None) -> list[artefacts.BoardCall]:
-    calls = []
-    board_times = runtime.board_times if runtime is not None else {}
-    for r in result.timeline:
-        measured = board_times.get(r.path, [None, None])
-        start = measured[0] if measured[0] is not None else (None if r.start is None else result.t0 + r.start)
-        end = measured[1] if measured[1] is not None else (None if r.end is None else result.t0 + r.end)
-        calls.append(artefacts.BoardCall(r.function, r.channel, dict(r.args), r.path, start, end, r.outcome,
-                                         r.error, r.persistent, r.ended_by))
-    return calls
 
 
 __all__ = ["RobotSession", "SessionOptions", "TurnResult"]
