@@ -9,23 +9,28 @@ script (frames anywhere in the wire's range, ESTOP, ESTOP_CLEAR), then one op pe
 (well-formed answers with fuzzed data and error bytes, corrupted ones, raw garbage, silence); layout and
 invariants in firmware_sim/c/tests/fuzz_c_bus.c (no memory error or UB, every goal sent inside its servo's
 step range, commands inside the joint ranges, torque only from a known position, ESTOP holds).
-:func:`load` runs one input through the binary (the replay tests).
+:func:`load` runs one input through the binary, :func:`replay` a whole corpus in one process (the replay tests).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from firmware_sim.cfirmware import libfuzzer
 
-__all__ = ["binary", "load"]
+__all__ = ["binary", "load", "replay"]
 
 KIND = "fuzz-c-bus"
 
 
 def binary() -> Path:
     return libfuzzer.binary(KIND)
+
+
+def replay(paths: Sequence[Path]) -> None:
+    """Every input in ``paths`` through the binary, one process for all (the corpus replay test)."""
+    libfuzzer.replay_files(KIND, "c-bus", paths)
 
 
 def load(instrument: bool = False) -> Callable[[bytes], None]:

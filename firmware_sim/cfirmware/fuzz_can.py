@@ -8,17 +8,17 @@ one) after an options byte (CAN FD link; how many writes in a row the bus refuse
 record that sends a fuzzed payload as the host would (its fixed frames or an ISO-TP unit), so inputs get past the
 CRCs to the board core. Invariants: no memory error or UB, commands and goals inside the servo table's ranges,
 ESTOP holds, every queue within its size, every frame the board sends a well-formed one of its own identifiers.
-:func:`load` runs one input through the binary (the replay tests).
+:func:`load` runs one input through the binary, :func:`replay` a whole corpus in one process (the replay tests).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from firmware_sim.cfirmware import libfuzzer
 
-__all__ = ["KIND", "binary", "load"]
+__all__ = ["KIND", "binary", "load", "replay"]
 
 KIND = "fuzz-c-can"
 
@@ -26,6 +26,11 @@ KIND = "fuzz-c-can"
 def binary() -> Path:
     """The target's executable (built on first use)."""
     return libfuzzer.binary(KIND)
+
+
+def replay(paths: Sequence[Path]) -> None:
+    """Every input in ``paths`` through the binary, one process for all (the corpus replay test)."""
+    libfuzzer.replay_files(KIND, "c-can", paths)
 
 
 def load(instrument: bool = False) -> Callable[[bytes], None]:

@@ -53,6 +53,7 @@ __all__ = ["configure", "main", "minimise", "run_shares", "run_target", "seed_di
 
 SEEDS_ROOT = Path(__file__).resolve().parents[2] / "tests" / "fuzz"
 DEFAULT_RSS_LIMIT_MB = 1024
+INTERRUPT_WAIT_S = 30.0  # after Ctrl-C, how long the libFuzzer processes get to print their final stats
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -128,7 +129,8 @@ def run_target(
     whose ``-runs`` sum to ``runs`` (module docstring), each logged to ``out/fuzz-jobK.log`` too.
     ``echo``: print libFuzzer's progress lines (True: ``print``; or a function taking each line);
     ``on_stats``: called with the totals so far after each progress line or crash.
-    Raises ``ValueError`` when neither ``seconds`` nor ``runs`` is given.
+    Ctrl-C (SIGINT): each process is asked to stop (libFuzzer prints its exact count), the stats say
+    ``interrupted`` and the exit code is 130. Raises ``ValueError`` when neither ``seconds`` nor ``runs`` is given.
     """
     if seconds is None and runs is None:
         raise ValueError("give seconds or runs")
@@ -148,8 +150,10 @@ def run_target(
         cmds = [base + [f"-runs={n}"] for n in run_shares(runs, jobs)]
     say = echo if callable(echo) else (lambda text: print(text, flush=True)) if echo else None
     many = len(cmds) > 1
-    procs = [subprocess.Popen(c, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace")
-             for c in cmds]
+    # each in its own process group: a terminal's Ctrl-C reaches only this process, which stops them with
+    # SIGTERM (libFuzzer then prints its final stats; atheris turns a SIGINT into a bare KeyboardInterrupt)
+    procs = [subprocess.Popen(c, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace",
+                              process_group=0) for c in cmds]
     lines: list[list[str]] = [[] for _ in procs]
     so_far = [FuzzStats() for _ in procs]
     found: queue.Queue[tuple[int, str | None]] = queue.Queue()
@@ -166,14 +170,21 @@ def run_target(
         r.start()
     rcs: list[int | None] = [None] * len(procs)
     open_streams = len(procs)
+    interrupted = False
     with open(out / "fuzz.log", "w", encoding="utf-8") as log:
-        try:
+
+        def pump(deadline: float | None) -> None:
+            """Log, echo and count lines until every process has ended (or ``deadline``, monotonic s)."""
+            nonlocal open_streams
             while open_streams:
-                k, line = found.get()
+                try:
+                    k, line = found.get(timeout=None if deadline is None else max(0.0, deadline - time.monotonic()))
+                except queue.Empty:
+                    return
                 if line is None:
                     open_streams -= 1
                     rcs[k] = procs[k].wait()
-                    if rcs[k] and many:  # a crash (or any failure) in one process ends the run
+                    if rcs[k] and many and not interrupted:  # a crash (or any failure) in one process ends the run
                         for other in procs:
                             if other.poll() is None:
                                 other.terminate()
@@ -191,8 +202,18 @@ def run_target(
                         mine.corpus, mine.coverage = now.corpus, now.coverage
                     mine.crashes += now.crashes
                     on_stats(_combine(so_far))
+
+        try:
+            try:
+                pump(None)
+            except KeyboardInterrupt:  # Ctrl-C or SIGINT: every process prints its final stats and stops
+                interrupted = True
+                for proc in procs:
+                    if proc.poll() is None:
+                        proc.terminate()
+                pump(time.monotonic() + INTERRUPT_WAIT_S)
         finally:
-            for proc in procs:  # Ctrl-C, or an exception here: no libFuzzer process is left behind
+            for proc in procs:  # a second Ctrl-C, or an exception here: no libFuzzer process is left behind
                 if proc.poll() is None:
                     proc.terminate()
                     proc.wait()
@@ -204,9 +225,12 @@ def run_target(
     crashed = next((k for k, rc in enumerate(rcs) if rc and (per_job[k].crashes or per_job[k].traceback)), None)
     rc = next((rc for rc in rcs if rc), 0) if crashed is None else rcs[crashed] or 0
     for k, st in enumerate(per_job):
-        if rcs[k] and not st.crashes and not st.traceback and crashed is None:
+        if rcs[k] and not st.crashes and not st.traceback and crashed is None and not interrupted:
             st.traceback = "".join(lines[k][-30:])
-    return rc, _combine(per_job)
+    total = _combine(per_job)
+    if interrupted and crashed is None:
+        total.interrupted, rc = True, 130
+    return rc, total
 
 
 def minimise(target: str, extra: list[Path], work: Path) -> tuple[int, int, FuzzStats]:
@@ -297,6 +321,10 @@ def main(args: argparse.Namespace) -> int:
     print(f"{args.target}: {st.summary()}")
     print(f"{args.target}: {st.executions} inputs run in all, {args.jobs} job(s), {wall:.0f} s wall "
           f"({st.executions / wall if wall > 0 else 0:.0f} exec/s)")
+    if st.interrupted:
+        print(f"{args.target}: interrupted after {st.executions} inputs"
+              + (f" of {args.runs}" if args.runs else "") + f", no crash; full log {out / 'fuzz.log'}")
+        return 130
     if st.crashes or rc:
         if st.traceback:
             print(st.traceback)

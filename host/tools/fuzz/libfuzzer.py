@@ -3,7 +3,9 @@
 libFuzzer reports progress lines such as ``#106452 DONE cov: 45 ft: 187 corp: 60/5029b ... exec/s:
 5069 rss: 47Mb``, in ``-fork`` mode ``#17533: cov: 246 ft: 262 corp: 79 exec/s 762 ...``, then
 ``Done N runs in S second(s)``; a crash prints ``Test unit written to PATH`` (and atheris the Python
-traceback before it); ``-print_final_stats=1`` adds ``stat::peak_rss_mb: N``. The ``rss:`` of the first
+traceback before it); ``-print_final_stats=1`` adds ``stat::number_of_executed_units: N`` (the exact
+count, printed also when SIGINT/SIGTERM stops the run: ``libFuzzer: run interrupted``, exit 72),
+``stat::average_exec_per_sec: N`` and ``stat::peak_rss_mb: N``. The ``rss:`` of the first
 and last progress line and the peak give the process's resident memory over the run (single-process
 runs only: ``-fork`` progress lines carry no RSS). Formats: https://llvm.org/docs/LibFuzzer.html#output
 """
@@ -19,6 +21,8 @@ _PROGRESS = re.compile(r"^#(\d+):?\s+(?:\w+\s+)?cov: (\d+) ft: (\d+) corp: (\d+)
 _DONE = re.compile(r"^Done (\d+) runs in (\d+) second")
 _RSS = re.compile(r"^#\d+.*\srss: (\d+)Mb")
 _PEAK_RSS = re.compile(r"^stat::peak_rss_mb:\s*(\d+)")
+_UNITS = re.compile(r"^stat::number_of_executed_units:\s*(\d+)")
+_AVG_RATE = re.compile(r"^stat::average_exec_per_sec:\s*(\d+)")
 
 
 @dataclass
@@ -36,6 +40,7 @@ class FuzzStats:
     peak_rss_mb: int | None = None  # libFuzzer's final stats (or the largest rss seen)
     crashes: list[str] = field(default_factory=list)  # saved inputs
     traceback: str = ""  # the uncaught exception atheris printed, if any
+    interrupted: bool = False  # libFuzzer stopped by SIGINT/SIGTERM ("run interrupted"), not by a crash
 
     def summary(self) -> str:
         rate = self.exec_per_s if self.exec_per_s else (self.executions // self.seconds if self.seconds else 0)
@@ -66,6 +71,16 @@ def parse_output(text: str) -> FuzzStats:
         if m:
             st.peak_rss_mb = int(m[1])
             continue
+        m = _UNITS.match(line)  # -print_final_stats=1: the exact count, also after an interrupt
+        if m:
+            st.executions = max(st.executions, int(m[1]))
+            continue
+        m = _AVG_RATE.match(line)
+        if m:  # a -fork parent runs no inputs itself: its 0 is not the run's rate
+            st.exec_per_s = int(m[1]) or st.exec_per_s
+            continue
+        if "libFuzzer: run interrupted" in line:
+            st.interrupted = True
         m = _PROGRESS.match(line)
         if m:
             st.executions = max(st.executions, int(m[1]))
