@@ -25,6 +25,7 @@ process's cProfile stats, timed by CPU time).
 from __future__ import annotations
 
 import argparse
+import cProfile
 import os
 import select
 import signal
@@ -33,6 +34,7 @@ import sys
 import time
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import serial
 
@@ -42,19 +44,66 @@ sys.path.insert(0, str(ROOT))
 from firmware_sim.board import Board  # noqa: E402
 from firmware_sim.config import BoardConfig  # noqa: E402
 from host.commands.inputs import positive_seconds  # noqa: E402
-from protocol.codec import SCHEMA_HASH  # noqa: E402
+from protocol.codec import SCHEMA_HASH, schema_for  # noqa: E402
 from protocol.framing import Frame, FrameDecoder, encode_frame  # noqa: E402
-from protocol.messages import PROTOCOL_VERSION, Heartbeat, Hello, Telemetry, TimeSyncReply, TimeSyncRequest  # noqa: E402
+from protocol.messages import (PROTOCOL_VERSION, Heartbeat, Hello, ServoFrame, Telemetry, TimeSyncReply,  # noqa: E402
+                               TimeSyncRequest)
 
 
-def bench_lockstep(robot: str, sim_seconds: float = 30.0) -> None:
+def bench_lockstep(robot: str, sim_seconds: float = 10.0, rounds: int = 3, profile: str | None = None) -> None:
+    """The three lockstep rates on the same moving stream, interleaved round by round (bare, core, pty,
+    bare, ...; on a shared machine a load change hits all three alike), and the ratios per round and
+    their median: the part of bare MuJoCo the board core and the whole pty path keep."""
+    rows: list[tuple[float, float, float]] = []
+    for r in range(rounds):
+        bare = lockstep_bare(robot, sim_seconds)
+        core = lockstep_core(robot, sim_seconds, verbose=r == 0)
+        pty = lockstep_pty(robot, sim_seconds, profile=profile if r == 0 else None, verbose=r == 0)
+        rows.append((bare, core, pty))
+        print(f"  round {r + 1}: bare mj_step {bare:,.0f} ticks/s ({bare * 0.002:.1f}x), core {core:,.0f} "
+              f"({core * 0.002:.1f}x), pty {pty:,.0f} ({pty * 0.002:.1f}x); core/bare {core / bare:.3f}, "
+              f"pty/bare {pty / bare:.3f}, pty/core {pty / core:.3f}")
+    med = [sorted(col)[len(col) // 2] for col in zip(*rows)]
+    ratios = [sorted(x[i] / x[j] for x in rows)[len(rows) // 2] for i, j in ((1, 0), (2, 0), (2, 1))]
+    print(f"lockstep rates ({robot}, {sim_seconds:g} s simulated per run, median of n = {rounds} interleaved rounds): "
+          f"bare mj_step {med[0]:,.0f} ticks/s ({med[0] * 0.002:.1f}x real time), board core {med[1]:,.0f} "
+          f"({med[1] * 0.002:.1f}x), pty path {med[2]:,.0f} ({med[2] * 0.002:.1f}x); "
+          f"core/bare {ratios[0]:.3f}, pty/bare {ratios[1]:.3f}, pty/core {ratios[2]:.3f}")
+
+
+def _stream(b: Board, sim_seconds: float) -> list[ServoFrame]:
+    """The moving stream for ``sim_seconds``: one frame every 20 ms (50 Hz), every servo."""
+    return [ServoFrame(k * 20_000, b.table.all_mask, _stream_targets(b, k)) for k in range(1, int(sim_seconds * 50) + 1)]
+
+
+def lockstep_bare(robot: str, sim_seconds: float = 10.0) -> float:
+    """Ticks/s of bare MuJoCo on the stream: the board's model and start state in a fresh ``MjData``, each
+    frame's targets written into ``ctrl`` at its time and ``mj_step`` run for its 10 ticks (substeps
+    included) in one call; no board, no servo model, no interpolation, no reports: the floor."""
+    b = Board(BoardConfig(lockstep=True, robot=robot))
+    stream = _stream(b, sim_seconds)
+    m, d = b.model, mujoco.MjData(b.model)
+    for name in ("qpos", "qvel", "act", "ctrl", "qacc_warmstart"):
+        getattr(d, name)[:] = getattr(b.data, name)
+    d.time = b.data.time
+    mujoco.mj_forward(m, d)
+    act = np.asarray(b.cm.act_id)
+    per_frame = 10 * b.cfg.substeps  # 20 ms of 2 ms ticks
+    ticks = 10 * len(stream)
+    t0 = time.perf_counter()
+    for f in stream:
+        d.ctrl[act] = f.targets
+        mujoco.mj_step(m, d, nstep=per_frame)
+    return ticks / (time.perf_counter() - t0)
+
+
+def lockstep_core(robot: str, sim_seconds: float = 10.0, verbose: bool = True) -> float:
+    """Ticks/s of the board core (handle + :meth:`Board.run`, as the lockstep server calls them) on the stream."""
     b = Board(BoardConfig(lockstep=True, robot=robot))
     b.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 0), 0)
-    from protocol.messages import ServoFrame
-
     # a moving stream (every servo) at 50 Hz, fed 1 s ahead, so buffer and interpolation are exercised
-    n_frames = int(sim_seconds * 50)
-    frames = [ServoFrame(k * 20_000, b.table.all_mask, _stream_targets(b, k)) for k in range(1, n_frames + 1)]
+    frames = _stream(b, sim_seconds)
+    n_frames = len(frames)
     t0, c0 = time.perf_counter(), time.process_time()
     for k, frame in enumerate(frames, 1):
         b.handle(frame, k)
@@ -63,14 +112,14 @@ def bench_lockstep(robot: str, sim_seconds: float = 30.0) -> None:
                 b.run(256)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     n = b.ticks
-    kernel = "native (C)" if b.native is not None else "python"
-    print(f"lockstep core ({robot}, {b.n} servos, scene {b.scene}), {kernel} kernel, n = 1 run: {n} ticks in {wall:.2f} s = {n / wall:,.0f} ticks/s, real-time factor {n * 0.002 / wall:.1f}x"
-          f" (CPU time {cpu:.2f} s = {n / cpu:,.0f} ticks/s, {n * 0.002 / cpu:.1f}x: what a busy machine hides)")
+    if verbose:
+        kernel = "native (C)" if b.native is not None else "python"
+        print(f"lockstep core ({robot}, {b.n} servos, scene {b.scene}), {kernel} kernel, n = 1 run: {n} ticks in {wall:.2f} s = {n / wall:,.0f} ticks/s, real-time factor {n * 0.002 / wall:.1f}x"
+              f" (CPU time {cpu:.2f} s = {n / cpu:,.0f} ticks/s, {n * 0.002 / cpu:.1f}x: what a busy machine hides)")
+    return n / wall
 
 
 def bench_kernels_ab(robot: str, rounds: int = 7, frames: int = 500) -> None:
-    from protocol.messages import ServoFrame
-
     per_tick: dict[str, list[float]] = {"python": [], "native": []}
     for _ in range(rounds):
         for kernel, got in per_tick.items():
@@ -101,34 +150,58 @@ def _stream_targets(b: Board, k: int) -> tuple[float, ...]:
     return tuple(np.clip(q, b.table.mins, b.table.maxs).tolist())  # floats, as the codec decodes them
 
 
-def bench_lockstep_pty(robot: str, sim_seconds: float = 30.0, profile: str | None = None) -> None:
-    from protocol.messages import ServoFrame
-
+def lockstep_pty(robot: str, sim_seconds: float = 10.0, profile: str | None = None, verbose: bool = True,
+                 host_profile: str | None = None) -> float:
+    """Ticks/s of the whole lockstep path: a ``--lockstep`` board process on a pty fed 1 s of frames
+    ahead by this process (host encode -> pty -> board -> TELEMETRY and SIM_STATE -> host decode; the
+    frames' targets are made before the clock starts, their encoding is timed). The host writes each
+    batch of frames in one ``write`` and reads in 64 KiB chunks; it decodes every report."""
     proc, port = _start_board("--lockstep", "--robot", robot,
                               head=("-c", _CPU_PROFILE, profile) if profile else ("-m", "firmware_sim"))
     ref = Board(BoardConfig(lockstep=True, kernel="python", robot=robot))
-    end_us, board_us, tel, k = int(sim_seconds * 1e6), 0, 0, 0
+    schema = schema_for(ref.n)
+    stream = _stream(ref, sim_seconds)
+    end_us, board_us, tel, k = len(stream) * 20_000, 0, 0, 0
+    prof = cProfile.Profile(time.process_time) if host_profile else None
     try:
         with serial.Serial(port, 115200, timeout=0) as ser:
-            dec = FrameDecoder()
-            t0, cpu0 = time.perf_counter(), _cpu_s(proc.pid)
+            fd = ser.fileno()
+            dec = FrameDecoder(schema=schema)
+            t0, cpu0, hcpu0 = time.perf_counter(), _cpu_s(proc.pid), time.process_time()
+            if prof is not None:
+                prof.enable()
             ser.write(encode_frame(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 0), 0))
             while board_us < end_us - 20_000:
-                while k * 20_000 < min(board_us + 1_000_000, end_us):  # keep 1 s of frames ahead
+                batch = []
+                while k < len(stream) and (k + 1) * 20_000 < board_us + 1_000_000:  # keep 1 s of frames ahead
                     k += 1
-                    ser.write(encode_frame(ServoFrame(k * 20_000, ref.table.all_mask, _stream_targets(ref, k)), k))
-                select.select([ser.fileno()], [], [], 1.0)
-                for f in dec.feed(ser.read(65536)):
+                    batch.append(encode_frame(stream[k - 1], k, schema))
+                if batch:
+                    ser.write(b"".join(batch))
+                select.select([fd], [], [], 1.0)
+                try:
+                    data = os.read(fd, 65536)
+                except BlockingIOError:
+                    continue
+                for f in dec.feed(data):
                     if isinstance(f, Frame) and isinstance(f.msg, Telemetry):
                         tel += 1
                         board_us = max(board_us, f.msg.board_time_us)
-            wall, cpu = time.perf_counter() - t0, _cpu_s(proc.pid) - cpu0
+            if prof is not None:
+                prof.disable()
+            wall, cpu, hcpu = time.perf_counter() - t0, _cpu_s(proc.pid) - cpu0, time.process_time() - hcpu0
     finally:
         proc.send_signal(signal.SIGTERM)
         proc.communicate(timeout=60)
-    print(f"lockstep over pty ({robot}), n = 1 run: {board_us / 1e6:.1f} s simulated in {wall:.2f} s wall = {board_us / 1e6 / wall:.1f}x"
-          f" real time ({tel} TELEMETRY read; board process CPU time {cpu:.2f} s = {board_us / 1e6 / cpu:.1f}x)"
-          f"{'; profile in ' + profile if profile else ''}")
+    if prof is not None and host_profile:
+        prof.dump_stats(host_profile)
+    ticks = board_us // 2000
+    if verbose:
+        print(f"lockstep over pty ({robot}), n = 1 run: {board_us / 1e6:.1f} s simulated in {wall:.2f} s wall = {board_us / 1e6 / wall:.1f}x"
+              f" real time ({tel} TELEMETRY read; CPU per 20 ms of board time: board process {cpu / tel * 1e6:.0f} us, "
+              f"host {hcpu / tel * 1e6:.0f} us)"
+              f"{'; board profile in ' + profile if profile else ''}{'; host profile in ' + host_profile if host_profile else ''}")
+    return ticks / wall
 
 
 def _cpu_s(pid: int) -> float:
@@ -208,14 +281,21 @@ def main() -> None:
     parts = ap.add_mutually_exclusive_group()
     parts.add_argument("--lockstep-only", action="store_true", help="skip the realtime pacing and round-trip parts")
     parts.add_argument("--realtime-only", action="store_true", help="only the realtime pacing and round-trip parts")
-    ap.add_argument("--profile", metavar="FILE", help="cProfile stats of the pty lockstep board process")
+    ap.add_argument("--profile", metavar="FILE", help="cProfile stats of the pty lockstep board process (first round)")
+    ap.add_argument("--host-profile", metavar="FILE", help="cProfile stats of the pty lockstep host side (one extra run)")
+    ap.add_argument("--rounds", type=int, default=3, help="interleaved rounds of the three lockstep rates (default 3)")
+    ap.add_argument("--sim-seconds", type=positive_seconds, default=10.0,
+                    help="simulated seconds of each lockstep run (default 10)")
     ap.add_argument("--robot", default=DEFAULT_ROBOT, help=f"whose board runs (default {DEFAULT_ROBOT})")
     args = ap.parse_args()
     if args.realtime_only and args.profile:
         ap.error("--profile profiles the lockstep pty board: not with --realtime-only")
     if not args.realtime_only:
-        bench_lockstep(args.robot)
-        bench_lockstep_pty(args.robot, profile=args.profile)
+        if args.rounds < 1:
+            ap.error("--rounds must be at least 1")
+        bench_lockstep(args.robot, args.sim_seconds, args.rounds, profile=args.profile)
+        if args.host_profile:
+            lockstep_pty(args.robot, args.sim_seconds, host_profile=args.host_profile)
         bench_kernels_ab(args.robot)
     if not args.lockstep_only:
         bench_realtime(args.robot, args.seconds)
