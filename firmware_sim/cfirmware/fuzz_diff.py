@@ -78,5 +78,7 @@ def load(instrument: bool = False) -> Callable[[bytes], None]:
 if __name__ == "__main__":
     import atheris  # type: ignore[import-not-found,unused-ignore]
 
-    atheris.Setup(sys.argv, load(True))
+    # argv[0] as a command line: libFuzzer's -fork, -jobs and -merge modes re-run it through the shell
+    # (the module's .py path is not executable: -merge=1 merged nothing)
+    atheris.Setup([f"{sys.executable} -m firmware_sim.cfirmware.fuzz_diff", *sys.argv[1:]], load(True))
     atheris.Fuzz()

@@ -238,7 +238,8 @@ def minimise(target: str, extra: list[Path], work: Path) -> tuple[int, int, Fuzz
     the same coverage features and make it the checked-in corpus (files ``min-<sha1>``, the SHA-1 of
     the input as libFuzzer names it). Returns (inputs before: checked-in + extra, inputs after, the
     coverage of the result from a ``-runs=0`` replay). ``work`` holds the merge's scratch and its log
-    (``merge.log``, ``replay.log``). Raises ``RuntimeError`` (with the log's tail) if libFuzzer fails.
+    (``merge.log``, ``replay.log``). Raises ``RuntimeError`` (with the log's tail) if libFuzzer fails or
+    keeps no input of a non-empty set (the checked-in corpus is then left as it was).
     """
     t = TARGETS[target]
     checked_in = SEEDS_ROOT / target / "corpus"
@@ -259,6 +260,8 @@ def minimise(target: str, extra: list[Path], work: Path) -> tuple[int, int, Fuzz
             raise RuntimeError(f"libFuzzer {step} failed (exit {proc.returncode}): {(proc.stdout + proc.stderr)[-2000:]}")
     stats = parse_output(proc.stdout + proc.stderr)
     kept = sorted(p for p in merged.iterdir() if p.is_file())
+    if before and not kept:  # e.g. the merge's inner process could not start: keep the corpus as it was
+        raise RuntimeError(f"libFuzzer merge kept none of {before} inputs; see {work / 'merge.log'}")
     if checked_in.is_dir():
         shutil.rmtree(checked_in)
     checked_in.mkdir(parents=True)
