@@ -33,6 +33,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from host.commands.errors import print_error
+from host.commands.inputs import whole_number
 
 __all__ = ["configure", "main"]
 
@@ -69,21 +70,11 @@ def _positive(text: str) -> float:
     return v
 
 
-def _queue_len(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number of frames, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
-    return v
-
-
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ifaces", "--vcan", dest="ifaces", type=_ifaces, default=("vcan0", "vcan1"), metavar="LIST",
                         help="the vcan interfaces to bring up, comma-separated (default vcan0,vcan1)")
     parser.add_argument("--classic", action="store_true", help="classic CAN MTU 16 instead of CAN FD's 72")
-    parser.add_argument("--txqueuelen", type=_queue_len, default=None, metavar="N",
+    parser.add_argument("--txqueuelen", type=whole_number(1), default=None, metavar="N",
                         help="the interfaces' transmit queue length (a real can0 has 10)")
     parser.add_argument("--modules", type=_modules, default=("sch_tbf",), metavar="LIST",
                         help="further kernel modules to load, comma-separated (default sch_tbf: tc's token bucket, "

@@ -2,13 +2,39 @@
 
 from __future__ import annotations
 
+import importlib
 import os
+from dataclasses import dataclass
 from typing import Any
 
 from host.ghost.base import Ghost, GhostError
 
+
+@dataclass(frozen=True)
+class Provider:
+    """One LLM provider a spec names as ``KIND:MODEL``: builds ``<module>.<cls>(model, **kw)``.
+
+    ``example`` is a model name for the error line; ``ignores`` are keywords of the other answerers
+    that this one drops (a command passes its flags through unconditionally). Add a provider with
+    one entry in :data:`PROVIDERS` (its client module holds a :class:`Ghost` subclass)."""
+
+    module: str
+    cls: str
+    example: str
+    ignores: tuple[str, ...] = ()
+
+
+_SCRIPTED_ONLY = ("model", "program", "tokens_per_s", "jitter", "sleep")
+
+#: the LLM providers by spec kind (``scripted`` is built apart: it takes a program, not a model)
+PROVIDERS: dict[str, Provider] = {
+    "openai": Provider("host.ghost.openai_client", "OpenAIGhost", "gpt-4o-mini", _SCRIPTED_ONLY),
+    "anthropic": Provider("host.ghost.anthropic_client", "AnthropicGhost", "claude-sonnet-4-0",
+                          _SCRIPTED_ONLY + ("extra_body",)),
+}
+
 #: the accepted spec forms, for help texts and error messages
-SPECS = ("scripted", "openai:MODEL", "anthropic:MODEL")
+SPECS = ("scripted", *(f"{kind}:MODEL" for kind in PROVIDERS))
 
 
 class UnknownSpecError(GhostError):
@@ -40,22 +66,13 @@ def make_ghost(spec: str, **kw: Any) -> Ghost:
             raise GhostError("the scripted ghost needs a program (e.g. --task N, --xml TEXT or --xml-file F)")
         allowed = {"program", "tokens_per_s", "jitter", "seed", "sleep"}
         return ScriptedGhost(**{k: v for k, v in kw.items() if k in allowed})
-    if kind == "openai":
-        from host.ghost.openai_client import OpenAIGhost
-
+    provider = PROVIDERS.get(kind)
+    if provider is not None:
         model = rest.strip() or kw.pop("model", None) or os.environ.get("GHOSTSHELL_LLM_MODEL")
-        for scripted_only in ("model", "program", "tokens_per_s", "jitter", "sleep"):
-            kw.pop(scripted_only, None)
+        for other in provider.ignores:
+            kw.pop(other, None)
         if not model:
-            raise GhostError(f"ghost spec {spec!r}: no model; use openai:MODEL (e.g. openai:gpt-4o-mini)")
-        return OpenAIGhost(model, **kw)
-    if kind == "anthropic":
-        from host.ghost.anthropic_client import AnthropicGhost
-
-        model = rest.strip() or kw.pop("model", None) or os.environ.get("GHOSTSHELL_LLM_MODEL")
-        for scripted_only in ("model", "program", "tokens_per_s", "jitter", "sleep", "extra_body"):
-            kw.pop(scripted_only, None)
-        if not model:
-            raise GhostError(f"ghost spec {spec!r}: no model; use anthropic:MODEL (e.g. anthropic:claude-sonnet-4-0)")
-        return AnthropicGhost(model, **kw)
+            raise GhostError(f"ghost spec {spec!r}: no model; use {kind}:MODEL (e.g. {kind}:{provider.example})")
+        ghost: Ghost = getattr(importlib.import_module(provider.module), provider.cls)(model, **kw)
+        return ghost
     raise UnknownSpecError(f"unknown LLM spec {spec!r}; expected one of: {', '.join(SPECS)}")
