@@ -167,7 +167,7 @@ def lockstep_pty(robot: str, sim_seconds: float = 10.0, profile: str | None = No
         with serial.Serial(port, 115200, timeout=0) as ser:
             fd = ser.fileno()
             dec = FrameDecoder(schema=schema)
-            t0, cpu0, hcpu0 = time.perf_counter(), _cpu_s(proc.pid), time.process_time()
+            t0, cpu0, hcpu0, threads0 = time.perf_counter(), _cpu_s(proc.pid), time.process_time(), _thread_cpu_s(proc.pid)
             if prof is not None:
                 prof.enable()
             ser.write(encode_frame(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 0), 0))
@@ -190,6 +190,7 @@ def lockstep_pty(robot: str, sim_seconds: float = 10.0, profile: str | None = No
             if prof is not None:
                 prof.disable()
             wall, cpu, hcpu = time.perf_counter() - t0, _cpu_s(proc.pid) - cpu0, time.process_time() - hcpu0
+            threads = {tid: c - threads0.get(tid, 0.0) for tid, c in _thread_cpu_s(proc.pid).items()}
     finally:
         proc.send_signal(signal.SIGTERM)
         proc.communicate(timeout=60)
@@ -199,7 +200,8 @@ def lockstep_pty(robot: str, sim_seconds: float = 10.0, profile: str | None = No
     if verbose:
         print(f"lockstep over pty ({robot}), n = 1 run: {board_us / 1e6:.1f} s simulated in {wall:.2f} s wall = {board_us / 1e6 / wall:.1f}x"
               f" real time ({tel} TELEMETRY read; CPU per 20 ms of board time: board process {cpu / tel * 1e6:.0f} us, "
-              f"host {hcpu / tel * 1e6:.0f} us)"
+              f"host {hcpu / tel * 1e6:.0f} us; of it per board thread, main first: "
+              f"{', '.join(f'{c / tel * 1e6:.0f} us' for c in threads.values())})"
               f"{'; board profile in ' + profile if profile else ''}{'; host profile in ' + host_profile if host_profile else ''}")
     return ticks / wall
 
@@ -208,6 +210,18 @@ def _cpu_s(pid: int) -> float:
     """User + system CPU seconds of process ``pid`` so far (Linux /proc)."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _thread_cpu_s(pid: int) -> dict[int, float]:
+    """User + system CPU seconds of each thread (id) of process ``pid`` so far, the main thread first (Linux /proc)."""
+    out = {}
+    for task in sorted(Path(f"/proc/{pid}/task").iterdir(), key=lambda p: int(p.name)):
+        try:
+            fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        out[int(task.name)] = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return out
 
 
 # the board CLI under cProfile timed by CPU time (on a busy machine wall time is mostly waiting):

@@ -98,6 +98,10 @@ HOST_BOUND: tuple[type[Message], ...] = tuple(MESSAGE_CLASSES[t] for t in sorted
 _Handler = Callable[["Board", Any, int, int], "list[Message]"]
 
 
+#: :meth:`Board.run`: a quiet batch this long or longer runs on the native kernel's thread while the caller's
+#: ``during`` runs (one tick, ~20 us of CoCo physics, does not pay for waking the thread and waiting for it)
+OVERLAP_MIN_TICKS = 3
+
 _CONFIG_KEYS = frozenset(int(k) for k in ConfigKey)
 _CONFIG_BODY = HEADER_SIZE + 5 + CRC_SIZE  # a CONFIG frame: header, key u8 + value i32, CRC
 
@@ -652,7 +656,7 @@ class Board:
             out += [self.telemetry(), self.sim_state()]
         return out
 
-    def run(self, max_ticks: int) -> tuple[int, list[Message]]:
+    def run(self, max_ticks: int, during: Callable[[int], object] | None = None) -> tuple[int, list[Message]]:
         """Lockstep: run up to ``max_ticks`` ticks while :meth:`can_tick`; stop after the first tick
         that returns something or records a watchdog event. Returns (ticks run, that tick's messages).
 
@@ -660,11 +664,19 @@ class Board:
         kernel a run of *quiet* ticks (:meth:`_run_quiet`: the Python around each would only move the
         clock) goes to C in one call (:meth:`firmware_sim.native.NativeTick.run`); any other tick runs
         through :meth:`tick`. A realtime board's pacer calls :meth:`tick` instead.
+
+        ``during(n)`` (the lockstep server's link work: encode and write what is queued, read what came)
+        is called once per batch of ``n`` ticks, before the batch changes anything this board shows
+        (board time, reports); for a quiet batch of :data:`OVERLAP_MIN_TICKS` or more while the C runs
+        it on the kernel's own thread (:meth:`firmware_sim.native.NativeTick.run_during`; a shorter one
+        would not pay for the hand-over). It must not touch the board.
         """
         ran = 0
         while ran < max_ticks and self.can_tick():
-            quiet = self._run_quiet(max_ticks - ran)
+            quiet = self._run_quiet(max_ticks - ran) if during is None else self._run_quiet(max_ticks - ran, during)
             if quiet is None:
+                if during is not None:
+                    during(1)
                 n, out = 1, self.tick()
             else:
                 n, out = quiet
@@ -673,7 +685,7 @@ class Board:
                 return ran, out
         return ran, []
 
-    def _run_quiet(self, limit: int) -> tuple[int, list[Message]] | None:
+    def _run_quiet(self, limit: int, during: Callable[[int], object] | None = None) -> tuple[int, list[Message]] | None:
         """Run the quiet ticks from ``now_us`` on (at most ``limit``, at least 1) in one native call and
         return (how many, the last one's reports); None (nothing run) when the next tick is not quiet.
 
@@ -682,7 +694,7 @@ class Board:
         or camera worker, the native kernel, lockstep and :meth:`can_tick`, and no frame due at it,
         except at the first (applied here, as :meth:`tick` would, before the C runs); a report may be
         due only at the last. :meth:`tick` would do nothing else for it than
-        ``native.tick(t, GS_INTERP)`` and move the clock."""
+        ``native.tick(t, GS_INTERP)`` and move the clock. ``during``: see :meth:`run`."""
         if (self.native is None or not self.cfg.lockstep or self.stream.blending or self._pushes
                 or self.camera_worker is not None or self._estop_rx_us is not None):
             return None
@@ -701,11 +713,32 @@ class Board:
             n = min(n, -((now - first) // dt))
         n = max(1, n)  # tick 0 itself: can_tick held, the watchdog was fed, its frames are applied
         self.stream.refresh_next()
-        clamped = self.native.run(now, n, dt, GS_INTERP)
+        if during is None:
+            clamped = self.native.run(now, n, dt, GS_INTERP)
+        elif n < OVERLAP_MIN_TICKS:
+            during(n)
+            clamped = self.native.run(now, n, dt, GS_INTERP)
+        else:
+            failed: list[BaseException] = []
+
+            def work() -> None:
+                try:
+                    during(n)
+                except BaseException as e:  # raised below, once the ticks that ran meanwhile are counted
+                    failed.append(e)
+
+            clamped = self.native.run_during(now, n, dt, GS_INTERP, work)
+            if failed:
+                self._count_quiet(now, n, clamped)
+                raise failed[0]
+        return self._count_quiet(now, n, clamped)
+
+    def _count_quiet(self, now: int, n: int, clamped: int) -> tuple[int, list[Message]]:
+        """After ``n`` quiet ticks from ``now`` ran in C: move the clock, count clamps, make the reports due."""
         if clamped:
             self._flags_since |= FaultFlags.CLAMPED
             self.clamped_ticks += clamped
-        self.now_us = now + n * dt
+        self.now_us = now + n * self._tick_us
         self.ticks += n
         if self.ticks % self._telemetry_every == 0:
             return n, [self.telemetry(), self.sim_state()]

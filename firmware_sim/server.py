@@ -35,7 +35,7 @@ import time
 from collections import deque
 from typing import IO
 
-from firmware_sim.board import Board, answerable
+from firmware_sim.board import OVERLAP_MIN_TICKS, Board, answerable
 from firmware_sim.clock import RealtimeClock
 from firmware_sim.objects_log import ObjectsLog
 from firmware_sim.transports.base import PERIODIC_REPORTS, BoardTransport
@@ -49,6 +49,7 @@ TELEMETRY_WIRE_BACKLOG_S = 0.02  # with --baud: drop telemetry rather than queue
 LOCKSTEP_BACKLOG = 8 * 1024
 MAX_BACKLOG = 4 * 1024 * 1024
 INBOX_LIMIT = 4096  # lockstep: stop reading (the pty buffers, the host blocks) beyond this
+OUTBOX_HOLD = 8  # lockstep: held reports queued at the latest once this many batches made some (_link_work)
 NO_HOST_S = 1.0  # wall seconds without a valid message after which no host is taken to be listening
 
 
@@ -75,6 +76,10 @@ class BoardServer:
         self.err: IO[str] = sys.stderr if err is None else err
         self.running = True
         self.inbox: deque[Frame | DecodeError] = deque()  # lockstep: decoded, not yet handled
+        #: lockstep: reports made (with the board time they were made at), queued by the next long batch's
+        #: _link_work, before any reply, or before the board waits (see _serve_lockstep)
+        self._outbox: list[tuple[int, list[Message]]] = []
+        self._log_at_us: int | None = None  # frame-log time while _send_outbox queues held reports
         self.clock = RealtimeClock(board.tick_us / 1e6) if not board.cfg.lockstep else None
         if self.clock is not None:
             board._clock_us = self.clock.board_time_us  # fine-grained time for TIME_SYNC
@@ -92,6 +97,8 @@ class BoardServer:
             self.tx_dropped += 1
 
     def send(self, msgs: list[Message]) -> None:
+        if msgs and self._outbox:  # lockstep: reports held back go first, in the order they were made
+            self._send_outbox()
         now = time.monotonic()
         tr = self.transport
         for m in msgs:
@@ -120,6 +127,8 @@ class BoardServer:
     # --- input -----------------------------------------------------------------------------
 
     def _t(self) -> float:
+        if self._log_at_us is not None:
+            return self._log_at_us / 1e6
         return self.board.board_time_us() / 1e6
 
     def _deliver(self, read: bool = False) -> None:
@@ -184,9 +193,12 @@ class BoardServer:
                     self.board.count_unhandled(item.msg, item.seq)
                 else:
                     self.board.on_link_error()  # logged as a bad frame: counted as one, as _process would
+            self._send_outbox()  # made before the stop: queued (and logged) as they would have been
             # a lockstep board renders captures in this thread: free its GL contexts here, the thread
             # that made them (a board served in a thread would otherwise free them from another one)
             self.board.camera.close()
+            if self.board.native is not None:
+                self.board.native.close()  # the kernel's thread (NativeTick.run_during), if one started
 
     def _serve_realtime(self) -> None:
         clock = self.clock
@@ -232,25 +244,26 @@ class BoardServer:
         through :meth:`Board.run` (the ticks up to the next report, the quiet ones in one C call);
         the backlog is checked before each such run, and a run sends at most one tick's reports."""
         while self.running:
-            ran = flushed = 0
+            ran = 0
             while (self.running and self.board.can_tick() and self.backlog < LOCKSTEP_BACKLOG and ran < 256
                    and self._line_has_room()):
-                n, out = self.board.run(256 - ran)  # up to the next tick with reports, several per C call
+                # up to the next tick with reports, several per C call; the link work of the reports before
+                # (encode, write) and of what arrives (read, decode) runs while the C ticks (_link_work)
+                n, out = self.board.run(256 - ran, during=self._link_work)
                 if out:
                     if self.objects_log is not None:
                         self.objects_log.record(out)
-                    self.send(out)
+                    self._outbox.append((self.board.board_time_us(), out))
                 if self.board.watchdog_events:
                     self._report_watchdog()
                 ran += n
-                if ran - flushed >= 16:
-                    self._flush_tx()
-                    flushed = ran
             self._sync_viewer()
             handled = 0
             while self.inbox and not self.board.can_tick() and handled < 256:
-                self._process(self.inbox.popleft())
+                self._process(self.inbox.popleft())  # (its replies go after the held reports: send)
                 handled += 1
+            if not (self.board.can_tick() and self.backlog < LOCKSTEP_BACKLOG and self._line_has_room()):
+                self._send_outbox()  # the board waits now: nothing it made is held back meanwhile
             self._flush_tx()
             blocked = ((not self.board.can_tick() and not self.inbox) or self.backlog >= LOCKSTEP_BACKLOG
                        or not self._line_has_room())
@@ -262,10 +275,35 @@ class BoardServer:
                 timeout = min(timeout, 0.001)
             readable = False
             if len(self.inbox) < INBOX_LIMIT:
-                readable = self._wait(timeout)
+                # not waiting: read at once (a non-blocking read is one system call, a select first two)
+                readable = True if timeout <= 0.0 and self.transport.fileno() is not None else self._wait(timeout)
             elif timeout:
                 time.sleep(min(timeout, 0.001))
             self._deliver(read=readable)
+
+    def _send_outbox(self) -> None:
+        """Queue the reports held back since they were made (see :meth:`_link_work`), each frame-logged at
+        the board time it was made, as if queued at once."""
+        if self._outbox:
+            out, self._outbox = self._outbox, []
+            for t_us, msgs in out:
+                self._log_at_us = t_us
+                try:
+                    self.send(msgs)
+                finally:
+                    self._log_at_us = None
+
+    def _link_work(self, n_ticks: int) -> None:
+        """Lockstep, once per batch of ``n_ticks`` ticks, while the native kernel runs a long batch on its own
+        thread: read and decode what came (into :attr:`inbox`; it takes effect only when the board cannot
+        tick, as ever), and, in a long batch or once :attr:`_outbox` holds ``OUTBOX_HOLD`` messages, queue the
+        held reports (encode, log) and write what the OS takes. Nothing here touches the board (its MjData
+        and arrays are the ticks' own meanwhile)."""
+        if self._outbox and (n_ticks >= OVERLAP_MIN_TICKS or len(self._outbox) >= OUTBOX_HOLD):
+            self._send_outbox()
+        self._flush_tx()
+        if len(self.inbox) < INBOX_LIMIT:
+            self._deliver(read=True)
 
     def _line_has_room(self) -> bool:
         """False while a modelled line (``--baud``) has more than ``TELEMETRY_WIRE_BACKLOG_S`` of wire time

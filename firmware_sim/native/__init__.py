@@ -12,6 +12,14 @@ both tick by tick over long random streams). ``mj_step`` is called from C throug
 into the ``libmujoco`` the mujoco wheel ships (the one the Python bindings already loaded), on the
 ``mjModel``/``mjData`` addresses the bindings expose (``MjModel._address``, ``MjData._address``).
 
+Overlap: :meth:`NativeTick.run_during` runs a batch on a thread of the C library's own (``gs_worker_*`` in
+``tick.c``, POSIX threads; it runs no Python, so the GIL stays free) while the caller's thread does other
+work: the lockstep server encodes and writes the last reports and reads what came meanwhile
+(:meth:`firmware_sim.board.Board.run`, :meth:`firmware_sim.server.BoardServer._link_work`). The same gs_run
+on the same state: the ticks are bit-identical; only nothing else may touch the board's arrays or MjData
+until the batch is waited for. One thread per board, made on first use, ended by :meth:`NativeTick.close`
+(the server calls it when it stops).
+
 Which runs: :func:`firmware_sim.config.kernel_choice` reads ``$GHOSTSHELL_BOARD_KERNEL``: ``native`` (the
 default: C when a C compiler is installed and the build loads, else the Python path with a one-line note
 on stderr, once per process), ``python`` (the reference), ``native!`` (C or :class:`NativeUnavailable`;
@@ -53,6 +61,7 @@ import subprocess
 import sys
 import tempfile
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
 import mujoco
@@ -66,7 +75,7 @@ __all__ = ["FLAGS", "GS_CAP", "GS_INTERP", "KERNEL_ENV", "TIMERS_ENV", "NativeTi
 
 SOURCE = Path(__file__).with_name("tick.c")
 #: -ffp-contract=off and no -ffast-math keep the C's double operations those of the Python reference
-FLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-ffp-contract=off", "-fno-fast-math", "-Wall", "-Wextra")
+FLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-pthread", "-ffp-contract=off", "-fno-fast-math", "-Wall", "-Wextra")
 GS_INTERP = 1
 GS_CAP = 2
 #: ``1`` keeps MuJoCo's stage timers (``MjData.timer``) running in a process that loads the C tick
@@ -167,6 +176,15 @@ def _open(path: Path) -> ctypes.CDLL:
     run = lib.gs_run
     run.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64, ctypes.c_double]
     run.restype = ctypes.c_int64
+    lib.gs_worker_new.argtypes = []
+    lib.gs_worker_new.restype = ctypes.c_void_p
+    lib.gs_worker_start.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64,
+                                    ctypes.c_int64, ctypes.c_double]
+    lib.gs_worker_start.restype = None
+    lib.gs_worker_wait.argtypes = [ctypes.c_void_p]
+    lib.gs_worker_wait.restype = ctypes.c_int64
+    lib.gs_worker_free.argtypes = [ctypes.c_void_p]
+    lib.gs_worker_free.restype = None
     return lib
 
 
@@ -267,6 +285,41 @@ class NativeTick:
         self._addr = ctypes.addressof(s)
         self._fn = lib.gs_tick
         self._run = lib.gs_run
+        self._lib = lib
+        self._worker: int | None = None  # gs_worker_new's handle once :meth:`run_during` first ran
+        self._no_worker = False  # the C could not start a thread: run_during runs in this thread
+
+    def run_during(self, t: int, n: int, tick_us: int, flags: int, during: Callable[[], object]) -> int:
+        """:meth:`run` on the kernel's own thread while ``during()`` runs in this one (the GIL is free
+        meanwhile: the C thread runs no Python), then wait for the ticks; returns as :meth:`run`.
+
+        ``during`` must not touch this board's arrays or its MjData (they are the ticks' state). When it
+        raises, the ticks are still waited for before the exception goes on. Without a thread (the C
+        could not make one) ``during()`` runs first, then the ticks, in this thread."""
+        if self._worker is None and not self._no_worker:
+            self._worker = self._lib.gs_worker_new() or None
+            self._no_worker = self._worker is None
+        if self._worker is None:
+            during()
+            return self.run(t, n, tick_us, flags)
+        self._lib.gs_worker_start(self._worker, self._addr, t, n, tick_us, flags, 0.0)
+        try:
+            during()
+        finally:
+            clamped = int(self._lib.gs_worker_wait(self._worker))
+        return clamped
+
+    def close(self) -> None:
+        """End the kernel's thread, if :meth:`run_during` started one (idempotent)."""
+        worker, self._worker = self._worker, None
+        if worker is not None:
+            self._lib.gs_worker_free(worker)
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - interpreter shutdown: the library may be gone
+            pass
 
     def tick(self, t: int, flags: int, cap: float = 0.0) -> bool:
         """One tick at board time ``t`` (µs); ``flags``: :data:`GS_INTERP` | :data:`GS_CAP`. True if clamped."""

@@ -17,12 +17,20 @@
  * (no frame due, watchdog fed, no report due before the last one; see Board.run), so a batch leaves
  * exactly the state n gs_tick calls leave.
  *
+ * gs_worker_* run gs_run on a thread of its own (POSIX threads), so the caller's thread can do other work
+ * while the ticks run: the lockstep server encodes, writes and reads the link meanwhile (Python's GIL
+ * is not held by this thread, which runs no Python). One job at a time; the caller must not touch the
+ * state's arrays or the MjData between gs_worker_start and gs_worker_wait.
+ *
  * No MuJoCo header is needed: mj_step comes in as a function pointer taken from the libmujoco the
  * mujoco wheel ships (already loaded by the Python bindings), and qpos/ctrl as the addresses of
  * the MjData arrays the bindings expose. Built and loaded by firmware_sim/native/__init__.py.
  */
+#define _POSIX_C_SOURCE 200809L
 #include <math.h>
+#include <pthread.h>
 #include <stdint.h>
+#include <stdlib.h>
 
 typedef void (*gs_mj_step_fn)(const void *m, void *d);
 
@@ -125,4 +133,107 @@ int64_t gs_run(gs_tick_state *s, int64_t t, int64_t n, int64_t tick_us, int64_t 
 double gs_no_clock(void)
 {
     return 0.0;
+}
+
+/* A thread that runs gs_run jobs (see the top of this file). */
+typedef struct {
+    pthread_mutex_t mu;
+    pthread_cond_t cv;
+    pthread_t th;
+    int busy;                  /* a job is set and not yet done */
+    int stop;
+    gs_tick_state *s;
+    int64_t t, n, tick_us, flags;
+    double cap;
+    int64_t result;
+} gs_worker;
+
+static void *gs_worker_main(void *arg)
+{
+    gs_worker *w = (gs_worker *)arg;
+    pthread_mutex_lock(&w->mu);
+    for (;;) {
+        while (!w->busy && !w->stop)
+            pthread_cond_wait(&w->cv, &w->mu);
+        if (w->stop)
+            break;
+        pthread_mutex_unlock(&w->mu);
+        const int64_t r = gs_run(w->s, w->t, w->n, w->tick_us, w->flags, w->cap);
+        pthread_mutex_lock(&w->mu);
+        w->result = r;
+        w->busy = 0;
+        pthread_cond_broadcast(&w->cv);
+    }
+    pthread_mutex_unlock(&w->mu);
+    return NULL;
+}
+
+/* A new worker thread, or NULL when one cannot be made (the caller then runs gs_run itself). */
+void *gs_worker_new(void)
+{
+    gs_worker *w = (gs_worker *)calloc(1, sizeof *w);
+    if (!w)
+        return NULL;
+    if (pthread_mutex_init(&w->mu, NULL) != 0) {
+        free(w);
+        return NULL;
+    }
+    if (pthread_cond_init(&w->cv, NULL) != 0) {
+        pthread_mutex_destroy(&w->mu);
+        free(w);
+        return NULL;
+    }
+    if (pthread_create(&w->th, NULL, gs_worker_main, w) != 0) {
+        pthread_cond_destroy(&w->cv);
+        pthread_mutex_destroy(&w->mu);
+        free(w);
+        return NULL;
+    }
+    return w;
+}
+
+/* Start gs_run(s, t, n, tick_us, flags, cap) on the worker; returns at once. */
+void gs_worker_start(void *handle, gs_tick_state *s, int64_t t, int64_t n, int64_t tick_us, int64_t flags, double cap)
+{
+    gs_worker *w = (gs_worker *)handle;
+    pthread_mutex_lock(&w->mu);
+    w->s = s;
+    w->t = t;
+    w->n = n;
+    w->tick_us = tick_us;
+    w->flags = flags;
+    w->cap = cap;
+    w->busy = 1;
+    pthread_cond_broadcast(&w->cv);
+    pthread_mutex_unlock(&w->mu);
+}
+
+/* Wait for the started job; returns its gs_run result. */
+int64_t gs_worker_wait(void *handle)
+{
+    gs_worker *w = (gs_worker *)handle;
+    pthread_mutex_lock(&w->mu);
+    while (w->busy)
+        pthread_cond_wait(&w->cv, &w->mu);
+    const int64_t r = w->result;
+    pthread_mutex_unlock(&w->mu);
+    return r;
+}
+
+/* Finish the job under way (if any), end the thread and free the worker. */
+void gs_worker_free(void *handle)
+{
+    gs_worker *w = (gs_worker *)handle;
+    if (!w)
+        return;
+    pthread_mutex_lock(&w->mu);
+    while (w->busy)
+        pthread_cond_wait(&w->cv, &w->mu);
+    w->stop = 1;
+    pthread_cond_broadcast(&w->cv);
+    pthread_mutex_unlock(&w->mu);
+    pthread_join(w->th, NULL);
+    pthread_cond_destroy(&w->cv);
+    pthread_mutex_destroy(&w->mu);
+    free(w);
 }
