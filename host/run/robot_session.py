@@ -53,9 +53,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import logging
-import math
-import time
-from collections.abc import AsyncIterable, AsyncIterator, Awaitable, Callable, Iterable, Iterator
+from collections.abc import AsyncIterable, AsyncIterator, Awaitable, Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -82,7 +80,8 @@ from host.runtime.link import ClientLink
 from host.runtime.robot_runtime import RobotRuntime, warm_up_behaviours
 from host.run.loop_lag import LagMonitor
 from host.run.options import SessionOptions
-from host.run.progress_guard import ProgressGuard, Stall
+from host.run.progress_guard import ProgressGuard
+from host.run.stop_control import StopControl, session_guard
 from host.run.stops import Interrupted, StopReason
 from host.run.priority import raise_host_priority
 from host.run.assembly import build_runtime, build_shell, first_report, mount_servers
@@ -201,8 +200,6 @@ class RobotSession:
         self._shell: Shell | None = None
         self._turn: _TurnStart | None = None  # the turn in progress
         self._link_tried = False  # a board link was attempted (a failure from then on has a report)
-        #: why the session stops early (a signal, a bound), once :meth:`request_stop` was called
-        self.stop: StopReason | None = None
         #: the teardown had to be cancelled after CLOSE_TIMEOUT_S (see there)
         self.close_timed_out = False
         self.recording: Recording | None = None  # run.mcap and the live view (host.run.recording)
@@ -211,15 +208,8 @@ class RobotSession:
         self.events = SessionEvents(opts.event_policy or EventPolicy(), self.robot.channels, lambda: self._shell)
         #: builds each turn's summary.json (host.run.turn_summary)
         self.summaries = TurnSummaries(self.robot, opts, self.vocabulary, self.rec, self.scene_report, self._clock_mode)
-        self._up = False  # __aenter__ finished (the start pose reached or cut)
-        #: what the session's work is doing now, for the progress guard (None: nothing to guard)
-        self._phase: str | None = None
-        #: the work a stop's deadline cuts: the start-pose move or the running turn
-        self._work_scope: anyio.CancelScope | None = None
-        self._stop_wall: float | None = None  # time.monotonic() of the first stop
-        self._deadline_scope: anyio.CancelScope | None = None  # the running _stop_deadline's
-        #: the stop's deadline passed: what remains of the graceful stop is cut or skipped
-        self.stop_overdue = False
+        #: the stop's reason, its deadline and the work it cuts (host.run.stop_control)
+        self.stops = StopControl(opts.stop_grace_s, self._interrupt_running, self.abort_cleanups)
         #: the event loop's scheduling delay, sampled while the session runs (reset at each turn's start)
         self.lag = LagMonitor()
         self._host_nice: int | None = None  # a realtime run's host priority (host.run.priority)
@@ -263,7 +253,7 @@ class RobotSession:
             await self._start_recording(client, plan.spec)
             await self._start_tasks(client, frame_link)
             await self._go_to_start_pose()
-            self._up = True
+            self.stops.up = True
         except BaseException as exc:
             await self.__aexit__(type(exc), exc, exc.__traceback__)
             if created and isinstance(exc, LinkConfigError):  # nothing ran: leave no empty run folder behind
@@ -372,7 +362,7 @@ class RobotSession:
         runtime = self.runtime
         await runtime.streamer.top_up()
         pose = self.opts.start_pose or self.robot.start_pose
-        with self._work(f"moving to the start pose {pose!r}") as scope:
+        with self.stops.work(f"moving to the start pose {pose!r}") as scope:
             await go_to_pose(runtime, pose)
         if scope.cancelled_caught:  # a stop while starting: the turn is cut at its start
             log.warning("the move to the start pose %r was cut: %s", pose, self.stop.message if self.stop else "")
@@ -408,99 +398,35 @@ class RobotSession:
         """Stop the session's work early (a signal, a bound, a stall): the running turn is interrupted
         through the shell's lifecycle tree, as an external interruption is, and any later turn is
         interrupted at its start. The first reason is kept, and starts the stop's deadline
-        (``SessionOptions.stop_grace_s`` wall seconds, :meth:`_stop_deadline`). Returns False while the
-        session is still starting (nothing to interrupt gracefully: the move to the start pose is cut
-        at once), else True."""
-        if self.stop is None:
-            self.stop = stop
-            self._stop_wall = time.monotonic()
-            if self._tg is not None:
-                self._tg.start_soon(self._stop_deadline)
-        if not self._up:
-            if self._work_scope is not None:
-                self._work_scope.cancel()
-            return False
-        if self._shell is not None and self._shell.running:
-            self._shell.interrupt()
-        return True
+        (``SessionOptions.stop_grace_s`` wall seconds, :class:`host.run.stop_control.StopControl`). Returns
+        False while the session is still starting (nothing to interrupt gracefully: the move to the start
+        pose is cut at once), else True."""
+        return self.stops.request(stop, self._tg)
+
+    @property
+    def stop(self) -> StopReason | None:
+        """Why the session stops early, once :meth:`request_stop` was called (None: it does not)."""
+        return self.stops.reason
+
+    @property
+    def stop_overdue(self) -> bool:
+        """The stop's deadline passed: what remains of the graceful stop is cut or skipped."""
+        return self.stops.overdue
 
     def stop_left_s(self) -> float:
         """Wall seconds left until the stop's deadline (``inf`` while no stop was requested, 0 once it passed)."""
-        if self._stop_wall is None:
-            return math.inf
-        return max(0.0, self.opts.stop_grace_s - (time.monotonic() - self._stop_wall))
-
-    async def _stop_deadline(self) -> None:
-        """At the stop's deadline, cut what still runs: the turn (its resets aborted; its calls are
-        reported as far as they got) or the start-pose move; later waits see :attr:`stop_overdue`.
-        :meth:`clear_stop` cancels it."""
-        with anyio.CancelScope() as scope:
-            self._deadline_scope = scope
-            await anyio.sleep(self.stop_left_s())
-        if scope.cancel_called:
-            return
-        self._deadline_scope = None
-        self.stop_overdue = True
-        if self._work_scope is not None:
-            log.warning("the stop did not end the work within %g s (%s): cutting it", self.opts.stop_grace_s,
-                        self._phase or "ending")
-            self.abort_cleanups()
-            self._work_scope.cancel()
-
-    @contextlib.contextmanager
-    def _work(self, phase: str) -> Iterator[anyio.CancelScope]:
-        """The scope of one piece of the session's work (``phase`` names it for the progress guard)
-        that the stop's deadline cuts; cut at once when the deadline has already passed."""
-        with anyio.CancelScope() as scope:
-            self._work_scope, self._phase = scope, phase
-            if self.stop_overdue or (self.stop is not None and not self._up):
-                scope.cancel()
-            try:
-                yield scope
-            finally:
-                self._work_scope, self._phase = None, None
+        return self.stops.left_s()
 
     def _progress_guard(self, limit_s: float) -> ProgressGuard:
-        """The session's no-progress guard (:mod:`host.run.progress_guard`) over board time, frames and calls."""
+        """The session's no-progress guard over board time, frames and calls (:func:`session_guard`)."""
         rec = self.rec
+        return session_guard(limit_s, self.stops, self.request_stop, lambda: rec.t[-1] if rec.t else None,
+                             lambda: self.client.stats.servo_frames_sent if self.client is not None else 0,
+                             lambda: self._shell, lambda: self._runtime)
 
-        def board_time() -> float | None:
-            return rec.t[-1] if rec.t else None
-
-        def frames() -> int:
-            return self.client.stats.servo_frames_sent if self.client is not None else 0
-
-        return ProgressGuard({"board time": board_time, "frames sent": frames, "calls started/ended": self._call_states},
-                             lambda: self._phase, self._waiting_for, self._on_stall, limit_s=limit_s)
-
-    def _call_states(self) -> tuple[int, int, int]:
-        """(calls, started, ended) of the running turn (zeros when none runs)."""
-        tl = self._shell.timeline if self._shell is not None else None
-        if tl is None:
-            return (0, 0, 0)
-        records = list(tl)
-        return (len(records), sum(r.start is not None for r in records), sum(r.end is not None for r in records))
-
-    def _waiting_for(self) -> str:
-        """What the session's work waits for now, for the stall's one line."""
-        runtime = self._runtime
-        if runtime is not None and runtime.streamer.held:
-            return "the LLM's next chunk (the board held still)"
-        tl = self._shell.timeline if self._shell is not None else None
-        if tl is not None:
-            running = [r.path for r in tl if r.start is not None and r.end is None]
-            queued = [r.path for r in tl if r.start is None and r.end is None]
-            if running or queued:
-                shown = ", ".join(running[:3]) + (" ..." if len(running) > 3 else "")
-                return (f"{len(running)} running call(s) to end ({shown})" if running
-                        else f"{len(queued)} queued call(s) to start")
-        if runtime is not None:
-            return f"board time and the motion's end (next frame at board time {runtime.streamer.first_free_us / 1e6:.3f} s)"
-        return "the board"
-
-    def _on_stall(self, stall: Stall) -> None:
-        log.warning("%s", stall.message)
-        self.request_stop(StopReason("stall", "no_progress", stall.message))
+    def _interrupt_running(self) -> None:
+        if self._shell is not None and self._shell.running:
+            self._shell.interrupt()
 
     def abort_cleanups(self) -> None:
         """A forced stop (a second signal): the shell's resets and the runtime's peripheral stops that the
@@ -514,13 +440,8 @@ class RobotSession:
     def clear_stop(self) -> None:
         """Forget a stop (e.g. a board-time bound that ended one MCP program): later turns run again, and
         its deadline no longer cuts them."""
-        self.stop = None
-        if self.stop_overdue and self._runtime is not None:  # the deadline aborted its cleanups: re-arm them
+        if self.stops.clear() and self._runtime is not None:  # the deadline aborted its cleanups: re-arm them
             self._runtime._cleanups = Cleanups()  # (RobotRuntime has no public reset; a fresh one is unaborted)
-        self._stop_wall, self.stop_overdue = None, False
-        if self._deadline_scope is not None:
-            self._deadline_scope.cancel()
-            self._deadline_scope = None
 
     async def go_to_rest(self, timeout_s: float = 10.0) -> bool:
         """Move every servo smoothly to the robot's rest pose (``robot.toml`` ``rest_pose``), e.g. after a
@@ -534,7 +455,7 @@ class RobotSession:
         if timeout_s <= 0:
             log.warning("no time left of the stop's %g s for the rest pose: not tried", self.opts.stop_grace_s)
             return False
-        with anyio.move_on_after(timeout_s) as scope, self._work(f"moving to the rest pose {self.robot.rest_pose!r}"):
+        with anyio.move_on_after(timeout_s) as scope, self.stops.work(f"moving to the rest pose {self.robot.rest_pose!r}"):
             try:
                 await go_to_pose(runtime, self.robot.rest_pose)
             except (LinkError, BoardFaulted):
@@ -655,7 +576,7 @@ class RobotSession:
         tel = self.client.latest_telemetry if self.client is not None else None
         self._late0 = tel.late_count if tel is not None else self._late0
         with frozen_heap():  # no full GC pass over the loaded host inside the turn (host.run.turn_gc)
-            with self._work("running the turn") as work:
+            with self.stops.work("running the turn") as work:
                 async with anyio.create_task_group() as tg:
                     if interrupt_after is not None:
                         tg.start_soon(self._interrupt_at, start.board_t0 + interrupt_after)
@@ -698,11 +619,11 @@ class RobotSession:
             target_s = min(target_s, board_t0 + self.opts.max_board_s)
         wall_s = settle_s + TELEMETRY_SILENCE_S
         with anyio.move_on_after(wall_s) as scope:
-            self._phase = "settling after the turn"
+            self.stops.phase = "settling after the turn"
             try:
                 await runtime.streamer.wait_board_time(int(target_s * 1e6))
             finally:
-                self._phase = None
+                self.stops.phase = None
         if scope.cancelled_caught:
             log.warning("settling after the turn: board time did not reach %.3f s within %g s", target_s, wall_s)
             return (f"settle cut: board time stayed at {runtime.board_now_s():.3f} s, short of {target_s:.3f} s, "
