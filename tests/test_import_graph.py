@@ -3,7 +3,9 @@
 Layers: ``protocol`` imports none of the other three, ``robots`` only ``protocol``, ``host`` and
 ``firmware_sim`` ``protocol`` and ``robots`` (never each other); inside ``host`` only the CLI
 (``host.cli``, ``host.commands``, ``host.__main__``, and ``host.cli_reference``, which documents it)
-imports the commands, so evaluation, runs and the shell never reach up into them.
+imports the commands, so evaluation, runs and the shell never reach up into them; and the runtime path
+(shell, LLM clients, motion, link, runtime, runs, both ends' packages) never imports the tooling
+(``host.tools``: vcan, fuzz, eval) or the fixtures (``host.testing``, ``protocol.testing``).
 
 The graph is built from the source with :mod:`ast` (nothing is imported): one node per module of
 ``host/``, ``firmware_sim/``, ``protocol/`` and ``robots/`` (a package is its ``__init__``), one arrow per
@@ -171,3 +173,18 @@ def test_only_the_cli_imports_the_commands() -> None:
     bad = [f"{m} imports {t}" for m, ts in g.items() for t in sorted(ts)
            if _within(t, ("host.cli", "host.commands")) and not _within(m, CLI)]
     assert not bad, "\n".join(bad)
+
+
+#: the runtime path: what a run goes through from the LLM's text to the board and back
+RUNTIME = ("host.shell", "host.ghost", "host.motion", "host.link", "host.runtime", "host.run", "host.speech",
+           "host.mounts", "host.chat", "host.mcp_server", "host.calibration", "protocol", "robots", "firmware_sim")
+#: tooling and fixtures, kept off the runtime path
+TOOLING = ("host.tools", "host.testing", "protocol.testing")
+
+
+def test_the_runtime_path_never_imports_tooling_or_fixtures() -> None:
+    g = import_graph()
+    bad = [f"{m} imports {t}" for m, ts in g.items() for t in sorted(ts)
+           if _within(t, TOOLING) and _within(m, RUNTIME) and not _within(m, TOOLING)]
+    assert not bad, "\n".join(bad)
+    assert any(_within(m, ("host.tools",)) for m in g), "host.tools not found: the check would pass vacuously"
