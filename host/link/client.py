@@ -57,7 +57,7 @@ from host.link.timesync import ClockEstimate, ClockSync
 from host.link.transports import Transport, open_transport
 from protocol.codec import WIRE_SCHEMA_16, WireBoundError, WireSchema, schema_for
 from protocol.linkspec import LinkSpec
-from protocol.messages import PROTOCOL_VERSION, Caps, FaultFlags, Message, Nack, SimState, Telemetry
+from protocol.messages import PROTOCOL_VERSION, Caps, ConfigKey, FaultFlags, Message, Nack, SimState, Telemetry
 from protocol.wiremodel import WireModel
 
 __all__ = ["FAULT_BITS", "HEARTBEAT_S", "BoardClient", "FaultEvent", "LinkStats", "LinkTarget", "RobotIdentity", "host_now_us"]
@@ -76,7 +76,9 @@ class BoardClient:
     ``robot`` is the robot this host was started for (CAPS must report it; it also picks the wire
     schema); ``schema_hash`` pins the hash HELLO carries (tests), instead of the robot's schema's.
     ``wire_baud``: the line's rate when the host should model it (:attr:`tx_wire`; a UART whose wire
-    time matters, such as the emulated board's ``--baud``), else None. The rest are the supervisor's
+    time matters, such as the emulated board's ``--baud``), else None. ``link_config``: (key, value) CONFIGs
+    the handshake sends after CAPS (a slow line's watchdog and report rate, :mod:`host.motion.line_cadence`).
+    The rest are the supervisor's
     (:class:`host.link.supervisor.Supervisor`) and the session's (:class:`host.link.core.LinkSession`).
     """
 
@@ -87,6 +89,7 @@ class BoardClient:
         reconnect_max_s: float = 1.0, telemetry_queue: int = 64, protocol_version: int = PROTOCOL_VERSION,
         schema_hash: int | None = None, force_thread: bool = False, transport_options: dict[str, Any] | None = None,
         robot: RobotIdentity | None = None, wire_baud: int | None = None,
+        link_config: tuple[tuple[ConfigKey, int], ...] = (),
     ) -> None:
         self.robot = robot
         try:
@@ -107,7 +110,7 @@ class BoardClient:
         self.supervisor = sup = Supervisor(
             s, clock, robot=robot, schema=self.schema, schema_hash=schema_hash, protocol_version=protocol_version,
             handshake_timeout=handshake_timeout, reconnect_max_s=reconnect_max_s, sync_burst=sync_burst,
-            heartbeat_s=heartbeat_s, sync_interval_s=sync_interval_s)
+            heartbeat_s=heartbeat_s, sync_interval_s=sync_interval_s, link_config=link_config)
         #: the TELEMETRY listener: latest report, fault edges, subscribers, waiters (host.link.telemetry)
         self.fanout = TelemetryFanout(telemetry_queue)
         self.receiver = rx = ReceivePath(s, self.fanout, clock, sup)

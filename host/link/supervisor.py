@@ -26,6 +26,7 @@ never raise.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass
@@ -34,12 +35,13 @@ from typing import Any, Protocol
 import anyio
 
 from host.link.board_time import BoardClock
-from host.link.errors import HandshakeError, LinkError, LinkTimeout, RobotMismatch, SchemaMismatch
+from host.link.errors import HandshakeError, LinkError, LinkTimeout, NackError, RobotMismatch, SchemaMismatch
 from host.link.timesync import host_now_us
 from host.link.transports.base import Transport
 from host.link.waiting import Flag, Reply
 from protocol.codec import WIRE_SCHEMAS, WireBoundError, WireSchema, schema_by_hash, schema_for
-from protocol.messages import PROTOCOL_VERSION, Caps, Heartbeat, Hello, Message, TimeSyncReply, TimeSyncRequest
+from protocol.messages import (PROTOCOL_VERSION, Ack, Caps, Config, ConfigKey, Heartbeat, Hello, Message, TimeSyncReply,
+                               TimeSyncRequest)
 from protocol.wiremodel import WireModel
 
 __all__ = ["HEARTBEAT_S", "SYNC_ATTEMPTS", "RobotIdentity", "SupervisedSession", "Supervisor", "host_now_us"]
@@ -89,6 +91,7 @@ class SupervisedSession(Protocol):
     def transport(self) -> Transport | None: ...
     async def attach(self, servo_count: int | None) -> Transport: ...
     def transmit(self, msg: Message) -> int: ...
+    async def request(self, msg: Message) -> Ack: ...
     def link_up(self, caps: Caps) -> None: ...
     def count_retry(self) -> None: ...
     def reconnected(self) -> None: ...
@@ -108,8 +111,12 @@ class Supervisor:
     def __init__(self, client: SupervisedSession, clock: BoardClock, *, robot: RobotIdentity | None = None,
                  schema: WireSchema, schema_hash: int | None = None, protocol_version: int = PROTOCOL_VERSION,
                  handshake_timeout: float = 3.0, reconnect_max_s: float = 1.0, sync_burst: int = 8,
-                 heartbeat_s: float = HEARTBEAT_S, sync_interval_s: float = 0.5) -> None:
+                 heartbeat_s: float = HEARTBEAT_S, sync_interval_s: float = 0.5,
+                 link_config: tuple[tuple[ConfigKey, int], ...] = ()) -> None:
         self.client, self.clock = client, clock
+        #: CONFIGs sent after CAPS, before TIME_SYNC, on every connect (a slow line's watchdog and report
+        #: rate: host.motion.line_cadence)
+        self.link_config = link_config
         self.robot, self.schema, self.protocol_version = robot, schema, protocol_version
         self.schema_pinned = schema_hash is not None
         #: the schema hash HELLO carries (the one the board accepted, after a handshake)
@@ -180,6 +187,8 @@ class Supervisor:
         try:
             caps = await self.handshake()
             c.link_up(caps)
+            if self.link_config:
+                await self.configure(caps)
             await self.sync_burst()
         except BaseException:
             c.ready = False
@@ -190,6 +199,23 @@ class Supervisor:
             "link up on %s: protocol v%d, %d servos, %d Hz, %s", port, caps.protocol_version,
             caps.servo_count, caps.control_rate_hz, "lockstep" if caps.lockstep else "realtime",
         )
+
+    async def configure(self, caps: Caps) -> None:
+        """Send :attr:`link_config`'s CONFIGs, each ACKed before the next (the watchdog first, so the longer
+        one covers the TIME_SYNC burst on a slow line); a changed report rate is taken into ``caps`` (the
+        session's link is brought up again with it). A NACK raises :class:`HandshakeError` naming the key."""
+        c = self.client
+        rate = None
+        for key, value in self.link_config:
+            try:
+                await c.request(Config(key, value))
+            except NackError as e:
+                raise HandshakeError(f"the board on {c.port_name} refused CONFIG {key.name}={value} ({e}), which "
+                                     "this line needs (docs/concepts/wire.md, slow lines)") from None
+            if key is ConfigKey.TELEMETRY_RATE_HZ:
+                rate = value
+        if rate is not None and rate != caps.telemetry_rate_hz:
+            c.link_up(dataclasses.replace(caps, telemetry_rate_hz=rate))
 
     async def hello(self, schema_hash: int) -> Caps:
         """HELLO with ``schema_hash`` until CAPS (re-sent a few times within the timeout: one lost

@@ -63,6 +63,10 @@ class BoardFrameLink:
     def board_now_us(self) -> int:
         return self.client.board_now_estimate()
 
+    def report_period_us(self) -> int:
+        """The board's report period plus a tick (µs), at the rate in force (CAPS, or the handshake's CONFIG)."""
+        return self.client.report_period_us()
+
     def latency_us(self, nbytes: int = 0, q: float = 0.99) -> int:
         """Host -> board latency (µs) for a message of ``nbytes`` sent now, by default its p99: the ``q``
         quantile (0..1) of the TIME_SYNC requests' measured uplink beyond the line

@@ -473,7 +473,12 @@ class FrameStreamer:
         first grid time a frame sent now can reach (:meth:`_skip_late`) plus one period: frames keep
         going out, each in time by the link's own p99, instead of every top-up skipping past its own
         horizon and sending nothing (the run then ended with "the host sent no servo frame for 10 s").
-        Never more than ``max_lead_us`` ahead of board now: a bogus latency estimate must not fill the
+        Lockstep: the frames reach at least one grid period plus one report period past the report's board
+        time, so the board runs on to its next report by itself. On a slow line the grid (330 ms at 2 400
+        baud) and the report period (1 s once the handshake lowered the rate: :mod:`host.motion.line_cadence`)
+        are longer than the lookahead; the board stopped at the last frame short of its next report, and
+        only the wall-clock ADVANCE nudges of the waits moved it on (609 of them in a 19-s run).
+                Never more than ``max_lead_us`` ahead of board now: a bogus latency estimate must not fill the
         board's jitter buffer (256 frames, 2.56 s at 100 Hz) nor reach past its ``max_future_us`` (5 s),
         and a line that cannot carry the frame rate (its backlog is part of the latency) must not
         queue without bound; beyond that lead nothing is sent, and the run's silence check ends it
@@ -484,12 +489,20 @@ class FrameStreamer:
         async with self._lock:
             now = self.link.board_now_us() if board_now_us is None else board_now_us
             horizon = now + self.lookahead_us
+            if self.link.lockstep:
+                horizon = max(horizon, now + self.period_us + self._report_period_us())
             if not self.link.lockstep:
                 reach = self._skip_late(now)
                 horizon = max(horizon, min(reach + self.period_us, now + self.max_lead_us))
             while self.next_us <= horizon:
                 self._send(self.mixer.frame(self.next_us))
                 self.next_us += self.period_us
+
+    def _report_period_us(self) -> int:
+        """The board's report period (µs) when the link knows it (``report_period_us()``, optional on a
+        :class:`FrameLink`: :class:`host.motion.board_link.BoardFrameLink` has it), else 0."""
+        period = getattr(self.link, "report_period_us", None)
+        return int(period()) if callable(period) else 0
 
     def _skip_late(self, now_us: int) -> int:
         """Realtime: move the first unsent frame past the grid times a frame sent now would miss, by the

@@ -4,8 +4,9 @@ The first steps of :meth:`host.run.robot_session.RobotSession.__aenter__`, in th
 
 1. :meth:`LinkPlan.of` decides, before anything starts, what the session connects to: the link spec, whether
    it starts the emulated board on it, the frame logs' suffix, the robot identity the handshake checks, the
-   frame grid (µs) and the heartbeat interval (s) for the line's baud rate. A link that cannot be used so
-   raises :class:`~host.link.errors.LinkConfigError` (one line; the CLI exits 2).
+   frame grid (µs), the heartbeat interval (s) and the CONFIGs the handshake sends (a slow line's watchdog
+   and report rate: :mod:`host.motion.line_cadence`) for the line's baud rate. A link that cannot be used so,
+   or a line too slow for the robot at all, raises :class:`~host.link.errors.LinkConfigError` (one line; the CLI exits 2).
 2. :func:`launch_board` starts the emulated board (``python -m firmware_sim`` with :func:`board_args`) in a
    worker thread, and stops it again when cancelled while it starts.
 3. :func:`connect_client` opens the :class:`~host.link.BoardClient` (HELLO/CAPS) and words its failures:
@@ -28,13 +29,14 @@ from host.link import BoardClient, RobotIdentity
 from host.link.board_process import BoardProcess, dead_board_error, start_board
 from host.link.errors import HandshakeError, LinkConfigError, RobotMismatch, SchemaMismatch
 from host.link.client import HEARTBEAT_S, LinkTarget
-from host.motion.streamer import GRID_PERIOD_US, frame_wire_bytes, grid_period_us
+from host.motion.line_cadence import LineTooSlow, line_cadence
+from host.motion.streamer import GRID_PERIOD_US, frame_wire_bytes
 from host.run import artefacts
 from host.run.options import SessionOptions
 from protocol.framing import encode_frame
 from protocol.linkkinds import link_kind
 from protocol.linkspec import LinkSpec
-from protocol.messages import Heartbeat
+from protocol.messages import ConfigKey, Heartbeat
 from protocol.wiremodel import BITS_PER_BYTE
 from robots.description import Robot
 
@@ -87,8 +89,9 @@ class LinkPlan:
     ``spec``: the link; ``emulate``: start the emulated board on it first; ``log_suffix``: the frame logs'
     (``.jsonl`` on serial, ``.log`` in candump format on CAN); ``identity``: the robot the board must drive
     (HELLO/CAPS); ``period_us``: the frame grid (µs, :func:`host.motion.streamer.grid_period_us`);
-    ``heartbeat_s``: the heartbeat interval (s, :func:`heartbeat_for_grid`); ``lockstep`` and ``wire_baud``
-    as asked (the board's CAPS decide the clock once connected)."""
+    ``heartbeat_s``: the heartbeat interval (s, :func:`heartbeat_for_grid`; half the raised watchdog on a
+    slow line); ``lockstep`` and ``wire_baud`` as asked (the board's CAPS decide the clock once connected);
+    ``link_config``: the CONFIGs the handshake sends (:meth:`host.motion.line_cadence.LineCadence.config`)."""
 
     spec: LinkSpec
     emulate: bool
@@ -98,6 +101,8 @@ class LinkPlan:
     heartbeat_s: float
     lockstep: bool
     wire_baud: int | None
+    #: CONFIGs the handshake sends: a slow line's watchdog and report rate (host.motion.line_cadence)
+    link_config: tuple[tuple[ConfigKey, int], ...] = ()
 
     @classmethod
     def of(cls, spec: LinkSpec, opts: SessionOptions, robot: Robot) -> LinkPlan:
@@ -110,10 +115,15 @@ class LinkPlan:
             raise LinkConfigError(f"{spec}: python-can's virtual bus exists inside one process, so an emulated board "
                                   "started as a subprocess cannot join it; use can:slcan:pty, or can:socketcan:vcan0 "
                                   "with --emulate-board (the virtual bus is for in-process tests)")
-        period_us = grid_period_us(robot.servo_count, opts.wire_baud)
+        try:
+            cadence = line_cadence(robot.servo_count, opts.wire_baud)
+        except LineTooSlow as e:
+            raise LinkConfigError(str(e)) from None
+        period_us = cadence.period_us
         return cls(spec, emulate, link_kind(spec).log_suffix,
                    RobotIdentity(robot.name, robot.servo_count, robot.servo_table_hash),
-                   period_us, heartbeat_for_grid(period_us), opts.lockstep, opts.wire_baud)
+                   period_us, cadence.heartbeat_s() or heartbeat_for_grid(period_us), opts.lockstep, opts.wire_baud,
+                   cadence.config())
 
     def overload_note(self) -> str | None:
         """:func:`line_load_note` for this plan (lockstep sends no heartbeats)."""
@@ -131,6 +141,10 @@ class LinkPlan:
                 "board moves the servos in straight lines between them)")
 
 
+#: the emulated board's command-line flag of each CONFIG key a slow line sets (host.motion.line_cadence)
+_BOARD_CONFIG_FLAGS = {ConfigKey.WATCHDOG_MS: "--watchdog-ms", ConfigKey.TELEMETRY_RATE_HZ: "--telemetry-rate"}
+
+
 def board_args(opts: SessionOptions, robot: Robot, out: Path, scene: str, log_suffix: str) -> list[str]:
     """The emulated board's command-line arguments (``python -m firmware_sim ...``, the link excepted) for
     ``robot`` in ``scene``, its frame log and objects log in ``out``."""
@@ -141,6 +155,9 @@ def board_args(opts: SessionOptions, robot: Robot, out: Path, scene: str, log_su
         args += ["--push", push]
     if opts.wire_baud:
         args += ["--baud", str(opts.wire_baud)]
+        # a slow line's watchdog and report rate from the start (the handshake sets them again: a real board)
+        for key, value in line_cadence(robot.servo_count, opts.wire_baud).config():
+            args += [_BOARD_CONFIG_FLAGS[key], str(value)]
     if opts.faults:
         args += ["--faults", opts.faults, "--fault-seed", str(opts.fault_seed)]
     if opts.firmware != "python":
@@ -183,7 +200,8 @@ async def connect_client(plan: LinkPlan, target: LinkTarget, *, baud: int, log_p
         log.warning("%s", overload)
     try:
         return await BoardClient.connect(target, baud=baud, log_path=log_path, robot=plan.identity,
-                                         wire_baud=plan.wire_baud, heartbeat_s=plan.heartbeat_s)
+                                         wire_baud=plan.wire_baud, heartbeat_s=plan.heartbeat_s,
+                                         link_config=plan.link_config)
     except LinkConfigError as e:
         dead = dead_board_error(board, e)  # the board died first: a lost link, not a usage error
         if dead is None:

@@ -95,22 +95,22 @@ def test_a_lockstep_board_waits_for_a_slow_line_and_keeps_every_report(tmp_path:
     assert summary["max_tilt_deg"] is not None and summary["base_end"] is not None
 
 
-def test_a_line_too_slow_for_the_handshake_says_so(tmp_path: Path) -> None:
-    """At 300 baud the handshake's messages take seconds on the line: the run ends with the handshake's
-    error (no CAPS on a realtime board; no TIME_SYNC reply in lockstep), which names the modelled rate
-    instead of asking whether a board is there at all (it is), and with the board's warning that its
-    reports do not fit (a new user's find: before, only "no CAPS ... is a board serving this port?")."""
-    out = tmp_path / "run"
-    r = subprocess.run([sys.executable, "-m", "host", "run", "--xml", '<head_act action="nod"/>', "--lockstep",
-                        "--baud", "300", "--out", str(out), "--no-plots", "--no-live"],
-                       capture_output=True, text=True, timeout=180)
-    assert r.returncode not in (0, 2), r.stderr  # a lost link, not a usage error
-    assert "modelled at 300 baud" in r.stderr, r.stderr
-    assert "serving this port" not in r.stderr
-    assert "board: warning: telemetry needs" in r.stdout, r.stdout
-    summary = json.loads((out / "summary.json").read_text())
-    assert summary["outcome"] == "link_lost"
-    assert [summary[k] for k in ("fell", "base_start", "base_end", "max_tilt_deg")] == [None] * 4, summary
+def test_a_line_too_slow_for_the_robot_is_refused_at_start(tmp_path: Path) -> None:
+    """At 300 or 1 200 baud the board's reports at their slowest (1 Hz) and the clock sync need more than the
+    line (CoCo: ~2 290 bit/s): the run is refused before a board starts, in one line naming the rate that
+    works (host.motion.line_cadence), instead of a handshake that timed out (300) or a run that stalled
+    waiting for confirmations (1 200)."""
+    for baud in (300, 1200):
+        out = tmp_path / f"run{baud}"
+        r = subprocess.run([sys.executable, "-m", "host", "run", "--xml", '<head_act action="nod"/>', "--lockstep",
+                            "--baud", str(baud), "--out", str(out), "--no-plots", "--no-live"],
+                           capture_output=True, text=True, timeout=180)
+        assert r.returncode == 2, r.stderr
+        lines = r.stderr.strip().splitlines()
+        assert lines == [f"ghostshell run: --baud {baud} is too slow for a 12-servo robot: the board's reports at "
+                         "their slowest (1 Hz) and the clock sync need ~2,290 bit/s, more than the line; use --baud "
+                         "2400 or more"], r.stderr
+        assert not out.exists()
 
 
 @pytest.mark.parametrize(("baud", "says"), [

@@ -10,6 +10,7 @@ from host.link.errors import LinkConfigError
 from host.run.launch import LinkPlan, board_args, heartbeat_for_grid
 from host.run.options import SessionOptions
 from protocol.linkspec import parse_link_spec
+from protocol.messages import ConfigKey
 from robots.registry import load_robot
 
 
@@ -23,7 +24,12 @@ def test_a_plan_refuses_links_it_cannot_use_and_fits_the_grid_to_the_line() -> N
     assert fast.emulate and fast.log_suffix == ".jsonl" and fast.grid_note() is None
     assert fast.identity.servo_count == robot.servo_count
     slow = LinkPlan.of(parse_link_spec("pty"), SessionOptions(wire_baud=4_800), robot)
-    assert slow.period_us > fast.period_us and slow.heartbeat_s == heartbeat_for_grid(slow.period_us)
+    assert slow.period_us > fast.period_us and fast.heartbeat_s == heartbeat_for_grid(fast.period_us)
+    # the grid outgrew the board's 200 ms watchdog: the handshake raises it, heartbeats fill half of it
+    assert dict(slow.link_config)[ConfigKey.WATCHDOG_MS] >= 3 * slow.period_us // 1000 and not fast.link_config
+    assert slow.heartbeat_s == dict(slow.link_config)[ConfigKey.WATCHDOG_MS] / 2000
+    with pytest.raises(LinkConfigError, match="--baud 1200 is too slow"):
+        LinkPlan.of(parse_link_spec("pty"), SessionOptions(wire_baud=1_200), robot)
     note = slow.grid_note()
     assert note is not None and note.startswith("--baud 4800: one 12-servo frame takes")
 
