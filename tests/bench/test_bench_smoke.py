@@ -13,6 +13,7 @@ BENCH = Path(__file__).resolve().parents[2] / "bench"
 
 CASES = {
     "bench_codec.py": ["--seconds", "0.05"],
+    "bench_call_path.py": ["--runs", "1"],  # one lockstep turn under a profiler
     "bench_parser.py": ["--mb", "0.05"],
     "bench_board.py": ["--lockstep-only"],  # its realtime parts: REALTIME_PARTS
     "bench_roundtrip.py": ["--n", "20"],
