@@ -1,13 +1,18 @@
 """Board benchmarks (prints numbers, asserts nothing).
 
-1. Lockstep speed: ticks/s of the board core (500 Hz, dt 2 ms, telemetry 50 Hz) and the
-   real-time factor (simulated seconds per wall second; the host's frames are made before the clock
-   starts: only the board's work is timed, handling them and ticking through ``Board.run``, as the
-   lockstep server does), for the kernel ``$GHOSTSHELL_BOARD_KERNEL``
-   picks (``native``, the default, or ``python``; see firmware_sim.native); then the same stream
-   end to end: a ``--lockstep`` board process on a pty fed 1 s of frames ahead by a host that reads
-   every TELEMETRY (encode, pty, decode, the server loop and the reports on top of the core); then
-   both kernels A/B, interleaved in one process (CPU time per tick, min and median of 7 rounds: on
+1. Lockstep rates, three on the same moving stream (50 Hz frames moving every servo, 500 Hz ticks,
+   telemetry 50 Hz), interleaved round by round (bare, core, pty, bare, ...; ``--rounds``, default 3,
+   ``--sim-seconds`` of board time each, default 10) with their ratios per round and the medians:
+   - *bare mj_step*: the robot's MjModel stepped alone in C (``mujoco.rollout``) from the board's start
+     state with the ``ctrl`` the board wrote at each tick (recorded untimed beforehand; the final state is
+     checked to be the board's): the physics alone, the floor;
+   - *board core*: ``Board.handle`` + ``Board.run`` as the lockstep server calls them, no I/O (the host's
+     frames are made before the clock starts), for the kernel ``$GHOSTSHELL_BOARD_KERNEL`` picks
+     (``native``, the default, or ``python``; see firmware_sim.native);
+   - *pty path*: a ``--lockstep`` board process on a pty fed 1 s of frames ahead by this process (host
+     encode -> pty -> board -> TELEMETRY + SIM_STATE -> host decode); also the CPU per 20 ms of board
+     time of the board process (per thread: the main one and the native kernel's) and of the host side.
+   Then both kernels A/B, interleaved in one process (CPU time per tick, min and median of 7 rounds: on
    a shared machine the minimum is the least disturbed).
 2. Realtime pacing: a real board process on a pty at 500 Hz for ``--seconds`` (default 10)
    while a host feeds heartbeats and reads telemetry; tick lateness p50/p99/max from the
@@ -17,9 +22,10 @@
 ``--robot NAME`` (default: the default robot) picks whose board runs; the moving stream moves every
 servo of that robot (a 1 Hz sine of 0.2 rad around its neutral pose, clipped to the servo table's ranges).
 
-Run: ``.venv/bin/python bench/bench_board.py [--seconds 10] [--lockstep-only | --realtime-only] [--robot NAME]``
-(``GHOSTSHELL_BOARD_KERNEL=python`` for the reference path; ``--profile FILE`` writes the pty board
-process's cProfile stats, timed by CPU time).
+Run: ``.venv/bin/python bench/bench_board.py [--seconds 10] [--lockstep-only | --realtime-only] [--robot NAME]
+[--rounds 3] [--sim-seconds 10]`` (``GHOSTSHELL_BOARD_KERNEL=python`` for the reference path; ``--profile FILE``
+writes the first pty board process's cProfile stats, timed by the main thread's CPU time; ``--host-profile
+FILE`` one more pty run's host side, timed by CPU time).
 """
 
 from __future__ import annotations
@@ -35,6 +41,7 @@ import time
 from pathlib import Path
 
 import mujoco
+import mujoco.rollout
 import numpy as np
 import serial
 
@@ -56,7 +63,7 @@ def bench_lockstep(robot: str, sim_seconds: float = 10.0, rounds: int = 3, profi
     their median: the part of bare MuJoCo the board core and the whole pty path keep."""
     rows: list[tuple[float, float, float]] = []
     for r in range(rounds):
-        bare = lockstep_bare(robot, sim_seconds)
+        bare = lockstep_bare(robot, sim_seconds, verbose=r == 0)
         core = lockstep_core(robot, sim_seconds, verbose=r == 0)
         pty = lockstep_pty(robot, sim_seconds, profile=profile if r == 0 else None, verbose=r == 0)
         rows.append((bare, core, pty))
@@ -76,25 +83,40 @@ def _stream(b: Board, sim_seconds: float) -> list[ServoFrame]:
     return [ServoFrame(k * 20_000, b.table.all_mask, _stream_targets(b, k)) for k in range(1, int(sim_seconds * 50) + 1)]
 
 
-def lockstep_bare(robot: str, sim_seconds: float = 10.0) -> float:
-    """Ticks/s of bare MuJoCo on the stream: the board's model and start state in a fresh ``MjData``, each
-    frame's targets written into ``ctrl`` at its time and ``mj_step`` run for its 10 ticks (substeps
-    included) in one call; no board, no servo model, no interpolation, no reports: the floor."""
+def lockstep_bare(robot: str, sim_seconds: float = 10.0, verbose: bool = True) -> float:
+    """Ticks/s of bare MuJoCo on the stream: the board's model stepped alone in C (``mujoco.rollout``, no
+    Python per step), from the board's start state, with the very ``ctrl`` the board wrote at each tick
+    (recorded beforehand, untimed, by a board fed the stream: targets interpolated, through the servo
+    model). So the physics is the board's to the bit (checked: the final ``qpos`` must match) and only
+    the board's own work is missing: the floor."""
     b = Board(BoardConfig(lockstep=True, robot=robot))
-    stream = _stream(b, sim_seconds)
-    m, d = b.model, mujoco.MjData(b.model)
-    for name in ("qpos", "qvel", "act", "ctrl", "qacc_warmstart"):
-        getattr(d, name)[:] = getattr(b.data, name)
-    d.time = b.data.time
-    mujoco.mj_forward(m, d)
-    act = np.asarray(b.cm.act_id)
-    per_frame = 10 * b.cfg.substeps  # 20 ms of 2 ms ticks
-    ticks = 10 * len(stream)
-    t0 = time.perf_counter()
-    for f in stream:
-        d.ctrl[act] = f.targets
-        mujoco.mj_step(m, d, nstep=per_frame)
-    return ticks / (time.perf_counter() - t0)
+    m = b.model
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    state0 = np.empty(mujoco.mj_stateSize(m, spec))
+    mujoco.mj_getState(m, b.data, state0, spec)
+    warm0 = b.data.qacc_warmstart.copy()
+    b.handle(Hello(PROTOCOL_VERSION, SCHEMA_HASH, 0), 0)
+    ctrl: list[np.ndarray] = []
+    for k, frame in enumerate(_stream(b, sim_seconds), 1):
+        b.handle(frame, k)
+        while b.can_tick():
+            b.tick()
+            ctrl.append(b.data.ctrl.copy())
+    control = np.repeat(np.array(ctrl), b.cfg.substeps, axis=0)[None]  # (1, ticks * substeps, nu)
+    d = mujoco.MjData(m)
+    t0, c0 = time.perf_counter(), time.process_time()
+    states, _ = mujoco.rollout.rollout(m, d, state0[None], control, initial_warmstart=warm0[None])
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    ticks = len(ctrl)
+    qpos = states[0, -1, 1:1 + m.nq]  # FULLPHYSICS: time, qpos, ...
+    if not np.array_equal(qpos, b.data.qpos):
+        print(f"bare mj_step ({robot}): the rollout's final qpos differs from the board's by up to "
+              f"{np.abs(qpos - b.data.qpos).max():.3g}: not the board's physics")
+    if verbose:
+        print(f"bare mj_step ({robot}), n = 1 run: {ticks} ticks in {wall:.2f} s = {ticks / wall:,.0f} ticks/s, "
+              f"real-time factor {ticks * 0.002 / wall:.1f}x (CPU time {cpu:.2f} s = {ticks / cpu:,.0f} ticks/s, "
+              f"{ticks * 0.002 / cpu:.1f}x)")
+    return ticks / wall
 
 
 def lockstep_core(robot: str, sim_seconds: float = 10.0, verbose: bool = True) -> float:
@@ -199,7 +221,8 @@ def lockstep_pty(robot: str, sim_seconds: float = 10.0, profile: str | None = No
     ticks = board_us // 2000
     if verbose:
         print(f"lockstep over pty ({robot}), n = 1 run: {board_us / 1e6:.1f} s simulated in {wall:.2f} s wall = {board_us / 1e6 / wall:.1f}x"
-              f" real time ({tel} TELEMETRY read; CPU per 20 ms of board time: board process {cpu / tel * 1e6:.0f} us, "
+              f" real time ({tel} TELEMETRY read; board process CPU time {cpu:.2f} s = {board_us / 1e6 / cpu:.1f}x;"
+              f" CPU per 20 ms of board time: board process {cpu / tel * 1e6:.0f} us, "
               f"host {hcpu / tel * 1e6:.0f} us; of it per board thread, main first: "
               f"{', '.join(f'{c / tel * 1e6:.0f} us' for c in threads.values())})"
               f"{'; board profile in ' + profile if profile else ''}{'; host profile in ' + host_profile if host_profile else ''}")

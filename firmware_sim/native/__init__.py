@@ -288,6 +288,7 @@ class NativeTick:
         self._lib = lib
         self._worker: int | None = None  # gs_worker_new's handle once :meth:`run_during` first ran
         self._no_worker = False  # the C could not start a thread: run_during runs in this thread
+        self._worker_pid = 0  # the process that made the thread
 
     def run_during(self, t: int, n: int, tick_us: int, flags: int, during: Callable[[], object]) -> int:
         """:meth:`run` on the kernel's own thread while ``during()`` runs in this one (the GIL is free
@@ -296,9 +297,12 @@ class NativeTick:
         ``during`` must not touch this board's arrays or its MjData (they are the ticks' state). When it
         raises, the ticks are still waited for before the exception goes on. Without a thread (the C
         could not make one) ``during()`` runs first, then the ticks, in this thread."""
+        if self._worker is not None and self._worker_pid != os.getpid():
+            self._worker = None  # a forked child: the thread stayed in the parent (its handle is the parent's)
         if self._worker is None and not self._no_worker:
             self._worker = self._lib.gs_worker_new() or None
             self._no_worker = self._worker is None
+            self._worker_pid = os.getpid()
         if self._worker is None:
             during()
             return self.run(t, n, tick_us, flags)
@@ -312,7 +316,7 @@ class NativeTick:
     def close(self) -> None:
         """End the kernel's thread, if :meth:`run_during` started one (idempotent)."""
         worker, self._worker = self._worker, None
-        if worker is not None:
+        if worker is not None and self._worker_pid == os.getpid():
             self._lib.gs_worker_free(worker)
 
     def __del__(self) -> None:
