@@ -22,8 +22,7 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass, fields
 from typing import NoReturn
 
 import anyio
@@ -38,7 +37,6 @@ from host.run.options import SessionOptions
 from host.run.robot_session import RobotSession, TurnResult
 from host.run.stops import StopReason, StopSignals
 from host.shell import Shell
-from host.shell.timeline import RunResult
 
 log = logging.getLogger("host.run")
 
@@ -66,17 +64,17 @@ class RunOptions(SessionOptions):
 
 
 @dataclass
-class RunReport:
-    """What a run produced (also written to the run folder)."""
+class RunReport(TurnResult):
+    """What a run produced (also written to the run folder): its one turn (:class:`TurnResult`) and how
+    it stopped."""
 
-    result: RunResult
-    calls: list[artefacts.BoardCall]
-    summary: artefacts.Summary
-    out: Path
-    token_times: list[tuple[float, str]] = field(default_factory=list)
-    board_t0: float = 0.0
     stop: StopReason | None = None  # why the run stopped early (a signal, a bound), else None
     rested: bool | None = None  # after a stop: the robot reached its rest pose (None: no stop, or it came after the turn)
+
+    @classmethod
+    def of(cls, turn: TurnResult, stop: StopReason | None = None, rested: bool | None = None) -> RunReport:
+        """The report of ``turn``."""
+        return cls(**{f.name: getattr(turn, f.name) for f in fields(TurnResult)}, stop=stop, rested=rested)
 
 
 async def run_program(opts: RunOptions, on_start: Callable[[Shell, RobotRuntime], None] | None = None) -> RunReport:
@@ -140,8 +138,7 @@ async def run_program(opts: RunOptions, on_start: Callable[[Shell, RobotRuntime]
         _raise_forced(session, signals, turn, opts)
     assert turn is not None  # the session ran its turn (every other way out raised above)
     stop = signals.reported(session.stop) if signals is not None else session.stop
-    return RunReport(turn.result, turn.calls, turn.summary, turn.out, turn.token_times, turn.board_t0,
-                     stop, rested)
+    return RunReport.of(turn, stop, rested)
 
 
 def _raise_forced(session: RobotSession, signals: StopSignals, turn: TurnResult | None, opts: RunOptions) -> NoReturn:
@@ -157,8 +154,7 @@ def _raise_forced(session: RobotSession, signals: StopSignals, turn: TurnResult 
         ended = session.ended_turn(interrupted, opts.task_label, opts.out)
     if ended is not None:
         session.write_now(ended, opts.task_label, plots=False)
-        setattr(interrupted, _REPORT_ATTR, RunReport(ended.result, ended.calls, ended.summary, ended.out,
-                                                     ended.token_times, ended.board_t0, stop))
+        setattr(interrupted, _REPORT_ATTR, RunReport.of(ended, stop))
     raise interrupted
 
 
@@ -169,8 +165,7 @@ def _end_on_link_error(session: RobotSession, exc: LinkError, opts: RunOptions) 
         return
     log.info("the run ended on a link error; writing its artefacts to %s", opts.out)
     session.write_now(ended, opts.task_label)  # the board has stopped: its fault report is in
-    setattr(exc, _REPORT_ATTR, RunReport(ended.result, ended.calls, ended.summary, ended.out,
-                                         ended.token_times, ended.board_t0))
+    setattr(exc, _REPORT_ATTR, RunReport.of(ended))
 
 
 _REPORT_ATTR = "ghostshell_run_report"
