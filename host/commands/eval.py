@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -188,8 +189,10 @@ def main(args: argparse.Namespace) -> int:
         return 2
 
     from host.progress import bar
+    from host.tools.eval.report import job_times, sweep_times
 
     stopped: list[str] = []
+    started = time.monotonic()
     scores: list[float] = []
     total = len(cfg.tasks) * cfg.trials
     with bar(f"eval {cfg.llm}", total, quiet=args.quiet, fields=("micro", "failed")) as shown:
@@ -204,7 +207,8 @@ def main(args: argparse.Namespace) -> int:
             elif "passed" in rec:
                 scores.append(1.0 if rec.get("passed") else 0.0)
             if not args.quiet:
-                shown.print(f"[{p.skipped + p.finished}/{p.total}] task {rec['task']} trial {rec['trial']}: {what}{ran}")
+                shown.print(f"[{p.skipped + p.finished}/{p.total}] task {rec['task']} trial {rec['trial']}: "
+                            f"{what}{ran}{job_times(rec)}")
             shown.update(completed=p.skipped + p.finished, total=p.total,
                          micro=f"{sum(scores) / len(scores):.2f}" if scores else "", failed=len(p.errors) or "")
 
@@ -225,7 +229,8 @@ def main(args: argparse.Namespace) -> int:
                 raise
             print_error("eval", str(err))
             return 2
-    config = {**asdict(cfg), "out": str(cfg.out), "api_key": None, "paper_model": args.paper_model}
+    config = {**asdict(cfg), "out": str(cfg.out), "api_key": None, "paper_model": args.paper_model,
+              "sweep_wall_s": round(time.monotonic() - started, 2), "backend": "ray" if args.ray else "local"}
     expected = len(cfg.tasks) * cfg.trials
     if stopped:  # Ctrl-C / SIGTERM: what finished is in results.jsonl; report it, resume later
         if records:
@@ -239,6 +244,7 @@ def main(args: argparse.Namespace) -> int:
     elif "micro" in summary:
         print(f"micro {summary['micro']:.2f} ± {summary['micro_std']:.2f}, macro {summary['macro']:.2f} ± "
               f"{summary['macro_std']:.2f}; ran clean {summary['ran_clean']}/{summary['runs']}")
+    print(sweep_times(summary["timing"]))
     print(f"wrote {cfg.out / 'eval.json'}, eval.md, eval.png")
     if len(records) < expected:
         print_error("eval", f"{expected - len(records)} job(s) failed; run again to retry them")

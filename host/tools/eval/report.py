@@ -3,7 +3,8 @@
 ``eval.json``: ``{"config", "paper_model", "summary", "tasks", "records"}`` where
 ``records`` is every job (reply, score, per-layer breakdown, run outcome) and
 ``summary`` the micro/macro means ± std over trials (:mod:`host.tools.eval.stats`) or,
-for the ablation, passes per mode beside the paper's.
+for the ablation, passes per mode beside the paper's; ``summary["timing"]`` the wall times
+(:func:`summarise_timing`: the sweep's, and per job and per task what the LLM and the board run took).
 """
 
 from __future__ import annotations
@@ -82,14 +83,70 @@ def summarise_ablation(records: list[dict[str, Any]], native: bool, robot: Robot
             "paper_other_mode": paper["function_tokens" if native else "native_calls"]}
 
 
+def _mean(values: list[float]) -> float | None:
+    return round(float(np.mean(values)), 3) if values else None
+
+
+def _times(records: list[dict[str, Any]]) -> dict[str, float | None]:
+    """Mean wall seconds of ``records``: the job, the LLM's part, the board run's part (None: not recorded)."""
+    return {"wall_s": _mean([r["wall_s"] for r in records if r.get("wall_s") is not None]),
+            "llm_s": _mean([r["llm_s"] for r in records if r.get("llm_s") is not None]),
+            "run_wall_s": _mean([r["run"]["wall_s"] for r in records if r.get("run", {}).get("wall_s") is not None])}
+
+
+def summarise_timing(records: list[dict[str, Any]], config: dict[str, Any]) -> dict[str, Any]:
+    """Wall times, seconds: ``sweep_wall_s`` (this invocation of the sweep, from the CLI's config; None
+    if not given), ``workers``, ``backend`` (``local`` / ``ray``), ``jobs`` (records with a time),
+    ``wall_s`` / ``llm_s`` / ``run_wall_s`` (means over jobs: the whole job, asking the LLM, running
+    the reply on the board with its start-up and artefacts), ``max_wall_s`` and ``per_task`` (task ->
+    the same three means). Records of versions that did not time jobs count as not timed."""
+    timed = [r for r in records if r.get("wall_s") is not None]
+    by_task: dict[int, list[dict[str, Any]]] = defaultdict(list)
+    for r in timed:
+        by_task[r["task"]].append(r)
+    return {"sweep_wall_s": config.get("sweep_wall_s"), "workers": config.get("workers"),
+            "backend": config.get("backend"), "jobs": len(timed), **_times(timed),
+            "max_wall_s": round(max(r["wall_s"] for r in timed), 3) if timed else None,
+            "per_task": {t: _times(rs) for t, rs in sorted(by_task.items())}}
+
+
+def _s(x: float | None) -> str:
+    return "–" if x is None else f"{x:.2f} s"
+
+
+def job_times(rec: dict[str, Any]) -> str:
+    """``", 1.23 s (LLM 0.45 s, run 0.76 s)"``: one job's wall times for its progress line ("" if untimed)."""
+    if rec.get("wall_s") is None:
+        return ""
+    parts = [f"LLM {_s(rec.get('llm_s'))}"] if rec.get("llm_s") is not None else []
+    if rec.get("run", {}).get("wall_s") is not None:
+        parts.append(f"run {_s(rec['run']['wall_s'])}")
+    return f", {_s(rec['wall_s'])}" + (f" ({', '.join(parts)})" if parts else "")
+
+
+def sweep_times(timing: dict[str, Any]) -> str:
+    """One line: the sweep's wall time and the mean job's (its LLM and board-run parts)."""
+    head = "wall time:"
+    if timing.get("sweep_wall_s") is not None:
+        workers = timing.get("workers")
+        how = f" ({workers} worker{'s' if workers != 1 else ''}{', Ray' if timing.get('backend') == 'ray' else ''})"
+        head += f" sweep {timing['sweep_wall_s']:.1f} s{how if workers else ''};"
+    if not timing.get("jobs"):
+        return f"{head} no timed jobs"
+    return (f"{head} per job mean {_s(timing['wall_s'])}, max {_s(timing['max_wall_s'])} (LLM {_s(timing['llm_s'])}, "
+            f"run on the board {_s(timing['run_wall_s'])}; {timing['jobs']} jobs)")
+
+
 def write_reports(out: Path, config: dict[str, Any], records: list[dict[str, Any]]) -> dict[str, Any]:
-    """Write eval.json, eval.md and eval.png into ``out``; returns the summary."""
+    """Write eval.json, eval.md and eval.png into ``out``; returns the summary (its ``timing``:
+    :func:`summarise_timing`)."""
     robot = _robot(config)
     paper_model = config.get("paper_model") or match_paper_model(config["llm"], robot)
     if config["suite"] == "ablation":
         summary = summarise_ablation(records, config["native_tools"], robot)
     else:
         summary = summarise_hri(records, paper_model, robot)
+    summary["timing"] = summarise_timing(records, config)
     doc = {"config": config, "paper_model": paper_model, "summary": summary, "records": records}
     (out / "eval.json").write_text(json.dumps(doc, indent=1, ensure_ascii=False, default=str) + "\n", encoding="utf-8")
     (out / "eval.md").write_text(_markdown(config, paper_model, summary), encoding="utf-8")
@@ -103,10 +160,12 @@ def _markdown(config: dict[str, Any], paper_model: str | None, s: dict[str, Any]
         mode = "native function calls" if config["native_tools"] else "function tokens"
         lines += [f"Native-call ablation, {mode}: **{s['completed']}/{s['tasks']}** tasks completed "
                   f"(paper, GPT-4.1: {s['paper']}; the other mode: {s['paper_other_mode']}).", "",
-                  "| task | category | expected | passed | paper |", "| --- | --- | --- | --- | --- |"]
+                  "| task | category | expected | passed | paper | wall (LLM) |", "| --- | --- | --- | --- | --- | --- |"]
         for t, row in s["per_task"].items():
             lines.append(f"| {t} | {row['category']} | `{row['expected']}` | {row['passed']}/{row['trials']} | "
-                         f"{'pass' if row['paper'] else 'fail'} |")
+                         f"{'pass' if row['paper'] else 'fail'} | {_task_times(s, t)} |")
+        if "timing" in s:
+            lines += ["", sweep_times(s["timing"]) + "."]
         return "\n".join(lines) + "\n"
     if "micro" not in s:
         return "\n".join(lines + ["No finished jobs."]) + "\n"
@@ -118,13 +177,25 @@ def _markdown(config: dict[str, Any], paper_model: str | None, s: dict[str, Any]
                  if s.get("paper_mean_of_tasks") is not None else ""),
               f"- ran clean on the emulated board: {s['ran_clean']}/{s['runs']} (robot fell: {s['fell']}, "
               f"runs with failed calls: {s['runs_with_failed_calls']})", "",
-              "| task | category | DSBC (mean ± std) | paper | ran clean |", "| --- | --- | --- | --- | --- |"]
+              "| task | category | DSBC (mean ± std) | paper | ran clean | wall (LLM) |",
+              "| --- | --- | --- | --- | --- | --- |"]
     for t, row in s["per_task"].items():
         clean = f"{row['clean']}/{row['runs']}" if row["runs"] else "–"
-        lines.append(f"| {t} | {row['category']} | {row['mean']:.2f} ± {row['std']:.2f} | {_fmt(row['paper'])} | {clean} |")
+        lines.append(f"| {t} | {row['category']} | {row['mean']:.2f} ± {row['std']:.2f} | {_fmt(row['paper'])} | {clean} "
+                     f"| {_task_times(s, t)} |")
     lines += ["", "| category | DSBC |", "| --- | --- |"]
     lines += [f"| {c} | {v:.2f} |" for c, v in s["per_category"].items()]
+    if "timing" in s:
+        lines += ["", sweep_times(s["timing"]) + ". Wall (LLM): a task's mean job wall time and, of it, the mean "
+                  "time asking the LLM."]
     return "\n".join(lines) + "\n"
+
+
+def _task_times(s: dict[str, Any], task: Any) -> str:
+    row = s.get("timing", {}).get("per_task", {}).get(task)
+    if not row or row["wall_s"] is None:
+        return "–"
+    return f"{_s(row['wall_s'])} ({_s(row['llm_s'])})"
 
 
 def _plot(path: Path, config: dict[str, Any], paper_model: str | None, s: dict[str, Any]) -> None:

@@ -11,8 +11,13 @@ tool definitions and the reply runs the native way (:mod:`host.tools.eval.native
 Every finished job is appended to ``results.jsonl`` in the output folder (one
 JSON object per line, flushed), so an interrupted sweep continues where it
 stopped; a job whose LLM call failed is retried on the next start. Jobs run
-``workers`` at a time in one AnyIO task group (each with its own board), or on
-a Ray cluster (:mod:`host.tools.eval.ray_backend`).
+``workers`` at a time, each with its own board: with one worker in this process, with more each in
+its own worker process (:mod:`host.tools.eval.workers`: one interpreter's lock would hold the host
+sides of several jobs to one core), or on a Ray cluster (:mod:`host.tools.eval.ray_backend`).
+
+Each record carries where it ran (``node``: the host name, ``pid``: the process) and its wall times:
+``wall_s`` (the whole job), ``llm_s`` (asking the LLM: what its latency adds; 0 offline) and
+``run["wall_s"]`` (the reply's run on the lockstep board, start-up and artefacts included).
 
 Offline (no model): ``llm=GROUND_TRUTH`` answers each task with its own ground truth (micro =
 macro = 1.0); ``llm=SCRIPTED`` answers each task with ``SweepConfig.replies[task]`` (from
@@ -24,6 +29,8 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
+import socket
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -221,26 +228,29 @@ async def execute(cfg: SweepConfig, program: str, out: Path, label: str) -> dict
                       robots_dir=cfg.robots_dir, vocabulary=cfg.vocabulary, mcp_mounts=cfg.mcp_mounts,
                       mode=cfg.mode, strict=True, lockstep=True, out=out, tokens_per_s=cfg.tokens_per_s,
                       plots=cfg.plots)
+    t0 = time.monotonic()
     try:
         report = await run_program(opts)
     except Exception as err:  # a board or link failure is this job's result, not the sweep's end
         return {"outcome": "error", "clean": False, "fell": None, "failed_calls": None,
-                "error": f"{type(err).__name__}: {err}", "calls": []}
+                "error": f"{type(err).__name__}: {err}", "calls": [], "wall_s": round(time.monotonic() - t0, 3)}
     s = report.summary
     failed = s.outcomes.get("failed", 0)
     return {"outcome": s.outcome, "fell": s.fell, "failed_calls": failed,
             "clean": s.outcome == "done" and not s.fell and failed == 0,
             "error": s.extra.get("error"), "max_tilt_deg": s.max_tilt_deg, "duration_s": s.duration_s,
-            "calls": [asdict(c) for c in report.calls]}
+            "calls": [asdict(c) for c in report.calls], "wall_s": round(time.monotonic() - t0, 3)}
 
 
 async def run_job(cfg: SweepConfig, task: int, trial: int, system: str) -> dict[str, Any]:
     """One (task, trial): ask, score, execute. Returns the results.jsonl record."""
-    rec: dict[str, Any] = {"task": task, "trial": trial, "status": "done"}
+    t0 = time.monotonic()
+    rec: dict[str, Any] = {"task": task, "trial": trial, "status": "done", "node": socket.gethostname(),
+                           "pid": os.getpid()}
     try:
         rec.update(await ask(cfg, task, system))
     except GhostError as err:
-        return {**rec, "status": "llm_error", "error": str(err)}
+        return {**rec, "status": "llm_error", "error": str(err), "wall_s": round(time.monotonic() - t0, 3)}
     if cfg.suite == "hri":
         t = hri_tasks(cfg.bot)[task]
         res = dsbc_breakdown(t.ground_truth, rec["reply"])
@@ -259,6 +269,7 @@ async def run_job(cfg: SweepConfig, task: int, trial: int, system: str) -> dict[
             pattern = expected_pattern(task, a.expected, words)
             v = judge(pattern, intervals_from_timeline(rec["run"]["calls"]), words)
             rec["pattern"], rec["passed"], rec["verdict"] = pattern, v.passed, v.reason
+    rec["wall_s"] = round(time.monotonic() - t0, 3)
     return rec
 
 
@@ -335,25 +346,24 @@ def recorder(sink: IO[str], done: dict[str, dict[str, Any]], progress: SweepProg
 
 async def run_sweep(cfg: SweepConfig, on_result: Callable[[dict[str, Any], SweepProgress], None] | None = None,
                     ) -> list[dict[str, Any]]:
-    """Run every pending job, ``cfg.workers`` at a time; returns all records of this sweep
-    (earlier ones included) in (trial, task) order."""
+    """Run every pending job, ``cfg.workers`` at a time (more than one: in worker processes,
+    :mod:`host.tools.eval.workers`); returns all records of this sweep (earlier ones included) in
+    (trial, task) order."""
     cfg.out.mkdir(parents=True, exist_ok=True)
     _check_config(cfg)
     done = load_results(cfg.out)
     jobs = pending_jobs(cfg, done)
     progress = SweepProgress(total=len(cfg.tasks) * cfg.trials, skipped=len(ordered(cfg, done)))
     system = await anyio.to_thread.run_sync(system_prompt, cfg)  # its own event loop when servers are mounted
-    limiter = anyio.CapacityLimiter(max(1, cfg.workers))
     with (cfg.out / RESULTS).open("a", encoding="utf-8") as sink:
         record = recorder(sink, done, progress, on_result)
+        if cfg.workers > 1 and len(jobs) > 1:
+            from host.tools.eval.workers import run_in_processes
 
-        async def one(task: int, trial: int) -> None:
-            async with limiter:
-                record(await run_job(cfg, task, trial, system))
-
-        async with anyio.create_task_group() as tg:
+            await run_in_processes(run_job, cfg, jobs, system, record, cfg.workers)
+        else:
             for task, trial in jobs:
-                tg.start_soon(one, task, trial)
+                record(await run_job(cfg, task, trial, system))
     return ordered(cfg, done)
 
 
