@@ -55,6 +55,10 @@ log = logging.getLogger("host.link")
 SYNC_ATTEMPTS = 8
 SYNC_FIRST_WAIT_S = 0.1
 SYNC_WAIT_MAX_S = 2.0
+#: wire bytes a TIME_SYNC exchange may take over a slow line (:meth:`Supervisor.sync_wait_s`): the request
+#: (17) and reply (33), and a TELEMETRY + SIM_STATE pair the reply may queue behind (163 for 12 servos; the
+#: rest leaves room for a robot of 32)
+SYNC_QUEUE_BYTES = 300
 #: HELLO is sent again after this, then after twice the wait before, until the handshake timeout: any
 #: CAPS answers it (HELLO is stateless on the board), so an early re-send costs one frame, never a reply
 HELLO_FIRST_RETRY_S = 0.25
@@ -338,16 +342,28 @@ class Supervisor:
             clock.sync.add(t1, reply.t2_board_us, reply.t3_board_us, t4, wire_us=wire_us, wire_down_us=down_us)
         return t1, reply.t2_board_us, reply.t3_board_us, t4
 
+    def sync_wait_s(self, wait_s: float) -> float:
+        """How long a TIME_SYNC exchange may take (s): ``wait_s``, or over a modelled slow line the wire time of
+        a request, its reply and :data:`SYNC_QUEUE_BYTES` the reply may queue behind, if longer. At 2 400
+        baud an exchange is 208 ms of wire and a report pair 680 ms more: with 0.1 s a C firmware board,
+        which drops no report, answered every probe too late (29 re-sent, 16 s of connect, and the
+        board's watchdog held for the 2-s waits between)."""
+        line = self.client.tx_wire
+        if line is None or line.baud is None:
+            return wait_s
+        return max(wait_s, line.wire_s(SYNC_QUEUE_BYTES))
+
     async def sync_burst(self) -> None:
         """``sync_burst`` TIME_SYNC exchanges (one in lockstep), each tried up to :data:`SYNC_ATTEMPTS` times."""
         c = self.client
+        first = self.sync_wait_s(SYNC_FIRST_WAIT_S)
         for _ in range(self.sync_burst_n if not self.clock.lockstep else 1):
             # a lost probe or reply costs a retry, not the connection (at 5 % frame loss a classic-CAN
             # exchange of 6 frames fails 1 time in 4, three in a row 1 in 50); a board slow to answer (a
             # loaded machine) gets longer each time (SYNC_ATTEMPTS)
             for attempt in range(SYNC_ATTEMPTS):
                 try:
-                    await self.sync_once(timeout=min(SYNC_WAIT_MAX_S, SYNC_FIRST_WAIT_S * 2**attempt))
+                    await self.sync_once(timeout=min(max(SYNC_WAIT_MAX_S, first), first * 2**attempt))
                     break
                 except LinkTimeout:
                     if attempt == SYNC_ATTEMPTS - 1:
@@ -371,4 +387,4 @@ class Supervisor:
             await anyio.sleep(self.sync_interval_s)
             if c.ready and self.keepalive and not self.clock.lockstep:
                 with contextlib.suppress(LinkError):
-                    await self.sync_once()
+                    await self.sync_once(self.sync_wait_s(0.5))

@@ -8,6 +8,7 @@ import time
 import anyio
 
 from host.link import BoardClient, LinkError
+from host.motion.streamer import slow_line
 from host.motion.txqueue import EdfFrameQueue, SeqCallback
 from protocol.messages import Flush, ServoFrame
 from protocol.wiremodel import WireModel
@@ -46,6 +47,10 @@ class BoardFrameLink:
         self.client = client
         if wire_baud and client.tx_wire is None:  # the host models its own line from now on
             client.tx_wire = WireModel(wire_baud)
+        robot = client.robot
+        #: a slow line (:func:`host.motion.streamer.slow_line`): the streamer's grid frames carry only the
+        #: servos that move (``FrameStreamer.sparse``)
+        self.sparse_frames = robot is not None and slow_line(robot.servo_count, wire_baud)
         #: frames held while :meth:`pace` runs
         self.queue = EdfFrameQueue()
         self._pacing = False

@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from host.motion.streamer import GRID_PERIOD_US, grid_period_us
+from host.motion.streamer import BOARD_WATCHDOG_US, WATCHDOG_GRID_PERIODS, grid_period_us, slow_line
 from protocol.codec import WireSchema, schema_for
 from protocol.framing import encode_frame
 from protocol.messages import ConfigKey, FaultFlags, SimState, Telemetry, TimeSyncReply
@@ -47,11 +47,9 @@ __all__ = ["BOARD_TELEMETRY_HZ", "BOARD_WATCHDOG_MS", "SYNC_REPLIES_HZ", "TELEME
            "WATCHDOG_GRID_PERIODS", "LineCadence", "LineTooSlow", "line_cadence", "report_pair_bytes"]
 
 #: the board's defaults (both boards, ``firmware_sim.config.BoardConfig``; CAPS reports the report rate)
-BOARD_WATCHDOG_MS = 200
+BOARD_WATCHDOG_MS = BOARD_WATCHDOG_US // 1000
 BOARD_TELEMETRY_HZ = 50
 CONTROL_RATE_HZ = 500
-#: the watchdog the host asks for on a slow line, in grid periods (CANopen's life time factor)
-WATCHDOG_GRID_PERIODS = 3
 #: the share of the board -> host line the reports may fill once the host lowers their rate
 TELEMETRY_LINE_SHARE = 0.5
 #: TIME_SYNC replies per second on a realtime link (the supervisor's ``sync_interval_s`` of 0.5 s)
@@ -112,7 +110,7 @@ def line_cadence(n_servos: int, baud: int | None, schema: WireSchema | None = No
             f"--baud {baud} is too slow for a {n_servos}-servo robot: the board's reports at their slowest (1 Hz) "
             f"and the clock sync need ~{pair_bits + sync_bits:,} bit/s, more than the line; use --baud "
             f"{min(r for r in STANDARD_BAUDS if r >= pair_bits + sync_bits)} or more")
-    if WATCHDOG_GRID_PERIODS * period <= BOARD_WATCHDOG_MS * 1000 or period == GRID_PERIOD_US:
+    if not slow_line(n_servos, baud, schema):
         return LineCadence(period)
     hz = max(1, min(BOARD_TELEMETRY_HZ, int(TELEMETRY_LINE_SHARE * baud // pair_bits)))
     # a lockstep host's nudge ADVANCEs a silent board one report period (+ a tick) with no frame in it

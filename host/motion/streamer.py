@@ -151,22 +151,52 @@ GRID_PERIOD_US = 10_000
 #: The share of a modelled line's time the frame grid may fill (:func:`grid_period_us`); the rest carries
 #: a motion start's first frame and FLUSH, re-sent frames, requests, heartbeats and TIME_SYNCs.
 GRID_LINE_SHARE = 0.5
+#: ... on a slow line (:func:`slow_line`): there the handshake raises the board's watchdog past the grid,
+#: so no heartbeat goes out while the grid streams, and the grid's frames carry only the servos that move
+#: (:class:`FrameStreamer` ``sparse``): full-body frames may fill this share, and usually fill less.
+SLOW_GRID_LINE_SHARE = 0.8
+#: the board's default watchdog (µs; both boards) and the watchdog a slow line's handshake asks for, in grid
+#: periods (:mod:`host.motion.line_cadence`)
+BOARD_WATCHDOG_US = 200_000
+WATCHDOG_GRID_PERIODS = 3
+
+
+def _grid_steps(frame_s: float, share: float) -> int:
+    return max(1, math.ceil(frame_s / share / (GRID_PERIOD_US * 1e-6) - 1e-9))
+
+
+def slow_line(n_servos: int, baud: int | None, schema: WireSchema | None = None) -> bool:
+    """Whether a line of ``baud`` is slow for a robot of ``n_servos``: its grid at :data:`GRID_LINE_SHARE`
+    would be longer than a third of the board's default watchdog (CoCo: below ~11 000 baud), so the
+    gaps between frames tripped it; the handshake then raises the watchdog (:mod:`host.motion.line_cadence`)."""
+    if not baud:
+        return False
+    frame_s = frame_wire_bytes(n_servos, schema) * BITS_PER_BYTE / baud
+    return WATCHDOG_GRID_PERIODS * _grid_steps(frame_s, GRID_LINE_SHARE) * GRID_PERIOD_US > BOARD_WATCHDOG_US
 
 
 def grid_period_us(n_servos: int, baud: int | None, schema: WireSchema | None = None) -> int:
     """The frame grid's period (µs) over a line of ``baud`` bit/s (8N1): the smallest multiple of
     :data:`GRID_PERIOD_US` whose full-body SERVO_FRAME (:func:`frame_wire_bytes`) fills at most
-    :data:`GRID_LINE_SHARE` of it; :data:`GRID_PERIOD_US` for None (a line the host does not model).
+    :data:`GRID_LINE_SHARE` of it (:data:`SLOW_GRID_LINE_SHARE` on a :func:`slow_line`);
+    :data:`GRID_PERIOD_US` for None (a line the host does not model).
 
-    12 servos (39 wire bytes): 10 ms down to 78 000 baud, 20 ms at 57 600, 90 ms at 9 600, 330 ms at
+    12 servos (39 wire bytes): 10 ms down to 78 000 baud, 20 ms at 57 600, 60 ms at 9 600, 210 ms at
     2 400. A grid the line cannot carry (100 frames/s at 2 400 baud needs 39 000 bit/s) queued frames
     until the lead limit stopped the run ("the host sent no servo frame for 10 s"); a slower grid
-    moves the servos in coarser straight segments (the board interpolates between frames)."""
+    moves the servos in coarser straight segments (the board interpolates between frames): at 2 400
+    baud with a share of 0.5 (330 ms) CoCo's two strides of Task 26 (a 0.7-s gait cycle) moved the base
+    1.8 cm instead of 8.2; at 210 ms 7.4 cm."""
     if not baud:
         return GRID_PERIOD_US
     frame_s = frame_wire_bytes(n_servos, schema) * BITS_PER_BYTE / baud
-    steps = max(1, math.ceil(frame_s / GRID_LINE_SHARE / (GRID_PERIOD_US * 1e-6) - 1e-9))
-    return steps * GRID_PERIOD_US
+    share = SLOW_GRID_LINE_SHARE if slow_line(n_servos, baud, schema) else GRID_LINE_SHARE
+    return _grid_steps(frame_s, share) * GRID_PERIOD_US
+
+
+#: a sparse grid frame (:meth:`FrameStreamer._sparse_frame`) leaves out a servo whose target moves less than
+#: this (rad) to and from the frame: below the wire's resolution (SERVO_FRAME targets are in 1e-4 rad)
+SPARSE_EPS_RAD = 1e-5
 
 
 def flush_wire_bytes(schema: WireSchema | None = None) -> int:
@@ -204,8 +234,13 @@ class FrameStreamer:
     """Keeps the board fed with frames from a :class:`Mixer`."""
 
     def __init__(self, link: FrameLink, mixer: Mixer, *, period_us: int = GRID_PERIOD_US, lookahead_us: int = LOOKAHEAD_US,
-                 start_us: int | None = None, history: int = 720_000, max_lead_us: int = 2_000_000) -> None:
+                 start_us: int | None = None, history: int = 720_000, max_lead_us: int = 2_000_000,
+                 sparse: bool | None = None) -> None:
         self.link = link
+        #: grid frames carry only the servos that move (:meth:`_send`); default: the link's ``sparse_frames``
+        #: (:class:`host.motion.board_link.BoardFrameLink`: a slow line), else False
+        self.sparse = bool(getattr(link, "sparse_frames", False)) if sparse is None else sparse
+        self._prev_targets: np.ndarray | None = None  # the last grid frame's targets (sparse)
         self.mixer = mixer
         #: the robot's wire schema (the mask's width): what a FLUSH and a frame cost on the wire
         self.schema = schema_for(max(1, mixer.n_servos))
@@ -530,12 +565,35 @@ class FrameStreamer:
     def _send(self, mixed: MixedFrame) -> None:
         n = self.mixer.n_servos
         sent = _Sent(None, mixed) if mixed.started or mixed.ended else None
-        frame = ServoFrame(mixed.t_us, (1 << n) - 1, tuple(float(x) for x in mixed.targets))
+        if self.sparse:
+            frame = self._sparse_frame(mixed)
+        else:
+            frame = ServoFrame(mixed.t_us, (1 << n) - 1, tuple(float(x) for x in mixed.targets))
         self.link.queue_frame(frame, sent.written if sent is not None else None)  # LinkDown: nothing recorded
         if sent is not None:
             self._in_flight.append(sent)
         self.frames_sent += 1
         self.history.append((mixed.t_us, mixed.targets))
+
+    def _sparse_frame(self, mixed: MixedFrame) -> ServoFrame:
+        """The grid frame at ``mixed.t_us`` with only the servos that move: those whose target differs (by
+        more than :data:`SPARSE_EPS_RAD`) from the previous grid frame's or from the next grid time's (so a
+        servo about to move has its keyframe one period before, where its straight segment starts). The
+        first frame carries every servo; a frame in which nothing moves carries servo 0 alone (a frame
+        needs one servo; a lockstep board runs only as far as frames reach, and every frame feeds the
+        watchdog). A held servo left out keeps its last target on the board (docs/wire-protocol.md)."""
+        q = mixed.targets
+        prev = self._prev_targets
+        self._prev_targets = q
+        if prev is None:
+            moving = np.ones(len(q), dtype=bool)
+        else:
+            nxt = self.mixer.sample_servo_targets(mixed.t_us + self.period_us)
+            moving = (np.abs(q - prev) > SPARSE_EPS_RAD) | (np.abs(nxt - q) > SPARSE_EPS_RAD)
+            if not moving.any():
+                moving[0] = True
+        idx = np.flatnonzero(moving)
+        return ServoFrame(mixed.t_us, mask_of(idx.tolist()), tuple(float(x) for x in q[idx]))
 
     async def cut(self, segments: Sequence[Segment], servos: Sequence[int],
                   make_replacement: Callable[[np.ndarray], MotionLike | None], label: str = "",

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from host.motion.line_cadence import line_cadence
 from host.motion.streamer import grid_period_us
 from host.run.launch import HEARTBEAT_MAX_S, HEARTBEAT_S, heartbeat_for_grid, line_load_note
 
@@ -114,14 +115,16 @@ def test_a_line_too_slow_for_the_robot_is_refused_at_start(tmp_path: Path) -> No
 
 
 @pytest.mark.parametrize(("baud", "says"), [
-    (9600, "--baud 9600: one 12-servo frame takes 41 ms on the line, so the host sends one every 90 ms"),
-    (4800, "--baud 4800: one 12-servo frame takes 81 ms on the line, so the host sends one every 170 ms"),
+    (9600, "--baud 9600: one 12-servo frame takes 41 ms on the line, so the host sends one every 60 ms"),
+    (4800, "--baud 4800: one 12-servo frame takes 81 ms on the line, so the host sends one every 110 ms"),
 ])
 def test_a_slow_line_gets_a_frame_grid_it_can_carry(tmp_path: Path, baud: int, says: str) -> None:
     """At 9 600 baud a 12-servo SERVO_FRAME takes 41 ms on the line: the 100 frames/s grid needed four
     times the line, queued, went late, and a run with a motion ended "link lost" (966 grid frames
     skipped, 147 NACKed; paper Task 26). The grid now follows the line (``grid_period_us``: one frame
-    every 90 ms here, said in one line), and the same motion runs to its end with no frame refused.
+    every 60 ms here, since issue 46: the handshake raises the watchdog so no heartbeats fill the gaps,
+    and the frames carry only the servos that move; said in one line), and the same motion runs to its
+    end with no frame refused.
     At 4 800 baud the 50 ms heartbeats between those frames (18 per second) filled the rest of the line:
     Task 26 ran into its 120 s board-time bound with 574 frames NACKed as LATE; they now fill only the
     gaps (``heartbeat_for_grid``)."""
@@ -146,9 +149,11 @@ def test_heartbeats_fill_only_the_gaps_of_a_slow_grid_and_an_overloaded_line_is_
     assert heartbeat_for_grid(10_000) == HEARTBEAT_S == 0.05  # a fast line: as before
     assert heartbeat_for_grid(90_000) == pytest.approx(0.054)
     assert heartbeat_for_grid(170_000) == heartbeat_for_grid(2_600_000) == HEARTBEAT_MAX_S == 0.1
-    for baud in (None, 115_200, 57_600, 9_600, 4_800):  # what the runs above (and CI's) carry
+    for baud in (None, 115_200, 57_600, 9_600, 4_800, 2_400):  # what the runs above (and CI's) carry
         period = grid_period_us(12, baud)
-        assert line_load_note(12, baud, period, heartbeat_for_grid(period)) is None
-    period = grid_period_us(12, 2_400)
-    note = line_load_note(12, 2_400, period, heartbeat_for_grid(period))
+        # a slow line's handshake raises the watchdog and the heartbeats fill half of it (issue 46)
+        heartbeat = line_cadence(12, baud).heartbeat_s() or heartbeat_for_grid(period)
+        assert line_load_note(12, baud, period, heartbeat) is None
+    # before issue 46: a 330 ms grid at 2 400 baud and a heartbeat every 100 ms into its gaps
+    note = line_load_note(12, 2_400, 330_000, 0.1)
     assert note is not None and note.startswith("--baud 2400: the frames and heartbeats alone need ~2,727 bit/s, 114% of the line")

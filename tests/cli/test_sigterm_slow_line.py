@@ -61,9 +61,10 @@ def _last_report_s(out: Path) -> float:
     return 0.0 if last is None else last["fields"]["board_time_us"] * 1e-6
 
 
-def _summary_counts_what_ran(out: Path, *, rested: bool = False) -> dict:
+def _summary_counts_what_ran(out: Path, *, rested: bool = False, report_s: float = 0.02) -> dict:
     """summary.json's counts are timeline.json's calls, and its duration_s the board time the host streamed
-    (with ``rested``: up to the turn's end, the rest pose streamed after it)."""
+    (with ``rested``: up to the turn's end, the rest pose streamed after it), within the board's report
+    period ``report_s`` (the last report logged may not have been handled yet when the signal came)."""
     summary = json.loads((out / "summary.json").read_text())
     timeline = json.loads((out / "timeline.json").read_text())
     assert sum(summary["outcomes"].values()) == len(timeline["calls"])
@@ -72,7 +73,7 @@ def _summary_counts_what_ran(out: Path, *, rested: bool = False) -> dict:
     if rested:
         assert summary["duration_s"] <= streamed + 0.05
     else:
-        assert summary["duration_s"] == pytest.approx(streamed, abs=0.1)
+        assert summary["duration_s"] == pytest.approx(streamed, abs=max(0.1, report_s))
     assert "lag" in summary["extra"]["timing"]
     return summary
 
@@ -81,20 +82,22 @@ def test_one_sigterm_while_the_start_pose_crawls_at_2400_baud(tmp_path: Path) ->
     out = tmp_path / "run"
     cli = start(["run", "--task", "26", "--baud", "2400", "--lockstep", "--no-live", "--no-plots", "--out", str(out)],
                 tmp_path / "logs")
-    wait_until(lambda: _servo_frames(out) >= 2 and _last_report_s(out) > 0.15, "the move to the start pose is under way",
+    # the second report (board time 2 s: a 2 400-baud line's handshake sets 1 Hz reports since issue 46; the
+    # turn begins at 3 s), so the first one has been handled when the signal comes
+    wait_until(lambda: _servo_frames(out) >= 2 and _last_report_s(out) > 1.5, "the move to the start pose is under way",
                timeout=120, proc=cli)
     status, took = _sigterm_once(cli)
     print(f"exited {took:.2f} s after the SIGTERM")
     assert status == 130, cli.stderr[-2000:]
     assert took < BOUND_S, f"{took:.1f} s"
     assert "interrupted by SIGTERM while starting: stopped at once" in cli.stderr
-    summary = _summary_counts_what_ran(out)
+    summary = _summary_counts_what_ran(out, report_s=1.0)
     assert summary["outcome"] == "interrupted" and summary["extra"]["stopped"]["while_starting"] is True
 
 
 @pytest.mark.realtime
 def test_one_sigterm_mid_walk_at_4800_baud_ends_at_rest_within_the_bound(tmp_path: Path) -> None:
-    """Realtime over a 4 800-baud line (a frame every 170 ms): the first signal interrupts the walk, the
+    """Realtime over a 4 800-baud line (a frame every 110 ms): the first signal interrupts the walk, the
     robot goes to its rest pose within what is left of the stop's deadline, one line, exit 130."""
     from robots.registry import load_robot
 
