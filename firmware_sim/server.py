@@ -17,6 +17,14 @@ there lost reports only because it ran faster than real time); replies are dropp
 been heard for ``NO_HOST_S`` are counted apart (``tx_dropped_no_host``): nobody was reading then,
 which is not a slow link.
 
+Lockstep overlap: the server hands :meth:`Board.run` its link work (:meth:`BoardServer._link_work`), which
+runs while the native kernel ticks a batch on its own thread (:meth:`firmware_sim.native.NativeTick.run_during`):
+the reports a batch made are held (``_outbox``) and encoded, frame-logged (at the board time they were made)
+and written during the next long batch, before any reply, or before the board waits; what arrived is read
+and decoded meanwhile (it takes effect only when the board cannot tick, as ever). Same bytes, same order, same
+frame log; on a machine with a free core the physics no longer waits for the codec and the pty.
+``$GHOSTSHELL_LOCKSTEP_OVERLAP=0`` turns it off (A/B measurements: ``bench/bench_board.py``).
+
 Transmit timestamps: over a modelled line (``--baud``) a TIME_SYNC_REPLY queues behind the reports
 already on the wire (at 115 200 baud a report pair is ~14 ms of every 20). Its ``t3`` is stamped for
 the moment its first byte goes on the wire (board now + the line's committed time), as a UART driver
@@ -29,6 +37,7 @@ pty's is ~0.5 ms).
 from __future__ import annotations
 
 import dataclasses
+import os
 import select
 import sys
 import time
@@ -49,6 +58,7 @@ TELEMETRY_WIRE_BACKLOG_S = 0.02  # with --baud: drop telemetry rather than queue
 LOCKSTEP_BACKLOG = 8 * 1024
 MAX_BACKLOG = 4 * 1024 * 1024
 INBOX_LIMIT = 4096  # lockstep: stop reading (the pty buffers, the host blocks) beyond this
+OVERLAP_ENV = "GHOSTSHELL_LOCKSTEP_OVERLAP"
 OUTBOX_HOLD = 8  # lockstep: held reports queued at the latest once this many batches made some (_link_work)
 NO_HOST_S = 1.0  # wall seconds without a valid message after which no host is taken to be listening
 
@@ -80,6 +90,9 @@ class BoardServer:
         #: _link_work, before any reply, or before the board waits (see _serve_lockstep)
         self._outbox: list[tuple[int, list[Message]]] = []
         self._log_at_us: int | None = None  # frame-log time while _send_outbox queues held reports
+        #: lockstep: the link work runs while the native kernel ticks (``$GHOSTSHELL_LOCKSTEP_OVERLAP=0``: after
+        #: each run of ticks, in this thread, as before the overlap; for A/B measurements, same bytes either way)
+        self.overlap = os.environ.get(OVERLAP_ENV, "1") != "0"
         self.clock = RealtimeClock(board.tick_us / 1e6) if not board.cfg.lockstep else None
         if self.clock is not None:
             board._clock_us = self.clock.board_time_us  # fine-grained time for TIME_SYNC
@@ -245,18 +258,25 @@ class BoardServer:
         the backlog is checked before each such run, and a run sends at most one tick's reports."""
         while self.running:
             ran = 0
+            flushed = 0
             while (self.running and self.board.can_tick() and self.backlog < LOCKSTEP_BACKLOG and ran < 256
                    and self._line_has_room()):
                 # up to the next tick with reports, several per C call; the link work of the reports before
                 # (encode, write) and of what arrives (read, decode) runs while the C ticks (_link_work)
-                n, out = self.board.run(256 - ran, during=self._link_work)
+                n, out = self.board.run(256 - ran, during=self._link_work if self.overlap else None)
                 if out:
                     if self.objects_log is not None:
                         self.objects_log.record(out)
-                    self._outbox.append((self.board.board_time_us(), out))
+                    if self.overlap:
+                        self._outbox.append((self.board.board_time_us(), out))
+                    else:
+                        self.send(out)
                 if self.board.watchdog_events:
                     self._report_watchdog()
                 ran += n
+                if not self.overlap and ran - flushed >= 16:
+                    self._flush_tx()
+                    flushed = ran
             self._sync_viewer()
             handled = 0
             while self.inbox and not self.board.can_tick() and handled < 256:

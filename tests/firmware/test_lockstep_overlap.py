@@ -18,7 +18,7 @@ import serial
 from firmware_sim.board import OVERLAP_MIN_TICKS, Board
 from firmware_sim.config import BoardConfig
 from firmware_sim.native import native_reason
-from firmware_sim.server import BoardServer
+from firmware_sim.server import OVERLAP_ENV, BoardServer
 from firmware_sim.transports.serial import SerialBoardTransport
 from protocol.codec import SCHEMA_HASH, schema_for
 from protocol.framing import Frame, FrameDecoder, encode_frame
@@ -106,15 +106,19 @@ def test_an_exception_in_the_link_work_comes_after_the_ticks_are_counted() -> No
     b.native.close()
 
 
-def test_a_served_lockstep_board_logs_its_reports_at_the_board_time_they_were_made(tmp_path: Path) -> None:
+@pytest.mark.parametrize("overlap", [True, False], ids=["overlap", "no-overlap"])
+def test_a_served_lockstep_board_logs_its_reports_at_the_board_time_they_were_made(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, overlap: bool) -> None:
     """Over a pty, reports held back to be encoded while the next ticks run are logged at the board time
     they were made (TELEMETRY's own time), their bytes are the plain board's reports, and the kernel's
-    thread is gone once the server stops."""
+    thread is gone once the server stops; the same without the overlap ($GHOSTSHELL_LOCKSTEP_OVERLAP=0)."""
     _require_native()
+    monkeypatch.setenv(OVERLAP_ENV, "1" if overlap else "0")
     log = tmp_path / "board.jsonl"
     board = Board(BoardConfig(lockstep=True, kernel="native!"))
     transport = SerialBoardTransport("pty", log_path=str(log), servo_count=board.n)
     server = BoardServer(board, transport)
+    assert server.overlap is overlap
     frames = _stream(board, 100)
     served = threading.Thread(target=server.serve)
     served.start()
