@@ -383,8 +383,19 @@ def _behaviour(f: BoardFacts) -> list[str]:
         f"- Armed by the first valid message. After {f.watchdog_ms} ms of board time without a valid message the board "
         f"HOLDs (WATCHDOG_HOLD; the next valid message resumes); {f.crouch_after_ms} ms later it moves to the robot's "
         "safe pose and latches WATCHDOG_FAULT, refusing frames (NACK FAULT_LATCHED) until ESTOP_CLEAR. A realtime "
-        "host sends HEARTBEAT when it has nothing else to send (the Python host: every 50 ms of silence). In "
-        "lockstep, applied frames feed it too (see the lockstep trap).",
+        "host sends HEARTBEAT when it has nothing else to send (the Python host: after 50 ms of silence; on a slow "
+        "line, after half the watchdog it set). In lockstep, applied frames feed it too (see the lockstep trap).",
+        f"- **A slow line**: every valid message feeds the watchdog (both boards), so it must only be longer than the "
+        f"longest gap between the host's messages. A host whose frames come further apart than a third of "
+        f"{f.watchdog_ms} ms (a serial line too slow for 100 frames/s: a 12-servo frame is 162 ms of wire at 2 400 "
+        "baud) raises it with CONFIG WATCHDOG_MS right after CAPS, before TIME_SYNC, on every connect (the setting "
+        "lasts until the board restarts; a board that NACKs it cannot be used on that line). The Python host asks for "
+        "three of its frame periods (the life time factor of CANopen node guarding: one lost frame and a period of "
+        "jitter do not trip it, a dead line does within three periods), and at least one frame period more than "
+        "the report period (a lockstep host ADVANCEs a board that went quiet one report period with no frame in "
+        "it); it lowers TELEMETRY_RATE_HZ to what fills half the line (at least 1 Hz), sends frames with only the "
+        "servos that move, and refuses (before it starts) a line too slow for 1 Hz reports. CoCo at 2 400 baud: a "
+        "frame every 210 ms, WATCHDOG_MS 1220, TELEMETRY_RATE_HZ 1; at 1 200 baud: refused.",
         "- **TIME_SYNC**: the host sends `t1_host_us` (its clock at send); the reply carries it back with "
         "`t2_board_us` (board clock at receive) and `t3_board_us` (board clock at send). With `t4` the host clock at "
         "receipt: offset = ((t2 - t1) + (t3 - t4)) / 2, round trip = (t4 - t1) - (t3 - t2) (NTP).",

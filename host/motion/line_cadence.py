@@ -5,21 +5,24 @@ before it starts (:func:`line_cadence`), and settles the board's side in the han
 the CONFIGs of :meth:`LineCadence.config`, then TIME_SYNC: :class:`host.link.supervisor.Supervisor`).
 
 The rule for the watchdog (the link-loss timeout): it must cover the host's own cadence. The host sends a
-full-body SERVO_FRAME every grid period ``P`` (:func:`host.motion.streamer.grid_period_us`: 10 ms on a fast
-line, 330 ms at 2 400 baud for a 12-servo robot, where one frame is 162 ms of wire). The board's default
-watchdog (200 ms) is shorter than that grid below ~11 000 baud: every gap between two frames tripped it
-(HOLD, the jitter buffer emptied, the motion lost), and heartbeats sent into the gaps needed more than the
-line. So when ``3 * P`` exceeds the default, the host raises the watchdog to ``3 * P`` with CONFIG
+SERVO_FRAME every grid period ``P`` (:func:`host.motion.streamer.grid_period_us`: 10 ms on a fast line;
+for a 12-servo robot at 2 400 baud, where a full-body frame is 162 ms of wire, it was 330 ms). The board's
+default watchdog (200 ms) is shorter than that grid below ~11 000 baud (:func:`host.motion.streamer.slow_line`):
+every gap between two frames tripped it (HOLD, the jitter buffer emptied, the motion lost), and
+heartbeats sent into the gaps needed more than the line. So on a slow line the host raises the watchdog
+to ``3 * P`` with CONFIG
 WATCHDOG_MS, or to one grid period more than the report period when that is longer (a lockstep host
 whose board went quiet ADVANCEs it one report period with no frame in it: that must not trip it):
 CANopen node guarding's rule (life time = guard time x life time factor, the factor
 typically 3): one frame lost to line noise, and a period of jitter, do not trip it; a line that went
 silent does within three periods. Any valid message still feeds it (both boards), and the host's
 heartbeat then fills only a gap of half the watchdog (``1.5 * P``: never while the grid streams).
-Rejected alternatives: sending only the servos that move (partial masks) shrinks a frame only while few
-servos move (a stride moves all twelve of CoCo's), and a sparse keyframe changes how the board
-interpolates (it starts from its arrival: docs/wire-protocol.md); more heartbeats cannot help a line that
-is already full.
+With no heartbeat in its gaps, the slow grid may fill more of the line
+(:data:`host.motion.streamer.SLOW_GRID_LINE_SHARE`, 210 ms at 2 400 baud) and its frames carry only the
+servos that move (``FrameStreamer.sparse``): the bandwidth goes where the motion is, and a stride's 0.7-s
+gait cycle keeps its shape (Task 26's strides move CoCo 7.3 cm at 2 400 baud, 8.2 at full rate, 1.8
+with the old 330 ms grid). Sparse frames alone would not have done: a stride moves 8 of CoCo's 12
+servos (31 of 39 bytes); nor more heartbeats, into a line already full.
 
 The board's reports: at 50 Hz CoCo's TELEMETRY + SIM_STATE need 81 500 bit/s. On a line that raises the
 watchdog the host also lowers the report rate (CONFIG TELEMETRY_RATE_HZ) to what fills at most
