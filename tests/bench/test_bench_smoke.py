@@ -33,6 +33,7 @@ CASES = {
     "bench_lockstep_identity.py": ["--runs", "1", "--robot", "arm", "--p", "0", "--max-s", "0"],  # ~3 s
     "bench_realtime_load.py": ["--runs", "1", "--firmware", "python", "--no-load", "--task", "1"],  # ~5 s
     "bench_servo_bus.py": ["--cycles", "5", "--robots", "arm"],  # two plants on ptys, the vendor SDKs as clients
+    "bench_eval.py": ["--rounds", "1", "--tasks", "1,2", "--no-plots"],  # eval with 1 and 2 workers, 2 tasks each
 }
 
 

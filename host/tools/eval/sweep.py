@@ -358,9 +358,13 @@ async def run_sweep(cfg: SweepConfig, on_result: Callable[[dict[str, Any], Sweep
     with (cfg.out / RESULTS).open("a", encoding="utf-8") as sink:
         record = recorder(sink, done, progress, on_result)
         if cfg.workers > 1 and len(jobs) > 1:
+            from host.run.artefacts import warm_up_plotting
             from host.tools.eval.workers import run_in_processes
 
-            await run_in_processes(run_job, cfg, jobs, system, record, cfg.workers)
+            async with anyio.create_task_group() as tg:
+                # this process only waits meanwhile: set up matplotlib for eval.png now, not (~1 s) after the last job
+                tg.start_soon(anyio.to_thread.run_sync, warm_up_plotting)
+                await run_in_processes(run_job, cfg, jobs, system, record, cfg.workers)
         else:
             for task, trial in jobs:
                 record(await run_job(cfg, task, trial, system))
