@@ -314,13 +314,17 @@ class BoardServer:
                     self._log_at_us = None
 
     def _link_work(self, n_ticks: int) -> None:
-        """Lockstep, once per batch of ``n_ticks`` ticks, while the native kernel runs a long batch on its own
-        thread: read and decode what came (into :attr:`inbox`; it takes effect only when the board cannot
-        tick, as ever), and, in a long batch or once :attr:`_outbox` holds ``OUTBOX_HOLD`` messages, queue the
-        held reports (encode, log) and write what the OS takes. Nothing here touches the board (its MjData
-        and arrays are the ticks' own meanwhile)."""
-        if self._outbox and (n_ticks >= OVERLAP_MIN_TICKS or len(self._outbox) >= OUTBOX_HOLD):
-            self._send_outbox()
+        """Lockstep, once per batch of ``n_ticks`` ticks: in a long one (``OVERLAP_MIN_TICKS`` or more), while
+        the native kernel runs it on its own thread, queue the held reports (encode, frame log), write what
+        the OS takes, read and decode what came (into :attr:`inbox`; it takes effect only when the board
+        cannot tick, as ever). A short batch runs in this thread: nothing then (the loop reads and writes
+        right after it) unless ``OUTBOX_HOLD`` batches' reports wait. Nothing here touches the board (its
+        MjData and arrays are the ticks' own meanwhile)."""
+        if n_ticks < OVERLAP_MIN_TICKS:  # a short batch runs in this thread: the loop reads and writes after it
+            if len(self._outbox) >= OUTBOX_HOLD:
+                self._send_outbox()
+            return
+        self._send_outbox()
         self._flush_tx()
         if len(self.inbox) < INBOX_LIMIT:
             self._deliver(read=True)
