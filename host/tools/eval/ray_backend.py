@@ -86,10 +86,14 @@ def connect(address: str, num_cpus: int) -> None:
 
 
 def _job(cfg: SweepConfig, task: int, trial: int, system: str) -> dict[str, Any]:
-    """One (task, trial) in a Ray worker: :func:`run_job` in its own event loop."""
+    """One (task, trial) in a Ray worker: :func:`run_job` in its own event loop; the record also
+    names the Ray node that ran it (``ray_node``, the node id's first 12 hex digits)."""
     import anyio
+    import ray
 
-    return anyio.run(run_job, cfg, task, trial, system, backend="asyncio")  # type: ignore[no-any-return]
+    rec: dict[str, Any] = anyio.run(run_job, cfg, task, trial, system, backend="asyncio")
+    rec["ray_node"] = ray.get_runtime_context().get_node_id()[:12]
+    return rec
 
 
 def run_sweep_on_ray(cfg: SweepConfig, address: str,
