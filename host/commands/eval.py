@@ -60,7 +60,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
     add_mount_argument(parser)
     parser.add_argument("--ray", default=None, metavar="ADDRESS",
-                        help="run the jobs on a Ray cluster (needs ghostshell[ray]); 'local' starts one here")
+                        help="run the jobs on a Ray cluster (needs ghostshell[ray]): its head's HOST:PORT, auto (the "
+                             "cluster this machine joined) or 'local' (start one here)")
     parser.add_argument("--quiet", action="store_true",
                         help="no progress (bar and per-job lines); on a terminal a bar shows jobs, ETA and the running micro mean")
 
