@@ -32,7 +32,7 @@ import math
 import struct
 from collections import deque
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, cast
 
 import mujoco
 import numpy as np
@@ -43,7 +43,7 @@ from firmware_sim.jitter_buffer import JitterBuffer
 from firmware_sim.native import GS_CAP, GS_INTERP, NativeTick, NativeUnavailable, kernel_choice, note_fallback
 from firmware_sim.board_bus import SERVO_FAULT_DETAIL, BusBridge
 from firmware_sim.board_camera import KEPT_IMAGES, BoardCamera, nack
-from firmware_sim.board_reports import BoardReports, quat_to_rpy
+from firmware_sim.board_reports import BoardReports, DeferredReports, quat_to_rpy
 from firmware_sim.board_stream import TargetStream
 from firmware_sim.peripherals import Camera, CameraWorker, Screen, Speaker
 from firmware_sim.safety import Mode, Safety
@@ -214,6 +214,9 @@ class Board:
         self._ctrl: np.ndarray = self.data.ctrl[self.cm.act_id].astype(np.float64)
         #: TELEMETRY and SIM_STATE of the model; its slices of the servos' joints, actuators and dofs
         self.reports = BoardReports(self.cm, self.data)
+        #: lockstep server with overlap: a report period's reports come as one DeferredReports (built later,
+        #: while the next ticks run) instead of TELEMETRY and SIM_STATE (:meth:`_reports_due`)
+        self.defer_reports = False
         self._qpos_at, self._ctrl_at, self._dof_at = self.reports.qpos_at, self.reports.ctrl_at, self.reports.dof_at
         self._tick_us = self.cfg.tick_us  # rate and dt are fixed for a board's life (CONFIG cannot change them)
         self._substeps = self.cfg.substeps
@@ -653,7 +656,7 @@ class Board:
         if self._bridge is not None and self._bridge.out:
             out += self._bridge.take_out()
         if self.ticks % self._telemetry_every == 0:
-            out += [self.telemetry(), self.sim_state()]
+            out += self._reports_due()
         return out
 
     def run(self, max_ticks: int, during: Callable[[int], object] | None = None) -> tuple[int, list[Message]]:
@@ -741,8 +744,21 @@ class Board:
         self.now_us = now + n * self._tick_us
         self.ticks += n
         if self.ticks % self._telemetry_every == 0:
-            return n, [self.telemetry(), self.sim_state()]
+            return n, self._reports_due()
         return n, []
+
+    def _reports_due(self) -> list[Message]:
+        """A report period's TELEMETRY and SIM_STATE; with :attr:`defer_reports` one
+        :class:`firmware_sim.board_reports.DeferredReports` in their place (a snapshot now, the messages
+        later: its ``messages()``)."""
+        if not self.defer_reports:
+            return [self.telemetry(), self.sim_state()]
+        faults = self.safety.flags | self._flags_since if self._flags_since else self.safety.flags
+        self._flags_since = FaultFlags.NONE
+        counters = (faults, len(self.buffer), self.last_applied_seq & 0xFFFF, self.late_count, self.dropped_count,
+                    self.link_errors)
+        deferred = DeferredReports(self.reports, self.now_us, counters, self.reports.snapshot())
+        return cast("list[Message]", [deferred])  # the one caller that sets defer_reports expects it
 
     def _apply_due(self, t: int) -> None:
         """A RUN tick at ``t`` starts here: the frames due by ``t`` leave the buffer and their targets

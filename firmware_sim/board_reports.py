@@ -9,15 +9,16 @@ rad, velocities rad/s, efforts N*m, IMU roll/pitch/yaw rad (ZYX), base position 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import mujoco
 import numpy as np
 
-from protocol.messages import FaultFlags, SimState, Telemetry
+from protocol.messages import FaultFlags, Message, SimState, Telemetry
 from robots.model import RobotModel
 from robots.scenes import toppled
 
-__all__ = ["BoardReports", "as_slice", "quat_to_rpy"]
+__all__ = ["BoardReports", "DeferredReports", "Snapshot", "as_slice", "quat_to_rpy"]
 
 
 def as_slice(idx: np.ndarray) -> slice | np.ndarray:
@@ -48,10 +49,11 @@ class BoardReports:
         self.dof_at = as_slice(cm.dof_adr)
 
     def telemetry(self, now_us: int, faults: FaultFlags, buffer_fill: int, last_applied_seq: int,
-                  late_count: int, dropped_count: int, link_errors: int) -> Telemetry:
-        """TELEMETRY at board time ``now_us``: the servos and the IMU from the model, the rest as given."""
-        d = self.data
-        w, x, y, z = self.base_pose()[1]
+                  late_count: int, dropped_count: int, link_errors: int, snap: Snapshot | None = None) -> Telemetry:
+        """TELEMETRY at board time ``now_us``: the servos and the IMU from the model (or from ``snap``, a
+        :meth:`snapshot` of it), the rest as given."""
+        d: mujoco.MjData | Snapshot = self.data if snap is None else snap
+        w, x, y, z = (self.base_pose() if snap is None else snap.pose)[1]
         return Telemetry(
             board_time_us=now_us,
             positions=tuple(d.qpos[self.qpos_at].tolist()),
@@ -75,11 +77,48 @@ class BoardReports:
         x, y, z, qw, qx, qy, qz = self.data.qpos[r:r + 7].tolist()
         return (x, y, z), (qw, qx, qy, qz)
 
-    def sim_state(self, now_us: int) -> SimState:
-        """SIM_STATE at board time ``now_us``: ground truth of the floating base (emulator only)."""
-        pos, quat = self.base_pose()
+    def sim_state(self, now_us: int, snap: Snapshot | None = None) -> SimState:
+        """SIM_STATE at board time ``now_us``: ground truth of the floating base (emulator only), from the
+        model or from ``snap``."""
+        pos, quat = self.base_pose() if snap is None else snap.pose
+        qpos = self.data.qpos if snap is None else snap.qpos
         return SimState(
             now_us, pos, quat,
             objects=len(self.scene_objects),
-            toppled=toppled(self.data.qpos, self.scene_objects) if self.scene_objects else 0,
+            toppled=toppled(qpos, self.scene_objects) if self.scene_objects else 0,
         )
+
+    def snapshot(self) -> Snapshot:
+        """What :meth:`telemetry` and :meth:`sim_state` read of the model, copied now (~2 us), so the
+        reports can be built later, while the model moves on (the lockstep server builds them while the
+        next ticks run: :class:`DeferredReports`)."""
+        d = self.data
+        return Snapshot(d.qpos.copy(), d.qvel.copy(), d.actuator_force.copy(), self.base_pose())
+
+
+class Snapshot(NamedTuple):
+    """The parts of ``MjData`` a report reads (copies), and the base pose (position m, quaternion w x y z)."""
+
+    qpos: np.ndarray
+    qvel: np.ndarray
+    actuator_force: np.ndarray
+    pose: tuple[tuple[float, float, float], tuple[float, float, float, float]]
+
+
+class DeferredReports:
+    """A report period's TELEMETRY and SIM_STATE, to be built by :meth:`messages`: the board's counters
+    as they were (taken, the since-last-report flags cleared, when this was made) and a :class:`Snapshot`
+    of the model. What :meth:`firmware_sim.board.Board.run` returns in their place when the board's
+    ``defer_reports`` is set (the lockstep server's overlap, :mod:`firmware_sim.server`)."""
+
+    __slots__ = ("reports", "now_us", "counters", "snap")
+
+    def __init__(self, reports: BoardReports, now_us: int, counters: tuple[FaultFlags, int, int, int, int, int],
+                 snap: Snapshot) -> None:
+        self.reports, self.now_us, self.counters, self.snap = reports, now_us, counters, snap
+
+    def messages(self) -> list[Message]:
+        """[TELEMETRY, SIM_STATE], as :meth:`firmware_sim.board.Board.telemetry` and ``sim_state`` would
+        have made them when this was made."""
+        r = self.reports
+        return [r.telemetry(self.now_us, *self.counters, snap=self.snap), r.sim_state(self.now_us, self.snap)]

@@ -45,6 +45,7 @@ from collections import deque
 from typing import IO
 
 from firmware_sim.board import OVERLAP_MIN_TICKS, Board, answerable
+from firmware_sim.board_reports import DeferredReports
 from firmware_sim.clock import RealtimeClock
 from firmware_sim.objects_log import ObjectsLog
 from firmware_sim.transports.base import PERIODIC_REPORTS, BoardTransport
@@ -256,6 +257,14 @@ class BoardServer:
         So the same byte stream gives the same telemetry, however the bytes were chunked. Ticks run
         through :meth:`Board.run` (the ticks up to the next report, the quiet ones in one C call);
         the backlog is checked before each such run, and a run sends at most one tick's reports."""
+        # reports made while the next ticks run (not with an objects log: it reads the model as the reports are made)
+        self.board.defer_reports = self.overlap and self.objects_log is None
+        try:
+            self._serve_lockstep_loop()
+        finally:
+            self.board.defer_reports = False
+
+    def _serve_lockstep_loop(self) -> None:
         while self.running:
             ran = 0
             flushed = 0
@@ -309,7 +318,7 @@ class BoardServer:
             for t_us, msgs in out:
                 self._log_at_us = t_us
                 try:
-                    self.send(msgs)
+                    self.send([m for x in msgs for m in (x.messages() if isinstance(x, DeferredReports) else (x,))])
                 finally:
                     self._log_at_us = None
 

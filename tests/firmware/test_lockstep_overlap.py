@@ -16,6 +16,7 @@ import pytest
 import serial
 
 from firmware_sim.board import OVERLAP_MIN_TICKS, Board
+from firmware_sim.board_reports import DeferredReports
 from firmware_sim.config import BoardConfig
 from firmware_sim.native import native_reason
 from firmware_sim.server import OVERLAP_ENV, BoardServer
@@ -152,3 +153,18 @@ def test_a_served_lockstep_board_logs_its_reports_at_the_board_time_they_were_ma
     assert len(tel) >= 100
     assert all(r["t"] == r["fields"]["board_time_us"] / 1e6 for r in tel), [
         (r["t"], r["fields"]["board_time_us"]) for r in tel if r["t"] != r["fields"]["board_time_us"] / 1e6][:3]
+
+
+def test_deferred_reports_are_the_reports_the_board_would_have_made() -> None:
+    """``Board.defer_reports``: each report period gives one DeferredReports whose ``messages()``, built
+    after the board has ticked on, are the TELEMETRY and SIM_STATE a plain board made at that time."""
+    boards = [Board(BoardConfig(lockstep=True, robot="arm")) for _ in range(2)]
+    for b in boards:
+        b.handle(Hello(PROTOCOL_VERSION, boards[0].wire_schema.hash, 0), 0)
+    boards[1].defer_reports = True
+    frames = _stream(boards[0], 60)
+    plain = _drive(boards[0], frames)
+    deferred = _drive(boards[1], frames)
+    assert deferred and all(isinstance(d, DeferredReports) for d in deferred)
+    built = [m for d in deferred for m in d.messages()]  # type: ignore[attr-defined]
+    assert built == plain and len(plain) >= 100
