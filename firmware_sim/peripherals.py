@@ -94,6 +94,14 @@ class Speaker:
         return None
 
 
+#: why ``mujoco.Renderer`` could not be made in this process, once it could not: every later camera
+#: refuses with the same message and does not try again. MuJoCo's GL set-up is process-wide, and a second
+#: attempt after a failed one can abort the process (GLFW without a display, ``MUJOCO_GL`` unset: the
+#: bindings' "__cxa_guard_acquire detected recursive initialization"; found by the ``board`` fuzz target,
+#: whose every input builds a new board, so a new camera, in one process).
+_gl_failure: str | None = None
+
+
 class CameraUnavailable(RuntimeError):
     """No OpenGL backend: the board NACKs captures with NO_RENDERER and this message."""
 
@@ -110,6 +118,9 @@ class Camera:
         self._error: str | None = None if camera is not None else "this robot has no camera"
 
     def _renderer(self, width: int, height: int) -> mujoco.Renderer:
+        global _gl_failure
+        if self._error is None and _gl_failure is not None:
+            self._error = _gl_failure  # an earlier camera of this process could not get GL: do not try again
         if self._error is not None:
             raise CameraUnavailable(self._error)
         key = (width, height)
@@ -119,7 +130,7 @@ class Camera:
             try:
                 self._renderers[key] = mujoco.Renderer(self.model, height=height, width=width)
             except Exception as e:  # no GL backend, no display, bad MUJOCO_GL ...
-                self._error = f"no OpenGL renderer ({type(e).__name__}: {e}); try MUJOCO_GL=egl"[:200]
+                self._error = _gl_failure = f"no OpenGL renderer ({type(e).__name__}: {e}); try MUJOCO_GL=egl"[:200]
                 raise CameraUnavailable(self._error) from None
         return self._renderers[key]
 
