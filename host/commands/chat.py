@@ -28,13 +28,14 @@ from pathlib import Path
 from typing import Any
 
 from host.commands.errors import print_error
+from host.ghost.factory import LLM_SPECS_HELP
 from host.commands.outarg import out_dir_problem
 from host.commands.run import _push_text, add_run_options, check_run_args, line_rates, resolve_strict, servo_bus_of
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--llm", default="scripted", metavar="SPEC",
-                        help="openai:MODEL (any OpenAI-compatible endpoint) or scripted (replay --replies)")
+                        help=f"{LLM_SPECS_HELP}, or scripted (replay --replies)")
     parser.add_argument("--base-url", default=None, metavar="URL", help="LLM endpoint (else GHOSTSHELL_LLM_BASE_URL/OPENAI_BASE_URL)")
     parser.add_argument("--api-key", default=None, metavar="KEY", help="LLM key (else GHOSTSHELL_LLM_API_KEY/OPENAI_API_KEY)")
     parser.add_argument("--turns", metavar="FILE", help="user turns, separated by lines '---' (batch mode)")

@@ -22,6 +22,7 @@ from typing import Any
 
 from host.commands.modearg import add_mode_argument
 from host.commands.errors import print_error
+from host.ghost.factory import LLM_SPECS_HELP
 from host.commands.outarg import add_no_plots_argument, out_dir, out_dir_problem
 from host.commands.robotarg import add_robot_argument, robot_from_args
 
@@ -29,7 +30,7 @@ from host.commands.robotarg import add_robot_argument, robot_from_args
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the eval options."""
     parser.add_argument("--llm", required=True, metavar="PROVIDER:MODEL",
-                        help="openai:MODEL (any OpenAI-compatible endpoint), anthropic:MODEL; offline: ground-truth "
+                        help=f"{LLM_SPECS_HELP}; offline: ground-truth "
                              "(each task answered with its ground truth) or scripted (with --replies FILE)")
     parser.add_argument("--replies", default=None, metavar="FILE",
                         help="--llm scripted: the replies, blocks separated by lines '---' (one per task in --tasks "

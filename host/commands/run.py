@@ -21,6 +21,7 @@ from pathlib import Path
 
 from host.commands.modearg import add_mode_argument
 from host.commands.errors import command_of, print_error
+from host.ghost.factory import LLM_SPECS_HELP
 from host.commands.inputs import STDIN, InputError, baud_rate, read_text_input
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, preflight_link, unreachable_link
 from host.commands.outarg import (add_no_plots_argument, clear_run_artefacts, out_dir, out_dir_problem,
@@ -39,11 +40,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
                      help="one of the robot's tasks (ghostshell robots show NAME): replay its ground-truth tokens")
     src.add_argument("--xml", metavar="TEXT", help="function tokens to replay, e.g. '<head_act action=\"nod\"/>'")
     src.add_argument("--xml-file", metavar="F", help="a file of function tokens to replay (- reads standard input)")
-    src.add_argument("--prompt", metavar="TEXT", help="an instruction for a real LLM (needs --llm openai:MODEL)")
+    src.add_argument("--prompt", metavar="TEXT", help="an instruction for a real LLM (needs --llm PROVIDER:MODEL)")
     parser.add_argument("--video", action="store_true", help="also render run.mp4 after the run (MuJoCo offscreen, ffmpeg)")
     add_run_options(parser, clears_out=True)
     parser.add_argument("--llm", default="scripted", metavar="SPEC",
-                        help="scripted (replay, default) or openai:MODEL (any OpenAI-compatible endpoint)")
+                        help=f"scripted (replay, default) or {LLM_SPECS_HELP}")
     parser.add_argument("--base-url", default=None, metavar="URL",
                         help="LLM endpoint (else GHOSTSHELL_LLM_BASE_URL/OPENAI_BASE_URL)")
     parser.add_argument("--api-key", default=None, metavar="KEY",

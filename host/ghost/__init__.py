@@ -1,8 +1,9 @@
 """LLM clients ("ghosts") that stream a reply as text chunks.
 
 ``make_ghost("scripted", program=...)`` replays a program as an LLM would;
-``make_ghost("openai:MODEL")`` streams from any OpenAI-compatible endpoint.
-The OpenAI client is imported lazily so the scripted ghost needs no SDK.
+``make_ghost("openai:MODEL")`` streams from any OpenAI-compatible endpoint, ``make_ghost("anthropic:MODEL")``
+from Anthropic's Messages API (the providers: :data:`host.ghost.factory.PROVIDERS`).
+The clients are imported lazily so the scripted ghost needs no SDK.
 """
 
 from __future__ import annotations

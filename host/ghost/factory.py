@@ -35,6 +35,8 @@ PROVIDERS: dict[str, Provider] = {
 
 #: the accepted spec forms, for help texts and error messages
 SPECS = ("scripted", *(f"{kind}:MODEL" for kind in PROVIDERS))
+#: the providers' spec forms for ``--llm`` help texts (``openai`` is any OpenAI-compatible endpoint)
+LLM_SPECS_HELP = " or ".join(f"{kind}:MODEL" for kind in PROVIDERS) + " (openai: any OpenAI-compatible endpoint)"
 
 
 class UnknownSpecError(GhostError):
@@ -47,11 +49,11 @@ def make_ghost(spec: str, **kw: Any) -> Ghost:
 
     * ``"scripted"``: :class:`ScriptedGhost`; needs ``program=``, accepts
       ``tokens_per_s``, ``jitter``, ``seed``, ``sleep``.
-    * ``"openai:MODEL"`` (or ``"openai"`` with ``GHOSTSHELL_LLM_MODEL`` set):
-      :class:`OpenAIGhost`; accepts ``base_url``, ``api_key``, ``temperature`` and
-      the other :class:`OpenAIGhost` options.
-    * ``"anthropic:MODEL"``: :class:`AnthropicGhost` (same keywords, plus
-      ``max_tokens``, ``first_token_s``, ``total_s``, ``stream_retries``). Keyword arguments that are ``None``
+    * ``"KIND:MODEL"`` (or ``"KIND"`` with ``GHOSTSHELL_LLM_MODEL`` set) for a kind of :data:`PROVIDERS`
+      (``openai``: :class:`OpenAIGhost`, any OpenAI-compatible endpoint; ``anthropic``:
+      :class:`AnthropicGhost`): ``cls(model, **kw)`` with every keyword given except those the provider
+      ignores; the commands pass ``base_url``, ``api_key``, ``temperature`` and their timeouts through,
+      so a provider's class takes ``**kw`` (or names each). Keyword arguments that are ``None``
       are dropped, so CLI flags can be passed through unconditionally.
     """
     kw = {k: v for k, v in kw.items() if v is not None}
