@@ -94,11 +94,12 @@ async def _one_process(sweep: tuple[JobFunction, Any, str], queue: deque[tuple[i
     reader = BufferedByteReceiveStream(proc.stdout)
     finished = 0
     job: tuple[int, int] | None = None
+    first = _frame(sweep)  # goes with the first job: a worker that dies at start fails the job it was given
     try:
-        await proc.stdin.send(_frame(sweep))
         while queue:
             job = queue.popleft()
-            await proc.stdin.send(_frame(job))
+            await proc.stdin.send(first + _frame(job))
+            first = b""
             rec = await _receive(reader)
             job = None
             finished += 1
