@@ -311,7 +311,12 @@ def load(instrument: bool = False, *, persistent: bool = False) -> Callable[[byt
 
         if persistent:  # frames the previous input left in the buffer are not this input's to check
             send(Flush(0, board.table.all_mask), 0xFFFF)
-            accepted.clear()
+            # FLUSH drops frames due at or after its time: one due before 0 (a RAW frame's apply-at
+            # 0xFFFFFFFF accepted at board time 0 is due at -1) stays and is applied in this input, so
+            # what was accepted for the frames still held is kept (found when the corpus changed)
+            held = {(f.seq, f.apply_at_us) for f in board.buffer._frames}
+            for key in [k for k in accepted if k not in held]:
+                del accepted[key]
         while True:
             try:
                 op = r.take("B") % 8

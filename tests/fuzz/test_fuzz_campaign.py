@@ -98,7 +98,7 @@ def test_c_replay_names_the_failing_input(monkeypatch: pytest.MonkeyPatch, tmp_p
 def test_minimise_keeps_the_coverage_in_fewer_inputs(target: str, tmp_path: Path,
                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     """``--minimise`` (libFuzzer ``-merge=1``) over the checked-in corpus and a campaign's corpus (here: the
-    same inputs again) keeps at least the old corpus's features in fewer files, and the result replaces
+    same inputs again) keeps at least the old corpus's edges in fewer files, and the result replaces
     the checked-in corpus. c-diff's ``__main__`` once handed libFuzzer its ``.py`` path as argv[0], which
     the merge's inner process cannot execute: it merged nothing."""
     import shutil
@@ -118,4 +118,4 @@ def test_minimise_keeps_the_coverage_in_fewer_inputs(target: str, tmp_path: Path
     kept = sorted((root / target / "corpus").iterdir())
     assert before == 2 * len(list(campaign.iterdir())) and after == len(kept) and 0 < after < before
     assert all(p.name.startswith("min-") for p in kept)
-    assert old_stats.features > 0 and stats.features >= old_stats.features
+    assert old_stats.coverage > 0 and stats.coverage >= old_stats.coverage
