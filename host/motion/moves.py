@@ -102,6 +102,7 @@ async def move_to(
     link = BoardFrameLink(client)
     period_us = max(1, int(round(1e6 / rate_hz)))
     streamer = FrameStreamer(link, Mixer(q0), period_us=period_us, lookahead_us=max(60_000, 3 * period_us),
+                             sparse=link.sparse_frames,
                              start_us=max(start.board_time_us, _SENT_UNTIL.get(client, 0)) if client.lockstep else None)
     seg = streamer.add(motion, label="move_to")
     nacks: list[Nack] = []

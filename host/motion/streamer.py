@@ -235,11 +235,11 @@ class FrameStreamer:
 
     def __init__(self, link: FrameLink, mixer: Mixer, *, period_us: int = GRID_PERIOD_US, lookahead_us: int = LOOKAHEAD_US,
                  start_us: int | None = None, history: int = 720_000, max_lead_us: int = 2_000_000,
-                 sparse: bool | None = None) -> None:
+                 sparse: bool = False) -> None:
         self.link = link
-        #: grid frames carry only the servos that move (:meth:`_send`); default: the link's ``sparse_frames``
-        #: (:class:`host.motion.board_link.BoardFrameLink`: a slow line), else False
-        self.sparse = bool(getattr(link, "sparse_frames", False)) if sparse is None else sparse
+        #: grid frames carry only the servos that move (:meth:`_send`): a slow line's rule, which the caller
+        #: passes from :attr:`host.motion.board_link.BoardFrameLink.sparse_frames`
+        self.sparse = sparse
         self._prev_targets: np.ndarray | None = None  # the last grid frame's targets (sparse)
         self.mixer = mixer
         #: the robot's wire schema (the mask's width): what a FLUSH and a frame cost on the wire

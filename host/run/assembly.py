@@ -71,7 +71,8 @@ def build_runtime(robot: Robot, client: BoardClient, plan: LinkPlan, out: Path, 
     if note is not None:
         log.warning("%s", note)
     runtime = RobotRuntime(robot, frame_link, out, initial=np.asarray(tel.positions),
-                           period_us=plan.period_us, lookahead_us=max(LOOKAHEAD_US, 3 * plan.period_us))
+                           period_us=plan.period_us, lookahead_us=max(LOOKAHEAD_US, 3 * plan.period_us),
+                           sparse=frame_link.sparse_frames)
     return runtime, frame_link
 
 

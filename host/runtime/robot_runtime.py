@@ -117,13 +117,14 @@ class RobotRuntime:
     def __init__(self, robot: Robot, link: RobotLink, run_dir: Path, *, initial: np.ndarray,
                  speech_synth: Callable[..., Any] | None = None, period_us: int = GRID_PERIOD_US,
                  lookahead_us: int = LOOKAHEAD_US, voices: tuple[str, ...] | None = None,
-                 clips: tuple[str, ...] | None = None) -> None:
+                 clips: tuple[str, ...] | None = None, sparse: bool = False) -> None:
         self.robot = robot
         self.limits = JointLimits.of_robot(robot)
         self.link = link
         self.run_dir = run_dir
         self.mixer = Mixer(initial)
-        self.streamer = FrameStreamer(link, self.mixer, period_us=period_us, lookahead_us=lookahead_us)
+        # sparse: grid frames carry only the servos that move (a slow line: FrameStreamer.sparse)
+        self.streamer = FrameStreamer(link, self.mixer, period_us=period_us, lookahead_us=lookahead_us, sparse=sparse)
         self.voice = Voice()
         #: the speech engine's voices; another role falls back to "robot" with a note
         self.voices = voices if voices is not None else robot.peripherals.voices
