@@ -341,9 +341,9 @@ def load(instrument: bool = False, *, persistent: bool = False) -> Callable[[byt
                     send(EstopClear(), r.take("H"))
                     assert not board.safety.estopped and not board.safety.fault_latched
                 elif op == 6:
-                    seq, key, value = r.take("H"), r.take("B"), r.take("I")
-                    if key in ConfigKey._value2member_map_:
-                        send(Config(ConfigKey(key), value), seq)
+                    cfg_seq, cfg_key, value = r.take("H"), r.take("B"), r.take("I")
+                    if cfg_key in ConfigKey._value2member_map_:
+                        send(Config(ConfigKey(cfg_key), value), cfg_seq)
                 else:
                     for _ in range(r.take("B") % 16):
                         advance(8)
