@@ -293,6 +293,8 @@ class Board:
             note_fallback(str(e))
             return None
         s.native_counts = native
+        self._snap_len, regions = self.reports.snapshot_regions()
+        native.set_snapshot(regions)
         return native
 
     def push(self, at_s: float, force: tuple[float, float, float], duration_s: float = 0.2) -> None:
@@ -716,6 +718,10 @@ class Board:
             n = min(n, -((now - first) // dt))
         n = max(1, n)  # tick 0 itself: can_tick held, the watchdog was fed, its frames are applied
         self.stream.refresh_next()
+        if during is not None and self.defer_reports:
+            split = self._run_split(now, n, limit, during)
+            if split is not None:
+                return split
         if during is None:
             clamped = self.native.run(now, n, dt, GS_INTERP)
         elif n < OVERLAP_MIN_TICKS:
@@ -735,6 +741,91 @@ class Board:
                 self._count_quiet(now, n, clamped)
                 raise failed[0]
         return self._count_quiet(now, n, clamped)
+
+    def _run_split(self, now: int, n1: int, limit: int, during: Callable[[int], object]) -> tuple[int, list[Message]] | None:
+        """The quiet batch of ``n1`` ticks from ``now`` that :meth:`_run_quiet` planned, when it ends in a report,
+        and the quiet ticks after it in one native call (:meth:`firmware_sim.native.NativeTick.run_split_during`),
+        as :meth:`run` would run them in two: the report's snapshot is taken in C between them, and what
+        :meth:`_apply_due` and ``refresh_next`` do at the second part's first tick is prepared here (into the
+        kernel's ``pending`` arrays: the live ones are the first part's) and copied in by the C. Returns
+        (``n1`` + the second part's ticks, [the report]) as :meth:`_count_quiet` and :meth:`_reports_due` would
+        leave the board after both parts; None (nothing done) unless the second part is quiet at its start
+        (:meth:`_run_quiet`'s conditions there, no ADVANCE or frame coverage missing) and the reports are
+        deferred (the lockstep server's overlap). The second part stops before the next report, before the
+        watchdog would starve, at the next frame due and where :meth:`can_tick` would stop: the ticks, the report and the
+        state are those of two :meth:`run` calls (the lockstep server does nothing between them but its link
+        work, which touches no board state)."""
+        native, dt, every = self.native, self._tick_us, self._telemetry_every
+        assert native is not None
+        if n1 < OVERLAP_MIN_TICKS or every < 2 or limit - n1 < 1 or (self.ticks + n1) % every or self._bridge is not None:
+            return None
+        t2 = now + n1 * dt
+        sf = self.safety
+        if sf.armed and t2 - sf.last_feed_us > sf.watchdog_us:
+            return None
+        if not (t2 < self.advance_until or t2 <= self.covered_until):
+            return None
+        # the report's counters as _reports_due would take them after the first part (no CLAMPED yet: below)
+        flags0, fill, seq = sf.flags, len(self.buffer), self.last_applied_seq
+        # _apply_due(t2) and refresh_next into the kernel's pending arrays (the live ones are the first part's)
+        p = native.pending
+        pt, pv = p["anchor_t"], p["anchor_v"]
+        pt[:] = self.anchor_t
+        pv[:] = self.anchor_v
+        due = self.buffer.pop_due(t2)
+        for f in due:
+            when = f.apply_at_us
+            for i, v in f.values.items():
+                pt[i] = when
+                pv[i] = v
+            self.last_applied_seq = f.seq
+            if self.cfg.lockstep:
+                sf.feed(when)
+        nxt = self.buffer.next_all()
+        ok, nt, nv = p["next_ok"], p["next_t"], p["next_v"]
+        nt[:] = self.stream.next_t  # refresh_next leaves a servo's without a next keyframe as they were
+        nv[:] = self.stream.next_v
+        for i, x in enumerate(nxt):
+            if x is None:
+                ok[i] = 0
+            else:
+                ok[i] = 1
+                nt[i], nv[i] = x
+        n2 = min(limit - n1, every - 1, (max(self.advance_until - 1, self.covered_until) - t2) // dt + 1)
+        if sf.armed:
+            n2 = min(n2, (sf.last_feed_us + sf.watchdog_us - t2) // dt + 1)
+        first = self.buffer.first_apply_at
+        if first is not None:
+            n2 = min(n2, -((t2 - first) // dt))
+        n2 = max(1, n2)
+        buf = np.empty(self._snap_len)
+        failed: list[BaseException] = []
+
+        def work() -> None:
+            try:
+                during(n1 + n2)
+            except BaseException as e:  # raised below, once the ticks that ran meanwhile are counted
+                failed.append(e)
+
+        c1, c2 = native.run_split_during(now, n1, n2, dt, GS_INTERP, buf, work)
+        self.stream._next_src = nxt  # the C copied these next keyframes into the live arrays
+        if c1:
+            self._flags_since |= FaultFlags.CLAMPED
+            self.clamped_ticks += c1
+        self.now_us = t2
+        self.ticks += n1
+        since, self._flags_since = self._flags_since, FaultFlags.NONE
+        counters = (flags0 | since if since else flags0, fill, seq & 0xFFFF, self.late_count, self.dropped_count,
+                    self.link_errors)
+        report = DeferredReports(self.reports, t2, counters, self.reports.snapshot_of(buf))
+        if c2:
+            self._flags_since |= FaultFlags.CLAMPED
+            self.clamped_ticks += c2
+        self.now_us = t2 + n2 * dt
+        self.ticks += n2
+        if failed:
+            raise failed[0]
+        return n1 + n2, cast("list[Message]", [report])
 
     def _count_quiet(self, now: int, n: int, clamped: int) -> tuple[int, list[Message]]:
         """After ``n`` quiet ticks from ``now`` ran in C: move the clock, count clamps, make the reports due."""

@@ -96,6 +96,37 @@ class BoardReports:
         return Snapshot(d.qpos.copy(), d.qvel.copy(), d.actuator_force.copy(), self.base_pose())
 
 
+    def snapshot_regions(self) -> tuple[int, list[tuple[int, int, int]]]:
+        """What :meth:`snapshot` copies, as regions of one float64 buffer for the C to fill
+        (:meth:`firmware_sim.native.NativeTick.run_split_during`): (buffer length, [(offset in the buffer,
+        source address in ``MjData``, doubles)]): qpos, qvel, actuator_force, and for a fixed base the root
+        body's xpos and xquat. :meth:`snapshot_of` reads such a buffer. The addresses hold for ``data``'s life."""
+        d = self.data
+        regions: list[tuple[int, int, int]] = []
+        off = 0
+        for a in (d.qpos, d.qvel, d.actuator_force):
+            regions.append((off, int(a.__array_interface__["data"][0]), a.size))
+            off += a.size
+        if self.cm.root_qpos is None:
+            b = self.cm.root_body
+            for a, k in ((d.xpos, 3), (d.xquat, 4)):
+                regions.append((off, int(a.__array_interface__["data"][0]) + 8 * k * b, k))
+                off += k
+        return off, regions
+
+    def snapshot_of(self, buf: np.ndarray) -> Snapshot:
+        """The :class:`Snapshot` in ``buf``, filled by the regions of :meth:`snapshot_regions` (views into it)."""
+        d = self.data
+        nq, nv, nu = d.qpos.size, d.qvel.size, d.actuator_force.size
+        qpos = buf[:nq]
+        r = self.cm.root_qpos
+        if r is not None:
+            x, y, z, qw, qx, qy, qz = qpos[r:r + 7].tolist()
+        else:
+            x, y, z, qw, qx, qy, qz = buf[nq + nv + nu:nq + nv + nu + 7].tolist()
+        return Snapshot(qpos, buf[nq:nq + nv], buf[nq + nv:nq + nv + nu], ((x, y, z), (qw, qx, qy, qz)))
+
+
 class Snapshot(NamedTuple):
     """The parts of ``MjData`` a report reads (copies), and the base pose (position m, quaternion w x y z)."""
 

@@ -276,8 +276,9 @@ class BoardServer:
                 if out:
                     if self.objects_log is not None:
                         self.objects_log.record(out)
-                    if self.overlap:
-                        self._outbox.append((self.board.board_time_us(), out))
+                    if self.overlap:  # logged at the board time they were made (a split run ticks on past its report)
+                        last = out[-1]
+                        self._outbox.append((last.now_us if isinstance(last, DeferredReports) else self.board.board_time_us(), out))
                     else:
                         self.send(out)
                 if self.board.watchdog_events:

@@ -106,6 +106,18 @@ class TickState(ctypes.Structure):
     ]
 
 
+class GsCopy(ctypes.Structure):
+    """Mirror of ``gs_copy`` in tick.c: ``n`` doubles from ``src`` to ``dst`` (addresses)."""
+
+    _fields_ = [("dst", ctypes.c_void_p), ("src", ctypes.c_void_p), ("n", ctypes.c_int64)]
+
+
+class GsPending(ctypes.Structure):
+    """Mirror of ``gs_pending`` in tick.c: the anchors and next keyframes (per servo) of a split run's second part."""
+
+    _fields_ = [("anchor_t", _ptr_t), ("anchor_v", _ptr_t), ("next_ok", _ptr_t), ("next_t", _ptr_t), ("next_v", _ptr_t)]
+
+
 def cache_root() -> Path:
     """Where built libraries are kept: ``$GHOSTSHELL_NATIVE_CACHE``, else the user cache dir's ``native``."""
     env = os.environ.get("GHOSTSHELL_NATIVE_CACHE")
@@ -181,6 +193,16 @@ def _open(path: Path) -> ctypes.CDLL:
     lib.gs_worker_start.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64,
                                     ctypes.c_int64, ctypes.c_double]
     lib.gs_worker_start.restype = None
+    split = lib.gs_run_split
+    split.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64, ctypes.c_int64,
+                      ctypes.c_double, ctypes.c_void_p, ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p]
+    split.restype = ctypes.c_int64
+    lib.gs_worker_start_split.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64, ctypes.c_int64,
+                                          ctypes.c_int64, ctypes.c_int64, ctypes.c_int64, ctypes.c_double,
+                                          ctypes.c_void_p, ctypes.c_int64, ctypes.c_void_p]
+    lib.gs_worker_start_split.restype = None
+    lib.gs_worker_wait_split.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+    lib.gs_worker_wait_split.restype = ctypes.c_int64
     lib.gs_worker_wait.argtypes = [ctypes.c_void_p]
     lib.gs_worker_wait.restype = ctypes.c_int64
     lib.gs_worker_free.argtypes = [ctypes.c_void_p]
@@ -286,6 +308,21 @@ class NativeTick:
         self._fn = lib.gs_tick
         self._run = lib.gs_run
         self._lib = lib
+        #: a split run's second part's anchors and next keyframes (:meth:`run_split_during`; the caller fills them)
+        n = int(s.n)
+        self.pending: dict[str, np.ndarray] = {
+            "anchor_t": np.zeros(n, np.int64), "anchor_v": np.zeros(n, np.float64), "next_ok": np.zeros(n, np.int64),
+            "next_t": np.zeros(n, np.int64), "next_v": np.zeros(n, np.float64)}
+        p = GsPending()
+        for name, a in self.pending.items():
+            setattr(p, name, _ptr(a))
+        self._pending = p
+        self._pending_addr = ctypes.addressof(p)
+        self._copies = (GsCopy * 8)()
+        self._copies_addr = ctypes.addressof(self._copies)
+        self._copy_offsets: list[int] = []
+        self._clamped2 = ctypes.c_int64(0)
+        self._clamped2_addr = ctypes.addressof(self._clamped2)
         self._worker: int | None = None  # gs_worker_new's handle once :meth:`run_during` first ran
         self._no_worker = False  # the C could not start a thread: run_during runs in this thread
         self._worker_pid = 0  # the process that made the thread
@@ -312,6 +349,51 @@ class NativeTick:
         finally:
             clamped = int(self._lib.gs_worker_wait(self._worker))
         return clamped
+
+    def set_snapshot(self, regions: list[tuple[int, int, int]]) -> None:
+        """What :meth:`run_split_during` copies between its parts: (offset in its ``dst`` buffer (doubles),
+        source address, doubles) each (at most 8; :meth:`firmware_sim.board_reports.BoardReports.snapshot_regions`).
+        The sources must stay allocated as long as this lives (the board's ``MjData``)."""
+        if len(regions) > len(self._copies):
+            raise ValueError(f"at most {len(self._copies)} snapshot regions, got {len(regions)}")
+        for k, (_, src, n) in enumerate(regions):
+            self._copies[k].src, self._copies[k].n = src, n
+        self._copy_offsets = [off for off, _, _ in regions]
+
+    def _run_split(self, t: int, n1: int, n2: int, tick_us: int, flags: int, ncopy: int) -> tuple[int, int]:
+        c1 = int(self._lib.gs_run_split(self._addr, t, n1, n2, tick_us, flags, 0.0, self._copies_addr, ncopy,
+                                        self._pending_addr, self._clamped2_addr))
+        return c1, int(self._clamped2.value)
+
+    def run_split_during(self, t: int, n1: int, n2: int, tick_us: int, flags: int, dst: np.ndarray,
+                         during: Callable[[], object]) -> tuple[int, int]:
+        """Two batches in one job, as :meth:`run_during` runs one: ``n1`` ticks from ``t``; then the regions
+        of :meth:`set_snapshot` copied into ``dst`` (float64, contiguous, long enough; the caller keeps it);
+        then :attr:`pending` (the anchors and next keyframes the first tick of the second part sees, as the
+        board's ``_apply_due`` and ``refresh_next`` would leave them) copied over the state's arrays; then
+        ``n2`` ticks from ``t + n1 * tick_us``. Returns each part's clamped ticks. The same state as
+        ``run(t, n1, ...)``, the copies, ``run(t + n1 * tick_us, n2, ...)`` in turn."""
+        base = _ptr(dst)
+        copies = self._copies
+        for k, off in enumerate(self._copy_offsets):
+            copies[k].dst = base + 8 * off
+        ncopy = len(self._copy_offsets)
+        if self._worker is not None and self._worker_pid != os.getpid():
+            self._worker = None  # a forked child: the thread stayed in the parent
+        if self._worker is None and not self._no_worker:
+            self._worker = self._lib.gs_worker_new() or None
+            self._no_worker = self._worker is None
+            self._worker_pid = os.getpid()
+        if self._worker is None:
+            during()
+            return self._run_split(t, n1, n2, tick_us, flags, ncopy)
+        self._lib.gs_worker_start_split(self._worker, self._addr, t, n1, n2, tick_us, flags, 0.0, self._copies_addr,
+                                        ncopy, self._pending_addr)
+        try:
+            during()
+        finally:
+            c1 = int(self._lib.gs_worker_wait_split(self._worker, self._clamped2_addr))
+        return c1, int(self._clamped2.value)
 
     def close(self) -> None:
         """End the kernel's thread, if :meth:`run_during` started one (idempotent)."""

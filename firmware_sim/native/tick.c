@@ -17,6 +17,13 @@
  * (no frame due, watchdog fed, no report due before the last one; see Board.run), so a batch leaves
  * exactly the state n gs_tick calls leave.
  *
+ * gs_run_split runs two such batches in one call with what the board's Python does between them in the
+ * middle: n1 ticks, then a report's snapshot (doubles copied out of the MjData: gs_copy), then the anchors
+ * and next keyframes the Python prepared for the first tick of the second part (the frames due at it
+ * applied: gs_pending), then n2 ticks. The lockstep board uses it for the ticks up to a report and the
+ * quiet ticks after it up to the next frame it may handle (Board._plan_split): one call, one hand-over
+ * to the worker per report period instead of two, and the same state as the two batches.
+ *
  * gs_worker_* run gs_run on a thread of its own (POSIX threads), so the caller's thread can do other work
  * while the ticks run: the lockstep server encodes, writes and reads the link meanwhile (Python's GIL
  * is not held by this thread, which runs no Python). One job at a time; the caller must not touch the
@@ -31,6 +38,7 @@
 #include <pthread.h>
 #include <stdint.h>
 #include <stdlib.h>
+#include <string.h>
 
 typedef void (*gs_mj_step_fn)(const void *m, void *d);
 
@@ -127,6 +135,43 @@ int64_t gs_run(gs_tick_state *s, int64_t t, int64_t n, int64_t tick_us, int64_t 
     return clamped;
 }
 
+/* A report's snapshot: n doubles from src (MjData) to dst. */
+typedef struct {
+    double *dst;
+    const double *src;
+    int64_t n;
+} gs_copy;
+
+/* What the first tick after the snapshot sees: per servo its anchor and next keyframe (copied over the
+ * state's arrays, which are the caller's; see the top of this file). */
+typedef struct {
+    const int64_t *anchor_t;
+    const double *anchor_v;
+    const int64_t *next_ok;
+    const int64_t *next_t;
+    const double *next_v;
+} gs_pending;
+
+/* gs_run of n1 ticks from t, the ncopy copies, the pending anchors (when p is not NULL), gs_run of n2 ticks
+ * from t + n1 * tick_us. Returns the first part's clamped ticks; the second part's go to *clamped2. */
+int64_t gs_run_split(gs_tick_state *s, int64_t t, int64_t n1, int64_t n2, int64_t tick_us, int64_t flags,
+                     double cap, const gs_copy *copies, int64_t ncopy, const gs_pending *p, int64_t *clamped2)
+{
+    const int64_t c1 = gs_run(s, t, n1, tick_us, flags, cap);
+    for (int64_t k = 0; k < ncopy; k++)
+        memcpy(copies[k].dst, copies[k].src, (size_t)copies[k].n * sizeof(double));
+    if (p) {
+        const size_t n = (size_t)s->n;
+        memcpy((void *)s->anchor_t, p->anchor_t, n * sizeof(int64_t));
+        memcpy((void *)s->anchor_v, p->anchor_v, n * sizeof(double));
+        memcpy((void *)s->next_ok, p->next_ok, n * sizeof(int64_t));
+        memcpy((void *)s->next_t, p->next_t, n * sizeof(int64_t));
+        memcpy((void *)s->next_v, p->next_v, n * sizeof(double));
+    }
+    *clamped2 = n2 > 0 ? gs_run(s, t + n1 * tick_us, n2, tick_us, flags, cap) : 0;
+    return c1;
+}
+
 /* A clock for MuJoCo's mjcb_time that always says 0: MuJoCo then skips reading the system clock at
  * the start and end of each of its ~15 timed stages per mj_step (d->timer, which the board never
  * reads; ~1 us per mj_step here). Installed by firmware_sim/native/__init__.py. */
@@ -143,9 +188,12 @@ typedef struct {
     int busy;                  /* a job is set and not yet done */
     int stop;
     gs_tick_state *s;
-    int64_t t, n, tick_us, flags;
+    int64_t t, n, n2, tick_us, flags;
     double cap;
-    int64_t result;
+    const gs_copy *copies;
+    int64_t ncopy;
+    const gs_pending *pending;
+    int64_t result, result2;
 } gs_worker;
 
 static void *gs_worker_main(void *arg)
@@ -158,9 +206,12 @@ static void *gs_worker_main(void *arg)
         if (w->stop)
             break;
         pthread_mutex_unlock(&w->mu);
-        const int64_t r = gs_run(w->s, w->t, w->n, w->tick_us, w->flags, w->cap);
+        int64_t r2 = 0;
+        const int64_t r = gs_run_split(w->s, w->t, w->n, w->n2, w->tick_us, w->flags, w->cap, w->copies, w->ncopy,
+                                       w->pending, &r2);
         pthread_mutex_lock(&w->mu);
         w->result = r;
+        w->result2 = r2;
         w->busy = 0;
         pthread_cond_broadcast(&w->cv);
     }
@@ -192,14 +243,20 @@ void *gs_worker_new(void)
     return w;
 }
 
-/* Start gs_run(s, t, n, tick_us, flags, cap) on the worker; returns at once. */
-void gs_worker_start(void *handle, gs_tick_state *s, int64_t t, int64_t n, int64_t tick_us, int64_t flags, double cap)
+/* Start gs_run_split(s, t, n, n2, tick_us, flags, cap, copies, ncopy, pending, .) on the worker; returns at
+ * once. The copies and pending must stay as they are until gs_worker_wait. */
+void gs_worker_start_split(void *handle, gs_tick_state *s, int64_t t, int64_t n, int64_t n2, int64_t tick_us,
+                           int64_t flags, double cap, const gs_copy *copies, int64_t ncopy, const gs_pending *pending)
 {
     gs_worker *w = (gs_worker *)handle;
     pthread_mutex_lock(&w->mu);
     w->s = s;
     w->t = t;
     w->n = n;
+    w->n2 = n2;
+    w->copies = copies;
+    w->ncopy = ncopy;
+    w->pending = pending;
     w->tick_us = tick_us;
     w->flags = flags;
     w->cap = cap;
@@ -208,7 +265,26 @@ void gs_worker_start(void *handle, gs_tick_state *s, int64_t t, int64_t n, int64
     pthread_mutex_unlock(&w->mu);
 }
 
-/* Wait for the started job; returns its gs_run result. */
+/* Start gs_run(s, t, n, tick_us, flags, cap) on the worker; returns at once. */
+void gs_worker_start(void *handle, gs_tick_state *s, int64_t t, int64_t n, int64_t tick_us, int64_t flags, double cap)
+{
+    gs_worker_start_split(handle, s, t, n, 0, tick_us, flags, cap, NULL, 0, NULL);
+}
+
+/* Wait for the started job; returns the first part's clamped ticks, the second part's go to *clamped2. */
+int64_t gs_worker_wait_split(void *handle, int64_t *clamped2)
+{
+    gs_worker *w = (gs_worker *)handle;
+    pthread_mutex_lock(&w->mu);
+    while (w->busy)
+        pthread_cond_wait(&w->cv, &w->mu);
+    const int64_t r = w->result;
+    *clamped2 = w->result2;
+    pthread_mutex_unlock(&w->mu);
+    return r;
+}
+
+/* Wait for the started job; returns its gs_run result (of the first part). */
 int64_t gs_worker_wait(void *handle)
 {
     gs_worker *w = (gs_worker *)handle;

@@ -23,7 +23,7 @@ from firmware_sim.server import OVERLAP_ENV, BoardServer
 from firmware_sim.transports.serial import SerialBoardTransport
 from protocol.codec import SCHEMA_HASH, schema_for
 from protocol.framing import Frame, FrameDecoder, encode_frame
-from protocol.messages import PROTOCOL_VERSION, Hello, Message, ServoFrame, SimState, Telemetry
+from protocol.messages import PROTOCOL_VERSION, FaultFlags, Hello, Message, ServoFrame, SimState, Telemetry
 
 
 def _require_native() -> None:
@@ -168,3 +168,69 @@ def test_deferred_reports_are_the_reports_the_board_would_have_made() -> None:
     assert deferred and all(isinstance(d, DeferredReports) for d in deferred)
     built = [m for d in deferred for m in d.messages()]  # type: ignore[attr-defined]
     assert built == plain and len(plain) >= 100
+
+
+def _jumpy(b: Board, n: int) -> list[ServoFrame]:
+    """``n`` frames at 50 Hz holding every servo for 10 frames, then 0.3 rad away for 10: speed clamps in
+    the report periods after a jump, none in the others (CLAMPED must land in the right TELEMETRY)."""
+    neutral = np.array(b.table.neutral)
+    return [ServoFrame(k * 20_000, b.table.all_mask,
+                       tuple(np.clip(neutral + 0.3 * (k // 10 % 2), b.table.mins, b.table.maxs).tolist()))
+            for k in range(1, n + 1)]
+
+
+def _edge(b: Board, n: int) -> list[ServoFrame]:
+    """``n`` frames at 50 Hz alternating every servo between its upper limit and 1.05e-9 rad past it: the ramp
+    between them stays within the board's 1e-9 rad limit tolerance, only the tick at a frame past the limit
+    clamps. That tick is the first after a report: its CLAMPED belongs in the next TELEMETRY, not that one."""
+    hi = np.array(b.table.maxs)
+    return [ServoFrame(k * 20_000, b.table.all_mask, tuple((hi + 1.05e-9 * (k % 2)).tolist())) for k in range(1, n + 1)]
+
+
+def _random(b: Board, n: int) -> list[ServoFrame]:
+    """``n`` frames 2 to 30 ms apart on the tick grid, each moving every servo up to 0.1 rad from neutral at
+    random (seeded): batches of every length, clamps that end anywhere in a report period."""
+    rng = np.random.default_rng(7)
+    neutral = np.array(b.table.neutral)
+    t, out = 0, []
+    for _ in range(n):
+        t += int(rng.integers(1, 16)) * 2000
+        q = np.clip(neutral + rng.uniform(-0.1, 0.1, b.n), b.table.mins, b.table.maxs)
+        out.append(ServoFrame(t, b.table.all_mask, tuple(q.tolist())))
+    return out
+
+
+@pytest.mark.parametrize("robot", ["coco", "arm"])
+@pytest.mark.parametrize("make", [_stream, _jumpy, _edge, _random], ids=["sine", "jumps", "edge", "random"])
+def test_a_split_run_is_the_two_runs_it_replaces(robot: str, make: object) -> None:
+    """With deferred reports and link work (the lockstep server's overlap), the ticks up to a report and the
+    quiet ticks after it run as one native job (``Board._run_split``: the report's snapshot taken in C
+    between them, the frames due at the second part applied there): the same reports, the same MjData
+    and board state, bit for bit, as the plain board's ``run`` calls; one batch per report period."""
+    _require_native()
+    boards = [Board(BoardConfig(lockstep=True, robot=robot, kernel="native!")) for _ in range(2)]
+    for b in boards:
+        b.handle(Hello(PROTOCOL_VERSION, b.wire_schema.hash, 0), 0)
+    boards[1].defer_reports = True
+    frames = make(boards[0], 120 if make is not _random else 400)  # type: ignore[operator]
+    calls: list[int] = []
+    plain = _drive(boards[0], frames)
+    split = _drive(boards[1], frames, calls.append)
+    assert all(isinstance(d, DeferredReports) for d in split)
+    assert [m for d in split for m in d.messages()] == plain and len(plain) >= 200  # type: ignore[attr-defined]
+    a, b = boards
+    assert (a.ticks, a.now_us, a.clamped_ticks, a.last_applied_seq, len(a.buffer)) == \
+        (b.ticks, b.now_us, b.clamped_ticks, b.last_applied_seq, len(b.buffer))
+    assert a.safety.last_feed_us == b.safety.last_feed_us
+    for name in ("qpos", "qvel", "act", "ctrl", "qacc_warmstart"):
+        assert np.array_equal(getattr(a.data, name), getattr(b.data, name)), name
+    for name in ("anchor_t", "anchor_v", "next_ok", "next_t", "next_v"):
+        assert np.array_equal(getattr(a.stream, name), getattr(b.stream, name)), name
+    if make in (_jumpy, _edge):
+        assert any(t.faults & FaultFlags.CLAMPED for t in plain if isinstance(t, Telemetry))
+        assert not all(t.faults & FaultFlags.CLAMPED for t in plain if isinstance(t, Telemetry))
+    assert sum(calls) == b.ticks
+    if make is not _random:
+        assert calls.count(b._telemetry_every) >= 100  # one job per report period
+    assert b.native is not None
+    b.native.close()
