@@ -124,6 +124,16 @@ def build_config(args: argparse.Namespace) -> Any:
         raise ValueError("")  # the line is printed
     if args.vocabulary is not None and args.vocabulary not in robot.interface.names:
         raise ValueError(f"--vocabulary {args.vocabulary!r}: {robot.name} has {', '.join(robot.interface.names)}")
+    if args.paper_model is not None:  # refused now, not noticed in eval.md after a paid sweep
+        from host.tools.eval.paper import match_paper_model, paper_models
+
+        columns = paper_models(robot)
+        column = args.paper_model if args.paper_model in columns else match_paper_model(args.paper_model, robot)
+        if column is None:
+            raise ValueError(f"--paper-model {args.paper_model!r}: " + (
+                f"the paper's columns are {', '.join(columns)}" if columns else
+                f"{robot.name} has no paper results to compare with; leave --paper-model out"))
+        args.paper_model = column
     spec = (args.tasks or "").strip()
     suite = "ablation" if spec.lower().startswith("ablation") else "hri"
     if suite == "ablation":  # "ablation" or "ablation:6,9"

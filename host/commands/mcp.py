@@ -87,7 +87,10 @@ def main(args: argparse.Namespace) -> int:
                           emulate_board=args.emulate_board or None, out=args.out, task_label="mcp", scene=args.scene,
                           mcp_mounts=tuple(args.mount_mcp), plots=not args.no_plots)
     try:
-        stop = serve(opts, args.http)
+        try:
+            stop = serve(opts, args.http)
+        except BaseExceptionGroup as group:  # the server's task groups wrap the session's own error
+            raise _sole(group) from None
     except (LinkError, RuntimeError, OSError) as e:
         from host.commands.linkarg import link_exit_status
 
@@ -97,3 +100,12 @@ def main(args: argparse.Namespace) -> int:
         print_error("mcp", f"{stop.message}; the server stopped and the board with it; session in {args.out}/")
         return 130
     return 0
+
+
+def _sole(group: BaseExceptionGroup[BaseException]) -> BaseException:
+    """The one exception ``group`` holds, however deeply nested (a session that could not start, raised in
+    the MCP SDK's task groups inside ours), or ``group`` itself when it holds several."""
+    inner: BaseException = group
+    while isinstance(inner, BaseExceptionGroup) and len(inner.exceptions) == 1:
+        inner = inner.exceptions[0]
+    return inner

@@ -16,6 +16,8 @@ bound a run the same way (exit status 1). See :mod:`host.run.stops`.
 from __future__ import annotations
 
 import argparse
+import os
+import stat
 import sys
 from pathlib import Path
 
@@ -129,12 +131,7 @@ def _servo_bus(text: str) -> str:
     nothing of the board): a port name, and a baud that is a whole number > 0 when given. The text after the
     last ``:`` is no baud when it holds a ``/``, when the whole text is a path that exists, or in a pyserial
     URL when it is the URL's own ``host:port``."""
-    import os
-
-    port, sep, baud = text.rpartition(":")
-    if (not sep or "/" in baud or os.path.exists(text)
-            or "://" in text and text.split("://", 1)[1].count(":") < 2):
-        port, baud = text, ""
+    port, baud = _split_servo_bus(text)
     if not port:
         raise argparse.ArgumentTypeError(f"expected PORT[:BAUD] (e.g. /dev/ttyUSB0:1000000), got {text!r}")
     if baud and not baud.lstrip("-").isdigit():
@@ -143,6 +140,17 @@ def _servo_bus(text: str) -> str:
     if baud and int(baud) <= 0:
         raise argparse.ArgumentTypeError(f"the baud rate must be > 0, got {baud} in {text!r}")
     return text
+
+
+def _split_servo_bus(text: str) -> tuple[str, str]:
+    """``PORT[:BAUD]`` -> ``(port, baud)`` (baud ``""`` when not given), as :func:`_servo_bus` reads it."""
+    import os
+
+    port, sep, baud = text.rpartition(":")
+    if (not sep or "/" in baud or os.path.exists(text)
+            or "://" in text and text.split("://", 1)[1].count(":") < 2):
+        port, baud = text, ""
+    return port, baud
 
 
 def add_servo_bus_arguments(parser: argparse.ArgumentParser) -> None:
@@ -171,6 +179,15 @@ def servo_bus_problem(args: argparse.Namespace) -> str | None:
     if not (bool(getattr(args, "emulate_board", False)) or _implies_emulated(getattr(args, "link", "pty"))):
         return (f"--servo-bus is an option of the board this run starts, and {args.link} is a board you started: "
                 "give that board the servo bus (`ghostshell board --link ... --servo-bus PORT`)")
+    port = _split_servo_bus(bus)[0]
+    if "://" not in port and os.name == "posix":  # a device path: there, and a device (not opened: that resets boards)
+        try:
+            mode = os.stat(port).st_mode
+        except OSError as e:
+            return (f"--servo-bus {bus}: there is no device {port!r} ({e.strerror or e}); give the servos' serial "
+                    "adapter, e.g. /dev/ttyUSB0")
+        if not stat.S_ISCHR(mode):
+            return f"--servo-bus {bus}: {port!r} is not a serial device (a character device such as /dev/ttyUSB0)"
     return None
 
 
@@ -194,21 +211,23 @@ def add_mount_argument(parser: argparse.ArgumentParser) -> None:
 
 def mount_problem(args: argparse.Namespace, robot: Robot) -> str | None:
     """Why ``args.mount_mcp`` cannot be mounted on ``robot``'s shell, found without starting anything
-    (a NAME given twice, a NAME that is already a module or channel of the robot's shell), or None.
+    (a NAME given twice, a NAME that is already a module or channel of the robot's shell; a server
+    command whose program is not found, a URL whose host is unknown or whose port refuses a
+    connection: :func:`host.mounts.spec.launch_problem`), or None.
 
     The same check :func:`host.mounts.mcp_mount.mounted` makes once the shell is up, made here so that
     it refuses before the board starts or any file in ``--out`` is opened."""
     specs = tuple(getattr(args, "mount_mcp", ()) or ())
     if not specs:
         return None
-    from host.mounts.spec import McpMountError, check_specs  # not mcp_mount: no MCP SDK for a usage error
+    from host.mounts.spec import McpMountError, check_specs, launch_problem  # not mcp_mount: no MCP SDK here
     from host.runtime.binding import signature_registry
 
     try:
         check_specs(specs, signature_registry(robot, getattr(args, "vocabulary", None)))
     except McpMountError as e:
         return str(e)
-    return None
+    return next((why for why in map(launch_problem, specs) if why is not None), None)
 
 
 def _number(text: str) -> float:
@@ -582,6 +601,20 @@ def main(args: argparse.Namespace) -> int:
     if args.task is None and args.xml is None and args.xml_file is None and args.prompt is None:
         print_error("run", "one of the arguments --task --xml --xml-file --prompt is required")
         return 2
+    from host.ghost import GhostError
+    from host.ghost.factory import check_spec, spec_kind
+
+    try:  # the spec's form before anything else: run_with clears --out and starts the board before the LLM is built
+        check_spec(args.llm)
+    except GhostError as e:
+        print_error("run", str(e))
+        return 2
+    if spec_kind(args.llm) == "scripted":
+        args.llm = "scripted"  # ' Scripted' as the runner reads it
+    elif args.prompt is None:  # the runner would send the LLM an empty instruction and ignore the tokens
+        print_error("run", f"--llm {args.llm} answers --prompt TEXT; --task, --xml and --xml-file replay their "
+                    "function tokens (leave --llm out)")
+        return 2
     status = check_run_args(args)
     if status is not None:
         return status
@@ -616,7 +649,7 @@ def main(args: argparse.Namespace) -> int:
         if args.llm == "scripted":
             print_error("run", "--prompt needs a real LLM, e.g. --llm openai:gpt-4o-mini")
             return 2
-        from host.ghost import GhostError, make_ghost
+        from host.ghost import make_ghost
 
         try:
             make_ghost(args.llm, base_url=args.base_url, api_key=args.api_key)  # bad spec/no key: before the board

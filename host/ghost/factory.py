@@ -59,22 +59,41 @@ def make_ghost(spec: str, **kw: Any) -> Ghost:
     kw = {k: v for k, v in kw.items() if v is not None}
     kind, _, rest = spec.strip().partition(":")
     kind = kind.lower()
+    check_spec(spec, model=kw.get("model"))
     if kind == "scripted":
         from host.ghost.scripted import ScriptedGhost
 
-        if rest:
-            raise GhostError(f"ghost spec {spec!r}: 'scripted' takes no argument")
         if "program" not in kw:
             raise GhostError("the scripted ghost needs a program (e.g. --task N, --xml TEXT or --xml-file F)")
         allowed = {"program", "tokens_per_s", "jitter", "seed", "sleep"}
         return ScriptedGhost(**{k: v for k, v in kw.items() if k in allowed})
+    provider = PROVIDERS[kind]  # check_spec refused every other kind
+    model = rest.strip() or kw.pop("model", None) or os.environ.get("GHOSTSHELL_LLM_MODEL")
+    for other in provider.ignores:
+        kw.pop(other, None)
+    ghost: Ghost = getattr(importlib.import_module(provider.module), provider.cls)(model, **kw)
+    return ghost
+
+
+def spec_kind(spec: str) -> str:
+    """The kind of ``spec`` as :func:`make_ghost` reads it: ``"scripted"``, a key of :data:`PROVIDERS`, or
+    another word (an unknown spec); ``" Scripted "`` -> ``"scripted"``, ``"openai:gpt-4o"`` -> ``"openai"``."""
+    return spec.strip().partition(":")[0].lower()
+
+
+def check_spec(spec: str, *, model: str | None = None) -> None:
+    """Raise the :class:`GhostError` :func:`make_ghost` would raise for the form of ``spec`` (an unknown kind:
+    :class:`UnknownSpecError`; ``scripted:ARG``; a provider's spec without a model, when neither ``model``
+    nor ``GHOSTSHELL_LLM_MODEL`` gives one), without building a client: no SDK import, no key, no network.
+    A command checks its ``--llm`` with it before it starts a board or touches its ``--out`` folder."""
+    kind, _, rest = spec.strip().partition(":")
+    kind = kind.lower()
+    if kind == "scripted":
+        if rest:
+            raise GhostError(f"ghost spec {spec!r}: 'scripted' takes no argument")
+        return
     provider = PROVIDERS.get(kind)
-    if provider is not None:
-        model = rest.strip() or kw.pop("model", None) or os.environ.get("GHOSTSHELL_LLM_MODEL")
-        for other in provider.ignores:
-            kw.pop(other, None)
-        if not model:
-            raise GhostError(f"ghost spec {spec!r}: no model; use {kind}:MODEL (e.g. {kind}:{provider.example})")
-        ghost: Ghost = getattr(importlib.import_module(provider.module), provider.cls)(model, **kw)
-        return ghost
-    raise UnknownSpecError(f"unknown LLM spec {spec!r}; expected one of: {', '.join(SPECS)}")
+    if provider is None:
+        raise UnknownSpecError(f"unknown LLM spec {spec!r}; expected one of: {', '.join(SPECS)}")
+    if not (rest.strip() or model or os.environ.get("GHOSTSHELL_LLM_MODEL")):
+        raise GhostError(f"ghost spec {spec!r}: no model; use {kind}:MODEL (e.g. {kind}:{provider.example})")

@@ -48,7 +48,6 @@ import contextlib
 import json
 import logging
 import math
-import sys
 from collections.abc import AsyncIterator, Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -58,7 +57,7 @@ import mcp_types as types
 from mcp_types import CONNECTION_CLOSED
 
 from host.mounts.schema import ToolInterface, Unsupported, clip, function_names, tool_interface
-from host.mounts.spec import McpMountError, MountSpec, MountSpecError, check_specs
+from host.mounts.spec import McpMountError, MountSpec, MountSpecError, check_specs, server_argv
 from host.mounts.stdio import MAX_LINE, StdioServer, describe_exit
 from host.shell.registry import Registry, RegistryError
 from host.shell.types import FunctionSpec, Module
@@ -179,12 +178,8 @@ class McpMount:
             if self.spec.url is not None:
                 transport: Any = streamable_http_client(self.spec.url)
             else:
-                argv = list(self.spec.command)
-                if argv[0] in ("python", "python3"):
-                    argv[0] = sys.executable  # ghostshell's interpreter (see host.mounts.spec)
-                elif argv[0] == "ghostshell":  # another shell of this installation (item 5: a robot as functions)
-                    argv[:1] = [sys.executable, "-m", "host"]
-                self.stdio = StdioServer(argv, max_line=opts.max_line)
+                # python: ghostshell's interpreter; ghostshell: another shell of this installation (item 5)
+                self.stdio = StdioServer(server_argv(self.spec), max_line=opts.max_line)
                 transport = self.stdio.streams()
             client = Client(transport, client_info=types.Implementation(name="ghostshell", version="0.1.0"),
                             cache=None)

@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import re
 import shlex
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -121,3 +122,53 @@ def check_specs(specs: Sequence[MountSpec], registry: Registry | None = None) ->
             raise McpMountError(f"--mount-mcp {spec.name}: {spec.name!r} is already a module or channel of this "
                                 f"shell (modules: {', '.join(modules)}); choose another NAME")
         seen.add(spec.name)
+
+
+def server_argv(spec: MountSpec) -> list[str]:
+    """The argv a stdio ``spec`` starts: its command, with ``python``/``python3`` as ghostshell's own
+    interpreter and ``ghostshell`` as this installation's (``python -m host``); see the module docstring."""
+    argv = list(spec.command)
+    if argv and argv[0] in ("python", "python3"):
+        argv[0] = sys.executable
+    elif argv and argv[0] == "ghostshell":
+        argv[:1] = [sys.executable, "-m", "host"]
+    return argv
+
+
+def launch_problem(spec: MountSpec, *, timeout_s: float = 2.0) -> str | None:
+    """Why the server of ``spec`` can be neither started nor reached, found without starting it (one line
+    naming the spec), or None. A command checks its ``--mount-mcp`` with it before it starts a board or
+    touches its ``--out`` folder; a server that starts and then fails is found when it is mounted.
+
+    * stdio: the program (:func:`server_argv`'s first word) is found as the server's start would find it:
+      on ``PATH``, or, with a ``/`` in it, a file that exists and may be executed;
+    * http(s): the URL's host resolves and its port (default 80/443) accepts a TCP connection within
+      ``timeout_s`` seconds (closed at once, nothing sent); a connection that times out is not refused here."""
+    import os
+    import shutil
+    import socket
+
+    if spec.url is None:
+        program = server_argv(spec)[0]
+        if shutil.which(program) is not None:
+            return None
+        if "/" in program:
+            why = ("no such file" if not os.path.exists(program) else "a folder" if os.path.isdir(program)
+                   else "not an executable file")
+            return f"--mount-mcp {spec}: cannot start the server: {program}: {why}"
+        return f"--mount-mcp {spec}: cannot start the server: no program {program!r} on PATH"
+    parts = urlsplit(spec.url)
+    host = parts.hostname or ""
+    try:
+        port = parts.port or (443 if parts.scheme == "https" else 80)
+    except ValueError as exc:  # a port out of range or not a number
+        return f"--mount-mcp {spec}: {exc}"
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s):
+            return None
+    except socket.gaierror as exc:
+        return f"--mount-mcp {spec}: cannot reach the server: host {host!r} not found ({exc.strerror or exc})"
+    except ConnectionRefusedError:
+        return f"--mount-mcp {spec}: cannot reach the server: nothing listens on {host}:{port} (connection refused)"
+    except OSError:  # a timeout, no route: the mount reports it with its own timeout
+        return None

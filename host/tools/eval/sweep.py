@@ -295,7 +295,10 @@ def _check_config(cfg: SweepConfig) -> None:
     path = cfg.out / CONFIG
     ident = cfg.identity()
     if path.exists():
-        old = json.loads(path.read_text(encoding="utf-8"))
+        try:
+            old = json.loads(path.read_text(encoding="utf-8"))
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{path} is not a sweep's config ({e}); use another --out, or delete it") from None
         old.setdefault("tasks", ident["tasks"])  # written by versions that did not record them
         old.setdefault("robot", ident["robot"])
         old.setdefault("trials", ident["trials"])

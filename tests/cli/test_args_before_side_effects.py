@@ -1,0 +1,164 @@
+"""A bad argument is refused before the command does anything: exit status 2, one line, nothing lost.
+
+Each row was found only after a side effect: ``run --xml ... --llm bogus:x`` cleared the earlier run's
+artefacts in ``--out`` and started the board, then exited 1; a ``--mount-mcp`` server that cannot start
+or be reached, and a ``--servo-bus`` device that is not there, were found once the board ran (``--out``
+cleared or its frame logs truncated; ``mcp`` printed ~100 lines of exception groups, exit 1); ``eval
+--paper-model`` with a name the paper lacks was noticed in eval.md after the sweep; ``render --out``,
+``pose``/``estop --log`` and ``vcan --run-dir`` that cannot be written failed after the work (ffmpeg's
+report, exit 1), after the move (the log silently dropped) or with a traceback.
+
+The rows run in-process through :func:`host.cli.main` (nothing starts when they pass); one subprocess
+checks ``mcp``'s one line for a server that fails after the board started.
+"""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+import host.cli
+
+pytestmark = pytest.mark.timeout(120)
+
+ROOT = Path(__file__).resolve().parents[2]
+
+#: an earlier run's files in the --out folder (and one of the user's), each with its own bytes
+EARLIER = {"summary.json": b'{"outcome": "done"}\n', "timeline.json": b"[]\n", "host_frames.jsonl": b'{"t": 1}\n',
+           "board_frames.jsonl": b'{"t": 2}\n', "run.mcap": b"\x89MCAP0\r\n", "board.stderr": b"board: ok\n",
+           "run.mp4": b"\x00\x00\x00\x18ftypmp42", "transcript.json": b"{}\n", "config.json": b'{"llm": "x"}\n',
+           "results.jsonl": b"", "notes.txt": b"mine\n"}
+
+NOD = '<head_act action="nod"/>'
+REFUSED_PORT = "{REFUSED_PORT}"  # a localhost port bound but not listening: a connection is refused
+
+
+@pytest.fixture
+def refused_port() -> Iterator[int]:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        yield s.getsockname()[1]
+
+
+#: (argv with OUT for the earlier run's folder, what the one line says)
+ROWS: list[tuple[tuple[str, ...], str]] = [
+    # the LLM spec: checked before --out is cleared (was exit 1 after clearing it and starting the board)
+    (("run", "--xml", NOD, "--llm", "bogus:x"), "unknown LLM spec 'bogus:x'"),
+    (("run", "--task", "1", "--llm", "openai:"), "no model; use openai:MODEL"),
+    (("run", "--task", "1", "--llm", "scripted:x"), "'scripted' takes no argument"),
+    (("run", "--xml", NOD, "--llm", "anthropic:claude-sonnet-4-0"), "answers --prompt TEXT"),
+    # --mount-mcp: a program that is not there, a URL nothing listens on (was: found after the board started)
+    (("run", "--task", "1", "--mount-mcp", "w=/no/such/server"), "w=/no/such/server: cannot start the server"),
+    (("run", "--task", "1", "--mount-mcp", "w=no-such-mcp-server-program"), "no program 'no-such-mcp-server-program'"),
+    (("run", "--task", "1", "--mount-mcp", f"w=http://127.0.0.1:{REFUSED_PORT}/mcp"), "connection refused"),
+    (("chat", "--replies", "{REPLIES}", "--mount-mcp", "w=/no/such/server"), "cannot start the server"),
+    (("mcp", "--mount-mcp", "w=/no/such/server"), "cannot start the server"),
+    # --servo-bus: a device that is not there (was: the board's refusal, after --out was cleared)
+    (("run", "--task", "1", "--servo-bus", "/dev/no-such-adapter"), "there is no device '/dev/no-such-adapter'"),
+    (("demo", "--no-video", "--servo-bus", "/dev/no-such-adapter"), "there is no device"),
+    (("chat", "--replies", "{REPLIES}", "--servo-bus", "{OUT}"), "is not a serial device"),
+    # eval: a paper column the paper lacks (was: eval.md's paper column empty after the sweep)
+    (("eval", "--llm", "ground-truth", "--tasks", "1", "--trials", "1", "--no-run", "--paper-model", "GPT-9"),
+     "--paper-model 'GPT-9': the paper's columns are"),
+]
+
+_COMMON = {"run": ("--lockstep", "--no-live"), "chat": ("--lockstep", "--no-live"), "demo": ("--lockstep", "--no-live"),
+           "mcp": ("--lockstep",), "eval": ()}
+
+
+def _earlier_run(folder: Path) -> dict[str, bytes]:
+    folder.mkdir(parents=True)
+    for name, data in EARLIER.items():
+        (folder / name).write_bytes(data)
+    return {p.name: p.read_bytes() for p in folder.iterdir()}
+
+
+def _refused(argv: tuple[str, ...], capsys: pytest.CaptureFixture[str]) -> str:
+    """Run ``argv`` in-process: its one stderr line (asserted: status 2, one line, no traceback, no stdout)."""
+    try:
+        status = host.cli.main(list(argv))
+    except SystemExit as e:  # argparse's usage error (a type= check)
+        status = e.code
+    out, err = capsys.readouterr()
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert status == 2, f"status {status}\n{err}\n{out}"
+    assert "Traceback" not in err + out, err
+    assert len(lines) == 1 and lines[0].startswith(f"ghostshell {argv[0]}"), err
+    assert out == "", out  # no banner, no "removed the earlier run's artefacts"
+    return lines[0]
+
+
+@pytest.fixture(autouse=True)
+def _no_llm_environment(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    for name in ("GHOSTSHELL_LLM_MODEL", "GHOSTSHELL_LLM_API_KEY", "OPENAI_API_KEY", "ANTHROPIC_API_KEY"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.chdir(tmp_path)
+
+
+@pytest.mark.parametrize(("argv", "says"), ROWS, ids=[" ".join(a)[:70] for a, _ in ROWS])
+def test_a_bad_argument_leaves_the_earlier_run_as_it_was(argv: tuple[str, ...], says: str, tmp_path: Path,
+                                                         refused_port: int,
+                                                         capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "earlier"
+    kept = _earlier_run(out)
+    replies = tmp_path / "replies.txt"
+    replies.write_text(NOD + "\n", encoding="utf-8")
+    args = [a.replace("{REPLIES}", str(replies)).replace("{OUT}", str(out)).replace(REFUSED_PORT, str(refused_port))
+            for a in argv]
+    line = _refused((*args, *_COMMON[argv[0]], "--out", str(out)), capsys)
+    assert says in line, line
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == kept  # byte-identical, nothing added
+
+
+def test_eval_refuses_a_server_it_cannot_start_before_making_its_folder(tmp_path: Path,
+                                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "eval"
+    line = _refused(("eval", "--llm", "ground-truth", "--tasks", "1", "--trials", "1", "--no-run",
+                     "--mount-mcp", "w=/no/such/server", "--out", str(out)), capsys)
+    assert "cannot start the server" in line
+    assert not out.exists()  # was: the folder and its config.json, then the refusal
+
+
+def test_a_spec_check_agrees_with_make_ghost(monkeypatch: pytest.MonkeyPatch) -> None:
+    from host.ghost import GhostError, make_ghost
+    from host.ghost.factory import check_spec, spec_kind
+
+    for spec in ("bogus:x", "openai:", "anthropic", "scripted:x", ""):
+        with pytest.raises(GhostError) as checked:
+            check_spec(spec)
+        with pytest.raises(GhostError) as built:
+            make_ghost(spec, program=NOD)
+        assert str(checked.value) == str(built.value)
+    check_spec(" Scripted ")
+    assert spec_kind(" Scripted ") == "scripted"
+    monkeypatch.setenv("GHOSTSHELL_LLM_MODEL", "gpt-4o-mini")
+    check_spec("openai")  # the model from the environment
+
+
+def test_a_reachable_server_is_not_refused(refused_port: int) -> None:
+    from host.mounts.spec import MountSpec, launch_problem
+
+    assert launch_problem(MountSpec("w", command=("python", "server.py"))) is None  # ghostshell's interpreter
+    assert launch_problem(MountSpec("w", command=("ghostshell", "mcp"))) is None
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        assert launch_problem(MountSpec("w", url=f"http://127.0.0.1:{s.getsockname()[1]}/mcp")) is None
+    assert "connection refused" in (launch_problem(MountSpec("w", url=f"http://127.0.0.1:{refused_port}/mcp")) or "")
+
+
+def test_mcp_says_a_server_that_fails_after_the_board_started_in_one_line(tmp_path: Path) -> None:
+    """``false`` starts and exits at once: found only when mounted, after the board started; the line
+    comes out of the MCP SDK's task groups (was: ~100 lines of nested exception groups, exit 1)."""
+    p = subprocess.run([sys.executable, "-m", "host", "mcp", "--lockstep", "--mount-mcp", "w=false",
+                        "--out", str(tmp_path / "mcp")], capture_output=True, text=True, timeout=100,
+                       stdin=subprocess.DEVNULL, cwd=ROOT)
+    assert p.returncode == 2, p.stderr[-3000:]
+    assert "Traceback" not in p.stderr and "ExceptionGroup" not in p.stderr, p.stderr[-3000:]
+    errors = [ln for ln in p.stderr.splitlines() if ln.startswith("ghostshell mcp:")]
+    assert len(errors) == 1 and "--mount-mcp w=false" in errors[0], p.stderr
