@@ -18,6 +18,7 @@ import asyncio
 import sys
 
 from host.commands.errors import print_error
+from host.commands.outarg import out_file
 from host.commands.inputs import baud_rate
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, refuse_unserved_link
 
@@ -31,7 +32,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--clear", action="store_true",
                         help="send ESTOP_CLEAR (release an estop or a latched watchdog fault) instead of ESTOP")
     parser.add_argument("--baud", type=baud_rate, default=115200, metavar="N", help="baud rate (default 115200)")
-    parser.add_argument("--log", default=None, metavar="FILE", help="frame log of this session")
+    parser.add_argument("--log", type=out_file, default=None, metavar="FILE", help="frame log of this session")
 
 
 async def _run(args: argparse.Namespace) -> int:

@@ -12,6 +12,9 @@ permission check, yet cannot make folders in ``/proc`` or ``/sys`` or on a read-
 probe makes a uniquely named empty folder (:func:`tempfile.mkdtemp`) in the path, or in its nearest
 existing ancestor when the path does not exist yet, and removes it at once.
 
+:func:`out_file` is the same for an output file (``render --out FILE``, ``pose``/``estop`` ``--log FILE``):
+a folder, a device, a file under a missing folder or in one this process cannot write in is refused.
+
 :func:`tcp_port_taken` answers why a localhost TCP port cannot be listened on (``mcp --http PORT``),
 by binding it as the server would, before the board starts.
 """
@@ -26,13 +29,15 @@ import stat
 import tempfile
 from pathlib import Path
 
-__all__ = ["add_no_plots_argument", "clear_run_artefacts", "out_dir", "out_dir_problem", "remove_unused_out",
-           "tcp_port_taken"]
+__all__ = ["add_no_plots_argument", "clear_run_artefacts", "out_dir", "out_dir_problem", "out_file",
+           "out_file_problem", "remove_unused_out", "tcp_port_taken"]
 
 _PROBE_PREFIX = ".ghostshell-write-probe-"
 
 
 def _kind(mode: int) -> str:
+    if stat.S_ISDIR(mode):
+        return "a folder"
     if stat.S_ISREG(mode):
         return "a regular file"
     if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
@@ -96,6 +101,46 @@ def out_dir(text: str) -> Path:
     """argparse ``type=`` for ``--out DIR``: the path, or :class:`argparse.ArgumentTypeError` saying why
     it cannot hold the artefacts (see :func:`out_dir_problem`)."""
     why = out_dir_problem(text)
+    if why is not None:
+        raise argparse.ArgumentTypeError(f"{text} {why}")
+    return Path(text)
+
+
+def out_file_problem(path: str | Path) -> str | None:
+    """Why no file can be written at ``path`` (created, or an existing one replaced), in a few words, or None.
+
+    It can when ``path`` is a regular file or does not exist, and its folder exists and this process can
+    make entries in it (tried, as :func:`out_dir_problem` does). A folder, a device (``/dev/null``), a FIFO
+    or a socket is refused: the commands write a file beside it and rename it over (``render``), which
+    would replace a device node. The folder is not created."""
+    p = Path(path)
+    if str(path) == "":
+        return "is empty; give a file"
+    try:
+        mode: int | None = os.stat(p).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        mode = None
+    except OSError as e:
+        return f"cannot be looked at ({e.strerror or e})"
+    if mode is not None and not stat.S_ISREG(mode):
+        return f"is {_kind(mode)}, not a file; give a file (existing or new)"
+    folder = p.absolute().parent
+    try:
+        fmode = os.stat(folder).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return f"cannot be created: there is no folder {folder}"
+    except OSError as e:
+        return f"cannot be created: {folder} cannot be looked at ({e.strerror or e})"
+    if not stat.S_ISDIR(fmode):
+        return f"cannot be created: {folder} is {_kind(fmode)}, not a folder"
+    why = _probe(folder)
+    return None if why is None else f"cannot be created: {folder} takes no new file ({why})"
+
+
+def out_file(text: str) -> Path:
+    """argparse ``type=`` for an output file (``render --out FILE``, ``pose``/``estop`` ``--log FILE``): the
+    path, or :class:`argparse.ArgumentTypeError` saying why it cannot be written (:func:`out_file_problem`)."""
+    why = out_file_problem(text)
     if why is not None:
         raise argparse.ArgumentTypeError(f"{text} {why}")
     return Path(text)

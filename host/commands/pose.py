@@ -8,6 +8,7 @@ import math
 import sys
 
 from host.commands.errors import print_error
+from host.commands.outarg import out_file
 from host.commands.inputs import baud_rate, positive_seconds, seconds
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, refuse_unserved_link
 from host.commands.robotarg import add_robot_argument, robot_from_args
@@ -26,7 +27,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=seconds, default=1.0, metavar="S",
                         help="move time (stretched to respect servo speed limits; default 1.0)")
     parser.add_argument("--baud", type=baud_rate, default=115200, metavar="N", help="baud rate (default 115200)")
-    parser.add_argument("--log", default=None, metavar="FILE", help="frame log (JSON lines) of this session")
+    parser.add_argument("--log", type=out_file, default=None, metavar="FILE", help="frame log (JSON lines) of this session")
     parser.add_argument("--timeout", type=positive_seconds, default=5.0, metavar="S",
                         help="board seconds to settle within 3 deg after the move (default 5)")
     parser.add_argument("--tolerance", type=float, default=3.0, metavar="DEG", help=argparse.SUPPRESS)

@@ -9,13 +9,14 @@ import argparse
 from pathlib import Path
 
 from host.commands.errors import print_error
+from host.commands.outarg import out_file, out_file_problem
 from host.commands.inputs import whole_number
 from robots.registry import robots_dir_arg
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run_dir", metavar="RUN_DIR", help="a run's artefact folder (ghostshell run/demo --out)")
-    parser.add_argument("--out", default=None, metavar="FILE", help="video file (default RUN_DIR/run.mp4)")
+    parser.add_argument("--out", type=out_file, default=None, metavar="FILE", help="video file (default RUN_DIR/run.mp4)")
     parser.add_argument("--fps", type=int, default=25, choices=range(10, 61), metavar="FPS", help="frames per second (default 25)")
     parser.add_argument("--workers", type=whole_number(1), default=2, metavar="N", help="render processes (default 2: both cores)")
     parser.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg,
@@ -35,6 +36,11 @@ def main(args: argparse.Namespace) -> int:
         what = "is not a folder" if run_dir.exists() else "does not exist"
         print_error("render", f"{run_dir} {what}; give a run's folder (ghostshell run/demo --out)")
         return 2
+    if args.out is None:  # the default file, as --out FILE is checked when parsed
+        why = out_file_problem(run_dir / "run.mp4")
+        if why is not None:
+            print_error("render", f"{run_dir / 'run.mp4'} {why}; give another with --out FILE")
+            return 2
     t = time.monotonic()
     try:
         with bar("rendering run.mp4", None, quiet=args.quiet, transient=True) as shown:

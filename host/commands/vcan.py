@@ -34,6 +34,7 @@ from pathlib import Path
 
 from host.commands.errors import print_error
 from host.commands.inputs import whole_number
+from host.commands.outarg import out_dir
 
 __all__ = ["configure", "main"]
 
@@ -86,7 +87,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--keep", action="append", default=[], metavar="DIR",
                         help="User-Mode Linux: another folder under /tmp COMMAND needs (the working folder and "
                              "/tmp paths named in COMMAND, also inside a bash -c script, are shared without it)")
-    parser.add_argument("--run-dir", default=None, metavar="DIR",
+    parser.add_argument("--run-dir", type=out_dir, default=None, metavar="DIR",
                         help="User-Mode Linux: keep the guest's files (job, console, output) in DIR "
                              "(default: a temporary folder, removed at exit)")
     parser.add_argument("command", nargs=argparse.REMAINDER, metavar="-- COMMAND ...",

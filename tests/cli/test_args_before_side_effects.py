@@ -67,6 +67,16 @@ ROWS: list[tuple[tuple[str, ...], str]] = [
      "--paper-model 'GPT-9': the paper's columns are"),
 ]
 
+#: rows whose command has no run folder: (argv, what the one line says)
+FILE_ROWS: list[tuple[tuple[str, ...], str]] = [
+    (("render", "{OUT}", "--out", "/proc/x.mp4"), "argument --out: /proc/x.mp4 cannot be created"),
+    (("render", "{OUT}", "--out", "/dev/null"), "/dev/null is a device, not a file"),
+    (("render", "{OUT}", "--out", "{OUT}/no/such/x.mp4"), "there is no folder"),
+    (("pose", "--link", "/dev/null", "--pose", "stand", "--log", "{OUT}"), "argument --log:"),
+    (("estop", "--link", "/dev/null", "--log", "/proc/x.jsonl"), "argument --log: /proc/x.jsonl cannot be created"),
+    (("vcan", "--uml", "--run-dir", "/proc/x", "--", "true"), "argument --run-dir: /proc/x cannot be created"),
+]
+
 _COMMON = {"run": ("--lockstep", "--no-live"), "chat": ("--lockstep", "--no-live"), "demo": ("--lockstep", "--no-live"),
            "mcp": ("--lockstep",), "eval": ()}
 
@@ -113,6 +123,16 @@ def test_a_bad_argument_leaves_the_earlier_run_as_it_was(argv: tuple[str, ...], 
     line = _refused((*args, *_COMMON[argv[0]], "--out", str(out)), capsys)
     assert says in line, line
     assert {p.name: p.read_bytes() for p in out.iterdir()} == kept  # byte-identical, nothing added
+
+
+@pytest.mark.parametrize(("argv", "says"), FILE_ROWS, ids=[" ".join(a)[:70] for a, _ in FILE_ROWS])
+def test_an_output_file_that_cannot_be_written_is_refused_first(argv: tuple[str, ...], says: str, tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    folder = tmp_path / "run"
+    folder.mkdir()
+    line = _refused(tuple(a.replace("{OUT}", str(folder)) for a in argv), capsys)
+    assert says in line, line
+    assert list(folder.iterdir()) == []
 
 
 def test_eval_refuses_a_server_it_cannot_start_before_making_its_folder(tmp_path: Path,
