@@ -143,16 +143,22 @@ def run_e2e(program: str, out: Path, **options: Any) -> E2ERun:
 
     No plots unless asked (``plots=True``): the JSON artefacts and frame logs are what the checks read,
     and drawing timeline.png and joints.png costs ~0.25 s of CPU per run (measured: 6 lockstep tasks, 2 runs each way) (the suite makes ~200 runs;
-    tests/e2e/test_artefacts.py checks the plots of :data:`PLOTTED_TASKS`)."""
+    tests/e2e/test_artefacts.py checks the plots of :data:`PLOTTED_TASKS`). No run.mcap unless asked
+    (``mcap=True``) either: the recording's writer thread (forward kinematics for ``/tf``, JSON, zstd at
+    50 Hz) cost ~0.34 s of host CPU per run, about half the host's CPU of a lockstep task (tasks 26, 9
+    and 18, 2 interleaved rounds each way in one process: 4.27 vs 2.21 host CPU-s, the board's 4.3 either
+    way); tests/e2e/test_mcap_e2e.py and :data:`PLOTTED_TASKS`' runs record it."""
     options.setdefault("lockstep", True)
     options.setdefault("plots", False)
+    options.setdefault("mcap", False)
     opts = RunOptions(program=program, out=out, **options)
     return E2ERun(anyio.run(run_program, opts, backend="asyncio"))
 
 
 _TASK_RUNS: dict[tuple[int, str], E2ERun] = {}
 
-#: the ground-truth runs that also draw timeline.png and joints.png (tests/e2e/test_artefacts.py reads them)
+#: the ground-truth runs that also draw timeline.png and joints.png and record run.mcap (tests/e2e/test_artefacts.py
+#: reads them)
 PLOTTED_TASKS = frozenset({26})
 
 #: the boards a task runs on: the Python emulator and the C firmware (native, over the same pty);
@@ -169,6 +175,6 @@ def task_run(tmp_path_factory: pytest.TempPathFactory):
         if key not in _TASK_RUNS:
             out = tmp_path_factory.mktemp(f"task{tid}-{firmware}")
             _TASK_RUNS[key] = run_e2e(TASKS[tid].ground_truth, out, task_label=f"task {tid}", firmware=firmware,
-                                      plots=tid in PLOTTED_TASKS)
+                                      plots=tid in PLOTTED_TASKS, mcap=tid in PLOTTED_TASKS)
         return _TASK_RUNS[key]
     return get

@@ -24,8 +24,8 @@ from support.faults import PAPER_FAULTS, CliRun, assert_can_fault_guarantees, cl
 
 ALL = sorted(t.id for t in load_tasks().values() if t.ground_truth)
 #: by default (CI time) two or three tasks per category of the paper, the long speech ones among
-#: them (task 8 lost a speech call here when a request had three attempts); every task runs over
-#: serial under the same faults (test_faults_e2e.py), and here too with GHOSTSHELL_ALL_TASKS=1
+#: them (task 8 lost a speech call here when a request had three attempts); test_faults_e2e.py samples
+#: the other tasks over serial under the same faults; every task with GHOSTSHELL_ALL_TASKS=1
 SAMPLE = [1, 3, 7, 8, 9, 14, 17, 20, 22, 23, 26, 29]
 TASKS = ALL if os.environ.get("GHOSTSHELL_ALL_TASKS", "") not in ("", "0") else SAMPLE
 WORKERS = 2

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import os
@@ -22,7 +23,10 @@ from host.run.replay import read_host_to_board
 from robots.coco.tasks import load_tasks
 from robots.registry import load_robot
 
-from .conftest import run_e2e
+from .conftest import run_e2e as _run_e2e
+
+#: :func:`e2e.conftest.run_e2e` with its recording on (the other e2e runs make no run.mcap)
+run_e2e = functools.partial(_run_e2e, mcap=True)
 
 ROOT = Path(__file__).resolve().parents[2]
 TASK26 = load_tasks()[26].ground_truth
