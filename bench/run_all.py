@@ -110,7 +110,9 @@ def plan(quick: bool) -> list[tuple[list[str], Parser]]:
     py = ["bench/bench_latency.py"]
     lat_sel = ["--tasks", "1,5,12,23"] if quick else ["--repeat", "3"]  # 30 tasks x 3: ~290 calls (x 2 gave 196)
     runs: list[tuple[list[str], Parser]] = [
-        (["bench/bench_board.py", "--robot", "coco", "--lockstep-only"], parse_board),
+        # --quick: one round of 2 simulated seconds (the full run is 3 rounds of 10: ~25 s of a CI worker)
+        (["bench/bench_board.py", "--robot", "coco", "--lockstep-only"] + (["--rounds", "1", "--sim-seconds", "2"] if quick else []),
+         parse_board),
         (py + lat_sel, parse_latency("quiet")),
         (py + lat_sel + ["--load"], parse_latency("--load")),
         (py + lat_sel + ["--baud", "115200"], parse_latency("115200 baud")),

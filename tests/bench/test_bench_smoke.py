@@ -15,7 +15,7 @@ CASES = {
     "bench_codec.py": ["--seconds", "0.05"],
     "bench_call_path.py": ["--runs", "1"],  # one lockstep turn under a profiler
     "bench_parser.py": ["--mb", "0.05"],
-    "bench_board.py": ["--lockstep-only"],  # its realtime parts: REALTIME_PARTS
+    "bench_board.py": ["--lockstep-only", "--rounds", "1", "--sim-seconds", "2"],  # realtime parts: REALTIME_PARTS
     "bench_roundtrip.py": ["--n", "20"],
     "bench_streaming.py": ["--tasks", "5"],
     "bench_latency.py": ["--tasks", "5", "--lockstep"],
@@ -23,7 +23,8 @@ CASES = {
     "bench_hostile.py": ["--mb", "0.01", "--calls", "50"],
     "bench_recovery.py": ["--links", "pty", "--starts", "3"],  # one realtime run, ~9 s
     "bench_can.py": ["--n", "20", "--seconds", "0.3", "--skip", "session,latency"],  # one short UML boot
-    "bench_cfirmware.py": ["--seconds", "0.3", "--repeat", "1", "--skip-fuzz"],  # QEMU boot + native builds
+    # QEMU boot + native builds; the STM32F405 tick figure from task 1 (one call) rather than 26
+    "bench_cfirmware.py": ["--seconds", "0.3", "--repeat", "1", "--skip-fuzz", "--f4-task", "1"],
     "bench_foxglove.py": ["--n", "1", "--task", "1"],  # one realtime run with a live client, two lockstep runs
     "bench_recording.py": ["--seconds", "0.3"],  # CoCo's RunLog on a loop: none, inline, writer thread
     "bench_fuzz.py": ["--seconds", "1", "serial-decoder"],  # one libFuzzer run of 1 s
