@@ -73,7 +73,9 @@ class CanBoardTransport(BoardTransport):
         self.framelog: FrameLogWriter | None = None
         self.channel_name = spec.channel or "can0"
         self.layouts: CanLayouts = can_layouts() if servo_count is None else can_layouts(servo_count)
-        self.engine = CanEngine(self.node, "board", self.fd, self._enqueue, self.layouts)
+        #: ISO-TP's clock (ns): the ``now`` of the latest receive/queue/flush (the board loop's time, as the C link's)
+        self._now_ns = 0
+        self.engine = CanEngine(self.node, "board", self.fd, self._enqueue, self.layouts, clock=lambda: self._now_ns)
         self.engine.excuse_flow_control = self._unanswered_reports
         self._txq: list[tuple[int, int, CanFrame]] = []  # heap: (identifier, order, frame)
         self._order = 0
@@ -166,11 +168,13 @@ class CanBoardTransport(BoardTransport):
         return []
 
     def receive(self, now: float, *, read: bool = True) -> list[Frame | DecodeError]:
+        self._now_ns = int(now * 1e9)
         frames = self._read_frames() if read else []
         if self.rx_faults is not None:  # what reaches the controller: after the injected faults
             for f in frames:
                 self.rx_faults.push(f, now)
-            frames = self.rx_faults.pop_due(now)
+            # a frame the modelled line held arrives when it is let through, not when the bus delivered it
+            frames = [dataclasses.replace(f, timestamp=None) for f in self.rx_faults.pop_due(now)]
         errors = self._take_line_errors()
         if not frames and not self.engine.busy and not self._items:
             return errors
@@ -185,6 +189,7 @@ class CanBoardTransport(BoardTransport):
         return errors + taken + items
 
     def queue(self, msg: Message, seq: int, now: float) -> bool:
+        self._now_ns = int(now * 1e9)
         if isinstance(msg, Nack) and msg.detail and self._nack_fixed(msg):
             # the reason code says it all; the detail text would take a multi-frame ISO-TP transfer
             msg = dataclasses.replace(msg, detail="")
@@ -233,6 +238,7 @@ class CanBoardTransport(BoardTransport):
             self._poll()
 
     def flush(self, now: float) -> None:
+        self._now_ns = int(now * 1e9)
         if self.engine.busy:
             self._poll()
         self._start_periodic()

@@ -23,6 +23,7 @@ timeouts of reports nobody listened to are no link errors. Both ends use the rob
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 from protocol.can.codec import Sender, encode_bulk, encode_fixed, is_fixed
@@ -48,7 +49,7 @@ class CanEngine:
     """
 
     def __init__(self, node: int, role: str, fd: bool, emit: Callable[[CanFrame], None],
-                 layouts: CanLayouts | None = None) -> None:
+                 layouts: CanLayouts | None = None, clock: Callable[[], int] | None = None) -> None:
         if role not in ("host", "board"):
             raise ValueError(f"role must be 'host' or 'board', got {role!r}")
         self.node, self.role, self.fd = node, role, fd
@@ -58,7 +59,9 @@ class CanEngine:
         to_board, to_host = bulk_ids(node)
         self.bulk_rx_id, self.bulk_tx_id = (to_host, to_board) if role == "host" else (to_board, to_host)
         self.decoder = CanDecoder(node, role, self.layouts)
-        self.isotp = IsoTpLink(rxid=self.bulk_rx_id, txid=self.bulk_tx_id, fd=fd, send=emit)
+        #: ISO-TP's clock (ns; :class:`protocol.can.isotp_link.IsoTpLink`): ``time.perf_counter_ns`` unless given
+        self.clock: Callable[[], int] = clock or time.perf_counter_ns
+        self.isotp = IsoTpLink(rxid=self.bulk_rx_id, txid=self.bulk_tx_id, fd=fd, send=emit, clock=self.clock)
         self._errors_reported = 0  # ISO-TP errors already reported as items (or excused)
         #: given the flow-control timeouts a poll saw, how many of them are no link error (default none)
         self.excuse_flow_control: Callable[[int], int] = lambda n: 0
@@ -66,7 +69,7 @@ class CanEngine:
     def reset(self) -> None:
         """A new connection: empty reassembly and ISO-TP state (the layouts stay)."""
         self.decoder = CanDecoder(self.node, self.role, self.layouts)
-        self.isotp = IsoTpLink(rxid=self.bulk_rx_id, txid=self.bulk_tx_id, fd=self.fd, send=self._emit)
+        self.isotp = IsoTpLink(rxid=self.bulk_rx_id, txid=self.bulk_tx_id, fd=self.fd, send=self._emit, clock=self.clock)
         self._errors_reported = 0
 
     def set_layouts(self, layouts: CanLayouts) -> None:

@@ -25,7 +25,9 @@ class CanFrame:
     """One CAN frame: 11-bit (or 29-bit) ``arbitration_id``, ``data`` (0..8 bytes, FD 0..64).
 
     ``is_remote`` and ``is_extended_id`` exist so a receiver can see (and reject) whatever a bus
-    delivers; the protocol itself only sends standard data frames.
+    delivers; the protocol itself only sends standard data frames. ``timestamp`` is when a received
+    frame arrived (s, ``time.time()``'s clock, python-can's ``Message.timestamp``: the kernel's for
+    SocketCAN), None when unknown; it takes no part in equality or hashing.
     """
 
     arbitration_id: int
@@ -33,3 +35,4 @@ class CanFrame:
     is_fd: bool = False
     is_extended_id: bool = False
     is_remote: bool = False
+    timestamp: float | None = field(default=None, compare=False)

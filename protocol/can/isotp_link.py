@@ -5,21 +5,33 @@ the fuzzer and the log decoder in listen mode. It does no I/O and starts no thre
 link are pushed in with :meth:`IsoTpLink.feed`, frames it emits go to ``send``,
 and :meth:`poll` advances it (call it whenever something arrived and every few ms while
 :attr:`busy`). Block size 0 and STmin 0: one flow control per message, no pacing; frames padded to 8 (FD: 64) bytes.
-The one clocked piece of ``protocol/``: ISO-TP's flow-control and consecutive-frame timeouts are
-can-isotp's own timers (it reads the monotonic clock inside ``process``).
+
+Timers (N_Bs: a flow control after a First Frame; N_Cr: the next consecutive frame) are can-isotp's
+logic on this link's clock (``clock``, ns, ``time.perf_counter_ns`` unless given), and a received
+frame is judged at the time it *arrived*, not at the time the loop got round to it: ``feed`` stamps
+it (from ``CanFrame.timestamp``, the driver's arrival time, when there is one), and while
+:meth:`poll` works through the frames that were waiting, "now" for a timeout is the stamp of the
+frame in hand. A timer starts when its frame goes out (now). So a loop that stalls (a garbage
+collection, a long lockstep batch, a starved process) with the peer's frames already in its socket
+loses no transfer; only frames that really came late time out (ISO 15765-2 clause 9.8.2 measures
+N_Bs and N_Cr to a frame's reception). can-isotp reads ``time.perf_counter_ns`` inside its private
+``Timer``; :class:`_StampedLayer` replaces the two timers it restarts (``_start_rx_fc_timer``,
+``_start_rx_cf_timer``, can-isotp 2.0) with ones on this clock, and a test checks they are in use.
 """
 
 from __future__ import annotations
 
 import logging
+import time
 from collections import deque
 from collections.abc import Callable
 
 import isotp
+from isotp.tools import Timer
 
 from protocol.can.frame import CanFrame
 
-__all__ = ["ISOTP_TIMEOUT_MS", "IsoTpLink", "MAX_PENDING_SENDS"]
+__all__ = ["ISOTP_TIMEOUT_MS", "IsoTpLink", "MAX_PENDING_SENDS", "MAX_FRAME_AGE_S"]
 
 # can-isotp also logs every protocol error it reports to ``error_handler``; those are counted and
 # surfaced as link errors here, so without a logging configuration they must not reach stderr
@@ -33,17 +45,72 @@ MAX_PENDING_SENDS = 256  # bulk messages queued before send() refuses
 #: control every later bulk message (SCREEN, SPEAKER, SIM_STATE, camera chunks) waits behind it,
 #: so a lost frame costs 200 ms instead of a second. The requests above ISO-TP are re-sent anyway.
 ISOTP_TIMEOUT_MS = 200
+#: a frame stamped longer ago than this (s) counts as arriving this long ago (a stamp from a clock that jumped)
+MAX_FRAME_AGE_S = 10.0
+
+
+class _LinkTimer(Timer):
+    """can-isotp's ``Timer`` on an :class:`IsoTpLink`'s clock, judged at the frame in hand (module docstring)."""
+
+    def __init__(self, timeout_s: float, link: IsoTpLink) -> None:
+        super().__init__(timeout_s)
+        self._link = link
+
+    def start(self, timeout: float | None = None) -> None:
+        if timeout is not None:
+            self.set_timeout(timeout)
+        self.start_time = self._link.clock()
+
+    def elapsed_ns(self) -> int:
+        if self.start_time is None:
+            return 0
+        return self._link.judge_ns() - self.start_time  # < 0 for a frame that arrived before the timer started
+
+    def elapsed(self) -> float:
+        return self.elapsed_ns() / 1e9
+
+
+class _StampedLayer(isotp.TransportLayerLogic):
+    """can-isotp's state machine with N_Bs and N_Cr on the link's clock (:class:`_LinkTimer`)."""
+
+    def __init__(self, link: IsoTpLink, **kw: object) -> None:
+        self._link = link
+        super().__init__(**kw)  # type: ignore[arg-type]
+        self.timer_rx_fc = _LinkTimer(self.params.rx_flowcontrol_timeout / 1000, link)
+        self.timer_rx_cf = _LinkTimer(self.params.rx_consecutive_frame_timeout / 1000, link)
+
+    def _process_tx(self) -> isotp.TransportLayerLogic.ProcessTxReport:
+        # a flow control that just arrived is judged at its arrival (it broke the receive loop, so it is the frame
+        # in hand); after that the transmitter's own timeouts are judged now (gs_isotp.c process_tx does the same)
+        try:
+            return super()._process_tx()
+        finally:
+            self._link._judge_at = None
+
+    def _start_rx_fc_timer(self) -> None:
+        self.timer_rx_fc = _LinkTimer(self.params.rx_flowcontrol_timeout / 1000, self._link)
+        self.timer_rx_fc.start()
+
+    def _start_rx_cf_timer(self) -> None:
+        self.timer_rx_cf = _LinkTimer(self.params.rx_consecutive_frame_timeout / 1000, self._link)
+        self.timer_rx_cf.start()
 
 
 class IsoTpLink:
-    """ISO-TP with normal 11-bit addressing: receive on ``rxid``, transmit on ``txid``."""
+    """ISO-TP with normal 11-bit addressing: receive on ``rxid``, transmit on ``txid``.
 
-    def __init__(self, rxid: int, txid: int, fd: bool, send: Callable[[CanFrame], None], *, listen: bool = False) -> None:
+    ``clock``: the link's monotonic clock (ns; default ``time.perf_counter_ns``), which its timers run
+    on and received frames are stamped with (module docstring)."""
+
+    def __init__(self, rxid: int, txid: int, fd: bool, send: Callable[[CanFrame], None], *, listen: bool = False,
+                 clock: Callable[[], int] = time.perf_counter_ns) -> None:
         self.rxid, self.txid = rxid, txid
         self._send = send
-        self._rx: deque[isotp.CanMessage] = deque()
+        self.clock = clock
+        self._rx: deque[tuple[isotp.CanMessage, int]] = deque()
+        self._judge_at: int | None = None  # the arrival (ns) of the frame being processed; None: now
         self.errors = 0
-        self.flow_control_timeouts = 0  # of ``errors``: a First Frame sent that no receiver answered within 1 s
+        self.flow_control_timeouts = 0  # of ``errors``: a First Frame sent that no receiver answered within ISOTP_TIMEOUT_MS
         self.last_error = ""
         params = {
             "stmin": 0,
@@ -60,7 +127,8 @@ class IsoTpLink:
             "tx_data_min_length": 64 if fd else 8,
             "listen_mode": listen,  # True: reassemble only, never answer (reading a capture)
         }
-        self.layer = isotp.TransportLayerLogic(
+        self.layer = _StampedLayer(
+            self,
             rxfn=self._rxfn,
             txfn=self._txfn,
             address=isotp.Address(isotp.AddressingMode.Normal_11bits, rxid=rxid, txid=txid),
@@ -69,7 +137,23 @@ class IsoTpLink:
         )
 
     def _rxfn(self, timeout: float) -> isotp.CanMessage | None:
-        return self._rx.popleft() if self._rx else None
+        if not self._rx:
+            self._judge_at = None
+            return None
+        msg, self._judge_at = self._rx.popleft()
+        return msg
+
+    def judge_ns(self) -> int:
+        """The time (ns, :attr:`clock`) a timeout is judged at: the arrival of the frame in hand, or now."""
+        return self.clock() if self._judge_at is None else self._judge_at
+
+    def arrival_ns(self, frame: CanFrame) -> int:
+        """When ``frame`` arrived on :attr:`clock` (ns): now, less its age by ``frame.timestamp`` (0..MAX_FRAME_AGE_S)."""
+        now = self.clock()
+        if frame.timestamp is None:
+            return now
+        age = min(max(time.time() - frame.timestamp, 0.0), MAX_FRAME_AGE_S)
+        return now - int(age * 1e9)
 
     def _txfn(self, msg: isotp.CanMessage) -> None:
         self._send(CanFrame(msg.arbitration_id, bytes(msg.data), is_fd=bool(msg.is_fd)))
@@ -80,10 +164,12 @@ class IsoTpLink:
             self.flow_control_timeouts += 1
         self.last_error = f"{type(error).__name__}: {error}"
 
-    def feed(self, frame: CanFrame) -> None:
-        """A received frame with identifier ``rxid`` (bounded: a flood beyond 4096 frames is dropped)."""
+    def feed(self, frame: CanFrame, at_ns: int | None = None) -> None:
+        """A received frame with identifier ``rxid``, arrived at ``at_ns`` (:attr:`clock`, ns; default
+        :meth:`arrival_ns`). Bounded: a flood beyond 4096 waiting frames is dropped (counted in ``errors``)."""
         if len(self._rx) < 4096:
-            self._rx.append(isotp.CanMessage(frame.arbitration_id, len(frame.data), bytes(frame.data), False, frame.is_fd))
+            at = self.arrival_ns(frame) if at_ns is None else at_ns
+            self._rx.append((isotp.CanMessage(frame.arbitration_id, len(frame.data), bytes(frame.data), False, frame.is_fd), at))
         else:
             self.errors += 1
 
@@ -99,6 +185,8 @@ class IsoTpLink:
             self.layer.process()
         except Exception as e:  # never let a malformed frame take the loop down
             self._on_error(e)
+        finally:
+            self._judge_at = None
         out: list[bytes] = []
         while self.layer.available():
             data = self.layer.recv()

@@ -33,11 +33,12 @@ def to_can_message(frame: CanFrame, channel: str | None = None, is_rx: bool = Fa
 
 
 def from_can_message(msg: can.Message) -> CanFrame:
-    """The frame a python-can message carries (error frames are the caller's to filter)."""
+    """The frame a python-can message carries, with its arrival ``timestamp`` (error frames are the caller's to filter)."""
     return CanFrame(
         int(msg.arbitration_id),
         bytes(msg.data or b""),
         is_fd=bool(msg.is_fd),
         is_extended_id=bool(msg.is_extended_id),
         is_remote=bool(msg.is_remote_frame),
+        timestamp=float(msg.timestamp) if msg.timestamp else None,
     )

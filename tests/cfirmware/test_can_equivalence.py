@@ -317,3 +317,47 @@ def test_board_transport_identical(can_harness, data) -> None:
     g = h.ask("G").split()
     assert int(g[1]) == py.backlog
     assert int(g[6]) == seq
+
+
+def test_isotp_timeouts_are_judged_at_arrival_in_c_as_in_python(can_harness) -> None:
+    """gs_isotp.c and isotp_link.py judge N_Bs and N_Cr at a frame's arrival (``T ... AT_US``), not at the poll
+    that reaches it: frames that came in time and were read 400-600 ms late complete the unit on both; the same
+    frames arriving late time out on both (tests/protocol_can/test_isotp_arrival_time.py has the Python side alone)."""
+    _, h = can_harness
+    sdu = bytes(range(40))
+    ms = 1_000_000
+    now = [5_000 * ms]
+    sent: list[CanFrame] = []
+    frames: list[CanFrame] = []
+    sender = IsoTpLink(rxid=0x681, txid=0x601, fd=False, send=frames.append)
+    sender.send(sdu)
+    sender.poll()
+    sender.feed(CanFrame(0x681, bytes([0x30, 0, 0]) + b"\xcc" * 5))
+    sender.poll()
+    ff, cfs = frames[0], frames[1:]
+    assert len(cfs) == 5
+    for late in (False, True):
+        assert h.ask("I 601 681 0") == "OK"
+        t0 = 5_000_000 + (10_000_000 if late else 0)  # us; a new link each round
+        now[0] = t0 * 1000
+        py_rx = IsoTpLink(rxid=0x601, txid=0x681, fd=False, send=sent.append, clock=lambda: now[0])
+        h.ask(f"T 601 0 {ff.data.hex()} {t0}")
+        c_head = h.ask(f"P {t0}")
+        py_rx.feed(ff, at_ns=t0 * 1000)
+        py_rx.poll()
+        arrive = t0 + (250_000 if late else 2_000)  # us: 2 ms after the flow control, or 250 ms (past N_Cr)
+        for f in cfs:
+            h.ask(f"T 601 0 {f.data.hex()} {arrive}")
+            py_rx.feed(f, at_ns=arrive * 1000)
+        read = t0 + 600_000  # the loop gets to them 600 ms after the First Frame
+        now[0] = read * 1000
+        head, units, counts = h.ask(f"P {read}").split("|")
+        py_units = py_rx.poll()
+        assert "30" in c_head  # the flow control
+        c_errors = int(counts.split()[0])
+        if late:
+            assert units.split() == [] and py_units == []
+            assert c_errors >= 1 and py_rx.errors >= 1
+        else:
+            assert units.split() == [sdu.hex()] and py_units == [sdu]
+            assert c_errors == 0 and py_rx.errors == 0

@@ -8,7 +8,7 @@
  *   D ID FLAGS HEX                 feed the decoder            -> "= item ..." (M:TYPE:SEQ:HEX or X:KIND)
  *   I RXID TXID FD                 new ISO-TP link
  *   S HEX                          queue a unit                -> "OK" / "FULL"
- *   T ID FLAGS HEX                 a received ISO-TP frame     -> "OK"
+ *   T ID FLAGS HEX [AT_US]         a received ISO-TP frame that arrived at AT_US (default: the last poll's NOW) -> "OK"
  *   P NOW_US                       poll                        -> "= frame ... | unit ... | ERRORS FC_TIMEOUTS"
  *   L NODE FD                      new board CAN link (gs_can_link)
  *   Q PERIODIC NOW TYPE HEX        the board sends             -> "= 1|0"
@@ -79,6 +79,7 @@ static gs_isotp_t tp;
 static gs_can_link_t link_;
 static gs_can_frame_t emitted[4096];
 static size_t n_emitted;
+static uint32_t last_poll_us; /* the last P NOW: a T frame's default arrival */
 static char units[8192];
 static size_t units_len;
 static int refuse_left;
@@ -175,13 +176,17 @@ int main(void) {
         }
         case 'T':
             if (parse_frame(line + 2, &f) != 0) { printf("BAD\n"); break; }
-            gs_isotp_feed(&tp, &f);
+            {
+                const char *at = word(line, 4);
+                gs_isotp_feed(&tp, &f, *at ? (uint32_t)strtoul(at, NULL, 10) : last_poll_us);
+            }
             printf("OK\n");
             break;
         case 'P':
             if (sscanf(line + 2, "%u", &a) != 1) { printf("BAD\n"); break; }
             n_emitted = 0;
             units_len = 0;
+            last_poll_us = a;
             gs_isotp_poll(&tp, a);
             printf("=");
             for (size_t i = 0; i < n_emitted; i++) frame(&emitted[i]);

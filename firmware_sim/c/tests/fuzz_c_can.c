@@ -72,7 +72,7 @@ int hal_can_send(const gs_can_frame_t *f) {
     refused_run = 0;
     /* the host's ISO-TP end hears the board's bulk frames: it answers a First Frame with its flow control and
      * takes the board's flow control for its own units */
-    if (fn == GS_CAN_FN_BULK_TO_HOST) gs_isotp_feed(&host_tp, f);
+    if (fn == GS_CAN_FN_BULK_TO_HOST) gs_isotp_feed(&host_tp, f, (uint32_t)hal_now_us());
     return 1;
 }
 

@@ -129,7 +129,7 @@ void gs_can_link_rx(gs_can_link_t *l, const gs_can_frame_t *f, uint32_t now_us) 
     l->host_heard = 1;
     if (l->log) l->log(l->ctx, f, 0);
     if (f->id == l->isotp.rxid && !(f->flags & GS_CAN_FLAG_EXT)) {
-        gs_isotp_feed(&l->isotp, f);
+        gs_isotp_feed(&l->isotp, f, now_us);
         poll_isotp(l);
         return;
     }

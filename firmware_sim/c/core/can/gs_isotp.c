@@ -17,8 +17,10 @@ static void timer_start(gs_isotp_timer_t *tm, uint32_t now, uint32_t timeout_us)
     tm->running = 1;
 }
 
+/* `now` is the time the timeout is judged at: a received frame's arrival, or the poll's now. A frame that arrived
+ * before the timer started (it waited in the inbox while the timer was restarted) is never late: signed elapsed. */
 static int timed_out(const gs_isotp_timer_t *tm, uint32_t now) {
-    return tm->running && ((uint32_t)(now - tm->start_us) > tm->timeout_us || tm->timeout_us == 0);
+    return tm->running && ((int32_t)(now - tm->start_us) > (int32_t)tm->timeout_us || tm->timeout_us == 0);
 }
 
 static void error(gs_isotp_t *t, const char *why) {
@@ -49,12 +51,14 @@ int gs_isotp_send(gs_isotp_t *t, const uint8_t *data, size_t n) {
     return 0;
 }
 
-void gs_isotp_feed(gs_isotp_t *t, const gs_can_frame_t *f) {
+void gs_isotp_feed(gs_isotp_t *t, const gs_can_frame_t *f, uint32_t at_us) {
     if (t->inbox_len >= GS_ISOTP_INBOX) {
         t->errors++;
         return;
     }
-    gs_can_frame_t *slot = &t->inbox[(t->inbox_head + t->inbox_len) % GS_ISOTP_INBOX];
+    unsigned k = (t->inbox_head + t->inbox_len) % GS_ISOTP_INBOX;
+    gs_can_frame_t *slot = &t->inbox[k];
+    t->inbox_at[k] = at_us;
     *slot = *f;
     if (f->flags & GS_CAN_FLAG_RTR) slot->len = 0; /* a remote frame carries no data */
     if (slot->len > GS_CAN_MAX_DATA) slot->len = GS_CAN_MAX_DATA;
@@ -220,7 +224,7 @@ static int start_reception(gs_isotp_t *t, const pdu_t *p, uint32_t now) {
 }
 
 /* _process_rx: 1 when the transmitter must run at once. */
-static int process_rx(gs_isotp_t *t, const gs_can_frame_t *f, uint32_t now) {
+static int process_rx(gs_isotp_t *t, const gs_can_frame_t *f, uint32_t now, uint32_t at) {
     pdu_t p;
     const char *why = "";
     if (parse(f, &p, &why) != 0) {
@@ -234,6 +238,7 @@ static int process_rx(gs_isotp_t *t, const gs_can_frame_t *f, uint32_t now) {
         t->fc_bs = p.bs;
         t->fc_stmin = p.stmin;
         t->fc_stmin_us = p.stmin_us;
+        t->fc_at_us = at; /* N_Bs is judged at the flow control's arrival */
         return 1;
     }
     if (p.type == PDU_SF && p.can_dl > 8u && !p.escape) {
@@ -321,7 +326,7 @@ static int process_tx(gs_isotp_t *t, uint32_t now, gs_can_frame_t *out, int *imm
             error(t, "UnexpectedFlowControlError: Received a FlowControl message while transmission was Idle. Ignoring");
         } else if (t->fc_status == FS_WAIT) {
             error(t, "UnsupportedWaitFrameError: Received a FlowControl requesting to wait, but wftmax is set to 0");
-        } else if (!timed_out(&t->timer_rx_fc, now)) {
+        } else if (!timed_out(&t->timer_rx_fc, t->fc_at_us)) {
             t->timer_rx_fc.running = 0;
             t->timer_stmin.timeout_us = t->fc_stmin_us;
             t->remote_bs = t->fc_bs;
@@ -417,17 +422,19 @@ void gs_isotp_poll(gs_isotp_t *t, uint32_t now) {
             for (;;) {
                 int have = t->inbox_len > 0;
                 gs_can_frame_t f;
+                uint32_t at = now; /* a timeout is judged at the frame's arrival (gs_isotp.h) */
                 if (have) {
                     f = t->inbox[t->inbox_head];
+                    at = t->inbox_at[t->inbox_head];
                     t->inbox_head = (uint8_t)((t->inbox_head + 1u) % GS_ISOTP_INBOX);
                     t->inbox_len--;
                 }
-                if (timed_out(&t->timer_rx_cf, now)) {
+                if (timed_out(&t->timer_rx_cf, at)) {
                     error(t, "ConsecutiveFrameTimeoutError: Reception of CONSECUTIVE_FRAME timed out.");
                     stop_receiving(t);
                 }
                 if (!have) break;
-                if (process_rx(t, &f, now)) break;
+                if (process_rx(t, &f, now, at)) break;
             }
         }
         for (unsigned sent = 0; sent < 4096u; sent++) {

@@ -55,8 +55,9 @@ typedef struct {
     gs_isotp_timer_t timer_rx_cf;
     uint8_t pending_fc, pending_fc_status;
     uint8_t have_fc, fc_status, fc_bs, fc_stmin; /* the last flow control received, for the transmitter */
-    uint32_t fc_stmin_us;
+    uint32_t fc_stmin_us, fc_at_us; /* fc_at_us: the flow control's arrival */
     gs_can_frame_t inbox[GS_ISOTP_INBOX];
+    uint32_t inbox_at[GS_ISOTP_INBOX]; /* each waiting frame's arrival (us, the poll's clock) */
     uint8_t inbox_head, inbox_len;
     /* transmit */
     uint8_t tx_state; /* 0 idle, 1 waiting for a flow control, 2 sending consecutive frames */
@@ -78,8 +79,10 @@ void gs_isotp_init(gs_isotp_t *t, uint32_t rxid, uint32_t txid, int fd, gs_isotp
                    void *ctx);
 /* Queue one unit to send (1..GS_ISOTP_TX_MAX bytes); 0, or -1 when GS_ISOTP_TXQ units already wait. */
 int gs_isotp_send(gs_isotp_t *t, const uint8_t *data, size_t n);
-/* A received frame on rxid (a full inbox drops it, counted as an error). */
-void gs_isotp_feed(gs_isotp_t *t, const gs_can_frame_t *f);
+/* A received frame on rxid that arrived at `at_us` (the poll's clock; a full inbox drops it, counted as an error).
+ * Its timeouts are judged at `at_us`, not when a later poll reaches it: a loop that read the bus late (a long
+ * lockstep batch) loses no transfer whose frames came in time (protocol/can/isotp_link.py does the same). */
+void gs_isotp_feed(gs_isotp_t *t, const gs_can_frame_t *f, uint32_t at_us);
 /* Advance the state machine at `now_us` (any monotonic microsecond clock). */
 void gs_isotp_poll(gs_isotp_t *t, uint32_t now_us);
 /* A frame this link emitted has gone on the bus at `now_us` (the transmit confirmation, ISO 15765-2 clause 9.7:
