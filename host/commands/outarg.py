@@ -29,10 +29,11 @@ import stat
 import tempfile
 from pathlib import Path
 
-__all__ = ["add_no_plots_argument", "clear_run_artefacts", "out_dir", "out_dir_problem", "out_file",
+__all__ = ["EarlierRun", "add_no_plots_argument", "clear_run_artefacts", "out_dir", "out_dir_problem", "out_file",
            "out_file_problem", "remove_unused_out", "tcp_port_taken"]
 
 _PROBE_PREFIX = ".ghostshell-write-probe-"
+_EARLIER_PREFIX = ".ghostshell-earlier-"
 
 
 def _kind(mode: int) -> str:
@@ -146,23 +147,74 @@ def out_file(text: str) -> Path:
     return Path(text)
 
 
-def clear_run_artefacts(out: Path) -> list[str]:
-    """Remove from the folder ``out`` the files an earlier run left there (:data:`host.run.artefacts.RUN_ARTEFACTS`,
-    its photos); returns their names, sorted (empty when ``out`` does not exist or holds none). Every other
-    file and folder (``speech/``, the user's own) is left alone. Errors: :class:`OSError` of a file that
-    cannot be removed."""
+def _run_artefact_paths(out: Path) -> list[Path]:
+    """The files an earlier run left in the folder ``out`` (see :func:`clear_run_artefacts`)."""
     from host.run.artefacts import RUN_ARTEFACT_PATTERNS, RUN_ARTEFACTS
 
     if not out.is_dir():
         return []
     found = [out / name for name in RUN_ARTEFACTS]
     found += [p for pattern in RUN_ARTEFACT_PATTERNS for p in out.glob(pattern)]
+    return [path for path in found if path.is_file() or path.is_symlink()]
+
+
+def clear_run_artefacts(out: Path) -> list[str]:
+    """Remove from the folder ``out`` the files an earlier run left there (:data:`host.run.artefacts.RUN_ARTEFACTS`,
+    its photos); returns their names, sorted (empty when ``out`` does not exist or holds none). Every other
+    file and folder (``speech/``, the user's own) is left alone. Errors: :class:`OSError` of a file that
+    cannot be removed."""
     removed = []
-    for path in found:
-        if path.is_file() or path.is_symlink():
-            path.unlink(missing_ok=True)
-            removed.append(path.name)
+    for path in _run_artefact_paths(out):
+        path.unlink(missing_ok=True)
+        removed.append(path.name)
     return sorted(removed)
+
+
+class EarlierRun:
+    """The artefacts an earlier run left in ``out`` (:func:`clear_run_artefacts`'s files), set aside while a new
+    run starts: renamed into a hidden folder of ``out`` (``.ghostshell-earlier-*``) when made.
+
+    :meth:`discard` once the new run has started (the files are then gone, as :func:`clear_run_artefacts` leaves
+    them); :meth:`restore` when the run was refused before it began (a board that cannot start, a servo bus or
+    CAN adapter that cannot be opened): what the refused start wrote is removed and the earlier files come back
+    byte for byte. ``names``: the files set aside, sorted. Errors: :class:`OSError` when a file cannot be moved
+    (the ones already moved are put back first). A process killed in between leaves them in the hidden folder."""
+
+    def __init__(self, out: Path) -> None:
+        self.out = out
+        self.names: list[str] = []
+        self._folder: Path | None = None
+        found = _run_artefact_paths(out)
+        if not found:
+            return
+        self._folder = Path(tempfile.mkdtemp(prefix=_EARLIER_PREFIX, dir=out))
+        try:
+            for path in found:
+                os.replace(path, self._folder / path.name)
+                self.names.append(path.name)
+        except OSError:
+            self.restore()
+            raise
+        self.names.sort()
+
+    def discard(self) -> None:
+        """Delete the files set aside (the new run has started). Never raises."""
+        import shutil
+
+        folder, self._folder = self._folder, None
+        if folder is not None:
+            shutil.rmtree(folder, ignore_errors=True)
+
+    def restore(self) -> None:
+        """Put the files set aside back in ``out``, over what a refused start wrote (no-op after :meth:`discard`)."""
+        folder, self._folder = self._folder, None
+        if folder is None:
+            return
+        for path in _run_artefact_paths(self.out):
+            path.unlink(missing_ok=True)
+        for path in folder.iterdir():
+            os.replace(path, self.out / path.name)
+        folder.rmdir()
 
 
 def remove_unused_out(out: Path) -> None:

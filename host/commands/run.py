@@ -26,7 +26,7 @@ from host.commands.errors import command_of, print_error
 from host.ghost.factory import LLM_SPECS_HELP
 from host.commands.inputs import STDIN, InputError, baud_rate, read_text_input
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, link_exit_status, preflight_link, unreachable_link
-from host.commands.outarg import (add_no_plots_argument, clear_run_artefacts, out_dir, out_dir_problem,
+from host.commands.outarg import (EarlierRun, add_no_plots_argument, out_dir, out_dir_problem,
                                   remove_unused_out, tcp_port_taken)
 from host.commands.robotarg import add_robot_argument, robot_from_args
 from host.run.stops import DEFAULT_MAX_BOARD_S, DEFAULT_MAX_LOG_MB
@@ -452,14 +452,11 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         print_error(command_of(args), f"the run folder {out} {why}; give another with --out DIR")
         return USAGE_STATUS
     created = not out.exists()  # a run refused before it starts removes the folder it made
-    try:
-        earlier = clear_run_artefacts(out)
+    try:  # set aside until the run has started: a start refused (a board, a servo bus, a CAN adapter) puts them back
+        earlier = EarlierRun(out)
     except OSError as e:
         print_error(command_of(args), f"{out}/ holds an earlier run's artefacts that cannot be removed: {e}")
         return 1
-    if earlier:  # the artefacts line then names only what this run wrote
-        print_error(command_of(args), f"{out}/ held an earlier run's artefacts ({' '.join(earlier)}): removed; "
-                    "this run writes its own", file=sys.stdout)
     baud, wire_baud = line_rates(args)
     opts = RunOptions(
         program=program, prompt=prompt, llm=getattr(args, "llm", "scripted"), task_label=label,
@@ -482,6 +479,10 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     from host.run.link_health import board_warnings, timing_health_line
 
     def show_banner(*_: object) -> None:
+        if earlier.names:  # the artefacts line then names only what this run wrote
+            print_error(command, f"{out}/ held an earlier run's artefacts ({' '.join(earlier.names)}): removed; "
+                        "this run writes its own", file=sys.stdout)
+        earlier.discard()  # the run has started
         if banner is not None:
             print(banner, flush=True)
 
@@ -492,6 +493,8 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         what = f"; {_counts(ended.summary.outcomes)}" if ended is not None else ""
         print_error(command, f"{e.how}{what}; "
               + (f"summary.json and timeline.json in {out}/" if ended is not None else "nothing ran"))
+        if ended is None:
+            earlier.restore()
         if ended is None and created:
             remove_unused_out(out)
         return 130
@@ -502,6 +505,8 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         if ended_report(e) is not None:  # a run the link ended still left its report
             print(f"artefacts in {out}/: " + " ".join(n for n in ARTEFACTS if (out / n).exists()))
         status = link_exit_status(e)
+        if ended_report(e) is None:  # refused before the run began: the earlier run's artefacts come back
+            earlier.restore()
         if status == USAGE_STATUS and created and ended_report(e) is None:  # a link refused when opened (can:slcan:/dev/nonexist): no run folder
             remove_unused_out(out)
         return status

@@ -1,6 +1,7 @@
 """A bad argument is refused before the command does anything: exit status 2, one line, nothing lost.
 
-Each row was found only after a side effect: ``run --xml ... --llm bogus:x`` cleared the earlier run's
+Each row was found only after a side effect (the last kind is found only when the board opens a device;
+``run`` then puts the earlier run's artefacts back, :class:`host.commands.outarg.EarlierRun`): ``run --xml ... --llm bogus:x`` cleared the earlier run's
 artefacts in ``--out`` and started the board, then exited 1; a ``--mount-mcp`` server that cannot start
 or be reached, and a ``--servo-bus`` device that is not there, were found once the board ran (``--out``
 cleared or its frame logs truncated; ``mcp`` printed ~100 lines of exception groups, exit 1); ``eval
@@ -62,6 +63,9 @@ ROWS: list[tuple[tuple[str, ...], str]] = [
     (("run", "--task", "1", "--servo-bus", "/dev/no-such-adapter"), "there is no device '/dev/no-such-adapter'"),
     (("demo", "--no-video", "--servo-bus", "/dev/no-such-adapter"), "there is no device"),
     (("chat", "--replies", "{REPLIES}", "--servo-bus", "{OUT}"), "is not a serial device"),
+    # a start the board refuses (a character device that is no serial port): found only when the board opens it;
+    # the earlier run's artefacts, set aside meanwhile, come back (were: removed before the board started)
+    (("run", "--task", "1", "--servo-bus", "/dev/null"), "servo bus /dev/null"),
     # eval: a paper column the paper lacks (was: eval.md's paper column empty after the sweep)
     (("eval", "--llm", "ground-truth", "--tasks", "1", "--trials", "1", "--no-run", "--paper-model", "GPT-9"),
      "--paper-model 'GPT-9': the paper's columns are"),
@@ -90,6 +94,7 @@ def _earlier_run(folder: Path) -> dict[str, bytes]:
 
 def _refused(argv: tuple[str, ...], capsys: pytest.CaptureFixture[str]) -> str:
     """Run ``argv`` in-process: its one stderr line (asserted: status 2, one line, no traceback, no stdout)."""
+    status: int | str | None
     try:
         status = host.cli.main(list(argv))
     except SystemExit as e:  # argparse's usage error (a type= check)
