@@ -674,7 +674,10 @@ class Board:
         is called once per batch of ``n`` ticks, before the batch changes anything this board shows
         (board time, reports); for a quiet batch of :data:`OVERLAP_MIN_TICKS` or more while the C runs
         it on the kernel's own thread (:meth:`firmware_sim.native.NativeTick.run_during`; a shorter one
-        would not pay for the hand-over). It must not touch the board.
+        would not pay for the hand-over). It must not touch the board. With :attr:`defer_reports` as well (the
+        lockstep server's overlap) a batch ending in a report may go on with the quiet ticks after it in the
+        same job (:meth:`_run_split`): the run then returns that report with the ticks after it counted; the
+        report's ``now_us`` is the board time it was made at.
         """
         ran = 0
         while ran < max_ticks and self.can_tick():
