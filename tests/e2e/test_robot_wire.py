@@ -69,7 +69,7 @@ _WALL_CLOCK_BOUND = [pytest.param(link, marks=pytest.mark.realtime) if link != "
 def test_generated_robot_runs_over_the_link(tmp_path: Path, n: int, link: str) -> None:
     pkg = write_chain_robot(tmp_path, n)
     out = tmp_path / "run"
-    r = _ghostshell("run", "--robot", str(pkg), "--xml", _program(n), "--lockstep", "--no-live",
+    r = _ghostshell("run", "--robot", str(pkg), "--xml", _program(n), "--lockstep", "--no-live", "--no-plots",
                     "--link", LINKS[link], "--out", str(out), cwd=tmp_path)
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
     assert "program: done" in r.stdout and "failed" not in r.stdout.split("program: done")[1].splitlines()[0], r.stdout

@@ -134,10 +134,12 @@ class CliRun:
 
 
 def cli_run(tid: int, out: Path, *, link: str, robot: str | None = None, faults: str | None = None,
-            seed: int | None = None, timeout: float = 240) -> CliRun:
-    """``ghostshell run --task TID --lockstep --link LINK [--robot R] [--faults F --fault-seed S]``."""
+            seed: int | None = None, timeout: float = 240, plots: bool = False) -> CliRun:
+    """``ghostshell run --task TID --lockstep --link LINK [--robot R] [--faults F --fault-seed S]``, with
+    ``--no-plots`` unless ``plots``: the checks read the logs and summary.json, and matplotlib's import
+    and the two plots were ~0.45 of a run's ~2.4 CPU-s (task 8 over SLCAN under faults, 2 runs each way)."""
     cmd = [sys.executable, "-m", "host.cli", "run", "--task", str(tid), "--link", link, "--lockstep",
-           "--out", str(out), "--no-live"]
+           "--out", str(out), "--no-live", *(() if plots else ("--no-plots",))]
     if robot is not None:
         cmd += ["--robot", robot]
     if faults is not None:
