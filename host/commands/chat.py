@@ -65,6 +65,15 @@ def main(args: argparse.Namespace) -> int:
     if args.max_steps < 1:
         print_error("chat", "--max-steps must be >= 1")
         return 2
+    from host.ghost.factory import check_spec, spec_kind
+
+    try:  # the spec's form first: 'scripted:x' was read as a real LLM ("--replies needs --llm scripted")
+        check_spec(args.llm)
+    except GhostError as e:
+        print_error("chat", str(e))
+        return 2
+    if spec_kind(args.llm) == "scripted":
+        args.llm = "scripted"  # ' Scripted' as the conversation reads it
     scripted = args.llm == "scripted"
     try:
         turns = parse_blocks(_read(args.turns, "--turns")) if args.turns else None

@@ -395,6 +395,12 @@ def check_run_args(args: argparse.Namespace) -> int | None:
             print_error(command_of(args), f"--firmware {firmware} runs the emulated board this run starts on a serial link "
                   f"(--link pty){served}; {args.link} is not one")
             return USAGE_STATUS
+        import shutil
+
+        if firmware in ("qemu", "stm32f4") and shutil.which("qemu-system-arm") is None:  # as the board looks for it
+            print_error(command_of(args), f"--firmware {firmware} runs the C firmware on qemu-system-arm, which is not "
+                        "installed; install it with: apt-get install -y qemu-system-arm (.ci/setup does this as root)")
+            return USAGE_STATUS
     emulate = bool(getattr(args, "emulate_board", False)) or args.link.implies_emulated_board
     why = preflight_link(args.link, emulated=emulate)  # last: it may open a CAN bus
     if why:

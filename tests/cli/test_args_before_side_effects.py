@@ -57,6 +57,7 @@ ROWS: list[tuple[tuple[str, ...], str]] = [
     (("run", "--task", "1", "--mount-mcp", "w=/no/such/server"), "w=/no/such/server: cannot start the server"),
     (("run", "--task", "1", "--mount-mcp", "w=no-such-mcp-server-program"), "no program 'no-such-mcp-server-program'"),
     (("run", "--task", "1", "--mount-mcp", f"w=http://127.0.0.1:{REFUSED_PORT}/mcp"), "connection refused"),
+    (("chat", "--replies", "{REPLIES}", "--llm", "scripted:x"), "'scripted' takes no argument"),
     (("chat", "--replies", "{REPLIES}", "--mount-mcp", "w=/no/such/server"), "cannot start the server"),
     (("mcp", "--mount-mcp", "w=/no/such/server"), "cannot start the server"),
     # --servo-bus: a device that is not there (was: the board's refusal, after --out was cleared)
@@ -138,6 +139,17 @@ def test_an_output_file_that_cannot_be_written_is_refused_first(argv: tuple[str,
     line = _refused(tuple(a.replace("{OUT}", str(folder)) for a in argv), capsys)
     assert says in line, line
     assert list(folder.iterdir()) == []
+
+
+def test_a_firmware_whose_emulator_is_not_installed_is_refused_first(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """``--firmware qemu`` without qemu-system-arm on PATH: was the board's refusal after --out was cleared."""
+    out = tmp_path / "earlier"
+    kept = _earlier_run(out)
+    monkeypatch.setenv("PATH", str(tmp_path / "no-tools"))
+    line = _refused(("run", "--task", "1", "--lockstep", "--no-live", "--firmware", "qemu", "--out", str(out)), capsys)
+    assert "qemu-system-arm, which is not installed" in line, line
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == kept
 
 
 def test_eval_refuses_a_server_it_cannot_start_before_making_its_folder(tmp_path: Path,
