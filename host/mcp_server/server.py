@@ -34,6 +34,7 @@ client waiting); the server goes on.
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import threading
 from collections.abc import AsyncIterator
@@ -46,6 +47,7 @@ from mcp.server.mcpserver import MCPServer
 from mcp.server.mcpserver.exceptions import ToolError
 from mcp.server.mcpserver.utilities.types import Image
 
+from host.link.errors import LinkError
 from host.mcp_server.functions import function_tools
 from host.runtime.binding import signature_registry
 from host.run.robot_session import RobotSession, SessionOptions
@@ -63,6 +65,12 @@ class ServerState:
 
     session: RobotSession | None = None
     turn_lock: anyio.Lock = field(default_factory=anyio.Lock)
+    #: the session's start-up error (a link that cannot be opened, a server that cannot be mounted), kept by
+    #: the lifespan rather than raised into the SDK (stdio: nested exception groups; HTTP: uvicorn's traceback
+    #: and exit status 3); :func:`serve` raises it once the server has stopped
+    failed: BaseException | None = None
+    #: called by the lifespan after ``failed`` is set: stops the server (set by :func:`serve`)
+    stop_serving: Any = None
 
 
 def build_server(opts: SessionOptions, served: ServerState | None = None) -> MCPServer[Any]:
@@ -76,13 +84,23 @@ def build_server(opts: SessionOptions, served: ServerState | None = None) -> MCP
 
     @contextlib.asynccontextmanager
     async def lifespan(_server: Any) -> AsyncIterator[None]:
-        async with RobotSession(opts) as session:
-            holder["session"] = st.session = session
-            try:
-                yield None
-            finally:
-                holder.pop("session", None)
-                st.session = None
+        started = False
+        try:
+            async with RobotSession(opts) as session:
+                holder["session"] = st.session = session
+                started = True
+                try:
+                    yield None
+                finally:
+                    holder.pop("session", None)
+                    st.session = None
+        except (LinkError, RuntimeError, OSError) as e:  # a link, a mount (McpMountError): the session could not start
+            if started or st.stop_serving is None:
+                raise
+            st.failed = e
+        if st.failed is not None and not started:  # outside the except: the server's stop is no error "during" it
+            st.stop_serving()
+            yield None  # the server stops without a session; serve raises the error
 
     def session() -> RobotSession:
         s = holder.get("session")
@@ -313,14 +331,23 @@ async def _serve(opts: SessionOptions, http_port: int | None) -> StopReason | No
                     await session.go_to_rest()
             tg.cancel_scope.cancel()
 
+        def stop_serving() -> None:
+            if http_port is not None:  # uvicorn would log the cancelled lifespan as its shutdown failing
+                logging.getLogger("uvicorn.error").disabled = True
+            tg.cancel_scope.cancel()
+
+        state.stop_serving = stop_serving
         tg.start_soon(run)
         tg.start_soon(wind_down)
+    if state.failed is not None:
+        raise state.failed
     return signals.first
 
 
 def serve(opts: SessionOptions, http_port: int | None = None) -> StopReason | None:
     """Run until the client disconnects (stdio) or the process is stopped; returns the signal that
-    stopped it (see the module docstring), or None."""
+    stopped it (see the module docstring), or None. A session that cannot start (its link, a mounted
+    server) stops the server and raises its error here (:class:`host.link.LinkError`, ``McpMountError``)."""
     return anyio.run(_serve, opts, http_port, backend="asyncio")
 
 

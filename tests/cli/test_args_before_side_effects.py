@@ -189,13 +189,22 @@ def test_a_reachable_server_is_not_refused(refused_port: int) -> None:
     assert "connection refused" in (launch_problem(MountSpec("w", url=f"http://127.0.0.1:{refused_port}/mcp")) or "")
 
 
-def test_mcp_says_a_server_that_fails_after_the_board_started_in_one_line(tmp_path: Path) -> None:
-    """``false`` starts and exits at once: found only when mounted, after the board started; the line
-    comes out of the MCP SDK's task groups (was: ~100 lines of nested exception groups, exit 1)."""
-    p = subprocess.run([sys.executable, "-m", "host", "mcp", "--lockstep", "--mount-mcp", "w=false",
-                        "--out", str(tmp_path / "mcp")], capture_output=True, text=True, timeout=100,
-                       stdin=subprocess.DEVNULL, cwd=ROOT)
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.mark.parametrize("argv", [("--lockstep", "--mount-mcp", "w=false"), ("--http", "{PORT}", "--link", "/dev/null")],
+                         ids=["stdio, a server that exits", "http, a link that is no tty"])
+def test_mcp_says_a_session_that_cannot_start_in_one_line(argv: tuple[str, ...], tmp_path: Path) -> None:
+    """Found only when the session starts (``false`` starts and exits at once; /dev/null is a character device
+    but no tty): the one line comes out of the server (was: ~100 lines of nested exception groups and exit 1
+    over stdio; uvicorn's traceback and exit status 3 over HTTP)."""
+    args = [a.replace("{PORT}", str(_free_port())) for a in argv]
+    p = subprocess.run([sys.executable, "-m", "host", "mcp", *args, "--out", str(tmp_path / "mcp")],
+                       capture_output=True, text=True, timeout=100, stdin=subprocess.DEVNULL, cwd=ROOT)
     assert p.returncode == 2, p.stderr[-3000:]
     assert "Traceback" not in p.stderr and "ExceptionGroup" not in p.stderr, p.stderr[-3000:]
     errors = [ln for ln in p.stderr.splitlines() if ln.startswith("ghostshell mcp:")]
-    assert len(errors) == 1 and "--mount-mcp w=false" in errors[0], p.stderr
+    assert len(errors) == 1 and ("--mount-mcp w=false" in errors[0] or "'/dev/null'" in errors[0]), p.stderr
