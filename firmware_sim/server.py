@@ -95,6 +95,8 @@ class BoardServer:
         #: each run of ticks, in this thread, as before the overlap; for A/B measurements, same bytes either way)
         self.overlap = os.environ.get(OVERLAP_ENV, "1") != "0"
         self.clock = RealtimeClock(board.tick_us / 1e6) if not board.cfg.lockstep else None
+        if board.cfg.lockstep:  # CAN's ISO-TP timers count board time (protocol/can/isotp_link.py)
+            transport.use_board_clock(lambda: board.now_us * 1000)
         if self.clock is not None:
             board._clock_us = self.clock.board_time_us  # fine-grained time for TIME_SYNC
 

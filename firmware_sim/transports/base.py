@@ -31,6 +31,10 @@ class BoardTransport(ABC):
         #: board time in seconds for frame-log records; the server sets it to the board clock
         self.log_time: Callable[[], float] = lambda: 0.0
 
+    def use_board_clock(self, board_clock: Callable[[], int] | None) -> None:
+        """A lockstep board's time (ns) for the wire's own timers (CAN's ISO-TP: :mod:`protocol.can.isotp_link`);
+        None: wall time. A wire without timers ignores it."""
+
     @abstractmethod
     def fileno(self) -> int | None:
         """A descriptor to ``select()`` on for incoming data, or None (the server then polls)."""

@@ -30,6 +30,7 @@ import sys
 import time
 import tty
 from collections import deque
+from collections.abc import Callable
 from typing import Any
 
 import can
@@ -111,6 +112,9 @@ class CanBoardTransport(BoardTransport):
         self._channel_name = name
         if self.framelog is not None:
             self.framelog.channel = name  # type: ignore[attr-defined]
+
+    def use_board_clock(self, board_clock: Callable[[], int] | None) -> None:
+        self.engine.use_board_clock(board_clock)
 
     @property
     def decoder(self) -> Any:

@@ -116,7 +116,7 @@ class BoardClient:
         self.receiver = rx = ReceivePath(s, self.fanout, clock, sup)
         s.receive = rx.on_items
         self.waits = waits = TelemetryWaits(s, self.fanout, clock, sup.sync_once)
-        s.on_link_up += [clock.restart, waits.restart]
+        s.on_link_up += [clock.restart, waits.restart, self._wire_clock]
         s.on_fail.append(sup.fail_all)
         s.on_reconnected.append(self._reconnected)
         self.commands = cmd = BoardCommands(s)
@@ -180,6 +180,12 @@ class BoardClient:
 
     async def __aexit__(self, *exc: object) -> None:
         await self.close()
+
+    def _wire_clock(self, caps: Caps) -> None:
+        """A lockstep board: the wire's timers (CAN's ISO-TP) count the board time reported, not wall time."""
+        transport, clock = self.session.transport, self.board_clock
+        if transport is not None:
+            transport.use_board_clock((lambda: clock.seen_us * 1000) if caps.lockstep else None)
 
     def _reconnected(self) -> None:
         for cb in list(self.on_reconnect):

@@ -61,6 +61,8 @@ class CanEngine:
         self.decoder = CanDecoder(node, role, self.layouts)
         #: ISO-TP's clock (ns; :class:`protocol.can.isotp_link.IsoTpLink`): ``time.perf_counter_ns`` unless given
         self.clock: Callable[[], int] = clock or time.perf_counter_ns
+        #: board time (ns) for ISO-TP's timers on a lockstep link (:meth:`use_board_clock`), else None
+        self.board_clock: Callable[[], int] | None = None
         self.isotp = IsoTpLink(rxid=self.bulk_rx_id, txid=self.bulk_tx_id, fd=fd, send=emit, clock=self.clock)
         self._errors_reported = 0  # ISO-TP errors already reported as items (or excused)
         #: given the flow-control timeouts a poll saw, how many of them are no link error (default none)
@@ -69,7 +71,14 @@ class CanEngine:
     def reset(self) -> None:
         """A new connection: empty reassembly and ISO-TP state (the layouts stay)."""
         self.decoder = CanDecoder(self.node, self.role, self.layouts)
-        self.isotp = IsoTpLink(rxid=self.bulk_rx_id, txid=self.bulk_tx_id, fd=self.fd, send=self._emit, clock=self.clock)
+        self.isotp = IsoTpLink(rxid=self.bulk_rx_id, txid=self.bulk_tx_id, fd=self.fd, send=self._emit, clock=self.clock,
+                               board_clock=self.board_clock)
+
+    def use_board_clock(self, board_clock: Callable[[], int] | None) -> None:
+        """ISO-TP's N_Bs and N_Cr in board time from ``board_clock`` (ns; a lockstep link), or wall time (None):
+        :mod:`protocol.can.isotp_link`."""
+        self.board_clock = board_clock
+        self.isotp.use_board_clock(board_clock)
         self._errors_reported = 0
 
     def set_layouts(self, layouts: CanLayouts) -> None:

@@ -17,6 +17,15 @@ loses no transfer; only frames that really came late time out (ISO 15765-2 claus
 N_Bs and N_Cr to a frame's reception). can-isotp reads ``time.perf_counter_ns`` inside its private
 ``Timer``; :class:`_StampedLayer` replaces the two timers it restarts (``_start_rx_fc_timer``,
 ``_start_rx_cf_timer``, can-isotp 2.0) with ones on this clock, and a test checks they are in use.
+
+**Lockstep** (``board_clock``, ns of board time; :meth:`IsoTpLink.use_board_clock`): N_Bs and N_Cr
+count board time instead, with ISO 15765-2's own 1 000 ms of wall time (``ISOTP_BACKSTOP_MS``) as
+the backstop for a peer that went away. A lockstep board's clock runs only as far as the host's
+frames and ADVANCEs let it (never past a frame the host has not sent), and the host reads the
+board's frames in order, answering a First Frame before it learns of later board time. So a peer
+that is slow in wall time (a collection, a starved process) times out no transfer on the board's
+clock, and a lockstep run's bytes do not depend on how busy the host is. The board uses its own
+time; the host the latest board time reported. The C firmware's ``gs_isotp.c`` does the same.
 """
 
 from __future__ import annotations
@@ -31,7 +40,7 @@ from isotp.tools import Timer
 
 from protocol.can.frame import CanFrame
 
-__all__ = ["ISOTP_TIMEOUT_MS", "IsoTpLink", "MAX_PENDING_SENDS", "MAX_FRAME_AGE_S"]
+__all__ = ["ISOTP_BACKSTOP_MS", "ISOTP_TIMEOUT_MS", "IsoTpLink", "MAX_PENDING_SENDS", "MAX_FRAME_AGE_S"]
 
 # can-isotp also logs every protocol error it reports to ``error_handler``; those are counted and
 # surfaced as link errors here, so without a logging configuration they must not reach stderr
@@ -45,6 +54,8 @@ MAX_PENDING_SENDS = 256  # bulk messages queued before send() refuses
 #: control every later bulk message (SCREEN, SPEAKER, SIM_STATE, camera chunks) waits behind it,
 #: so a lost frame costs 200 ms instead of a second. The requests above ISO-TP are re-sent anyway.
 ISOTP_TIMEOUT_MS = 200
+#: ISO 15765-2's N_Bs and N_Cr (ms): with a board clock (lockstep), the wall-clock limit
+ISOTP_BACKSTOP_MS = 1000
 #: a frame stamped longer ago than this (s) counts as arriving this long ago (a stamp from a clock that jumped)
 MAX_FRAME_AGE_S = 10.0
 
@@ -55,11 +66,24 @@ class _LinkTimer(Timer):
     def __init__(self, timeout_s: float, link: IsoTpLink) -> None:
         super().__init__(timeout_s)
         self._link = link
+        self.board_start: int | None = None
 
     def start(self, timeout: float | None = None) -> None:
         if timeout is not None:
             self.set_timeout(timeout)
         self.start_time = self._link.clock()
+        board = self._link.board_clock
+        self.board_start = board() if board is not None else None
+
+    def is_timed_out(self) -> bool:
+        if self.start_time is None:
+            return False
+        if self.timeout == 0:
+            return True
+        if self.board_start is not None and self._link.board_clock is not None:  # lockstep (module docstring)
+            return (self._link.judge_board_ns() - self.board_start > self.timeout
+                    or self.elapsed_ns() > ISOTP_BACKSTOP_MS * 1_000_000)
+        return self.elapsed_ns() > self.timeout
 
     def elapsed_ns(self) -> int:
         if self.start_time is None:
@@ -103,12 +127,15 @@ class IsoTpLink:
     on and received frames are stamped with (module docstring)."""
 
     def __init__(self, rxid: int, txid: int, fd: bool, send: Callable[[CanFrame], None], *, listen: bool = False,
-                 clock: Callable[[], int] = time.perf_counter_ns) -> None:
+                 clock: Callable[[], int] = time.perf_counter_ns, board_clock: Callable[[], int] | None = None) -> None:
         self.rxid, self.txid = rxid, txid
         self._send = send
         self.clock = clock
-        self._rx: deque[tuple[isotp.CanMessage, int]] = deque()
+        #: board time (ns) for a lockstep link's timers, or None (module docstring)
+        self.board_clock = board_clock
+        self._rx: deque[tuple[isotp.CanMessage, int, int]] = deque()
         self._judge_at: int | None = None  # the arrival (ns) of the frame being processed; None: now
+        self._judge_board_at = 0  # and its arrival in board time
         self.errors = 0
         self.flow_control_timeouts = 0  # of ``errors``: a First Frame sent that no receiver answered within ISOTP_TIMEOUT_MS
         self.last_error = ""
@@ -140,8 +167,17 @@ class IsoTpLink:
         if not self._rx:
             self._judge_at = None
             return None
-        msg, self._judge_at = self._rx.popleft()
+        msg, self._judge_at, self._judge_board_at = self._rx.popleft()
         return msg
+
+    def use_board_clock(self, board_clock: Callable[[], int] | None) -> None:
+        """Count N_Bs and N_Cr in board time from ``board_clock`` (ns; lockstep), or wall time again (None)."""
+        self.board_clock = board_clock
+
+    def judge_board_ns(self) -> int:
+        """Board time (ns) a timeout is judged at: the board time the frame in hand arrived at, or now."""
+        assert self.board_clock is not None
+        return self.board_clock() if self._judge_at is None else self._judge_board_at
 
     def judge_ns(self) -> int:
         """The time (ns, :attr:`clock`) a timeout is judged at: the arrival of the frame in hand, or now."""
@@ -169,7 +205,9 @@ class IsoTpLink:
         :meth:`arrival_ns`). Bounded: a flood beyond 4096 waiting frames is dropped (counted in ``errors``)."""
         if len(self._rx) < 4096:
             at = self.arrival_ns(frame) if at_ns is None else at_ns
-            self._rx.append((isotp.CanMessage(frame.arbitration_id, len(frame.data), bytes(frame.data), False, frame.is_fd), at))
+            board_at = self.board_clock() if self.board_clock is not None else 0
+            self._rx.append((isotp.CanMessage(frame.arbitration_id, len(frame.data), bytes(frame.data), False, frame.is_fd),
+                             at, board_at))
         else:
             self.errors += 1
 

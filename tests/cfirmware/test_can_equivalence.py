@@ -361,3 +361,31 @@ def test_isotp_timeouts_are_judged_at_arrival_in_c_as_in_python(can_harness) -> 
         else:
             assert units.split() == [sdu.hex()] and py_units == [sdu]
             assert c_errors == 0 and py_rx.errors == 0
+
+
+def test_isotp_lockstep_board_clock_in_c_as_in_python(can_harness) -> None:
+    """A lockstep board's N_Bs counts board time (``C BOARD_US``; isotp_link.py ``board_clock``), with the standard's
+    1 000 ms of wall time as the backstop: the same flow-control timeouts on both, case by case."""
+    _, h = can_harness
+    ms = 1_000_000
+    fc = CanFrame(0x601, bytes([0x30, 0, 0]) + b"\xcc" * 5)
+    # (wall ms, board ms) from the First Frame to the flow control's arrival and the poll that reads it
+    for wall_ms, board_ms, timed_out in ((600, 50, False), (10, 201, True), (999, 0, False), (1001, 0, True)):
+        now, board = [7_000 * ms], [3_000 * ms]
+        sent: list[CanFrame] = []
+        py = IsoTpLink(rxid=0x601, txid=0x681, fd=False, send=sent.append, clock=lambda: now[0], board_clock=lambda: board[0])
+        py.send(bytes(range(40)))
+        py.poll()
+        assert h.ask("I 601 681 0") == "OK" and h.ask(f"C {board[0] // 1000}") == "OK"
+        assert h.ask(f"S {bytes(range(40)).hex()}") == "OK"
+        h.ask(f"P {now[0] // 1000}")
+        now[0] += wall_ms * ms
+        board[0] += board_ms * ms
+        assert h.ask(f"C {board[0] // 1000}") == "OK"
+        h.ask(f"T 601 0 {fc.data.hex()} {now[0] // 1000}")
+        py.feed(fc, at_ns=now[0])
+        head, _, counts = h.ask(f"P {now[0] // 1000}").split("|")
+        py.poll()
+        c_fc_timeouts = int(counts.split()[1])
+        assert c_fc_timeouts == py.flow_control_timeouts == int(timed_out), (wall_ms, board_ms)
+        assert len(head.split()[1:]) == len(sent) - 1 == (0 if timed_out else 5), (wall_ms, board_ms)

@@ -13,7 +13,7 @@ import time
 import isotp
 
 from protocol.can.frame import CanFrame
-from protocol.can.isotp_link import ISOTP_TIMEOUT_MS, MAX_FRAME_AGE_S, IsoTpLink
+from protocol.can.isotp_link import ISOTP_BACKSTOP_MS, ISOTP_TIMEOUT_MS, MAX_FRAME_AGE_S, IsoTpLink
 from protocol.can.pycan import from_can_message, to_can_message
 
 MS = 1_000_000  # ns
@@ -131,3 +131,42 @@ def test_can_isotp_alone_would_have_lost_the_late_read_transfer() -> None:
     for f in to_rx:
         rx.feed(f)
     assert rx.poll() == [] and rx.errors >= 1
+
+
+def _board_sender(clock: Clock, board: Clock) -> tuple[IsoTpLink, list[CanFrame]]:
+    out: list[CanFrame] = []
+    tx = IsoTpLink(rxid=0x601, txid=0x681, fd=False, send=out.append, clock=clock, board_clock=board)
+    tx.send(SDU)
+    tx.poll()
+    assert len(out) == 1  # the First Frame; N_Bs runs
+    return tx, out
+
+
+FC = CanFrame(0x601, bytes([0x30, 0, 0]) + b"\xcc" * 5)
+
+
+def test_lockstep_counts_board_time_so_a_slow_host_loses_no_transfer() -> None:
+    """With a board clock (lockstep), a flow control 600 ms late in wall time but 50 ms in board time is in time."""
+    clock, board = Clock(), Clock()
+    tx, out = _board_sender(clock, board)
+    clock.ns += 600 * MS  # the host took 600 ms of wall time to answer ...
+    board.ns += 50 * MS  # ... while the board ran 50 ms (it never runs past the frames the host sent)
+    tx.feed(FC)
+    tx.poll()
+    assert tx.errors == 0 and len(out) == 6
+
+
+def test_lockstep_times_out_on_board_time_and_on_the_wall_clock_backstop() -> None:
+    clock, board = Clock(), Clock()
+    tx, out = _board_sender(clock, board)
+    board.ns += (ISOTP_TIMEOUT_MS + 1) * MS  # 201 ms of board time without a flow control: N_Bs
+    tx.poll()
+    assert tx.flow_control_timeouts == 1
+    clock2, board2 = Clock(), Clock()
+    tx2, _ = _board_sender(clock2, board2)
+    clock2.ns += (ISOTP_BACKSTOP_MS - 1) * MS  # a host that went away: board time stands still
+    tx2.poll()
+    assert tx2.flow_control_timeouts == 0
+    clock2.ns += 2 * MS  # ISO 15765-2's 1 000 ms of wall time: the backstop
+    tx2.poll()
+    assert tx2.flow_control_timeouts == 1

@@ -10,6 +10,7 @@
  *   S HEX                          queue a unit                -> "OK" / "FULL"
  *   T ID FLAGS HEX [AT_US]         a received ISO-TP frame that arrived at AT_US (default: the last poll's NOW) -> "OK"
  *   P NOW_US                       poll                        -> "= frame ... | unit ... | ERRORS FC_TIMEOUTS"
+ *   C BOARD_US                     board clock mode from now on (a lockstep board's), board time BOARD_US -> "OK"
  *   L NODE FD                      new board CAN link (gs_can_link)
  *   Q PERIODIC NOW TYPE HEX        the board sends             -> "= 1|0"
  *   K NOW ID FLAGS HEX             a frame from the bus        -> "OK"
@@ -80,6 +81,8 @@ static gs_can_link_t link_;
 static gs_can_frame_t emitted[4096];
 static size_t n_emitted;
 static uint32_t last_poll_us; /* the last P NOW: a T frame's default arrival */
+static uint32_t board_us;     /* C: the board time of board clock mode */
+static uint32_t harness_board_now(void *ctx) { (void)ctx; return board_us; }
 static char units[8192];
 static size_t units_len;
 static int refuse_left;
@@ -180,6 +183,12 @@ int main(void) {
                 const char *at = word(line, 4);
                 gs_isotp_feed(&tp, &f, *at ? (uint32_t)strtoul(at, NULL, 10) : last_poll_us);
             }
+            printf("OK\n");
+            break;
+        case 'C':
+            if (sscanf(line + 2, "%u", &a) != 1) { printf("BAD\n"); break; }
+            board_us = a;
+            tp.board_now = harness_board_now;
             printf("OK\n");
             break;
         case 'P':

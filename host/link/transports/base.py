@@ -44,6 +44,10 @@ class Transport(ABC):
         ``"can:slcan:/dev/pts/4?node=2"``): :attr:`name` without decoration. Valid after :meth:`connect`."""
         return self.name
 
+    def use_board_clock(self, board_clock: Callable[[], int] | None) -> None:
+        """A lockstep board's time as the host knows it (ns) for the wire's own timers (CAN's ISO-TP:
+        :mod:`protocol.can.isotp_link`); None: wall time. A wire without timers ignores it."""
+
     @property
     @abstractmethod
     def connected(self) -> bool:

@@ -163,6 +163,9 @@ class CanLinkTransport(Transport):
     def _is_current(self, generation: int) -> bool:
         return generation == self._generation
 
+    def use_board_clock(self, board_clock: Callable[[], int] | None) -> None:
+        self.engine.use_board_clock(board_clock)
+
     # --- receiving ------------------------------------------------------------------------
 
     def _on_can(self, msg: can.Message, generation: int) -> None:

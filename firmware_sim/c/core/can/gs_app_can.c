@@ -121,8 +121,18 @@ static void wait_io(gs_app_can_t *app, uint64_t until, int want_write) {
 
 void gs_app_can_tick(gs_app_can_t *app) { serve_tick(app); }
 
+/* A lockstep board's ISO-TP timers count board time (gs_isotp.h board clock mode): the host answers a First Frame
+ * before it lets the board run further (board time never passes a frame the host has not sent, and the host reads
+ * the board's frames in order), so a host that is slow in wall time (a collection, a starved process in UML)
+ * times out no transfer, and the run's bytes do not depend on it. */
+static uint32_t board_time32(void *ctx) { return (uint32_t)gs_board_time_us(&((gs_app_can_t *)ctx)->board); }
+
 int gs_app_can_init(gs_app_can_t *app, const gs_settings_t *cfg, unsigned node, int fd) {
     gs_can_link_init(&app->link, node, fd, write_frame, log_frame, app);
+    if (cfg->lockstep) {
+        app->link.isotp.board_now = board_time32;
+        app->link.isotp.board_ctx = app;
+    }
     gs_board_init(&app->board, cfg, on_send, app);
     app->stats_key = 0;
     return gs_board_boot(&app->board);

@@ -11,17 +11,28 @@ enum { PDU_SF = 0, PDU_FF = 1, PDU_CF = 2, PDU_FC = 3 };
 
 #define PAD 0xCCu
 
-static void timer_start(gs_isotp_timer_t *tm, uint32_t now, uint32_t timeout_us) {
+static uint32_t board_now(const gs_isotp_t *t) { return t->board_now ? t->board_now(t->board_ctx) : 0u; }
+
+static void timer_start_(const gs_isotp_t *t, gs_isotp_timer_t *tm, uint32_t now, uint32_t timeout_us) {
     tm->start_us = now;
+    tm->start_board_us = board_now(t);
     tm->timeout_us = timeout_us;
     tm->running = 1;
 }
+#define timer_start(tm, now, timeout) timer_start_(t, (tm), (now), (timeout))
 
 /* `now` is the time the timeout is judged at: a received frame's arrival, or the poll's now. A frame that arrived
  * before the timer started (it waited in the inbox while the timer was restarted) is never late: signed elapsed. */
-static int timed_out(const gs_isotp_timer_t *tm, uint32_t now) {
-    return tm->running && ((int32_t)(now - tm->start_us) > (int32_t)tm->timeout_us || tm->timeout_us == 0);
+static int timed_out_(const gs_isotp_t *t, const gs_isotp_timer_t *tm, uint32_t now, uint32_t board_at) {
+    if (!tm->running) return 0;
+    if (tm->timeout_us == 0) return 1;
+    if (t->board_now) /* lockstep: board time, with the standard's wall-clock N_Bs/N_Cr as the backstop */
+        return (int32_t)(board_at - tm->start_board_us) > (int32_t)tm->timeout_us ||
+               (int32_t)(now - tm->start_us) > (int32_t)GS_ISOTP_BACKSTOP_US;
+    return (int32_t)(now - tm->start_us) > (int32_t)tm->timeout_us;
 }
+/* judged now (the poll's time, and the board's time now) */
+#define timed_out(tm, now) timed_out_(t, (tm), (now), board_now(t))
 
 static void error(gs_isotp_t *t, const char *why) {
     t->errors++;
@@ -59,6 +70,7 @@ void gs_isotp_feed(gs_isotp_t *t, const gs_can_frame_t *f, uint32_t at_us) {
     unsigned k = (t->inbox_head + t->inbox_len) % GS_ISOTP_INBOX;
     gs_can_frame_t *slot = &t->inbox[k];
     t->inbox_at[k] = at_us;
+    t->inbox_board_at[k] = board_now(t);
     *slot = *f;
     if (f->flags & GS_CAN_FLAG_RTR) slot->len = 0; /* a remote frame carries no data */
     if (slot->len > GS_CAN_MAX_DATA) slot->len = GS_CAN_MAX_DATA;
@@ -239,6 +251,7 @@ static int process_rx(gs_isotp_t *t, const gs_can_frame_t *f, uint32_t now, uint
         t->fc_stmin = p.stmin;
         t->fc_stmin_us = p.stmin_us;
         t->fc_at_us = at; /* N_Bs is judged at the flow control's arrival */
+        t->fc_board_at_us = t->rx_board_at;
         return 1;
     }
     if (p.type == PDU_SF && p.can_dl > 8u && !p.escape) {
@@ -326,7 +339,7 @@ static int process_tx(gs_isotp_t *t, uint32_t now, gs_can_frame_t *out, int *imm
             error(t, "UnexpectedFlowControlError: Received a FlowControl message while transmission was Idle. Ignoring");
         } else if (t->fc_status == FS_WAIT) {
             error(t, "UnsupportedWaitFrameError: Received a FlowControl requesting to wait, but wftmax is set to 0");
-        } else if (!timed_out(&t->timer_rx_fc, t->fc_at_us)) {
+        } else if (!timed_out_(t, &t->timer_rx_fc, t->fc_at_us, t->fc_board_at_us)) {
             t->timer_rx_fc.running = 0;
             t->timer_stmin.timeout_us = t->fc_stmin_us;
             t->remote_bs = t->fc_bs;
@@ -423,13 +436,15 @@ void gs_isotp_poll(gs_isotp_t *t, uint32_t now) {
                 int have = t->inbox_len > 0;
                 gs_can_frame_t f;
                 uint32_t at = now; /* a timeout is judged at the frame's arrival (gs_isotp.h) */
+                t->rx_board_at = board_now(t);
                 if (have) {
                     f = t->inbox[t->inbox_head];
                     at = t->inbox_at[t->inbox_head];
+                    t->rx_board_at = t->inbox_board_at[t->inbox_head];
                     t->inbox_head = (uint8_t)((t->inbox_head + 1u) % GS_ISOTP_INBOX);
                     t->inbox_len--;
                 }
-                if (timed_out(&t->timer_rx_cf, at)) {
+                if (timed_out_(t, &t->timer_rx_cf, at, t->rx_board_at)) {
                     error(t, "ConsecutiveFrameTimeoutError: Reception of CONSECUTIVE_FRAME timed out.");
                     stop_receiving(t);
                 }

@@ -22,6 +22,8 @@
 #include "gs_can.h"
 
 #define GS_ISOTP_TIMEOUT_US 200000u
+/* ISO 15765-2's N_Bs/N_Cr (1 000 ms, ISOTP_BACKSTOP_MS): in board clock mode, the wall-clock limit */
+#define GS_ISOTP_BACKSTOP_US 1000000u
 #define GS_ISOTP_MAX_FRAME 4095u
 #ifndef GS_ISOTP_TXQ
 #define GS_ISOTP_TXQ 16u
@@ -35,10 +37,13 @@ typedef void (*gs_isotp_emit_fn)(void *ctx, const gs_can_frame_t *f);
 typedef void (*gs_isotp_unit_fn)(void *ctx, const uint8_t *data, size_t n, int truncated);
 
 typedef struct {
-    uint32_t start_us;
+    uint32_t start_us, start_board_us; /* start_board_us: board time at the start (board clock mode) */
     uint32_t timeout_us;
     uint8_t running;
 } gs_isotp_timer_t;
+
+/* Board time now (us), for a lockstep board's timers (gs_isotp_t.board_now). */
+typedef uint32_t (*gs_isotp_clock_fn)(void *ctx);
 
 typedef struct {
     uint32_t rxid, txid;
@@ -55,9 +60,15 @@ typedef struct {
     gs_isotp_timer_t timer_rx_cf;
     uint8_t pending_fc, pending_fc_status;
     uint8_t have_fc, fc_status, fc_bs, fc_stmin; /* the last flow control received, for the transmitter */
-    uint32_t fc_stmin_us, fc_at_us; /* fc_at_us: the flow control's arrival */
+    uint32_t fc_stmin_us, fc_at_us, fc_board_at_us; /* fc_at_us: the flow control's arrival (fc_board_at_us: board time) */
     gs_can_frame_t inbox[GS_ISOTP_INBOX];
     uint32_t inbox_at[GS_ISOTP_INBOX]; /* each waiting frame's arrival (us, the poll's clock) */
+    uint32_t inbox_board_at[GS_ISOTP_INBOX]; /* and the board time then (board clock mode) */
+    uint32_t rx_board_at; /* the board-time arrival of the frame in hand */
+    /* Board clock mode (a lockstep board; NULL: off): N_Bs and N_Cr count board time from board_now(board_ctx),
+     * with GS_ISOTP_BACKSTOP_US of the poll's clock as a backstop for a host that went away (isotp_link.py). */
+    gs_isotp_clock_fn board_now;
+    void *board_ctx;
     uint8_t inbox_head, inbox_len;
     /* transmit */
     uint8_t tx_state; /* 0 idle, 1 waiting for a flow control, 2 sending consecutive frames */
