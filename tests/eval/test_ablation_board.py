@@ -44,7 +44,10 @@ NATIVE = {
 
 
 def verdict(program: str, task: int, out: Path) -> tuple[bool, str]:
-    report = anyio.run(run_program, RunOptions(program=program, lockstep=True, out=out), backend="asyncio")
+    """The judge's verdict on the board-measured calls of ``program`` run in lockstep; no plots and no
+    run.mcap (the judge reads neither: they were ~0.6 CPU-s of each run, e2e.conftest.run_e2e)."""
+    opts = RunOptions(program=program, lockstep=True, out=out, plots=False, mcap=False)
+    report = anyio.run(run_program, opts, backend="asyncio")
     assert report.summary.outcome == "done", report.summary.extra.get("error")
     v = judge(expected_pattern(task, A[task].expected), intervals_from_timeline(report.calls))
     return v.passed, v.reason
