@@ -29,7 +29,7 @@ from typing import Any
 
 from host.commands.errors import print_error
 from host.ghost.factory import LLM_SPECS_HELP
-from host.commands.outarg import out_dir_problem
+from host.commands.outarg import EarlierRun, out_dir_problem, session_start_files
 from host.commands.run import _push_text, add_run_options, check_run_args, line_rates, resolve_strict, servo_bus_of
 
 
@@ -173,9 +173,14 @@ async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any,
     chat = _Chat(session)
     signals = StopSignals(chat.on_first_stop, session.abort_cleanups)
     transcript = out / "transcript.json"
+    earlier = EarlierRun(out, only=session_start_files())  # the files the start overwrites: back if it is refused
     try:
-        async with signals.guard(), session:
-            await _converse(args, chat, turns, list(replies or []), transcript)
+        try:
+            async with signals.guard(), session:
+                earlier.discard()  # the session began: its own files replace them
+                await _converse(args, chat, turns, list(replies or []), transcript)
+        finally:
+            earlier.restore()  # refused or stopped before the session began (a no-op once it began)
     except LinkError:
         if signals.forced is None:
             raise

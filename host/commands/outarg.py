@@ -27,10 +27,11 @@ import os
 import socket
 import stat
 import tempfile
+from collections.abc import Collection
 from pathlib import Path
 
 __all__ = ["EarlierRun", "add_no_plots_argument", "clear_run_artefacts", "out_dir", "out_dir_problem", "out_file",
-           "out_file_problem", "remove_unused_out", "tcp_port_taken"]
+           "out_file_problem", "remove_unused_out", "session_start_files", "tcp_port_taken"]
 
 _PROBE_PREFIX = ".ghostshell-write-probe-"
 _EARLIER_PREFIX = ".ghostshell-earlier-"
@@ -170,6 +171,14 @@ def clear_run_artefacts(out: Path) -> list[str]:
     return sorted(removed)
 
 
+def session_start_files() -> frozenset[str]:
+    """The files in ``--out`` a session's start writes: the board's stderr and frame log, the host's, run.mcap."""
+    from host.run.artefacts import FRAME_LOG_SUFFIXES
+
+    return frozenset({"board.stderr", "run.mcap",
+                      *(f"{end}_frames{s}" for end in ("host", "board") for s in FRAME_LOG_SUFFIXES)})
+
+
 class EarlierRun:
     """The artefacts an earlier run left in ``out`` (:func:`clear_run_artefacts`'s files), set aside while a new
     run starts: renamed into a hidden folder of ``out`` (``.ghostshell-earlier-*``) when made.
@@ -177,14 +186,17 @@ class EarlierRun:
     :meth:`discard` once the new run has started (the files are then gone, as :func:`clear_run_artefacts` leaves
     them); :meth:`restore` when the run was refused before it began (a board that cannot start, a servo bus or
     CAN adapter that cannot be opened): what the refused start wrote is removed and the earlier files come back
-    byte for byte. ``names``: the files set aside, sorted. Errors: :class:`OSError` when a file cannot be moved
-    (the ones already moved are put back first). A process killed in between leaves them in the hidden folder."""
+    byte for byte. ``only``: set aside only these names (``chat`` keeps an earlier run's other files; it sets
+    aside those its session's start overwrites, :func:`session_start_files`). ``names``: the files set aside,
+    sorted. Errors: :class:`OSError` when a file cannot be moved (the ones already moved are put back first).
+    A process killed in between leaves them in the hidden folder."""
 
-    def __init__(self, out: Path) -> None:
+    def __init__(self, out: Path, *, only: Collection[str] | None = None) -> None:
         self.out = out
         self.names: list[str] = []
         self._folder: Path | None = None
-        found = _run_artefact_paths(out)
+        self._only = only
+        found = self._paths()
         if not found:
             return
         self._folder = Path(tempfile.mkdtemp(prefix=_EARLIER_PREFIX, dir=out))
@@ -193,9 +205,12 @@ class EarlierRun:
                 os.replace(path, self._folder / path.name)
                 self.names.append(path.name)
         except OSError:
-            self.restore()
+            self._put_back()  # nothing of a new run there yet: only what was moved goes back
             raise
         self.names.sort()
+
+    def _paths(self) -> list[Path]:
+        return [p for p in _run_artefact_paths(self.out) if self._only is None or p.name in self._only]
 
     def discard(self) -> None:
         """Delete the files set aside (the new run has started). Never raises."""
@@ -207,14 +222,18 @@ class EarlierRun:
 
     def restore(self) -> None:
         """Put the files set aside back in ``out``, over what a refused start wrote (no-op after :meth:`discard`)."""
-        folder, self._folder = self._folder, None
-        if folder is None:
+        if self._folder is None:
             return
-        for path in _run_artefact_paths(self.out):
+        for path in self._paths():  # what the refused start began
             path.unlink(missing_ok=True)
-        for path in folder.iterdir():
-            os.replace(path, self.out / path.name)
-        folder.rmdir()
+        self._put_back()
+
+    def _put_back(self) -> None:
+        folder, self._folder = self._folder, None
+        if folder is not None:
+            for path in folder.iterdir():
+                os.replace(path, self.out / path.name)
+            folder.rmdir()
 
 
 def remove_unused_out(out: Path) -> None:

@@ -67,6 +67,7 @@ ROWS: list[tuple[tuple[str, ...], str]] = [
     # a start the board refuses (a character device that is no serial port): found only when the board opens it;
     # the earlier run's artefacts, set aside meanwhile, come back (were: removed before the board started)
     (("run", "--task", "1", "--servo-bus", "/dev/null"), "servo bus /dev/null"),
+    (("chat", "--replies", "{REPLIES}", "--servo-bus", "/dev/null"), "servo bus /dev/null"),
     # eval: a paper column the paper lacks (was: eval.md's paper column empty after the sweep)
     (("eval", "--llm", "ground-truth", "--tasks", "1", "--trials", "1", "--no-run", "--paper-model", "GPT-9"),
      "--paper-model 'GPT-9': the paper's columns are"),
@@ -159,6 +160,26 @@ def test_eval_refuses_a_server_it_cannot_start_before_making_its_folder(tmp_path
                      "--mount-mcp", "w=/no/such/server", "--out", str(out)), capsys)
     assert "cannot start the server" in line
     assert not out.exists()  # was: the folder and its config.json, then the refusal
+
+
+def test_an_earlier_run_set_aside_comes_back_exactly_or_goes(tmp_path: Path) -> None:
+    from host.commands.outarg import EarlierRun, session_start_files
+
+    out = tmp_path / "run"
+    out.mkdir()
+    kept = {"summary.json": b"1", "run.mp4": b"2", "notes.txt": b"3"}
+    for name, data in kept.items():
+        (out / name).write_bytes(data)
+    earlier = EarlierRun(out)
+    assert earlier.names == ["run.mp4", "summary.json"] and sorted(p.name for p in out.iterdir())[-1] == "notes.txt"
+    for name in ("board.stderr", "board_frames.jsonl", "summary.json"):  # what a refused start began
+        (out / name).write_bytes(b"refused")
+    earlier.restore()
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == kept  # nothing of the refused start, nothing hidden
+    earlier = EarlierRun(out, only=session_start_files())  # chat: only what its start overwrites
+    assert earlier.names == []
+    EarlierRun(out).discard()
+    assert {p.name for p in out.iterdir()} == {"notes.txt"}
 
 
 def test_a_spec_check_agrees_with_make_ghost(monkeypatch: pytest.MonkeyPatch) -> None:
