@@ -84,11 +84,19 @@ class E2ERun:
                          for c in self.calls)
 
     # -- the board's frame log -----------------------------------------------------------------
-    def _board_records(self, msg_type: str) -> Iterator[dict[str, Any]]:
+    @cached_property
+    def _board_sent(self) -> dict[str, list[dict[str, Any]]]:
+        """Fields of every message the board sent, by type, from its frame log (read once: a long task's
+        log is ~5 000 JSON lines, and telemetry and the base pose were two passes over it)."""
+        sent: dict[str, list[dict[str, Any]]] = {}
         with open(self.out / "board_frames.jsonl", encoding="utf-8") as f:
             for rec in iter_records(f):
-                if rec.get("type") == msg_type and rec["dir"] == "tx":
-                    yield rec["fields"]
+                if rec["dir"] == "tx" and "type" in rec:
+                    sent.setdefault(rec["type"], []).append(rec["fields"])
+        return sent
+
+    def _board_records(self, msg_type: str) -> Iterator[dict[str, Any]]:
+        yield from self._board_sent.get(msg_type, [])
 
     def host_sent(self, msg_type: str) -> list[dict[str, Any]]:
         """Fields of every ``msg_type`` message the host sent, from its frame log."""
