@@ -15,7 +15,7 @@
  * (2 s was seen as a QEMU board's plant's lag on a machine at load 11 on 2 cores) */
 #define GS_BUS_SILENT_LIMIT_US 5000000u
 #define BOOT_PING_ROUNDS_REALTIME 5u /* realtime: a servo silent at boot is asked again (a slow plant) */
-#define GS_BOOT_WAIT_US 10000000u     /* realtime: how long boot waits for a silent bus to answer at all */
+#define GS_BOOT_WAIT_US 10000000u     /* how long boot waits for a silent bus to answer at all */
 #define READ_GROUP 6u /* servos per SYNC READ: one read job fits a 2 ms tick at 1 Mbaud */
 
 static const gs_mask_t ALL = (gs_mask_t)((1ull << GS_SERVO_COUNT) - 1u);
@@ -518,7 +518,7 @@ void gs_board_init(gs_board_t *b, const gs_settings_t *cfg, gs_send_fn sendfn, v
     b->bus_cycle_us = b->return_delay_us = 0;
 }
 
-/* Realtime: ping `id` until it answers (on time or late) or `rounds` pings went unanswered while the bus
+/* Ping `id` until it answers (on time or late) or `rounds` pings went unanswered while the bus
  * was answering: after each unanswered ping another device is pinged (`*ref`, the last one that answered;
  * before any did, the servos and the IMU in turn), and only when something answered meanwhile does the
  * miss count. Pings into a silent bus count only after `give_up_us` (GS_BOOT_WAIT_US) of board clock. */
@@ -602,8 +602,7 @@ static int check_ping(gs_board_t *b, unsigned i, unsigned rounds, uint64_t give_
         uint32_t rx0 = gs_bus_rx_bytes, timeouts0 = gs_bus_stats.timeouts;
         uint64_t in0 = gs_bus_stats.bytes_in;
         uint16_t model = 0;
-        int ok = b->cfg.lockstep ? gs_bus_ping(id, b->bus_timeout_us, &model)
-                                 : boot_ping(b, id, rounds, give_up, ref, &model);
+        int ok = boot_ping(b, id, rounds, give_up, ref, &model);
         int garbled = (uint64_t)(uint32_t)(gs_bus_rx_bytes - rx0) > gs_bus_stats.bytes_in - in0;
         b->model[i] = model;
         if (hal_should_stop()) return PING_STOPPED;
@@ -741,17 +740,17 @@ static void choose_bus_period(gs_board_t *b) {
 }
 
 int gs_board_boot(gs_board_t *b) {
-    /* realtime: the plant may still be starting or be descheduled; a device is absent only after
-     * BOOT_PING_ROUNDS_REALTIME pings it left unanswered while the rest of the bus answered (or after
-     * GS_BOOT_WAIT_US of a silent bus). Lockstep's 1 s timeout is one round's worth. */
+    /* the plant may still be starting or be descheduled (in lockstep too: a plant in User-Mode Linux on a loaded
+     * machine took over a second to answer its first ping, and servo 1 was reported dead); a device is absent only
+     * after BOOT_PING_ROUNDS_REALTIME pings (lockstep: 1, its 1 s timeout is one round's worth) it left unanswered
+     * while the rest of the bus answered, or after GS_BOOT_WAIT_US of a silent bus. */
     gs_mask_t silent = 0;
     unsigned rounds = b->cfg.lockstep ? 1u : BOOT_PING_ROUNDS_REALTIME;
     uint64_t give_up = hal_now_us() + GS_BOOT_WAIT_US;
     uint8_t ref = 0; /* a device that answered (0: none yet) */
     for (unsigned i = 0; i < GS_SERVO_COUNT; i++) {
         if (!b->cfg.boot_checks) {
-            int ok = b->cfg.lockstep ? gs_bus_ping(gs_servos[i].id, b->bus_timeout_us, &b->model[i])
-                                     : boot_ping(b, gs_servos[i].id, rounds, give_up, &ref, &b->model[i]);
+            int ok = boot_ping(b, gs_servos[i].id, rounds, give_up, &ref, &b->model[i]);
             if (!ok) silent |= (gs_mask_t)1 << i;
             continue;
         }
