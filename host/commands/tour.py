@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import json
 import math
+import shutil
 import signal
 import sys
 import time
@@ -148,6 +148,8 @@ def main(args: argparse.Namespace) -> int:
             board = start_board(board_args, out / "board.stderr" if out else None, link=spec)
         except (LinkError, RuntimeError, OSError) as e:
             print_error("tour", str(e))
+            if created and out is not None:  # refused before anything ran: no folder left
+                shutil.rmtree(out, ignore_errors=True)
             return USAGE_STATUS
         print(f"board running on {board.port} ({'lockstep' if args.lockstep else 'realtime'})", flush=True)
         spec = board.spec
@@ -162,12 +164,11 @@ def main(args: argparse.Namespace) -> int:
         print_error("tour", str(e))
         code = link_exit_status(e)
         summary = None
-        if created and out is not None and code == USAGE_STATUS and board is None:
-            with contextlib.suppress(OSError):
-                out.rmdir()  # the link could not be opened: nothing ran, no empty folder left
     finally:
         if board is not None:
             rc = board.stop()
+    if summary is None and created and out is not None and code == USAGE_STATUS:
+        shutil.rmtree(out, ignore_errors=True)  # the link could not be opened: nothing ran, no folder left
     if rc not in (0, 130, -signal.SIGTERM):  # 130: the board stopped cleanly on the SIGTERM (interrupted)
         print_error("tour", f"board exited with status {rc}")
         code = code or 1

@@ -153,6 +153,14 @@ def test_a_firmware_whose_emulator_is_not_installed_is_refused_first(tmp_path: P
     assert {p.name: p.read_bytes() for p in out.iterdir()} == kept
 
 
+def test_a_tour_whose_link_cannot_be_opened_leaves_no_folder(tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "tour"
+    line = _refused(("tour", "--lockstep", "--link", "can:slcan:/dev/no-such-adapter", "--out", str(out)), capsys)
+    assert "cannot open CAN bus" in line, line
+    assert not out.exists(), list(out.iterdir())  # was: the folder with an empty host.log
+
+
 def test_eval_refuses_a_server_it_cannot_start_before_making_its_folder(tmp_path: Path,
                                                                         capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "eval"
