@@ -15,7 +15,8 @@ from host.commands.modearg import add_mode_argument
 from host.commands.errors import print_error
 from host.commands.inputs import port_number
 from host.commands.linkarg import USAGE_STATUS, add_link_argument, preflight_link, unreachable_link
-from host.commands.outarg import add_no_plots_argument, out_dir, out_dir_problem, tcp_port_taken
+from host.commands.outarg import (EarlierRun, add_no_plots_argument, out_dir, out_dir_problem, session_start_files,
+                                  tcp_port_taken)
 from host.commands.robotarg import add_robot_argument, robot_from_args
 
 
@@ -86,11 +87,18 @@ def main(args: argparse.Namespace) -> int:
                           mode=args.mode, lockstep=args.lockstep, link=args.link,
                           emulate_board=args.emulate_board or None, out=args.out, task_label="mcp", scene=args.scene,
                           mcp_mounts=tuple(args.mount_mcp), plots=not args.no_plots)
+    try:  # the files the session's start overwrites: set aside, and back if the start is refused
+        earlier = EarlierRun(args.out, only=session_start_files())
+    except OSError as e:
+        print_error("mcp", f"{args.out}/ holds an earlier session's files that cannot be moved: {e}")
+        return 1
     try:
         try:
-            stop = serve(opts, args.http)
+            stop = serve(opts, args.http, on_started=earlier.discard)
         except BaseExceptionGroup as group:  # the server's task groups wrap the session's own error
             raise _sole(group) from None
+        finally:
+            earlier.restore()  # the session never started (a no-op once it did)
     except (LinkError, RuntimeError, OSError) as e:
         from host.commands.linkarg import link_exit_status
 

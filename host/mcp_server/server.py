@@ -71,6 +71,8 @@ class ServerState:
     failed: BaseException | None = None
     #: called by the lifespan after ``failed`` is set: stops the server (set by :func:`serve`)
     stop_serving: Any = None
+    #: called by the lifespan once the session has started (:func:`serve`'s ``on_started``)
+    on_started: Any = None
 
 
 def build_server(opts: SessionOptions, served: ServerState | None = None) -> MCPServer[Any]:
@@ -89,6 +91,8 @@ def build_server(opts: SessionOptions, served: ServerState | None = None) -> MCP
             async with RobotSession(opts) as session:
                 holder["session"] = st.session = session
                 started = True
+                if st.on_started is not None:
+                    st.on_started()
                 try:
                     yield None
                 finally:
@@ -296,9 +300,9 @@ class _AnswerBadLines:
         await self.aclose()
 
 
-async def _serve(opts: SessionOptions, http_port: int | None) -> StopReason | None:
+async def _serve(opts: SessionOptions, http_port: int | None, on_started: Any = None) -> StopReason | None:
     """Serve until the client goes away (stdio), or a signal; returns the signal's stop (None otherwise)."""
-    state = ServerState()
+    state = ServerState(on_started=on_started)
     server = build_server(opts, state)
     stopping = anyio.Event()
 
@@ -344,11 +348,12 @@ async def _serve(opts: SessionOptions, http_port: int | None) -> StopReason | No
     return signals.first
 
 
-def serve(opts: SessionOptions, http_port: int | None = None) -> StopReason | None:
+def serve(opts: SessionOptions, http_port: int | None = None, on_started: Any = None) -> StopReason | None:
     """Run until the client disconnects (stdio) or the process is stopped; returns the signal that
     stopped it (see the module docstring), or None. A session that cannot start (its link, a mounted
-    server) stops the server and raises its error here (:class:`host.link.LinkError`, ``McpMountError``)."""
-    return anyio.run(_serve, opts, http_port, backend="asyncio")
+    server) stops the server and raises its error here (:class:`host.link.LinkError`, ``McpMountError``);
+    ``on_started()`` is called once it has started."""
+    return anyio.run(_serve, opts, http_port, on_started, backend="asyncio")
 
 
 def default_out() -> Path:

@@ -231,8 +231,11 @@ def test_mcp_says_a_session_that_cannot_start_in_one_line(argv: tuple[str, ...],
     but no tty): the one line comes out of the server (was: ~100 lines of nested exception groups and exit 1
     over stdio; uvicorn's traceback and exit status 3 over HTTP)."""
     args = [a.replace("{PORT}", str(_free_port())) for a in argv]
-    p = subprocess.run([sys.executable, "-m", "host", "mcp", *args, "--out", str(tmp_path / "mcp")],
+    out = tmp_path / "earlier"
+    kept = _earlier_run(out)
+    p = subprocess.run([sys.executable, "-m", "host", "mcp", *args, "--out", str(out)],
                        capture_output=True, text=True, timeout=100, stdin=subprocess.DEVNULL, cwd=ROOT)
+    assert {f.name: f.read_bytes() for f in out.iterdir()} == kept  # the frame logs the start truncated are back
     assert p.returncode == 2, p.stderr[-3000:]
     assert "Traceback" not in p.stderr and "ExceptionGroup" not in p.stderr, p.stderr[-3000:]
     errors = [ln for ln in p.stderr.splitlines() if ln.startswith("ghostshell mcp:")]
