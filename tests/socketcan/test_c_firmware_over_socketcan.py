@@ -1,7 +1,7 @@
 """The C firmware's board on real SocketCAN (``--firmware c --link can:socketcan:vcan0``): the native build's
 raw CAN socket (firmware_sim/c/ports/native/can_native.c) and its CAN engine (firmware_sim/c/core/can).
 
-* The 30 ground-truth programs of the paper end to end, lockstep, with the checks of the pty runs
+* The ground-truth programs of the paper end to end (12 sampled, all 30 with ``GHOSTSHELL_ALL_TASKS=1``), lockstep, with the checks of the pty runs
   (tests/e2e/task_checks.py), the board's telemetry and SIM_STATE read back from its candump-format frame
   log (which the launcher writes from the firmware's "C" records);
 * a capture of the C board's traffic, classic and FD, decodes through the DBC ``ghostshell dbc --robot coco
@@ -22,6 +22,7 @@ Runs one after another: User-Mode Linux has one CPU (three tasks at once took lo
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -101,7 +102,16 @@ def can_run(tmp_path_factory: pytest.TempPathFactory, tid: int, firmware: str = 
     return _RUNS[key]
 
 
-@pytest.mark.parametrize("tid", sorted(TASKS))
+#: by default (CI time: a task costs ~5 s inside User-Mode Linux, its one CPU running the host, the board and the
+#: plant) 12 tasks, two or three per category of the paper: speech (4, 8, 21), a capture (28), four parallel calls
+#: (15), persistent calls ended by a scope (24, 27, 30), and 26 (whose classic capture the DBC test reads). All 30
+#: run over a pty on the C firmware in every CI (tests/e2e/test_tasks_e2e_c.py); what SocketCAN adds is the raw
+#: socket and the C CAN engine, which every task exercises the same way. All 30 here with GHOSTSHELL_ALL_TASKS=1.
+SAMPLE = [2, 4, 8, 12, 15, 18, 21, 24, 26, 27, 28, 30]
+SWEEP = sorted(TASKS) if os.environ.get("GHOSTSHELL_ALL_TASKS", "") not in ("", "0") else SAMPLE
+
+
+@pytest.mark.parametrize("tid", SWEEP)
 def test_paper_task_on_the_c_firmware_over_socketcan(tid: int, tmp_path_factory: pytest.TempPathFactory) -> None:
     run = can_run(tmp_path_factory, tid)
     check_common(run, "c")

@@ -57,10 +57,11 @@ def test_the_readme_names_its_socketcan_commands() -> None:
 @pytest.mark.slow
 @pytest.mark.timeout(1200)
 # ``realtime`` (run at its worker's own nice value, one realtime test at a time; in background mode the other
-# workers go on at nice 19): the 30 C firmware tasks inside run lockstep over SocketCAN, whose ISO-TP timers
-# (200 ms for a flow control or the next consecutive frame) are wall-clock; at nice 19 beside a realtime test the
-# guest was starved past them in CI (2026-12-07, task 17: a transfer given up, the next First Frame interrupting
-# the host's reception, 1 decode error, 2 gaps). Without background mode this test runs alone for ~3 min.
+# workers go on at nice 19): tests/socketcan/test_link_over_socketcan.py drives a realtime board, and the guest
+# runs host, board and plant on one CPU. The lockstep task runs of tests/socketcan no longer need it: their ISO-TP
+# timers count board time (protocol/can/isotp_link.py; before, at nice 19 beside a realtime test the guest was
+# starved past the 200 ms wall-clock timers in CI: 2026-12-07, task 17, a transfer given up, 1 decode error,
+# 2 gaps), and the C board's boot waits out a plant slow to answer (a dead servo 1 was reported at load 10).
 @pytest.mark.realtime
 @pytest.mark.parametrize("command", readme_vcan_commands())
 def test_readme_socketcan_command_as_written(command: str, tmp_path: Path) -> None:
