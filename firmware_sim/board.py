@@ -44,7 +44,7 @@ from firmware_sim.native import GS_CAP, GS_INTERP, NativeTick, NativeUnavailable
 from firmware_sim.board_bus import SERVO_FAULT_DETAIL, BusBridge
 from firmware_sim.board_camera import KEPT_IMAGES, BoardCamera, nack
 from firmware_sim.board_reports import BoardReports, DeferredReports, quat_to_rpy
-from firmware_sim.board_stream import TargetStream
+from firmware_sim.board_stream import TargetStream, copy_next
 from firmware_sim.peripherals import Camera, CameraWorker, Screen, Speaker
 from firmware_sim.safety import Mode, Safety
 from firmware_sim.servo_model import ServoModel
@@ -775,25 +775,12 @@ class Board:
         pt, pv = p["anchor_t"], p["anchor_v"]
         pt[:] = self.anchor_t
         pv[:] = self.anchor_v
-        due = self.buffer.pop_due(t2)
-        for f in due:
-            when = f.apply_at_us
-            for i, v in f.values.items():
-                pt[i] = when
-                pv[i] = v
-            self.last_applied_seq = f.seq
-            if self.cfg.lockstep:
-                sf.feed(when)
+        self._apply_due(t2, pt, pv)
         nxt = self.buffer.next_all()
-        ok, nt, nv = p["next_ok"], p["next_t"], p["next_v"]
+        nt, nv = p["next_t"], p["next_v"]
         nt[:] = self.stream.next_t  # refresh_next leaves a servo's without a next keyframe as they were
         nv[:] = self.stream.next_v
-        for i, x in enumerate(nxt):
-            if x is None:
-                ok[i] = 0
-            else:
-                ok[i] = 1
-                nt[i], nv[i] = x
+        copy_next(nxt, p["next_ok"], nt, nv)
         n2 = min(limit - n1, every - 1, (max(self.advance_until - 1, self.covered_until) - t2) // dt + 1)
         if sf.armed:
             n2 = min(n2, (sf.last_feed_us + sf.watchdog_us - t2) // dt + 1)
@@ -854,12 +841,15 @@ class Board:
         deferred = DeferredReports(self.reports, self.now_us, counters, self.reports.snapshot())
         return cast("list[Message]", [deferred])  # the one caller that sets defer_reports expects it
 
-    def _apply_due(self, t: int) -> None:
+    def _apply_due(self, t: int, anchor_t: np.ndarray | None = None, anchor_v: np.ndarray | None = None) -> None:
         """A RUN tick at ``t`` starts here: the frames due by ``t`` leave the buffer and their targets
-        become their servos' interpolation anchors (in lockstep an applied frame feeds the watchdog)."""
+        become their servos' interpolation anchors (in lockstep an applied frame feeds the watchdog).
+        ``anchor_t``/``anchor_v``: the arrays to write them to (default the live anchors; :meth:`_run_split`
+        gives the native kernel's pending ones)."""
         due = self.buffer.pop_due(t)
         if due:
-            at, av = self.anchor_t, self.anchor_v
+            at = self.anchor_t if anchor_t is None else anchor_t
+            av = self.anchor_v if anchor_v is None else anchor_v
             for f in due:
                 when = f.apply_at_us
                 for i, v in f.values.items():

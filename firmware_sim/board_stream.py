@@ -18,7 +18,18 @@ from firmware_sim.config import BoardConfig
 from firmware_sim.jitter_buffer import JitterBuffer
 from robots.motion import min_jerk
 
-__all__ = ["TargetStream"]
+__all__ = ["TargetStream", "copy_next"]
+
+
+def copy_next(nxt: list[tuple[int, float] | None], ok: np.ndarray, nt: np.ndarray, nv: np.ndarray) -> None:
+    """The buffer's next keyframe per servo (``JitterBuffer.next_all``: (apply-at µs, rad) or None) into the
+    native tick's arrays: ``ok`` 1/0, ``nt`` and ``nv`` (left as they were where there is none)."""
+    for i, x in enumerate(nxt):
+        if x is None:
+            ok[i] = 0
+        else:
+            ok[i] = 1
+            nt[i], nv[i] = x
 
 
 class TargetStream:
@@ -131,10 +142,4 @@ class TargetStream:
         if nxt is self._next_src:
             return
         self._next_src = nxt
-        ok, nt, nv = self.next_ok, self.next_t, self.next_v
-        for i, x in enumerate(nxt):
-            if x is None:
-                ok[i] = 0
-            else:
-                ok[i] = 1
-                nt[i], nv[i] = x
+        copy_next(nxt, self.next_ok, self.next_t, self.next_v)

@@ -327,6 +327,16 @@ class NativeTick:
         self._no_worker = False  # the C could not start a thread: run_during runs in this thread
         self._worker_pid = 0  # the process that made the thread
 
+    def _ensure_worker(self) -> int | None:
+        """The kernel's worker thread (made on first use), or None where the C could not make one."""
+        if self._worker is not None and self._worker_pid != os.getpid():
+            self._worker = None  # a forked child: the thread stayed in the parent (its handle is the parent's)
+        if self._worker is None and not self._no_worker:
+            self._worker = self._lib.gs_worker_new() or None
+            self._no_worker = self._worker is None
+            self._worker_pid = os.getpid()
+        return self._worker
+
     def run_during(self, t: int, n: int, tick_us: int, flags: int, during: Callable[[], object]) -> int:
         """:meth:`run` on the kernel's own thread while ``during()`` runs in this one (the GIL is free
         meanwhile: the C thread runs no Python), then wait for the ticks; returns as :meth:`run`.
@@ -334,13 +344,7 @@ class NativeTick:
         ``during`` must not touch this board's arrays or its MjData (they are the ticks' state). When it
         raises, the ticks are still waited for before the exception goes on. Without a thread (the C
         could not make one) ``during()`` runs first, then the ticks, in this thread."""
-        if self._worker is not None and self._worker_pid != os.getpid():
-            self._worker = None  # a forked child: the thread stayed in the parent (its handle is the parent's)
-        if self._worker is None and not self._no_worker:
-            self._worker = self._lib.gs_worker_new() or None
-            self._no_worker = self._worker is None
-            self._worker_pid = os.getpid()
-        if self._worker is None:
+        if self._ensure_worker() is None:
             during()
             return self.run(t, n, tick_us, flags)
         self._lib.gs_worker_start(self._worker, self._addr, t, n, tick_us, flags, 0.0)
@@ -378,13 +382,7 @@ class NativeTick:
         for k, off in enumerate(self._copy_offsets):
             copies[k].dst = base + 8 * off
         ncopy = len(self._copy_offsets)
-        if self._worker is not None and self._worker_pid != os.getpid():
-            self._worker = None  # a forked child: the thread stayed in the parent
-        if self._worker is None and not self._no_worker:
-            self._worker = self._lib.gs_worker_new() or None
-            self._no_worker = self._worker is None
-            self._worker_pid = os.getpid()
-        if self._worker is None:
+        if self._ensure_worker() is None:
             during()
             return self._run_split(t, n1, n2, tick_us, flags, ncopy)
         self._lib.gs_worker_start_split(self._worker, self._addr, t, n1, n2, tick_us, flags, 0.0, self._copies_addr,

@@ -287,13 +287,8 @@ int64_t gs_worker_wait_split(void *handle, int64_t *clamped2)
 /* Wait for the started job; returns its gs_run result (of the first part). */
 int64_t gs_worker_wait(void *handle)
 {
-    gs_worker *w = (gs_worker *)handle;
-    pthread_mutex_lock(&w->mu);
-    while (w->busy)
-        pthread_cond_wait(&w->cv, &w->mu);
-    const int64_t r = w->result;
-    pthread_mutex_unlock(&w->mu);
-    return r;
+    int64_t clamped2;
+    return gs_worker_wait_split(handle, &clamped2);
 }
 
 /* Finish the job under way (if any), end the thread and free the worker. */

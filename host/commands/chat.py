@@ -65,15 +65,13 @@ def main(args: argparse.Namespace) -> int:
     if args.max_steps < 1:
         print_error("chat", "--max-steps must be >= 1")
         return 2
-    from host.ghost.factory import check_spec, spec_kind
+    from host.ghost.factory import check_spec
 
     try:  # the spec's form first: 'scripted:x' was read as a real LLM ("--replies needs --llm scripted")
-        check_spec(args.llm)
+        args.llm = check_spec(args.llm)  # ' Scripted' as the conversation reads it
     except GhostError as e:
         print_error("chat", str(e))
         return 2
-    if spec_kind(args.llm) == "scripted":
-        args.llm = "scripted"  # ' Scripted' as the conversation reads it
     scripted = args.llm == "scripted"
     try:
         turns = parse_blocks(_read(args.turns, "--turns")) if args.turns else None

@@ -613,16 +613,14 @@ def main(args: argparse.Namespace) -> int:
         print_error("run", "one of the arguments --task --xml --xml-file --prompt is required")
         return 2
     from host.ghost import GhostError
-    from host.ghost.factory import check_spec, spec_kind
+    from host.ghost.factory import check_spec
 
     try:  # the spec's form before anything else: run_with clears --out and starts the board before the LLM is built
-        check_spec(args.llm)
+        args.llm = check_spec(args.llm)  # ' Scripted' as the runner reads it
     except GhostError as e:
         print_error("run", str(e))
         return 2
-    if spec_kind(args.llm) == "scripted":
-        args.llm = "scripted"  # ' Scripted' as the runner reads it
-    elif args.prompt is None:  # the runner would send the LLM an empty instruction and ignore the tokens
+    if args.llm != "scripted" and args.prompt is None:  # the runner would send the LLM an empty instruction and ignore the tokens
         print_error("run", f"--llm {args.llm} answers --prompt TEXT; --task, --xml and --xml-file replay their "
                     "function tokens (leave --llm out)")
         return 2

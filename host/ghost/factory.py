@@ -75,25 +75,21 @@ def make_ghost(spec: str, **kw: Any) -> Ghost:
     return ghost
 
 
-def spec_kind(spec: str) -> str:
-    """The kind of ``spec`` as :func:`make_ghost` reads it: ``"scripted"``, a key of :data:`PROVIDERS`, or
-    another word (an unknown spec); ``" Scripted "`` -> ``"scripted"``, ``"openai:gpt-4o"`` -> ``"openai"``."""
-    return spec.strip().partition(":")[0].lower()
-
-
-def check_spec(spec: str, *, model: str | None = None) -> None:
+def check_spec(spec: str, *, model: str | None = None) -> str:
     """Raise the :class:`GhostError` :func:`make_ghost` would raise for the form of ``spec`` (an unknown kind:
     :class:`UnknownSpecError`; ``scripted:ARG``; a provider's spec without a model, when neither ``model``
     nor ``GHOSTSHELL_LLM_MODEL`` gives one), without building a client: no SDK import, no key, no network.
+    Returns the spec as the commands read it (``" Scripted "`` -> ``"scripted"``; any other unchanged).
     A command checks its ``--llm`` with it before it starts a board or touches its ``--out`` folder."""
     kind, _, rest = spec.strip().partition(":")
     kind = kind.lower()
     if kind == "scripted":
         if rest:
             raise GhostError(f"ghost spec {spec!r}: 'scripted' takes no argument")
-        return
+        return "scripted"
     provider = PROVIDERS.get(kind)
     if provider is None:
         raise UnknownSpecError(f"unknown LLM spec {spec!r}; expected one of: {', '.join(SPECS)}")
     if not (rest.strip() or model or os.environ.get("GHOSTSHELL_LLM_MODEL")):
         raise GhostError(f"ghost spec {spec!r}: no model; use {kind}:MODEL (e.g. {kind}:{provider.example})")
+    return spec

@@ -192,7 +192,7 @@ def test_an_earlier_run_set_aside_comes_back_exactly_or_goes(tmp_path: Path) -> 
 
 def test_a_spec_check_agrees_with_make_ghost(monkeypatch: pytest.MonkeyPatch) -> None:
     from host.ghost import GhostError, make_ghost
-    from host.ghost.factory import check_spec, spec_kind
+    from host.ghost.factory import check_spec
 
     for spec in ("bogus:x", "openai:", "anthropic", "scripted:x", ""):
         with pytest.raises(GhostError) as checked:
@@ -200,8 +200,8 @@ def test_a_spec_check_agrees_with_make_ghost(monkeypatch: pytest.MonkeyPatch) ->
         with pytest.raises(GhostError) as built:
             make_ghost(spec, program=NOD)
         assert str(checked.value) == str(built.value)
-    check_spec(" Scripted ")
-    assert spec_kind(" Scripted ") == "scripted"
+    assert check_spec(" Scripted ") == "scripted"
+    assert check_spec("openai:gpt-4o") == "openai:gpt-4o"
     monkeypatch.setenv("GHOSTSHELL_LLM_MODEL", "gpt-4o-mini")
     check_spec("openai")  # the model from the environment
 

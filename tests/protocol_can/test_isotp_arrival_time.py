@@ -36,6 +36,16 @@ def _pair(clock: Clock) -> tuple[IsoTpLink, IsoTpLink, list[CanFrame], list[CanF
     return tx, rx, to_rx, to_tx
 
 
+def _answered_first_frame(clock: Clock) -> tuple[IsoTpLink, IsoTpLink, list[CanFrame], list[CanFrame]]:
+    """A pair whose receiver has taken the First Frame and put its flow control in ``to_tx``."""
+    tx, rx, to_rx, to_tx = _pair(clock)
+    tx.send(SDU)
+    tx.poll()
+    rx.feed(to_rx.pop(0))
+    rx.poll()
+    return tx, rx, to_rx, to_tx
+
+
 def test_the_timers_are_the_links_own() -> None:
     """can-isotp's private timer hooks are overridden (a can-isotp release that renamed them would fail here)."""
     clock = Clock()
@@ -84,11 +94,7 @@ def test_a_flow_control_that_came_in_time_is_taken_however_late_the_sender_reads
 
 def test_frames_that_really_came_late_still_time_out() -> None:
     clock = Clock()
-    tx, rx, to_rx, to_tx = _pair(clock)
-    tx.send(SDU)
-    tx.poll()
-    rx.feed(to_rx.pop(0))
-    rx.poll()
+    tx, rx, to_rx, to_tx = _answered_first_frame(clock)
     fc = to_tx.pop()
     clock.ns += (ISOTP_TIMEOUT_MS + 1) * MS
     tx.feed(fc)  # the flow control arrives 201 ms after the First Frame went out: N_Bs ran out
@@ -117,11 +123,7 @@ def test_can_isotp_alone_would_have_lost_the_late_read_transfer() -> None:
     """The failure this guards against, shown on can-isotp's own clock-reading timers: the same late read loses the
     transfer (so the tests above would fail without the arrival stamps)."""
     clock = Clock()
-    tx, rx, to_rx, to_tx = _pair(clock)
-    tx.send(SDU)
-    tx.poll()
-    rx.feed(to_rx.pop(0))
-    rx.poll()
+    tx, rx, to_rx, to_tx = _answered_first_frame(clock)
     tx.feed(to_tx.pop())
     tx.poll()
     plain = isotp.tools.Timer(ISOTP_TIMEOUT_MS / 1000)
