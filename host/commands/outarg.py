@@ -71,6 +71,8 @@ def out_dir_problem(path: str | Path) -> str | None:
     try:
         mode = os.stat(p).st_mode
     except FileNotFoundError:
+        if p.is_symlink():  # makedirs would fail with "File exists" (a traceback in tour and eval)
+            return f"is a symbolic link to {os.readlink(p)}, which does not exist; give a folder (existing or new)"
         mode = None
     except NotADirectoryError:
         mode = None  # a parent is a file: found below

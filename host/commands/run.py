@@ -484,7 +484,10 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
     command = command_of(args)
     from host.run.link_health import board_warnings, timing_health_line
 
+    started: list[bool] = []  # show_banner ran: the run began (an earlier run's files are then gone)
+
     def show_banner(*_: object) -> None:
+        started.append(True)
         if earlier.names:  # the artefacts line then names only what this run wrote
             print_error(command, f"{out}/ held an earlier run's artefacts ({' '.join(earlier.names)}): removed; "
                         "this run writes its own", file=sys.stdout)
@@ -496,9 +499,12 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         report = anyio.run(run_program, opts, show_banner, backend="asyncio")
     except Interrupted as e:
         ended = ended_report(e)
+        if ended is not None and not started and earlier.names:  # stopped while starting: the earlier run's
+            ended = None  # files come back over the empty report (finally below)
         what = f"; {_counts(ended.summary.outcomes)}" if ended is not None else ""
         print_error(command, f"{e.how}{what}; "
-              + (f"summary.json and timeline.json in {out}/" if ended is not None else "nothing ran"))
+              + (f"summary.json and timeline.json in {out}/" if ended is not None else
+                 "nothing ran" + (f"; the earlier run's files in {out}/ are as they were" if earlier.names else "")))
         if ended is None:
             earlier.restore()
         if ended is None and created:
@@ -508,7 +514,8 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         print_error(command_of(args), f"{e}")
         for warning in board_warnings(out / "board.stderr"):  # e.g. a --baud too slow for the handshake
             print(warning)
-        if ended_report(e) is not None:  # a run the link ended still left its report
+        kept = ended_report(e) is not None and (started or not earlier.names)
+        if kept:  # a run the link ended still left its report (unless an earlier run's files come back over it)
             print(f"artefacts in {out}/: " + " ".join(n for n in ARTEFACTS if (out / n).exists()))
         status = link_exit_status(e)
         if ended_report(e) is None:  # refused before the run began: the earlier run's artefacts come back
@@ -516,6 +523,10 @@ def run_with(args: argparse.Namespace, *, program: str | None, prompt: str | Non
         if status == USAGE_STATUS and created and ended_report(e) is None:  # a link refused when opened (can:slcan:/dev/nonexist): no run folder
             remove_unused_out(out)
         return status
+    finally:
+        # any other end before the run started (a second Ctrl-C, an error of another kind): the earlier run's
+        # files come back too (a no-op once show_banner discarded them, or after a restore above)
+        earlier.restore()
     from host.run.artefacts import calls_table
     from host.run.link_health import link_health_line
     from host.run.realtime_health import realtime_behind_line

@@ -240,3 +240,31 @@ def test_mcp_says_a_session_that_cannot_start_in_one_line(argv: tuple[str, ...],
     assert "Traceback" not in p.stderr and "ExceptionGroup" not in p.stderr, p.stderr[-3000:]
     errors = [ln for ln in p.stderr.splitlines() if ln.startswith("ghostshell mcp:")]
     assert len(errors) == 1 and ("--mount-mcp w=false" in errors[0] or "'/dev/null'" in errors[0]), p.stderr
+
+
+def test_a_run_that_never_started_puts_the_earlier_run_back(tmp_path: Path) -> None:
+    """A link that answers nothing (``loop://``: no CAPS within the handshake's 3 s) ends the start with a report of
+    its own (exit 1): the earlier run's files still come back byte for byte and no hidden folder is left (it was:
+    the files stayed in ``.ghostshell-earlier-*`` and the line named the failed start's artefacts)."""
+    out = tmp_path / "out"
+    before = _earlier_run(out)
+    p = subprocess.run([sys.executable, "-m", "host", "run", "--xml", NOD, "--lockstep", "--no-plots", "--no-live",
+                        "--link", "loop://", "--out", str(out)], capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert p.returncode == 1, p.stderr
+    assert "no CAPS" in p.stderr and "Traceback" not in p.stderr + p.stdout
+    assert "artefacts in" not in p.stdout  # the failed start's files are not what is left there
+    assert {q.name: q.read_bytes() for q in out.iterdir()} == before
+
+
+@pytest.mark.parametrize("argv", [("run", "--task", "26", "--lockstep", "--no-live"), ("tour", "--lockstep"),
+                                  ("eval", "--llm", "ground-truth"), ("chat", "--llm", "scripted", "--lockstep")],
+                         ids=lambda a: a[0])
+def test_an_out_folder_that_is_a_dangling_link_is_refused(argv: tuple[str, ...], tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """``--out`` a symbolic link whose target does not exist: was a FileExistsError traceback (tour, eval) or
+    ``[Errno 17] File exists`` with exit 1 (run, chat)."""
+    link = tmp_path / "dangling"
+    link.symlink_to(tmp_path / "nowhere")
+    line = _refused((*argv, "--out", str(link)), capsys)
+    assert "symbolic link" in line and "does not exist" in line
+    assert not (tmp_path / "nowhere").exists()
