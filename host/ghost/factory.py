@@ -85,11 +85,11 @@ def check_spec(spec: str, *, model: str | None = None) -> str:
     kind = kind.lower()
     if kind == "scripted":
         if rest:
-            raise GhostError(f"ghost spec {spec!r}: 'scripted' takes no argument")
+            raise GhostError(f"LLM spec {spec!r}: 'scripted' takes no argument")
         return "scripted"
     provider = PROVIDERS.get(kind)
     if provider is None:
         raise UnknownSpecError(f"unknown LLM spec {spec!r}; expected one of: {', '.join(SPECS)}")
     if not (rest.strip() or model or os.environ.get("GHOSTSHELL_LLM_MODEL")):
-        raise GhostError(f"ghost spec {spec!r}: no model; use {kind}:MODEL (e.g. {kind}:{provider.example})")
+        raise GhostError(f"LLM spec {spec!r}: no model; use {kind}:MODEL (e.g. {kind}:{provider.example})")
     return spec
