@@ -14,9 +14,25 @@ from host.commands.inputs import whole_number
 from robots.registry import robots_dir_arg
 
 
+#: the file names ``--out`` takes: containers for the H.264 video and AAC sound (ffmpeg picks one by the suffix)
+VIDEO_SUFFIXES = (".mp4", ".m4v", ".mov", ".mkv")
+
+
+def video_file(text: str) -> Path:
+    """argparse ``type=`` for ``render --out FILE``: a file :func:`host.commands.outarg.out_file` can write whose
+    suffix is one of :data:`VIDEO_SUFFIXES` (any case), else :class:`argparse.ArgumentTypeError` saying so
+    (``x.txt``, ``RUN/timeline.json``: ffmpeg found no container for it only after rendering, exit 1)."""
+    path = out_file(text)  # a device or a folder is named as such
+    if path.suffix.lower() not in VIDEO_SUFFIXES:
+        raise argparse.ArgumentTypeError(f"{text} is not a video file name; give one ending in "
+                                         f"{', '.join(VIDEO_SUFFIXES[:-1])} or {VIDEO_SUFFIXES[-1]}")
+    return path
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run_dir", metavar="RUN_DIR", help="a run's artefact folder (ghostshell run/demo --out)")
-    parser.add_argument("--out", type=out_file, default=None, metavar="FILE", help="video file (default RUN_DIR/run.mp4)")
+    parser.add_argument("--out", type=video_file, default=None, metavar="FILE",
+                        help=f"video file ending in {', '.join(VIDEO_SUFFIXES[:-1])} or {VIDEO_SUFFIXES[-1]} (default RUN_DIR/run.mp4)")
     parser.add_argument("--fps", type=int, default=25, choices=range(10, 61), metavar="FPS", help="frames per second (default 25)")
     parser.add_argument("--workers", type=whole_number(1), default=2, metavar="N", help="render processes (default 2: both cores)")
     parser.add_argument("--robots-dir", default=None, metavar="DIR", type=robots_dir_arg,
