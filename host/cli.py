@@ -16,6 +16,9 @@ SIGTERM is handled as Ctrl-C is: ``run``, ``demo`` and ``chat`` interrupt their 
 SIGINT ignored (bash starts a script's background job, ``ghostshell demo &``, so; the process inherits
 it and Python then installs no KeyboardInterrupt handler) gets Python's default handler back at the
 start, so ``kill -INT PID`` interrupts it in every phase (rendering, a tour, a handshake), as Ctrl-C does.
+Standard output that cannot be written never stops a command (:mod:`host.commands.stdout_guard`): a reader
+that left (``| head -1``) gets nothing more, silently, and the status is the command's own; any other error
+(``> /dev/full``) is one line at the end and status 1; a run still writes its artefacts either way.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from types import FrameType
 from typing import NoReturn
 
 from host.commands.errors import print_error
+from host.commands.stdout_guard import StdoutGuard
 
 #: subcommand -> (module under host.commands, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -140,9 +144,32 @@ def _on_sigterm(signum: int, frame: FrameType | None) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``ghostshell`` command ``argv`` (default ``sys.argv[1:]``); returns its exit status (the console
-    script calls :func:`entry`, which calls this)."""
+    script calls :func:`entry`, which calls this).
+
+    Standard output that cannot be written never stops the command (:class:`host.commands.stdout_guard.StdoutGuard`):
+    a reader that left (``| head -1``) drops the rest silently and the status is the command's; any other error
+    (``> /dev/full``) is one line on stderr at the end and status 1 unless the command already failed."""
     args_list = list(sys.argv[1:] if argv is None else argv)
     command = next((a for a in args_list if not a.startswith("-")), "")
+    name = command if command in COMMANDS else None
+    guard = StdoutGuard.install()
+    if guard is None:
+        return _main(args_list, command)
+    try:
+        status = _main(args_list, command)
+    except SystemExit as e:  # argparse: --help (0) or a usage error (2)
+        if e.code is not None and not isinstance(e.code, int):
+            guard.finish(name, 1)
+            raise
+        raise SystemExit(guard.finish(name, e.code or 0)) from None
+    except BaseException:
+        guard.finish(name, 1)
+        raise
+    return guard.finish(name, status)
+
+
+def _main(args_list: list[str], command: str) -> int:
+    """:func:`main` without the stdout guard."""
     previous = signal.getsignal(signal.SIGTERM)
     previous_int = signal.getsignal(signal.SIGINT)
     in_main_thread = threading.current_thread() is threading.main_thread()  # else leave signals alone
