@@ -31,7 +31,7 @@ def decode_can_file(path: str, out: IO[str], err: IO[str], types: list[str] | No
         if problem is not None:
             print_error("log", str(problem), file=err)
             return 2
-    from host.link.canlog import iter_can_log
+    from host.link.canlog import CanLogError, iter_can_log
     from protocol.can import CanItem
     from protocol.can.ids import split_id
 
@@ -69,7 +69,10 @@ def decode_can_file(path: str, out: IO[str], err: IO[str], types: list[str] | No
                         out.write(f"{'':17} {e.direction} ERROR {it.kind.value}: {it.detail}\n")
     except BrokenPipeError:  # piped into head
         return 0
-    except (OSError, ValueError, EOFError) as ex:  # python-can's readers: a damaged .asc/.blf
+    except CanLogError as ex:  # python-can's readers: a damaged .asc/.blf (the message names the file)
+        print_error("log", str(ex), file=err)
+        return 2
+    except (OSError, ValueError, EOFError) as ex:
         print_error("log", f"cannot read {path} as a CAN log ({type(ex).__name__}: {ex})", file=err)
         return 2
     except Exception as ex:  # noqa: BLE001 - python-can's BLF reader raises struct.error and others

@@ -137,6 +137,7 @@ class _Chat:
     conv: Any = None
     loop: Any = None  # the conversation loop's cancel scope: cancelled by a stop while no turn runs
     rested: bool | None = None
+    line_refused: bool = False  # a typed line over MAX_LINE ended the input: exit status 2
 
     def on_first_stop(self, stop: Any) -> bool:
         """A first Ctrl-C / SIGTERM (or a bound): interrupt the running turn (as a typed message does) or
@@ -204,6 +205,8 @@ async def _chat(args: argparse.Namespace, turns: Any, replies: Any, skills: Any,
               f"transcript and artefacts in {out}/")
         return int(stop.exit_status)
     print(f"transcript and artefacts in {out}/")
+    if chat.line_refused:
+        return 2
     steps = [s for t in conv.turns for s in t.steps] if conv is not None else []
     if steps and all(s.stream_error for s in steps):
         print_error("chat", f"every LLM request failed ({steps[-1].stream_error})")
@@ -251,7 +254,7 @@ async def _converse(args: argparse.Namespace, chat: _Chat, turns: Any, pending: 
         if session.stop is not None:  # stopped while the session started
             pass
         elif interactive:
-            await _interactive(conv, typed if scripted else None)
+            chat.line_refused = await _interactive(conv, typed if scripted else None)
         elif turns is not None:
             for block in turns:
                 rec = await conv.turn(block.text, interrupt_after=block.interrupt_after)
@@ -280,16 +283,27 @@ def _print_turn(rec: Any) -> None:
             print(f"    {line}")
 
 
-async def _interactive(conv: Any, typed: list[str] | None) -> None:
-    """Read lines from stdin; a line that arrives while the robot acts interrupts the turn."""
+async def _interactive(conv: Any, typed: list[str] | None) -> bool:
+    """Read lines from stdin; a line that arrives while the robot acts interrupts the turn. A line over
+    :data:`host.bounded_read.MAX_LINE` characters (``/dev/zero`` piped in) is refused with one line and
+    ends the input, as its end does; returns whether that happened."""
     import anyio
     import anyio.to_thread
 
+    from host.bounded_read import MAX_LINE
+
     send, recv = anyio.create_memory_object_stream[str | None](16)
+    refused: list[bool] = []
 
     async def reader() -> None:
         while True:
-            line = await anyio.to_thread.run_sync(sys.stdin.readline, abandon_on_cancel=True)
+            line = await anyio.to_thread.run_sync(sys.stdin.readline, MAX_LINE + 1, abandon_on_cancel=True)
+            if len(line) > MAX_LINE:
+                print_error("chat", f"a line of standard input is longer than {MAX_LINE} characters; "
+                            "input ended there (type shorter messages)")
+                refused.append(True)
+                await send.send(None)
+                return
             if not line:
                 await send.send(None)
                 return
@@ -334,3 +348,4 @@ async def _interactive(conv: Any, typed: list[str] | None) -> None:
             else:
                 nxt = await recv.receive()
         tg.cancel_scope.cancel()
+    return bool(refused)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from dataclasses import asdict
 from pathlib import Path
 
@@ -12,7 +11,7 @@ from rich.console import Console
 from rich.table import Table
 
 from host.commands.errors import print_error
-from host.commands.inputs import InputError, read_text_input
+from host.commands.inputs import STDIN, InputError, read_text_input
 from host.tools.eval.dsbc import dsbc_breakdown
 
 
@@ -21,7 +20,9 @@ def _load(arg: str, what: str) -> str:
     cannot be read or is empty (an empty program is refused as every command refuses empty input)."""
     if arg.startswith("@"):
         return read_text_input(arg[1:], what, what="function tokens")
-    text = sys.stdin.read() if arg == "-" else arg
+    if arg == "-":
+        return read_text_input(STDIN, what, what="function tokens")
+    text = arg
     if not text.strip():
         raise InputError(f"{what} is empty ({'standard input' if arg == '-' else 'an empty argument'}); "
                          "give function tokens, @FILE or -")

@@ -2,8 +2,10 @@
 
 :func:`read_text_input` reads a text file a command was given (``run --xml-file``, ``chat --turns``
 / ``--replies``, ``eval --replies``, ``dsbc @FILE``, ...): a missing or unreadable file, a folder, a
-file that is not UTF-8 text and an empty (or whitespace-only) file are each an :class:`InputError`
-naming the option, the file and what would be right. ``-`` names standard input (:data:`STDIN`).
+file that is not UTF-8 text, an empty (or whitespace-only) file and one larger than its cap (a few MiB,
+:mod:`host.bounded_read`; ``/dev/zero`` or an endless pipe is refused after cap + 1 bytes) are each an
+:class:`InputError` naming the option, the file and what would be right. ``-`` names standard input
+(:data:`STDIN`).
 """
 
 from __future__ import annotations
@@ -14,9 +16,10 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+from host.bounded_read import MAX_PROGRAM, MAX_TEXT, InputTooLarge, read_capped, stdin_bytes
 from protocol.wiremodel import MAX_BAUD, baud_arg
 
-__all__ = ["MAX_BAUD", "STDIN", "InputError", "baud_rate", "port_number", "positive_seconds", "read_text_input", "seconds",
+__all__ = ["MAX_BAUD", "MAX_PROGRAM", "MAX_TEXT", "STDIN", "InputError", "baud_rate", "port_number", "positive_seconds", "read_text_input", "seconds",
            "whole_number"]
 
 
@@ -28,19 +31,22 @@ class InputError(ValueError):
     """An input the command cannot use (one line, for the user)."""
 
 
-def read_text_input(path: str | Path, option: str, *, what: str = "text", allow_empty: bool = False) -> str:
+def read_text_input(path: str | Path, option: str, *, what: str = "text", allow_empty: bool = False,
+                    cap: int = MAX_TEXT) -> str:
     """The UTF-8 text of ``path``, given with ``option`` (e.g. ``"--xml-file"``); :class:`InputError`
-    when it is missing, unreadable, not a file, not UTF-8, or (unless ``allow_empty``) holds only
-    whitespace. ``path`` ``-`` reads standard input to its end."""
-    p = Path(path)
+    when it is missing, unreadable, not a file, not UTF-8, more than ``cap`` bytes (read no further
+    than cap + 1), or (unless ``allow_empty``) holds only whitespace. ``path`` ``-`` reads standard
+    input to its end (at most ``cap`` bytes)."""
     try:
         if str(path) == STDIN:
             if sys.stdin is None:
                 raise InputError(f"{option} -: there is no standard input to read")
-            data = sys.stdin.buffer.read() if hasattr(sys.stdin, "buffer") else sys.stdin.read().encode("utf-8")
             path = "- (standard input)"
+            data = stdin_bytes(cap)
         else:
-            data = p.read_bytes()
+            data = read_capped(path, cap)
+    except InputTooLarge as e:
+        raise InputError(f"{option} {path}: {e}; give a smaller file of {what}") from None
     except IsADirectoryError:
         raise InputError(f"{option} {path} is a folder; give a file of {what}") from None
     except OSError as e:

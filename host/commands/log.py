@@ -21,6 +21,7 @@ import os
 import sys
 from typing import IO
 
+from host.bounded_read import MAX_LOG_LINE, special_file_problem
 from host.commands.errors import print_error
 from host.commands.linkarg import add_link_argument
 from protocol.linkkinds import link_kind
@@ -63,6 +64,10 @@ def decode_file(path: str, out: IO[str] | None = None, err: IO[str] | None = Non
     err = sys.stderr if err is None else err  # the stream of whoever imported first (pytest's capture, a redirect)
     from protocol.framelog import FrameLogError, format_record, from_line
 
+    problem = special_file_problem(path)
+    if problem is not None:
+        print_error("log", problem, file=err)
+        return 2
     wanted = {t.upper() for t in types} if types else None
     try:
         f = open(path, encoding="utf-8")
@@ -72,7 +77,11 @@ def decode_file(path: str, out: IO[str] | None = None, err: IO[str] | None = Non
     bad = good = 0
     held: list[str] = []  # bad lines before the first good record: said only if the file is a frame log at all
     with f:
-        for lineno, line in enumerate(f, 1):
+        for lineno, line in enumerate(iter(lambda: f.readline(MAX_LOG_LINE + 1), ""), 1):
+            if len(line) > MAX_LOG_LINE:  # no record is this long: not a frame log (and not read further)
+                print_error("log", f"{path}:{lineno} is longer than {MAX_LOG_LINE} characters: not a frame log; "
+                            "give a file written with --log", file=err)
+                return 2
             if not line.strip():
                 continue
             try:
@@ -166,6 +175,10 @@ def _list_counts(value: object, counts: dict[str, int]) -> dict[str, int]:
 def main(args: argparse.Namespace) -> int:
     from host.link.canlog import CAN_LOG_SUFFIXES
 
+    problem = special_file_problem(args.file)  # /dev/zero, a FIFO: endless or blocking, never a log
+    if problem is not None:
+        print_error("log", problem)
+        return 2
     if args.file.lower().endswith(".mcap"):
         if args.link is not None:  # a run.mcap holds one run with one board: nothing to pick
             print_error("log", "note: --link is not used for an MCAP file (a run.mcap holds one board's run)")

@@ -16,6 +16,7 @@ for every robot; :func:`log_servo_count` finds it), else
 
 from __future__ import annotations
 
+import logging
 import re
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -33,7 +34,7 @@ from protocol.can.layouts import DEFAULT_SERVO_COUNT, CanLayouts, can_layouts
 from protocol.codec import PayloadError
 from protocol.messages import MAX_WIRE_SERVOS, Caps, Message, SimState
 
-__all__ = ["CAN_LOG_SUFFIXES", "CanLogEntry", "can_last_sim_state", "candump_cut_line", "candump_problem", "is_candump", "iter_can_log", "load_dbc",
+__all__ = ["CAN_LOG_SUFFIXES", "CanLogEntry", "CanLogError", "can_last_sim_state", "candump_cut_line", "candump_problem", "is_candump", "iter_can_log", "load_dbc",
            "log_servo_count", "read_can_host_to_board"]
 
 #: a candump -L line: "(1700000000.123456) vcan0 123#DEADBEEF" (CAN FD: ID##F DATA; remote: ID#R)
@@ -89,12 +90,69 @@ def is_candump(path: str | Path) -> bool:
     return name.endswith(".log") or not name.endswith(CAN_LOG_SUFFIXES)
 
 
-def _reader(path: str | Path) -> Any:
-    """python-can's reader for ``path`` (by suffix); candump text (:func:`is_candump`) without a cut-off
-    last line."""
-    if is_candump(path):
-        return can.CanutilsLogReader(_WholeLines(path))  # type: ignore[arg-type]
-    return can.LogReader(str(path))  # type: ignore[no-untyped-call]
+class CanLogError(ValueError):
+    """A file python-can cannot read as a CAN log (damaged, not that format, or its reader's optional
+    package missing); the message names the file and says why, on one line."""
+
+
+class _Quiet(logging.Handler):
+    """Keeps python-can's reader warnings ("can.io.trc: ...") off stderr while a log is read; the first
+    one is kept to explain a failure."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.first: str | None = None
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if self.first is None:
+            self.first = record.getMessage().splitlines()[0][:200] if record.getMessage() else None
+
+
+def _reader(path: str | Path) -> Iterator[Any]:
+    """python-can's messages of ``path`` (reader by suffix); candump text (:func:`is_candump`) without a
+    cut-off last line. Any failure of python-can's reader (``struct.error`` from a damaged ``.blf``,
+    ``BLFParseError``, ``UnicodeDecodeError``, a missing ``asammdf`` for ``.mf4``, ...) is a
+    :class:`CanLogError`; its logging warnings do not reach the root logger's handlers (stderr)."""
+    log = logging.getLogger("can")
+    quiet = _Quiet()
+    was_propagating = log.propagate
+    log.addHandler(quiet)
+    log.propagate = False
+    reader: Any = None
+    try:
+        try:
+            if is_candump(path):
+                reader = can.CanutilsLogReader(_WholeLines(path))  # type: ignore[arg-type]
+            else:
+                reader = can.LogReader(str(path))  # type: ignore[no-untyped-call]
+            it = iter(reader)
+            while True:
+                try:
+                    msg = next(it)
+                except StopIteration:
+                    return
+                yield msg
+        except FileNotFoundError:
+            raise CanLogError(f"cannot read {path}: no such file") from None
+        except IsADirectoryError:
+            raise CanLogError(f"cannot read {path}: it is a folder; give a CAN log file") from None
+        except NotImplementedError as e:  # python-can's MF4Reader without asammdf
+            raise CanLogError(f"cannot read {path}: python-can needs an optional package for this format "
+                              f"({str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
+        except Exception as e:  # noqa: BLE001 - python-can's readers raise struct.error, BLFParseError, ...
+            detail = str(e).splitlines()[0][:200] if str(e) else ""
+            if quiet.first:
+                detail = f"{detail}; {quiet.first}" if detail else quiet.first
+            raise CanLogError(f"cannot read {path} as a {Path(path).suffix or 'CAN'} log "
+                              f"({type(e).__name__}{': ' + detail if detail else ''})") from None
+    finally:
+        log.removeHandler(quiet)
+        log.propagate = was_propagating
+        if reader is not None:
+            try:
+                reader.stop()
+            except Exception:  # noqa: BLE001 - a reader that failed to open may have nothing to close
+                pass
 
 
 def candump_problem(path: str | Path) -> str | None:
@@ -133,7 +191,7 @@ def load_dbc(fd: bool, servos: int = DEFAULT_SERVO_COUNT) -> Any:
 
 def log_servo_count(path: str | Path) -> int | None:
     """The servo count the first CAPS in a CAN capture reports (None: the capture holds no CAPS).
-    Reads only up to that CAPS; ``ValueError`` for a format python-can cannot read."""
+    Reads only up to that CAPS; :class:`CanLogError` for a file python-can cannot read."""
     bulk: dict[int, IsoTpLink] = {}
     for msg in _reader(path):
         if msg.is_error_frame or msg.is_extended_id:
@@ -177,7 +235,8 @@ class _Node:
 
 
 def iter_can_log(path: str | Path, *, dbc: bool = True, servos: int | None = None) -> Iterator[CanLogEntry]:
-    """Entries of a python-can log (see the module docstring); ``ValueError`` for an unknown format.
+    """Entries of a python-can log (see the module docstring); :class:`CanLogError` (a ``ValueError``)
+    for an unknown format or a file python-can cannot read.
 
     ``dbc=False`` skips the DBC view (``dbc_name`` None, ``signals`` empty): several times faster
     for readers that need only the reassembled messages (``items``). ``servos``: the robot's servo

@@ -47,6 +47,8 @@ from typing import Any
 
 import numpy as np
 
+from host.bounded_read import MAX_EVENT_FILE, MAX_POLICY, InputTooLarge, read_capped
+
 __all__ = ["ACTIONS", "DEFAULT_ACTIONS", "Event", "EventFileError", "EventMonitor", "EventPolicy", "KINDS",
            "ScriptedEvent", "parse_event_file", "parse_events_table"]
 
@@ -108,7 +110,9 @@ def parse_event_file(path: str | Path) -> list[ScriptedEvent]:
     sorted by time. :class:`EventFileError` names file:line for a bad line, an empty file, or too many."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        text = read_capped(p, MAX_EVENT_FILE).decode("utf-8")
+    except InputTooLarge as e:
+        raise EventFileError(f"{p}: {e}") from None
     except OSError as e:
         raise EventFileError(f"{p}: cannot read it ({e.strerror or e})") from None
     except UnicodeDecodeError as e:
@@ -166,8 +170,8 @@ class EventPolicy:
         import tomllib
 
         try:
-            doc = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+            doc = tomllib.loads(read_capped(path, MAX_POLICY).decode("utf-8"))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError, InputTooLarge) as e:
             raise EventFileError(f"policy {path}: {e}") from None
         return cls(parse_events_table(doc, f"policy {path}"))
 

@@ -38,7 +38,8 @@ from pathlib import Path
 import numpy as np
 
 from host.link.board_process import start_board
-from host.link.canlog import CAN_LOG_SUFFIXES, can_last_sim_state, read_can_host_to_board
+from host.bounded_read import special_file_problem
+from host.link.canlog import CAN_LOG_SUFFIXES, CanLogError, can_last_sim_state, read_can_host_to_board
 from host.link.errors import LinkDown, LinkError, LinkTimeout
 from host.link.transports import open_transport
 from host.run import artefacts
@@ -142,6 +143,9 @@ def find_host_log(path: Path) -> Path:
         if found:
             return found[0]
         raise ReplayInputError(f"no host frame log in {path} (looked for {', '.join(HOST_LOG_NAMES)})")
+    problem = special_file_problem(path)  # /dev/zero, a FIFO: endless or blocking, never a log
+    if problem is not None:
+        raise ReplayInputError(problem)
     if not path.is_file():
         raise ReplayInputError(f"no such log: {path}")
     return path
@@ -183,6 +187,8 @@ def read_host_to_board(path: Path) -> Iterator[tuple[float, int, Message]]:
                         "replaying the whole frames before it", path, cut)
     try:
         yield from reader(path)
+    except CanLogError as e:  # python-can's reader failed: the message names the file and why
+        raise ReplayInputError(f"cannot replay it: {e}") from None
     except (ValueError, UnicodeDecodeError) as e:  # a file with a log's name that is not that log
         raise ReplayInputError(f"cannot replay {path.name}: not a readable {path.suffix} frame log ({e})") from None
 

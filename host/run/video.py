@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from protocol.framelog import iter_records
+from protocol.framelog import FrameLogError, iter_records
 
 __all__ = ["VideoError", "VideoSettings", "load_states", "render_video"]
 
@@ -138,23 +138,37 @@ def _objects_at(run_dir: Path, times: Sequence[int]) -> tuple[dict[str, list[flo
 
 
 def _states_from_jsonl(path: Path) -> tuple[dict[int, list[float]], dict[int, list[float]]]:
+    """The board's TELEMETRY positions and SIM_STATE poses by board time (us); :class:`VideoInputError`
+    naming the file for a damaged or garbage log (a record that is not JSON, a field missing or of the
+    wrong kind, not UTF-8, unreadable)."""
     joints: dict[int, list[float]] = {}
     base: dict[int, list[float]] = {}
-    with open(path, encoding="utf-8") as f:
-        for rec in iter_records(f):
-            if rec.get("dir") != "tx":
-                continue
-            kind, fields = rec.get("type"), rec.get("fields") or {}
-            if kind == "TELEMETRY":
-                joints[int(fields["board_time_us"])] = list(fields["positions"])
-            elif kind == "SIM_STATE":
-                base[int(fields["board_time_us"])] = [*fields["base_pos"], *fields["base_quat"]]
+    try:
+        with open(path, encoding="utf-8") as f:
+            for rec in iter_records(f):
+                if rec.get("dir") != "tx":
+                    continue
+                kind, fields = rec.get("type"), rec.get("fields") or {}
+                if kind == "TELEMETRY":
+                    joints[int(fields["board_time_us"])] = [float(x) for x in fields["positions"]]
+                elif kind == "SIM_STATE":
+                    base[int(fields["board_time_us"])] = [float(x) for x in (*fields["base_pos"], *fields["base_quat"])]
+    except FrameLogError as e:  # a torn or garbage line (a board killed mid-write, a file that is no frame log)
+        raise VideoInputError(f"{path} is not a readable frame log ({e}); give a run folder whose "
+                              "board_frames.jsonl the board wrote whole") from None
+    except UnicodeDecodeError as e:
+        raise VideoInputError(f"{path} is not a frame log: not UTF-8 text ({e.reason} at byte {e.start})") from None
+    except (KeyError, TypeError, ValueError, AttributeError) as e:
+        raise VideoInputError(f"{path} holds a TELEMETRY/SIM_STATE record without its fields "
+                              f"({type(e).__name__}: {e})") from None
+    except OSError as e:
+        raise VideoInputError(f"cannot read {path}: {e.strerror or e}") from None
     return joints, base
 
 
 def _states_from_can(path: Path) -> tuple[dict[int, list[float]], dict[int, list[float]]]:
     """Board-to-host TELEMETRY and SIM_STATE of the first node that reports in a CAN capture."""
-    from host.link.canlog import iter_can_log
+    from host.link.canlog import CanLogError, iter_can_log
     from protocol.can import CanItem
     from protocol.can.ids import split_id
     from protocol.messages import SimState, Telemetry
@@ -177,8 +191,8 @@ def _states_from_can(path: Path) -> tuple[dict[int, list[float]], dict[int, list
                     joints[it.msg.board_time_us] = list(it.msg.positions)
                 else:
                     base[it.msg.board_time_us] = [*it.msg.base_pos, *it.msg.base_quat]
-    except ValueError as e:  # python-can cannot read the format
-        raise VideoInputError(f"{path} is not a CAN log python-can reads: {e}") from e
+    except ValueError as e:  # python-can cannot read the file (CanLogError names it)
+        raise VideoInputError(str(e) if isinstance(e, CanLogError) else f"{path} is not a CAN log python-can reads: {e}") from None
     return joints, base
 
 
@@ -195,16 +209,20 @@ def _calls(run_dir: Path) -> list[_Call]:
     path = run_dir / "timeline.json"
     if not path.exists():
         return []
-    doc = json.loads(path.read_text(encoding="utf-8"))
     out = []
-    for c in doc.get("calls", []):
-        if c.get("start") is None or c.get("end") is None or c.get("channel") in (None, "main"):
-            continue
-        args = c.get("args") or {}
-        shown = ", ".join(f"{k}={v}" for k, v in args.items() if k != "text")
-        label = f"{c['function']}({shown})" if shown else str(c["function"])
-        out.append(_Call(str(c["channel"]), label, float(c["start"]), float(c["end"]),
-                         str(args["text"]) if c["function"] == "speak" and "text" in args else None))
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+        for c in doc.get("calls", []):
+            if c.get("start") is None or c.get("end") is None or c.get("channel") in (None, "main"):
+                continue
+            args = c.get("args") or {}
+            shown = ", ".join(f"{k}={v}" for k, v in args.items() if k != "text")
+            label = f"{c['function']}({shown})" if shown else str(c["function"])
+            out.append(_Call(str(c["channel"]), label, float(c["start"]), float(c["end"]),
+                             str(args["text"]) if c["function"] == "speak" and "text" in args else None))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:  # a damaged timeline: bad input
+        raise VideoInputError(f"{path} is not a readable timeline ({type(e).__name__}: {e}); "
+                              "give a run folder whose timeline.json the run wrote whole") from None
     return out
 
 

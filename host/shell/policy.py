@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from host.bounded_read import MAX_POLICY, InputTooLarge, read_capped
 from host.shell.types import FunctionSpec
 
 __all__ = ["Budget", "Policy", "PolicyError"]
@@ -77,7 +78,9 @@ class Policy:
         """Read a TOML policy; :class:`PolicyError` with the file and key on any problem (with ``known``,
         function name -> parameter names, also a name that matches nothing: :meth:`check_names`)."""
         try:
-            doc = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+            doc = tomllib.loads(read_capped(path, MAX_POLICY).decode("utf-8"))
+        except InputTooLarge as e:
+            raise PolicyError(f"policy {path}: {e}") from None
         except OSError as e:
             raise PolicyError(f"cannot read policy {path}: {e.strerror or e}") from None
         except UnicodeDecodeError as e:

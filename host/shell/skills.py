@@ -25,6 +25,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from xml.sax.saxutils import escape, quoteattr
 
+from host.bounded_read import MAX_SKILLS, read_capped
+
 #: longest skill name (characters)
 MAX_NAME = 100
 #: environment variable naming the skill library file
@@ -78,7 +80,7 @@ class SkillStore:
         self._skills: dict[str, Skill] = {}
         if self.path is not None and self.path.exists():
             try:
-                data = json.loads(self.path.read_text(encoding="utf-8") or "{}")
+                data = json.loads(read_capped(self.path, MAX_SKILLS).decode("utf-8") or "{}")
                 if not isinstance(data, dict):
                     raise ValueError("not a JSON object")
                 for name, d in data.items():
