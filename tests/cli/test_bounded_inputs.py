@@ -23,9 +23,10 @@ from pathlib import Path
 import pytest
 
 import host.cli
-from host.bounded_read import MAX_TEXT, InputTooLarge, read_capped, special_file_problem
 
 pytestmark = pytest.mark.timeout(120)
+
+MAX_TEXT = 4 * 1024 * 1024  # host.bounded_read.MAX_TEXT (imported where used, so the rows run on any version)
 
 NOD = '<head_act action="nod"/>'
 EARLIER = {"summary.json": b'{"outcome": "done"}\n', "board_frames.jsonl": b'{"t": 2}\n', "notes.txt": b"mine\n"}
@@ -162,6 +163,10 @@ def test_log_decode_refuses_a_line_no_record_can_be(tmp_path: Path, capsys: pyte
 
 
 def test_read_capped(tmp_path: Path, fifo: Path) -> None:
+    from host.bounded_read import MAX_TEXT as cap
+    from host.bounded_read import InputTooLarge, read_capped, special_file_problem
+
+    assert cap == MAX_TEXT
     exact = tmp_path / "exact"
     exact.write_bytes(b"x" * 100)
     assert read_capped(exact, 100) == b"x" * 100
@@ -174,3 +179,19 @@ def test_read_capped(tmp_path: Path, fifo: Path) -> None:
         read_capped(tmp_path, 10)
     assert special_file_problem(exact) is None and special_file_problem(tmp_path / "none") is None
     assert special_file_problem("/dev/null") is not None
+
+
+def test_chat_ends_input_at_a_line_over_the_cap(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """``chat < /dev/zero``: one line, exit 2, the transcript kept (was: one endless line read into memory)."""
+    zero = open("/dev/zero", encoding="utf-8")  # noqa: SIM115 - closed below
+    monkeypatch.setattr(sys, "stdin", zero)
+    try:
+        status = host.cli.main(["chat", "--llm", "scripted", "--lockstep", "--no-live", "--out", str(tmp_path / "c")])
+    finally:
+        zero.close()
+    out, err = capsys.readouterr()
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert status == 2, err
+    assert len(lines) == 1 and "a line of standard input is longer than" in lines[0], err
+    assert "Traceback" not in err + out
