@@ -35,10 +35,10 @@ def main(args: argparse.Namespace) -> int:
         return 2
     try:
         res = replay(args.log, out, robot=args.robot, robots_dir=args.robots_dir)
-    except (RobotDataError, ReplayInputError) as e:  # bad input: exit status 2
+    except (RobotDataError, ReplayInputError, FrameLogError) as e:  # bad input (a damaged log too): exit status 2
         print_error("replay", str(e))
         return 2
-    except (LinkError, FrameLogError, RuntimeError, OSError) as e:
+    except (LinkError, RuntimeError, OSError) as e:
         print_error("replay", str(e))
         return 1
     print(f"replayed {res.messages} messages up to board time {res.board_time_s:.3f} s")

@@ -120,3 +120,14 @@ def test_render_refuses_a_damaged_can_capture(name: str, tmp_path: Path, capsys:
     (run / f"board_frames{suffix}").write_bytes(DAMAGED[name])
     line = _refused(["render", str(run), "--quiet"], capsys)
     assert str(run / f"board_frames{suffix}") in line, line
+
+
+@pytest.mark.parametrize("content", ['{"calls": [{"start": 1', '{"calls": [{"start": 0, "end": 1, "channel": "head"}]}', "[]"],
+                         ids=["truncated", "no-function", "not-an-object"])
+def test_render_refuses_a_damaged_timeline(content: str, tmp_path: Path) -> None:
+    """The timeline is read after the frame log: a damaged one is render's bad input too (was a traceback)."""
+    from host.run.video import VideoInputError, _calls
+
+    (tmp_path / "timeline.json").write_text(content, encoding="utf-8")
+    with pytest.raises(VideoInputError, match="timeline.json is not a readable timeline"):
+        _calls(tmp_path)
