@@ -195,3 +195,13 @@ def test_chat_ends_input_at_a_line_over_the_cap(tmp_path: Path, monkeypatch: pyt
     assert status == 2, err
     assert len(lines) == 1 and "a line of standard input is longer than" in lines[0], err
     assert "Traceback" not in err + out
+
+
+def test_dsbc_stdin_and_file_are_capped(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    assert "GT /dev/zero: it holds more than 4 MiB" in _refused(["dsbc", "@/dev/zero", NOD], capsys)
+    zero = open("/dev/zero", encoding="utf-8")  # noqa: SIM115 - closed below
+    monkeypatch.setattr(sys, "stdin", zero)
+    try:
+        assert "GT - (standard input): it holds more than 4 MiB" in _refused(["dsbc", "-", NOD], capsys)
+    finally:
+        zero.close()
