@@ -22,8 +22,9 @@ runs while the native kernel ticks a batch on its own thread (:meth:`firmware_si
 the reports a batch made are held (``_outbox``) and encoded, frame-logged (at the board time they were made)
 and written during the next long batch, before any reply, or before the board waits; what arrived is read
 and decoded meanwhile (it takes effect only when the board cannot tick, as ever). Same bytes, same order, same
-frame log; on a machine with a free core the physics no longer waits for the codec and the pty.
-``$GHOSTSHELL_LOCKSTEP_OVERLAP=0`` turns it off (A/B measurements: ``bench/bench_board.py``).
+frame log. Off by default: ``$GHOSTSHELL_LOCKSTEP_OVERLAP=1`` turns it on. Measured on this 2-core machine, quiet
+(``bench/bench_board.py --lockstep-only --rounds 3``, 2026-12-08), the hand-overs to and from the kernel's thread
+cost more than the overlap saves: pty/bare 0.45 with it and 0.53 without (CoCo), 0.34 and 0.40 (the arm).
 
 Transmit timestamps: over a modelled line (``--baud``) a TIME_SYNC_REPLY queues behind the reports
 already on the wire (at 115 200 baud a report pair is ~14 ms of every 20). Its ``t3`` is stamped for
@@ -91,9 +92,9 @@ class BoardServer:
         #: _link_work, before any reply, or before the board waits (see _serve_lockstep)
         self._outbox: list[tuple[int, list[Message]]] = []
         self._log_at_us: int | None = None  # frame-log time while _send_outbox queues held reports
-        #: lockstep: the link work runs while the native kernel ticks (``$GHOSTSHELL_LOCKSTEP_OVERLAP=0``: after
-        #: each run of ticks, in this thread, as before the overlap; for A/B measurements, same bytes either way)
-        self.overlap = os.environ.get(OVERLAP_ENV, "1") != "0"
+        #: lockstep: the link work runs while the native kernel ticks (``$GHOSTSHELL_LOCKSTEP_OVERLAP=1``; by default
+        #: after each run of ticks, in this thread: faster here, see the module docstring; same bytes either way)
+        self.overlap = os.environ.get(OVERLAP_ENV, "0") not in ("", "0")
         self.clock = RealtimeClock(board.tick_us / 1e6) if not board.cfg.lockstep else None
         if board.cfg.lockstep:  # CAN's ISO-TP timers count board time (protocol/can/isotp_link.py)
             transport.use_board_clock(lambda: board.now_us * 1000)

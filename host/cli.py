@@ -82,7 +82,7 @@ ENVIRONMENT: dict[str, str] = {
     "GHOSTSHELL_HOST_NICE": "nice value a realtime run's host lowers itself to where permitted (default -10)",
     "GHOSTSHELL_STALLS": "test hook: 'seed=N,p=P,max_s=S' stalls the host's control path at random (lockstep identity tests)",
     "GHOSTSHELL_BOARD_KERNEL": "the emulated board's per-tick servo path: native (default), native! or python",
-    "GHOSTSHELL_LOCKSTEP_OVERLAP": "0: a lockstep board does its link work after each run of ticks, not while the C kernel ticks (A/B)",
+    "GHOSTSHELL_LOCKSTEP_OVERLAP": "1: a lockstep board does its link work while the C kernel ticks on its own thread, not after each run of ticks (A/B; off by default: slower on 2 cores)",
     "GHOSTSHELL_MJCF_CHECK_CACHE": "folder for recorded robot-model checks ('off': check every time)",
     "GHOSTSHELL_NATIVE_CACHE": "folder for the board's compiled per-tick library (default: the user cache)",
     "GHOSTSHELL_CFIRMWARE_CACHE": "folder for the built C firmware (default: the user cache)",
