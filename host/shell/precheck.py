@@ -11,7 +11,7 @@ joint's own range), unknown or missing parameters; with ``strict=True`` (the run
 the default for scripted replay) malformed or unclosed markup (``<head_act action="nod"``, an
 end-tag that closes nothing), which the strict parser would stop the run at; with ``mounts`` given
 (the NAMEs of the run's ``--mount-mcp``), a name that is neither the registry's nor a mounted
-module's (``NAME.TOOL``). Not refused: ``SAVE``/``RUN`` (skills), which the run checks as it goes;
+module's (``NAME.TOOL``); an element nested deeper than the scheduler's ``MAX_DEPTH``. Not refused: ``SAVE``/``RUN`` (skills), which the run checks as it goes;
 without ``mounts`` any unknown name (it may be a tool mounted later); with ``strict=False`` what the
 lenient parser recovers from.
 """
@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Collection
 
 from host.shell.mapper import MappingError, UnknownFunctionError, map_element, map_scope
-from host.shell.parser import EmptyTag, Event, FunctionTokenParser, ParseError, StartTag
+from host.shell.parser import EmptyTag, EndTag, Event, FunctionTokenParser, ParseError, StartTag
 from host.shell.registry import Registry
 
 __all__ = ["refuse_program"]
@@ -49,9 +49,18 @@ def refuse_program(text: str, registry: Registry, max_scope_timeout_s: float, *,
             events += parser.close()
         except ParseError as e:
             events, broken = events + e.events, e
+    from host.shell.scheduler import MAX_DEPTH
+
+    depth = 0  # open elements around the one in hand (the scheduler refuses one with MAX_DEPTH around it)
     for ev in events:
+        if isinstance(ev, EndTag):
+            depth = max(0, depth - 1)
+            continue
         if not isinstance(ev, (StartTag, EmptyTag)):
             continue
+        if depth >= MAX_DEPTH:  # hostile or runaway nesting: refused before anything runs, not 3 000 failures later
+            return f"{ev.pos}: <{ev.name}> is nested deeper than {MAX_DEPTH} elements"
+        depth += isinstance(ev, StartTag)
         name, attrs = ev.name, dict(ev.attrs)
         if name in _SKILLS:
             continue

@@ -38,3 +38,19 @@ def test_good_programs_unknown_names_and_skills_pass(arm_registry) -> None:
     assert refuse_program('<weather_now city="Oslo"/><RUN skill="x"/><SAVE name="s"><pose name="home"/></SAVE>',
                           arm_registry, 600) is None
     assert refuse_program("just words <unclosed", arm_registry, 600) is None
+
+
+def test_nesting_deeper_than_the_scheduler_takes_is_refused_before_anything_runs(arm_registry) -> None:
+    """The scheduler refuses an element with MAX_DEPTH open elements around it, one failure at a time as the
+    stream goes (a new user's 3 000-deep ``<wait>`` ran into the 120 s board-time bound, 1 731 calls failed,
+    exit 1); a program known in full is refused at once, at the first such element, and one level less runs."""
+    from host.shell.scheduler import MAX_DEPTH
+
+    def nested(n: int) -> str:
+        return "<wait>" * n + '<pose name="home"/>' + "</wait>" * n
+
+    assert refuse_program(nested(MAX_DEPTH - 1), arm_registry, 600) is None
+    why = refuse_program(nested(MAX_DEPTH), arm_registry, 600)
+    assert why is not None and why.endswith(f"<pose> is nested deeper than {MAX_DEPTH} elements"), why
+    why = refuse_program(nested(3000), arm_registry, 600)
+    assert why is not None and f"<wait> is nested deeper than {MAX_DEPTH}" in why and len(why) < 120, why
