@@ -145,7 +145,7 @@ def build_config(args: argparse.Namespace) -> Any:
         valid = sorted(hri_tasks(robot))
         if not valid:
             raise ValueError(f"{robot.name} has no tasks with a ground truth to evaluate")
-        tasks = parse_task_spec(args.tasks or "all", valid)
+        tasks = parse_task_spec("all" if args.tasks is None else args.tasks, valid)
     if args.no_run and args.no_plots:  # not silently: a user who gave both expected --no-plots to do something
         raise ValueError("--no-plots with --no-run: no reply runs on the board, so no timeline.png / joints.png "
                          "would be drawn anyway; give one of them")

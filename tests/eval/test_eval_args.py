@@ -29,6 +29,12 @@ def test_reversed_task_range_is_refused(tmp_path: Path, capsys: pytest.CaptureFi
     assert "5-2" in capsys.readouterr().err and not (tmp_path / "e").exists()
 
 
+def test_an_empty_task_list_is_refused_not_taken_as_all(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--tasks ''`` (a shell variable left empty) ran all 30 tasks; ``all`` says so."""
+    assert cli(["eval", "--llm", "ground-truth", "--tasks", "", "--out", str(tmp_path / "e")]) == 2
+    assert "no task ids" in capsys.readouterr().err and not (tmp_path / "e").exists()
+
+
 @pytest.mark.parametrize("llm", ["bogus", "openai:", "scripted"])
 def test_bad_llm_spec_fails_once_up_front(llm: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert cli(["eval", "--llm", llm, "--tasks", "1-3", "--out", str(tmp_path / "e")]) == 2

@@ -122,9 +122,11 @@ def match_paper_model(model: str, robot: Robot | None = None) -> str | None:
 
 
 def parse_task_spec(spec: str, valid: list[int]) -> list[int]:
-    """``"1-30"``, ``"1,3,5-7"`` or ``"all"`` -> sorted ids; unknown ids raise ValueError."""
-    if spec.strip().lower() in ("all", ""):
+    """``"1-30"``, ``"1,3,5-7"`` or ``"all"`` -> sorted ids; unknown ids, and no ids at all (``""``), raise ValueError."""
+    if spec.strip().lower() == "all":
         return sorted(valid)
+    if not spec.strip():
+        raise ValueError("no task ids given; give ids such as 1-30 or 1,3,5-7, or all")
     out: set[int] = set()
     for part in spec.split(","):
         part = part.strip()
