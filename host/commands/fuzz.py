@@ -327,8 +327,8 @@ def main(args: argparse.Namespace) -> int:
     print(f"{args.target}: {st.executions} inputs run in all, {args.jobs} job(s), {wall:.0f} s wall "
           f"({st.executions / wall if wall > 0 else 0:.0f} exec/s)")
     if st.interrupted:
-        print(f"{args.target}: interrupted after {st.executions} inputs"
-              + (f" of {args.runs}" if args.runs else "") + f", no crash; full log {out / 'fuzz.log'}")
+        print_error("fuzz", f"{args.target}: interrupted after {st.executions} inputs"
+                    + (f" of {args.runs}" if args.runs else "") + f", no crash; full log {out / 'fuzz.log'}")
         return 130
     if st.crashes or rc:
         if st.traceback:
