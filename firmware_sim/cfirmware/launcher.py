@@ -139,7 +139,7 @@ class LaunchOptions:
 INTERRUPTED_STATUS = 130
 #: seconds the launcher waits for the firmware (or QEMU) to exit on SIGTERM before it kills it. Kept well
 #: under the host's own budget for stopping the launcher (``host.link.board_process.BoardProcess.stop``,
-#: 5 s, then SIGKILL), so the launcher always has time left to drain the firmware's last log lines and end
+#: 10 s, then SIGKILL), so the launcher always has time left to drain the firmware's last log lines and end
 #: a realtime run's stderr with its lateness record (a CI run at load ~4: QEMU slow to exit, the launcher
 #: killed mid-wait, no record; tests/cfirmware/test_stop_budget.py keeps the margin)
 FIRMWARE_STOP_S = 2.0

@@ -86,9 +86,11 @@ class BoardProcess:
 
         return target
 
-    def stop(self, timeout: float = 5.0) -> int:
-        """SIGTERM, wait (then SIGKILL); returns the exit code (130: the board stopped cleanly on the
-        signal, as ``python -m firmware_sim`` does; -9 after SIGKILL)."""
+    def stop(self, timeout: float = 10.0) -> int:
+        """SIGTERM, wait up to ``timeout`` s (then SIGKILL); returns the exit code (130: the board stopped cleanly
+        on the signal, as ``python -m firmware_sim`` does; -9 after SIGKILL). 10 s: a QEMU board's launcher gives
+        the firmware 2 s, then drains its log and prints the lateness record; with 5 s a quiet CI once lost that
+        record (STM32F4 task 23, realtime, 2026-12-08)."""
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
             try:

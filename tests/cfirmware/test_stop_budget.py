@@ -14,7 +14,7 @@ from host.link.board_process import BoardProcess
 
 #: seconds the launcher needs after the firmware exits: drain its log channel, print the plant's and the
 #: lateness lines (milliseconds on a quiet machine; a loaded one is descheduled for a second now and then)
-DRAIN_MARGIN_S = 2.0
+DRAIN_MARGIN_S = 6.0  # 3 s left once, in a quiet CI, were not enough (STM32F4 task 23, realtime: no record)
 
 
 def test_the_launcher_gives_up_on_the_firmware_before_the_host_gives_up_on_the_launcher() -> None:
