@@ -23,7 +23,8 @@ from pathlib import Path
 
 import pytest
 
-import host.cli
+from support.cli_refusal import refused
+
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -94,22 +95,6 @@ def _earlier_run(folder: Path) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in folder.iterdir()}
 
 
-def _refused(argv: tuple[str, ...], capsys: pytest.CaptureFixture[str]) -> str:
-    """Run ``argv`` in-process: its one stderr line (asserted: status 2, one line, no traceback, no stdout)."""
-    status: int | str | None
-    try:
-        status = host.cli.main(list(argv))
-    except SystemExit as e:  # argparse's usage error (a type= check)
-        status = e.code
-    out, err = capsys.readouterr()
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert status == 2, f"status {status}\n{err}\n{out}"
-    assert "Traceback" not in err + out, err
-    assert len(lines) == 1 and lines[0].startswith(f"ghostshell {argv[0]}"), err
-    assert out == "", out  # no banner, no "removed the earlier run's artefacts"
-    return lines[0]
-
-
 @pytest.fixture(autouse=True)
 def _no_llm_environment(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     for name in ("GHOSTSHELL_LLM_MODEL", "GHOSTSHELL_LLM_API_KEY", "OPENAI_API_KEY", "ANTHROPIC_API_KEY"):
@@ -127,7 +112,7 @@ def test_a_bad_argument_leaves_the_earlier_run_as_it_was(argv: tuple[str, ...], 
     replies.write_text(NOD + "\n", encoding="utf-8")
     args = [a.replace("{REPLIES}", str(replies)).replace("{OUT}", str(out)).replace(REFUSED_PORT, str(refused_port))
             for a in argv]
-    line = _refused((*args, *_COMMON[argv[0]], "--out", str(out)), capsys)
+    line = refused((*args, *_COMMON[argv[0]], "--out", str(out)), capsys, quiet_stdout=True)
     assert says in line, line
     assert {p.name: p.read_bytes() for p in out.iterdir()} == kept  # byte-identical, nothing added
 
@@ -137,7 +122,7 @@ def test_an_output_file_that_cannot_be_written_is_refused_first(argv: tuple[str,
                                                                  capsys: pytest.CaptureFixture[str]) -> None:
     folder = tmp_path / "run"
     folder.mkdir()
-    line = _refused(tuple(a.replace("{OUT}", str(folder)) for a in argv), capsys)
+    line = refused(tuple(a.replace("{OUT}", str(folder)) for a in argv), capsys, quiet_stdout=True)
     assert says in line, line
     assert list(folder.iterdir()) == []
 
@@ -148,7 +133,7 @@ def test_a_firmware_whose_emulator_is_not_installed_is_refused_first(tmp_path: P
     out = tmp_path / "earlier"
     kept = _earlier_run(out)
     monkeypatch.setenv("PATH", str(tmp_path / "no-tools"))
-    line = _refused(("run", "--task", "1", "--lockstep", "--no-live", "--firmware", "qemu", "--out", str(out)), capsys)
+    line = refused(("run", "--task", "1", "--lockstep", "--no-live", "--firmware", "qemu", "--out", str(out)), capsys, quiet_stdout=True)
     assert "qemu-system-arm, which is not installed" in line, line
     assert {p.name: p.read_bytes() for p in out.iterdir()} == kept
 
@@ -156,7 +141,7 @@ def test_a_firmware_whose_emulator_is_not_installed_is_refused_first(tmp_path: P
 def test_a_tour_whose_link_cannot_be_opened_leaves_no_folder(tmp_path: Path,
                                                              capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "tour"
-    line = _refused(("tour", "--lockstep", "--link", "can:slcan:/dev/no-such-adapter", "--out", str(out)), capsys)
+    line = refused(("tour", "--lockstep", "--link", "can:slcan:/dev/no-such-adapter", "--out", str(out)), capsys, quiet_stdout=True)
     assert "cannot open CAN bus" in line, line
     assert not out.exists(), list(out.iterdir())  # was: the folder with an empty host.log
 
@@ -164,7 +149,7 @@ def test_a_tour_whose_link_cannot_be_opened_leaves_no_folder(tmp_path: Path,
 def test_eval_refuses_a_server_it_cannot_start_before_making_its_folder(tmp_path: Path,
                                                                         capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "eval"
-    line = _refused(("eval", "--llm", "ground-truth", "--tasks", "1", "--trials", "1", "--no-run",
+    line = refused(("eval", "--llm", "ground-truth", "--tasks", "1", "--trials", "1", "--no-run",
                      "--mount-mcp", "w=/no/such/server", "--out", str(out)), capsys)
     assert "cannot start the server" in line
     assert not out.exists()  # was: the folder and its config.json, then the refusal
@@ -265,6 +250,6 @@ def test_an_out_folder_that_is_a_dangling_link_is_refused(argv: tuple[str, ...],
     ``[Errno 17] File exists`` with exit 1 (run, chat)."""
     link = tmp_path / "dangling"
     link.symlink_to(tmp_path / "nowhere")
-    line = _refused((*argv, "--out", str(link)), capsys)
+    line = refused((*argv, "--out", str(link)), capsys, quiet_stdout=True)
     assert "symbolic link" in line and "does not exist" in line
     assert not (tmp_path / "nowhere").exists()

@@ -22,6 +22,8 @@ from pathlib import Path
 
 import pytest
 
+from support.cli_refusal import refused
+
 import host.cli
 
 pytestmark = pytest.mark.timeout(120)
@@ -30,21 +32,6 @@ MAX_TEXT = 4 * 1024 * 1024  # host.bounded_read.MAX_TEXT (imported where used, s
 
 NOD = '<head_act action="nod"/>'
 EARLIER = {"summary.json": b'{"outcome": "done"}\n', "board_frames.jsonl": b'{"t": 2}\n', "notes.txt": b"mine\n"}
-
-
-def _refused(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
-    """Run ``argv`` in-process: its one stderr line (asserted: status 2, one line, no traceback)."""
-    status: int | str | None
-    try:
-        status = host.cli.main(argv)
-    except SystemExit as e:
-        status = e.code
-    out, err = capsys.readouterr()
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert status == 2, f"status {status}\n{err}\n{out}"
-    assert "Traceback" not in err + out, err
-    assert len(lines) == 1 and lines[0].startswith(f"ghostshell {argv[0]}"), err
-    return lines[0]
 
 
 @pytest.fixture(autouse=True)
@@ -113,19 +100,19 @@ def test_dev_zero_is_refused_before_the_out_folder_is_touched(argv: tuple[str, .
     for name, data in EARLIER.items():
         (out / name).write_bytes(data)
     args = [a.replace("{X}", "/dev/zero") for a in argv]
-    line = _refused([*args, "--lockstep", "--no-live", "--out", str(out)], capsys)
+    line = refused([*args, "--lockstep", "--no-live", "--out", str(out)], capsys)
     assert says.replace("{X}", "/dev/zero") in line, line
     assert {p.name: p.read_bytes() for p in out.iterdir()} == EARLIER
 
 
 def test_eval_replies_from_dev_zero_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
-    line = _refused(["eval", "--llm", "scripted", "--replies", "/dev/zero", "--tasks", "1", "--trials", "1"], capsys)
+    line = refused(["eval", "--llm", "scripted", "--replies", "/dev/zero", "--tasks", "1", "--trials", "1"], capsys)
     assert "--replies /dev/zero: it holds more than 4 MiB" in line
 
 
 def test_a_program_over_the_cap_is_refused(big: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "out"
-    line = _refused(["run", "--xml-file", str(big), "--lockstep", "--no-live", "--no-plots", "--out", str(out)], capsys)
+    line = refused(["run", "--xml-file", str(big), "--lockstep", "--no-live", "--no-plots", "--out", str(out)], capsys)
     assert f"--xml-file {big}: it holds more than 4 MiB" in line, line
     assert not out.exists()
 
@@ -133,14 +120,14 @@ def test_a_program_over_the_cap_is_refused(big: Path, tmp_path: Path, capsys: py
 def test_an_endless_pipe_on_stdin_is_refused(endless_stdin: None, tmp_path: Path,
                                              capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "out"
-    line = _refused(["run", "--xml-file", "-", "--lockstep", "--no-live", "--no-plots", "--out", str(out)], capsys)
+    line = refused(["run", "--xml-file", "-", "--lockstep", "--no-live", "--no-plots", "--out", str(out)], capsys)
     assert "--xml-file - (standard input): it holds more than 4 MiB" in line, line
     assert not out.exists()
 
 
 def test_a_fifo_without_a_writer_does_not_hang(fifo: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "out"
-    line = _refused(["run", "--xml-file", str(fifo), "--lockstep", "--no-live", "--no-plots", "--out", str(out)], capsys)
+    line = refused(["run", "--xml-file", str(fifo), "--lockstep", "--no-live", "--no-plots", "--out", str(out)], capsys)
     assert f"--xml-file {fifo} is empty" in line, line
     assert not out.exists()
 
@@ -151,14 +138,14 @@ def test_a_device_or_fifo_is_no_log(command: str, special: str, fifo: Path, tmp_
                                     capsys: pytest.CaptureFixture[str]) -> None:
     path = special.replace("{FIFO}", str(fifo))
     argv = ["log", "decode", path] if command == "log" else ["replay", path, "--out", str(tmp_path / "o")]
-    line = _refused(argv, capsys)
+    line = refused(argv, capsys)
     assert f"{path} is a {'device' if path == '/dev/zero' else 'FIFO'}, not a log file" in line, line
 
 
 def test_log_decode_refuses_a_line_no_record_can_be(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "long.jsonl"
     path.write_bytes(b"a" * (2 * 1024 * 1024))
-    line = _refused(["log", "decode", str(path)], capsys)
+    line = refused(["log", "decode", str(path)], capsys)
     assert f"{path}:1 is longer than" in line, line
 
 
@@ -198,10 +185,10 @@ def test_chat_ends_input_at_a_line_over_the_cap(tmp_path: Path, monkeypatch: pyt
 
 
 def test_dsbc_stdin_and_file_are_capped(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
-    assert "GT /dev/zero: it holds more than 4 MiB" in _refused(["dsbc", "@/dev/zero", NOD], capsys)
+    assert "GT /dev/zero: it holds more than 4 MiB" in refused(["dsbc", "@/dev/zero", NOD], capsys)
     zero = open("/dev/zero", encoding="utf-8")  # noqa: SIM115 - closed below
     monkeypatch.setattr(sys, "stdin", zero)
     try:
-        assert "GT - (standard input): it holds more than 4 MiB" in _refused(["dsbc", "-", NOD], capsys)
+        assert "GT - (standard input): it holds more than 4 MiB" in refused(["dsbc", "-", NOD], capsys)
     finally:
         zero.close()

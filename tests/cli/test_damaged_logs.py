@@ -17,7 +17,8 @@ from pathlib import Path
 
 import pytest
 
-import host.cli
+from support.cli_refusal import refused
+
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -30,20 +31,6 @@ DAMAGED: dict[str, bytes] = {
     "garbage.mf4": b"\x00\x01garbage" * 50,  # asammdf missing, or (with it) not an MF4
     "garbage.asc": b"\xff\xfe\x00garbage\n" * 20,
 }
-
-
-def _refused(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
-    status: int | str | None
-    try:
-        status = host.cli.main(argv)
-    except SystemExit as e:
-        status = e.code
-    out, err = capsys.readouterr()
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert status == 2, f"status {status}\n{err}\n{out}"
-    assert "Traceback" not in err + out, err
-    assert len(lines) == 1 and lines[0].startswith(f"ghostshell {argv[0]}"), err
-    return lines[0]
 
 
 @pytest.fixture(autouse=True)
@@ -62,7 +49,7 @@ def test_replay_refuses_a_damaged_can_log(name: str, tmp_path: Path, capsys: pyt
     caplog.set_level(logging.DEBUG)
     path = tmp_path / name
     path.write_bytes(DAMAGED[name])
-    line = _refused(["replay", str(path), "--out", str(tmp_path / "out")], capsys)
+    line = refused(["replay", str(path), "--out", str(tmp_path / "out")], capsys)
     assert name in line, line
     _no_can_warnings(caplog)
 
@@ -73,7 +60,7 @@ def test_log_decode_refuses_a_damaged_can_log(name: str, tmp_path: Path, capsys:
     caplog.set_level(logging.DEBUG)
     path = tmp_path / name
     path.write_bytes(DAMAGED[name])
-    line = _refused(["log", "decode", str(path)], capsys)
+    line = refused(["log", "decode", str(path)], capsys)
     assert str(path) in line, line
     assert "CanLogError" not in line, line  # the reader's own line, not wrapped twice
     _no_can_warnings(caplog)
@@ -82,7 +69,7 @@ def test_log_decode_refuses_a_damaged_can_log(name: str, tmp_path: Path, capsys:
 def test_a_damaged_blf_names_the_reader_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "truncated.blf"
     path.write_bytes(DAMAGED["truncated.blf"])
-    line = _refused(["replay", str(path), "--out", str(tmp_path / "out")], capsys)
+    line = refused(["replay", str(path), "--out", str(tmp_path / "out")], capsys)
     assert f"cannot read {path} as a .blf log" in line and "unpack requires" in line, line
 
 
@@ -95,7 +82,7 @@ def test_mf4_without_asammdf_is_bad_input(tmp_path: Path, capsys: pytest.Capture
         pass
     path = tmp_path / "garbage.mf4"
     path.write_bytes(DAMAGED["garbage.mf4"])
-    line = _refused(["replay", str(path), "--out", str(tmp_path / "out")], capsys)
+    line = refused(["replay", str(path), "--out", str(tmp_path / "out")], capsys)
     assert "needs an optional package" in line and "asammdf" in line, line
 
 
@@ -107,7 +94,7 @@ def test_render_refuses_a_damaged_frame_log(content: bytes, tmp_path: Path, caps
     run.mkdir()
     (run / "board_frames.jsonl").write_bytes(content)
     (run / "timeline.json").write_text('{"calls": []}', encoding="utf-8")
-    line = _refused(["render", str(run), "--quiet"], capsys)
+    line = refused(["render", str(run), "--quiet"], capsys)
     assert str(run / "board_frames.jsonl") in line, line
     assert not (run / "run.mp4").exists()
 
@@ -118,7 +105,7 @@ def test_render_refuses_a_damaged_can_capture(name: str, tmp_path: Path, capsys:
     run.mkdir()
     suffix = Path(name).suffix
     (run / f"board_frames{suffix}").write_bytes(DAMAGED[name])
-    line = _refused(["render", str(run), "--quiet"], capsys)
+    line = refused(["render", str(run), "--quiet"], capsys)
     assert str(run / f"board_frames{suffix}") in line, line
 
 
